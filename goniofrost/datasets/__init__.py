@@ -1,0 +1,38 @@
+"""Material datasets behind one interface: ``open_dataset(SPEC)``.
+
+SPEC is ``builtin`` (the analytic library shipped with goniofrost), ``nbrdf:PATH.npz``
+(Neural-BRDF networks) or ``merl:DIR`` (a folder of MERL .binary files). Several specs can be
+combined with ``open_datasets``. ``SPEC:NAME`` names one material (``parse_material_spec``).
+"""
+from __future__ import annotations
+
+from .base import Dataset, DatasetError, UnknownMaterialError
+
+__all__ = ["Dataset", "DatasetError", "UnknownMaterialError", "open_dataset", "parse_material_spec"]
+
+
+def open_dataset(spec: str) -> Dataset:
+    """Open the dataset named by SPEC; raise DatasetError for an unknown or unreadable spec."""
+    if spec == "builtin":
+        from .builtin import BuiltinDataset
+        return BuiltinDataset()
+    kind, sep, arg = spec.partition(":")
+    if sep and kind == "nbrdf" and arg:
+        from .nbrdf import NbrdfDataset
+        return NbrdfDataset(arg)
+    if sep and kind == "merl" and arg:
+        from .merl_dir import MerlDirDataset
+        return MerlDirDataset(arg)
+    raise DatasetError(
+        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz' or 'merl:DIR'"
+    )
+
+
+def parse_material_spec(text: str) -> tuple[Dataset, str]:
+    """Split ``SPEC:NAME`` (e.g. ``builtin:gold``, ``nbrdf:data/x.npz:chrome``) into an open
+    dataset and a resolved material name."""
+    spec, sep, name = text.rpartition(":")
+    if not sep or not spec or not name:
+        raise DatasetError(f"material {text!r}: expected SPEC:NAME, e.g. builtin:red-plastic")
+    dataset = open_dataset(spec)
+    return dataset, dataset.resolve(name)

@@ -1,0 +1,89 @@
+"""Neural-BRDF networks (Sztrajman et al. 2021) stored as one .npz per database.
+
+Format (../shared/data/README.md): ``names`` (M,), ``W1`` (M,6,21), ``b1`` (M,21), ``W2``
+(M,21,21), ``b2`` (M,21), ``W3`` (M,21,3), ``b3`` (M,3), float32. Input per direction pair is
+``x = (sin th, 0, cos th, sin td cos pd, sin td sin pd, cos td)``; the BRDF is
+``exp(relu(relu(x W1 + b1) W2 + b2) W3 + b3) - 1``, clamped to >= 0, in 1/sr.
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .base import Dataset, DatasetError
+
+LAYER_KEYS = ("W1", "b1", "W2", "b2", "W3", "b3")
+
+
+class NbrdfDataset(Dataset):
+    """Materials held as small networks in one .npz archive; evaluated in float32."""
+
+    def __init__(self, path) -> None:
+        self.path = Path(path)
+        self.spec = f"nbrdf:{self.path}"
+        self._weights: dict[str, np.ndarray] | None = None
+        self._index: dict[str, int] = {}
+        self._digest = ""
+
+    def _load(self) -> dict[str, np.ndarray]:
+        if self._weights is None:
+            self._weights = _read_archive(self.path)
+            self._index = {n: i for i, n in enumerate(self._weights["names"])}
+            self._digest = hashlib.sha256(self.path.read_bytes()).hexdigest()[:16]
+        return self._weights
+
+    def names(self) -> list[str]:
+        return [str(n) for n in self._load()["names"]]
+
+    def content_id(self, name: str) -> str:
+        self._load()
+        return f"nbrdf-v1:{self._digest}:{self.resolve(name)}"
+
+    def evaluate(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
+        return self._evaluate_many([name], theta_h, theta_d, phi_d)[0]
+
+    def _evaluate_many(self, names: Sequence[str], theta_h, theta_d, phi_d) -> np.ndarray:
+        weights = self._load()
+        idx = np.array([self._index[self.resolve(n)] for n in names])
+        x = network_input(theta_h, theta_d, phi_d)
+        shape = x.shape[:-1]
+        x = x.reshape(-1, 6)
+        w = {k: weights[k][idx] for k in LAYER_KEYS}
+        h = np.maximum(np.matmul(x, w["W1"]) + w["b1"][:, None, :], 0.0)
+        h = np.maximum(np.matmul(h, w["W2"]) + w["b2"][:, None, :], 0.0)
+        y = np.matmul(h, w["W3"]) + w["b3"][:, None, :]
+        return np.maximum(np.expm1(y), 0.0).reshape(len(names), *shape, 3)
+
+
+def network_input(theta_h, theta_d, phi_d) -> np.ndarray:
+    """Float32 (..., 6) network input of Rusinkiewicz angles in radians (phi_h = 0)."""
+    theta_h, theta_d, phi_d = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))
+    )
+    std = np.sin(theta_d)
+    x = np.stack([np.sin(theta_h), np.zeros_like(theta_h), np.cos(theta_h),
+                  std * np.cos(phi_d), std * np.sin(phi_d), np.cos(theta_d)], axis=-1)
+    return x.astype(np.float32)
+
+
+def _read_archive(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such Neural-BRDF archive (expected an .npz file)")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            data = {k: archive[k] for k in archive.files}
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: not a readable .npz archive ({exc})") from exc
+    missing = [k for k in ("names", *LAYER_KEYS) if k not in data]
+    if missing:
+        raise DatasetError(f"{path}: missing arrays {missing}; expected names, W1, b1, W2, b2, W3, b3")
+    m = data["names"].shape[0]
+    expected = {"W1": (m, 6, 21), "b1": (m, 21), "W2": (m, 21, 21), "b2": (m, 21), "W3": (m, 21, 3), "b3": (m, 3)}
+    for key, shape in expected.items():
+        if data[key].shape != shape:
+            raise DatasetError(f"{path}: array {key} has shape {data[key].shape}, expected {shape}")
+        data[key] = data[key].astype(np.float32)
+    return data

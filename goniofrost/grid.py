@@ -1,0 +1,202 @@
+"""The MERL BRDF grid: cells <-> Rusinkiewicz angles <-> light/view directions.
+
+Conventions (DESIGN.md, "Coordinates"):
+
+* A grid has ``n_th x n_td x n_pd`` cells (MERL: 90 x 90 x 180); the flat index of
+  cell ``(i_th, i_td, i_pd)`` is ``(i_th * n_td + i_td) * n_pd + i_pd``.
+* A cell's angles are its lower edges: ``theta_h = (i_th / n_th)**2 * pi/2`` (square-root
+  spacing), ``theta_d = i_td / n_td * pi/2``, ``phi_d = i_pd / n_pd * pi``.
+* Directions use ``phi_h = 0``: ``h = (sin th, 0, cos th)``,
+  ``d = (sin td cos pd, sin td sin pd, cos td)``, ``w_i = R_y(theta_h) d`` and
+  ``w_o = 2 (w_i . h) h - w_i``.
+* A cell is valid when both ``w_i`` and ``w_o`` lie strictly above the surface (z > 0).
+
+Every function is vectorised over numpy arrays of any (broadcastable) shape.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+HALF_PI = np.pi / 2
+# An angle that lands within this fraction of a cell below an edge (floating-point
+# rounding of the edge itself) is taken to sit on the edge, so cell -> angles -> cell is exact.
+EDGE_TOLERANCE = 1e-7
+
+
+@dataclass(frozen=True)
+class MerlGrid:
+    """A MERL-style (theta_h, theta_d, phi_d) grid; 90 x 90 x 180 by default.
+
+    Smaller grids of the same construction (e.g. ``MerlGrid(30, 30, 60)``) serve fast tests.
+    """
+
+    n_th: int = 90
+    n_td: int = 90
+    n_pd: int = 180
+
+    def __post_init__(self) -> None:
+        for name in ("n_th", "n_td", "n_pd"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"MerlGrid.{name} must be a positive integer, got {value!r}")
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(n_th, n_td, n_pd)."""
+        return (self.n_th, self.n_td, self.n_pd)
+
+    @property
+    def size(self) -> int:
+        """Number of cells, valid or not."""
+        return self.n_th * self.n_td * self.n_pd
+
+    def as_dict(self) -> dict:
+        """JSON-friendly description, e.g. ``{"n_th": 90, "n_td": 90, "n_pd": 180}``."""
+        return {"n_th": self.n_th, "n_td": self.n_td, "n_pd": self.n_pd}
+
+    # ----- index arithmetic -------------------------------------------------------------
+    def flat_index(self, i_th, i_td, i_pd) -> np.ndarray:
+        """Flat index (int64) of cells given their three integer indices."""
+        i_th, i_td, i_pd = (np.asarray(a, dtype=np.int64) for a in (i_th, i_td, i_pd))
+        return (i_th * self.n_td + i_td) * self.n_pd + i_pd
+
+    def unravel(self, flat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integer indices (i_th, i_td, i_pd) of flat cell indices."""
+        flat = np.asarray(flat, dtype=np.int64)
+        i_pd = flat % self.n_pd
+        rest = flat // self.n_pd
+        return rest // self.n_td, rest % self.n_td, i_pd
+
+    # ----- cells <-> angles -------------------------------------------------------------
+    def cell_angles(self, i_th, i_td, i_pd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lower-edge angles (theta_h, theta_d, phi_d) in radians of cells."""
+        i_th, i_td, i_pd = (np.asarray(a, dtype=np.float64) for a in (i_th, i_td, i_pd))
+        theta_h = (i_th / self.n_th) ** 2 * HALF_PI
+        theta_d = i_td / self.n_td * HALF_PI
+        phi_d = i_pd / self.n_pd * np.pi
+        return theta_h, theta_d, phi_d
+
+    def flat_angles(self, flat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lower-edge angles (theta_h, theta_d, phi_d) in radians of flat cell indices."""
+        return self.cell_angles(*self.unravel(flat))
+
+    def angle_cells(self, theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices (i_th, i_td, i_pd) containing angles in radians.
+
+        ``phi_d`` is folded into [0, pi) first (phi_d and phi_d + pi are the same cell for an
+        isotropic, reciprocal BRDF); indices are clamped into range.
+        """
+        theta_h, theta_d, phi_d = (np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))
+        x_th = np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * self.n_th
+        x_td = theta_d / HALF_PI * self.n_td
+        x_pd = np.mod(phi_d, np.pi) / np.pi * self.n_pd
+        x_pd = np.where(x_pd >= self.n_pd - EDGE_TOLERANCE, 0.0, x_pd)  # fold 2*pi-ish back to 0
+        return (
+            _edge_floor(x_th, self.n_th),
+            _edge_floor(x_td, self.n_td),
+            _edge_floor(x_pd, self.n_pd),
+        )
+
+    def angles_to_flat(self, theta_h, theta_d, phi_d) -> np.ndarray:
+        """Flat index of the cells containing angles in radians."""
+        return self.flat_index(*self.angle_cells(theta_h, theta_d, phi_d))
+
+    # ----- validity -----------------------------------------------------------------------
+    @cached_property
+    def valid_mask(self) -> np.ndarray:
+        """Boolean (size,) array: True where both w_i and w_o of the cell have z > 0."""
+        flat = np.arange(self.size, dtype=np.int64)
+        w_i, w_o = half_diff_to_dirs(*self.flat_angles(flat))
+        mask = (w_i[..., 2] > 0) & (w_o[..., 2] > 0)
+        mask.setflags(write=False)
+        return mask
+
+    @cached_property
+    def valid_cells(self) -> np.ndarray:
+        """Flat indices (int64, ascending) of the valid cells; shape (n_valid,)."""
+        cells = np.flatnonzero(self.valid_mask).astype(np.int64)
+        cells.setflags(write=False)
+        return cells
+
+    @property
+    def n_valid(self) -> int:
+        """Number of valid cells (1,111,432 on the full MERL grid)."""
+        return int(self.valid_cells.size)
+
+    def valid_position(self, flat) -> np.ndarray:
+        """Position of flat cell indices within ``valid_cells``; -1 where a cell is invalid."""
+        flat = np.asarray(flat, dtype=np.int64)
+        lookup = np.full(self.size, -1, dtype=np.int64)
+        lookup[self.valid_cells] = np.arange(self.n_valid)
+        inside = (flat >= 0) & (flat < self.size)
+        return np.where(inside, lookup[np.clip(flat, 0, self.size - 1)], -1)
+
+    def cell_directions(self, flat) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions (w_i, w_o), each (..., 3), at the lower edges of flat cells."""
+        return half_diff_to_dirs(*self.flat_angles(flat))
+
+
+FULL_GRID = MerlGrid()
+
+
+def _edge_floor(x: np.ndarray, n: int) -> np.ndarray:
+    """floor(x), treating values within EDGE_TOLERANCE below an integer as that integer."""
+    return np.clip(np.floor(x + EDGE_TOLERANCE), 0, n - 1).astype(np.int64)
+
+
+def half_diff_to_dirs(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray]:
+    """Light and view directions (w_i, w_o), each (..., 3), of Rusinkiewicz angles (radians).
+
+    Uses phi_h = 0; any rotation of both about z gives the same isotropic BRDF value.
+    """
+    theta_h, theta_d, phi_d = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))
+    )
+    st, ct = np.sin(theta_h), np.cos(theta_h)
+    d = np.stack([np.sin(theta_d) * np.cos(phi_d), np.sin(theta_d) * np.sin(phi_d), np.cos(theta_d)], -1)
+    # w_i = R_y(theta_h) d
+    w_i = np.stack([ct * d[..., 0] + st * d[..., 2], d[..., 1], -st * d[..., 0] + ct * d[..., 2]], -1)
+    h = np.stack([st, np.zeros_like(st), ct], -1)
+    w_o = 2.0 * np.sum(w_i * h, axis=-1, keepdims=True) * h - w_i
+    return w_i, w_o
+
+
+def dirs_to_half_diff(w_i, w_o) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rusinkiewicz angles (theta_h, theta_d, phi_d) in radians of directions (..., 3).
+
+    Inputs need not be normalised. phi_d is returned in (-pi, pi]; ``MerlGrid.angle_cells``
+    folds it. Degenerate w_i = -w_o has no half vector and yields NaN.
+    """
+    w_i = _normalise(np.asarray(w_i, dtype=np.float64))
+    w_o = _normalise(np.asarray(w_o, dtype=np.float64))
+    h = _normalise(w_i + w_o)
+    theta_h = np.arccos(np.clip(h[..., 2], -1.0, 1.0))
+    phi_h = np.arctan2(h[..., 1], h[..., 0])
+    # d = R_y(-theta_h) R_z(-phi_h) w_i
+    cp, sp = np.cos(phi_h), np.sin(phi_h)
+    x = cp * w_i[..., 0] + sp * w_i[..., 1]
+    y = -sp * w_i[..., 0] + cp * w_i[..., 1]
+    z = w_i[..., 2]
+    ct, st = np.cos(theta_h), np.sin(theta_h)
+    dx, dz = ct * x - st * z, st * x + ct * z
+    theta_d = np.arccos(np.clip(dz, -1.0, 1.0))
+    phi_d = np.arctan2(y, dx)
+    return theta_h, theta_d, phi_d
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def cosine_weight(grid: MerlGrid, cells=None) -> np.ndarray:
+    """Row weight clip(cos theta_i * cos theta_o, 0.01, 1) of cells (default: valid cells).
+
+    Returns float64 of the cells' shape. Used by training and reconstruction (DESIGN.md).
+    """
+    cells = grid.valid_cells if cells is None else np.asarray(cells, dtype=np.int64)
+    w_i, w_o = grid.cell_directions(cells)
+    return np.clip(w_i[..., 2] * w_o[..., 2], 0.01, 1.0)

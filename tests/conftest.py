@@ -1,0 +1,35 @@
+"""Shared fixtures: the measured-material data beside the project, a private cache folder."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache(tmp_path_factory):
+    """Every test run uses its own cache folder, never the user's."""
+    os.environ["GONIOFROST_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """../shared/data (or $GONIOFROST_SHARED_DATA); tests that need it skip without it."""
+    if not (SHARED_DATA / "nbrdf_merl.npz").is_file():
+        pytest.skip(f"measured-material data not found in {SHARED_DATA}")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def merl_npz(shared_data) -> Path:
+    return shared_data / "nbrdf_merl.npz"
+
+
+@pytest.fixture(scope="session")
+def rgl_npz(shared_data) -> Path:
+    return shared_data / "nbrdf_rgl.npz"
