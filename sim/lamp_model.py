@@ -1,0 +1,39 @@
+"""The simulated lamp: on/off state and an intensity that drifts slowly over time.
+
+Shared by the simulated Modbus drive (which exposes the on/off coil and the monitor
+photodiode register) and the simulated camera (whose radiance scales with the intensity),
+so the calibration can normalise drift exactly as on a real rig.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .clock import SimClock
+
+PHOTODIODE_FULL_SCALE = 50_000  # counts at relative intensity 1.0 (fits a 16-bit register)
+
+
+class LampModel:
+    """Relative lamp intensity I(t) = 1 + drift_per_hour * t/3600 + a small slow wobble.
+
+    ``intensity()`` is 0 while the lamp is off. Deterministic for a given seed and clock time.
+    """
+
+    def __init__(self, clock: SimClock, drift_per_hour: float = 0.02, seed: int = 0) -> None:
+        self.clock = clock
+        self.drift_per_hour = float(drift_per_hour)
+        self.is_on = False
+        rng = np.random.default_rng(seed)
+        self._phase = float(rng.uniform(0, 2 * np.pi))
+
+    def relative_intensity(self, t: float | None = None) -> float:
+        """Intensity relative to nominal at simulated time t (default now); 0 when off."""
+        if not self.is_on:
+            return 0.0
+        t = self.clock.now() if t is None else t
+        wobble = 0.003 * np.sin(2 * np.pi * t / 600.0 + self._phase)
+        return float(1.0 + self.drift_per_hour * t / 3600.0 + wobble)
+
+    def photodiode_counts(self, t: float | None = None) -> int:
+        """Monitor photodiode reading in counts (proportional to intensity, 16-bit)."""
+        return int(round(min(self.relative_intensity(t) * PHOTODIODE_FULL_SCALE, 65535)))
