@@ -3,3 +3,14 @@
 
 class GoniofrostError(Exception):
     """An error with a message fit for the user: what failed, where, what was expected, what was found."""
+
+
+class ConfigError(GoniofrostError, ValueError):
+    """A configuration file (rig YAML, plan JSON, ...) that cannot be used.
+
+    The message always reads ``SOURCE: KEY.PATH: expected EXPECTED, found FOUND``.
+    """
+
+    def __init__(self, source, keypath: str, expected: str, found) -> None:
+        self.source, self.keypath, self.expected, self.found = str(source), keypath, expected, found
+        super().__init__(f"{source}: {keypath or '(top level)'}: expected {expected}, found {found!r}")
