@@ -1,0 +1,78 @@
+"""Sphere previews: exact radiance of known BRDFs, the rendering SNR, and the command."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from goniofrost import preview as P
+from goniofrost.cli import main
+from goniofrost.grid import MerlGrid, half_diff_to_dirs
+from goniofrost.merl_io import valid_to_full, write_merl
+
+GRID = MerlGrid(30, 30, 60)
+
+
+def lambertian(albedo=(0.8, 0.5, 0.2)) -> np.ndarray:
+    return valid_to_full(np.tile(np.asarray(albedo) / np.pi, (GRID.n_valid, 1)), GRID)
+
+
+def test_tangent_frame_is_orthonormal_for_every_normal_including_poles():
+    rng = np.random.default_rng(1)
+    n = rng.normal(size=(500, 3))
+    n = np.concatenate([n, [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, 1, 0]]])
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    t, b = P.tangent_frame(n)
+    frame = np.stack([t, b, n], -2)
+    np.testing.assert_allclose(frame @ np.swapaxes(frame, -1, -2), np.broadcast_to(np.eye(3), frame.shape), atol=1e-12)
+
+
+def test_lambertian_sphere_has_radiance_albedo_over_pi_times_cosine():
+    light = ((0.0, 0.6, 0.8), 2.0)
+    image = P.render_sphere(lambertian(), GRID, light, size=64)
+    normals, mask = P.sphere_normals(64)
+    cos_i = normals @ np.array([0.0, 0.6, 0.8])
+    lit = mask & (cos_i > 0)
+    expected = 2.0 * np.array([0.8, 0.5, 0.2]) / np.pi * cos_i[..., None]
+    # cells at the grazing edge of the grid are invalid (missing) and render black
+    valid = lit & (image.sum(-1) > 0)
+    assert valid.sum() > 0.9 * lit.sum()
+    np.testing.assert_allclose(image[valid], expected[valid], rtol=1e-12)
+    assert np.all(image[~lit] == 0)
+
+
+def test_lookup_reads_the_cell_of_each_direction_pair():
+    rng = np.random.default_rng(2)
+    values = valid_to_full(rng.uniform(0.1, 1.0, (GRID.n_valid, 3)), GRID)
+    cells = rng.choice(GRID.valid_cells, 50, replace=False)
+    i_th, i_td, i_pd = GRID.unravel(cells)
+    # cell centres: away from the edges, where the half vector's azimuth is well defined
+    w_i, w_o = half_diff_to_dirs(((i_th + 0.5) / 30) ** 2 * np.pi / 2, (i_td + 0.5) / 30 * np.pi / 2,
+                                 (i_pd + 0.5) / 60 * np.pi)
+    np.testing.assert_array_equal(P.lookup(values, GRID, w_i, w_o), values[cells])
+
+
+def test_rendering_snr_is_20_db_for_a_10_percent_scale_and_inf_for_identical():
+    ref = P.render_set(lambertian(), GRID, size=48)
+    assert P.rendering_snr_db(ref, 0.9 * ref) == pytest.approx(20.0, abs=1e-9)
+    assert P.rendering_snr_db(ref, ref) == float("inf")
+    with pytest.raises(ValueError, match="shapes differ"):
+        P.rendering_snr_db(ref, ref[:1])
+
+
+def test_preview_command_writes_png_and_reports_snr(tmp_path, capsys):
+    ref, est, png = tmp_path / "ref.binary", tmp_path / "est.binary", tmp_path / "p.png"
+    write_merl(ref, lambertian(), GRID)
+    write_merl(est, 0.9 * lambertian(), GRID)
+    assert main(["preview", str(est), "--reference", str(ref), "--out", str(png), "--size", "40"]) == 0
+    out = capsys.readouterr().out
+    assert "rendering SNR: 20.00 dB" in out
+    import matplotlib.image
+    image = matplotlib.image.imread(png)
+    assert image.ndim == 3 and image.shape[0] > 3 * 40 and image.shape[1] >= 3 * 40
+
+
+def test_preview_of_a_missing_file_is_a_one_line_error_and_writes_nothing(tmp_path, capsys):
+    png = tmp_path / "p.png"
+    assert main(["preview", str(tmp_path / "nope.binary"), "--out", str(png)]) == 2
+    assert "nope.binary: no such file" in capsys.readouterr().err
+    assert not png.exists()
