@@ -1,0 +1,321 @@
+"""The one Axis contract: move to an angle and get a status to wait on, with the move logic written once.
+
+A driver subclasses ``Axis`` and supplies only protocol hooks (``_connect``, ``_close``,
+``_command_move``, ``_read_position``, ``_read_moving``, ``_command_home``, ``_command_stop``,
+``_set_enabled``, ``_read_fault``, ``_apply_motion_profile``), all in degrees and deg/s. The base
+class checks limits, computes the move timeout from distance, speed and acceleration, waits,
+checks arrival within the tolerance, retries transient communication errors a bounded number of
+times and, on ANY error during a move, commands the axis to stop before re-raising.
+
+Connecting is an explicit step: the constructor only stores the configuration.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from .errors import (ArrivalError, AxisLimitError, ChecksumError, DeviceError, DeviceFault,
+                     DeviceTimeout, NotConnectedError, ProtocolError)
+
+log = logging.getLogger(__name__)
+
+MOVE_TIMEOUT_FACTOR = 1.5  # planned profile time x this ...
+MOVE_TIMEOUT_MARGIN_S = 2.0  # ... + this (start-up latency, polling, settling), seconds
+TRANSIENT_ERRORS = (DeviceTimeout, ChecksumError, ProtocolError)  # worth retrying once more
+
+
+def trapezoid_time(distance: float, speed: float, accel: float) -> float:
+    """Duration in s of a rest-to-rest trapezoidal move over ``distance`` (any unit) at ``speed``
+    (unit/s) and ``accel`` (unit/s^2); a triangle when the cruise speed is never reached."""
+    distance = abs(float(distance))
+    if distance == 0.0:
+        return 0.0
+    if distance * accel <= speed * speed:  # triangle: accelerate half-way, then brake
+        return 2.0 * math.sqrt(distance / accel)
+    return distance / speed + speed / accel
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """What every axis needs besides its driver section (angles in degrees, speeds in deg/s).
+
+    ``retries``: extra attempts after a transient communication error (timeout, checksum, malformed
+    reply). ``stall_s``: real seconds the position may stay frozen while the device reports motion
+    before the move is declared stalled.
+    """
+
+    name: str
+    limits_deg: tuple[float, float]
+    speed_deg_s: float
+    accel_deg_s2: float
+    home_deg: float = 0.0
+    tolerance_deg: float = 0.01
+    retries: int = 2
+    stall_s: float = 2.0
+
+    @classmethod
+    def from_mapping(cls, name: str, spec: Mapping) -> "AxisConfig":
+        """Build from a rig-file axis entry (keys as in config/rigs/sim.yaml; extra keys ignored)."""
+        keys = ("home_deg", "tolerance_deg", "retries", "stall_s")
+        extra = {k: spec[k] for k in keys if k in spec}
+        lo, hi = spec["limits_deg"]
+        return cls(name=name, limits_deg=(float(lo), float(hi)), speed_deg_s=float(spec["speed_deg_s"]),
+                   accel_deg_s2=float(spec["accel_deg_s2"]), **extra)
+
+
+@dataclass
+class AxisStatus:
+    """A snapshot of an axis: position (deg), moving, enabled, fault text (None when healthy), details."""
+
+    position_deg: float
+    moving: bool
+    enabled: bool
+    fault: str | None = None
+    details: dict = field(default_factory=dict)
+
+
+class MoveStatus:
+    """A started move to wait on: ``wait()`` returns the final position in degrees or raises.
+
+    ``timeout_s`` (real seconds) comes from the distance, speed and acceleration plus a margin.
+    """
+
+    def __init__(self, axis: "Axis", start: float, target: float, timeout_s: float,
+                 done: bool = False) -> None:
+        self.axis, self.start, self.target, self.timeout_s = axis, start, target, timeout_s
+        self.done = done
+        self.final_deg: float | None = start if done else None
+
+    def __repr__(self) -> str:
+        return (f"MoveStatus({self.axis.name}: {self.start:g} -> {self.target:g} deg, "
+                f"done={self.done})")
+
+    def wait(self, timeout: float | None = None) -> float:
+        """Block until the move ends; return the final position (deg).
+
+        Raises DeviceTimeout (not finished in time), DeviceFault (fault or stall), ArrivalError (stopped
+        outside the tolerance) or any communication error; the axis is commanded to stop first.
+        """
+        if self.done:
+            return self.final_deg
+        try:
+            self.final_deg = self.axis._wait_until_stopped(self, self.timeout_s if timeout is None else timeout)
+        except BaseException:
+            self.axis._stop_after_error(f"waiting for {self!r}")
+            raise
+        self.done = True
+        return self.final_deg
+
+
+class Axis(ABC):
+    """One motorised rotation axis in physical units (degrees). Subclasses supply the protocol hooks."""
+
+    units = "deg"
+    poll_s = 0.01  # real seconds between two status polls while waiting
+
+    def __init__(self, config: AxisConfig) -> None:
+        self.config = config
+        self.name = config.name
+        self._connected = False
+        self._enabled = False
+
+    # ----- public contract -------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the connection, then load the speed and acceleration of the configuration."""
+        self._connect()
+        self._connected = True
+        try:
+            self._call(self._apply_motion_profile, self.config.speed_deg_s, self.config.accel_deg_s2)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close the connection (idempotent). Does not stop or disable the axis."""
+        if self._connected:
+            self._connected = False
+            self._close()
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def move_to(self, deg: float) -> MoveStatus:
+        """Start a move to ``deg`` (within the limits) and return a MoveStatus to wait on.
+
+        A target within the tolerance of the current position sends nothing. Raises AxisLimitError
+        (nothing sent) or a DeviceError (after which the axis was commanded to stop).
+        """
+        deg = float(deg)
+        start = self.position()
+        self._check_limits(start, deg)
+        if abs(deg - start) <= self.config.tolerance_deg:
+            return MoveStatus(self, start, deg, 0.0, done=True)
+        return self._start(start, deg, lambda: self._command_move(deg))
+
+    def home(self) -> MoveStatus:
+        """Run the device's homing (or move to ``home_deg``); wait on the result like a move."""
+        self._require_connected("home")
+        try:
+            start = self._call(self._read_position)
+        except DeviceError:
+            start = float("nan")  # some devices cannot report a position before homing
+        lo, hi = self.config.limits_deg
+        return self._start(start, self.config.home_deg, self._command_home, distance=hi - lo)
+
+    def position(self) -> float:
+        """Present position in degrees."""
+        self._require_connected("read position")
+        return self._call(self._read_position)
+
+    def is_moving(self) -> bool:
+        """True while the device reports motion."""
+        self._require_connected("read moving")
+        return bool(self._call(self._read_moving))
+
+    def stop(self) -> None:
+        """Command the axis to stop (decelerate); returns without waiting."""
+        self._require_connected("stop")
+        self._call(self._command_stop)
+
+    def enable(self) -> None:
+        """Energise the motor (torque on / READY); required before moves on most devices."""
+        self._require_connected("enable")
+        self._call(self._set_enabled, True)
+        self._enabled = True
+
+    def disable(self) -> None:
+        """De-energise the motor (torque off / DISABLE)."""
+        self._require_connected("disable")
+        self._call(self._set_enabled, False)
+        self._enabled = False
+
+    def status(self) -> AxisStatus:
+        """Position, motion, enable state, fault text (None when healthy) and driver details."""
+        self._require_connected("read status")
+        return AxisStatus(position_deg=self._call(self._read_position), moving=bool(self._call(self._read_moving)),
+                          enabled=self._enabled, fault=self._call(self._read_fault),
+                          details=self._status_details())
+
+    def move_timeout_s(self, distance_deg: float) -> float:
+        """Real seconds to allow for a move over ``distance_deg`` before calling it a timeout."""
+        t = trapezoid_time(distance_deg, self.config.speed_deg_s, self.config.accel_deg_s2)
+        return MOVE_TIMEOUT_FACTOR * t + MOVE_TIMEOUT_MARGIN_S
+
+    # ----- the move logic, written once -------------------------------------------------------
+    def _check_limits(self, start: float, target: float) -> None:
+        lo, hi = self.config.limits_deg
+        if not (lo <= target <= hi) or math.isnan(target):
+            raise AxisLimitError(self.name, start, target, (lo, hi), self.units)
+
+    def _start(self, start: float, target: float, command: Callable[[], object],
+               distance: float | None = None) -> MoveStatus:
+        """Send the move command (retrying transient errors); on failure stop and re-raise."""
+        try:
+            self._call(command)
+        except BaseException:
+            self._stop_after_error(f"move to {target:g} {self.units}")
+            raise
+        dist = abs(target - start) if distance is None else distance
+        return MoveStatus(self, start, target, self.move_timeout_s(dist))
+
+    def _wait_until_stopped(self, status: MoveStatus, timeout_s: float) -> float:
+        """Poll until the device stops; check for stalls, faults and arrival within tolerance."""
+        t_end = time.monotonic() + timeout_s
+        last_pos, last_change = None, time.monotonic()
+        while True:
+            moving = self._call(self._read_moving)
+            pos = self._call(self._read_position)
+            if not moving:
+                return self._check_arrival(status, pos)
+            now = time.monotonic()
+            if last_pos is None or abs(pos - last_pos) > 1e-9:
+                last_pos, last_change = pos, now
+            elif now - last_change > self.config.stall_s:
+                raise DeviceFault(self.name, f"move to {status.target:g} {self.units}", pos,
+                                  [f"stall: position frozen at {pos:.4f} {self.units} for "
+                                   f"{self.config.stall_s:g} s while the device reports motion"])
+            if now > t_end:
+                raise DeviceTimeout(self.name, f"move to {status.target:g} {self.units}", pos,
+                                    f"move not finished within {timeout_s:.1f} s")
+            time.sleep(self.poll_s)
+
+    def _check_arrival(self, status: MoveStatus, pos: float) -> float:
+        if abs(pos - status.target) <= self.config.tolerance_deg:
+            return pos
+        fault = self._call(self._read_fault)
+        if fault:
+            raise DeviceFault(self.name, f"move to {status.target:g} {self.units}", pos, [fault])
+        raise ArrivalError(self.name, status.target, pos, self.config.tolerance_deg, self.units)
+
+    def _stop_after_error(self, context: str) -> None:
+        """Best-effort stop after an error; never raises (the original error matters more)."""
+        if not self._connected:
+            return
+        try:
+            self._command_stop()
+        except Exception as exc:  # noqa: BLE001 - the caller re-raises the original error
+            log.warning("%s: stop after error in %s failed: %s", self.name, context, exc)
+
+    def _call(self, hook: Callable, *args):
+        """Call a protocol hook, retrying transient errors up to ``config.retries`` more times."""
+        for attempt in range(self.config.retries + 1):
+            try:
+                return hook(*args)
+            except TRANSIENT_ERRORS as exc:
+                if attempt == self.config.retries:
+                    raise
+                log.info("%s: retry %d after %s", self.name, attempt + 1, exc)
+
+    def _require_connected(self, command: str) -> None:
+        if not self._connected:
+            raise NotConnectedError(self.name, command)
+
+    def _status_details(self) -> dict:
+        """Extra driver-specific status (override to add e.g. temperature, raw state)."""
+        return {}
+
+    # ----- protocol hooks (degrees, deg/s, deg/s^2) -----------------------------------------
+    @abstractmethod
+    def _connect(self) -> None:
+        """Open the port/socket and check the device answers (e.g. ping, model number)."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Release the port/socket."""
+
+    @abstractmethod
+    def _command_move(self, deg: float) -> None:
+        """Send an absolute move to ``deg``; return without waiting."""
+
+    @abstractmethod
+    def _read_position(self) -> float:
+        """Present position in degrees."""
+
+    @abstractmethod
+    def _read_moving(self) -> bool:
+        """True while moving; raise DeviceFault if the reply shows a fault."""
+
+    def _command_home(self) -> None:
+        """Start homing; the default moves to ``config.home_deg`` (devices with a home search override)."""
+        self._command_move(self.config.home_deg)
+
+    @abstractmethod
+    def _command_stop(self) -> None:
+        """Decelerate to a stop now."""
+
+    @abstractmethod
+    def _set_enabled(self, enabled: bool) -> None:
+        """Energise (True) or de-energise (False) the motor."""
+
+    @abstractmethod
+    def _read_fault(self) -> str | None:
+        """Readable fault causes, or None when the device reports no fault."""
+
+    @abstractmethod
+    def _apply_motion_profile(self, speed_deg_s: float, accel_deg_s2: float) -> None:
+        """Load the profile speed and acceleration used by the following moves."""
