@@ -1,0 +1,81 @@
+"""The SQLite session journal and samples.csv: exact round trips, one row per plan sample."""
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from goniofrost.journal import CSV_COLUMNS, Journal, JournalError, SampleRecord, SamplesCsv
+
+META = {"plan": {"samples": [1, 2]}, "rig_text": "name: x\n", "kinematic_hash": "abc", "model_hash": "m1"}
+
+
+def record(i: int) -> SampleRecord:
+    return SampleRecord(
+        plan_index=i, cell=1000 + i, theta_h_deg=0.1 * i + 1 / 3, theta_d_deg=12.5, phi_d_deg=90.0 + i,
+        rgb=(0.1 * i + 1e-17, 0.2, 1 / 7), sigma=(0.001, 0.002, 0.003), snr=123.456,
+        joints={"camera_arm": 30.0 + i, "sample_yaw": -4.5}, exposures_s=(0.004, 0.016), frames_taken=5,
+        frames_skipped=2, raw_paths=(f"raw/s{i:03d}_0.dng", f"raw/s{i:03d}_1.dng"), lamp_relative=1.0012,
+        move_s=2.5, capture_s=0.3, started_utc=1.7e9 + i, committed_utc=1.7e9 + i + 0.5)
+
+
+def test_samples_meta_calibration_and_events_round_trip_exactly(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.set_calibration({"dark": [1.5, 2.0], "white": 0.9})
+        for i in (2, 0, 1):
+            journal.commit_sample(record(i))
+        journal.add_event("fault", "axis stalled", axis="sample_tilt", data={"code": 7})
+    with Journal.open(path) as journal:
+        assert journal.meta() == {**META, "format_version": 1}
+        assert journal.calibration() == {"dark": [1.5, 2.0], "white": 0.9}
+        assert journal.samples() == [record(0), record(1), record(2)]
+        assert journal.done_indices() == {0, 1, 2}
+        [event] = journal.events()
+        assert (event["kind"], event["axis"], event["message"], event["data"]) == ("fault", "sample_tilt", "axis stalled", {"code": 7})
+
+
+def test_a_plan_sample_is_stored_once_and_the_refused_duplicate_changes_nothing(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(4))
+        changed = SampleRecord(**{**record(4).__dict__, "rgb": (9.0, 9.0, 9.0)})
+        with pytest.raises(JournalError, match="plan sample 4 is already in the journal"):
+            journal.commit_sample(changed)
+        assert journal.samples() == [record(4)]
+
+
+def test_create_refuses_an_existing_journal_and_open_refuses_a_missing_or_foreign_file(tmp_path):
+    path = tmp_path / "session.sqlite"
+    Journal.create(path, META).close()
+    with pytest.raises(JournalError, match="already exists; pass --resume"):
+        Journal.create(path, META)
+    with pytest.raises(JournalError, match="no session journal to resume"):
+        Journal.open(tmp_path / "other.sqlite")
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"this is not sqlite" * 100)
+    with pytest.raises(JournalError, match="not a usable session journal"):
+        Journal.open(junk)
+
+
+def test_journal_uses_wal_and_full_synchronous_commits(tmp_path):
+    with Journal.create(tmp_path / "s.sqlite", META) as journal:
+        assert journal._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        assert journal._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+
+
+def test_samples_csv_rewrite_drops_a_torn_line_and_values_round_trip(tmp_path):
+    path = tmp_path / "samples.csv"
+    table = SamplesCsv(path)
+    table.rewrite([record(0)])
+    table.append(record(1))
+    with open(path, "a") as handle:
+        handle.write("1.0,2.0,3.")  # a line torn by SIGKILL
+    table.rewrite([record(0), record(1)])
+    with open(path) as handle:
+        rows = list(csv.DictReader(handle))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert [int(r["plan_index"]) for r in rows] == [0, 1]
+    assert float(rows[1]["theta_h_deg"]) == record(1).theta_h_deg
+    assert tuple(float(rows[1][c]) for c in "rgb") == record(1).rgb
+    assert tuple(float(rows[1][f"sigma_{c}"]) for c in "rgb") == record(1).sigma
