@@ -58,13 +58,16 @@ class AxisConfig:
     stall_s: float = 2.0
 
     @classmethod
-    def from_mapping(cls, name: str, spec: Mapping) -> "AxisConfig":
-        """Build from a rig-file axis entry (keys as in config/rigs/sim.yaml; extra keys ignored)."""
-        keys = ("home_deg", "tolerance_deg", "retries", "stall_s")
-        extra = {k: spec[k] for k in keys if k in spec}
-        lo, hi = spec["limits_deg"]
-        return cls(name=name, limits_deg=(float(lo), float(hi)), speed_deg_s=float(spec["speed_deg_s"]),
-                   accel_deg_s2=float(spec["accel_deg_s2"]), **extra)
+    def from_spec(cls, name: str, spec, retries: int | None = None) -> "AxisConfig":
+        """Build from a rig-file axis: a mapping (keys as in config/rigs/sim.yaml) or an object with
+        those attributes (planner.rig.AxisSpec). ``retries`` usually comes from the driver section."""
+        get = spec.get if isinstance(spec, Mapping) else (lambda k, d=None: getattr(spec, k, d))
+        lo, hi = get("limits_deg")
+        extra = {k: get(k) for k in ("home_deg", "tolerance_deg", "stall_s") if get(k) is not None}
+        if retries is not None:
+            extra["retries"] = int(retries)
+        return cls(name=name, limits_deg=(float(lo), float(hi)), speed_deg_s=float(get("speed_deg_s")),
+                   accel_deg_s2=float(get("accel_deg_s2")), **extra)
 
 
 @dataclass

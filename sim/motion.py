@@ -47,7 +47,7 @@ def _plan(distance: float, u0: float, vmax: float, accel: float) -> list[_Phase]
         return [_Phase(u0 / a, 0.0, u0, -a)] if u0 > 0 else _plan(distance, 0.0, vmax, accel)
     a1 = accel if vp >= u0 else -accel
     t1, t3 = abs(vp - u0) / accel, vp / accel
-    t2 = (distance - d1 - d3) / vp
+    t2 = max(0.0, (distance - d1 - d3) / vp)
     return [_Phase(t1, 0.0, u0, a1), _Phase(t2, d1, vp, 0.0), _Phase(t3, distance - d3, vp, -accel)]
 
 

@@ -1,0 +1,218 @@
+"""Dynamixel X-series servo as an Axis, over Protocol 2.0 with dynamixel-sdk.
+
+On ``connect()``: open the port at the configured baud, PING (the model number must be an X
+series one, and the configured model if given), switch to extended position mode (EEPROM: torque
+off first) and load the profile velocity and acceleration. Every status packet is checked: the
+Alert bit leads to a read of Hardware Error Status (70) and a DeviceFault with readable causes
+(and, with ``reboot_after_fault``, a REBOOT); ERR codes 1-7 raise ExceptionReply; SDK results map
+to DeviceTimeout (nothing came back), ProtocolError (incomplete) and ChecksumError (bad CRC).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+
+import serial
+from dynamixel_sdk import PacketHandler, PortHandler
+from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
+
+from .axis import Axis, AxisConfig
+from .dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, CONTROL_TABLE, MODEL_NUMBERS, REV_COUNTS,
+                           VELOCITY_UNIT_RPM, Instruction, OperatingMode, Reg, crc16,
+                           decode_value, describe_error, frame_length, hardware_error_causes,
+                           read_params, write_params)
+from .errors import (ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply,
+                     ProtocolError)
+
+log = logging.getLogger(__name__)
+T = CONTROL_TABLE
+DEG_S_PER_VEL_UNIT = VELOCITY_UNIT_RPM * 360.0 / 60.0  # 1.374 deg/s per Profile Velocity unit
+DEG_S2_PER_ACC_UNIT = ACCEL_UNIT_RPM2 * 360.0 / 3600.0  # 21.46 deg/s^2 per Profile Acceleration unit
+REBOOT_SETTLE_S = 0.5  # the servo is silent for a moment after REBOOT
+
+
+class _Port(PortHandler):
+    """dynamixel-sdk's PortHandler with a reply timeout that can be made longer than the SDK's
+    bytes x byte-time + 34 ms (for USB adapters with a long latency timer, or a loaded machine)."""
+
+    def __init__(self, path: str, min_timeout_ms: float) -> None:
+        super().__init__(path)
+        self.min_timeout_ms = float(min_timeout_ms)
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
+        super().setPacketTimeout(packet_length)
+        self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
+
+
+class DynamixelAxis(Axis):
+    """An X-series servo in extended position mode; angles in degrees, ``counts_per_deg`` counts/deg.
+
+    Driver section keys: ``port``, ``id``, ``baud``, ``model`` (e.g. "XM430-W350"; checked at
+    connect), ``counts_per_deg`` (4096/360 for a direct drive), optional ``reboot_after_fault``
+    (bool) and ``reply_timeout_ms`` (minimum reply timeout).
+    """
+
+    def __init__(self, config: AxisConfig, port: str, id: int = 1, baud: int = 57600,
+                 model: str | None = None, counts_per_deg: float = REV_COUNTS / 360.0,
+                 reboot_after_fault: bool = False, reply_timeout_ms: float = 0.0) -> None:
+        super().__init__(config)
+        self.port_path, self.dxl_id, self.baud, self.model = str(port), int(id), int(baud), model
+        self.counts_per_deg = float(counts_per_deg)
+        self.reboot_after_fault = bool(reboot_after_fault)
+        self.reply_timeout_ms = float(reply_timeout_ms)
+        self.model_number: int | None = None
+        self._port: _Port | None = None
+        self._ph = PacketHandler(2.0)
+
+    @classmethod
+    def from_section(cls, config: AxisConfig, section: Mapping) -> "DynamixelAxis":
+        """Build from a validated ``dynamixel`` driver section of the rig file."""
+        keys = ("baud", "model", "counts_per_deg", "reboot_after_fault", "reply_timeout_ms")
+        return cls(config, port=section["port"], id=section["id"], **{k: section[k] for k in keys if k in section})
+
+    # ----- transport: one instruction, one checked status ----------------------------------------
+    def _transact(self, what: str, instruction: Instruction, params: bytes = b"",
+                  check_alert: bool = True) -> bytes:
+        """Send one instruction through the SDK; return the status parameters or raise typed errors."""
+        tx = [0] * (10 + len(params))  # header, CRC and stuffing are filled in by the SDK
+        tx[4], tx[5], tx[6], tx[7] = self.dxl_id, (len(params) + 3) & 0xFF, (len(params) + 3) >> 8, int(instruction)
+        tx[8:8 + len(params)] = list(params)
+        try:
+            rx, result, _ = self._ph.txRxPacket(self._port, tx)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(self.name, what, None, f"serial port {self.port_path} failed: {exc}") from exc
+        finally:
+            self._port.is_using = False  # the SDK leaves it set if the serial layer raised
+        if result != COMM_SUCCESS:
+            self._raise_comm(what, result, bytes(rx or b""))
+        err, data = rx[8], bytes(rx[9:frame_length(bytes(rx[:7])) - 2])
+        if err & ~ALERT_BIT:
+            raise ExceptionReply(self.name, what, bytes(rx), describe_error(err), code=err & ~ALERT_BIT)
+        if err & ALERT_BIT and check_alert:
+            self._raise_fault(what, bytes(rx))
+        return data
+
+    def _raise_comm(self, what: str, result: int, rx: bytes) -> None:
+        if result == COMM_RX_TIMEOUT:
+            raise DeviceTimeout(self.name, what, None, "no status packet within the reply timeout")
+        if result == COMM_RX_CORRUPT:
+            total = frame_length(rx)
+            if total is None or len(rx) < total:
+                raise ProtocolError(self.name, what, rx, "incomplete status packet")
+            crc = int.from_bytes(rx[total - 2:total], "little")
+            raise ChecksumError(self.name, what, rx[:total],
+                                f"status CRC {crc:04X}, computed {crc16(rx[:total - 2]):04X}")
+        raise DeviceError(self.name, what, rx or None, self._ph.getTxRxResult(result))
+
+    def _raise_fault(self, what: str, rx: bytes) -> None:
+        status = self._read(T["hardware_error_status"], check_alert=False)
+        causes = hardware_error_causes(status) or ["alert bit set, hardware error status 0"]
+        fault = DeviceFault(self.name, what, rx, causes)
+        if self.reboot_after_fault:
+            try:
+                self.reboot()
+            except DeviceError as exc:
+                log.warning("%s: reboot after fault failed: %s", self.name, exc)
+        raise fault
+
+    def _read(self, reg: Reg, check_alert: bool = True) -> int:
+        data = self._transact(f"READ {self._name_of(reg)} (addr {reg.addr}, {reg.size} bytes)",
+                              Instruction.READ, read_params(reg), check_alert)
+        if len(data) != reg.size:
+            raise ProtocolError(self.name, f"READ addr {reg.addr}", data,
+                                f"expected {reg.size} data bytes, got {len(data)}")
+        return decode_value(data, reg.signed)  # the SDK's read4ByteTxRx would be unsigned
+
+    def _write(self, reg: Reg, value: int, check_alert: bool = True) -> None:
+        self._transact(f"WRITE {self._name_of(reg)} (addr {reg.addr}) = {value}",
+                       Instruction.WRITE, write_params(reg, value), check_alert)
+
+    @staticmethod
+    def _name_of(reg: Reg) -> str:
+        return next(name for name, r in T.items() if r is reg)
+
+    # ----- public extras ------------------------------------------------------------------------
+    def reboot(self) -> None:
+        """REBOOT the servo (clears a hardware error; torque comes back off), then restore the mode
+        and profile. The axis must be enabled again before moving."""
+        self._transact("REBOOT", Instruction.REBOOT, check_alert=False)
+        time.sleep(REBOOT_SETTLE_S)
+        self._enabled = False
+        self._ensure_extended_mode()
+        self._apply_motion_profile(self.config.speed_deg_s, self.config.accel_deg_s2)
+
+    # ----- Axis hooks ---------------------------------------------------------------------------
+    def _connect(self) -> None:
+        port = _Port(self.port_path, self.reply_timeout_ms)
+        try:
+            port.openPort()
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(self.name, f"open {self.port_path}", None, f"cannot open the port: {exc}") from exc
+        if not port.setBaudRate(self.baud):
+            port.closePort()
+            raise DeviceError(self.name, f"set baud {self.baud}", None, "baud rate not supported by the SDK")
+        self._port = port
+        try:
+            self._check_model()
+            self._ensure_extended_mode()
+        except BaseException:
+            self._close()
+            raise
+
+    def _check_model(self) -> None:
+        data = self._transact("PING", Instruction.PING, check_alert=False)
+        self.model_number = decode_value(data[:2], False)
+        expected = MODEL_NUMBERS.get(self.model) if self.model else None
+        ok = self.model_number == expected if expected else self.model_number in MODEL_NUMBERS.values()
+        if not ok:
+            raise ProtocolError(self.name, "PING", data,
+                                f"model number {self.model_number}, expected "
+                                f"{expected if expected else 'an X-series model'} ({self.model or 'X series'})")
+
+    def _ensure_extended_mode(self) -> None:
+        if self._read(T["operating_mode"], check_alert=False) != OperatingMode.EXTENDED_POSITION:
+            self._write(T["torque_enable"], 0)  # EEPROM items are writable only with torque off
+            self._write(T["operating_mode"], OperatingMode.EXTENDED_POSITION)
+
+    def _close(self) -> None:
+        if self._port is not None:
+            self._port.closePort()
+            self._port = None
+
+    def _command_move(self, deg: float) -> None:
+        self._write(T["goal_position"], round(deg * self.counts_per_deg))
+
+    def _read_position(self) -> float:
+        return self._read(T["present_position"]) / self.counts_per_deg
+
+    def _read_moving(self) -> bool:
+        return bool(self._read(T["moving"]))
+
+    def _command_stop(self) -> None:
+        """Hold where the horn is (Goal := Present); if that cannot be read, torque off.
+
+        No Alert check here: a servo in a hardware-error state must still be told to stop.
+        """
+        try:
+            here = self._read(T["present_position"], check_alert=False)
+            self._write(T["goal_position"], here, check_alert=False)
+        except DeviceError as exc:
+            log.warning("%s: stop by goal := present failed (%s); switching torque off", self.name, exc)
+            self._enabled = False
+            self._write(T["torque_enable"], 0, check_alert=False)
+
+    def _set_enabled(self, enabled: bool) -> None:
+        self._write(T["torque_enable"], int(enabled))
+
+    def _read_fault(self) -> str | None:
+        causes = hardware_error_causes(self._read(T["hardware_error_status"], check_alert=False))
+        return ", ".join(causes) or None
+
+    def _apply_motion_profile(self, speed_deg_s: float, accel_deg_s2: float) -> None:
+        self._write(T["profile_velocity"], max(1, round(speed_deg_s / DEG_S_PER_VEL_UNIT)))
+        self._write(T["profile_acceleration"], max(1, round(accel_deg_s2 / DEG_S2_PER_ACC_UNIT)))
+
+    def _status_details(self) -> dict:
+        return {"model_number": self.model_number, "id": self.dxl_id, "port": self.port_path,
+                "temperature_c": self._read(T["present_temperature"], check_alert=False)}
