@@ -1,0 +1,227 @@
+"""A Modbus motor drive axis (pymodbus, TCP or RTU) driven through a register map.
+
+A move is one 16-register direct-data write ending with trigger = 1 (Oriental AZ style); the
+output status word gives MOVE and ALM-A, the alarm code register the cause. Positions are in
+drive steps (``steps_per_deg``); every 32-bit value spans two registers in ``word_order``.
+
+Errors: an exception response -> ``ExceptionReply`` (code = Modbus exception code); no reply ->
+``DeviceTimeout``; a reply whose RTU CRC fails -> ``ChecksumError``; a malformed or truncated
+TCP frame -> ``ProtocolError``; the ALM-A bit -> ``DeviceFault`` naming the alarm code.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException
+from pymodbus.framer import FramerType
+from pymodbus.pdu import ExceptionResponse
+
+from .axis import Axis, AxisConfig
+from .errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
+from .modbus_map import (
+    RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
+)
+
+REPLY_TIMEOUT_S = 0.3
+EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+                   4: "server device failure", 5: "acknowledge", 6: "server device busy",
+                   10: "gateway path unavailable", 11: "gateway target failed to respond"}
+
+
+def modbus_crc(frame: bytes) -> int:
+    """Modbus RTU CRC-16 (poly 0xA001 reflected, init 0xFFFF), sent low byte first."""
+    crc = 0xFFFF
+    for byte in frame:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+class ModbusLink:
+    """One pymodbus client (TCP or RTU) whose calls raise the typed driver errors.
+
+    Shared by the motor axis and the lamp that sits on the same drive. ``name`` is used in
+    error messages (the axis or device name).
+    """
+
+    def __init__(self, name: str, device_id: int = 1, host: str | None = None, port=None,
+                 baud: int = 115200, parity: str = "E", timeout_s: float = REPLY_TIMEOUT_S) -> None:
+        self.name, self.device_id = name, int(device_id)
+        self.host, self.port, self.baud, self.parity = host, port, int(baud), parity
+        self.timeout_s = float(timeout_s)
+        self.rtu = host is None
+        self.client = None
+        self._last_rx = b""
+
+    def open(self) -> None:
+        """Connect (TCP) or open the serial port (RTU); DeviceError when that fails. Idempotent."""
+        if self.client is not None:
+            return
+        if self.rtu:
+            self.client = ModbusSerialClient(str(self.port), framer=FramerType.RTU, baudrate=self.baud,
+                                             parity=self.parity, timeout=self.timeout_s, retries=0,
+                                             trace_packet=self._trace)
+        else:
+            self.client = ModbusTcpClient(self.host, port=int(self.port), timeout=self.timeout_s,
+                                          retries=0, trace_packet=self._trace)
+        if not self.client.connect():
+            where = self.port if self.rtu else f"{self.host}:{self.port}"
+            self.client = None
+            raise DeviceError(self.name, f"connect {where}", None, "cannot connect")
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        """Keep the raw bytes of the last reply, to tell a bad CRC or frame from silence."""
+        if sending:
+            self._last_rx = b""
+        else:
+            self._last_rx = bytes(data)
+        return data
+
+    def call(self, text: str, method: str, *args, **kwargs):
+        """Run one client request; return the response or raise the matching DeviceError."""
+        if self.client is None:
+            raise DeviceTimeout(self.name, text, None, "not connected")
+        try:
+            response = getattr(self.client, method)(*args, device_id=self.device_id, **kwargs)
+        except (ConnectionException, OSError) as exc:  # OSError: the serial port vanished (EIO)
+            raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
+        except ModbusException as exc:
+            raise self._classify_silence(text, exc) from exc
+        if isinstance(response, ExceptionResponse) or response.isError():
+            code = getattr(response, "exception_code", None)
+            raise ExceptionReply(self.name, text, self._last_rx or None,
+                                 f"exception {code}: {EXCEPTION_CODES.get(code, 'unknown')}", code=code)
+        return response
+
+    def _classify_silence(self, text: str, exc: Exception) -> DeviceError:
+        """No accepted reply: was it silence, a bad CRC (RTU) or a malformed frame (TCP)?"""
+        raw = self._last_rx
+        if not raw:
+            return DeviceTimeout(self.name, text, None, f"no reply within {self.timeout_s:g} s")
+        if self.rtu:
+            if len(raw) < 4 or modbus_crc(raw[:-2]) != int.from_bytes(raw[-2:], "little"):
+                return ChecksumError(self.name, text, raw, "reply CRC mismatch")
+            return ProtocolError(self.name, text, raw, str(exc))
+        if len(raw) >= 6 and raw[2:4] != b"\x00\x00":
+            return ProtocolError(self.name, text, raw, "MBAP protocol id is not 0")
+        if len(raw) >= 6 and len(raw) < 6 + int.from_bytes(raw[4:6], "big"):
+            return ProtocolError(self.name, text, raw, "truncated frame: fewer bytes than the MBAP length")
+        return ProtocolError(self.name, text, raw, str(exc))
+
+    def read_holding(self, address: int, count: int) -> list[int]:
+        return self.call(f"read holding 0x{address:04X} x{count}", "read_holding_registers",
+                         address, count=count).registers
+
+    def write_holding(self, address: int, values: list[int]) -> None:
+        self.call(f"write holding 0x{address:04X} x{len(values)}", "write_registers", address, values)
+
+
+class ModbusAxis(Axis):
+    """One motor on a Modbus drive (TCP: ``host`` and ``port``; RTU: ``serial_port``).
+
+    ``steps_per_deg``: drive steps per degree; ``word_order``: "big" or "little";
+    ``register_map``: a map name, an inline mapping or a RegisterMap.
+    """
+
+    def __init__(self, config: AxisConfig, *, host: str | None = None, port=None,
+                 serial_port: str | None = None, device_id: int = 1, steps_per_deg: float = 100.0,
+                 word_order: str = "big", register_map="oriental-az", baud: int = 115200,
+                 parity: str = "E", timeout_s: float = REPLY_TIMEOUT_S) -> None:
+        super().__init__(config)
+        if (host is None) == (serial_port is None):
+            raise ValueError("give either host and port (Modbus TCP) or serial_port (RTU)")
+        self.link = ModbusLink(config.name, device_id, host, serial_port if host is None else port,
+                               baud, parity, timeout_s)
+        self.steps_per_deg, self.word_order = float(steps_per_deg), word_order
+        self.map: RegisterMap = resolve_map(register_map)
+        self._speed_hz, self._rate = 1000, 1000
+
+    @classmethod
+    def from_section(cls, config: AxisConfig, section: Mapping) -> "ModbusAxis":
+        """Build from a validated ``modbus-tcp`` or ``modbus-rtu`` driver section."""
+        common = dict(device_id=section.get("device_id", 1),
+                      steps_per_deg=section.get("steps_per_deg", 100.0),
+                      word_order=section.get("word_order", "big"),
+                      register_map=section.get("register_map", "oriental-az"))
+        if section["protocol"] == "modbus-rtu":
+            return cls(config, serial_port=section["port"], baud=section.get("baud", 115200),
+                       parity=section.get("parity", "E"), **common)
+        return cls(config, host=section.get("host", "127.0.0.1"), port=section["port"], **common)
+
+    # ----- registers -------------------------------------------------------------------------
+    def _read32(self, address: int, signed: bool = True) -> int:
+        return from_registers(self.link.read_holding(address, 2), self.word_order, signed)
+
+    def _status_word(self) -> int:
+        return self._read32(self.map.output_status, signed=False)
+
+    def _bit(self, word: int, name: str) -> bool:
+        return bool(word >> self.map.output_bits[name] & 1)
+
+    def _write_inputs(self, *names: str) -> None:
+        word = sum(1 << self.map.input_bits[n] for n in names)
+        self.link.write_holding(self.map.input_command, to_registers(word, self.word_order))
+
+    def _alarm(self) -> str:
+        return self.map.alarm_text(self._read32(self.map.alarm_code, signed=False))
+
+    def reset_alarm(self) -> None:
+        """Pulse ALM-RST (on, then off); the drive clears the alarm once its cause has gone."""
+        self._write_inputs("alm_rst")
+        self._write_inputs()
+
+    # ----- protocol hooks --------------------------------------------------------------------
+    def _connect(self) -> None:
+        self.link.open()
+        try:
+            self._status_word()  # proves the drive answers at this device id
+        except DeviceError:
+            self.link.close()
+            raise
+
+    def _close(self) -> None:
+        self.link.close()
+
+    def _command_move(self, deg: float) -> None:
+        steps = round(deg * self.steps_per_deg)
+        regs = direct_data_registers(steps, self._speed_hz, self._rate, self._rate, self.word_order)
+        self.link.write_holding(self.map.direct_data, regs)
+
+    def _read_position(self) -> float:
+        return self._read32(self.map.feedback_position) / self.steps_per_deg
+
+    def _read_moving(self) -> bool:
+        word = self._status_word()
+        if self._bit(word, "alm_a"):
+            raise DeviceFault(self.name, f"read status 0x{self.map.output_status:04X}",
+                              f"0x{word:04X}", [self._alarm()])
+        return self._bit(word, "move")
+
+    def _command_stop(self) -> None:
+        self._write_inputs("stop")
+        self._write_inputs()
+
+    def _set_enabled(self, enabled: bool) -> None:
+        if enabled:
+            self._write_inputs()
+        else:
+            self._write_inputs("free")
+
+    def _read_fault(self) -> str | None:
+        return self._alarm() if self._bit(self._status_word(), "alm_a") else None
+
+    def _apply_motion_profile(self, speed_deg_s: float, accel_deg_s2: float) -> None:
+        """Kept for the next direct-data write (the AZ takes speed and rate with every move)."""
+        self._speed_hz = max(1, round(speed_deg_s * self.steps_per_deg))
+        self._rate = max(1, round(accel_deg_s2 * self.steps_per_deg))
+
+    def _status_details(self) -> dict:
+        return {"protocol": "modbus-rtu" if self.link.rtu else "modbus-tcp",
+                "device_id": self.link.device_id, "register_map": self.map.name}

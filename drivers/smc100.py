@@ -1,0 +1,194 @@
+"""Newport SMC100 axis over RS-232 ASCII (pyserial): the protocol hooks of ``Axis``.
+
+Every set command is followed by ``TE`` so that a silently rejected command (the controller
+replies nothing) becomes an ``ExceptionReply`` naming its error letter. ``TS`` is decoded into
+the controller state and readable error bits; a stage error state or any error bit raises
+``DeviceFault``. Positions are controller units divided by ``units_per_deg``.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import serial
+
+from .axis import Axis, AxisConfig
+from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
+from .smc100_protocol import (
+    DEFAULT_BAUD, DISABLE_STATES, MOTION_STATES, NOT_REFERENCED_STATES, READY_STATES, TERMINATOR,
+    Cmd, State, TellState, build_command, decode_ts, parse_reply, te_meaning,
+)
+
+REPLY_TIMEOUT_S = 0.2  # the manual gives about 10 ms for TP; leave room for a busy host
+
+
+class SMC100Axis(Axis):
+    """One stage on a Newport SMC100 controller.
+
+    ``port``: serial device path; ``address``: controller address 1-31; ``baud``: 57600 on the
+    real controller; ``units_per_deg``: controller units (deg for a rotation stage) per degree;
+    ``reply_timeout_s``: how long to wait for one reply line (real seconds).
+    """
+
+    def __init__(self, config: AxisConfig, port: str, address: int = 1, baud: int = DEFAULT_BAUD,
+                 units_per_deg: float = 1.0, reply_timeout_s: float = REPLY_TIMEOUT_S) -> None:
+        super().__init__(config)
+        self.port, self.address, self.baud = str(port), int(address), int(baud)
+        self.units_per_deg = float(units_per_deg)
+        self.reply_timeout_s = float(reply_timeout_s)
+        self._serial: serial.Serial | None = None
+        self._latched_causes: list[str] = []  # TS error bits clear when read: keep them for _read_fault
+        self._last_ts: TellState | None = None
+        self.soft_limits_units: tuple[float, float] | None = None
+
+    @classmethod
+    def from_section(cls, config: AxisConfig, section: Mapping) -> "SMC100Axis":
+        """Build from a validated ``smc100`` driver section of the rig file."""
+        return cls(config, port=section["port"], address=section.get("address", 1),
+                   baud=section.get("baud", DEFAULT_BAUD),
+                   units_per_deg=section.get("units_per_deg", 1.0))
+
+    # ----- transport ---------------------------------------------------------------------------
+    def _send(self, cmd: Cmd, value=None) -> str:
+        """Write one command line; return its text for error messages."""
+        line = build_command(self.address, cmd, value)
+        if self._serial is None:
+            raise DeviceTimeout(self.name, line.decode().strip(), None, "port closed")
+        try:
+            self._serial.reset_input_buffer()  # a late or partial reply must not answer this command
+            self._serial.write(line)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceTimeout(self.name, line.decode().strip(), None, f"connection lost: {exc}") from exc
+        return line.decode().strip()
+
+    def _query(self, cmd: Cmd, value=None) -> str:
+        """Send a query and return the value text of its reply (prefix checked)."""
+        text = self._send(cmd, value)
+        try:
+            raw = self._serial.read_until(TERMINATOR)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
+        if not raw.endswith(TERMINATOR):
+            raise DeviceTimeout(self.name, text, raw or None,
+                                f"no complete reply within {self.reply_timeout_s:g} s")
+        try:
+            return parse_reply(raw, self.address, cmd)
+        except ValueError as exc:
+            raise ProtocolError(self.name, text, raw, str(exc)) from exc
+
+    def _command(self, cmd: Cmd, value=None) -> None:
+        """Send a set command, then read TE: any letter but '@' raises ExceptionReply."""
+        text = self._send(cmd, value)
+        letter = self._query(Cmd.TELL_ERROR)
+        if len(letter) != 1:
+            raise ProtocolError(self.name, f"{text}; TE", letter, "expected one error letter")
+        if letter != "@":
+            raise ExceptionReply(self.name, text, f"{self.address}TE{letter}",
+                                 f"refused: {letter} = {te_meaning(letter)}", code=letter)
+
+    def _tell_state(self) -> TellState:
+        """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""
+        value = self._query(Cmd.TELL_STATE)
+        try:
+            ts = decode_ts(value)
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}TS", value, str(exc)) from exc
+        for cause in ts.causes:
+            if cause not in self._latched_causes:
+                self._latched_causes.append(cause)
+        self._last_ts = ts
+        return ts
+
+    def _fault_causes(self, ts: TellState) -> list[str]:
+        causes = list(self._latched_causes)
+        if ts.state == State.STAGE_ERROR:
+            causes.append("stage error state (TS state 10)")
+        return causes
+
+    # ----- protocol hooks ----------------------------------------------------------------------
+    def _connect(self) -> None:
+        try:
+            self._serial = serial.Serial(self.port, self.baud, bytesize=8, parity="N", stopbits=1,
+                                         xonxoff=True, timeout=self.reply_timeout_s)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(self.name, f"open {self.port}", None, f"cannot open port: {exc}") from exc
+        try:
+            self._tell_state()  # proves a controller answers at this address
+            lo = float(self._query(Cmd.LIMIT_NEGATIVE, "?"))
+            hi = float(self._query(Cmd.LIMIT_POSITIVE, "?"))
+        except (DeviceError, ValueError):
+            self._close()
+            raise
+        self.soft_limits_units = (lo, hi)
+
+    def _close(self) -> None:
+        if self._serial is not None:
+            self._serial.close()
+            self._serial = None
+
+    def _command_move(self, deg: float) -> None:
+        self._command(Cmd.MOVE_ABSOLUTE, deg * self.units_per_deg)
+
+    def _read_position(self) -> float:
+        value = self._query(Cmd.TELL_POSITION)
+        try:
+            return float(value) / self.units_per_deg
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}TP", value, "expected a number") from exc
+
+    def _read_moving(self) -> bool:
+        ts = self._tell_state()
+        if ts.is_fault:
+            raise DeviceFault(self.name, f"{self.address}TS", f"{self.address}TS{ts.error_bits:04X}"
+                              f"{int(ts.state):02X}", self._fault_causes(ts))
+        return ts.state in MOTION_STATES
+
+    def _command_home(self) -> None:
+        """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``."""
+        ts = self._tell_state()
+        if ts.state in NOT_REFERENCED_STATES:
+            self._command(Cmd.HOME)
+            if self.config.home_deg == 0.0:
+                return
+            self._wait_homed()
+        self._command_move(self.config.home_deg)
+
+    def _wait_homed(self) -> None:
+        """Block until the home search ends (bounded by the longest possible search)."""
+        lo, hi = self.config.limits_deg
+        t_end = time.monotonic() + self.move_timeout_s(hi - lo)
+        while time.monotonic() < t_end:
+            ts = self._tell_state()
+            if ts.is_fault:
+                raise DeviceFault(self.name, f"{self.address}OR", None, self._fault_causes(ts))
+            if ts.state in READY_STATES:
+                return
+            time.sleep(self.poll_s)
+        raise DeviceTimeout(self.name, f"{self.address}OR", None, "home search did not end")
+
+    def _command_stop(self) -> None:
+        self._send(Cmd.STOP)
+
+    def _set_enabled(self, enabled: bool) -> None:
+        """MM1 / MM0 where the state allows it; NOT REFERENCED stages are enabled by homing."""
+        state = self._tell_state().state
+        if enabled and state in DISABLE_STATES:
+            self._command(Cmd.ENABLE_STATE, "1")
+        elif not enabled and state in READY_STATES:
+            self._command(Cmd.ENABLE_STATE, "0")
+
+    def _read_fault(self) -> str | None:
+        ts = self._tell_state()
+        causes = self._fault_causes(ts)
+        self._latched_causes.clear()
+        return ", ".join(causes) or None
+
+    def _apply_motion_profile(self, speed_deg_s: float, accel_deg_s2: float) -> None:
+        self._command(Cmd.VELOCITY, speed_deg_s * self.units_per_deg)
+        self._command(Cmd.ACCELERATION, accel_deg_s2 * self.units_per_deg)
+
+    def _status_details(self) -> dict:
+        ts = self._last_ts
+        return {"protocol": "smc100", "port": self.port, "address": self.address,
+                "state": ts.state.name if ts else None,
+                "soft_limits_units": self.soft_limits_units}

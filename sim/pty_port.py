@@ -1,0 +1,47 @@
+"""The device end of a pseudo-terminal: a simulated serial device's "cable".
+
+A client opens ``path`` (``/dev/pts/N``) with pyserial exactly as it would open ``/dev/ttyUSB0``.
+Two pty quirks (PROTOCOLS.md, "Pseudo-terminals"): a new pty is in cooked mode with echo, so the
+slave is made raw at once; and the device keeps its own slave fd open, otherwise reading the
+master raises EIO whenever the client closes its end.
+"""
+from __future__ import annotations
+
+import os
+import pty
+import select
+import tty
+
+
+class PtyPort:
+    """The master side of a raw pty; ``path`` is what a client opens."""
+
+    def __init__(self) -> None:
+        self.master_fd, self._slave_fd = pty.openpty()
+        tty.setraw(self._slave_fd)
+        self.path = os.ttyname(self._slave_fd)
+        self.closed = False
+
+    def read(self, timeout: float) -> bytes:
+        """Return the bytes waiting (up to 4096), or b'' after ``timeout`` real seconds."""
+        if self.closed:
+            return b""
+        ready, _, _ = select.select([self.master_fd], [], [], timeout)
+        if not ready:
+            return b""
+        try:
+            return os.read(self.master_fd, 4096)
+        except OSError:  # the client side vanished mid-read; nothing to deliver
+            return b""
+
+    def write(self, data: bytes) -> None:
+        """Send bytes to the client (silently nothing once closed: the cable is pulled)."""
+        if data and not self.closed:
+            os.write(self.master_fd, data)
+
+    def close(self) -> None:
+        """Close both ends; a client still holding the path then reads EIO / hang-up."""
+        if not self.closed:
+            self.closed = True
+            os.close(self.master_fd)
+            os.close(self._slave_fd)

@@ -1,0 +1,279 @@
+"""A simulated Newport SMC100 controller on a pseudo-terminal, byte for byte the ASCII protocol.
+
+State machine (PROTOCOLS.md section 2): NOT REFERENCED (0A) -OR-> HOMING (1E) -> READY (32)
+-PA/PR-> MOVING (28) -> READY (33); ST decelerates at AC; MM0/MM1 toggle DISABLE (3C) / READY (34).
+A rejected command replies nothing and stores an error letter that ``TE`` returns once.
+Motion is a trapezoid on the shared SimClock. Positions are in controller units (deg for a
+rotation stage); ``units_per_deg`` only converts ``true_position_deg()``.
+"""
+from __future__ import annotations
+
+import threading
+
+from drivers.smc100_protocol import (
+    DEFAULT_BAUD, DISABLE_STATES, NOT_REFERENCED_STATES, READY_STATES, CommandLine, State,
+    build_reply, encode_ts, format_value, parse_command,
+)
+from sim.clock import SimClock
+from sim.motion import TrapezoidMotion
+from sim.pty_port import PtyPort
+
+FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
+ALARM_ERROR_BITS = 1 << 5  # "following error": what a blocked or overloaded stage reports
+_POLL_S = 0.02  # real seconds between state updates while idle
+
+
+class SimulatedSMC100:
+    """One SMC100 controller with one stage, served on a pty by a background thread.
+
+    Parameters: ``clock`` (shared SimClock), ``address`` (1-31), ``baud`` (reported only: a pty
+    has no baud rate), ``units_per_deg``, ``position`` (stage position at power-up, units),
+    ``velocity`` (VA, units/s), ``acceleration`` (AC, units/s^2), ``limits`` (SL, SR, units).
+    """
+
+    def __init__(self, clock: SimClock, address: int = 1, baud: int = DEFAULT_BAUD,
+                 units_per_deg: float = 1.0, position: float = 0.0, velocity: float = 20.0,
+                 acceleration: float = 80.0, limits: tuple[float, float] = (-170.0, 170.0)) -> None:
+        self.clock, self.address, self.baud = clock, int(address), int(baud)
+        self.units_per_deg = float(units_per_deg)
+        self.motion = TrapezoidMotion(clock, float(position), float(velocity), float(acceleration))
+        self.velocity, self.acceleration = float(velocity), float(acceleration)
+        self.limits = [float(limits[0]), float(limits[1])]
+        self._target = float(position)  # the set-point TH reports and PR adds to
+        self.state = State.NOT_REFERENCED_FROM_RESET
+        self.error_bits = 0
+        self.error_letter = "@"
+        self.faults: set[str] = set()
+        self.received: list[bytes] = []  # every command line, for tests and debugging
+        self._lock = threading.RLock()
+        self._port: PtyPort | None = None
+        self._thread: threading.Thread | None = None
+        self._running = False
+        self._buffer = b""
+
+    # --- lifecycle -------------------------------------------------------------------------
+    def start(self) -> dict:
+        """Open the pty, start serving; return the endpoint entry ``goniofrost sim`` prints."""
+        self._port = PtyPort()
+        self._running = True
+        self._thread = threading.Thread(target=self._serve, name=f"sim-smc100-{self.address}",
+                                        daemon=True)
+        self._thread.start()
+        return {"protocol": "smc100", "endpoint": self._port.path, "address": self.address,
+                "baud": self.baud}
+
+    def stop(self) -> None:
+        """Stop serving and close the pty (idempotent)."""
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def true_position_deg(self) -> float:
+        """Ground truth: where the stage really is, in degrees."""
+        return self.motion.position() / self.units_per_deg
+
+    def inject_fault(self, kind: str) -> None:
+        """Inject a fault (see FAULT_KINDS); faults persist until ``inject_fault('clear')``.
+
+        no_reply: commands are ignored. bad_checksum: ASCII has no checksum, so a reply is
+        corrupted instead (its echoed command letters). drop_byte: the LF ending each reply is
+        lost. alarm: following-error bit set, state 10 (stage error), motion stopped. stall:
+        the stage freezes while the state stays MOVING. disconnect: the controller is unplugged
+        (pty closed, motion stopped); only a restart brings it back.
+        """
+        if kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+        with self._lock:
+            if kind == "clear":
+                self.faults.clear()
+                self.error_bits = 0
+                if self.state == State.STAGE_ERROR:
+                    self.state = State.NOT_REFERENCED_FROM_RESET
+                return
+            self.faults.add(kind)
+            if kind == "alarm":
+                self.error_bits |= ALARM_ERROR_BITS
+                self.state = State.STAGE_ERROR
+                self.motion.stop()
+            elif kind == "stall":
+                self.motion.stall()
+            elif kind == "disconnect":
+                self.motion.stop()
+
+    # --- serving ---------------------------------------------------------------------------
+    def _serve(self) -> None:
+        port = self._port
+        try:
+            while self._running and "disconnect" not in self.faults:
+                data = port.read(_POLL_S)
+                with self._lock:
+                    self._update_state()
+                    if data:
+                        self._feed(port, data)
+        finally:
+            port.close()
+
+    def _feed(self, port: PtyPort, data: bytes) -> None:
+        """Split received bytes into lines (CR, LF or CR LF end a line) and answer each."""
+        self._buffer += data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        while b"\n" in self._buffer:
+            line, self._buffer = self._buffer.split(b"\n", 1)
+            if not line.strip() or "no_reply" in self.faults:
+                continue
+            self.received.append(line)
+            reply = self._handle_line(line)
+            if reply:
+                port.write(self._faulty(reply))
+
+    def _faulty(self, reply: bytes) -> bytes:
+        """Apply the reply-corrupting faults to one reply line."""
+        if "bad_checksum" in self.faults:
+            reply = reply[:1] + bytes(c ^ 0x20 for c in reply[1:3]) + reply[3:]
+        if "drop_byte" in self.faults:
+            reply = reply[:-1]
+        return reply
+
+    def _update_state(self) -> None:
+        """Finish HOMING / MOVING once the trapezoid has ended (a stalled stage never does)."""
+        if self.motion.is_moving():
+            return
+        if self.state == State.HOMING:
+            self.state = State.READY_FROM_HOMING
+        elif self.state == State.MOVING:
+            self.state = State.READY_FROM_MOVING
+
+    # --- commands --------------------------------------------------------------------------
+    def _handle_line(self, line: bytes) -> bytes | None:
+        if line.strip().upper() == b"ST":  # ST without an address stops every controller
+            self.motion.stop()
+            return None
+        cmd = parse_command(line)
+        if cmd is None:
+            self.error_letter = "A"
+            return None
+        if cmd.address != self.address:
+            return None  # addressed to another controller on the same line
+        handler = getattr(self, f"_cmd_{cmd.letters}", None)
+        if handler is None:
+            self.error_letter = "A"
+            return None
+        return handler(cmd)
+
+    def _reject(self, letter: str) -> None:
+        self.error_letter = letter
+        return None
+
+    def _reply(self, cmd: CommandLine, value: str) -> bytes:
+        return build_reply(self.address, cmd.letters, value)
+
+    def _number(self, cmd: CommandLine) -> float | None:
+        try:
+            return float(cmd.argument)
+        except ValueError:
+            return None
+
+    def _state_letter(self) -> str:
+        """The TE letter for 'not allowed in the current state'."""
+        if self.state in NOT_REFERENCED_STATES:
+            return "H"
+        if self.state in DISABLE_STATES:
+            return "J"
+        if self.state == State.HOMING:
+            return "L"
+        if self.state == State.MOVING:
+            return "M"
+        if self.state in READY_STATES:
+            return "K"
+        return "D"
+
+    def _cmd_TS(self, cmd: CommandLine) -> bytes:
+        value = encode_ts(self.error_bits, self.state)
+        self.error_bits = 0  # reading TS clears the error bits (the state stays)
+        return self._reply(cmd, value)
+
+    def _cmd_TE(self, cmd: CommandLine) -> bytes:
+        letter, self.error_letter = self.error_letter, "@"
+        return self._reply(cmd, letter)
+
+    def _cmd_TP(self, cmd: CommandLine) -> bytes:
+        return self._reply(cmd, format_value(self.motion.position()))
+
+    def _cmd_TH(self, cmd: CommandLine) -> bytes:
+        return self._reply(cmd, format_value(self._target))
+
+    def _cmd_OR(self, cmd: CommandLine) -> None:
+        if self.state == State.HOMING:
+            return self._reject("E")
+        if self.state not in NOT_REFERENCED_STATES:
+            return self._reject(self._state_letter())
+        self.state = State.HOMING
+        self._target = 0.0
+        self.motion.start_move(0.0)  # the reference (home switch) is the stage's zero
+        return None
+
+    def _cmd_PA(self, cmd: CommandLine) -> None:
+        return self._move(cmd, 0.0)
+
+    def _cmd_PR(self, cmd: CommandLine) -> None:
+        return self._move(cmd, self._target)
+
+    def _move(self, cmd: CommandLine, origin: float) -> None:
+        step = self._number(cmd)
+        if step is None:
+            return self._reject("C")
+        if self.state not in READY_STATES:
+            return self._reject(self._state_letter())
+        target = origin + step
+        if not self.limits[0] <= target <= self.limits[1]:
+            return self._reject("G")
+        self.state = State.MOVING
+        self._target = target
+        self.motion.start_move(target)
+        if "stall" in self.faults:
+            self.motion.stall()
+        return None
+
+    def _cmd_ST(self, cmd: CommandLine) -> None:
+        self.motion.stop()
+        if self.state == State.HOMING:  # an interrupted home search leaves the stage unreferenced
+            self.state = State.NOT_REFERENCED_FROM_HOMING
+        return None
+
+    def _cmd_MM(self, cmd: CommandLine) -> None:
+        if cmd.argument == "0" and self.state in READY_STATES:
+            self.state = State.DISABLE_FROM_READY
+        elif cmd.argument == "1" and self.state in DISABLE_STATES:
+            self.state = State.READY_FROM_DISABLE
+        elif cmd.argument in ("0", "1"):
+            return self._reject(self._state_letter())
+        else:
+            return self._reject("C")
+        return None
+
+    def _set_or_query(self, cmd: CommandLine, attr: str, index: int | None = None) -> bytes | None:
+        """VA / AC / SL / SR: ``?`` queries, a number sets (positive for VA and AC)."""
+        current = getattr(self, attr) if index is None else getattr(self, attr)[index]
+        if cmd.is_query:
+            return self._reply(cmd, format_value(current))
+        value = self._number(cmd)
+        if value is None or (index is None and value <= 0):
+            return self._reject("C")
+        if index is None:
+            setattr(self, attr, value)
+            self.motion.set_profile(self.velocity, self.acceleration)
+        else:
+            getattr(self, attr)[index] = value
+        return None
+
+    def _cmd_VA(self, cmd: CommandLine) -> bytes | None:
+        return self._set_or_query(cmd, "velocity")
+
+    def _cmd_AC(self, cmd: CommandLine) -> bytes | None:
+        return self._set_or_query(cmd, "acceleration")
+
+    def _cmd_SL(self, cmd: CommandLine) -> bytes | None:
+        return self._set_or_query(cmd, "limits", 0)
+
+    def _cmd_SR(self, cmd: CommandLine) -> bytes | None:
+        return self._set_or_query(cmd, "limits", 1)
