@@ -1,0 +1,39 @@
+"""goniofrost plan: choose the m measurement directions with FROST and write PLAN.json."""
+from __future__ import annotations
+
+HELP = "select FROST sample directions (SOMP) and write PLAN.json"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--model", required=True, metavar="MODEL", help="model directory from goniofrost train")
+    how = parser.add_mutually_exclusive_group(required=True)
+    how.add_argument("--samples", type=int, metavar="M", help="number of samples to select")
+    how.add_argument("--max-error", type=float, metavar="E",
+                     help="select until the relative residual ||R||_F/||Y||_F <= E (paper eq. 8)")
+    parser.add_argument("--max-angle", type=float, metavar="DEG",
+                        help="skip cells whose theta_i or theta_o exceeds DEG degrees")
+    parser.add_argument("--y-form", choices=("all", "firstm"), default=None,
+                        help="training signals in Y: all columns or the first m (authors' code); default: see DESIGN/report")
+    parser.add_argument("--atoms", type=int, metavar="K", help="atoms k used in selection (default m; all with --max-error)")
+    # --rig RIG.yaml is added here by the planner (see run()).
+    parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
+
+
+def run(args) -> int:
+    from ..model import FrostModel
+    from ..planfile import plan_document, write_plan
+    from ..selection import DEFAULT_Y_FORM, candidate_mask_max_angle, select_cells
+
+    model = FrostModel.load(args.model)
+    mask = None
+    if args.max_angle is not None:
+        mask = candidate_mask_max_angle(model.grid, args.max_angle)
+    # --- planner hook (--rig): mask &= reachable cells here, before selection. ---
+    selection = select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
+                             y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
+    doc = plan_document(args.model, model, selection)
+    # --- planner hook (--rig): add joint targets and reorder the samples here. ---
+    write_plan(args.out, doc)
+    print(f"{args.out}: m = {selection.m} samples, residual {selection.residuals[-1]:.4f}, "
+          f"selection {selection.seconds:.3f} s")
+    return 0
