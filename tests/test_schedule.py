@@ -1,0 +1,105 @@
+"""Scheduling a plan on the simulated rig: poses, capture order and motion times."""
+from __future__ import annotations
+
+import copy
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.grid import MerlGrid
+from planner.kinematics import forward
+from planner.motion import move_time
+from planner.order import _best_choice, _pose_matrix, plan_tour
+from planner.reach import reachability
+from planner.rig import load_rig
+from planner.schedule import (UnreachableSampleError, candidate_poses, format_table, pair_angles,
+                              schedule_plan)
+
+RIG = load_rig(Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml")
+GRID = MerlGrid(30, 30, 60)
+
+
+def plan_doc(cells) -> dict:
+    """A plan document of the FROST layout (cell, w_i, w_o per sample) in selection order."""
+    w_i, w_o = GRID.cell_directions(np.asarray(cells))
+    samples = [{"cell": [int(v) for v in GRID.unravel(c)], "w_i": list(map(float, a)), "w_o": list(map(float, b))}
+               for c, a, b in zip(cells, w_i, w_o)]
+    return {"m": len(samples), "grid": GRID.as_dict(), "samples": samples}
+
+
+def reachable_cells(m: int, seed: int) -> np.ndarray:
+    reach = reachability(RIG, GRID)
+    rng = np.random.default_rng(seed)
+    return GRID.valid_cells[rng.choice(np.flatnonzero(reach.mask), m, replace=False)]
+
+
+@pytest.fixture(scope="module", params=[20, 60])
+def scheduled(request):
+    doc = plan_doc(reachable_cells(request.param, seed=request.param))
+    before = copy.deepcopy(doc)
+    out = schedule_plan(doc, RIG)
+    assert doc == before  # the input document is left unchanged
+    return doc, out
+
+
+def test_order_is_a_permutation_of_the_selection(scheduled):
+    doc, out = scheduled
+    order = [s["selection_index"] for s in out["samples"]]
+    assert sorted(order) == list(range(len(doc["samples"])))
+    for s in out["samples"]:
+        assert s["cell"] == doc["samples"][s["selection_index"]]["cell"]
+
+
+def test_planned_joints_stay_in_limits_and_reproduce_their_cells(scheduled):
+    doc, out = scheduled
+    q = np.array([[s["joints"][n] for n in RIG.joint_names] for s in out["samples"]])
+    for j, axis in enumerate(RIG.ordered_axes):
+        assert np.all((q[:, j] >= axis.limits_deg[0]) & (q[:, j] <= axis.limits_deg[1])), axis.name
+    assert np.all(np.abs(q[:, 2]) <= RIG.geometry.tilt_limit_deg) and np.all(q[:, 0] >= 8.0)
+    f_i, f_o = forward(RIG, q)
+    swapped = np.array([s["light_camera_swapped"] for s in out["samples"]])
+    w_i = np.array([s["w_i"] for s in out["samples"]])
+    w_o = np.array([s["w_o"] for s in out["samples"]])
+    want = pair_angles(np.where(swapped[:, None], w_o, w_i), np.where(swapped[:, None], w_i, w_o))
+    np.testing.assert_allclose(pair_angles(f_i, f_o), want, atol=1e-9)
+
+
+def test_motion_times_add_up_and_beat_the_selection_order(scheduled):
+    _, out = scheduled
+    q = [[s["joints"][n] for n in RIG.joint_names] for s in out["samples"]]
+    stops = [list(RIG.home)] + q + [list(RIG.home)]
+    moves = [float(move_time(RIG, a, b)) for a, b in zip(stops[:-1], stops[1:])]
+    np.testing.assert_allclose([s["move_s"] for s in out["samples"]], moves[:-1], rtol=1e-12)
+    assert out["return_home_s"] == pytest.approx(moves[-1])
+    assert out["planned_motion_s"] == pytest.approx(sum(moves))
+    assert out["planned_motion_s"] < out["selection_order_motion_s"]
+    assert out["rig"] == {"name": "sim-rig", "file": RIG.source, "kinematic_hash": RIG.kinematic_hash}
+    table = format_table(out).splitlines()
+    assert len(table) == len(q) + 3 and "selection order" in table[-1]
+
+
+def test_small_tours_are_optimal_against_brute_force():
+    cells = reachable_cells(6, seed=3)
+    poses, valid, _ = candidate_poses(RIG, *GRID.cell_directions(cells))
+    dist, ids = _pose_matrix(RIG, poses, valid, RIG.home)
+    best = min(_best_choice(dist, ids, np.array(p))[1] for p in itertools.permutations(range(6)))
+    tour = plan_tour(RIG, poses, valid, RIG.home)
+    assert tour.total_s == pytest.approx(best, rel=1e-9)
+
+
+def test_unreachable_sample_is_refused_with_its_reason():
+    reach = reachability(RIG, GRID)
+    bad = GRID.valid_cells[np.flatnonzero(reach.reason == 1)[0]]
+    doc = plan_doc(np.concatenate([reachable_cells(3, seed=1), [bad]]))
+    label = "(%d, %d, %d)" % GRID.unravel(bad)
+    with pytest.raises(UnreachableSampleError,
+                       match=rf"plan sample 3 \(cell \({label[1:-1]}\)\) cannot be reached on this rig: ARM_SEPARATION"):
+        schedule_plan(doc, RIG)
+
+
+def test_without_reciprocity_the_light_always_plays_w_i():
+    out = schedule_plan(plan_doc(reachable_cells(15, seed=7)), RIG, reciprocity=False)
+    assert not any(s["light_camera_swapped"] for s in out["samples"])
+    assert {s["branch"] for s in out["samples"]} <= {"direct", "mirror"}
