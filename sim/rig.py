@@ -1,0 +1,142 @@
+"""Start every simulated device of a rig on one SimClock and report their endpoints.
+
+``SimulatedRig(rig)`` takes a planner ``Rig`` or the raw rig-file mapping. ``start()`` opens a pty
+per serial device and a loopback TCP port per Modbus TCP device and returns the endpoints (axis
+name / "lamp" -> entry); ``resolved_driver_sections()`` gives the driver sections with those
+endpoints filled in, ready for ``drivers.rig_devices.RigDevices.from_sections``.
+"""
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+
+from .clock import SimClock
+from .lamp_model import LampModel
+
+
+def _get(spec, key, default=None):
+    return spec.get(key, default) if isinstance(spec, Mapping) else getattr(spec, key, default)
+
+
+def _axis_mapping(spec) -> dict:
+    """A planner AxisSpec (or a raw mapping) as a plain rig-file axis mapping."""
+    keys = ("limits_deg", "speed_deg_s", "accel_deg_s2", "home_deg", "tolerance_deg", "driver")
+    out = {k: copy.deepcopy(_get(spec, k)) for k in keys if _get(spec, k) is not None}
+    role = _get(spec, "role")
+    if role is not None:
+        out["role"] = getattr(role, "value", role)
+    return out
+
+
+def _dynamixel(clock, axis, section, lamp_model, lamp_section):
+    from .dynamixel_servo import SimulatedDynamixel
+    cpd = float(section["counts_per_deg"])
+    return SimulatedDynamixel(clock, id=section["id"], baud=section.get("baud", 57600),
+                              model=section.get("model", "XM430-W350"), counts_per_deg=cpd,
+                              position=round(float(axis.get("home_deg", 0.0)) * cpd))
+
+
+def _smc100(clock, axis, section, lamp_model, lamp_section):
+    from .smc100 import SimulatedSMC100
+    upd = float(section.get("units_per_deg", 1.0))
+    lo, hi = axis["limits_deg"]
+    return SimulatedSMC100(clock, address=section.get("address", 1), baud=section.get("baud", 57600),
+                           units_per_deg=upd, position=float(axis.get("home_deg", 0.0)) * upd,
+                           velocity=float(axis["speed_deg_s"]) * upd,
+                           acceleration=float(axis["accel_deg_s2"]) * upd,
+                           limits=(lo * upd - 1.0, hi * upd + 1.0))  # SL/SR just outside the axis limits
+
+
+def _modbus(clock, axis, section, lamp_model, lamp_section):
+    from .modbus_drive import SimulatedModbusDrive
+    rtu = section["protocol"] == "modbus-rtu"
+    lamp = dict(coil=lamp_section["coil"], photodiode_register=lamp_section["photodiode_register"]) \
+        if lamp_section else {}
+    extra = dict(transport="rtu", baud=section.get("baud", 115200)) if rtu else dict(transport="tcp", port=0)
+    return SimulatedModbusDrive(clock, device_id=section.get("device_id", 1),
+                                steps_per_deg=section["steps_per_deg"],
+                                word_order=section.get("word_order", "big"),
+                                register_map=section.get("register_map", "oriental-az"),
+                                position_deg=float(axis.get("home_deg", 0.0)), lamp=lamp_model,
+                                **lamp, **extra)
+
+
+DEVICE_FACTORIES = {"dynamixel": _dynamixel, "smc100": _smc100, "modbus-tcp": _modbus, "modbus-rtu": _modbus}
+
+
+class SimulatedRig:
+    """Every simulated device of one rig, sharing one SimClock and one LampModel.
+
+    ``speedup``: simulated seconds per real second (default: the rig's ``sim.clock_speedup``, else 1).
+    ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start).
+    """
+
+    def __init__(self, rig, speedup: float | None = None, seed: int = 0) -> None:
+        raw_axes = _get(rig, "axes")
+        self.axes = {name: _axis_mapping(spec) for name, spec in raw_axes.items()}
+        self.lamp_section = dict((_get(rig, "lamp") or {}).get("driver") or {}) or None
+        sim = _get(rig, "sim") or {}
+        self.clock = SimClock(float(speedup if speedup is not None else sim.get("clock_speedup", 1.0)))
+        drift = (sim.get("lamp") or {}).get("drift_per_hour", 0.02)
+        self.lamp_model = LampModel(self.clock, drift_per_hour=drift, seed=seed)
+        self._devices: dict = {}
+        self.endpoints: dict = {}
+
+    def _lamp_host(self) -> str | None:
+        return self.lamp_section.get("device") if self.lamp_section else None
+
+    def start(self) -> dict:
+        """Start every device; return axis name (and "lamp") -> endpoint entry. Idempotent."""
+        if self._devices:
+            return dict(self.endpoints)
+        try:
+            for name, axis in self.axes.items():
+                section = axis["driver"]
+                lamp = self.lamp_section if self._lamp_host() == name else None
+                device = DEVICE_FACTORIES[section["protocol"]](self.clock, axis, section, self.lamp_model, lamp)
+                self.endpoints[name] = device.start()
+                self._devices[name] = device
+        except BaseException:
+            self.stop()
+            raise
+        host = self._lamp_host()
+        if host is not None:
+            self.endpoints["lamp"] = self._devices[host].lamp_entry()
+        return dict(self.endpoints)
+
+    def stop(self) -> None:
+        """Stop every device and release its pty or port (idempotent)."""
+        for device in self._devices.values():
+            device.stop()
+        self._devices.clear()
+
+    def device(self, name: str):
+        """The simulated device of axis ``name`` (for fault injection and ground truth)."""
+        return self._devices[name]
+
+    def true_joints_deg(self) -> dict[str, float]:
+        """Where every simulated axis really is (degrees), by axis name."""
+        return {name: dev.true_position_deg() for name, dev in self._devices.items()}
+
+    def resolved_driver_sections(self) -> dict:
+        """``{"axes": name -> axis mapping with its driver endpoint filled in, "lamp": lamp section}``."""
+        if not self._devices:
+            raise RuntimeError("SimulatedRig.start() first: the endpoints are made at start")
+        axes = copy.deepcopy(self.axes)
+        for name, axis in axes.items():
+            entry, section = self.endpoints[name], axis["driver"]
+            if section["protocol"] == "modbus-tcp":
+                host, port = entry["endpoint"].rsplit(":", 1)
+                section["host"], section["port"] = host, int(port)
+            else:
+                section["port"] = entry["endpoint"]
+            if section["protocol"] == "modbus-rtu":
+                section["parity"] = "N"  # Linux ptys refuse parity; the simulated drive serves 8N1
+        return {"axes": axes, "lamp": copy.deepcopy(self.lamp_section)}
+
+    def __enter__(self) -> "SimulatedRig":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
