@@ -133,6 +133,9 @@ def validate_driver_section(section: Mapping, source: str, keypath: str) -> None
                 raise ConfigError(source, _join(keypath, key), spec.expected, "nothing (key missing)")
         elif not spec.check(section[key]):
             raise ConfigError(source, _join(keypath, key), spec.expected, section[key])
+    if "register_map" in section:  # a named map must exist; an inline map's own keys are checked too
+        from .modbus_map import resolve_map
+        resolve_map(section["register_map"], source, _join(keypath, "register_map"))
     if keypath.split(".")[0] == "lamp" and "device" not in section and "port" not in section:
         raise ConfigError(source, _join(keypath, "device"),
                           "either device (an axis hosting the lamp) or the lamp's own port", "neither")

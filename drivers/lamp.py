@@ -40,8 +40,12 @@ class Lamp:
                 raise DeviceError("lamp", "connect", None,
                                   f"device {section['device']!r} is not a Modbus axis of this rig")
             return cls(axis.link, owns_link=False, **common)
-        link = ModbusLink("lamp", section.get("device_id", 1), section.get("host", "127.0.0.1"),
-                          section["port"])
+        if section.get("protocol") == "modbus-rtu":
+            link = ModbusLink("lamp", section.get("device_id", 1), None, section["port"],
+                              section.get("baud", 115200), section.get("parity", "E"))
+        else:
+            link = ModbusLink("lamp", section.get("device_id", 1), section.get("host", "127.0.0.1"),
+                              section["port"])
         return cls(link, **common)
 
     def connect(self) -> None:

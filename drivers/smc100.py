@@ -7,6 +7,7 @@ the controller state and readable error bits; a stage error state or any error b
 """
 from __future__ import annotations
 
+import termios
 import time
 from collections.abc import Mapping
 
@@ -19,6 +20,8 @@ from .smc100_protocol import (
     Cmd, State, TellState, build_command, decode_ts, parse_reply, te_meaning,
 )
 
+# What an unplugged port raises: pyserial's errors, EIO, and termios.error (not an OSError).
+PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 REPLY_TIMEOUT_S = 0.2  # the manual gives about 10 ms for TP; leave room for a busy host
 
 
@@ -57,7 +60,7 @@ class SMC100Axis(Axis):
         try:
             self._serial.reset_input_buffer()  # a late or partial reply must not answer this command
             self._serial.write(line)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceTimeout(self.name, line.decode().strip(), None, f"connection lost: {exc}") from exc
         return line.decode().strip()
 
@@ -66,7 +69,7 @@ class SMC100Axis(Axis):
         text = self._send(cmd, value)
         try:
             raw = self._serial.read_until(TERMINATOR)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
         if not raw.endswith(TERMINATOR):
             raise DeviceTimeout(self.name, text, raw or None,
@@ -139,8 +142,10 @@ class SMC100Axis(Axis):
     def _read_moving(self) -> bool:
         ts = self._tell_state()
         if ts.is_fault:
+            causes = self._fault_causes(ts)
+            self._latched_causes.clear()  # delivered with this error
             raise DeviceFault(self.name, f"{self.address}TS", f"{self.address}TS{ts.error_bits:04X}"
-                              f"{int(ts.state):02X}", self._fault_causes(ts))
+                              f"{int(ts.state):02X}", causes)
         return ts.state in MOTION_STATES
 
     def _command_home(self) -> None:

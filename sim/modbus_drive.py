@@ -96,6 +96,7 @@ class SimulatedModbusDrive:
         self.free = False  # FREE input on: motor de-energised
         self.faults: set[str] = set()
         self.writes: list[tuple[int, list[int]]] = []  # every holding-register write (PDU address, values)
+        self.requests: list[bytes] = []  # raw bytes as received, for byte-exact tests
         self._lock = threading.RLock()
         self._holding = _Block(self.map.highest_holding_register() + 1, self._refresh, self._on_write)
         self._coils = _Block(max(self.coil + 1, 16), self._refresh_coils, self._on_coil_write)
@@ -201,7 +202,10 @@ class SimulatedModbusDrive:
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         """Apply the wire faults to outgoing frames (pymodbus calls this for every packet)."""
-        if not sending or not data:
+        if not sending:
+            self.requests.append(bytes(data))
+            return data
+        if not data:
             return data
         faults = self.faults
         if "no_reply" in faults:

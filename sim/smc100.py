@@ -76,7 +76,7 @@ class SimulatedSMC100:
     def inject_fault(self, kind: str) -> None:
         """Inject a fault (see FAULT_KINDS); faults persist until ``inject_fault('clear')``.
 
-        no_reply: commands are ignored. bad_checksum: ASCII has no checksum, so a reply is
+        no_reply: commands are carried out but nothing is sent back (a dead TX line). bad_checksum: ASCII has no checksum, so a reply is
         corrupted instead (its echoed command letters). drop_byte: the LF ending each reply is
         lost. alarm: following-error bit set, state 10 (stage error), motion stopped. stall:
         the stage freezes while the state stays MOVING. disconnect: the controller is unplugged
@@ -119,17 +119,17 @@ class SimulatedSMC100:
         self._buffer += data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         while b"\n" in self._buffer:
             line, self._buffer = self._buffer.split(b"\n", 1)
-            if not line.strip() or "no_reply" in self.faults:
+            if not line.strip():
                 continue
             self.received.append(line)
             reply = self._handle_line(line)
-            if reply:
+            if reply and "no_reply" not in self.faults:
                 port.write(self._faulty(reply))
 
     def _faulty(self, reply: bytes) -> bytes:
         """Apply the reply-corrupting faults to one reply line."""
         if "bad_checksum" in self.faults:
-            reply = reply[:1] + bytes(c ^ 0x20 for c in reply[1:3]) + reply[3:]
+            reply = reply[:1] + bytes(c ^ 0x01 for c in reply[1:3]) + reply[3:]  # TP -> UQ
         if "drop_byte" in self.faults:
             reply = reply[:-1]
         return reply
