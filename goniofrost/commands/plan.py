@@ -15,7 +15,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--y-form", choices=("all", "firstm"), default=None,
                         help="training signals in Y: all columns or the first m (authors' code); default: see DESIGN/report")
     parser.add_argument("--atoms", type=int, metavar="K", help="atoms k used in selection (default m; all with --max-error)")
-    # --rig RIG.yaml is added here by the planner (see run()).
+    parser.add_argument("--rig", metavar="RIG.yaml",
+                        help="select only cells this rig can reach, add joint targets and order them for least motion")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
 
 
@@ -28,11 +29,23 @@ def run(args) -> int:
     mask = None
     if args.max_angle is not None:
         mask = candidate_mask_max_angle(model.grid, args.max_angle)
-    # --- planner hook (--rig): mask &= reachable cells here, before selection. ---
+    rig = None
+    if args.rig is not None:
+        from ..rigfile import load_rig
+        from planner.reach import reachability
+        rig = load_rig(args.rig)
+        reach = reachability(rig, model.grid)
+        mask = reach.mask if mask is None else mask & reach.mask
+        why = ", ".join(f"{k} {v}" for k, v in reach.counts().items() if k != "OK" and v)
+        print(f"rig {rig.name}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
+              f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
     selection = select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                              y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
     doc = plan_document(args.model, model, selection)
-    # --- planner hook (--rig): add joint targets and reorder the samples here. ---
+    if rig is not None:
+        from planner.schedule import format_table, schedule_plan
+        doc = schedule_plan(doc, rig)
+        print(format_table(doc))
     write_plan(args.out, doc)
     print(f"{args.out}: m = {selection.m} samples, residual {selection.residuals[-1]:.4f}, "
           f"selection {selection.seconds:.3f} s")
