@@ -1,0 +1,349 @@
+"""Dynamixel Protocol 2.0: exact bytes from the manual, the driver on a scripted pty exchange, the
+driver and dynamixel-sdk against the simulated servo, and every injected fault."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+from drivers.axis import AxisConfig
+from drivers.dxl_protocol import (CONTROL_TABLE as T, ErrorCode, FrameError, Instruction, build_instruction,
+                                  build_status, crc16, find_frame, parse_packet, read_params, stuff,
+                                  unstuff, write_params)
+from drivers.dynamixel import DynamixelAxis
+from drivers.errors import (ArrivalError, AxisLimitError, ChecksumError, DeviceFault, DeviceTimeout,
+                            ExceptionReply, ProtocolError)
+from sim.clock import SimClock
+from sim.dynamixel_servo import SimulatedDynamixel
+from sim.pty_port import PtyPort
+
+CPD = 4096 / 360.0
+H = bytes.fromhex
+
+
+# ----- exact bytes from the ROBOTIS e-Manual ------------------------------------------------------
+def test_crc_check_value():
+    assert crc16(b"123456789") == 0xFEE8
+
+
+def test_ping_to_id_1_exact_bytes():
+    assert build_instruction(1, Instruction.PING) == H("FF FF FD 00 01 03 00 01 19 4E")
+
+
+def test_ping_status_of_an_xm430_w210():
+    frame = H("FF FF FD 00 01 07 00 55 00 06 04 26 65 5D")  # model 1030, firmware 0x26
+    assert build_status(1, 0, H("06 04 26")) == frame
+    pkt = parse_packet(frame)
+    assert (pkt.dxl_id, pkt.error, int.from_bytes(pkt.params[:2], "little")) == (1, 0, 1030)
+
+
+def test_read_present_position_and_its_status_exact_bytes():
+    assert build_instruction(1, Instruction.READ, read_params(T["present_position"])) == \
+        H("FF FF FD 00 01 07 00 02 84 00 04 00 1D 15")
+    status = H("FF FF FD 00 01 08 00 55 00 A6 00 00 00 8C C0")  # Present Position 166
+    assert build_status(1, 0, (166).to_bytes(4, "little")) == status
+    assert int.from_bytes(parse_packet(status).params, "little", signed=True) == 166
+
+
+def test_write_goal_position_exact_bytes():
+    assert build_instruction(1, Instruction.WRITE, write_params(T["goal_position"], 512)) == \
+        H("FF FF FD 00 01 09 00 03 74 00 00 02 00 00 CA 89")
+
+
+def test_negative_goal_is_twos_complement():
+    assert write_params(T["goal_position"], -100) == H("74 00 9C FF FF FF")
+
+
+def test_byte_stuffing_inserts_fd_and_counts_it_in_len():
+    body = H("03 FF FF FD 01")
+    assert stuff(body) == H("03 FF FF FD FD 01")
+    assert unstuff(stuff(body)) == body
+    frame = build_instruction(1, Instruction.WRITE, H("FF FF FD 01"))
+    assert frame[5] == 1 + 4 + 1 + 2  # INST + params + the stuffed FD + CRC
+    assert parse_packet(frame).params == H("FF FF FD 01")
+
+
+def test_stuffing_matches_dynamixel_sdk_on_random_packets():
+    import random
+    rng, ph = random.Random(0), PacketHandler(2.0)
+    for _ in range(300):
+        params = bytes(rng.choice([0xFF, 0xFD, 0x00, 0x01]) for _ in range(rng.randint(0, 10)))
+        pk = [0] * (len(params) + 10)
+        pk[4], pk[5], pk[7] = 1, len(params) + 3, 3
+        pk[8:8 + len(params)] = params
+        pk = ph.addStuffing(pk)  # NB: the SDK's txPacket drops this return value (sends unstuffed)
+        total = pk[5] + 7
+        pk[0:4] = [0xFF, 0xFF, 0xFD, 0]
+        crc = ph.updateCRC(0, pk, total - 2)
+        pk[total - 2:total] = [crc & 0xFF, crc >> 8]
+        assert bytes(pk[:total]) == build_instruction(1, Instruction.WRITE, params)
+
+
+def test_error_byte_status_and_bad_crc_are_recognised():
+    status = build_status(1, ErrorCode.DATA_LIMIT)
+    assert status == H("FF FF FD 00 01 04 00 55 06") + status[-2:]
+    assert parse_packet(status).error == 6
+    with pytest.raises(FrameError) as info:
+        parse_packet(status[:-1] + bytes([status[-1] ^ 1]))
+    assert info.value.kind == "crc"
+
+
+def test_find_frame_skips_garbage_and_waits_for_the_rest():
+    ping = build_instruction(1, Instruction.PING)
+    buf = bytearray(b"\x00\x12" + ping[:6])
+    assert find_frame(buf) is None
+    buf += ping[6:] + ping[:3]
+    assert find_frame(buf) == ping
+    assert bytes(buf) == ping[:3]
+
+
+# ----- the driver against a scripted exchange of exact bytes ---------------------------------------
+class ScriptedLine:
+    """A pty that expects exact request frames and answers with scripted replies, in order."""
+
+    def __init__(self, script):
+        self.script, self.port, self.problems = list(script), PtyPort(), []
+        self.leftover = b""
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        buf = b""
+        for request, reply in self.script:
+            deadline = time.monotonic() + 3.0
+            while len(buf) < len(request) and time.monotonic() < deadline:
+                buf += self.port.read(0.05)
+            got, buf = buf[:len(request)], buf[len(request):]
+            if got != request:
+                self.problems.append(f"expected {request.hex(' ')}, got {got.hex(' ')}")
+                return
+            if reply:
+                self.port.write(reply)
+        end = time.monotonic() + 0.2
+        while time.monotonic() < end:
+            buf += self.port.read(0.05)
+        self.leftover = buf
+
+    def finish(self):
+        self._thread.join(timeout=5)
+        self.port.close()
+        assert self.problems == [] and self.leftover == b""
+
+
+def _req(inst, params=b""):
+    return build_instruction(1, inst, params)
+
+
+def _read(name):
+    return _req(Instruction.READ, read_params(T[name]))
+
+
+def _write(name, value):
+    return _req(Instruction.WRITE, write_params(T[name], value))
+
+
+def _ok(params=b"", err=0):
+    return build_status(1, err, params)
+
+
+CONNECT_SCRIPT = [
+    (_req(Instruction.PING), _ok(H("FC 03 2E"))),            # model 1020 = XM430-W350
+    (_read("operating_mode"), _ok(b"\x03")),                  # position mode after power-up
+    (_write("torque_enable", 0), _ok()),                      # EEPROM needs torque off
+    (_write("operating_mode", 4), _ok()),                     # extended position mode
+    (_write("profile_velocity", 44), _ok()),                  # 60 deg/s / 1.374 deg/s per unit
+    (_write("profile_acceleration", 6), _ok()),               # 120 deg/s^2 / 21.46 per unit
+]
+
+
+def _yaw_config(**kw):
+    return AxisConfig("sample_yaw", (-180.0, 180.0), 60.0, 120.0, 0.0, 0.1, **kw)
+
+
+def test_driver_connect_and_signed_position_on_exact_bytes():
+    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok((-100).to_bytes(4, "little", signed=True)))])
+    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect()
+    assert axis.position() == pytest.approx(-100 / CPD)  # the SDK's read4ByteTxRx would say 4294967196
+    axis.close()
+    line.finish()
+
+
+def test_alert_bit_reads_hardware_error_status_and_raises_device_fault():
+    line = ScriptedLine(CONNECT_SCRIPT + [
+        (_read("moving"), _ok(b"\x00", err=0x80)),                    # Alert bit set
+        (_read("hardware_error_status"), _ok(b"\x24", err=0x80)),     # bits 2 and 5
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect()
+    with pytest.raises(DeviceFault) as info:
+        axis.is_moving()
+    assert info.value.causes == ["overheating", "overload"]
+    assert "sample_yaw" in str(info.value) and "READ moving" in str(info.value)
+    axis.close()
+    line.finish()
+
+
+def test_refused_goal_raises_exception_reply_and_commands_a_stop():
+    here = (0).to_bytes(4, "little")
+    line = ScriptedLine(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(here)),
+        (_write("goal_position", 1024), _ok(err=ErrorCode.DATA_LIMIT)),   # refused
+        (_read("present_position"), _ok(here)),                           # stop: goal := present
+        (_write("goal_position", 0), _ok()),
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect()
+    with pytest.raises(ExceptionReply) as info:
+        axis.move_to(90.0)
+    assert info.value.code == 6 and "data limit" in str(info.value)
+    axis.close()
+    line.finish()
+
+
+def test_wrong_model_number_is_refused():
+    line = ScriptedLine([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
+    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    with pytest.raises(ProtocolError, match="model number 1030, expected 1020"):
+        axis.connect()
+    assert not axis.connected
+    line.finish()
+
+
+# ----- against the simulated servo ---------------------------------------------------------------
+@pytest.fixture
+def servo(request):
+    speedup = getattr(request, "param", 40.0)  # fault tests run slower so a move outlasts the detection
+    dev = SimulatedDynamixel(SimClock(speedup), id=1, model="XM430-W350", counts_per_deg=CPD)
+    entry = dev.start()
+    yield dev, entry
+    dev.stop()
+
+
+@pytest.fixture
+def axis(servo):
+    dev, entry = servo
+    ax = DynamixelAxis(_yaw_config(stall_s=0.3), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
+                       reply_timeout_ms=100)
+    ax.connect()
+    ax.enable()
+    yield ax
+    dev.inject_fault("clear")
+    ax.close()
+
+
+def test_sdk_pings_moves_and_reads_the_simulated_servo(servo):
+    dev, entry = servo
+    assert entry == {"protocol": "dynamixel", "endpoint": entry["endpoint"], "id": 1, "baud": 57600}
+    port, ph = PortHandler(entry["endpoint"]), PacketHandler(2.0)
+    assert port.openPort() and port.setBaudRate(57600)
+    try:
+        model, result, error = ph.ping(port, 1)
+        assert (model, result, error) == (1020, COMM_SUCCESS, 0)
+        assert ph.write1ByteTxRx(port, 1, 11, 4) == (COMM_SUCCESS, 0)        # extended mode
+        assert ph.write1ByteTxRx(port, 1, 64, 1) == (COMM_SUCCESS, 0)        # torque on
+        assert ph.write1ByteTxRx(port, 1, 11, 3) == (COMM_SUCCESS, ErrorCode.ACCESS)  # EEPROM locked
+        assert ph.write4ByteTxRx(port, 1, 116, (-500) & 0xFFFFFFFF) == (COMM_SUCCESS, 0)
+        deadline = time.monotonic() + 5
+        while ph.read1ByteTxRx(port, 1, 122)[0] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        value, result, _ = ph.read4ByteTxRx(port, 1, 132)
+        assert result == COMM_SUCCESS and value == 2**32 - 500  # unsigned from the SDK
+        assert dev.true_position_deg() == pytest.approx(-500 / CPD)
+    finally:
+        port.closePort()
+
+
+def test_driver_moves_the_simulated_servo(servo, axis):
+    dev, _ = servo
+    final = axis.move_to(-90.0).wait()
+    assert final == pytest.approx(-90.0, abs=0.1)
+    assert dev.true_position_deg() == pytest.approx(-90.0, abs=0.1)
+    status = axis.status()
+    assert (status.moving, status.enabled, status.fault, status.details["model_number"]) == (False, True, None, 1020)
+
+
+def test_move_beyond_limits_sends_nothing(servo, axis):
+    dev, _ = servo
+    n = len(dev.received)
+    with pytest.raises(AxisLimitError, match=r"sample_yaw.*target 200 deg outside limits \[-180, 180\]"):
+        axis.move_to(200.0)
+    assert [p.instruction for p in dev.received[n:]] == [Instruction.READ]  # only the start position
+
+
+def test_move_within_tolerance_sends_nothing(servo, axis):
+    dev, _ = servo
+    n = len(dev.received)
+    status = axis.move_to(0.05)
+    assert status.done and status.wait() == 0.0
+    assert all(p.instruction == Instruction.READ for p in dev.received[n:])
+
+
+def _start_then_fault(dev, axis, kind):
+    status = axis.move_to(170.0)
+    dev.clock.sleep(0.5)
+    dev.inject_fault(kind)
+    return status
+
+
+def _assert_stopped(dev):
+    deadline = time.monotonic() + 1.0
+    while dev.motion.is_moving() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not dev.motion.is_moving()
+    assert abs(dev.true_position_deg() - 170.0) > 1.0  # stopped on the way, not arrived
+
+
+@pytest.mark.parametrize("servo", [4.0], indirect=True)
+@pytest.mark.parametrize("kind, error", [("no_reply", DeviceTimeout), ("bad_checksum", ChecksumError),
+                                         ("drop_byte", ProtocolError), ("alarm", DeviceFault),
+                                         ("stall", DeviceFault)])
+def test_injected_fault_raises_and_stops_the_servo(servo, axis, kind, error):
+    dev, _ = servo
+    status = _start_then_fault(dev, axis, kind)
+    with pytest.raises(error) as info:
+        status.wait()
+    assert info.value.axis == "sample_yaw"
+    _assert_stopped(dev)
+    if kind == "alarm":
+        assert info.value.causes == ["overload"]
+    if kind == "stall":
+        assert "stall" in str(info.value)
+    if kind in ("no_reply", "bad_checksum", "drop_byte"):  # goal := present unreadable -> torque off
+        assert not dev.torque_on
+
+
+@pytest.mark.parametrize("servo", [4.0], indirect=True)
+def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
+    dev, _ = servo
+    status = _start_then_fault(dev, axis, "disconnect")
+    with pytest.raises(DeviceTimeout):
+        status.wait()
+    sent = [(p.instruction, p.params[:2]) for p in dev.ignored]
+    assert (Instruction.WRITE, write_params(T["torque_enable"], 0)[:2]) in sent  # the stop went out
+
+
+def test_reboot_after_fault_clears_the_hardware_error(servo):
+    dev, entry = servo
+    ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
+                       reboot_after_fault=True, reply_timeout_ms=100)
+    ax.connect()
+    ax.enable()
+    dev.inject_fault("alarm")
+    with pytest.raises(DeviceFault, match="overload"):
+        ax.position()
+    assert dev._get(T["hardware_error_status"]) == 0 and dev._get(T["operating_mode"]) == 4
+    ax.enable()
+    assert ax.move_to(10.0).wait() == pytest.approx(10.0, abs=0.1)
+    ax.close()
+
+
+def test_arrival_outside_tolerance_is_an_arrival_error(servo, axis):
+    dev, _ = servo
+    status = axis.move_to(45.0)
+    dev._set(T["goal_position"], 0)  # someone else re-targets the servo mid-move
+    dev.motion.start_move(0.0)
+    with pytest.raises(ArrivalError, match="not within 0.1 deg of the target 45 deg"):
+        status.wait()
