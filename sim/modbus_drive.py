@@ -154,15 +154,14 @@ class SimulatedModbusDrive:
         no_reply: requests are acted on but no reply goes out. bad_checksum: RTU replies carry a
         wrong CRC; TCP has no checksum, so the MBAP protocol id is corrupted instead. drop_byte:
         each reply loses its last byte. alarm: alarm code 0x30 (overload), ALM-A on, motor
-        stopped; moves are ignored until ALM-RST. stall: the motor freezes while MOVE stays on.
+        stopped; moves are ignored until ALM-RST (which works once the fault is cleared). stall: the motor freezes while MOVE stays on.
         disconnect: the drive goes off line (server closed, motor stopped).
         """
         if kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
         with self._lock:
-            if kind == "clear":
+            if kind == "clear":  # removes the causes; an alarm stays latched until ALM-RST
                 self.faults.clear()
-                self.alarm_code = 0
                 return
             self.faults.add(kind)
             if kind == "alarm":
