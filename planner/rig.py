@@ -19,7 +19,8 @@ from goniofrost.errors import ConfigError
 
 from . import schema as S
 
-# validator(section, source, keypath) raises ConfigError on a bad section.
+# validator(section, source, keypath) raises ConfigError on a bad section; it may return the
+# section with its defaults filled in, which the Rig then keeps.
 SectionValidator = Callable[[Mapping, str, str], None]
 
 
@@ -188,9 +189,7 @@ def _axis(name: str, value: Any, source: str, driver_check: SectionValidator | N
     if not lo < hi:
         raise ConfigError(source, f"{kp}.limits_deg", "[low, high] with low < high", [lo, hi])
     home = S.number(spec["home_deg"], source, f"{kp}.home_deg", low=lo, high=hi)
-    driver = dict(S.mapping(spec["driver"], source, f"{kp}.driver"))
-    if driver_check is not None:
-        driver_check(driver, source, f"{kp}.driver")
+    driver = _checked(S.mapping(spec["driver"], source, f"{kp}.driver"), source, f"{kp}.driver", driver_check)
     return AxisSpec(
         name=name, role=role, limits_deg=(lo, hi), home_deg=home, driver=driver,
         speed_deg_s=S.number(spec["speed_deg_s"], source, f"{kp}.speed_deg_s", low=0.0, low_open=True),
@@ -203,16 +202,20 @@ def _lamp(value: Any, source: str, driver_check: SectionValidator | None) -> dic
     lamp = S.mapping(value, source, "lamp")
     S.check_keys(lamp, source, "lamp", (), ("driver",))
     if "driver" in lamp:
-        S.mapping(lamp["driver"], source, "lamp.driver")
-        if driver_check is not None:
-            driver_check(lamp["driver"], source, "lamp.driver")
+        driver = _checked(S.mapping(lamp["driver"], source, "lamp.driver"), source, "lamp.driver", driver_check)
+        return {**lamp, "driver": driver}
     return dict(lamp)
 
 
 def _plugged(top: Mapping, key: str, source: str, check: SectionValidator | None) -> dict:
     if key not in top:
         return {}
-    section = S.mapping(top[key], source, key)
-    if check is not None:
-        check(section, source, key)
-    return dict(section)
+    return _checked(S.mapping(top[key], source, key), source, key, check)
+
+
+def _checked(section: Mapping, source: str, keypath: str, check: SectionValidator | None) -> dict:
+    """A plain-dict copy of a section after its validator ran (a validator may return it completed)."""
+    if check is None:
+        return dict(section)
+    completed = check(section, source, keypath)
+    return dict(completed) if isinstance(completed, Mapping) else dict(section)

@@ -130,3 +130,12 @@ def test_section_validators_see_each_driver_camera_and_sim_section(tmp_path):
                                    "axes.sample_tilt.driver", "lamp.driver", "camera", "sim"])
     with pytest.raises(ConfigError, match=r"sim.yaml: sim.clock_speedup: expected a number > 0, found 20.0"):
         load_rig(SIM, {"sim": refuse_sim})
+
+
+def test_a_validator_may_complete_its_section_with_defaults():
+    def complete(section, source, keypath):
+        return {**section, "min_snr": 10.0}
+
+    rig = load_rig(SIM, {"camera": complete})
+    assert rig.camera["min_snr"] == 10.0 and rig.camera["kind"] == "sim"
+    assert "min_snr" not in load_rig(SIM).camera
