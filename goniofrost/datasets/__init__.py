@@ -6,6 +6,8 @@ combined with ``open_datasets``. ``SPEC:NAME`` names one material (``parse_mater
 """
 from __future__ import annotations
 
+import difflib
+
 from .base import Dataset, DatasetError, UnknownMaterialError
 
 __all__ = ["Dataset", "DatasetError", "UnknownMaterialError", "open_dataset", "parse_material_spec"]
@@ -23,8 +25,10 @@ def open_dataset(spec: str) -> Dataset:
     if sep and kind == "merl" and arg:
         from .merl_dir import MerlDirDataset
         return MerlDirDataset(arg)
+    close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl"], n=1, cutoff=0.5)
+    hint = f"; did you mean {close[0] if close[0] == 'builtin' else close[0] + ':' + (arg or 'PATH')}?" if close else ""
     raise DatasetError(
-        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz' or 'merl:DIR'"
+        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz' or 'merl:DIR'{hint}"
     )
 
 

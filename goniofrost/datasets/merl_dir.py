@@ -1,0 +1,109 @@
+"""A folder of MERL .binary files as a dataset (spec ``merl:DIR``).
+
+Material names are the file names without ``.binary`` (``DIR/gold-paint.binary`` ->
+``gold-paint``). Values are read with ``goniofrost.merl_io.read_merl``; evaluation at any angles
+returns the value of the containing cell of the file's grid (MERL tables are piecewise constant).
+
+Missing values (negative in the file, NaN in memory): at a cell that is invalid (below the
+horizon at its lower edge) they read as 0; at a valid cell they are an error naming the file, the
+number of such cells and the first one, because a material used for training or as simulated
+ground truth must cover every valid cell (filling the gaps silently would bias the dictionary).
+"""
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..grid import FULL_GRID, MerlGrid
+from ..merl_io import read_merl
+from .base import Dataset, DatasetError
+
+# Materials kept in memory (35 MB each at full resolution).
+RECENT_FILES = 4
+
+
+class MerlDirDataset(Dataset):
+    """Materials stored as MERL .binary files in one folder."""
+
+    def __init__(self, folder) -> None:
+        self.folder = Path(folder)
+        self.spec = f"merl:{self.folder}"
+        self._files: dict[str, Path] | None = None
+        self._recent: OrderedDict[str, tuple[MerlGrid, np.ndarray]] = OrderedDict()
+        self._digests: dict[tuple, str] = {}
+
+    def _paths(self) -> dict[str, Path]:
+        if self._files is None:
+            if not self.folder.is_dir():
+                raise DatasetError(f"{self.folder}: no such folder (merl:DIR expects a folder of MERL .binary files)")
+            files = sorted(self.folder.glob("*.binary"))
+            if not files:
+                raise DatasetError(f"{self.folder}: no *.binary files found (merl:DIR expects MERL .binary files)")
+            self._files = {path.stem: path for path in files}
+        return self._files
+
+    def names(self) -> list[str]:
+        return list(self._paths())
+
+    def content_id(self, name: str) -> str:
+        path = self._paths()[self.resolve(name)]
+        stat = path.stat()
+        key = (str(path), stat.st_size, stat.st_mtime_ns)
+        if key not in self._digests:
+            digest = hashlib.blake2b(digest_size=16)
+            with open(path, "rb") as handle:
+                for block in iter(lambda: handle.read(1 << 22), b""):
+                    digest.update(block)
+            self._digests[key] = digest.hexdigest()
+        return f"merl-v1:{self._digests[key]}"
+
+    def load(self, name: str) -> tuple[MerlGrid, np.ndarray]:
+        """(grid of the file, float64 (grid.size, 3) BRDF in 1/sr with NaN = missing)."""
+        name = self.resolve(name)
+        if name not in self._recent:
+            path = self._paths()[name]
+            brdf = read_merl(path)  # validates header and size first
+            file_grid = MerlGrid(*np.fromfile(path, dtype="<i4", count=3).tolist())
+            self._recent[name] = (file_grid, brdf)
+            while len(self._recent) > RECENT_FILES:
+                self._recent.popitem(last=False)
+        self._recent.move_to_end(name)
+        return self._recent[name]
+
+    def evaluate(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
+        grid, brdf = self.load(name)
+        flat = grid.angles_to_flat(theta_h, theta_d, phi_d)
+        return self._values(name, grid, brdf, flat)
+
+    def tabulate(self, names: Sequence[str] | None = None, grid: MerlGrid = FULL_GRID,
+                 cells: np.ndarray | None = None) -> np.ndarray:
+        """float32 (len(names), n_cells, 3): one file at a time (each is read once)."""
+        names = self.names() if names is None else [self.resolve(n) for n in names]
+        cells = grid.valid_cells if cells is None else np.asarray(cells, dtype=np.int64)
+        angles = None
+        out = np.empty((len(names), cells.size, 3), dtype=np.float32)
+        for i, name in enumerate(names):
+            file_grid, brdf = self.load(name)
+            if file_grid == grid:  # same grid: the cells are the file's own
+                out[i] = self._values(name, file_grid, brdf, cells)
+                continue
+            angles = grid.flat_angles(cells) if angles is None else angles
+            out[i] = self._values(name, file_grid, brdf, file_grid.angles_to_flat(*angles))
+        return out
+
+    def _values(self, name: str, grid: MerlGrid, brdf: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """Values (flat.shape + (3,)) of the file's cells; see the module docstring for NaN."""
+        values = brdf[flat]
+        missing = np.isnan(values).any(axis=-1)
+        bad = missing & grid.valid_mask[flat]
+        if bad.any():
+            first = tuple(int(v) for v in grid.unravel(np.asarray(flat)[bad].flat[0]))
+            raise DatasetError(
+                f"{self._paths()[name]}: {int(bad.sum())} valid cells have no value (negative in the "
+                f"file), first at (i_th, i_td, i_pd) = {first}; material {name!r} must cover every "
+                "valid cell to be tabulated or evaluated")
+        return np.where(missing[..., None], 0.0, values)

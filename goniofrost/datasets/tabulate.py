@@ -1,0 +1,191 @@
+"""Tabulated materials with an on-disk cache, and several datasets combined into one list.
+
+Cache: one float32 ``.npy`` (n_valid, 3) per material and grid under
+``<cache dir>/tabulated/`` (see ``goniofrost.cache``: ``$GONIOFROST_CACHE``, else
+``$XDG_CACHE_HOME/goniofrost`` or ``~/.cache/goniofrost``), named by a SHA-256 of
+TABULATE_VERSION, the dataset's ``content_id(name)`` and the grid. A content id changes whenever
+the values could (file hash, library version), so unchanged inputs are never recomputed and
+changed ones never reuse stale values. About 13 MB per material at full resolution; deleting
+the folder is always safe.
+
+Names across datasets (``collect_materials``): a material's label is its own name, unless two
+of the combined datasets hold that name; then each such material is labelled ``SPEC:NAME``
+(e.g. ``builtin:gold`` and ``nbrdf:data/x.npz:gold``).
+"""
+from __future__ import annotations
+
+import difflib
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..cache import atomic_replace, cache_path, content_key
+from ..grid import FULL_GRID, MerlGrid
+from . import open_dataset
+from .base import Dataset, DatasetError, UnknownMaterialError
+
+# Bump when the tabulation itself changes (cells, dtype, clamping): invalidates every entry.
+TABULATE_VERSION = "tabulate-v1"
+# Materials evaluated per call: batched evaluation without a huge temporary.
+MATERIALS_PER_BATCH = 8
+
+
+def cache_entry(dataset: Dataset, name: str, grid: MerlGrid = FULL_GRID) -> Path:
+    """Cache path of a material's values on the valid cells of ``grid``."""
+    key = content_key(TABULATE_VERSION, dataset.content_id(name), grid.as_dict())
+    return cache_path("tabulated", key, ".npy")
+
+
+def tabulate_cached(dataset: Dataset, names: Sequence[str] | None = None,
+                    grid: MerlGrid = FULL_GRID, progress: bool | None = None) -> np.ndarray:
+    """BRDFs of materials on the valid cells of ``grid``, computed once and then read from disk.
+
+    Returns float32 (len(names), grid.n_valid, 3) in 1/sr (default: every material).
+    ``progress``: tqdm bar on stderr; None shows it when more than one material is computed.
+    """
+    names = dataset.names() if names is None else [dataset.resolve(n) for n in names]
+    out = np.empty((len(names), grid.n_valid, 3), dtype=np.float32)
+    paths = [cache_entry(dataset, name, grid) for name in names]
+    todo = []
+    for i, path in enumerate(paths):
+        cached = _load(path, grid)
+        if cached is None:
+            todo.append(i)
+        else:
+            out[i] = cached
+    with _bar(len(todo), progress) as bar:
+        for start in range(0, len(todo), MATERIALS_PER_BATCH):
+            batch = todo[start:start + MATERIALS_PER_BATCH]
+            values = dataset.tabulate([names[i] for i in batch], grid)
+            _require_finite(dataset, [names[i] for i in batch], values)
+            for j, i in enumerate(batch):
+                _save(paths[i], values[j])
+                out[i] = values[j]
+            bar.update(len(batch))
+    return out
+
+
+def _load(path: Path, grid: MerlGrid) -> np.ndarray | None:
+    """A cached entry (memory-mapped), or None when absent or not of the expected shape."""
+    if not path.is_file():
+        return None
+    try:
+        values = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError):
+        return None  # unreadable entry: recompute and overwrite it
+    if values.shape != (grid.n_valid, 3) or values.dtype != np.float32:
+        return None
+    return values
+
+
+def _save(path: Path, values: np.ndarray) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as handle:
+            np.save(handle, np.ascontiguousarray(values, dtype=np.float32))
+        atomic_replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _require_finite(dataset: Dataset, names: Sequence[str], values: np.ndarray) -> None:
+    for name, table in zip(names, values):
+        bad = ~np.isfinite(table)
+        if bad.any():
+            raise DatasetError(f"{dataset.spec}: material {name!r} gives {int(bad.any(-1).sum())} "
+                               "non-finite values on the grid")
+
+
+class _NoBar:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+    def update(self, n: int) -> None:
+        return None
+
+
+def _bar(total: int, progress: bool | None):
+    if not (progress or (progress is None and total > 1)) or total == 0:
+        return _NoBar()
+    from tqdm import tqdm
+    return tqdm(total=total, desc="tabulating", unit="material", file=sys.stderr, leave=False)
+
+
+# ----- several datasets ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Material:
+    """One material of a combined list: its dataset, its own name and a label unique in the list."""
+
+    dataset: Dataset
+    name: str
+    label: str
+
+
+def open_datasets(specs: Sequence[str]) -> list[Dataset]:
+    """Open each dataset spec once (repeats are ignored), in order."""
+    if not specs:
+        raise DatasetError("no dataset given: expected at least one of builtin, nbrdf:PATH.npz, merl:DIR")
+    return [open_dataset(spec) for spec in dict.fromkeys(specs)]
+
+
+def collect_materials(specs: Sequence[str], only: Sequence[str] | None = None,
+                      exclude: Sequence[str] | None = None) -> list[Material]:
+    """Every material of the datasets, in order, filtered by ``only`` and ``exclude``.
+
+    A selector matches a material's label, its ``SPEC:NAME`` or its plain name (then every
+    dataset's material of that name). A selector that matches nothing is an error with close
+    names suggested (a typo must not silently change a training set); so is an empty result.
+    """
+    datasets = open_datasets(specs)
+    pairs = [(ds, name) for ds in datasets for name in ds.names()]
+    counts: dict[str, int] = {}
+    for _, name in pairs:
+        counts[name] = counts.get(name, 0) + 1
+    materials = [Material(ds, name, name if counts[name] == 1 else f"{ds.spec}:{name}")
+                 for ds, name in pairs]
+    if only:
+        materials = [m for m in materials if _matches(m, _check_selectors(materials, only, "--only"))]
+    if exclude:
+        drop = _check_selectors(materials, exclude, "--exclude")
+        materials = [m for m in materials if not _matches(m, drop)]
+    if not materials:
+        raise DatasetError(f"no materials left of datasets {list(specs)} after --only/--exclude")
+    return materials
+
+
+def _keys(material: Material) -> set[str]:
+    return {material.label, material.name, f"{material.dataset.spec}:{material.name}"}
+
+
+def _matches(material: Material, selectors: set[str]) -> bool:
+    return not _keys(material).isdisjoint(selectors)
+
+
+def _check_selectors(materials: list[Material], selectors: Sequence[str], option: str) -> set[str]:
+    known = set().union(*(_keys(m) for m in materials)) if materials else set()
+    for selector in selectors:
+        if selector not in known:
+            close = difflib.get_close_matches(selector, sorted(known), n=3, cutoff=0.5)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise UnknownMaterialError(f"{option} {selector!r}: no such material in the datasets{hint}")
+    return set(selectors)
+
+
+def tabulate_materials(materials: Sequence[Material], grid: MerlGrid = FULL_GRID,
+                       progress: bool | None = None) -> np.ndarray:
+    """float32 (len(materials), grid.n_valid, 3) in 1/sr, in order, through the cache."""
+    out = np.empty((len(materials), grid.n_valid, 3), dtype=np.float32)
+    groups: dict[int, list[int]] = {}
+    for i, material in enumerate(materials):
+        groups.setdefault(id(material.dataset), []).append(i)
+    for indices in groups.values():
+        dataset = materials[indices[0]].dataset
+        out[indices] = tabulate_cached(dataset, [materials[i].name for i in indices], grid, progress)
+    return out
