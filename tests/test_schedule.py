@@ -103,3 +103,46 @@ def test_without_reciprocity_the_light_always_plays_w_i():
     out = schedule_plan(plan_doc(reachable_cells(15, seed=7)), RIG, reciprocity=False)
     assert not any(s["light_camera_swapped"] for s in out["samples"])
     assert {s["branch"] for s in out["samples"]} <= {"direct", "mirror"}
+
+
+@pytest.fixture(scope="module")
+def small_model(tmp_path_factory):
+    """A FROST model of 12 smooth random materials on the small grid (fit in well under a second)."""
+    from goniofrost.training import fit_model
+    rng = np.random.default_rng(0)
+    w_i, w_o = GRID.cell_directions(GRID.valid_cells)
+    h = w_i + w_o
+    cos_h = h[:, 2] / np.linalg.norm(h, axis=1)
+    tables = np.stack([(rng.uniform(0.05, 0.3, 3) + rng.uniform(0, 50) * cos_h[:, None] ** rng.uniform(5, 200))
+                       for _ in range(12)]).astype(np.float32)
+    folder = tmp_path_factory.mktemp("model") / "model"
+    fit_model(tables, [f"m{i}" for i in range(12)], GRID, k_max=30).save(folder)
+    return folder
+
+
+def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, capsys):
+    from goniofrost.cli import main
+    from goniofrost.planfile import read_plan
+    out = tmp_path / "plan.json"
+    rig_file = Path(RIG.source)
+    assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    reach = reachability(RIG, GRID)
+    assert f"{int(reach.mask.sum())} of {GRID.n_valid} valid cells reachable" in printed
+    assert "selection order" in printed
+    doc = read_plan(out)
+    assert doc["rig"]["kinematic_hash"] == RIG.kinematic_hash and len(doc["samples"]) == 12
+    assert sorted(s["selection_index"] for s in doc["samples"]) == list(range(12))
+    positions = GRID.valid_position([GRID.flat_index(*s["cell"]) for s in doc["samples"]])
+    assert np.all(reach.mask[positions])  # only reachable cells were selected
+    assert doc["planned_motion_s"] == pytest.approx(sum(s["move_s"] for s in doc["samples"]) + doc["return_home_s"])
+
+
+def test_plan_command_refuses_a_malformed_rig_and_writes_nothing(small_model, tmp_path, capsys):
+    from goniofrost.cli import main
+    bad = tmp_path / "rig.yaml"
+    bad.write_text(Path(RIG.source).read_text().replace("speed_deg_s: 20.0", "speed_deg_s: -20.0"))
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(small_model), "--samples", "5", "--rig", str(bad), "--out", str(out)]) == 2
+    assert "axes.sample_tilt.speed_deg_s: expected a number in (0, inf], found -20.0" in capsys.readouterr().err
+    assert not out.exists()
