@@ -1,5 +1,8 @@
 """From FROST samples to rig poses: rig files, kinematics, reachability and move order.
 
 Pure computation: this package imports no device or file-format I/O beyond reading YAML rig
-files. Filled by the planner issue.
+files. Modules: ``rig`` (load_rig, Rig, AxisSpec; ``schema`` does the strict YAML checks),
+``kinematics`` (forward, inverse, Reason), ``reach`` (reachability of a whole grid, cached),
+``motion`` (trapezoidal move times), ``order`` (tour search) and ``schedule`` (schedule_plan,
+format_table).
 """
