@@ -31,17 +31,19 @@ class LampOff:
 
 @dataclass(frozen=True)
 class Calibrate:
-    """Take the calibration frames (dark, flat, white reference) and journal the record."""
+    """Take the calibration frames (dark, flat, white reference at the pose just reached) and
+    journal the record."""
 
 
 @dataclass(frozen=True)
 class Move:
-    """Move every axis to ``joints`` (axis name -> degrees) for plan sample ``index``.
+    """Move every axis to ``joints`` (axis name -> degrees) for plan sample ``index`` (None: the
+    white-reference pose of the calibration).
 
     Axes already within tolerance of their target are not commanded (the Axis contract).
     """
 
-    index: int
+    index: int | None
     joints: tuple[tuple[str, float], ...]
 
 
@@ -63,12 +65,14 @@ Step = Home | LampOn | LampOff | Calibrate | Move | Measure | Commit
 
 
 def session_steps(samples: Iterable[Mapping], axes: Iterable[str], done: Iterable[int] = (),
-                  calibrated: bool = False) -> Iterator[Step]:
+                  calibrated: bool = False, white_joints: Mapping | None = None) -> Iterator[Step]:
     """Yield the steps of a capture session.
 
     ``samples``: the plan's samples in capture order, each with ``joints`` {axis: deg};
     ``axes``: axis names in joint order; ``done``: plan indices already journaled;
-    ``calibrated``: a calibration record is already journaled (a resumed session keeps it).
+    ``calibrated``: a calibration record is already journaled (a resumed session keeps it);
+    ``white_joints``: the pose {axis: deg} that shows the white reference tile at its nominal
+    angles (required unless ``calibrated``).
     A session with nothing left to capture yields no step at all.
     """
     samples, axes, done = list(samples), tuple(axes), set(done)
@@ -77,6 +81,7 @@ def session_steps(samples: Iterable[Mapping], axes: Iterable[str], done: Iterabl
     yield Home(axes)
     yield LampOn()
     if not calibrated:
+        yield Move(None, tuple((name, float(white_joints[name])) for name in axes))
         yield Calibrate()
     for index, sample in enumerate(samples):
         if index in done:

@@ -7,9 +7,11 @@ AXES = ("camera_arm", "sample_yaw", "sample_tilt")
 SAMPLES = [{"joints": {"camera_arm": 30.0 + i, "sample_yaw": -i, "sample_tilt": 2.5 * i}} for i in range(3)]
 
 
-def test_fresh_session_homes_calibrates_then_moves_measures_and_commits_each_sample_in_plan_order():
-    steps = list(session_steps(SAMPLES, AXES))
-    expected = [Home(AXES), LampOn(), Calibrate()]
+def test_fresh_session_homes_calibrates_at_the_white_pose_then_moves_measures_and_commits_each_sample_in_plan_order():
+    white = {"camera_arm": 30.0, "sample_yaw": 0.0, "sample_tilt": 0.0}
+    steps = list(session_steps(SAMPLES, AXES, white_joints=white))
+    expected = [Home(AXES), LampOn(), Move(None, (("camera_arm", 30.0), ("sample_yaw", 0.0), ("sample_tilt", 0.0))),
+                Calibrate()]
     for i in range(3):
         expected += [Move(i, (("camera_arm", 30.0 + i), ("sample_yaw", float(-i)), ("sample_tilt", 2.5 * i))),
                      Measure(i), Commit(i)]
