@@ -151,25 +151,23 @@ def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarr
 
 def _somp(q: np.ndarray, y: np.ndarray, limit: int, max_error: float | None):
     """Run SOMP on rows q (n_c, k) and Y (k, t); return picked rows and residual ratios."""
-    n, k = q.shape
+    k = q.shape[1]
     y_norm = np.linalg.norm(y)
-    r = y.copy()
+    state = _BoundState(q, y)
     basis = np.zeros((k, 0))
-    h = np.zeros(n, dtype=np.float32)  # ||B^T q_j||^2
     picked: list[int] = []
     residuals: list[float] = []
     while len(picked) < limit:
-        j = _best_column(q, r, h, picked)
+        j = state.best_column()
         if j < 0:
             raise SelectionError(
                 f"selection: the allowed cells span only {len(picked)} independent directions; "
                 "allow more cells or ask for fewer samples")
         b = _orthonormal_step(basis, q[j].astype(np.float64))
         basis = np.column_stack([basis, b])
-        r -= np.outer(b, b @ r)
-        h += (q @ b.astype(np.float32)) ** 2
+        state.add(j, b)
         picked.append(j)
-        residuals.append(float(np.linalg.norm(r) / y_norm))
+        residuals.append(float(np.linalg.norm(state.r) / y_norm))
         if max_error is not None and residuals[-1] <= max_error:
             break
     return np.array(picked, dtype=np.int64), np.array(residuals)
@@ -182,38 +180,92 @@ def _orthonormal_step(basis: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _best_column(q, r, h, picked) -> int:
-    """Index of the row maximising ||r^T q_j||_1 (lowest on ties); -1 if every score is ~0."""
-    n, _ = q.shape
-    t = r.shape[1]
-    col_norms = np.linalg.norm(r, axis=0)
-    coef = min(np.sqrt(t) * np.linalg.norm(r, 2), col_norms.sum()) * (1 + BOUND_SLACK)
-    bound = coef * np.sqrt(np.maximum(1.0 - h, 0.0) + BOUND_SLACK)
-    bound[picked] = -1.0
-    probe = np.argpartition(bound, -PROBE)[-PROBE:] if n > PROBE else np.arange(n)
-    lower = _scores64(q[probe], r).max() * (1 - BOUND_SLACK)
-    cand = np.flatnonzero(bound >= lower)
-    scores = _scores32(q, cand, r)
-    if cand.size == 0 or scores.max() <= 1e-9 * max(coef, 1e-300):
-        return -1
-    # Near-ties in float32 are settled in float64, lowest index first.
-    close = cand[scores >= scores.max() * (1 - RESCORE_MARGIN)]
-    exact = _scores64(q[close], r)
-    return int(close[np.argmax(exact)])
+class _BoundState:
+    """Residual R and per-cell upper bounds on the SOMP scores ||R^T q_j||_1.
+
+    Two exact bounds, the smaller is used:
+    * stale + growth: the exact score at the cell's last evaluation plus, for every basis
+      vector b_l added since, ||R_(l-1)^T b_l||_1 |b_l^T q_j| (triangle inequality on the
+      rank-1 update R_l = R_(l-1) - b_l b_l^T R_(l-1));
+    * min(sqrt(t) ||R||_2, sum_t ||r_t||_2) ||P q_j||_2 with ||P q_j||^2 = 1 - ||B^T q_j||^2.
+    Each step costs one gemv Q b plus a few passes over n floats, and exact scores only for
+    the cells whose bound reaches the best exact score found.
+    """
+
+    def __init__(self, q: np.ndarray, y: np.ndarray) -> None:
+        self.q, self.r = q, y.copy()
+        n = q.shape[0]
+        self.h = np.zeros(n, dtype=np.float32)       # ||B^T q_j||^2
+        self.growth = np.zeros(n, dtype=np.float32)
+        self.stale = _scores32(q, None, self.r)       # exact scores at step 0
+        self.open = np.ones(n, dtype=bool)
+
+    def add(self, j: int, b: np.ndarray) -> None:
+        """Account for the new orthonormal basis vector b (k,) of picked row j."""
+        a = float(np.abs(self.r.T @ b).sum()) * (1 + BOUND_SLACK)
+        self.r -= np.outer(b, b @ self.r)
+        v = self.q @ b.astype(np.float32)
+        self.h += v * v
+        np.abs(v, out=v)
+        v *= np.float32(a)
+        self.growth += v
+        self.open[j] = False
+
+    def bounds(self) -> np.ndarray:
+        t = self.r.shape[1]
+        coef = min(np.sqrt(t) * np.linalg.norm(self.r, 2), np.linalg.norm(self.r, axis=0).sum())
+        ub = 1.0 - self.h
+        np.maximum(ub, 0.0, out=ub)
+        ub += np.float32(BOUND_SLACK)
+        np.sqrt(ub, out=ub)
+        ub *= np.float32(coef * (1 + BOUND_SLACK))
+        np.minimum(ub, (self.stale + self.growth) * np.float32(1 + BOUND_SLACK), out=ub)
+        ub[~self.open] = -1.0
+        return ub
+
+    def best_column(self) -> int:
+        """Row maximising ||R^T q_j||_1 among open rows (lowest on ties); -1 if all ~0."""
+        ub = self.bounds()
+        n = ub.size
+        probe = np.argpartition(ub, -PROBE)[-PROBE:] if n > PROBE else np.arange(n)
+        lower = self._refresh(probe).max() * (1 - BOUND_SLACK)
+        cand = np.flatnonzero(ub >= lower)
+        scores = self._refresh(cand)
+        scores[~self.open[cand]] = -1.0
+        top = scores.max() if scores.size else -1.0
+        if top <= 1e-9 * max(np.linalg.norm(self.r), 1e-300):
+            return -1
+        # Near-ties in float32 are settled in float64, lowest index first.
+        close = cand[scores >= top * (1 - RESCORE_MARGIN)]
+        return int(close[np.argmax(_scores64(self.q[close], self.r))])
+
+    def _refresh(self, rows: np.ndarray) -> np.ndarray:
+        # Gathering rows costs more than a contiguous pass once many cells are candidates.
+        if rows.size > self.q.shape[0] // 3:
+            scores = _scores32(self.q, None, self.r)[rows]
+        else:
+            scores = _scores32(self.q, rows, self.r)
+        self.stale[rows] = scores
+        self.growth[rows] = 0.0
+        return scores
 
 
 def _scores64(rows: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.abs(rows.astype(np.float64) @ r).sum(axis=1)
 
 
-def _scores32(q: np.ndarray, cand: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """||r^T q_j||_1 for rows cand of q, in float32 blocks (fused product, abs and sum)."""
+def _scores32(q: np.ndarray, rows: np.ndarray | None, r: np.ndarray) -> np.ndarray:
+    """||r^T q_j||_1 (float32) for the given rows of q (all when None), blockwise.
+
+    Product, abs and row sum are fused per block so the (rows x t) score matrix never
+    leaves the cache.
+    """
     r32 = r.astype(np.float32)
-    out = np.empty(cand.size, dtype=np.float32)
-    full = cand.size == q.shape[0]
-    for start in range(0, cand.size, BLOCK):
-        rows = q[start:start + BLOCK] if full else q[cand[start:start + BLOCK]]
-        c = rows @ r32
+    count = q.shape[0] if rows is None else rows.size
+    out = np.empty(count, dtype=np.float32)
+    for start in range(0, count, BLOCK):
+        part = q[start:start + BLOCK] if rows is None else q[rows[start:start + BLOCK]]
+        c = part @ r32
         np.abs(c, out=c)
         out[start:start + BLOCK] = c.sum(axis=1)
     return out

@@ -1,0 +1,297 @@
+"""FROST core: training, SOMP selection, ridge reconstruction, model and plan files, commands.
+
+Everything runs on small grids with synthetic materials (plus a few real networks), so the
+whole file takes a few seconds.
+"""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from goniofrost.cli import main
+from goniofrost.errors import ConfigError
+from goniofrost.grid import MerlGrid
+from goniofrost.merl_io import read_merl
+from goniofrost.metrics import log_relative_mse
+from goniofrost.model import FrostModel, ModelError
+from goniofrost.planfile import plan_document, read_plan, write_plan
+from goniofrost.reconstruction import (ReconstructionError, read_samples_csv, reconstruct,
+                                       reconstruct_log)
+from goniofrost.selection import SelectionError, candidate_mask_max_angle, select_cells
+from goniofrost.training import TrainingError, fit_model, train
+
+GRID = MerlGrid(10, 10, 20)
+
+
+def synthetic_tables(grid: MerlGrid, materials: int, seed: int) -> np.ndarray:
+    """Positive BRDF-like tables (M, n_valid, 3): a diffuse term plus a random-width lobe."""
+    rng = np.random.default_rng(seed)
+    th, td, _ = grid.flat_angles(grid.valid_cells)
+    kd = rng.uniform(0.02, 0.3, (materials, 1, 3))
+    ks = rng.uniform(0.1, 5.0, (materials, 1, 3))
+    width = rng.uniform(0.05, 0.5, (materials, 1, 1))
+    lobe = np.exp(-(th[None, :, None] / width) ** 2) * (1 + 0.5 * np.sin(td)[None, :, None])
+    noise = rng.uniform(0.9, 1.1, (materials, th.size, 3))
+    return ((kd + ks * lobe) * noise).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def model() -> FrostModel:
+    tables = synthetic_tables(GRID, 24, seed=1)
+    return fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=30)
+
+
+def textbook_somp(model: FrostModel, m: int, y_form: str, mask=None) -> list[int]:
+    """Plain SOMP (paper Algorithm 1) with an lstsq residual, float64, no tricks."""
+    d = np.asarray(model.dictionary, np.float64)[:, :m]
+    q = (d / np.asarray(model.singular_values[:m]) ** 2).T
+    q /= np.linalg.norm(q, axis=0)
+    y = np.asarray(model.coefficients[:m], np.float64)
+    y = y if y_form == "all" else y[:, :m]
+    allowed = np.ones(q.shape[1], bool) if mask is None else mask
+    r, picks = y.copy(), []
+    for _ in range(m):
+        scores = np.abs(r.T @ q).sum(axis=0)
+        scores[~allowed] = -1
+        scores[picks] = -1
+        picks.append(int(np.argmax(scores)))
+        a = q[:, picks]
+        r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+    return picks
+
+
+# ----- training ----------------------------------------------------------------------------
+def test_training_shapes_and_pca_identity(model):
+    n, t = GRID.n_valid, 72
+    assert model.dictionary.shape == (n, 30) and model.coefficients.shape == (30, t)
+    # V^T rows are orthonormal and singular values descend.
+    np.testing.assert_allclose(model.coefficients @ model.coefficients.T, np.eye(30), atol=1e-10)
+    assert np.all(np.diff(model.singular_values) <= 0)
+    # D = X V reproduces the centred mapped data X (all t components kept -> exact).
+    tables = synthetic_tables(GRID, 24, seed=1)
+    full = fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=100)
+    assert full.n_components <= 72
+    x = full.to_log(tables).transpose(1, 0, 2).reshape(n, t) - np.asarray(full.mean, np.float64)[:, None]
+    np.testing.assert_allclose(np.asarray(full.dictionary, np.float64) @ full.coefficients, x, atol=2e-4)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_training_value_names_material_and_channel(bad):
+    tables = synthetic_tables(GRID, 4, seed=2)
+    tables[2, 17, 1] = bad
+    with pytest.raises(TrainingError, match=r"material 'mat2' channel G .*position 17"):
+        fit_model(tables, [f"mat{i}" for i in range(4)], GRID)
+
+
+def test_training_is_deterministic(model):
+    again = fit_model(synthetic_tables(GRID, 24, seed=1), [f"mat{i}" for i in range(24)], GRID, k_max=30)
+    assert again.content_hash == model.content_hash
+    np.testing.assert_array_equal(again.dictionary, model.dictionary)
+
+
+def test_train_from_dataset_uses_cache(merl_npz, tmp_path):
+    spec = f"nbrdf:{merl_npz}"
+    only = ["chrome", "white-diffuse-bball", "gold-metallic-paint2", "blue-acrylic"]
+    first = train([spec], only=only, exclude=["chrome"], grid=GRID, k_max=5)
+    assert sorted(first.names) == sorted(only[1:]) and first.n_signals == 9
+    again = train([spec], only=only, exclude=["chrome"], grid=GRID, k_max=5)
+    assert isinstance(again.dictionary, np.memmap) and again.content_hash == first.content_hash
+    with pytest.raises(Exception, match="none of the datasets"):
+        train([spec], only=["no-such-material"], grid=GRID)
+
+
+# ----- model file ----------------------------------------------------------------------------
+def test_model_round_trip_memory_mapped(model, tmp_path):
+    model.save(tmp_path / "m")
+    loaded = FrostModel.load(tmp_path / "m")
+    assert isinstance(loaded.dictionary, np.memmap)
+    assert loaded.names == model.names and loaded.grid == GRID and loaded.eps == 0.001
+    assert loaded.content_hash == model.content_hash == loaded.compute_hash()
+    np.testing.assert_array_equal(loaded.dictionary, model.dictionary)
+    values = synthetic_tables(GRID, 1, seed=5)[0].astype(np.float64)
+    np.testing.assert_allclose(loaded.from_log(loaded.to_log(values)), values, rtol=1e-9)
+
+
+def test_model_load_refuses_non_model(tmp_path):
+    with pytest.raises(ModelError, match="not a goniofrost model"):
+        FrostModel.load(tmp_path)
+
+
+# ----- selection -----------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("y_form", ["all", "firstm"])
+def test_fast_somp_equals_textbook(seed, y_form):
+    tables = synthetic_tables(GRID, 20, seed=10 + seed)
+    rng = np.random.default_rng(seed)
+    tables *= rng.uniform(0.5, 2.0, tables.shape).astype(np.float32)  # a random problem
+    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25)
+    m = int(rng.integers(5, 20))
+    mask = rng.random(GRID.n_valid) < 0.7
+    assert select_cells(mdl, m, y_form=y_form).positions.tolist() == textbook_somp(mdl, m, y_form)
+    assert select_cells(mdl, m, y_form=y_form, candidates=mask).positions.tolist() == \
+        textbook_somp(mdl, m, y_form, mask)
+
+
+def test_selection_is_deterministic_and_consistent(model):
+    a, b = select_cells(model, 12), select_cells(model, 12)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.cells, GRID.valid_cells[a.positions])
+    assert len(set(a.positions.tolist())) == 12 and np.all(np.diff(a.residuals) < 0)
+
+
+def test_max_error_rule(model):
+    sel = select_cells(model, max_error=0.3)
+    assert sel.residuals[-1] <= 0.3 < sel.residuals[-2]
+    # Residuals are ||R||_F / ||Y||_F of the textbook projection onto the chosen columns.
+    full = select_cells(model, sel.m, k=model.n_components)
+    np.testing.assert_array_equal(full.positions, sel.positions)
+    d = np.asarray(model.dictionary, np.float64)
+    q = (d / model.singular_values**2).T
+    a = q[:, sel.positions] / np.linalg.norm(q[:, sel.positions], axis=0)
+    y = model.coefficients
+    r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+    assert np.linalg.norm(r) / np.linalg.norm(y) == pytest.approx(sel.residuals[-1], rel=1e-6)
+
+
+def test_candidate_mask_max_angle(model):
+    mask = candidate_mask_max_angle(GRID, 45.0)
+    sel = select_cells(model, 8, candidates=mask)
+    assert mask[sel.positions].all()
+    w_i, w_o = GRID.cell_directions(sel.cells)
+    assert np.all(np.degrees(np.arccos(np.minimum(w_i[:, 2], w_o[:, 2]))) <= 45.0 + 1e-9)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({}, "exactly one of m"),
+    ({"m": 5, "max_error": 0.1}, "exactly one of m"),
+    ({"m": 0}, "expected an integer in"),
+    ({"m": 31}, "expected an integer in"),
+    ({"max_error": 1.5}, r"expected a number in \(0, 1\)"),
+    ({"m": 5, "y_form": "some"}, "y_form"),
+    ({"m": 5, "candidates": np.ones(3, bool)}, "bool mask of shape"),
+    ({"m": 5, "k": 3}, "k: expected"),
+])
+def test_bad_selection_options(model, kwargs, message):
+    with pytest.raises(SelectionError, match=message):
+        select_cells(model, **kwargs)
+
+
+# ----- reconstruction ------------------------------------------------------------------------
+@pytest.mark.parametrize("y_form", ["all", "firstm"])
+def test_exact_recovery_in_span(model, y_form):
+    m = 10
+    coeffs = np.random.default_rng(3).normal(0, 0.05, (m, 3))
+    mapped = np.asarray(model.dictionary[:, :m], np.float64) @ coeffs + np.asarray(model.mean, np.float64)[:, None]
+    truth = model.from_log(mapped)
+    assert truth.min() > 0
+    sel = select_cells(model, m, y_form=y_form)
+    estimate = reconstruct(model, sel.positions, truth[sel.positions], eta=1e-12)
+    np.testing.assert_allclose(estimate, truth, rtol=1e-4)
+    assert log_relative_mse(model, truth, estimate) < 1e-10
+
+
+def test_duplicate_samples_are_averaged(model):
+    truth = model.from_log(np.asarray(model.mean, np.float64)[:, None].repeat(3, 1))
+    pos = np.array([5, 9, 40, 5])
+    values = truth[pos] * np.array([[1.2], [1.0], [1.0], [0.8]])
+    a = reconstruct(model, pos, values)
+    b = reconstruct(model, pos[:3], np.array([truth[5], truth[9], truth[40]]))
+    # Averaged in the BRDF domain (1.2 and 0.8 -> 1.0), atoms = distinct cells (3).
+    np.testing.assert_allclose(a, b, rtol=1e-12)
+    log_b = reconstruct_log(model, pos[:3], model.to_log(truth[pos[:3]], pos[:3]), 40.0, 3)
+    np.testing.assert_allclose(model.from_log(log_b), b, rtol=1e-12)
+
+
+@pytest.mark.parametrize("values, message", [
+    ([[np.nan, 1, 1]], "NaN value nan in channel r"),
+    ([[1, np.inf, 1]], "infinite value inf in channel g"),
+    ([[1, 1, -0.5]], "negative value -0.5 in channel b"),
+])
+def test_reconstruct_refuses_bad_values(model, values, message):
+    with pytest.raises(ReconstructionError, match=message):
+        reconstruct(model, [3], values)
+
+
+# ----- SAMPLES.csv and the commands ----------------------------------------------------------
+HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r\n"
+
+
+def good_rows(model, count=6) -> str:
+    cells = GRID.valid_cells[select_cells(model, count).positions]
+    th, td, pd = (np.degrees(a) for a in GRID.flat_angles(cells))
+    return "".join(f"{a},{b},{c},0.1,0.2,0.3,0.01\n" for a, b, c in zip(th, td, pd))
+
+
+def test_read_samples_csv(model, tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text(HEADER + good_rows(model))
+    cells, values, extra = read_samples_csv(path, GRID)
+    assert np.all(GRID.valid_position(cells) >= 0) and values.shape == (6, 3)
+    assert extra == {"sigma_r": ["0.01"] * 6}
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", "empty file"),
+    ("theta_h_deg,theta_d_deg,phi_d_deg,r,g\n1,2,3,4,5\n", r"missing column\(s\) \['b'\]"),
+    (HEADER + "10,10,10,nan,0.2,0.3,0\n", "line 2: NaN value"),
+    (HEADER + "10,10,10,0.1,inf,0.3,0\n", "line 2: infinite value"),
+    (HEADER + "10,10,10,0.1,0.2,-1,0\n", "line 2: negative value -1.0 in channel b"),
+    (HEADER + "60,80,0,0.1,0.2,0.3,0\n", "line 2: .*not a valid cell"),
+    (HEADER + "10,10,x,0.1,0.2,0.3,0\n", "line 2: column phi_d_deg: expected a number"),
+    (HEADER, "no samples after the header"),
+])
+def test_reconstruct_command_bad_csv(model, tmp_path, capsys, text, message):
+    model.save(tmp_path / "model")
+    (tmp_path / "s.csv").write_text(text)
+    out = tmp_path / "out.binary"
+    code = main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out)])
+    assert code == 2 and not out.exists()
+    assert re.search(message, capsys.readouterr().err)
+
+
+def test_plan_and_reconstruct_commands(model, tmp_path):
+    model.save(tmp_path / "model")
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "7", "--max-angle", "60",
+                 "--out", str(plan)]) == 0
+    doc = read_plan(plan)
+    assert doc["m"] == 7 and doc["model"]["hash"] == model.content_hash
+    sample = doc["samples"][0]
+    assert max(sample["theta_i_deg"], sample["theta_o_deg"]) <= 60 + 1e-9
+    flat = GRID.flat_index(*sample["cell"])
+    w_i, w_o = GRID.cell_directions(flat)
+    np.testing.assert_allclose(sample["w_i"], w_i)
+    np.testing.assert_allclose(sample["w_o"], w_o)
+    (tmp_path / "s.csv").write_text(HEADER + good_rows(model))
+    out = tmp_path / "out.binary"
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out)]) == 0
+    brdf = read_merl(out, GRID)
+    assert np.isnan(brdf[~GRID.valid_mask]).all() and np.all(brdf[GRID.valid_mask] >= 0)
+
+
+def test_plan_max_error_command(model, tmp_path):
+    model.save(tmp_path / "model")
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(tmp_path / "model"), "--max-error", "0.25", "--out", str(plan)]) == 0
+    doc = read_plan(plan)
+    assert doc["residuals"][-1] <= 0.25 < doc["residuals"][-2] and len(doc["samples"]) == doc["m"]
+
+
+def test_read_plan_refuses_bad_content(model, tmp_path):
+    path = tmp_path / "p.json"
+    doc = plan_document("m", model, select_cells(model, 3))
+    del doc["samples"][1]["w_o"]
+    write_plan(path, doc)
+    with pytest.raises(ConfigError, match=r"samples\[1\]\.w_o"):
+        read_plan(path)
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="valid JSON"):
+        read_plan(path)
+    path.write_text(json.dumps({"model": {"path": "x", "hash": "y"}, "m": 1, "selection_seconds": 0}))
+    with pytest.raises(ConfigError, match="samples"):
+        read_plan(path)
