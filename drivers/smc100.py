@@ -82,12 +82,23 @@ class SMC100Axis(Axis):
     def _command(self, cmd: Cmd, value=None) -> None:
         """Send a set command, then read TE: any letter but '@' raises ExceptionReply."""
         text = self._send(cmd, value)
-        letter = self._query(Cmd.TELL_ERROR)
+        letter = self._tell_error()
         if len(letter) != 1:
             raise ProtocolError(self.name, f"{text}; TE", letter, "expected one error letter")
         if letter != "@":
             raise ExceptionReply(self.name, text, f"{self.address}TE{letter}",
                                  f"refused: {letter} = {te_meaning(letter)}", code=letter)
+
+    def _tell_error(self) -> str:
+        """Read TE, retrying only TE on a lost reply: resending the set command itself (e.g. a
+        second PA while the first one moves) would be refused with a spurious 'M'."""
+        for attempt in range(self.config.retries + 1):
+            try:
+                return self._query(Cmd.TELL_ERROR)
+            except (DeviceTimeout, ProtocolError):
+                if attempt == self.config.retries:
+                    raise
+        return "@"  # not reached: the last attempt returns or raises
 
     def _tell_state(self) -> TellState:
         """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""
@@ -113,7 +124,7 @@ class SMC100Axis(Axis):
         try:
             self._serial = serial.Serial(self.port, self.baud, bytesize=8, parity="N", stopbits=1,
                                          xonxoff=True, timeout=self.reply_timeout_s)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceError(self.name, f"open {self.port}", None, f"cannot open port: {exc}") from exc
         try:
             self._tell_state()  # proves a controller answers at this address

@@ -15,6 +15,7 @@ second pty whose path the client opens (a pty master has no path a serial server
 from __future__ import annotations
 
 import asyncio
+import select
 import threading
 
 from pymodbus.constants import ExcCodes
@@ -321,7 +322,6 @@ class _PtyBridge:
         self._thread.start()
 
     def _run(self) -> None:
-        import select
         a, b = self._server_side, self._client_side
         try:
             while self._running:
