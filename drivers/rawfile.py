@@ -1,0 +1,91 @@
+"""Read a camera RAW file (DNG or any format LibRaw reads) into linear values with rawpy.
+
+No demosaicing, gamma, white balance or brightness adjustment: ``linear`` is the sensor value
+minus the per-channel black level, divided by (white - black), per pixel. rawpy's ``postprocess``
+is never called, so LibRaw's ``adjust_maximum_thr`` rescaling (PROTOCOLS.md section 4) cannot apply.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.errors import GoniofrostError
+
+_CHANNEL_LETTERS = {ord("R"): 0, ord("G"): 1, ord("B"): 2}
+
+
+class RawFileError(GoniofrostError, ValueError):
+    """A RAW file that cannot be read (missing, corrupt, truncated, not a Bayer RGB raw)."""
+
+
+@dataclass
+class RawImage:
+    """Linear sensor values of one RAW frame.
+
+    ``linear``: float32 (H, W), (value - black[c]) / (white - black[c]), about [0, 1] (noise can
+    make it slightly negative; it is not clipped so averages stay unbiased).
+    ``channels``: uint8 (H, W), 0 = R, 1 = G, 2 = B. ``saturated``: bool (H, W), value >= white.
+    ``black_levels``: float (3,) per channel; ``white_level``: int; ``metadata``: from the file.
+    """
+
+    path: Path
+    linear: np.ndarray
+    channels: np.ndarray
+    saturated: np.ndarray
+    black_levels: np.ndarray
+    white_level: int
+    metadata: dict = field(default_factory=dict)
+
+
+def read_raw(path) -> RawImage:
+    """Decode ``path`` into a RawImage; raise RawFileError naming the file on any failure."""
+    import rawpy  # heavy: import on use
+
+    path = Path(path)
+    if not path.is_file():
+        raise RawFileError(f"{path}: RAW file not found")
+    try:
+        with rawpy.imread(str(path)) as raw:
+            values = raw.raw_image_visible.astype(np.float32)
+            colors = raw.raw_colors_visible.copy()
+            desc = raw.color_desc
+            black4 = np.asarray(raw.black_level_per_channel, dtype=np.float32)
+            white = int(raw.white_level)
+    except (rawpy.LibRawError, OSError) as exc:
+        raise RawFileError(f"{path}: cannot decode RAW file (corrupt or truncated?): {exc}") from exc
+    channels = _rgb_channels(path, colors, desc)
+    black = black4[colors]
+    if white <= int(black4.max()):
+        raise RawFileError(f"{path}: white level {white} is not above black levels {black4.tolist()}")
+    linear = (values - black) / (white - black)
+    black3 = np.array([black4[list(desc).index(c)] for c in b"RGB"], dtype=np.float64)
+    return RawImage(path, linear.astype(np.float32), channels, values >= white, black3, white,
+                    _metadata(path))
+
+
+def _rgb_channels(path: Path, colors: np.ndarray, desc: bytes) -> np.ndarray:
+    """Map LibRaw's per-pixel colour indices to 0=R, 1=G, 2=B; refuse non-RGB sensors."""
+    try:
+        lut = np.array([_CHANNEL_LETTERS[c] for c in desc], dtype=np.uint8)
+    except KeyError:
+        raise RawFileError(f"{path}: expected an RGB Bayer sensor, found colours {desc!r}") from None
+    return lut[colors]
+
+
+def _metadata(path: Path) -> dict:
+    """JSON metadata from a TIFF/DNG ImageDescription when present (else {})."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            text = tif.pages[0].description
+    except (tifffile.TiffFileError, OSError, IndexError, ValueError):
+        return {}  # not a TIFF-based RAW: LibRaw read it, metadata simply is not ours
+    try:
+        meta = json.loads(text) if text else {}
+    except json.JSONDecodeError:
+        return {"description": text}
+    return meta if isinstance(meta, dict) else {"description": text}
