@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import select
 import threading
+from collections import deque
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
@@ -96,8 +97,8 @@ class SimulatedModbusDrive:
         self.alarm_code = 0
         self.free = False  # FREE input on: motor de-energised
         self.faults: set[str] = set()
-        self.writes: list[tuple[int, list[int]]] = []  # every holding-register write (PDU address, values)
-        self.requests: list[bytes] = []  # raw bytes as received, for byte-exact tests
+        self.writes: deque = deque(maxlen=10_000)  # recent holding-register writes (PDU address, values)
+        self.requests: deque = deque(maxlen=10_000)  # recent raw requests, for byte-exact tests
         self._lock = threading.RLock()
         self._holding = _Block(self.map.highest_holding_register() + 1, self._refresh, self._on_write)
         self._coils = _Block(max(self.coil + 1, 16), self._refresh_coils, self._on_coil_write)

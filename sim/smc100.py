@@ -9,6 +9,7 @@ rotation stage); ``units_per_deg`` only converts ``true_position_deg()``.
 from __future__ import annotations
 
 import threading
+from collections import deque
 
 from drivers.smc100_protocol import (
     DEFAULT_BAUD, DISABLE_STATES, NOT_REFERENCED_STATES, READY_STATES, CommandLine, State,
@@ -44,7 +45,7 @@ class SimulatedSMC100:
         self.error_bits = 0
         self.error_letter = "@"
         self.faults: set[str] = set()
-        self.received: list[bytes] = []  # every command line, for tests and debugging
+        self.received: deque[bytes] = deque(maxlen=10_000)  # recent command lines, for tests
         self._lock = threading.RLock()
         self._port: PtyPort | None = None
         self._thread: threading.Thread | None = None

@@ -173,7 +173,7 @@ def test_pa_in_not_referenced_is_refused_with_h_and_stopped(axis, device):
     assert err.value.code == "H" and err.value.axis == "sample_tilt"
     assert err.value.command == "1PA10" and err.value.reply == "1TEH"
     assert "NOT REFERENCED" in str(err.value)
-    wait_for(lambda: device.received[-2:] == [b"1TE", b"1ST"])  # refused, then commanded to stop
+    wait_for(lambda: list(device.received)[-2:] == [b"1TE", b"1ST"])  # refused, then commanded to stop
 
 
 def test_pa_beyond_soft_limit_is_refused_with_g(axis, device):
@@ -211,7 +211,7 @@ def test_fault_during_move_raises_and_stops(axis, device, kind, error, text):
     wait_for(lambda: not device.motion.is_moving())
     assert device.true_position_deg() > -45.0 + 1.0  # stopped short of the target
     if kind != "disconnect":  # an unplugged controller cannot hear the stop; it stops by itself
-        wait_for(lambda: b"1ST" in device.received[-3:])
+        wait_for(lambda: b"1ST" in list(device.received)[-3:])
 
 
 def test_alarm_reports_state_10_and_clear_recovers(axis, device):
