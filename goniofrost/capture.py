@@ -28,10 +28,12 @@ class CaptureOutcome:
 
 
 def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
-            seed: int | None = None, speedup: float | None = None, progress: bool = True) -> CaptureOutcome:
+            seed: int | None = None, speedup: float | None = None, progress: bool = True,
+            on_ready=None) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
-    ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``.
+    ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
+    ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
     """
     from .session import SessionEngine
     from .session_checks import load_inputs
@@ -47,7 +49,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
         done = journal.done_indices()
         stats = None
         if len(done) < len(inputs.samples):
-            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup) as hardware:
+            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+                               on_ready=on_ready) as hardware:
                 stats = SessionEngine(inputs, hardware, journal, session_dir, progress=progress).run()
         report = write_outputs(inputs, journal, stats, session_dir, material)
     finally:

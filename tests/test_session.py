@@ -1,0 +1,296 @@
+"""Capture sessions on the simulated rig: end to end, SIGKILL + resume, SIGINT, a device fault,
+and rig/plan/model files that do not belong together (refused before anything moves).
+
+Small and fast: a 6-material model on the 30 x 30 x 60 grid, a 5-sample plan, a rig file with a
+short exposure ladder and a small simulated sensor, and a simulated clock 10-50x real time.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from goniofrost.capture import capture
+from goniofrost.cli import main
+from goniofrost.grid import MerlGrid
+from goniofrost.journal import Journal
+from goniofrost.merl_io import read_merl
+from goniofrost.session import SessionFault
+
+REPO = Path(__file__).resolve().parents[1]
+GRID = MerlGrid(30, 30, 60)
+TRAINING = ["white-diffuse", "blue-plastic", "gold", "white-ceramic", "blue-car-paint", "green-felt"]
+MATERIAL = "builtin:red-plastic"  # held out of TRAINING
+M = 5
+
+
+def write_rig(path: Path, **camera_arm) -> Path:
+    """The simulated rig file with a short calibration (and optional camera_arm overrides)."""
+    rig = yaml.safe_load((REPO / "config" / "rigs" / "sim.yaml").read_text())
+    rig["camera"].update(exposures_s=[0.002, 0.008, 0.032, 0.128], dark_frames=1, flat_frames=1)
+    rig["sim"]["camera"].update(width=192, height=144)
+    rig["axes"]["camera_arm"].update(camera_arm)
+    path.write_text(yaml.safe_dump(rig, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(folder, rig file, plan file, model) shared by the module's tests (read-only)."""
+    from goniofrost.cache import cache_path
+    from goniofrost.demo import plan_on_rig
+    from goniofrost.training import train
+
+    folder = tmp_path_factory.mktemp("session")
+    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    rig = write_rig(folder / "rig.yaml")
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    return folder, rig, plan, model
+
+
+def capture_args(rig, plan, session, *extra) -> list[str]:
+    return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session),
+            "--material", MATERIAL, "--no-progress", *extra]
+
+
+def journal_rows(session: Path) -> list[tuple]:
+    """(plan_index, committed_utc) of every journaled sample, read by a second connection."""
+    path = session / "session.sqlite"
+    if not path.exists():
+        return []
+    try:
+        with sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=1) as db:
+            return db.execute("SELECT plan_index, committed_utc FROM samples ORDER BY plan_index").fetchall()
+    except sqlite3.OperationalError:  # created but no table yet
+        return []
+
+
+def csv_indices(session: Path) -> list[int]:
+    with open(session / "samples.csv") as handle:
+        return [int(row["plan_index"]) for row in csv.DictReader(handle)]
+
+
+# ----- end to end ----------------------------------------------------------------------------
+def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_path, capsys):
+    folder, rig, plan, model = setup
+    session = tmp_path / "s"
+    assert main(capture_args(rig, plan, session, "--speedup", "50")) == 0
+    out = capsys.readouterr().out
+    assert f"{M} samples on rig 'sim-rig'" in out and "error against the ground truth builtin:red-plastic" in out
+
+    with Journal.open(session / "session.sqlite") as journal:
+        records, events, meta = journal.samples(), journal.events(), journal.meta()
+        assert journal.calibration()["version"] == 1
+    doc = json.loads(plan.read_text())
+    assert [r.plan_index for r in records] == list(range(M))
+    assert [r.cell for r in records] == [int(GRID.flat_index(*s["cell"])) for s in doc["samples"]]
+    assert meta["model_hash"] == model.content_hash and meta["material"] == MATERIAL
+    kinds = [e["kind"] for e in events]
+    assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-2:] == ["lamp", "session"]
+    for r, s in zip(records, doc["samples"]):  # the axes reached the plan's joints within tolerance
+        assert all(abs(r.joints[a] - s["joints"][a]) <= 0.1 for a in s["joints"])
+        assert r.snr >= 10 and all(np.isfinite(r.rgb)) and all(0 < sg < v for sg, v in zip(r.sigma, r.rgb))
+
+    # samples.csv is the journal, readable by the reconstruction's own reader
+    from goniofrost.reconstruction import read_samples_csv, reconstruct
+    cells, values, extra = read_samples_csv(session / "samples.csv", GRID)
+    np.testing.assert_array_equal(cells, [r.cell for r in records])
+    np.testing.assert_array_equal(values, [r.rgb for r in records])
+    assert [float(v) for v in extra["sigma_g"]] == [r.sigma[1] for r in records]
+
+    # brdf.binary is the ridge reconstruction of exactly those values, on the model's grid
+    brdf = read_merl(session / "brdf.binary", GRID)
+    expected = reconstruct(model, GRID.valid_position(cells), values)
+    np.testing.assert_allclose(brdf[GRID.valid_cells], expected, rtol=1e-12)
+
+    report = json.loads((session / "report.json").read_text())
+    assert report["samples"] == M and report["captured_this_run"] == M and report["runs"] == 1
+    assert report["times_s"]["motion"] > 0 and report["times_s"]["capture"] > 0
+    truth = report["ground_truth"]
+    # the issue's bar: no more than 20 % above reconstructing the same cells from exact values
+    assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
+    assert truth["sample_relative_error_median"] < 0.05
+    assert (session / "summary.txt").read_text() in out
+
+    # resuming a finished session moves nothing and rewrites the same results
+    n_events = len(events)
+    assert main(capture_args(rig, plan, session, "--resume")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        assert journal.samples() == records and len(journal.events()) == n_events
+    np.testing.assert_array_equal(read_merl(session / "brdf.binary", GRID), brdf)
+
+
+# ----- nothing lost ----------------------------------------------------------------------------
+def start_capture(rig, plan, session, speedup: str) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen([sys.executable, "-m", "goniofrost", *capture_args(rig, plan, session, "--speedup", speedup)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO)
+
+
+def wait_for_samples(session: Path, proc: subprocess.Popen, n: int, timeout: float = 60.0) -> list[tuple]:
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        rows = journal_rows(session)
+        if len(rows) >= n:
+            return rows
+        if proc.poll() is not None:
+            pytest.fail(f"capture ended early ({proc.returncode}): {proc.stderr.read().decode()}")
+        time.sleep(0.01)
+    proc.kill()
+    pytest.fail(f"no {n} journaled samples within {timeout} s")
+
+
+def test_sigkill_mid_session_then_resume_captures_every_sample_exactly_once(setup, tmp_path):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    proc = start_capture(rig, plan, session, speedup="10")
+    wait_for_samples(session, proc, 2)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait(timeout=10) == -signal.SIGKILL
+    killed_at = time.time()
+    before = journal_rows(session)
+    assert 2 <= len(before) < M, "the kill must land mid-session"
+    raw_before = {p.name: p.stat().st_mtime for p in (session / "raw").glob("sample_*.dng")}
+
+    assert main(capture_args(rig, plan, session, "--resume", "--speedup", "50")) == 0
+    after = journal_rows(session)
+    assert [i for i, _ in after] == list(range(M))
+    assert after[:len(before)] == before  # earlier samples untouched (same commit times)
+    assert sorted(csv_indices(session)) == list(range(M)) and len(csv_indices(session)) == M
+    with Journal.open(session / "session.sqlite") as journal:
+        starts = [e["message"] for e in journal.events() if e["kind"] == "session" and e["message"].startswith("started")]
+    assert starts == [f"started with 0 of {M} samples done", f"started with {len(before)} of {M} samples done"]
+    # no RAW file of a sample captured before the kill was taken again
+    for index, _ in before:
+        for path in (session / "raw").glob(f"sample_{index:04d}_e*.dng"):
+            assert path.stat().st_mtime == raw_before[path.name] and path.stat().st_mtime < killed_at
+    assert json.loads((session / "report.json").read_text())["runs"] == 2
+
+
+def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    proc = start_capture(rig, plan, session, speedup="10")
+    wait_for_samples(session, proc, 1)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=20) == 130
+    err = proc.stderr.read().decode()
+    assert "interrupted (SIGINT): every axis stopped" in err and "--resume" in err
+    with Journal.open(session / "session.sqlite") as journal:
+        [event] = [e for e in journal.events() if e["kind"] == "interrupted"]
+        assert event["data"]["stop_problems"] == []
+        done = journal.done_indices()
+    assert 1 <= len(done) < M and sorted(csv_indices(session)) == sorted(done)
+    assert not (session / "brdf.binary").exists()
+
+
+def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(setup, tmp_path):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+
+    def inject_after_two_samples(hardware):
+        def watch():
+            while len(journal_rows(session)) < 2:
+                time.sleep(0.005)
+            hardware.simulation.device("camera_arm").inject_fault("alarm")
+        threading.Thread(target=watch, daemon=True).start()
+
+    with pytest.raises(SessionFault) as caught:
+        capture(rig, plan, session, material=MATERIAL, speedup=10, progress=False, on_ready=inject_after_two_samples)
+    message = str(caught.value)
+    assert message.startswith("device fault at plan sample ") and "camera_arm" in message
+    assert "Every axis was stopped" in message and "run the same command with --resume" in message
+    with Journal.open(session / "session.sqlite") as journal:
+        [fault] = [e for e in journal.events() if e["kind"] == "fault"]
+        done = journal.done_indices()
+    assert fault["axis"] == "camera_arm" and fault["message"] in message
+    assert 2 <= len(done) < M and not (session / "brdf.binary").exists()
+
+
+# ----- files that do not belong together --------------------------------------------------------
+def run_refused(args, capsys) -> str:
+    assert main(args) == 2
+    return capsys.readouterr().err
+
+
+def test_plan_of_another_model_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    from goniofrost.model import FrostModel
+
+    folder, rig, plan, model = setup
+    other = FrostModel(grid=model.grid, names=list(reversed(model.names)), eps=model.eps,
+                       dictionary=np.asarray(model.dictionary), singular_values=np.asarray(model.singular_values),
+                       coefficients=np.asarray(model.coefficients), mean=np.asarray(model.mean),
+                       reference=np.asarray(model.reference), weight=np.asarray(model.weight))
+    other.save(tmp_path / "other-model")
+    doc = json.loads(plan.read_text())
+    doc["model"]["path"] = str(tmp_path / "other-model")
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert f"{tmp_path / 'plan.json'}: model.hash: expected the hash of the model {tmp_path / 'other-model'}" in err
+    assert "this plan was selected with another model" in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_plan_of_another_rig_or_an_unscheduled_plan_is_refused(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    faster = write_rig(tmp_path / "faster.yaml", speed_deg_s=45.0)
+    err = run_refused(capture_args(faster, plan, tmp_path / "s"), capsys)
+    assert f"{plan}: rig.kinematic_hash: expected " in err and f"(scheduled for rig 'sim-rig', {rig})" in err
+    doc = json.loads(plan.read_text())
+    del doc["rig"]
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert "rig: expected a plan scheduled for a rig (goniofrost plan --rig RIG.yaml), found None" in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_joint_target_outside_the_limits_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = json.loads(plan.read_text())
+    doc["samples"][3]["joints"]["sample_tilt"] = 85.0
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert "samples[3].joints.sample_tilt: expected an angle within the axis limits [-80, 80] deg, found 85.0" in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_bad_rig_file_is_refused_naming_file_and_key(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    bad = yaml.safe_load(rig.read_text())
+    del bad["axes"]["sample_tilt"]["limits_deg"]
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    err = run_refused(capture_args(tmp_path / "bad.yaml", plan, tmp_path / "s"), capsys)
+    assert f"{tmp_path / 'bad.yaml'}: axes.sample_tilt" in err and "limits_deg" in err
+    (tmp_path / "broken.yaml").write_text("name: [unclosed\n")
+    err = run_refused(capture_args(tmp_path / "broken.yaml", plan, tmp_path / "s"), capsys)
+    assert str(tmp_path / "broken.yaml") in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    from goniofrost.capture import open_journal, session_meta
+    from goniofrost.session_checks import load_inputs
+    meta = session_meta(load_inputs(rig, plan), MATERIAL)
+    open_journal(session, meta, resume=False).close()
+    err = run_refused(capture_args(rig, plan, session), capsys)
+    assert "session.sqlite: a session journal already exists; pass --resume" in err
+    doc = json.loads(plan.read_text())
+    doc["samples"] = doc["samples"][::-1]
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", session, "--resume"), capsys)
+    assert "meta.plan_sha256: this session was started with another plan" in err
+    err = run_refused(capture_args(rig, plan, tmp_path / "nothing", "--resume"), capsys)
+    assert "no session journal to resume" in err
