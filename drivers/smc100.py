@@ -119,6 +119,13 @@ class SMC100Axis(Axis):
             causes.append("stage error state (TS state 10)")
         return causes
 
+    def set_soft_limits(self, lo_deg: float, hi_deg: float) -> None:
+        """Set the controller's own limits SL/SR (degrees); PA outside them is refused with G."""
+        self._require_connected("set soft limits")
+        self._call(self._command, Cmd.LIMIT_NEGATIVE, lo_deg * self.units_per_deg)
+        self._call(self._command, Cmd.LIMIT_POSITIVE, hi_deg * self.units_per_deg)
+        self.soft_limits_units = (lo_deg * self.units_per_deg, hi_deg * self.units_per_deg)
+
     # ----- protocol hooks ----------------------------------------------------------------------
     def _connect(self) -> None:
         try:

@@ -25,7 +25,7 @@ from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivers.modbus_map import (
-    DIRECT_DATA_REGISTERS, TYPE_ABSOLUTE, TYPE_INCREMENTAL, DirectData, RegisterMap,
+    TYPE_ABSOLUTE, TYPE_INCREMENTAL, DirectData,
     from_registers, resolve_map, to_registers,
 )
 from sim.clock import SimClock

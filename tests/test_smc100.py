@@ -185,6 +185,15 @@ def test_pa_beyond_soft_limit_is_refused_with_g(axis, device):
     assert device.true_position_deg() == pytest.approx(0.0)
 
 
+def test_soft_limits_are_set_on_the_controller(axis, device):
+    axis.home().wait()
+    axis.set_soft_limits(-10.0, 10.0)
+    assert device.limits == [-10.0, 10.0] and b"1SR10" in device.received
+    with pytest.raises(ExceptionReply) as err:
+        axis.move_to(20.0)
+    assert err.value.code == "G"
+
+
 def test_commands_before_connect_raise(device):
     ax = SMC100Axis(AxisConfig("t", (-1.0, 1.0), 1.0, 1.0), device._port.path)
     with pytest.raises(NotConnectedError):
