@@ -251,3 +251,17 @@ def test_alarm_reset_recovers(drive):
     assert ax.status().fault is None
     assert ax.move_to(100.0).wait() == pytest.approx(100.0)
     ax.close()
+
+
+@pytest.mark.parametrize("drive", [("rtu", 40.0)], indirect=True)
+def test_rtu_axis_from_a_validated_rig_section(drive):
+    section = {"protocol": "modbus-rtu", "port": drive.endpoint["endpoint"], "baud": 115200,
+               "parity": "N", "device_id": 1, "steps_per_deg": 100.0, "word_order": "big",
+               "register_map": {"base": "oriental-az", "name": "az-copy"}}
+    validate_driver_section(section, "rig.yaml", "axes.camera_arm.driver")
+    cfg = AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, home_deg=90.0, tolerance_deg=0.02)
+    ax = ModbusAxis.from_section(cfg, section)
+    assert ax.link.rtu and ax.map.name == "az-copy"
+    ax.connect()
+    assert ax.move_to(45.0).wait() == pytest.approx(45.0)
+    ax.close()
