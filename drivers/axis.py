@@ -128,8 +128,12 @@ class Axis(ABC):
 
     # ----- public contract -------------------------------------------------------------------
     def connect(self) -> None:
-        """Open the connection, then load the speed and acceleration of the configuration."""
-        self._connect()
+        """Open the connection, then load the speed and acceleration of the configuration.
+
+        ``_connect`` is retried like any hook on a transient error, so it must release what it
+        opened before raising.
+        """
+        self._call(self._connect)
         self._connected = True
         try:
             self._call(self._apply_motion_profile, self.config.speed_deg_s, self.config.accel_deg_s2)
@@ -270,7 +274,7 @@ class Axis(ABC):
             try:
                 return hook(*args)
             except TRANSIENT_ERRORS as exc:
-                if attempt == self.config.retries:
+                if attempt == self.config.retries or not getattr(exc, "transient", True):
                     raise
                 log.info("%s: retry %d after %s", self.name, attempt + 1, exc)
 

@@ -10,6 +10,7 @@ to DeviceTimeout (nothing came back), ProtocolError (incomplete) and ChecksumErr
 from __future__ import annotations
 
 import logging
+import select
 import time
 from collections.abc import Mapping
 
@@ -30,6 +31,9 @@ T = CONTROL_TABLE
 DEG_S_PER_VEL_UNIT = VELOCITY_UNIT_RPM * 360.0 / 60.0  # 1.374 deg/s per Profile Velocity unit
 DEG_S2_PER_ACC_UNIT = ACCEL_UNIT_RPM2 * 360.0 / 3600.0  # 21.46 deg/s^2 per Profile Acceleration unit
 REBOOT_SETTLE_S = 0.5  # the servo is silent for a moment after REBOOT
+# The SDK waits only bytes x byte-time + 34 ms for a status; a busy host (or a simulator sharing
+# two cores with other work) can miss that. Waiting longer costs nothing when replies do come.
+DEFAULT_REPLY_TIMEOUT_MS = 100.0
 
 
 class _Port(PortHandler):
@@ -44,18 +48,26 @@ class _Port(PortHandler):
         super().setPacketTimeout(packet_length)
         self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
 
+    def readPort(self, length):  # noqa: N802 - SDK name
+        # The SDK polls a timeout=0 port in a busy loop; waiting up to 1 ms for bytes between
+        # polls frees the CPU (and the GIL, for a simulated servo in the same process).
+        data = self.ser.read(length)
+        if not data:
+            select.select([self.ser.fileno()], [], [], 0.001)
+        return data
+
 
 class DynamixelAxis(Axis):
     """An X-series servo in extended position mode; angles in degrees, ``counts_per_deg`` counts/deg.
 
     Driver section keys: ``port``, ``id``, ``baud``, ``model`` (e.g. "XM430-W350"; checked at
     connect), ``counts_per_deg`` (4096/360 for a direct drive), optional ``reboot_after_fault``
-    (bool) and ``reply_timeout_ms`` (minimum reply timeout).
+    (bool) and ``reply_timeout_ms`` (minimum reply timeout, default 100 ms).
     """
 
     def __init__(self, config: AxisConfig, port: str, id: int = 1, baud: int = 57600,
                  model: str | None = None, counts_per_deg: float = REV_COUNTS / 360.0,
-                 reboot_after_fault: bool = False, reply_timeout_ms: float = 0.0) -> None:
+                 reboot_after_fault: bool = False, reply_timeout_ms: float = DEFAULT_REPLY_TIMEOUT_MS) -> None:
         super().__init__(config)
         self.port_path, self.dxl_id, self.baud, self.model = str(port), int(id), int(baud), model
         self.counts_per_deg = float(counts_per_deg)
@@ -166,9 +178,11 @@ class DynamixelAxis(Axis):
         expected = MODEL_NUMBERS.get(self.model) if self.model else None
         ok = self.model_number == expected if expected else self.model_number in MODEL_NUMBERS.values()
         if not ok:
-            raise ProtocolError(self.name, "PING", data,
+            exc = ProtocolError(self.name, "PING", data,
                                 f"model number {self.model_number}, expected "
                                 f"{expected if expected else 'an X-series model'} ({self.model or 'X series'})")
+            exc.transient = False  # asking again will not change the model
+            raise exc
 
     def _ensure_extended_mode(self) -> None:
         if self._read(T["operating_mode"], check_alert=False) != OperatingMode.EXTENDED_POSITION:

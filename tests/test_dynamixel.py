@@ -6,7 +6,7 @@ import threading
 import time
 
 import pytest
-from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
 
 from drivers.axis import AxisConfig
 from drivers.dxl_protocol import (CONTROL_TABLE as T, ErrorCode, FrameError, Instruction, build_instruction,
@@ -234,22 +234,32 @@ def axis(servo):
     ax.close()
 
 
+def _sdk(call, *args):
+    """An SDK call, repeated (as any client would) while the reply timed out: the SDK waits only
+    ~35 ms, which a loaded 2-core test machine can miss."""
+    for _ in range(5):
+        out = call(*args)
+        if out[-2] != COMM_RX_TIMEOUT:
+            return out
+    return out
+
+
 def test_sdk_pings_moves_and_reads_the_simulated_servo(servo):
     dev, entry = servo
     assert entry == {"protocol": "dynamixel", "endpoint": entry["endpoint"], "id": 1, "baud": 57600}
     port, ph = PortHandler(entry["endpoint"]), PacketHandler(2.0)
     assert port.openPort() and port.setBaudRate(57600)
     try:
-        model, result, error = ph.ping(port, 1)
+        model, result, error = _sdk(ph.ping, port, 1)
         assert (model, result, error) == (1020, COMM_SUCCESS, 0)
-        assert ph.write1ByteTxRx(port, 1, 11, 4) == (COMM_SUCCESS, 0)        # extended mode
-        assert ph.write1ByteTxRx(port, 1, 64, 1) == (COMM_SUCCESS, 0)        # torque on
-        assert ph.write1ByteTxRx(port, 1, 11, 3) == (COMM_SUCCESS, ErrorCode.ACCESS)  # EEPROM locked
-        assert ph.write4ByteTxRx(port, 1, 116, (-500) & 0xFFFFFFFF) == (COMM_SUCCESS, 0)
+        assert _sdk(ph.write1ByteTxRx, port, 1, 11, 4) == (COMM_SUCCESS, 0)        # extended mode
+        assert _sdk(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)        # torque on
+        assert _sdk(ph.write1ByteTxRx, port, 1, 11, 3) == (COMM_SUCCESS, ErrorCode.ACCESS)  # EEPROM locked
+        assert _sdk(ph.write4ByteTxRx, port, 1, 116, (-500) & 0xFFFFFFFF) == (COMM_SUCCESS, 0)
         deadline = time.monotonic() + 5
-        while ph.read1ByteTxRx(port, 1, 122)[0] and time.monotonic() < deadline:
+        while _sdk(ph.read1ByteTxRx, port, 1, 122)[0] and time.monotonic() < deadline:
             time.sleep(0.01)
-        value, result, _ = ph.read4ByteTxRx(port, 1, 132)
+        value, result, _ = _sdk(ph.read4ByteTxRx, port, 1, 132)
         assert result == COMM_SUCCESS and value == 2**32 - 500  # unsigned from the SDK
         assert dev.true_position_deg() == pytest.approx(-500 / CPD)
     finally:
@@ -283,7 +293,7 @@ def test_move_within_tolerance_sends_nothing(servo, axis):
 
 def _start_then_fault(dev, axis, kind):
     status = axis.move_to(170.0)
-    dev.clock.sleep(0.5)
+    dev.clock.sleep(0.3)
     dev.inject_fault(kind)
     return status
 
@@ -296,7 +306,7 @@ def _assert_stopped(dev):
     assert abs(dev.true_position_deg() - 170.0) > 1.0  # stopped on the way, not arrived
 
 
-@pytest.mark.parametrize("servo", [4.0], indirect=True)
+@pytest.mark.parametrize("servo", [2.0], indirect=True)
 @pytest.mark.parametrize("kind, error", [("no_reply", DeviceTimeout), ("bad_checksum", ChecksumError),
                                          ("drop_byte", ProtocolError), ("alarm", DeviceFault),
                                          ("stall", DeviceFault)])
@@ -315,7 +325,7 @@ def test_injected_fault_raises_and_stops_the_servo(servo, axis, kind, error):
         assert not dev.torque_on
 
 
-@pytest.mark.parametrize("servo", [4.0], indirect=True)
+@pytest.mark.parametrize("servo", [2.0], indirect=True)
 def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
     dev, _ = servo
     status = _start_then_fault(dev, axis, "disconnect")
