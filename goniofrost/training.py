@@ -154,23 +154,26 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     """Train a FrostModel on the materials of one or more datasets.
 
     dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``), combined in order.
-    only: keep only these material names; exclude: drop these names (both optional).
+    only: keep only these materials; exclude: drop these (names, labels or SPEC:NAME; see
+        ``datasets.tabulate.collect_materials``; a selector matching nothing is an error).
+    Tabulated values come from the tabulation cache (``datasets.tabulate``).
     cache: reuse a model trained before on exactly the same inputs (keyed by the materials'
         content ids, grid, k_max, eps and the code version) from the goniofrost cache.
     Returns the model (memory-mapped from the cache when cache=True).
     """
     from . import cache as disk_cache
-    from .training_inputs import collect_training_materials, tabulate_materials
+    from .datasets.tabulate import collect_materials, tabulate_materials
 
-    materials = collect_training_materials(dataset_specs, only, exclude)
-    key = disk_cache.content_key("frost-model-v1", [m.content_id for m in materials],
+    materials = collect_materials(list(dataset_specs), only, exclude)
+    ids = [m.dataset.content_id(m.name) for m in materials]
+    key = disk_cache.content_key("frost-model-v1", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():
         return FrostModel.load(folder)
     tables = tabulate_materials(materials, grid, progress=progress)
     info = {"datasets": list(dataset_specs), "cache_key": key}
-    model = fit_model(tables, [m.name for m in materials], grid, k_max, info=info, progress=progress)
+    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
     del tables
     if folder is None:
         return model

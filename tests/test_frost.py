@@ -99,7 +99,7 @@ def test_train_from_dataset_uses_cache(merl_npz, tmp_path):
     assert sorted(first.names) == sorted(only[1:]) and first.n_signals == 9
     again = train([spec], only=only, exclude=["chrome"], grid=GRID, k_max=5)
     assert isinstance(again.dictionary, np.memmap) and again.content_hash == first.content_hash
-    with pytest.raises(Exception, match="none of the datasets"):
+    with pytest.raises(Exception, match="no such material"):
         train([spec], only=["no-such-material"], grid=GRID)
 
 

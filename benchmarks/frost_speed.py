@@ -1,0 +1,139 @@
+"""FROST speed: selection, training (time + peak memory), reconstruction + .binary writing.
+
+    .venv/bin/python benchmarks/frost_speed.py selection --model MODEL [--repeat 5]
+    .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
+    .venv/bin/python benchmarks/frost_speed.py reconstruction --model MODEL
+    .venv/bin/python benchmarks/frost_speed.py pca [--rows N]           # Gram vs randomized SVD
+
+Timings are medians of repeated runs; the machine is shared, so say so when quoting them.
+Targets (DESIGN.md): selection full grid m=20 <= 0.3 s, m=60 <= 2 s; training 131 materials
+<= 60 s and <= 6 GB peak; reconstruction + writing <= 0.5 s.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+
+def median_time(fn, repeat: int) -> tuple[float, list[float]]:
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times)), times
+
+
+def bench_selection(args) -> None:
+    from goniofrost.model import FrostModel
+    from goniofrost.selection import select_cells
+
+    model = FrostModel.load(args.model)
+    np.asarray(model.dictionary).sum()  # page the model in once: we time selection, not the disk
+    for y_form in ("firstm", "all"):
+        for m in (20, 60):
+            med, times = median_time(lambda: select_cells(model, m, y_form=y_form), args.repeat)
+            print(f"selection y_form={y_form:6s} m={m}: median {med:.3f} s  (runs {', '.join(f'{t:.3f}' for t in times)})",
+                  flush=True)
+
+
+def bench_training(args) -> None:
+    from frost_accuracy import SPECS, test_split
+
+    excluded = test_split(args.seed)
+    cmd = ["/usr/bin/time", "-v", str(REPO / ".venv/bin/goniofrost"), "train", "--no-cache"]
+    for spec in SPECS:
+        cmd += ["--dataset", spec]
+    for name in excluded:
+        cmd += ["--exclude", name]
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, GONIOFROST_CACHE=str(Path(tmp) / "cache"))
+        result = subprocess.run(cmd + ["--out", str(Path(tmp) / "model")], env=env,
+                                capture_output=True, text=True)
+    report = result.stderr
+    wall = re.search(r"Elapsed \(wall clock\) time.*: (.*)", report)
+    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", report)
+    print(result.stdout.strip())
+    print(f"training (131 materials, full grid, tabulation included): wall {wall.group(1) if wall else '?'}, "
+          f"peak RSS {int(rss.group(1)) / 1e6:.2f} GB" if rss else report[-2000:])
+
+
+def bench_reconstruction(args) -> None:
+    from goniofrost.merl_io import valid_to_full, write_merl
+    from goniofrost.model import FrostModel
+    from goniofrost.reconstruction import reconstruct
+    from goniofrost.selection import select_cells
+
+    model = FrostModel.load(args.model)
+    np.asarray(model.dictionary).sum()
+    positions = select_cells(model, 20, y_form="firstm").positions
+    values = np.random.default_rng(0).uniform(0.05, 2.0, (positions.size, 3))
+    with tempfile.TemporaryDirectory() as tmp:
+        def run():
+            brdf = reconstruct(model, positions, values)
+            write_merl(Path(tmp) / "out.binary", valid_to_full(brdf, model.grid), model.grid)
+        med, times = median_time(run, args.repeat)
+    print(f"reconstruction + write .binary (m=20): median {med:.3f} s  (runs {', '.join(f'{t:.3f}' for t in times)})")
+
+
+def bench_pca(args) -> None:
+    """Gram matrix (float64, chunked dsyrk) against a randomized SVD on the same matrix."""
+    from scipy.linalg import blas
+
+    rng = np.random.default_rng(0)
+    n, t, k = args.rows, 393, 60
+    # A matrix with a decaying spectrum like the mapped training data (s_i ~ i^-1.5).
+    x = ((rng.standard_normal((n, t)).astype(np.float32) * (np.arange(1, t + 1) ** -1.5).astype(np.float32))
+         @ np.linalg.qr(rng.standard_normal((t, t)))[0].astype(np.float32))
+
+    def gram():
+        g = np.zeros((t, t))
+        for a in range(0, n, 1 << 14):
+            g = blas.dsyrk(1.0, x[a:a + (1 << 14)].astype(np.float64), trans=1, beta=1.0, c=g, overwrite_c=1)
+        g = np.triu(g) + np.triu(g, 1).T
+        return np.sqrt(np.maximum(np.linalg.eigvalsh(g)[::-1][:k], 0))
+
+    def randomized(power=2, oversample=10):
+        omega = rng.standard_normal((t, k + oversample)).astype(np.float32)
+        y = x @ omega
+        for _ in range(power):
+            y = np.linalg.qr(x @ (x.T @ y))[0]
+        q = np.linalg.qr(y)[0]
+        return np.linalg.svd(q.T @ x, compute_uv=False)[:k]
+
+    exact = np.linalg.svd(x[: min(n, 200_000)], compute_uv=False)[:k] if n <= 200_000 else None
+    for name, fn in (("gram", gram), ("randomized", randomized)):
+        start = time.perf_counter()
+        s = fn()
+        took = time.perf_counter() - start
+        ref = exact if exact is not None else gram()
+        print(f"pca {name:10s}: {took:.2f} s for {n} x {t}; max rel. error of s_1..s_{k}: "
+              f"{np.max(np.abs(s - ref) / ref):.2e}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("selection", "training", "reconstruction", "pca"))
+    parser.add_argument("--model", help="model directory (selection, reconstruction)")
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rows", type=int, default=1_111_432)
+    args = parser.parse_args()
+    {"selection": bench_selection, "training": bench_training,
+     "reconstruction": bench_reconstruction, "pca": bench_pca}[args.what](args)
+
+
+if __name__ == "__main__":
+    main()
