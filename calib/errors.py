@@ -1,0 +1,20 @@
+"""Errors of the radiometric calibration, each naming the sample or step and what was found."""
+from __future__ import annotations
+
+from goniofrost.errors import GoniofrostError
+
+
+class CalibrationError(GoniofrostError, RuntimeError):
+    """A calibration step or a sample measurement could not produce a trustworthy value."""
+
+
+class MarkerError(CalibrationError):
+    """The holder's ArUco markers were not found (or not the expected ones) in any frame."""
+
+
+class SaturationError(CalibrationError):
+    """Even the shortest exposure of the ladder saturates pixels of the sample region."""
+
+
+class UnderexposedError(CalibrationError):
+    """Even the longest useful exposure leaves the sample below the minimal SNR."""

@@ -1,0 +1,258 @@
+"""The simulated camera: renders the sample holder from the current pose and writes DNG files.
+
+Far-field model (DESIGN.md): the lamp is collimated and the camera orthographic, so every pixel of
+the sample patch sees the same (w_i, w_o). The holder card (``calib.holder``) is drawn with its
+ArUco markers on matte paper; the patch shows the material's ground-truth BRDF (or the Lambertian
+white tile when the ``white`` target is mounted); the ``flat`` target is a uniform diffuser over
+the lens. The sensor is Bayer RGGB with photon shot noise, read noise, dark current, a fixed
+pixel-response pattern (PRNU), vignetting, a black level and a 14-bit white level with
+full-well saturation. Radiance follows the lamp intensity at the time of each exposure.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from calib.holder import DEFAULT_LAYOUT, SAMPLE_MARKER_IDS, WHITE_MARKER_IDS, HolderLayout
+from drivers.camera import Camera, CameraError, RawFrame
+from goniofrost.errors import ConfigError
+
+from .clock import SimClock
+from .dng import write_dng
+from .lamp_model import LampModel
+
+WHITE_TILE_REFLECTANCE = 0.95   # the Lambertian white reference tile (and the flat diffuser)
+PAPER_REFLECTANCE = 0.85        # holder card around the markers
+INK_REFLECTANCE = 0.04          # printed marker black
+BACKGROUND_REFLECTANCE = 0.01   # black velvet beyond the card
+SUPERSAMPLE = 3                 # sub-pixel samples per axis: smooth marker and patch edges
+
+# key: (type check, description, default or None if required)
+_SIM_CAMERA_KEYS = {
+    "width": (lambda v: isinstance(v, int) and 64 <= v <= 8192 and v % 2 == 0, "an even integer in [64, 8192]", None),
+    "height": (lambda v: isinstance(v, int) and 64 <= v <= 8192 and v % 2 == 0, "an even integer in [64, 8192]", None),
+    "black_level": (lambda v: isinstance(v, int) and 0 <= v < 65535, "an integer in [0, 65535)", None),
+    "white_level": (lambda v: isinstance(v, int) and 0 < v <= 65535, "an integer in (0, 65535]", None),
+    "read_noise_e": (lambda v: _num(v) and v >= 0, "a number >= 0 (electrons)", None),
+    "full_well_e": (lambda v: _num(v) and v > 0, "a number > 0 (electrons)", None),
+    "dark_current_e_s": (lambda v: _num(v) and v >= 0, "a number >= 0 (electrons per second)", None),
+    "vignetting": (lambda v: _num(v) and 0 <= v < 1, "a number in [0, 1) (fractional fall-off at the corners)", None),
+    "signal_e_s": (lambda v: _num(v) and v > 0, "a number > 0 (electrons/s, green, white BRDF 1/pi at normal incidence)", 2.0e5),
+    "channel_gain": (lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and x > 0 for x in v),
+                     "a list of three numbers > 0 (R, G, B response)", [0.6, 1.0, 0.75]),
+    "prnu": (lambda v: _num(v) and 0 <= v < 0.2, "a number in [0, 0.2) (pixel gain spread, 1 sigma)", 0.01),
+    "noise": (lambda v: isinstance(v, bool), "true or false", True),
+}
+
+
+def _num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def validate_sim_camera_section(section, source, keypath: str = "sim.camera") -> dict:
+    """Check the rig file's ``sim.camera`` mapping; return it with defaults filled in.
+
+    Raises ConfigError naming ``source`` and the key for a missing, unknown or bad value.
+    """
+    if not isinstance(section, dict):
+        raise ConfigError(source, keypath, "a mapping", section)
+    unknown = sorted(set(section) - set(_SIM_CAMERA_KEYS))
+    if unknown:
+        raise ConfigError(source, f"{keypath}.{unknown[0]}", f"one of {sorted(_SIM_CAMERA_KEYS)}", unknown[0])
+    out = {}
+    for key, (ok, expected, default) in _SIM_CAMERA_KEYS.items():
+        if key not in section and default is None:
+            raise ConfigError(source, f"{keypath}.{key}", expected, "nothing")
+        value = section.get(key, default)
+        if not ok(value):
+            raise ConfigError(source, f"{keypath}.{key}", expected, value)
+        out[key] = value
+    if out["white_level"] <= out["black_level"]:
+        raise ConfigError(source, f"{keypath}.white_level", f"above black_level {out['black_level']}",
+                          out["white_level"])
+    return out
+
+
+def view_basis(w_o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image axes (e1 = columns, e2 = rows up), unit vectors (3,) perpendicular to ``w_o``.
+
+    e1 is the sample x axis projected onto the image plane, so the card's x edges stay
+    horizontal and the card fits the frame at every view.
+    """
+    x = np.array([1.0, 0.0, 0.0])
+    e1 = x - (x @ w_o) * w_o
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(w_o, e1)
+
+
+@lru_cache(maxsize=8)
+def _card_texture(lay: HolderLayout, ids: tuple, texel_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Card reflectance (N, N) float32 with the patch left at 0, and the patch mask (N, N).
+
+    Cached: every camera of a process draws the same card (read-only arrays).
+    """
+    import cv2
+
+    aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    n = int(round(2 * lay.half_size / texel_mm))
+    centres = -lay.half_size + (np.arange(n) + 0.5) * texel_mm
+    x, y = np.meshgrid(centres, -centres)          # row 0 is the top (+y) edge
+    card = np.full(x.shape, PAPER_REFLECTANCE, dtype=np.float32)
+    patch = ((np.abs(x) <= lay.patch_half) & (np.abs(y) <= lay.patch_half)).astype(np.float32)
+    card[patch > 0] = 0.0
+    cell = lay.marker_size / 6
+    for mid, corners in lay.marker_corners(ids).items():
+        bits = cv2.aruco.generateImageMarker(aruco, mid, 6, borderBits=1) > 127
+        x0, y0 = corners[0]
+        i, j = np.floor((y0 - y) / cell).astype(int), np.floor((x - x0) / cell).astype(int)
+        inside = (i >= 0) & (i < 6) & (j >= 0) & (j < 6)
+        card[inside] = np.where(bits[i[inside], j[inside]], PAPER_REFLECTANCE, INK_REFLECTANCE)
+    card.flags.writeable = patch.flags.writeable = False
+    return card, patch
+
+
+@lru_cache(maxsize=8)
+def _open_material(material: str):
+    """(Dataset, resolved name) of ``SPEC:NAME``; cached so many cameras open a dataset once."""
+    from goniofrost.datasets import parse_material_spec
+
+    return parse_material_spec(material)
+
+
+class HolderRenderer:
+    """Orthographic views of the holder card: its reflectance and the patch's coverage per pixel.
+
+    The card is drawn once as a texture (TEXEL_MM per texel) in the plane; a view is then the
+    affine image of the plane (far-field camera), warped at SUPERSAMPLE x resolution and
+    averaged down, so marker and patch edges are anti-aliased.
+    """
+
+    TEXEL_MM = 0.1
+
+    def __init__(self, width: int, height: int, layout: HolderLayout = DEFAULT_LAYOUT) -> None:
+        self.width, self.height, self.layout = width, height, layout
+        # mm -> px so the card fits at any view (the sheared card can reach sqrt(2) x its side)
+        side = 2 * layout.half_size
+        self.px_per_mm = 0.95 * min(height / side, width / (side * np.sqrt(2)))
+        self._textures = {ids: _card_texture(layout, ids, self.TEXEL_MM)
+                          for ids in (SAMPLE_MARKER_IDS, WHITE_MARKER_IDS)}
+
+
+    def view(self, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
+        """Mean card reflectance and patch coverage per pixel, each (H, W) float32, seen along
+        -w_o (unit, z > 0); beyond the card lies the background."""
+        import cv2
+
+        e1, e2 = view_basis(w_o)
+        n, s, lay = SUPERSAMPLE, self.px_per_mm, self.layout
+        # texel (u, v) -> plane (x, y) -> sub-pixel (col, row); OpenCV puts centres on integers
+        plane = np.array([[self.TEXEL_MM, 0, -lay.half_size + 0.5 * self.TEXEL_MM],
+                          [0, -self.TEXEL_MM, lay.half_size - 0.5 * self.TEXEL_MM]])
+        image = n * np.array([[s * e1[0], s * e1[1], self.width / 2],
+                              [-s * e2[0], -s * e2[1], self.height / 2]])
+        m = image[:, :2] @ plane
+        m[:, 2] = image[:, :2] @ plane[:, 2] + image[:, 2] - 0.5
+        size = (self.width * n, self.height * n)
+        card, patch = self._textures[tuple(marker_ids)]
+        out = [cv2.warpAffine(tex, m, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=border)
+               for tex, border in ((card, BACKGROUND_REFLECTANCE), (patch, 0.0))]
+        return tuple(o.reshape(self.height, n, self.width, n).mean(axis=(1, 3)) for o in out)
+
+
+class SimCamera(Camera):
+    """A simulated camera looking at the sample holder; implements ``drivers.camera.Camera``.
+
+    ``material`` is ``SPEC:NAME``; ``pose_source()`` returns the actual unit vectors (w_i, w_o),
+    each (3,), in the sample frame; ``params`` is the rig's ``sim.camera`` section; ``seed``
+    fixes the noise and the pixel-response pattern. Exposure time passes on ``clock``.
+    """
+
+    def __init__(self, material: str, pose_source: Callable[[], tuple[np.ndarray, np.ndarray]],
+                 lamp: LampModel, clock: SimClock, params: dict, seed: int = 0) -> None:
+        self.material, self.pose_source, self.lamp, self.clock = material, pose_source, lamp, clock
+        self.params = validate_sim_camera_section(params, "SimCamera params", "sim.camera")
+        self.seed = int(seed)
+        self.target = "sample"
+        self._connected = False
+
+    def connect(self) -> None:
+        """Open the material and build the renderer and the fixed pixel pattern."""
+        p = self.params
+        self._dataset, self._name = _open_material(self.material)
+        self._renderer = HolderRenderer(p["width"], p["height"])
+        self._rng = np.random.default_rng(self.seed)
+        shape = (p["height"], p["width"])
+        self._channels = np.zeros(shape, dtype=np.uint8)      # RGGB
+        self._channels[0::2, 1::2] = 1
+        self._channels[1::2, 0::2] = 1
+        self._channels[1::2, 1::2] = 2
+        rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
+        r2 = ((cols + 0.5 - shape[1] / 2) ** 2 + (rows + 0.5 - shape[0] / 2) ** 2) / (
+            (shape[0] / 2) ** 2 + (shape[1] / 2) ** 2)
+        self._gain = (1.0 - p["vignetting"] * r2) * (1.0 + p["prnu"] * self._rng.standard_normal(shape))
+        self._frames = 0
+        self._connected = True
+
+    def close(self) -> None:
+        self._connected = False
+
+    def ground_truth(self, w_i, w_o) -> np.ndarray:
+        """The material's BRDF (R, G, B) in 1/sr at directions (3,) (needs ``connect``)."""
+        from goniofrost.grid import dirs_to_half_diff
+
+        th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
+        return np.asarray(self._dataset.evaluate(self._name, th, td, pd), dtype=np.float64)
+
+    def capture(self, exposure_s: float, path: Path) -> RawFrame:
+        """Render, expose, digitise and write one DNG at ``path``."""
+        if not self._connected:
+            raise CameraError("simulated camera: capture before connect()")
+        if not (_num(exposure_s) and exposure_s > 0):
+            raise CameraError(f"simulated camera: exposure must be > 0 s, found {exposure_s!r}")
+        w_i, w_o = (np.asarray(v, dtype=np.float64) for v in self.pose_source())
+        t0 = self.clock.now()
+        self.clock.sleep(exposure_s)
+        lamp = 0.5 * (self.lamp.relative_intensity(t0) + self.lamp.relative_intensity(t0 + exposure_s))
+        radiance = self._radiance(w_i, w_o) * lamp
+        mosaic = self._digitise(radiance, exposure_s)
+        self._frames += 1
+        meta = {"exposure_s": float(exposure_s), "time_s": t0, "target": self.target,
+                "w_i": w_i.tolist(), "w_o": w_o.tolist(), "sim_lamp_relative": lamp,
+                "frame": self._frames, "seed": self.seed, "material": self.material}
+        write_dng(Path(path), mosaic, self.params["black_level"], self.params["white_level"], meta)
+        return RawFrame(Path(path), float(exposure_s), meta)
+
+    def _radiance(self, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
+        """Radiance per pixel (H, W) in its Bayer channel, for nominal lamp irradiance 1."""
+        p = self.params
+        if self.target == "flat":
+            return np.full((p["height"], p["width"]), WHITE_TILE_REFLECTANCE / np.pi)
+        cos_i = max(float(w_i[2]), 0.0)       # light from below the card: unlit
+        if w_o[2] <= 1e-3:                    # card seen edge-on: only background
+            return np.full((p["height"], p["width"]), BACKGROUND_REFLECTANCE / np.pi * cos_i)
+        white = self.target == "white"
+        patch = np.full(3, WHITE_TILE_REFLECTANCE / np.pi) if white else self.ground_truth(w_i, w_o)
+        card, cover = self._renderer.view(w_o, WHITE_MARKER_IDS if white else SAMPLE_MARKER_IDS)
+        return (card / np.pi + cover * patch[self._channels]) * cos_i
+
+    def _digitise(self, radiance: np.ndarray, exposure_s: float) -> np.ndarray:
+        """Electrons -> noisy, saturating 14-bit DN mosaic (H, W) uint16."""
+        p = self.params
+        gain_c = np.asarray(p["channel_gain"])[self._channels]
+        electrons = radiance * np.pi * p["signal_e_s"] * gain_c * self._gain * exposure_s
+        dark = p["dark_current_e_s"] * exposure_s
+        if p["noise"]:
+            electrons = self._rng.poisson(electrons + dark).astype(np.float64)
+        else:
+            electrons = electrons + dark
+        if p["noise"]:
+            electrons += p["read_noise_e"] * self._rng.standard_normal(electrons.shape)
+        # the ADC range ends at full well: a full pixel reads exactly the white level
+        electrons = np.minimum(electrons, p["full_well_e"])
+        dn_per_e = (p["white_level"] - p["black_level"]) / p["full_well_e"]
+        dn = np.rint(p["black_level"] + electrons * dn_per_e)
+        return np.clip(dn, 0, p["white_level"]).astype(np.uint16)
