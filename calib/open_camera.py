@@ -1,0 +1,33 @@
+"""Build the camera a real rig file describes (``camera.kind: rawfile`` -> FolderCamera)."""
+from __future__ import annotations
+
+import shlex
+import subprocess
+
+from drivers.camera import Camera, CameraError, FolderCamera
+
+from .config import validate_camera_section
+
+
+def open_camera(rig) -> Camera:
+    """A FolderCamera for a rig (object with ``.camera`` or the ``camera`` mapping itself).
+
+    ``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={exposure_s} --trigger-capture``)
+    is run for each exposure; without it the operator is asked to expose. The simulated camera
+    is built by the session from the ``sim`` section, not here.
+    """
+    section = validate_camera_section(getattr(rig, "camera", rig), getattr(rig, "source", "rig file"))
+    if section["kind"] != "rawfile":
+        raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
+                          f"simulated rig (sim.camera.SimCamera), not by open_camera")
+    command = section["trigger_command"]
+    if command is None:
+        def trigger(exposure_s: float) -> None:
+            input(f"expose one RAW frame of {exposure_s} s into {section['folder']} - press Enter when done")
+    else:
+        def trigger(exposure_s: float) -> None:
+            args = shlex.split(command.format(exposure_s=exposure_s))
+            done = subprocess.run(args, capture_output=True, text=True, timeout=section["timeout_s"])
+            if done.returncode != 0:
+                raise CameraError(f"camera trigger {args[0]!r} failed ({done.returncode}): {done.stderr.strip()[:200]}")
+    return FolderCamera(section["folder"], trigger, timeout_s=section["timeout_s"])

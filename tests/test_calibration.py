@@ -1,0 +1,247 @@
+"""Calibration through the simulated camera: accuracy with noise, bracketing, every failure mode."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from calib import (CalibrationError, CalibrationRecord, Calibrator, MarkerError, SaturationError,
+                   UnderexposedError, validate_camera_section)
+from drivers.rawfile import RawFileError
+from goniofrost.errors import ConfigError
+from sim.camera import SimCamera
+from sim.camera_bench import CameraBench
+from sim.lamp_model import LampModel
+
+RIG = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
+# (theta_i, theta_o, phi_o) in degrees: near-specular, off-specular, grazing light and view
+POSES = [(0.0, 20.0, 180.0), (30.0, 32.0, 180.0), (45.0, 10.0, 90.0), (20.0, 60.0, 150.0),
+         (65.0, 40.0, 200.0), (10.0, 70.0, 30.0)]
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return yaml.safe_load(RIG.read_text())
+
+
+@pytest.fixture(scope="module")
+def spec(merl_npz):
+    return lambda name: f"nbrdf:{merl_npz}:{name}"
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory, rig, spec):
+    """One calibration (seed 0 sensor) shared by the tests: its journal form, reloaded."""
+    out = tmp_path_factory.mktemp("calibration")
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
+    record = cal.calibrate(out, white_pose=bench.pose)
+    return json.loads(json.dumps(record.to_dict()))
+
+
+def _calibrator(rig, calibrated, bench, **settings):
+    return Calibrator(bench.camera, bench.lamp, {**rig["camera"], **settings},
+                      record=CalibrationRecord.from_dict(calibrated))
+
+
+def _errors(rig, calibrated, spec, name, tmp_path):
+    bench = CameraBench(spec(name), rig["sim"]["camera"], seed=0)   # the calibrated sensor
+    bench.lamp.on()
+    cal = _calibrator(rig, calibrated, bench)
+    rel, norm = [], []
+    for k, angles in enumerate(POSES):
+        w_i, w_o = bench.set_angles(*angles)
+        m = cal.measure(w_i, w_o, tmp_path, k)
+        truth = bench.camera.ground_truth(w_i, w_o)
+        rel.append(m.rgb / truth - 1)
+        norm.append((m.rgb - truth) / m.sigma)
+        assert m.frames_taken + m.frames_skipped == len(rig["camera"]["exposures_s"])
+        assert m.frames_taken == len(m.raw_paths) == len(m.exposures_s) and all(p.is_file() for p in m.raw_paths)
+        assert np.all(m.snr >= rig["camera"]["target_snr"]) and m.flags == []
+    return np.abs(rel), np.abs(norm)
+
+
+@pytest.mark.parametrize("name", ["white-diffuse-bball", "gold-metallic-paint2"])
+def test_calibrated_brdf_within_2_percent_with_noise(rig, calibrated, spec, name, tmp_path):
+    rel, norm = _errors(rig, calibrated, spec, name, tmp_path)
+    assert np.all(np.median(rel, axis=0) <= 0.02), np.median(rel, axis=0)
+    assert np.mean(norm <= 3.0) >= 0.8   # the reported uncertainty describes the error
+
+
+def test_calibration_record_round_trip_and_tamper(rig, calibrated, tmp_path):
+    record = CalibrationRecord.from_dict(calibrated)
+    assert record.dark.shape == (5, 240, 320) and record.flat.shape == (240, 320)
+    green = np.concatenate([record.flat[0::2, 1::2].ravel(), record.flat[1::2, 0::2].ravel()])
+    for plane in (record.flat[0::2, 0::2], green, record.flat[1::2, 1::2]):   # R, G, B: mean 1 each
+        assert plane.mean() == pytest.approx(1.0, abs=1e-5)
+    assert record.flat.min() < 0.9   # vignetting was measured, not assumed away
+    assert np.all(record.scale > 0) and np.all(record.scale_sigma / record.scale < 0.01)
+    assert record.to_dict() == calibrated
+    copy = tmp_path / "calibration.npz"
+    copy.write_bytes(Path(calibrated["arrays"]).read_bytes() + b"x")
+    with pytest.raises(CalibrationError, match="changed since the record was written"):
+        CalibrationRecord.from_dict({**calibrated, "arrays": str(copy)})
+    with pytest.raises(CalibrationError, match="expected version 1"):
+        CalibrationRecord.from_dict({**calibrated, "version": 9})
+
+
+class _BrighterLamp(LampModel):
+    """The lamp model after it has drifted 20 % brighter than at calibration."""
+
+    def relative_intensity(self, t=None):
+        return 1.2 * super().relative_intensity(t)
+
+
+def _drifted_bench(spec, rig):
+    bench = CameraBench(spec("white-diffuse-bball"), rig["sim"]["camera"], seed=0)
+    bench.model = bench.lamp.model = bench.camera.lamp = _BrighterLamp(bench.clock, 0.02, 0)
+    bench.lamp.on()
+    return bench
+
+
+def test_lamp_drift_is_normalised_by_the_photodiode(rig, calibrated, spec, tmp_path):
+    bench = _drifted_bench(spec, rig)
+    w_i, w_o = bench.set_angles(30.0, 30.0, 120.0)
+    m = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 1)
+    assert m.lamp_relative == pytest.approx(1.2, abs=0.01)
+    np.testing.assert_allclose(m.rgb, bench.camera.ground_truth(w_i, w_o), rtol=0.02)
+
+
+class _BlindLamp:
+    """A lamp whose photodiode always reads nominal: drift goes uncorrected."""
+
+    def __init__(self, lamp):
+        self.lamp = lamp
+
+    def on(self):
+        self.lamp.on()
+
+    def off(self):
+        self.lamp.off()
+
+    def photodiode(self):
+        return 1.0
+
+
+def test_without_the_photodiode_drift_biases_the_result(rig, calibrated, spec, tmp_path):
+    bench = _drifted_bench(spec, rig)
+    w_i, w_o = bench.set_angles(30.0, 30.0, 120.0)
+    cal = Calibrator(bench.camera, _BlindLamp(bench.lamp), rig["camera"], record=CalibrationRecord.from_dict(calibrated))
+    m = cal.measure(w_i, w_o, tmp_path, 1)
+    assert np.all(m.rgb / bench.camera.ground_truth(w_i, w_o) > 1.15)
+
+
+def test_bracketing_takes_only_the_frames_it_needs(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(30.0, 50.0, 180.0)
+    easy = _calibrator(rig, calibrated, bench, target_snr=20.0).measure(w_i, w_o, tmp_path, 1)
+    assert easy.frames_taken == 1 and easy.frames_skipped == 4 and easy.flags == []
+    hard = _calibrator(rig, calibrated, bench, target_snr=1e6).measure(w_i, w_o, tmp_path, 2)
+    # no exposure reaches SNR 1e6: longer frames until the next would saturate, then flagged
+    assert hard.frames_taken > easy.frames_taken and hard.flags == ["low-snr"]
+    assert hard.exposures_s == sorted(hard.exposures_s) and hard.exposures_s[-1] >= easy.exposures_s[-1]
+    assert np.all(hard.snr > easy.snr)
+
+
+def test_bright_specular_peak_steps_down_then_starts_from_the_last_sample(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(20.0, 20.0, 180.0)   # mirror direction: BRDF ~ 26 1/sr
+    cal = _calibrator(rig, calibrated, bench)
+    first, second = (cal.measure(w_i, w_o, tmp_path, k) for k in (3, 4))
+    # the first start (a white-like guess) saturates: shorter frames until one is clean
+    assert first.exposures_s[0] == 0.001 and first.frames_taken >= 3
+    assert second.frames_taken == 1 and second.frames_skipped == 4   # started from the last value
+    truth = bench.camera.ground_truth(w_i, w_o)
+    for m in (first, second):
+        np.testing.assert_allclose(m.rgb, truth, rtol=0.02)
+
+
+def test_saturated_scene_is_a_saturation_error(rig, calibrated, spec, tmp_path):
+    params = {**rig["sim"]["camera"], "signal_e_s": 2.0e7}   # 100 x too bright a lamp
+    bench = CameraBench(spec("gold-metallic-paint2"), params, seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(20.0, 20.0, 180.0)
+    with pytest.raises(SaturationError, match=r"sample 4: \d+ of \d+ sample pixels saturate even at the shortest exposure 0.001 s"):
+        _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
+
+
+def test_dark_scene_is_underexposed_or_flagged(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(70.0, 50.0, 0.0)   # far from specular, grazing light: BRDF ~ 0.005
+    short = {"exposures_s": [0.001]}
+    with pytest.raises(UnderexposedError, match=r"sample 5: SNR [\d.]+ below the minimum 10.0 with exposures up to 0.001 s"):
+        _calibrator(rig, calibrated, bench, **short).measure(w_i, w_o, tmp_path, 5)
+    m = _calibrator(rig, calibrated, bench, **short, min_snr=1.0).measure(w_i, w_o, tmp_path, 6)
+    assert m.flags == ["low-snr"] and m.frames_skipped == 0
+
+
+def test_view_without_markers_is_a_marker_error(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(20.0, 87.0, 40.0)
+    with pytest.raises(MarkerError, match=r"sample 7: expected holder markers \[0, 1, 2, 3\].*\(in all 5 exposures\)"):
+        _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 7)
+    bench.set_angles(20.0, 30.0)
+    bench.camera.set_target("white")   # the wrong card mounted
+    with pytest.raises(MarkerError, match=r"of another target"):
+        _calibrator(rig, calibrated, bench).measure(*bench.pose, tmp_path, 8)
+
+
+class _TruncatingCamera(SimCamera):
+    """A camera whose files arrive cut short (a full disk, a pulled cable)."""
+
+    def capture(self, exposure_s, path):
+        frame = super().capture(exposure_s, path)
+        data = frame.path.read_bytes()
+        frame.path.write_bytes(data[: len(data) // 3])
+        return frame
+
+
+def test_truncated_raw_file_fails_the_sample_naming_the_file(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    cam = _TruncatingCamera(bench.camera.material, lambda: bench.pose, bench.model, bench.clock,
+                            rig["sim"]["camera"], 0)
+    cam.connect()
+    cal = Calibrator(cam, bench.lamp, rig["camera"], record=CalibrationRecord.from_dict(calibrated))
+    with pytest.raises(RawFileError, match=r"sample_0009_e\d\.dng: cannot decode RAW file"):
+        cal.measure(*bench.set_angles(20.0, 30.0), tmp_path, 9)
+
+
+def test_measure_before_calibrate_and_light_below_are_errors(rig, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
+    with pytest.raises(CalibrationError, match="before calibrate"):
+        cal.measure(*bench.pose, tmp_path, 0)
+
+
+def test_ladder_outside_the_calibration_is_refused(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench.lamp.on()
+    cal = _calibrator(rig, calibrated, bench, exposures_s=[0.001, 0.002])
+    with pytest.raises(CalibrationError, match=r"exposures \[0.002\] s have no dark frame.*calibrate again"):
+        cal.measure(*bench.pose, tmp_path, 0)
+    with pytest.raises(CalibrationError, match=r"sample 1: light below the sample plane"):
+        _calibrator(rig, calibrated, bench).measure(-bench.pose[0], bench.pose[1], tmp_path, 1)
+
+
+def test_camera_section_validation(rig):
+    section = rig["camera"]
+    full = validate_camera_section(section, "sim.yaml")
+    assert full["exposures_s"] == section["exposures_s"] and full["white_reference"]["reflectance"] == 0.95
+    with pytest.raises(ConfigError, match=r"sim\.yaml: camera\.exposures_s: expected a non-empty list of exposures > 0 s, shortest first"):
+        validate_camera_section({**section, "exposures_s": [0.01, 0.001]}, "sim.yaml")
+    with pytest.raises(ConfigError, match=r"camera\.kind: expected one of \['sim', 'rawfile'\], found 'webcam'"):
+        validate_camera_section({**section, "kind": "webcam"}, "sim.yaml")
+    with pytest.raises(ConfigError, match=r"camera\.white_reference\.reflectance: expected a number in \(0, 1\], found 1.5"):
+        validate_camera_section({**section, "white_reference": {"reflectance": 1.5}}, "sim.yaml")
+    with pytest.raises(ConfigError, match=r"camera\.folder: expected a folder path \(required for kind rawfile\)"):
+        validate_camera_section({**section, "kind": "rawfile"}, "sim.yaml")
+    with pytest.raises(ConfigError, match=r"camera\.target_snr: expected a number > 0, found 'nothing'"):
+        validate_camera_section({k: v for k, v in section.items() if k != "target_snr"}, "sim.yaml")
