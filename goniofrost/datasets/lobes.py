@@ -23,7 +23,7 @@ FRESNEL_NODES = 513
 ALBEDO_NODES = 33
 # Quadrature of the albedo integral: Gauss-Legendre in t with polar angle pi t^2 about the
 # lobe axis (dense near the axis, so lobes with alpha ~ 0.01 are integrated accurately).
-QUAD_T, QUAD_AZIMUTH = 64, 48
+QUAD_T, QUAD_AZIMUTH = 48, 32
 # Ceiling of a specular lobe's shape, 1/sr (times Fresnel <= 1); see soft_limit.
 SPEC_LIMIT = 1000.0
 # The sheen visibility term diverges when both directions graze; its denominator is floored.
