@@ -264,7 +264,7 @@ class Axis(ABC):
         if not self._connected:
             return
         try:
-            self._command_stop()
+            self._call(self._command_stop)
         except Exception as exc:  # noqa: BLE001 - the caller re-raises the original error
             log.warning("%s: stop after error in %s failed: %s", self.name, context, exc)
 

@@ -1,0 +1,307 @@
+"""The Axis move logic (limits, timeout, waiting, arrival, retries, stop on error), the trapezoidal
+sim motion, the driver-section validator and RigDevices' best-effort stop."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from drivers.axis import MOVE_TIMEOUT_MARGIN_S, Axis, AxisConfig, trapezoid_time
+from drivers.config import validate_driver_section
+from drivers.errors import (ArrivalError, AxisLimitError, DeviceFault, DeviceTimeout, ExceptionReply,
+                            NotConnectedError)
+from drivers.rig_devices import RigDevices
+from goniofrost.errors import ConfigError
+from sim.clock import SimClock
+from sim.motion import TrapezoidMotion
+
+
+class ManualClock:
+    """A clock that only moves when told (pure motion maths)."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def now(self):
+        return self.t
+
+
+class MotionAxis(Axis):
+    """An axis whose 'device' is a TrapezoidMotion in this process; counts every command and can
+    fail its next N calls with a given error, or end moves short with a fault."""
+
+    poll_s = 0.002
+
+    def __init__(self, config, clock):
+        super().__init__(config)
+        self.motion = TrapezoidMotion(clock, 0.0, 1.0, 1.0)
+        self.sent: list[str] = []
+        self.fail_next, self.fail_with, self.fault = 0, DeviceTimeout, None
+
+    def _hook(self, what):
+        if self.fail_next:
+            self.fail_next -= 1
+            raise self.fail_with(self.name, what)
+        self.sent.append(what)
+
+    def _connect(self):
+        self._hook("connect")
+
+    def _close(self):
+        pass
+
+    def _command_move(self, deg):
+        self._hook(f"move {deg:g}")
+        self.motion.start_move(deg)
+
+    def _read_position(self):
+        return self.motion.position()
+
+    def _read_moving(self):
+        self._hook("moving?")
+        return self.motion.is_moving()
+
+    def _command_stop(self):
+        self._hook("stop")
+        self.motion.stop()
+
+    def _set_enabled(self, enabled):
+        self._hook(f"enable {enabled}")
+
+    def _read_fault(self):
+        return self.fault
+
+    def _apply_motion_profile(self, speed, accel):
+        self._hook(f"profile {speed:g} {accel:g}")
+        self.motion.set_profile(speed, accel)
+
+
+def make_axis(speedup=50.0, **kw):
+    cfg = AxisConfig("tilt", (-80.0, 80.0), kw.pop("speed", 20.0), 40.0, 0.0, 0.01, **kw)
+    ax = MotionAxis(cfg, SimClock(speedup))
+    ax.connect()
+    return ax
+
+
+# ----- motion maths -------------------------------------------------------------------------------
+def test_trapezoid_time_known_values():
+    assert trapezoid_time(30.0, 10.0, 20.0) == pytest.approx(3.5)          # 0.5 + 2.5 + 0.5
+    assert trapezoid_time(1.0, 10.0, 20.0) == pytest.approx(2 * math.sqrt(1 / 20))  # triangle
+    assert trapezoid_time(-5.0, 10.0, 2.0) == trapezoid_time(5.0, 10.0, 2.0)
+    assert trapezoid_time(0.0, 1.0, 1.0) == 0.0
+
+
+def test_trapezoid_motion_profile_points():
+    clock = ManualClock()
+    m = TrapezoidMotion(clock, 0.0, speed=10.0, accel=20.0)
+    assert m.start_move(30.0) == pytest.approx(3.5)
+    expect = {0.25: (0.625, 5.0), 0.5: (2.5, 10.0), 1.0: (7.5, 10.0), 3.25: (29.375, 5.0), 3.5: (30.0, 0.0)}
+    for t, (p, v) in expect.items():
+        assert (m.position(t), m.velocity(t)) == (pytest.approx(p), pytest.approx(v))
+    assert m.is_moving(3.49) and not m.is_moving(3.5)
+
+
+def test_trapezoid_motion_backwards_and_triangle():
+    m = TrapezoidMotion(ManualClock(), 10.0, speed=10.0, accel=20.0)
+    m.start_move(9.0)  # 1 unit: never reaches 10 units/s
+    half = math.sqrt(1 / 20)
+    assert m.position(half) == pytest.approx(9.5) and m.velocity(half) == pytest.approx(-20 * half)
+    assert m.position(2 * half) == 9.0
+
+
+def test_stop_brakes_at_accel_and_stall_freezes():
+    clock = ManualClock()
+    m = TrapezoidMotion(clock, 0.0, speed=10.0, accel=20.0)
+    m.start_move(100.0)
+    clock.t = 1.0  # cruising at 10 from x = 7.5
+    m.stop()
+    assert m.target == pytest.approx(7.5 + 2.5) and m.position(1.5) == pytest.approx(10.0)
+    assert not m.is_moving(1.5)
+    m.start_move(50.0)
+    clock.t = 2.0
+    m.stall()
+    frozen = m.position()
+    assert m.is_moving(100.0) and m.position(100.0) == frozen and m.velocity(100.0) == 0.0
+    m.stop()
+    assert not m.is_moving() and m.position(100.0) == frozen
+
+
+def test_retargeting_a_moving_axis_keeps_its_speed():
+    clock = ManualClock()
+    m = TrapezoidMotion(clock, 0.0, speed=10.0, accel=20.0)
+    m.start_move(100.0)
+    clock.t = 1.0
+    m.start_move(50.0)
+    assert m.velocity(1.0) == pytest.approx(10.0) and m.position(1.0) == pytest.approx(7.5)
+    assert m.position(100.0) == 50.0
+
+
+# ----- the move logic ----------------------------------------------------------------------------
+def test_construction_connects_nothing():
+    ax = MotionAxis(AxisConfig("tilt", (-80.0, 80.0), 20.0, 40.0), SimClock())
+    assert ax.sent == []
+    with pytest.raises(NotConnectedError, match="tilt: read position: not connected"):
+        ax.move_to(1.0)
+    with pytest.raises(NotConnectedError):
+        ax.stop()
+
+
+def test_connect_loads_the_profile():
+    ax = make_axis()
+    assert ax.sent == ["connect", "profile 20 40"]
+
+
+def test_move_waits_and_arrives():
+    ax = make_axis()
+    status = ax.move_to(30.0)
+    assert status.timeout_s == pytest.approx(1.5 * trapezoid_time(30.0, 20.0, 40.0) + MOVE_TIMEOUT_MARGIN_S)
+    assert status.wait() == pytest.approx(30.0)
+    assert status.done and ax.status().position_deg == pytest.approx(30.0)
+
+
+def test_limit_error_names_everything_and_sends_nothing():
+    ax = make_axis()
+    ax.sent.clear()
+    with pytest.raises(AxisLimitError) as info:
+        ax.move_to(95.0)
+    e = info.value
+    assert (e.axis, e.start, e.target, e.limits, e.units) == ("tilt", 0.0, 95.0, (-80.0, 80.0), "deg")
+    assert str(e) == ("tilt: move to 95 deg: target 95 deg outside limits [-80, 80] deg "
+                      "(axis at 0 deg); nothing sent")
+    assert ax.sent == []
+    with pytest.raises(AxisLimitError):
+        ax.move_to(float("nan"))
+
+
+def test_move_within_tolerance_sends_nothing():
+    ax = make_axis()
+    ax.sent.clear()
+    status = ax.move_to(0.005)
+    assert status.done and status.wait() == 0.0 and ax.sent == []
+
+
+def test_transient_errors_are_retried_a_bounded_number_of_times():
+    ax = make_axis(retries=2)
+    ax.sent.clear()
+    ax.fail_next = 2
+    ax.move_to(5.0).wait()
+    assert ax.sent[0] == "move 5"
+    ax.fail_next, n = 7, len(ax.sent)
+    with pytest.raises(DeviceTimeout):
+        ax.move_to(10.0)
+    assert ax.fail_next == 1  # 3 attempts at the move, then 3 at the stop, all failed
+    assert ax.sent[n:] == []
+    ax.fail_next = 4
+    with pytest.raises(DeviceTimeout):
+        ax.move_to(10.0)
+    assert ax.fail_next == 0 and ax.sent[n:] == ["stop"]  # the stop got through on its 2nd try
+
+
+def test_refusals_are_not_retried_and_stop_the_axis():
+    ax = make_axis(retries=2)
+    ax.sent.clear()
+    ax.fail_next, ax.fail_with = 1, ExceptionReply
+    with pytest.raises(ExceptionReply):
+        ax.move_to(10.0)
+    assert ax.sent == ["stop"]
+
+
+def test_error_while_waiting_stops_the_axis():
+    ax = make_axis(speedup=5.0)
+    status = ax.move_to(60.0)
+    ax.fail_next, ax.fail_with = 3, DeviceTimeout
+    with pytest.raises(DeviceTimeout):
+        status.wait()
+    assert ax.sent[-1] == "stop"
+    ax.motion.clock.sleep(2.0)
+    assert not ax.motion.is_moving() and ax.motion.position() < 59.0
+
+
+def test_stall_is_a_device_fault_and_stops():
+    ax = make_axis(speedup=5.0, stall_s=0.2)
+    status = ax.move_to(60.0)
+    ax.motion.clock.sleep(0.5)
+    ax.motion.stall()
+    with pytest.raises(DeviceFault, match="stall: position frozen"):
+        status.wait()
+    assert ax.sent[-1] == "stop" and not ax.motion.is_moving()
+
+
+def test_move_that_does_not_finish_in_time_is_a_timeout():
+    ax = make_axis(speedup=1.0)
+    status = ax.move_to(60.0)
+    with pytest.raises(DeviceTimeout, match="move not finished within 0.1 s"):
+        status.wait(timeout=0.1)
+    assert ax.sent[-1] == "stop"
+
+
+def test_short_arrival_reports_the_fault_or_an_arrival_error():
+    ax = make_axis()
+    status = ax.move_to(30.0)
+    ax.motion.start_move(20.0)  # the device ends somewhere else
+    with pytest.raises(ArrivalError, match="stopped at 20.0000 deg, not within 0.01 deg of the target 30 deg"):
+        status.wait()
+    status = ax.move_to(40.0)
+    ax.motion.start_move(25.0)
+    ax.fault = "following error"
+    with pytest.raises(DeviceFault) as info:
+        status.wait()
+    assert info.value.causes == ["following error"]
+
+
+def test_axis_config_from_a_rig_mapping():
+    spec = {"limits_deg": [8, 172], "speed_deg_s": 30, "accel_deg_s2": 60, "home_deg": 90, "tolerance_deg": 0.02}
+    cfg = AxisConfig.from_spec("camera_arm", spec, retries=1)
+    assert cfg == AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, 90, 0.02, retries=1)
+
+
+def test_stop_all_tries_every_axis_and_never_raises():
+    axes = {n: make_axis() for n in ("a", "b", "c")}
+    for ax in axes.values():
+        ax.move_to(50.0)
+    axes["a"].fail_next = 99
+    problems = RigDevices(axes).stop_all()
+    assert len(problems) == 1 and problems[0].startswith("a: ")
+    assert axes["b"].sent[-1] == "stop" and axes["c"].sent[-1] == "stop"
+
+
+# ----- driver sections ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def sim_rig():
+    with open("config/rigs/sim.yaml", encoding="utf-8") as f:
+        return yaml.safe_load(f)
+
+
+def test_sim_rig_driver_sections_are_valid(sim_rig):
+    for name, axis in sim_rig["axes"].items():
+        validate_driver_section(axis["driver"], "sim.yaml", f"axes.{name}.driver")
+    validate_driver_section(sim_rig["lamp"]["driver"], "sim.yaml", "lamp.driver")
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"speed": 3}, "sim.yaml: axes.sample_yaw.driver.speed: expected one of the keys protocol, port, id, "
+                   "baud, model, counts_per_deg, reboot_after_fault, reply_timeout_ms, retries "
+                   "(protocol dynamixel), found \"unknown key 'speed'\""),
+    ({"id": 300}, "sim.yaml: axes.sample_yaw.driver.id: expected a Dynamixel ID 0-252, found 300"),
+    ({"id": None}, "sim.yaml: axes.sample_yaw.driver.id: expected a Dynamixel ID 0-252, found None"),
+    ({"counts_per_deg": -1.0}, "sim.yaml: axes.sample_yaw.driver.counts_per_deg: expected a positive number"),
+    ({"baud": 12345}, "sim.yaml: axes.sample_yaw.driver.baud: expected a baud rate among"),
+    ({"protocol": "canopen"}, "sim.yaml: axes.sample_yaw.driver.protocol: expected one of dynamixel, "
+                              "modbus-tcp, modbus-rtu, smc100, found 'canopen'"),
+])
+def test_bad_driver_sections_name_the_key(sim_rig, change, message):
+    section = {**sim_rig["axes"]["sample_yaw"]["driver"], **change}
+    with pytest.raises(ConfigError) as info:
+        validate_driver_section(section, "sim.yaml", "axes.sample_yaw.driver")
+    assert str(info.value).startswith(message)
+
+
+def test_missing_key_and_lamp_without_a_device(sim_rig):
+    section = dict(sim_rig["axes"]["sample_yaw"]["driver"])
+    del section["port"]
+    with pytest.raises(ConfigError, match=r"driver.port: expected a serial device path .* found 'nothing \(key missing\)'"):
+        validate_driver_section(section, "sim.yaml", "axes.sample_yaw.driver")
+    lamp = {k: v for k, v in sim_rig["lamp"]["driver"].items() if k != "device"}
+    with pytest.raises(ConfigError, match="lamp.driver.device: expected either device"):
+        validate_driver_section(lamp, "sim.yaml", "lamp.driver")
