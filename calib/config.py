@@ -72,7 +72,5 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     out["white_reference"] = _check(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
     if out["min_snr"] > out["target_snr"]:
         raise ConfigError(source, f"{keypath}.min_snr", f"<= target_snr {out['target_snr']}", out["min_snr"])
-    if out["kind"] == "rawfile" and out["folder"] is None:
-        raise ConfigError(source, f"{keypath}.folder", "a folder path (required for kind rawfile)", "nothing")
     out["exposures_s"] = [float(x) for x in out["exposures_s"]]
     return out

@@ -5,6 +5,7 @@ import shlex
 import subprocess
 
 from drivers.camera import Camera, CameraError, FolderCamera
+from goniofrost.errors import ConfigError
 
 from .config import validate_camera_section
 
@@ -16,10 +17,13 @@ def open_camera(rig) -> Camera:
     is run for each exposure; without it the operator is asked to expose. The simulated camera
     is built by the session from the ``sim`` section, not here.
     """
-    section = validate_camera_section(getattr(rig, "camera", rig), getattr(rig, "source", "rig file"))
+    source = getattr(rig, "source", "rig file")
+    section = validate_camera_section(getattr(rig, "camera", rig), source)
     if section["kind"] != "rawfile":
         raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
+    if section["folder"] is None:
+        raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
     command = section["trigger_command"]
     if command is None:
         def trigger(exposure_s: float) -> None:

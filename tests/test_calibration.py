@@ -9,7 +9,8 @@ import pytest
 import yaml
 
 from calib import (CalibrationError, CalibrationRecord, Calibrator, MarkerError, SaturationError,
-                   UnderexposedError, validate_camera_section)
+                   UnderexposedError, open_camera, validate_camera_section)
+from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.errors import ConfigError
 from sim.camera import SimCamera
@@ -241,7 +242,21 @@ def test_camera_section_validation(rig):
         validate_camera_section({**section, "kind": "webcam"}, "sim.yaml")
     with pytest.raises(ConfigError, match=r"camera\.white_reference\.reflectance: expected a number in \(0, 1\], found 1.5"):
         validate_camera_section({**section, "white_reference": {"reflectance": 1.5}}, "sim.yaml")
-    with pytest.raises(ConfigError, match=r"camera\.folder: expected a folder path \(required for kind rawfile\)"):
-        validate_camera_section({**section, "kind": "rawfile"}, "sim.yaml")
+    with pytest.raises(ConfigError, match=r"rig file: camera\.folder: expected the folder the camera writes RAW files to"):
+        open_camera({**section, "kind": "rawfile"})
+    with pytest.raises(CameraError, match=r"camera kind 'sim': the simulated camera is built with the simulated rig"):
+        open_camera(section)
     with pytest.raises(ConfigError, match=r"camera\.target_snr: expected a number > 0, found 'nothing'"):
         validate_camera_section({k: v for k, v in section.items() if k != "target_snr"}, "sim.yaml")
+
+
+def test_open_camera_builds_a_folder_camera_that_runs_the_trigger(rig, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    src = bench.camera.capture(0.004, tmp_path / "src.dng").path
+    hot = tmp_path / "hot"
+    hot.mkdir()
+    cam = open_camera({**rig["camera"], "kind": "rawfile", "folder": str(hot), "timeout_s": 5.0,
+                       "trigger_command": f"cp {src} {hot}/IMG_{{exposure_s}}.dng"})
+    cam.connect()
+    frame = cam.capture(0.004, tmp_path / "frame.dng")
+    assert frame.path.read_bytes() == src.read_bytes() and frame.metadata["source"].endswith("IMG_0.004.dng")
