@@ -1,0 +1,31 @@
+"""``goniofrost demo`` at full size (slow: run with ``pytest -m slow tests/test_demo.py``)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.grid import FULL_GRID
+from goniofrost.merl_io import read_merl
+
+
+@pytest.mark.slow
+def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, "-m", "goniofrost", "demo", "--out", str(out), "--no-progress"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    brdf = read_merl(out / "session" / "brdf.binary", FULL_GRID)
+    assert np.isfinite(brdf[FULL_GRID.valid_cells]).all() and np.isnan(brdf[~FULL_GRID.valid_mask]).all()
+    import matplotlib.image
+    assert matplotlib.image.imread(out / "preview.png").ndim == 3
+    report = json.loads((out / "report.json").read_text())
+    assert report["samples"] == 20 and report["demo"]["material"] == "builtin:red-plastic"
+    truth = report["ground_truth"]
+    assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
+    assert report["demo"]["rendering_snr_db"] > 10
+    assert f"wrote {out / 'session' / 'brdf.binary'}" in proc.stdout
