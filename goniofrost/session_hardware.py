@@ -82,7 +82,8 @@ def _simulated(rig, *, material, seed, speedup):
 
 @contextmanager
 def _real(rig, *, material, seed, speedup):
-    from calib import Calibrator, open_camera
+    from calib import Calibrator
+    from calib.open_camera import open_camera
     from drivers.rig_devices import RigDevices
 
     devices = RigDevices.from_sections(rig)
