@@ -172,6 +172,7 @@ class Calibrator:
         if w_i[2] <= 0.0:
             raise CalibrationError(f"sample {sample_id}: light below the sample plane (w_i z = {w_i[2]:.3f})")
         what = f"sample {sample_id}"
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
         mean, se, br = self._bracket_stats(w_i, Path(out_dir), f"sample_{sample_id:04d}", SAMPLE_MARKER_IDS, what)
         rec = self.record
         rgb = mean / (rec.scale * w_i[2])
