@@ -197,3 +197,16 @@ def test_sim_process_stops_cleanly_on_sigterm(sim_process):
     host, port = ep["camera_arm"]["endpoint"].split(":")
     client = ModbusTcpClient(host, port=int(port), timeout=1, retries=0)
     assert not client.connect()  # the Modbus port was released
+
+
+def test_modbus_rtu_axis_on_a_pty(raw_rig):
+    rtu = {**raw_rig, "axes": {**raw_rig["axes"], "camera_arm": {
+        **raw_rig["axes"]["camera_arm"],
+        "driver": {"protocol": "modbus-rtu", "port": "sim", "baud": 115200, "parity": "N",
+                   "device_id": 1, "steps_per_deg": 100.0}}}}
+    with SimulatedRig(rtu, speedup=20) as rig:
+        assert rig.endpoints["camera_arm"]["protocol"] == "modbus-rtu"
+        assert rig.endpoints["camera_arm"]["endpoint"].startswith("/dev/pts/")
+        with RigDevices.from_sections(rig.resolved_driver_sections()) as devices:
+            assert devices.axes["camera_arm"].move_to(45.0).wait() == pytest.approx(45.0, abs=0.02)
+            assert rig.true_joints_deg()["camera_arm"] == pytest.approx(45.0, abs=0.02)
