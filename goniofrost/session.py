@@ -111,9 +111,12 @@ class SessionEngine:
         steps = session_steps(self.inputs.samples, self.inputs.rig.joint_names, done,
                               calibrated=self._restore_calibration(), white_joints=self.inputs.white_joints)
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
-        with _signals_raise() as deferral, self._progress(len(done)):
+        with _signals_raise() as deferral, self._progress(len(done)), _DeviceLog.capture() as self._device_log:
             self._deferral = deferral
-            self._execute_all(steps)
+            try:
+                self._execute_all(steps)
+            finally:
+                self._journal_device_log(quiet=True)
         self.stats.ended_clock, self.stats.wall_s = self.hw.clock.now(), time.monotonic() - wall0
         self.journal.add_event("session", "all samples captured",
                                data={"captured": self.stats.captured, "motion_s": self.stats.motion_s})
@@ -126,6 +129,7 @@ class SessionEngine:
         try:
             for step in steps:
                 self._handlers[type(step)](step)
+                self._journal_device_log()
         except DeviceError as exc:
             self._abort("fault", f"{exc}", getattr(exc, "axis", None), step)
             raise SessionFault(self._fault_message(exc, step)) from exc
@@ -142,11 +146,26 @@ class SessionEngine:
     def _abort(self, kind: str, message: str, axis, step) -> None:
         """Stop every axis first (safety), then record why; never raises."""
         problems = self.stop_all_axes()
+        self._journal_device_log(quiet=True)  # the drivers' story first (retries, failed stops)
         data = {"step": repr(step), "stop_problems": problems}
         try:
             self.journal.add_event(kind, message, axis=axis, data=data)
         except Exception as exc:  # noqa: BLE001 - the original error matters more
             log.error("could not journal the %s event: %s", kind, exc)
+
+    def _journal_device_log(self, quiet: bool = False) -> None:
+        """Journal what the drivers logged (retries, failed stops, ...) since the last step.
+
+        ``quiet``: on the way out of a failed session, never mask the original error.
+        """
+        try:
+            for record in self._device_log.drain():
+                self.journal.add_event("device", record.getMessage(),
+                                       data={"logger": record.name, "level": record.levelname})
+        except Exception as exc:  # noqa: BLE001 - only reached with quiet=True re-raising below
+            if not quiet:
+                raise
+            log.error("could not journal the device log: %s", exc)
 
     def stop_all_axes(self) -> list[str]:
         """Command every axis to stop; return the problems met (each axis is tried)."""
@@ -288,6 +307,41 @@ class SessionEngine:
                 yield bar
             finally:
                 self._bar = None
+
+
+class _DeviceLog(logging.Handler):
+    """Collect the drivers' log records (INFO and up) from any thread; the engine journals them
+    from its own thread (an SQLite connection belongs to the thread that made it)."""
+
+    LOGGERS = ("drivers", "calib")
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self._records: list = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._records.append(record)  # list.append is atomic under the GIL
+
+    def drain(self) -> list:
+        records, self._records = self._records, []
+        return records
+
+    @classmethod
+    @contextmanager
+    def capture(cls):
+        handler = cls()
+        loggers = [logging.getLogger(name) for name in cls.LOGGERS]
+        levels = [lg.level for lg in loggers]
+        for lg in loggers:
+            lg.addHandler(handler)
+            if lg.getEffectiveLevel() > logging.INFO:
+                lg.setLevel(logging.INFO)
+        try:
+            yield handler
+        finally:
+            for lg, level in zip(loggers, levels):
+                lg.removeHandler(handler)
+                lg.setLevel(level)
 
 
 def _triple(values) -> tuple[float, float, float]:
