@@ -1,7 +1,8 @@
 """A simulated Dynamixel X-series servo on a pseudo-terminal, byte for byte Protocol 2.0.
 
 It parses instruction packets (CRC-16, byte stuffing), answers with status packets (ERR byte,
-Alert bit), and keeps the X-series control table of PROTOCOLS.md: PING, READ, WRITE, REBOOT;
+Alert bit), and keeps the X-series control table of PROTOCOLS.md: PING, READ, WRITE, REBOOT,
+SYNC_READ, SYNC_WRITE;
 Operating Mode 3 (position, goal within the Min/Max Position Limits) and 4 (extended, +-256
 turns); Torque Enable with EEPROM locked while on; Profile Velocity / Acceleration; Goal, Present
 Position and Velocity (signed); Moving and Moving Status; Hardware Error Status. Motion is a
@@ -178,6 +179,8 @@ class SimulatedDynamixel:
             self.ignored.append(pkt)
             return None
         self.received.append(pkt)
+        if pkt.instruction in (Instruction.SYNC_READ, Instruction.SYNC_WRITE):
+            return self._sync(pkt)
         reply = self._dispatch(pkt)
         if pkt.dxl_id == BROADCAST_ID and pkt.instruction != Instruction.PING:
             return None  # no status to a broadcast READ/WRITE
@@ -196,6 +199,21 @@ class SimulatedDynamixel:
         return build_status(self.id, int(error) | alert, params)
 
     # ----- instructions ------------------------------------------------------------------------
+    def _sync(self, pkt) -> bytes | None:
+        """SYNC_READ (addr, len, ids: a status from each listed ID in turn; this one servo answers if
+        listed) and SYNC_WRITE (addr, len, then [id, data] per servo; never a status)."""
+        p = pkt.params
+        if len(p) < 4:
+            return None
+        addr_len = p[:4]
+        length = int.from_bytes(p[2:4], "little")
+        if pkt.instruction == Instruction.SYNC_READ:
+            return self._read(addr_len) if self.id in p[4:] else None
+        for i in range(4, len(p) - length, length + 1):
+            if p[i] == self.id:
+                self._write(p[:2] + p[i + 1:i + 1 + length])
+        return None
+
     def _ping(self, params: bytes) -> bytes:
         return self._status(0, self.table[0:2] + self.table[6:7])  # model L, model H, firmware
 

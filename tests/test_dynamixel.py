@@ -357,3 +357,23 @@ def test_arrival_outside_tolerance_is_an_arrival_error(servo, axis):
     dev.motion.start_move(0.0)
     with pytest.raises(ArrivalError, match="not within 0.1 deg of the target 45 deg"):
         status.wait()
+
+
+def test_sdk_group_sync_write_and_read(servo):
+    from dynamixel_sdk import GroupSyncRead, GroupSyncWrite
+    dev, entry = servo
+    port, ph = PortHandler(entry["endpoint"]), PacketHandler(2.0)
+    assert port.openPort()
+    try:
+        assert _sdk(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)
+        writer = GroupSyncWrite(port, ph, 116, 4)
+        assert writer.addParam(1, list((300).to_bytes(4, "little")))
+        assert writer.txPacket() == COMM_SUCCESS
+        reader = GroupSyncRead(port, ph, 116, 4)
+        assert reader.addParam(1)
+        for _ in range(5):
+            if reader.txRxPacket() == COMM_SUCCESS:
+                break
+        assert reader.isAvailable(1, 116, 4) and reader.getData(1, 116, 4) == 300
+    finally:
+        port.closePort()
