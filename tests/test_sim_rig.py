@@ -210,3 +210,13 @@ def test_modbus_rtu_axis_on_a_pty(raw_rig):
         with RigDevices.from_sections(rig.resolved_driver_sections()) as devices:
             assert devices.axes["camera_arm"].move_to(45.0).wait() == pytest.approx(45.0, abs=0.02)
             assert rig.true_joints_deg()["camera_arm"] == pytest.approx(45.0, abs=0.02)
+
+
+def test_sim_command_bad_input_is_one_line_and_status_2(tmp_path, capsys):
+    from goniofrost.cli import main
+    assert main(["sim", "--rig", str(tmp_path / "missing.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("goniofrost sim: error: ") and "missing.yaml" in err and "\n" not in err
+    assert main(["sim", "--rig", str(RIG), "--speedup", "0"]) == 2
+    assert capsys.readouterr().err.strip() == \
+        "goniofrost sim: error: command line: --speedup: expected a number > 0, found 0.0"

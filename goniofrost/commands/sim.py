@@ -26,9 +26,9 @@ def run(args) -> int:
     from goniofrost.rigfile import load_rig
     from sim.rig import SimulatedRig
 
-    rig = load_rig(args.rig)
     if args.speedup is not None and not args.speedup > 0:
-        raise ConfigError("--speedup", "", "a number > 0", args.speedup)
+        raise ConfigError("command line", "--speedup", "a number > 0", args.speedup)
+    rig = load_rig(args.rig)
     seed = args.seed if args.seed is not None else int((rig.sim or {}).get("seed", 0))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
