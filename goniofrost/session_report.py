@@ -38,9 +38,9 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
         "grid": inputs.model.grid.as_dict(), "material": material,
         "samples": len(records), "captured_this_run": stats.captured, "already_done": stats.skipped,
         "runs": sum(1 for e in events if e["kind"] == "session" and e["message"].startswith("started")),
-        "times_s": {"motion": motion, "capture": capture, "calibration_this_run": stats.calibration_s,
+        "times_s": {"motion": motion, "capture": capture, "calibration_wall_this_run": stats.calibration_s,
                     "motion_and_capture": motion + capture, "session_clock_this_run": stats.ended_clock - stats.started_clock,
-                    "wall_this_run": stats.wall_s, "planned_motion": inputs.plan.get("planned_motion_s")},
+                    "wall_this_run": stats.wall_s, "planned_motion": _planned_motion(inputs.plan)},
         "snr": {"min": float(snr.min()), "median": float(np.median(snr)), "max": float(snr.max())},
         "per_sample": [{"index": r.plan_index, "cell": r.cell, "theta_h_deg": r.theta_h_deg,
                         "theta_d_deg": r.theta_d_deg, "phi_d_deg": r.phi_d_deg, "rgb": list(r.rgb),
@@ -48,6 +48,12 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
                        for r in records],
         "outputs": {"brdf": "brdf.binary", "samples": "samples.csv", "journal": "session.sqlite"},
     }
+
+
+def _planned_motion(plan: dict) -> float | None:
+    """The plan's motion time from home through the last sample (the session does not return home)."""
+    total = plan.get("planned_motion_s")
+    return None if total is None else float(total) - float(plan.get("return_home_s", 0.0))
 
 
 def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> dict:
@@ -95,8 +101,9 @@ def summary_text(report: dict) -> str:
         f"session {report['session']}: {report['samples']} samples on rig {report['rig']!r}"
         f" ({report['captured_this_run']} this run, {report['already_done']} from before; {report['runs']} run(s))",
         f"motion {t['motion']:.1f} s + capture {t['capture']:.1f} s = {t['motion_and_capture']:.1f} s"
-        + (" (simulated clock)" if report["simulated"] else "")
+        + (" (simulated rig: axis motion profiles and exposure time)" if report["simulated"] else "")
         + (f"; planned motion {t['planned_motion']:.1f} s" if t.get("planned_motion") is not None else ""),
+        f"this run: calibration {t['calibration_wall_this_run']:.1f} s, whole run {t['wall_this_run']:.1f} s (wall clock)",
         f"SNR per sample: min {report['snr']['min']:.1f}, median {report['snr']['median']:.1f}, max {report['snr']['max']:.1f}",
         "  " + " ".join(f"{s['index']}:{s['snr']:.0f}" for s in report["per_sample"]),
     ]

@@ -29,7 +29,7 @@ def run(args) -> int:
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
     print(f"demo: builtin:{args.material}, m = {report['samples']} samples on the simulated rig")
-    print(f"  motion {times['motion']:.1f} s + capture {times['capture']:.1f} s (simulated clock); "
+    print(f"  motion {times['motion']:.1f} s + capture {times['capture']:.1f} s (simulated rig); "
           f"median sample SNR {report['snr']['median']:.0f}")
     if truth:
         print(f"  log-relative MSE against the ground truth {truth['log_relative_mse']:.4g} "
