@@ -1,0 +1,166 @@
+"""The work of one fold: train once, select with every method and m, reconstruct the test set.
+
+``run_fold`` is the unit the executors distribute (a local process or a Dask worker); it reads
+the memory-mapped material tables and returns plain result rows, so whoever runs it, the rows
+are the same (time fields aside).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..baselines import nielsen_path, random_select, uniform_select
+from .config import BenchConfig, BenchError, fold_split, method_rng
+from .data import open_tables
+
+Y_FORMS = {"frost": "all", "frost-firstm": "firstm"}
+
+
+@dataclass
+class Design:
+    """One selection to evaluate: ``positions`` (m,) into the valid cells and its wall time."""
+
+    method: str
+    m: int
+    trial: int
+    positions: np.ndarray
+    select_s: float
+
+
+def run_fold(config: BenchConfig, path: str, names: list[str], fold: int,
+             progress: Callable[[int], None] | None = None) -> list[dict]:
+    """Evaluate every method, m and trial on one fold; returns result rows (see results.ROW_FIELDS).
+
+    path: the cached tables (``data.tables_path``); names: their material names.
+    progress: called with 1 after each evaluated design (for a progress bar).
+    """
+    from ..training import fit_model
+
+    tables = open_tables(path)
+    train, test = fold_split(len(names), config, fold)
+    model = fit_model(np.asarray(tables[train]), [names[i] for i in train], config.grid,
+                      k_max=max(config.m_values))
+    truth = np.asarray(tables[test])
+    truth_log = model.to_log(truth)
+    test_names = [names[i] for i in test]
+    rows = []
+    for design in iter_designs(model, config, fold):
+        rows += evaluate_design(model, design, truth, test_names, config.eta, fold, truth_log)
+        if progress is not None:
+            progress(1)
+    return rows
+
+
+def designs_per_fold(config: BenchConfig) -> int:
+    """How many designs ``iter_designs`` yields for one fold (for progress totals)."""
+    trials = {"frost": 1, "frost-firstm": 1, "uniform": 1,
+              "nielsen": config.nielsen_trials, "random": config.random_trials}
+    return len(config.m_values) * sum(trials[m] for m in config.methods)
+
+
+def iter_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
+    """Every (method, m, trial) selection of a fold, in a fixed order."""
+    for method in config.methods:
+        if method in Y_FORMS:
+            yield from _frost_designs(model, config, method)
+        elif method == "nielsen":
+            yield from _nielsen_designs(model, config, fold)
+        elif method == "random":
+            yield from _random_designs(model, config, fold)
+        else:
+            yield from _uniform_designs(model, config)
+
+
+def _timed(fn, *args, **kwargs):
+    start = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - start
+
+
+def _frost_designs(model, config: BenchConfig, method: str) -> Iterator[Design]:
+    from ..selection import select_cells
+
+    for m in config.m_values:
+        selection, seconds = _timed(select_cells, model, m, y_form=Y_FORMS[method])
+        yield Design(method, m, 0, np.asarray(selection.positions, dtype=np.int64), seconds)
+
+
+def _nielsen_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
+    # One incremental run per trial gives the designs for every m; the time of m is the wall
+    # time from the start of that run (all additions and descents up to m points).
+    for trial in range(config.nielsen_trials):
+        rng = method_rng(config, "nielsen", fold, trial)
+        steps = nielsen_path(model.dictionary, config.m_values, config.grid, rng,
+                             config.nielsen_subset, config.nielsen_max_iter)
+        for step in steps:
+            yield Design("nielsen", step.m, trial, step.positions, step.seconds)
+
+
+def _random_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
+    for trial in range(config.random_trials):
+        rng = method_rng(config, "random", fold, trial)
+        for m in config.m_values:
+            positions, seconds = _timed(random_select, config.grid, m, rng)
+            yield Design("random", m, trial, positions, seconds)
+
+
+def _uniform_designs(model, config: BenchConfig) -> Iterator[Design]:
+    for m in config.m_values:
+        positions, seconds = _timed(uniform_select, config.grid, m)
+        yield Design("uniform", m, 0, positions, seconds)
+
+
+def evaluate_design(model, design: Design, truth: np.ndarray, names: list[str],
+                    eta: float, fold: int, truth_log: np.ndarray | None = None) -> list[dict]:
+    """Reconstruct every test material from its values at the design's cells; one row each.
+
+    truth: (n_test, n_valid, 3) BRDF in 1/sr; truth_log: its ``model.to_log`` (computed when
+    not given; pass it to reuse it across designs). The error is the log-relative MSE over all
+    valid cells and channels (``metrics.log_relative_mse`` of ``reconstruct``'s output; see
+    ``batch_log_errors``). ``recon_s`` is the wall time of the ridge solve and the dictionary
+    product for all test materials at once, divided by the number of materials.
+    """
+    truth_log = model.to_log(truth) if truth_log is None else truth_log
+    errors, seconds = _timed_errors(model, design.positions, truth, truth_log, eta)
+    rows = []
+    for i, name in enumerate(names):
+        if not np.isfinite(errors[i]):
+            raise BenchError(f"fold {fold}: {design.method} m={design.m} trial {design.trial} "
+                             f"gives a non-finite error ({errors[i]}) on {name!r}")
+        rows.append({"method": design.method, "m": int(design.m), "fold": int(fold),
+                     "trial": int(design.trial), "material": name, "mse": float(errors[i]),
+                     "select_s": float(design.select_s), "recon_s": seconds / len(names)})
+    return rows
+
+
+def _timed_errors(model, positions, truth, truth_log, eta):
+    from ..reconstruction import reconstruct_log
+
+    n_mat = truth.shape[0]
+    # Samples of every material and channel side by side: (m, 3 n_mat) columns, one solve.
+    values = truth[:, positions, :].transpose(1, 0, 2).reshape(positions.size, 3 * n_mat)
+    start = time.perf_counter()
+    estimate = reconstruct_log(model, positions, model.to_log(values, positions), eta=eta)
+    seconds = time.perf_counter() - start
+    return batch_log_errors(model, estimate, truth_log), seconds
+
+
+def batch_log_errors(model, estimate_log: np.ndarray, truth_log: np.ndarray) -> np.ndarray:
+    """Log-relative MSE per material from mapped estimates; float64 (n_mat,).
+
+    estimate_log: (n_valid, 3 n_mat) ``reconstruct_log`` output (column 3 i + c = material i,
+    channel c); truth_log: (n_mat, n_valid, 3) ``model.to_log(truth)``.
+    ``reconstruct`` clamps x = from_log(b) at 0, whose map is max(b, log(eps / (r + eps))),
+    so this equals ``log_relative_mse(model, truth_i, reconstruct(...))`` without the exp/log
+    round trip (tests/test_bench.py checks the two agree).
+    """
+    floor = np.log(model.eps) - np.log(np.asarray(model.reference, np.float64) + model.eps)
+    n_mat = truth_log.shape[0]
+    out = np.empty(n_mat)
+    for i in range(n_mat):
+        est = np.maximum(estimate_log[:, 3 * i:3 * i + 3], floor[:, None])
+        out[i] = np.mean((est - truth_log[i]) ** 2)
+    return out

@@ -1,0 +1,110 @@
+"""Run the folds of a benchmark in local worker processes or on a Dask cluster.
+
+Folds are independent (each trains its own model and draws from its own seeded streams), so
+the rows do not depend on where or in which order folds run; they are returned in fold order.
+Every fold runs with a single BLAS thread: OpenBLAS sums in a different order with more
+threads, which would change the last digits of the errors between executors. Dask's nanny
+starts its workers with OPENBLAS_NUM_THREADS=1 by default; a cluster started otherwise must
+set it too for rows identical to a local run.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import sys
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from .config import BenchConfig, BenchError
+from .evaluate import designs_per_fold, run_fold
+
+
+def run_folds(config: BenchConfig, path, names: list[str], jobs: int = 1,
+              dask_address: str | None = None, progress: bool = True,
+              done: dict | None = None, on_fold=None) -> list[dict]:
+    """Evaluate every fold; returns all rows, fold by fold.
+
+    done: {fold: rows} already evaluated (a resumed run); those folds are not run again.
+    on_fold: called as on_fold(fold, rows) as each fold finishes (e.g. to checkpoint it).
+    jobs: local worker processes (at least one); ignored with ``dask_address``.
+    dask_address: the scheduler of an existing dask.distributed cluster (``tcp://host:port``);
+        its workers must see the same file system path for the cached tables.
+    """
+    from tqdm import tqdm
+
+    results = dict(done or {})
+    todo = [f for f in range(config.folds) if f not in results]
+
+    def finished(fold, rows):
+        results[fold] = rows
+        if on_fold is not None:
+            on_fold(fold, rows)
+
+    total = len(todo) * designs_per_fold(config)
+    with tqdm(total=total, desc="bench", unit="design", file=sys.stderr,
+              disable=not progress, smoothing=0.05) as bar:
+        if todo and dask_address:
+            _run_dask(config, str(path), names, todo, dask_address, bar, finished)
+        elif todo:
+            _run_local(config, str(path), names, todo, max(1, jobs), bar, finished)
+    return [row for f in range(config.folds) for row in results[f]]
+
+
+def _run_local(config, path, names, todo, jobs, bar, finished) -> None:
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")  # no fork after BLAS threads started
+    with mp.Manager() as manager, _blas_threads(1):
+        ticks = manager.Queue()
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as pool:
+            futures = {pool.submit(run_fold, config, path, names, f, ticks.put): f for f in todo}
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                _drain(ticks, bar)
+                for future in done:
+                    finished(futures[future], future.result())  # a worker's error is raised here
+
+
+def _drain(ticks, bar) -> None:
+    while True:
+        try:
+            bar.update(ticks.get_nowait())
+        except queue.Empty:
+            return
+
+
+class _blas_threads:
+    """Set the BLAS thread count that spawned workers inherit."""
+
+    KEYS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+    def __init__(self, n: int) -> None:
+        self.n, self.saved = str(n), {}
+
+    def __enter__(self):
+        self.saved = {k: os.environ.get(k) for k in self.KEYS}
+        os.environ.update({k: self.n for k in self.KEYS})
+        return self
+
+    def __exit__(self, *exc):
+        for k, v in self.saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _run_dask(config, path, names, todo, address, bar, finished) -> None:
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise BenchError("--dask needs dask.distributed: pip install 'goniofrost[dask]'") from exc
+    try:
+        client = Client(address, timeout=30)
+    except (OSError, TimeoutError) as exc:
+        raise BenchError(f"--dask {address}: cannot connect to a Dask scheduler there ({exc})") from exc
+    with client:
+        futures = {client.submit(run_fold, config, path, names, f, pure=False): f for f in todo}
+        for future in as_completed(list(futures)):
+            finished(futures[future], future.result())
+            bar.update(designs_per_fold(config))

@@ -1,0 +1,158 @@
+"""goniofrost bench: schema, determinism, executors, error equivalence, stress, CLI (small grid)."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from goniofrost.bench.config import BenchConfig, BenchError, fold_split
+from goniofrost.bench.data import open_tables, tables_path
+from goniofrost.bench.evaluate import batch_log_errors, designs_per_fold
+from goniofrost.bench.executors import run_folds
+from goniofrost.bench.results import ROW_FIELDS, write_results
+from goniofrost.bench.runner import run_benchmark
+from goniofrost.cli import main
+from goniofrost.grid import MerlGrid
+
+GRID = MerlGrid(12, 12, 24)
+TIME_FIELDS = ("select_s", "recon_s")
+
+
+@pytest.fixture(scope="module")
+def config(merl_npz, rgl_npz) -> BenchConfig:
+    return BenchConfig((f"nbrdf:{merl_npz}", f"nbrdf:{rgl_npz}"), grid=GRID, folds=2, n_train=10,
+                       n_test=3, m_values=(4, 8), nielsen_trials=2, nielsen_subset=50, nielsen_max_iter=3)
+
+
+@pytest.fixture(scope="module")
+def tables(config):
+    return tables_path(config.datasets, config.grid, progress=False)
+
+
+@pytest.fixture(scope="module")
+def serial_rows(config, tables):
+    names, path = tables
+    return run_folds(config, path, names, jobs=1, progress=False)
+
+
+def without_times(rows):
+    return [{k: v for k, v in r.items() if k not in TIME_FIELDS} for r in rows]
+
+
+def test_rows_cover_every_method_m_fold_trial_material(config, tables, serial_rows):
+    assert len(serial_rows) == config.folds * designs_per_fold(config) * config.n_test
+    keys = {(r["method"], r["m"], r["fold"], r["trial"]) for r in serial_rows}
+    assert {(k[0], k[3]) for k in keys} == {("frost", 0), ("frost-firstm", 0), ("nielsen", 0),
+                                           ("nielsen", 1), ("random", 0), ("uniform", 0)}
+    for r in serial_rows:
+        assert set(r) == set(ROW_FIELDS) and math.isfinite(r["mse"]) and r["mse"] > 0
+        _, test = fold_split(len(tables[0]), config, r["fold"])
+        assert r["material"] in [tables[0][i] for i in test]
+    # FROST beats random cells on average even on this tiny problem
+    mean = lambda meth: np.mean([r["mse"] for r in serial_rows if r["method"] == meth and r["m"] == 8])
+    assert mean("frost") < mean("random")
+
+
+def test_local_processes_and_dask_give_identical_rows(config, tables, serial_rows):
+    distributed = pytest.importorskip("distributed")
+    names, path = tables
+    local = run_folds(config, path, names, jobs=2, progress=False)
+    assert without_times(local) == without_times(serial_rows)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        on_dask = run_folds(config, path, names, dask_address=cluster.scheduler_address, progress=False)
+    assert without_times(on_dask) == without_times(serial_rows)
+
+
+def test_batched_errors_equal_reconstruct_then_log_relative_mse(config, tables):
+    from goniofrost.metrics import log_relative_mse
+    from goniofrost.reconstruction import reconstruct, reconstruct_log
+    from goniofrost.training import fit_model
+
+    names, path = tables
+    t = open_tables(path)
+    model = fit_model(np.asarray(t[:10]), names[:10], GRID, k_max=8)
+    truth = np.asarray(t[[20, 40, 140]])  # includes a dark and a glossy material
+    pos = np.array([5, 90, 400, 777, 1200, 1500, 1800, 2100])
+    values = truth[:, pos, :].transpose(1, 0, 2).reshape(pos.size, -1)
+    est = reconstruct_log(model, pos, model.to_log(values, pos), eta=40.0)
+    batched = batch_log_errors(model, est, model.to_log(truth))
+    direct = [log_relative_mse(model, truth[i], reconstruct(model, pos, truth[i, pos], eta=40.0)) for i in range(3)]
+    np.testing.assert_allclose(batched, direct, rtol=1e-9)
+
+
+def test_results_files_follow_the_schema(config, tmp_path):
+    small = config.with_(folds=1, methods=("frost", "nielsen", "random", "uniform"), nielsen_trials=1)
+    paths = run_benchmark(small, tmp_path, "goniofrost bench ...", jobs=1, progress=False)
+    payload = json.loads((tmp_path / "results.json").read_text())
+    assert set(payload) >= {"machine", "command", "rows"} and payload["machine"]["cores"] >= 1
+    assert payload["command"] == "goniofrost bench ..."
+    rows = payload["rows"]
+    assert len(rows) == 4 * 2 * 3
+    for r in rows:
+        assert list(r) == list(ROW_FIELDS)
+        assert isinstance(r["m"], int) and isinstance(r["fold"], int) and isinstance(r["trial"], int)
+        assert all(isinstance(r[k], float) for k in ("mse", "select_s", "recon_s"))
+    with open(tmp_path / "results.csv", newline="") as f:
+        csv_rows = list(csv.DictReader(f))
+    assert [c["material"] for c in csv_rows] == [r["material"] for r in rows]
+    assert [float(c["mse"]) for c in csv_rows] == [r["mse"] for r in rows]
+    pngs = [p for p in paths if p.suffix == ".png"]
+    assert {p.name for p in pngs} == {"inverse_mse.png", "selection_time.png", "frontier.png", "box_m8.png"}
+    assert all(0 < p.stat().st_size < 200_000 for p in pngs)
+
+
+def test_non_finite_numbers_are_never_written(tmp_path):
+    row = {"method": "frost", "m": 5, "fold": 0, "trial": 0, "material": "x",
+           "mse": float("nan"), "select_s": 0.1, "recon_s": 0.1}
+    with pytest.raises(BenchError, match=r"result row 0 \(frost m=5 x\): mse must be a finite float, found nan"):
+        write_results(tmp_path / "out", [row], "cmd", {})
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_fold_splits_are_fixed_disjoint_and_checked(config):
+    train, test = fold_split(151, config, 3)
+    again = fold_split(151, config, 3)
+    assert np.array_equal(train, again[0]) and np.array_equal(test, again[1])
+    assert len(train) == 10 and len(test) == 3 and not set(train) & set(test)
+    assert not np.array_equal(test, fold_split(151, config, 4)[1])
+    with pytest.raises(BenchError, match="datasets hold only 12"):
+        fold_split(12, config, 0)
+
+
+def test_stress_cases_end_in_results_or_clear_errors(config, tables, tmp_path):
+    from goniofrost.bench.stress import run_cases, write_stress
+
+    names, path = tables
+    cfg = config.with_(n_train=30, n_test=4, m_values=(4, 8, 12))
+    records = run_cases(cfg, path, names, m=8, progress=False)
+    assert {r["status"] for r in records} <= {"ok", "error"}, [r for r in records if r["status"] not in ("ok", "error")]
+    by = {(r["case"], r["variant"], r["method"]): r for r in records}
+    raw = [r for r in records if r["case"] == "noise" and r["variant"].endswith("raw")]
+    assert raw and all(r["status"] == "error" and "negative value" in r["message"] for r in raw)
+    assert by[("eta", "eta 0", "frost")]["status"] == "ok"
+    assert by[("m above rank", "m=8 (K=8)", "frost")]["status"] == "ok"
+    single = [r for r in records if r["case"] == "single material" and r["method"] == "frost" and r["m"] == 8]
+    assert single[0]["status"] == "error" and "the model's components" in single[0]["message"]
+    conds = [r for r in records if r["case"] == "condition"]
+    assert {r["method"] for r in conds} == {"frost", "frost-firstm", "nielsen", "random", "uniform"}
+    assert all(r["values"]["cond"] >= 1 for r in conds)
+    write_stress(tmp_path, records, "cmd", {}, {})
+    json.loads((tmp_path / "stress.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+
+
+def test_cli_runs_and_rejects_bad_options(merl_npz, rgl_npz, tmp_path, capsys):
+    base = ["bench", "--dataset", f"nbrdf:{merl_npz}", "--dataset", f"nbrdf:{rgl_npz}",
+            "--grid", "12,12,24", "--jobs", "1", "--no-progress"]
+    assert main(base + ["--train", "200", "--out", str(tmp_path / "a")]) == 2
+    assert "200 training + 20 test materials requested but the datasets hold only 151" in capsys.readouterr().err
+    assert main(base + ["--m", "8,4", "--out", str(tmp_path / "b")]) == 2
+    assert "m_values: expected distinct positive sample counts in increasing order" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert main(base + ["--folds", "1", "--train", "8", "--test", "2", "--m", "3,6", "--methods", "frost,uniform",
+                        "--out", str(tmp_path / "c")]) == 0
+    payload = json.loads((tmp_path / "c" / "results.json").read_text())
+    assert "--m 3,6" in payload["command"] and len(payload["rows"]) == 2 * 2 * 2
