@@ -23,7 +23,7 @@ import numpy as np
 from drivers.rawfile import read_raw
 
 from .config import validate_camera_section
-from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError
+from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
 from .hdr import BracketFrame, channel_stats, merge
 from .holder import SAMPLE_MARKER_IDS, WHITE_MARKER_IDS
 from .record import CalibrationRecord
@@ -222,6 +222,8 @@ class Calibrator:
             if br.mask is None:
                 try:
                     br.mask = find_patch(br.frames[i].linear, ids, self.settings["roi_margin"], what)
+                except WrongTargetError:
+                    raise            # another exposure will not change which card is mounted
                 except MarkerError as exc:
                     log.debug("%s: markers not found at %s s: %s", what, self.ladder[i], exc)
                     marker_error = exc

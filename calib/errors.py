@@ -12,6 +12,10 @@ class MarkerError(CalibrationError):
     """The holder's ArUco markers were not found (or not the expected ones) in any frame."""
 
 
+class WrongTargetError(MarkerError):
+    """Markers of another target (e.g. the white card where the sample should be) were read."""
+
+
 class SaturationError(CalibrationError):
     """Even the shortest exposure of the ladder saturates pixels of the sample region."""
 

@@ -95,16 +95,16 @@ def test_same_seed_same_frame_other_seed_other_noise(tmp_path, gold, params):
     assert np.array_equal(frames[0], frames[1]) and not np.array_equal(frames[0], frames[2])
 
 
-@pytest.mark.parametrize("theta_o", [0.0, 45.0, 70.0, 78.0])
+@pytest.mark.parametrize("theta_o", [0.0, 45.0, 70.0, 80.0])
 @pytest.mark.parametrize("phi_o", [0.0, 45.0, 120.0])
-def test_markers_locate_the_patch_up_to_78_degrees(tmp_path, gold, params, theta_o, phi_o):
+def test_markers_locate_the_patch_up_to_80_degrees(tmp_path, gold, params, theta_o, phi_o):
     bench = CameraBench(gold, params, speedup=1e4)
     bench.lamp.on()
     _, w_o = bench.set_angles(20.0, theta_o, phi_o)
     raw = read_raw(bench.camera.capture(0.064, tmp_path / "m.dng").path)
     mask = find_patch(raw.linear, SAMPLE_MARKER_IDS, 0.15, "test frame")
     _, cover = bench.camera._renderer.view(w_o, SAMPLE_MARKER_IDS)
-    assert mask.sum() >= 150 and np.all(cover[mask] == 1.0)   # only pure patch pixels
+    assert mask.sum() >= 100 and np.all(cover[mask] == 1.0)   # only pure patch pixels
 
 
 def test_grazing_view_and_wrong_target_are_marker_errors(tmp_path, gold, params):
