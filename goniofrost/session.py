@@ -185,9 +185,8 @@ class SessionEngine:
         hint = ""
         if isinstance(step, Measure):
             s = self.inputs.samples[step.index]
-            hint = (f" (theta_i {s['theta_i_deg']:.1f} deg, theta_o {s['theta_o_deg']:.1f} deg; if the camera "
-                    f"cannot see the sample there, plan again with --max-angle)")
-        return f"capture failed{self._where(step)}{hint}: {exc}. {self._safe_text()}"
+            hint = f" (theta_i {s['theta_i_deg']:.1f} deg, theta_o {s['theta_o_deg']:.1f} deg)"
+        return f"capture failed{self._where(step)}{hint}: {exc}. {_remedy(exc)}{self._safe_text()}"
 
     @staticmethod
     def _where(step) -> str:
@@ -237,10 +236,15 @@ class SessionEngine:
         if stored is None:
             return False
         try:
-            self.hw.calibrator.record = CalibrationRecord.from_dict(stored)
+            record = CalibrationRecord.from_dict(stored)
         except CalibrationError as exc:
             self.journal.add_event("calibration", f"cannot reuse the journaled calibration ({exc}); calibrating again")
             return False
+        if list(record.exposures_s) != list(self.hw.calibrator.ladder):  # the rig file's ladder changed
+            self.journal.add_event("calibration", f"exposure ladder changed from {record.exposures_s} to "
+                                   f"{self.hw.calibrator.ladder}; calibrating again")
+            return False
+        self.hw.calibrator.record = record
         return True
 
     def _move(self, step: Move) -> None:
@@ -343,6 +347,19 @@ class _DeviceLog(logging.Handler):
             for lg, level in zip(loggers, levels):
                 lg.removeHandler(handler)
                 lg.setLevel(level)
+
+
+def _remedy(exc) -> str:
+    """What an operator can do about a measurement that failed (empty if nothing specific)."""
+    from calib.errors import MarkerError, SaturationError, UnderexposedError
+
+    if isinstance(exc, MarkerError):
+        return "If the camera cannot see the holder at this angle, plan again with --max-angle. "
+    if isinstance(exc, SaturationError):
+        return "Add shorter exposures to camera.exposures_s in the rig file (or dim the lamp). "
+    if isinstance(exc, UnderexposedError):
+        return "Add longer exposures to camera.exposures_s in the rig file. "
+    return ""
 
 
 def _triple(values) -> tuple[float, float, float]:
