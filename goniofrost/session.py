@@ -96,6 +96,7 @@ class SessionEngine:
         self._reached: dict = {}
         self._simulated = getattr(hardware, "simulation", None) is not None
         self._bar = None
+        self._deferral, self._device_log = _Deferral(), _DeviceLog()  # replaced while running
         self._handlers = {Home: self._home, LampOn: self._lamp_on, LampOff: self._lamp_off,
                           Calibrate: self._calibrate, Move: self._move, Measure: self._measure,
                           Commit: self._commit}
@@ -145,14 +146,16 @@ class SessionEngine:
             raise
 
     def _abort(self, kind: str, message: str, axis, step) -> None:
-        """Stop every axis first (safety), then record why; never raises."""
-        problems = self.stop_all_axes()
-        self._journal_device_log(quiet=True)  # the drivers' story first (retries, failed stops)
-        data = {"step": repr(step), "stop_problems": problems}
-        try:
-            self.journal.add_event(kind, message, axis=axis, data=data)
-        except Exception as exc:  # noqa: BLE001 - the original error matters more
-            log.error("could not journal the %s event: %s", kind, exc)
+        """Stop every axis first (safety), then record why; never raises, and a second Ctrl-C
+        cannot cut the stopping short."""
+        with self._deferral.ignored():
+            problems = self.stop_all_axes()
+            self._journal_device_log(quiet=True)  # the drivers' story first (retries, failed stops)
+            data = {"step": repr(step), "stop_problems": problems}
+            try:
+                self.journal.add_event(kind, message, axis=axis, data=data)
+            except Exception as exc:  # noqa: BLE001 - the original error matters more
+                log.error("could not journal the %s event: %s", kind, exc)
 
     def _journal_device_log(self, quiet: bool = False) -> None:
         """Journal what the drivers logged (retries, failed stops, ...) since the last step.
@@ -379,6 +382,15 @@ class _Deferral:
             self.pending = signum
             return
         raise SessionInterrupted(signal.Signals(signum).name)
+
+    @contextmanager
+    def ignored(self):
+        """Hold signals and then drop them (the session is already stopping)."""
+        self.in_critical = True
+        try:
+            yield
+        finally:
+            self.in_critical, self.pending = False, None
 
     @contextmanager
     def critical(self):

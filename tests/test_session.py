@@ -294,3 +294,18 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
     assert "meta.plan_sha256: this session was started with another plan" in err
     err = run_refused(capture_args(rig, plan, tmp_path / "nothing", "--resume"), capsys)
     assert "no session journal to resume" in err
+
+
+def test_a_signal_during_a_commit_waits_for_it_and_one_during_stopping_is_dropped():
+    from goniofrost.session import SessionInterrupted, _Deferral
+
+    deferral, done = _Deferral(), []
+    with pytest.raises(SessionInterrupted, match="SIGINT"):
+        with deferral.critical():
+            deferral.handle(signal.SIGINT, None)  # arrives mid-commit: held
+            done.append("committed")
+    assert done == ["committed"]
+    with deferral.ignored():
+        deferral.handle(signal.SIGTERM, None)  # a second Ctrl-C while every axis is being stopped
+    with pytest.raises(SessionInterrupted, match="SIGTERM"):
+        deferral.handle(signal.SIGTERM, None)  # outside both: at once
