@@ -111,11 +111,11 @@ def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: i
 
 def write_reference_and_preview(material: str, grid, out: Path) -> float:
     """Write the ground truth as reference.binary and preview.png; return the rendering SNR (dB)."""
-    from .datasets import open_dataset
     from .merl_io import valid_to_full, write_merl
     from .preview import make_preview, write_png
+    from .session_report import ground_truth
 
-    truth = open_dataset("builtin").tabulate([material], grid)[0]
+    truth = ground_truth(f"builtin:{material}", grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)
     preview = make_preview(out / "session" / "brdf.binary", out / "reference.binary")
     write_png(out / "preview.png", preview, title=f"builtin:{material}")

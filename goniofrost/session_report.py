@@ -7,6 +7,7 @@ motion and capture time, not only the last run's.
 from __future__ import annotations
 
 import json
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -73,13 +74,11 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> 
 
 
 def _truth_section(inputs, records, material: str, estimate: np.ndarray) -> dict:
-    from .datasets import parse_material_spec
     from .metrics import log_relative_mse
     from .reconstruction import reconstruct
 
     model = inputs.model
-    dataset, name = parse_material_spec(material)
-    truth = dataset.tabulate([name], model.grid)[0].astype(np.float64)       # (n_valid, 3) 1/sr
+    truth = ground_truth(material, model.grid)
     order = np.array([r.plan_index for r in records], dtype=np.int64)
     measured = np.array([r.rgb for r in records])
     true_at = truth[inputs.positions[order]]
@@ -92,6 +91,18 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray) -> dict
             "ratio_to_exact": error / best if best > 0 else None,
             "sample_relative_error_median": float(np.nanmedian(rel)),
             "sample_relative_error_max": float(np.nanmax(rel))}
+
+
+@lru_cache(maxsize=2)
+def ground_truth(material: str, grid) -> np.ndarray:
+    """The material's BRDF on the grid's valid cells, float64 (n_valid, 3) in 1/sr (read-only;
+    kept for the demo's reference file and preview, which need the same table)."""
+    from .datasets import parse_material_spec
+
+    dataset, name = parse_material_spec(material)
+    truth = dataset.tabulate([name], grid)[0].astype(np.float64)
+    truth.setflags(write=False)
+    return truth
 
 
 def summary_text(report: dict) -> str:
