@@ -42,6 +42,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
 
     inputs = load_inputs(rig_path, plan_path)
     material = check_material(inputs.rig, material)
+    check_sim_options(inputs.rig, seed, speedup)
     session_dir = Path(session_dir)
     meta = session_meta(inputs, material)
     journal = open_journal(session_dir, meta, resume)
@@ -62,15 +63,25 @@ def check_material(rig, material: str | None) -> str | None:
     """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig."""
     if not rig.simulated:
         if material is not None:
-            raise ConfigError("--material", "", "no material on a real rig (it measures the sample in front of it)",
-                              material)
+            raise ConfigError("command line", "--material",
+                              "no material on a real rig (it measures the sample in front of it)", material)
         return None
     if material is None:
-        raise ConfigError("--material", "", f"SPEC:NAME of the material the simulated rig {rig.name!r} shows "
+        raise ConfigError("command line", "--material", f"SPEC:NAME of the material the simulated rig {rig.name!r} shows "
                           "(e.g. builtin:NAME; see goniofrost materials --dataset builtin)", None)
     from .datasets import parse_material_spec
     dataset, name = parse_material_spec(material)
     return f"{dataset.spec}:{name}"
+
+
+def check_sim_options(rig, seed, speedup) -> None:
+    """--seed and --speedup only make sense on a simulated rig; a speed-up must be > 0."""
+    for option, value in (("--seed", seed), ("--speedup", speedup)):
+        if value is not None and not rig.simulated:
+            raise ConfigError("command line", option, f"no {option} for the real rig {rig.name!r} ({rig.source})",
+                              value)
+    if speedup is not None and not (speedup > 0 and speedup < float("inf")):
+        raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
 
 
 def session_meta(inputs, material: str | None) -> dict:

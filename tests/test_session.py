@@ -309,3 +309,15 @@ def test_a_signal_during_a_commit_waits_for_it_and_one_during_stopping_is_droppe
         deferral.handle(signal.SIGTERM, None)  # a second Ctrl-C while every axis is being stopped
     with pytest.raises(SessionInterrupted, match="SIGTERM"):
         deferral.handle(signal.SIGTERM, None)  # outside both: at once
+
+
+def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    base = ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(tmp_path / "s")]
+    err = run_refused(base, capsys)
+    assert "command line: --material: expected SPEC:NAME of the material the simulated rig 'sim-rig' shows" in err
+    err = run_refused(base + ["--material", "builtin:red-plastik"], capsys)
+    assert "unknown material 'red-plastik' in dataset 'builtin'; did you mean red-plastic" in err
+    err = run_refused(base + ["--material", MATERIAL, "--speedup", "0"], capsys)
+    assert "command line: --speedup: expected a simulated clock speed-up > 0, found 0.0" in err
+    assert not (tmp_path / "s").exists()
