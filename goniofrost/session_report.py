@@ -93,6 +93,10 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray) -> dict
             "sample_relative_error_max": float(np.nanmax(rel))}
 
 
+def _fmt(value, spec: str) -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
 @lru_cache(maxsize=2)
 def ground_truth(material: str, grid) -> np.ndarray:
     """The material's BRDF on the grid's valid cells, float64 (n_valid, 3) in 1/sr (read-only;
@@ -122,6 +126,7 @@ def summary_text(report: dict) -> str:
     if truth:
         lines.append(f"error against the ground truth {truth['material']}: log-relative MSE {truth['log_relative_mse']:.4g}"
                      f" (exact values at the same cells: {truth['log_relative_mse_exact_samples']:.4g},"
-                     f" ratio {truth['ratio_to_exact']:.3f}); median sample error {100 * truth['sample_relative_error_median']:.2f} %")
+                     f" ratio {_fmt(truth['ratio_to_exact'], '.3f')}); median sample error"
+                     f" {100 * truth['sample_relative_error_median']:.2f} %")
     lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['samples']}, report.json in {report['session']}")
     return "\n".join(lines) + "\n"
