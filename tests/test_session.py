@@ -198,6 +198,8 @@ def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path)
 def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(setup, tmp_path):
     folder, rig, plan, _ = setup
     session = tmp_path / "s"
+    arm = [s["joints"]["camera_arm"] for s in json.loads(plan.read_text())["samples"]]
+    assert all(abs(a - b) > 1.0 for a, b in zip(arm, arm[1:])), "every move turns the faulty axis"
 
     def inject_after_two_samples(hardware):
         def watch():
