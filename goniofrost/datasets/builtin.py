@@ -25,13 +25,17 @@ from typing import Sequence
 
 import numpy as np
 
+from ..grid import FULL_GRID, MerlGrid
 from . import lobes
 from .base import Dataset
 from .lobes import Geometry
+from .parallel import tabulate_blocks
 
 # Bump whenever any material's values change: it is part of every content_id (cache key).
 LIBRARY_VERSION = "builtin-v1"
 DIELECTRIC_IOR = 1.5  # plastics, lacquers, ceramics
+# Cells per block when tabulating (a block's temporaries stay in cache).
+BLOCK_CELLS = 32768
 
 # Complex index of refraction (n, k) at about (650, 550, 450) nm, from refractiveindex.info.
 METALS = {
@@ -270,6 +274,15 @@ class BuiltinDataset(Dataset):
 
     def evaluate(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
         return self._evaluate_many([name], theta_h, theta_d, phi_d)[0]
+
+    def tabulate(self, names: Sequence[str] | None = None, grid: MerlGrid = FULL_GRID,
+                 cells: np.ndarray | None = None) -> np.ndarray:
+        """float32 (len(names), n_cells, 3): blocks of cells on one thread per core."""
+        names = self.names() if names is None else [self.resolve(n) for n in names]
+        for name in names:
+            compiled(name)  # albedo tables once, before the threads
+        cells = grid.valid_cells if cells is None else np.asarray(cells, dtype=np.int64)
+        return tabulate_blocks(self._evaluate_many, names, grid, cells, BLOCK_CELLS)
 
     def _evaluate_many(self, names: Sequence[str], theta_h, theta_d, phi_d) -> np.ndarray:
         """(len(names), *shape, 3): the geometry is computed once for all materials."""
