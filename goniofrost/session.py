@@ -14,7 +14,6 @@ A journal commit is never torn by a signal: the signal is deferred until the com
 from __future__ import annotations
 
 import logging
-import signal
 import sys
 import time
 from contextlib import contextmanager
@@ -26,7 +25,11 @@ import numpy as np
 
 from .errors import GoniofrostError
 from .journal import Journal, SampleRecord, SamplesCsv
+from .session_log import DeviceLog
 from .session_plan import Calibrate, Commit, Home, LampOff, LampOn, Measure, Move, session_steps
+from .session_signals import Deferral, SessionInterrupted, signals_raise
+
+__all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware"]
 
 log = logging.getLogger(__name__)
 
@@ -36,13 +39,6 @@ CALIBRATION_DIR = "calibration"
 
 class SessionFault(GoniofrostError):
     """A device failed mid-session; every axis was stopped and the journal stays resumable."""
-
-
-class SessionInterrupted(BaseException):
-    """SIGINT/SIGTERM stopped the session; every axis was stopped (exit status 130).
-
-    A BaseException, like KeyboardInterrupt, so that no ``except Exception`` swallows it.
-    """
 
 
 class Hardware(Protocol):
@@ -96,7 +92,7 @@ class SessionEngine:
         self._reached: dict = {}
         self._simulated = getattr(hardware, "simulation", None) is not None
         self._bar = None
-        self._deferral, self._device_log = _Deferral(), _DeviceLog()  # replaced while running
+        self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
         self._handlers = {Home: self._home, LampOn: self._lamp_on, LampOff: self._lamp_off,
                           Calibrate: self._calibrate, Move: self._move, Measure: self._measure,
                           Commit: self._commit}
@@ -113,7 +109,7 @@ class SessionEngine:
         steps = session_steps(self.inputs.samples, self.inputs.rig.joint_names, done,
                               calibrated=self._restore_calibration(), white_joints=self.inputs.white_joints)
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
-        with _signals_raise() as deferral, self._progress(len(done)), _DeviceLog.capture() as self._device_log:
+        with signals_raise() as deferral, self._progress(len(done)), DeviceLog.capture() as self._device_log:
             self._deferral = deferral
             try:
                 self._execute_all(steps)
@@ -317,41 +313,6 @@ class SessionEngine:
                 self._bar = None
 
 
-class _DeviceLog(logging.Handler):
-    """Collect the drivers' log records (INFO and up) from any thread; the engine journals them
-    from its own thread (an SQLite connection belongs to the thread that made it)."""
-
-    LOGGERS = ("drivers", "calib")
-
-    def __init__(self) -> None:
-        super().__init__(logging.INFO)
-        self._records: list = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self._records.append(record)  # list.append is atomic under the GIL
-
-    def drain(self) -> list:
-        records, self._records = self._records, []
-        return records
-
-    @classmethod
-    @contextmanager
-    def capture(cls):
-        handler = cls()
-        loggers = [logging.getLogger(name) for name in cls.LOGGERS]
-        levels = [lg.level for lg in loggers]
-        for lg in loggers:
-            lg.addHandler(handler)
-            if lg.getEffectiveLevel() > logging.INFO:
-                lg.setLevel(logging.INFO)
-        try:
-            yield handler
-        finally:
-            for lg, level in zip(loggers, levels):
-                lg.removeHandler(handler)
-                lg.setLevel(level)
-
-
 def _remedy(exc) -> str:
     """What an operator can do about a measurement that failed (empty if nothing specific)."""
     from calib.errors import MarkerError, SaturationError, UnderexposedError
@@ -368,53 +329,3 @@ def _remedy(exc) -> str:
 def _triple(values) -> tuple[float, float, float]:
     a = np.asarray(values, dtype=np.float64).reshape(3)
     return (float(a[0]), float(a[1]), float(a[2]))
-
-
-class _Deferral:
-    """Signal state: raise at once, or hold the signal while a commit is in progress."""
-
-    def __init__(self) -> None:
-        self.in_critical = False
-        self.pending: int | None = None
-
-    def handle(self, signum, _frame) -> None:
-        if self.in_critical:
-            self.pending = signum
-            return
-        raise SessionInterrupted(signal.Signals(signum).name)
-
-    @contextmanager
-    def ignored(self):
-        """Hold signals and then drop them (the session is already stopping)."""
-        self.in_critical = True
-        try:
-            yield
-        finally:
-            self.in_critical, self.pending = False, None
-
-    @contextmanager
-    def critical(self):
-        self.in_critical = True
-        try:
-            yield
-        finally:
-            self.in_critical = False
-            if self.pending is not None:
-                signum, self.pending = self.pending, None
-                raise SessionInterrupted(signal.Signals(signum).name)
-
-
-@contextmanager
-def _signals_raise():
-    """Turn SIGINT and SIGTERM into SessionInterrupted for the duration (main thread only)."""
-    deferral = _Deferral()
-    wanted = (signal.SIGINT, signal.SIGTERM)
-    try:
-        previous = {s: signal.signal(s, deferral.handle) for s in wanted}
-    except ValueError:  # not the main thread: signals stay with their owner
-        previous = {}
-    try:
-        yield deferral
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)

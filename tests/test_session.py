@@ -299,9 +299,9 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
 
 
 def test_a_signal_during_a_commit_waits_for_it_and_one_during_stopping_is_dropped():
-    from goniofrost.session import SessionInterrupted, _Deferral
+    from goniofrost.session_signals import Deferral, SessionInterrupted
 
-    deferral, done = _Deferral(), []
+    deferral, done = Deferral(), []
     with pytest.raises(SessionInterrupted, match="SIGINT"):
         with deferral.critical():
             deferral.handle(signal.SIGINT, None)  # arrives mid-commit: held
