@@ -119,5 +119,7 @@ def test_direction_pairs_rotated_about_z_have_the_same_angles(th_i, th_o, phi, r
     if np.linalg.norm(np.add(*pair(0))) < 1e-3:
         return  # w_o = -w_i has no half vector
     a, b = dirs_to_half_diff(*pair(0.0)), dirs_to_half_diff(*pair(rot))
-    np.testing.assert_allclose(a[:2], b[:2], atol=1e-9)
-    assert np.cos(a[2] - b[2]) == pytest.approx(1.0, abs=1e-9) or a[1] < 1e-6
+    # arccos near 1 resolves angles to sqrt(eps) ~ 1.5e-8 rad (1e-6 of a cell: harmless)
+    np.testing.assert_allclose(a[:2], b[:2], atol=1e-7)
+    # phi_d is degenerate where theta_d = 0 or theta_h = 0 (h = n: any phi_h)
+    assert np.cos(a[2] - b[2]) == pytest.approx(1.0, abs=1e-9) or min(a[0], a[1]) < 1e-6
