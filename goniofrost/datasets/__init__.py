@@ -40,3 +40,9 @@ def parse_material_spec(text: str) -> tuple[Dataset, str]:
         raise DatasetError(f"material {text!r}: expected SPEC:NAME, e.g. builtin:red-plastic")
     dataset = open_dataset(spec)
     return dataset, dataset.resolve(name)
+
+
+# Several datasets combined, and the tabulation cache (imported last: they use open_dataset).
+from .tabulate import Material, collect_materials, open_datasets, tabulate_cached, tabulate_materials  # noqa: E402
+
+__all__ += ["Material", "collect_materials", "open_datasets", "tabulate_cached", "tabulate_materials"]
