@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ConfigError
+from .errors import GoniofrostError
 from .merl_io import _atomic_write
 
 DEFAULT_MATERIAL = "red-plastic"
@@ -44,6 +44,7 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
 
     out, grid = Path(out), grid or FULL_GRID
     rig_path = Path(rig_path) if rig_path else default_rig_path()
+    check_replaceable(out / "session")  # before minutes of training, not after
     stages, clock = {}, time.perf_counter()
 
     def lap(name: str) -> None:
@@ -98,15 +99,22 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
 
 def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: int, speedup: float, progress: bool):
     """Capture into a fresh session folder (a previous demo session there is removed first)."""
-    from .capture import JOURNAL_FILE, capture
+    from .capture import capture
 
+    check_replaceable(session_dir)
     if session_dir.exists():
-        if not (session_dir / JOURNAL_FILE).is_file():
-            raise ConfigError(session_dir, "", "a folder made by goniofrost demo (or none)",
-                              "a folder without a session journal; refusing to delete it")
         shutil.rmtree(session_dir)
     return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
                    progress=progress)
+
+
+def check_replaceable(session_dir: Path) -> None:
+    """Refuse to replace a folder that is not a previous demo session (it has no journal)."""
+    from .capture import JOURNAL_FILE
+
+    if session_dir.exists() and not (session_dir / JOURNAL_FILE).is_file():
+        raise GoniofrostError(f"{session_dir}: exists but holds no {JOURNAL_FILE}, so it is not a previous demo "
+                              f"session; refusing to delete it: choose another --out")
 
 
 def write_reference_and_preview(material: str, grid, out: Path) -> float:

@@ -29,3 +29,15 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
     assert report["demo"]["rendering_snr_db"] > 10
     assert f"wrote {out / 'session' / 'brdf.binary'}" in proc.stdout
+
+
+def test_demo_refuses_to_replace_a_folder_it_did_not_make(tmp_path, capsys):
+    from goniofrost.cli import main
+
+    keep = tmp_path / "session" / "notes.txt"
+    keep.parent.mkdir()
+    keep.write_text("mine")
+    assert main(["demo", "--out", str(tmp_path), "--no-progress"]) == 2
+    assert (f"{tmp_path / 'session'}: exists but holds no session.sqlite, so it is not a previous demo session; "
+            "refusing to delete it") in capsys.readouterr().err
+    assert keep.read_text() == "mine"
