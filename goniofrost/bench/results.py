@@ -38,7 +38,21 @@ def machine_info() -> dict:
     except (ValueError, OSError, AttributeError):
         mem_gb = float("nan")
     return {"cpu": cpu, "cores": os.cpu_count(), "memory_gb": round(mem_gb, 1) if math.isfinite(mem_gb) else None,
-            "platform": platform.platform(), "python": platform.python_version(), "numpy": np.__version__}
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+            "platform": platform.platform(), "python": platform.python_version(), "numpy": np.__version__,
+            "code": _code_version()}
+
+
+def _code_version() -> str | None:
+    """``git describe --always --dirty`` of the checkout the code runs from, if it is one."""
+    import subprocess
+
+    try:
+        done = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).parent,
+                              capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None if done.returncode == 0 else None
 
 
 def check_rows(rows: list[dict]) -> None:

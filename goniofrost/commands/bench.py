@@ -16,7 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output folder (results.json, results.csv, PNG plots)")
     parser.add_argument("--dataset", action="append", metavar="SPEC",
                         help="dataset spec, repeatable (default: the MERL and RGL networks in ../shared/data)")
-    parser.add_argument("--quick", action="store_true", help="reduced run: 2 folds, m in {10, 20, 40}, 2 Nielsen trials")
+    parser.add_argument("--quick", action="store_true",
+                        help="reduced run: 2 folds, m in {10, 20, 40}, 2 Nielsen trials (max 10 descent iterations), grid 45,45,90")
     parser.add_argument("--stress", action="store_true", help="run the numerical stress cases instead (stress.json, stress.md)")
     parser.add_argument("--folds", type=int, help="cross-validation folds (default 10; --quick 2)")
     parser.add_argument("--train", type=int, default=131, help="training materials per fold (default 131)")
@@ -32,7 +33,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--eta", type=float, default=40.0, help="ridge parameter of the reconstruction (default 40)")
     parser.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
     parser.add_argument("--grid", type=_grid, default=None, metavar="NTH,NTD,NPD",
-                        help="grid resolution (default 90,90,180, the MERL grid)")
+                        help="grid resolution (default 90,90,180, the MERL grid; --quick 45,45,90)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="local worker processes, one fold each (default: 2 or the core count if lower)")
     parser.add_argument("--dask", metavar="ADDRESS", help="run the folds on an existing dask.distributed scheduler")
@@ -64,8 +65,9 @@ def build_config(args):
 
     fields = dict(n_train=args.train, n_test=args.test, nielsen_subset=args.nielsen_subset,
                   random_trials=args.random_trials,
-                  eta=args.eta, seed=args.seed, methods=tuple(args.methods or METHODS),
-                  grid=MerlGrid(*args.grid) if args.grid else MerlGrid())
+                  eta=args.eta, seed=args.seed, methods=tuple(args.methods or METHODS))
+    if args.grid:
+        fields["grid"] = MerlGrid(*args.grid)
     for name, value in (("folds", args.folds), ("m_values", args.m), ("nielsen_trials", args.nielsen_trials),
                         ("nielsen_max_iter", args.nielsen_max_iter)):
         if value is not None:
