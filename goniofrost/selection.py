@@ -8,17 +8,14 @@ Paper Algorithm 1 (DESIGN.md "FROST selection"). With k atoms, U_k and S_k from 
 * SOMP: R = Y; each step picks j maximising ||R^T q_j||_1 (lowest index on ties) and sets
   R = Y minus its projection on the span of the chosen columns.
 
-Fast exact form used here. B (k x i) is an orthonormal basis of the chosen columns
-(classical Gram-Schmidt applied twice), so R = (I - B B^T) Y is updated by one rank-1
-product per step and the scores C = R^T Q change by the rank-1 term (R^T b)(b^T Q). Rather
-than storing C (t x n: 1.75 GB for t = 393 at full size) we prune with an exact upper bound:
-
-    ||R^T q_j||_1 <= min(sqrt(t) ||R||_2, sum_t ||r_t||_2) * ||P q_j||_2,
-    ||P q_j||_2^2 = 1 - ||B^T q_j||^2   (kept incrementally: one gemv b^T Q per step),
-
-and evaluate exact scores only for cells whose bound reaches the best exact score of the
-cells with the largest bounds. The picks are identical to the textbook algorithm
-(tests/test_frost.py compares them with an lstsq-based SOMP).
+Fast exact form used here ("fast form" of DESIGN.md). With B (k x i) an orthonormal basis of
+the chosen columns (classical Gram-Schmidt applied twice), R = (I - B B^T) Y changes by one
+rank-1 product per step, and so does the score matrix C = Q^T R (n x t): C -= (Q^T b)(R^T b)^T.
+C is kept in float32 and updated in place block by block (gemv, BLAS sger, scores) so a step
+costs one pass over Q and C; near-ties are re-scored exactly in float64. The picks equal the
+textbook algorithm's (tests/test_frost.py compares them with an lstsq-based SOMP).
+Memory: C is n x t float32: 89 MB for m = 20 with y_form "firstm" at full size, 1.75 GB
+with y_form "all" (t = 393).
 """
 from __future__ import annotations
 
@@ -27,19 +24,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from concurrent.futures import ThreadPoolExecutor
+
+from scipy.linalg import blas
+from threadpoolctl import threadpool_limits
+
 from .errors import GoniofrostError
 from .grid import MerlGrid
 from .model import FrostModel
 
 Y_FORMS = ("all", "firstm")
 DEFAULT_Y_FORM = "all"
-# Cells scored per block in a full pass: (block x t) float32 stays in cache.
-BLOCK = 4096
-# Cells with the largest bounds scored first to get a good lower bound on the best score.
-PROBE = 64
-# Relative slack on the bound (float32 rounding of Q and h); keeps pruning exact.
-BOUND_SLACK = 1e-3
-# Scores within this relative margin of the float32 maximum are re-scored in float64.
+# Scores within this fraction of the largest first score below the float32 maximum are
+# re-scored exactly in float64 (float32 rounding of the updated C is far smaller).
 RESCORE_MARGIN = 1e-4
 
 
@@ -151,9 +148,15 @@ def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarr
 
 def _somp(q: np.ndarray, y: np.ndarray, limit: int, max_error: float | None):
     """Run SOMP on rows q (n_c, k) and Y (k, t); return picked rows and residual ratios."""
+    # Per-block BLAS calls are small: OpenBLAS's own threads only add overhead (badly so on
+    # a shared machine); _ScoreState runs two Python threads of single-threaded BLAS instead.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _somp_steps(_ScoreState(q, y), q, y, limit, max_error)
+
+
+def _somp_steps(state, q, y, limit, max_error):
     k = q.shape[1]
     y_norm = np.linalg.norm(y)
-    state = _BoundState(q, y)
     basis = np.zeros((k, 0))
     picked: list[int] = []
     residuals: list[float] = []
@@ -180,92 +183,67 @@ def _orthonormal_step(basis: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-class _BoundState:
-    """Residual R and per-cell upper bounds on the SOMP scores ||R^T q_j||_1.
+class _ScoreState:
+    """The residual R (k, t) float64 and the score matrix C = Q^T R (n, t) float32.
 
-    Two exact bounds, the smaller is used:
-    * stale + growth: the exact score at the cell's last evaluation plus, for every basis
-      vector b_l added since, ||R_(l-1)^T b_l||_1 |b_l^T q_j| (triangle inequality on the
-      rank-1 update R_l = R_(l-1) - b_l b_l^T R_(l-1));
-    * min(sqrt(t) ||R||_2, sum_t ||r_t||_2) ||P q_j||_2 with ||P q_j||^2 = 1 - ||B^T q_j||^2.
-    Each step costs one gemv Q b plus a few passes over n floats, and exact scores only for
-    the cells whose bound reaches the best exact score found.
+    Adding an orthonormal basis vector b changes R by -b (b^T R) and C by the rank-1 term
+    -(Q^T b)(R^T b)^T. One step is one pass over Q^T and C in blocks of rows that stay in
+    cache: v = Q_blk b (gemv), C_blk -= v u^T (BLAS ``sger``, in place) and the scores
+    |C_blk| 1 (gemv); the blocks are shared by two threads (BLAS and numpy release the GIL).
+    float32 rounding in C is harmless: the best cells within a small margin are re-scored
+    exactly in float64 from Q and R.
     """
 
     def __init__(self, q: np.ndarray, y: np.ndarray) -> None:
         self.q, self.r = q, y.copy()
-        n = q.shape[0]
-        self.h = np.zeros(n, dtype=np.float32)       # ||B^T q_j||^2
-        self.growth = np.zeros(n, dtype=np.float32)
-        self.stale = _scores32(q, None, self.r)       # exact scores at step 0
+        n, t = q.shape[0], y.shape[1]
+        self.c = np.empty((n, t), dtype=np.float32)
+        self.rows = max(512, (1 << 19) // t)  # ~2 MB of C per block
+        self.starts = list(range(0, n, self.rows))
         self.open = np.ones(n, dtype=bool)
+        self.scores = np.empty(n, dtype=np.float32)
+        self._run_blocks(self.r.astype(np.float32))  # C = Q^T R, block by block
+        self.scale = float(self.scores.max())
 
     def add(self, j: int, b: np.ndarray) -> None:
         """Account for the new orthonormal basis vector b (k,) of picked row j."""
-        a = float(np.abs(self.r.T @ b).sum()) * (1 + BOUND_SLACK)
-        self.r -= np.outer(b, b @ self.r)
-        v = self.q @ b.astype(np.float32)
-        self.h += v * v
-        np.abs(v, out=v)
-        v *= np.float32(a)
-        self.growth += v
+        u = b @ self.r  # (t,) = R^T b
+        self.r -= np.outer(b, u)
+        self._run_blocks((b.astype(np.float32), u.astype(np.float32)))
         self.open[j] = False
 
-    def bounds(self) -> np.ndarray:
-        t = self.r.shape[1]
-        coef = min(np.sqrt(t) * np.linalg.norm(self.r, 2), np.linalg.norm(self.r, axis=0).sum())
-        ub = 1.0 - self.h
-        np.maximum(ub, 0.0, out=ub)
-        ub += np.float32(BOUND_SLACK)
-        np.sqrt(ub, out=ub)
-        ub *= np.float32(coef * (1 + BOUND_SLACK))
-        np.minimum(ub, (self.stale + self.growth) * np.float32(1 + BOUND_SLACK), out=ub)
-        ub[~self.open] = -1.0
-        return ub
+    def _run_blocks(self, update) -> None:
+        """Run ``_blocks`` on two threads: update is R32 (k, t) to fill C, or (b, u) to update it."""
+        half = (len(self.starts) + 1) // 2
+        parts = [self.starts[:half], self.starts[half:]]
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            for future in [pool.submit(self._blocks, part, update) for part in parts if part]:
+                future.result()
+
+    def _blocks(self, starts, update) -> None:
+        ones = np.ones(self.c.shape[1], dtype=np.float32)
+        tmp = np.empty((self.rows, self.c.shape[1]), dtype=np.float32)
+        for start in starts:
+            c = self.c[start:start + self.rows]
+            if isinstance(update, np.ndarray):
+                np.matmul(self.q[start:start + self.rows], update, out=c)
+            else:
+                v = self.q[start:start + self.rows] @ update[0]
+                blas.sger(-1.0, update[1], v, a=c.T, overwrite_a=1)  # c -= v u^T in place
+            buf = tmp[:c.shape[0]]
+            np.abs(c, out=buf)
+            np.matmul(buf, ones, out=self.scores[start:start + c.shape[0]])
 
     def best_column(self) -> int:
         """Row maximising ||R^T q_j||_1 among open rows (lowest on ties); -1 if all ~0."""
-        ub = self.bounds()
-        n = ub.size
-        probe = np.argpartition(ub, -PROBE)[-PROBE:] if n > PROBE else np.arange(n)
-        lower = self._refresh(probe).max() * (1 - BOUND_SLACK)
-        cand = np.flatnonzero(ub >= lower)
-        scores = self._refresh(cand)
-        scores[~self.open[cand]] = -1.0
-        top = scores.max() if scores.size else -1.0
-        if top <= 1e-9 * max(np.linalg.norm(self.r), 1e-300):
+        scores = np.where(self.open, self.scores, np.float32(-1.0))
+        top = float(scores.max())
+        if top <= 1e-5 * self.scale:  # nothing left above float32 noise
             return -1
-        # Near-ties in float32 are settled in float64, lowest index first.
-        close = cand[scores >= top * (1 - RESCORE_MARGIN)]
+        # float32 near-ties are settled in float64, lowest index first.
+        close = np.flatnonzero(scores >= top - RESCORE_MARGIN * self.scale)
         return int(close[np.argmax(_scores64(self.q[close], self.r))])
-
-    def _refresh(self, rows: np.ndarray) -> np.ndarray:
-        # Gathering rows costs more than a contiguous pass once many cells are candidates.
-        if rows.size > self.q.shape[0] // 3:
-            scores = _scores32(self.q, None, self.r)[rows]
-        else:
-            scores = _scores32(self.q, rows, self.r)
-        self.stale[rows] = scores
-        self.growth[rows] = 0.0
-        return scores
 
 
 def _scores64(rows: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.abs(rows.astype(np.float64) @ r).sum(axis=1)
-
-
-def _scores32(q: np.ndarray, rows: np.ndarray | None, r: np.ndarray) -> np.ndarray:
-    """||r^T q_j||_1 (float32) for the given rows of q (all when None), blockwise.
-
-    Product, abs and row sum are fused per block so the (rows x t) score matrix never
-    leaves the cache.
-    """
-    r32 = r.astype(np.float32)
-    count = q.shape[0] if rows is None else rows.size
-    out = np.empty(count, dtype=np.float32)
-    for start in range(0, count, BLOCK):
-        part = q[start:start + BLOCK] if rows is None else q[rows[start:start + BLOCK]]
-        c = part @ r32
-        np.abs(c, out=c)
-        out[start:start + BLOCK] = c.sum(axis=1)
-    return out

@@ -83,23 +83,40 @@ def _map_and_gram(tables, names, weight, eps, progress):
     for start in _chunks(n, progress, "training"):
         stop = min(start + CHUNK_ROWS, n)
         block = tables[:, start:stop, :].transpose(1, 0, 2).reshape(stop - start, t)
+        block = np.array(block, dtype=np.float32)  # a private, row-contiguous copy
         _check_finite(block, names, start)
-        x, ref, mu = _map_block(block.astype(np.float64), weight[start:stop], eps)
-        reference[start:stop], mean[start:stop] = ref, mu
-        mapped[start:stop] = x
-        # dsyrk fills the upper triangle of X^T X with half the flops of a full product.
-        gram = blas.dsyrk(1.0, x, trans=1, beta=1.0, c=gram, overwrite_c=1)
+        reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
+        mapped[start:stop] = block
+        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
+        # sums over thousands of rows would blur them); dsyrk fills only the upper triangle.
+        gram = blas.dsyrk(1.0, block.astype(np.float64), trans=1, beta=1.0, c=gram, overwrite_c=1)
     return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
 
 
 def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
-    """(rows, t) BRDF -> centred log-relative X (float64), reference r and mean mu (rows,)."""
-    wt = block * w[:, None]
-    ref = np.median(wt, axis=1)
-    x = np.log(wt + eps) - np.log(ref + eps)[:, None]
-    mu = x.mean(axis=1)
-    x -= mu[:, None]
-    return x, ref, mu
+    """Map a (rows, t) float32 BRDF block in place to the centred X; return r and mu (rows,).
+
+    float32 is enough for the element-wise map (the inputs are float32); the median is one
+    partition (two for an even t) instead of np.median's sort-and-copy.
+    """
+    block *= w[:, None]
+    ref = _row_median(block)
+    block += np.float32(eps)
+    np.log(block, out=block)
+    block -= np.log(ref + np.float32(eps))[:, None]
+    mu = block.mean(axis=1, dtype=np.float64)
+    block -= mu.astype(np.float32)[:, None]
+    return ref, mu
+
+
+def _row_median(block: np.ndarray) -> np.ndarray:
+    """Per-row median of a (rows, t) array (the mean of the two middle values for even t)."""
+    t = block.shape[1]
+    half = t // 2
+    if t % 2:
+        return np.partition(block, half, axis=1)[:, half]
+    part = np.partition(block, [half - 1, half], axis=1)
+    return 0.5 * (part[:, half - 1] + part[:, half])
 
 
 def _check_finite(block: np.ndarray, names: list[str], start: int) -> None:

@@ -295,3 +295,10 @@ def test_read_plan_refuses_bad_content(model, tmp_path):
     path.write_text(json.dumps({"model": {"path": "x", "hash": "y"}, "m": 1, "selection_seconds": 0}))
     with pytest.raises(ConfigError, match="samples"):
         read_plan(path)
+
+
+@pytest.mark.parametrize("t", [5, 6])
+def test_row_median_matches_numpy(t):
+    from goniofrost.training import _row_median
+    block = np.random.default_rng(t).random((50, t)).astype(np.float32)
+    np.testing.assert_array_equal(_row_median(block), np.median(block, axis=1).astype(np.float32))
