@@ -135,6 +135,17 @@ def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size
     """Render a MERL file (and optionally a reference MERL file) under ``lights``."""
     estimate = _render_file(estimate_path, lights, size)
     reference = None if reference_path is None else _render_file(reference_path, lights, size)
+    return _preview(estimate, reference, lights)
+
+
+def preview_of(estimate: np.ndarray, grid: MerlGrid, reference: np.ndarray | None = None,
+               lights=DEFAULT_LIGHTS, size: int = 192) -> Preview:
+    """Render BRDF arrays (grid.size, 3) in 1/sr (NaN = missing), as ``make_preview`` does files."""
+    hdr = render_set(estimate, grid, lights, size)
+    return _preview(hdr, None if reference is None else render_set(reference, grid, lights, size), lights)
+
+
+def _preview(estimate: np.ndarray, reference: np.ndarray | None, lights) -> Preview:
     snr = None if reference is None else rendering_snr_db(reference, estimate)
     return Preview(estimate, reference, snr, tuple(name for name, _, _ in lights))
 

@@ -1,7 +1,7 @@
 """The end of a session: reconstruct the full BRDF, compare with the ground truth, report.
 
-Writes ``DIR/brdf.binary`` (on the model's grid), ``DIR/report.json`` and ``DIR/summary.txt``
-(each atomically). Times come from the journal, so a resumed session reports every sample's
+Writes ``DIR/brdf.binary`` (on the model's grid), ``DIR/preview.png`` (spheres; beside the
+ground truth on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times come from the journal, so a resumed session reports every sample's
 motion and capture time, not only the last run's.
 """
 from __future__ import annotations
@@ -68,9 +68,22 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> 
     report = build_report(inputs, records, stats, session_dir, material, journal.events())
     if material:
         report["ground_truth"] = _truth_section(inputs, records, material, estimate)
+    report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, inputs.model.grid, material)
+    report["outputs"]["preview"] = "preview.png"
     _atomic_write(session_dir / "report.json", json.dumps(report, indent=1).encode())
     _atomic_write(session_dir / "summary.txt", summary_text(report).encode())
     return report
+
+
+def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None) -> float | None:
+    """Write the sphere preview (beside the ground truth on a simulated rig); return its rendering
+    SNR in dB (None without a ground truth)."""
+    from .preview import preview_of, write_png
+
+    reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
+    preview = preview_of(estimate, grid, reference)
+    write_png(path, preview, title="session estimate" + (f" vs {material}" if material else ""))
+    return preview.snr_db
 
 
 def _truth_section(inputs, records, material: str, estimate: np.ndarray) -> dict:
@@ -124,9 +137,11 @@ def summary_text(report: dict) -> str:
     ]
     truth = report.get("ground_truth")
     if truth:
+        lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")
         lines.append(f"error against the ground truth {truth['material']}: log-relative MSE {truth['log_relative_mse']:.4g}"
                      f" (exact values at the same cells: {truth['log_relative_mse_exact_samples']:.4g},"
                      f" ratio {_fmt(truth['ratio_to_exact'], '.3f')}); median sample error"
                      f" {100 * truth['sample_relative_error_median']:.2f} %")
-    lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['samples']}, report.json in {report['session']}")
+    lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['samples']}, preview.png, report.json "
+                 f"in {report['session']}")
     return "\n".join(lines) + "\n"

@@ -59,6 +59,13 @@ def setup(tmp_path_factory):
     return folder, rig, plan, model
 
 
+def material_truth() -> np.ndarray:
+    """The held-out material on the test grid's valid cells (n_valid, 3) in 1/sr."""
+    from goniofrost.datasets import parse_material_spec
+    dataset, name = parse_material_spec(MATERIAL)
+    return dataset.tabulate([name], GRID)[0].astype(np.float64)
+
+
 def capture_args(rig, plan, session, *extra) -> list[str]:
     return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session),
             "--material", MATERIAL, "--no-progress", *extra]
@@ -121,6 +128,13 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     # the issue's bar: no more than 20 % above reconstructing the same cells from exact values
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
     assert truth["sample_relative_error_median"] < 0.05
+    import matplotlib.image
+    from goniofrost.merl_io import valid_to_full
+    from goniofrost.preview import preview_of
+    assert matplotlib.image.imread(session / "preview.png").ndim == 3
+    true_brdf = valid_to_full(material_truth(), GRID)
+    assert report["rendering_snr_db"] == pytest.approx(preview_of(brdf, GRID, true_brdf).snr_db, abs=1e-9)
+    assert f"{report['rendering_snr_db']:.2f} dB" in out
     assert (session / "summary.txt").read_text() in out
 
     # resuming a finished session moves nothing and rewrites the same results
