@@ -16,6 +16,7 @@ import csv
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .errors import GoniofrostError
 from .grid import MerlGrid
@@ -60,8 +61,9 @@ def reconstruct_log(model: FrostModel, positions, log_values, eta: float = ETA,
     d_l = np.asarray(model.dictionary[positions, :a], dtype=np.float64)
     rhs = b - (mu[positions][:, None] if b.ndim == 2 else mu[positions])
     s = np.linalg.solve(d_l.T @ d_l + eta * np.eye(a), d_l.T @ rhs)
-    d = model.dictionary[:, :a]
-    estimate = d @ s.astype(np.float32)
+    # (n x a) @ (a x 3) is too thin for OpenBLAS threads to pay off (they spin on a busy host).
+    with threadpool_limits(limits=1, user_api="blas"):
+        estimate = model.dictionary[:, :a] @ s.astype(np.float32)
     return estimate.astype(np.float64) + (mu[:, None] if b.ndim == 2 else mu)
 
 
