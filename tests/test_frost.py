@@ -142,16 +142,18 @@ def test_selection_is_deterministic_and_consistent(model):
     assert len(set(a.positions.tolist())) == 12 and np.all(np.diff(a.residuals) < 0)
 
 
-def test_max_error_rule(model):
-    sel = select_cells(model, max_error=0.3)
+@pytest.mark.parametrize("y_form", ["all", "firstm"])
+def test_max_error_rule(model, y_form):
+    sel = select_cells(model, max_error=0.3, y_form=y_form)
     assert sel.residuals[-1] <= 0.3 < sel.residuals[-2]
     # Residuals are ||R||_F / ||Y||_F of the textbook projection onto the chosen columns.
-    full = select_cells(model, sel.m, k=model.n_components)
-    np.testing.assert_array_equal(full.positions, sel.positions)
+    if y_form == "all":  # (firstm with m given uses the first m columns, not the first k)
+        full = select_cells(model, sel.m, k=model.n_components, y_form=y_form)
+        np.testing.assert_array_equal(full.positions, sel.positions)
     d = np.asarray(model.dictionary, np.float64)
     q = (d / model.singular_values**2).T
     a = q[:, sel.positions] / np.linalg.norm(q[:, sel.positions], axis=0)
-    y = model.coefficients
+    y = model.coefficients if y_form == "all" else model.coefficients[:, :model.n_components]
     r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
     assert np.linalg.norm(r) / np.linalg.norm(y) == pytest.approx(sel.residuals[-1], rel=1e-6)
 

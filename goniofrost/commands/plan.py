@@ -13,7 +13,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--max-angle", type=float, metavar="DEG",
                         help="skip cells whose theta_i or theta_o exceeds DEG degrees")
     parser.add_argument("--y-form", choices=("all", "firstm"), default=None,
-                        help="training signals in Y: all columns or the first m (authors' code); default: see DESIGN/report")
+                        help="training signals in Y: the first m columns (default, as the authors' code) or all of them")
     parser.add_argument("--atoms", type=int, metavar="K", help="atoms k used in selection (default m; all with --max-error)")
     parser.add_argument("--rig", metavar="RIG.yaml",
                         help="select only cells this rig can reach, add joint targets and order them for least motion")
