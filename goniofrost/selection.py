@@ -86,7 +86,9 @@ def select_cells(model: FrostModel, m: int | None = None, *, max_error: float | 
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
     y_form: "firstm" (default: the first m training columns, as the authors' code) or "all"
         (every training column; same accuracy here, ~20x the memory and time at full size).
-    k: atoms used for Q and Y; default m (paper), or all K model atoms with max_error.
+    k: atoms used for Q and Y; default m (paper), or all K model atoms with max_error
+        (then "firstm" uses the first k training columns, m being unknown in advance).
+    Returns a Selection; raises SelectionError for bad options or too few candidate cells.
     """
     start = time.perf_counter()
     k, limit = _check_options(model, m, max_error, y_form, k)
