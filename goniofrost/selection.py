@@ -156,8 +156,8 @@ def _somp(q: np.ndarray, y: np.ndarray, limit: int, max_error: float | None):
     """Run SOMP on rows q (n_c, k) and Y (k, t); return picked rows and residual ratios."""
     # Per-block BLAS calls are small: OpenBLAS's own threads only add overhead (badly so on
     # a shared machine); _ScoreState runs two Python threads of single-threaded BLAS instead.
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _somp_steps(_ScoreState(q, y), q, y, limit, max_error)
+    with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=2) as pool:
+        return _somp_steps(_ScoreState(q, y, pool), q, y, limit, max_error)
 
 
 def _somp_steps(state, q, y, limit, max_error):
@@ -200,8 +200,8 @@ class _ScoreState:
     exactly in float64 from Q and R.
     """
 
-    def __init__(self, q: np.ndarray, y: np.ndarray) -> None:
-        self.q, self.r = q, y.copy()
+    def __init__(self, q: np.ndarray, y: np.ndarray, pool: ThreadPoolExecutor) -> None:
+        self.q, self.r, self.pool = q, y.copy(), pool
         n, t = q.shape[0], y.shape[1]
         self.c = np.empty((n, t), dtype=np.float32)
         self.rows = max(512, (1 << 19) // t)  # ~2 MB of C per block
@@ -222,9 +222,8 @@ class _ScoreState:
         """Run ``_blocks`` on two threads: update is R32 (k, t) to fill C, or (b, u) to update it."""
         half = (len(self.starts) + 1) // 2
         parts = [self.starts[:half], self.starts[half:]]
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            for future in [pool.submit(self._blocks, part, update) for part in parts if part]:
-                future.result()
+        for future in [self.pool.submit(self._blocks, part, update) for part in parts if part]:
+            future.result()
 
     def _blocks(self, starts, update) -> None:
         ones = np.ones(self.c.shape[1], dtype=np.float32)
