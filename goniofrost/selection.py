@@ -161,6 +161,7 @@ def _somp(q: np.ndarray, y: np.ndarray, limit: int, max_error: float | None):
 
 
 def _somp_steps(state, q, y, limit, max_error):
+    """The SOMP loop: pick, orthonormalise, update; stop at ``limit`` picks or max_error."""
     k = q.shape[1]
     y_norm = np.linalg.norm(y)
     basis = np.zeros((k, 0))
@@ -234,7 +235,9 @@ class _ScoreState:
                 np.matmul(self.q[start:start + self.rows], update, out=c)
             else:
                 v = self.q[start:start + self.rows] @ update[0]
-                blas.sger(-1.0, update[1], v, a=c.T, overwrite_a=1)  # c -= v u^T in place
+                out = blas.sger(-1.0, update[1], v, a=c.T, overwrite_a=1)  # c -= v u^T in place
+                if not np.shares_memory(out, c):  # (only if a wrapper ever copied)
+                    c[...] = out.T
             buf = tmp[:c.shape[0]]
             np.abs(c, out=buf)
             np.matmul(buf, ones, out=self.scores[start:start + c.shape[0]])
