@@ -47,6 +47,8 @@ def run(args) -> int:
         doc = schedule_plan(doc, rig)
         print(format_table(doc))
     write_plan(args.out, doc)
-    print(f"{args.out}: m = {selection.m} samples, residual {selection.residuals[-1]:.4f}, "
-          f"selection {selection.seconds:.3f} s")
+    # With k = m atoms the residual after the m-th pick is 0 by construction; it only says
+    # something for --max-error (k = all atoms).
+    residual = f", residual {selection.residuals[-1]:.4f}" if args.max_error is not None else ""
+    print(f"{args.out}: m = {selection.m} samples{residual}, selection {selection.seconds:.3f} s")
     return 0
