@@ -13,7 +13,6 @@ from goniofrost.bench.data import open_tables, tables_path
 from goniofrost.bench.evaluate import batch_log_errors, designs_per_fold
 from goniofrost.bench.executors import run_folds
 from goniofrost.bench.results import ROW_FIELDS, write_results
-from goniofrost.bench.runner import run_benchmark
 from goniofrost.cli import main
 from goniofrost.grid import MerlGrid
 
@@ -33,38 +32,38 @@ def tables(config):
 
 
 @pytest.fixture(scope="module")
-def serial_rows(config, tables):
+def local_rows(config, tables):
+    """Rows of the two folds run in two local worker processes."""
     names, path = tables
-    return run_folds(config, path, names, jobs=1, progress=False)
+    return run_folds(config, path, names, jobs=2, progress=False)
 
 
 def without_times(rows):
     return [{k: v for k, v in r.items() if k not in TIME_FIELDS} for r in rows]
 
 
-def test_rows_cover_every_method_m_fold_trial_material(config, tables, serial_rows):
-    assert len(serial_rows) == config.folds * designs_per_fold(config) * config.n_test
-    keys = {(r["method"], r["m"], r["fold"], r["trial"]) for r in serial_rows}
+def test_rows_cover_every_method_m_fold_trial_material(config, tables, local_rows):
+    assert len(local_rows) == config.folds * designs_per_fold(config) * config.n_test
+    keys = {(r["method"], r["m"], r["fold"], r["trial"]) for r in local_rows}
     assert {(k[0], k[3]) for k in keys} == {("frost", 0), ("frost-firstm", 0), ("nielsen", 0),
                                            ("nielsen", 1), ("random", 0), ("uniform", 0)}
-    for r in serial_rows:
+    for r in local_rows:
         assert set(r) == set(ROW_FIELDS) and math.isfinite(r["mse"]) and r["mse"] > 0
         _, test = fold_split(len(tables[0]), config, r["fold"])
         assert r["material"] in [tables[0][i] for i in test]
     # FROST beats random cells on average even on this tiny problem
-    mean = lambda meth: np.mean([r["mse"] for r in serial_rows if r["method"] == meth and r["m"] == 8])
+    mean = lambda meth: np.mean([r["mse"] for r in local_rows if r["method"] == meth and r["m"] == 8])
     assert mean("frost") < mean("random")
 
 
-def test_local_processes_and_dask_give_identical_rows(config, tables, serial_rows):
+def test_dask_gives_the_rows_of_local_processes(config, tables, local_rows):
+    """Same seed, same rows (times aside), whoever runs the folds: bit for bit."""
     distributed = pytest.importorskip("distributed")
     names, path = tables
-    local = run_folds(config, path, names, jobs=2, progress=False)
-    assert without_times(local) == without_times(serial_rows)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None) as cluster:
         on_dask = run_folds(config, path, names, dask_address=cluster.scheduler_address, progress=False)
-    assert without_times(on_dask) == without_times(serial_rows)
+    assert without_times(on_dask) == without_times(local_rows)
 
 
 def test_batched_errors_equal_reconstruct_then_log_relative_mse(config, tables):
@@ -82,27 +81,6 @@ def test_batched_errors_equal_reconstruct_then_log_relative_mse(config, tables):
     batched = batch_log_errors(model, est, model.to_log(truth))
     direct = [log_relative_mse(model, truth[i], reconstruct(model, pos, truth[i, pos], eta=40.0)) for i in range(3)]
     np.testing.assert_allclose(batched, direct, rtol=1e-9)
-
-
-def test_results_files_follow_the_schema(config, tmp_path):
-    small = config.with_(folds=1, methods=("frost", "nielsen", "random", "uniform"), nielsen_trials=1)
-    paths = run_benchmark(small, tmp_path, "goniofrost bench ...", jobs=1, progress=False)
-    payload = json.loads((tmp_path / "results.json").read_text())
-    assert set(payload) >= {"machine", "command", "rows"} and payload["machine"]["cores"] >= 1
-    assert payload["command"] == "goniofrost bench ..."
-    rows = payload["rows"]
-    assert len(rows) == 4 * 2 * 3
-    for r in rows:
-        assert list(r) == list(ROW_FIELDS)
-        assert isinstance(r["m"], int) and isinstance(r["fold"], int) and isinstance(r["trial"], int)
-        assert all(isinstance(r[k], float) for k in ("mse", "select_s", "recon_s"))
-    with open(tmp_path / "results.csv", newline="") as f:
-        csv_rows = list(csv.DictReader(f))
-    assert [c["material"] for c in csv_rows] == [r["material"] for r in rows]
-    assert [float(c["mse"]) for c in csv_rows] == [r["mse"] for r in rows]
-    pngs = [p for p in paths if p.suffix == ".png"]
-    assert {p.name for p in pngs} == {"inverse_mse.png", "selection_time.png", "frontier.png", "box_m8.png"}
-    assert all(0 < p.stat().st_size < 200_000 for p in pngs)
 
 
 def test_non_finite_numbers_are_never_written(tmp_path):
@@ -155,7 +133,24 @@ def test_cli_runs_and_rejects_bad_options(merl_npz, rgl_npz, tmp_path, capsys):
     assert main(base + ["--m", "8,4", "--out", str(tmp_path / "b")]) == 2
     assert "m_values: expected distinct positive sample counts in increasing order" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
-    assert main(base + ["--folds", "1", "--train", "8", "--test", "2", "--m", "3,6", "--methods", "frost,uniform",
-                        "--out", str(tmp_path / "c")]) == 0
-    payload = json.loads((tmp_path / "c" / "results.json").read_text())
-    assert "--m 3,6" in payload["command"] and len(payload["rows"]) == 2 * 2 * 2
+    out = tmp_path / "c"
+    assert main(base + ["--folds", "1", "--train", "8", "--test", "2", "--m", "3,6", "--methods",
+                        "frost,nielsen,random,uniform", "--nielsen-trials", "1", "--nielsen-max-iter", "2",
+                        "--out", str(out)]) == 0
+    payload = json.loads((out / "results.json").read_text())
+    assert set(payload) == {"machine", "command", "config", "rows"} and payload["machine"]["cores"] >= 1
+    assert "--m 3,6" in payload["command"] and "--grid 12,12,24" in payload["command"]
+    rows = payload["rows"]
+    assert len(rows) == 4 * 2 * 2
+    for r in rows:
+        assert list(r) == list(ROW_FIELDS)
+        assert isinstance(r["m"], int) and isinstance(r["fold"], int) and isinstance(r["trial"], int)
+        assert all(isinstance(r[k], float) for k in ("mse", "select_s", "recon_s"))
+    with open(out / "results.csv", newline="") as f:
+        csv_rows = list(csv.DictReader(f))
+    assert [c["material"] for c in csv_rows] == [r["material"] for r in rows]
+    assert [float(c["mse"]) for c in csv_rows] == [r["mse"] for r in rows]
+    pngs = sorted(out.glob("*.png"))
+    assert [p.name for p in pngs] == ["box_m6.png", "frontier.png", "inverse_mse.png", "selection_time.png"]
+    assert all(0 < p.stat().st_size < 200_000 for p in pngs)
+    assert (out / "folds" / "fold-00.json").is_file()
