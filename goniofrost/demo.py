@@ -17,15 +17,15 @@ from .merl_io import _atomic_write
 
 DEFAULT_MATERIAL = "red-plastic"
 DEFAULT_SAMPLES = 20
-DEFAULT_SPEEDUP = 50.0
+DEFAULT_SPEEDUP = 50.0  # simulated seconds per real second: motion and exposures of the demo rig
 # The camera finds the holder's markers up to about this view angle; grazing cells beyond it
 # cannot be measured on the simulated rig (as with a real camera), so the demo leaves them out.
-MAX_ANGLE_DEG = 70.0  # simulated seconds per real second: motion and exposures of the demo rig
+MAX_ANGLE_DEG = 70.0
 
 
 def default_rig_path() -> Path:
-    """The simulated rig file shipped in the repository (config/rigs/sim.yaml)."""
-    return Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
+    """The simulated rig file (config/rigs/sim.yaml, shipped in the package as rigs/sim.yaml)."""
+    return Path(__file__).resolve().parent / "rigs" / "sim.yaml"
 
 
 @dataclass
