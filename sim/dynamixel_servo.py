@@ -19,7 +19,7 @@ from drivers.dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, BROADCAST_ID, CONT
                                   parse_packet)
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
-from sim.pty_port import PtyPort
+from sim.pty_port import PtyPort, PtyServedDevice
 
 FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_HW_ERROR = 1 << 5  # "overload": what a blocked servo reports
@@ -31,7 +31,7 @@ _POLL_S = 0.05  # real seconds between two looks at the stop flag while idle
 T = CONTROL_TABLE
 
 
-class SimulatedDynamixel:
+class SimulatedDynamixel(PtyServedDevice):
     """One X-series servo served on a pty by a background thread.
 
     Parameters: ``clock`` (shared SimClock), ``id`` (0-252), ``baud`` (reported only: a pty has no
@@ -40,6 +40,8 @@ class SimulatedDynamixel:
     Attributes for tests: ``received`` (parsed instruction packets), ``ignored`` (packets seen
     while disconnected), ``faults`` (active injected faults).
     """
+
+    protocol = "dynamixel"
 
     def __init__(self, clock: SimClock, id: int = 1, baud: int = 57600, model: str = "XM430-W350",
                  counts_per_deg: float = REV_COUNTS / 360.0, position: int = 0) -> None:
@@ -53,26 +55,11 @@ class SimulatedDynamixel:
         self.received: list = []
         self.ignored: list = []
         self._lock = threading.RLock()
-        self._port: PtyPort | None = None
-        self._thread: threading.Thread | None = None
-        self._running = False
+        self._init_serving()
         self._power_up()
 
-    # ----- lifecycle ---------------------------------------------------------------------------
-    def start(self) -> dict:
-        """Open the pty and start serving; return the endpoint entry ``goniofrost sim`` prints."""
-        self._port = PtyPort()
-        self._running = True
-        self._thread = threading.Thread(target=self._serve, name=f"sim-dxl-{self.id}", daemon=True)
-        self._thread.start()
-        return {"protocol": "dynamixel", "endpoint": self._port.path, "id": self.id, "baud": self.baud}
-
-    def stop(self) -> None:
-        """Stop serving and close the pty (idempotent)."""
-        self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+    def _endpoint_fields(self) -> dict:
+        return {"id": self.id, "baud": self.baud}
 
     def true_position_deg(self) -> float:
         """Ground truth: where the horn really is, in degrees."""

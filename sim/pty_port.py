@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import pty
 import select
+import threading
 import tty
 
 
@@ -45,3 +46,39 @@ class PtyPort:
             self.closed = True
             os.close(self.master_fd)
             os.close(self._slave_fd)
+
+
+class PtyServedDevice:
+    """Lifecycle shared by simulated serial devices: a pty served by one background thread.
+
+    A subclass sets ``protocol`` and implements ``_serve()`` (loop while ``self._running``,
+    reading and writing ``self._port``) and ``_endpoint_fields()`` (its id/address and baud).
+    """
+
+    protocol = ""
+
+    def _init_serving(self) -> None:
+        self._port: PtyPort | None = None
+        self._thread: threading.Thread | None = None
+        self._running = False
+
+    def start(self) -> dict:
+        """Open the pty and start serving; return the endpoint entry ``goniofrost sim`` prints."""
+        self._port = PtyPort()
+        self._running = True
+        self._thread = threading.Thread(target=self._serve, name=f"sim-{self.protocol}", daemon=True)
+        self._thread.start()
+        return {"protocol": self.protocol, "endpoint": self._port.path, **self._endpoint_fields()}
+
+    def stop(self) -> None:
+        """Stop serving and close the pty (idempotent)."""
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _serve(self) -> None:
+        raise NotImplementedError
+
+    def _endpoint_fields(self) -> dict:
+        raise NotImplementedError

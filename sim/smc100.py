@@ -17,20 +17,22 @@ from drivers.smc100_protocol import (
 )
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
-from sim.pty_port import PtyPort
+from sim.pty_port import PtyPort, PtyServedDevice
 
 FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_ERROR_BITS = 1 << 5  # "following error": what a blocked or overloaded stage reports
 _POLL_S = 0.02  # real seconds between state updates while idle
 
 
-class SimulatedSMC100:
+class SimulatedSMC100(PtyServedDevice):
     """One SMC100 controller with one stage, served on a pty by a background thread.
 
     Parameters: ``clock`` (shared SimClock), ``address`` (1-31), ``baud`` (reported only: a pty
     has no baud rate), ``units_per_deg``, ``position`` (stage position at power-up, units),
     ``velocity`` (VA, units/s), ``acceleration`` (AC, units/s^2), ``limits`` (SL, SR, units).
     """
+
+    protocol = "smc100"
 
     def __init__(self, clock: SimClock, address: int = 1, baud: int = DEFAULT_BAUD,
                  units_per_deg: float = 1.0, position: float = 0.0, velocity: float = 20.0,
@@ -47,28 +49,11 @@ class SimulatedSMC100:
         self.faults: set[str] = set()
         self.received: deque[bytes] = deque(maxlen=10_000)  # recent command lines, for tests
         self._lock = threading.RLock()
-        self._port: PtyPort | None = None
-        self._thread: threading.Thread | None = None
-        self._running = False
+        self._init_serving()
         self._buffer = b""
 
-    # --- lifecycle -------------------------------------------------------------------------
-    def start(self) -> dict:
-        """Open the pty, start serving; return the endpoint entry ``goniofrost sim`` prints."""
-        self._port = PtyPort()
-        self._running = True
-        self._thread = threading.Thread(target=self._serve, name=f"sim-smc100-{self.address}",
-                                        daemon=True)
-        self._thread.start()
-        return {"protocol": "smc100", "endpoint": self._port.path, "address": self.address,
-                "baud": self.baud}
-
-    def stop(self) -> None:
-        """Stop serving and close the pty (idempotent)."""
-        self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+    def _endpoint_fields(self) -> dict:
+        return {"address": self.address, "baud": self.baud}
 
     def true_position_deg(self) -> float:
         """Ground truth: where the stage really is, in degrees."""
