@@ -1,15 +1,10 @@
 """The rig file's ``camera:`` section: allowed keys, defaults and one error pattern (ConfigError)."""
 from __future__ import annotations
 
-import math
-
+from goniofrost.config_check import check_section, is_number as _num
 from goniofrost.errors import ConfigError
 
 CAMERA_KINDS = ("sim", "rawfile")
-
-
-def _num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _ladder_ok(v) -> bool:
@@ -44,23 +39,6 @@ _WHITE_KEYS = {
 }
 
 
-def _check(section, keys: dict, source, keypath: str) -> dict:
-    if not isinstance(section, dict):
-        raise ConfigError(source, keypath, "a mapping", section)
-    unknown = sorted(set(section) - set(keys))
-    if unknown:
-        raise ConfigError(source, f"{keypath}.{unknown[0]}", f"one of {sorted(keys)}", unknown[0])
-    out = {}
-    for key, (ok, expected, default) in keys.items():
-        if key not in section and default is None and key not in _OPTIONAL:
-            raise ConfigError(source, f"{keypath}.{key}", expected, "nothing")
-        value = section.get(key, default)
-        if not ok(value):
-            raise ConfigError(source, f"{keypath}.{key}", expected, value)
-        out[key] = value
-    return out
-
-
 def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     """Check the rig file's ``camera:`` mapping; return a copy with every default filled in.
 
@@ -68,8 +46,8 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     or out-of-range value. ``white_reference`` holds the reflectance of the white tile and the
     pose (theta_i, theta_o in degrees) the session moves to before ``Calibrator.calibrate``.
     """
-    out = _check(section, _CAMERA_KEYS, source, keypath)
-    out["white_reference"] = _check(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
+    out = check_section(section, _CAMERA_KEYS, source, keypath, optional=_OPTIONAL)
+    out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
     if out["min_snr"] > out["target_snr"]:
         raise ConfigError(source, f"{keypath}.min_snr", f"<= target_snr {out['target_snr']}", out["min_snr"])
     out["exposures_s"] = [float(x) for x in out["exposures_s"]]

@@ -76,7 +76,6 @@ def find_patch(linear: np.ndarray, expected_ids, margin: float, what: str,
     in errors. Raises MarkerError when fewer than MIN_MARKERS expected markers are read, when
     ids of another target are seen, or when the corners do not fit one plane.
     """
-    import cv2
 
     det = _detector()
     found: dict[int, np.ndarray] = {}

@@ -18,6 +18,7 @@ import numpy as np
 
 from calib.holder import DEFAULT_LAYOUT, SAMPLE_MARKER_IDS, WHITE_MARKER_IDS, HolderLayout
 from drivers.camera import Camera, CameraError, RawFrame
+from goniofrost.config_check import check_section, is_number as _num
 from goniofrost.errors import ConfigError
 
 from .clock import SimClock
@@ -48,28 +49,12 @@ _SIM_CAMERA_KEYS = {
 }
 
 
-def _num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-
-
 def validate_sim_camera_section(section, source, keypath: str = "sim.camera") -> dict:
     """Check the rig file's ``sim.camera`` mapping; return it with defaults filled in.
 
     Raises ConfigError naming ``source`` and the key for a missing, unknown or bad value.
     """
-    if not isinstance(section, dict):
-        raise ConfigError(source, keypath, "a mapping", section)
-    unknown = sorted(set(section) - set(_SIM_CAMERA_KEYS))
-    if unknown:
-        raise ConfigError(source, f"{keypath}.{unknown[0]}", f"one of {sorted(_SIM_CAMERA_KEYS)}", unknown[0])
-    out = {}
-    for key, (ok, expected, default) in _SIM_CAMERA_KEYS.items():
-        if key not in section and default is None:
-            raise ConfigError(source, f"{keypath}.{key}", expected, "nothing")
-        value = section.get(key, default)
-        if not ok(value):
-            raise ConfigError(source, f"{keypath}.{key}", expected, value)
-        out[key] = value
+    out = check_section(section, _SIM_CAMERA_KEYS, source, keypath)
     if out["white_level"] <= out["black_level"]:
         raise ConfigError(source, f"{keypath}.white_level", f"above black_level {out['black_level']}",
                           out["white_level"])

@@ -19,7 +19,7 @@ from drivers.dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, BROADCAST_ID, CONT
                                   parse_packet)
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
-from sim.pty_port import PtyPort, PtyServedDevice
+from sim.pty_port import PtyServedDevice
 
 FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_HW_ERROR = 1 << 5  # "overload": what a blocked servo reports
