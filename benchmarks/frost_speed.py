@@ -46,9 +46,17 @@ def bench_selection(args) -> None:
         for m in (20, 60):
             # The all-columns form is ~20x slower: one run is enough to see it.
             repeat = args.repeat if y_form == "firstm" else 1
-            med, times = median_time(lambda: select_cells(model, m, y_form=y_form), repeat)
-            print(f"selection y_form={y_form:6s} m={m}: median {med:.3f} s  (runs {', '.join(f'{t:.3f}' for t in times)})",
-                  flush=True)
+            cpu = []
+
+            def run():
+                start = time.process_time()
+                select_cells(model, m, y_form=y_form)
+                cpu.append(time.process_time() - start)
+
+            med, times = median_time(run, repeat)
+            # CPU time (both threads) tells how much of the wall time other users' load took.
+            print(f"selection y_form={y_form:6s} m={m}: median {med:.3f} s  (runs {', '.join(f'{t:.3f}' for t in times)}; "
+                  f"CPU median {float(np.median(cpu)):.3f} s, load {os.getloadavg()[0]:.1f})", flush=True)
 
 
 def bench_training(args) -> None:

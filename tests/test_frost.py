@@ -135,6 +135,20 @@ def test_fast_somp_equals_textbook(seed, y_form):
         textbook_somp(mdl, m, y_form, mask)
 
 
+@pytest.mark.parametrize("y_form", ["all", "firstm"])
+def test_fast_somp_with_many_score_blocks(monkeypatch, y_form):
+    """Blocks of 256 cells: several per thread, the last one zero-padded (1670 cells)."""
+    import goniofrost.selection as selection
+
+    tables = synthetic_tables(GRID, 20, seed=21)
+    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25)
+    mask = np.random.default_rng(5).random(GRID.n_valid) < 0.8
+    monkeypatch.setattr(selection, "BLOCK_BYTES", 1)  # -> the 256-row minimum
+    assert select_cells(mdl, 15, y_form=y_form).positions.tolist() == textbook_somp(mdl, 15, y_form)
+    assert select_cells(mdl, 12, y_form=y_form, candidates=mask).positions.tolist() == \
+        textbook_somp(mdl, 12, y_form, mask)
+
+
 def test_selection_is_deterministic_and_consistent(model):
     a, b = select_cells(model, 12), select_cells(model, 12)
     np.testing.assert_array_equal(a.positions, b.positions)
