@@ -12,7 +12,8 @@ Fast exact form used here ("fast form" of DESIGN.md). With B (k x i) an orthonor
 the chosen columns (classical Gram-Schmidt applied twice), R = (I - B B^T) Y changes by one
 rank-1 product per step, and so does the score matrix C = Q^T R (n x t): C -= (Q^T b)(R^T b)^T.
 C is kept in float32 and updated in place block by block (gemv, BLAS sger, scores) so a step
-costs one pass over Q and C; near-ties are re-scored exactly in float64. The picks equal the
+costs one pass over Q and C (over C alone once R is well conditioned, Q^T b = C z with R z = b);
+near-ties are re-scored exactly in float64. The picks equal the
 textbook algorithm's (tests/test_frost.py compares them with an lstsq-based SOMP).
 Memory: C is n x t float32: 89 MB for m = 20 with y_form "firstm" at full size, 1.75 GB
 with y_form "all" (t = 393).
@@ -44,6 +45,11 @@ RESCORE_MARGIN = 1e-4
 # Bytes of C per block of the score updates (measured at full size, t = 20 and 60: 1 MB is
 # as fast as or faster than 256 KB ... 2 MB).
 BLOCK_BYTES = 1 << 20
+# Steps may take Q^T b from C (see _ScoreState) once ||Y||_2 / sigma_min(R) <= this bound on
+# the growth of C's float32 error (measured: Q-pass error ~2e-7 of the first top score at full
+# size, so the worst case stays below RESCORE_MARGIN; from the first step, where the ratio is
+# ~1e4, the error reached 8.5e-5).
+CZ_MAX_GROWTH = 100.0
 
 
 class SelectionError(GoniofrostError, ValueError):
@@ -207,13 +213,16 @@ class _ScoreState:
     ``rows`` short ones, about half the CPU time of the cell-major layout at t = 20. One step
     is one pass over Q^T and C: v = Q_blk b (gemv), C_blk -= u v^T (sger, in place) and the
     scores 1^T |C_blk| (gemv), the blocks (~1 MB, in cache) shared by two threads (BLAS and
-    numpy release the GIL). float32 rounding in C is harmless: the best cells within a small
+    numpy release the GIL); once R is well conditioned v = C_blk z instead (``_from_c``). float32 rounding in C is harmless: the best cells within a small
     margin are re-scored exactly in float64 from Q and R.
     """
 
     def __init__(self, q: np.ndarray, y: np.ndarray, pool: ThreadPoolExecutor) -> None:
         self.q, self.r, self.pool = q, y.copy(), pool
         n, t = q.shape[0], y.shape[1]
+        # Q^T b from C (square Y only: then every new direction b is in range(R)).
+        self.cz = "wait" if y.shape[0] == t else "off"
+        self.y_norm2 = float(np.linalg.norm(y, 2))
         self.rows = max(256, BLOCK_BYTES // (4 * t))  # ~1 MB of C per block
         self.starts = list(range(0, n, self.rows))
         self.c = np.empty((len(self.starts), t, self.rows), dtype=np.float32)
@@ -229,14 +238,43 @@ class _ScoreState:
         update_scores=False (the last pick) updates R only: C and the scores are not needed.
         """
         u = b @ self.r  # (t,) = R^T b
+        z = self._from_c(b) if update_scores else None
         self.r -= np.outer(b, u)
         self.picked.append(j)
         if update_scores:
-            self._run_blocks((b.astype(np.float32), u.astype(np.float32)))
+            first = ("c", z) if z is not None else ("q", b)
+            self._run_blocks((first[0], first[1].astype(np.float32), u.astype(np.float32)))
             self.scores[self.picked] = -1.0
 
+    def _from_c(self, b: np.ndarray) -> np.ndarray | None:
+        """z with R z = b (R before this pick), so that Q^T b = C z; None: use the Q pass.
+
+        With Y square, R = (I - B B^T) Y has range = the complement of the basis B, which
+        holds b: the pass then reads C only (in cache) instead of Q and C. C's float32 error
+        is carried along: C_new = C (I - z u^T), and over consecutive such steps from R_s on
+        its growth is at most 1 + ||Y||_2 / sigma_min(R_s) (the products telescope to R_s^+
+        R_now on the row space of R_s and leave its complement alone). So these steps start
+        once that ratio is <= CZ_MAX_GROWTH (it only decreases) and, once stopped, stay
+        stopped.
+        """
+        if self.cz == "off":
+            return None
+        rank = self.r.shape[0] - len(self.picked)
+        left, sv, right = np.linalg.svd(self.r, full_matrices=False)
+        z = None
+        if rank > 0 and sv[rank - 1] * CZ_MAX_GROWTH >= self.y_norm2:
+            z = right[:rank].T @ ((left[:, :rank].T @ b) / sv[:rank])
+            if np.linalg.norm(self.r @ z - b) > 1e-9:
+                z = None
+        if z is None:
+            self.cz = "off" if self.cz == "on" or rank <= 0 else self.cz
+        else:
+            self.cz = "on"
+        return z
+
     def _run_blocks(self, update) -> None:
-        """Run ``_blocks`` on two threads: update is R32^T (t, k) to fill C, or (b, u) to update it."""
+        """Run ``_blocks`` on two threads: update is R32^T (t, k) to fill C, or ("q", b, u) /
+        ("c", z, u) to update it with v = Q^T b or C z."""
         half = (len(self.starts) + 1) // 2
         parts = [range(half), range(half, len(self.starts))]
         for future in [self.pool.submit(self._blocks, part, update) for part in parts if len(part)]:
@@ -255,8 +293,11 @@ class _ScoreState:
             if isinstance(update, np.ndarray):
                 np.matmul(update, q.T, out=c[:, :size])  # (t, k) @ (k, size)
             else:
-                np.matmul(q, update[0], out=v[:size])  # v[size:] stays 0
-                out = blas.sger(-1.0, v, update[1], a=c.T, overwrite_a=1)  # c -= u v^T in place
+                if update[0] == "q":
+                    np.matmul(q, update[1], out=v[:size])  # v = Q_blk b; v[size:] stays 0
+                else:
+                    np.matmul(update[1], c, out=v)  # v = C_blk z (0 on the padding)
+                out = blas.sger(-1.0, v, update[2], a=c.T, overwrite_a=1)  # c -= u v^T in place
                 if not np.shares_memory(out, c):  # (only if a wrapper ever copied)
                     c[...] = out.T
             np.abs(c[:, :size], out=tmp[:, :size])

@@ -135,10 +135,15 @@ def test_fast_somp_equals_textbook(seed, y_form):
         textbook_somp(mdl, m, y_form, mask)
 
 
+@pytest.mark.parametrize("growth", [0.0, None, np.inf])
 @pytest.mark.parametrize("y_form", ["all", "firstm"])
-def test_fast_somp_with_many_score_blocks(monkeypatch, y_form):
-    """Blocks of 256 cells: several per thread, the last one zero-padded (1670 cells)."""
+def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
+    """Blocks of 256 cells: several per thread, the last one zero-padded (1670 cells); the
+    Q^T b = C z steps never, as by default, or from the first step on."""
     import goniofrost.selection as selection
+
+    if growth is not None:
+        monkeypatch.setattr(selection, "CZ_MAX_GROWTH", growth)
 
     tables = synthetic_tables(GRID, 20, seed=21)
     mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25)
