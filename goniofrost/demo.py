@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import GoniofrostError
-from .merl_io import _atomic_write
+from .atomic_file import write_text_atomic
 
 DEFAULT_MATERIAL = "red-plastic"
 DEFAULT_SAMPLES = 20
@@ -63,7 +63,7 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m": samples, "rig": str(rig_path),
                                          "rendering_snr_db": outcome.report["rendering_snr_db"], "stages_s": stages,
                                          "total_s": sum(stages.values())}}
-    _atomic_write(out / "report.json", json.dumps(report, indent=1).encode())
+    write_text_atomic(out / "report.json", json.dumps(report, indent=1))
     return DemoResult(out, report, stages)
 
 

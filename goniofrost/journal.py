@@ -19,11 +19,11 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from .atomic_file import write_text_atomic
 from .errors import GoniofrostError
 
 FORMAT_VERSION = 1
@@ -244,12 +244,7 @@ class SamplesCsv:
     def rewrite(self, records) -> None:
         """Replace the file atomically with exactly ``records`` (the journal is the truth)."""
         text = ",".join(CSV_COLUMNS) + "\n" + "".join(r.csv_row() + "\n" for r in records)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, self.path)
+        write_text_atomic(self.path, text)
 
     def append(self, record: SampleRecord) -> None:
         """Append one sample's line, flushed and fsynced before returning."""

@@ -10,12 +10,11 @@ negative number) reads as NaN, and NaN is written back as -1.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomic_file import write_bytes_atomic
 from .errors import GoniofrostError
 from .grid import FULL_GRID, MerlGrid
 
@@ -92,25 +91,7 @@ def write_merl(path, brdf: np.ndarray, grid: MerlGrid = FULL_GRID) -> None:
         raise ValueError(f"write_merl: negative BRDF values; clamp them before writing {path}")
     stored = np.where(finite, brdf / RGB_SCALE, MISSING_STORED).T.astype("<f8")
     header = np.array(grid.shape, dtype="<i4")
-    _atomic_write(Path(path), header.tobytes() + stored.tobytes())
-
-
-def _atomic_write(path: Path, payload: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        # mkstemp creates the file 0600; give the result the usual permissions (umask applies)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, header.tobytes() + stored.tobytes())
 
 
 def valid_to_full(values: np.ndarray, grid: MerlGrid = FULL_GRID) -> np.ndarray:

@@ -14,12 +14,11 @@ frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomic_file import write_text_atomic
 from .errors import ConfigError
 from .model import FrostModel
 from .selection import Selection
@@ -57,17 +56,7 @@ def sample_entries(grid, cells) -> list[dict]:
 
 def write_plan(path, doc: dict) -> None:
     """Write PLAN.json atomically (temporary file beside it, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(doc, handle, indent=1)
-            handle.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
 def read_plan(path) -> dict:

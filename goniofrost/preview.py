@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from .grid import MerlGrid, dirs_to_half_diff
-from .merl_io import _atomic_write, _read_header, read_merl
+from .atomic_file import write_bytes_atomic
+from .merl_io import _read_header, read_merl
 
 GAMMA = 2.0
 ERROR_GAIN = 10.0  # the paper multiplies error images by 10
@@ -187,4 +188,4 @@ def write_png(path, preview: Preview, title: str = "") -> None:
     fig.suptitle(f"{title}{snr}\n" + "  |  ".join(labels), fontsize=9)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", facecolor="white")
-    _atomic_write(Path(path), buffer.getvalue())
+    write_bytes_atomic(path, buffer.getvalue())

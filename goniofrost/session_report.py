@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .merl_io import _atomic_write, valid_to_full, write_merl
+from .atomic_file import write_text_atomic
+from .merl_io import valid_to_full, write_merl
 
 ETA = 40.0  # ridge weight of the published reconstruction (paper, section IV-B)
 
@@ -70,8 +71,8 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> 
         report["ground_truth"] = _truth_section(inputs, records, material, estimate)
     report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, inputs.model.grid, material)
     report["outputs"]["preview"] = "preview.png"
-    _atomic_write(session_dir / "report.json", json.dumps(report, indent=1).encode())
-    _atomic_write(session_dir / "summary.txt", summary_text(report).encode())
+    write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
+    write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
 
 

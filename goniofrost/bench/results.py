@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic_file import write_text_atomic
 from .config import METHODS, BenchError
 
 ROW_FIELDS = ("method", "m", "fold", "trial", "material", "mse", "select_s", "recon_s")
@@ -70,13 +71,7 @@ def check_rows(rows: list[dict]) -> None:
 
 def write_atomic(path: Path, text: str) -> None:
     """Write text to ``path`` through a temporary sibling and a rename."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_text_atomic(path, text)
 
 
 def json_text(payload) -> str:
