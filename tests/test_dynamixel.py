@@ -6,7 +6,8 @@ import threading
 import time
 
 import pytest
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from sdk_retry import sdk_call
 
 from drivers.axis import AxisConfig
 from drivers.dxl_protocol import (CONTROL_TABLE as T, ErrorCode, FrameError, Instruction, build_instruction,
@@ -234,32 +235,22 @@ def axis(servo):
     ax.close()
 
 
-def _sdk(call, *args):
-    """An SDK call, repeated (as any client would) while the reply timed out: the SDK waits only
-    ~35 ms, which a loaded 2-core test machine can miss."""
-    for _ in range(5):
-        out = call(*args)
-        if out[-2] != COMM_RX_TIMEOUT:
-            return out
-    return out
-
-
 def test_sdk_pings_moves_and_reads_the_simulated_servo(servo):
     dev, entry = servo
     assert entry == {"protocol": "dynamixel", "endpoint": entry["endpoint"], "id": 1, "baud": 57600}
     port, ph = PortHandler(entry["endpoint"]), PacketHandler(2.0)
     assert port.openPort() and port.setBaudRate(57600)
     try:
-        model, result, error = _sdk(ph.ping, port, 1)
+        model, result, error = sdk_call(ph.ping, port, 1)
         assert (model, result, error) == (1020, COMM_SUCCESS, 0)
-        assert _sdk(ph.write1ByteTxRx, port, 1, 11, 4) == (COMM_SUCCESS, 0)        # extended mode
-        assert _sdk(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)        # torque on
-        assert _sdk(ph.write1ByteTxRx, port, 1, 11, 3) == (COMM_SUCCESS, ErrorCode.ACCESS)  # EEPROM locked
-        assert _sdk(ph.write4ByteTxRx, port, 1, 116, (-500) & 0xFFFFFFFF) == (COMM_SUCCESS, 0)
+        assert sdk_call(ph.write1ByteTxRx, port, 1, 11, 4) == (COMM_SUCCESS, 0)        # extended mode
+        assert sdk_call(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)        # torque on
+        assert sdk_call(ph.write1ByteTxRx, port, 1, 11, 3) == (COMM_SUCCESS, ErrorCode.ACCESS)  # EEPROM locked
+        assert sdk_call(ph.write4ByteTxRx, port, 1, 116, (-500) & 0xFFFFFFFF) == (COMM_SUCCESS, 0)
         deadline = time.monotonic() + 5
-        while _sdk(ph.read1ByteTxRx, port, 1, 122)[0] and time.monotonic() < deadline:
+        while sdk_call(ph.read1ByteTxRx, port, 1, 122)[0] and time.monotonic() < deadline:
             time.sleep(0.01)
-        value, result, _ = _sdk(ph.read4ByteTxRx, port, 1, 132)
+        value, result, _ = sdk_call(ph.read4ByteTxRx, port, 1, 132)
         assert result == COMM_SUCCESS and value == 2**32 - 500  # unsigned from the SDK
         assert dev.true_position_deg() == pytest.approx(-500 / CPD)
     finally:
@@ -365,7 +356,7 @@ def test_sdk_group_sync_write_and_read(servo):
     port, ph = PortHandler(entry["endpoint"]), PacketHandler(2.0)
     assert port.openPort()
     try:
-        assert _sdk(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)
+        assert sdk_call(ph.write1ByteTxRx, port, 1, 64, 1) == (COMM_SUCCESS, 0)
         writer = GroupSyncWrite(port, ph, 116, 4)
         assert writer.addParam(1, list((300).to_bytes(4, "little")))
         assert writer.txPacket() == COMM_SUCCESS

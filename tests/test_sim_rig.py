@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 import serial
 import yaml
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from sdk_retry import sdk_call
 from pymodbus.client import ModbusTcpClient
 
 from drivers.errors import DeviceFault
@@ -117,28 +118,20 @@ def sim_process():
         proc.wait()
 
 
-def _sdk(call, *args):
-    for _ in range(5):  # the SDK waits ~35 ms for a status; a loaded machine can miss that
-        out = call(*args)
-        if out[-2] != COMM_RX_TIMEOUT:
-            return out
-    return out
-
-
 def test_dynamixel_sdk_pings_moves_and_reads_the_yaw_servo(sim_process):
     _, ep = sim_process
     yaw = ep["sample_yaw"]
     port, ph = PortHandler(yaw["endpoint"]), PacketHandler(2.0)
     assert port.openPort() and port.setBaudRate(yaw["baud"])
     try:
-        model, result, error = _sdk(ph.ping, port, yaw["id"])
+        model, result, error = sdk_call(ph.ping, port, yaw["id"])
         assert result == COMM_SUCCESS and model in (1020, 1030, 1120, 1130)
-        assert _sdk(ph.write1ByteTxRx, port, yaw["id"], 64, 1) == (COMM_SUCCESS, 0)
-        assert _sdk(ph.write4ByteTxRx, port, yaw["id"], 116, 1024) == (COMM_SUCCESS, 0)  # 90 deg
+        assert sdk_call(ph.write1ByteTxRx, port, yaw["id"], 64, 1) == (COMM_SUCCESS, 0)
+        assert sdk_call(ph.write4ByteTxRx, port, yaw["id"], 116, 1024) == (COMM_SUCCESS, 0)  # 90 deg
         deadline = time.monotonic() + 10
-        while _sdk(ph.read1ByteTxRx, port, yaw["id"], 122)[0] and time.monotonic() < deadline:
+        while sdk_call(ph.read1ByteTxRx, port, yaw["id"], 122)[0] and time.monotonic() < deadline:
             time.sleep(0.02)
-        assert _sdk(ph.read4ByteTxRx, port, yaw["id"], 132)[:2] == (1024, COMM_SUCCESS)
+        assert sdk_call(ph.read4ByteTxRx, port, yaw["id"], 132)[:2] == (1024, COMM_SUCCESS)
     finally:
         port.closePort()
 
