@@ -11,10 +11,10 @@ Paper Algorithm 1 (DESIGN.md "FROST selection"). With k atoms, U_k and S_k from 
 Fast exact form used here ("fast form" of DESIGN.md). With B (k x i) an orthonormal basis of
 the chosen columns (classical Gram-Schmidt applied twice), R = (I - B B^T) Y changes by one
 rank-1 product per step, and so does the score matrix C = Q^T R (n x t): C -= (Q^T b)(R^T b)^T.
-C is kept in float32 and updated in place block by block (gemv, BLAS sger, scores) so a step
-costs one pass over Q and C (over C alone once R is well conditioned, Q^T b = C z with R z = b);
-near-ties are re-scored exactly in float64. The picks equal the
-textbook algorithm's (tests/test_frost.py compares them with an lstsq-based SOMP).
+C is kept in float32 and updated in place by a compiled kernel (somp_kernels) that fuses
+v = Q^T b, the rank-1 update and the scores into one pass over Q and C per step (over C alone
+once R is well conditioned, Q^T b = C z with R z = b); near-ties are re-scored exactly in
+float64. The picks equal the textbook algorithm's (tests/test_frost.py compares them with an lstsq-based SOMP).
 Memory: C is n x t float32: 89 MB for m = 20 with y_form "firstm" at full size, 1.75 GB
 with y_form "all" (t = 393).
 """
@@ -23,13 +23,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
+import os
 from concurrent.futures import ThreadPoolExecutor
 
-from scipy.linalg import blas
+import numpy as np
 from threadpoolctl import threadpool_limits
 
+from . import somp_kernels as kernels
 from .errors import GoniofrostError
 from .grid import MerlGrid
 from .model import FrostModel
@@ -42,9 +42,11 @@ DEFAULT_Y_FORM = "firstm"
 # Scores within this fraction of the largest first score below the float32 maximum are
 # re-scored exactly in float64 (float32 rounding of the updated C is far smaller).
 RESCORE_MARGIN = 1e-4
-# Bytes of C per block of the score updates (measured at full size, t = 20 and 60: 1 MB is
-# as fast as or faster than 256 KB ... 2 MB).
-BLOCK_BYTES = 1 << 20
+# Cells per block of Q and C (the kernels' vector length; measured at full size, t = 20 and
+# 60: 256 is as fast as 64 ... 1024 within a few percent).
+BLOCK_CELLS = 256
+# Threads sharing the blocks of one pass (the passes are memory-bound: two saturate 2 cores).
+THREADS = max(1, min(8, os.cpu_count() or 1))
 # Steps may take Q^T b from C (see _ScoreState) once ||Y||_2 / sigma_min(R) <= this bound on
 # the growth of C's float32 error (measured: Q-pass error ~2e-7 of the first top score at full
 # size, so the worst case stays below RESCORE_MARGIN; from the first step, where the ratio is
@@ -101,9 +103,9 @@ def select_cells(model: FrostModel, m: int | None = None, *, max_error: float | 
     """
     start = time.perf_counter()
     k, limit = _check_options(model, m, max_error, y_form, k)
-    pos_of_row, q = _atoms(model, k, candidates, limit)
+    pos_of_row, qb, n = _atoms(model, k, candidates, limit)
     y = _training_matrix(model, k, y_form, m if m is not None else k)
-    rows, residuals = _somp(q, y, limit, max_error)
+    rows, residuals = _somp(qb, n, y, limit, max_error)
     positions = pos_of_row[rows] if pos_of_row is not None else rows
     positions = np.asarray(positions, dtype=np.int64)
     return Selection(positions=positions, cells=model.grid.valid_cells[positions],
@@ -134,25 +136,37 @@ def _check_options(model, m, max_error, y_form, k) -> tuple[int, int]:
 
 
 def _atoms(model: FrostModel, k: int, candidates, limit: int):
-    """Rows of Q^T (n_c, k) float32, normalised; and their positions (None = all valid cells)."""
-    d = model.dictionary
+    """Q packed for the kernels: (positions or None for all valid cells, qb, n_c).
+
+    qb: float32 (ceil(n_c / BLOCK_CELLS), k, BLOCK_CELLS), qb[b, :, r] the unit-norm atom
+    S_k^-2 D_k[cell] of candidate cell b * BLOCK_CELLS + r (zero padding past n_c).
+    """
+    d = np.ascontiguousarray(model.dictionary, dtype=np.float32)  # no copy of a model's memmap
     if candidates is None:
-        pos = None
-        rows = np.array(d[:, :k], dtype=np.float32, order="C")  # a copy: scaled in place below
+        pos, rows = None, np.arange(model.grid.n_valid, dtype=np.int64)
     else:
         mask = np.asarray(candidates)
         if mask.dtype != bool or mask.shape != (model.grid.n_valid,):
             raise SelectionError(f"candidates: expected a bool mask of shape ({model.grid.n_valid},), found {mask.dtype} {mask.shape}")
-        pos = np.flatnonzero(mask)
+        pos = rows = np.flatnonzero(mask)
         if pos.size < limit:
             raise SelectionError(f"candidates: {pos.size} allowed cells, fewer than the {limit} samples asked for")
-        rows = np.array(d[pos, :k], dtype=np.float32, order="C")
-    s = np.asarray(model.singular_values[:k], dtype=np.float64)
-    rows *= (1.0 / s**2).astype(np.float32)
-    norms = np.sqrt(np.einsum("ij,ij->i", rows, rows))
-    # A zero row (a cell where every training material maps to its mean) can never be picked.
-    rows /= np.where(norms > 0, norms, np.inf)[:, None]
-    return pos, rows
+    inv_s2 = 1.0 / np.asarray(model.singular_values[:k], dtype=np.float64) ** 2
+    qb = np.empty((-(-rows.size // BLOCK_CELLS), k, BLOCK_CELLS), dtype=np.float32)
+    # A zero atom (a cell where every training material maps to its mean) is never picked.
+    _in_threads(kernels.pack_atoms, qb.shape[0], d, rows, k, inv_s2, qb)
+    return pos, qb, rows.size
+
+
+def _in_threads(kernel, n_blocks: int, *args) -> None:
+    """Run kernel(*args, b0, b1) on THREADS contiguous ranges of the n_blocks blocks."""
+    edges = np.linspace(0, n_blocks, THREADS + 1).astype(int)
+    if THREADS == 1:
+        kernel(*args, 0, n_blocks)
+        return
+    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+        for future in [pool.submit(kernel, *args, int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]:
+            future.result()
 
 
 def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarray:
@@ -161,19 +175,18 @@ def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarr
     return y if y_form == "all" else y[:, :m].copy()
 
 
-def _somp(q: np.ndarray, y: np.ndarray, limit: int, max_error: float | None):
-    """Run SOMP on rows q (n_c, k) and Y (k, t); return picked rows and residual ratios."""
-    # Per-block BLAS calls are small: OpenBLAS's own threads only add overhead (badly so on
-    # a shared machine); _ScoreState runs two Python threads of single-threaded BLAS instead.
-    with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=2) as pool:
-        return _somp_steps(_ScoreState(q, y, pool), q, y, limit, max_error)
+def _somp(qb: np.ndarray, n: int, y: np.ndarray, limit: int, max_error: float | None):
+    """Run SOMP on the packed atoms qb of n cells and Y (k, t); return picked rows and residual ratios."""
+    # The batched matmul that fills C runs in our threads: BLAS's own threads would only
+    # compete with them.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _somp_steps(_ScoreState(qb, n, y), y, limit, max_error)
 
 
-def _somp_steps(state, q, y, limit, max_error):
+def _somp_steps(state, y, limit, max_error):
     """The SOMP loop: pick, orthonormalise, update; stop at ``limit`` picks or max_error."""
-    k = q.shape[1]
     y_norm = np.linalg.norm(y)
-    basis = np.zeros((k, 0))
+    basis = np.zeros((y.shape[0], 0))
     picked: list[int] = []
     residuals: list[float] = []
     while len(picked) < limit:
@@ -182,7 +195,7 @@ def _somp_steps(state, q, y, limit, max_error):
             raise SelectionError(
                 f"selection: the allowed cells span only {len(picked)} independent directions; "
                 "allow more cells or ask for fewer samples")
-        b = _orthonormal_step(basis, q[j].astype(np.float64))
+        b = _orthonormal_step(basis, state.atoms(j).astype(np.float64))
         basis = np.column_stack([basis, b])
         picked.append(j)
         # The residual after this pick is known from R before C is updated: skip the pass
@@ -207,30 +220,34 @@ class _ScoreState:
     """The residual R (k, t) float64 and the score matrix C = Q^T R (n, t) float32.
 
     Adding an orthonormal basis vector b changes R by -b (b^T R) and C by the rank-1 term
-    -(Q^T b)(R^T b)^T. C is stored transposed in blocks of ``rows`` cells, ``c[i]`` (t, rows)
-    holding cells i*rows ... i*rows + rows - 1 (the last block zero-padded): the rank-1 update
-    of a block is then t long axpys (BLAS ``sger`` on the Fortran-ordered view) instead of
-    ``rows`` short ones, about half the CPU time of the cell-major layout at t = 20. One step
-    is one pass over Q^T and C: v = Q_blk b (gemv), C_blk -= u v^T (sger, in place) and the
-    scores 1^T |C_blk| (gemv), the blocks (~1 MB, in cache) shared by two threads (BLAS and
-    numpy release the GIL); once R is well conditioned v = C_blk z instead (``_from_c``). float32 rounding in C is harmless: the best cells within a small
-    margin are re-scored exactly in float64 from Q and R.
+    -(Q^T b)(R^T b)^T. C is stored like Q in blocks of BLOCK_CELLS cells, cb[b, :, r] the row
+    of cell b * BLOCK_CELLS + r. One step is one fused pass of a compiled kernel over the
+    blocks (somp_kernels): v = Q_blk b, C_blk -= u v^T and the scores 1^T |C_blk|, the
+    blocks split among THREADS threads; once R is well conditioned v = C_blk z instead
+    (``_from_c``), so the pass reads C only. float32 rounding in C is harmless: the best
+    cells within a small margin are re-scored exactly in float64 from Q and R.
     """
 
-    def __init__(self, q: np.ndarray, y: np.ndarray, pool: ThreadPoolExecutor) -> None:
-        self.q, self.r, self.pool = q, y.copy(), pool
-        n, t = q.shape[0], y.shape[1]
+    def __init__(self, qb: np.ndarray, n: int, y: np.ndarray) -> None:
+        self.qb, self.n, self.r = qb, n, y.copy()
+        t = y.shape[1]
         # Q^T b from C (square Y only: then every new direction b is in range(R)).
         self.cz = "wait" if y.shape[0] == t else "off"
         self.y_norm2 = float(np.linalg.norm(y, 2))
-        self.rows = max(256, BLOCK_BYTES // (4 * t))  # ~1 MB of C per block
-        self.starts = list(range(0, n, self.rows))
-        self.c = np.empty((len(self.starts), t, self.rows), dtype=np.float32)
-        self.c[-1] = 0.0  # the padding of the last block stays 0 (its v entries are 0)
+        self.cb = np.empty((qb.shape[0], t, BLOCK_CELLS), dtype=np.float32)
+        self.scores = np.empty(qb.shape[0] * BLOCK_CELLS, dtype=np.float32)
         self.picked: list[int] = []  # their scores are set to -1 after each pass
-        self.scores = np.empty(n, dtype=np.float32)
-        self._run_blocks(np.ascontiguousarray(self.r.T, dtype=np.float32))  # C = Q^T R
-        self.scale = float(self.scores.max())
+        _in_threads(self._fill, qb.shape[0], np.ascontiguousarray(self.r.T, dtype=np.float32))
+        self.scale = float(self.scores[:n].max())
+
+    def _fill(self, rt: np.ndarray, b0: int, b1: int) -> None:
+        """C = Q^T R and the scores on blocks [b0, b1); rt is R^T (t, k) float32."""
+        np.matmul(rt, self.qb[b0:b1], out=self.cb[b0:b1])
+        kernels.block_scores(self.cb, self.scores, b0, b1)
+
+    def atoms(self, j):
+        """The float32 atoms (k,) of open row j, or (len(j), k) of an index array j."""
+        return self.qb[j // BLOCK_CELLS, :, j % BLOCK_CELLS]
 
     def add(self, j: int, b: np.ndarray, update_scores: bool = True) -> None:
         """Account for the new orthonormal basis vector b (k,) of picked row j.
@@ -242,15 +259,20 @@ class _ScoreState:
         self.r -= np.outer(b, u)
         self.picked.append(j)
         if update_scores:
-            first = ("c", z) if z is not None else ("q", b)
-            self._run_blocks((first[0], first[1].astype(np.float32), u.astype(np.float32)))
+            u32 = u.astype(np.float32)
+            if z is None:
+                _in_threads(kernels.update_from_q, self.qb.shape[0], self.qb, b.astype(np.float32),
+                            self.cb, u32, self.scores)
+            else:
+                _in_threads(kernels.update_from_c, self.qb.shape[0], self.cb, z.astype(np.float32),
+                            u32, self.scores)
             self.scores[self.picked] = -1.0
 
     def _from_c(self, b: np.ndarray) -> np.ndarray | None:
         """z with R z = b (R before this pick), so that Q^T b = C z; None: use the Q pass.
 
         With Y square, R = (I - B B^T) Y has range = the complement of the basis B, which
-        holds b: the pass then reads C only (in cache) instead of Q and C. C's float32 error
+        holds b: the pass then reads C only instead of Q and C. C's float32 error
         is carried along: C_new = C (I - z u^T), and over consecutive such steps from R_s on
         its growth is at most 1 + ||Y||_2 / sigma_min(R_s) (the products telescope to R_s^+
         R_now on the row space of R_s and leave its complement alone). So these steps start
@@ -272,46 +294,15 @@ class _ScoreState:
             self.cz = "on"
         return z
 
-    def _run_blocks(self, update) -> None:
-        """Run ``_blocks`` on two threads: update is R32^T (t, k) to fill C, or ("q", b, u) /
-        ("c", z, u) to update it with v = Q^T b or C z."""
-        half = (len(self.starts) + 1) // 2
-        parts = [range(half), range(half, len(self.starts))]
-        for future in [self.pool.submit(self._blocks, part, update) for part in parts if len(part)]:
-            future.result()
-
-    def _blocks(self, blocks, update) -> None:
-        t, rows, n = self.c.shape[1], self.rows, self.q.shape[0]
-        ones = np.ones(t, dtype=np.float32)
-        tmp = np.empty((t, rows), dtype=np.float32)
-        v = np.zeros(rows, dtype=np.float32)
-        for i in blocks:
-            start = self.starts[i]
-            size = min(rows, n - start)
-            c = self.c[i]
-            q = self.q[start:start + size]
-            if isinstance(update, np.ndarray):
-                np.matmul(update, q.T, out=c[:, :size])  # (t, k) @ (k, size)
-            else:
-                if update[0] == "q":
-                    np.matmul(q, update[1], out=v[:size])  # v = Q_blk b; v[size:] stays 0
-                else:
-                    np.matmul(update[1], c, out=v)  # v = C_blk z (0 on the padding)
-                out = blas.sger(-1.0, v, update[2], a=c.T, overwrite_a=1)  # c -= u v^T in place
-                if not np.shares_memory(out, c):  # (only if a wrapper ever copied)
-                    c[...] = out.T
-            np.abs(c[:, :size], out=tmp[:, :size])
-            np.matmul(ones, tmp[:, :size], out=self.scores[start:start + size])
-
     def best_column(self) -> int:
         """Row maximising ||R^T q_j||_1 among open rows (lowest on ties); -1 if all ~0."""
-        scores = self.scores  # picked rows hold -1
+        scores = self.scores[:self.n]  # picked rows hold -1; the padding after n is ignored
         top = float(scores.max())
         if top <= 1e-5 * self.scale:  # nothing left above float32 noise
             return -1
         # float32 near-ties are settled in float64, lowest index first.
         close = np.flatnonzero(scores >= top - RESCORE_MARGIN * self.scale)
-        return int(close[np.argmax(_scores64(self.q[close], self.r))])
+        return int(close[np.argmax(_scores64(self.atoms(close), self.r))])
 
 
 def _scores64(rows: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -138,8 +138,9 @@ def test_fast_somp_equals_textbook(seed, y_form):
 @pytest.mark.parametrize("growth", [0.0, None, np.inf])
 @pytest.mark.parametrize("y_form", ["all", "firstm"])
 def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
-    """Blocks of 256 cells: several per thread, the last one zero-padded (1670 cells); the
-    Q^T b = C z steps never, as by default, or from the first step on."""
+    """Blocks of 64 cells: several per thread (3 threads, uneven shares), the last one
+    zero-padded (1670 cells); the Q^T b = C z steps never, as by default, or from the first
+    step on."""
     import goniofrost.selection as selection
 
     if growth is not None:
@@ -148,7 +149,8 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
     tables = synthetic_tables(GRID, 20, seed=21)
     mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25)
     mask = np.random.default_rng(5).random(GRID.n_valid) < 0.8
-    monkeypatch.setattr(selection, "BLOCK_BYTES", 1)  # -> the 256-row minimum
+    monkeypatch.setattr(selection, "BLOCK_CELLS", 64)
+    monkeypatch.setattr(selection, "THREADS", 3)
     assert select_cells(mdl, 15, y_form=y_form).positions.tolist() == textbook_somp(mdl, 15, y_form)
     assert select_cells(mdl, 12, y_form=y_form, candidates=mask).positions.tolist() == \
         textbook_somp(mdl, 12, y_form, mask)

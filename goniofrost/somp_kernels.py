@@ -1,0 +1,102 @@
+"""Compiled (numba) kernels of the FROST selection: one fused pass per SOMP step.
+
+The cells are stored in blocks of W cells, "cell-minor": ``qb[b, :, r]`` (k,) is the atom of
+cell b*W + r and ``cb[b, :, r]`` (t,) its row of the score matrix C = Q^T R. A step reads each
+block once from memory and, while it is in cache, computes v (the block's part of Q^T b or of
+C z), applies C -= v u^T and sums |C| per cell: the loops run along the W cells, which the
+compiler vectorises. Each kernel takes a range of blocks [b0, b1) and releases the GIL, so
+callers split the blocks among threads; the result does not depend on the split.
+
+Arrays are float32 except ``positions`` (int64); ``scores`` is (n_blocks * W,) float32.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+
+# Explicit signatures: compiled (or loaded from numba's on-disk cache) at import, so no
+# selection's timing includes a compilation.
+_OPTIONS = dict(nogil=True, fastmath=True, cache=True, boundscheck=False)
+_F32_1 = types.float32[::1]
+_F32_3 = types.float32[:, :, ::1]
+_DICTIONARY = types.Array(types.float32, 2, "C", readonly=True)  # (a memory-mapped model)
+_I64 = types.int64
+
+
+@njit(types.void(_DICTIONARY, types.int64[::1], _I64, types.float64[::1], _F32_3, _I64, _I64),
+      **_OPTIONS)
+def pack_atoms(dictionary, positions, k, inv_s2, qb, b0, b1):
+    """Fill blocks [b0, b1) of qb (n_blocks, k, W): the first k entries of dictionary rows
+    ``positions`` (float32 (n_valid, K) -> cells), times inv_s2 (k,), scaled to unit l2 norm
+    (a zero row stays zero); cells past positions.size are zero padding."""
+    w = qb.shape[2]
+    n = positions.size
+    for b in range(b0, b1):
+        for r in range(w):
+            cell = b * w + r
+            if cell >= n:
+                for i in range(k):
+                    qb[b, i, r] = 0.0
+                continue
+            row = dictionary[positions[cell]]
+            norm2 = 0.0
+            for i in range(k):
+                x = np.float64(row[i]) * inv_s2[i]
+                norm2 += x * x
+            scale = 1.0 / np.sqrt(norm2) if norm2 > 0.0 else 0.0
+            for i in range(k):
+                qb[b, i, r] = np.float32(np.float64(row[i]) * inv_s2[i] * scale)
+
+
+@njit(types.void(_F32_3, _F32_1, _I64, _I64), **_OPTIONS)
+def block_scores(cb, scores, b0, b1):
+    """scores of the cells of blocks [b0, b1): the l1 norms sum_t |C[cell, t]|."""
+    t, w = cb.shape[1], cb.shape[2]
+    for b in range(b0, b1):
+        s = scores[b * w:(b + 1) * w]
+        s[:] = 0.0
+        for i in range(t):
+            for r in range(w):
+                s[r] += abs(cb[b, i, r])
+
+
+@njit(**_OPTIONS)
+def _update_block(c, v, u, s):
+    """c (t, W) -= u v^T in place; s (W,) = column l1 norms of the new c."""
+    t, w = c.shape
+    s[:] = 0.0
+    for i in range(t):
+        ui = u[i]
+        for r in range(w):
+            x = c[i, r] - ui * v[r]
+            c[i, r] = x
+            s[r] += abs(x)
+
+
+@njit(types.void(_F32_3, _F32_1, _F32_3, _F32_1, _F32_1, _I64, _I64), **_OPTIONS)
+def update_from_q(qb, b, cb, u, scores, b0, b1):
+    """One SOMP step on blocks [b0, b1): v = Q_blk^T b (b (k,)), C -= v u^T (u (t,)), scores."""
+    k, w = qb.shape[1], qb.shape[2]
+    v = np.empty(w, np.float32)
+    for blk in range(b0, b1):
+        v[:] = 0.0
+        for i in range(k):
+            bi = b[i]
+            for r in range(w):
+                v[r] += bi * qb[blk, i, r]
+        _update_block(cb[blk], v, u, scores[blk * w:(blk + 1) * w])
+
+
+@njit(types.void(_F32_3, _F32_1, _F32_1, _F32_1, _I64, _I64), **_OPTIONS)
+def update_from_c(cb, z, u, scores, b0, b1):
+    """One SOMP step on blocks [b0, b1) reading C only: v = C_blk z (z (t,)), then as
+    ``update_from_q``."""
+    t, w = cb.shape[1], cb.shape[2]
+    v = np.empty(w, np.float32)
+    for blk in range(b0, b1):
+        v[:] = 0.0
+        for i in range(t):
+            zi = z[i]
+            for r in range(w):
+                v[r] += zi * cb[blk, i, r]
+        _update_block(cb[blk], v, u, scores[blk * w:(blk + 1) * w])
