@@ -48,7 +48,8 @@ def textbook_somp(model: FrostModel, m: int, y_form: str, mask=None) -> list[int
     """Plain SOMP (paper Algorithm 1) with an lstsq residual, float64, no tricks."""
     d = np.asarray(model.dictionary, np.float64)[:, :m]
     q = (d / np.asarray(model.singular_values[:m]) ** 2).T
-    q /= np.linalg.norm(q, axis=0)
+    with np.errstate(invalid="ignore"):  # zero atoms become NaN; callers mask them out
+        q /= np.linalg.norm(q, axis=0)
     y = np.asarray(model.coefficients[:m], np.float64)
     y = y if y_form == "all" else y[:, :m]
     allowed = np.ones(q.shape[1], bool) if mask is None else mask
@@ -154,6 +155,25 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
     assert select_cells(mdl, 15, y_form=y_form).positions.tolist() == textbook_somp(mdl, 15, y_form)
     assert select_cells(mdl, 12, y_form=y_form, candidates=mask).positions.tolist() == \
         textbook_somp(mdl, 12, y_form, mask)
+
+
+def test_zero_atoms_are_never_picked(model):
+    """Cells whose dictionary row is zero (every training material at its mean there) have a
+    zero atom: SOMP passes them over, and allowing only such cells is a clear error."""
+    import dataclasses
+
+    d = np.array(model.dictionary)
+    zero = np.arange(0, GRID.n_valid, 3)
+    d[zero] = 0.0
+    mdl = dataclasses.replace(model, dictionary=d, content_hash="")
+    sel = select_cells(mdl, 12)
+    assert not np.isin(sel.positions, zero).any()
+    assert sel.positions.tolist() == textbook_somp(mdl, 12, "firstm", np.isin(np.arange(GRID.n_valid), zero, invert=True))
+    only_zero = np.zeros(GRID.n_valid, bool)
+    only_zero[zero] = True
+    only_zero[1] = True  # one usable cell: one direction, then nothing left
+    with pytest.raises(SelectionError, match="span only 1 independent directions"):
+        select_cells(mdl, 3, candidates=only_zero)
 
 
 def test_selection_is_deterministic_and_consistent(model):
