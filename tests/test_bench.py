@@ -154,3 +154,13 @@ def test_cli_runs_and_rejects_bad_options(merl_npz, rgl_npz, tmp_path, capsys):
     assert [p.name for p in pngs] == ["box_m6.png", "frontier.png", "inverse_mse.png", "selection_time.png"]
     assert all(0 < p.stat().st_size < 200_000 for p in pngs)
     assert (out / "folds" / "fold-00.json").is_file()
+
+
+def test_summary_markdown_time_ratios_keep_two_digits():
+    """Nielsen / FROST ratios below 1 must not round to "0x" (both FROST forms are given)."""
+    from goniofrost.bench.results import summary_markdown
+
+    rows = [dict(method=method, m=20, fold=0, trial=0, material="a", mse=0.1, select_s=select_s, recon_s=0.01)
+            for method, select_s in (("frost", 7.3), ("frost-firstm", 0.54), ("nielsen", 2.86))]
+    line = [l for l in summary_markdown(rows).splitlines() if l.startswith("| 20 |")][-1]
+    assert line.endswith("| 0.39x | 5.3x |")

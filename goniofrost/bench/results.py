@@ -170,19 +170,21 @@ def summary_markdown(rows: list[dict], m_values=None) -> str:
         cells = [_fmt(stats.get((c if c in METHODS else "nielsen", m), {}).get(key)) for c, key in cols]
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     lines += ["", "Median selection time in seconds:", "",
-              "| m | " + " | ".join(methods) + " | nielsen / frost |", "|" + "---|" * (len(methods) + 2)]
+              "| m | " + " | ".join(methods) + " | nielsen / frost | nielsen / frost-firstm |",
+              "|" + "---|" * (len(methods) + 3)]
     for m in ms:
         sel = [stats.get((meth, m), {}).get("select_s") for meth in methods]
-        ratio = _ratio(stats, m)
-        lines.append(f"| {m} | " + " | ".join(_fmt(s, 3) for s in sel) + f" | {ratio} |")
+        ratios = [_ratio(stats, m, frost) for frost in ("frost", "frost-firstm")]
+        lines.append(f"| {m} | " + " | ".join(_fmt(s, 3) for s in sel) + f" | {ratios[0]} | {ratios[1]} |")
     return "\n".join(lines) + "\n"
 
 
-def _ratio(stats, m) -> str:
-    a, b = stats.get(("nielsen", m)), stats.get(("frost", m))
+def _ratio(stats, m, frost: str) -> str:
+    """Nielsen's median selection time over the FROST form's, e.g. "0.39x" or "19x"."""
+    a, b = stats.get(("nielsen", m)), stats.get((frost, m))
     if not a or not b or b["select_s"] <= 0:
         return "-"
-    return f"{a['select_s'] / b['select_s']:.0f}x"
+    return f"{a['select_s'] / b['select_s']:.2g}x"
 
 
 def _fmt(value, digits: int = 4) -> str:
