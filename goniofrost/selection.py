@@ -259,13 +259,9 @@ class _ScoreState:
         self.r -= np.outer(b, u)
         self.picked.append(j)
         if update_scores:
-            u32 = u.astype(np.float32)
-            if z is None:
-                _in_threads(kernels.update_from_q, self.qb.shape[0], self.qb, b.astype(np.float32),
-                            self.cb, u32, self.scores)
-            else:
-                _in_threads(kernels.update_from_c, self.qb.shape[0], self.cb, z.astype(np.float32),
-                            u32, self.scores)
+            source, w = (self.qb, b) if z is None else (self.cb, z)
+            _in_threads(kernels.rank1_step, self.qb.shape[0], source, w.astype(np.float32),
+                        self.cb, u.astype(np.float32), self.scores)
             self.scores[self.picked] = -1.0
 
     def _from_c(self, b: np.ndarray) -> np.ndarray | None:

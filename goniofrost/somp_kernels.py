@@ -74,29 +74,18 @@ def _update_block(c, v, u, s):
 
 
 @njit(types.void(_F32_3, _F32_1, _F32_3, _F32_1, _F32_1, _I64, _I64), **_OPTIONS)
-def update_from_q(qb, b, cb, u, scores, b0, b1):
-    """One SOMP step on blocks [b0, b1): v = Q_blk^T b (b (k,)), C -= v u^T (u (t,)), scores."""
-    k, w = qb.shape[1], qb.shape[2]
-    v = np.empty(w, np.float32)
+def rank1_step(source, w, cb, u, scores, b0, b1):
+    """One SOMP step on blocks [b0, b1): v = source_blk^T w, C_blk -= u v^T (u (t,)), scores.
+
+    source is qb with w = b (k,) (v = Q^T b), or cb itself with w = z (t,) (v = C z: each
+    block's v is complete before that block is updated).
+    """
+    n_rows, w_cells = source.shape[1], source.shape[2]
+    v = np.empty(w_cells, np.float32)
     for blk in range(b0, b1):
         v[:] = 0.0
-        for i in range(k):
-            bi = b[i]
-            for r in range(w):
-                v[r] += bi * qb[blk, i, r]
-        _update_block(cb[blk], v, u, scores[blk * w:(blk + 1) * w])
-
-
-@njit(types.void(_F32_3, _F32_1, _F32_1, _F32_1, _I64, _I64), **_OPTIONS)
-def update_from_c(cb, z, u, scores, b0, b1):
-    """One SOMP step on blocks [b0, b1) reading C only: v = C_blk z (z (t,)), then as
-    ``update_from_q``."""
-    t, w = cb.shape[1], cb.shape[2]
-    v = np.empty(w, np.float32)
-    for blk in range(b0, b1):
-        v[:] = 0.0
-        for i in range(t):
-            zi = z[i]
-            for r in range(w):
-                v[r] += zi * cb[blk, i, r]
-        _update_block(cb[blk], v, u, scores[blk * w:(blk + 1) * w])
+        for i in range(n_rows):
+            wi = w[i]
+            for r in range(w_cells):
+                v[r] += wi * source[blk, i, r]
+        _update_block(cb[blk], v, u, scores[blk * w_cells:(blk + 1) * w_cells])
