@@ -14,17 +14,17 @@ rank-1 product per step, and so does the score matrix C = Q^T R (n x t): C -= (Q
 C is kept in float32 and updated in place by a compiled kernel (somp_kernels) that fuses
 v = Q^T b, the rank-1 update and the scores into one pass over Q and C per step (over C alone
 once R is well conditioned, Q^T b = C z with R z = b); near-ties are re-scored exactly in
-float64. The picks equal the textbook algorithm's (tests/test_frost.py compares them with an lstsq-based SOMP).
+float64. The picks equal the textbook algorithm's (tests/test_frost.py compares them with an
+lstsq-based SOMP).
 Memory: C is n x t float32: 89 MB for m = 20 with y_form "firstm" at full size, 1.75 GB
 with y_form "all" (t = 393).
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
-
 import os
+import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -160,10 +160,10 @@ def _atoms(model: FrostModel, k: int, candidates, limit: int):
 
 def _in_threads(kernel, n_blocks: int, *args) -> None:
     """Run kernel(*args, b0, b1) on THREADS contiguous ranges of the n_blocks blocks."""
-    edges = np.linspace(0, n_blocks, THREADS + 1).astype(int)
     if THREADS == 1:
         kernel(*args, 0, n_blocks)
         return
+    edges = np.linspace(0, n_blocks, THREADS + 1).astype(int)
     with ThreadPoolExecutor(max_workers=THREADS) as pool:
         for future in [pool.submit(kernel, *args, int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]:
             future.result()

@@ -7,7 +7,8 @@ C z), applies C -= v u^T and sums |C| per cell: the loops run along the W cells,
 compiler vectorises. Each kernel takes a range of blocks [b0, b1) and releases the GIL, so
 callers split the blocks among threads; the result does not depend on the split.
 
-Arrays are float32 except ``positions`` (int64); ``scores`` is (n_blocks * W,) float32.
+Arrays are float32 except ``positions`` (int64) and ``inv_s2`` (float64); ``scores`` is
+(n_blocks * W,) float32.
 """
 from __future__ import annotations
 
