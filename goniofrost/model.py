@@ -102,10 +102,15 @@ class FrostModel:
         return np.log(w[:, None] * x + self.eps) - np.log(r[:, None] + self.eps)
 
     def from_log(self, mapped, positions=None) -> np.ndarray:
-        """Invert ``to_log`` (mu already added back); clamp to >= 0. Returns float64 1/sr."""
+        """Invert ``to_log`` (mu already added back); clamp to >= 0. Returns float64 1/sr.
+
+        A mapped value beyond float64's range (above ~709) gives inf, without a warning:
+        callers that write values check them (``reconstruct`` refuses such an estimate).
+        """
         w, r = self._rows(positions)
         y = np.asarray(mapped, dtype=np.float64)
-        x = (np.exp(y) * (r[:, None] + self.eps) - self.eps) / w[:, None]
+        with np.errstate(over="ignore"):
+            x = (np.exp(y) * (r[:, None] + self.eps) - self.eps) / w[:, None]
         return np.maximum(x, 0.0)
 
     def _rows(self, positions) -> tuple[np.ndarray, np.ndarray]:

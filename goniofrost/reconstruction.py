@@ -41,7 +41,14 @@ def reconstruct(model: FrostModel, positions, values, eta: float = ETA,
     positions, values = _check_samples(model, positions, values)
     unique, mean_values = average_duplicates(positions, values)
     mapped = model.to_log(mean_values, unique)
-    return model.from_log(reconstruct_log(model, unique, mapped, eta, n_atoms))
+    estimate = model.from_log(reconstruct_log(model, unique, mapped, eta, n_atoms))
+    overflow = int(np.count_nonzero(~np.isfinite(estimate)))
+    if overflow:
+        raise ReconstructionError(
+            f"reconstruction diverged: {overflow} of {estimate.size} estimated values overflow "
+            f"(beyond 1e308 1/sr); the {unique.size} sampled cells do not constrain the fit with "
+            f"eta={eta:g}: use eta > 0 (default {ETA:g}) or samples better spread over the BRDF")
+    return estimate
 
 
 def reconstruct_log(model: FrostModel, positions, log_values, eta: float = ETA,

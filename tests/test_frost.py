@@ -258,6 +258,17 @@ def test_reconstruct_refuses_bad_values(model, values, message):
         reconstruct(model, [3], values)
 
 
+def test_reconstruct_refuses_a_diverging_fit(model):
+    # 12 neighbouring cells (condition number ~2e3) alternating between 1e-9 and 1e4 1/sr,
+    # fitted without a ridge term: the mapped estimate passes exp's range elsewhere.
+    values = np.where(np.arange(12)[:, None] % 2 == 0, 1e-9, 1e4) * np.ones((12, 3))
+    with np.errstate(all="raise"):  # no overflow warning either
+        with pytest.raises(ReconstructionError, match=rf"reconstruction diverged: \d+ of {3 * GRID.n_valid} estimated values overflow.*"
+                           r"eta=0: use eta > 0 \(default 40\)"):
+            reconstruct(model, np.arange(12), values, eta=0.0)
+    assert np.isfinite(reconstruct(model, np.arange(12), values)).all()  # the default ridge term holds it
+
+
 # ----- SAMPLES.csv and the commands ----------------------------------------------------------
 HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r\n"
 
