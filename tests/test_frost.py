@@ -44,6 +44,19 @@ def model() -> FrostModel:
     return fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=30)
 
 
+def test_duplicated_training_materials_add_no_directions():
+    # Each material three times: the same K and atoms, singular values x sqrt(3), the same mean.
+    tables = synthetic_tables(GRID, 5, seed=4)
+    once = fit_model(tables, [f"m{i}" for i in range(5)], GRID, k_max=30)
+    thrice = fit_model(np.repeat(tables, 3, axis=0), [f"m{i}" for i in np.repeat(range(5), 3)], GRID, k_max=30)
+    assert thrice.n_components == once.n_components == 14  # 15 columns, rank 14 after centring
+    np.testing.assert_allclose(thrice.singular_values, np.sqrt(3) * once.singular_values, rtol=1e-5)
+    np.testing.assert_allclose(thrice.mean, once.mean, rtol=1e-6, atol=1e-7)
+    sign = np.sign(np.sum(np.asarray(once.dictionary) * np.asarray(thrice.dictionary), axis=0))
+    np.testing.assert_allclose(np.asarray(thrice.dictionary), np.sqrt(3) * sign * np.asarray(once.dictionary),
+                               rtol=1e-3, atol=1e-4 * float(np.abs(once.dictionary).max()))
+
+
 def textbook_somp(model: FrostModel, m: int, y_form: str, mask=None) -> list[int]:
     """Plain SOMP (paper Algorithm 1) with an lstsq residual, float64, no tricks."""
     d = np.asarray(model.dictionary, np.float64)[:, :m]
