@@ -83,12 +83,12 @@ def write_merl(path, brdf: np.ndarray, grid: MerlGrid = FULL_GRID) -> None:
     """
     brdf = np.asarray(brdf, dtype=np.float64)
     if brdf.shape != (grid.size, 3):
-        raise ValueError(f"write_merl: BRDF must have shape {(grid.size, 3)}, got {brdf.shape}")
+        raise MerlFileError(f"write_merl: BRDF must have shape {(grid.size, 3)}, got {brdf.shape}")
     finite = np.isfinite(brdf)
     if np.isinf(brdf).any():
-        raise ValueError(f"write_merl: {int(np.isinf(brdf).sum())} infinite values; refusing to write {path}")
+        raise MerlFileError(f"write_merl: {int(np.isinf(brdf).sum())} infinite values; refusing to write {path}")
     if (brdf[finite] < 0).any():
-        raise ValueError(f"write_merl: negative BRDF values; clamp them before writing {path}")
+        raise MerlFileError(f"write_merl: negative BRDF values; clamp them before writing {path}")
     stored = np.where(finite, brdf / RGB_SCALE, MISSING_STORED).T.astype("<f8")
     header = np.array(grid.shape, dtype="<i4")
     write_bytes_atomic(path, header.tobytes() + stored.tobytes())

@@ -108,11 +108,11 @@ def test_file_shorter_than_its_header_and_missing_file(tmp_path):
 
 def test_writer_refuses_bad_values_and_leaves_no_file(tmp_path):
     brdf = random_brdf()
-    for bad_value in (-0.1, np.inf):
+    for bad_value, message in ((-0.1, "negative BRDF values"), (np.inf, "1 infinite values")):
         bad = brdf.copy()
         bad[np.flatnonzero(GRID.valid_mask)[0], 1] = bad_value
-        with pytest.raises(ValueError):
+        with pytest.raises(MerlFileError, match=rf"write_merl: {message}.*m\.binary"):  # a GoniofrostError: the CLI reports it
             write_merl(tmp_path / "m.binary", bad, GRID)
-    with pytest.raises(ValueError, match=r"shape \(54000, 3\)"):
+    with pytest.raises(MerlFileError, match=r"shape \(54000, 3\)"):
         write_merl(tmp_path / "m.binary", brdf[:-1], GRID)
     assert list(tmp_path.iterdir()) == []
