@@ -4,6 +4,8 @@
     .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
     .venv/bin/python benchmarks/frost_speed.py reconstruction --model MODEL
     .venv/bin/python benchmarks/frost_speed.py pca [--rows N]           # Gram vs randomized SVD
+    .venv/bin/python benchmarks/frost_speed.py floor [--model MODEL] [--results BENCH/results.json]
+    .venv/bin/python benchmarks/frost_speed.py bounds --model MODEL [--m 20]
 
 Timings are medians of repeated runs; the machine is shared, so say so when quoting them.
 Targets (DESIGN.md): selection full grid m=20 <= 0.3 s, m=60 <= 2 s; training 131 materials
@@ -37,11 +39,9 @@ def median_time(fn, repeat: int) -> tuple[float, list[float]]:
 
 
 def bench_selection(args) -> None:
-    from goniofrost.model import FrostModel
     from goniofrost.selection import select_cells
 
-    model = FrostModel.load(args.model)
-    np.asarray(model.dictionary).sum()  # page the model in once: we time selection, not the disk
+    model = _paged_model(args.model)
     for y_form in ("firstm", "all"):
         for m in (20, 60):
             # The all-columns form is ~20x slower: one run is enough to see it.
@@ -85,12 +85,10 @@ def bench_training(args) -> None:
 
 def bench_reconstruction(args) -> None:
     from goniofrost.merl_io import valid_to_full, write_merl
-    from goniofrost.model import FrostModel
     from goniofrost.reconstruction import reconstruct
     from goniofrost.selection import select_cells
 
-    model = FrostModel.load(args.model)
-    np.asarray(model.dictionary).sum()
+    model = _paged_model(args.model)
     positions = select_cells(model, 20, y_form="firstm").positions
     values = np.random.default_rng(0).uniform(0.05, 2.0, (positions.size, 3))
     with tempfile.TemporaryDirectory() as tmp:
@@ -137,16 +135,108 @@ def bench_pca(args) -> None:
               f"{np.max(np.abs(s - ref) / ref):.2e}")
 
 
+def bench_floor(args) -> None:
+    """The least time an exact SOMP selection can take on the full grid, against Nielsen / 100.
+
+    Every step changes every cell's score (C -= v u^T with v_j = q_j . b, nonzero in
+    general), so each of the m - 1 steps after the first must at least read the n x m float32
+    score matrix (or the n x m atoms) once. One such read is timed here with the scores kernel
+    on the selection's threads; (m - 1) reads are a floor for any exact implementation on this
+    machine. With --model, the actual select_cells time is printed beside it; with --results
+    (a `goniofrost bench` results.json), the median Nielsen selection time of that run / 100.
+    """
+    from goniofrost import selection, somp_kernels
+    from goniofrost.grid import MerlGrid
+
+    n, w = MerlGrid().n_valid, selection.BLOCK_CELLS
+    model = _paged_model(args.model) if args.model else None
+    nielsen = _median_select_s(args.results, "nielsen") if args.results else {}
+    for m in (5, 10, 20, 40, 60):
+        cb = np.ones((-(-n // w), m, w), dtype=np.float32)
+        scores = np.empty(cb.shape[0] * w, dtype=np.float32)
+        one_read, _ = median_time(lambda: selection._in_threads(somp_kernels.block_scores, cb.shape[0], cb, scores),
+                                  args.repeat)
+        line = (f"m={m:2d}: one read of C ({cb.nbytes / 1e6:.0f} MB) {one_read * 1e3:.1f} ms, "
+                f"floor ({m - 1} reads) {(m - 1) * one_read:.3f} s")
+        if model is not None:
+            actual, _ = median_time(lambda: selection.select_cells(model, m), args.repeat)
+            line += f"; select_cells {actual:.3f} s"
+        if m in nielsen:
+            line += f"; Nielsen (bench median) {nielsen[m]:.3f} s / 100 = {nielsen[m] / 100:.4f} s"
+        print(line + f"  (load {os.getloadavg()[0]:.1f})", flush=True)
+
+
+def bench_bounds(args) -> None:
+    """Could SOMP skip cells? Fractions of cells two upper bounds on the score fail to rule out.
+
+    At each step of an exact (float64) first-m SOMP with k = m, for score_j = ||R^T q_j||_1:
+    * cell bound: g ||(I - B B^T) q_j||_2 with g = min(sqrt(t) ||R||_2, sum of R's column
+      norms) >= max_{||x||=1} ||R^T x||_1;
+    * block bound (BLOCK_CELLS consecutive cells): ||R^T mu||_1 + g max_j ||(I - B B^T)(q_j - mu)||_2
+      with mu the block's mean atom.
+    A cell (block) must be scored when its bound reaches the step's best score; "exact >= 0.9"
+    is the fraction within 10 % of the best, the least that even a tight bound must score.
+    """
+    from goniofrost.selection import BLOCK_CELLS
+
+    model = _paged_model(args.model)
+    k = m = args.m
+    q = np.asarray(model.dictionary[:, :k], dtype=np.float64) / np.asarray(model.singular_values[:k], dtype=np.float64) ** 2
+    q /= np.maximum(np.linalg.norm(q, axis=1), 1e-300)[:, None]
+    r = np.asarray(model.coefficients[:k, :m], dtype=np.float64).copy()
+    blocks = np.vstack([q, np.zeros((-q.shape[0] % BLOCK_CELLS, k))]).reshape(-1, BLOCK_CELLS, k)
+    mean = blocks.mean(axis=1)
+    spread, z, basis = blocks - mean[:, None, :], q.copy(), np.zeros((k, 0))
+    print("step  best score  g / best  cell bound  block bound  exact >= 0.9 best")
+    for step in range(m):
+        scores = np.abs(q @ r).sum(axis=1)
+        j = int(np.argmax(scores))
+        best = scores[j]
+        g = min(np.sqrt(m) * np.linalg.norm(r, 2), np.linalg.norm(r, axis=0).sum())
+        radius = np.linalg.norm(spread - (spread @ basis) @ basis.T, axis=2).max(axis=1)
+        block_bound = np.abs(mean @ r).sum(axis=1) + g * radius
+        print(f"{step:4d}  {best:10.4g}  {g / best:8.2f}  {np.mean(g * np.linalg.norm(z, axis=1) >= best):10.3f}  "
+              f"{np.mean(block_bound >= best):11.3f}  {np.mean(scores >= 0.9 * best):17.4f}", flush=True)
+        b = z[j] / np.linalg.norm(z[j])
+        b -= basis @ (basis.T @ b)
+        b /= np.linalg.norm(b)
+        basis = np.column_stack([basis, b])
+        r -= np.outer(b, b @ r)
+        z -= np.outer(z @ b, b)
+
+
+def _paged_model(path):
+    from goniofrost.model import FrostModel
+
+    model = FrostModel.load(path)
+    np.asarray(model.dictionary).sum()  # page the model in once: we time selection, not the disk
+    return model
+
+
+def _median_select_s(results_path, method: str) -> dict[int, float]:
+    """{m: median select_s of ``method``} over the (fold, trial) runs of a bench results.json."""
+    import json
+
+    runs: dict[int, dict] = {}
+    for row in json.loads(Path(results_path).read_text())["rows"]:
+        if row["method"] == method:
+            runs.setdefault(row["m"], {})[(row["fold"], row["trial"])] = row["select_s"]
+    return {m: float(np.median(list(by_run.values()))) for m, by_run in runs.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("selection", "training", "reconstruction", "pca"))
+    parser.add_argument("what", choices=("selection", "training", "reconstruction", "pca", "floor", "bounds"))
     parser.add_argument("--model", help="model directory (selection, reconstruction)")
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rows", type=int, default=1_111_432)
+    parser.add_argument("--results", help="a goniofrost bench results.json (floor: Nielsen's times)")
+    parser.add_argument("--m", type=int, default=20, help="samples (bounds)")
     args = parser.parse_args()
     {"selection": bench_selection, "training": bench_training,
-     "reconstruction": bench_reconstruction, "pca": bench_pca}[args.what](args)
+     "reconstruction": bench_reconstruction, "pca": bench_pca, "floor": bench_floor,
+     "bounds": bench_bounds}[args.what](args)
 
 
 if __name__ == "__main__":
