@@ -227,7 +227,7 @@ def _median_select_s(results_path, method: str) -> dict[int, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("selection", "training", "reconstruction", "pca", "floor", "bounds"))
-    parser.add_argument("--model", help="model directory (selection, reconstruction)")
+    parser.add_argument("--model", help="model directory (selection, reconstruction, bounds; optional for floor)")
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rows", type=int, default=1_111_432)
