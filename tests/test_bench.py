@@ -125,6 +125,9 @@ def test_stress_cases_end_in_results_or_clear_errors(config, tables, tmp_path):
         assert precision["max_abs_log_difference"] < 1e-5, (method, precision)
         assert by[("dynamic range", "8 materials", method)]["status"] == "ok"
     assert by[("precision", "training tables float32 vs float64", "uniform")]["values"]["max_rel_singular_value_difference"] < 1e-9
+    grazing = [r for r in records if r["case"] == "grazing"]
+    assert {r["method"] for r in grazing} == {"frost", "frost-firstm", "random"}
+    assert all(r["status"] == "ok" and r["values"]["mse_mean"] > 0 for r in grazing)
     span = by[("dynamic range", "materials", "-")]["values"]
     assert span["max_value"] > 1e3 and span["min_positive_value"] < 1e-6  # the case spans >= 9 decades
     conds = [r for r in records if r["case"] == "condition"]
