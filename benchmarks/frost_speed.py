@@ -150,7 +150,12 @@ def bench_floor(args) -> None:
 
     n, w = MerlGrid().n_valid, selection.BLOCK_CELLS
     model = _paged_model(args.model) if args.model else None
-    nielsen = _median_select_s(args.results, "nielsen") if args.results else {}
+    nielsen = {}
+    if args.results:
+        from goniofrost.bench.results import load_rows, summary
+
+        nielsen = {m: stats["select_s"] for (method, m), stats in summary(load_rows(args.results)).items()
+                   if method == "nielsen"}
     for m in (5, 10, 20, 40, 60):
         cb = np.ones((-(-n // w), m, w), dtype=np.float32)
         scores = np.empty(cb.shape[0] * w, dtype=np.float32)
@@ -211,17 +216,6 @@ def _paged_model(path):
     model = FrostModel.load(path)
     np.asarray(model.dictionary).sum()  # page the model in once: we time selection, not the disk
     return model
-
-
-def _median_select_s(results_path, method: str) -> dict[int, float]:
-    """{m: median select_s of ``method``} over the (fold, trial) runs of a bench results.json."""
-    import json
-
-    runs: dict[int, dict] = {}
-    for row in json.loads(Path(results_path).read_text())["rows"]:
-        if row["method"] == method:
-            runs.setdefault(row["m"], {})[(row["fold"], row["trial"])] = row["select_s"]
-    return {m: float(np.median(list(by_run.values()))) for m, by_run in runs.items()}
 
 
 def main() -> None:
