@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from calib import Calibrator  # noqa: E402
-from goniofrost.grid import FULL_GRID  # noqa: E402
+from goniofrost.core.grid import FULL_GRID  # noqa: E402
 from sim.camera_bench import CameraBench  # noqa: E402
 
 DEFAULT_MATERIAL = f"nbrdf:{REPO.parent / 'shared' / 'data' / 'nbrdf_merl.npz'}:gold-metallic-paint2"

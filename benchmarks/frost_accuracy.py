@@ -22,12 +22,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from goniofrost.datasets import open_dataset  # noqa: E402
-from goniofrost.grid import FULL_GRID, MerlGrid  # noqa: E402
-from goniofrost.metrics import log_relative_mse  # noqa: E402
-from goniofrost.model import FrostModel  # noqa: E402
-from goniofrost.reconstruction import reconstruct  # noqa: E402
-from goniofrost.selection import select_cells  # noqa: E402
-from goniofrost.training import train  # noqa: E402
+from goniofrost.core.grid import FULL_GRID, MerlGrid  # noqa: E402
+from goniofrost.frost.metrics import log_relative_mse  # noqa: E402
+from goniofrost.frost.model import FrostModel  # noqa: E402
+from goniofrost.frost.reconstruction import reconstruct  # noqa: E402
+from goniofrost.frost.selection import select_cells  # noqa: E402
+from goniofrost.frost.training import train  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data"
 SPECS = [f"nbrdf:{DATA / 'nbrdf_merl.npz'}", f"nbrdf:{DATA / 'nbrdf_rgl.npz'}"]

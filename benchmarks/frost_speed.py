@@ -39,7 +39,7 @@ def median_time(fn, repeat: int) -> tuple[float, list[float]]:
 
 
 def bench_selection(args) -> None:
-    from goniofrost.selection import select_cells
+    from goniofrost.frost.selection import select_cells
 
     model = _paged_model(args.model)
     for y_form in ("firstm", "all"):
@@ -84,9 +84,9 @@ def bench_training(args) -> None:
 
 
 def bench_reconstruction(args) -> None:
-    from goniofrost.merl_io import valid_to_full, write_merl
-    from goniofrost.reconstruction import reconstruct
-    from goniofrost.selection import select_cells
+    from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.frost.reconstruction import reconstruct
+    from goniofrost.frost.selection import select_cells
 
     model = _paged_model(args.model)
     positions = select_cells(model, 20, y_form="firstm").positions
@@ -145,8 +145,8 @@ def bench_floor(args) -> None:
     machine. With --model, the actual select_cells time is printed beside it; with --results
     (a `goniofrost bench` results.json), the median Nielsen selection time of that run / 100.
     """
-    from goniofrost import selection, somp_kernels
-    from goniofrost.grid import MerlGrid
+    from goniofrost.frost import selection, somp_kernels
+    from goniofrost.core.grid import MerlGrid
 
     n, w = MerlGrid().n_valid, selection.BLOCK_CELLS
     model = _paged_model(args.model) if args.model else None
@@ -182,7 +182,7 @@ def bench_bounds(args) -> None:
     A cell (block) must be scored when its bound reaches the step's best score; "exact >= 0.9"
     is the fraction within 10 % of the best, the least that even a tight bound must score.
     """
-    from goniofrost.selection import BLOCK_CELLS
+    from goniofrost.frost.selection import BLOCK_CELLS
 
     model = _paged_model(args.model)
     k = m = args.m
@@ -211,7 +211,7 @@ def bench_bounds(args) -> None:
 
 
 def _paged_model(path):
-    from goniofrost.model import FrostModel
+    from goniofrost.frost.model import FrostModel
 
     model = FrostModel.load(path)
     np.asarray(model.dictionary).sum()  # page the model in once: we time selection, not the disk

@@ -9,7 +9,7 @@ Usage (from the repository root)::
 
 Held-out split: every ``--test-every``-th material of the dataset (in its own order) is a test
 material, the rest train the model (trained once, then read from the goniofrost cache). Error =
-``goniofrost.metrics.log_relative_mse`` of the reconstruction from the exact values at the selected
+``goniofrost.frost.metrics.log_relative_mse`` of the reconstruction from the exact values at the selected
 cells, averaged over the test materials. Timings are medians of ``--repeats`` runs (the machine is
 shared, so single timings are noisy).
 """
@@ -28,13 +28,13 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from goniofrost.datasets import open_dataset  # noqa: E402
-from goniofrost.grid import FULL_GRID, MerlGrid  # noqa: E402
-from goniofrost.metrics import log_relative_mse  # noqa: E402
-from goniofrost.planfile import plan_document  # noqa: E402
-from goniofrost.reconstruction import reconstruct  # noqa: E402
-from goniofrost.rigfile import load_rig  # noqa: E402
-from goniofrost.selection import select_cells  # noqa: E402
-from goniofrost.training import train  # noqa: E402
+from goniofrost.core.grid import FULL_GRID, MerlGrid  # noqa: E402
+from goniofrost.frost.metrics import log_relative_mse  # noqa: E402
+from goniofrost.capture.plan_file import plan_document  # noqa: E402
+from goniofrost.frost.reconstruction import reconstruct  # noqa: E402
+from goniofrost.capture.rig_file import load_rig  # noqa: E402
+from goniofrost.frost.selection import select_cells  # noqa: E402
+from goniofrost.frost.training import train  # noqa: E402
 from planner.kinematics import forward  # noqa: E402
 from planner.reach import reachability  # noqa: E402
 from planner.schedule import pair_angles, schedule_plan  # noqa: E402

@@ -23,13 +23,13 @@ sys.path.insert(0, str(REPO))
 
 
 def main() -> None:
-    from goniofrost.baselines import nielsen_path
+    from goniofrost.bench.baselines import nielsen_path
     from goniofrost.bench.config import BenchConfig, fold_split, method_rng
     from goniofrost.bench.data import open_tables, tables_path
-    from goniofrost.commands.bench import DEFAULT_DATASETS
-    from goniofrost.grid import MerlGrid
-    from goniofrost.selection import select_cells
-    from goniofrost.training import fit_model
+    from goniofrost.app.commands.bench import DEFAULT_DATASETS
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.selection import select_cells
+    from goniofrost.frost.training import fit_model
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--grid", default="90,90,180")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from goniofrost.datasets import open_dataset
 from goniofrost.datasets.tabulate import MATERIALS_PER_BATCH
-from goniofrost.grid import FULL_GRID
+from goniofrost.core.grid import FULL_GRID
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -1,8 +1,8 @@
 """The rig file's ``camera:`` section: allowed keys, defaults and one error pattern (ConfigError)."""
 from __future__ import annotations
 
-from goniofrost.config_check import check_section, is_number as _num
-from goniofrost.errors import ConfigError
+from goniofrost.core.config_check import check_section, is_number as _num
+from goniofrost.core.errors import ConfigError
 
 CAMERA_KINDS = ("sim", "rawfile")
 

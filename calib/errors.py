@@ -1,7 +1,7 @@
 """Errors of the radiometric calibration, each naming the sample or step and what was found."""
 from __future__ import annotations
 
-from goniofrost.errors import GoniofrostError
+from goniofrost.core.errors import GoniofrostError
 
 
 class CalibrationError(GoniofrostError, RuntimeError):

@@ -5,7 +5,7 @@ import shlex
 import subprocess
 
 from drivers.camera import Camera, CameraError, FolderCamera
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 
 from .config import validate_camera_section
 

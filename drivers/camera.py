@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from goniofrost.errors import GoniofrostError
+from goniofrost.core.errors import GoniofrostError
 
 TARGETS = ("sample", "white", "flat")
 

@@ -12,7 +12,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

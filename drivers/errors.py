@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from goniofrost.errors import GoniofrostError
+from goniofrost.core.errors import GoniofrostError
 
 
 def _show_reply(reply) -> str:

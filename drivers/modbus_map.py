@@ -18,7 +18,7 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 
 WORD_ORDERS = ("big", "little")
 DIRECT_DATA_REGISTERS = 16  # one move = one write of 8 x 32-bit values

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from goniofrost.errors import GoniofrostError
+from goniofrost.core.errors import GoniofrostError
 
 _CHANNEL_LETTERS = {ord("R"): 0, ord("G"): 1, ord("B"): 2}
 

@@ -3,7 +3,7 @@
 A cell is reachable when some inverse-kinematics branch puts every joint inside its limits.
 Swapping light and camera (reciprocity) never changes reachability on a rig of DESIGN.md's kind:
 the arm angle and the size of the tilt are symmetric in (w_i, w_o); so one inverse suffices.
-Results are cached on disk (``goniofrost.cache``) keyed by the rig's kinematic hash and the grid.
+Results are cached on disk (``goniofrost.core.cache``) keyed by the rig's kinematic hash and the grid.
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniofrost.cache import atomic_replace, cache_path, content_key
-from goniofrost.grid import MerlGrid
+from goniofrost.core.cache import atomic_replace, cache_path, content_key
+from goniofrost.core.grid import MerlGrid
 
 from .kinematics import Reason, inverse
 from .rig import Rig

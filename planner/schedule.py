@@ -16,8 +16,8 @@ from typing import Mapping
 
 import numpy as np
 
-from goniofrost.errors import GoniofrostError
-from goniofrost.grid import MerlGrid, half_diff_to_dirs
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import MerlGrid, half_diff_to_dirs
 
 from .kinematics import BRANCHES, Reason, forward, inverse
 from .motion import path_time

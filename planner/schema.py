@@ -11,7 +11,7 @@ from typing import Any, Iterable, Mapping
 
 import yaml
 
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 
 
 class _StrictLoader(yaml.SafeLoader):

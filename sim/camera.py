@@ -18,8 +18,8 @@ import numpy as np
 
 from calib.holder import DEFAULT_LAYOUT, SAMPLE_MARKER_IDS, WHITE_MARKER_IDS, HolderLayout
 from drivers.camera import Camera, CameraError, RawFrame
-from goniofrost.config_check import check_section, is_number as _num
-from goniofrost.errors import ConfigError
+from goniofrost.core.config_check import check_section, is_number as _num
+from goniofrost.core.errors import ConfigError
 
 from .clock import SimClock
 from .dng import write_dng
@@ -187,7 +187,7 @@ class SimCamera(Camera):
 
     def ground_truth(self, w_i, w_o) -> np.ndarray:
         """The material's BRDF (R, G, B) in 1/sr at directions (3,) (needs ``connect``)."""
-        from goniofrost.grid import dirs_to_half_diff
+        from goniofrost.core.grid import dirs_to_half_diff
 
         th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
         return np.asarray(self._dataset.evaluate(self._name, th, td, pd), dtype=np.float64)

@@ -12,7 +12,7 @@ from drivers.config import validate_driver_section
 from drivers.errors import (ArrivalError, AxisLimitError, DeviceFault, DeviceTimeout, ExceptionReply,
                             NotConnectedError)
 from drivers.rig_devices import RigDevices
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
 

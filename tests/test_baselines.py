@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniofrost.baselines import (SelectionError, _descent, _GridMoves, condition_numbers,
+from goniofrost.bench.baselines import (SelectionError, _descent, _GridMoves, condition_numbers,
                                   nielsen_path, nielsen_select, random_select, uniform_select)
-from goniofrost.grid import MerlGrid
+from goniofrost.core.grid import MerlGrid
 
 GRID = MerlGrid(12, 12, 24)
 TINY = MerlGrid(4, 4, 8)

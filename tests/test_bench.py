@@ -13,8 +13,8 @@ from goniofrost.bench.data import open_tables, tables_path
 from goniofrost.bench.evaluate import batch_log_errors, designs_per_fold
 from goniofrost.bench.executors import run_folds
 from goniofrost.bench.results import ROW_FIELDS, write_results
-from goniofrost.cli import main
-from goniofrost.grid import MerlGrid
+from goniofrost.app.cli import main
+from goniofrost.core.grid import MerlGrid
 
 GRID = MerlGrid(12, 12, 24)
 TIME_FIELDS = ("select_s", "recon_s")
@@ -67,9 +67,9 @@ def test_dask_gives_the_rows_of_local_processes(config, tables, local_rows):
 
 
 def test_batched_errors_equal_reconstruct_then_log_relative_mse(config, tables):
-    from goniofrost.metrics import log_relative_mse
-    from goniofrost.reconstruction import reconstruct, reconstruct_log
-    from goniofrost.training import fit_model
+    from goniofrost.frost.metrics import log_relative_mse
+    from goniofrost.frost.reconstruction import reconstruct, reconstruct_log
+    from goniofrost.frost.training import fit_model
 
     names, path = tables
     t = open_tables(path)

@@ -12,7 +12,7 @@ from calib import (CalibrationError, CalibrationRecord, Calibrator, MarkerError,
                    UnderexposedError, WrongTargetError, open_camera, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 from sim.camera import SimCamera
 from sim.camera_bench import CameraBench
 from sim.lamp_model import LampModel

@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 
-from goniofrost.cli import main
+from goniofrost.app.cli import main
 from goniofrost.datasets.builtin import BuiltinDataset
-from goniofrost.grid import FULL_GRID
-from goniofrost.merl_io import read_merl
+from goniofrost.core.grid import FULL_GRID
+from goniofrost.brdf.merl_file import read_merl
 
 
 def test_materials_prints_one_name_per_line(capsys):

@@ -11,8 +11,8 @@ import pytest
 from goniofrost.datasets import DatasetError, UnknownMaterialError, open_dataset, parse_material_spec
 from goniofrost.datasets.builtin import LIBRARY_VERSION, BuiltinDataset
 from goniofrost.datasets.tabulate import cache_entry, collect_materials, tabulate_cached
-from goniofrost.grid import MerlGrid, dirs_to_half_diff
-from goniofrost.merl_io import MerlFileError, valid_to_full, write_merl
+from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
+from goniofrost.brdf.merl_file import MerlFileError, valid_to_full, write_merl
 
 SMALL = MerlGrid(30, 30, 60)
 BUILTIN = BuiltinDataset()
@@ -188,7 +188,7 @@ def test_cache_hit_is_identical_and_does_not_recompute():
     first = tabulate_cached(first_ds, names, SMALL)
     entry = cache_entry(first_ds, "copper", SMALL)
     assert first_ds.computed == names and entry.is_file()
-    assert entry.parent.parent == __import__("goniofrost.cache").cache.cache_dir()
+    assert entry.parent.parent == __import__("goniofrost.core.cache").core.cache.cache_dir()
     assert str(entry).startswith(os.environ["GONIOFROST_CACHE"])
     second = tabulate_cached(second_ds, names, SMALL)
     assert second_ds.computed == []

@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from goniofrost.grid import FULL_GRID
-from goniofrost.merl_io import read_merl
+from goniofrost.core.grid import FULL_GRID
+from goniofrost.brdf.merl_file import read_merl
 
 
 @pytest.mark.slow
@@ -31,7 +31,7 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
 
 
 def test_demo_refuses_to_replace_a_folder_it_did_not_make(tmp_path, capsys):
-    from goniofrost.cli import main
+    from goniofrost.app.cli import main
 
     keep = tmp_path / "session" / "notes.txt"
     keep.parent.mkdir()

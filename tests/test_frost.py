@@ -11,17 +11,17 @@ import re
 import numpy as np
 import pytest
 
-from goniofrost.cli import main
-from goniofrost.errors import ConfigError
-from goniofrost.grid import MerlGrid
-from goniofrost.merl_io import read_merl
-from goniofrost.metrics import log_relative_mse
-from goniofrost.model import FrostModel, ModelError
-from goniofrost.planfile import plan_document, read_plan, write_plan
-from goniofrost.reconstruction import (ReconstructionError, read_samples_csv, reconstruct,
+from goniofrost.app.cli import main
+from goniofrost.core.errors import ConfigError
+from goniofrost.core.grid import MerlGrid
+from goniofrost.brdf.merl_file import read_merl
+from goniofrost.frost.metrics import log_relative_mse
+from goniofrost.frost.model import FrostModel, ModelError
+from goniofrost.capture.plan_file import plan_document, read_plan, write_plan
+from goniofrost.frost.reconstruction import (ReconstructionError, read_samples_csv, reconstruct,
                                        reconstruct_log)
-from goniofrost.selection import SelectionError, candidate_mask_max_angle, select_cells
-from goniofrost.training import TrainingError, fit_model, train
+from goniofrost.frost.selection import SelectionError, candidate_mask_max_angle, select_cells
+from goniofrost.frost.training import TrainingError, fit_model, train
 
 GRID = MerlGrid(10, 10, 20)
 
@@ -155,7 +155,7 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
     """Blocks of 64 cells: several per thread (3 threads, uneven shares), the last one
     zero-padded (1670 cells); the Q^T b = C z steps never, as by default, or from the first
     step on."""
-    import goniofrost.selection as selection
+    import goniofrost.frost.selection as selection
 
     if growth is not None:
         monkeypatch.setattr(selection, "CZ_MAX_GROWTH", growth)
@@ -366,6 +366,6 @@ def test_read_plan_refuses_bad_content(model, tmp_path):
 
 @pytest.mark.parametrize("t", [5, 6])
 def test_row_median_matches_numpy(t):
-    from goniofrost.training import _row_median
+    from goniofrost.frost.training import _row_median
     block = np.random.default_rng(t).random((50, t)).astype(np.float32)
     np.testing.assert_array_equal(_row_median(block), np.median(block, axis=1).astype(np.float32))

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from goniofrost.grid import FULL_GRID, MerlGrid, dirs_to_half_diff, half_diff_to_dirs
+from goniofrost.core.grid import FULL_GRID, MerlGrid, dirs_to_half_diff, half_diff_to_dirs
 
 SMALL_GRID = MerlGrid(30, 30, 60)
 GRIDS = {"full": FULL_GRID, "small": SMALL_GRID}

@@ -5,7 +5,7 @@ import csv
 
 import pytest
 
-from goniofrost.journal import CSV_COLUMNS, Journal, JournalError, SampleRecord, SamplesCsv
+from goniofrost.capture.journal import CSV_COLUMNS, Journal, JournalError, SampleRecord, SamplesCsv
 
 META = {"plan": {"samples": [1, 2]}, "rig_text": "name: x\n", "kinematic_hash": "abc", "model_hash": "m1"}
 

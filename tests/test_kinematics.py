@@ -10,7 +10,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from goniofrost.grid import MerlGrid, half_diff_to_dirs
+from goniofrost.core.grid import MerlGrid, half_diff_to_dirs
 from planner.kinematics import Reason, forward, inverse
 from planner.motion import move_time, time_matrix, trapezoid_time
 from planner.reach import compute_reasons, reachability

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniofrost.errors import GoniofrostError
-from goniofrost.grid import MerlGrid
-from goniofrost.merl_io import MerlFileError, RGB_SCALE, expected_size, read_merl, write_merl
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import MerlGrid
+from goniofrost.brdf.merl_file import MerlFileError, RGB_SCALE, expected_size, read_merl, write_merl
 
 GRID = MerlGrid(30, 30, 60)
 SCALE = np.array([1 / 1500, 1.15 / 1500, 1.66 / 1500])

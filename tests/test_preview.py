@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniofrost import preview as P
-from goniofrost.cli import main
-from goniofrost.grid import MerlGrid, half_diff_to_dirs
-from goniofrost.merl_io import valid_to_full, write_merl
+from goniofrost.brdf import preview as P
+from goniofrost.app.cli import main
+from goniofrost.core.grid import MerlGrid, half_diff_to_dirs
+from goniofrost.brdf.merl_file import valid_to_full, write_merl
 
 GRID = MerlGrid(30, 30, 60)
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from goniofrost.errors import ConfigError
-from goniofrost.rigfile import load_rig as load_full_rig
+from goniofrost.core.errors import ConfigError
+from goniofrost.capture.rig_file import load_rig as load_full_rig
 from planner.rig import Role, load_rig
 
 REPO = Path(__file__).resolve().parents[1]

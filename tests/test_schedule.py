@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniofrost.grid import MerlGrid
+from goniofrost.core.grid import MerlGrid
 from planner.kinematics import forward
 from planner.motion import move_time
 from planner.order import _best_choice, _pose_matrix, plan_tour
@@ -108,7 +108,7 @@ def test_without_reciprocity_the_light_always_plays_w_i():
 @pytest.fixture(scope="module")
 def small_model(tmp_path_factory):
     """A FROST model of 12 smooth random materials on the small grid (fit in well under a second)."""
-    from goniofrost.training import fit_model
+    from goniofrost.frost.training import fit_model
     rng = np.random.default_rng(0)
     w_i, w_o = GRID.cell_directions(GRID.valid_cells)
     h = w_i + w_o
@@ -121,8 +121,8 @@ def small_model(tmp_path_factory):
 
 
 def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, capsys):
-    from goniofrost.cli import main
-    from goniofrost.planfile import read_plan
+    from goniofrost.app.cli import main
+    from goniofrost.capture.plan_file import read_plan
     out = tmp_path / "plan.json"
     rig_file = Path(RIG.source)
     assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
@@ -139,7 +139,7 @@ def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, ca
 
 
 def test_plan_command_refuses_a_malformed_rig_and_writes_nothing(small_model, tmp_path, capsys):
-    from goniofrost.cli import main
+    from goniofrost.app.cli import main
     bad = tmp_path / "rig.yaml"
     bad.write_text(Path(RIG.source).read_text().replace("speed_deg_s: 20.0", "speed_deg_s: -20.0"))
     out = tmp_path / "plan.json"

@@ -21,12 +21,12 @@ import numpy as np
 import pytest
 import yaml
 
-from goniofrost.capture import capture
-from goniofrost.cli import main
-from goniofrost.grid import MerlGrid
-from goniofrost.journal import Journal
-from goniofrost.merl_io import read_merl
-from goniofrost.session import SessionFault
+from goniofrost.capture.runner import capture
+from goniofrost.app.cli import main
+from goniofrost.core.grid import MerlGrid
+from goniofrost.capture.journal import Journal
+from goniofrost.brdf.merl_file import read_merl
+from goniofrost.capture.engine import SessionFault
 
 REPO = Path(__file__).resolve().parents[1]
 GRID = MerlGrid(30, 30, 60)
@@ -48,9 +48,9 @@ def write_rig(path: Path, **camera_arm) -> Path:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     """(folder, rig file, plan file, model) shared by the module's tests (read-only)."""
-    from goniofrost.cache import cache_path
-    from goniofrost.demo import plan_on_rig
-    from goniofrost.training import train
+    from goniofrost.core.cache import cache_path
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.frost.training import train
 
     folder = tmp_path_factory.mktemp("session")
     model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
@@ -110,7 +110,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
         assert r.snr >= 10 and all(np.isfinite(r.rgb)) and all(0 < sg < v for sg, v in zip(r.sigma, r.rgb))
 
     # samples.csv is the journal, readable by the reconstruction's own reader
-    from goniofrost.reconstruction import read_samples_csv, reconstruct
+    from goniofrost.frost.reconstruction import read_samples_csv, reconstruct
     cells, values, extra = read_samples_csv(session / "samples.csv", GRID)
     np.testing.assert_array_equal(cells, [r.cell for r in records])
     np.testing.assert_array_equal(values, [r.rgb for r in records])
@@ -129,8 +129,8 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
     assert truth["sample_relative_error_median"] < 0.05
     import matplotlib.image
-    from goniofrost.merl_io import valid_to_full
-    from goniofrost.preview import preview_of
+    from goniofrost.brdf.merl_file import valid_to_full
+    from goniofrost.brdf.preview import preview_of
     assert matplotlib.image.imread(session / "preview.png").ndim == 3
     true_brdf = valid_to_full(material_truth(), GRID)
     assert report["rendering_snr_db"] == pytest.approx(preview_of(brdf, GRID, true_brdf).snr_db, abs=1e-9)
@@ -246,7 +246,7 @@ def run_refused(args, capsys) -> str:
 
 
 def test_plan_of_another_model_is_refused_before_anything_moves(setup, tmp_path, capsys):
-    from goniofrost.model import FrostModel
+    from goniofrost.frost.model import FrostModel
 
     folder, rig, plan, model = setup
     other = FrostModel(grid=model.grid, names=list(reversed(model.names)), eps=model.eps,
@@ -302,8 +302,8 @@ def test_a_bad_rig_file_is_refused_naming_file_and_key(setup, tmp_path, capsys):
 def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     session = tmp_path / "s"
-    from goniofrost.capture import open_journal, session_meta
-    from goniofrost.session_checks import load_inputs
+    from goniofrost.capture.runner import open_journal, session_meta
+    from goniofrost.capture.inputs import load_inputs
     meta = session_meta(load_inputs(rig, plan), MATERIAL)
     open_journal(session, meta, resume=False).close()
     err = run_refused(capture_args(rig, plan, session), capsys)
@@ -318,7 +318,7 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
 
 
 def test_a_signal_during_a_commit_waits_for_it_and_one_during_stopping_is_dropped():
-    from goniofrost.session_signals import Deferral, SessionInterrupted
+    from goniofrost.capture.signals import Deferral, SessionInterrupted
 
     deferral, done = Deferral(), []
     with pytest.raises(SessionInterrupted, match="SIGINT"):

@@ -1,7 +1,7 @@
 """The session plan is a pure list of steps: compared step by step, without devices."""
 from __future__ import annotations
 
-from goniofrost.session_plan import Calibrate, Commit, Home, LampOff, LampOn, Measure, Move, remaining, session_steps
+from goniofrost.capture.steps import Calibrate, Commit, Home, LampOff, LampOn, Measure, Move, remaining, session_steps
 
 AXES = ("camera_arm", "sample_yaw", "sample_tilt")
 SAMPLES = [{"joints": {"camera_arm": 30.0 + i, "sample_yaw": -i, "sample_tilt": 2.5 * i}} for i in range(3)]

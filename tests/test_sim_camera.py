@@ -11,7 +11,7 @@ from calib.errors import MarkerError
 from calib.holder import SAMPLE_MARKER_IDS, WHITE_MARKER_IDS
 from calib.roi import find_patch
 from drivers.rawfile import read_raw
-from goniofrost.errors import ConfigError
+from goniofrost.core.errors import ConfigError
 from sim.camera import WHITE_TILE_REFLECTANCE, validate_sim_camera_section
 from sim.camera_bench import CameraBench
 

@@ -206,7 +206,7 @@ def test_modbus_rtu_axis_on_a_pty(raw_rig):
 
 
 def test_sim_command_bad_input_is_one_line_and_status_2(tmp_path, capsys):
-    from goniofrost.cli import main
+    from goniofrost.app.cli import main
     assert main(["sim", "--rig", str(tmp_path / "missing.yaml")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("goniofrost sim: error: ") and "missing.yaml" in err and "\n" not in err

@@ -9,8 +9,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..errors import GoniofrostError
-from ..grid import MerlGrid
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import MerlGrid
 
 # --quick: every second cell of the MERL grid along each index (1/8 of the cells, the same
 # cell edges), so two folds finish in minutes on 2 shared cores.

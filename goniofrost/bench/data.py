@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cache import cache_path, content_key
-from ..datasets import open_dataset
-from ..grid import MerlGrid
-from .config import BenchError
+from goniofrost.core.cache import cache_path, content_key
+from goniofrost.datasets import open_dataset
+from goniofrost.core.grid import MerlGrid
+from goniofrost.bench.config import BenchError
 
 # Materials tabulated per chunk: bounds the temporary memory whatever the grid.
 MATERIALS_PER_CHUNK = 8

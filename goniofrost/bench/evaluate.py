@@ -12,9 +12,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..baselines import nielsen_path, random_select, uniform_select
-from .config import BenchConfig, BenchError, fold_split, method_rng
-from .data import open_tables
+from goniofrost.bench.baselines import nielsen_path, random_select, uniform_select
+from goniofrost.bench.config import BenchConfig, BenchError, fold_split, method_rng
+from goniofrost.bench.data import open_tables
 
 Y_FORMS = {"frost": "all", "frost-firstm": "firstm"}
 
@@ -37,7 +37,7 @@ def run_fold(config: BenchConfig, path: str, names: list[str], fold: int,
     path: the cached tables (``data.tables_path``); names: their material names.
     progress: called with 1 after each evaluated design (for a progress bar).
     """
-    from ..training import fit_model
+    from goniofrost.frost.training import fit_model
 
     tables = open_tables(path)
     train, test = fold_split(len(names), config, fold)
@@ -81,7 +81,7 @@ def _timed(fn, *args, **kwargs):
 
 
 def _frost_designs(model, config: BenchConfig, method: str) -> Iterator[Design]:
-    from ..selection import select_cells
+    from goniofrost.frost.selection import select_cells
 
     for m in config.m_values:
         selection, seconds = _timed(select_cells, model, m, y_form=Y_FORMS[method])
@@ -137,7 +137,7 @@ def evaluate_design(model, design: Design, truth: np.ndarray, names: list[str],
 
 
 def _timed_errors(model, positions, truth, truth_log, eta):
-    from ..reconstruction import reconstruct_log
+    from goniofrost.frost.reconstruction import reconstruct_log
 
     n_mat = truth.shape[0]
     # Samples of every material and channel side by side: (m, 3 n_mat) columns, one solve.

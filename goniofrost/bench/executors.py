@@ -14,8 +14,8 @@ import queue
 import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from .config import BenchConfig, BenchError
-from .evaluate import designs_per_fold, run_fold
+from goniofrost.bench.config import BenchConfig, BenchError
+from goniofrost.bench.evaluate import designs_per_fold, run_fold
 
 
 def run_folds(config: BenchConfig, path, names: list[str], jobs: int = 1,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .results import methods_in, summary
+from goniofrost.bench.results import methods_in, summary
 
 COLOURS = {"frost": "tab:blue", "frost-firstm": "tab:cyan", "nielsen": "tab:orange",
            "random": "tab:gray", "uniform": "tab:green"}

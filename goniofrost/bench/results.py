@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic_file import write_text_atomic
-from .config import METHODS, BenchError
+from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.bench.config import METHODS, BenchError
 
 ROW_FIELDS = ("method", "m", "fold", "trial", "material", "mse", "select_s", "recon_s")
 FLOAT_FIELDS = ("mse", "select_s", "recon_s")

@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .config import BenchConfig
-from .data import tables_path
-from .executors import run_folds
-from .plots import write_plots
-from .results import check_rows, json_text, machine_info, summary_markdown, write_atomic, write_results
+from goniofrost.bench.config import BenchConfig
+from goniofrost.bench.data import tables_path
+from goniofrost.bench.executors import run_folds
+from goniofrost.bench.plots import write_plots
+from goniofrost.bench.results import check_rows, json_text, machine_info, summary_markdown, write_atomic, write_results
 
 
 def run_benchmark(config: BenchConfig, out: Path, command: str, jobs: int = 1,
@@ -53,7 +53,7 @@ def load_checkpoints(out: Path, config: BenchConfig) -> dict:
 
 def run_stress(config: BenchConfig, out: Path, command: str, m: int = 20, progress: bool = True) -> list[Path]:
     """Run the numerical stress cases on fold 0 and write stress.json and stress.md."""
-    from .stress import run_cases, write_stress
+    from goniofrost.bench.stress import run_cases, write_stress
 
     names, path = tables_path(config.datasets, config.grid, progress=progress)
     records = run_cases(config, path, names, m=m, progress=progress)

@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..baselines import condition_numbers, nielsen_path, random_select, uniform_select
-from ..errors import GoniofrostError
-from ..grid import MerlGrid
-from .config import BenchConfig, fold_split, method_rng
-from .data import open_tables
-from .evaluate import batch_log_errors
-from .results import json_text, write_atomic
+from goniofrost.bench.baselines import condition_numbers, nielsen_path, random_select, uniform_select
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import MerlGrid
+from goniofrost.bench.config import BenchConfig, fold_split, method_rng
+from goniofrost.bench.data import open_tables
+from goniofrost.bench.evaluate import batch_log_errors
+from goniofrost.bench.results import json_text, write_atomic
 
 NOISE_MULTIPLICATIVE = (0.001, 0.01, 0.05, 0.2)
 ETAS = (0.0, 0.1, 1.0, 10.0, 40.0, 100.0, 1000.0)
@@ -62,7 +62,7 @@ class StressSetup:
     """Fold 0: the training model (dynamic-range materials left out) and the test materials."""
 
     def __init__(self, config: BenchConfig, path, names: list[str]) -> None:
-        from ..training import fit_model
+        from goniofrost.frost.training import fit_model
 
         self.config, self.names = config, names
         self.tables = open_tables(path)
@@ -84,7 +84,7 @@ class StressSetup:
 # ----- selections and errors ------------------------------------------------------------
 def select(model, method: str, m: int, config: BenchConfig, candidates=None) -> np.ndarray:
     """Positions of one method's design (Nielsen: one trial); ``candidates`` a bool mask."""
-    from ..selection import select_cells
+    from goniofrost.frost.selection import select_cells
 
     if method in ("frost", "frost-firstm"):
         form = "all" if method == "frost" else "firstm"
@@ -109,7 +109,7 @@ def errors_from_values(model, positions, values: np.ndarray, truth_log: np.ndarr
     negative samples with a clear error) and ``metrics.log_relative_mse``; ``truth_log`` is
     ``model.to_log(truth)`` (n_mat, n_valid, 3).
     """
-    from ..reconstruction import reconstruct
+    from goniofrost.frost.reconstruction import reconstruct
 
     out = np.empty(values.shape[0])
     for i in range(values.shape[0]):
@@ -167,9 +167,9 @@ def case_eta(setup: StressSetup, designs: dict, m: int) -> list[dict]:
 
 def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     """float32 against float64: the model's dictionary, and the training tables."""
-    from ..model import FrostModel
-    from ..reconstruction import reconstruct_log
-    from ..training import fit_model
+    from goniofrost.frost.model import FrostModel
+    from goniofrost.frost.reconstruction import reconstruct_log
+    from goniofrost.frost.training import fit_model
 
     model, truth = setup.model, setup.truth(setup.test)
     truth_log = model.to_log(truth)
@@ -203,7 +203,7 @@ def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
 
 def _small_training(setup: StressSetup, indices, label: str, m: int) -> list[dict]:
     """Train on the given material indices, then select and reconstruct at m and at K."""
-    from ..training import fit_model
+    from goniofrost.frost.training import fit_model
 
     names = [setup.names[i] for i in indices]
     model = attempt(fit_model, np.asarray(setup.tables[np.asarray(indices)]), names, setup.config.grid,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import difflib
 
-from .base import Dataset, DatasetError, UnknownMaterialError
+from goniofrost.datasets.base import Dataset, DatasetError, UnknownMaterialError
 
 __all__ = ["Dataset", "DatasetError", "UnknownMaterialError", "open_dataset", "parse_material_spec"]
 
@@ -16,14 +16,14 @@ __all__ = ["Dataset", "DatasetError", "UnknownMaterialError", "open_dataset", "p
 def open_dataset(spec: str) -> Dataset:
     """Open the dataset named by SPEC; raise DatasetError for an unknown or unreadable spec."""
     if spec == "builtin":
-        from .builtin import BuiltinDataset
+        from goniofrost.datasets.builtin import BuiltinDataset
         return BuiltinDataset()
     kind, sep, arg = spec.partition(":")
     if sep and kind == "nbrdf" and arg:
-        from .nbrdf import NbrdfDataset
+        from goniofrost.datasets.nbrdf import NbrdfDataset
         return NbrdfDataset(arg)
     if sep and kind == "merl" and arg:
-        from .merl_dir import MerlDirDataset
+        from goniofrost.datasets.merl_dir import MerlDirDataset
         return MerlDirDataset(arg)
     close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl"], n=1, cutoff=0.5)
     hint = f"; did you mean {close[0] if close[0] == 'builtin' else close[0] + ':' + (arg or 'PATH')}?" if close else ""
@@ -43,6 +43,6 @@ def parse_material_spec(text: str) -> tuple[Dataset, str]:
 
 
 # Several datasets combined, and the tabulation cache (imported last: they use open_dataset).
-from .tabulate import Material, collect_materials, open_datasets, tabulate_cached, tabulate_materials  # noqa: E402
+from goniofrost.datasets.tabulate import Material, collect_materials, open_datasets, tabulate_cached, tabulate_materials  # noqa: E402
 
 __all__ += ["Material", "collect_materials", "open_datasets", "tabulate_cached", "tabulate_materials"]

@@ -7,8 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import GoniofrostError
-from ..grid import FULL_GRID, MerlGrid
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import FULL_GRID, MerlGrid
 
 # Cells evaluated per chunk: bounds memory to a few hundred MB whatever the grid.
 CHUNK_CELLS = 1 << 17

@@ -25,11 +25,11 @@ from typing import Sequence
 
 import numpy as np
 
-from ..grid import FULL_GRID, MerlGrid
-from . import lobes
-from .base import Dataset
-from .lobes import Geometry
-from .parallel import tabulate_blocks
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+from goniofrost.datasets import lobes
+from goniofrost.datasets.base import Dataset
+from goniofrost.datasets.lobes import Geometry
+from goniofrost.datasets.parallel import tabulate_blocks
 
 # Bump whenever any material's values change: it is part of every content_id (cache key).
 LIBRARY_VERSION = "builtin-v1"

@@ -48,7 +48,7 @@ class Geometry:
             *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))))
         st, ct, sd, cd = np.sin(th), np.cos(th), np.sin(td), np.cos(td)
         cross = st * sd * np.cos(pd)
-        # w_i = R_y(theta_h) d and w_o its mirror about h (goniofrost.grid.half_diff_to_dirs)
+        # w_i = R_y(theta_h) d and w_o its mirror about h (goniofrost.core.grid.half_diff_to_dirs)
         mu_i, mu_o = ct * cd - cross, ct * cd + cross
         return cls._make(mu_i, mu_o, ct, cd)
 

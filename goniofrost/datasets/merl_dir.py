@@ -1,7 +1,7 @@
 """A folder of MERL .binary files as a dataset (spec ``merl:DIR``).
 
 Material names are the file names without ``.binary`` (``DIR/gold-paint.binary`` ->
-``gold-paint``). Values are read with ``goniofrost.merl_io.read_merl``; evaluation at any angles
+``gold-paint``). Values are read with ``goniofrost.brdf.merl_file.read_merl``; evaluation at any angles
 returns the value of the containing cell of the file's grid (MERL tables are piecewise constant).
 
 Missing values (negative in the file, NaN in memory): at a cell that is invalid (below the
@@ -18,9 +18,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..grid import FULL_GRID, MerlGrid
-from ..merl_io import read_merl
-from .base import Dataset, DatasetError
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+from goniofrost.brdf.merl_file import read_merl
+from goniofrost.datasets.base import Dataset, DatasetError
 
 # Materials kept in memory (35 MB each at full resolution).
 RECENT_FILES = 4

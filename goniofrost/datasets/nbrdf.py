@@ -13,9 +13,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..grid import FULL_GRID, MerlGrid
-from .base import Dataset, DatasetError
-from .parallel import tabulate_blocks
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+from goniofrost.datasets.base import Dataset, DatasetError
+from goniofrost.datasets.parallel import tabulate_blocks
 
 LAYER_KEYS = ("W1", "b1", "W2", "b2", "W3", "b3")
 # Cells per block when tabulating: the hidden layers of a batch of materials stay in cache.

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..grid import MerlGrid
+from goniofrost.core.grid import MerlGrid
 
 MAX_WORKERS = 8
 

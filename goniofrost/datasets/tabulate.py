@@ -1,7 +1,7 @@
 """Tabulated materials with an on-disk cache, and several datasets combined into one list.
 
 Cache: one float32 ``.npy`` (n_valid, 3) per material and grid under
-``<cache dir>/tabulated/`` (see ``goniofrost.cache``: ``$GONIOFROST_CACHE``, else
+``<cache dir>/tabulated/`` (see ``goniofrost.core.cache``: ``$GONIOFROST_CACHE``, else
 ``$XDG_CACHE_HOME/goniofrost`` or ``~/.cache/goniofrost``), named by a SHA-256 of
 TABULATE_VERSION, the dataset's ``content_id(name)`` and the grid. A content id changes whenever
 the values could (file hash, library version), so unchanged inputs are never recomputed and
@@ -23,10 +23,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..cache import atomic_replace, cache_path, content_key
-from ..grid import FULL_GRID, MerlGrid
-from . import open_dataset
-from .base import Dataset, DatasetError, UnknownMaterialError
+from goniofrost.core.cache import atomic_replace, cache_path, content_key
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+from goniofrost.datasets import open_dataset
+from goniofrost.datasets.base import Dataset, DatasetError, UnknownMaterialError
 
 # Bump when the tabulation itself changes (cells, dtype, clamping): invalidates every entry.
 TABULATE_VERSION = "tabulate-v1"

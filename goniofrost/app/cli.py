@@ -1,0 +1,53 @@
+"""The ``goniofrost`` command line: one sub-command per module in ``goniofrost.app.commands``.
+
+Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``; it imports heavy libraries inside ``run`` so that ``--help`` stays fast.
+Errors derived from GoniofrostError are printed as one line and exit with status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from goniofrost.core.errors import GoniofrostError
+
+COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "capture", "sim",
+            "bench", "preview", "demo"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser, with one sub-parser per available command."""
+    parser = argparse.ArgumentParser(
+        prog="goniofrost",
+        description="Measure a BRDF from a few optimal light/view pairs (FROST-BRDF) on a real or simulated gonioreflectometer.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"goniofrost.app.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"goniofrost.app.commands.{name}":
+                raise
+            continue  # a command not built yet is simply not offered
+        command = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(command)
+        command.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the process exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except GoniofrostError as exc:
+        print(f"goniofrost {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"goniofrost {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""``goniofrost capture``: run (or resume) a capture session of a plan on a rig."""
+from __future__ import annotations
+
+HELP = "capture a plan's samples on a rig (journaled, resumable), then reconstruct and report"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (simulated: true starts its own devices)")
+    parser.add_argument("--plan", required=True, metavar="PLAN.json", help="plan from goniofrost plan --rig")
+    parser.add_argument("--session", required=True, metavar="DIR", help="session folder (journal, RAW files, results)")
+    parser.add_argument("--material", metavar="SPEC:NAME",
+                        help="simulated rig: the ground-truth material the simulated camera sees (e.g. builtin:NAME)")
+    parser.add_argument("--resume", action="store_true", help="continue the session journaled in DIR")
+    parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
+    parser.add_argument("--speedup", type=float, default=None,
+                        help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    import sys
+
+    from goniofrost.capture.runner import capture
+    from goniofrost.capture.engine import SessionInterrupted
+
+    try:
+        outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
+                          seed=args.seed, speedup=args.speedup, progress=not args.no_progress)
+    except SessionInterrupted as exc:
+        print(f"goniofrost capture: interrupted ({exc}): every axis stopped; the journal in {args.session} "
+              f"is resumable: run the same command with --resume", file=sys.stderr)
+        return 130
+    print(outcome.summary, end="")
+    return 0

@@ -1,0 +1,27 @@
+"""``goniofrost preview``: render spheres of a MERL file beside a reference; print the rendering SNR."""
+from __future__ import annotations
+
+HELP = "render spheres of a MERL .binary (beside a reference and an error image) into a PNG"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("binary", metavar="FILE.binary", help="the BRDF to render (MERL .binary)")
+    parser.add_argument("--reference", metavar="FILE.binary", help="ground truth to compare against")
+    parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
+    parser.add_argument("--size", type=int, default=192, help="sphere diameter in pixels (default 192)")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from goniofrost.core.errors import GoniofrostError
+    from goniofrost.brdf.preview import make_preview, write_png
+
+    if args.size < 16:
+        raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
+    preview = make_preview(args.binary, args.reference, size=args.size)
+    write_png(args.out, preview, title=Path(args.binary).name)
+    print(f"wrote {args.out}")
+    if preview.snr_db is not None:
+        print(f"rendering SNR: {preview.snr_db:.2f} dB against {args.reference}")
+    return 0

@@ -1,0 +1,1 @@
+"""BRDF files and pictures: MERL .binary reading and writing, preview spheres."""

@@ -1,0 +1,101 @@
+"""Read and write MERL ``.binary`` BRDF files (DESIGN.md, "MERL .binary format").
+
+Layout, little-endian: three int32 resolutions (n_th, n_td, n_pd) = (90, 90, 180), then
+3 x n float64: the whole R block, then G, then B, each in flat-index order. Stored value =
+BRDF / scale with scale = (1/1500, 1.15/1500, 1.66/1500). Invalid cells are stored as -1.
+
+In memory a BRDF is a float64 array of shape (n_cells, 3) in 1/sr (columns R, G, B).
+**Missing values are NaN**: every negative stored value (the -1 of invalid cells, or any other
+negative number) reads as NaN, and NaN is written back as -1.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+
+RGB_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+HEADER_BYTES = 3 * 4
+MISSING_STORED = -1.0
+
+
+class MerlFileError(GoniofrostError, ValueError):
+    """A file is not a MERL .binary of the expected layout."""
+
+
+def expected_size(grid: MerlGrid = FULL_GRID) -> int:
+    """Size in bytes of a MERL file on ``grid``."""
+    return HEADER_BYTES + 3 * grid.size * 8
+
+
+def read_merl(path, grid: MerlGrid | None = None) -> np.ndarray:
+    """Read a MERL .binary into a float64 (n_cells, 3) BRDF in 1/sr; missing values are NaN.
+
+    The grid is taken from the header; when ``grid`` is given the header must match it.
+    Raises MerlFileError naming the file, what was found and what was expected.
+    """
+    path = Path(path)
+    file_grid = _read_header(path)
+    if grid is not None and file_grid != grid:
+        raise MerlFileError(
+            f"{path}: header gives resolutions {file_grid.shape}, expected {grid.shape}"
+        )
+    size, want = path.stat().st_size, expected_size(file_grid)
+    if size != want:
+        kind = "truncated" if size < want else "oversized"
+        raise MerlFileError(
+            f"{path}: {kind} MERL file: {size} bytes, expected {want} bytes for a "
+            f"{file_grid.shape} grid (12-byte header + 3 x {file_grid.size} float64)"
+        )
+    stored = np.fromfile(path, dtype="<f8", offset=HEADER_BYTES).reshape(3, file_grid.size)
+    brdf = stored.T * RGB_SCALE
+    brdf[stored.T < 0] = np.nan
+    return brdf
+
+
+def _read_header(path: Path) -> MerlGrid:
+    try:
+        header = np.fromfile(path, dtype="<i4", count=3)
+    except FileNotFoundError:
+        raise MerlFileError(f"{path}: no such file") from None
+    if header.size < 3:
+        raise MerlFileError(
+            f"{path}: truncated MERL file: {path.stat().st_size} bytes, expected at least a "
+            f"{HEADER_BYTES}-byte header of three int32 resolutions"
+        )
+    if np.any(header < 1) or np.any(header > 10_000):
+        raise MerlFileError(
+            f"{path}: wrong MERL header {tuple(int(v) for v in header)}, expected three positive "
+            f"int32 resolutions such as (90, 90, 180)"
+        )
+    return MerlGrid(*(int(v) for v in header))
+
+
+def write_merl(path, brdf: np.ndarray, grid: MerlGrid = FULL_GRID) -> None:
+    """Write a (n_cells, 3) BRDF in 1/sr as a MERL .binary; NaN is written as -1.
+
+    Negative values are refused (clamp them first); inf is refused. The file is written to a
+    temporary name beside ``path`` and renamed, so a failure never leaves a partial file.
+    """
+    brdf = np.asarray(brdf, dtype=np.float64)
+    if brdf.shape != (grid.size, 3):
+        raise MerlFileError(f"write_merl: BRDF must have shape {(grid.size, 3)}, got {brdf.shape}")
+    finite = np.isfinite(brdf)
+    if np.isinf(brdf).any():
+        raise MerlFileError(f"write_merl: {int(np.isinf(brdf).sum())} infinite values; refusing to write {path}")
+    if (brdf[finite] < 0).any():
+        raise MerlFileError(f"write_merl: negative BRDF values; clamp them before writing {path}")
+    stored = np.where(finite, brdf / RGB_SCALE, MISSING_STORED).T.astype("<f8")
+    header = np.array(grid.shape, dtype="<i4")
+    write_bytes_atomic(path, header.tobytes() + stored.tobytes())
+
+
+def valid_to_full(values: np.ndarray, grid: MerlGrid = FULL_GRID) -> np.ndarray:
+    """Scatter (n_valid, 3) values on the valid cells into a (n_cells, 3) array, NaN elsewhere."""
+    full = np.full((grid.size, 3), np.nan)
+    full[grid.valid_cells] = values
+    return full

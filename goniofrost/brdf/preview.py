@@ -1,0 +1,191 @@
+"""Render spheres of a tabulated BRDF and compare them with a reference (the paper's figures).
+
+Each sphere is rendered orthographically: the camera looks along -z, so every pixel sees the
+view direction w_o = +z in the world frame; the pixel's surface normal is that of a unit
+sphere. A few directional lights give radiance L = sum_k E_k f(w_i, w_o) cos theta_i (E_k the
+light's irradiance at normal incidence, f in 1/sr). The BRDF is looked up in the MERL grid cell
+of each pixel's (theta_h, theta_d, phi_d), exactly as a renderer reading the .binary would.
+
+The rendering SNR (paper, Figs. 8 and 11) compares the HDR images before tone mapping:
+``SNR_dB = 10 log10(sum ref^2 / sum (ref - est)^2)`` over every pixel, channel and light.
+Tone mapping follows the paper: a common exposure, then a gamma of 2.0.
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
+from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.brdf.merl_file import _read_header, read_merl
+
+GAMMA = 2.0
+ERROR_GAIN = 10.0  # the paper multiplies error images by 10
+
+# (name, unit direction towards the light in the world frame, irradiance RGB at normal incidence)
+# A key light from the upper front, a side light and a grazing back light that shows the
+# Fresnel rise and retro-reflection, the three regimes a sparse reconstruction can get wrong.
+DEFAULT_LIGHTS: tuple[tuple[str, tuple[float, float, float], float], ...] = (
+    ("front", (-0.35, 0.45, 0.82), 1.0),
+    ("side", (-0.94, 0.20, 0.28), 1.0),
+    ("back", (0.55, 0.30, -0.78), 1.0),
+)
+
+
+@dataclass(frozen=True)
+class Preview:
+    """A rendered comparison: HDR images (n_lights, size, size, 3) and the rendering SNR in dB.
+
+    ``reference`` is None when no reference was given; ``snr_db`` is then None too.
+    """
+
+    estimate: np.ndarray
+    reference: np.ndarray | None
+    snr_db: float | None
+    light_names: tuple[str, ...]
+
+
+def sphere_normals(size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (size, size, 3) of an orthographic unit sphere and its (size, size) mask.
+
+    Row 0 is the top of the image (+y); pixels outside the disc get the normal (0, 0, 1).
+    """
+    centres = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    x, y = np.meshgrid(centres, -centres)
+    r2 = x * x + y * y
+    mask = r2 < 1.0
+    z = np.sqrt(np.clip(1.0 - r2, 0.0, None))
+    normals = np.stack([np.where(mask, x, 0.0), np.where(mask, y, 0.0), np.where(mask, z, 1.0)], -1)
+    return normals, mask
+
+
+def tangent_frame(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangent and bitangent (..., 3) completing each normal to an orthonormal frame.
+
+    Branchless construction of Duff et al. 2017 ("Building an orthonormal basis, revisited"),
+    stable for every normal; the azimuth of the frame does not matter for an isotropic BRDF.
+    """
+    nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
+    sign = np.where(nz >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    tangent = np.stack([1.0 + sign * nx * nx * a, sign * b, -sign * nx], -1)
+    bitangent = np.stack([b, sign + ny * ny * a, -ny], -1)
+    return tangent, bitangent
+
+
+def lookup(brdf: np.ndarray, grid: MerlGrid, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
+    """BRDF (..., 3) in 1/sr at local directions (..., 3) by MERL cell lookup; missing -> 0."""
+    flat = grid.angles_to_flat(*dirs_to_half_diff(w_i, w_o))
+    values = brdf[flat]
+    return np.where(np.isfinite(values), values, 0.0)
+
+
+def render_sphere(brdf: np.ndarray, grid: MerlGrid, light, size: int = 192) -> np.ndarray:
+    """HDR radiance image (size, size, 3) of a sphere lit by one directional light.
+
+    ``brdf`` is (grid.size, 3) in 1/sr (NaN = missing); ``light`` is (direction, irradiance).
+    Pixels off the sphere or facing away from the light are 0.
+    """
+    direction, irradiance = light
+    to_light = np.asarray(direction, dtype=np.float64)
+    to_light = to_light / np.linalg.norm(to_light)
+    normals, mask = sphere_normals(size)
+    tangent, bitangent = tangent_frame(normals)
+    frame = np.stack([tangent, bitangent, normals], -2)          # (size, size, 3 axes, 3)
+    w_i = frame @ to_light                                       # light in each pixel's local frame
+    w_o = frame @ np.array([0.0, 0.0, 1.0])                      # the camera looks along -z
+    lit = mask & (w_i[..., 2] > 0) & (w_o[..., 2] > 0)
+    radiance = lookup(brdf, grid, w_i, w_o) * (irradiance * np.clip(w_i[..., 2], 0, None))[..., None]
+    return np.where(lit[..., None], radiance, 0.0)
+
+
+def render_set(brdf: np.ndarray, grid: MerlGrid, lights=DEFAULT_LIGHTS, size: int = 192) -> np.ndarray:
+    """HDR images (n_lights, size, size, 3), one sphere per light of ``lights``."""
+    return np.stack([render_sphere(brdf, grid, (d, e), size) for _, d, e in lights])
+
+
+def rendering_snr_db(reference: np.ndarray, estimate: np.ndarray) -> float:
+    """10 log10(sum ref^2 / sum (ref - est)^2) over HDR images of equal shape; inf if identical."""
+    reference, estimate = np.asarray(reference, np.float64), np.asarray(estimate, np.float64)
+    if reference.shape != estimate.shape:
+        raise ValueError(f"rendering_snr_db: shapes differ: {reference.shape} vs {estimate.shape}")
+    noise = float(np.sum((reference - estimate) ** 2))
+    signal = float(np.sum(reference ** 2))
+    if noise == 0.0:
+        return float("inf")
+    return 10.0 * np.log10(signal / noise) if signal > 0 else float("-inf")
+
+
+def exposure_for(hdr: np.ndarray, percentile: float = 97.0) -> float:
+    """A scale that maps the ``percentile`` of the lit HDR values to display white."""
+    lit = hdr[hdr > 0]
+    level = float(np.percentile(lit, percentile)) if lit.size else 1.0
+    return 1.0 / level if level > 0 else 1.0
+
+
+def tone_map(hdr: np.ndarray, exposure: float) -> np.ndarray:
+    """Display values in [0, 1]: scale by ``exposure``, clip, then gamma 2.0 (as the paper)."""
+    return np.clip(hdr * exposure, 0.0, 1.0) ** (1.0 / GAMMA)
+
+
+def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size: int = 192) -> Preview:
+    """Render a MERL file (and optionally a reference MERL file) under ``lights``."""
+    estimate = _render_file(estimate_path, lights, size)
+    reference = None if reference_path is None else _render_file(reference_path, lights, size)
+    return _preview(estimate, reference, lights)
+
+
+def preview_of(estimate: np.ndarray, grid: MerlGrid, reference: np.ndarray | None = None,
+               lights=DEFAULT_LIGHTS, size: int = 192) -> Preview:
+    """Render BRDF arrays (grid.size, 3) in 1/sr (NaN = missing), as ``make_preview`` does files."""
+    hdr = render_set(estimate, grid, lights, size)
+    return _preview(hdr, None if reference is None else render_set(reference, grid, lights, size), lights)
+
+
+def _preview(estimate: np.ndarray, reference: np.ndarray | None, lights) -> Preview:
+    snr = None if reference is None else rendering_snr_db(reference, estimate)
+    return Preview(estimate, reference, snr, tuple(name for name, _, _ in lights))
+
+
+def _render_file(path, lights, size: int) -> np.ndarray:
+    path = Path(path)
+    grid = _read_header(path)  # the file's own grid: a small-grid file renders as well
+    return render_set(read_merl(path, grid), grid, lights, size)
+
+
+def compose(preview: Preview) -> np.ndarray:
+    """Tone-mapped image grid (rows = lights; columns = estimate | reference | error x10).
+
+    Returns float (n_lights * size, n_columns * size, 3) in [0, 1]; every column shares the
+    reference's exposure so that brightness differences are real.
+    """
+    exposure = exposure_for(preview.reference if preview.reference is not None else preview.estimate)
+    columns = [preview.estimate]
+    if preview.reference is not None:
+        columns += [preview.reference, ERROR_GAIN * np.abs(preview.reference - preview.estimate)]
+    rows = [np.concatenate([tone_map(col[k], exposure) for col in columns], axis=1)
+            for k in range(preview.estimate.shape[0])]
+    return np.concatenate(rows, axis=0)
+
+
+def write_png(path, preview: Preview, title: str = "") -> None:
+    """Write the composed preview with column labels and the SNR as a PNG (atomically)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    image = compose(preview)
+    labels = ["estimate"] + (["reference", f"|error| x{ERROR_GAIN:g}"] if preview.reference is not None else [])
+    fig = Figure(figsize=(2.2 * len(labels), 2.2 * len(preview.light_names) + 0.6), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 0.9))
+    ax.imshow(image, interpolation="nearest")
+    ax.set_axis_off()
+    snr = "" if preview.snr_db is None else f"   rendering SNR {preview.snr_db:.2f} dB"
+    fig.suptitle(f"{title}{snr}\n" + "  |  ".join(labels), fontsize=9)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", facecolor="white")
+    write_bytes_atomic(path, buffer.getvalue())

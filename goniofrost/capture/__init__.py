@@ -1,0 +1,1 @@
+"""The capture session: checked inputs, plan steps, the engine and its hardware, journal, report, runner."""

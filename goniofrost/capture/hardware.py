@@ -1,0 +1,111 @@
+"""Connect the devices of a rig for a session: a simulated rig's own devices, or a real rig's.
+
+``open_hardware(rig, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
+calibrator, clock). A rig marked ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this
+process: its devices speak the real protocols over pseudo-terminals and loopback TCP, and the
+real drivers connect to them exactly as to hardware. The simulated camera sees the pose through
+forward kinematics of the simulated axes' true positions. On leaving, every axis is stopped and
+every connection closed, whatever happened.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+log = logging.getLogger(__name__)
+
+
+class WallClock:
+    """Real seconds (a real rig's session clock)."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+
+@dataclass
+class RigHardware:
+    """What the session engine drives (see ``goniofrost.capture.engine.Hardware``).
+
+    ``simulation`` is the running ``SimulatedRig`` on a simulated rig (for fault injection and
+    ground truth), else None.
+    """
+
+    axes: dict
+    lamp: object
+    calibrator: object
+    clock: object
+    camera: object = None
+    simulation: object = None
+    extra: dict = field(default_factory=dict)
+
+
+@contextmanager
+def open_hardware(rig, *, material: str | None = None, seed: int | None = None, speedup: float | None = None,
+                  on_ready=None):
+    """Connect ``rig``'s devices and yield a RigHardware; stop and close everything on exit.
+
+    ``on_ready(hardware)`` (optional) is called once everything is connected (tests use it to
+    inject faults into the simulated devices).
+    """
+    opener = _simulated if rig.simulated else _real
+    with opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+        if on_ready is not None:
+            on_ready(hardware)
+        yield hardware
+
+
+@contextmanager
+def _simulated(rig, *, material, seed, speedup):
+    from calib import Calibrator
+    from drivers.rig_devices import RigDevices
+    from planner.kinematics import forward
+    from sim.camera import SimCamera
+    from sim.rig import SimulatedRig
+
+    sim_section = rig.sim or {}
+    seed = int(sim_section.get("seed", 0) if seed is None else seed)
+    with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
+        simulation.start()
+        devices = RigDevices.from_sections(simulation.resolved_driver_sections())
+        with _connected(devices):
+            camera = SimCamera(material, lambda: forward(rig, simulation.true_joints_deg()),
+                               simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed)
+            camera.connect()
+            try:
+                calibrator = Calibrator(camera, devices.lamp, rig.camera)
+                yield RigHardware(devices.axes, devices.lamp, calibrator, simulation.clock, camera, simulation)
+            finally:
+                camera.close()
+
+
+@contextmanager
+def _real(rig, *, material, seed, speedup):
+    from calib import Calibrator
+    from calib.open_camera import open_camera
+    from drivers.rig_devices import RigDevices
+
+    devices = RigDevices.from_sections(rig)
+    with _connected(devices):
+        camera = open_camera(rig)
+        camera.connect()
+        try:
+            yield RigHardware(devices.axes, devices.lamp, Calibrator(camera, devices.lamp, rig.camera),
+                              WallClock(), camera)
+        finally:
+            camera.close()
+
+
+@contextmanager
+def _connected(devices):
+    """connect_all, then on any exit stop every axis and close every connection."""
+    devices.connect_all()
+    try:
+        yield devices
+    finally:
+        for action in (devices.stop_all, devices.close_all):
+            try:
+                action()
+            except Exception as exc:  # noqa: BLE001 - keep closing; the session's own error matters more
+                log.warning("while releasing the rig: %s", exc)

@@ -1,0 +1,148 @@
+"""Checks before anything moves: the rig, the plan and the model must belong together.
+
+A plan names the model it was selected with (``model.path`` and ``model.hash``) and the rig it
+was scheduled for (``rig.kinematic_hash``); every sample carries its joint targets. Anything
+that does not match is refused here with a ConfigError naming the file, the field, what was
+expected and what was found, before a single device is connected.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SessionInputs:
+    """A rig, a plan and its model that were checked to belong together.
+
+    ``cells``: int64 (n,) flat grid cells of the plan's samples in capture order;
+    ``positions``: int64 (n,) their rows in the model (indices into ``model.grid.valid_cells``).
+    """
+
+    rig: object
+    plan: dict
+    plan_path: Path
+    model: object
+    model_path: Path
+    cells: np.ndarray
+    positions: np.ndarray
+    white_joints: dict
+
+    @property
+    def samples(self) -> list[dict]:
+        return self.plan["samples"]
+
+
+def load_inputs(rig_path, plan_path) -> SessionInputs:
+    """Load the rig file, the plan and the plan's model, and check they belong together."""
+    from goniofrost.frost.model import FrostModel
+    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.capture.rig_file import load_rig
+
+    rig = load_rig(rig_path)
+    plan_path = Path(plan_path)
+    plan = read_plan(plan_path)
+    model_path = resolve_model_path(plan, plan_path)
+    model = FrostModel.load(model_path)
+    check_model(plan, plan_path, model, model_path)
+    check_rig(plan, plan_path, rig)
+    check_joints(plan, plan_path, rig)
+    cells = plan_cells(plan, plan_path, model.grid)
+    return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
+                         white_reference_joints(rig))
+
+
+def resolve_model_path(plan: dict, plan_path: Path) -> Path:
+    """The plan's model path: as written, else relative to the plan file's folder."""
+    written = Path(_field(plan, plan_path, "model", dict)["path"])
+    if written.is_absolute() or written.exists():
+        return written
+    beside = plan_path.parent / written
+    return beside if beside.exists() else written
+
+
+def check_model(plan: dict, plan_path, model, model_path) -> None:
+    """Refuse a plan selected with another model (content hashes differ)."""
+    want = _field(plan, plan_path, "model", dict).get("hash")
+    if want != model.content_hash:
+        raise ConfigError(plan_path, "model.hash", f"the hash of the model {model_path} ({model.content_hash[:16]}...)",
+                          f"{str(want)[:16]}... (this plan was selected with another model)")
+
+
+def check_rig(plan: dict, plan_path, rig) -> None:
+    """Refuse a plan scheduled for another rig (kinematic hashes differ) or not scheduled at all."""
+    section = plan.get("rig")
+    if not isinstance(section, dict) or "kinematic_hash" not in section:
+        raise ConfigError(plan_path, "rig", "a plan scheduled for a rig (goniofrost plan --rig RIG.yaml)",
+                          section)
+    if section["kinematic_hash"] != rig.kinematic_hash:
+        raise ConfigError(plan_path, "rig.kinematic_hash",
+                          f"{rig.kinematic_hash} of rig {rig.name!r} ({rig.source})",
+                          f"{section['kinematic_hash']} (scheduled for rig {section.get('name')!r}, "
+                          f"{section.get('file')})")
+
+
+def check_joints(plan: dict, plan_path, rig) -> None:
+    """Refuse any sample whose joint targets are missing, not finite or outside an axis's limits."""
+    samples = _field(plan, plan_path, "samples", list)
+    if not samples:
+        raise ConfigError(plan_path, "samples", "at least one sample", [])
+    for i, sample in enumerate(samples):
+        joints = sample.get("joints") if isinstance(sample, dict) else None
+        if not isinstance(joints, dict):
+            raise ConfigError(plan_path, f"samples[{i}].joints", "joint targets {axis: degrees}", joints)
+        for name, spec in rig.axes.items():
+            _check_target(plan_path, f"samples[{i}].joints.{name}", joints.get(name), spec.limits_deg)
+
+
+def _check_target(plan_path, keypath: str, value, limits) -> None:
+    lo, hi = limits
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ConfigError(plan_path, keypath, "a finite angle in degrees", value)
+    if not lo <= value <= hi:
+        raise ConfigError(plan_path, keypath, f"an angle within the axis limits [{lo:g}, {hi:g}] deg", value)
+
+
+def plan_cells(plan: dict, plan_path, grid) -> np.ndarray:
+    """Flat cells (int64, (n,)) of the plan's samples; each must be a valid cell of the model grid."""
+    cells = []
+    for i, sample in enumerate(plan["samples"]):
+        cell = sample.get("cell")
+        flat = int(grid.flat_index(*cell)) if isinstance(cell, (list, tuple)) and len(cell) == 3 else cell
+        if not isinstance(flat, (int, np.integer)) or not 0 <= flat < grid.size or not grid.valid_mask[flat]:
+            raise ConfigError(plan_path, f"samples[{i}].cell", f"a valid cell of the model's {grid.shape} grid", cell)
+        cells.append(int(flat))
+    return np.asarray(cells, dtype=np.int64)
+
+
+def _field(doc: dict, path, key: str, kind: type):
+    value = doc.get(key) if isinstance(doc, dict) else None
+    if not isinstance(value, kind):
+        raise ConfigError(path, key, f"a {kind.__name__}", value)
+    return value
+
+
+def white_reference_joints(rig) -> dict:
+    """The pose {axis: deg} showing the white tile at the camera section's nominal angles.
+
+    The light lies in the tile's x-z plane at theta_i and the camera opposite it at theta_o
+    (DESIGN.md: only theta_i, theta_o and their azimuth difference matter).
+    """
+    from calib import validate_camera_section
+    from planner.kinematics import inverse
+
+    white = validate_camera_section(rig.camera, rig.source)["white_reference"]
+    ti, to = np.radians(white["theta_i_deg"]), np.radians(white["theta_o_deg"])
+    w_i, w_o = np.array([np.sin(ti), 0.0, np.cos(ti)]), np.array([-np.sin(to), 0.0, np.cos(to)])
+    ik = inverse(rig, w_i, w_o)
+    if not ik.valid.any():
+        raise ConfigError(rig.source, "camera.white_reference",
+                          "angles (theta_i_deg, theta_o_deg) the rig can reach",
+                          [white["theta_i_deg"], white["theta_o_deg"]])
+    joints = ik.joints[int(np.argmax(ik.valid))]
+    return {name: float(v) for name, v in zip(rig.joint_names, joints)}

@@ -1,0 +1,254 @@
+"""The session journal: every captured sample, committed to SQLite the moment it is measured.
+
+One file ``DIR/session.sqlite`` (WAL mode, ``synchronous=FULL``: a committed transaction
+survives SIGKILL and power loss) holds
+
+* ``meta``: the session's plan (JSON), rig file text and kinematic hash, model path and hash,
+  the simulated material, the format version;
+* ``calibration``: the calibration record (JSON), at most one row;
+* ``samples``: one row per captured plan sample, keyed by its plan index (so a sample can
+  never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
+  written in ONE transaction after the sample is measured;
+* ``events``: what happened to the devices and the session (homing, faults, interruptions).
+
+``samples.csv`` beside it is a derived view (``SamplesCsv``): appended, flushed and fsynced
+per sample, and rewritten from the journal on resume so that a torn last line cannot survive.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.core.errors import GoniofrostError
+
+FORMAT_VERSION = 1
+CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b",
+               "sigma_r", "sigma_g", "sigma_b", "snr", "plan_index")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS calibration (
+    id INTEGER PRIMARY KEY CHECK (id = 1), record TEXT NOT NULL, created_utc REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS samples (
+    plan_index INTEGER PRIMARY KEY, cell INTEGER NOT NULL, status TEXT NOT NULL,
+    theta_h_deg REAL NOT NULL, theta_d_deg REAL NOT NULL, phi_d_deg REAL NOT NULL,
+    r REAL NOT NULL, g REAL NOT NULL, b REAL NOT NULL,
+    sigma_r REAL NOT NULL, sigma_g REAL NOT NULL, sigma_b REAL NOT NULL, snr REAL NOT NULL,
+    joints TEXT NOT NULL, exposures_s TEXT NOT NULL, frames_taken INTEGER NOT NULL,
+    frames_skipped INTEGER NOT NULL, raw_paths TEXT NOT NULL, lamp_relative REAL NOT NULL,
+    move_s REAL NOT NULL, capture_s REAL NOT NULL, started_utc REAL NOT NULL,
+    committed_utc REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, t_utc REAL NOT NULL, kind TEXT NOT NULL,
+    axis TEXT, message TEXT NOT NULL, data TEXT NOT NULL);
+"""
+
+
+class JournalError(GoniofrostError):
+    """A session journal that cannot be created, opened or continued."""
+
+
+@dataclass(frozen=True)
+class SampleRecord:
+    """One captured sample as journaled. Angles in degrees (cell lower edges), BRDF in 1/sr.
+
+    ``rgb``/``sigma`` are (3,) tuples; ``joints`` maps axis name -> degrees actually reached;
+    ``move_s``/``capture_s`` are the (simulated or real) seconds spent moving and capturing;
+    ``started_utc``/``committed_utc`` are Unix times.
+    """
+
+    plan_index: int
+    cell: int
+    theta_h_deg: float
+    theta_d_deg: float
+    phi_d_deg: float
+    rgb: tuple[float, float, float]
+    sigma: tuple[float, float, float]
+    snr: float
+    joints: dict = field(default_factory=dict)
+    exposures_s: tuple = ()
+    frames_taken: int = 0
+    frames_skipped: int = 0
+    raw_paths: tuple = ()
+    lamp_relative: float = 1.0
+    move_s: float = 0.0
+    capture_s: float = 0.0
+    started_utc: float = 0.0
+    committed_utc: float = 0.0
+    status: str = "ok"
+
+    def csv_row(self) -> str:
+        """The samples.csv line (no newline); floats in repr form so values round-trip exactly."""
+        values = (self.theta_h_deg, self.theta_d_deg, self.phi_d_deg, *self.rgb, *self.sigma, self.snr)
+        return ",".join([*(repr(float(v)) for v in values), str(int(self.plan_index))])
+
+
+class Journal:
+    """An open session journal (``Journal.create`` for a new session, ``Journal.open`` to resume)."""
+
+    def __init__(self, path: Path, connection: sqlite3.Connection) -> None:
+        self.path = path
+        self._db = connection
+
+    # ----- opening ------------------------------------------------------------------------
+    @classmethod
+    def create(cls, path, meta: dict) -> "Journal":
+        """Start a new journal at ``path`` holding ``meta`` (str -> JSON-serialisable)."""
+        path = Path(path)
+        if path.exists():
+            raise JournalError(f"{path}: a session journal already exists; pass --resume to continue it "
+                               f"or choose a new --session folder")
+        journal = cls(path, _connect(path))
+        with journal._transaction() as db:
+            db.executemany("INSERT INTO meta VALUES (?, ?)",
+                           [(k, json.dumps(v)) for k, v in {**meta, "format_version": FORMAT_VERSION}.items()])
+        return journal
+
+    @classmethod
+    def open(cls, path) -> "Journal":
+        """Open an existing journal to continue it."""
+        path = Path(path)
+        if not path.is_file():
+            raise JournalError(f"{path}: no session journal to resume (expected a file made by goniofrost capture)")
+        journal = cls(path, _connect(path))
+        version = journal.meta().get("format_version")
+        if version != FORMAT_VERSION:
+            journal.close()
+            raise JournalError(f"{path}: meta.format_version: expected {FORMAT_VERSION}, found {version!r}")
+        return journal
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> "Journal":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ----- reading ------------------------------------------------------------------------
+    def meta(self) -> dict:
+        """The session's meta data (key -> decoded JSON value)."""
+        return {k: json.loads(v) for k, v in self._db.execute("SELECT key, value FROM meta")}
+
+    def calibration(self) -> dict | None:
+        """The stored calibration record, or None before calibration."""
+        row = self._db.execute("SELECT record FROM calibration WHERE id = 1").fetchone()
+        return None if row is None else json.loads(row[0])
+
+    def samples(self) -> list[SampleRecord]:
+        """Every committed sample, in plan order."""
+        cursor = self._db.execute("SELECT * FROM samples ORDER BY plan_index")
+        names = [c[0] for c in cursor.description]
+        return [_record_from_row(dict(zip(names, row))) for row in cursor]
+
+    def done_indices(self) -> set[int]:
+        """Plan indices of the samples already committed."""
+        return {row[0] for row in self._db.execute("SELECT plan_index FROM samples")}
+
+    def events(self) -> list[dict]:
+        """Every event in order: dicts with t_utc, kind, axis, message, data."""
+        rows = self._db.execute("SELECT t_utc, kind, axis, message, data FROM events ORDER BY id")
+        return [{"t_utc": t, "kind": k, "axis": a, "message": m, "data": json.loads(d)} for t, k, a, m, d in rows]
+
+    # ----- writing ------------------------------------------------------------------------
+    def set_calibration(self, record: dict) -> None:
+        """Store (or replace) the calibration record in one transaction."""
+        with self._transaction() as db:
+            db.execute("INSERT OR REPLACE INTO calibration VALUES (1, ?, ?)", (json.dumps(record), time.time()))
+
+    def commit_sample(self, record: SampleRecord) -> None:
+        """Store one measured sample in ONE durable transaction; a plan index twice is refused."""
+        row = _row_from_record(record)
+        try:
+            with self._transaction() as db:
+                db.execute(f"INSERT INTO samples ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
+                           tuple(row.values()))
+        except sqlite3.IntegrityError:
+            raise JournalError(f"{self.path}: plan sample {record.plan_index} is already in the journal") from None
+
+    def add_event(self, kind: str, message: str, axis: str | None = None, data: dict | None = None) -> None:
+        """Record a device or session event (durably: a fault must outlive the process)."""
+        with self._transaction() as db:
+            db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (time.time(), kind, axis, message, json.dumps(data or {}, default=str)))
+
+    def _transaction(self):
+        return _Transaction(self._db)
+
+
+class _Transaction:
+    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any exception)."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+
+    def __enter__(self) -> sqlite3.Connection:
+        self.db.execute("BEGIN IMMEDIATE")
+        return self.db
+
+    def __exit__(self, exc_type, *_) -> None:
+        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        db = sqlite3.connect(path, isolation_level=None)  # autocommit: transactions are explicit
+        db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA synchronous=FULL")
+        db.executescript(_SCHEMA)
+    except sqlite3.DatabaseError as exc:
+        raise JournalError(f"{path}: not a usable session journal ({exc})") from None
+    return db
+
+
+_JSON_FIELDS = ("joints", "exposures_s", "raw_paths")
+
+
+def _row_from_record(record: SampleRecord) -> dict:
+    row = asdict(record)
+    for i, channel in enumerate("rgb"):
+        row[channel] = float(record.rgb[i])
+        row[f"sigma_{channel}"] = float(record.sigma[i])
+    del row["rgb"], row["sigma"]
+    for name in _JSON_FIELDS:
+        row[name] = json.dumps(row[name])
+    return row
+
+
+def _record_from_row(row: dict) -> SampleRecord:
+    values = {f.name: row[f.name] for f in fields(SampleRecord) if f.name in row}
+    values["rgb"] = (row["r"], row["g"], row["b"])
+    values["sigma"] = (row["sigma_r"], row["sigma_g"], row["sigma_b"])
+    values["joints"] = json.loads(row["joints"])
+    values["exposures_s"] = tuple(json.loads(row["exposures_s"]))
+    values["raw_paths"] = tuple(json.loads(row["raw_paths"]))
+    return SampleRecord(**values)
+
+
+class SamplesCsv:
+    """``samples.csv``: the DESIGN.md samples format plus uncertainty columns, one line per sample.
+
+    Columns: ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r,sigma_g,sigma_b,snr,plan_index``.
+    """
+
+    def __init__(self, path) -> None:
+        self.path = Path(path)
+
+    def rewrite(self, records) -> None:
+        """Replace the file atomically with exactly ``records`` (the journal is the truth)."""
+        text = ",".join(CSV_COLUMNS) + "\n" + "".join(r.csv_row() + "\n" for r in records)
+        write_text_atomic(self.path, text)
+
+    def append(self, record: SampleRecord) -> None:
+        """Append one sample's line, flushed and fsynced before returning."""
+        with open(self.path, "a") as handle:
+            handle.write(record.csv_row() + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())

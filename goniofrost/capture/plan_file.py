@@ -1,0 +1,99 @@
+"""PLAN.json: the selected samples in measurement order, with their angles and directions.
+
+Layout (DESIGN.md "Command line")::
+
+    {"model": {"path": str, "hash": str}, "m": int, "selection_seconds": float,
+     "y_form": "all"|"firstm", "k": int, "residuals": [float, ...],
+     "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
+                  "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
+                  "w_i": [x, y, z], "w_o": [x, y, z]}, ...]}
+
+Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
+frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.core.errors import ConfigError
+from goniofrost.frost.model import FrostModel
+from goniofrost.frost.selection import Selection
+
+SAMPLE_FIELDS = ("cell", "theta_h_deg", "theta_d_deg", "phi_d_deg", "theta_i_deg", "theta_o_deg", "w_i", "w_o")
+TOP_FIELDS = ("model", "m", "selection_seconds", "samples")
+
+
+def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
+    """The PLAN.json content (a JSON-ready dict) for a selection made with ``model``."""
+    return {
+        "model": {"path": str(model_path), "hash": model.content_hash},
+        "m": selection.m,
+        "selection_seconds": round(float(selection.seconds), 6),
+        "y_form": selection.y_form,
+        "k": int(selection.k),
+        "residuals": [float(r) for r in selection.residuals],
+        "samples": sample_entries(model.grid, selection.cells),
+    }
+
+
+def sample_entries(grid, cells) -> list[dict]:
+    """One PLAN.json sample dict per flat cell index, in the given order."""
+    cells = np.asarray(cells, dtype=np.int64)
+    idx = np.stack(grid.unravel(cells), axis=1)
+    th, td, pd = (np.degrees(a) for a in grid.flat_angles(cells))
+    w_i, w_o = grid.cell_directions(cells)
+    th_i = np.degrees(np.arccos(np.clip(w_i[:, 2], -1, 1)))
+    th_o = np.degrees(np.arccos(np.clip(w_o[:, 2], -1, 1)))
+    return [{"cell": [int(v) for v in idx[s]], "theta_h_deg": float(th[s]), "theta_d_deg": float(td[s]),
+             "phi_d_deg": float(pd[s]), "theta_i_deg": float(th_i[s]), "theta_o_deg": float(th_o[s]),
+             "w_i": [float(v) for v in w_i[s]], "w_o": [float(v) for v in w_o[s]]}
+            for s in range(cells.size)]
+
+
+def write_plan(path, doc: dict) -> None:
+    """Write PLAN.json atomically (temporary file beside it, then rename)."""
+    write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
+
+
+def read_plan(path) -> dict:
+    """Read and validate PLAN.json; raise ConfigError naming the field on bad content."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(path, "", "an existing PLAN.json file", "no such file") from None
+    except (OSError, ValueError) as exc:
+        raise ConfigError(path, "", "valid JSON", str(exc)) from None
+    if not isinstance(doc, dict):
+        raise ConfigError(path, "", "a JSON object", type(doc).__name__)
+    for key in TOP_FIELDS:
+        if key not in doc:
+            raise ConfigError(path, key, "a field", "nothing")
+    model = doc["model"]
+    if not isinstance(model, dict) or not isinstance(model.get("path"), str) or not isinstance(model.get("hash"), str):
+        raise ConfigError(path, "model", '{"path": str, "hash": str}', model)
+    samples = doc["samples"]
+    if not isinstance(samples, list) or len(samples) != doc["m"]:
+        raise ConfigError(path, "samples", f"a list of m={doc['m']} samples", samples if not isinstance(samples, list) else f"{len(samples)} samples")
+    for i, sample in enumerate(samples):
+        _check_sample(path, i, sample)
+    return doc
+
+
+def _check_sample(path, i: int, sample) -> None:
+    if not isinstance(sample, dict):
+        raise ConfigError(path, f"samples[{i}]", "an object", sample)
+    for key in SAMPLE_FIELDS:
+        if key not in sample:
+            raise ConfigError(path, f"samples[{i}].{key}", "a field", "nothing")
+    cell = sample["cell"]
+    if not (isinstance(cell, list) and len(cell) == 3 and all(isinstance(v, int) for v in cell)):
+        raise ConfigError(path, f"samples[{i}].cell", "[i_th, i_td, i_pd] integers", cell)
+    for key in ("w_i", "w_o"):
+        vec = sample[key]
+        if not (isinstance(vec, list) and len(vec) == 3 and all(isinstance(v, (int, float)) for v in vec)):
+            raise ConfigError(path, f"samples[{i}].{key}", "[x, y, z] numbers", vec)

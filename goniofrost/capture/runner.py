@@ -1,0 +1,120 @@
+"""One capture session from files to results: check, journal, drive the rig, reconstruct, report.
+
+``capture`` is what ``goniofrost capture`` and ``goniofrost demo`` run. Everything that can be
+checked is checked before a device is connected: the rig file, the plan, the model, that they
+belong together, every joint target within its axis limits, the simulated material, and on
+``--resume`` that the journal was started with the same plan, rig and model.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from goniofrost.core.errors import ConfigError
+from goniofrost.capture.journal import Journal, JournalError
+
+JOURNAL_FILE = "session.sqlite"
+
+
+@dataclass
+class CaptureOutcome:
+    """What a finished session produced: the report dict, its readable summary, the folder."""
+
+    report: dict
+    summary: str
+    session_dir: Path
+
+
+def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
+            seed: int | None = None, speedup: float | None = None, progress: bool = True,
+            on_ready=None) -> CaptureOutcome:
+    """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
+
+    ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
+    ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
+    """
+    from goniofrost.capture.engine import SessionEngine
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.capture.report import summary_text, write_outputs
+
+    inputs = load_inputs(rig_path, plan_path)
+    material = check_material(inputs.rig, material)
+    check_sim_options(inputs.rig, seed, speedup)
+    session_dir = Path(session_dir)
+    meta = session_meta(inputs, material)
+    journal = open_journal(session_dir, meta, resume)
+    try:
+        done = journal.done_indices()
+        stats = None
+        if len(done) < len(inputs.samples):
+            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+                               on_ready=on_ready) as hardware:
+                stats = SessionEngine(inputs, hardware, journal, session_dir, progress=progress).run()
+        report = write_outputs(inputs, journal, stats, session_dir, material)
+    finally:
+        journal.close()
+    return CaptureOutcome(report, summary_text(report), session_dir)
+
+
+def check_material(rig, material: str | None) -> str | None:
+    """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig."""
+    if not rig.simulated:
+        if material is not None:
+            raise ConfigError("command line", "--material",
+                              "no material on a real rig (it measures the sample in front of it)", material)
+        return None
+    if material is None:
+        raise ConfigError("command line", "--material", f"SPEC:NAME of the material the simulated rig {rig.name!r} shows "
+                          "(e.g. builtin:NAME; see goniofrost materials --dataset builtin)", None)
+    from goniofrost.datasets import parse_material_spec
+    dataset, name = parse_material_spec(material)
+    return f"{dataset.spec}:{name}"
+
+
+def check_sim_options(rig, seed, speedup) -> None:
+    """--seed and --speedup only make sense on a simulated rig; a speed-up must be > 0."""
+    for option, value in (("--seed", seed), ("--speedup", speedup)):
+        if value is not None and not rig.simulated:
+            raise ConfigError("command line", option, f"no {option} for the real rig {rig.name!r} ({rig.source})",
+                              value)
+    if speedup is not None and not (speedup > 0 and speedup < float("inf")):
+        raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
+
+
+def session_meta(inputs, material: str | None) -> dict:
+    """What a journal records about its session (and what a resume must match)."""
+    return {
+        "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
+        "rig_file": str(inputs.rig.source), "rig_text": Path(inputs.rig.source).read_text(),
+        "rig_name": inputs.rig.name, "kinematic_hash": inputs.rig.kinematic_hash,
+        "model_path": str(inputs.model_path), "model_hash": inputs.model.content_hash,
+        "material": material,
+    }
+
+
+def plan_sha256(plan: dict) -> str:
+    """SHA-256 of the plan's canonical JSON (key order and whitespace do not matter)."""
+    return hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
+
+
+RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
+               ("model_hash", "model"), ("material", "simulated material"))
+
+
+def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
+    """Create the session's journal, or on resume open it and check it is the same session."""
+    path = session_dir / JOURNAL_FILE
+    if not resume:
+        return Journal.create(path, meta)
+    journal = Journal.open(path)
+    stored = journal.meta()
+    for key, what in RESUME_KEYS:
+        if stored.get(key) != meta[key]:
+            journal.close()
+            raise JournalError(f"{path}: meta.{key}: this session was started with another {what}: "
+                               f"expected {stored.get(key)!r}, found {meta[key]!r}; resume with the same "
+                               f"--rig, --plan and --material, or start a new --session")
+    return journal

@@ -1,0 +1,1 @@
+"""The FROST model: PCA dictionary (model, training), cell selection (SOMP), reconstruction, metrics."""

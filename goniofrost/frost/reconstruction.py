@@ -1,0 +1,176 @@
+"""Reconstruction: a few BRDF samples -> the full BRDF, by ridge regression on the dictionary.
+
+Paper section IV-B (DESIGN.md "Reconstruction"). Samples b (RGB, 1/sr) at l distinct valid
+cells are mapped with the model's w, r, eps and mu is subtracted; with D_a the first a atoms
+restricted to the sampled rows, s = (D_a^T D_a + eta I)^-1 D_a^T b (eta = 40 by default), then
+b_hat = D_a s + mu over every valid cell and x = (exp(b_hat)(r + eps) - eps) / w, clamped >= 0.
+
+Number of atoms a: ``n_atoms`` when given, else a = min(l, K) where l is the number of
+**distinct** sampled cells and K the model's components. For the cells of a FROST plan of m
+samples this is the paper's choice (a = m); with more samples than atoms all K atoms are used,
+with fewer the ridge term keeps the problem well posed even if a > l is forced.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.model import FrostModel
+
+ETA = 40.0
+CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b")
+
+
+class ReconstructionError(GoniofrostError, ValueError):
+    """Samples or options that cannot be used for reconstruction."""
+
+
+def reconstruct(model: FrostModel, positions, values, eta: float = ETA,
+                n_atoms: int | None = None) -> np.ndarray:
+    """Reconstruct a BRDF from samples; returns float64 (n_valid, 3) in 1/sr.
+
+    positions: int (l,) indices into ``grid.valid_cells`` (repeats allowed: averaged).
+    values: (l, 3) BRDF samples in 1/sr (finite, >= 0).
+    eta: ridge weight; n_atoms: atoms used (default min(distinct cells, K)).
+    """
+    positions, values = _check_samples(model, positions, values)
+    unique, mean_values = average_duplicates(positions, values)
+    mapped = model.to_log(mean_values, unique)
+    estimate = model.from_log(reconstruct_log(model, unique, mapped, eta, n_atoms))
+    overflow = int(np.count_nonzero(~np.isfinite(estimate)))
+    if overflow:
+        raise ReconstructionError(
+            f"reconstruction diverged: {overflow} of {estimate.size} estimated values overflow "
+            f"(beyond 1e308 1/sr); the {unique.size} sampled cells do not constrain the fit with "
+            f"eta={eta:g}: use eta > 0 (default {ETA:g}) or samples better spread over the BRDF")
+    return estimate
+
+
+def reconstruct_log(model: FrostModel, positions, log_values, eta: float = ETA,
+                    n_atoms: int | None = None) -> np.ndarray:
+    """Ridge reconstruction in the mapped domain.
+
+    positions: int (l,) distinct indices into valid cells.
+    log_values: (l, 3) or (l,) mapped samples ``model.to_log(values, positions)`` (mu NOT
+        subtracted). Returns float64 (n_valid, 3) (or (n_valid,)): D_a s + mu.
+    """
+    positions = np.asarray(positions, dtype=np.int64)
+    b = np.asarray(log_values, dtype=np.float64)
+    a = _atom_count(model, np.unique(positions).size, n_atoms)
+    if not (np.isfinite(eta) and eta >= 0):
+        raise ReconstructionError(f"eta: expected a finite number >= 0, found {eta!r}")
+    mu = np.asarray(model.mean, dtype=np.float64)
+    d_l = np.asarray(model.dictionary[positions, :a], dtype=np.float64)
+    rhs = b - (mu[positions][:, None] if b.ndim == 2 else mu[positions])
+    s = np.linalg.solve(d_l.T @ d_l + eta * np.eye(a), d_l.T @ rhs)
+    # (n x a) @ (a x 3) is too thin for OpenBLAS threads to pay off (they spin on a busy host).
+    with threadpool_limits(limits=1, user_api="blas"):
+        estimate = model.dictionary[:, :a] @ s.astype(np.float32)
+    return estimate.astype(np.float64) + (mu[:, None] if b.ndim == 2 else mu)
+
+
+def _atom_count(model: FrostModel, distinct: int, n_atoms) -> int:
+    k = model.n_components
+    if n_atoms is None:
+        return max(1, min(distinct, k))
+    if not isinstance(n_atoms, (int, np.integer)) or not 1 <= n_atoms <= k:
+        raise ReconstructionError(f"n_atoms: expected an integer in [1, {k}], found {n_atoms!r}")
+    return int(n_atoms)
+
+
+def average_duplicates(positions: np.ndarray, values: np.ndarray):
+    """Distinct positions (ascending) and the mean value of the samples at each; (u,), (u, 3)."""
+    unique, inverse = np.unique(positions, return_inverse=True)
+    sums = np.zeros((unique.size, values.shape[1]))
+    np.add.at(sums, inverse, values)
+    return unique, sums / np.bincount(inverse, minlength=unique.size)[:, None]
+
+
+def _check_samples(model: FrostModel, positions, values):
+    positions = np.asarray(positions)
+    values = np.asarray(values, dtype=np.float64)
+    if positions.ndim != 1 or positions.size == 0 or values.shape != (positions.size, 3):
+        raise ReconstructionError(
+            f"samples: expected positions (l,) with l >= 1 and values (l, 3), found {positions.shape} and {values.shape}")
+    if not np.issubdtype(positions.dtype, np.integer):
+        raise ReconstructionError(f"samples: positions must be integers, found {positions.dtype}")
+    bad = (positions < 0) | (positions >= model.grid.n_valid)
+    if bad.any():
+        raise ReconstructionError(f"samples: position {int(positions[bad][0])} is not a valid cell (expected 0..{model.grid.n_valid - 1})")
+    _check_values(values, lambda i: f"sample {i}")
+    return positions.astype(np.int64), values
+
+
+def _check_values(values: np.ndarray, where) -> None:
+    """Refuse NaN, inf and negative BRDF values, naming the first offending sample."""
+    for test, what in ((np.isnan, "NaN"), (np.isinf, "infinite"), (lambda v: v < 0, "negative")):
+        bad = np.argwhere(test(values))
+        if bad.size:
+            i, c = bad[0]
+            raise ReconstructionError(
+                f"{where(i)}: {what} value {values[i, c]} in channel {'rgb'[c]}; expected a finite BRDF >= 0 (1/sr)")
+
+
+# ----- SAMPLES.csv ---------------------------------------------------------------------
+def read_samples_csv(path, grid: MerlGrid):
+    """Read SAMPLES.csv (header theta_h_deg,theta_d_deg,phi_d_deg,r,g,b; extra columns allowed).
+
+    Returns (cells int64 (l,) flat indices, values float64 (l, 3) in 1/sr, extra: dict of
+    column name -> list of strings). Raises ReconstructionError naming the file, line and column
+    for an empty file, a missing column, a non-number, NaN/inf/negative values or a cell that is
+    not valid on the grid.
+    """
+    path = Path(path)
+    header, rows = _read_csv_rows(path)
+    index = {name: header.index(name) for name in CSV_COLUMNS}
+    numbers = np.array([[_number(path, line, row, name, index[name]) for name in CSV_COLUMNS]
+                        for line, row in rows], dtype=np.float64)
+    lines = [line for line, _ in rows]
+    _check_values(numbers[:, 3:], lambda i: f"{path}: line {lines[i]}")
+    angles = numbers[:, :3]
+    if not np.isfinite(angles).all():
+        i = int(np.argwhere(~np.isfinite(angles))[0][0])
+        raise ReconstructionError(f"{path}: line {lines[i]}: angles must be finite numbers of degrees")
+    cells = grid.angles_to_flat(*np.radians(angles).T)
+    invalid = grid.valid_position(cells) < 0
+    if invalid.any():
+        i = int(np.flatnonzero(invalid)[0])
+        raise ReconstructionError(
+            f"{path}: line {lines[i]}: angles {tuple(angles[i])} fall in cell "
+            f"{tuple(int(v) for v in grid.unravel(cells[i]))}, which is not a valid cell (light or view below the surface)")
+    extra = {name: [row[col] for _, row in rows] for col, name in enumerate(header) if name not in CSV_COLUMNS}
+    return cells.astype(np.int64), numbers[:, 3:], extra
+
+
+def _read_csv_rows(path: Path):
+    try:
+        with path.open(newline="") as handle:
+            table = [(i + 1, row) for i, row in enumerate(csv.reader(handle)) if any(c.strip() for c in row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise ReconstructionError(f"{path}: cannot read samples CSV ({exc})") from exc
+    if not table:
+        raise ReconstructionError(f"{path}: empty file; expected the header {','.join(CSV_COLUMNS)} and one row per sample")
+    header = [c.strip() for c in table[0][1]]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise ReconstructionError(f"{path}: missing column(s) {missing}; expected header {','.join(CSV_COLUMNS)} (extra columns allowed), found {header}")
+    rows = table[1:]
+    if not rows:
+        raise ReconstructionError(f"{path}: no samples after the header")
+    for line, row in rows:
+        if len(row) != len(header):
+            raise ReconstructionError(f"{path}: line {line}: {len(row)} fields, expected {len(header)} as in the header")
+    return header, rows
+
+
+def _number(path, line, row, name, col) -> float:
+    text = row[col].strip()
+    try:
+        return float(text)
+    except ValueError:
+        raise ReconstructionError(f"{path}: line {line}: column {name}: expected a number, found {text!r}") from None

@@ -1,0 +1,198 @@
+"""Training: tabulated materials -> log-relative map -> PCA dictionary (a FrostModel).
+
+Pipeline (DESIGN.md "Training", paper section IV). With T the (n_valid, t) matrix of training
+columns (t = 3 per material, column ``3 * material + channel``):
+
+1. weight every row by w = clip(cos theta_i cos theta_o, 0.01, 1);
+2. reference r = per-row median of w T; map L = log((w T + eps) / (r + eps)), eps = 0.001;
+3. subtract the per-row mean mu: X = L - mu;
+4. PCA X = U S V^T from the t x t Gram matrix G = X^T X, accumulated in float64 over chunks
+   of rows (never an n x n matrix); its eigenvectors are V and eigenvalues S^2; D = U S = X V.
+
+Everything row-wise (steps 1-3 and G) is done in one chunked pass; X is kept in float32
+(n x t, 1.75 GB for 131 materials at full size) for the second pass D = X V.
+Why the Gram route and not a randomized SVD: see benchmarks/frost_speed.py (measured there;
+the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 multiply-adds).
+"""
+from __future__ import annotations
+
+import sys
+from typing import Sequence
+
+import numpy as np
+from scipy.linalg import blas
+
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
+from goniofrost.frost.model import FrostModel
+
+EPS = 0.001
+K_MAX = 60
+CHANNELS = "RGB"
+# Rows per chunk: a float64 copy of one chunk of 393 columns is ~50 MB.
+CHUNK_ROWS = 1 << 14
+# Eigenvalues below this fraction of the largest are treated as zero (rank deficiency).
+RANK_TOL = 1e-12
+
+
+class TrainingError(GoniofrostError, ValueError):
+    """Training data or options that cannot be used (names the material and channel)."""
+
+
+def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
+              k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
+              progress: bool = False) -> FrostModel:
+    """Fit the mapping and PCA dictionary to tabulated materials.
+
+    tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype).
+    names: M material names (stored in the model; used in error messages).
+    k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
+    Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
+    """
+    tables = np.asarray(tables)
+    names = [str(n) for n in names]
+    _check_tables(tables, names, grid, k_max)
+    weight = cosine_weight(grid).astype(np.float32)
+    mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress)
+    svals, vt = _eigen_components(gram, k_max)
+    dictionary = _project(mapped, vt)
+    return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
+                      singular_values=svals, coefficients=vt, mean=mean,
+                      reference=reference, weight=weight, info=info or {})
+
+
+def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: int) -> None:
+    if tables.ndim != 3 or tables.shape[1:] != (grid.n_valid, 3):
+        raise TrainingError(f"training tables: expected shape (M, {grid.n_valid}, 3), found {tables.shape}")
+    if tables.shape[0] != len(names):
+        raise TrainingError(f"training tables: {tables.shape[0]} materials but {len(names)} names")
+    if tables.shape[0] < 1:
+        raise TrainingError("training: no materials to train on (check --only/--exclude)")
+    if not isinstance(k_max, (int, np.integer)) or k_max < 1:
+        raise TrainingError(f"training: --components must be a positive integer, found {k_max!r}")
+
+
+def _map_and_gram(tables, names, weight, eps, progress):
+    """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64."""
+    m, n, _ = tables.shape
+    t = 3 * m
+    mapped = np.empty((n, t), dtype=np.float32)
+    reference = np.empty(n, dtype=np.float32)
+    mean = np.empty(n, dtype=np.float32)
+    gram = np.zeros((t, t), dtype=np.float64)
+    for start in _chunks(n, progress, "training"):
+        stop = min(start + CHUNK_ROWS, n)
+        block = tables[:, start:stop, :].transpose(1, 0, 2).reshape(stop - start, t)
+        block = np.array(block, dtype=np.float32)  # a private, row-contiguous copy
+        _check_finite(block, names, start)
+        reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
+        mapped[start:stop] = block
+        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
+        # sums over thousands of rows would blur them); dsyrk fills only the upper triangle.
+        gram = blas.dsyrk(1.0, block.astype(np.float64), trans=1, beta=1.0, c=gram, overwrite_c=1)
+    return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
+
+
+def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
+    """Map a (rows, t) float32 BRDF block in place to the centred X; return r and mu (rows,).
+
+    float32 is enough for the element-wise map (the inputs are float32); the median is one
+    partition (two for an even t) instead of np.median's sort-and-copy.
+    """
+    block *= w[:, None]
+    ref = _row_median(block)
+    block += np.float32(eps)
+    np.log(block, out=block)
+    block -= np.log(ref + np.float32(eps))[:, None]
+    mu = block.mean(axis=1, dtype=np.float64)
+    block -= mu.astype(np.float32)[:, None]
+    return ref, mu
+
+
+def _row_median(block: np.ndarray) -> np.ndarray:
+    """Per-row median of a (rows, t) array (the mean of the two middle values for even t)."""
+    t = block.shape[1]
+    half = t // 2
+    if t % 2:
+        return np.partition(block, half, axis=1)[:, half]
+    part = np.partition(block, [half - 1, half], axis=1)
+    return 0.5 * (part[:, half - 1] + part[:, half])
+
+
+def _check_finite(block: np.ndarray, names: list[str], start: int) -> None:
+    bad = ~np.isfinite(block)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        value = block[row, col]
+        raise TrainingError(
+            f"training data: material {names[col // 3]!r} channel {CHANNELS[col % 3]} has a "
+            f"non-finite value ({value}) at valid-cell position {start + row}; expected finite BRDF values")
+
+
+def _eigen_components(gram: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values S (K,) and V^T (K, t) from the Gram matrix X^T X = V S^2 V^T."""
+    evals, evecs = np.linalg.eigh(gram)
+    order = np.argsort(evals)[::-1]
+    evals, evecs = evals[order], evecs[:, order]
+    rank = int(np.sum(evals > RANK_TOL * max(evals[0], 0.0))) if evals[0] > 0 else 0
+    k = min(k_max, rank)
+    if k < 1:
+        raise TrainingError("training data: all training columns map to the same values; nothing to learn")
+    vt = evecs[:, :k].T.copy()
+    # Fix each eigenvector's sign (largest-magnitude entry positive) so training is deterministic.
+    signs = np.sign(vt[np.arange(k), np.argmax(np.abs(vt), axis=1)])
+    vt *= signs[:, None]
+    return np.sqrt(evals[:k]), vt
+
+
+def _project(mapped: np.ndarray, vt: np.ndarray) -> np.ndarray:
+    """D = X V (n, K) float32, chunked so no float64 copy of X is ever made."""
+    n = mapped.shape[0]
+    v32 = np.ascontiguousarray(vt.T, dtype=np.float32)
+    out = np.empty((n, vt.shape[0]), dtype=np.float32)
+    step = 8 * CHUNK_ROWS
+    for start in range(0, n, step):
+        np.matmul(mapped[start:start + step], v32, out=out[start:start + step])
+    return out
+
+
+def _chunks(n: int, progress: bool, what: str):
+    starts = range(0, n, CHUNK_ROWS)
+    if not progress:
+        return starts
+    from tqdm import tqdm
+    return tqdm(starts, desc=what, unit="chunk", file=sys.stderr, leave=False)
+
+
+# ----- training from dataset specs -------------------------------------------------------
+def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
+          exclude: Sequence[str] | None = None, grid: MerlGrid = FULL_GRID,
+          k_max: int = K_MAX, cache: bool = True, progress: bool = False) -> FrostModel:
+    """Train a FrostModel on the materials of one or more datasets.
+
+    dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``), combined in order.
+    only: keep only these materials; exclude: drop these (names, labels or SPEC:NAME; see
+        ``datasets.tabulate.collect_materials``; a selector matching nothing is an error).
+    Tabulated values come from the tabulation cache (``datasets.tabulate``).
+    cache: reuse a model trained before on exactly the same inputs (keyed by the materials'
+        content ids, grid, k_max, eps and the code version) from the goniofrost cache.
+    Returns the model (memory-mapped from the cache when cache=True).
+    """
+    from goniofrost.core import cache as disk_cache
+    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+
+    materials = collect_materials(list(dataset_specs), only, exclude)
+    ids = [m.dataset.content_id(m.name) for m in materials]
+    key = disk_cache.content_key("frost-model-v1", ids, [m.label for m in materials],
+                                 grid.as_dict(), int(k_max), EPS)
+    folder = disk_cache.cache_path("models", key, "") if cache else None
+    if folder is not None and (folder / "model.json").is_file():
+        return FrostModel.load(folder)
+    tables = tabulate_materials(materials, grid, progress=progress)
+    info = {"datasets": list(dataset_specs), "cache_key": key}
+    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
+    del tables
+    if folder is None:
+        return model
+    model.save(folder)
+    return FrostModel.load(folder)
