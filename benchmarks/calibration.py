@@ -34,6 +34,7 @@ sys.path.insert(0, str(REPO))
 
 from calib import Calibrator  # noqa: E402
 from goniofrost.core.grid import FULL_GRID  # noqa: E402
+from goniofrost.datasets import material_brdf  # noqa: E402
 from sim.camera_bench import CameraBench  # noqa: E402
 
 DEFAULT_MATERIAL = f"nbrdf:{REPO.parent / 'shared' / 'data' / 'nbrdf_merl.npz'}:gold-metallic-paint2"
@@ -56,7 +57,7 @@ def plan(n: int, max_angle_deg: float, seed: int) -> list[tuple[np.ndarray, np.n
 
 def run_once(material: str, rig: dict, poses, seed: int, work: Path) -> dict:
     """Calibrate, measure every pose; per-sample rows and the calibration time."""
-    bench = CameraBench(material, rig["sim"]["camera"], seed=seed, speedup=rig["sim"]["clock_speedup"])
+    bench = CameraBench(material_brdf(material), rig["sim"]["camera"], seed=seed, speedup=rig["sim"]["clock_speedup"])
     cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
     t0 = time.perf_counter()
     cal.calibrate(work / "calibration", white_pose=bench.pose)

@@ -32,7 +32,7 @@ from goniofrost.core.grid import FULL_GRID, MerlGrid  # noqa: E402
 from goniofrost.frost.metrics import log_relative_mse  # noqa: E402
 from goniofrost.capture.plan_file import plan_document  # noqa: E402
 from goniofrost.frost.reconstruction import reconstruct  # noqa: E402
-from goniofrost.capture.rig_file import load_rig  # noqa: E402
+from goniofrost.capture.rig_file import load_checked_rig  # noqa: E402
 from goniofrost.frost.selection import select_cells  # noqa: E402
 from goniofrost.frost.training import train  # noqa: E402
 from planner.kinematics import forward  # noqa: E402
@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", help="write the results as JSON here")
     args = parser.parse_args(argv)
     grid = MerlGrid(30, 30, 60) if args.small else FULL_GRID
-    rig = load_rig(args.rig)
+    rig = load_checked_rig(args.rig)
     grid.valid_cells  # noqa: B018 - build the grid's cell list outside the timing
     reach_s, reach = median_time(lambda: reachability(rig, grid, use_cache=False), args.repeats)
     results = {"rig": rig.name, "grid": grid.as_dict(), "n_valid": grid.n_valid,

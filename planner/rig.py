@@ -4,7 +4,7 @@ A rig file has ``name``, ``simulated``, ``geometry``, ``axes`` and optionally ``
 and ``sim`` (see ``config/rigs/template.yaml`` for every key, documented). This module owns the
 geometry and the motion keys of each axis; the ``driver`` sections (of each axis and of the lamp),
 ``camera`` and ``sim`` belong to other packages and are checked by validators plugged in through
-``section_validators`` (``goniofrost.capture.rig_file.load_rig`` plugs in the real ones).
+``section_validators`` (``goniofrost.capture.rig_file.load_checked_rig`` plugs in the real ones).
 """
 from __future__ import annotations
 

@@ -99,12 +99,10 @@ def _card_texture(lay: HolderLayout, ids: tuple, texel_mm: float) -> tuple[np.nd
     return card, patch
 
 
-@lru_cache(maxsize=8)
-def _open_material(material: str):
-    """(Dataset, resolved name) of ``SPEC:NAME``; cached so many cameras open a dataset once."""
-    from goniofrost.datasets import parse_material_spec
-
-    return parse_material_spec(material)
+# The material the camera sees: brdf(w_i, w_o) -> (3,) float64 RGB in 1/sr for unit directions (3,)
+# in the sample frame. The simulator is handed it (e.g. by goniofrost.datasets.material_brdf), so it
+# never needs to know where materials come from.
+BrdfFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 class HolderRenderer:
@@ -151,23 +149,23 @@ class HolderRenderer:
 class SimCamera(Camera):
     """A simulated camera looking at the sample holder; implements ``drivers.camera.Camera``.
 
-    ``material`` is ``SPEC:NAME``; ``pose_source()`` returns the actual unit vectors (w_i, w_o),
+    ``material`` is the material's name (``SPEC:NAME``, written into each DNG's metadata) and
+    ``brdf`` its ground truth (``BrdfFunction``); ``pose_source()`` returns the actual unit vectors (w_i, w_o),
     each (3,), in the sample frame; ``params`` is the rig's ``sim.camera`` section; ``seed``
     fixes the noise and the pixel-response pattern. Exposure time passes on ``clock``.
     """
 
-    def __init__(self, material: str, pose_source: Callable[[], tuple[np.ndarray, np.ndarray]],
+    def __init__(self, material: str, brdf: BrdfFunction, pose_source: Callable[[], tuple[np.ndarray, np.ndarray]],
                  lamp: LampModel, clock: SimClock, params: dict, seed: int = 0) -> None:
-        self.material, self.pose_source, self.lamp, self.clock = material, pose_source, lamp, clock
+        self.material, self.brdf, self.pose_source, self.lamp, self.clock = material, brdf, pose_source, lamp, clock
         self.params = validate_sim_camera_section(params, "SimCamera params", "sim.camera")
         self.seed = int(seed)
         self.target = "sample"
         self._connected = False
 
     def connect(self) -> None:
-        """Open the material and build the renderer and the fixed pixel pattern."""
+        """Build the renderer and the fixed pixel pattern."""
         p = self.params
-        self._dataset, self._name = _open_material(self.material)
         self._renderer = HolderRenderer(p["width"], p["height"])
         self._rng = np.random.default_rng(self.seed)
         shape = (p["height"], p["width"])
@@ -186,11 +184,8 @@ class SimCamera(Camera):
         self._connected = False
 
     def ground_truth(self, w_i, w_o) -> np.ndarray:
-        """The material's BRDF (R, G, B) in 1/sr at directions (3,) (needs ``connect``)."""
-        from goniofrost.core.grid import dirs_to_half_diff
-
-        th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
-        return np.asarray(self._dataset.evaluate(self._name, th, td, pd), dtype=np.float64)
+        """The material's BRDF (R, G, B) in 1/sr at directions (3,)."""
+        return np.asarray(self.brdf(np.asarray(w_i, float), np.asarray(w_o, float)), dtype=np.float64).reshape(3)
 
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
         """Render, expose, digitise and write one DNG at ``path``."""

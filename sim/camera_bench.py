@@ -5,6 +5,8 @@ For calibration tests and benchmarks that need the camera, the lamp and a clock 
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from .camera import SimCamera
@@ -22,13 +24,14 @@ def direction(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:
 class CameraBench:
     """Clock, lamp model, lamp contract (``lamp``) and a connected SimCamera (``camera``)."""
 
-    def __init__(self, material: str, params: dict, seed: int = 0, speedup: float = 100.0,
+    def __init__(self, material: tuple[str, Callable], params: dict, seed: int = 0, speedup: float = 100.0,
                  drift_per_hour: float = 0.02) -> None:
         self.clock = SimClock(speedup)
         self.model = LampModel(self.clock, drift_per_hour, seed)
         self.lamp = DirectLamp(self.model)
         self.pose = (direction(0.0), direction(30.0, 180.0))
-        self.camera = SimCamera(material, lambda: self.pose, self.model, self.clock, params, seed)
+        name, brdf = material    # (SPEC:NAME, BrdfFunction), e.g. goniofrost.datasets.material_brdf(...)
+        self.camera = SimCamera(name, brdf, lambda: self.pose, self.model, self.clock, params, seed)
         self.camera.connect()
 
     def set_angles(self, theta_i: float, theta_o: float, phi_o: float = 180.0) -> tuple:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniofrost.bench.baselines import (SelectionError, _descent, _GridMoves, condition_numbers,
+from goniofrost.bench.baselines import (BaselineError, _descent, _GridMoves, condition_numbers,
                                   nielsen_path, nielsen_select, random_select, uniform_select)
 from goniofrost.core.grid import MerlGrid
 
@@ -32,7 +32,7 @@ def test_random_select_distinct_valid_and_seeded():
     np.testing.assert_array_equal(a, b)
     assert len(set(a.tolist())) == 30 and a.min() >= 0 and a.max() < GRID.n_valid
     assert not np.array_equal(a, random_select(GRID, 30, np.random.default_rng(2)))
-    with pytest.raises(SelectionError, match=f"only {GRID.n_valid} candidate cells"):
+    with pytest.raises(BaselineError, match=f"only {GRID.n_valid} candidate cells"):
         random_select(GRID, GRID.n_valid + 1, np.random.default_rng(0))
 
 
@@ -47,7 +47,7 @@ def test_uniform_select_is_stratified(m):
 
 
 def test_uniform_select_refuses_bad_m():
-    with pytest.raises(SelectionError, match="positive integer"):
+    with pytest.raises(BaselineError, match="positive integer"):
         uniform_select(GRID, 0)
 
 
@@ -102,10 +102,10 @@ def test_grid_moves_stay_on_valid_cells_one_step_away():
 
 def test_nielsen_refuses_too_few_components_and_nan():
     z = smooth_z(GRID, 5)
-    with pytest.raises(SelectionError, match="6 samples need at least 6 components, Z has 5"):
+    with pytest.raises(BaselineError, match="6 samples need at least 6 components, Z has 5"):
         nielsen_select(z, 6, GRID, 0)
     z[3, 2] = np.nan
-    with pytest.raises(SelectionError, match="NaN or inf"):
+    with pytest.raises(BaselineError, match="NaN or inf"):
         nielsen_select(z, 3, GRID, 0)
-    with pytest.raises(SelectionError, match="a grid is needed"):
+    with pytest.raises(BaselineError, match="a grid is needed"):
         nielsen_select(z, 3)

@@ -14,6 +14,7 @@ from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.core.errors import ConfigError
 from sim.camera import SimCamera
+from goniofrost.datasets import material_brdf
 from sim.camera_bench import CameraBench
 from sim.lamp_model import LampModel
 
@@ -30,7 +31,7 @@ def rig():
 
 @pytest.fixture(scope="module")
 def spec(merl_npz):
-    return lambda name: f"nbrdf:{merl_npz}:{name}"
+    return lambda name: material_brdf(f"nbrdf:{merl_npz}:{name}")
 
 
 @pytest.fixture(scope="module")
@@ -212,7 +213,7 @@ class _TruncatingCamera(SimCamera):
 def test_truncated_raw_file_fails_the_sample_naming_the_file(rig, calibrated, spec, tmp_path):
     bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
     bench.lamp.on()
-    cam = _TruncatingCamera(bench.camera.material, lambda: bench.pose, bench.model, bench.clock,
+    cam = _TruncatingCamera(bench.camera.material, bench.camera.brdf, lambda: bench.pose, bench.model, bench.clock,
                             rig["sim"]["camera"], 0)
     cam.connect()
     cal = Calibrator(cam, bench.lamp, rig["camera"], record=CalibrationRecord.from_dict(calibrated))

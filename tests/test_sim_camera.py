@@ -13,6 +13,7 @@ from calib.roi import find_patch
 from drivers.rawfile import read_raw
 from goniofrost.core.errors import ConfigError
 from sim.camera import WHITE_TILE_REFLECTANCE, validate_sim_camera_section
+from goniofrost.datasets import material_brdf
 from sim.camera_bench import CameraBench
 
 RIG = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
@@ -25,7 +26,7 @@ def params():
 
 @pytest.fixture(scope="module")
 def gold(merl_npz):
-    return f"nbrdf:{merl_npz}:gold-metallic-paint2"
+    return material_brdf(f"nbrdf:{merl_npz}:gold-metallic-paint2")
 
 
 def _ideal(params, **over):

@@ -85,10 +85,10 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from planner.schedule import schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.capture.rig_file import load_rig
+    from goniofrost.capture.rig_file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
-    rig = load_rig(rig_path)
+    rig = load_checked_rig(rig_path)
     candidates = reachability(rig, model.grid).mask
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)

@@ -29,15 +29,15 @@ NIELSEN_STALL_LIMIT = 3
 NIELSEN_MAX_ITER = 100
 
 
-class SelectionError(GoniofrostError, ValueError):
+class BaselineError(GoniofrostError, ValueError):
     """A baseline selection that cannot be made (too many samples, too few candidates...)."""
 
 
 def _check_m(m: int, available: int, what: str) -> int:
     if not isinstance(m, (int, np.integer)) or m < 1:
-        raise SelectionError(f"{what}: the number of samples must be a positive integer, got {m!r}")
+        raise BaselineError(f"{what}: the number of samples must be a positive integer, got {m!r}")
     if m > available:
-        raise SelectionError(f"{what}: {m} samples requested but only {available} candidate cells exist")
+        raise BaselineError(f"{what}: {m} samples requested but only {available} candidate cells exist")
     return int(m)
 
 
@@ -72,7 +72,7 @@ def uniform_select(grid: MerlGrid, m: int) -> np.ndarray:
     first_in_box = order[np.searchsorted(box_id[order], chosen)]
     positions = np.unique(first_in_box)
     if positions.size < m:  # cannot happen with distinct boxes; guard the contract anyway
-        raise SelectionError(f"uniform selection: found {positions.size} cells for m={m}")
+        raise BaselineError(f"uniform selection: found {positions.size} cells for m={m}")
     return positions.astype(np.int64)
 
 
@@ -206,15 +206,15 @@ def nielsen_path(
 
 def _check_nielsen_inputs(z, grid: MerlGrid, m_max: int, subset: int, max_iter: int) -> None:
     if z.ndim != 2 or z.shape[0] != grid.n_valid:
-        raise SelectionError(
+        raise BaselineError(
             f"Nielsen selection: Z must be (n_valid={grid.n_valid}, K), got shape {z.shape}")
     if z.shape[1] < m_max:
-        raise SelectionError(
+        raise BaselineError(
             f"Nielsen selection: {m_max} samples need at least {m_max} components, Z has {z.shape[1]}")
     if not np.all(np.isfinite(z)):
-        raise SelectionError("Nielsen selection: Z holds NaN or inf")
+        raise BaselineError("Nielsen selection: Z holds NaN or inf")
     if subset < 1 or max_iter < 0:
-        raise SelectionError(f"Nielsen selection: subset must be >= 1 and max_iter >= 0, got {subset}, {max_iter}")
+        raise BaselineError(f"Nielsen selection: subset must be >= 1 and max_iter >= 0, got {subset}, {max_iter}")
 
 
 def nielsen_select(model_or_z, m: int, grid: MerlGrid | None = None, rng=None,
@@ -227,6 +227,6 @@ def nielsen_select(model_or_z, m: int, grid: MerlGrid | None = None, rng=None,
     z = getattr(model_or_z, "dictionary", model_or_z)
     grid = grid if grid is not None else getattr(model_or_z, "grid", None)
     if grid is None:
-        raise SelectionError("Nielsen selection: a grid is needed when Z is given as an array")
+        raise BaselineError("Nielsen selection: a grid is needed when Z is given as an array")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
     return nielsen_path(np.asarray(z), [m], grid, rng, subset, max_iter)[-1].positions

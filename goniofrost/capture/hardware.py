@@ -61,6 +61,7 @@ def _simulated(rig, *, material, seed, speedup):
     from calib import Calibrator
     from drivers.rig_devices import RigDevices
     from planner.kinematics import forward
+    from goniofrost.datasets import material_brdf
     from sim.camera import SimCamera
     from sim.rig import SimulatedRig
 
@@ -70,7 +71,7 @@ def _simulated(rig, *, material, seed, speedup):
         simulation.start()
         devices = RigDevices.from_sections(simulation.resolved_driver_sections())
         with _connected(devices):
-            camera = SimCamera(material, lambda: forward(rig, simulation.true_joints_deg()),
+            camera = SimCamera(*material_brdf(material), lambda: forward(rig, simulation.true_joints_deg()),
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed)
             camera.connect()
             try:

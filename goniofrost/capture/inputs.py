@@ -42,9 +42,9 @@ def load_inputs(rig_path, plan_path) -> SessionInputs:
     """Load the rig file, the plan and the plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
     from goniofrost.capture.plan_file import read_plan
-    from goniofrost.capture.rig_file import load_rig
+    from goniofrost.capture.rig_file import load_checked_rig
 
-    rig = load_rig(rig_path)
+    rig = load_checked_rig(rig_path)
     plan_path = Path(plan_path)
     plan = read_plan(plan_path)
     model_path = resolve_model_path(plan, plan_path)

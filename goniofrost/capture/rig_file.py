@@ -38,6 +38,6 @@ def section_validators() -> dict[str, Callable[[Mapping, str, str], None]]:
     return found
 
 
-def load_rig(path: str | Path) -> Rig:
+def load_checked_rig(path: str | Path) -> Rig:
     """Read and fully validate a rig file (raises goniofrost.core.errors.ConfigError)."""
     return _load_rig(path, section_validators())

@@ -42,6 +42,25 @@ def parse_material_spec(text: str) -> tuple[Dataset, str]:
     return dataset, dataset.resolve(name)
 
 
+def material_brdf(text: str):
+    """``(name, brdf)`` of ``SPEC:NAME``: the resolved ``SPEC:NAME`` and a function
+    ``brdf(w_i, w_o) -> (3,) float64`` RGB in 1/sr of unit directions (3,) in the sample frame
+    (what ``sim.camera.SimCamera`` renders)."""
+    import numpy as np
+
+    from goniofrost.core.grid import dirs_to_half_diff
+
+    dataset, name = parse_material_spec(text)
+
+    def brdf(w_i, w_o):
+        th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
+        return np.asarray(dataset.evaluate(name, th, td, pd), dtype=np.float64)
+
+    return f"{dataset.spec}:{name}", brdf
+
+
+__all__ += ["material_brdf"]
+
 # Several datasets combined, and the tabulation cache (imported last: they use open_dataset).
 from goniofrost.datasets.tabulate import Material, collect_materials, open_datasets, tabulate_cached, tabulate_materials  # noqa: E402
 

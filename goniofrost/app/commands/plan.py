@@ -31,9 +31,9 @@ def run(args) -> int:
         mask = candidate_mask_max_angle(model.grid, args.max_angle)
     rig = None
     if args.rig is not None:
-        from goniofrost.capture.rig_file import load_rig
+        from goniofrost.capture.rig_file import load_checked_rig
         from planner.reach import reachability
-        rig = load_rig(args.rig)
+        rig = load_checked_rig(args.rig)
         reach = reachability(rig, model.grid)
         mask = reach.mask if mask is None else mask & reach.mask
         why = ", ".join(f"{k} {v}" for k, v in reach.counts().items() if k != "OK" and v)

@@ -23,12 +23,12 @@ def run(args) -> int:
     import threading
 
     from goniofrost.core.errors import ConfigError
-    from goniofrost.capture.rig_file import load_rig
+    from goniofrost.capture.rig_file import load_checked_rig
     from sim.rig import SimulatedRig
 
     if args.speedup is not None and not args.speedup > 0:
         raise ConfigError("command line", "--speedup", "a number > 0", args.speedup)
-    rig = load_rig(args.rig)
+    rig = load_checked_rig(args.rig)
     seed = args.seed if args.seed is not None else int((rig.sim or {}).get("seed", 0))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -1,0 +1,142 @@
+"""Read every module's imports (ast) and check them against the project's layers.
+
+The layers, bottom to top (docs/ARCHITECTURE.md):
+- ``goniofrost.core``: errors, config checks, atomic files, cache, grid. Imports nothing of the project.
+- the lower packages ``planner``, ``drivers``, ``calib``, ``sim``: of goniofrost, only the core;
+  among themselves only as ``LOWER_ALLOWED`` says (the twins in sim share the drivers' protocol
+  modules, calib decodes frames with the drivers' RAW reader).
+- goniofrost's sub-packages (``frost``, ``brdf``, ``datasets``, ``capture``, ``bench``...): anything
+  below them, and each other without a cycle.
+- ``goniofrost.app`` (command line, commands, demo): may import everything; nothing imports it
+  but ``goniofrost/__main__.py``.
+Imports inside functions count the same as those at the top of a module.
+"""
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+PROJECT = "goniofrost"
+CORE = "goniofrost.core"
+APP = "goniofrost.app"
+LOWER = ("planner", "drivers", "calib", "sim")
+LOWER_ALLOWED = {"planner": set(), "drivers": set(), "calib": {"drivers"}, "sim": {"drivers", "calib", "planner"}}
+TOP_LEVEL_MODULES = {"__init__", "__main__"}
+
+
+@dataclass(frozen=True)
+class Violation:
+    """One import that breaks a layer rule: where, what, and the rule."""
+
+    module: str
+    imported: str
+    rule: str
+
+    def __str__(self) -> str:
+        return f"{self.module} imports {self.imported}: {self.rule}"
+
+
+def module_name(root: Path, path: Path) -> str:
+    """Dotted module name of ``path`` (a .py file under ``root``)."""
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports_of(root: Path, path: Path) -> set[str]:
+    """Absolute dotted names that the module at ``path`` imports (relative imports resolved)."""
+    name = module_name(root, path)
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            target = ".".join(base + ([node.module] if node.module else []))
+            if node.module:
+                found.add(target)
+            else:  # from . import x: each x may be a module
+                found.update(f"{target}.{alias.name}" for alias in node.names)
+    return found
+
+
+def unit_of(module: str) -> str | None:
+    """The layer unit a module belongs to: a lower package, ``goniofrost.<sub>``, or None (outside)."""
+    parts = module.split(".")
+    if parts[0] in LOWER:
+        return parts[0]
+    if parts[0] == PROJECT:
+        return ".".join(parts[:2]) if len(parts) > 1 else PROJECT
+    return None
+
+
+def package_graph(root: Path) -> dict[str, dict[str, set[str]]]:
+    """unit -> {imported unit -> the modules of the unit that import it}."""
+    graph: dict[str, dict[str, set[str]]] = {}
+    for package in (PROJECT, *LOWER):
+        for path in sorted((root / package).rglob("*.py")):
+            module = module_name(root, path)
+            here = unit_of(module)
+            for imported in imports_of(root, path):
+                there = unit_of(imported)
+                if there is not None and there != here:
+                    graph.setdefault(here, {}).setdefault(there, set()).add(module)
+    return graph
+
+
+def violations(root: Path) -> list[Violation]:
+    """Every import of the tree under ``root`` that breaks a layer rule, sorted."""
+    found = []
+    for here, targets in package_graph(root).items():
+        for there, modules in targets.items():
+            rule = _rule_broken(here, there)
+            found += [Violation(m, there, rule) for m in modules if rule]
+    found += _cycles(root)
+    found += _top_level_modules(root)
+    return sorted(set(found), key=str)
+
+
+def _rule_broken(here: str, there: str) -> str | None:
+    """The rule that ``here`` importing ``there`` breaks, or None."""
+    if here == CORE:
+        return "the bottom layer imports nothing of the project"
+    if here in LOWER:
+        if there.startswith(PROJECT) and there != CORE:
+            return f"{here} may import only {CORE} of goniofrost"
+        if there in LOWER and there not in LOWER_ALLOWED[here]:
+            return f"{here} may import only {sorted(LOWER_ALLOWED[here]) or 'no other lower package'}"
+        return None
+    if there == APP and here not in (PROJECT, f"{PROJECT}.__main__"):
+        return f"nothing imports the application layer {APP}"
+    if there == PROJECT:
+        return "import the sub-package that holds it, not the goniofrost package itself"
+    return None
+
+
+def _cycles(root: Path) -> list[Violation]:
+    """One violation per module whose import closes a cycle between two packages."""
+    full = package_graph(root)
+    graph = {here: set(targets) for here, targets in full.items()}
+    return [Violation(module, there, f"cycle: {there} imports {here} back (directly or through others)")
+            for here, targets in full.items() for there, modules in targets.items()
+            if _reaches(graph, there, here) for module in modules]
+
+
+def _reaches(graph: dict[str, set[str]], start: str, goal: str) -> bool:
+    """True when ``goal`` is reachable from ``start`` along the import graph."""
+    seen, todo = set(), [start]
+    while todo:
+        node = todo.pop()
+        if node == goal:
+            return True
+        if node not in seen:
+            seen.add(node)
+            todo.extend(graph.get(node, ()))
+    return False
+
+
+def _top_level_modules(root: Path) -> list[Violation]:
+    """goniofrost/ keeps only __init__ and __main__ at its top level: code lives in a sub-package."""
+    return [Violation(f"{PROJECT}.{p.stem}", "-", "goniofrost/ holds sub-packages; move this module into one")
+            for p in sorted((root / PROJECT).glob("*.py")) if p.stem not in TOP_LEVEL_MODULES]

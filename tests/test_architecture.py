@@ -1,0 +1,83 @@
+"""The layers import downwards only (tests/import_layers.py), and the checker itself can fail."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from import_layers import imports_of, package_graph, violations
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_project_keeps_its_layers():
+    found = violations(ROOT)
+    assert not found, "layer violations:\n" + "\n".join(map(str, found))
+
+
+def test_the_graph_is_the_documented_one():
+    graph = {here: set(targets) for here, targets in package_graph(ROOT).items()}
+    assert "goniofrost.core" not in graph                       # the bottom imports nothing of the project
+    for lower in ("planner", "drivers", "calib", "sim"):
+        assert {t for t in graph.get(lower, ()) if t.startswith("goniofrost")} <= {"goniofrost.core"}
+    assert graph["goniofrost.app"] >= {"goniofrost.capture", "goniofrost.frost", "goniofrost.bench"}
+
+
+def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
+    """A synthetic project: the given modules, and empty __init__.py files for every package."""
+    for rel, text in files.items():
+        path = tmp_path / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    for package in ("goniofrost", "goniofrost/core", "goniofrost/app", "goniofrost/frost", "goniofrost/capture",
+                    "planner", "drivers", "calib", "sim"):
+        (tmp_path / package).mkdir(parents=True, exist_ok=True)
+        (tmp_path / package / "__init__.py").touch()
+    return tmp_path
+
+
+CLEAN = {
+    "goniofrost/core/errors.py": "import numpy\n",
+    "goniofrost/frost/model.py": "from goniofrost.core.errors import X\nfrom . import helpers\n",
+    "goniofrost/frost/helpers.py": "",
+    "goniofrost/capture/engine.py": "from ..frost.model import M\nimport planner.rig\n",
+    "goniofrost/app/cli.py": "from goniofrost.capture import engine\n",
+    "goniofrost/__main__.py": "from goniofrost.app.cli import main\n",
+    "planner/rig.py": "from goniofrost.core.errors import ConfigError\n",
+    "sim/camera.py": "from drivers.camera import Camera\nfrom calib.holder import H\n",
+}
+
+
+def test_a_clean_synthetic_tree_passes(tmp_path):
+    assert violations(_tree(tmp_path, CLEAN)) == []
+
+
+@pytest.mark.parametrize("rel, text, module, imported, rule", [
+    ("goniofrost/core/grid.py", "from goniofrost.frost import model\n", "goniofrost.core.grid",
+     "goniofrost.frost", "the bottom layer imports nothing of the project"),
+    ("goniofrost/core/cache.py", "def f():\n    import planner.rig\n", "goniofrost.core.cache",
+     "planner", "the bottom layer imports nothing"),
+    ("planner/reach.py", "from goniofrost.frost.model import M\n", "planner.reach",
+     "goniofrost.frost", "planner may import only goniofrost.core"),
+    ("sim/camera2.py", "from goniofrost.datasets import open_dataset\n", "sim.camera2",
+     "goniofrost.datasets", "sim may import only goniofrost.core"),
+    ("drivers/axis.py", "from sim.clock import SimClock\n", "drivers.axis",
+     "sim", "drivers may import only no other lower package"),
+    ("goniofrost/frost/loop.py", "from goniofrost.capture.engine import E\n", "goniofrost.frost.loop",
+     "goniofrost.capture", "cycle: goniofrost.capture imports goniofrost.frost back"),
+    ("goniofrost/frost/uses_app.py", "from goniofrost.app import cli\n", "goniofrost.frost.uses_app",
+     "goniofrost.app", "nothing imports the application layer"),
+    ("goniofrost/capture/rel.py", "from ..app.cli import main\n", "goniofrost.capture.rel",
+     "goniofrost.app", "nothing imports the application layer"),
+    ("goniofrost/flat.py", "", "goniofrost.flat", "-", "goniofrost/ holds sub-packages"),
+])
+def test_each_rule_catches_its_violation(tmp_path, rel, text, module, imported, rule):
+    found = violations(_tree(tmp_path, {**CLEAN, rel: text}))
+    assert [(v.module, v.imported) for v in found if rule in v.rule] == [(module, imported)], found
+
+
+def test_relative_and_function_level_imports_are_resolved(tmp_path):
+    root = _tree(tmp_path, {"goniofrost/capture/a.py": "from . import b\nfrom ..frost.model import M\n"
+                                                          "def f():\n    from drivers import axis\n"})
+    assert imports_of(root, root / "goniofrost/capture/a.py") == {
+        "goniofrost.capture.b", "goniofrost.frost.model", "drivers"}
