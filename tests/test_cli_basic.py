@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -89,3 +90,13 @@ def test_the_installed_command_reports_errors_in_one_line(tmp_path):
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr == ("goniofrost materials: error: nothing.npz: no such Neural-BRDF archive "
                              "(expected an .npz file)\n")
+
+
+def test_bench_default_data_is_the_shared_folder_beside_the_project(monkeypatch):
+    import importlib
+
+    import goniofrost.app.commands.bench as bench_command
+
+    monkeypatch.delenv("GONIOFROST_SHARED_DATA", raising=False)
+    module = importlib.reload(bench_command)
+    assert module.SHARED_DATA == Path(__file__).resolve().parents[2] / "shared" / "data"

@@ -40,3 +40,9 @@ def test_demo_refuses_to_replace_a_folder_it_did_not_make(tmp_path, capsys):
     assert (f"{tmp_path / 'session'}: exists but holds no session.sqlite, so it is not a previous demo session; "
             "refusing to delete it") in capsys.readouterr().err
     assert keep.read_text() == "mine"
+
+
+def test_the_demo_finds_its_packaged_rig_file():
+    from goniofrost.app.demo import default_rig_path
+
+    assert default_rig_path().is_file() and default_rig_path().name == "sim.yaml"

@@ -25,7 +25,7 @@ MAX_ANGLE_DEG = 70.0
 
 def default_rig_path() -> Path:
     """The simulated rig file (config/rigs/sim.yaml, shipped in the package as rigs/sim.yaml)."""
-    return Path(__file__).resolve().parent / "rigs" / "sim.yaml"
+    return Path(__file__).resolve().parents[1] / "rigs" / "sim.yaml"
 
 
 @dataclass

@@ -7,7 +7,7 @@ from pathlib import Path
 
 HELP = "benchmark FROST against Nielsen et al. 2015, random and uniform sampling (error, time, stress)"
 SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA",
-                                  Path(__file__).resolve().parents[3] / "shared" / "data"))
+                                  Path(__file__).resolve().parents[4] / "shared" / "data"))
 DEFAULT_DATASETS = [f"nbrdf:{SHARED_DATA / 'nbrdf_merl.npz'}", f"nbrdf:{SHARED_DATA / 'nbrdf_rgl.npz'}"]
 
 
