@@ -1,6 +1,6 @@
 """The capture engine: executes the session plan and owns every side effect.
 
-``SessionEngine.run`` walks the steps of ``session_plan.session_steps`` against a ``Hardware``
+``SessionEngine.run`` walks the steps of ``goniofrost.capture.steps.session_steps`` against a ``Hardware``
 (axes, lamp, calibrator, clock), journals each sample in one transaction the moment it is
 measured, appends it to samples.csv, shows a progress bar with the ETA, and
 
