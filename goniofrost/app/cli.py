@@ -44,6 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     except GoniofrostError as exc:
         print(f"goniofrost {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        # the last resort at the boundary: every known path has its own message, but an
+        # unforeseen file problem is still one line naming the file, never a traceback
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"goniofrost {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"goniofrost {args.command}: interrupted", file=sys.stderr)
         return 130

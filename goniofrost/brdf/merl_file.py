@@ -62,6 +62,8 @@ def _read_header(path: Path) -> MerlGrid:
         header = np.fromfile(path, dtype="<i4", count=3)
     except FileNotFoundError:
         raise MerlFileError(f"{path}: no such file") from None
+    except OSError as exc:   # a directory, unreadable: say so instead of a traceback
+        raise MerlFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if header.size < 3:
         raise MerlFileError(
             f"{path}: truncated MERL file: {path.stat().st_size} bytes, expected at least a "

@@ -5,15 +5,57 @@ a failure removes the temporary file. Used for every result file goniofrost writ
 """
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
+
+from goniofrost.core.errors import OutputError
+
+# errno -> what a user reads after "PATH: cannot write: "
+REASONS = {
+    errno.EISDIR: "it is a directory; give a file name",
+    errno.ENOTDIR: "a part of the path is a file, not a directory",
+    errno.EROFS: "the file system is read-only",
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOENT: "a folder of the path does not exist and cannot be created",
+    errno.EEXIST: "a part of the path is a file, not a directory",   # mkdir over a file
+}
+
+
+@contextmanager
+def output_errors(path):
+    """Turn an OSError raised while writing ``path`` into a one-line ``OutputError`` naming it."""
+    try:
+        yield
+    except OutputError:
+        raise
+    except OSError as exc:
+        reason = REASONS.get(exc.errno, exc.strerror or str(exc))
+        raise OutputError(path, reason) from exc
 
 
 def write_bytes_atomic(path, payload: bytes) -> None:
-    """Replace ``path`` with ``payload`` atomically (parent folders are created)."""
+    """Replace ``path`` with ``payload`` atomically (parent folders are created).
+
+    Raises ``OutputError`` (nothing written, no temporary file left) when the path cannot be
+    written: a directory in the way, a read-only or full file system, a file where a folder is
+    expected.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    with output_errors(path):
+        if path.is_dir():
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write_via_temporary(path, payload)
+
+
+def _write_via_temporary(path: Path, payload: bytes) -> None:
+    """Write a temporary sibling, fsync it and rename it over ``path``; remove it on failure."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         # mkstemp creates the file 0600; give the result the usual permissions (umask applies)

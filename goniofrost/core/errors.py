@@ -14,3 +14,14 @@ class ConfigError(GoniofrostError, ValueError):
     def __init__(self, source, keypath: str, expected: str, found) -> None:
         self.source, self.keypath, self.expected, self.found = str(source), keypath, expected, found
         super().__init__(f"{source}: {keypath or '(top level)'}: expected {expected}, found {found!r}")
+
+
+class OutputError(GoniofrostError, OSError):
+    """An output path that cannot be written: ``PATH: cannot write: REASON``.
+
+    Raised before anything is left half-written (see ``goniofrost.core.atomic_file``).
+    """
+
+    def __init__(self, path, reason: str) -> None:
+        self.path, self.reason = str(path), reason
+        super().__init__(f"{path}: cannot write: {reason}")

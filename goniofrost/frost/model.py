@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from goniofrost.core.atomic_file import output_errors
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
 
@@ -150,16 +151,17 @@ class FrostModel:
         path = Path(path)
         if path.exists() and not (path.is_dir() and (path / META_FILE).is_file()):
             raise ModelError(f"{path}: exists and is not a model directory; refusing to overwrite")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-        try:
-            self._write_into(tmp)
-            if path.exists():
-                shutil.rmtree(path)
-            os.replace(tmp, path)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+        with output_errors(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+            try:
+                self._write_into(tmp)
+                if path.exists():
+                    shutil.rmtree(path)
+                os.replace(tmp, path)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
         return path
 
     def _write_into(self, folder: Path) -> None:

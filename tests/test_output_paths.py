@@ -1,0 +1,157 @@
+"""Every output path a user can get wrong is a one-line error with exit 2, and nothing is left behind.
+
+The read-only and the full file systems are real: small tmpfs mounts (the suite runs as root in
+CI; where mounting is not allowed those two cases are skipped, the others still run).
+"""
+from __future__ import annotations
+
+import subprocess
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.app.cli import main
+from goniofrost.brdf.merl_file import valid_to_full, write_merl
+from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.core.errors import OutputError
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.selection import select_cells
+from goniofrost.frost.training import fit_model
+
+GRID = MerlGrid(10, 10, 20)
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A small model, a SAMPLES.csv of 6 of its cells and a .binary of the grid."""
+    folder = tmp_path_factory.mktemp("inputs")
+    rng = np.random.default_rng(3)
+    th = GRID.flat_angles(GRID.valid_cells)[0]
+    tables = np.stack([rng.uniform(0.05, 0.3, 3) + rng.uniform(1, 20) * np.cos(th)[:, None] ** rng.uniform(5, 80)
+                       for _ in range(10)]).astype(np.float32)
+    model = fit_model(tables, [f"m{i}" for i in range(10)], GRID, k_max=8)
+    model.save(folder / "model")
+    cells = GRID.valid_cells[select_cells(model, 6).positions]
+    angles = np.degrees(np.stack(GRID.flat_angles(cells), axis=1))
+    (folder / "s.csv").write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n" + "".join(
+        f"{a},{b},{c},0.1,0.2,0.3\n" for a, b, c in angles))
+    write_merl(folder / "x.binary", valid_to_full(tables[0], GRID), GRID)
+    return folder
+
+
+def _command(name: str, inputs: Path, out: Path) -> list[str]:
+    return {
+        "plan": ["plan", "--model", str(inputs / "model"), "--samples", "5", "--out", str(out)],
+        "reconstruct": ["reconstruct", "--model", str(inputs / "model"), "--samples", str(inputs / "s.csv"),
+                        "--out", str(out)],
+        "preview": ["preview", str(inputs / "x.binary"), "--size", "32", "--out", str(out)],
+    }[name]
+
+
+COMMANDS = ("plan", "reconstruct", "preview")
+
+
+def _run(capsys, argv) -> tuple[int, str]:
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def test_the_commands_write_where_they_should(inputs, tmp_path, capsys):
+    for name in COMMANDS:
+        out = tmp_path / f"{name}.out"
+        assert _run(capsys, _command(name, inputs, out))[0] == 0 and out.is_file()
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_out_that_is_a_directory(inputs, tmp_path, capsys, name):
+    out = tmp_path / "a-folder"
+    out.mkdir()
+    code, err = _run(capsys, _command(name, inputs, out))
+    assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: it is a directory; give a file name"
+    assert list(out.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["a-folder"]
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_out_below_a_file(inputs, tmp_path, capsys, name):
+    (tmp_path / "a-file").write_text("keep me")
+    out = tmp_path / "a-file" / "result"
+    code, err = _run(capsys, _command(name, inputs, out))
+    assert code == 2 and err == (f"goniofrost {name}: error: {out}: cannot write: "
+                                 "a part of the path is a file, not a directory")
+    assert (tmp_path / "a-file").read_text() == "keep me"
+
+
+@pytest.fixture
+def mounted(tmp_path):
+    """mount(options) -> a fresh tmpfs folder with those mount options; unmounted afterwards."""
+    points = []
+
+    def mount(options: str) -> Path:
+        point = tmp_path / f"mnt-{uuid.uuid4().hex[:6]}"
+        point.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)], capture_output=True)
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+        points.append(point)
+        return point
+
+    yield mount
+    for point in points:
+        subprocess.run(["umount", str(point)], check=True)
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_out_on_a_read_only_file_system(inputs, mounted, capsys, name):
+    folder = mounted("ro,size=64k")
+    out = folder / "result"
+    code, err = _run(capsys, _command(name, inputs, out))
+    assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: the file system is read-only"
+    assert list(folder.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["reconstruct", "preview"])
+def test_out_on_a_full_disk_leaves_no_partial_file(inputs, mounted, capsys, name):
+    folder = mounted("size=64k")
+    filler = folder / "filler"
+    with open(filler, "wb", buffering=0) as handle:   # fill it: the next write gets ENOSPC
+        with pytest.raises(OSError, match="No space left"):
+            while True:
+                handle.write(b"\0" * 4096)
+    out = folder / "result"
+    code, err = _run(capsys, _command(name, inputs, out))
+    assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: no space left on the device"
+    assert [p.name for p in folder.iterdir()] == ["filler"]
+
+
+def test_model_save_into_a_file_path(inputs, tmp_path):
+    from goniofrost.frost.model import FrostModel
+
+    (tmp_path / "a-file").write_text("x")
+    with pytest.raises(OutputError, match="a part of the path is a file, not a directory"):
+        FrostModel.load(inputs / "model").save(tmp_path / "a-file" / "model")
+
+
+def test_atomic_write_keeps_the_old_file_when_the_new_one_fails(mounted):
+    folder = mounted("size=64k")
+    target = folder / "result"
+    write_bytes_atomic(target, b"old")
+    with pytest.raises(OutputError, match="no space left"):
+        write_bytes_atomic(target, b"x" * 200_000)
+    assert target.read_bytes() == b"old" and [p.name for p in folder.iterdir()] == ["result"]
+
+
+def test_a_directory_given_as_a_merl_file_is_a_one_line_error(tmp_path, capsys):
+    code, err = _run(capsys, ["preview", str(tmp_path), "--out", str(tmp_path / "x.png")])
+    assert code == 2 and err == f"goniofrost preview: error: {tmp_path}: cannot read: Is a directory"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bench_refuses_a_bad_out_before_any_work(tmp_path, capsys):
+    (tmp_path / "a-file").write_text("x")
+    out = tmp_path / "a-file"
+    code, err = _run(capsys, ["bench", "--quick", "--grid", "4,4,8", "--out", str(out), "--no-progress"])
+    assert code == 2 and err == f"goniofrost bench: error: {out}: cannot write: a part of the path is a file, not a directory"
+    assert "bench:" not in capsys.readouterr().err
