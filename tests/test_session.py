@@ -286,6 +286,55 @@ def test_a_joint_target_outside_the_limits_is_refused_before_anything_moves(setu
     assert not (tmp_path / "s").exists()
 
 
+def _tampered(plan: Path, tmp_path: Path, edit) -> Path:
+    doc = json.loads(plan.read_text())
+    edit(doc["samples"])
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    return tmp_path / "plan.json"
+
+
+def test_a_sample_moved_to_another_cell_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan, model = setup
+    doc = json.loads(plan.read_text())
+    other = next(s["cell"] for s in doc["samples"][1:] if s["cell"] != doc["samples"][2]["cell"])
+
+    def move(samples):
+        samples[2]["cell"] = other
+    err = run_refused(capture_args(rig, _tampered(plan, tmp_path, move), tmp_path / "s"), capsys)
+    assert f"{tmp_path / 'plan.json'}: samples[2].theta_h_deg: expected " in err
+    assert f"(the value of its cell {other})" in err and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("key, value, field", [
+    ("theta_i_deg", lambda s: s["theta_i_deg"] + 0.5, "theta_i_deg"),
+    ("w_o", lambda s: [s["w_o"][1], s["w_o"][0], s["w_o"][2]], "w_o"),
+    ("w_i", lambda s: "up", "w_i"),
+    ("light_camera_swapped", lambda s: not s.get("light_camera_swapped", False), "joints"),
+])
+def test_a_sample_that_disagrees_with_itself_is_refused(setup, tmp_path, capsys, key, value, field):
+    folder, rig, plan, _ = setup
+    doc = json.loads(plan.read_text())
+    # a sample whose w_i and w_o differ in zenith, so that exchanging light and camera shows
+    i = next(i for i, s in enumerate(doc["samples"]) if abs(s["theta_i_deg"] - s["theta_o_deg"]) > 1)
+
+    def edit(samples):
+        samples[i][key] = value(samples[i])
+    err = run_refused(capture_args(rig, _tampered(plan, tmp_path, edit), tmp_path / "s"), capsys)
+    assert f"{tmp_path / 'plan.json'}: samples[{i}].{field}: expected " in err and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()
+
+
+def test_joints_of_another_pose_are_refused(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+
+    def turn(samples):
+        samples[4]["joints"]["sample_tilt"] += 2.0
+    err = run_refused(capture_args(rig, _tampered(plan, tmp_path, turn), tmp_path / "s"), capsys)
+    assert "samples[4].joints: expected joints whose forward kinematics give theta_i, theta_o" in err
+    assert not (tmp_path / "s").exists()
+
+
 def test_a_bad_rig_file_is_refused_naming_file_and_key(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     bad = yaml.safe_load(rig.read_text())

@@ -53,6 +53,7 @@ def load_inputs(rig_path, plan_path) -> SessionInputs:
     check_rig(plan, plan_path, rig)
     check_joints(plan, plan_path, rig)
     cells = plan_cells(plan, plan_path, model.grid)
+    check_consistency(plan, plan_path, model.grid, rig, cells)
     return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
                          white_reference_joints(rig))
 
@@ -118,6 +119,68 @@ def plan_cells(plan: dict, plan_path, grid) -> np.ndarray:
             raise ConfigError(plan_path, f"samples[{i}].cell", f"a valid cell of the model's {grid.shape} grid", cell)
         cells.append(int(flat))
     return np.asarray(cells, dtype=np.int64)
+
+
+ANGLE_TOLERANCE_DEG = 1e-3    # a plan's numbers are computed, not measured: only rounding may differ
+
+
+def check_consistency(plan: dict, plan_path, grid, rig, cells: np.ndarray) -> None:
+    """Refuse a plan whose samples disagree with themselves: each sample's angles, w_i and w_o
+    must be those of its cell, and the forward kinematics of its joints must reproduce them
+    (light and camera exchanged where ``light_camera_swapped``: the BRDF is reciprocal)."""
+    samples = plan["samples"]
+    w_i, w_o = grid.cell_directions(cells)
+    expected = {"theta_h_deg": np.degrees(grid.flat_angles(cells)[0]),
+                "theta_d_deg": np.degrees(grid.flat_angles(cells)[1]),
+                "phi_d_deg": np.degrees(grid.flat_angles(cells)[2]),
+                "theta_i_deg": _zenith_deg(w_i), "theta_o_deg": _zenith_deg(w_o)}
+    for key, want in expected.items():
+        _check_numbers(plan_path, samples, key, want, ANGLE_TOLERANCE_DEG, "deg")
+    for key, want in (("w_i", w_i), ("w_o", w_o)):
+        _check_numbers(plan_path, samples, key, want, np.radians(ANGLE_TOLERANCE_DEG), "")
+    _check_kinematics(plan_path, samples, rig, w_i, w_o)
+
+
+def _zenith_deg(w: np.ndarray) -> np.ndarray:
+    """Zenith angles in degrees of unit directions (n, 3)."""
+    return np.degrees(np.arccos(np.clip(w[:, 2], -1.0, 1.0)))
+
+
+def _check_numbers(plan_path, samples, key: str, want: np.ndarray, tolerance: float, unit: str) -> None:
+    """Each ``samples[i][key]`` (a number or a 3-vector) within ``tolerance`` of ``want[i]``."""
+    for i, (sample, value) in enumerate(zip(samples, want)):
+        found = sample.get(key)
+        try:
+            ok = np.all(np.abs(np.asarray(found, dtype=np.float64) - value) <= tolerance)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok or np.shape(found) != np.shape(value):
+            shown = np.round(value, 6).tolist()
+            raise ConfigError(plan_path, f"samples[{i}].{key}",
+                              f"{shown}{' ' + unit if unit else ''} (the value of its cell {sample.get('cell')})", found)
+
+
+def _check_kinematics(plan_path, samples, rig, w_i: np.ndarray, w_o: np.ndarray) -> None:
+    """The joints of each sample must put light and camera at the cell's directions."""
+    from planner.kinematics import forward
+
+    joints = np.array([[s["joints"][name] for name in rig.joint_names] for s in samples], dtype=np.float64)
+    light, camera = forward(rig, joints)
+    swapped = np.array([bool(s.get("light_camera_swapped", False)) for s in samples])
+    light, camera = np.where(swapped[:, None], camera, light), np.where(swapped[:, None], light, camera)
+    # isotropic BRDF: only theta_i, theta_o and the angle between the directions matter
+    found = np.stack([_zenith_deg(light), _zenith_deg(camera), _angle_deg(light, camera)], axis=1)
+    want = np.stack([_zenith_deg(w_i), _zenith_deg(w_o), _angle_deg(w_i, w_o)], axis=1)
+    for i in np.flatnonzero(np.any(np.abs(found - want) > ANGLE_TOLERANCE_DEG, axis=1)):
+        raise ConfigError(plan_path, f"samples[{i}].joints",
+                          f"joints whose forward kinematics give theta_i, theta_o, angle(w_i, w_o) = "
+                          f"{np.round(want[i], 4).tolist()} deg (its cell {samples[i].get('cell')})",
+                          f"{samples[i]['joints']} -> {np.round(found[i], 4).tolist()} deg")
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in degrees between unit directions (n, 3) and (n, 3), row by row."""
+    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)))
 
 
 def _field(doc: dict, path, key: str, kind: type):
