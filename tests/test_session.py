@@ -192,6 +192,36 @@ def test_sigkill_mid_session_then_resume_captures_every_sample_exactly_once(setu
     assert json.loads((session / "report.json").read_text())["runs"] == 2
 
 
+def test_a_second_capture_of_a_running_session_is_refused_at_once(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    proc = start_capture(rig, plan, session, speedup="10")
+    try:
+        wait_for_samples(session, proc, 1)
+        for extra in ((), ("--resume",)):
+            started = time.monotonic()
+            err = run_refused(capture_args(rig, plan, session, *extra), capsys)
+            assert err == f"goniofrost capture: error: session {session} is in use by process {proc.pid}; wait " \
+                          "for it to finish or stop it (Ctrl-C) before starting another capture on it\n"
+            assert time.monotonic() - started < 5        # at once: no device was connected
+        rows = journal_rows(session)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    # the kernel released the killed holder's lock: a resume runs and finds every sample once
+    assert main(capture_args(rig, plan, session, "--resume", "--speedup", "50")) == 0
+    assert [i for i, _ in journal_rows(session)] == list(range(M)) and journal_rows(session)[:len(rows)] == rows
+
+
+def test_a_session_that_is_a_file_is_a_one_line_error(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    (tmp_path / "s").write_text("not a folder")
+    err = run_refused(capture_args(rig, plan, tmp_path / "s"), capsys)
+    assert err == f"goniofrost capture: error: {tmp_path / 's'}: cannot write: a part of the path is a file, " \
+                  "not a directory\n"
+    assert (tmp_path / "s").read_text() == "not a folder"
+
+
 def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path):
     folder, rig, plan, _ = setup
     session = tmp_path / "s"

@@ -39,23 +39,25 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.report import summary_text, write_outputs
+    from goniofrost.capture.session_lock import session_lock
 
     inputs = load_inputs(rig_path, plan_path)
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
     session_dir = Path(session_dir)
     meta = session_meta(inputs, material)
-    journal = open_journal(session_dir, meta, resume)
-    try:
-        done = journal.done_indices()
-        stats = None
-        if len(done) < len(inputs.samples):
-            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
-                               on_ready=on_ready) as hardware:
-                stats = SessionEngine(inputs, hardware, journal, session_dir, progress=progress).run()
-        report = write_outputs(inputs, journal, stats, session_dir, material)
-    finally:
-        journal.close()
+    with session_lock(session_dir):
+        journal = open_journal(session_dir, meta, resume)
+        try:
+            done = journal.done_indices()
+            stats = None
+            if len(done) < len(inputs.samples):
+                with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+                                   on_ready=on_ready) as hardware:
+                    stats = SessionEngine(inputs, hardware, journal, session_dir, progress=progress).run()
+            report = write_outputs(inputs, journal, stats, session_dir, material)
+        finally:
+            journal.close()
     return CaptureOutcome(report, summary_text(report), session_dir)
 
 
