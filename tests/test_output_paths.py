@@ -155,3 +155,13 @@ def test_bench_refuses_a_bad_out_before_any_work(tmp_path, capsys):
     code, err = _run(capsys, ["bench", "--quick", "--grid", "4,4,8", "--out", str(out), "--no-progress"])
     assert code == 2 and err == f"goniofrost bench: error: {out}: cannot write: a part of the path is a file, not a directory"
     assert "bench:" not in capsys.readouterr().err
+
+
+def test_check_output_dir_creates_nothing_and_names_the_problem(tmp_path, mounted):
+    from goniofrost.core.atomic_file import check_output_dir
+
+    check_output_dir(tmp_path / "new" / "deeper")
+    assert list(tmp_path.iterdir()) == []
+    read_only = mounted("ro,size=64k")
+    with pytest.raises(OutputError, match="read-only"):
+        check_output_dir(read_only / "out")

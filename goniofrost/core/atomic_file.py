@@ -39,6 +39,22 @@ def output_errors(path):
         raise OutputError(path, reason) from exc
 
 
+def check_output_dir(path) -> None:
+    """Raise ``OutputError`` now if the folder ``path`` could not be created or written later.
+
+    Creates nothing: a command checks its output folder before long work, and bad input
+    elsewhere must still leave no trace.
+    """
+    path = Path(path)
+    with output_errors(path):
+        existing = next(p for p in (path, *path.parents) if p.exists())
+        if not existing.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(existing))
+        if not os.access(existing, os.W_OK):
+            code = errno.EROFS if os.statvfs(existing).f_flag & os.ST_RDONLY else errno.EACCES
+            raise OSError(code, os.strerror(code), str(existing))
+
+
 def write_bytes_atomic(path, payload: bytes) -> None:
     """Replace ``path`` with ``payload`` atomically (parent folders are created).
 

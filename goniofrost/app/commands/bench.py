@@ -46,11 +46,10 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     """Run the benchmark (or the stress cases) and write the results into ``--out``."""
     from goniofrost.bench.runner import run_benchmark, run_stress
-    from goniofrost.core.atomic_file import output_errors
+    from goniofrost.core.atomic_file import check_output_dir
 
     config = build_config(args)
-    with output_errors(args.out):   # a bad --out fails now, not after an hour of folds
-        Path(args.out, "folds").mkdir(parents=True, exist_ok=True)
+    check_output_dir(args.out)   # a bad --out fails now, not after an hour of folds
     if args.stress:
         paths = run_stress(config, args.out, command(config, args), m=args.stress_m, progress=not args.no_progress)
     else:
