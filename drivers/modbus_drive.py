@@ -20,23 +20,11 @@ from pymodbus.pdu import ExceptionResponse
 from .axis import Axis, AxisConfig
 from .errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
 from .modbus_map import (
-    RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
+    InputBit, OutputBit, RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
 )
+from .modbus_protocol import FrameError, check_rtu_frame, check_tcp_frame, describe_exception
 
 REPLY_TIMEOUT_S = 0.3
-EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
-                   4: "server device failure", 5: "acknowledge", 6: "server device busy",
-                   10: "gateway path unavailable", 11: "gateway target failed to respond"}
-
-
-def modbus_crc(frame: bytes) -> int:
-    """Modbus RTU CRC-16 (poly 0xA001 reflected, init 0xFFFF), sent low byte first."""
-    crc = 0xFFFF
-    for byte in frame:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
 
 
 class ModbusLink:
@@ -96,8 +84,7 @@ class ModbusLink:
             raise self._classify_silence(text, exc) from exc
         if isinstance(response, ExceptionResponse) or response.isError():
             code = getattr(response, "exception_code", None)
-            raise ExceptionReply(self.name, text, self._last_rx or None,
-                                 f"exception {code}: {EXCEPTION_CODES.get(code, 'unknown')}", code=code)
+            raise ExceptionReply(self.name, text, self._last_rx or None, describe_exception(code), code=code)
         return response
 
     def _classify_silence(self, text: str, exc: Exception) -> DeviceError:
@@ -105,14 +92,10 @@ class ModbusLink:
         raw = self._last_rx
         if not raw:
             return DeviceTimeout(self.name, text, None, f"no reply within {self.timeout_s:g} s")
-        if self.rtu:
-            if len(raw) < 4 or modbus_crc(raw[:-2]) != int.from_bytes(raw[-2:], "little"):
-                return ChecksumError(self.name, text, raw, "reply CRC mismatch")
-            return ProtocolError(self.name, text, raw, str(exc))
-        if len(raw) >= 6 and raw[2:4] != b"\x00\x00":
-            return ProtocolError(self.name, text, raw, "MBAP protocol id is not 0")
-        if len(raw) >= 6 and len(raw) < 6 + int.from_bytes(raw[4:6], "big"):
-            return ProtocolError(self.name, text, raw, "truncated frame: fewer bytes than the MBAP length")
+        try:
+            check_rtu_frame(raw) if self.rtu else check_tcp_frame(raw)
+        except FrameError as bad:
+            return (ChecksumError if bad.kind == "crc" else ProtocolError)(self.name, text, raw, str(bad))
         return ProtocolError(self.name, text, raw, str(exc))
 
     def read_holding(self, address: int, count: int) -> list[int]:
@@ -162,11 +145,11 @@ class ModbusAxis(Axis):
     def _status_word(self) -> int:
         return self._read32(self.map.output_status, signed=False)
 
-    def _bit(self, word: int, name: str) -> bool:
-        return bool(word >> self.map.output_bits[name] & 1)
+    def _bit(self, word: int, bit: OutputBit) -> bool:
+        return bool(word >> self.map.output_bits[bit] & 1)
 
-    def _write_inputs(self, *names: str) -> None:
-        word = sum(1 << self.map.input_bits[n] for n in names)
+    def _write_inputs(self, *bits: InputBit) -> None:
+        word = sum(1 << self.map.input_bits[b] for b in bits)
         self.link.write_holding(self.map.input_command, to_registers(word, self.word_order))
 
     def _alarm(self) -> str:
@@ -174,7 +157,7 @@ class ModbusAxis(Axis):
 
     def reset_alarm(self) -> None:
         """Pulse ALM-RST (on, then off); the drive clears the alarm once its cause has gone."""
-        self._write_inputs("alm_rst")
+        self._write_inputs(InputBit.ALM_RST)
         self._write_inputs()
 
     # ----- protocol hooks --------------------------------------------------------------------
@@ -199,23 +182,23 @@ class ModbusAxis(Axis):
 
     def _read_moving(self) -> bool:
         word = self._status_word()
-        if self._bit(word, "alm_a"):
+        if self._bit(word, OutputBit.ALM_A):
             raise DeviceFault(self.name, f"read status 0x{self.map.output_status:04X}",
                               f"0x{word:04X}", [self._alarm()])
-        return self._bit(word, "move")
+        return self._bit(word, OutputBit.MOVE)
 
     def _command_stop(self) -> None:
-        self._write_inputs("stop")
+        self._write_inputs(InputBit.STOP)
         self._write_inputs()
 
     def _set_enabled(self, enabled: bool) -> None:
         if enabled:
             self._write_inputs()
         else:
-            self._write_inputs("free")
+            self._write_inputs(InputBit.FREE)
 
     def _read_fault(self) -> str | None:
-        return self._alarm() if self._bit(self._status_word(), "alm_a") else None
+        return self._alarm() if self._bit(self._status_word(), OutputBit.ALM_A) else None
 
     def _apply_motion_profile(self, speed_deg_s: float, accel_deg_s2: float) -> None:
         """Kept for the next direct-data write (the AZ takes speed and rate with every move)."""

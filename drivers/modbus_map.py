@@ -15,6 +15,7 @@ A rig file names a map (``register_map: oriental-az``) or gives one inline::
 from __future__ import annotations
 
 import dataclasses
+import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -37,10 +38,37 @@ class DirectData:
     TRIGGER = 7        # 1 = take all data: starts the move
 
 
-TYPE_ABSOLUTE = 1
-TYPE_INCREMENTAL = 2
+class OperationType(enum.IntEnum):
+    """The direct-data operation type (``DirectData.OPERATION_TYPE``)."""
+
+    ABSOLUTE = 1
+    INCREMENTAL = 2
+
+
 TRIGGER_ALL_DATA = 1
 FULL_CURRENT = 1000  # 100.0 %
+
+
+class InputBit(str, enum.Enum):
+    """Bits of the driver input command (lower word of ``input_command``); the values are the
+    names a rig file uses in ``register_map.input_bits``."""
+
+    START = "start"
+    ZHOME = "zhome"      # return to home
+    STOP = "stop"        # decelerate to a stop
+    FREE = "free"        # de-energise the motor
+    ALM_RST = "alm_rst"  # reset the alarm (once its cause has gone)
+
+
+class OutputBit(str, enum.Enum):
+    """Bits of the driver output status (lower word of ``output_status``); the values are the
+    names a rig file uses in ``register_map.output_bits``."""
+
+    READY = "ready"
+    ALM_A = "alm_a"      # alarm present: the alarm code register says which
+    SYS_BSY = "sys_bsy"
+    MOVE = "move"        # the motor is running
+    IN_POS = "in_pos"
 
 # Oriental Motor AZ alarm codes (AZ operating manual, alarm list; only the common ones).
 AZ_ALARM_CODES = {
@@ -75,8 +103,8 @@ class RegisterMap:
     alarm_code: int
     feedback_position: int
     command_position: int
-    input_bits: Mapping[str, int] = field(default_factory=dict)
-    output_bits: Mapping[str, int] = field(default_factory=dict)
+    input_bits: Mapping[InputBit, int] = field(default_factory=dict)
+    output_bits: Mapping[OutputBit, int] = field(default_factory=dict)
     alarm_codes: Mapping[int, str] = field(default_factory=dict)
 
     def alarm_text(self, code: int) -> str:
@@ -98,16 +126,16 @@ ORIENTAL_AZ = RegisterMap(
     alarm_code=0x0080,
     feedback_position=0x0120,  # unverified in the manual (third-party code); keep overridable
     command_position=0x0122,
-    input_bits={"start": 3, "zhome": 4, "stop": 5, "free": 6, "alm_rst": 7},
-    output_bits={"ready": 5, "alm_a": 7, "sys_bsy": 8, "move": 13, "in_pos": 14},
+    input_bits={InputBit.START: 3, InputBit.ZHOME: 4, InputBit.STOP: 5, InputBit.FREE: 6, InputBit.ALM_RST: 7},
+    output_bits={OutputBit.READY: 5, OutputBit.ALM_A: 7, OutputBit.SYS_BSY: 8, OutputBit.MOVE: 13,
+                 OutputBit.IN_POS: 14},
     alarm_codes=AZ_ALARM_CODES,
 )
 
 NAMED_MAPS: dict[str, RegisterMap] = {ORIENTAL_AZ.name: ORIENTAL_AZ}
 _ADDRESS_KEYS = ("direct_data", "input_command", "output_status", "alarm_code",
                  "feedback_position", "command_position")
-_BIT_KEYS = {"input_bits": ("start", "zhome", "stop", "free", "alm_rst"),
-             "output_bits": ("ready", "alm_a", "sys_bsy", "move", "in_pos")}
+_BIT_KEYS: dict[str, type[enum.Enum]] = {"input_bits": InputBit, "output_bits": OutputBit}
 
 
 def resolve_map(spec, source: str = "rig", keypath: str = "driver.register_map") -> RegisterMap:
@@ -140,9 +168,9 @@ def _inline_map(spec: Mapping, source: str, keypath: str) -> RegisterMap:
             values[key] = _address(spec[key], source, f"{keypath}.{key}")
         elif key not in values:
             raise ConfigError(source, f"{keypath}.{key}", "a register address (or a 'base' map)", None)
-    for key, names in _BIT_KEYS.items():
+    for key, bit_enum in _BIT_KEYS.items():
         bits = dict(values.get(key, {}))
-        bits.update(_bits(spec.get(key, {}), names, source, f"{keypath}.{key}"))
+        bits.update(_bits(spec.get(key, {}), bit_enum, source, f"{keypath}.{key}"))
         values[key] = bits
     return RegisterMap(**values)
 
@@ -153,7 +181,8 @@ def _address(value, source: str, keypath: str) -> int:
     return value
 
 
-def _bits(spec, names: tuple[str, ...], source: str, keypath: str) -> dict[str, int]:
+def _bits(spec, bit_enum: type[enum.Enum], source: str, keypath: str) -> dict:
+    names = tuple(member.value for member in bit_enum)
     if not isinstance(spec, Mapping):
         raise ConfigError(source, keypath, f"a mapping of {names} to bit numbers", spec)
     out = {}
@@ -162,7 +191,7 @@ def _bits(spec, names: tuple[str, ...], source: str, keypath: str) -> dict[str, 
             raise ConfigError(source, f"{keypath}.{name}", f"one of {list(names)}", name)
         if isinstance(bit, bool) or not isinstance(bit, int) or not 0 <= bit <= 15:
             raise ConfigError(source, f"{keypath}.{name}", "a bit number 0..15", bit)
-        out[name] = bit
+        out[bit_enum(name)] = bit
     return out
 
 
@@ -191,7 +220,7 @@ def _order(word_order: str) -> str:
 
 
 def direct_data_registers(position_steps: int, speed_hz: int, rate: int, stop_rate: int,
-                          word_order: str = "big", operation_type: int = TYPE_ABSOLUTE,
+                          word_order: str = "big", operation_type: int = OperationType.ABSOLUTE,
                           current: int = FULL_CURRENT) -> list[int]:
     """The 16 registers of one direct-data move, ending with trigger = 1 (starts the move)."""
     values = [0, operation_type, position_steps, speed_hz, rate, stop_rate, current, TRIGGER_ALL_DATA]

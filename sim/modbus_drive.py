@@ -25,9 +25,9 @@ from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivers.modbus_map import (
-    TYPE_ABSOLUTE, TYPE_INCREMENTAL, DirectData,
-    from_registers, resolve_map, to_registers,
+    TRIGGER_ALL_DATA, DirectData, InputBit, OperationType, OutputBit, from_registers, resolve_map, to_registers,
 )
+from drivers.modbus_protocol import corrupt_checksum, drop_last_byte
 from sim.clock import SimClock
 from sim.lamp_model import LampModel
 from sim.motion import TrapezoidMotion
@@ -212,12 +212,9 @@ class SimulatedModbusDrive:
         if "no_reply" in faults:
             return b""
         if "bad_checksum" in faults:
-            if self.transport == "rtu":
-                data = data[:-1] + bytes([data[-1] ^ 0xFF])
-            else:
-                data = data[:2] + b"\x00\x01" + data[4:]
+            data = corrupt_checksum(data, rtu=self.transport == "rtu")
         if "drop_byte" in faults:
-            data = data[:-1]
+            data = drop_last_byte(data)
         return data
 
     # --- register behaviour ----------------------------------------------------------------
@@ -226,13 +223,13 @@ class SimulatedModbusDrive:
         moving = self.motion.is_moving()
         word = 0
         if self.alarm_code:
-            word |= 1 << bits["alm_a"]
+            word |= 1 << bits[OutputBit.ALM_A]
         if moving:
-            word |= 1 << bits["move"]
+            word |= 1 << bits[OutputBit.MOVE]
         if not moving and not self.alarm_code and not self.free:
-            word |= 1 << bits["ready"]
+            word |= 1 << bits[OutputBit.READY]
         if not moving and abs(self.motion.position() - self.motion.target) < 1.0:
-            word |= 1 << bits["in_pos"]
+            word |= 1 << bits[OutputBit.IN_POS]
         return word
 
     def _refresh(self, pdu_address: int, count: int) -> None:
@@ -269,13 +266,13 @@ class SimulatedModbusDrive:
             return from_registers(block[base + 2 * index: base + 2 * index + 2], self.word_order)
 
         kind, speed, rate = value(DirectData.OPERATION_TYPE), value(DirectData.SPEED), value(DirectData.RATE)
-        if value(DirectData.TRIGGER) != 1:
+        if value(DirectData.TRIGGER) != TRIGGER_ALL_DATA:
             return None
-        if kind not in (TYPE_ABSOLUTE, TYPE_INCREMENTAL) or speed <= 0 or rate <= 0:
+        if kind not in tuple(OperationType) or speed <= 0 or rate <= 0:
             return ExcCodes.ILLEGAL_VALUE
         if self.alarm_code or self.free:
             return None  # an alarmed or de-energised drive ignores the trigger
-        target = value(DirectData.POSITION) + (self.motion.target if kind == TYPE_INCREMENTAL else 0)
+        target = value(DirectData.POSITION) + (self.motion.target if kind == OperationType.INCREMENTAL else 0)
         self.motion.set_profile(speed, rate)
         self.motion.start_move(target)
         if "stall" in self.faults:
@@ -285,15 +282,15 @@ class SimulatedModbusDrive:
     def _input_command(self, words: list[int]) -> None:
         bits, word = self.map.input_bits, from_registers(words, self.word_order, signed=False)
 
-        def on(name: str) -> bool:
-            return bool(word >> bits[name] & 1)
+        def on(bit: InputBit) -> bool:
+            return bool(word >> bits[bit] & 1)
 
-        if on("stop") or on("free"):
+        if on(InputBit.STOP) or on(InputBit.FREE):
             self.motion.stop()
-        self.free = on("free")
-        if on("alm_rst") and "alarm" not in self.faults:
+        self.free = on(InputBit.FREE)
+        if on(InputBit.ALM_RST) and "alarm" not in self.faults:
             self.alarm_code = 0  # a reset clears the alarm only once its cause has gone
-        if on("zhome") and not self.alarm_code and not self.free:
+        if on(InputBit.ZHOME) and not self.alarm_code and not self.free:
             self.motion.start_move(0.0)
 
     def _refresh_coils(self, pdu_address: int, count: int) -> None:

@@ -16,7 +16,8 @@ from pymodbus.client import ModbusTcpClient
 from drivers.axis import AxisConfig
 from drivers.config import validate_driver_section
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
-from drivers.modbus_drive import ModbusAxis, modbus_crc
+from drivers.modbus_drive import ModbusAxis
+from drivers.modbus_protocol import modbus_crc
 from drivers.modbus_map import ORIENTAL_AZ, direct_data_registers, from_registers, resolve_map, to_registers
 from goniofrost.core.errors import ConfigError
 from sim.clock import SimClock
