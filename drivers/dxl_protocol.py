@@ -1,8 +1,9 @@
 """Dynamixel Protocol 2.0 in one place: frames, CRC-16, byte stuffing, control table, error codes.
 
-Used by the simulated servo (parse instructions, build status packets) and by the driver (control
-table, unit scaling, error decoding); the driver's transport itself is dynamixel-sdk. Facts from
-PROTOCOLS.md section 1 (ROBOTIS e-Manual, X series).
+Used by the driver (build instructions, parse status packets) and by the simulated servo (parse
+instructions, build status packets, damage them for injected faults); the driver's serial
+transport is dynamixel-sdk's PortHandler. Facts from PROTOCOLS.md section 1 (ROBOTIS e-Manual,
+X series).
 
 Frame (multi-byte fields little-endian)::
 
@@ -16,6 +17,15 @@ from dataclasses import dataclass
 
 HEADER = b"\xff\xff\xfd"
 RESERVED = 0x00
+# byte groups of a frame (before unstuffing)
+ID_INDEX = 4
+LEN_FIELD = slice(5, 7)      # little-endian count of the bytes after it
+PREFIX_SIZE = 7              # header, reserved, ID, LEN: what LEN does not count
+INSTRUCTION_INDEX = 7        # 0x55 in a status packet
+ERROR_INDEX = 8              # the ERR byte of a status packet
+CRC_SIZE = 2
+MIN_FRAME = PREFIX_SIZE + 1 + CRC_SIZE  # an instruction without parameters
+MIN_STATUS = MIN_FRAME + 1              # a status: instruction 0x55 and the ERR byte
 STATUS = 0x55  # the instruction byte of every status packet
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC  # the SDK accepts status packets only from IDs <= 0xFC
@@ -194,10 +204,9 @@ def unstuff(body: bytes) -> bytes:
 def build_packet(dxl_id: int, instruction: int, params: bytes = b"") -> bytes:
     """A complete instruction (or, with instruction 0x55 and ERR first in params, status) frame."""
     body = stuff(bytes([instruction]) + bytes(params))
-    length = len(body) + 2  # + CRC
-    frame = HEADER + bytes([RESERVED, dxl_id, length & 0xFF, length >> 8]) + body
-    crc = crc16(frame)
-    return frame + bytes([crc & 0xFF, crc >> 8])
+    length = len(body) + CRC_SIZE
+    frame = HEADER + bytes([RESERVED, dxl_id]) + length.to_bytes(2, "little") + body
+    return frame + crc16(frame).to_bytes(CRC_SIZE, "little")
 
 
 def build_instruction(dxl_id: int, instruction: Instruction, params: bytes = b"") -> bytes:
@@ -210,14 +219,29 @@ def build_status(dxl_id: int, error: int = 0, params: bytes = b"") -> bytes:
     return build_packet(dxl_id, STATUS, bytes([error]) + bytes(params))
 
 
+ADDRESS_SIZE = 2  # every READ/WRITE/SYNC starts with the control-table address, little-endian
+LENGTH_SIZE = 2   # READ and SYNC_* follow it with a data length
+
+
 def read_params(reg: Reg) -> bytes:
     """Parameters of a READ of one control-table item: address and length, little-endian."""
-    return reg.addr.to_bytes(2, "little") + reg.size.to_bytes(2, "little")
+    return reg.addr.to_bytes(ADDRESS_SIZE, "little") + reg.size.to_bytes(LENGTH_SIZE, "little")
 
 
 def write_params(reg: Reg, value: int) -> bytes:
     """Parameters of a WRITE of one item: address then the value in ``reg.size`` bytes (two's complement)."""
-    return reg.addr.to_bytes(2, "little") + (value & ((1 << 8 * reg.size) - 1)).to_bytes(reg.size, "little")
+    return reg.addr.to_bytes(ADDRESS_SIZE, "little") + (value & ((1 << 8 * reg.size) - 1)).to_bytes(reg.size, "little")
+
+
+def parse_read_params(params: bytes) -> tuple[int, int]:
+    """Address and length of READ parameters (also the first 4 bytes of SYNC_READ / SYNC_WRITE)."""
+    return (int.from_bytes(params[:ADDRESS_SIZE], "little"),
+            int.from_bytes(params[ADDRESS_SIZE:ADDRESS_SIZE + LENGTH_SIZE], "little"))
+
+
+def parse_write_params(params: bytes) -> tuple[int, bytes]:
+    """Address and data bytes of WRITE parameters."""
+    return int.from_bytes(params[:ADDRESS_SIZE], "little"), bytes(params[ADDRESS_SIZE:])
 
 
 def decode_value(data: bytes, signed: bool) -> int:
@@ -245,29 +269,30 @@ class Packet:
 
 def frame_length(buf: bytes) -> int | None:
     """Total length of the frame starting at ``buf[0]`` once its LEN field has arrived, else None."""
-    if len(buf) < 7:
+    if len(buf) < PREFIX_SIZE:
         return None
-    return 7 + int.from_bytes(buf[5:7], "little")
+    return PREFIX_SIZE + int.from_bytes(buf[LEN_FIELD], "little")
 
 
 def parse_packet(frame: bytes) -> Packet:
     """Check and decode one complete frame (header, length, CRC), unstuffing its body."""
     frame = bytes(frame)
-    if frame[:4] != HEADER + bytes([RESERVED]):
-        raise FrameError("header", frame, f"bad header {frame[:4].hex(' ')}")
+    start = HEADER + bytes([RESERVED])
+    if frame[:len(start)] != start:
+        raise FrameError("header", frame, f"bad header {frame[:len(start)].hex(' ')}")
     total = frame_length(frame)
-    if total is None or len(frame) < total or total < 10:
+    if total is None or len(frame) < total or total < MIN_FRAME:
         raise FrameError("incomplete", frame, f"incomplete frame: {len(frame)} bytes, LEN says {total}")
     frame = frame[:total]
-    crc = int.from_bytes(frame[-2:], "little")
-    if crc16(frame[:-2]) != crc:
-        raise FrameError("crc", frame, f"CRC {crc:04X} != computed {crc16(frame[:-2]):04X}")
-    body = unstuff(frame[7:-2])
+    crc = int.from_bytes(frame[-CRC_SIZE:], "little")
+    if crc16(frame[:-CRC_SIZE]) != crc:
+        raise FrameError("crc", frame, f"CRC {crc:04X}, computed {crc16(frame[:-CRC_SIZE]):04X}")
+    body = unstuff(frame[PREFIX_SIZE:-CRC_SIZE])  # instruction, [ERR,] parameters
     if body[0] == STATUS:
         if len(body) < 2:
             raise FrameError("incomplete", frame, "status packet without ERR byte")
-        return Packet(frame[4], STATUS, body[2:], body[1])
-    return Packet(frame[4], body[0], body[1:])
+        return Packet(frame[ID_INDEX], STATUS, body[2:], body[1])
+    return Packet(frame[ID_INDEX], body[0], body[1:])
 
 
 def find_frame(buf: bytearray) -> bytes | None:
@@ -284,7 +309,7 @@ def find_frame(buf: bytearray) -> bytes | None:
         del buf[:i]
         if len(buf) < 4:
             return None
-        if buf[3] != RESERVED:
+        if buf[len(HEADER)] != RESERVED:
             del buf[:1]
             continue
         total = frame_length(buf)
@@ -293,3 +318,16 @@ def find_frame(buf: bytearray) -> bytes | None:
         frame = bytes(buf[:total])
         del buf[:total]
         return frame
+
+
+# ----- faults a simulated servo injects into its status packets ---------------------------------
+def corrupt_crc(frame: bytes) -> bytes:
+    """``frame`` with its CRC's high byte flipped (a bit error on the line)."""
+    frame = bytes(frame)
+    return frame[:-1] + bytes([frame[-1] ^ 0xFF])
+
+
+def drop_error_byte(frame: bytes) -> bytes:
+    """A status packet whose ERR byte was lost on the line: LEN promises one byte more than comes."""
+    frame = bytes(frame)
+    return frame[:ERROR_INDEX] + frame[ERROR_INDEX + 1:]

@@ -1,11 +1,17 @@
-"""Dynamixel X-series servo as an Axis, over Protocol 2.0 with dynamixel-sdk.
+"""Dynamixel X-series servo as an Axis, over Protocol 2.0.
+
+Frames are built and parsed by ``drivers.dxl_protocol``, the module the simulated servo uses too
+(CRC-16, byte stuffing, the control table); dynamixel-sdk's ``PortHandler`` is the serial
+transport (port setup, baud table, reply timeout). The SDK's ``PacketHandler`` is not used: its
+``txPacket`` drops the result of ``addStuffing`` (dynamixel-sdk 4.1.0), so a parameter holding
+FF FF FD would go out unstuffed.
 
 On ``connect()``: open the port at the configured baud, PING (the model number must be an X
 series one, and the configured model if given), switch to extended position mode (EEPROM: torque
 off first) and load the profile velocity and acceleration. Every status packet is checked: the
 Alert bit leads to a read of Hardware Error Status (70) and a DeviceFault with readable causes
-(and, with ``reboot_after_fault``, a REBOOT); ERR codes 1-7 raise ExceptionReply; SDK results map
-to DeviceTimeout (nothing came back), ProtocolError (incomplete) and ChecksumError (bad CRC).
+(and, with ``reboot_after_fault``, a REBOOT); ERR codes 1-7 raise ExceptionReply. No status within
+the reply timeout is a DeviceTimeout, part of one a ProtocolError, a bad CRC a ChecksumError.
 """
 from __future__ import annotations
 
@@ -15,13 +21,13 @@ import time
 from collections.abc import Mapping
 
 import serial
-from dynamixel_sdk import PacketHandler, PortHandler
-from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
+from dynamixel_sdk import PortHandler
 
 from .axis import Axis, AxisConfig
-from .dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, CONTROL_TABLE, MODEL_NUMBERS, REV_COUNTS,
-                           VELOCITY_UNIT_RPM, Instruction, OperatingMode, Reg, crc16,
-                           decode_value, describe_error, frame_length, hardware_error_causes,
+from .dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, CONTROL_TABLE, MIN_STATUS, MODEL_NUMBERS,
+                           REV_COUNTS, STATUS, VELOCITY_UNIT_RPM, FrameError, Instruction,
+                           OperatingMode, Packet, Reg, build_instruction, decode_value,
+                           describe_error, find_frame, hardware_error_causes, parse_packet,
                            read_params, write_params)
 from .errors import (ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply,
                      ProtocolError)
@@ -34,6 +40,8 @@ REBOOT_SETTLE_S = 0.5  # the servo is silent for a moment after REBOOT
 # The SDK waits only bytes x byte-time + 34 ms for a status; a busy host (or a simulator sharing
 # two cores with other work) can miss that. Waiting longer costs nothing when replies do come.
 DEFAULT_REPLY_TIMEOUT_MS = 100.0
+MODEL_NUMBER = CONTROL_TABLE["model_number"]
+PING_REPLY_SIZE = 3  # a PING status carries model number L, H and the firmware version
 
 
 class _Port(PortHandler):
@@ -75,7 +83,6 @@ class DynamixelAxis(Axis):
         self.reply_timeout_ms = float(reply_timeout_ms)
         self.model_number: int | None = None
         self._port: _Port | None = None
-        self._ph = PacketHandler(2.0)
 
     @classmethod
     def from_section(cls, config: AxisConfig, section: Mapping) -> "DynamixelAxis":
@@ -83,39 +90,52 @@ class DynamixelAxis(Axis):
         keys = ("baud", "model", "counts_per_deg", "reboot_after_fault", "reply_timeout_ms")
         return cls(config, port=section["port"], id=section["id"], **{k: section[k] for k in keys if k in section})
 
-    # ----- transport: one instruction, one checked status ----------------------------------------
+    # ----- transport: one instruction frame, one checked status frame --------------------------
     def _transact(self, what: str, instruction: Instruction, params: bytes = b"",
-                  check_alert: bool = True) -> bytes:
-        """Send one instruction through the SDK; return the status parameters or raise typed errors."""
-        tx = [0] * (10 + len(params))  # header, CRC and stuffing are filled in by the SDK
-        tx[4], tx[5], tx[6], tx[7] = self.dxl_id, (len(params) + 3) & 0xFF, (len(params) + 3) >> 8, int(instruction)
-        tx[8:8 + len(params)] = list(params)
+                  check_alert: bool = True, reply_data: int = 0) -> bytes:
+        """Send one instruction; return the parameters of its status packet or raise typed errors.
+
+        ``reply_data``: parameter bytes the status will carry (sizes the SDK's reply timeout).
+        """
+        request = build_instruction(self.dxl_id, instruction, params)
         try:
-            rx, result, _ = self._ph.txRxPacket(self._port, tx)
+            frame, status = self._exchange(what, request, MIN_STATUS + reply_data)
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(self.name, what, None, f"serial port {self.port_path} failed: {exc}") from exc
-        finally:
-            self._port.is_using = False  # the SDK leaves it set if the serial layer raised
-        if result != COMM_SUCCESS:
-            self._raise_comm(what, result, bytes(rx or b""))
-        err, data = rx[8], bytes(rx[9:frame_length(bytes(rx[:7])) - 2])
-        if err & ~ALERT_BIT:
-            raise ExceptionReply(self.name, what, bytes(rx), describe_error(err), code=err & ~ALERT_BIT)
-        if err & ALERT_BIT and check_alert:
-            self._raise_fault(what, bytes(rx))
-        return data
+        code = status.error & ~ALERT_BIT
+        if code:
+            raise ExceptionReply(self.name, what, frame, describe_error(status.error), code=code)
+        if status.error & ALERT_BIT and check_alert:
+            self._raise_fault(what, frame)
+        return status.params
 
-    def _raise_comm(self, what: str, result: int, rx: bytes) -> None:
-        if result == COMM_RX_TIMEOUT:
-            raise DeviceTimeout(self.name, what, None, "no status packet within the reply timeout")
-        if result == COMM_RX_CORRUPT:
-            total = frame_length(rx)
-            if total is None or len(rx) < total:
-                raise ProtocolError(self.name, what, rx, "incomplete status packet")
-            crc = int.from_bytes(rx[total - 2:total], "little")
-            raise ChecksumError(self.name, what, rx[:total],
-                                f"status CRC {crc:04X}, computed {crc16(rx[:total - 2]):04X}")
-        raise DeviceError(self.name, what, rx or None, self._ph.getTxRxResult(result))
+    def _exchange(self, what: str, request: bytes, reply_size: int) -> tuple[bytes, Packet]:
+        """Write ``request``, then read until this servo's status frame arrives or the reply
+        timeout ends. Other frames (an adapter's echo, another servo's status) are skipped, as
+        the SDK skips them."""
+        port = self._port
+        port.clearPort()  # a late status must not answer this instruction
+        port.writePort(request)
+        port.setPacketTimeout(reply_size)
+        buf = bytearray()
+        while True:
+            buf += port.readPort(reply_size)
+            frame = find_frame(buf)
+            if frame is not None:
+                status = self._parse_status(what, frame)
+                if status.instruction == STATUS and status.dxl_id == self.dxl_id:
+                    return frame, status
+            elif port.isPacketTimeout():
+                if buf:
+                    raise ProtocolError(self.name, what, bytes(buf), "incomplete status packet")
+                raise DeviceTimeout(self.name, what, None, "no status packet within the reply timeout")
+
+    def _parse_status(self, what: str, frame: bytes) -> Packet:
+        try:
+            return parse_packet(frame)
+        except FrameError as exc:
+            error = ChecksumError if exc.kind == "crc" else ProtocolError
+            raise error(self.name, what, frame, f"status {exc}") from exc
 
     def _raise_fault(self, what: str, rx: bytes) -> None:
         status = self._read(T["hardware_error_status"], check_alert=False)
@@ -130,7 +150,7 @@ class DynamixelAxis(Axis):
 
     def _read(self, reg: Reg, check_alert: bool = True) -> int:
         data = self._transact(f"READ {self._name_of(reg)} (addr {reg.addr}, {reg.size} bytes)",
-                              Instruction.READ, read_params(reg), check_alert)
+                              Instruction.READ, read_params(reg), check_alert, reply_data=reg.size)
         if len(data) != reg.size:
             raise ProtocolError(self.name, f"READ addr {reg.addr}", data,
                                 f"expected {reg.size} data bytes, got {len(data)}")
@@ -173,8 +193,8 @@ class DynamixelAxis(Axis):
             raise
 
     def _check_model(self) -> None:
-        data = self._transact("PING", Instruction.PING, check_alert=False)
-        self.model_number = decode_value(data[:2], False)
+        data = self._transact("PING", Instruction.PING, check_alert=False, reply_data=PING_REPLY_SIZE)
+        self.model_number = decode_value(data[:MODEL_NUMBER.size], False)
         expected = MODEL_NUMBERS.get(self.model) if self.model else None
         ok = self.model_number == expected if expected else self.model_number in MODEL_NUMBERS.values()
         if not ok:

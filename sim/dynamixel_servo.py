@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import threading
 
-from drivers.dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, BROADCAST_ID, CONTROL_TABLE,
-                                  EXTENDED_GOAL_LIMIT, MODEL_NUMBERS, REV_COUNTS, TABLE_SIZE,
-                                  VELOCITY_UNIT_RPM, ErrorCode, FrameError, Instruction,
-                                  OperatingMode, Reg, build_status, decode_value, find_frame,
-                                  parse_packet)
+from drivers.dxl_protocol import (ACCEL_UNIT_RPM2, ADDRESS_SIZE, ALERT_BIT, BROADCAST_ID,
+                                  CONTROL_TABLE, EXTENDED_GOAL_LIMIT, ID_INDEX, LENGTH_SIZE,
+                                  MODEL_NUMBERS, REV_COUNTS, TABLE_SIZE, VELOCITY_UNIT_RPM,
+                                  ErrorCode, FrameError, Instruction, OperatingMode, Reg,
+                                  build_status, corrupt_crc, decode_value, drop_error_byte,
+                                  find_frame, parse_packet, parse_read_params, parse_write_params)
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
 from sim.pty_port import PtyServedDevice
@@ -110,8 +111,11 @@ class SimulatedDynamixel(PtyServedDevice):
         self._set(T["present_temperature"], 31)
         self._set(T["goal_position"], round(self.motion.position()))
 
+    def _raw(self, reg: Reg) -> bytes:
+        return bytes(self.table[reg.addr:reg.addr + reg.size])
+
     def _get(self, reg: Reg) -> int:
-        return decode_value(self.table[reg.addr:reg.addr + reg.size], reg.signed)
+        return decode_value(self._raw(reg), reg.signed)
 
     def _set(self, reg: Reg, value: int) -> None:
         self.table[reg.addr:reg.addr + reg.size] = (int(value) & ((1 << 8 * reg.size) - 1)).to_bytes(reg.size, "little")
@@ -146,9 +150,9 @@ class SimulatedDynamixel(PtyServedDevice):
     def _corrupt(self, reply: bytes) -> bytes:
         """Apply the reply-damaging faults to one status packet."""
         if "bad_checksum" in self.faults:
-            reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
+            reply = corrupt_crc(reply)
         if "drop_byte" in self.faults:
-            reply = reply[:8] + reply[9:]  # the ERR byte is lost on the line
+            reply = drop_error_byte(reply)
         return reply
 
     def _handle_frame(self, frame: bytes) -> bytes | None:
@@ -156,7 +160,7 @@ class SimulatedDynamixel(PtyServedDevice):
         try:
             pkt = parse_packet(frame)
         except FrameError as exc:
-            dxl_id = frame[4] if len(frame) > 4 else None
+            dxl_id = frame[ID_INDEX] if len(frame) > ID_INDEX else None
             if exc.kind == "crc" and dxl_id == self.id:
                 return self._status(ErrorCode.CRC)
             return None
@@ -189,34 +193,33 @@ class SimulatedDynamixel(PtyServedDevice):
     def _sync(self, pkt) -> bytes | None:
         """SYNC_READ (addr, len, ids: a status from each listed ID in turn; this one servo answers if
         listed) and SYNC_WRITE (addr, len, then [id, data] per servo; never a status)."""
-        p = pkt.params
-        if len(p) < 4:
+        p, head = pkt.params, ADDRESS_SIZE + LENGTH_SIZE
+        if len(p) < head:
             return None
-        addr_len = p[:4]
-        length = int.from_bytes(p[2:4], "little")
+        addr, length = parse_read_params(p)
         if pkt.instruction == Instruction.SYNC_READ:
-            return self._read(addr_len) if self.id in p[4:] else None
-        for i in range(4, len(p) - length, length + 1):
+            return self._read(p[:head]) if self.id in p[head:] else None
+        for i in range(head, len(p) - length, length + 1):  # [id, data] per servo
             if p[i] == self.id:
-                self._write(p[:2] + p[i + 1:i + 1 + length])
+                self._write(p[:ADDRESS_SIZE] + p[i + 1:i + 1 + length])
         return None
 
     def _ping(self, params: bytes) -> bytes:
-        return self._status(0, self.table[0:2] + self.table[6:7])  # model L, model H, firmware
+        return self._status(0, self._raw(T["model_number"]) + self._raw(T["firmware_version"]))
 
     def _read(self, params: bytes) -> bytes:
-        if len(params) != 4:
+        if len(params) != ADDRESS_SIZE + LENGTH_SIZE:
             return self._status(ErrorCode.DATA_LENGTH)
-        addr, length = int.from_bytes(params[:2], "little"), int.from_bytes(params[2:], "little")
+        addr, length = parse_read_params(params)
         if addr + length > TABLE_SIZE or length == 0:
             return self._status(ErrorCode.DATA_RANGE)
         self._refresh()
         return self._status(0, bytes(self.table[addr:addr + length]))
 
     def _write(self, params: bytes) -> bytes:
-        if len(params) < 3:
+        if len(params) < ADDRESS_SIZE + 1:
             return self._status(ErrorCode.DATA_LENGTH)
-        addr, data = int.from_bytes(params[:2], "little"), params[2:]
+        addr, data = parse_write_params(params)
         reg = next((r for r in T.values() if r.addr == addr), None)
         if reg is None or len(data) != reg.size:
             return self._status(ErrorCode.DATA_RANGE if reg is None or len(data) > reg.size

@@ -204,6 +204,21 @@ def test_refused_goal_raises_exception_reply_and_commands_a_stop():
     line.finish()
 
 
+def test_driver_stuffs_a_goal_whose_bytes_hold_a_header():
+    # -131073 counts = FF FF FD FF little-endian: the frame must carry FF FF FD FD FF (LEN 10, not 9).
+    # dynamixel-sdk 4.1.0's txPacket drops addStuffing's result and would send it unstuffed.
+    request = _write("goal_position", -131073)
+    assert request == H("FF FF FD 00 01 0A 00 03 74 00 FF FF FD FD FF") + request[-2:]
+    here = (0).to_bytes(4, "little")
+    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok(here)), (request, _ok())])
+    config = AxisConfig("sample_yaw", (-200000.0, 200000.0), 60.0, 120.0, 0.0, 0.1)
+    axis = DynamixelAxis(config, line.port.path, 1, 57600, "XM430-W350", 1.0, reply_timeout_ms=200)
+    axis.connect()
+    axis.move_to(-131073.0)
+    axis.close()
+    line.finish()
+
+
 def test_wrong_model_number_is_refused():
     line = ScriptedLine([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
     axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
