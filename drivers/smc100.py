@@ -16,8 +16,9 @@ import serial
 from .axis import Axis, AxisConfig
 from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
 from .smc100_protocol import (
-    DEFAULT_BAUD, DISABLE_STATES, MOTION_STATES, NOT_REFERENCED_STATES, READY_STATES, TERMINATOR,
-    Cmd, State, TellState, build_command, decode_ts, parse_reply, te_meaning,
+    DEFAULT_BAUD, DISABLE_STATES, MM_DISABLE, MM_ENABLE, MOTION_STATES, NOT_REFERENCED_STATES, QUERY,
+    READY_STATES, TERMINATOR, Cmd, ErrorLetter, State, TellState, build_command, decode_ts,
+    parse_reply, te_meaning,
 )
 
 # What an unplugged port raises: pyserial's errors, EIO, and termios.error (not an OSError).
@@ -85,7 +86,7 @@ class SMC100Axis(Axis):
         letter = self._tell_error()
         if len(letter) != 1:
             raise ProtocolError(self.name, f"{text}; TE", letter, "expected one error letter")
-        if letter != "@":
+        if letter != ErrorLetter.NONE:
             raise ExceptionReply(self.name, text, f"{self.address}TE{letter}",
                                  f"refused: {letter} = {te_meaning(letter)}", code=letter)
 
@@ -98,7 +99,7 @@ class SMC100Axis(Axis):
             except (DeviceTimeout, ProtocolError):
                 if attempt == self.config.retries:
                     raise
-        return "@"  # not reached: the last attempt returns or raises
+        return ErrorLetter.NONE.value  # not reached: the last attempt returns or raises
 
     def _tell_state(self) -> TellState:
         """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""
@@ -135,8 +136,8 @@ class SMC100Axis(Axis):
             raise DeviceError(self.name, f"open {self.port}", None, f"cannot open port: {exc}") from exc
         try:
             self._tell_state()  # proves a controller answers at this address
-            lo = float(self._query(Cmd.LIMIT_NEGATIVE, "?"))
-            hi = float(self._query(Cmd.LIMIT_POSITIVE, "?"))
+            lo = float(self._query(Cmd.LIMIT_NEGATIVE, QUERY))
+            hi = float(self._query(Cmd.LIMIT_POSITIVE, QUERY))
         except (DeviceError, ValueError):
             self._close()
             raise
@@ -196,9 +197,9 @@ class SMC100Axis(Axis):
         """MM1 / MM0 where the state allows it; NOT REFERENCED stages are enabled by homing."""
         state = self._tell_state().state
         if enabled and state in DISABLE_STATES:
-            self._command(Cmd.ENABLE_STATE, "1")
+            self._command(Cmd.ENABLE_STATE, MM_ENABLE)
         elif not enabled and state in READY_STATES:
-            self._command(Cmd.ENABLE_STATE, "0")
+            self._command(Cmd.ENABLE_STATE, MM_DISABLE)
 
     def _read_fault(self) -> str | None:
         ts = self._tell_state()

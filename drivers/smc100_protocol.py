@@ -59,40 +59,80 @@ READY_STATES = frozenset({State.READY_FROM_HOMING, State.READY_FROM_MOVING, Stat
 DISABLE_STATES = frozenset({State.DISABLE_FROM_READY, State.DISABLE_FROM_MOVING})
 MOTION_STATES = frozenset({State.HOMING, State.MOVING})
 
-# TS error bits (the four hex digits ``abcd``), bit number -> readable cause.
-TS_ERROR_BITS = {
-    0: "negative end of run",
-    1: "positive end of run",
-    2: "peak current limit",
-    3: "RMS current limit",
-    4: "short circuit detection",
-    5: "following error",
-    6: "homing time-out",
-    7: "wrong ESP stage",
-    8: "DC voltage too low",
-    9: "80 W output power exceeded",
+class ErrorBit(enum.IntFlag):
+    """TS error bits (the four hex digits ``abcd``); reading TS clears them on the controller."""
+
+    NEGATIVE_END_OF_RUN = 1 << 0
+    POSITIVE_END_OF_RUN = 1 << 1
+    PEAK_CURRENT = 1 << 2
+    RMS_CURRENT = 1 << 3
+    SHORT_CIRCUIT = 1 << 4
+    FOLLOWING_ERROR = 1 << 5
+    HOMING_TIMEOUT = 1 << 6
+    WRONG_STAGE = 1 << 7
+    DC_VOLTAGE_LOW = 1 << 8
+    OUTPUT_POWER = 1 << 9
+
+
+TS_ERROR_BITS = {  # error bit -> readable cause, lowest bit first
+    ErrorBit.NEGATIVE_END_OF_RUN: "negative end of run",
+    ErrorBit.POSITIVE_END_OF_RUN: "positive end of run",
+    ErrorBit.PEAK_CURRENT: "peak current limit",
+    ErrorBit.RMS_CURRENT: "RMS current limit",
+    ErrorBit.SHORT_CIRCUIT: "short circuit detection",
+    ErrorBit.FOLLOWING_ERROR: "following error",
+    ErrorBit.HOMING_TIMEOUT: "homing time-out",
+    ErrorBit.WRONG_STAGE: "wrong ESP stage",
+    ErrorBit.DC_VOLTAGE_LOW: "DC voltage too low",
+    ErrorBit.OUTPUT_POWER: "80 W output power exceeded",
 }
 
-# TE error letters -> meaning ('@' means no error).
+
+class ErrorLetter(str, enum.Enum):
+    """The letter TE returns for the last command ('@': no error); cleared once read."""
+
+    NONE = "@"
+    UNKNOWN_COMMAND = "A"
+    BAD_ADDRESS = "B"
+    PARAMETER = "C"
+    NOT_ALLOWED = "D"
+    HOME_STARTED = "E"
+    OUT_OF_LIMITS = "G"
+    IN_NOT_REFERENCED = "H"
+    IN_CONFIGURATION = "I"
+    IN_DISABLE = "J"
+    IN_READY = "K"
+    IN_HOMING = "L"
+    IN_MOVING = "M"
+    OUT_OF_SOFT_LIMIT = "N"
+    TIMEOUT = "S"
+    EEPROM = "U"
+    EXECUTION = "V"
+
+
 TE_LETTERS = {
-    "@": "no error",
-    "A": "unknown message code or floating point controller address",
-    "B": "controller address not correct",
-    "C": "parameter missing or out of range",
-    "D": "command not allowed",
-    "E": "home sequence already started",
-    "G": "displacement out of limits",
-    "H": "command not allowed in NOT REFERENCED state",
-    "I": "command not allowed in CONFIGURATION state",
-    "J": "command not allowed in DISABLE state",
-    "K": "command not allowed in READY state",
-    "L": "command not allowed in HOMING state",
-    "M": "command not allowed in MOVING state",
-    "N": "current position out of software limit",
-    "S": "communication time-out",
-    "U": "error during EEPROM access",
-    "V": "error during command execution",
+    ErrorLetter.NONE: "no error",
+    ErrorLetter.UNKNOWN_COMMAND: "unknown message code or floating point controller address",
+    ErrorLetter.BAD_ADDRESS: "controller address not correct",
+    ErrorLetter.PARAMETER: "parameter missing or out of range",
+    ErrorLetter.NOT_ALLOWED: "command not allowed",
+    ErrorLetter.HOME_STARTED: "home sequence already started",
+    ErrorLetter.OUT_OF_LIMITS: "displacement out of limits",
+    ErrorLetter.IN_NOT_REFERENCED: "command not allowed in NOT REFERENCED state",
+    ErrorLetter.IN_CONFIGURATION: "command not allowed in CONFIGURATION state",
+    ErrorLetter.IN_DISABLE: "command not allowed in DISABLE state",
+    ErrorLetter.IN_READY: "command not allowed in READY state",
+    ErrorLetter.IN_HOMING: "command not allowed in HOMING state",
+    ErrorLetter.IN_MOVING: "command not allowed in MOVING state",
+    ErrorLetter.OUT_OF_SOFT_LIMIT: "current position out of software limit",
+    ErrorLetter.TIMEOUT: "communication time-out",
+    ErrorLetter.EEPROM: "error during EEPROM access",
+    ErrorLetter.EXECUTION: "error during command execution",
 }
+
+QUERY = "?"          # the argument of a query: ``1VA?``
+MM_DISABLE = "0"     # MM0: READY -> DISABLE
+MM_ENABLE = "1"      # MM1: DISABLE -> READY
 
 # One command line: address, two letters, the rest (value, '?' or nothing); blanks ignored.
 _LINE = re.compile(r"^(\d{1,2})([A-Za-z]{2})(.*)$")
@@ -131,7 +171,7 @@ class CommandLine:
 
     @property
     def is_query(self) -> bool:
-        return self.argument == "?"
+        return self.argument == QUERY
 
 
 def parse_command(line: bytes) -> CommandLine | None:
@@ -173,7 +213,7 @@ class TellState:
     @property
     def causes(self) -> list[str]:
         """Readable causes of the error bits that are set, lowest bit first."""
-        return [text for bit, text in TS_ERROR_BITS.items() if self.error_bits >> bit & 1]
+        return [text for bit, text in TS_ERROR_BITS.items() if self.error_bits & bit]
 
     @property
     def is_fault(self) -> bool:
@@ -195,4 +235,7 @@ def decode_ts(value: str) -> TellState:
 
 def te_meaning(letter: str) -> str:
     """Readable meaning of a TE error letter (unknown letters say so)."""
-    return TE_LETTERS.get(letter, f"unknown error letter {letter!r}")
+    try:
+        return TE_LETTERS[ErrorLetter(letter)]
+    except ValueError:
+        return f"unknown error letter {letter!r}"

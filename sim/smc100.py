@@ -12,15 +12,15 @@ import threading
 from collections import deque
 
 from drivers.smc100_protocol import (
-    DEFAULT_BAUD, DISABLE_STATES, NOT_REFERENCED_STATES, READY_STATES, CommandLine, State,
-    build_reply, encode_ts, format_value, parse_command,
+    DEFAULT_BAUD, DISABLE_STATES, MM_DISABLE, MM_ENABLE, NOT_REFERENCED_STATES, READY_STATES,
+    CommandLine, ErrorBit, ErrorLetter, State, build_reply, encode_ts, format_value, parse_command,
 )
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
 from sim.pty_port import PtyPort, PtyServedDevice
 
 FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
-ALARM_ERROR_BITS = 1 << 5  # "following error": what a blocked or overloaded stage reports
+ALARM_ERROR_BITS = ErrorBit.FOLLOWING_ERROR  # what a blocked or overloaded stage reports
 _POLL_S = 0.02  # real seconds between state updates while idle
 
 
@@ -45,7 +45,7 @@ class SimulatedSMC100(PtyServedDevice):
         self._target = float(position)  # the set-point TH reports and PR adds to
         self.state = State.NOT_REFERENCED_FROM_RESET
         self.error_bits = 0
-        self.error_letter = "@"
+        self.error_letter = ErrorLetter.NONE
         self.faults: set[str] = set()
         self.received: deque[bytes] = deque(maxlen=10_000)  # recent command lines, for tests
         self._lock = threading.RLock()
@@ -136,17 +136,17 @@ class SimulatedSMC100(PtyServedDevice):
             return None
         cmd = parse_command(line)
         if cmd is None:
-            self.error_letter = "A"
+            self.error_letter = ErrorLetter.UNKNOWN_COMMAND
             return None
         if cmd.address != self.address:
             return None  # addressed to another controller on the same line
         handler = getattr(self, f"_cmd_{cmd.letters}", None)
         if handler is None:
-            self.error_letter = "A"
+            self.error_letter = ErrorLetter.UNKNOWN_COMMAND
             return None
         return handler(cmd)
 
-    def _reject(self, letter: str) -> None:
+    def _reject(self, letter: ErrorLetter) -> None:
         self.error_letter = letter
         return None
 
@@ -159,19 +159,19 @@ class SimulatedSMC100(PtyServedDevice):
         except ValueError:
             return None
 
-    def _state_letter(self) -> str:
+    def _state_letter(self) -> ErrorLetter:
         """The TE letter for 'not allowed in the current state'."""
         if self.state in NOT_REFERENCED_STATES:
-            return "H"
+            return ErrorLetter.IN_NOT_REFERENCED
         if self.state in DISABLE_STATES:
-            return "J"
+            return ErrorLetter.IN_DISABLE
         if self.state == State.HOMING:
-            return "L"
+            return ErrorLetter.IN_HOMING
         if self.state == State.MOVING:
-            return "M"
+            return ErrorLetter.IN_MOVING
         if self.state in READY_STATES:
-            return "K"
-        return "D"
+            return ErrorLetter.IN_READY
+        return ErrorLetter.NOT_ALLOWED
 
     def _cmd_TS(self, cmd: CommandLine) -> bytes:
         value = encode_ts(self.error_bits, self.state)
@@ -179,8 +179,8 @@ class SimulatedSMC100(PtyServedDevice):
         return self._reply(cmd, value)
 
     def _cmd_TE(self, cmd: CommandLine) -> bytes:
-        letter, self.error_letter = self.error_letter, "@"
-        return self._reply(cmd, letter)
+        letter, self.error_letter = self.error_letter, ErrorLetter.NONE
+        return self._reply(cmd, letter.value)
 
     def _cmd_TP(self, cmd: CommandLine) -> bytes:
         return self._reply(cmd, format_value(self.motion.position()))
@@ -190,7 +190,7 @@ class SimulatedSMC100(PtyServedDevice):
 
     def _cmd_OR(self, cmd: CommandLine) -> None:
         if self.state == State.HOMING:
-            return self._reject("E")
+            return self._reject(ErrorLetter.HOME_STARTED)
         if self.state not in NOT_REFERENCED_STATES:
             return self._reject(self._state_letter())
         self.state = State.HOMING
@@ -207,12 +207,12 @@ class SimulatedSMC100(PtyServedDevice):
     def _move(self, cmd: CommandLine, origin: float) -> None:
         step = self._number(cmd)
         if step is None:
-            return self._reject("C")
+            return self._reject(ErrorLetter.PARAMETER)
         if self.state not in READY_STATES:
             return self._reject(self._state_letter())
         target = origin + step
         if not self.limits[0] <= target <= self.limits[1]:
-            return self._reject("G")
+            return self._reject(ErrorLetter.OUT_OF_LIMITS)
         self.state = State.MOVING
         self._target = target
         self.motion.start_move(target)
@@ -227,14 +227,14 @@ class SimulatedSMC100(PtyServedDevice):
         return None
 
     def _cmd_MM(self, cmd: CommandLine) -> None:
-        if cmd.argument == "0" and self.state in READY_STATES:
+        if cmd.argument == MM_DISABLE and self.state in READY_STATES:
             self.state = State.DISABLE_FROM_READY
-        elif cmd.argument == "1" and self.state in DISABLE_STATES:
+        elif cmd.argument == MM_ENABLE and self.state in DISABLE_STATES:
             self.state = State.READY_FROM_DISABLE
-        elif cmd.argument in ("0", "1"):
+        elif cmd.argument in (MM_DISABLE, MM_ENABLE):
             return self._reject(self._state_letter())
         else:
-            return self._reject("C")
+            return self._reject(ErrorLetter.PARAMETER)
         return None
 
     def _set_or_query(self, cmd: CommandLine, attr: str, index: int | None = None) -> bytes | None:
@@ -244,7 +244,7 @@ class SimulatedSMC100(PtyServedDevice):
             return self._reply(cmd, format_value(current))
         value = self._number(cmd)
         if value is None or (index is None and value <= 0):
-            return self._reject("C")
+            return self._reject(ErrorLetter.PARAMETER)
         if index is None:
             setattr(self, attr, value)
             self.motion.set_profile(self.velocity, self.acceleration)
