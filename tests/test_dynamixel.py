@@ -2,11 +2,11 @@
 driver and dynamixel-sdk against the simulated servo, and every injected fault."""
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from scripted import ScriptedLine
 from sdk_retry import sdk_call
 
 from drivers.axis import AxisConfig
@@ -18,7 +18,6 @@ from drivers.errors import (ArrivalError, AxisLimitError, ChecksumError, DeviceF
                             ExceptionReply, ProtocolError)
 from sim.clock import SimClock
 from sim.dynamixel_servo import SimulatedDynamixel
-from sim.pty_port import PtyPort
 
 CPD = 4096 / 360.0
 H = bytes.fromhex
@@ -101,38 +100,6 @@ def test_find_frame_skips_garbage_and_waits_for_the_rest():
 
 
 # ----- the driver against a scripted exchange of exact bytes ---------------------------------------
-class ScriptedLine:
-    """A pty that expects exact request frames and answers with scripted replies, in order."""
-
-    def __init__(self, script):
-        self.script, self.port, self.problems = list(script), PtyPort(), []
-        self.leftover = b""
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self):
-        buf = b""
-        for request, reply in self.script:
-            deadline = time.monotonic() + 3.0
-            while len(buf) < len(request) and time.monotonic() < deadline:
-                buf += self.port.read(0.05)
-            got, buf = buf[:len(request)], buf[len(request):]
-            if got != request:
-                self.problems.append(f"expected {request.hex(' ')}, got {got.hex(' ')}")
-                return
-            if reply:
-                self.port.write(reply)
-        end = time.monotonic() + 0.2
-        while time.monotonic() < end:
-            buf += self.port.read(0.05)
-        self.leftover = buf
-
-    def finish(self):
-        self._thread.join(timeout=5)
-        self.port.close()
-        assert self.problems == [] and self.leftover == b""
-
-
 def _req(inst, params=b""):
     return build_instruction(1, inst, params)
 

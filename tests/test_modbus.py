@@ -16,10 +16,13 @@ from pymodbus.client import ModbusTcpClient
 from drivers.axis import AxisConfig
 from drivers.config import validate_driver_section
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
-from drivers.modbus_drive import ModbusAxis
+from drivers.lamp import Lamp
+from drivers.modbus_drive import ModbusAxis, ModbusLink
 from drivers.modbus_protocol import modbus_crc
 from drivers.modbus_map import ORIENTAL_AZ, direct_data_registers, from_registers, resolve_map, to_registers
 from goniofrost.core.errors import ConfigError
+from pymodbus.framer.rtu import FramerRTU
+from scripted import ScriptedLine, ScriptedSocket
 from sim.clock import SimClock
 from sim.modbus_drive import SimulatedModbusDrive
 
@@ -151,6 +154,199 @@ def test_little_word_order_swaps_every_pair():
         ax.close()
     finally:
         dev.stop()
+
+
+# ----- the driver against a scripted exchange of exact bytes -----------------------------------
+# PDUs from the Modbus Application Protocol Specification V1.1b3 (section 6 examples: read holding
+# registers 108-110, write multiple registers 2-3, read input register 9, write single coil 173,
+# and the exception example of section 7: read coils 1186 -> 81 02); RTU frames from the classic
+# Modicon / "Simply Modbus" examples for slave 0x11 with their published CRCs; MBAP headers per the
+# Modbus Messaging on TCP/IP Implementation Guide V1.0b; drive registers from the Oriental Motor AZ
+# map (PROTOCOLS.md section 3). pymodbus numbers transactions 1, 2, 3... on each new connection.
+H = bytes.fromhex
+IDLE = "00 00 40 20"     # output status: READY (bit 5) and IN-POS (bit 14)
+MOVING = "00 00 20 00"   # output status: MOVE (bit 13)
+ALARM = "00 00 00 80"    # output status: ALM-A (bit 7)
+
+
+def _tcp(tid: int, mbap_len: int, pdu: str) -> bytes:
+    """An MBAP frame: transaction id, protocol 0, length (unit + PDU), unit 1, then the PDU."""
+    return tid.to_bytes(2, "big") + H("00 00") + mbap_len.to_bytes(2, "big") + H("01") + H(pdu)
+
+
+def _read_reply(tid: int, words: str) -> bytes:
+    """The reply to a read of two holding registers (4 data bytes)."""
+    return _tcp(tid, 7, "03 04 " + words)
+
+
+def _scripted_axis(server, **kw) -> ModbusAxis:
+    cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, tolerance_deg=0.02, retries=0)
+    return ModbusAxis(cfg, host=server.host, port=server.port, timeout_s=1.0, **kw)
+
+
+CONNECT_TCP = [(_tcp(1, 6, "03 00 7E 00 02"), _read_reply(1, IDLE))]  # output status at connect
+START_MOVE_TCP = [
+    (_tcp(2, 6, "03 01 20 00 02"), _read_reply(2, "FF FF FC 18")),  # feedback: -1000 steps = -10 deg
+    (_tcp(3, 0x27, "10 0058 0010 20"   # write 16 registers from 0x0058 (32 bytes): direct data
+                   "0000 0000 0000 0001"   # operation data No. 0; type 1 = absolute
+                   "0000 0BB8 0000 0BB8"   # position 3000 steps (30 deg); speed 3000 Hz (30 deg/s)
+                   "0000 1770 0000 1770"   # rate and stop rate 6000 (60 deg/s^2)
+                   "0000 03E8 0000 0001"),  # current 100.0 %; trigger 1: start
+     _tcp(3, 6, "10 00 58 00 10")),
+]
+def _stop_tcp(tid: int) -> list:
+    """The stop: STOP on (bit 5 of the input command at 0x007C), then every input off."""
+    return [(_tcp(tid, 0x0B, "10 00 7C 00 02 04 00 00 00 20"), _tcp(tid, 6, "10 00 7C 00 02")),
+            (_tcp(tid + 1, 0x0B, "10 00 7C 00 02 04 00 00 00 00"), _tcp(tid + 1, 6, "10 00 7C 00 02"))]
+
+
+def test_tcp_link_reads_and_writes_the_spec_example_registers():
+    server = ScriptedSocket([
+        (H("00 01 00 00 00 06 11 03 00 6B 00 03"), H("00 01 00 00 00 09 11 03 06 02 2B 00 00 00 64")),
+        (H("00 02 00 00 00 0B 11 10 00 01 00 02 04 00 0A 01 02"), H("00 02 00 00 00 06 11 10 00 01 00 02")),
+    ])
+    link = ModbusLink("camera_arm", 0x11, server.host, server.port, timeout_s=1.0)
+    link.open()
+    assert link.read_holding(0x006B, 3) == [0x022B, 0x0000, 0x0064]
+    link.write_holding(0x0001, [0x000A, 0x0102])
+    link.close()
+    server.finish()
+
+
+def test_tcp_exception_response_of_the_spec_is_an_exception_reply():
+    # the spec's exception example: read coils at 0x04A1 (coil 1186), 1 coil -> 81 02
+    server = ScriptedSocket([(H("00 01 00 00 00 06 11 01 04 A1 00 01"), H("00 01 00 00 00 03 11 81 02"))])
+    lamp = Lamp(ModbusLink("lamp", 0x11, server.host, server.port, timeout_s=1.0), coil=0x04A1)
+    with pytest.raises(ExceptionReply) as err:
+        lamp.connect()  # reads the coil to check the lamp answers
+    assert err.value.code == 2 and "exception 2: illegal data address" in str(err.value)
+    assert err.value.reply == H("00 01 00 00 00 03 11 81 02")
+    lamp.link.close()
+    server.finish()
+
+
+def test_tcp_axis_connects_moves_and_arrives_on_exact_bytes():
+    server = ScriptedSocket(CONNECT_TCP + START_MOVE_TCP + [
+        (_tcp(4, 6, "03 00 7E 00 02"), _read_reply(4, MOVING)),
+        (_tcp(5, 6, "03 01 20 00 02"), _read_reply(5, "00 00 05 DC")),  # 1500 steps on the way
+        (_tcp(6, 6, "03 00 7E 00 02"), _read_reply(6, IDLE)),
+        (_tcp(7, 6, "03 01 20 00 02"), _read_reply(7, "00 00 0B B8")),  # 3000 steps: arrived
+    ])
+    axis = _scripted_axis(server)
+    axis.connect()
+    assert axis.move_to(30.0).wait() == pytest.approx(30.0)
+    axis.close()
+    server.finish()
+
+
+def test_tcp_alarm_state_is_a_device_fault_and_the_axis_is_stopped():
+    server = ScriptedSocket(CONNECT_TCP + START_MOVE_TCP + [
+        (_tcp(4, 6, "03 00 7E 00 02"), _read_reply(4, ALARM)),
+        (_tcp(5, 6, "03 00 80 00 02"), _read_reply(5, "00 00 00 30")),  # alarm code 0x30: overload
+    ] + _stop_tcp(6))
+    axis = _scripted_axis(server)
+    axis.connect()
+    with pytest.raises(DeviceFault, match="alarm 0x30: overload") as err:
+        axis.move_to(30.0).wait()
+    assert err.value.causes == ["alarm 0x30: overload"]
+    axis.close()
+    server.finish()
+
+
+def test_tcp_refused_move_is_an_exception_reply_and_the_axis_is_stopped():
+    refused = START_MOVE_TCP[:1] + [(START_MOVE_TCP[1][0], _tcp(3, 3, "90 03"))]  # illegal data value
+    server = ScriptedSocket(CONNECT_TCP + refused + _stop_tcp(4))
+    axis = _scripted_axis(server)
+    axis.connect()
+    with pytest.raises(ExceptionReply, match="exception 3: illegal data value") as err:
+        axis.move_to(30.0)
+    assert err.value.code == 3
+    axis.close()
+    server.finish()
+
+
+RTU_SPEC = [  # published frames, CRC low byte first
+    (H("11 03 00 6B 00 03 76 87"), H("11 03 06 AE 41 56 52 43 40 49 AD")),
+    (H("11 10 00 01 00 02 04 00 0A 01 02 C6 F0"), H("11 10 00 01 00 02 12 98")),
+]
+RTU_LAMP = [
+    (H("11 01 00 AC 00 01 3F 7B"), H("11 01 01 00 55 48")),   # read coil 173: off
+    (H("11 05 00 AC FF 00 4E 8B"), H("11 05 00 AC FF 00 4E 8B")),  # write single coil 173 on: echo
+    (H("11 04 00 08 00 01 B2 98"), H("11 04 02 00 0A F8 F4")),     # read input register 9: 10 counts
+]
+RTU_AXIS_ALARM = [
+    (H("01 03 00 7E 00 02 A4 13"), H("01 03 04 00 00 40 20 CA 2B")),  # output status: idle
+    (H("01 03 00 7E 00 02 A4 13"), H("01 03 04 00 00 00 80 FB 93")),  # ALM-A
+    (H("01 03 00 80 00 02 C5 E3"), H("01 03 04 00 00 00 30 FA 27")),  # alarm code 0x30
+]
+
+
+@pytest.mark.parametrize("script", [RTU_SPEC, RTU_LAMP, RTU_AXIS_ALARM], ids=["spec", "lamp", "alarm"])
+def test_rtu_frames_of_the_scripts_carry_valid_crcs(script):
+    # pymodbus's own CRC (an implementation independent of drivers.modbus_protocol) agrees
+    for frame in (f for pair in script for f in pair):
+        assert FramerRTU.compute_CRC(frame[:-2]).to_bytes(2, "big") == frame[-2:]
+        assert modbus_crc(frame[:-2]).to_bytes(2, "little") == frame[-2:]
+
+
+def _rtu_link(line, device_id=0x11) -> ModbusLink:
+    return ModbusLink("camera_arm", device_id, None, line.port.path, baud=115200, parity="N", timeout_s=1.0)
+
+
+def test_rtu_link_reads_and_writes_the_published_frames():
+    line = ScriptedLine(RTU_SPEC)
+    link = _rtu_link(line)
+    link.open()
+    assert link.read_holding(0x006B, 3) == [0xAE41, 0x5652, 0x4340]
+    link.write_holding(0x0001, [0x000A, 0x0102])
+    link.close()
+    line.finish()
+
+
+def test_rtu_lamp_switches_and_reads_the_photodiode_on_published_frames():
+    line = ScriptedLine(RTU_LAMP)
+    lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": line.port.path, "device_id": 0x11,
+                              "baud": 115200, "parity": "N", "coil": 0xAC, "photodiode_register": 0x0008,
+                              "full_scale": 10})
+    lamp.connect()
+    lamp.on()
+    assert lamp.photodiode() == 1.0
+    lamp.close()
+    line.finish()
+
+
+def test_rtu_exception_response_at_connect():
+    line = ScriptedLine([(H("01 03 00 7E 00 02 A4 13"), H("01 83 02 C0 F1"))])
+    cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, retries=0)
+    axis = ModbusAxis(cfg, serial_port=line.port.path, parity="N", timeout_s=1.0)
+    with pytest.raises(ExceptionReply, match="exception 2: illegal data address") as err:
+        axis.connect()
+    assert err.value.reply == H("01 83 02 C0 F1") and not axis.connected
+    line.finish()
+
+
+def test_rtu_alarm_state_is_a_device_fault():
+    line = ScriptedLine(RTU_AXIS_ALARM)
+    cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, retries=0)
+    axis = ModbusAxis(cfg, serial_port=line.port.path, parity="N", timeout_s=1.0)
+    axis.connect()
+    with pytest.raises(DeviceFault, match="alarm 0x30: overload"):
+        axis.is_moving()
+    axis.close()
+    line.finish()
+
+
+def test_rtu_reply_with_a_bad_crc_is_a_checksum_error():
+    bad = H("11 03 06 AE 41 56 52 43 40 49 AE")  # the published reply, last CRC byte damaged
+    line = ScriptedLine([(RTU_SPEC[0][0], bad)])
+    link = _rtu_link(line)
+    link.timeout_s = 0.3
+    link.open()
+    with pytest.raises(ChecksumError, match="CRC mismatch") as err:
+        link.read_holding(0x006B, 3)
+    assert err.value.reply == bad
+    link.close()
+    line.finish()
 
 
 # ----- the official client, no goniofrost code -------------------------------------------------

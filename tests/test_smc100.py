@@ -13,6 +13,7 @@ from drivers.smc100 import SMC100Axis
 from drivers.smc100_protocol import (
     Cmd, State, build_command, decode_ts, encode_ts, parse_command, parse_reply, te_meaning,
 )
+from scripted import ScriptedLine
 from sim.clock import SimClock
 from sim.smc100 import SimulatedSMC100
 
@@ -138,6 +139,88 @@ def test_terminal_stop_disable_enable(terminal, device):
     assert ask(terminal, b"1TE\r\n") == b"1TEJ\r\n"
     terminal.write(b"1MM1\r\n")
     assert ask(terminal, b"1TS\r\n") == b"1TS000034\r\n"
+
+
+# ----- the driver against a scripted exchange of exact bytes -----------------------------------
+# Lines and replies from the SMC100CC/PP manual as summarised in PROTOCOLS.md section 2: power-up
+# state 1TS00000A; OR -> 1E (HOMING) -> 32 (READY from HOMING); PA -> 28 (MOVING) -> 33 (READY from
+# MOVING); set commands reply nothing and are checked with TE (1TE@: no error, G: displacement out
+# of limits); TS error bit 5 = following error, state 10 = stage error.
+CONNECT_SMC = [
+    (b"1TS\r\n", b"1TS00000A\r\n"),      # proves a controller answers: NOT REFERENCED after reset
+    (b"1SL?\r\n", b"1SL-50\r\n"),         # the controller's own soft limits
+    (b"1SR?\r\n", b"1SR50\r\n"),
+    (b"1VA20\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),  # velocity 20 units/s, accepted
+    (b"1AC40\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),  # acceleration 40 units/s^2, accepted
+]
+HOME_SMC = [
+    (b"1TP\r\n", b"1TP3\r\n"),            # where the stage was at power-up
+    (b"1TS\r\n", b"1TS00000A\r\n"), (b"1OR\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),
+    (b"1TS\r\n", b"1TS00001E\r\n"), (b"1TP\r\n", b"1TP1.5\r\n"),  # HOMING, on the way
+    (b"1TS\r\n", b"1TS000032\r\n"), (b"1TP\r\n", b"1TP0\r\n"),    # READY from HOMING, at 0
+]
+
+
+def _scripted_smc(line) -> SMC100Axis:
+    cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, home_deg=0.0, tolerance_deg=0.01, retries=0)
+    axis = SMC100Axis(cfg, line.port.path, address=1, reply_timeout_s=0.5)
+    axis.connect()
+    return axis
+
+
+def test_driver_connects_homes_and_moves_on_exact_bytes():
+    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA10\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),
+        (b"1TS\r\n", b"1TS000028\r\n"), (b"1TP\r\n", b"1TP4.2\r\n"),   # MOVING
+        (b"1TS\r\n", b"1TS000033\r\n"), (b"1TP\r\n", b"1TP10\r\n"),    # READY from MOVING
+    ])
+    axis = _scripted_smc(line)
+    assert axis.soft_limits_units == (-50.0, 50.0)
+    assert axis.home().wait() == 0.0
+    assert axis.move_to(10.0).wait() == 10.0
+    axis.close()
+    line.finish()
+
+
+def test_refused_move_reads_te_g_and_stops_on_exact_bytes():
+    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA60\r\n", b""), (b"1TE\r\n", b"1TEG\r\n"),  # beyond SR
+        (b"1ST\r\n", b""),                                                        # the stop
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    with pytest.raises(ExceptionReply, match="refused: G = displacement out of limits") as err:
+        axis.move_to(60.0)
+    assert (err.value.code, err.value.command, err.value.reply) == ("G", "1PA60", "1TEG")
+    axis.close()
+    line.finish()
+
+
+def test_stage_error_state_is_a_device_fault_and_stops_on_exact_bytes():
+    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA-30\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),
+        (b"1TS\r\n", b"1TS002010\r\n"),   # following error (bit 5), state 10: stage error
+        (b"1ST\r\n", b""),
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    with pytest.raises(DeviceFault) as err:
+        axis.move_to(-30.0).wait()
+    assert err.value.causes == ["following error", "stage error state (TS state 10)"]
+    assert err.value.reply == "1TS002010"
+    axis.close()
+    line.finish()
+
+
+def test_silence_is_a_timeout_after_the_retry_on_exact_bytes():
+    line = ScriptedLine(CONNECT_SMC + [(b"1TP\r\n", b""), (b"1TP\r\n", b"1TP\r")])  # nothing, then no LF
+    cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, retries=1)
+    axis = SMC100Axis(cfg, line.port.path, address=1, reply_timeout_s=0.3)
+    axis.connect()
+    with pytest.raises(DeviceTimeout, match=r"1TP: no complete reply within 0.3 s \(reply: 31 54 50 0D\)"):
+        axis.position()
+    axis.close()
+    line.finish()
 
 
 # ----- the driver against the simulated controller ---------------------------------------------
