@@ -11,6 +11,7 @@ import copy
 from collections.abc import Mapping
 
 from .clock import SimClock
+from .config import validate_sim_section
 from .lamp_model import LampModel
 
 
@@ -68,17 +69,17 @@ class SimulatedRig:
     """Every simulated device of one rig, sharing one SimClock and one LampModel.
 
     ``speedup``: simulated seconds per real second (default: the rig's ``sim.clock_speedup``, else 1).
-    ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start).
+    ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start),
+    ``sim`` (the rig's ``sim`` section, checked, defaults filled in).
     """
 
     def __init__(self, rig, speedup: float | None = None, seed: int = 0) -> None:
         raw_axes = _get(rig, "axes")
         self.axes = {name: _axis_mapping(spec) for name, spec in raw_axes.items()}
         self.lamp_section = dict((_get(rig, "lamp") or {}).get("driver") or {}) or None
-        sim = _get(rig, "sim") or {}
-        self.clock = SimClock(float(speedup if speedup is not None else sim.get("clock_speedup", 1.0)))
-        drift = (sim.get("lamp") or {}).get("drift_per_hour", 0.02)
-        self.lamp_model = LampModel(self.clock, drift_per_hour=drift, seed=seed)
+        self.sim = validate_sim_section(_get(rig, "sim") or {}, _get(rig, "source") or "rig", "sim")
+        self.clock = SimClock(float(speedup if speedup is not None else self.sim["clock_speedup"]))
+        self.lamp_model = LampModel(self.clock, drift_per_hour=self.sim["lamp"]["drift_per_hour"], seed=seed)
         self._devices: dict = {}
         self.endpoints: dict = {}
 

@@ -1,9 +1,9 @@
 """Load a rig file with every section checked by the package that owns it.
 
 ``planner.rig`` checks the geometry and the axes' motion keys; the ``driver`` sections are checked
-by ``drivers.config.validate_driver_section``, the ``camera`` and ``sim`` sections by the camera
-package's validators. Each validator is imported lazily, and one that does not exist yet is
-skipped (its section is then kept as written, unchecked).
+by ``drivers.config.validate_driver_section``, the ``camera`` section by ``calib.config`` and the
+``sim`` section by ``sim.config``. Each validator is imported when a rig is loaded; one that is
+named here but cannot be found is an ImportError, never a section left unchecked.
 """
 from __future__ import annotations
 
@@ -23,18 +23,19 @@ VALIDATORS: dict[str, tuple[str, str]] = {
 
 
 def section_validators() -> dict[str, Callable[[Mapping, str, str], None]]:
-    """The validators that exist in this checkout, by section name."""
+    """Every validator of VALIDATORS, by section name; ImportError when one does not exist."""
     found = {}
     for section, (module_name, func_name) in VALIDATORS.items():
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
-            if exc.name != module_name:
-                raise  # the module exists but is broken: let that surface
-            continue
+            raise ImportError(f"the rig file's {section!r} sections cannot be checked: its validator "
+                              f"{module_name}.{func_name} is missing ({exc})") from exc
         func = getattr(module, func_name, None)
-        if callable(func):
-            found[section] = func
+        if not callable(func):
+            raise ImportError(f"the rig file's {section!r} sections cannot be checked: module "
+                              f"{module_name} has no function {func_name}")
+        found[section] = func
     return found
 
 

@@ -1,0 +1,88 @@
+"""The rig file's ``sim:`` section: every key checked (unknown, wrong type, out of range: one line
+naming the file, key path, expected and found), through the rig loader and the command line (exit 2,
+nothing started or written); and the rig loader refuses to run without a validator it names."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+from goniofrost.capture import rig_file
+from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.core.errors import ConfigError
+from sim.config import SIM_KEYS, validate_sim_section
+
+REPO = Path(__file__).resolve().parents[1]
+SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
+EXPECTED_KEYS = f"one of {sorted(SIM_KEYS)}"
+
+
+def rig_with_sim(tmp_path, sim) -> Path:
+    raw = yaml.safe_load(SIM_RIG.read_text())
+    raw["sim"] = sim
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def test_defaults_are_filled_in():
+    assert validate_sim_section({}, "rig.yaml") == {"clock_speedup": 1.0, "seed": 0, "lamp": {"drift_per_hour": 0.02}}
+    checked = load_checked_rig(SIM_RIG).sim
+    assert (checked["clock_speedup"], checked["seed"], checked["lamp"]) == (20.0, 0, {"drift_per_hour": 0.02})
+    assert checked["camera"]["prnu"] == 0.01  # the camera's own defaults, filled by its validator
+
+
+@pytest.mark.parametrize("sim, keypath, expected, found", [
+    ({"clok_speedup": 5}, "sim.clok_speedup", EXPECTED_KEYS, "clok_speedup"),
+    ({"clock_speedup": "fast"}, "sim.clock_speedup", "a number > 0 (simulated seconds per real second)", "fast"),
+    ({"clock_speedup": 0}, "sim.clock_speedup", "a number > 0 (simulated seconds per real second)", 0),
+    ({"seed": -1}, "sim.seed", "an integer >= 0", -1),
+    ({"seed": True}, "sim.seed", "an integer >= 0", True),
+    ({"lamp": 0.02}, "sim.lamp", "a mapping with drift_per_hour", 0.02),
+    ({"lamp": {"drift": 0.1}}, "sim.lamp.drift", "one of ['drift_per_hour']", "drift"),
+    ({"lamp": {"drift_per_hour": 5}}, "sim.lamp.drift_per_hour",
+     "a number in [-1, 1] (relative intensity change per simulated hour)", 5),
+    ({"camera": {"width": 320}}, "sim.camera.height", "an even integer in [64, 8192]", "nothing"),
+    ([1, 2], "sim", "a mapping", [1, 2]),
+])
+def test_bad_values_name_file_key_expected_and_found(sim, keypath, expected, found):
+    with pytest.raises(ConfigError) as err:
+        validate_sim_section(sim, "rig.yaml")
+    assert (err.value.source, err.value.keypath, err.value.expected, err.value.found) == \
+        ("rig.yaml", keypath, expected, found)
+
+
+def test_the_rig_loader_checks_the_sim_section(tmp_path):
+    path = rig_with_sim(tmp_path, {"clok_speedup": 5})
+    with pytest.raises(ConfigError, match=rf"^{path}: sim.clok_speedup: expected one of \["):
+        load_checked_rig(path)
+
+
+@pytest.mark.parametrize("sim, line", [
+    ({"clok_speedup": 5}, "sim.clok_speedup: expected " + EXPECTED_KEYS + ", found 'clok_speedup'"),
+    ({"clock_speedup": "fast"},
+     "sim.clock_speedup: expected a number > 0 (simulated seconds per real second), found 'fast'"),
+], ids=["unknown-key", "wrong-type"])
+@pytest.mark.parametrize("command", ["capture", "sim"])
+def test_command_line_refuses_a_bad_sim_section_with_one_line(tmp_path, capsys, command, sim, line):
+    rig = rig_with_sim(tmp_path, sim)
+    session = tmp_path / "session"
+    args = {"capture": ["capture", "--rig", str(rig), "--plan", str(tmp_path / "plan.json"),
+                        "--session", str(session), "--material", "builtin:red-plastic", "--no-progress"],
+            "sim": ["sim", "--rig", str(rig)]}[command]
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert err == f"goniofrost {command}: error: {rig}: {line}\n" and out == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml"]  # nothing written
+
+
+@pytest.mark.parametrize("entry, problem", [
+    (("sim.config", "validate_sim_sectoin"), "module sim.config has no function validate_sim_sectoin"),
+    (("sim.konfig", "validate_sim_section"), "its validator sim.konfig.validate_sim_section is missing"),
+])
+def test_a_missing_validator_fails_loudly(monkeypatch, entry, problem):
+    monkeypatch.setitem(rig_file.VALIDATORS, "sim", entry)
+    with pytest.raises(ImportError, match=problem):
+        load_checked_rig(SIM_RIG)
