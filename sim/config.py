@@ -14,6 +14,12 @@ Keys (``SIM_KEYS``; to add one, add a row)::
       camera: {...}            # the simulated camera (sim.camera.validate_sim_camera_section)
       lamp:
         drift_per_hour: 0.02   # relative lamp intensity change per simulated hour; default 0.02
+      faults:                  # fault drills; default none
+        - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
+                                                          # at or after plan sample 3, once
+
+``check_sim_against_rig(rig)`` (a second check the rig loader runs on the loaded rig) checks what
+needs the rest of the rig: every fault names one of the rig's axes.
 """
 from __future__ import annotations
 
@@ -23,6 +29,8 @@ from typing import Any
 
 from goniofrost.core.config_check import check_section, is_number
 from goniofrost.core.errors import ConfigError
+
+from .faults import FAULT_KINDS
 
 _ABSENT = object()  # a key without a default stays absent when not given
 
@@ -62,12 +70,25 @@ def _lamp(section, source: str, keypath: str) -> dict:
     return check_section(dict(section), _LAMP_KEYS, source, keypath)
 
 
+_FAULT_KEYS = {  # key: (check, expected, default; None = required)
+    "axis": (lambda v: isinstance(v, str) and v != "", "the name of an axis of this rig", None),
+    "kind": (lambda v: v in FAULT_KINDS, f"one of {list(FAULT_KINDS)}", None),
+    "at_sample": (_natural, "a plan sample index >= 0", None),
+}
+
+
+def _faults(items, source: str, keypath: str) -> list[dict]:
+    return [check_section(item, _FAULT_KEYS, source, f"{keypath}[{i}]") for i, item in enumerate(items)]
+
+
 SIM_KEYS: dict[str, SimKey] = {
     "clock_speedup": SimKey(lambda v: is_number(v) and v > 0,
                             "a number > 0 (simulated seconds per real second)", 1.0),
     "seed": SimKey(_natural, "an integer >= 0", 0),
     "camera": SimKey(_mapping, "a mapping of simulated camera keys", nested=_camera),
     "lamp": SimKey(_mapping, "a mapping with drift_per_hour", {}, nested=_lamp),
+    "faults": SimKey(lambda v: isinstance(v, list), "a list of {axis, kind, at_sample} mappings", [],
+                     nested=_faults),
 }
 
 
@@ -90,3 +111,16 @@ def validate_sim_section(section, source, keypath: str = "sim") -> dict:
             raise ConfigError(source, f"{keypath}.{key}", spec.expected, value)
         out[key] = spec.nested(value, source, f"{keypath}.{key}") if spec.nested else value
     return out
+
+
+def check_fault_axes(faults, axis_names, source, keypath: str = "sim.faults") -> None:
+    """ConfigError when a checked fault names no axis of ``axis_names``."""
+    for i, fault in enumerate(faults):
+        if fault["axis"] not in axis_names:
+            raise ConfigError(source, f"{keypath}[{i}].axis", f"one of the rig's axes {sorted(axis_names)}",
+                              fault["axis"])
+
+
+def check_sim_against_rig(rig) -> None:
+    """The checks of a loaded rig's ``sim`` section that need its other sections (planner Rig)."""
+    check_fault_axes((rig.sim or {}).get("faults", []), rig.axes, rig.source)

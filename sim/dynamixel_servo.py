@@ -19,10 +19,10 @@ from drivers.dxl_protocol import (ACCEL_UNIT_RPM2, ADDRESS_SIZE, ALERT_BIT, BROA
                                   build_status, corrupt_crc, decode_value, drop_error_byte,
                                   find_frame, parse_packet, parse_read_params, parse_write_params)
 from sim.clock import SimClock
+from sim.faults import ArmedFaults, check_kind
 from sim.motion import TrapezoidMotion
 from sim.pty_port import PtyServedDevice
 
-FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_HW_ERROR = 1 << 5  # "overload": what a blocked servo reports
 COUNTS_PER_S_PER_VEL_UNIT = VELOCITY_UNIT_RPM * REV_COUNTS / 60.0  # 15.63 counts/s
 COUNTS_PER_S2_PER_ACC_UNIT = ACCEL_UNIT_RPM2 * REV_COUNTS / 3600.0  # 244.1 counts/s^2
@@ -32,14 +32,15 @@ _POLL_S = 0.05  # real seconds between two looks at the stop flag while idle
 T = CONTROL_TABLE
 
 
-class SimulatedDynamixel(PtyServedDevice):
+class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
     """One X-series servo served on a pty by a background thread.
 
     Parameters: ``clock`` (shared SimClock), ``id`` (0-252), ``baud`` (reported only: a pty has no
     baud rate), ``model`` (a name of ``MODEL_NUMBERS``), ``counts_per_deg`` (only converts
     ``true_position_deg()``), ``position`` (counts at power-up, in 0..4095 as after power-up).
     Attributes for tests: ``received`` (parsed instruction packets), ``ignored`` (packets seen
-    while disconnected), ``faults`` (active injected faults).
+    while disconnected), ``faults`` (active injected faults), ``armed`` (faults waiting for the
+    next move, see ``sim.faults.ArmedFaults``).
     """
 
     protocol = "dynamixel"
@@ -53,6 +54,7 @@ class SimulatedDynamixel(PtyServedDevice):
         self.table = bytearray(TABLE_SIZE)
         self.motion = TrapezoidMotion(clock, float(position), NO_LIMIT_SPEED, NO_LIMIT_ACCEL)
         self.faults: set[str] = set()
+        self._init_armed()
         self.received: list = []
         self.ignored: list = []
         self._lock = threading.RLock()
@@ -72,12 +74,11 @@ class SimulatedDynamixel(PtyServedDevice):
         no_reply: instructions are executed but no status comes back (a broken TX line).
         bad_checksum: status packets carry a wrong CRC. drop_byte: one byte of every status packet
         is lost. alarm: Hardware Error Status = overload, torque off at once (as the servo's
-        shutdown does), Alert bit in every status. stall: the horn freezes while Moving stays 1.
-        disconnect: the cable is pulled; nothing is executed or answered. clear: all of it undone
-        (the hardware error too, as a REBOOT would).
+        shutdown does), Alert bit in every status. stall: the horn freezes while Moving stays 1,
+        on the move under way and on every later one. disconnect: the cable is pulled; nothing is
+        executed or answered. clear: all of it undone (the hardware error too, as a REBOOT would).
         """
-        if kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+        check_kind(kind)
         with self._lock:
             if kind == "clear":
                 self.faults.clear()
@@ -235,7 +236,10 @@ class SimulatedDynamixel(PtyServedDevice):
                 return ErrorCode.DATA_LIMIT
             self._set(reg, value)
             if self.torque_on:
+                start = self.motion.position()
                 self.motion.start_move(float(value))
+                if abs(value - start) > 0.5:  # goal := present, read to the count, holds: no move
+                    self._move_started()
             return 0
         if reg is T["torque_enable"]:
             if value not in (0, 1):

@@ -29,11 +29,11 @@ from drivers.modbus_map import (
 )
 from drivers.modbus_protocol import corrupt_checksum, drop_last_byte
 from sim.clock import SimClock
+from sim.faults import ArmedFaults, check_kind
 from sim.lamp_model import LampModel
 from sim.motion import TrapezoidMotion
 from sim.pty_port import PtyPort
 
-FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_OVERLOAD = 0x30  # the alarm an injected "alarm" raises
 LOOPBACK = "127.0.0.1"
 
@@ -69,7 +69,7 @@ class _Block(ModbusSequentialDataBlock):
         self.values[pdu_address:pdu_address + len(words)] = [int(w) for w in words]
 
 
-class SimulatedModbusDrive:
+class SimulatedModbusDrive(ArmedFaults):
     """One Modbus drive with one motor (in steps) plus the lamp coil and photodiode register.
 
     Parameters: ``clock``; ``transport`` "tcp" (``host`` 127.0.0.1, ``port`` 0 = a free port) or
@@ -97,6 +97,7 @@ class SimulatedModbusDrive:
         self.alarm_code = 0
         self.free = False  # FREE input on: motor de-energised
         self.faults: set[str] = set()
+        self._init_armed()
         self.writes: deque = deque(maxlen=10_000)  # recent holding-register writes (PDU address, values)
         self.requests: deque = deque(maxlen=10_000)  # recent raw requests, for byte-exact tests
         self._lock = threading.RLock()
@@ -151,7 +152,7 @@ class SimulatedModbusDrive:
         return self.motion.position() / self.steps_per_deg
 
     def inject_fault(self, kind: str) -> None:
-        """Inject a fault (see FAULT_KINDS); all but disconnect last until ``inject_fault('clear')``.
+        """Inject a fault (see sim.faults.FAULT_KINDS); all but disconnect last until ``inject_fault('clear')``.
 
         no_reply: requests are acted on but no reply goes out. bad_checksum: RTU replies carry a
         wrong CRC; TCP has no checksum, so the MBAP protocol id is corrupted instead. drop_byte:
@@ -159,8 +160,7 @@ class SimulatedModbusDrive:
         stopped; moves are ignored until ALM-RST (which works once the fault is cleared). stall: the motor freezes while MOVE stays on.
         disconnect: the drive goes off line (server closed, motor stopped).
         """
-        if kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+        check_kind(kind)
         with self._lock:
             if kind == "clear":  # removes the causes; an alarm stays latched until ALM-RST
                 self.faults.clear()
@@ -175,6 +175,16 @@ class SimulatedModbusDrive:
                 self.motion.stop()
         if kind == "disconnect":
             self._go_offline()
+
+    def _strike(self, kind: str) -> None:
+        """An armed fault strikes while the server's event loop handles a request: going off line
+        waits on that loop, so it happens in another thread (the reply is already suppressed)."""
+        if kind != "disconnect":
+            self.inject_fault(kind)
+            return
+        self.faults.add(kind)
+        self.motion.stop()
+        threading.Thread(target=self._go_offline, name="sim-modbus-offline", daemon=True).start()
 
     # --- server ----------------------------------------------------------------------------
     def _context(self) -> ModbusServerContext:
@@ -209,7 +219,7 @@ class SimulatedModbusDrive:
         if not data:
             return data
         faults = self.faults
-        if "no_reply" in faults:
+        if "no_reply" in faults or "disconnect" in faults:
             return b""
         if "bad_checksum" in faults:
             data = corrupt_checksum(data, rtu=self.transport == "rtu")
@@ -274,9 +284,8 @@ class SimulatedModbusDrive:
             return None  # an alarmed or de-energised drive ignores the trigger
         target = value(DirectData.POSITION) + (self.motion.target if kind == OperationType.INCREMENTAL else 0)
         self.motion.set_profile(speed, rate)
-        self.motion.start_move(target)
-        if "stall" in self.faults:
-            self.motion.stall()
+        if self.motion.start_move(target) > 0:
+            self._move_started()
         return None
 
     def _input_command(self, words: list[int]) -> None:
@@ -291,7 +300,8 @@ class SimulatedModbusDrive:
         if on(InputBit.ALM_RST) and "alarm" not in self.faults:
             self.alarm_code = 0  # a reset clears the alarm only once its cause has gone
         if on(InputBit.ZHOME) and not self.alarm_code and not self.free:
-            self.motion.start_move(0.0)
+            if self.motion.start_move(0.0) > 0:
+                self._move_started()
 
     def _refresh_coils(self, pdu_address: int, count: int) -> None:
         self._coils.put(self.coil, [bool(self.lamp.is_on)])

@@ -11,7 +11,7 @@ import copy
 from collections.abc import Mapping
 
 from .clock import SimClock
-from .config import validate_sim_section
+from .config import check_fault_axes, validate_sim_section
 from .lamp_model import LampModel
 
 
@@ -70,7 +70,8 @@ class SimulatedRig:
 
     ``speedup``: simulated seconds per real second (default: the rig's ``sim.clock_speedup``, else 1).
     ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start),
-    ``sim`` (the rig's ``sim`` section, checked, defaults filled in).
+    ``sim`` (the rig's ``sim`` section, checked, defaults filled in), ``faults`` (the fault drills
+    of ``sim.faults``; see ``arm_faults``).
     """
 
     def __init__(self, rig, speedup: float | None = None, seed: int = 0) -> None:
@@ -80,6 +81,9 @@ class SimulatedRig:
         self.sim = validate_sim_section(_get(rig, "sim") or {}, _get(rig, "source") or "rig", "sim")
         self.clock = SimClock(float(speedup if speedup is not None else self.sim["clock_speedup"]))
         self.lamp_model = LampModel(self.clock, drift_per_hour=self.sim["lamp"]["drift_per_hour"], seed=seed)
+        self.faults = [dict(fault) for fault in self.sim["faults"]]
+        check_fault_axes(self.faults, self.axes, _get(rig, "source") or "rig")
+        self._armed: set[int] = set()  # indices into self.faults
         self._devices: dict = {}
         self.endpoints: dict = {}
 
@@ -114,6 +118,18 @@ class SimulatedRig:
     def device(self, name: str):
         """The simulated device of axis ``name`` (for fault injection and ground truth)."""
         return self._devices[name]
+
+    def arm_faults(self, sample_index: int) -> list[dict]:
+        """Arm every fault drill whose ``at_sample`` <= ``sample_index`` and that was not armed yet:
+        it strikes when its axis next starts a move, once. Call before each plan sample (after
+        start()); returns the faults armed by this call, in rig-file order."""
+        armed = []
+        for i, fault in enumerate(self.faults):
+            if i not in self._armed and fault["at_sample"] <= sample_index:
+                self._devices[fault["axis"]].arm_fault(fault["kind"])
+                self._armed.add(i)
+                armed.append(dict(fault))
+        return armed
 
     def true_joints_deg(self) -> dict[str, float]:
         """Where every simulated axis really is (degrees), by axis name."""

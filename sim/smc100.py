@@ -16,15 +16,15 @@ from drivers.smc100_protocol import (
     CommandLine, ErrorBit, ErrorLetter, State, build_reply, encode_ts, format_value, parse_command,
 )
 from sim.clock import SimClock
+from sim.faults import ArmedFaults, check_kind
 from sim.motion import TrapezoidMotion
 from sim.pty_port import PtyPort, PtyServedDevice
 
-FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect", "clear")
 ALARM_ERROR_BITS = ErrorBit.FOLLOWING_ERROR  # what a blocked or overloaded stage reports
 _POLL_S = 0.02  # real seconds between state updates while idle
 
 
-class SimulatedSMC100(PtyServedDevice):
+class SimulatedSMC100(ArmedFaults, PtyServedDevice):
     """One SMC100 controller with one stage, served on a pty by a background thread.
 
     Parameters: ``clock`` (shared SimClock), ``address`` (1-31), ``baud`` (reported only: a pty
@@ -47,6 +47,7 @@ class SimulatedSMC100(PtyServedDevice):
         self.error_bits = 0
         self.error_letter = ErrorLetter.NONE
         self.faults: set[str] = set()
+        self._init_armed()
         self.received: deque[bytes] = deque(maxlen=10_000)  # recent command lines, for tests
         self._lock = threading.RLock()
         self._init_serving()
@@ -60,7 +61,7 @@ class SimulatedSMC100(PtyServedDevice):
         return self.motion.position() / self.units_per_deg
 
     def inject_fault(self, kind: str) -> None:
-        """Inject a fault (see FAULT_KINDS); faults persist until ``inject_fault('clear')``.
+        """Inject a fault (see sim.faults.FAULT_KINDS); faults persist until ``inject_fault('clear')``.
 
         no_reply: commands are carried out but nothing is sent back (a dead TX line). bad_checksum: ASCII has no checksum, so a reply is
         corrupted instead (its echoed command letters). drop_byte: the LF ending each reply is
@@ -68,8 +69,7 @@ class SimulatedSMC100(PtyServedDevice):
         the stage freezes while the state stays MOVING. disconnect: the controller is unplugged
         (pty closed, motion stopped); only a restart brings it back.
         """
-        if kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+        check_kind(kind)
         with self._lock:
             if kind == "clear":
                 self.faults.clear()
@@ -109,7 +109,7 @@ class SimulatedSMC100(PtyServedDevice):
                 continue
             self.received.append(line)
             reply = self._handle_line(line)
-            if reply and "no_reply" not in self.faults:
+            if reply and not self.faults & {"no_reply", "disconnect"}:
                 port.write(self._faulty(reply))
 
     def _faulty(self, reply: bytes) -> bytes:
@@ -195,7 +195,8 @@ class SimulatedSMC100(PtyServedDevice):
             return self._reject(self._state_letter())
         self.state = State.HOMING
         self._target = 0.0
-        self.motion.start_move(0.0)  # the reference (home switch) is the stage's zero
+        if self.motion.start_move(0.0) > 0:  # the reference (home switch) is the stage's zero
+            self._move_started()
         return None
 
     def _cmd_PA(self, cmd: CommandLine) -> None:
@@ -215,9 +216,8 @@ class SimulatedSMC100(PtyServedDevice):
             return self._reject(ErrorLetter.OUT_OF_LIMITS)
         self.state = State.MOVING
         self._target = target
-        self.motion.start_move(target)
-        if "stall" in self.faults:
-            self.motion.stall()
+        if self.motion.start_move(target) > 0:
+            self._move_started()
         return None
 
     def _cmd_ST(self, cmd: CommandLine) -> None:

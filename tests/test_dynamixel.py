@@ -299,6 +299,17 @@ def test_injected_fault_raises_and_stops_the_servo(servo, axis, kind, error):
 
 
 @pytest.mark.parametrize("servo", [2.0], indirect=True)
+def test_stall_injected_while_idle_stalls_the_next_move(servo, axis):
+    dev, _ = servo
+    dev.inject_fault("stall")  # nothing moves yet
+    status = axis.move_to(90.0)
+    with pytest.raises(DeviceFault, match="stall"):
+        status.wait()
+    assert dev.true_position_deg() == pytest.approx(0.0, abs=0.1)  # the horn never left
+    _assert_stopped(dev)
+
+
+@pytest.mark.parametrize("servo", [2.0], indirect=True)
 def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
     dev, _ = servo
     status = _start_then_fault(dev, axis, "disconnect")

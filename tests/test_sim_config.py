@@ -28,7 +28,8 @@ def rig_with_sim(tmp_path, sim) -> Path:
 
 
 def test_defaults_are_filled_in():
-    assert validate_sim_section({}, "rig.yaml") == {"clock_speedup": 1.0, "seed": 0, "lamp": {"drift_per_hour": 0.02}}
+    assert validate_sim_section({}, "rig.yaml") == {"clock_speedup": 1.0, "seed": 0,
+                                                    "lamp": {"drift_per_hour": 0.02}, "faults": []}
     checked = load_checked_rig(SIM_RIG).sim
     assert (checked["clock_speedup"], checked["seed"], checked["lamp"]) == (20.0, 0, {"drift_per_hour": 0.02})
     assert checked["camera"]["prnu"] == 0.01  # the camera's own defaults, filled by its validator
@@ -46,6 +47,18 @@ def test_defaults_are_filled_in():
      "a number in [-1, 1] (relative intensity change per simulated hour)", 5),
     ({"camera": {"width": 320}}, "sim.camera.height", "an even integer in [64, 8192]", "nothing"),
     ([1, 2], "sim", "a mapping", [1, 2]),
+    ({"faults": "stall"}, "sim.faults", "a list of {axis, kind, at_sample} mappings", "stall"),
+    ({"faults": ["stall"]}, "sim.faults[0]", "a mapping", "stall"),
+    ({"faults": [{"axis": "sample_yaw", "kind": "jam", "at_sample": 3}]}, "sim.faults[0].kind",
+     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect']", "jam"),
+    ({"faults": [{"axis": "sample_yaw", "kind": "clear", "at_sample": 3}]}, "sim.faults[0].kind",
+     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect']", "clear"),
+    ({"faults": [{"axis": "sample_yaw", "kind": "stall", "at_sample": -1}]}, "sim.faults[0].at_sample",
+     "a plan sample index >= 0", -1),
+    ({"faults": [{"axis": "sample_yaw", "kind": "stall"}]}, "sim.faults[0].at_sample",
+     "a plan sample index >= 0", "nothing"),
+    ({"faults": [{"axis": "sample_yaw", "kind": "stall", "at_sample": 3, "when": 1}]}, "sim.faults[0].when",
+     "one of ['at_sample', 'axis', 'kind']", "when"),
 ])
 def test_bad_values_name_file_key_expected_and_found(sim, keypath, expected, found):
     with pytest.raises(ConfigError) as err:
@@ -58,6 +71,16 @@ def test_the_rig_loader_checks_the_sim_section(tmp_path):
     path = rig_with_sim(tmp_path, {"clok_speedup": 5})
     with pytest.raises(ConfigError, match=rf"^{path}: sim.clok_speedup: expected one of \["):
         load_checked_rig(path)
+
+
+def test_fault_drills_load_and_must_name_an_axis_of_the_rig(tmp_path):
+    drill = {"axis": "sample_yaw", "kind": "stall", "at_sample": 3}
+    assert load_checked_rig(rig_with_sim(tmp_path, {"faults": [drill]})).sim["faults"] == [drill]
+    path = rig_with_sim(tmp_path, {"faults": [drill, {**drill, "axis": "sample_pitch"}]})
+    with pytest.raises(ConfigError) as err:
+        load_checked_rig(path)
+    assert str(err.value) == (f"{path}: sim.faults[1].axis: expected one of the rig's axes "
+                              "['camera_arm', 'sample_tilt', 'sample_yaw'], found 'sample_pitch'")
 
 
 @pytest.mark.parametrize("sim, line", [
@@ -85,4 +108,11 @@ def test_command_line_refuses_a_bad_sim_section_with_one_line(tmp_path, capsys, 
 def test_a_missing_validator_fails_loudly(monkeypatch, entry, problem):
     monkeypatch.setitem(rig_file.VALIDATORS, "sim", entry)
     with pytest.raises(ImportError, match=problem):
+        load_checked_rig(SIM_RIG)
+
+
+def test_a_missing_cross_check_fails_loudly(monkeypatch):
+    monkeypatch.setattr(rig_file, "RIG_CHECKS", (("sim.config", "check_sim_against_rigg"),))
+    with pytest.raises(ImportError, match="the rig file cannot be checked: module sim.config has no function "
+                                          "check_sim_against_rigg"):
         load_checked_rig(SIM_RIG)

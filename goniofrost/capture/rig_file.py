@@ -20,25 +20,34 @@ VALIDATORS: dict[str, tuple[str, str]] = {
     "camera": ("calib.config", "validate_camera_section"),
     "sim": ("sim.config", "validate_sim_section"),
 }
+# checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.
+RIG_CHECKS: tuple[tuple[str, str], ...] = (
+    ("sim.config", "check_sim_against_rig"),  # every fault drill names an axis of the rig
+)
+
+
+def _function(module_name: str, func_name: str, what: str) -> Callable:
+    """``module_name.func_name``; ImportError naming ``what`` cannot be checked when it is missing."""
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise ImportError(f"{what} cannot be checked: its validator {module_name}.{func_name} is missing "
+                          f"({exc})") from exc
+    func = getattr(module, func_name, None)
+    if not callable(func):
+        raise ImportError(f"{what} cannot be checked: module {module_name} has no function {func_name}")
+    return func
 
 
 def section_validators() -> dict[str, Callable[[Mapping, str, str], None]]:
     """Every validator of VALIDATORS, by section name; ImportError when one does not exist."""
-    found = {}
-    for section, (module_name, func_name) in VALIDATORS.items():
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            raise ImportError(f"the rig file's {section!r} sections cannot be checked: its validator "
-                              f"{module_name}.{func_name} is missing ({exc})") from exc
-        func = getattr(module, func_name, None)
-        if not callable(func):
-            raise ImportError(f"the rig file's {section!r} sections cannot be checked: module "
-                              f"{module_name} has no function {func_name}")
-        found[section] = func
-    return found
+    return {section: _function(module_name, func_name, f"the rig file's {section!r} sections")
+            for section, (module_name, func_name) in VALIDATORS.items()}
 
 
 def load_checked_rig(path: str | Path) -> Rig:
     """Read and fully validate a rig file (raises goniofrost.core.errors.ConfigError)."""
-    return _load_rig(path, section_validators())
+    rig = _load_rig(path, section_validators())
+    for module_name, func_name in RIG_CHECKS:
+        _function(module_name, func_name, "the rig file")(rig)
+    return rig

@@ -1,0 +1,49 @@
+"""Faults of the simulated devices: the kinds every twin supports, and faults armed for the next move.
+
+``inject_fault(kind)`` (each twin's own method) makes a fault happen now. ``arm_fault(kind)`` (this
+mixin) makes it happen when the device next starts a move: the move command is executed, then the
+fault strikes before the reply goes out, once. A rig file schedules armed faults per plan sample
+(``sim: faults:``, checked by ``sim.config``; ``sim.rig.SimulatedRig.arm_faults``).
+"""
+from __future__ import annotations
+
+# What each kind does is the twin's to say (see its inject_fault); all three twins support all.
+FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect")
+INJECTABLE_KINDS = FAULT_KINDS + ("clear",)  # "clear" undoes the injected faults
+
+
+def check_kind(kind: str, kinds: tuple[str, ...] = INJECTABLE_KINDS) -> None:
+    """ValueError naming the allowed kinds when ``kind`` is not one of them."""
+    if kind not in kinds:
+        raise ValueError(f"unknown fault kind {kind!r}; expected one of {kinds}")
+
+
+class ArmedFaults:
+    """Mixin of the simulated devices: faults armed now strike when the device next starts a move.
+
+    The device provides ``_lock`` (an RLock), ``faults`` (the set of active faults), ``motion``
+    and ``inject_fault(kind)``, calls ``_init_armed()`` in its constructor, and calls
+    ``_move_started()`` with its lock held right after it starts any move of non-zero length
+    (before replying): holding still where the axis already is starts nothing.
+    """
+
+    def _init_armed(self) -> None:
+        self.armed: list[str] = []
+
+    def arm_fault(self, kind: str) -> None:
+        """Strike ``kind`` (one of FAULT_KINDS) when the device next starts a move, once."""
+        check_kind(kind, FAULT_KINDS)
+        with self._lock:
+            self.armed.append(kind)
+
+    def _move_started(self) -> None:
+        """A move just started: a stalled motor stalls again, and the armed faults strike."""
+        if "stall" in self.faults:
+            self.motion.stall()
+        armed, self.armed = self.armed, []
+        for kind in armed:
+            self._strike(kind)
+
+    def _strike(self, kind: str) -> None:
+        """Inject an armed fault from inside the device's own request handling."""
+        self.inject_fault(kind)

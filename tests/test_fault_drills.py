@@ -1,0 +1,94 @@
+"""Fault drills from the rig file (``sim: faults:``): ``SimulatedRig.arm_faults(sample_index)`` arms
+each drill once its plan sample is reached, and the fault strikes when that axis next moves, once:
+every kind on every protocol raises the driver's typed error."""
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+
+import pytest
+import yaml
+
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
+from drivers.rig_devices import axis_from_spec
+from goniofrost.core.errors import ConfigError
+from sim.faults import FAULT_KINDS
+from sim.rig import SimulatedRig
+
+RIG = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # injected faults make pymodbus log errors
+
+# axis (protocol) -> where it moves in the drill
+TARGETS = {"camera_arm": 60.0, "sample_yaw": 40.0, "sample_tilt": 20.0}
+# (axis, kind) -> the typed error the driver raises; as in the protocol tests' fault matrices
+ERRORS = {
+    "camera_arm": {"no_reply": DeviceTimeout, "bad_checksum": ProtocolError, "drop_byte": ProtocolError,
+                   "alarm": DeviceFault, "stall": DeviceFault, "disconnect": DeviceTimeout},
+    "sample_yaw": {"no_reply": DeviceTimeout, "bad_checksum": ChecksumError, "drop_byte": ProtocolError,
+                   "alarm": DeviceFault, "stall": DeviceFault, "disconnect": DeviceTimeout},
+    "sample_tilt": {"no_reply": DeviceTimeout, "bad_checksum": ProtocolError, "drop_byte": DeviceTimeout,
+                    "alarm": DeviceFault, "stall": DeviceFault, "disconnect": DeviceTimeout},
+}
+
+
+def drill_rig(*faults) -> dict:
+    raw = yaml.safe_load(RIG.read_text())
+    raw["sim"]["faults"] = [dict(zip(("axis", "kind", "at_sample"), f)) for f in faults]
+    return raw
+
+
+def connected_axis(rig: SimulatedRig, name: str):
+    """The real driver of one simulated axis (homed, enabled), detecting a stall after 0.3 s."""
+    spec = copy.deepcopy(rig.resolved_driver_sections()["axes"][name])
+    spec["stall_s"] = 0.3
+    axis = axis_from_spec(name, spec)
+    axis.connect()
+    axis.enable()
+    axis.home().wait()  # the SMC100 accepts moves only once referenced
+    return axis
+
+
+def test_a_drill_is_armed_at_its_sample_and_strikes_on_the_next_move_once():
+    with SimulatedRig(drill_rig(("sample_yaw", "stall", 3)), speedup=20) as rig:
+        device, axis = rig.device("sample_yaw"), connected_axis(rig, "sample_yaw")
+        try:
+            assert rig.arm_faults(2) == [] and device.armed == []
+            assert axis.move_to(20.0).wait() == pytest.approx(20.0, abs=0.1)
+            assert rig.arm_faults(3) == [{"axis": "sample_yaw", "kind": "stall", "at_sample": 3}]
+            assert device.armed == ["stall"] and device.faults == set()  # waiting for the move
+            assert axis.position() == pytest.approx(20.0, abs=0.1)     # reading is no move
+            with pytest.raises(DeviceFault, match="stall"):
+                axis.move_to(40.0).wait()
+            assert device.armed == [] and rig.arm_faults(4) == []      # once
+        finally:
+            axis.close()
+
+
+def test_drills_of_earlier_samples_are_armed_together():
+    with SimulatedRig(drill_rig(("sample_tilt", "alarm", 1), ("camera_arm", "stall", 2),
+                                ("camera_arm", "no_reply", 7)), speedup=20) as rig:
+        armed = rig.arm_faults(5)  # e.g. the first sample run is 5
+        assert [(f["axis"], f["kind"]) for f in armed] == [("sample_tilt", "alarm"), ("camera_arm", "stall")]
+        assert rig.device("camera_arm").armed == ["stall"] and rig.device("sample_tilt").armed == ["alarm"]
+        assert [f["kind"] for f in rig.arm_faults(7)] == ["no_reply"]
+
+
+@pytest.mark.parametrize("name", list(TARGETS))
+@pytest.mark.parametrize("kind", FAULT_KINDS)
+def test_every_kind_strikes_on_every_protocol(name, kind):
+    with SimulatedRig(drill_rig((name, kind, 0)), speedup=20) as rig:
+        axis = connected_axis(rig, name)
+        try:
+            rig.arm_faults(0)
+            with pytest.raises(ERRORS[name][kind]) as err:
+                axis.move_to(TARGETS[name]).wait()
+            assert err.value.axis == name
+        finally:
+            axis.close()
+
+
+def test_a_drill_on_an_axis_the_rig_does_not_have_is_refused():
+    with pytest.raises(ConfigError, match=r"sim.faults\[0\].axis: expected one of the rig's axes "
+                                          r"\['camera_arm', 'sample_tilt', 'sample_yaw'\], found 'sample_pitch'"):
+        SimulatedRig(drill_rig(("sample_pitch", "stall", 0)))
