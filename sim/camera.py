@@ -194,7 +194,7 @@ class SimCamera(Camera):
         if not (_num(exposure_s) and exposure_s > 0):
             raise CameraError(f"simulated camera: exposure must be > 0 s, found {exposure_s!r}")
         w_i, w_o = (np.asarray(v, dtype=np.float64) for v in self.pose_source())
-        t0 = self.clock.now()
+        t0 = self.clock.nominal_time()  # not the wall clock: reruns give the same frames
         self.clock.sleep(exposure_s)
         lamp = 0.5 * (self.lamp.relative_intensity(t0) + self.lamp.relative_intensity(t0 + exposure_s))
         radiance = self._radiance(w_i, w_o) * lamp

@@ -1,13 +1,23 @@
-"""A clock that can run faster than real time, shared by every simulated device of a rig."""
+"""A clock that can run faster than real time, shared by every simulated device of a rig.
+
+It keeps two times. ``now()`` follows the wall clock (times the speed-up): motion runs on it, so
+the real drivers, which poll in real time, see axes move and arrive. ``nominal_time()`` never
+reads the wall clock: it advances only by what the devices are told to do (an exposure, a planned
+move), so the same sequence of device commands always gives the same nominal times. Everything
+that ends up in a measured value (lamp drift, exposure time stamps) runs on nominal time, which
+makes a simulated session with a fixed seed reproducible however the host schedules its threads.
+"""
 from __future__ import annotations
 
+import threading
 import time
 
 
 class SimClock:
-    """Simulated seconds = speedup x real seconds since the clock was made.
+    """Simulated seconds = speedup x real seconds since the clock was made (``now``), and a
+    nominal time driven by the devices' commands only (``nominal_time``).
 
-    ``now()`` gives simulated seconds; ``sleep(sim_seconds)`` waits the matching real time.
+    ``sleep(sim_seconds)`` waits the matching real time and advances the nominal time by it.
     A speedup of 1 is real time. All devices of one simulated rig share one clock so that
     motion, lamp drift and exposures agree.
     """
@@ -17,12 +27,32 @@ class SimClock:
             raise ValueError(f"SimClock speedup must be > 0, got {speedup!r}")
         self.speedup = float(speedup)
         self._real0 = time.monotonic()
+        self._lock = threading.Lock()
+        self._nominal = 0.0  # nominal seconds already spent
+        self._horizon = 0.0  # end of the activities started since nominal time was last read
 
     def now(self) -> float:
-        """Simulated seconds since the clock started."""
+        """Simulated seconds since the clock started (wall clock x speed-up)."""
         return (time.monotonic() - self._real0) * self.speedup
 
+    def nominal_time(self) -> float:
+        """Nominal simulated seconds: every activity started so far has ended by then.
+
+        Activities started between two readings (the axes of one move, started together) run
+        side by side; an activity started after a reading follows the ones before it.
+        """
+        with self._lock:
+            self._nominal = max(self._nominal, self._horizon)
+            return self._nominal
+
+    def start_activity(self, sim_seconds: float) -> None:
+        """A device starts something that takes ``sim_seconds`` (a planned move) from now, nominally."""
+        with self._lock:
+            self._horizon = max(self._horizon, self._nominal + max(0.0, float(sim_seconds)))
+
     def sleep(self, sim_seconds: float) -> None:
-        """Block for ``sim_seconds`` of simulated time."""
+        """Block for ``sim_seconds`` of simulated time (and spend them on the nominal time)."""
         if sim_seconds > 0:
+            with self._lock:
+                self._nominal = max(self._nominal, self._horizon) + float(sim_seconds)
             time.sleep(sim_seconds / self.speedup)

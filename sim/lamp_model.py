@@ -1,8 +1,10 @@
-"""The simulated lamp: on/off state and an intensity that drifts slowly over time.
+"""The simulated lamp: on/off state and an intensity that drifts slowly over nominal time.
 
 Shared by the simulated Modbus drive (which exposes the on/off coil and the monitor
 photodiode register) and the simulated camera (whose radiance scales with the intensity),
-so the calibration can normalise drift exactly as on a real rig.
+so the calibration can normalise drift exactly as on a real rig. The drift follows the clock's
+nominal time (``SimClock.nominal_time``), never the wall clock: the same device commands give the
+same intensities on every run.
 """
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ PHOTODIODE_FULL_SCALE = 50_000  # counts at relative intensity 1.0 (fits a 16-bi
 class LampModel:
     """Relative lamp intensity I(t) = 1 + drift_per_hour * t/3600 + a small slow wobble.
 
-    ``intensity()`` is 0 while the lamp is off. Deterministic for a given seed and clock time.
+    ``t`` is the clock's nominal time in simulated seconds. ``relative_intensity()`` is 0 while
+    the lamp is off. Deterministic for a given seed and nominal time.
     """
 
     def __init__(self, clock: SimClock, drift_per_hour: float = 0.02, seed: int = 0) -> None:
@@ -27,10 +30,10 @@ class LampModel:
         self._phase = float(rng.uniform(0, 2 * np.pi))
 
     def relative_intensity(self, t: float | None = None) -> float:
-        """Intensity relative to nominal at simulated time t (default now); 0 when off."""
+        """Intensity relative to nominal at nominal time t (default: the clock's nominal time now); 0 when off."""
         if not self.is_on:
             return 0.0
-        t = self.clock.now() if t is None else t
+        t = self.clock.nominal_time() if t is None else t
         wobble = 0.003 * np.sin(2 * np.pi * t / 600.0 + self._phase)
         return float(1.0 + self.drift_per_hour * t / 3600.0 + wobble)
 

@@ -85,7 +85,9 @@ class TrapezoidMotion:
             self._set_segment(t, p, direction, _plan(abs(dist), u0, self.speed, self.accel))
             self._p_end = float(target)  # exact, free of rounding in the phase sums
             self.target, self._stalled = float(target), False
-            return sum(ph.duration for ph in self._phases)
+            duration = sum(ph.duration for ph in self._phases)
+        self.clock.start_activity(duration)  # the planned duration, not the wall clock's
+        return duration
 
     def stop(self) -> None:
         """Brake at ``accel`` from the present velocity; a stalled axis simply stops."""
