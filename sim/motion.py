@@ -54,7 +54,8 @@ def _plan(distance: float, u0: float, vmax: float, accel: float) -> list[_Phase]
 class TrapezoidMotion:
     """An axis that moves with trapezoidal velocity profiles in simulated time.
 
-    ``start_move(target)`` starts from the present position and velocity; ``stop()`` brakes at
+    ``clock`` is a SimClock (``now()`` for the motion, ``start_activity(seconds)`` told of every
+    planned move). ``start_move(target)`` starts from the present position and velocity; ``stop()`` brakes at
     ``accel``; ``stall()`` freezes the axis where it is while it still reports moving (a blocked
     motor). The profile (``set_profile``) applies to the next move, as on real drives.
     """

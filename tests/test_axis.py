@@ -26,6 +26,9 @@ class ManualClock:
     def now(self):
         return self.t
 
+    def start_activity(self, sim_seconds):
+        """TrapezoidMotion reports each planned move (nominal time is not what these tests check)."""
+
 
 class MotionAxis(Axis):
     """An axis whose 'device' is a TrapezoidMotion in this process; counts every command and can
