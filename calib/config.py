@@ -44,7 +44,7 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
 
     Raises ConfigError (``SOURCE: camera.KEY: expected ..., found ...``) for a missing, unknown
     or out-of-range value. ``white_reference`` holds the reflectance of the white tile and the
-    pose (theta_i, theta_o in degrees) the session moves to before ``Calibrator.calibrate``.
+    pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference.
     """
     out = check_section(section, _CAMERA_KEYS, source, keypath, optional=_OPTIONAL)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")

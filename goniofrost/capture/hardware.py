@@ -1,7 +1,7 @@
 """Connect the devices of a rig for a session: a simulated rig's own devices, or a real rig's.
 
 ``open_hardware(rig, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
-calibrator, clock). A rig marked ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this
+camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig marked ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this
 process: its devices speak the real protocols over pseudo-terminals and loopback TCP, and the
 real drivers connect to them exactly as to hardware. The simulated camera sees the pose through
 forward kinematics of the simulated axes' true positions. On leaving, every axis is stopped and
@@ -26,7 +26,7 @@ class WallClock:
 
 @dataclass
 class RigHardware:
-    """What the session engine drives (see ``goniofrost.capture.engine.Hardware``).
+    """What the session engine drives (``goniofrost.capture.contract.Hardware``).
 
     ``simulation`` is the running ``SimulatedRig`` on a simulated rig (for fault injection and
     ground truth), else None.
@@ -34,11 +34,14 @@ class RigHardware:
 
     axes: dict
     lamp: object
-    calibrator: object
+    camera: object
     clock: object
-    camera: object = None
     simulation: object = None
     extra: dict = field(default_factory=dict)
+
+    @property
+    def simulated(self) -> bool:
+        return self.simulation is not None
 
 
 @contextmanager
@@ -58,7 +61,6 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
 
 @contextmanager
 def _simulated(rig, *, material, seed, speedup):
-    from calib import Calibrator
     from drivers.rig_devices import RigDevices
     from planner.kinematics import forward
     from goniofrost.datasets import material_brdf
@@ -75,15 +77,13 @@ def _simulated(rig, *, material, seed, speedup):
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed)
             camera.connect()
             try:
-                calibrator = Calibrator(camera, devices.lamp, rig.camera)
-                yield RigHardware(devices.axes, devices.lamp, calibrator, simulation.clock, camera, simulation)
+                yield RigHardware(devices.axes, devices.lamp, camera, simulation.clock, simulation)
             finally:
                 camera.close()
 
 
 @contextmanager
 def _real(rig, *, material, seed, speedup):
-    from calib import Calibrator
     from calib.open_camera import open_camera
     from drivers.rig_devices import RigDevices
 
@@ -92,20 +92,22 @@ def _real(rig, *, material, seed, speedup):
         camera = open_camera(rig)
         camera.connect()
         try:
-            yield RigHardware(devices.axes, devices.lamp, Calibrator(camera, devices.lamp, rig.camera),
-                              WallClock(), camera)
+            yield RigHardware(devices.axes, devices.lamp, camera, WallClock())
         finally:
             camera.close()
 
 
 @contextmanager
 def _connected(devices):
-    """connect_all, then on any exit stop every axis and close every connection."""
+    """connect_all, then on any exit stop every axis (the engine's one stop path) and close every
+    connection."""
+    from goniofrost.capture.executor import stop_axes
+
     devices.connect_all()
     try:
         yield devices
     finally:
-        for action in (devices.stop_all, devices.close_all):
+        for action in (lambda: stop_axes(devices.axes), devices.close_all):
             try:
                 action()
             except Exception as exc:  # noqa: BLE001 - keep closing; the session's own error matters more
