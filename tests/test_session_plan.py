@@ -17,16 +17,14 @@ from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.session_steps import SessionSpec, remaining, session_steps
 from goniofrost.capture.steps import (Commit, Expose, Frame, Home, LampOff, LampOn, Move, Phase, Reached,
                                       SaveCalibration, SetTarget, drive)
-from goniofrost.datasets import material_brdf
-from sim.camera_bench import CameraBench, direction
+from sim.camera_bench import direction
+
+from frame_script import LADDER, render_table
 
 AXES = ("theta_i", "theta_o", "phi_o")    # the plan does not care what the joints mean
-LADDER = [0.002, 0.008, 0.032, 0.128]
 CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
                                   "flat_frames": 2, "white_reference": {"theta_i_deg": 0.0, "theta_o_deg": 30.0}},
                                  "test")
-SIM_CAMERA = {"width": 192, "height": 144, "black_level": 512, "white_level": 16383, "read_noise_e": 3.0,
-              "full_well_e": 30000.0, "dark_current_e_s": 5.0, "vignetting": 0.15}
 WHITE = {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0}
 SAMPLES = [{"joints": {"theta_i": 0.0, "theta_o": 30.0 + 5 * i, "phi_o": 180.0 - 10 * i},
             "theta_h_deg": 10.0 + i, "theta_d_deg": 20.0 + i, "phi_d_deg": 90.0} for i in range(3)]
@@ -43,29 +41,10 @@ RECORD = CalibrationRecord(LADDER, np.zeros((4, 144, 192), np.float32), np.ones(
                            np.array([12.0, 20.0, 15.0]), np.array([0.01, 0.01, 0.01]), {"reflectance": 0.95})
 
 
-def render(tmp: Path, material: str, target: str, lamp: bool, seconds: float):
-    """One RawImage of the simulated camera (normal light, 30 deg view) taken ``seconds`` long."""
-    bench = CameraBench(material_brdf(material), SIM_CAMERA, seed=0)
-    bench.set_angles(0.0, 30.0)
-    bench.camera.set_target(target)
-    if lamp:
-        bench.lamp.on()
-    return read_raw(bench.camera.capture(seconds, tmp / f"{target}_{lamp}_{seconds}.dng").path)
-
-
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
-    """Frames by (what the camera sees, ladder exposure): with the lamp off ("dark"), the flat
-    diffuser, the white card, a matte sample, and a sample 8x brighter (rendered 8x longer)."""
-    tmp, matte = tmp_path_factory.mktemp("frames"), "builtin:white-diffuse"
-    table = {}
-    for t in LADDER:
-        table["dark", t] = render(tmp, matte, "sample", False, t)
-        table["flat", t] = render(tmp, matte, "flat", True, t)
-        table["white", t] = render(tmp, matte, "white", True, t)
-        table["sample", t] = render(tmp, matte, "sample", True, t)
-        table["bright", t] = render(tmp, matte, "sample", True, 8 * t)
-    return table
+    """RawImages by (what the camera sees, ladder exposure): see frame_script."""
+    return {key: read_raw(path) for key, path in render_table(tmp_path_factory.mktemp("frames")).items()}
 
 
 class Script:

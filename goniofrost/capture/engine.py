@@ -65,11 +65,12 @@ class SessionStats:
 
 
 class SessionEngine:
-    """Execute a session plan on ``hardware``, journaling into ``journal`` under ``session_dir``."""
+    """Execute the session plan of ``spec`` (a SessionSpec, e.g. ``SessionSpec.from_inputs``) on
+    ``hardware``, journaling into ``journal`` under ``session_dir``."""
 
-    def __init__(self, inputs, hardware: Hardware, journal: Journal, session_dir, progress: bool = True) -> None:
-        self.inputs, self.hw, self.journal = inputs, hardware, journal
-        self.spec = SessionSpec.from_inputs(inputs)
+    def __init__(self, spec: SessionSpec, hardware: Hardware, journal: Journal, session_dir,
+                 progress: bool = True) -> None:
+        self.spec, self.hw, self.journal = spec, hardware, journal
         self.devices = StepExecutor(hardware, session_dir)
         self.session_dir = self.devices.folder
         self.csv = SamplesCsv(self.session_dir / "samples.csv")
@@ -91,7 +92,7 @@ class SessionEngine:
         self.csv.rewrite(self.journal.samples())  # the journal is the truth; no torn line survives
         self.stats.skipped = len(done)
         self._run = self.journal.next_run()
-        self.journal.add_event("session", f"started with {len(done)} of {len(self.inputs.samples)} samples done",
+        self.journal.add_event("session", f"started with {len(done)} of {len(self.spec.samples)} samples done",
                                data={"done": sorted(done), "run": self._run})
         plan = session_steps(self.spec, done, calibration=self._restore_calibration())
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
@@ -184,7 +185,7 @@ class SessionEngine:
     def _failure_message(self, exc, step) -> str:
         hint, index = "", getattr(step, "index", None)
         if index is not None:
-            s = self.inputs.samples[index]
+            s = self.spec.samples[index]
             hint = f" (theta_i {s['theta_i_deg']:.1f} deg, theta_o {s['theta_o_deg']:.1f} deg)"
         return f"capture failed{self._where(step)}{hint}: {exc}. {_remedy(exc)}{self._safe_text()}"
 
@@ -196,7 +197,7 @@ class SessionEngine:
         return f" during {type(step).__name__}{part}" if step is not None else " before the first step"
 
     def _safe_text(self) -> str:
-        n, done = len(self.inputs.samples), len(self.journal.done_indices())
+        n, done = len(self.spec.samples), len(self.journal.done_indices())
         return (f"Every axis was stopped; {done} of {n} samples are safe in {self.journal.path}. "
                 f"Fix the cause, then run the same command with --resume")
 
@@ -271,7 +272,7 @@ class SessionEngine:
     def _progress(self, initial: int):
         from tqdm import tqdm
 
-        total = len(self.inputs.samples)
+        total = len(self.spec.samples)
         with tqdm(total=total, initial=initial, unit="sample", desc="capture", file=sys.stderr,
                   disable=not self.progress, dynamic_ncols=True) as bar:
             self._bar = bar
