@@ -30,6 +30,8 @@ _CAMERA_KEYS = {
     "trigger_command": (lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
                         "a command containing {exposure_s}", None),
     "timeout_s": (lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
+    "operator_timeout_s": (lambda v: _num(v) and v > 0,
+                           "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
 _OPTIONAL = {"folder", "trigger_command"}
 _WHITE_KEYS = {
