@@ -22,7 +22,6 @@ import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.capture.contract import Hardware

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import PurePosixPath
 
-from calib import Bracket, SampleMeasurement, check_record, light_direction, sample_measurement, start_index
+from calib import Bracket, check_record, light_direction, sample_measurement, start_index
 from calib.holder import SAMPLE_MARKER_IDS
 from goniofrost.capture.steps import Expose
 
