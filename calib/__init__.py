@@ -5,11 +5,10 @@ from .bracket import Bracket, start_index
 from .config import validate_camera_section
 from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
 from .measurement import SampleMeasurement, check_record, light_direction, sample_measurement
-from .open_camera import open_camera
 from .record import CalibrationRecord
 from .references import dark_map, flat_field, flat_usable, nominal_white_pose, white_scale
 
 __all__ = ["Bracket", "start_index", "SampleMeasurement", "check_record", "light_direction", "sample_measurement",
            "CalibrationRecord", "dark_map", "flat_field", "flat_usable", "nominal_white_pose", "white_scale",
-           "validate_camera_section", "open_camera",
+           "validate_camera_section",
            "CalibrationError", "MarkerError", "SaturationError", "UnderexposedError", "WrongTargetError"]

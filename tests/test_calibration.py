@@ -12,11 +12,12 @@ import pytest
 import yaml
 
 from calib import (CalibrationError, CalibrationRecord, MarkerError, SaturationError,
-                   UnderexposedError, WrongTargetError, open_camera, validate_camera_section)
+                   UnderexposedError, WrongTargetError, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.capture.calibration_steps import calibration_steps
 from goniofrost.capture.executor import BenchHardware, StepExecutor
+from goniofrost.capture.hardware import open_camera
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import drive
 from goniofrost.core.errors import ConfigError

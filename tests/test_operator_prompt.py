@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from calib import open_camera
 from drivers.camera import FolderCamera, OperatorAbort, OperatorPrompt, OperatorTimeout
+from goniofrost.capture.hardware import open_camera
 
 REPO = Path(__file__).resolve().parents[1]
 PROMPT = b"press Enter when done, or type abort"
