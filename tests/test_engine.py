@@ -162,11 +162,20 @@ def run(hardware, session: Path):
 
 
 # ----- tests ---------------------------------------------------------------------------------------
-def test_the_fakes_and_the_rigs_satisfy_the_hardware_contract(table):
-    hardware = rig(table)
-    assert isinstance(hardware, Hardware) and isinstance(hardware.lamp, Lamp) and isinstance(hardware.camera, Camera)
-    assert isinstance(hardware.clock, Clock) and all(isinstance(a, Axis) for a in hardware.axes.values())
-    assert isinstance(BenchHardware(hardware.lamp, hardware.camera, hardware.clock), Hardware)
+def test_the_fakes_and_the_real_drivers_satisfy_the_hardware_contract(table, tmp_path):
+    from drivers.camera import FolderCamera
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.hardware import RigHardware, WallClock
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    devices = RigDevices.from_sections(load_checked_rig(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"))
+    real = RigHardware(devices.axes, devices.lamp, FolderCamera(tmp_path, lambda t: None), WallClock())
+    for hardware in (rig(table), real):
+        assert isinstance(hardware, Hardware) and isinstance(hardware.lamp, Lamp)
+        assert isinstance(hardware.camera, Camera) and isinstance(hardware.clock, Clock)
+        assert all(isinstance(a, Axis) for a in hardware.axes.values()) and len(hardware.axes) == 3
+    assert real.simulated is False and not isinstance(object(), Hardware)
+    assert isinstance(BenchHardware(real.lamp, real.camera, real.clock), Hardware)
 
 
 def test_every_step_is_journaled_as_it_happens_and_each_sample_commits(table, tmp_path):
