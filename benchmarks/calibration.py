@@ -11,9 +11,10 @@ Usage (from the repository root)::
 The plan: ``--samples`` random valid cells of the full MERL grid with theta_i, theta_o <= the
 max angle (each at its cell's lower-edge directions, rotated about z by a random azimuth so the
 holder is seen from every side). One calibration (dark, flat, white) per repeat, then every
-sample measured. Times are wall seconds on this machine: ``capture`` is inside
-``camera.capture`` (render, noise, DNG write), ``calibration`` is the rest of ``measure`` (RAW
-decode, markers, HDR, scale); medians over samples and repeats (the machine is shared).
+sample measured (the calibration and sample plans of goniofrost.capture run on a camera bench).
+Times are wall seconds on this machine: ``capture`` is inside ``camera.capture`` (render, noise,
+DNG write), ``calibration`` is the rest of a sample's plan (RAW decode, markers, HDR, scale);
+medians over samples and repeats (the machine is shared).
 """
 from __future__ import annotations
 
@@ -32,7 +33,11 @@ from tqdm import tqdm
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from calib import Calibrator  # noqa: E402
+from calib import validate_camera_section  # noqa: E402
+from goniofrost.capture.calibration_steps import calibration_steps  # noqa: E402
+from goniofrost.capture.executor import BenchHardware, StepExecutor  # noqa: E402
+from goniofrost.capture.sample_steps import sample_steps  # noqa: E402
+from goniofrost.capture.steps import drive  # noqa: E402
 from goniofrost.core.grid import FULL_GRID  # noqa: E402
 from goniofrost.datasets import material_brdf  # noqa: E402
 from sim.camera_bench import CameraBench  # noqa: E402
@@ -58,21 +63,24 @@ def plan(n: int, max_angle_deg: float, seed: int) -> list[tuple[np.ndarray, np.n
 def run_once(material: str, rig: dict, poses, seed: int, work: Path) -> dict:
     """Calibrate, measure every pose; per-sample rows and the calibration time."""
     bench = CameraBench(material_brdf(material), rig["sim"]["camera"], seed=seed, speedup=rig["sim"]["clock_speedup"])
-    cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
+    settings = validate_camera_section(rig["camera"], "rig file")
+    devices = StepExecutor(BenchHardware(bench.lamp, bench.camera, bench.clock), work)
     t0 = time.perf_counter()
-    cal.calibrate(work / "calibration", white_pose=bench.pose)
+    record = drive(calibration_steps(settings, white_pose=bench.pose), devices)
     calib_s = time.perf_counter() - t0
-    rows = []
+    rows, expected = [], None
     for k, (w_i, w_o) in enumerate(tqdm(poses, desc="samples", file=sys.stderr, leave=False)):
         bench.pose = (w_i, w_o)
-        m = cal.measure(w_i, w_o, work / "raw", k)
+        t0 = time.perf_counter()
+        m = drive(sample_steps(settings, record, (w_i, w_o), k, expected), devices)
+        sample_s, expected = time.perf_counter() - t0, np.maximum(m.rgb, 1e-6)
         truth = bench.camera.ground_truth(w_i, w_o)
         rows.append({"sample": k, "theta_i_deg": float(np.degrees(np.arccos(w_i[2]))),
                      "theta_o_deg": float(np.degrees(np.arccos(w_o[2]))), "truth": truth.tolist(),
                      "rgb": m.rgb.tolist(), "rel_error": (m.rgb / truth - 1).tolist(),
                      "z": ((m.rgb - truth) / m.sigma).tolist(), "frames_taken": m.frames_taken,
                      "frames_skipped": m.frames_skipped, "exposures_s": m.exposures_s,
-                     "capture_s": m.capture_seconds, "calibration_s": m.seconds - m.capture_seconds,
+                     "capture_s": m.capture_seconds, "calibration_s": sample_s - m.capture_seconds,
                      "flags": m.flags})
     return {"calibrate_s": calib_s, "rows": rows}
 

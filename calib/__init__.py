@@ -1,10 +1,14 @@
-"""Radiometric calibration: dark frames, flat field, HDR from exposure brackets, white
-reference, lamp drift and the ArUco region of interest -> absolute BRDF with uncertainty."""
-from .calibrator import Calibrator, SampleMeasurement
+"""Radiometric calibration as pure functions of frames: dark maps, flat field, white reference,
+the adaptive exposure bracket, HDR merge, lamp drift and the ArUco region of interest ->
+absolute BRDF with uncertainty. No device is called here: the capture plan takes the frames."""
+from .bracket import Bracket, start_index
 from .config import validate_camera_section
-from .open_camera import open_camera
 from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
+from .measurement import SampleMeasurement, check_record, light_direction, sample_measurement
 from .record import CalibrationRecord
+from .references import dark_map, flat_field, flat_usable, nominal_white_pose, white_scale
 
-__all__ = ["Calibrator", "SampleMeasurement", "CalibrationRecord", "validate_camera_section", "open_camera",
+__all__ = ["Bracket", "start_index", "SampleMeasurement", "check_record", "light_direction", "sample_measurement",
+           "CalibrationRecord", "dark_map", "flat_field", "flat_usable", "nominal_white_pose", "white_scale",
+           "validate_camera_section",
            "CalibrationError", "MarkerError", "SaturationError", "UnderexposedError", "WrongTargetError"]

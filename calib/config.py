@@ -30,6 +30,8 @@ _CAMERA_KEYS = {
     "trigger_command": (lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
                         "a command containing {exposure_s}", None),
     "timeout_s": (lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
+    "operator_timeout_s": (lambda v: _num(v) and v > 0,
+                           "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
 _OPTIONAL = {"folder", "trigger_command"}
 _WHITE_KEYS = {
@@ -44,7 +46,7 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
 
     Raises ConfigError (``SOURCE: camera.KEY: expected ..., found ...``) for a missing, unknown
     or out-of-range value. ``white_reference`` holds the reflectance of the white tile and the
-    pose (theta_i, theta_o in degrees) the session moves to before ``Calibrator.calibrate``.
+    pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference.
     """
     out = check_section(section, _CAMERA_KEYS, source, keypath, optional=_OPTIONAL)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")

@@ -1,4 +1,4 @@
-"""The result of ``Calibrator.calibrate``: dark maps, flat field and the absolute scale.
+"""The calibration record: dark maps, flat field and the absolute scale.
 
 The arrays live in ``calibration.npz`` beside the raw frames; ``to_dict`` gives a JSON-safe
 summary (with the file's path and SHA-256) that a session journal stores, and ``from_dict``

@@ -3,10 +3,13 @@
 A capture session only ever calls ``connect``, ``capture`` and ``close``; the calibration also
 asks for a target with ``set_target`` (``"sample"``, ``"white"``: the white reference card,
 ``"flat"``: a uniform diffuser over the lens). A real rig without motorised targets implements
-``set_target`` by asking the operator (see ``FolderCamera``).
+``set_target`` by asking the operator (see ``FolderCamera`` and ``OperatorPrompt``).
 """
 from __future__ import annotations
 
+import os
+import select
+import sys
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
@@ -16,10 +19,71 @@ from typing import Callable
 from goniofrost.core.errors import GoniofrostError
 
 TARGETS = ("sample", "white", "flat")
+ABORT_ANSWER = "abort"
+OPERATOR_TIMEOUT_S = 600.0  # default seconds an operator has to answer (change a target, expose)
 
 
 class CameraError(GoniofrostError, RuntimeError):
     """The camera failed to deliver a frame (names the camera, the exposure and the cause)."""
+
+
+class OperatorAbort(CameraError):
+    """The operator answered ``abort`` to a prompt (or no operator can answer: input closed)."""
+
+
+class OperatorTimeout(CameraError):
+    """The operator did not answer a prompt within its timeout."""
+
+
+class OperatorPrompt:
+    """Ask the operator to do something and wait for Enter, at most ``timeout_s`` seconds.
+
+    ``prompt(message)`` writes ``MESSAGE - press Enter when done, or type abort`` to ``output``
+    (default: standard error) and reads one line from the file descriptor ``input_fd`` (default:
+    standard input, a terminal or a pipe). A line reading ``abort`` raises OperatorAbort, no
+    line in time raises OperatorTimeout, closed input raises OperatorAbort; any other line
+    (an empty one) means done. Lines typed before the question are discarded, so a stray Enter
+    cannot confirm a target change that has not happened.
+    """
+
+    def __init__(self, timeout_s: float = OPERATOR_TIMEOUT_S, input_fd: int | None = None, output=None) -> None:
+        self.timeout_s, self.input_fd, self.output = float(timeout_s), input_fd, output
+
+    def __call__(self, message: str) -> None:
+        fd = self._input(message)
+        self._discard_typeahead(fd, message)
+        output = sys.stderr if self.output is None else self.output
+        output.write(f"{message} - press Enter when done, or type {ABORT_ANSWER}\n")
+        output.flush()
+        answer = self._read_line(fd, message)
+        if answer.strip().lower() == ABORT_ANSWER:
+            raise OperatorAbort(f"{message}: the operator answered {ABORT_ANSWER!r}")
+
+    def _input(self, message: str) -> int:
+        if self.input_fd is not None:
+            return self.input_fd
+        try:
+            return sys.stdin.fileno()
+        except (AttributeError, OSError, ValueError):  # no stdin, or one without a descriptor
+            raise OperatorAbort(f"{message}: no operator can answer (no standard input)") from None
+
+    def _discard_typeahead(self, fd: int, message: str) -> None:
+        while select.select([fd], [], [], 0)[0]:
+            if not os.read(fd, 4096):
+                raise OperatorAbort(f"{message}: no operator can answer (standard input is closed)")
+
+    def _read_line(self, fd: int, message: str) -> str:
+        """One line from ``fd`` within the timeout (bytes up to the newline, decoded)."""
+        deadline, line = time.monotonic() + self.timeout_s, b""
+        while b"\n" not in line:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                raise OperatorTimeout(f"{message}: no answer from the operator within {self.timeout_s:g} s")
+            chunk = os.read(fd, 1)  # one byte: what follows the newline stays for the next prompt to discard
+            if not chunk:
+                raise OperatorAbort(f"{message}: no operator can answer (standard input is closed)")
+            line += chunk
+        return line.decode(errors="replace")
 
 
 @dataclass
@@ -61,15 +125,17 @@ class FolderCamera(Camera):
     ``trigger(exposure_s)`` starts an exposure (e.g. a gphoto2 or serial-remote call, supplied by
     the caller); the newest new file with a suffix in ``suffixes`` that appears in ``folder``
     within ``timeout_s`` is moved to the requested path. ``ask(message)`` is called when the
-    calibration needs a different target in front of the lens (default: print and wait for Enter).
+    calibration needs a different target in front of the lens (default: an OperatorPrompt on the
+    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``).
     """
 
     def __init__(self, folder, trigger: Callable[[float], None], timeout_s: float = 30.0,
                  suffixes=(".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf"),
-                 ask: Callable[[str], None] | None = None, poll_s: float = 0.05) -> None:
+                 ask: Callable[[str], None] | None = None, poll_s: float = 0.05,
+                 operator_timeout_s: float = OPERATOR_TIMEOUT_S) -> None:
         self.folder, self.trigger, self.timeout_s = Path(folder), trigger, float(timeout_s)
         self.suffixes = tuple(s.lower() for s in suffixes)
-        self.ask = ask or (lambda msg: input(msg + " - press Enter when ready"))
+        self.ask = ask or OperatorPrompt(operator_timeout_s)
         self.poll_s = poll_s
 
     def connect(self) -> None:

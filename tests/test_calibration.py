@@ -1,4 +1,7 @@
-"""Calibration through the simulated camera: accuracy with noise, bracketing, every failure mode."""
+"""Calibration through the simulated camera: accuracy with noise, bracketing, every failure mode.
+
+The calibration and each sample are plans of steps (goniofrost.capture.calibration_steps,
+sample_steps) executed on a camera bench; calib only computes on the frames."""
 from __future__ import annotations
 
 import json
@@ -8,10 +11,15 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import (CalibrationError, CalibrationRecord, Calibrator, MarkerError, SaturationError,
-                   UnderexposedError, WrongTargetError, open_camera, validate_camera_section)
+from calib import (CalibrationError, CalibrationRecord, MarkerError, SaturationError,
+                   UnderexposedError, WrongTargetError, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
+from goniofrost.capture.calibration_steps import calibration_steps
+from goniofrost.capture.executor import BenchHardware, StepExecutor
+from goniofrost.capture.hardware import open_camera
+from goniofrost.capture.sample_steps import sample_steps
+from goniofrost.capture.steps import drive
 from goniofrost.core.errors import ConfigError
 from sim.camera import SimCamera
 from goniofrost.datasets import material_brdf
@@ -34,19 +42,42 @@ def spec(merl_npz):
     return lambda name: material_brdf(f"nbrdf:{merl_npz}:{name}")
 
 
+class BenchPlans:
+    """The calibration and sample plans run on a camera bench (frames into ``out_dir`` itself).
+
+    ``measure`` hands the previous sample's value to the next bracket, as the session plan does.
+    """
+
+    def __init__(self, camera, lamp, settings, record=None, clock=None):
+        self.hardware = BenchHardware(lamp, camera, clock)
+        self.settings = validate_camera_section(settings, "camera settings")
+        self.record, self.expected = record, None
+
+    def calibrate(self, out_dir, white_pose=None):
+        plan = calibration_steps(self.settings, white_pose, folder="")
+        self.record = drive(plan, StepExecutor(self.hardware, out_dir))
+        return self.record
+
+    def measure(self, w_i, w_o, out_dir, sample_id):
+        plan = sample_steps(self.settings, self.record, (w_i, w_o), sample_id, self.expected, folder="")
+        m = drive(plan, StepExecutor(self.hardware, out_dir))
+        self.expected = np.maximum(m.rgb, 1e-6)
+        return m
+
+
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory, rig, spec):
     """One calibration (seed 0 sensor) shared by the tests: its journal form, reloaded."""
     out = tmp_path_factory.mktemp("calibration")
     bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
-    cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
+    cal = BenchPlans(bench.camera, bench.lamp, rig["camera"], clock=bench.clock)
     record = cal.calibrate(out, white_pose=bench.pose)
     return json.loads(json.dumps(record.to_dict()))
 
 
 def _calibrator(rig, calibrated, bench, **settings):
-    return Calibrator(bench.camera, bench.lamp, {**rig["camera"], **settings},
-                      record=CalibrationRecord.from_dict(calibrated))
+    return BenchPlans(bench.camera, bench.lamp, {**rig["camera"], **settings},
+                      record=CalibrationRecord.from_dict(calibrated), clock=bench.clock)
 
 
 def _errors(rig, calibrated, spec, name, tmp_path):
@@ -132,7 +163,8 @@ class _BlindLamp:
 def test_without_the_photodiode_drift_biases_the_result(rig, calibrated, spec, tmp_path):
     bench = _drifted_bench(spec, rig)
     w_i, w_o = bench.set_angles(30.0, 30.0, 120.0)
-    cal = Calibrator(bench.camera, _BlindLamp(bench.lamp), rig["camera"], record=CalibrationRecord.from_dict(calibrated))
+    cal = BenchPlans(bench.camera, _BlindLamp(bench.lamp), rig["camera"], record=CalibrationRecord.from_dict(calibrated),
+                     clock=bench.clock)
     m = cal.measure(w_i, w_o, tmp_path, 1)
     assert np.all(m.rgb / bench.camera.ground_truth(w_i, w_o) > 1.15)
 
@@ -216,14 +248,14 @@ def test_truncated_raw_file_fails_the_sample_naming_the_file(rig, calibrated, sp
     cam = _TruncatingCamera(bench.camera.material, bench.camera.brdf, lambda: bench.pose, bench.model, bench.clock,
                             rig["sim"]["camera"], 0)
     cam.connect()
-    cal = Calibrator(cam, bench.lamp, rig["camera"], record=CalibrationRecord.from_dict(calibrated))
+    cal = BenchPlans(cam, bench.lamp, rig["camera"], record=CalibrationRecord.from_dict(calibrated), clock=bench.clock)
     with pytest.raises(RawFileError, match=r"sample_0009_e\d\.dng: cannot decode RAW file"):
         cal.measure(*bench.set_angles(20.0, 30.0), tmp_path, 9)
 
 
 def test_measure_before_calibrate_and_light_below_are_errors(rig, spec, tmp_path):
     bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
-    cal = Calibrator(bench.camera, bench.lamp, rig["camera"])
+    cal = BenchPlans(bench.camera, bench.lamp, rig["camera"], clock=bench.clock)
     with pytest.raises(CalibrationError, match="before calibrate"):
         cal.measure(*bench.pose, tmp_path, 0)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import sqlite3
 
 import pytest
 
@@ -62,6 +63,39 @@ def test_journal_uses_wal_and_full_synchronous_commits(tmp_path):
     with Journal.create(tmp_path / "s.sqlite", META) as journal:
         assert journal._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         assert journal._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+
+
+def test_steps_are_journaled_as_they_start_and_end_and_readable_by_another_connection(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        assert journal.next_run() == 1
+        move = journal.start_step(1, "Move", 3, {"joints": [["camera_arm", 30.0]]})
+        with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as monitor:  # what a monitor sees meanwhile
+            assert monitor.execute("SELECT kind, plan_index, status FROM steps").fetchall() == [("Move", 3, "running")]
+        journal.end_step(move, "done", {"seconds": 1.5})
+        expose = journal.start_step(1, "Expose", None, {"exposure_s": 0.004, "file": "calibration/dark_e0_0.dng"})
+        journal.end_step(expose, "failed", {"error": "camera: no frame"})
+        with pytest.raises(JournalError, match=r"step status: expected one of \('done', 'failed', 'interrupted'\), "
+                                               r"found 'running'"):
+            journal.end_step(expose, "running")
+        assert journal._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # samples stay FULL
+        assert journal.next_run() == 2
+    with Journal.open(path) as journal:
+        rows = journal.steps()
+    assert [(r["run"], r["kind"], r["plan_index"], r["status"]) for r in rows] == [(1, "Move", 3, "done"),
+                                                                                   (1, "Expose", None, "failed")]
+    assert rows[0]["detail"] == {"joints": [["camera_arm", 30.0]]} and rows[0]["result"] == {"seconds": 1.5}
+    assert rows[1]["result"] == {"error": "camera: no frame"}
+    assert all(r["started_utc"] <= r["ended_utc"] for r in rows)
+
+
+def test_a_journal_without_a_steps_table_gets_one_and_keeps_its_samples(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(0))
+        journal._db.execute("DROP TABLE steps")  # as written before steps were journaled
+    with Journal.open(path) as journal:
+        assert journal.samples() == [record(0)] and journal.steps() == [] and journal.next_run() == 1
 
 
 def test_samples_csv_rewrite_drops_a_torn_line_and_values_round_trip(tmp_path):

@@ -1,15 +1,18 @@
 """Connect the devices of a rig for a session: a simulated rig's own devices, or a real rig's.
 
 ``open_hardware(rig, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
-calibrator, clock). A rig marked ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this
-process: its devices speak the real protocols over pseudo-terminals and loopback TCP, and the
-real drivers connect to them exactly as to hardware. The simulated camera sees the pose through
-forward kinematics of the simulated axes' true positions. On leaving, every axis is stopped and
-every connection closed, whatever happened.
+camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig marked
+``simulated: true`` starts ``sim.rig.SimulatedRig`` in this process: its devices speak the real
+protocols over pseudo-terminals and loopback TCP, and the real drivers connect to them exactly as
+to hardware. The simulated camera sees the pose through forward kinematics of the simulated
+axes' true positions. A real rig's camera comes from ``open_camera``. On leaving, every axis is
+stopped and every connection closed, whatever happened.
 """
 from __future__ import annotations
 
 import logging
+import shlex
+import subprocess
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -26,7 +29,7 @@ class WallClock:
 
 @dataclass
 class RigHardware:
-    """What the session engine drives (see ``goniofrost.capture.engine.Hardware``).
+    """What the session engine drives (``goniofrost.capture.contract.Hardware``).
 
     ``simulation`` is the running ``SimulatedRig`` on a simulated rig (for fault injection and
     ground truth), else None.
@@ -34,11 +37,14 @@ class RigHardware:
 
     axes: dict
     lamp: object
-    calibrator: object
+    camera: object
     clock: object
-    camera: object = None
     simulation: object = None
     extra: dict = field(default_factory=dict)
+
+    @property
+    def simulated(self) -> bool:
+        return self.simulation is not None
 
 
 @contextmanager
@@ -58,7 +64,6 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
 
 @contextmanager
 def _simulated(rig, *, material, seed, speedup):
-    from calib import Calibrator
     from drivers.rig_devices import RigDevices
     from planner.kinematics import forward
     from goniofrost.datasets import material_brdf
@@ -75,16 +80,13 @@ def _simulated(rig, *, material, seed, speedup):
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed)
             camera.connect()
             try:
-                calibrator = Calibrator(camera, devices.lamp, rig.camera)
-                yield RigHardware(devices.axes, devices.lamp, calibrator, simulation.clock, camera, simulation)
+                yield RigHardware(devices.axes, devices.lamp, camera, simulation.clock, simulation)
             finally:
                 camera.close()
 
 
 @contextmanager
 def _real(rig, *, material, seed, speedup):
-    from calib import Calibrator
-    from calib.open_camera import open_camera
     from drivers.rig_devices import RigDevices
 
     devices = RigDevices.from_sections(rig)
@@ -92,21 +94,59 @@ def _real(rig, *, material, seed, speedup):
         camera = open_camera(rig)
         camera.connect()
         try:
-            yield RigHardware(devices.axes, devices.lamp, Calibrator(camera, devices.lamp, rig.camera),
-                              WallClock(), camera)
+            yield RigHardware(devices.axes, devices.lamp, camera, WallClock())
         finally:
             camera.close()
 
 
 @contextmanager
 def _connected(devices):
-    """connect_all, then on any exit stop every axis and close every connection."""
+    """connect_all, then on any exit stop every axis (the engine's one stop path) and close every
+    connection."""
+    from goniofrost.capture.executor import stop_axes
+
     devices.connect_all()
     try:
         yield devices
     finally:
-        for action in (devices.stop_all, devices.close_all):
+        for action in (lambda: stop_axes(devices.axes), devices.close_all):
             try:
                 action()
             except Exception as exc:  # noqa: BLE001 - keep closing; the session's own error matters more
                 log.warning("while releasing the rig: %s", exc)
+
+
+def open_camera(rig):
+    """A FolderCamera for a rig (object with ``.camera`` or the ``camera`` mapping itself).
+
+    ``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={exposure_s} --trigger-capture``)
+    is run for each exposure; without it the operator is asked to expose (and, always, to change
+    the target), with ``operator_timeout_s`` to answer and ``abort`` as a way out. The simulated
+    camera is built by the session from the ``sim`` section, not here.
+    """
+    from calib.config import validate_camera_section
+    from drivers.camera import CameraError, FolderCamera, OperatorPrompt
+    from goniofrost.core.errors import ConfigError
+
+    source = getattr(rig, "source", "rig file")
+    section = validate_camera_section(getattr(rig, "camera", rig), source)
+    if section["kind"] != "rawfile":
+        raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
+                          f"simulated rig (sim.camera.SimCamera), not by open_camera")
+    if section["folder"] is None:
+        raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
+    command, prompt = section["trigger_command"], OperatorPrompt(section["operator_timeout_s"])
+    if command is None:
+        def trigger(exposure_s: float) -> None:
+            prompt(f"expose one RAW frame of {exposure_s} s into {section['folder']}")
+    else:
+        def trigger(exposure_s: float) -> None:
+            args = shlex.split(command.format(exposure_s=exposure_s))
+            try:
+                done = subprocess.run(args, capture_output=True, text=True, timeout=section["timeout_s"])
+            except subprocess.TimeoutExpired:
+                raise CameraError(f"camera trigger {args[0]!r} did not finish within {section['timeout_s']:g} s "
+                                  f"(camera.timeout_s)") from None
+            if done.returncode != 0:
+                raise CameraError(f"camera trigger {args[0]!r} failed ({done.returncode}): {done.stderr.strip()[:200]}")
+    return FolderCamera(section["folder"], trigger, timeout_s=section["timeout_s"], ask=prompt)

@@ -9,7 +9,12 @@ survives SIGKILL and power loss) holds
 * ``samples``: one row per captured plan sample, keyed by its plan index (so a sample can
   never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
   written in ONE transaction after the sample is measured;
-* ``events``: what happened to the devices and the session (homing, faults, interruptions).
+* ``events``: what happened to the devices and the session (homing, faults, interruptions);
+* ``steps``: every step of the session plan as the engine executes it (one row per step: its
+  run, kind, plan sample, fields, status ``running`` -> ``done``/``failed``/``interrupted``, a
+  summary of its result, start and end times). Rows are written as steps start and end, without
+  waiting for the disk (``synchronous=NORMAL``: they survive SIGKILL; the next sample commit or
+  event makes them durable against power loss too), so a monitor can follow the session live.
 
 ``samples.csv`` beside it is a derived view (``SamplesCsv``): appended, flushed and fsynced
 per sample, and rewritten from the journal on resume so that a torn last line cannot survive.
@@ -46,7 +51,12 @@ CREATE TABLE IF NOT EXISTS samples (
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT, t_utc REAL NOT NULL, kind TEXT NOT NULL,
     axis TEXT, message TEXT NOT NULL, data TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS steps (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, run INTEGER NOT NULL, kind TEXT NOT NULL, plan_index INTEGER,
+    detail TEXT NOT NULL, status TEXT NOT NULL, result TEXT NOT NULL, started_utc REAL NOT NULL,
+    ended_utc REAL);
 """
+STEP_STATUSES = ("running", "done", "failed", "interrupted")
 
 
 class JournalError(GoniofrostError):
@@ -156,6 +166,20 @@ class Journal:
         rows = self._db.execute("SELECT t_utc, kind, axis, message, data FROM events ORDER BY id")
         return [{"t_utc": t, "kind": k, "axis": a, "message": m, "data": json.loads(d)} for t, k, a, m, d in rows]
 
+    def steps(self) -> list[dict]:
+        """Every journaled plan step in order: dicts with id, run, kind, plan_index, detail, status,
+        result, started_utc, ended_utc (``detail`` and ``result`` decoded from JSON)."""
+        cursor = self._db.execute("SELECT * FROM steps ORDER BY id")
+        names = [c[0] for c in cursor.description]
+        rows = [dict(zip(names, row)) for row in cursor]
+        for row in rows:
+            row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
+        return rows
+
+    def next_run(self) -> int:
+        """The number of the next engine run of this session (1 for the first)."""
+        return self._db.execute("SELECT COALESCE(MAX(run), 0) + 1 FROM steps").fetchone()[0]
+
     # ----- writing ------------------------------------------------------------------------
     def set_calibration(self, record: dict) -> None:
         """Store (or replace) the calibration record in one transaction."""
@@ -178,22 +202,48 @@ class Journal:
             db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
                        (time.time(), kind, axis, message, json.dumps(data or {}, default=str)))
 
-    def _transaction(self):
-        return _Transaction(self._db)
+    def start_step(self, run: int, kind: str, plan_index: int | None, detail: dict) -> int:
+        """Record a plan step as running; return its row id (for ``end_step``)."""
+        with self._transaction(durable=False) as db:
+            cursor = db.execute("INSERT INTO steps (run, kind, plan_index, detail, status, result, started_utc) "
+                                "VALUES (?, ?, ?, ?, 'running', '{}', ?)",
+                                (run, kind, plan_index, json.dumps(detail, default=str), time.time()))
+        return cursor.lastrowid
+
+    def end_step(self, row: int, status: str, result: dict | None = None) -> None:
+        """Record how step ``row`` ended (one of STEP_STATUSES but running) and a summary of its result."""
+        if status not in STEP_STATUSES[1:]:
+            raise JournalError(f"{self.path}: step status: expected one of {STEP_STATUSES[1:]}, found {status!r}")
+        with self._transaction(durable=False) as db:
+            db.execute("UPDATE steps SET status = ?, result = ?, ended_utc = ? WHERE id = ?",
+                       (status, json.dumps(result or {}, default=str), time.time(), row))
+
+    def _transaction(self, durable: bool = True):
+        return _Transaction(self._db, durable)
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any exception)."""
+    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any exception).
 
-    def __init__(self, db: sqlite3.Connection) -> None:
-        self.db = db
+    ``durable=False``: this one commit does not wait for the disk (``synchronous=NORMAL``, WAL:
+    safe against a killed process, not a power cut); the connection is FULL again afterwards.
+    """
+
+    def __init__(self, db: sqlite3.Connection, durable: bool = True) -> None:
+        self.db, self.durable = db, durable
 
     def __enter__(self) -> sqlite3.Connection:
+        if not self.durable:
+            self.db.execute("PRAGMA synchronous=NORMAL")
         self.db.execute("BEGIN IMMEDIATE")
         return self.db
 
     def __exit__(self, exc_type, *_) -> None:
-        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+        try:
+            self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+        finally:
+            if not self.durable:
+                self.db.execute("PRAGMA synchronous=FULL")
 
 
 def _connect(path: Path) -> sqlite3.Connection:

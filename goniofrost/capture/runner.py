@@ -38,6 +38,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     from goniofrost.capture.engine import SessionEngine
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.hardware import open_hardware
+    from goniofrost.capture.session_steps import SessionSpec
     from goniofrost.capture.report import summary_text, write_outputs
     from goniofrost.capture.session_lock import session_lock
 
@@ -54,7 +55,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             if len(done) < len(inputs.samples):
                 with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
                                    on_ready=on_ready) as hardware:
-                    stats = SessionEngine(inputs, hardware, journal, session_dir, progress=progress).run()
+                    engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir, progress)
+                    stats = engine.run()
             report = write_outputs(inputs, journal, stats, session_dir, material)
         finally:
             journal.close()

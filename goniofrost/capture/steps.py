@@ -1,44 +1,37 @@
-"""The capture session as a plan: the ordered steps, with no side effects.
+"""The vocabulary of a capture plan: every step a session takes, and what each step gives back.
 
-``session_steps`` only says what to do (home, lamp on, calibrate, then per remaining sample:
-move, measure, commit; finally lamp off). It never touches a device, a file or a clock, so it
-is tested by comparing the steps it yields, and the engine (``goniofrost.capture.engine``) that executes
-them owns every side effect. Samples already in the journal are skipped, so a resumed session
-never repeats one.
+A plan is a generator of these frozen steps (``session_steps``, built from ``calibration_steps``
+and ``sample_steps``). It never touches a device, a file or a clock: whoever executes a step
+sends its result back into the generator (``frame = yield Expose(...)``). That is how an
+adaptive plan chooses its next step from the last frame (the exposure bracket), and how a step
+carries what it needs (the pose reached, the record to commit) instead of the engine keeping
+it between steps. ``drive`` runs a plan against any executor: the engine, a camera bench, or a
+test's scripted results.
+
+Step -> result: ``Home``/``Move`` -> ``Reached``; ``Expose`` -> ``Frame``; ``LampOn`` -> the
+photodiode reading; ``SaveCalibration`` -> the saved CalibrationRecord; every other step -> None.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable, Generator
+
+from calib.record import CalibrationRecord
+from goniofrost.capture.journal import SampleRecord
 
 
 @dataclass(frozen=True)
 class Home:
-    """Home every axis (in joint order)."""
+    """Home every axis of ``axes`` (in joint order), all together."""
 
     axes: tuple[str, ...]
 
 
 @dataclass(frozen=True)
-class LampOn:
-    """Switch the lamp on (and let the engine note the photodiode reading)."""
-
-
-@dataclass(frozen=True)
-class LampOff:
-    """Switch the lamp off at the end of the session."""
-
-
-@dataclass(frozen=True)
-class Calibrate:
-    """Take the calibration frames (dark, flat, white reference at the pose just reached) and
-    journal the record."""
-
-
-@dataclass(frozen=True)
 class Move:
-    """Move every axis to ``joints`` (axis name -> degrees) for plan sample ``index`` (None: the
-    white-reference pose of the calibration).
+    """Move every axis to ``joints`` ((axis name, degrees), in joint order), all together, for plan
+    sample ``index`` (None: the white-reference pose of the calibration).
 
     Axes already within tolerance of their target are not commanded (the Axis contract).
     """
@@ -48,51 +41,106 @@ class Move:
 
 
 @dataclass(frozen=True)
-class Measure:
-    """Capture and calibrate plan sample ``index`` at the pose just reached."""
+class LampOn:
+    """Switch the lamp on (and read the photodiode)."""
 
-    index: int
+
+@dataclass(frozen=True)
+class LampOff:
+    """Switch the lamp off (dark frames; the end of the session)."""
+
+
+@dataclass(frozen=True)
+class SetTarget:
+    """Put ``target`` ("sample", "white" or "flat") in front of the camera."""
+
+    target: str
+
+
+@dataclass(frozen=True)
+class Expose:
+    """Take one RAW frame of ``exposure_s`` seconds into ``file`` (relative to the session folder),
+    reading the monitor photodiode before and after. ``index``: the plan sample the frame
+    belongs to (None: a calibration frame)."""
+
+    exposure_s: float
+    file: str
+    index: int | None = None
+
+
+@dataclass(frozen=True)
+class Phase:
+    """Start a part of the session (``"calibration"``, ``"samples"``): journaled and timed."""
+
+    name: str
+
+
+@dataclass(frozen=True)
+class SaveCalibration:
+    """Save the calibration arrays into ``folder`` (relative to the session folder) and journal the
+    record. Two SaveCalibration steps compare equal whatever their arrays (plans are compared
+    step by step; the record is checked on its own)."""
+
+    record: CalibrationRecord = field(compare=False)
+    folder: str = "calibration"
 
 
 @dataclass(frozen=True)
 class Commit:
-    """Journal plan sample ``index`` (one transaction) and append it to samples.csv."""
+    """Journal one sample (one transaction; the engine stamps ``committed_utc``) and append it to
+    samples.csv."""
 
-    index: int
+    record: SampleRecord
 
-
-Step = Home | LampOn | LampOff | Calibrate | Move | Measure | Commit
-
-
-def session_steps(samples: Iterable[Mapping], axes: Iterable[str], done: Iterable[int] = (),
-                  calibrated: bool = False, white_joints: Mapping | None = None) -> Iterator[Step]:
-    """Yield the steps of a capture session.
-
-    ``samples``: the plan's samples in capture order, each with ``joints`` {axis: deg};
-    ``axes``: axis names in joint order; ``done``: plan indices already journaled;
-    ``calibrated``: a calibration record is already journaled (a resumed session keeps it);
-    ``white_joints``: the pose {axis: deg} that shows the white reference tile at its nominal
-    angles (required unless ``calibrated``).
-    A session with nothing left to capture yields no step at all.
-    """
-    samples, axes, done = list(samples), tuple(axes), set(done)
-    if not remaining(len(samples), done):
-        return  # nothing left to capture: touch no device
-    yield Home(axes)
-    yield LampOn()
-    if not calibrated:
-        yield Move(None, tuple((name, float(white_joints[name])) for name in axes))
-        yield Calibrate()
-    for index, sample in enumerate(samples):
-        if index in done:
-            continue
-        yield Move(index, tuple((name, float(sample["joints"][name])) for name in axes))
-        yield Measure(index)
-        yield Commit(index)
-    yield LampOff()
+    @property
+    def index(self) -> int:
+        return self.record.plan_index
 
 
-def remaining(n_samples: int, done: Iterable[int]) -> list[int]:
-    """Plan indices still to capture, in plan order."""
-    done = set(done)
-    return [i for i in range(n_samples) if i not in done]
+Step = Home | Move | LampOn | LampOff | SetTarget | Expose | Phase | SaveCalibration | Commit
+
+
+@dataclass(frozen=True)
+class Reached:
+    """Where a Home or Move left the axes: ``joints`` {axis: degrees read back}; ``seconds`` of motion
+    on the session clock (the axes' motion profiles on a simulated rig); ``started_utc`` Unix time."""
+
+    joints: dict
+    seconds: float
+    started_utc: float
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One RAW frame taken by an Expose step: the file actually written (``path``), the exposure (s),
+    the decoded image (``raw``: drivers.rawfile.RawImage), the lamp level relative to nominal
+    (mean of the photodiode before and after), ``seconds`` on the session clock (the exposure
+    time on a simulated rig) and ``wall_s`` real seconds inside the camera."""
+
+    path: Path
+    exposure_s: float
+    raw: Any
+    lamp_relative: float
+    seconds: float
+    wall_s: float
+
+
+Plan = Generator[Step, Any, Any]
+
+
+def drive(plan: Plan, execute: Callable[[Step], Any]) -> Any:
+    """Run ``plan``: execute each step it yields and send the result back; return the plan's value."""
+    result = None
+    while True:
+        try:
+            step = plan.send(result)
+        except StopIteration as stop:
+            return stop.value
+        result = execute(step)
+
+
+def step_detail(step: Step) -> dict:
+    """The step's fields as JSON-safe values, for the journal (a Commit: its plan index only)."""
+    if isinstance(step, Commit):
+        return {"index": step.index}
+    return {f.name: getattr(step, f.name) for f in fields(step) if f.compare}

@@ -1,0 +1,142 @@
+"""The adaptive exposure bracket as a rule: which ladder exposure to take next, from the frames so far.
+
+Pure: frames in, decisions out. The capture plan (``goniofrost.capture.sample_steps``) yields
+one exposure step per decision, hands the frame back to ``Bracket.add`` and stops when it
+returns None; no device is called here.
+
+The rule: start at the longest exposure whose predicted patch level (the previous sample's
+value, or a white tile for the first sample) stays under ``START_LEVEL`` x saturation; until
+the holder's markers are read, try the nearest exposure not yet taken (shorter first when the
+frame is mostly saturated); then a shorter exposure while any patch pixel is saturated in every
+frame taken, a longer one while the patch SNR is below ``target_snr`` and the next exposure is
+predicted not to saturate.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
+from .hdr import BracketFrame, channel_stats, merge
+from .record import CalibrationRecord
+from .roi import find_patch
+
+log = logging.getLogger(__name__)
+START_LEVEL = 0.5   # aim the first frame of a bracket at this fraction of the saturation level
+
+
+def start_index(ladder: list, settings: dict, record: CalibrationRecord, expected, w_i) -> int:
+    """Ladder index of a bracket's first exposure.
+
+    ``expected``: (3,) BRDF in 1/sr the patch probably has (the previous sample's), or None (a
+    white-like 1/pi); ``w_i``: (3,) unit light direction. Without a white reference yet (the
+    white reference's own bracket) the middle of the ladder.
+    """
+    if not record.white:
+        return len(ladder) // 2
+    brdf = expected if expected is not None else np.full(3, 1 / np.pi)
+    rate = float(np.max(brdf * record.scale)) * w_i[2]
+    fits = [k for k, t in enumerate(ladder) if rate * t <= START_LEVEL * settings["saturation"]]
+    return fits[-1] if fits else 0
+
+
+@dataclass
+class Bracket:
+    """The frames of one bracket so far, and the rule that asks for the next exposure.
+
+    ``ladder`` (n,) exposures in s; ``settings`` the validated camera section; ``record`` the
+    calibration (dark maps, flat field; scale once the white reference is known); ``ids`` the
+    marker ids of the mounted target; ``what`` names the sample in errors. Learned as frames are
+    added: ``frames`` (ladder index -> BracketFrame), ``paths``, ``mask_`` (H, W) bool patch,
+    ``channels_`` (H, W) Bayer channel per pixel.
+    """
+
+    ladder: list
+    settings: dict
+    record: CalibrationRecord
+    ids: tuple
+    what: str
+    frames: dict = field(default_factory=dict)
+    paths: list = field(default_factory=list)
+    mask_: np.ndarray | None = None
+    channels_: np.ndarray | None = None
+    marker_error_: MarkerError | None = None
+
+    def add(self, i: int, raw, lamp_relative: float, path: Path) -> int | None:
+        """Add the frame of ladder exposure ``i`` (``raw``: a drivers.rawfile.RawImage; lamp level
+        relative to nominal during it); return the next ladder index to take, or None when done."""
+        if not lamp_relative > 0:
+            raise CalibrationError(f"{path}: the monitor photodiode reads {lamp_relative}: is the lamp on?")
+        t = self.ladder[i]
+        saturated = raw.saturated | (raw.linear >= self.settings["saturation"])
+        self.frames[i] = BracketFrame(raw.linear, saturated, t, self.record.dark_for(t), lamp_relative)
+        self.paths.append(path)
+        self.channels_ = raw.channels
+        log.debug("%s: exposure %s s, lamp %.4f, %d saturated pixels", path, t, lamp_relative, int(saturated.sum()))
+        if self.mask_ is None:
+            self._find_patch(i)
+        return self._next_index(i) if self.mask_ is not None else self._search_index(i)
+
+    def stats(self) -> tuple[np.ndarray, np.ndarray]:
+        """The patch's mean rate and its standard error, each (3,), once the bracket is done.
+
+        MarkerError when no frame showed the markers; UnderexposedError when a channel has no
+        signal above the dark level.
+        """
+        if self.mask_ is None:
+            raise MarkerError(f"{self.marker_error_} (in all {len(self.frames)} exposures)") from self.marker_error_
+        mean, se = self._stats()
+        if not np.all(mean > 0):
+            raise UnderexposedError(f"{self.what}: no signal above the dark level in channel(s) "
+                                    f"{[c for c, m in zip('RGB', mean) if not m > 0]}")
+        return mean, se
+
+    @property
+    def exposures_s(self) -> list:
+        """The exposures taken, shortest first (s)."""
+        return [self.ladder[i] for i in sorted(self.frames)]
+
+    @property
+    def lamp_relative(self) -> float:
+        """Mean relative lamp level over the frames taken."""
+        return float(np.mean([f.lamp_relative for f in self.frames.values()]))
+
+    def _find_patch(self, i: int) -> None:
+        try:
+            self.mask_ = find_patch(self.frames[i].linear, self.ids, self.settings["roi_margin"], self.what)
+        except WrongTargetError:
+            raise            # another exposure will not change which card is mounted
+        except MarkerError as exc:
+            log.debug("%s: markers not found at %s s: %s", self.what, self.ladder[i], exc)
+            self.marker_error_ = exc
+
+    def _search_index(self, i: int) -> int | None:
+        """Markers not found yet: the nearest untaken exposure, shorter first if this frame is
+        mostly saturated, else longer first."""
+        left = [k for k in range(len(self.ladder)) if k not in self.frames]
+        if not left:
+            return None
+        bright = np.mean(self.frames[i].saturated) > 0.25
+        return min(left, key=lambda k: (abs(k - i), (k > i) if bright else (k < i)))
+
+    def _next_index(self, i: int) -> int | None:
+        lo, hi = min(self.frames), max(self.frames)
+        _, covered = merge(list(self.frames.values()), self.record.flat, self.mask_)
+        if not covered.all():
+            if lo == 0:
+                raise SaturationError(f"{self.what}: {int((~covered).sum())} of {covered.size} sample pixels "
+                                      f"saturate even at the shortest exposure {self.ladder[0]} s")
+            return lo - 1
+        mean, se = self._stats()
+        if np.all(mean / se >= self.settings["target_snr"]) or hi + 1 >= len(self.ladder):
+            return None
+        level = np.median(self.frames[hi].linear[self.mask_]) * self.ladder[hi + 1] / self.ladder[hi]
+        return hi + 1 if level < self.settings["saturation"] else None
+
+    def _stats(self) -> tuple[np.ndarray, np.ndarray]:
+        rates, _ = merge(list(self.frames.values()), self.record.flat, self.mask_)
+        mean, se, _ = channel_stats(rates, self.channels_[self.mask_])
+        return mean, se

@@ -1,0 +1,93 @@
+"""One sample's calibrated BRDF from its finished bracket: value, uncertainty, SNR and flags.
+
+Pure: the bracket's frames, the calibration record and the camera settings in, a
+``SampleMeasurement`` out. BRDF[c] = patch rate[c] / (scale[c] cos theta_i); the relative
+uncertainty combines the patch's standard error, the white reference's and the photodiode's.
+
+Error policy: sample pixels saturated even at the shortest exposure -> SaturationError (raised by
+the bracket); SNR below ``min_snr`` even with the longest useful exposure -> UnderexposedError;
+between ``min_snr`` and ``target_snr`` the sample is returned with the flag ``"low-snr"``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .bracket import Bracket
+from .errors import CalibrationError, UnderexposedError
+from .record import CalibrationRecord
+from .references import unit
+
+
+@dataclass
+class SampleMeasurement:
+    """One calibrated sample: ``rgb``, ``sigma`` (3,) BRDF and standard uncertainty in 1/sr;
+    ``snr`` (3,) of the patch mean; the exposures used (s), frames taken and skipped (of the
+    ladder), raw file paths, mean relative lamp level, real seconds inside the camera
+    (``capture_seconds``), seconds of exposure on the session clock (``clock_seconds``: simulated
+    on a simulated rig) and flags."""
+
+    sample_id: int
+    rgb: np.ndarray
+    sigma: np.ndarray
+    snr: np.ndarray
+    exposures_s: list
+    frames_taken: int
+    frames_skipped: int
+    raw_paths: list
+    lamp_relative: float
+    capture_seconds: float = 0.0
+    clock_seconds: float = 0.0
+    flags: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """JSON-safe form."""
+        return {"sample_id": self.sample_id, "rgb": self.rgb.tolist(), "sigma": self.sigma.tolist(),
+                "snr": self.snr.tolist(), "exposures_s": self.exposures_s,
+                "frames_taken": self.frames_taken, "frames_skipped": self.frames_skipped,
+                "raw_paths": [str(p) for p in self.raw_paths], "lamp_relative": self.lamp_relative,
+                "capture_seconds": self.capture_seconds, "clock_seconds": self.clock_seconds, "flags": self.flags}
+
+
+def check_record(record: CalibrationRecord | None, ladder: list) -> None:
+    """Refuse to measure without a calibration, or with ladder exposures it has no dark frame for."""
+    if record is None:
+        raise CalibrationError("measure() before calibrate(): no dark, flat or white reference")
+    missing = [t for t in ladder if not any(abs(t - r) <= 1e-9 * r for r in record.exposures_s)]
+    if missing:
+        raise CalibrationError(f"exposures {missing} s have no dark frame in the calibration (ladder "
+                               f"{record.exposures_s} s): calibrate again with this ladder")
+
+
+def light_direction(w_i, sample_id: int) -> np.ndarray:
+    """The unit light direction (3,) of a sample; CalibrationError when it is below the sample plane."""
+    w_i = unit(w_i, f"sample {sample_id} w_i")
+    if w_i[2] <= 0.0:
+        raise CalibrationError(f"sample {sample_id}: light below the sample plane (w_i z = {w_i[2]:.3f})")
+    return w_i
+
+
+def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, capture_seconds: float = 0.0,
+                       clock_seconds: float = 0.0) -> SampleMeasurement:
+    """Calibrate a finished bracket at unit light direction ``w_i`` (3,) into a SampleMeasurement."""
+    mean, se = bracket.stats()
+    rec, settings = bracket.record, bracket.settings
+    rgb = mean / (rec.scale * w_i[2])
+    rel = np.sqrt((se / mean) ** 2 + (rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
+    snr = mean / se
+    flags = _snr_flags(snr, bracket)
+    taken = len(bracket.frames)
+    return SampleMeasurement(sample_id, rgb, np.abs(rgb) * rel, snr, bracket.exposures_s, taken,
+                             len(bracket.ladder) - taken, list(bracket.paths), bracket.lamp_relative,
+                             capture_seconds, clock_seconds, flags)
+
+
+def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:
+    settings = bracket.settings
+    low = float(np.nanmin(snr)) if np.all(np.isfinite(snr)) else 0.0
+    if low < settings["min_snr"]:
+        longest = bracket.ladder[max(bracket.frames)]
+        raise UnderexposedError(f"{bracket.what}: SNR {low:.1f} below the minimum {settings['min_snr']} "
+                                f"with exposures up to {longest} s: too dark to measure")
+    return ["low-snr"] if low < settings["target_snr"] else []

@@ -1,0 +1,88 @@
+"""The Hardware contract: what the capture engine may ask of a rig, and nothing more.
+
+``Hardware`` bundles axes, a lamp, a camera and a clock. The real and simulated rigs
+(``goniofrost.capture.hardware.RigHardware`` over ``drivers``) satisfy it, and so do the small
+fakes of the engine tests; the engine never reaches past these members.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Protocol, runtime_checkable
+
+
+class MoveStatus(Protocol):
+    """A started move (``drivers.axis.MoveStatus``): where it started, and a wait for its end."""
+
+    start: float
+
+    def wait(self) -> float:
+        """Block until the move ends (bounded by the axis's own timeout); return the final degrees."""
+
+
+class MotionProfile(Protocol):
+    """An axis's trapezoid (``drivers.axis.AxisConfig``): deg/s and deg/s^2."""
+
+    speed_deg_s: float
+    accel_deg_s2: float
+
+
+@runtime_checkable
+class Axis(Protocol):
+    """One rotation axis in degrees (``drivers.axis.Axis``)."""
+
+    name: str
+    config: MotionProfile
+
+    @property
+    def connected(self) -> bool: ...
+
+    def move_to(self, deg: float) -> MoveStatus: ...
+
+    def home(self) -> MoveStatus: ...
+
+    def position(self) -> float: ...
+
+    def stop(self) -> None:
+        """Command a stop (decelerate) without waiting."""
+
+
+@runtime_checkable
+class Lamp(Protocol):
+    """The lamp and its monitor photodiode (``drivers.lamp.Lamp``)."""
+
+    def on(self) -> None: ...
+
+    def off(self) -> None: ...
+
+    def photodiode(self) -> float:
+        """Intensity relative to nominal (1.0; 0 when off)."""
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """A camera writing one RAW file per exposure (``drivers.camera.Camera``)."""
+
+    def set_target(self, target: str) -> None:
+        """Put "sample", "white" or "flat" in front of the lens (a real rig asks the operator)."""
+
+    def capture(self, exposure_s: float, path: Path):
+        """Expose for ``exposure_s`` s; return a frame whose ``path`` is the RAW file written."""
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """The session clock (simulated seconds on a simulated rig)."""
+
+    def now(self) -> float: ...
+
+
+@runtime_checkable
+class Hardware(Protocol):
+    """What a capture session drives. ``simulated``: time is accounted from the models (motion
+    profiles, exposure times) rather than from a clock that also counts rendering and polling."""
+
+    axes: Mapping[str, Axis]
+    lamp: Lamp
+    camera: Camera
+    clock: Clock
+    simulated: bool

@@ -1,0 +1,287 @@
+"""The engine against small fakes of the Hardware contract (never mocks of a driver's methods):
+every step journaled as it happens, the sample commits, and one stop path on any failure."""
+from __future__ import annotations
+
+import shutil
+import sqlite3
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from calib import validate_camera_section
+from drivers.camera import CameraError
+from drivers.errors import DeviceFault, DeviceTimeout
+from goniofrost.capture.contract import Axis, Camera, Clock, Hardware, Lamp
+from goniofrost.capture.engine import SessionEngine, SessionFault
+from goniofrost.capture.executor import BenchHardware, stop_axes
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.session_steps import SessionSpec
+from goniofrost.capture.signals import SessionInterrupted
+from sim.camera_bench import direction
+
+from frame_script import LADDER, render_table
+
+AXES = ("theta_i", "theta_o", "phi_o")
+CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
+                                  "flat_frames": 2}, "test")
+SAMPLES = [{"joints": {"theta_i": 0.0, "theta_o": 30.0 + 5 * i, "phi_o": 180.0 - 10 * i}, "theta_h_deg": 10.0 + i,
+            "theta_d_deg": 20.0 + i, "phi_d_deg": 90.0, "theta_i_deg": 0.0, "theta_o_deg": 30.0 + 5 * i}
+           for i in range(2)]
+SPEC = SessionSpec(SAMPLES, (101, 102), AXES, CAMERA, {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0},
+                   lambda j: (direction(j["theta_i"]), direction(j["theta_o"], j["phi_o"])))
+CALIBRATION = (["Phase", "LampOff"] + ["Expose"] * 4 + ["LampOn", "SetTarget", "Expose", "Expose", "SetTarget",
+               "SetTarget", "Expose", "SetTarget", "SaveCalibration"])
+SAMPLE = ["Move", "Expose", "Commit"]
+
+
+# ----- fakes of the contract -------------------------------------------------------------------
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+
+class FakeStatus:
+    """A move started at the clock's present time; waiting on it lets the clock reach its end."""
+
+    def __init__(self, axis: "FakeAxis", start: float, target: float) -> None:
+        self.axis, self.start, self.target = axis, start, target
+        self.ends = axis.clock.t + abs(target - start) / axis.config.speed_deg_s
+
+    def wait(self) -> float:
+        self.axis.clock.t = max(self.axis.clock.t, self.ends)
+        return self.target
+
+
+class FakeAxis:
+    """Moves at ``config.speed_deg_s`` on the fake clock; ``fail_on_move`` (1-based) raises an
+    alarm instead; ``stop_error`` makes stop() fail; ``interrupt_on_move`` raises as a signal would."""
+
+    def __init__(self, name: str, clock: FakeClock, fail_on_move: int | None = None, stop_error: bool = False,
+                 interrupt_on_move: int | None = None) -> None:
+        self.name, self.clock, self.config = name, clock, SimpleNamespace(speed_deg_s=10.0, accel_deg_s2=50.0)
+        self.fail_on_move, self.stop_error, self.interrupt_on_move = fail_on_move, stop_error, interrupt_on_move
+        self.deg, self.moves, self.stops, self.connected = 0.0, [], 0, True
+
+    def move_to(self, deg: float) -> FakeStatus:
+        self.moves.append(deg)
+        if self.fail_on_move == len(self.moves):
+            raise DeviceFault(self.name, f"move to {deg:g} deg", self.deg, ["alarm"])
+        if self.interrupt_on_move == len(self.moves):
+            raise SessionInterrupted("SIGINT")
+        start, self.deg = self.deg, float(deg)
+        return FakeStatus(self, start, self.deg)
+
+    def home(self) -> FakeStatus:
+        start, self.deg = self.deg, 0.0
+        return FakeStatus(self, start, 0.0)
+
+    def position(self) -> float:
+        return self.deg
+
+    def stop(self) -> None:
+        self.stops += 1
+        if self.stop_error:
+            raise DeviceTimeout(self.name, "stop", None, "no reply")
+
+
+class FakeLamp:
+    def __init__(self) -> None:
+        self.is_on = False
+
+    def on(self) -> None:
+        self.is_on = True
+
+    def off(self) -> None:
+        self.is_on = False
+
+    def photodiode(self) -> float:
+        return 1.0 if self.is_on else 0.0
+
+
+class FakeCamera:
+    """Copies the scripted frame of what it sees (the lamp off: dark) at the exposure asked for;
+    ``journal`` (a path): records the journal's last two step rows, read by another connection,
+    at every capture; ``fail(seen, exposure_s)`` true: a CameraError instead."""
+
+    def __init__(self, table: dict, lamp: FakeLamp, journal: Path | None = None, fail=None) -> None:
+        self.table, self.lamp, self.journal, self.fail = table, lamp, journal, fail
+        self.target, self.taken, self.rows_seen = "sample", [], []
+
+    def set_target(self, target: str) -> None:
+        self.target = target
+
+    def capture(self, exposure_s: float, path: Path):
+        seen = self.target if self.lamp.is_on else "dark"
+        if self.fail is not None and self.fail(seen, exposure_s):
+            raise CameraError(f"fake camera: no frame of {exposure_s} s")
+        if self.journal is not None:
+            with sqlite3.connect(f"file:{self.journal}?mode=ro", uri=True) as db:
+                self.rows_seen.append(db.execute("SELECT kind, status FROM steps ORDER BY id DESC LIMIT 2").fetchall())
+        shutil.copyfile(self.table[seen, exposure_s], path)
+        self.taken.append((seen, exposure_s, Path(path).name))
+        return SimpleNamespace(path=Path(path))
+
+
+@dataclass
+class FakeHardware:
+    axes: dict
+    lamp: FakeLamp
+    camera: FakeCamera
+    clock: FakeClock
+    simulated: bool = False
+    extra: dict = field(default_factory=dict)
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    return render_table(tmp_path_factory.mktemp("frames"))
+
+
+def rig(table, journal: Path | None = None, camera_fail=None, **axis_options) -> FakeHardware:
+    """Fake hardware; ``axis_options``: {axis name: FakeAxis keyword arguments}."""
+    clock, lamp = FakeClock(), FakeLamp()
+    axes = {name: FakeAxis(name, clock, **axis_options.get(name, {})) for name in AXES}
+    return FakeHardware(axes, lamp, FakeCamera(table, lamp, journal, camera_fail), clock)
+
+
+def run(hardware, session: Path):
+    """One engine run on the session folder's journal (created on first use): (stats, steps, events, samples)."""
+    path = session / "session.sqlite"
+    journal = Journal.open(path) if path.exists() else Journal.create(path, {"plan": "test"})
+    with journal:
+        try:
+            stats = SessionEngine(SPEC, hardware, journal, session, progress=False).run()
+        finally:
+            steps, events, samples = journal.steps(), journal.events(), journal.samples()
+    return stats, steps, events, samples
+
+
+# ----- tests ---------------------------------------------------------------------------------------
+def test_the_fakes_and_the_real_drivers_satisfy_the_hardware_contract(table, tmp_path):
+    from drivers.camera import FolderCamera
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.hardware import RigHardware, WallClock
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    devices = RigDevices.from_sections(load_checked_rig(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"))
+    real = RigHardware(devices.axes, devices.lamp, FolderCamera(tmp_path, lambda t: None), WallClock())
+    for hardware in (rig(table), real):
+        assert isinstance(hardware, Hardware) and isinstance(hardware.lamp, Lamp)
+        assert isinstance(hardware.camera, Camera) and isinstance(hardware.clock, Clock)
+        assert all(isinstance(a, Axis) for a in hardware.axes.values()) and len(hardware.axes) == 3
+    assert real.simulated is False and not isinstance(object(), Hardware)
+    assert isinstance(BenchHardware(real.lamp, real.camera, real.clock), Hardware)
+
+
+def test_every_step_is_journaled_as_it_happens_and_each_sample_commits(table, tmp_path):
+    hardware = rig(table, journal=tmp_path / "session.sqlite")
+    stats, steps, events, samples = run(hardware, tmp_path)
+    kinds = ["Home", "LampOn", "Move", *CALIBRATION, "Phase", *SAMPLE, *SAMPLE, "LampOff"]
+    assert [s["kind"] for s in steps] == kinds
+    assert {(s["run"], s["status"]) for s in steps} == {(1, "done")}
+    assert [s["plan_index"] for s in steps if s["kind"] in ("Move", "Commit")] == [None, 0, 0, 1, 1]
+    assert steps[kinds.index("Expose")]["detail"] == {"exposure_s": 0.002, "file": "calibration/dark_e0_0.dng",
+                                                      "index": None}
+    # at every exposure the journal already showed that step running, after the previous one done
+    assert hardware.camera.rows_seen == [[("Expose", "running"), (k, "done")] for k in
+                                         [kinds[i - 1] for i, k in enumerate(kinds) if k == "Expose"]]
+    assert ("dark", 0.128, "dark_e3_0.dng") in hardware.camera.taken
+
+    assert [r.plan_index for r in samples] == [0, 1] and stats.captured == 2
+    assert [r.joints for r in samples] == [s["joints"] for s in SAMPLES]
+    assert all(r.committed_utc >= r.started_utc > 0 for r in samples)
+    assert [e["kind"] for e in events] == ["session", "home", "lamp", "calibration", "lamp", "lamp", "calibration",
+                                           "samples", "lamp", "session"]
+    assert (tmp_path / "calibration" / "calibration.npz").is_file()
+    assert (tmp_path / "samples.csv").read_text().count("\n") == 3
+    # motion time from the session clock, axes moving together at 10 deg/s: the white pose (phi_o
+    # turns 180 deg), sample 0 (already there), sample 1 (phi_o turns 10 deg)
+    assert stats.motion_s == pytest.approx(18.0 + 0.0 + 1.0)
+    assert all(a.stops == 0 for a in hardware.axes.values())
+
+
+def test_a_resumed_session_keeps_the_journaled_calibration_and_journals_its_own_run(table, tmp_path):
+    first = rig(table, theta_o={"fail_on_move": 3})  # home, white pose, sample 0, then sample 1 fails
+    with pytest.raises(SessionFault):
+        run(first, tmp_path)
+    stats, steps, events, samples = run(rig(table), tmp_path)
+    second = [s["kind"] for s in steps if s["run"] == 2]
+    assert second == ["Home", "LampOn", "Phase", *SAMPLE, "LampOff"]
+    assert [s["plan_index"] for s in steps if s["run"] == 2 and s["kind"] == "Commit"] == [1]
+    assert [r.plan_index for r in samples] == [0, 1] and stats.skipped == 1 and stats.captured == 1
+
+
+def test_a_device_fault_stops_every_axis_once_and_marks_the_step_failed(table, tmp_path):
+    hardware = rig(table, theta_o={"fail_on_move": 3})
+    with pytest.raises(SessionFault) as caught:
+        run(hardware, tmp_path)
+    message = str(caught.value)
+    assert message.startswith("device fault at plan sample 1: theta_o: move to 35 deg: device fault: alarm")
+    assert "Every axis was stopped; 1 of 2 samples are safe in" in message and "--resume" in message
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        last, events = journal.steps()[-1], journal.events()
+    assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "failed")
+    assert "alarm" in last["result"]["error"]
+    [fault] = [e for e in events if e["kind"] == "fault"]
+    assert fault["axis"] == "theta_o" and fault["data"]["stop_problems"] == []
+
+
+def test_a_failing_stop_is_recorded_and_the_other_axes_are_still_stopped(table, tmp_path):
+    hardware = rig(table, theta_i={"stop_error": True}, phi_o={"fail_on_move": 2})
+    with pytest.raises(SessionFault, match="device fault at plan sample 0: phi_o"):
+        run(hardware, tmp_path)
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        [fault] = [e for e in journal.events() if e["kind"] == "fault"]
+    assert fault["data"]["stop_problems"] == ["theta_i: theta_i: stop: no reply"]
+    # the one stop path skips axes that are not connected and never raises
+    hardware.axes["theta_o"].connected = False
+    assert stop_axes(hardware.axes) == ["theta_i: theta_i: stop: no reply"]
+    assert [a.stops for a in hardware.axes.values()] == [2, 1, 2]
+
+
+def test_a_camera_error_in_the_calibration_names_the_part_and_stops_every_axis(table, tmp_path):
+    hardware = rig(table, camera_fail=lambda seen, t: seen == "flat")
+    with pytest.raises(SessionFault) as caught:
+        run(hardware, tmp_path)
+    assert str(caught.value).startswith("capture failed during Expose in the calibration: fake camera: no frame "
+                                        "of 0.128 s. Every axis was stopped; 0 of 2 samples are safe")
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        last = journal.steps()[-1]
+    assert (last["kind"], last["detail"]["file"], last["status"]) == ("Expose", "calibration/flat_e3_0.dng", "failed")
+
+
+def test_an_error_the_plan_raises_is_charged_to_the_step_before_it(table, tmp_path):
+    hardware = rig(table)
+    hardware.lamp.photodiode = lambda: 0.0  # the monitor photodiode reads nothing
+    with pytest.raises(SessionFault) as caught:
+        run(hardware, tmp_path / "a")
+    assert str(caught.value).startswith("capture failed during Expose in the calibration: ")
+    assert "white_e2.dng: the monitor photodiode reads 0.0: is the lamp on?" in str(caught.value)
+    # with the calibration kept, a sample's frame: its plan index and angles
+    with pytest.raises(SessionFault):
+        run(rig(table, theta_o={"fail_on_move": 3}), tmp_path / "b")
+    hardware = rig(table)
+    hardware.lamp.photodiode = lambda: 0.0
+    with pytest.raises(SessionFault) as caught:
+        run(hardware, tmp_path / "b")
+    assert str(caught.value).startswith("capture failed at plan sample 1 (theta_i 0.0 deg, theta_o 35.0 deg): ")
+    assert "sample_0001_e2.dng: the monitor photodiode reads 0.0: is the lamp on?" in str(caught.value)
+
+
+def test_an_interrupt_during_a_step_stops_every_axis_and_marks_it_interrupted(table, tmp_path):
+    hardware = rig(table, theta_i={"interrupt_on_move": 3})
+    with pytest.raises(SessionInterrupted):
+        run(hardware, tmp_path)
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        last, events, done = journal.steps()[-1], journal.events(), journal.done_indices()
+    assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "interrupted")
+    assert [e["kind"] for e in events][-1] == "interrupted" and done == {0}
