@@ -26,16 +26,24 @@ The steps (paper, sections 4 and 5), all on the BRDF table itself:
    eigenvalue: found by power iteration on nodes u_k = k / (ndf - 1) (for the MERL grid, the
    table's own theta_h cell edges), D piecewise linear in u. Luminance of the RGB BRDF.
 2. sigma(w) = integral <w, m>+ D(m) dm, the projected area of the microsurface, normalised
-   with D so that sigma(normal) = 1.
+   with D so that sigma(normal) = 1. ``ndf`` and ``sigma`` hold these.
 3. Incident elevations theta_i spaced so that sigma(theta_i) is uniformly spaced (paper;
-   denser where the lobe's visible area changes fastest).
-4. Per theta_i, the VNDF D(m) <w_i, m>+ / sigma(w_i) on a (phi_m, theta_m) grid in u-space,
-   times the Jacobian 2 pi^2 u sin theta_m of u -> solid angle.
-5. Per theta_i, the ``rgb`` table on the VNDF-warped unit square: each node is warped
-   exactly as Mitsuba will warp it (the Marginal2D replica), to a micro-normal m and
-   w_o = reflect(w_i, m); the node holds f(w_i, w_o) cos theta_o * 4 sigma(w_i) / D(m), so
-   that Mitsuba's eval returns the table's f cos theta_o exactly at every node. ``luminance``
-   is the luminance of ``rgb`` (Mitsuba samples it before the VNDF warp).
+   Falcor's ``computeTheta``).
+4. Per theta_i, the VNDF D_w(m) <w_i, m>+ / sigma_w(w_i) on a (phi_m, theta_m) grid in u-space,
+   times the Jacobian 2 pi^2 u sin theta_m of u -> solid angle. With the options
+   ``warp_exponent=1, uniform_share=0`` D_w = D: the paper's VNDF. The default D_w is
+   D**0.75 mixed with 10 % of the uniform NDF 1/pi. The warp decides which micro-normals the
+   ``rgb`` nodes stand for, and the paper's VNDF leaves a metal's off-specular directions
+   (1e-3 of its VNDF: less than one rgb cell, near float32's CDF resolution) without a node:
+   Mitsuba's eval there is off by tens of percent (benchmarks/mitsuba_export.py). The
+   exponent trades the highlight's nodes against the tail's (README, "Export to Mitsuba 3").
+5. Per theta_i, the ``rgb`` table on the warped unit square: each node is warped exactly as
+   Mitsuba will warp it (the Marginal2D replica) to a micro-normal m and w_o = reflect(w_i, m);
+   the node holds f(w_i, w_o) cos theta_o * 4 sigma(w_i) / D(m), so that Mitsuba's eval
+   returns the table's f cos theta_o exactly at every node (``jacobian`` = 1). ``luminance``,
+   the density Mitsuba samples before the VNDF warp, is Y(f cos theta_o) / p_warp(w_o)
+   = Y(rgb) D / D_w: the product of the two warps then samples w_o in proportion to the
+   luminance of f cos theta_o, whatever D_w is (with D_w = D it is the paper's Y(rgb)).
 
 The BRDF between cells is the table's cell value (the lookup every MERL renderer and
 ``goniofrost.brdf.preview`` make). Invalid cells (beyond the horizon at their lower edge) take
@@ -79,16 +87,17 @@ class ExportOptions:
     theta_i: incident elevations; ndf: NDF and sigma nodes in u_theta; vndf_theta, vndf_phi:
     VNDF nodes in u_theta and relative u_phi; sample: rgb/luminance nodes per side of each
     theta_i slice. The VNDF warp follows D**warp_exponent mixed with a uniform NDF (1/pi) at
-    uniform_share; (1.0, 0.0) is the paper's VNDF of D itself. Why the defaults differ: README
-    ("Export to Mitsuba 3") and the module docstring.
+    uniform_share; (1.0, 0.0) is the paper's VNDF of D itself. Reasons for the defaults: the
+    module docstring (step 4) and README ("Export to Mitsuba 3"); measured by
+    benchmarks/mitsuba_export.py.
     """
 
-    theta_i: int = 32
+    theta_i: int = 48
     ndf: int = 91
     vndf_theta: int = 91
     vndf_phi: int = 64
     sample: int = 128
-    warp_exponent: float = 0.5
+    warp_exponent: float = 0.75
     uniform_share: float = 0.1
 
     def __post_init__(self) -> None:
@@ -267,10 +276,10 @@ def incident_elevations(ndf: Ndf, n: int) -> np.ndarray:
 
 
 # ----- steps 4 and 5: VNDF, rgb, luminance ---------------------------------------------------
-def vndf_tables(ndf: Ndf, theta_i: np.ndarray, res: ExportOptions) -> np.ndarray:
+def vndf_tables(ndf: Ndf, theta_i: np.ndarray, options: ExportOptions) -> np.ndarray:
     """VNDF densities (n_theta_i, vndf_phi, vndf_theta) in u-space, each slice normalised."""
-    u_t = np.linspace(0.0, 1.0, res.vndf_theta)
-    u_p = np.linspace(0.0, 1.0, res.vndf_phi)
+    u_t = np.linspace(0.0, 1.0, options.vndf_theta)
+    u_p = np.linspace(0.0, 1.0, options.vndf_phi)
     m = _normal(u_t[None, :], u_p[:, None])                        # (phi, theta, 3)
     w_i = elevation_dir(theta_i)                                   # (n_i, 3)
     cosine = np.maximum(np.einsum("pte,ie->ipt", m, w_i), 0.0)
@@ -293,9 +302,9 @@ def _bilinear_integral(data: np.ndarray) -> np.ndarray:
     return cells.sum(axis=(1, 2)) / (4.0 * (h - 1) * (w - 1))
 
 
-def measured_tables(table, grid, ndf: Ndf, theta_i, vndf, res: ExportOptions):
+def measured_tables(table, grid, ndf: Ndf, theta_i, vndf, options: ExportOptions):
     """``rgb`` (n_theta_i, 3, n, n) and ``luminance`` (n_theta_i, n, n) on the warped square."""
-    n = res.sample
+    n = options.sample
     s = np.linspace(0.0, 1.0, n)
     points = np.stack(np.broadcast_arrays(s[None, :], s[:, None]), -1).reshape(1, n * n, 2)
     u_m, _ = marginal2d.sample(marginal2d.build(vndf), np.repeat(points, theta_i.size, axis=0))
@@ -318,14 +327,14 @@ def measured_tables(table, grid, ndf: Ndf, theta_i, vndf, res: ExportOptions):
 
 
 # ----- the whole export ----------------------------------------------------------------------
-def build_fields(brdf, grid: MerlGrid, res: ExportOptions = DEFAULT_OPTIONS,
+def build_fields(brdf, grid: MerlGrid, options: ExportOptions = DEFAULT_OPTIONS,
                  description: str = "goniofrost export", source: str = "BRDF") -> dict:
     """The fields of the tensor file (name -> float32/uint8 array or str), in file order."""
     table = prepared_table(brdf, grid, source)
-    ndf = recover_ndf(table, grid, res)
-    theta_i = incident_elevations(ndf, res.theta_i).astype(np.float32).astype(np.float64)
-    vndf = vndf_tables(ndf, theta_i, res).astype(np.float32)
-    rgb, luminance = measured_tables(table, grid, ndf, theta_i, vndf.astype(np.float64), res)
+    ndf = recover_ndf(table, grid, options)
+    theta_i = incident_elevations(ndf, options.theta_i).astype(np.float32).astype(np.float64)
+    vndf = vndf_tables(ndf, theta_i, options).astype(np.float32)
+    rgb, luminance = measured_tables(table, grid, ndf, theta_i, vndf.astype(np.float64), options)
     return {
         "description": description,
         "phi_i": np.zeros(1, np.float32),                          # one azimuth: isotropic
@@ -339,13 +348,14 @@ def build_fields(brdf, grid: MerlGrid, res: ExportOptions = DEFAULT_OPTIONS,
     }
 
 
-def export_mitsuba(path, brdf, grid: MerlGrid, res: ExportOptions = DEFAULT_OPTIONS,
+def export_mitsuba(path, brdf, grid: MerlGrid, options: ExportOptions = DEFAULT_OPTIONS,
                    source: str = "BRDF") -> dict:
     """Write a (grid.size, 3) BRDF in 1/sr (NaN = missing) as an RGL tensor file; return the fields."""
     description = (f"isotropic BRDF from {source}, exported by goniofrost "
-                   f"(MERL grid {grid.n_th}x{grid.n_td}x{grid.n_pd}; theta_i {res.theta_i}, "
-                   f"ndf {res.ndf}, vndf {res.vndf_phi}x{res.vndf_theta}, rgb {res.sample}x{res.sample})")
-    fields = build_fields(brdf, grid, res, description, source)
+                   f"(MERL grid {grid.n_th}x{grid.n_td}x{grid.n_pd}; theta_i {options.theta_i}, "
+                   f"ndf {options.ndf}, vndf {options.vndf_phi}x{options.vndf_theta}, rgb {options.sample}x{options.sample}; "
+                   f"VNDF warp D^{options.warp_exponent:g} + {options.uniform_share:g} uniform)")
+    fields = build_fields(brdf, grid, options, description, source)
     write_tensor_file(path, fields)
     return fields
 
@@ -365,7 +375,14 @@ def read_merl_checked(path) -> tuple[np.ndarray, MerlGrid]:
     return brdf, grid
 
 
-def export_binary_file(binary, out, res: ExportOptions = DEFAULT_OPTIONS) -> dict:
+def export_binary_file(binary, out, options: ExportOptions = DEFAULT_OPTIONS) -> dict:
     """Export a MERL .binary file to an RGL tensor file ``out``; nothing is written on error."""
     brdf, grid = read_merl_checked(binary)
-    return export_mitsuba(out, brdf, grid, res, source=str(binary))
+    return export_mitsuba(out, brdf, grid, options, source=str(binary))
+
+
+def export_beside(binary, options: ExportOptions = DEFAULT_OPTIONS) -> Path:
+    """Export FILE.binary to FILE.bsdf beside it (the hook of ``capture --bsdf``); return the path."""
+    out = Path(binary).with_suffix(".bsdf")
+    export_binary_file(binary, out, options)
+    return out

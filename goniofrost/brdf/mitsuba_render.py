@@ -1,0 +1,70 @@
+"""Render the preview spheres with Mitsuba 3 from an exported RGL tensor file.
+
+The same picture as ``goniofrost.brdf.preview.render_set``, made by Mitsuba's ``measured`` BSDF:
+an analytic unit sphere seen by an orthographic camera looking along -z (the image spans
+[-1, 1]^2, row 0 at +y), one ``directional`` emitter per preview light with the same irradiance,
+the ``direct`` integrator (a sphere is convex: no interreflection), and one unjittered sample per
+pixel so that each pixel is shaded at its centre, as goniofrost's preview does. HDR radiance in
+the same units, so the two renderings compare pixel for pixel.
+
+Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from goniofrost.brdf.preview import DEFAULT_LIGHTS
+from goniofrost.core.errors import GoniofrostError
+
+VARIANT = "scalar_rgb"  # the exported file is RGB: an RGB variant; scalar runs everywhere
+
+
+class MitsubaMissingError(GoniofrostError, ImportError):
+    """Mitsuba 3 is not installed (it is the optional 'render' extra)."""
+
+
+def load_mitsuba():
+    """The ``mitsuba`` module with the RGB variant set; a clear error when it is not installed."""
+    try:
+        import mitsuba as mi
+    except ImportError:
+        raise MitsubaMissingError("rendering with Mitsuba needs Mitsuba 3: pip install 'goniofrost[render]' "
+                                  "(or pip install mitsuba)") from None
+    mi.set_variant(VARIANT)
+    return mi
+
+
+def scene_dict(bsdf_path, light, size: int) -> dict:
+    """The Mitsuba scene of one preview sphere lit by ``light`` = (direction to the light, irradiance)."""
+    direction, irradiance = light
+    to_light = np.asarray(direction, dtype=np.float64)
+    to_light = to_light / np.linalg.norm(to_light)
+    return {
+        "type": "scene",
+        "integrator": {"type": "direct"},
+        "sensor": {
+            "type": "orthographic",
+            "to_world": _look_along_minus_z(),
+            "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},
+                     "pixel_format": "rgb"},
+            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
+        },
+        "sphere": {"type": "sphere", "bsdf": {"type": "measured", "filename": str(bsdf_path)}},
+        "light": {"type": "directional", "direction": (-to_light).tolist(),
+                  "irradiance": {"type": "rgb", "value": [float(irradiance)] * 3}},
+    }
+
+
+def _look_along_minus_z():
+    mi = load_mitsuba()
+    return mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
+
+
+def render_set_mitsuba(bsdf_path, lights=DEFAULT_LIGHTS, size: int = 192) -> np.ndarray:
+    """HDR images (n_lights, size, size, 3) of the sphere under each light, rendered by Mitsuba."""
+    mi = load_mitsuba()
+    images = []
+    for _, direction, irradiance in lights:
+        scene = mi.load_dict(scene_dict(bsdf_path, (direction, irradiance), size))
+        images.append(np.array(mi.render(scene, spp=1), dtype=np.float64))
+    return np.stack(images)
