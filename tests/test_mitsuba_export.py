@@ -17,6 +17,7 @@ import pytest
 from goniofrost.app.cli import main
 from goniofrost.brdf import marginal2d
 from goniofrost.brdf import mitsuba_export as me
+from goniofrost.brdf.mitsuba_probe import eval_pairs, load_bsdf, pdf_integral, sampled_weights, table_albedo
 from goniofrost.brdf.merl_file import read_merl, valid_to_full, write_merl
 from goniofrost.brdf.rgl_tensor import TensorFileError, decode, encode, read_tensor_file
 from goniofrost.core.grid import FULL_GRID, MerlGrid
@@ -38,22 +39,10 @@ def builtin_table(name: str, grid: MerlGrid) -> np.ndarray:
     return valid_to_full(values.astype(np.float64), grid)
 
 
-def load_bsdf(path):
-    return mi.load_dict({"type": "measured", "filename": str(path)})
-
-
 def surface(w_i) -> mi.SurfaceInteraction3f:
     si = mi.SurfaceInteraction3f()
     si.wi = mi.Vector3f(*np.asarray(w_i, dtype=float))
     return si
-
-
-def mi_eval(bsdf, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
-    """Mitsuba's eval (f cos theta_o, RGB) at direction pairs (n, 3)."""
-    ctx, out = mi.BSDFContext(), np.empty((len(w_i), 3))
-    for k in range(len(w_i)):
-        out[k] = bsdf.eval(ctx, surface(w_i[k]), mi.Vector3f(*w_o[k]))
-    return out
 
 
 def cap_directions(rng, n: int) -> np.ndarray:
@@ -62,25 +51,6 @@ def cap_directions(rng, n: int) -> np.ndarray:
     phi = rng.uniform(0.0, 2 * np.pi, n)
     sin = np.sqrt(1.0 - cos ** 2)
     return np.stack([sin * np.cos(phi), sin * np.sin(phi), cos], -1)
-
-
-def half_vector_quadrature(theta_i: float, n: int = 300):
-    """(w_i, w_o (N, 3), weights (N,)): midpoint rule for integrals over w_o in the upper hemisphere.
-
-    Parameterised by the half vector in the MERL grid's u = sqrt(2 theta_h / pi) (fine where a
-    glossy lobe is) and phi_h; d omega_o = 4 <w_i, h> d omega_h. Directions below the horizon
-    get weight 0.
-    """
-    u = (np.arange(n) + 0.5) / n
-    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
-    theta_h, phi = np.meshgrid(me.u_to_theta(u), phi, indexing="ij")
-    h = np.stack([np.sin(theta_h) * np.cos(phi), np.sin(theta_h) * np.sin(phi), np.cos(theta_h)], -1).reshape(-1, 3)
-    w_i = me.elevation_dir(theta_i)
-    c = h @ w_i
-    w_o = 2 * c[:, None] * h - w_i
-    d_theta = (np.pi * u / n)[:, None] * np.ones_like(phi)
-    weight = 4 * c * np.sin(theta_h).ravel() * d_theta.ravel() * (np.pi / n)
-    return w_i, w_o, np.where((c > 0) & (w_o[:, 2] > 0), weight, 0.0)
 
 
 @pytest.fixture(scope="module")
@@ -279,7 +249,7 @@ def test_mitsuba_eval_at_every_node_is_the_table_value(small_export):
         keep = w_o[:, 2] > 0.05
         w_i = np.broadcast_to(w_i, w_o.shape)[keep]
         expected = me.lookup(table, SMALL, w_i, w_o[keep]) * w_o[keep, 2:3]
-        np.testing.assert_allclose(mi_eval(bsdf, w_i, w_o[keep]), expected, rtol=2e-3, atol=1e-7)
+        np.testing.assert_allclose(eval_pairs(bsdf, w_i, w_o[keep]), expected, rtol=2e-3, atol=1e-7)
         checked += int(keep.sum())
     assert checked > 300
 
@@ -291,23 +261,19 @@ def test_mitsuba_eval_matches_the_table_at_random_directions(exported, kind):
     rng = np.random.default_rng(7)
     w_i, w_o = cap_directions(rng, 3000), cap_directions(rng, 3000)
     expected = me.lookup(table, FULL_GRID, w_i, w_o) * w_o[:, 2:3]
-    rel = np.abs(mi_eval(load_bsdf(path), w_i, w_o) - expected) / expected
+    rel = np.abs(eval_pairs(load_bsdf(path), w_i, w_o) - expected) / expected
     assert np.median(rel) <= 0.03 and np.percentile(rel, 95) <= 0.15
 
 
 @pytest.mark.parametrize("kind", list(MATERIALS))
 def test_white_furnace_mean_sampled_weight_is_the_albedo(exported, kind):
     table, path = exported[kind]
-    bsdf, ctx, rng = load_bsdf(path), mi.BSDFContext(), np.random.default_rng(3)
+    bsdf, rng = load_bsdf(path), np.random.default_rng(3)
     for degrees in INCIDENT_DEG:
-        w_i, w_o, weight = half_vector_quadrature(np.radians(degrees))
-        albedo = (me.lookup(table, FULL_GRID, np.broadcast_to(w_i, w_o.shape), w_o) * (w_o[:, 2] * weight)[:, None]).sum(0)
-        si, samples = surface(w_i), rng.random((20000, 2))
-        total = np.zeros(3)
-        for u in samples:
-            _, value = bsdf.sample(ctx, si, 0.5, mi.Point2f(*u))
-            total += np.array(value)
-        np.testing.assert_allclose(total / len(samples), albedo, rtol=0.02, err_msg=f"theta_i {degrees} deg")
+        theta_i = np.radians(degrees)
+        weights = sampled_weights(bsdf, me.elevation_dir(theta_i), rng.random((20000, 2)))
+        np.testing.assert_allclose(weights.mean(axis=0), table_albedo(table, FULL_GRID, theta_i), rtol=0.02,
+                                   err_msg=f"theta_i {degrees} deg")
 
 
 @pytest.mark.parametrize("kind", list(MATERIALS))
@@ -315,13 +281,9 @@ def test_pdf_integrates_to_one_and_is_the_sampling_density(exported, kind):
     _, path = exported[kind]
     bsdf, ctx = load_bsdf(path), mi.BSDFContext()
     for degrees in INCIDENT_DEG:
-        w_i, w_o, weight = half_vector_quadrature(np.radians(degrees), n=250)
-        si = surface(w_i)
-        inside = np.flatnonzero(weight > 0)
-        pdf = np.array([bsdf.pdf(ctx, si, mi.Vector3f(*w_o[k])) for k in inside])
-        assert pdf @ weight[inside] == pytest.approx(1.0, abs=0.02), f"theta_i {degrees} deg"
-    rng = np.random.default_rng(5)  # sample's pdf and weight are pdf() and eval() / pdf()
-    for u in rng.random((200, 2)):
+        assert pdf_integral(bsdf, np.radians(degrees)) == pytest.approx(1.0, abs=0.02), f"theta_i {degrees} deg"
+    si, rng = surface(me.elevation_dir(np.radians(60.0))), np.random.default_rng(5)
+    for u in rng.random((200, 2)):  # sample's pdf and weight are pdf() and eval() / pdf()
         sample, value = bsdf.sample(ctx, si, 0.5, mi.Point2f(*u))
         if sample.wo[2] > 0 and sample.pdf > 0:  # below the horizon: weight 0, pdf() 0
             assert bsdf.pdf(ctx, si, sample.wo) == pytest.approx(sample.pdf, rel=1e-3)
