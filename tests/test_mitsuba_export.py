@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import io
 import struct
+from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
@@ -365,3 +366,43 @@ def test_export_reads_back_what_read_merl_reads(tmp_path):
     assert grid == SMALL
     np.testing.assert_array_equal(np.isnan(brdf), np.isnan(read_merl(tmp_path / "m.binary")))
     np.testing.assert_array_equal(np.nan_to_num(brdf), np.nan_to_num(read_merl(tmp_path / "m.binary")))
+
+
+# ----- capture --bsdf and demo --bsdf ----------------------------------------------------------
+def test_capture_with_bsdf_writes_the_export_of_its_binary(tmp_path, capsys):
+    import yaml
+
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+
+    repo = Path(__file__).resolve().parents[1]
+    rig = yaml.safe_load((repo / "config" / "rigs" / "sim.yaml").read_text())
+    rig["camera"].update(exposures_s=[0.002, 0.008, 0.032, 0.128], dark_frames=1, flat_frames=1)
+    rig["sim"]["camera"].update(width=192, height=144)
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
+    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=SMALL, k_max=12,
+                  cache=True)
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 4, tmp_path / "rig.yaml",
+                       tmp_path / "plan.json")
+    session = tmp_path / "s"
+    assert main(["capture", "--rig", str(tmp_path / "rig.yaml"), "--plan", str(plan), "--session", str(session),
+                 "--material", "builtin:red-plastic", "--speedup", "50", "--no-progress", "--bsdf"]) == 0
+    assert capsys.readouterr().out.endswith(f"wrote {session / 'brdf.bsdf'} (for Mitsuba 3)\n")
+    me.export_binary_file(session / "brdf.binary", tmp_path / "again.bsdf")
+    assert (session / "brdf.bsdf").read_bytes() == (tmp_path / "again.bsdf").read_bytes()
+    assert read_tensor_file(session / "brdf.bsdf")["rgb"].shape[1:] == (48, 3, 128, 128)
+
+
+@pytest.mark.slow
+def test_demo_with_bsdf_exports_the_session_brdf(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, "-m", "goniofrost", "demo", "--out", str(out), "--no-progress", "--bsdf"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    assert f"wrote {out / 'session' / 'brdf.bsdf'} (for Mitsuba 3)" in proc.stdout
+    me.export_binary_file(out / "session" / "brdf.binary", tmp_path / "again.bsdf")
+    assert (out / "session" / "brdf.bsdf").read_bytes() == (tmp_path / "again.bsdf").read_bytes()

@@ -38,8 +38,12 @@ class DemoResult:
 
 
 def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SAMPLES, rig_path=None,
-             grid=None, seed: int = 0, speedup: float = DEFAULT_SPEEDUP, progress: bool = True) -> DemoResult:
-    """Run the demo into folder ``out`` (a previous demo's results there are replaced)."""
+             grid=None, seed: int = 0, speedup: float = DEFAULT_SPEEDUP, progress: bool = True,
+             bsdf: bool = False) -> DemoResult:
+    """Run the demo into folder ``out`` (a previous demo's results there are replaced).
+
+    ``bsdf``: also export the session's brdf.binary to brdf.bsdf for Mitsuba 3 (stage "export").
+    """
     from goniofrost.core.grid import FULL_GRID
 
     out, grid = Path(out), grid or FULL_GRID
@@ -60,6 +64,10 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     lap("capture")
     write_reference_and_preview(material, grid, out)
     lap("reference")
+    if bsdf:
+        from goniofrost.brdf.mitsuba_export import export_beside
+        export_beside(out / "session" / "brdf.binary")
+        lap("export")
     report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m": samples, "rig": str(rig_path),
                                          "rendering_snr_db": outcome.report["rendering_snr_db"], "stages_s": stages,
                                          "total_s": sum(stages.values())}}

@@ -14,6 +14,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
+    parser.add_argument("--bsdf", action="store_true",
+                        help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
+                             "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -31,4 +34,8 @@ def run(args) -> int:
               f"is resumable: run the same command with --resume", file=sys.stderr)
         return 130
     print(outcome.summary, end="")
+    if args.bsdf:
+        from goniofrost.brdf.mitsuba_export import export_beside
+
+        print(f"wrote {export_beside(outcome.session_dir / outcome.report['outputs']['brdf'])} (for Mitsuba 3)")
     return 0

@@ -17,6 +17,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
     parser.add_argument("--speedup", type=float, default=DEFAULT_SPEEDUP,
                         help=f"simulated clock speed-up (default {DEFAULT_SPEEDUP:g})")
+    parser.add_argument("--bsdf", action="store_true",
+                        help="also write session/brdf.bsdf, the RGL tensor file Mitsuba 3's 'measured' BSDF renders")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -24,7 +26,7 @@ def run(args) -> int:
     from goniofrost.app.demo import run_demo
 
     result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
-                      speedup=args.speedup, progress=not args.no_progress)
+                      speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf)
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
@@ -37,5 +39,7 @@ def run(args) -> int:
               f"ratio {truth['ratio_to_exact']:.3f}); rendering SNR {report['demo']['rendering_snr_db']:.2f} dB")
     print(f"  wrote {out / 'session' / 'brdf.binary'} (MERL), {out / 'preview.png'}, {out / 'report.json'}, "
           f"{out / 'reference.binary'} (ground truth), {out / 'plan.json'}, journal in {out / 'session'}")
+    if args.bsdf:
+        print(f"  wrote {out / 'session' / 'brdf.bsdf'} (for Mitsuba 3)")
     print(f"  time {sum(result.stages_s.values()):.1f} s ({stages})")
     return 0
