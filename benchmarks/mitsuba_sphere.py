@@ -1,6 +1,6 @@
 """A MERL file rendered by goniofrost's preview and by Mitsuba 3 from its export, with the difference.
 
-    .venv/bin/python benchmarks/mitsuba_sphere.py [FILE.binary] [--out docs/mitsuba_sphere.png] [--size 128]
+    .venv/bin/python benchmarks/mitsuba_sphere.py [FILE.binary] [--label TEXT] [--out docs/mitsuba_sphere.png] [--size 128]
 
 Without FILE.binary the demo material (builtin:red-plastic) is tabulated on the full grid.
 Exports the file with ``goniofrost.brdf.mitsuba_export`` (timed), renders the preview spheres
@@ -56,11 +56,11 @@ def write_png(path: Path, image: np.ndarray, title: str) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(image.shape[1] / 100, image.shape[0] / 100 + 0.45), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, image.shape[0] / (image.shape[0] + 45)))
+    fig = Figure(figsize=(image.shape[1] / 100, image.shape[0] / 100 + 0.5), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, 1.0, image.shape[0] / (image.shape[0] + 50)))
     ax.imshow(np.round(image * 255).astype(np.uint8), interpolation="nearest")
     ax.set_axis_off()
-    fig.suptitle(title, fontsize=7)
+    fig.suptitle(title, fontsize=7, y=0.995, va="top")
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", facecolor="white")
     write_bytes_atomic(path, buffer.getvalue())
@@ -70,10 +70,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("binary", nargs="?", help="MERL .binary (default: the demo material, tabulated)")
     parser.add_argument("--out", default=str(REPO / "docs" / "mitsuba_sphere.png"))
+    parser.add_argument("--label", help="what the file is, for the title (default: its name)")
     parser.add_argument("--size", type=int, default=128, help="sphere diameter in pixels")
     args = parser.parse_args()
 
     brdf, grid, label = load(args.binary)
+    label = args.label or label
     with tempfile.TemporaryDirectory() as folder:
         bsdf = Path(folder) / "export.bsdf"
         start = time.perf_counter()
@@ -86,8 +88,8 @@ def main() -> None:
                           for (name, _, _), a, b in zip(DEFAULT_LIGHTS, ours, theirs))
     print(f"{label}: export {export_s:.2f} s; rendering SNR of Mitsuba against goniofrost's preview "
           f"{snr:.2f} dB ({per_light})")
-    title = (f"{label}: goniofrost preview | Mitsuba 3 'measured' from the export | |difference| x{ERROR_GAIN:g}"
-             f"\nrendering SNR {snr:.1f} dB; lights (rows): " + ", ".join(n for n, _, _ in DEFAULT_LIGHTS))
+    title = (f"{label}\ngoniofrost preview | Mitsuba 3 from the .bsdf | |difference| x{ERROR_GAIN:g}\n"
+             f"rendering SNR {snr:.1f} dB; rows: lights " + ", ".join(n for n, _, _ in DEFAULT_LIGHTS))
     write_png(Path(args.out), compose(ours, theirs), title)
     print(f"wrote {args.out}")
 

@@ -68,3 +68,23 @@ def render_set_mitsuba(bsdf_path, lights=DEFAULT_LIGHTS, size: int = 192) -> np.
         scene = mi.load_dict(scene_dict(bsdf_path, (direction, irradiance), size))
         images.append(np.array(mi.render(scene, spp=1), dtype=np.float64))
     return np.stack(images)
+
+
+def make_preview_mitsuba(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size: int = 192):
+    """``preview.make_preview`` rendered by Mitsuba: each MERL file exported (temporary .bsdf), then rendered."""
+    import tempfile
+    from pathlib import Path
+
+    from goniofrost.brdf.mitsuba_export import export_binary_file
+    from goniofrost.brdf.preview import Preview, rendering_snr_db
+
+    load_mitsuba()  # fail before exporting anything
+    with tempfile.TemporaryDirectory(prefix="goniofrost-preview-") as folder:
+        images = []
+        for k, path in enumerate(p for p in (estimate_path, reference_path) if p is not None):
+            bsdf = Path(folder) / f"{k}.bsdf"
+            export_binary_file(path, bsdf)
+            images.append(render_set_mitsuba(bsdf, lights, size))
+    reference = images[1] if len(images) > 1 else None
+    snr = None if reference is None else rendering_snr_db(reference, images[0])
+    return Preview(images[0], reference, snr, tuple(name for name, _, _ in lights))

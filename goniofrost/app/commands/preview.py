@@ -9,6 +9,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--reference", metavar="FILE.binary", help="ground truth to compare against")
     parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
     parser.add_argument("--size", type=int, default=192, help="sphere diameter in pixels (default 192)")
+    parser.add_argument("--renderer", choices=["goniofrost", "mitsuba"], default="goniofrost",
+                        help="goniofrost: MERL cell lookup per pixel (default); mitsuba: export each file "
+                             "(goniofrost export) and render it with Mitsuba 3's 'measured' BSDF (needs mitsuba)")
 
 
 def run(args) -> int:
@@ -19,8 +22,12 @@ def run(args) -> int:
 
     if args.size < 16:
         raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
-    preview = make_preview(args.binary, args.reference, size=args.size)
-    write_png(args.out, preview, title=Path(args.binary).name)
+    if args.renderer == "mitsuba":
+        from goniofrost.brdf.mitsuba_render import make_preview_mitsuba
+        preview = make_preview_mitsuba(args.binary, args.reference, size=args.size)
+    else:
+        preview = make_preview(args.binary, args.reference, size=args.size)
+    write_png(args.out, preview, title=Path(args.binary).name + (" (Mitsuba 3)" if args.renderer == "mitsuba" else ""))
     print(f"wrote {args.out}")
     if preview.snr_db is not None:
         print(f"rendering SNR: {preview.snr_db:.2f} dB against {args.reference}")
