@@ -13,8 +13,8 @@ gold-metallic-paint as Neural-BRDF fits when --data has them), all on the full M
 * furnace: the worst relative difference between the mean of 20000 sampled weights and the
   table's albedo, and the pdf integral furthest from 1, at theta_i = 0, 30, 60, 75 deg.
 
-Then (unless --skip-variants) the VNDF warp variants on the metals: the paper's VNDF of D
-(warp_exponent 1, uniform_share 0), D with a 10 % uniform share, and the default.
+Then (unless --skip-variants) variants on the metals: the paper's VNDF of D (warp_exponent 1,
+uniform_share 0), D with a 10 % uniform share, the default, and the default with 64 x 64 rgb nodes.
 """
 from __future__ import annotations
 
@@ -43,7 +43,8 @@ MEASURED = ["chrome", "nickel", "gold-metallic-paint"]
 INCIDENT_DEG = (0, 30, 60, 75)
 VARIANTS = {"paper VNDF of D": dict(warp_exponent=1.0, uniform_share=0.0),
             "D + 10 % uniform": dict(warp_exponent=1.0, uniform_share=0.1),
-            "default D^0.75 + 10 %": {}}
+            "default D^0.75 + 10 %": {},
+            "default, rgb 64 x 64": dict(sample=64)}
 
 
 def materials(data: Path) -> dict[str, np.ndarray]:
@@ -119,7 +120,7 @@ def main() -> None:
 
 
 def variants(tables: dict, out: Path) -> None:
-    print("\nVNDF warp variants (eval median / p95 at random pairs, rendering SNR):")
+    print("\nVariants (eval median / p95 at random pairs, rendering SNR):")
     for label, table in tables.items():
         if label.endswith(("terracotta", "red-plastic")):
             continue
