@@ -349,7 +349,7 @@ def test_bad_in_memory_tables_are_refused(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--sample", "1"], "--sample: expected an integer >= 2, found 1"),
-    (["--out", "."], "--out .: is a folder, expected a file name such as m.bsdf"),
+    (["--out", "m.binary"], "--out m.binary: is the input file; expected another name such as m.bsdf"),
 ])
 def test_bad_options_exit_2(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)

@@ -47,10 +47,11 @@ def _command(name: str, inputs: Path, out: Path) -> list[str]:
         "reconstruct": ["reconstruct", "--model", str(inputs / "model"), "--samples", str(inputs / "s.csv"),
                         "--out", str(out)],
         "preview": ["preview", str(inputs / "x.binary"), "--size", "32", "--out", str(out)],
+        "export": ["export", str(inputs / "x.binary"), "--theta-i", "4", "--sample", "8", "--out", str(out)],
     }[name]
 
 
-COMMANDS = ("plan", "reconstruct", "preview")
+COMMANDS = ("plan", "reconstruct", "preview", "export")
 
 
 def _run(capsys, argv) -> tuple[int, str]:

@@ -36,8 +36,6 @@ def run(args: argparse.Namespace) -> int:
 
     source = Path(args.binary)
     out = Path(args.out) if args.out else source.with_suffix(".bsdf")
-    if out.is_dir():
-        raise GoniofrostError(f"--out {out}: is a folder, expected a file name such as {source.stem}.bsdf")
     if out.resolve() == source.resolve():
         raise GoniofrostError(f"--out {out}: is the input file; expected another name such as {source.stem}.bsdf")
     for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample)):
