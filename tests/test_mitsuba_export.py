@@ -419,8 +419,10 @@ def test_preview_rendered_by_mitsuba_matches_goniofrosts_own(tmp_path, capsys):
     assert rendering_snr_db(ours.estimate, theirs.estimate) > 15  # the same spheres, lit alike
     assert main(["preview", str(tmp_path / "m.binary"), "--reference", str(tmp_path / "m.binary"),
                  "--renderer", "mitsuba", "--size", "32", "--out", str(tmp_path / "p.png")]) == 0
-    assert capsys.readouterr().out == (f"wrote {tmp_path / 'p.png'}\n"
-                                       f"rendering SNR: inf dB against {tmp_path / 'm.binary'}\n")
+    wrote, snr = capsys.readouterr().out.splitlines()
+    assert wrote == f"wrote {tmp_path / 'p.png'}" and snr.endswith(f" dB against {tmp_path / 'm.binary'}")
+    # the same file against itself: Mitsuba's multi-threaded render agrees to float rounding
+    assert float(snr.split()[2]) > 100 and (tmp_path / "p.png").is_file()
 
 
 def test_preview_with_mitsuba_missing_says_how_to_install_it(tmp_path, capsys, monkeypatch):
