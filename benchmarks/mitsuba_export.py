@@ -5,15 +5,17 @@
 Per material (built-in terracotta, red-plastic, gold; measured chrome, nickel and
 gold-metallic-paint as Neural-BRDF fits when --data has them), all on the full MERL grid:
 
-* time: ``goniofrost export FILE.binary`` as the command runs it (read and check the 35 MB
-  file, build the fields, write the .bsdf), median of --repeats, and the file size;
+* time: ``export_binary_file``, what ``goniofrost export FILE.binary`` runs (read and check the
+  35 MB file, build the fields, write the .bsdf), median of --repeats, and the file size;
 * eval: Mitsuba's ``measured`` eval against the table's f cos theta_o at 3000 random direction
   pairs with theta_i, theta_o <= 75 deg (median and 95th percentile of the relative difference);
 * render: the rendering SNR of Mitsuba's preview spheres against goniofrost's own (3 lights);
 * furnace: the worst relative difference between the mean of 20000 sampled weights and the
   table's albedo, and the pdf integral furthest from 1, at theta_i = 0, 30, 60, 75 deg.
 
-Then (unless --skip-variants) variants on the metals: the paper's VNDF of D (warp_exponent 1,
+Then how far the table's cell values are from the analytic built-in materials themselves (the
+step of a cell lookup, against which Mitsuba's interpolation is measured), and (unless
+--skip-variants) variants on the metals: the paper's VNDF of D (warp_exponent 1,
 uniform_share 0), D with a 10 % uniform share, the default, and the default with 64 x 64 rgb nodes.
 """
 from __future__ import annotations
@@ -71,6 +73,19 @@ def eval_error(table, path) -> tuple[float, float]:
     return float(np.median(rel)), float(np.percentile(rel, 95))
 
 
+def cell_error(name: str) -> tuple[float, float]:
+    """How far the table's cell value is from the analytic builtin material itself, at the same pairs."""
+    from goniofrost.core.grid import dirs_to_half_diff
+
+    rng = np.random.default_rng(7)
+    w_i, w_o = cap_directions(rng, 3000), cap_directions(rng, 3000)
+    dataset = open_dataset("builtin")
+    table = valid_to_full(tabulate_cached(dataset, [name], FULL_GRID, progress=False)[0].astype(np.float64), FULL_GRID)
+    exact = np.asarray(dataset.evaluate(name, *dirs_to_half_diff(w_i, w_o)))
+    rel = np.abs(lookup(prepared_table(table, FULL_GRID), FULL_GRID, w_i, w_o) - exact) / exact
+    return float(np.median(rel)), float(np.percentile(rel, 95))
+
+
 def furnace(table, path) -> tuple[float, float]:
     """(worst |mean weight / albedo - 1| over channels and angles, pdf integral furthest from 1)."""
     bsdf, rng, worst, pdf_worst = load_bsdf(path), np.random.default_rng(3), 0.0, 1.0
@@ -115,6 +130,10 @@ def main() -> None:
             worst, pdf_int = furnace(prepared, out)
             print(f"{label:28s} {seconds:8.2f} {out.stat().st_size / 1e6:5.1f} {100 * median:10.2f}% "
                   f"{100 * p95:5.1f}% {snr:8.1f} dB {100 * worst:7.2f}% {pdf_int:7.4f}", flush=True)
+        print("\nThe table's cell value against the analytic material it was tabulated from (same pairs):")
+        for name in BUILTIN:
+            median, p95 = cell_error(name)
+            print(f"  builtin:{name:19s} median {100 * median:.2f}%, p95 {100 * p95:.1f}%")
         if not args.skip_variants:
             variants(tables, out)
 

@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import marginal2d
-from goniofrost.brdf.merl_file import HEADER_BYTES, MerlFileError, read_merl
+from goniofrost.brdf.merl_file import HEADER_BYTES, MerlFileError, _read_header, read_merl
 from goniofrost.brdf.rgl_tensor import write_tensor_file
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
@@ -363,9 +363,9 @@ def export_mitsuba(path, brdf, grid: MerlGrid, options: ExportOptions = DEFAULT_
 def read_merl_checked(path) -> tuple[np.ndarray, MerlGrid]:
     """Read a MERL .binary for export: size and header checked, stored NaN or inf refused."""
     path = Path(path)
-    brdf = read_merl(path)
-    grid = MerlGrid(*(int(v) for v in np.fromfile(path, dtype="<i4", count=3)))
-    stored = np.fromfile(path, dtype="<f8", offset=HEADER_BYTES)
+    brdf = read_merl(path)                                         # header and size checked
+    grid = _read_header(path)
+    stored = np.fromfile(path, dtype="<f8", offset=HEADER_BYTES)   # read_merl turns NaN into "missing"
     bad = ~np.isfinite(stored)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
