@@ -1,8 +1,9 @@
 """``goniofrost export FILE.binary --format mitsuba --out FILE.bsdf``: a MERL file for Mitsuba 3.
 
-Writes the RGL tensor file (Dupuy and Jakob 2018) that Mitsuba 3's ``measured`` BSDF (and
-pbrt-v4's) loads in its RGB variants; see ``goniofrost.brdf.mitsuba_export``. Nothing is written
-when the input is refused (truncated or oversized file, NaN or inf stored, no valid value).
+Writes the RGL tensor file (Dupuy and Jakob 2018) that Mitsuba 3's ``measured`` BSDF loads in
+its RGB variants (pbrt-v4 reads only the spectral form, which is not written); see
+``goniofrost.brdf.mitsuba_export``. Nothing is written when the input is refused (truncated or
+oversized file, NaN or inf stored, no valid value).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("binary", metavar="FILE.binary", help="the BRDF to export (MERL .binary, any grid)")
     parser.add_argument("--format", choices=FORMATS, default="mitsuba",
-                        help="mitsuba: RGL tensor file for Mitsuba 3 / pbrt-v4 'measured' (RGB variants); the default")
+                        help="mitsuba: RGL tensor file for Mitsuba 3's 'measured' BSDF (RGB variants); the default")
     parser.add_argument("--out", metavar="FILE.bsdf", help="output file (default: FILE.bsdf beside the input)")
     parser.add_argument("--theta-i", type=int, default=DEFAULT_OPTIONS.theta_i, metavar="N",
                         help=f"incident elevations tabulated (default {DEFAULT_OPTIONS.theta_i})")
