@@ -189,6 +189,28 @@ class Axis(ABC):
         self._require_connected("stop")
         self._call(self._command_stop)
 
+    def confirm_stopped(self, timeout_s: float | None = None) -> float:
+        """Wait until the device reports the axis at rest; return its position in degrees.
+
+        A device in a fault state that no longer drives its motor counts as at rest. Raises a
+        DeviceError when the device cannot tell (no reply, a damaged reply, ...) or still reports
+        motion after ``timeout_s`` real seconds (default ``stop_timeout_s()``).
+        """
+        self._require_connected("confirm the stop")
+        timeout_s = self.stop_timeout_s() if timeout_s is None else float(timeout_s)
+        t_end = time.monotonic() + timeout_s
+        while True:
+            at_rest, pos = self._call(self._read_at_rest)
+            if at_rest:
+                return pos
+            if time.monotonic() > t_end:
+                raise DeviceTimeout(self.name, "stop", pos, f"still reports motion {timeout_s:.1f} s after the stop")
+            time.sleep(self.poll_s)
+
+    def stop_timeout_s(self) -> float:
+        """Real seconds to allow a commanded stop: braking from full speed, with the margins of a move."""
+        return MOVE_TIMEOUT_FACTOR * self.config.speed_deg_s / self.config.accel_deg_s2 + MOVE_TIMEOUT_MARGIN_S
+
     def enable(self) -> None:
         """Energise the motor (torque on / READY); required before moves on most devices."""
         self._require_connected("enable")
@@ -306,6 +328,12 @@ class Axis(ABC):
     @abstractmethod
     def _read_moving(self) -> bool:
         """True while moving; raise DeviceFault if the reply shows a fault."""
+
+    def _read_at_rest(self) -> tuple[bool, float]:
+        """(at rest, position in degrees), without raising on a fault the device reports: used to
+        confirm a stop, when the device may well be in a fault state. Drivers whose
+        ``_read_moving`` raises on a fault override this."""
+        return not self._read_moving(), self._read_position()
 
     def _command_home(self) -> None:
         """Start homing; the default moves to ``config.home_deg`` (devices with a home search override)."""

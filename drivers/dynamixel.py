@@ -223,6 +223,11 @@ class DynamixelAxis(Axis):
     def _read_moving(self) -> bool:
         return bool(self._read(T["moving"]))
 
+    def _read_at_rest(self) -> tuple[bool, float]:
+        """Moving = 0, read past the Alert bit: a servo shut down by a hardware error has no torque."""
+        moving = self._read(T["moving"], check_alert=False)
+        return not moving, self._read(T["present_position"], check_alert=False) / self.counts_per_deg
+
     def _command_stop(self) -> None:
         """Hold where the horn is (Goal := Present); if that cannot be read, torque off.
 

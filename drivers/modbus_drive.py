@@ -187,6 +187,10 @@ class ModbusAxis(Axis):
                               f"0x{word:04X}", [self._alarm()])
         return self._bit(word, OutputBit.MOVE)
 
+    def _read_at_rest(self) -> tuple[bool, float]:
+        """MOVE off is at rest, alarm or not (an alarm stops the motor)."""
+        return not self._bit(self._status_word(), OutputBit.MOVE), self._read_position()
+
     def _command_stop(self) -> None:
         self._write_inputs(InputBit.STOP)
         self._write_inputs()

@@ -167,6 +167,10 @@ class SMC100Axis(Axis):
                               f"{int(ts.state):02X}", causes)
         return ts.state in MOTION_STATES
 
+    def _read_at_rest(self) -> tuple[bool, float]:
+        """A TS state outside the motion states is at rest (a stage error state included)."""
+        return self._tell_state().state not in MOTION_STATES, self._read_position()
+
     def _command_home(self) -> None:
         """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``."""
         ts = self._tell_state()

@@ -88,6 +88,9 @@ class FakeAxis:
         if self.stop_error:
             raise DeviceTimeout(self.name, "stop", None, "no reply")
 
+    def confirm_stopped(self) -> float:
+        return self.deg
+
 
 class FakeLamp:
     def __init__(self) -> None:
@@ -216,34 +219,66 @@ def test_a_resumed_session_keeps_the_journaled_calibration_and_journals_its_own_
     assert [r.plan_index for r in samples] == [0, 1] and stats.skipped == 1 and stats.captured == 1
 
 
-def test_a_device_fault_stops_every_axis_once_and_marks_the_step_failed(table, tmp_path):
+def test_a_device_fault_stops_every_axis_once_switches_the_lamp_off_and_marks_the_step_failed(table, tmp_path):
     hardware = rig(table, theta_o={"fail_on_move": 3})
     with pytest.raises(SessionFault) as caught:
         run(hardware, tmp_path)
     message = str(caught.value)
     assert message.startswith("device fault at plan sample 1: theta_o: move to 35 deg: device fault: alarm")
-    assert "Every axis was stopped; 1 of 2 samples are safe in" in message and "--resume" in message
-    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    # theta_i moved first, theta_o refused its move, phi_o was not reached: each confirmed where it is
+    assert "Stopped theta_i at 0.00 deg, theta_o at 30.00 deg, phi_o at 180.00 deg; the lamp is off. " \
+           "1 of 2 samples are safe in" in message and message.endswith("run the same command with --resume")
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False
     with Journal.open(tmp_path / "session.sqlite") as journal:
         last, events = journal.steps()[-1], journal.events()
     assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "failed")
     assert "alarm" in last["result"]["error"]
-    [fault] = [e for e in events if e["kind"] == "fault"]
-    assert fault["axis"] == "theta_o" and fault["data"]["stop_problems"] == []
+    assert [e["kind"] for e in events][-3:] == ["fault", "stop", "lamp"]
+    fault, stop, lamp = events[-3:]
+    assert fault["axis"] == "theta_o" and fault["data"]["stop_problems"] == [] and fault["data"]["lamp_off"]
+    assert stop["message"] == "stopped theta_i at 0.00 deg, theta_o at 30.00 deg, phi_o at 180.00 deg"
+    assert [s["confirmed"] for s in stop["data"]["stops"]] == [True, True, True]
+    assert (lamp["message"], lamp["data"]) == ("lamp off", {"off": True, "error": None})
 
 
-def test_a_failing_stop_is_recorded_and_the_other_axes_are_still_stopped(table, tmp_path):
+def test_a_failing_stop_is_reported_truthfully_and_the_other_axes_are_still_stopped(table, tmp_path):
     hardware = rig(table, theta_i={"stop_error": True}, phi_o={"fail_on_move": 2})
-    with pytest.raises(SessionFault, match="device fault at plan sample 0: phi_o"):
+    with pytest.raises(SessionFault, match="device fault at plan sample 0: phi_o") as caught:
         run(hardware, tmp_path)
+    # theta_i and theta_o had started their moves of sample 0 when phi_o refused its own
+    assert "Stopped theta_o at 30.00 deg, phi_o at 180.00 deg; theta_i did not confirm the stop: it may still be " \
+           "moving towards 0.0 deg; the lamp is off. Check the axes named above before anything else moves. " \
+           "0 of 2 samples are safe" in str(caught.value)
+    assert "every axis" not in str(caught.value).lower()
     assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
     with Journal.open(tmp_path / "session.sqlite") as journal:
         [fault] = [e for e in journal.events() if e["kind"] == "fault"]
-    assert fault["data"]["stop_problems"] == ["theta_i: theta_i: stop: no reply"]
-    # the one stop path skips axes that are not connected and never raises
+    assert fault["data"]["stop_problems"] == ["theta_i did not confirm the stop: it may still be moving towards 0.0 deg"]
+    assert fault["data"]["stops"][0] == {"axis": "theta_i", "confirmed": False, "position_deg": None,
+                                         "under_way": True, "moving_to": 0.0, "error": "theta_i: stop: no reply"}
+    # the one stop path reports an axis that is not connected, never raises, and tries every axis
     hardware.axes["theta_o"].connected = False
-    assert stop_axes(hardware.axes) == ["theta_i: theta_i: stop: no reply"]
-    assert [a.stops for a in hardware.axes.values()] == [2, 1, 2]
+    stops = stop_axes(hardware.axes)
+    assert [s.text() for s in stops] == [
+        "theta_i did not confirm the stop (it was not moving as far as this session knows)",
+        "theta_o did not confirm the stop (it was not moving as far as this session knows)",
+        "phi_o stopped at 180.00 deg"]
+    assert stops[1].error == "not connected" and [a.stops for a in hardware.axes.values()] == [2, 1, 2]
+
+
+def test_a_lamp_that_cannot_be_switched_off_is_reported(table, tmp_path):
+    hardware = rig(table, theta_o={"fail_on_move": 3})
+
+    def unreachable() -> None:
+        raise DeviceTimeout("lamp", "write coil 0 off", None, "no reply")
+    hardware.lamp.off = unreachable
+    with pytest.raises(SessionFault) as caught:
+        run(hardware, tmp_path)
+    assert "; the lamp did not confirm it is off: it may still be on. " in str(caught.value)
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        lamp = journal.events()[-1]
+    assert lamp["message"] == "the lamp did not confirm it is off (lamp: write coil 0 off: no reply)"
+    assert lamp["data"] == {"off": False, "error": "lamp: write coil 0 off: no reply"}
 
 
 def test_a_camera_error_in_the_calibration_names_the_part_and_stops_every_axis(table, tmp_path):
@@ -251,8 +286,9 @@ def test_a_camera_error_in_the_calibration_names_the_part_and_stops_every_axis(t
     with pytest.raises(SessionFault) as caught:
         run(hardware, tmp_path)
     assert str(caught.value).startswith("capture failed during Expose in the calibration: fake camera: no frame "
-                                        "of 0.128 s. Every axis was stopped; 0 of 2 samples are safe")
-    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+                                        "of 0.128 s. Stopped theta_i at 0.00 deg, theta_o at 30.00 deg, phi_o at "
+                                        "180.00 deg; the lamp is off. 0 of 2 samples are safe")
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False
     with Journal.open(tmp_path / "session.sqlite") as journal:
         last = journal.steps()[-1]
     assert (last["kind"], last["detail"]["file"], last["status"]) == ("Expose", "calibration/flat_e3_0.dng", "failed")
@@ -278,10 +314,13 @@ def test_an_error_the_plan_raises_is_charged_to_the_step_before_it(table, tmp_pa
 
 def test_an_interrupt_during_a_step_stops_every_axis_and_marks_it_interrupted(table, tmp_path):
     hardware = rig(table, theta_i={"interrupt_on_move": 3})
-    with pytest.raises(SessionInterrupted):
+    with pytest.raises(SessionInterrupted) as caught:
         run(hardware, tmp_path)
-    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
+    assert str(caught.value).startswith("interrupted by SIGINT at plan sample 1. Stopped theta_i at 0.00 deg, "
+                                        "theta_o at 30.00 deg, phi_o at 180.00 deg; the lamp is off. 1 of 2 samples")
+    assert str(caught.value).endswith("Run the same command with --resume to continue")
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False
     with Journal.open(tmp_path / "session.sqlite") as journal:
         last, events, done = journal.steps()[-1], journal.events(), journal.done_indices()
     assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "interrupted")
-    assert [e["kind"] for e in events][-1] == "interrupted" and done == {0}
+    assert [e["kind"] for e in events][-3:] == ["interrupted", "stop", "lamp"] and done == {0}

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -230,10 +231,15 @@ def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path)
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=20) == 130
     err = proc.stderr.read().decode()
-    assert "interrupted (SIGINT): every axis stopped" in err and "--resume" in err
+    # one line, saying where each axis was confirmed at rest and that the lamp is off
+    assert err.startswith("goniofrost capture: interrupted by SIGINT") and err.count("\n") == 1
+    assert re.search(r"\. Stopped camera_arm at [-\d.]+ deg, sample_yaw at [-\d.]+ deg, sample_tilt at [-\d.]+ deg; "
+                     r"the lamp is off\. \d of 5 samples are safe in .*\. Run the same command with --resume to "
+                     r"continue\n$", err), err
     with Journal.open(session / "session.sqlite") as journal:
         [event] = [e for e in journal.events() if e["kind"] == "interrupted"]
-        assert event["data"]["stop_problems"] == []
+        assert event["data"]["stop_problems"] == [] and event["data"]["lamp_off"] is True
+        assert [e["kind"] for e in journal.events()][-2:] == ["stop", "lamp"]
         done = journal.done_indices()
     assert 1 <= len(done) < M and sorted(csv_indices(session)) == sorted(done)
     assert not (session / "brdf.binary").exists()
@@ -261,7 +267,8 @@ def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(s
         capture(rig, plan, session, material=MATERIAL, speedup=10, progress=False, on_ready=inject_after_two_samples)
     message = str(caught.value)
     assert message.startswith("device fault at plan sample ") and axis in message
-    assert "Every axis was stopped" in message and "run the same command with --resume" in message
+    assert re.search(r"\. Stopped camera_arm at [-\d.]+ deg, sample_yaw at [-\d.]+ deg, sample_tilt at [-\d.]+ deg; "
+                     r"the lamp is off\. ", message) and "run the same command with --resume" in message
     with Journal.open(session / "session.sqlite") as journal:
         [fault] = [e for e in journal.events() if e["kind"] == "fault"]
         done = journal.done_indices()

@@ -11,9 +11,11 @@ from typing import Mapping, Protocol, runtime_checkable
 
 
 class MoveStatus(Protocol):
-    """A started move (``drivers.axis.MoveStatus``): where it started, and a wait for its end."""
+    """A started move (``drivers.axis.MoveStatus``): where it started and where to (degrees), and a
+    wait for its end."""
 
     start: float
+    target: float
 
     def wait(self) -> float:
         """Block until the move ends (bounded by the axis's own timeout); return the final degrees."""
@@ -44,6 +46,10 @@ class Axis(Protocol):
 
     def stop(self) -> None:
         """Command a stop (decelerate) without waiting."""
+
+    def confirm_stopped(self) -> float:
+        """Wait (bounded) until the device reports the axis at rest; return where (degrees). Raises
+        when the device cannot tell or still reports motion."""
 
 
 @runtime_checkable

@@ -7,10 +7,14 @@ devices it commits each sample in one transaction the moment it is measured, app
 samples.csv, journals the calibration, lamp and homing events, times the parts of the session
 and shows a progress bar with the ETA, and
 
-* on SIGINT or SIGTERM: stops every axis, records the event and raises ``SessionInterrupted``
-  (the command exits 130); the journal stays resumable;
-* on a device error: stops every axis, records the event and raises ``SessionFault`` with a
-  clear one-line message (the command exits 2).
+* on SIGINT or SIGTERM: stops every axis, switches the lamp off, records the event and raises
+  ``SessionInterrupted`` (the command exits 130); the journal stays resumable;
+* on a device error (or a camera, calibration or output error): the same, and raises
+  ``SessionFault`` with a one-line message (the command exits 2).
+
+Every message says axis by axis what was confirmed at rest and what was not (an axis that did not
+confirm its stop may still be moving towards its target), and whether the lamp confirmed it is
+off; the journal has the same as ``stop`` and ``lamp`` events.
 
 A journal write is never torn by a signal: the signal waits until the write is done.
 """
@@ -23,10 +27,11 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.atomic_file import REASONS
+from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.contract import Hardware
 from goniofrost.capture.device_log import DeviceLog
-from goniofrost.capture.executor import StepExecutor, stop_axes
+from goniofrost.capture.executor import StepExecutor, stop_text
 from goniofrost.capture.journal import Journal, SamplesCsv
 from goniofrost.capture.session_steps import SessionSpec, session_steps
 from goniofrost.capture.signals import Deferral, SessionInterrupted, signals_raise
@@ -38,7 +43,8 @@ log = logging.getLogger(__name__)
 
 
 class SessionFault(GoniofrostError):
-    """A device failed mid-session; every axis was stopped and the journal stays resumable."""
+    """A device or a step failed mid-session; the axes were told to stop (the message says which
+    confirmed it), the lamp to switch off, and the journal stays resumable."""
 
 
 @dataclass
@@ -80,6 +86,7 @@ class SessionEngine:
         self._phase: tuple | None = None   # (name, monotonic start) of the part under way
         self._bar = None
         self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
+        self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
         self._journal_result = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
                                 Move: self._moved, Expose: _exposed, Phase: self._phase_started,
                                 SaveCalibration: self._calibration_saved, Commit: self._commit}
@@ -109,7 +116,8 @@ class SessionEngine:
 
     def _drive(self, plan) -> None:
         """Execute each step and send its result back into the plan; on any failure stop every
-        axis and journal why. An error the plan raises is charged to the step before it."""
+        axis, switch the lamp off and journal why. An error the plan raises is charged to the step
+        before it."""
         from drivers.errors import DeviceError
 
         step = result = None
@@ -123,12 +131,17 @@ class SessionEngine:
         except DeviceError as exc:
             self._abort("fault", f"{exc}", getattr(exc, "axis", None), step)
             raise SessionFault(self._fault_message(exc, step)) from exc
-        except GoniofrostError as exc:  # calibration or camera: this sample cannot be measured
+        except GoniofrostError as exc:  # calibration, camera or an output path: this sample cannot be measured
             self._abort("error", f"{exc}", None, step)
             raise SessionFault(self._failure_message(exc, step)) from exc
-        except SessionInterrupted:
-            self._abort("interrupted", "SIGINT/SIGTERM: every axis stopped", None, step)
-            raise
+        except SessionInterrupted as exc:
+            self._abort("interrupted", f"{exc or 'SIGINT/SIGTERM'}: session stopped", None, step)
+            raise SessionInterrupted(f"interrupted by {exc or 'a signal'}{self._where(step)}. "
+                                     f"{self._safe_text('Run the same command with --resume to continue')}") from exc
+        except OSError as exc:  # a file the session writes (frames, samples.csv): one line, not a traceback
+            error = OutputError(exc.filename or self.session_dir, REASONS.get(exc.errno, exc.strerror or str(exc)))
+            self._abort("error", f"{error}", None, step)
+            raise SessionFault(self._failure_message(error, step)) from exc
         except BaseException as exc:
             self._abort("error", f"{type(exc).__name__}: {exc}", None, step)
             raise
@@ -150,17 +163,24 @@ class SessionEngine:
         return result
 
     def _abort(self, kind: str, message: str, axis, step) -> None:
-        """Stop every axis first (safety), then record why; never raises, and a second Ctrl-C
-        cannot cut the stopping short."""
+        """Stop every axis first (safety), switch the lamp off, then record why and how each axis
+        took the stop; never raises, and a second Ctrl-C cannot cut it short."""
         with self._deferral.ignored():
-            problems = stop_axes(self.hw.axes)
+            stops = self.devices.stop()
+            lamp_error = self.devices.switch_lamp_off()
+            self._stopped = (stops, lamp_error)
             self._journal_device_log(quiet=True)  # the drivers' story first (retries, failed stops)
-            data = {"step": repr(step), "stop_problems": problems}
+            data = {"step": repr(step), "stops": [dataclasses.asdict(s) for s in stops],
+                    "stop_problems": [s.text() for s in stops if not s.confirmed], "lamp_off": lamp_error is None}
             try:
                 if self._row is not None:
                     self.journal.end_step(self._row, "interrupted" if kind == "interrupted" else "failed",
                                           {"error": message})
                 self.journal.add_event(kind, message, axis=axis, data=data)
+                self.journal.add_event("stop", stop_text(stops), data={"stops": data["stops"]})
+                self.journal.add_event("lamp", "lamp off" if lamp_error is None else
+                                       f"the lamp did not confirm it is off ({lamp_error})",
+                                       data={"off": lamp_error is None, "error": lamp_error})
             except Exception as exc:  # noqa: BLE001 - the original error matters more
                 log.error("could not journal the %s event: %s", kind, exc)
 
@@ -195,10 +215,18 @@ class SessionEngine:
         part = f" in the {self._phase[0]}" if self._phase else ""
         return f" during {type(step).__name__}{part}" if step is not None else " before the first step"
 
-    def _safe_text(self) -> str:
-        n, done = len(self.spec.samples), len(self.journal.done_indices())
-        return (f"Every axis was stopped; {done} of {n} samples are safe in {self.journal.path}. "
-                f"Fix the cause, then run the same command with --resume")
+    def _safe_text(self, next_step: str = "Fix the cause, then run the same command with --resume") -> str:
+        """What the abort did to the axes and the lamp, what is safe, and what to type next."""
+        n = len(self.spec.samples)
+        try:
+            done = f"{len(self.journal.done_indices())} of {n}"
+        except Exception:  # noqa: BLE001 - an unreadable journal must not hide the stop report
+            done = "the committed"
+        stops, lamp_error = self._stopped
+        text = stop_text(stops)
+        lamp = "the lamp is off" if lamp_error is None else "the lamp did not confirm it is off: it may still be on"
+        check = " Check the axes named above before anything else moves." if any(not s.confirmed for s in stops) else ""
+        return f"{text[0].upper()}{text[1:]}; {lamp}.{check} {done} samples are safe in {self.journal.path}. {next_step}"
 
     def _restore_calibration(self):
         """The journaled calibration to keep (a resumed session); None if there is none or its

@@ -20,19 +20,71 @@ from goniofrost.capture.steps import Expose, Frame, Home, LampOff, LampOn, Move,
 log = logging.getLogger(__name__)
 
 
-def stop_axes(axes: Mapping[str, Axis]) -> list[str]:
-    """Command every connected axis to stop; never raise. Returns the problems met ("axis: error"),
-    each also logged; every axis is tried whatever the others do."""
-    problems = []
+@dataclass(frozen=True)
+class AxisStop:
+    """How one axis took the stop: ``confirmed`` when the device reported it at rest (at
+    ``position_deg``); otherwise ``under_way`` tells whether a move was under way, ``moving_to``
+    its target when known (the axis may still be going there), and ``error`` why the stop was not
+    confirmed."""
+
+    axis: str
+    confirmed: bool
+    position_deg: float | None = None
+    under_way: bool = False
+    moving_to: float | None = None
+    error: str | None = None
+
+    def text(self) -> str:
+        """One clause for the operator, e.g. "sample_yaw did not confirm the stop: it may still be
+        moving towards 56.7 deg"."""
+        if self.confirmed:
+            return f"{self.axis} stopped at {self.position_deg:.2f} deg"
+        if self.under_way and self.moving_to is not None:
+            return f"{self.axis} did not confirm the stop: it may still be moving towards {self.moving_to:.1f} deg"
+        if self.under_way:
+            return f"{self.axis} did not confirm the stop: it may still be moving"
+        return f"{self.axis} did not confirm the stop (it was not moving as far as this session knows)"
+
+
+def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | None = None) -> list[AxisStop]:
+    """Command every axis to stop, then confirm each one is at rest; never raise.
+
+    ``moving_to``: {axis: target degrees, or None when unknown} of the moves under way (they name
+    where an unconfirmed axis may still be going). Every axis is tried whatever the others do; an axis that is not
+    connected cannot be confirmed. Problems are also logged.
+    """
+    moving_to = moving_to or {}
+    errors = {}
     for name, axis in axes.items():
-        if not axis.connected:
-            continue
         try:
+            if not axis.connected:
+                raise ConnectionError("not connected")
             axis.stop()
         except Exception as exc:  # noqa: BLE001 - keep stopping the other axes
             log.warning("stop %s failed: %s", name, exc)
-            problems.append(f"{name}: {exc}")
-    return problems
+            errors[name] = str(exc)
+    stops = []
+    for name, axis in axes.items():
+        if name not in errors:  # a stop that could not be sent cannot be confirmed either
+            try:
+                stops.append(AxisStop(name, True, position_deg=float(axis.confirm_stopped())))
+                continue
+            except Exception as exc:  # noqa: BLE001
+                log.warning("confirming the stop of %s failed: %s", name, exc)
+                errors[name] = str(exc)
+        stops.append(AxisStop(name, False, under_way=name in moving_to, moving_to=moving_to.get(name),
+                              error=errors[name]))
+    return stops
+
+
+def stop_text(stops: list[AxisStop]) -> str:
+    """The stops in one sentence: the confirmed ones together, then each unconfirmed one."""
+    done = [s for s in stops if s.confirmed]
+    parts = []
+    if done:
+        parts.append("stopped " + ", ".join(f"{s.axis} at {s.position_deg:.2f} deg" for s in done))
+    parts += [s.text() for s in stops if not s.confirmed]
+    return "; ".join(parts) if parts else "no axis to stop"
 
 
 @dataclass
@@ -53,6 +105,7 @@ class StepExecutor:
     def __init__(self, hardware: Hardware, folder) -> None:
         self.hw = hardware
         self.folder = Path(folder).resolve()  # journaled paths must survive a cd
+        self.moving_to: dict[str, float | None] = {}  # axis -> target of a move started, not yet seen to end
         self._handlers = {Home: self.home, Move: self.move, LampOn: self.lamp_on, LampOff: self.lamp_off,
                           SetTarget: self.set_target, Expose: self.expose, SaveCalibration: self.save_calibration}
 
@@ -61,20 +114,57 @@ class StepExecutor:
         handler = self._handlers.get(type(step))
         return None if handler is None else handler(step)
 
+    def stop(self) -> list[AxisStop]:
+        """Stop every axis through the one stop path (``stop_axes``); never raises."""
+        stops = stop_axes(self.hw.axes, self.moving_to)
+        for s in stops:
+            if s.confirmed:
+                self.moving_to.pop(s.axis, None)
+        return stops
+
+    def switch_lamp_off(self) -> str | None:
+        """Switch the lamp off whatever happened before; never raises. Returns None when the lamp
+        confirmed it, else why not."""
+        try:
+            self.hw.lamp.off()
+        except Exception as exc:  # noqa: BLE001 - on the way out of a failed session
+            log.warning("switching the lamp off failed: %s", exc)
+            return str(exc) or type(exc).__name__
+        return None
+
     def home(self, step: Home) -> Reached:
         t0, utc0 = self.hw.clock.now(), time.time()
-        statuses = [self.hw.axes[name].home() for name in step.axes]  # axes home together
-        for status in statuses:
-            status.wait()
+        statuses = self._start({name: (self.hw.axes[name].home, None) for name in step.axes})  # together
+        self._wait(statuses)
         joints = {name: self.hw.axes[name].position() for name in step.axes}
         return Reached(joints, self.hw.clock.now() - t0, utc0)
 
     def move(self, step: Move) -> Reached:
         t0, utc0 = self.hw.clock.now(), time.time()
-        statuses = [self.hw.axes[name].move_to(deg) for name, deg in step.joints]  # all axes together
-        joints = {name: float(status.wait()) for (name, _), status in zip(step.joints, statuses)}
+        statuses = self._start({name: (lambda axis=self.hw.axes[name], deg=deg: axis.move_to(deg), deg)
+                                for name, deg in step.joints})  # all axes together
+        joints = self._wait(statuses)
         seconds = self._profile_seconds(statuses, joints) if self.hw.simulated else self.hw.clock.now() - t0
         return Reached(joints, seconds, utc0)
+
+    def _start(self, starts: dict) -> dict:
+        """Start each axis's move ({axis: (callable -> MoveStatus, target degrees or None)}); each
+        counts as under way from just before its command (a failed command may still have reached
+        the device)."""
+        statuses = {}
+        for name, (start, target) in starts.items():
+            self.moving_to[name] = target
+            statuses[name] = start()
+            self.moving_to[name] = float(statuses[name].target)
+        return statuses
+
+    def _wait(self, statuses: dict) -> dict:
+        """Wait for each started move; return {axis: final degrees}."""
+        joints = {}
+        for name, status in statuses.items():
+            joints[name] = float(status.wait())
+            self.moving_to.pop(name, None)
+        return joints
 
     def _profile_seconds(self, statuses, joints: dict) -> float:
         """Seconds of the slowest axis's trapezoidal move (what the simulated axes really take).
@@ -84,7 +174,7 @@ class StepExecutor:
         from drivers.axis import trapezoid_time
 
         times = []
-        for status, (name, final) in zip(statuses, joints.items()):
+        for status, (name, final) in zip(statuses.values(), joints.items()):
             profile = self.hw.axes[name].config
             times.append(trapezoid_time(final - status.start, profile.speed_deg_s, profile.accel_deg_s2))
         return max(times, default=0.0)

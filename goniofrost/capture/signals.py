@@ -1,5 +1,5 @@
 """Signals during a capture session: SIGINT/SIGTERM become ``SessionInterrupted``, except that a
-journal commit is finished first and the stopping of every axis cannot be cut short."""
+journal commit is finished first and the stopping of the axes cannot be cut short."""
 from __future__ import annotations
 
 import signal
@@ -7,7 +7,8 @@ from contextlib import contextmanager
 
 
 class SessionInterrupted(BaseException):
-    """SIGINT/SIGTERM stopped the session; every axis was stopped (exit status 130).
+    """SIGINT/SIGTERM stopped the session (exit status 130); the engine's message says how each
+    axis and the lamp took the stop.
 
     A BaseException, like KeyboardInterrupt, so that no ``except Exception`` swallows it.
     """

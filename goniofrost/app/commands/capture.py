@@ -29,9 +29,13 @@ def run(args) -> int:
     try:
         outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                           seed=args.seed, speedup=args.speedup, progress=not args.no_progress)
-    except SessionInterrupted as exc:
-        print(f"goniofrost capture: interrupted ({exc}): every axis stopped; the journal in {args.session} "
-              f"is resumable: run the same command with --resume", file=sys.stderr)
+    except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
+        text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
+        print(f"goniofrost capture: {text}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # outside the engine: connecting, or writing the results
+        print(f"goniofrost capture: interrupted; the journal in {args.session} keeps every captured sample: "
+              f"run the same command with --resume", file=sys.stderr)
         return 130
     print(outcome.summary, end="")
     if args.bsdf:
