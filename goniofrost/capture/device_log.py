@@ -1,4 +1,11 @@
-"""The drivers' log during a capture session, kept for the journal's device events."""
+"""The devices' log during a capture session: kept for the journal, never printed on the terminal.
+
+Drivers retry, fail to stop, and pymodbus (client and simulated server) logs errors with hex
+dumps of the last frames; Python would print all of it on the terminal (its last-resort handler)
+around the one-line error the command shows. While a session holds the devices, ``DeviceLog``
+collects those records instead (INFO and up, no propagation to other handlers) and
+``journal_into`` stores them in the session's journal as ``device`` events.
+"""
 from __future__ import annotations
 
 import logging
@@ -6,10 +13,12 @@ from contextlib import contextmanager
 
 
 class DeviceLog(logging.Handler):
-    """Collect the drivers' log records (INFO and up) from any thread; the engine journals them
+    """Collect the device-side log records (INFO and up) from any thread; the engine journals them
     from its own thread (an SQLite connection belongs to the thread that made it)."""
 
-    LOGGERS = ("drivers", "calib")
+    # the drivers and their libraries, the simulated devices, the stop path and the device wiring
+    LOGGERS = ("drivers", "calib", "sim", "pymodbus", "dynamixel_sdk", "goniofrost.capture.executor",
+               "goniofrost.capture.hardware")
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)
@@ -22,19 +31,27 @@ class DeviceLog(logging.Handler):
         records, self._records = self._records, []
         return records
 
+    def journal_into(self, journal) -> None:
+        """Store the records collected since the last call as ``device`` events of ``journal``."""
+        for record in self.drain():
+            journal.add_event("device", record.getMessage(), data={"logger": record.name, "level": record.levelname})
+
     @classmethod
     @contextmanager
     def capture(cls):
+        """Collect the LOGGERS' records for the duration; they reach no other handler meanwhile."""
         handler = cls()
         loggers = [logging.getLogger(name) for name in cls.LOGGERS]
-        levels = [lg.level for lg in loggers]
+        saved = [(lg.level, lg.propagate) for lg in loggers]
         for lg in loggers:
             lg.addHandler(handler)
-            if lg.getEffectiveLevel() > logging.INFO:
+            lg.propagate = False  # not to the terminal: the journal has them
+            if lg.getEffectiveLevel() > logging.INFO or lg.level == logging.NOTSET:
                 lg.setLevel(logging.INFO)
         try:
             yield handler
         finally:
-            for lg, level in zip(loggers, levels):
+            for lg, (level, propagate) in zip(loggers, saved):
                 lg.removeHandler(handler)
                 lg.setLevel(level)
+                lg.propagate = propagate

@@ -74,7 +74,7 @@ class SessionEngine:
     ``hardware``, journaling into ``journal`` under ``session_dir``."""
 
     def __init__(self, spec: SessionSpec, hardware: Hardware, journal: Journal, session_dir,
-                 progress: bool = True) -> None:
+                 progress: bool = True, device_log: DeviceLog | None = None) -> None:
         self.spec, self.hw, self.journal = spec, hardware, journal
         self.devices = StepExecutor(hardware, session_dir)
         self.session_dir = self.devices.folder
@@ -85,6 +85,7 @@ class SessionEngine:
         self._row: int | None = None       # journal row of the step being executed
         self._phase: tuple | None = None   # (name, monotonic start) of the part under way
         self._bar = None
+        self._given_log = device_log  # the runner's, covering connect and release too; else our own
         self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
         self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
         self._journal_result = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
@@ -102,7 +103,7 @@ class SessionEngine:
                                data={"done": sorted(done), "run": self._run})
         plan = session_steps(self.spec, done, calibration=self._restore_calibration())
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
-        with signals_raise() as deferral, self._progress(len(done)), DeviceLog.capture() as self._device_log:
+        with signals_raise() as deferral, self._progress(len(done)), self._device_log_scope():
             self._deferral = deferral
             try:
                 self._drive(plan)
@@ -190,13 +191,21 @@ class SessionEngine:
         ``quiet``: on the way out of a failed session, never mask the original error.
         """
         try:
-            for record in self._device_log.drain():
-                self.journal.add_event("device", record.getMessage(),
-                                       data={"logger": record.name, "level": record.levelname})
+            self._device_log.journal_into(self.journal)
         except Exception as exc:  # noqa: BLE001 - only reached with quiet=True re-raising below
             if not quiet:
                 raise
             log.error("could not journal the device log: %s", exc)
+
+    @contextmanager
+    def _device_log_scope(self):
+        """The device log of the run: the one given (the runner's), else one of our own."""
+        if self._given_log is not None:
+            self._device_log = self._given_log
+            yield
+        else:
+            with DeviceLog.capture() as self._device_log:
+                yield
 
     def _fault_message(self, exc, step) -> str:
         return f"device fault{self._where(step)}: {exc}. {self._safe_text()}"

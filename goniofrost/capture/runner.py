@@ -35,6 +35,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
     """
+    from goniofrost.capture.device_log import DeviceLog
     from goniofrost.capture.engine import SessionEngine
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.hardware import open_hardware
@@ -53,14 +54,29 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             done = journal.done_indices()
             stats = None
             if len(done) < len(inputs.samples):
-                with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
-                                   on_ready=on_ready) as hardware:
-                    engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir, progress)
-                    stats = engine.run()
+                with DeviceLog.capture() as device_log:  # connect to release: the terminal stays quiet
+                    try:
+                        with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+                                           on_ready=on_ready) as hardware:
+                            engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir,
+                                                   progress, device_log=device_log)
+                            stats = engine.run()
+                    finally:
+                        journal_device_log(journal, device_log)  # what connecting and releasing logged
             report = write_outputs(inputs, journal, stats, session_dir, material)
         finally:
             journal.close()
     return CaptureOutcome(report, summary_text(report), session_dir)
+
+
+def journal_device_log(journal, device_log) -> None:
+    """Journal the device log's last records; on the way out of a failed session a journal that
+    cannot take them (a full disk) must not hide the session's own error."""
+    try:
+        device_log.journal_into(journal)
+    except Exception as exc:  # noqa: BLE001
+        import logging
+        logging.getLogger(__name__).error("could not journal the device log: %s", exc)
 
 
 def check_material(rig, material: str | None) -> str | None:
