@@ -16,9 +16,11 @@ class DeviceLog(logging.Handler):
     """Collect the device-side log records (INFO and up) from any thread; the engine journals them
     from its own thread (an SQLite connection belongs to the thread that made it)."""
 
-    # the drivers and their libraries, the simulated devices, the stop path and the device wiring
-    LOGGERS = ("drivers", "calib", "sim", "pymodbus", "dynamixel_sdk", "goniofrost.capture.executor",
-               "goniofrost.capture.hardware")
+    # logger -> lowest level kept: the drivers, the simulated devices, the stop path and the device
+    # wiring from INFO (retries); the protocol libraries from WARNING (not "Server listening.")
+    LOGGERS = {"drivers": logging.INFO, "calib": logging.INFO, "sim": logging.INFO,
+               "goniofrost.capture.executor": logging.INFO, "goniofrost.capture.hardware": logging.INFO,
+               "pymodbus": logging.WARNING, "dynamixel_sdk": logging.WARNING}
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)
@@ -46,8 +48,7 @@ class DeviceLog(logging.Handler):
         for lg in loggers:
             lg.addHandler(handler)
             lg.propagate = False  # not to the terminal: the journal has them
-            if lg.getEffectiveLevel() > logging.INFO or lg.level == logging.NOTSET:
-                lg.setLevel(logging.INFO)
+            lg.setLevel(cls.LOGGERS[lg.name])
         try:
             yield handler
         finally:
