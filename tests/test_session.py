@@ -386,14 +386,18 @@ def test_a_bad_rig_file_is_refused_naming_file_and_key(setup, tmp_path, capsys):
 
 
 def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, tmp_path, capsys):
-    folder, rig, plan, _ = setup
-    session = tmp_path / "s"
+    from goniofrost.capture.journal import SampleRecord
     from goniofrost.capture.runner import open_journal, session_meta
     from goniofrost.capture.inputs import load_inputs
+
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
     meta = session_meta(load_inputs(rig, plan), MATERIAL)
-    open_journal(session, meta, resume=False).close()
+    with open_journal(session, meta, resume=False) as journal:
+        journal.commit_sample(SampleRecord(0, 1, 0.0, 0.0, 0.0, (1.0, 1.0, 1.0), (0.1, 0.1, 0.1), 10.0))
     err = run_refused(capture_args(rig, plan, session), capsys)
-    assert "session.sqlite: a session journal already exists; pass --resume" in err
+    assert err == f"goniofrost capture: error: {session / 'session.sqlite'}: a session journal already exists with " \
+                  f"1 of {M} samples; pass --resume to continue it or choose a new --session folder\n"
     doc = json.loads(plan.read_text())
     doc["samples"] = doc["samples"][::-1]
     (tmp_path / "plan.json").write_text(json.dumps(doc))
@@ -401,6 +405,22 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
     assert "meta.plan_sha256: this session was started with another plan" in err
     err = run_refused(capture_args(rig, plan, tmp_path / "nothing", "--resume"), capsys)
     assert "no session journal to resume" in err
+
+
+def test_a_journal_without_samples_of_another_session_says_what_to_type(setup, tmp_path, capsys):
+    from goniofrost.capture.runner import open_journal, session_meta
+    from goniofrost.capture.inputs import load_inputs
+
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    open_journal(session, session_meta(load_inputs(rig, plan), MATERIAL), resume=False).close()
+    doc = json.loads(plan.read_text())
+    doc["samples"] = doc["samples"][::-1]
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", session), capsys)
+    assert "meta.plan_sha256: this session was started with another plan" in err and err.count("\n") == 1
+    assert err.endswith(f"; it holds no sample yet: to start this session there, delete it "
+                        f"(rm {session / 'session.sqlite'}), or choose a new --session\n")
 
 
 def test_a_signal_during_a_commit_waits_for_it_and_one_during_stopping_is_dropped():

@@ -62,8 +62,9 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> 
     """Reconstruct into brdf.binary, write report.json and summary.txt; return the report."""
     from goniofrost.capture.engine import SessionStats
 
-    session_dir, stats = Path(session_dir), stats or SessionStats()  # None: nothing left to capture
     records = journal.samples()
+    session_dir = Path(session_dir)
+    stats = stats or SessionStats(skipped=len(records))  # None: nothing was left to capture
     estimate = reconstruct_session(inputs, records)
     write_merl(session_dir / "brdf.binary", estimate, inputs.model.grid)
     report = build_report(inputs, records, stats, session_dir, material, journal.events())

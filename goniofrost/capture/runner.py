@@ -36,7 +36,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
     """
     from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.engine import SessionEngine
+    from goniofrost.capture.engine import SessionEngine, SessionStats
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.session_steps import SessionSpec
@@ -52,7 +52,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
         journal = open_journal(session_dir, meta, resume)
         try:
             done = journal.done_indices()
-            stats = None
+            stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if len(done) < len(inputs.samples):
                 with DeviceLog.capture() as device_log:  # connect to release: the terminal stays quiet
                     try:
@@ -125,16 +125,39 @@ RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
 
 
 def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
-    """Create the session's journal, or on resume open it and check it is the same session."""
+    """Create the session's journal, or on resume open it and check it is the same session.
+
+    Without ``resume``, an existing journal that holds no sample yet (a run that failed before its
+    first sample) is continued when it was started for the same session, so that the same command
+    works again; one that holds samples needs ``--resume``.
+    """
     path = session_dir / JOURNAL_FILE
-    if not resume:
+    if not resume and not path.exists():
         return Journal.create(path, meta)
     journal = Journal.open(path)
+    try:
+        if not resume:
+            _check_nothing_captured(journal, meta)
+        _check_same_session(journal, meta, resume)
+    except BaseException:
+        journal.close()
+        raise
+    return journal
+
+
+def _check_nothing_captured(journal: Journal, meta: dict) -> None:
+    n_done, n = len(journal.done_indices()), len(meta["plan"].get("samples", []))
+    if n_done:
+        raise JournalError(f"{journal.path}: a session journal already exists with {n_done} of {n} samples; "
+                           f"pass --resume to continue it or choose a new --session folder")
+
+
+def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
     stored = journal.meta()
     for key, what in RESUME_KEYS:
         if stored.get(key) != meta[key]:
-            journal.close()
-            raise JournalError(f"{path}: meta.{key}: this session was started with another {what}: "
-                               f"expected {stored.get(key)!r}, found {meta[key]!r}; resume with the same "
-                               f"--rig, --plan and --material, or start a new --session")
-    return journal
+            remedy = ("resume with the same --rig, --plan and --material, or start a new --session" if resume else
+                      f"it holds no sample yet: to start this session there, delete it (rm {journal.path}), or "
+                      f"choose a new --session")
+            raise JournalError(f"{journal.path}: meta.{key}: this session was started with another {what}: "
+                               f"expected {stored.get(key)!r}, found {meta[key]!r}; {remedy}")
