@@ -50,9 +50,13 @@ class CalibrationRecord:
         out_dir.mkdir(parents=True, exist_ok=True)
         path = out_dir / "calibration.npz"
         tmp = out_dir / f".calibration.npz.tmp{os.getpid()}"
-        with open(tmp, "wb") as fh:
-            np.savez(fh, dark=self.dark, flat=self.flat)
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, dark=self.dark, flat=self.flat)
+            os.replace(tmp, path)
+        except BaseException:  # a full disk leaves no partial file behind
+            tmp.unlink(missing_ok=True)
+            raise
         self.path, self.sha256 = path, _sha256(path)
         return path
 

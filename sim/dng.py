@@ -50,9 +50,13 @@ def write_dng(path: Path, mosaic: np.ndarray, black: int, white: int, metadata: 
     if mosaic.dtype != np.uint16 or mosaic.ndim != 2:
         raise ValueError(f"mosaic must be a 2-D uint16 array, got {mosaic.dtype} {mosaic.shape}")
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with tifffile.TiffWriter(tmp) as tw:
-        tw.write(mosaic, photometric="cfa", compression=None, subfiletype=0,
-                 description=json.dumps(metadata, sort_keys=True),
-                 extratags=_dng_tags(black, white, float(metadata["exposure_s"])))
-    os.replace(tmp, path)
+    try:
+        with tifffile.TiffWriter(tmp) as tw:
+            tw.write(mosaic, photometric="cfa", compression=None, subfiletype=0,
+                     description=json.dumps(metadata, sort_keys=True),
+                     extratags=_dng_tags(black, white, float(metadata["exposure_s"])))
+        os.replace(tmp, path)
+    except BaseException:  # a full disk leaves no partial file behind
+        tmp.unlink(missing_ok=True)
+        raise
     return path

@@ -1,7 +1,10 @@
-"""Shared fixtures: the measured-material data beside the project, a private cache folder."""
+"""Shared fixtures: the measured-material data beside the project, a private cache folder, small
+file systems mounted for a test (read-only, full)."""
 from __future__ import annotations
 
 import os
+import subprocess
+import uuid
 from pathlib import Path
 
 import pytest
@@ -33,3 +36,22 @@ def merl_npz(shared_data) -> Path:
 @pytest.fixture(scope="session")
 def rgl_npz(shared_data) -> Path:
     return shared_data / "nbrdf_rgl.npz"
+
+
+@pytest.fixture
+def mounted(tmp_path):
+    """mount(options) -> a fresh tmpfs folder with those mount options; unmounted afterwards."""
+    points = []
+
+    def mount(options: str) -> Path:
+        point = tmp_path / f"mnt-{uuid.uuid4().hex[:6]}"
+        point.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)], capture_output=True)
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+        points.append(point)
+        return point
+
+    yield mount
+    for point in points:
+        subprocess.run(["umount", str(point)], check=True)

@@ -5,8 +5,6 @@ CI; where mounting is not allowed those two cases are skipped, the others still 
 """
 from __future__ import annotations
 
-import subprocess
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -85,25 +83,6 @@ def test_out_below_a_file(inputs, tmp_path, capsys, name):
     assert (tmp_path / "a-file").read_text() == "keep me"
 
 
-@pytest.fixture
-def mounted(tmp_path):
-    """mount(options) -> a fresh tmpfs folder with those mount options; unmounted afterwards."""
-    points = []
-
-    def mount(options: str) -> Path:
-        point = tmp_path / f"mnt-{uuid.uuid4().hex[:6]}"
-        point.mkdir()
-        done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)], capture_output=True)
-        if done.returncode != 0:
-            pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
-        points.append(point)
-        return point
-
-    yield mount
-    for point in points:
-        subprocess.run(["umount", str(point)], check=True)
-
-
 @pytest.mark.parametrize("name", COMMANDS)
 def test_out_on_a_read_only_file_system(inputs, mounted, capsys, name):
     folder = mounted("ro,size=64k")
@@ -166,3 +145,58 @@ def test_check_output_dir_creates_nothing_and_names_the_problem(tmp_path, mounte
     read_only = mounted("ro,size=64k")
     with pytest.raises(OutputError, match="read-only"):
         check_output_dir(read_only / "out")
+
+
+# ----- train and convert: checked before the long work, one line, exit 2 -------------------------
+def _train(out: Path) -> list[str]:
+    return ["train", "--dataset", "builtin", "--only", "gold", "--out", str(out)]
+
+
+def _convert(out: Path) -> list[str]:
+    return ["convert", "--dataset", "builtin", "--material", "red-plastic", "--out", str(out)]
+
+
+def test_train_and_convert_refuse_an_out_below_a_file(tmp_path, capsys):
+    (tmp_path / "a-file").write_text("keep me")
+    for name, argv in (("train", _train), ("convert", _convert)):
+        out = tmp_path / "a-file" / "result"
+        code, err = _run(capsys, argv(out))
+        assert code == 2 and err == (f"goniofrost {name}: error: {tmp_path / 'a-file'}: cannot write: "
+                                     "a part of the path is a file, not a directory")
+    assert (tmp_path / "a-file").read_text() == "keep me" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_train_and_convert_refuse_an_out_on_a_read_only_file_system(mounted, capsys):
+    folder = mounted("ro,size=64k")
+    for name, argv in (("train", _train), ("convert", _convert)):
+        code, err = _run(capsys, argv(folder / "result"))
+        assert code == 2 and err == f"goniofrost {name}: error: {folder}: cannot write: the file system is read-only"
+
+
+def test_train_refuses_an_existing_folder_that_is_no_model_and_convert_a_folder(tmp_path, capsys):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "keep.jpg").write_text("x")
+    code, err = _run(capsys, _train(tmp_path / "photos"))
+    assert code == 2 and err == (f"goniofrost train: error: {tmp_path / 'photos'}: exists and is not a model "
+                                 "directory; refusing to overwrite")
+    code, err = _run(capsys, _convert(tmp_path / "photos"))
+    assert code == 2 and err == (f"goniofrost convert: error: {tmp_path / 'photos'}: cannot write: it is a "
+                                 "directory; give a file name such as red-plastic.binary")
+    assert [p.name for p in (tmp_path / "photos").iterdir()] == ["keep.jpg"]
+
+
+def test_convert_on_a_full_disk_leaves_no_partial_file(mounted, capsys):
+    folder = mounted("size=64k")  # the full-grid .binary is 26 MB
+    out = folder / "red.binary"
+    code, err = _run(capsys, _convert(out))
+    assert code == 2 and err == f"goniofrost convert: error: {out}: cannot write: no space left on the device"
+    assert list(folder.iterdir()) == []
+
+
+def test_model_save_on_a_full_disk_leaves_nothing(inputs, mounted):
+    from goniofrost.frost.model import FrostModel
+
+    folder = mounted("size=64k")
+    with pytest.raises(OutputError, match="no space left on the device"):
+        FrostModel.load(inputs / "model").save(folder / "model")
+    assert list(folder.iterdir()) == []

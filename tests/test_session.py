@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,7 @@ def journal_rows(session: Path) -> list[tuple]:
     if not path.exists():
         return []
     try:
-        with sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=1) as db:
+        with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=1)) as db:
             return db.execute("SELECT plan_index, committed_utc FROM samples ORDER BY plan_index").fetchall()
     except sqlite3.OperationalError:  # created but no table yet
         return []
@@ -274,6 +275,24 @@ def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(s
         done = journal.done_indices()
     assert fault["axis"] == axis and fault["message"] in message
     assert 2 <= len(done) < M and not (session / "brdf.binary").exists()
+
+
+def test_a_full_disk_mid_session_is_one_line_and_the_session_resumes_once_there_is_room(setup, mounted, capsys):
+    folder, rig, plan, _ = setup
+    disk = mounted("size=1200k")  # room for the calibration and a sample or two, not for five
+    session = disk / "s"
+    assert main(capture_args(rig, plan, session, "--speedup", "50")) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("goniofrost capture: error: capture failed ") and err.count("\n") == 1
+    assert ": cannot write: no space left on the device" in err and "; the lamp is off. " in err
+    assert "run the same command with --resume\n" in err
+    assert not [p for p in session.rglob(".*") if p.is_file()]  # no temporary file left behind
+    done = [i for i, _ in journal_rows(session)]
+    assert len(done) < M
+    subprocess.run(["mount", "-o", "remount,size=16m", str(disk)], check=True)
+    assert main(capture_args(rig, plan, session, "--resume", "--speedup", "50")) == 0
+    assert f"({M - len(done)} this run, {len(done)} from before; 2 run(s))" in capsys.readouterr().out
+    assert [i for i, _ in journal_rows(session)] == list(range(M)) and sorted(csv_indices(session)) == list(range(M))
 
 
 # ----- files that do not belong together --------------------------------------------------------

@@ -16,10 +16,10 @@ class DeviceLog(logging.Handler):
     """Collect the device-side log records (INFO and up) from any thread; the engine journals them
     from its own thread (an SQLite connection belongs to the thread that made it)."""
 
-    # logger -> lowest level kept: the drivers, the simulated devices, the stop path and the device
-    # wiring from INFO (retries); the protocol libraries from WARNING (not "Server listening.")
-    LOGGERS = {"drivers": logging.INFO, "calib": logging.INFO, "sim": logging.INFO,
-               "goniofrost.capture.executor": logging.INFO, "goniofrost.capture.hardware": logging.INFO,
+    # logger -> lowest level kept: the drivers, the simulated devices and the capture layer (the stop
+    # path, a journal write that failed on the way out) from INFO; the protocol libraries from
+    # WARNING (not "Server listening.")
+    LOGGERS = {"drivers": logging.INFO, "calib": logging.INFO, "sim": logging.INFO, "goniofrost.capture": logging.INFO,
                "pymodbus": logging.WARNING, "dynamixel_sdk": logging.WARNING}
 
     def __init__(self) -> None:

@@ -27,7 +27,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from goniofrost.core.atomic_file import REASONS
+from goniofrost.core.atomic_file import reason_of
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.contract import Hardware
 from goniofrost.capture.device_log import DeviceLog
@@ -140,7 +140,8 @@ class SessionEngine:
             raise SessionInterrupted(f"interrupted by {exc or 'a signal'}{self._where(step)}. "
                                      f"{self._safe_text('Run the same command with --resume to continue')}") from exc
         except OSError as exc:  # a file the session writes (frames, samples.csv): one line, not a traceback
-            error = OutputError(exc.filename or self.session_dir, REASONS.get(exc.errno, exc.strerror or str(exc)))
+            where = exc.filename or self.session_dir
+            error = OutputError(where, reason_of(exc, where))
             self._abort("error", f"{error}", None, step)
             raise SessionFault(self._failure_message(error, step)) from exc
         except BaseException as exc:

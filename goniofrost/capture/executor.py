@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+from goniofrost.core.atomic_file import output_errors
 from goniofrost.capture.contract import Axis, Hardware
 from goniofrost.capture.steps import Expose, Frame, Home, LampOff, LampOn, Move, Reached, SaveCalibration, SetTarget
 
@@ -195,9 +196,11 @@ class StepExecutor:
         from drivers.rawfile import read_raw
 
         path = self.folder / step.file
-        path.parent.mkdir(parents=True, exist_ok=True)
+        with output_errors(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
         before, t0, wall0 = self.hw.lamp.photodiode(), self.hw.clock.now(), time.perf_counter()
-        written = self.hw.camera.capture(step.exposure_s, path)
+        with output_errors(path):  # the camera writes the RAW file there: a full disk is one line
+            written = self.hw.camera.capture(step.exposure_s, path)
         wall_s, clock_s = time.perf_counter() - wall0, self.hw.clock.now() - t0
         lamp = 0.5 * (before + self.hw.lamp.photodiode())
         # simulated: the exposure time the camera integrated (the clock would add rendering time)
@@ -205,5 +208,6 @@ class StepExecutor:
         return Frame(Path(written.path), float(step.exposure_s), read_raw(written.path), lamp, seconds, wall_s)
 
     def save_calibration(self, step: SaveCalibration):
-        step.record.save(self.folder / step.folder)
+        with output_errors(self.folder / step.folder):
+            step.record.save(self.folder / step.folder)
         return step.record

@@ -28,8 +28,8 @@ import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.core.errors import GoniofrostError
+from goniofrost.core.atomic_file import output_errors, write_text_atomic
+from goniofrost.core.errors import GoniofrostError, OutputError
 
 FORMAT_VERSION = 1
 CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b",
@@ -113,10 +113,19 @@ class Journal:
         if path.exists():
             raise JournalError(f"{path}: a session journal already exists; pass --resume to continue it "
                                f"or choose a new --session folder")
-        journal = cls(path, _connect(path))
-        with journal._transaction() as db:
-            db.executemany("INSERT INTO meta VALUES (?, ?)",
-                           [(k, json.dumps(v)) for k, v in {**meta, "format_version": FORMAT_VERSION}.items()])
+        try:
+            journal = cls(path, _connect(path))
+            try:
+                with journal._transaction() as db:
+                    db.executemany("INSERT INTO meta VALUES (?, ?)",
+                                   [(k, json.dumps(v)) for k, v in {**meta, "format_version": FORMAT_VERSION}.items()])
+            except BaseException:
+                journal.close()
+                raise
+        except BaseException:  # no half-made journal may block the next attempt
+            for leftover in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
+                leftover.unlink(missing_ok=True)
+            raise
         return journal
 
     @classmethod
@@ -219,31 +228,70 @@ class Journal:
                        (status, json.dumps(result or {}, default=str), time.time(), row))
 
     def _transaction(self, durable: bool = True):
-        return _Transaction(self._db, durable)
+        return _Transaction(self._db, self.path, durable)
+
+
+# SQLite primary result codes of a journal that cannot be written -> what a user reads after
+# "PATH: cannot write: " (the engine turns them into its one-line message)
+_DISK_ERRORS = {8: "the journal is read-only", 10: "input/output error (disk)",
+                13: "no space left on the device", 14: "the journal file cannot be opened"}
+
+
+def _disk_error(exc: sqlite3.Error, path: Path) -> OutputError | None:
+    """An OutputError for an SQLite error that says the disk refused a write; None otherwise."""
+    reason = _DISK_ERRORS.get(getattr(exc, "sqlite_errorcode", 0) & 0xFF)
+    return None if reason is None else OutputError(path, reason)
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any exception).
+    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any exception); a full, read-only or failing disk
+    becomes an ``OutputError`` naming the journal.
 
     ``durable=False``: this one commit does not wait for the disk (``synchronous=NORMAL``, WAL:
     safe against a killed process, not a power cut); the connection is FULL again afterwards.
     """
 
-    def __init__(self, db: sqlite3.Connection, durable: bool = True) -> None:
-        self.db, self.durable = db, durable
+    def __init__(self, db: sqlite3.Connection, path: Path, durable: bool = True) -> None:
+        self.db, self.path, self.durable = db, path, durable
 
     def __enter__(self) -> sqlite3.Connection:
-        if not self.durable:
-            self.db.execute("PRAGMA synchronous=NORMAL")
-        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            if not self.durable:
+                self.db.execute("PRAGMA synchronous=NORMAL")
+            self.db.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as exc:
+            self._restore()
+            raise _disk_error(exc, self.path) or exc
         return self.db
 
-    def __exit__(self, exc_type, *_) -> None:
+    def __exit__(self, exc_type, exc, _tb) -> None:
         try:
-            self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+            if exc_type is None:
+                self.db.execute("COMMIT")
+            else:
+                self._rollback()
+        except sqlite3.OperationalError as failed:
+            self._rollback()
+            raise _disk_error(failed, self.path) or failed
         finally:
-            if not self.durable:
+            self._restore()
+        if isinstance(exc, sqlite3.OperationalError) and _disk_error(exc, self.path) is not None:
+            raise _disk_error(exc, self.path) from exc
+
+    def _rollback(self) -> None:
+        """Roll back if a transaction is still open (SQLite ends some on its own, e.g. a full disk)."""
+        if self.db.in_transaction:
+            try:
+                self.db.execute("ROLLBACK")
+            except sqlite3.Error:
+                pass  # the original error matters more
+
+    def _restore(self) -> None:
+        if not self.durable:
+            try:
                 self.db.execute("PRAGMA synchronous=FULL")
+            except sqlite3.Error:
+                pass
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -254,7 +302,8 @@ def _connect(path: Path) -> sqlite3.Connection:
         db.execute("PRAGMA synchronous=FULL")
         db.executescript(_SCHEMA)
     except sqlite3.DatabaseError as exc:
-        raise JournalError(f"{path}: not a usable session journal ({exc})") from None
+        disk = _disk_error(exc, path) if isinstance(exc, sqlite3.OperationalError) else None
+        raise disk or JournalError(f"{path}: not a usable session journal ({exc})") from None
     return db
 
 
@@ -297,8 +346,9 @@ class SamplesCsv:
         write_text_atomic(self.path, text)
 
     def append(self, record: SampleRecord) -> None:
-        """Append one sample's line, flushed and fsynced before returning."""
-        with open(self.path, "a") as handle:
+        """Append one sample's line, flushed and fsynced before returning (OutputError when the disk
+        refuses: the journal has the sample, and a resume rewrites this file from it)."""
+        with output_errors(self.path), open(self.path, "a") as handle:
             handle.write(record.csv_row() + "\n")
             handle.flush()
             os.fsync(handle.fileno())

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,9 @@ REASONS = {
 }
 
 
+SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
+
+
 @contextmanager
 def output_errors(path):
     """Turn an OSError raised while writing ``path`` into a one-line ``OutputError`` naming it."""
@@ -35,8 +39,17 @@ def output_errors(path):
     except OutputError:
         raise
     except OSError as exc:
-        reason = REASONS.get(exc.errno, exc.strerror or str(exc))
-        raise OutputError(path, reason) from exc
+        raise OutputError(path, reason_of(exc, path)) from exc
+
+
+def reason_of(exc: OSError, path) -> str:
+    """What a user reads after "PATH: cannot write: " for ``exc``. numpy's ``tofile`` reports a
+    short write without an errno ("N requested and M written"): a full file system."""
+    if exc.errno in REASONS:
+        return REASONS[exc.errno]
+    if exc.errno is None and SHORT_WRITE.fullmatch(str(exc)):
+        return f"{REASONS[errno.ENOSPC]} ({exc})"
+    return exc.strerror or str(exc)
 
 
 def check_output_dir(path) -> None:

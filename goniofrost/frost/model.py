@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from goniofrost.core.atomic_file import output_errors
+from goniofrost.core.atomic_file import check_output_dir, output_errors
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
 
@@ -43,6 +43,16 @@ META_FILE = "model.json"
 
 class ModelError(GoniofrostError, ValueError):
     """A model directory that cannot be read (names the path, what was expected and found)."""
+
+
+def check_model_destination(path) -> None:
+    """Raise now (ModelError, OutputError) if a model could not be saved at ``path`` later: an
+    existing path that is not a model directory, or a folder that cannot be written. Creates
+    nothing (``train`` checks its --out before training)."""
+    path = Path(path)
+    if path.exists() and not (path.is_dir() and (path / META_FILE).is_file()):
+        raise ModelError(f"{path}: exists and is not a model directory; refusing to overwrite")
+    check_output_dir(path.parent)
 
 
 @dataclass
@@ -149,8 +159,7 @@ class FrostModel:
         An existing model directory at ``path`` is replaced; any other existing path is refused.
         """
         path = Path(path)
-        if path.exists() and not (path.is_dir() and (path / META_FILE).is_file()):
-            raise ModelError(f"{path}: exists and is not a model directory; refusing to overwrite")
+        check_model_destination(path)
         with output_errors(path):
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))

@@ -15,8 +15,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from goniofrost.frost.model import check_model_destination
     from goniofrost.frost.training import train
 
+    check_model_destination(args.out)  # before training, not after it
     model = train(args.dataset, only=args.only, exclude=args.exclude, k_max=args.components,
                   cache=not args.no_cache, progress=True)
     model.save(args.out)
