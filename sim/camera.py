@@ -152,7 +152,8 @@ class SimCamera(Camera):
     ``material`` is the material's name (``SPEC:NAME``, written into each DNG's metadata) and
     ``brdf`` its ground truth (``BrdfFunction``); ``pose_source()`` returns the actual unit vectors (w_i, w_o),
     each (3,), in the sample frame; ``params`` is the rig's ``sim.camera`` section; ``seed``
-    fixes the noise and the pixel-response pattern. Exposure time passes on ``clock``.
+    fixes the pixel-response pattern and, with each frame's nominal start time, its noise.
+    Exposure time passes on ``clock``.
     """
 
     def __init__(self, material: str, brdf: BrdfFunction, pose_source: Callable[[], tuple[np.ndarray, np.ndarray]],
@@ -167,7 +168,7 @@ class SimCamera(Camera):
         """Build the renderer and the fixed pixel pattern."""
         p = self.params
         self._renderer = HolderRenderer(p["width"], p["height"])
-        self._rng = np.random.default_rng(self.seed)
+        pattern = np.random.default_rng(self.seed)  # the sensor's fixed pixel-response pattern
         shape = (p["height"], p["width"])
         self._channels = np.zeros(shape, dtype=np.uint8)      # RGGB
         self._channels[0::2, 1::2] = 1
@@ -176,7 +177,7 @@ class SimCamera(Camera):
         rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
         r2 = ((cols + 0.5 - shape[1] / 2) ** 2 + (rows + 0.5 - shape[0] / 2) ** 2) / (
             (shape[0] / 2) ** 2 + (shape[1] / 2) ** 2)
-        self._gain = (1.0 - p["vignetting"] * r2) * (1.0 + p["prnu"] * self._rng.standard_normal(shape))
+        self._gain = (1.0 - p["vignetting"] * r2) * (1.0 + p["prnu"] * pattern.standard_normal(shape))
         self._frames = 0
         self._connected = True
 
@@ -198,7 +199,7 @@ class SimCamera(Camera):
         self.clock.sleep(exposure_s)
         lamp = 0.5 * (self.lamp.relative_intensity(t0) + self.lamp.relative_intensity(t0 + exposure_s))
         radiance = self._radiance(w_i, w_o) * lamp
-        mosaic = self._digitise(radiance, exposure_s)
+        mosaic = self._digitise(radiance, exposure_s, self._frame_noise(t0))
         self._frames += 1
         meta = {"exposure_s": float(exposure_s), "time_s": t0, "target": self.target,
                 "w_i": w_i.tolist(), "w_o": w_o.tolist(), "sim_lamp_relative": lamp,
@@ -219,18 +220,24 @@ class SimCamera(Camera):
         card, cover = self._renderer.view(w_o, WHITE_MARKER_IDS if white else SAMPLE_MARKER_IDS)
         return (card / np.pi + cover * patch[self._channels]) * cos_i
 
-    def _digitise(self, radiance: np.ndarray, exposure_s: float) -> np.ndarray:
-        """Electrons -> noisy, saturating 14-bit DN mosaic (H, W) uint16."""
+    def _frame_noise(self, t0: float) -> np.random.Generator:
+        """The noise of the frame exposed from nominal time ``t0``: its own stream, derived from the
+        seed and that time. No stream is consumed in order, so a frame taken again at the same
+        nominal time (a session resumed from the state it was journaled in) has the same noise."""
+        return np.random.default_rng([self.seed, int(np.float64(t0).view(np.uint64))])
+
+    def _digitise(self, radiance: np.ndarray, exposure_s: float, rng: np.random.Generator) -> np.ndarray:
+        """Electrons -> noisy (``rng``), saturating 14-bit DN mosaic (H, W) uint16."""
         p = self.params
         gain_c = np.asarray(p["channel_gain"])[self._channels]
         electrons = radiance * np.pi * p["signal_e_s"] * gain_c * self._gain * exposure_s
         dark = p["dark_current_e_s"] * exposure_s
         if p["noise"]:
-            electrons = self._rng.poisson(electrons + dark).astype(np.float64)
+            electrons = rng.poisson(electrons + dark).astype(np.float64)
         else:
             electrons = electrons + dark
         if p["noise"]:
-            electrons += p["read_noise_e"] * self._rng.standard_normal(electrons.shape)
+            electrons += p["read_noise_e"] * rng.standard_normal(electrons.shape)
         # the ADC range ends at full well: a full pixel reads exactly the white level
         electrons = np.minimum(electrons, p["full_well_e"])
         dn_per_e = (p["white_level"] - p["black_level"]) / p["full_well_e"]

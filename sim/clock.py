@@ -45,6 +45,12 @@ class SimClock:
             self._nominal = max(self._nominal, self._horizon)
             return self._nominal
 
+    def restore_nominal_time(self, t: float) -> None:
+        """Continue from nominal time ``t`` (s), as journaled by an earlier run of the session: what
+        the devices do next is timed as it would have been then."""
+        with self._lock:
+            self._nominal = self._horizon = float(t)
+
     def start_activity(self, sim_seconds: float) -> None:
         """A device starts something that takes ``sim_seconds`` (a planned move) from now, nominally."""
         with self._lock:

@@ -64,6 +64,13 @@ class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
     def _endpoint_fields(self) -> dict:
         return {"id": self.id, "baud": self.baud}
 
+    def place(self, position: float) -> None:
+        """Put the axis at rest at ``position`` (device units), as journaled by an earlier run of the
+        session (``sim.rig.SimulatedRig.restore``): nothing moves, no fault strikes."""
+        with self._lock:
+            self.motion.set_position(float(position))
+            self._set(T["goal_position"], round(float(position)))
+
     def true_position_deg(self) -> float:
         """Ground truth: where the horn really is, in degrees."""
         return self.motion.position() / self.counts_per_deg

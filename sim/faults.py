@@ -22,13 +22,14 @@ class ArmedFaults:
     """Mixin of the simulated devices: faults armed now strike when the device next starts a move.
 
     The device provides ``_lock`` (an RLock), ``faults`` (the set of active faults), ``motion``
-    and ``inject_fault(kind)``, calls ``_init_armed()`` in its constructor, and calls
+    and ``inject_fault(kind)``; ``struck`` lists the armed faults that have struck; calls ``_init_armed()`` in its constructor, and calls
     ``_move_started()`` with its lock held right after it starts any move of non-zero length
     (before replying): holding still where the axis already is starts nothing.
     """
 
     def _init_armed(self) -> None:
         self.armed: list[str] = []
+        self.struck: list[str] = []  # the armed faults that struck, in order
 
     def arm_fault(self, kind: str) -> None:
         """Strike ``kind`` (one of FAULT_KINDS) when the device next starts a move, once."""
@@ -42,6 +43,7 @@ class ArmedFaults:
             self.motion.stall()
         armed, self.armed = self.armed, []
         for kind in armed:
+            self.struck.append(kind)
             self._strike(kind)
 
     def _strike(self, kind: str) -> None:

@@ -147,6 +147,12 @@ class SimulatedModbusDrive(ArmedFaults):
         self._loop.close()
         self._loop = None
 
+    def place(self, position: float) -> None:
+        """Put the axis at rest at ``position`` (device units), as journaled by an earlier run of the
+        session (``sim.rig.SimulatedRig.restore``): nothing moves, no fault strikes."""
+        with self._lock:
+            self.motion.set_position(float(position))
+
     def true_position_deg(self) -> float:
         """Ground truth: where the motor really is, in degrees."""
         return self.motion.position() / self.steps_per_deg

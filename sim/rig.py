@@ -71,7 +71,9 @@ class SimulatedRig:
     ``speedup``: simulated seconds per real second (default: the rig's ``sim.clock_speedup``, else 1).
     ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start),
     ``sim`` (the rig's ``sim`` section, checked, defaults filled in), ``faults`` (the fault drills
-    of ``sim.faults``; see ``arm_faults``).
+    of ``sim.faults``; see ``arm_faults``). As a capture session's ``Hardware.simulation``
+    (``goniofrost.capture.contract.Simulation``) it arms the drills before each plan sample and
+    journals and restores its state (``checkpoint``, ``restore``).
     """
 
     def __init__(self, rig, speedup: float | None = None, seed: int = 0) -> None:
@@ -83,7 +85,8 @@ class SimulatedRig:
         self.lamp_model = LampModel(self.clock, drift_per_hour=self.sim["lamp"]["drift_per_hour"], seed=seed)
         self.faults = [dict(fault) for fault in self.sim["faults"]]
         check_fault_axes(self.faults, self.axes, _get(rig, "source") or "rig")
-        self._armed: set[int] = set()  # indices into self.faults
+        self._armed: list[int] = []     # positions in self.faults, in the order armed
+        self._retired: set[int] = set()  # drills that struck in an earlier run: never armed again
         self._devices: dict = {}
         self.endpoints: dict = {}
 
@@ -120,16 +123,51 @@ class SimulatedRig:
         return self._devices[name]
 
     def arm_faults(self, sample_index: int) -> list[dict]:
-        """Arm every fault drill whose ``at_sample`` <= ``sample_index`` and that was not armed yet:
-        it strikes when its axis next starts a move, once. Call before each plan sample (after
-        start()); returns the faults armed by this call, in rig-file order."""
+        """Arm every fault drill whose ``at_sample`` <= ``sample_index`` and that was neither armed
+        nor retired yet: it strikes when its axis next starts a move, once. Call before each plan
+        sample (after start()); returns the drills armed by this call, in rig-file order, each as
+        ``{"drill": position in sim.faults, "axis", "kind", "at_sample"}``."""
         armed = []
         for i, fault in enumerate(self.faults):
-            if i not in self._armed and fault["at_sample"] <= sample_index:
+            if i not in self._armed and i not in self._retired and fault["at_sample"] <= sample_index:
                 self._devices[fault["axis"]].arm_fault(fault["kind"])
-                self._armed.add(i)
-                armed.append(dict(fault))
+                self._armed.append(i)
+                armed.append(self._drill(i))
         return armed
+
+    def struck_faults(self) -> list[dict]:
+        """The drills armed by ``arm_faults`` that have struck so far, in rig-file order."""
+        struck = []
+        for axis in {self.faults[i]["axis"] for i in self._armed}:
+            on_axis = [i for i in self._armed if self.faults[i]["axis"] == axis]  # in the order armed
+            struck += on_axis[:len(self._devices[axis].struck)]
+        return [self._drill(i) for i in sorted(struck)]
+
+    def retire_faults(self, drills) -> None:
+        """Never arm these drills (``{"drill", "axis", "kind", "at_sample"}`` as returned above): they
+        struck in an earlier run of the session, and a drill rehearses once. A drill whose entry in
+        the rig file changed since is not retired."""
+        for drill in drills:
+            i = drill.get("drill")
+            if isinstance(i, int) and 0 <= i < len(self.faults) and self._drill(i) == drill:
+                self._retired.add(i)
+
+    def _drill(self, i: int) -> dict:
+        return {"drill": i, **self.faults[i]}
+
+    def checkpoint(self) -> dict:
+        """The simulated state that decides what comes next: the clock's nominal time (s) and where
+        each axis is (device units). Journaled with each sample, so that a resumed run can
+        ``restore`` it and measure what an uninterrupted run would have."""
+        return {"nominal_time": self.clock.nominal_time(),
+                "positions": {name: float(device.motion.position()) for name, device in self._devices.items()}}
+
+    def restore(self, state: dict) -> None:
+        """Put the simulation back into a ``checkpoint``: axes at rest where they were, nominal time
+        as it was (the lamp's drift and the frames' noise follow it)."""
+        for name, position in state["positions"].items():
+            self._devices[name].place(position)
+        self.clock.restore_nominal_time(state["nominal_time"])
 
     def true_joints_deg(self) -> dict[str, float]:
         """Where every simulated axis really is (degrees), by axis name."""

@@ -56,6 +56,13 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
     def _endpoint_fields(self) -> dict:
         return {"address": self.address, "baud": self.baud}
 
+    def place(self, position: float) -> None:
+        """Put the axis at rest at ``position`` (device units), as journaled by an earlier run of the
+        session (``sim.rig.SimulatedRig.restore``): nothing moves, no fault strikes."""
+        with self._lock:
+            self.motion.set_position(float(position))
+            self._target = float(position)
+
     def true_position_deg(self) -> float:
         """Ground truth: where the stage really is, in degrees."""
         return self.motion.position() / self.units_per_deg

@@ -138,6 +138,7 @@ class FakeHardware:
     clock: FakeClock
     simulated: bool = False
     extra: dict = field(default_factory=dict)
+    simulation: object = None
 
 
 @pytest.fixture(scope="module")

@@ -55,12 +55,15 @@ def test_a_drill_is_armed_at_its_sample_and_strikes_on_the_next_move_once():
         try:
             assert rig.arm_faults(2) == [] and device.armed == []
             assert axis.move_to(20.0).wait() == pytest.approx(20.0, abs=0.1)
-            assert rig.arm_faults(3) == [{"axis": "sample_yaw", "kind": "stall", "at_sample": 3}]
+            drill = {"drill": 0, "axis": "sample_yaw", "kind": "stall", "at_sample": 3}
+            assert rig.arm_faults(3) == [drill]
             assert device.armed == ["stall"] and device.faults == set()  # waiting for the move
             assert axis.position() == pytest.approx(20.0, abs=0.1)     # reading is no move
+            assert rig.struck_faults() == []
             with pytest.raises(DeviceFault, match="stall"):
                 axis.move_to(40.0).wait()
             assert device.armed == [] and rig.arm_faults(4) == []      # once
+            assert rig.struck_faults() == [drill]
         finally:
             axis.close()
 
@@ -72,6 +75,31 @@ def test_drills_of_earlier_samples_are_armed_together():
         assert [(f["axis"], f["kind"]) for f in armed] == [("sample_tilt", "alarm"), ("camera_arm", "stall")]
         assert rig.device("camera_arm").armed == ["stall"] and rig.device("sample_tilt").armed == ["alarm"]
         assert [f["kind"] for f in rig.arm_faults(7)] == ["no_reply"]
+
+
+def test_a_retired_drill_is_never_armed_and_a_changed_one_is_not_retired():
+    faults = (("sample_tilt", "alarm", 1), ("camera_arm", "stall", 2), ("sample_yaw", "no_reply", 2))
+    with SimulatedRig(drill_rig(*faults), speedup=20) as rig:
+        rig.retire_faults([{"drill": 0, "axis": "sample_tilt", "kind": "alarm", "at_sample": 1},   # struck before
+                           {"drill": 1, "axis": "camera_arm", "kind": "alarm", "at_sample": 2}])   # rig file changed
+        assert [f["drill"] for f in rig.arm_faults(5)] == [1, 2]
+        assert rig.device("sample_tilt").armed == [] and rig.device("camera_arm").armed == ["stall"]
+
+
+def test_a_checkpoint_restores_positions_and_nominal_time():
+    with SimulatedRig(drill_rig(), speedup=20) as rig:
+        axis = connected_axis(rig, "camera_arm")
+        try:
+            axis.move_to(60.0).wait()
+            state = rig.checkpoint()
+            assert state["positions"]["camera_arm"] == 6000.0 and state["nominal_time"] > 0
+            axis.move_to(120.0).wait()
+            assert rig.checkpoint() != state
+            rig.restore(state)
+            assert rig.checkpoint() == state and axis.position() == pytest.approx(60.0)
+            assert not axis.is_moving()
+        finally:
+            axis.close()
 
 
 @pytest.mark.parametrize("name", list(TARGETS))

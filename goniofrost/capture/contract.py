@@ -1,13 +1,14 @@
 """The Hardware contract: what the capture engine may ask of a rig, and nothing more.
 
-``Hardware`` bundles axes, a lamp, a camera and a clock. The real and simulated rigs
+``Hardware`` bundles axes, a lamp, a camera and a clock (and, on a simulated rig, its
+``Simulation``). The real and simulated rigs
 (``goniofrost.capture.hardware.RigHardware`` over ``drivers``) satisfy it, and so do the small
 fakes of the engine tests; the engine never reaches past these members.
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping, Protocol, runtime_checkable
+from typing import Iterable, Mapping, Protocol, runtime_checkable
 
 
 class MoveStatus(Protocol):
@@ -82,13 +83,36 @@ class Clock(Protocol):
     def now(self) -> float: ...
 
 
+class Simulation(Protocol):
+    """What the engine may ask of a simulated rig beyond its devices (``sim.rig.SimulatedRig``).
+
+    Fault drills: ``arm_faults(sample_index)`` before each plan sample (the drills armed, each a
+    dict with its ``drill`` number), ``struck_faults()`` (the armed drills that struck),
+    ``retire_faults(drills)`` (drills that struck in an earlier run: never armed again).
+    Reproducible resumes: ``checkpoint()`` (a JSON-safe state, journaled with each sample and the
+    calibration) and ``restore(state)`` (before the first sample a resumed run captures).
+    """
+
+    def arm_faults(self, sample_index: int) -> list[dict]: ...
+
+    def struck_faults(self) -> list[dict]: ...
+
+    def retire_faults(self, drills: Iterable[dict]) -> None: ...
+
+    def checkpoint(self) -> dict: ...
+
+    def restore(self, state: dict) -> None: ...
+
+
 @runtime_checkable
 class Hardware(Protocol):
     """What a capture session drives. ``simulated``: time is accounted from the models (motion
-    profiles, exposure times) rather than from a clock that also counts rendering and polling."""
+    profiles, exposure times) rather than from a clock that also counts rendering and polling.
+    ``simulation``: the simulated rig's drills and state (None on a real rig or a bench)."""
 
     axes: Mapping[str, Axis]
     lamp: Lamp
     camera: Camera
     clock: Clock
     simulated: bool
+    simulation: Simulation | None

@@ -98,6 +98,7 @@ class BenchHardware:
     clock: object
     simulated: bool = True
     axes: dict = field(default_factory=dict)
+    simulation: object = None
 
 
 class StepExecutor:
@@ -133,6 +134,30 @@ class StepExecutor:
             return str(exc) or type(exc).__name__
         return None
 
+    # ----- a simulated rig's drills and state (nothing on a real rig) ---------------------------
+    def arm_drills(self, sample_index: int) -> list[dict]:
+        """Arm the fault drills due at plan sample ``sample_index``; return them."""
+        sim = self.hw.simulation
+        return [] if sim is None else sim.arm_faults(sample_index)
+
+    def struck_drills(self) -> list[dict]:
+        sim = self.hw.simulation
+        return [] if sim is None else sim.struck_faults()
+
+    def retire_drills(self, drills: list[dict]) -> None:
+        if self.hw.simulation is not None and drills:
+            self.hw.simulation.retire_faults(drills)
+
+    def checkpoint(self) -> dict | None:
+        """The simulated state to journal (None on a real rig)."""
+        sim = self.hw.simulation
+        return None if sim is None else sim.checkpoint()
+
+    def restore(self, state: dict) -> None:
+        if self.hw.simulation is not None:
+            self.hw.simulation.restore(state)
+
+    # ----- device steps -----------------------------------------------------------------------
     def home(self, step: Home) -> Reached:
         t0, utc0 = self.hw.clock.now(), time.time()
         statuses = self._start({name: (self.hw.axes[name].home, None) for name in step.axes})  # together

@@ -185,23 +185,34 @@ class Journal:
             row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
         return rows
 
+    def step_result(self, kind: str, plan_index: int | None = None) -> dict | None:
+        """The result of the last step of ``kind`` (for plan sample ``plan_index``) that ended done;
+        None if there is none."""
+        row = self._db.execute("SELECT result FROM steps WHERE kind = ? AND plan_index IS ? AND status = 'done' "
+                               "ORDER BY id DESC LIMIT 1", (kind, plan_index)).fetchone()
+        return None if row is None else json.loads(row[0])
+
     def next_run(self) -> int:
         """The number of the next engine run of this session (1 for the first)."""
         return self._db.execute("SELECT COALESCE(MAX(run), 0) + 1 FROM steps").fetchone()[0]
 
     # ----- writing ------------------------------------------------------------------------
-    def set_calibration(self, record: dict) -> None:
-        """Store (or replace) the calibration record in one transaction."""
+    def set_calibration(self, record: dict, step: tuple[int, dict] | None = None) -> None:
+        """Store (or replace) the calibration record in one transaction; ``step`` (row, result): the
+        step that saved it ends done in the same transaction."""
         with self._transaction() as db:
             db.execute("INSERT OR REPLACE INTO calibration VALUES (1, ?, ?)", (json.dumps(record), time.time()))
+            _end_step(db, step)
 
-    def commit_sample(self, record: SampleRecord) -> None:
-        """Store one measured sample in ONE durable transaction; a plan index twice is refused."""
+    def commit_sample(self, record: SampleRecord, step: tuple[int, dict] | None = None) -> None:
+        """Store one measured sample in ONE durable transaction; a plan index twice is refused.
+        ``step`` (row, result): the step that commits it ends done in the same transaction."""
         row = _row_from_record(record)
         try:
             with self._transaction() as db:
                 db.execute(f"INSERT INTO samples ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                            tuple(row.values()))
+                _end_step(db, step)
         except sqlite3.IntegrityError:
             raise JournalError(f"{self.path}: plan sample {record.plan_index} is already in the journal") from None
 
@@ -224,11 +235,18 @@ class Journal:
         if status not in STEP_STATUSES[1:]:
             raise JournalError(f"{self.path}: step status: expected one of {STEP_STATUSES[1:]}, found {status!r}")
         with self._transaction(durable=False) as db:
-            db.execute("UPDATE steps SET status = ?, result = ?, ended_utc = ? WHERE id = ?",
-                       (status, json.dumps(result or {}, default=str), time.time(), row))
+            _end_step(db, (row, result), status)
 
     def _transaction(self, durable: bool = True):
         return _Transaction(self._db, self.path, durable)
+
+
+def _end_step(db: sqlite3.Connection, step: tuple[int, dict | None] | None, status: str = "done") -> None:
+    """Within a transaction: mark step ``(row, result)`` ended with ``status`` (nothing if None)."""
+    if step is not None:
+        row, result = step
+        db.execute("UPDATE steps SET status = ?, result = ?, ended_utc = ? WHERE id = ?",
+                   (status, json.dumps(result or {}, default=str), time.time(), row))
 
 
 # SQLite primary result codes of a journal that cannot be written -> what a user reads after

@@ -11,7 +11,7 @@ session never repeats one.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Iterable, Mapping
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -51,12 +51,15 @@ class SessionSpec:
                    lambda joints: forward(rig, joints))
 
 
-def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None):
+def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
+                  measured: Mapping[int, Sequence[float]] | None = None):
     """Yield the steps of a capture session (send each step's result back).
 
     ``done``: plan indices already journaled; ``calibration``: a journaled CalibrationRecord to keep
-    (a resumed session), or None to calibrate. A session with nothing left to capture yields no
-    step at all.
+    (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
+    samples. Each sample's bracket starts from what the plan sample before it measured (in this
+    run or, resumed, in the journal), so a resumed session takes the frames one run would have.
+    A session with nothing left to capture yields no step at all.
     """
     todo = remaining(len(spec.samples), done)
     if not todo:
@@ -67,11 +70,13 @@ def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None)
         white = yield Move(None, joint_targets(spec.white_joints, spec.axes))
         calibration = yield from calibration_steps(spec.camera, spec.pose_of(white.joints))
     yield Phase("samples")
-    expected = None  # the previous sample's BRDF: it picks the next bracket's first exposure
+    measured = {i: np.asarray(rgb, dtype=np.float64) for i, rgb in (measured or {}).items()}
     for index in todo:
         reached = yield Move(index, joint_targets(spec.samples[index]["joints"], spec.axes))
+        previous = measured.get(index - 1)  # its BRDF picks this bracket's first exposure
+        expected = None if previous is None else np.maximum(previous, 1e-6)
         m = yield from sample_steps(spec.camera, calibration, spec.pose_of(reached.joints), index, expected)
-        expected = np.maximum(m.rgb, 1e-6)
+        measured[index] = np.asarray(m.rgb, dtype=np.float64)
         yield Commit(sample_record(spec, index, reached, m))
     yield LampOff()
 

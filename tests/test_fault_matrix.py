@@ -1,0 +1,140 @@
+"""The fault matrix: every fault kind on every protocol, rehearsed mid-session from the rig file's
+``sim: faults:`` through the command line, then ``--resume``.
+
+Each faulted run must exit 2 with one line on the terminal (no library hex dumps), report axis by
+axis what confirmed the stop (and match what the simulated devices really did), say whether the
+lamp confirmed it is off, and journal the drill; the resumed run must capture every plan sample
+exactly once (journal and samples.csv), never rehearse the drill again, and give samples.csv and
+brdf.binary byte-identical to an uninterrupted run without the drill.
+
+Kept fast: the small rig and plan of tests/test_session.py (5 samples, 192 x 144 sensor, a
+four-exposure ladder), clock speed-up 50, the model, plan and uninterrupted run shared by the module.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import sqlite3
+from contextlib import closing
+from pathlib import Path
+
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+from goniofrost.capture import runner
+from sim.faults import FAULT_KINDS
+
+from test_session import GRID, MATERIAL, TRAINING, write_rig
+
+M, AT_SAMPLE = 5, 2  # the drill strikes at plan sample 2: two samples are safe before it
+AXES = ("camera_arm", "sample_yaw", "sample_tilt")  # Modbus TCP, Dynamixel, SMC100
+COMMS = ("no_reply", "bad_checksum", "drop_byte", "disconnect")  # the device can no longer be heard
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    """(folder, rig file, plan, uninterrupted session) shared by the matrix (read-only)."""
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+
+    folder = tmp_path_factory.mktemp("matrix")
+    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    rig = write_rig(folder / "rig.yaml")
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    samples = json.loads(plan.read_text())["samples"]
+    for axis in AXES:  # every axis moves at the drill's sample, so every drill strikes there
+        assert abs(samples[AT_SAMPLE]["joints"][axis] - samples[AT_SAMPLE - 1]["joints"][axis]) > 0.5
+    reference = folder / "reference"
+    assert main(args(rig, plan, reference)) == 0
+    return folder, rig, plan, reference
+
+
+def args(rig, plan, session, *extra) -> list[str]:
+    return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session), "--material", MATERIAL,
+            "--no-progress", "--speedup", "50", *extra]
+
+
+def drill_rig(rig: Path, out: Path, axis: str, kind: str) -> Path:
+    """The rig with one drill; its drivers do not retry (a drilled fault persists: retries would only
+    make each failing command, and the test, slower)."""
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"axis": axis, "kind": kind, "at_sample": AT_SAMPLE}]
+    for spec in doc["axes"].values():
+        spec["driver"]["retries"] = 0
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out
+
+
+def journal(session: Path) -> tuple[list[int], list[tuple[str, dict]]]:
+    with closing(sqlite3.connect(f"file:{session / 'session.sqlite'}?mode=ro", uri=True)) as db:
+        indices = [r[0] for r in db.execute("SELECT plan_index FROM samples ORDER BY plan_index")]
+        events = [(k, json.loads(d)) for k, d in db.execute("SELECT kind, data FROM events ORDER BY id")]
+    return indices, events
+
+
+def csv_indices(session: Path) -> list[int]:
+    with open(session / "samples.csv") as handle:
+        return sorted(int(row["plan_index"]) for row in csv.DictReader(handle))
+
+
+@pytest.mark.parametrize("axis", AXES)
+@pytest.mark.parametrize("kind", FAULT_KINDS)
+def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterrupted_files(
+        bench, tmp_path, capsys, monkeypatch, kind, axis):
+    folder, rig, plan, reference = bench
+    drilled = drill_rig(rig, tmp_path / "rig.yaml", axis, kind)
+    session = tmp_path / "s"
+    seen = {}
+    capture = runner.capture
+
+    def watched(*a, **kw):  # keep the simulated devices, to compare the report with what they really did
+        def ready(hardware):
+            seen.update(devices={name: hardware.simulation.device(name) for name in AXES},
+                        lamp=hardware.simulation.lamp_model)
+        return capture(*a, on_ready=ready, **kw)
+    monkeypatch.setattr(runner, "capture", watched)
+
+    # ----- the faulted run: exit 2, one line, a truthful stop report --------------------------------
+    assert main(args(drilled, plan, session)) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"goniofrost capture: error: device fault at plan sample "
+                                                   f"{AT_SAMPLE}: {axis}: "), err
+    assert err.endswith(f"{AT_SAMPLE} of {M} samples are safe in {session / 'session.sqlite'}. Fix the cause, "
+                        "then run the same command with --resume\n")
+    done, events = journal(session)
+    assert done == list(range(AT_SAMPLE))
+    [stop] = [d for k, d in events if k == "stop"]
+    stops = {s["axis"]: s for s in stop["stops"]}
+    unconfirmed = {name for name, s in stops.items() if not s["confirmed"]}
+    assert unconfirmed == ({axis} if kind in COMMS else set())
+    for name, s in stops.items():
+        device = seen["devices"][name]
+        if s["confirmed"]:  # where the device said it rests is where the simulated axis really is
+            assert s["position_deg"] == pytest.approx(device.true_position_deg(), abs=0.1)
+            assert f"{name} at {s['position_deg']:.2f} deg" in err
+        else:
+            assert s["under_way"] and f"{name} did not confirm the stop: it may still be moving towards " \
+                                      f"{s['moving_to']:.1f} deg" in err
+    if kind == "disconnect" and axis == "sample_yaw":  # the unplugged servo really kept going to its goal
+        assert seen["devices"][axis].motion.target == pytest.approx(
+            stops[axis]["moving_to"] * seen["devices"][axis].counts_per_deg, abs=0.5)
+    [lamp] = [d for k, d in events if k == "lamp" and "off" in d]
+    lamp_heard = not (axis == "camera_arm" and kind in COMMS)  # the lamp is on the camera-arm drive
+    assert lamp["off"] is lamp_heard
+    assert ("; the lamp is off. " if lamp_heard else "; the lamp did not confirm it is off: it may still be on. ") in err
+    if lamp_heard:
+        assert seen["lamp"].is_on is False
+    drills = [d["state"] for k, d in events if k == "drill"]
+    assert drills == ["armed", "struck"]
+
+    # ----- the resume: every sample once, no second rehearsal, the uninterrupted files ---------------
+    assert main(args(drilled, plan, session, "--resume")) == 0
+    out = capsys.readouterr()
+    assert out.err == "" and f"({M - AT_SAMPLE} this run, {AT_SAMPLE} from before; 2 run(s))" in out.out
+    done, events = journal(session)
+    assert done == list(range(M)) and csv_indices(session) == list(range(M))
+    assert [d["state"] for k, d in events if k == "drill"] == ["armed", "struck"]  # not armed again
+    for name in ("samples.csv", "brdf.binary"):
+        assert (session / name).read_bytes() == (reference / name).read_bytes(), name
