@@ -194,6 +194,79 @@ def test_sigkill_mid_session_then_resume_captures_every_sample_exactly_once(setu
     assert json.loads((session / "report.json").read_text())["runs"] == 2
 
 
+# ----- reproducible: the same seed gives the same files, interrupted or not ----------------------
+@pytest.fixture(scope="module")
+def uninterrupted(setup, tmp_path_factory) -> Path:
+    """A session captured in one run at speed-up 50 (read-only)."""
+    folder, rig, plan, _ = setup
+    session = tmp_path_factory.mktemp("uninterrupted") / "s"
+    assert main(capture_args(rig, plan, session, "--speedup", "50")) == 0
+    return session
+
+
+def frames(session: Path) -> dict:
+    """{relative path: bytes} of every RAW frame of a session."""
+    return {str(p.relative_to(session)): p.read_bytes() for p in sorted(session.glob("*/*.dng"))}
+
+
+def test_two_runs_with_the_same_seed_give_byte_identical_frames_samples_and_brdf(setup, uninterrupted, tmp_path):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    assert main(capture_args(rig, plan, session, "--speedup", "20")) == 0  # other real timing throughout
+    for name in ("samples.csv", "brdf.binary"):
+        assert (session / name).read_bytes() == (uninterrupted / name).read_bytes(), name
+    assert frames(session) == frames(uninterrupted) and len(frames(session)) > M
+
+
+KILL_POINTS = {  # where the kill lands -> (the condition to wait for, what the resume's summary says)
+    "calibration": (lambda s: (s / "calibration" / "dark_e1_0.dng").exists(), f"({M} this run, 0 from before; 2 run(s))"),
+    "mid-session": (lambda s: len(journal_rows(s)) >= 2, "this run, "),
+    "final reconstruction": (lambda s: len(journal_rows(s)) == M, f"(0 this run, {M} from before; 1 run(s))"),
+}
+
+
+@pytest.mark.parametrize("point", list(KILL_POINTS))
+def test_a_run_killed_then_resumed_gives_the_files_of_an_uninterrupted_run(setup, uninterrupted, tmp_path,
+                                                                          capsys, point):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    reached, summary = KILL_POINTS[point]
+    proc = start_capture(rig, plan, session, speedup="10")
+    t_end = time.monotonic() + 60
+    while not reached(session):
+        assert proc.poll() is None and time.monotonic() < t_end, f"capture ended or hung before the {point}"
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait(timeout=10) == -signal.SIGKILL
+    assert not (session / "report.json").exists(), "the kill must land before the results are written"
+    if point == "calibration":
+        assert journal_rows(session) == [] and not (session / "calibration" / "calibration.npz").exists()
+
+    assert main(capture_args(rig, plan, session, "--resume", "--speedup", "50")) == 0
+    assert summary in capsys.readouterr().out
+    assert [i for i, _ in journal_rows(session)] == list(range(M)) and csv_indices(session) == list(range(M))
+    for name in ("samples.csv", "brdf.binary"):
+        assert (session / name).read_bytes() == (uninterrupted / name).read_bytes(), f"{name} after a kill in the {point}"
+
+
+def test_a_run_that_failed_before_its_first_sample_does_not_block_the_same_command(setup, uninterrupted,
+                                                                                   tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"axis": "sample_tilt", "kind": "alarm", "at_sample": 0}]  # the first move fails
+    drilled = tmp_path / "rig.yaml"
+    drilled.write_text(yaml.safe_dump(doc, sort_keys=False))
+    session = tmp_path / "s"
+    command = capture_args(drilled, plan, session, "--speedup", "50")
+    assert main(command) == 2
+    assert "device fault at plan sample 0: sample_tilt: " in capsys.readouterr().err
+    assert journal_rows(session) == [] and (session / "session.sqlite").exists()
+    assert main(command) == 0  # the same command, no --resume: the drill rehearsed once already
+    assert f"({M} this run, 0 from before; 2 run(s))" in capsys.readouterr().out
+    for name in ("samples.csv", "brdf.binary"):  # the calibration of the first run was kept, and its state
+        assert (session / name).read_bytes() == (uninterrupted / name).read_bytes(), name
+
+
 def test_a_second_capture_of_a_running_session_is_refused_at_once(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     session = tmp_path / "s"
