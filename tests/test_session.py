@@ -139,9 +139,13 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert f"{report['rendering_snr_db']:.2f} dB" in out
     assert (session / "summary.txt").read_text() in out
 
-    # resuming a finished session moves nothing and rewrites the same results
+    # resuming a finished session moves nothing and rewrites the same results, samples.csv from the
+    # journal (a kill between the last commit and its CSV line)
     n_events = len(events)
+    full_csv = (session / "samples.csv").read_text()
+    (session / "samples.csv").write_text(full_csv[:full_csv.rindex("\n", 0, -1) + 1])
     assert main(capture_args(rig, plan, session, "--resume")) == 0
+    assert (session / "samples.csv").read_text() == full_csv
     with Journal.open(session / "session.sqlite") as journal:
         assert journal.samples() == records and len(journal.events()) == n_events
     np.testing.assert_array_equal(read_merl(session / "brdf.binary", GRID), brdf)

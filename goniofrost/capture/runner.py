@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from goniofrost.core.errors import ConfigError
-from goniofrost.capture.journal import Journal, JournalError
+from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 
 JOURNAL_FILE = "session.sqlite"
 
@@ -63,6 +63,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
                             stats = engine.run()
                     finally:
                         journal_device_log(journal, device_log)  # what connecting and releasing logged
+            else:  # nothing left to capture (a kill after the last sample): the journal is the truth
+                SamplesCsv(session_dir / "samples.csv").rewrite(journal.samples())
             report = write_outputs(inputs, journal, stats, session_dir, material)
         finally:
             journal.close()
