@@ -6,7 +6,8 @@ camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig mar
 protocols over pseudo-terminals and loopback TCP, and the real drivers connect to them exactly as
 to hardware. The simulated camera sees the pose through forward kinematics of the simulated
 axes' true positions. A real rig's camera comes from ``open_camera``. On leaving, every axis is
-stopped and every connection closed, whatever happened.
+told to stop (through the engine's one stop path, which confirms each; its findings are logged to
+the session's device log) and every connection closed, whatever happened.
 """
 from __future__ import annotations
 
@@ -101,8 +102,8 @@ def _real(rig, *, material, seed, speedup):
 
 @contextmanager
 def _connected(devices):
-    """connect_all, then on any exit stop every axis (the engine's one stop path) and close every
-    connection."""
+    """connect_all, then on any exit stop every axis (the engine's one stop path; what it could not
+    confirm is logged) and close every connection."""
     from goniofrost.capture.executor import stop_axes
 
     devices.connect_all()
