@@ -113,3 +113,44 @@ def test_samples_csv_rewrite_drops_a_torn_line_and_values_round_trip(tmp_path):
     assert float(rows[1]["theta_h_deg"]) == record(1).theta_h_deg
     assert tuple(float(rows[1][c]) for c in "rgb") == record(1).rgb
     assert tuple(float(rows[1][f"sigma_{c}"]) for c in "rgb") == record(1).sigma
+
+
+def _fill(folder) -> None:
+    """Fill a small file system: the next write gets ENOSPC."""
+    with open(folder / "filler", "wb", buffering=0) as handle:
+        with pytest.raises(OSError, match="No space left"):
+            while True:
+                handle.write(b"\0" * 4096)
+
+
+def test_a_full_disk_is_an_output_error_naming_the_journal_and_loses_no_committed_sample(mounted):
+    from goniofrost.core.errors import OutputError
+
+    folder = mounted("size=512k")
+    path = folder / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(0))
+        _fill(folder)
+        with pytest.raises(OutputError) as caught:
+            for i in range(1, 200):  # the WAL grows until the disk refuses a page
+                journal.commit_sample(record(i))
+        assert str(caught.value) == f"{path}: cannot write: no space left on the device"
+        last = i
+    (folder / "filler").unlink()
+    with Journal.open(path) as journal:  # every sample committed before the refusal is there, once
+        assert journal.samples() == [record(i) for i in range(last)]
+    csv_path = folder / "samples.csv"
+    _fill(folder)
+    with pytest.raises(OutputError, match=f"^{csv_path}: cannot write: no space left on the device$"):
+        for i in range(10_000):
+            SamplesCsv(csv_path).append(record(i))
+
+
+def test_a_journal_that_cannot_be_created_leaves_nothing_behind(mounted):
+    from goniofrost.core.errors import OutputError
+
+    folder = mounted("size=64k")
+    _fill(folder)
+    with pytest.raises(OutputError, match="no space left on the device"):
+        Journal.create(folder / "session.sqlite", {**META, "rig_text": "x" * 100_000})
+    assert [p.name for p in folder.iterdir()] == ["filler"]

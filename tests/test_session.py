@@ -372,6 +372,32 @@ def test_a_full_disk_mid_session_is_one_line_and_the_session_resumes_once_there_
     assert [i for i, _ in journal_rows(session)] == list(range(M)) and sorted(csv_indices(session)) == list(range(M))
 
 
+@pytest.mark.parametrize("where, expected", [
+    ("session.sqlite/", "session.sqlite: cannot write: it is a directory, where the session journal goes: move it "
+                        "away or choose another --session\n"),
+    ("raw", "capture failed at plan sample 0 "),
+    ("brdf.binary/", "brdf.binary: cannot write: it is a directory; give a file name; every sample is safe in "),
+])
+def test_an_output_path_of_the_session_in_the_way_is_one_line(setup, tmp_path, capsys, where, expected):
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    session.mkdir()
+    in_the_way = session / where.rstrip("/")
+    in_the_way.mkdir() if where.endswith("/") else in_the_way.write_text("not a folder")
+    assert main(capture_args(rig, plan, session, "--speedup", "50")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and expected in err, err
+    if where == "raw":
+        assert f"{session / 'raw'}/sample_0000_e" in err and ": cannot write: a part of the path is a file, not a " \
+               "directory. Stopped camera_arm at " in err and "; the lamp is off. 0 of 5 samples" in err
+    if where == "brdf.binary/":  # every sample was captured: once the path is free, --resume writes the results
+        assert err.endswith("then run the same command with --resume to write the results\n")
+        in_the_way.rmdir()
+        assert main(capture_args(rig, plan, session, "--resume")) == 0
+        assert f"(0 this run, {M} from before; 1 run(s))" in capsys.readouterr().out
+        assert read_merl(session / "brdf.binary", GRID).shape == (GRID.size, 3)
+
+
 # ----- files that do not belong together --------------------------------------------------------
 def run_refused(args, capsys) -> str:
     assert main(args) == 2

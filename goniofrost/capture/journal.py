@@ -314,12 +314,15 @@ class _Transaction:
 
 def _connect(path: Path) -> sqlite3.Connection:
     path.parent.mkdir(parents=True, exist_ok=True)
+    db = None
     try:
         db = sqlite3.connect(path, isolation_level=None)  # autocommit: transactions are explicit
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
         db.executescript(_SCHEMA)
     except sqlite3.DatabaseError as exc:
+        if db is not None:
+            db.close()  # not left open on a file the caller may remove
         disk = _disk_error(exc, path) if isinstance(exc, sqlite3.OperationalError) else None
         raise disk or JournalError(f"{path}: not a usable session journal ({exc})") from None
     return db

@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from goniofrost.core.errors import ConfigError
+from goniofrost.core.errors import ConfigError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 
 JOURNAL_FILE = "session.sqlite"
@@ -65,7 +65,11 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
                         journal_device_log(journal, device_log)  # what connecting and releasing logged
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv").rewrite(journal.samples())
-            report = write_outputs(inputs, journal, stats, session_dir, material)
+            try:
+                report = write_outputs(inputs, journal, stats, session_dir, material)
+            except OutputError as exc:
+                raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
+                                  f"then run the same command with --resume to write the results") from exc
         finally:
             journal.close()
     return CaptureOutcome(report, summary_text(report), session_dir)
@@ -134,6 +138,9 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
     works again; one that holds samples needs ``--resume``.
     """
     path = session_dir / JOURNAL_FILE
+    if path.exists() and not path.is_file():
+        raise OutputError(path, "it is a directory, where the session journal goes: move it away or choose "
+                          "another --session")
     if not resume and not path.exists():
         return Journal.create(path, meta)
     journal = Journal.open(path)
