@@ -120,3 +120,24 @@ def test_a_drill_on_an_axis_the_rig_does_not_have_is_refused():
     with pytest.raises(ConfigError, match=r"sim.faults\[0\].axis: expected one of the rig's axes "
                                           r"\['camera_arm', 'sample_tilt', 'sample_yaw'\], found 'sample_pitch'"):
         SimulatedRig(drill_rig(("sample_pitch", "stall", 0)))
+
+
+@pytest.mark.parametrize("name", list(TARGETS))
+def test_confirm_stopped_reads_past_an_alarm_and_does_not_confirm_a_motor_that_still_moves(name):
+    with SimulatedRig(drill_rig(), speedup=20) as rig:
+        device, axis = rig.device(name), connected_axis(rig, name)
+        try:
+            device.inject_fault("stall")  # the device reports motion for ever
+            axis.move_to(TARGETS[name])
+            with pytest.raises(DeviceTimeout, match="still reports motion 0.3 s after the stop"):
+                axis.confirm_stopped(timeout_s=0.3)
+            axis.stop()
+            assert axis.confirm_stopped() == pytest.approx(device.true_position_deg(), abs=0.1)
+            device.inject_fault("clear")
+            device.inject_fault("alarm")  # the drive shuts down: every status carries the fault
+            with pytest.raises(DeviceFault):
+                axis.is_moving()
+            axis.stop()
+            assert axis.confirm_stopped() == pytest.approx(device.true_position_deg(), abs=0.1)
+        finally:
+            axis.close()
