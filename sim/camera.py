@@ -178,7 +178,6 @@ class SimCamera(Camera):
         r2 = ((cols + 0.5 - shape[1] / 2) ** 2 + (rows + 0.5 - shape[0] / 2) ** 2) / (
             (shape[0] / 2) ** 2 + (shape[1] / 2) ** 2)
         self._gain = (1.0 - p["vignetting"] * r2) * (1.0 + p["prnu"] * pattern.standard_normal(shape))
-        self._frames = 0
         self._connected = True
 
     def close(self) -> None:
@@ -200,10 +199,9 @@ class SimCamera(Camera):
         lamp = 0.5 * (self.lamp.relative_intensity(t0) + self.lamp.relative_intensity(t0 + exposure_s))
         radiance = self._radiance(w_i, w_o) * lamp
         mosaic = self._digitise(radiance, exposure_s, self._frame_noise(t0))
-        self._frames += 1
         meta = {"exposure_s": float(exposure_s), "time_s": t0, "target": self.target,
                 "w_i": w_i.tolist(), "w_o": w_o.tolist(), "sim_lamp_relative": lamp,
-                "frame": self._frames, "seed": self.seed, "material": self.material}
+                "seed": self.seed, "material": self.material}  # time_s names the frame: no counter that a resume restarts
         write_dng(Path(path), mosaic, self.params["black_level"], self.params["white_level"], meta)
         return RawFrame(Path(path), float(exposure_s), meta)
 

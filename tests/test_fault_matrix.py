@@ -5,7 +5,7 @@ Each faulted run must exit 2 with one line on the terminal (no library hex dumps
 axis what confirmed the stop (and match what the simulated devices really did), say whether the
 lamp confirmed it is off, and journal the drill; the resumed run must capture every plan sample
 exactly once (journal and samples.csv), never rehearse the drill again, and give samples.csv and
-brdf.binary byte-identical to an uninterrupted run without the drill.
+brdf.binary (and every RAW frame) byte-identical to an uninterrupted run without the drill.
 
 Kept fast: the small rig and plan of tests/test_session.py (5 samples, 192 x 144 sensor, a
 four-exposure ladder), clock speed-up 50, the model, plan and uninterrupted run shared by the module.
@@ -25,7 +25,7 @@ from goniofrost.app.cli import main
 from goniofrost.capture import runner
 from sim.faults import FAULT_KINDS
 
-from test_session import GRID, MATERIAL, TRAINING, write_rig
+from test_session import GRID, MATERIAL, TRAINING, frames, write_rig
 
 M, AT_SAMPLE = 5, 2  # the drill strikes at plan sample 2: two samples are safe before it
 AXES = ("camera_arm", "sample_yaw", "sample_tilt")  # Modbus TCP, Dynamixel, SMC100
@@ -138,3 +138,4 @@ def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterru
     assert [d["state"] for k, d in events if k == "drill"] == ["armed", "struck"]  # not armed again
     for name in ("samples.csv", "brdf.binary"):
         assert (session / name).read_bytes() == (reference / name).read_bytes(), name
+    assert frames(session) == frames(reference)  # every RAW frame, those of the faulted sample included

@@ -251,6 +251,7 @@ def test_a_run_killed_then_resumed_gives_the_files_of_an_uninterrupted_run(setup
     assert [i for i, _ in journal_rows(session)] == list(range(M)) and csv_indices(session) == list(range(M))
     for name in ("samples.csv", "brdf.binary"):
         assert (session / name).read_bytes() == (uninterrupted / name).read_bytes(), f"{name} after a kill in the {point}"
+    assert frames(session) == frames(uninterrupted)  # every RAW frame too, those taken again included
 
 
 def test_a_run_that_failed_before_its_first_sample_does_not_block_the_same_command(setup, uninterrupted,
