@@ -11,8 +11,8 @@ plan (in this process, as ``goniofrost.app.cli.main``), then the same command wi
 It prints one row per case: the exit code and the one-line error of the faulted run, the lines
 the terminal showed, how each axis took the stop as the session reported it and what the
 simulated device really did, whether the lamp confirmed it is off (and really is), and the resumed
-run: its exit code, every plan sample exactly once in journal and samples.csv, and samples.csv and
-brdf.binary byte-identical to an uninterrupted run without the drill.
+run: its exit code, every plan sample exactly once in journal and samples.csv, and samples.csv,
+brdf.binary and every RAW frame byte-identical to an uninterrupted run without the drill.
 
 The rig, plan and model are the test suite's (tests/test_session.py): a 6-material model on the
 30 x 30 x 60 grid, a 192 x 144 simulated sensor, a four-exposure ladder, clock speed-up 50.
@@ -97,6 +97,11 @@ def journal_facts(session: Path) -> dict:
     return {"journal": indices, "csv": csv_indices, "events": events}
 
 
+def frames(session: Path) -> dict:
+    """{relative path: bytes} of every RAW frame of a session."""
+    return {str(p.relative_to(session)): p.read_bytes() for p in sorted(session.glob("*/*.dng"))}
+
+
 def one_case(folder: Path, rig: Path, plan: Path, reference: Path, axis: str, kind: str, at_sample: int,
              n: int) -> dict:
     drilled = drill_rig(rig, folder / f"rig-{axis}-{kind}.yaml", axis, kind, at_sample)
@@ -124,7 +129,7 @@ def one_case(folder: Path, rig: Path, plan: Path, reference: Path, axis: str, ki
         "resume_exit": code2, "resume_error": err2.strip(),
         "every_sample_once": after["journal"] == list(range(n)) and after["csv"] == list(range(n)),
         "identical": all((session / f).read_bytes() == (reference / f).read_bytes()
-                         for f in ("samples.csv", "brdf.binary")),
+                         for f in ("samples.csv", "brdf.binary")) and frames(session) == frames(reference),
         "drill_struck_times": struck_again, "fault_s": fault_s, "resume_s": resume_s,
     }
 
