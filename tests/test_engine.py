@@ -325,3 +325,60 @@ def test_an_interrupt_during_a_step_stops_every_axis_and_marks_it_interrupted(ta
         last, events, done = journal.steps()[-1], journal.events(), journal.done_indices()
     assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "interrupted")
     assert [e["kind"] for e in events][-3:] == ["interrupted", "stop", "lamp"] and done == {0}
+
+
+class FakeSimulation:
+    """A simulated rig's drills and state (the contract's Simulation): one drill due at sample 1,
+    which strikes as soon as it is armed; the state is the fake clock's time and the axes' degrees."""
+
+    DRILL = {"drill": 0, "axis": "theta_o", "kind": "stall", "at_sample": 1}
+
+    def __init__(self, hardware) -> None:
+        self.hw, self.calls, self.armed, self.retired = hardware, [], False, []
+
+    def arm_faults(self, sample_index: int) -> list[dict]:
+        self.calls.append(("arm", sample_index))
+        if sample_index >= 1 and not self.armed and self.DRILL not in self.retired:
+            self.armed = True
+            return [dict(self.DRILL)]
+        return []
+
+    def struck_faults(self) -> list[dict]:
+        return [dict(self.DRILL)] if self.armed else []
+
+    def retire_faults(self, drills) -> None:
+        self.retired += list(drills)
+
+    def checkpoint(self) -> dict:
+        return {"t": self.hw.clock.t, "deg": {name: a.deg for name, a in self.hw.axes.items()}}
+
+    def restore(self, state: dict) -> None:
+        self.calls.append(("restore", state))
+        self.hw.clock.t = state["t"]
+        for name, deg in state["deg"].items():
+            self.hw.axes[name].deg = deg
+
+
+def test_drills_are_armed_before_each_sample_and_a_resume_restores_the_journaled_state(table, tmp_path):
+    first = rig(table, theta_o={"fail_on_move": 3})  # sample 1's move fails, as the drill would make it
+    first.simulation = FakeSimulation(first)
+    with pytest.raises(SessionFault):
+        run(first, tmp_path)
+    assert first.simulation.calls == [("arm", 0), ("arm", 1)]
+    with Journal.open(tmp_path / "session.sqlite") as journal:
+        state = journal.step_result("Commit", 0)["sim_state"]
+        drills = [(e["message"], e["data"]["state"]) for e in journal.events() if e["kind"] == "drill"]
+    # journaled with sample 0: the clock after the 18 s move to the white pose, the axes at sample 0's joints
+    assert state == {"t": 18.0, "deg": {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0}}
+    assert drills == [("drill armed: stall on theta_o when it next moves (sim.faults[0], at_sample 1)", "armed"),
+                      ("drill struck: stall on theta_o", "struck")]
+
+    second = rig(table)
+    second.simulation = FakeSimulation(second)
+    stats, steps, events, samples = run(second, tmp_path)
+    assert second.simulation.retired == [FakeSimulation.DRILL]  # struck before: never armed again
+    assert second.simulation.calls == [("restore", state), ("arm", 1)]  # before sample 1's move, in that order
+    assert [r.plan_index for r in samples] == [0, 1] and stats.captured == 1
+    [restored] = [e for e in events if e["kind"] == "simulation"]
+    assert restored["message"] == "simulated rig restored as journaled before plan sample 1"
+    assert [e["data"]["state"] for e in events if e["kind"] == "drill"] == ["armed", "struck"]

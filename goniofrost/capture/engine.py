@@ -14,7 +14,9 @@ and shows a progress bar with the ETA, and
 
 Every message says axis by axis what was confirmed at rest and what was not (an axis that did not
 confirm its stop may still be moving towards its target), and whether the lamp confirmed it is
-off; the journal has the same as ``stop`` and ``lamp`` events.
+off; the journal has the same as ``stop`` and ``lamp`` events. On a simulated rig,
+``goniofrost.capture.rehearsal`` arms the fault drills and makes a resumed run measure what one
+run would have.
 
 A journal write is never torn by a signal: the signal waits until the write is done.
 """
@@ -33,6 +35,7 @@ from goniofrost.capture.contract import Hardware
 from goniofrost.capture.device_log import DeviceLog
 from goniofrost.capture.executor import StepExecutor, stop_text
 from goniofrost.capture.journal import Journal, SamplesCsv
+from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
 from goniofrost.capture.signals import Deferral, SessionInterrupted, signals_raise
 from goniofrost.capture.steps import Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration, step_detail
@@ -88,8 +91,7 @@ class SessionEngine:
         self._given_log = device_log  # the runner's, covering connect and release too; else our own
         self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
         self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
-        self._resume_state: dict | None = None  # simulated state to restore before the first sample
-        self._struck: set[int] = set()  # drills journaled as struck in this run
+        self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
         self._journal_result = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
                                 Move: self._moved, Expose: _exposed, Phase: self._phase_started,
                                 SaveCalibration: self._calibration_saved, Commit: self._commit}
@@ -105,8 +107,7 @@ class SessionEngine:
         self.journal.add_event("session", f"started with {len(done)} of {len(self.spec.samples)} samples done",
                                data={"done": sorted(done), "run": self._run})
         calibration = self._restore_calibration()
-        self._resume_state = self._journaled_state(done, calibration is not None)
-        self.devices.retire_drills(self._struck_before())
+        self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
         plan = session_steps(self.spec, done, calibration=calibration,
                              measured={r.plan_index: r.rgb for r in records})
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
@@ -160,7 +161,7 @@ class SessionEngine:
     def _execute(self, step):
         """Journal the step as running, execute it, journal how it ended; return its result."""
         if isinstance(step, Move) and step.index is not None:
-            self._before_sample(step.index)
+            self.rehearsal.before_sample(step.index)
         with self._deferral.critical():
             self._row = self.journal.start_step(self._run, type(step).__name__, getattr(step, "index", None),
                                                 step_detail(step))
@@ -170,50 +171,9 @@ class SessionEngine:
             summary = journal_result(step, result) if journal_result else {}
             self.journal.end_step(self._row, "done", summary)
             self._row = None
-            self._journal_struck_drills()
+            self.rehearsal.journal_struck()
         self._journal_device_log()
         return result
-
-    # ----- a simulated rig: fault drills, and a resumed run measuring what one run would have -------
-    def _before_sample(self, index: int) -> None:
-        """Before plan sample ``index``'s move: the first one of a resumed run puts the simulated rig
-        back into the state journaled after the sample before it; then the drills due are armed."""
-        if self._resume_state is not None:
-            state, self._resume_state = self._resume_state, None
-            self.devices.restore(state)
-            self.journal.add_event("simulation", f"simulated rig restored as journaled before plan sample {index}",
-                                   data=state)
-        for drill in self.devices.arm_drills(index):
-            self.journal.add_event("drill", f"drill armed: {drill['kind']} on {drill['axis']} when it next moves "
-                                   f"(sim.faults[{drill['drill']}], at_sample {drill['at_sample']})",
-                                   axis=drill["axis"], data={**drill, "state": "armed"})
-
-    def _journal_struck_drills(self) -> None:
-        """Journal each drill the moment it is seen to have struck (a resume never arms it again)."""
-        for drill in self.devices.struck_drills():
-            if drill["drill"] not in self._struck:
-                self._struck.add(drill["drill"])
-                self.journal.add_event("drill", f"drill struck: {drill['kind']} on {drill['axis']}",
-                                       axis=drill["axis"], data={**drill, "state": "struck"})
-
-    def _struck_before(self) -> list[dict]:
-        """The drills an earlier run of the session journaled as struck."""
-        return [{k: v for k, v in e["data"].items() if k != "state"} for e in self.journal.events()
-                if e["kind"] == "drill" and e["data"].get("state") == "struck"]
-
-    def _journaled_state(self, done: set, calibration_kept: bool) -> dict | None:
-        """The simulated state to restore before the first sample of this run: the one journaled with
-        the sample before it (or with the kept calibration, when it is the first sample); None when
-        there is nothing to restore (a real rig, a fresh session, an older journal)."""
-        todo = [i for i in range(len(self.spec.samples)) if i not in done]
-        if self.hw.simulation is None or not todo:
-            return None
-        first = todo[0]
-        if first == 0:
-            result = self.journal.step_result("SaveCalibration") if calibration_kept else None
-        else:
-            result = self.journal.step_result("Commit", first - 1) if first - 1 in done else None
-        return None if result is None else result.get("sim_state")
 
     def _abort(self, kind: str, message: str, axis, step) -> None:
         """Stop every axis first (safety), switch the lamp off, then record why and how each axis
@@ -229,7 +189,7 @@ class SessionEngine:
                 if self._row is not None:
                     self.journal.end_step(self._row, "interrupted" if kind == "interrupted" else "failed",
                                           {"error": message})
-                self._journal_struck_drills()
+                self.rehearsal.journal_struck()
                 self.journal.add_event(kind, message, axis=axis, data=data)
                 self.journal.add_event("stop", stop_text(stops), data={"stops": data["stops"]})
                 self.journal.add_event("lamp", "lamp off" if lamp_error is None else
@@ -341,20 +301,15 @@ class SessionEngine:
             self._phase = None
 
     def _calibration_saved(self, _step: SaveCalibration, record) -> dict:
-        summary = self._with_state({"arrays": str(record.path), "sha256": record.sha256})
+        summary = self.rehearsal.with_state({"arrays": str(record.path), "sha256": record.sha256})
         self.journal.set_calibration(record.to_dict(), step=(self._row, summary))  # kept together with its state
         self.journal.add_event("calibration", "dark, flat and white reference taken",
                                data={"scale": record.scale.tolist(), "white": record.white})
         return summary
 
-    def _with_state(self, summary: dict) -> dict:
-        """``summary`` with the simulated rig's state (a resumed run restores it), if simulated."""
-        state = self.devices.checkpoint()
-        return summary if state is None else {**summary, "sim_state": state}
-
     def _commit(self, step: Commit, _result) -> dict:
         record = dataclasses.replace(step.record, committed_utc=time.time())
-        summary = self._with_state({"snr": record.snr, "status": record.status})
+        summary = self.rehearsal.with_state({"snr": record.snr, "status": record.status})
         # one durable transaction with its step and state (within _execute's critical section)
         self.journal.commit_sample(record, step=(self._row, summary))
         self.csv.append(record)

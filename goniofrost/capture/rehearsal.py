@@ -1,0 +1,74 @@
+"""A simulated rig in a session: fault drills rehearsed once, and a resume that measures what one
+run would have.
+
+``Rehearsal`` is the engine's helper for ``Hardware.simulation`` (``sim.rig.SimulatedRig``; on a
+real rig it does nothing). Before each plan sample it arms the drills of the rig file's
+``sim: faults:`` that are due, and journals each drill as ``armed`` and, once seen, ``struck``;
+a later run of the session retires the struck ones, so a drill rehearses exactly once. With each
+committed sample (and the saved calibration) the engine journals the simulation's ``checkpoint``
+(nominal time, axis positions); a resumed run restores the one journaled just before its first
+sample, so its frames, samples.csv and brdf.binary are those of an uninterrupted run.
+"""
+from __future__ import annotations
+
+
+class Rehearsal:
+    """Drills and simulated state of one engine run: ``executor`` a StepExecutor (the device calls),
+    ``journal`` the session's Journal."""
+
+    def __init__(self, executor, journal) -> None:
+        self.devices, self.journal = executor, journal
+        self._resume_state: dict | None = None  # to restore before the run's first sample
+        self._struck: set[int] = set()          # drills journaled as struck in this run
+
+    @property
+    def simulated(self) -> bool:
+        return self.devices.hw.simulation is not None
+
+    def prepare(self, n_samples: int, done: set, calibration_kept: bool) -> None:
+        """At the start of a run: retire the drills that struck in earlier runs, and find the state
+        to restore (the one journaled with the sample before the first to capture, or with the kept
+        calibration when that is sample 0; none for a fresh session or an older journal)."""
+        if not self.simulated:
+            return
+        self.devices.retire_drills(self._struck_before())
+        todo = [i for i in range(n_samples) if i not in done]
+        if not todo:
+            return
+        first = todo[0]
+        if first == 0:
+            result = self.journal.step_result("SaveCalibration") if calibration_kept else None
+        else:
+            result = self.journal.step_result("Commit", first - 1) if first - 1 in done else None
+        self._resume_state = None if result is None else result.get("sim_state")
+
+    def before_sample(self, index: int) -> None:
+        """Before plan sample ``index``'s move: the run's first one restores the journaled state;
+        then the drills due are armed."""
+        if self._resume_state is not None:
+            state, self._resume_state = self._resume_state, None
+            self.devices.restore(state)
+            self.journal.add_event("simulation", f"simulated rig restored as journaled before plan sample {index}",
+                                   data=state)
+        for drill in self.devices.arm_drills(index):
+            self.journal.add_event("drill", f"drill armed: {drill['kind']} on {drill['axis']} when it next moves "
+                                   f"(sim.faults[{drill['drill']}], at_sample {drill['at_sample']})",
+                                   axis=drill["axis"], data={**drill, "state": "armed"})
+
+    def journal_struck(self) -> None:
+        """Journal each drill the moment it is seen to have struck (a resume never arms it again)."""
+        for drill in self.devices.struck_drills():
+            if drill["drill"] not in self._struck:
+                self._struck.add(drill["drill"])
+                self.journal.add_event("drill", f"drill struck: {drill['kind']} on {drill['axis']}",
+                                       axis=drill["axis"], data={**drill, "state": "struck"})
+
+    def with_state(self, summary: dict) -> dict:
+        """A step's result ``summary`` with the simulation's state, to journal (unchanged on a real rig)."""
+        state = self.devices.checkpoint()
+        return summary if state is None else {**summary, "sim_state": state}
+
+    def _struck_before(self) -> list[dict]:
+        """The drills earlier runs of the session journaled as struck."""
+        return [{k: v for k, v in e["data"].items() if k != "state"} for e in self.journal.events()
+                if e["kind"] == "drill" and e["data"].get("state") == "struck"]
