@@ -248,7 +248,8 @@ class SessionEngine:
         text = stop_text(stops)
         lamp = "the lamp is off" if lamp_error is None else "the lamp did not confirm it is off: it may still be on"
         check = " Check the axes named above before anything else moves." if any(not s.confirmed for s in stops) else ""
-        return f"{text[0].upper()}{text[1:]}; {lamp}.{check} {done} samples are safe in {self.journal.path}. {next_step}"
+        return (f"{text[0].upper()}{text[1:]}; {lamp}.{check} {done} samples are safe in {self.journal.path}. "
+                f"{next_step}")
 
     def _restore_calibration(self):
         """The journaled calibration to keep (a resumed session); None if there is none or its

@@ -51,8 +51,8 @@ def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | 
     """Command every axis to stop, then confirm each one is at rest; never raise.
 
     ``moving_to``: {axis: target degrees, or None when unknown} of the moves under way (they name
-    where an unconfirmed axis may still be going). Every axis is tried whatever the others do; an axis that is not
-    connected cannot be confirmed. Problems are also logged.
+    where an unconfirmed axis may still be going). Every axis is tried whatever the others do; an
+    axis that is not connected cannot be confirmed. Problems are also logged.
     """
     moving_to = moving_to or {}
     errors = {}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from goniofrost.core.errors import ConfigError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 
 JOURNAL_FILE = "session.sqlite"
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -35,11 +37,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
     """
-    from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.engine import SessionEngine, SessionStats
+    from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
-    from goniofrost.capture.hardware import open_hardware
-    from goniofrost.capture.session_steps import SessionSpec
     from goniofrost.capture.report import summary_text, write_outputs
     from goniofrost.capture.session_lock import session_lock
 
@@ -54,15 +53,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if len(done) < len(inputs.samples):
-                with DeviceLog.capture() as device_log:  # connect to release: the terminal stays quiet
-                    try:
-                        with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
-                                           on_ready=on_ready) as hardware:
-                            engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir,
-                                                   progress, device_log=device_log)
-                            stats = engine.run()
-                    finally:
-                        journal_device_log(journal, device_log)  # what connecting and releasing logged
+                stats = run_engine(inputs, journal, session_dir, material=material, seed=seed, speedup=speedup,
+                                   progress=progress, on_ready=on_ready)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv").rewrite(journal.samples())
             try:
@@ -75,14 +67,32 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     return CaptureOutcome(report, summary_text(report), session_dir)
 
 
+def run_engine(inputs, journal, session_dir: Path, *, material, seed, speedup, progress, on_ready):
+    """Connect the rig and capture what is left; return the run's SessionStats. From connecting to
+    releasing, the devices' log goes to the journal, not the terminal."""
+    from goniofrost.capture.device_log import DeviceLog
+    from goniofrost.capture.engine import SessionEngine
+    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.capture.session_steps import SessionSpec
+
+    with DeviceLog.capture() as device_log:
+        try:
+            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+                               on_ready=on_ready) as hardware:
+                engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir, progress,
+                                       device_log=device_log)
+                return engine.run()
+        finally:
+            journal_device_log(journal, device_log)  # what connecting and releasing logged
+
+
 def journal_device_log(journal, device_log) -> None:
     """Journal the device log's last records; on the way out of a failed session a journal that
     cannot take them (a full disk) must not hide the session's own error."""
     try:
         device_log.journal_into(journal)
     except Exception as exc:  # noqa: BLE001
-        import logging
-        logging.getLogger(__name__).error("could not journal the device log: %s", exc)
+        log.error("could not journal the device log: %s", exc)
 
 
 def check_material(rig, material: str | None) -> str | None:
