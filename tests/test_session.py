@@ -377,6 +377,7 @@ def test_a_full_disk_mid_session_is_one_line_and_the_session_resumes_once_there_
     ("session.sqlite/", "session.sqlite: cannot write: it is a directory, where the session journal goes: move it "
                         "away or choose another --session\n"),
     ("raw", "capture failed at plan sample 0 "),
+    ("samples.csv/", "samples.csv: cannot write: it is a directory; give a file name\n"),
     ("brdf.binary/", "brdf.binary: cannot write: it is a directory; give a file name; every sample is safe in "),
 ])
 def test_an_output_path_of_the_session_in_the_way_is_one_line(setup, tmp_path, capsys, where, expected):
