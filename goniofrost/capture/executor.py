@@ -19,6 +19,7 @@ from goniofrost.capture.contract import Axis, Hardware
 from goniofrost.capture.steps import Expose, Frame, Home, LampOff, LampOn, Move, Reached, SaveCalibration, SetTarget
 
 log = logging.getLogger(__name__)
+LAMP_OFF_ATTEMPTS = 2  # a reply lost once (a loaded host) must not leave the lamp reported on
 
 
 @dataclass(frozen=True)
@@ -127,12 +128,15 @@ class StepExecutor:
     def switch_lamp_off(self) -> str | None:
         """Switch the lamp off whatever happened before; never raises. Returns None when the lamp
         confirmed it, else why not."""
-        try:
-            self.hw.lamp.off()
-        except Exception as exc:  # noqa: BLE001 - on the way out of a failed session
-            log.warning("switching the lamp off failed: %s", exc)
-            return str(exc) or type(exc).__name__
-        return None
+        error = None
+        for _attempt in range(LAMP_OFF_ATTEMPTS):  # the lamp driver does not retry; switching off twice is harmless
+            try:
+                self.hw.lamp.off()
+                return None
+            except Exception as exc:  # noqa: BLE001 - on the way out of a failed session
+                log.warning("switching the lamp off failed: %s", exc)
+                error = str(exc) or type(exc).__name__
+        return error
 
     # ----- a simulated rig's drills and state (nothing on a real rig) ---------------------------
     def arm_drills(self, sample_index: int) -> list[dict]:
