@@ -319,6 +319,7 @@ def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path)
         [event] = [e for e in journal.events() if e["kind"] == "interrupted"]
         assert event["data"]["stop_problems"] == [] and event["data"]["lamp_off"] is True
         assert [e["kind"] for e in journal.events()][-2:] == ["stop", "lamp"]
+        assert event["data"]["operator_message"] == err[len("goniofrost capture: "):-1]  # the terminal's words
         done = journal.done_indices()
     assert 1 <= len(done) < M and sorted(csv_indices(session)) == sorted(done)
     assert not (session / "brdf.binary").exists()
@@ -352,6 +353,9 @@ def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(s
         [fault] = [e for e in journal.events() if e["kind"] == "fault"]
         done = journal.done_indices()
     assert fault["axis"] == axis and fault["message"] in message
+    # the terminal's words are journaled too (the monitor page shows them), with the failed sample
+    assert fault["data"]["operator_message"] == message
+    assert message.startswith(f"device fault at plan sample {fault['data']['plan_index']}:")
     assert 2 <= len(done) < M and not (session / "brdf.binary").exists()
 
 

@@ -138,20 +138,22 @@ class SessionEngine:
                     return
                 result = self._execute(step)
         except DeviceError as exc:
-            self._abort("fault", f"{exc}", getattr(exc, "axis", None), step)
-            raise SessionFault(self._fault_message(exc, step)) from exc
+            message = self._abort("fault", f"{exc}", getattr(exc, "axis", None), step,
+                                  lambda: self._fault_message(exc, step))
+            raise SessionFault(message) from exc
         except GoniofrostError as exc:  # calibration, camera or an output path: this sample cannot be measured
-            self._abort("error", f"{exc}", None, step)
-            raise SessionFault(self._failure_message(exc, step)) from exc
+            message = self._abort("error", f"{exc}", None, step, lambda: self._failure_message(exc, step))
+            raise SessionFault(message) from exc
         except SessionInterrupted as exc:
-            self._abort("interrupted", f"{exc or 'SIGINT/SIGTERM'}: session stopped", None, step)
-            raise SessionInterrupted(f"interrupted by {exc or 'a signal'}{self._where(step)}. "
-                                     f"{self._safe_text('Run the same command with --resume to continue')}") from exc
+            message = self._abort("interrupted", f"{exc or 'SIGINT/SIGTERM'}: session stopped", None, step,
+                                  lambda: f"interrupted by {exc or 'a signal'}{self._where(step)}. "
+                                          f"{self._safe_text('Run the same command with --resume to continue')}")
+            raise SessionInterrupted(message) from exc
         except OSError as exc:  # a file the session writes (frames, samples.csv): one line, not a traceback
             where = exc.filename or self.session_dir
             error = OutputError(where, reason_of(exc, where))
-            self._abort("error", f"{error}", None, step)
-            raise SessionFault(self._failure_message(error, step)) from exc
+            message = self._abort("error", f"{error}", None, step, lambda: self._failure_message(error, step))
+            raise SessionFault(message) from exc
         except BaseException as exc:
             self._abort("error", f"{type(exc).__name__}: {exc}", None, step)
             raise
@@ -175,16 +177,28 @@ class SessionEngine:
         self._journal_device_log()
         return result
 
-    def _abort(self, kind: str, message: str, axis, step) -> None:
+    def _abort(self, kind: str, message: str, axis, step, operator_message=None) -> str:
         """Stop every axis first (safety), switch the lamp off, then record why and how each axis
-        took the stop; never raises, and a second Ctrl-C cannot cut it short."""
+        took the stop; never raises, and a second Ctrl-C cannot cut it short.
+
+        ``operator_message()`` (called once every axis was told to stop: it says how they took it)
+        gives the terminal's text, what went wrong and what to do next; it is journaled with the
+        event, so that the monitor page shows the same words, and returned.
+        """
         with self._deferral.ignored():
             stops = self.devices.stop()
             lamp_error = self.devices.switch_lamp_off()
             self._stopped = (stops, lamp_error)
             self._journal_device_log(quiet=True)  # the drivers' story first (retries, failed stops)
-            data = {"step": repr(step), "stops": [dataclasses.asdict(s) for s in stops],
-                    "stop_problems": [s.text() for s in stops if not s.confirmed], "lamp_off": lamp_error is None}
+            text, failed = "", None
+            try:
+                text = operator_message() if operator_message else ""
+            except Exception as exc:  # noqa: BLE001 - journal the stop first, then let it surface
+                failed = exc
+            data = {"step": repr(step), "plan_index": getattr(step, "index", None),
+                    "stops": [dataclasses.asdict(s) for s in stops],
+                    "stop_problems": [s.text() for s in stops if not s.confirmed], "lamp_off": lamp_error is None,
+                    "operator_message": text}
             try:
                 if self._row is not None:
                     self.journal.end_step(self._row, "interrupted" if kind == "interrupted" else "failed",
@@ -197,6 +211,9 @@ class SessionEngine:
                                        data={"off": lamp_error is None, "error": lamp_error})
             except Exception as exc:  # noqa: BLE001 - the original error matters more
                 log.error("could not journal the %s event: %s", kind, exc)
+        if failed is not None:
+            raise failed
+        return text
 
     def _journal_device_log(self, quiet: bool = False) -> None:
         """Journal what the drivers logged (retries, failed stops, ...) since the last step.
