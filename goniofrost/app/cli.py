@@ -13,7 +13,7 @@ import sys
 from goniofrost.core.errors import GoniofrostError
 
 COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "capture", "sim",
-            "bench", "preview", "demo", "export"]
+            "bench", "preview", "demo", "export", "monitor"]
 
 
 def build_parser() -> argparse.ArgumentParser:

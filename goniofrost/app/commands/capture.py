@@ -5,6 +5,8 @@ HELP = "capture a plan's samples on a rig (journaled, resumable), then reconstru
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.monitoring import add_server_options
+
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (simulated: true starts its own devices)")
     parser.add_argument("--plan", required=True, metavar="PLAN.json", help="plan from goniofrost plan --rig")
     parser.add_argument("--session", required=True, metavar="DIR", help="session folder (journal, RAW files, results)")
@@ -18,17 +20,22 @@ def add_arguments(parser) -> None:
                         help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
                              "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_server_options(parser, with_flag=True)
 
 
 def run(args) -> int:
     import sys
+    from contextlib import nullcontext
 
+    from goniofrost.app.monitoring import monitored
     from goniofrost.capture.runner import capture
     from goniofrost.capture.engine import SessionInterrupted
 
+    watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
-        outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
-                          seed=args.seed, speedup=args.speedup, progress=not args.no_progress)
+        with watch:
+            outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
+                              seed=args.seed, speedup=args.speedup, progress=not args.no_progress)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)

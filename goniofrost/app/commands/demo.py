@@ -7,6 +7,7 @@ HELP = ("train on the built-in library, plan 20 samples, capture a held-out mate
 
 def add_arguments(parser) -> None:
     from goniofrost.app.demo import DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP
+    from goniofrost.app.monitoring import add_server_options
 
     parser.add_argument("--out", default="demo-out", metavar="DIR", help="output folder (default demo-out; "
                         "a previous demo's results there are replaced)")
@@ -20,13 +21,20 @@ def add_arguments(parser) -> None:
     parser.add_argument("--bsdf", action="store_true",
                         help="also write session/brdf.bsdf, the RGL tensor file Mitsuba 3's 'measured' BSDF renders")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_server_options(parser, with_flag=True)
 
 
 def run(args) -> int:
-    from goniofrost.app.demo import run_demo
+    from contextlib import nullcontext
+    from pathlib import Path
 
-    result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
-                      speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf)
+    from goniofrost.app.demo import run_demo
+    from goniofrost.app.monitoring import monitored
+
+    session = Path(args.out) / "session"
+    with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
+        result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
+                          speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf)
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())

@@ -1,0 +1,10 @@
+"""A live view of a capture session: a read-only web page the operator keeps open.
+
+``session_view`` reads a session folder (journal, report, files) without ever writing to it and
+is the only module that knows how a session is stored; ``status`` turns that view into what the
+page shows (state, "N of M samples", ETA, poses, per-sample colours, the fault and what to do);
+``images`` renders the latest frame with its region of interest and the reconstruction so far;
+``safe_path`` keeps every served path inside the session; ``server`` serves the page (package
+data in ``static/``) with server-sent events. ``goniofrost monitor`` and ``capture --monitor``
+(goniofrost.app) start it.
+"""

@@ -1,0 +1,382 @@
+"""The monitor's HTTP server: the standard library's ``ThreadingHTTPServer`` and server-sent events.
+
+Why the standard library: the page is one document, a handful of JSON and PNG answers and one
+event stream to a few browsers. ``http.server`` (maintained with CPython) does that with no
+dependency and no event loop to share with a capture running in the same process, and its
+threads sleep while nothing changes. The page draws its charts itself as inline SVG
+(``static/monitor.js``), so nothing is loaded from anywhere but this server.
+
+Routes (GET and HEAD only: every other method is answered 405, nothing can be written):
+
+* ``/``: the page; ``/static/NAME``: its script and style sheet (package data, by name only);
+* ``/api/state``: the page state (``status.page_state``) as JSON;
+* ``/api/events``: server-sent events, ``state`` with the same JSON each time it changes;
+* ``/api/frame.png?sample=K``: the latest frame of journaled sample K with its region of interest;
+* ``/api/preview.png?done=N``: the reconstruction from the samples journaled so far;
+* ``/files/NAME``: a file of the session folder (``safe_path`` refuses anything outside it).
+
+Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
+POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
+one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
+(on a fast simulated capture some samples get no preview; the last one always does).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import mimetypes
+import threading
+import time
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
+
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.monitor.images import PictureUnavailable, frame_png, preview_png
+from goniofrost.monitor.safe_path import UnsafePath, session_file
+from goniofrost.monitor.session_view import REPORT_FILE, journal_path, read_session
+from goniofrost.monitor.status import page_state
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.25              # journal change check while a page is connected
+TIME_REFRESH_S = 2.0       # re-derive the state this often even unchanged (stall detection)
+HEARTBEAT_S = 15.0         # an SSE comment keeps idle connections open through proxies
+PICTURE_DUTY = 0.03        # pictures take at most ~3 % of one core
+PICTURE_MIN_GAP_S = 0.5
+FINAL_PUSH_S = 2.0         # on close, wait this long at most for pages to receive the last state
+DEFAULT_PORT = 8765
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+STATIC = ("index.html", "monitor.js", "monitor.css")
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
+       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+
+
+class MonitorError(GoniofrostError):
+    """The monitor cannot serve (e.g. its port is taken)."""
+
+
+class StateHub:
+    """The session's current page state, re-read when the journal changes, shared by every page."""
+
+    def __init__(self, session_dir, attached: bool) -> None:
+        self.session_dir, self.attached = Path(session_dir), attached
+        self.ended_message: str | None = None
+        self.view = read_session(self.session_dir)
+        self.rig = None
+        self.version, self.closed, self.clients = 0, False, {}
+        self._state, self._body, self._signature, self._read_at = {}, "", None, 0.0
+        self._cond, self._read_lock = threading.Condition(), threading.Lock()
+
+    def refresh(self, force: bool = False) -> None:
+        """Read the session again if its files changed (or TIME_REFRESH_S passed)."""
+        with self._read_lock:
+            signature, now = self._signature_now(), time.time()
+            if not force and signature == self._signature and now - self._read_at < TIME_REFRESH_S:
+                return
+            view = read_session(self.session_dir)
+            rig = self._rig(view)
+            state = page_state(view, now, attached=self.attached, ended_message=self.ended_message, rig=rig)
+            body = json.dumps(state, sort_keys=True, allow_nan=False)
+            with self._cond:
+                self.view, self.rig, self._signature, self._read_at = view, rig, signature, now
+                if body != self._body:
+                    self._state, self._body, self.version = state, body, self.version + 1
+                    self._cond.notify_all()
+
+    def payload(self) -> tuple[int, bytes]:
+        """(version, the state JSON with the server's clock, for the page's "ago" texts)."""
+        with self._cond:
+            return self.version, json.dumps({**self._state, "server_time": time.time()}).encode()
+
+    def wait_newer(self, version: int, timeout: float) -> int:
+        """Block until the state is newer than ``version``, the hub closes, or ``timeout``."""
+        with self._cond:
+            self._cond.wait_for(lambda: self.version > version or self.closed, timeout)
+            return self.version
+
+    def close(self) -> None:
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    def _signature_now(self) -> tuple:
+        journal = journal_path(self.session_dir)
+        paths = (journal, journal.with_name(journal.name + "-wal"), self.session_dir / REPORT_FILE, self.session_dir)
+        out = []
+        for p in paths:
+            try:
+                st = p.stat()
+                out.append((st.st_mtime_ns, st.st_size, st.st_ino))
+            except OSError:
+                out.append(None)
+        return tuple(out)
+
+    def _rig(self, view):
+        from goniofrost.monitor.rig_pose import rig_from_text
+
+        if not view.rig_text:
+            return None
+        try:
+            return rig_from_text(view.rig_text, f"{journal_path(view.session_dir)} (meta.rig_text)")
+        except GoniofrostError as exc:
+            log.warning("monitor: no pose drawings: %s", exc)
+            return None
+
+
+class PictureCache:
+    """The latest picture of one kind: made by one thread at a time, at most PICTURE_DUTY of the time."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.key, self.data, self.info, self.error = None, None, {}, None
+        self._busy, self._next_at = False, 0.0
+
+    def get(self, key, make) -> tuple:
+        """(key shown, PNG bytes or None, info, error text or None, seconds until a newer one may come).
+
+        ``make()`` returns (key, png, info) for the session as it is now, or raises PictureUnavailable.
+        """
+        with self._lock:
+            now = time.monotonic()
+            if key == self.key or self._busy or now < self._next_at:
+                wait = 0.0 if key == self.key else max(self._next_at - now, 0.2)
+                return self.key, self.data, self.info, self.error, wait
+            self._busy = True
+        t0 = time.monotonic()
+        made, data, info, error = key, None, {}, None
+        try:
+            made, data, info = make()
+        except (PictureUnavailable, GoniofrostError) as exc:
+            error = str(exc)
+        finally:
+            took = time.monotonic() - t0
+            with self._lock:
+                self.key, self.data, self.info, self.error = made, data, info, error
+                self._busy, self._next_at = False, time.monotonic() + max(PICTURE_MIN_GAP_S, took / PICTURE_DUTY)
+        return made, data, info, error, 0.0
+
+
+class MonitorServer:
+    """Serve the monitor page of ``session_dir`` on ``host:port`` (port 0: any free port).
+
+    ``attached``: the server runs inside the capture's own process (it then knows the capture is
+    alive). Start with ``start()``; ``close(ended_message)`` pushes the final state to the open
+    pages and stops. Raises MonitorError if the address cannot be bound.
+    """
+
+    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False) -> None:
+        self.hub = StateHub(session_dir, attached)
+        self.frames, self.previews = PictureCache(), PictureCache()
+        handler = type("Handler", (_Handler,), {"monitor": self})
+        try:
+            self.httpd = ThreadingHTTPServer((host, port), handler)
+        except OSError as exc:
+            raise MonitorError(f"monitor: cannot serve on {host}:{port} ({exc.strerror or exc}); "
+                               f"pass another --port (0 picks a free one)") from None
+        self.httpd.daemon_threads = True
+        self.host = host
+        self.port = self.httpd.server_address[1]
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '[::]') else host}:{self.port}/"
+
+    def start(self) -> "MonitorServer":
+        for target in (self.httpd.serve_forever, self._poll):
+            thread = threading.Thread(target=target, name=f"monitor-{target.__name__}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self
+
+    def _poll(self) -> None:
+        while not self.hub.closed:
+            if self.hub.clients:
+                try:
+                    self.hub.refresh()
+                except Exception:  # noqa: BLE001 - a monitor must never stop on a bad read; log it
+                    log.exception("monitor: reading the session failed")
+            time.sleep(POLL_S)
+
+    def close(self, ended_message: str | None = None) -> None:
+        """Push the final state (with ``ended_message`` when the capture failed outside the journal)
+        to the connected pages, then stop serving."""
+        self.hub.ended_message = ended_message
+        try:
+            self.hub.refresh(force=True)
+            deadline = time.monotonic() + FINAL_PUSH_S
+            while time.monotonic() < deadline and any(v < self.hub.version for v in list(self.hub.clients.values())):
+                time.sleep(0.02)
+        finally:
+            self.hub.close()
+            self.httpd.shutdown()
+            self.httpd.server_close()
+            for thread in self._threads:
+                thread.join(timeout=5)
+
+    def __enter__(self) -> "MonitorServer":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _Handler(BaseHTTPRequestHandler):
+    """One request (a thread each). ``monitor`` is set on the subclass made per server."""
+
+    monitor: MonitorServer
+    server_version = "goniofrost-monitor"
+
+    def log_message(self, fmt, *args) -> None:  # the capture's terminal stays quiet
+        log.debug("monitor %s: " + fmt, self.client_address[0], *args)
+
+    # ----- methods ------------------------------------------------------------------------------
+    def do_GET(self) -> None:  # noqa: N802 - http.server's naming
+        if not self._host_allowed():
+            return self._text(HTTPStatus.FORBIDDEN, "unexpected Host header")
+        url = urlsplit(self.path)
+        route, query = url.path, parse_qs(url.query)
+        try:
+            if route in ("/", "/index.html"):
+                return self._static("index.html")
+            if route.startswith("/static/"):
+                return self._static(route[len("/static/"):])
+            if route == "/api/state":
+                self.monitor.hub.refresh()
+                return self._send(HTTPStatus.OK, "application/json", self.monitor.hub.payload()[1])
+            if route == "/api/events":
+                return self._events()
+            if route == "/api/frame.png":
+                return self._frame(query)
+            if route == "/api/preview.png":
+                return self._preview(query)
+            if route.startswith("/files/"):
+                return self._file(route[len("/files/"):])
+            if route == "/favicon.ico":
+                return self._send(HTTPStatus.NO_CONTENT, "image/x-icon", b"")
+        except (BrokenPipeError, ConnectionResetError):
+            return None
+        return self._text(HTTPStatus.NOT_FOUND, f"no such page: {route}")
+
+    def do_HEAD(self) -> None:  # noqa: N802
+        self._head_only = True
+        self.do_GET()
+
+    def _refuse_write(self) -> None:
+        self._text(HTTPStatus.METHOD_NOT_ALLOWED, "the monitor only reads the session", {"Allow": "GET, HEAD"})
+
+    do_POST = do_PUT = do_DELETE = do_PATCH = _refuse_write  # noqa: N815
+
+    # ----- routes -------------------------------------------------------------------------------
+    def _static(self, name: str) -> None:
+        if name not in STATIC:
+            return self._text(HTTPStatus.NOT_FOUND, f"no such page: {name}")
+        data = resources.files("goniofrost.monitor").joinpath("static", name).read_bytes()
+        kind = mimetypes.guess_type(name)[0] or "application/octet-stream"
+        self._send(HTTPStatus.OK, f"{kind}; charset=utf-8", data)
+
+    def _events(self) -> None:
+        hub = self.monitor.hub
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", "text/event-stream")
+        self.send_header("Cache-Control", "no-store")
+        self._security_headers()
+        self.end_headers()
+        me = object()
+        hub.clients[me] = -1
+        try:
+            hub.refresh()
+            sent = -1
+            while True:
+                version, payload = hub.payload()
+                if version > sent:
+                    self.wfile.write(b"event: state\ndata: " + payload + b"\n\n")
+                    sent = hub.clients[me] = version
+                else:
+                    self.wfile.write(b": keep-alive\n\n")
+                self.wfile.flush()
+                if hub.closed:
+                    return
+                hub.wait_newer(sent, HEARTBEAT_S)
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            return
+        finally:
+            hub.clients.pop(me, None)
+
+    def _frame(self, query) -> None:
+        hub = self.monitor.hub
+        wanted = _int(query, "sample")
+        view, rig = hub.view, hub.rig
+
+        def make():
+            png, info = frame_png(view, wanted)
+            return wanted, png, info
+        self._picture(self.monitor.frames.get(wanted, make))
+
+    def _preview(self, query) -> None:
+        hub = self.monitor.hub
+        view, rig = hub.view, hub.rig
+        wanted = (view.plan_key, _int(query, "done"))
+
+        def make():
+            png, info = preview_png(view, rig)
+            return (view.plan_key, len(view.done)), png, info
+        self._picture(self.monitor.previews.get(wanted, make))
+
+    def _picture(self, got) -> None:
+        key, data, info, error, wait = got
+        shows = key[1] if isinstance(key, tuple) else key
+        headers = {"X-Shows": str(shows), "X-Retry-After-Ms": str(int(wait * 1000)),
+                   "X-Info": json.dumps(info or {})}
+        if data is None:
+            return self._text(HTTPStatus.SERVICE_UNAVAILABLE, error or "not made yet", headers)
+        self._send(HTTPStatus.OK, "image/png", data, headers)
+
+    def _file(self, requested: str) -> None:
+        try:
+            path = session_file(self.monitor.hub.session_dir, requested)
+        except UnsafePath as exc:
+            return self._text(HTTPStatus.NOT_FOUND, str(exc))
+        kind = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
+        if kind.startswith("text/") or kind == "application/json":
+            kind += "; charset=utf-8"
+        self._send(HTTPStatus.OK, kind, path.read_bytes())
+
+    # ----- answers ------------------------------------------------------------------------------
+    def _host_allowed(self) -> bool:
+        """Against DNS rebinding: on a loopback address, only loopback Host names are answered."""
+        if self.monitor.host not in LOOPBACK:
+            return True
+        host = (self.headers.get("Host") or "").rsplit(":", 1)[0].strip("[]")
+        return host in LOOPBACK
+
+    def _security_headers(self) -> None:
+        self.send_header("Content-Security-Policy", CSP)
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Referrer-Policy", "no-referrer")
+
+    def _send(self, status, kind: str, data: bytes, headers: dict | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        for name, value in (headers or {}).items():
+            self.send_header(name, value)
+        self._security_headers()
+        self.end_headers()
+        if not getattr(self, "_head_only", False):
+            self.wfile.write(data)
+
+    def _text(self, status, message: str, headers: dict | None = None) -> None:
+        self._send(status, "text/plain; charset=utf-8", message.encode(), headers)
+
+
+def _int(query: dict, name: str) -> int:
+    try:
+        return int(query.get(name, ["-1"])[0])
+    except ValueError:
+        return -1

@@ -1,0 +1,269 @@
+"""A read-only view of a session folder: the one module that knows how a session is stored.
+
+``read_session(DIR)`` reads the journal (``DIR/session.sqlite``), ``report.json`` and the list of
+the folder's files into a ``SessionView`` of plain values. Nothing else in goniofrost.monitor
+touches the journal, so when its schema changes (calibration frames and exposures journaled as
+steps; Bayesian batches with a predicted error) only this module changes.
+
+Read-only, always: the journal is opened with SQLite's ``mode=ro``. While a capture writes it, the
+journal is in WAL mode (``goniofrost.capture.journal`` sets it; a reader never changes it) and
+its ``-wal`` file exists: the reader shares the writer's WAL index, sees every committed
+transaction and never blocks the writer. Without a ``-wal`` file (the writer closed, every
+transaction is in the main file), ``mode=ro`` alone would create ``-wal`` and ``-shm`` files in the
+session folder, so the journal is then opened ``immutable`` instead, which creates nothing. Each
+read is one short read transaction on a fresh connection, so a session folder that is replaced
+(the demo starts afresh) or resumed is followed.
+"""
+from __future__ import annotations
+
+import json
+import re
+import sqlite3
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.runner import JOURNAL_FILE
+
+REPORT_FILE = "report.json"
+SUMMARY_FILE = "summary.txt"
+STOP_KINDS = ("fault", "error", "interrupted")  # journal event kinds that end a run early
+_SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
+
+
+@dataclass(frozen=True)
+class PlanSample:
+    """One plan sample in capture order: its grid cell (i_th, i_td, i_pd), angles (deg), joint
+    targets {axis: deg}, planned move from the previous pose (s)."""
+
+    index: int
+    cell: tuple
+    theta_i_deg: float
+    theta_o_deg: float
+    joints: dict
+    planned_move_s: float
+
+
+@dataclass(frozen=True)
+class DoneSample:
+    """One journaled sample: SNR (min over channels), exposures (s), joints reached (deg), rig
+    seconds moving and capturing (simulated seconds on a simulated rig), Unix times of the start
+    of its move and of its commit, its RAW frames in the order taken."""
+
+    plan_index: int
+    snr: float
+    exposures_s: tuple
+    rgb: tuple
+    status: str
+    joints: dict
+    move_s: float
+    capture_s: float
+    started_utc: float
+    committed_utc: float
+    raw_paths: tuple
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Why the last run ended early: ``kind`` fault | error | interrupted, ``message`` the terminal's
+    words (what went wrong and what to do next), ``detail`` the device's or library's message."""
+
+    kind: str
+    message: str
+    detail: str
+    axis: str | None
+    plan_index: int | None
+    t_utc: float
+
+
+@dataclass(frozen=True)
+class SessionView:
+    """Everything the monitor knows about a session folder at one moment (see module doc).
+
+    ``journal_found`` is False before the capture created its journal (``note`` says why);
+    ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
+    last run (a resume starts a new run); ``all_captured`` says that run journaled its last
+    sample; ``white_rates`` the calibration's white signal per channel (None before it);
+    ``summary`` the text of summary.txt (empty before the end);
+    ``predicted_error`` is the latest predicted reconstruction error when the session
+    records one; ``files`` are the names of the folder's own files (journal side files excluded).
+    """
+
+    session_dir: Path
+    journal_found: bool = False
+    note: str = ""
+    plan_key: str = ""
+    plan_doc: dict = field(default_factory=dict)
+    plan_file: str = ""
+    rig_name: str = ""
+    rig_text: str = ""
+    material: str | None = None
+    model_path: str = ""
+    model_hash: str = ""
+    plan: tuple = ()
+    done: tuple = ()
+    events: tuple = ()
+    run_started_utc: float | None = None
+    all_captured: bool = False
+    stop: Stop | None = None
+    calibrated: bool = False
+    white_rates: tuple | None = None
+    report: dict | None = None
+    summary: str = ""
+    predicted_error: float | None = None
+    files: tuple = field(default_factory=tuple)
+
+
+def journal_path(session_dir) -> Path:
+    return Path(session_dir) / JOURNAL_FILE
+
+
+def read_session(session_dir) -> SessionView:
+    """Read the session in ``session_dir`` (read-only; see module doc)."""
+    session_dir = Path(session_dir)
+    path = journal_path(session_dir)
+    files = _own_files(session_dir)
+    if not path.is_file():
+        return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
+    try:
+        meta, records, events, calibration = _read_journal(path)
+    except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
+        return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
+    report = _read_report(session_dir / REPORT_FILE)
+    run = _last_run(events)
+    return SessionView(
+        session_dir, journal_found=True, plan_key=str(meta.get("plan_sha256", "")),
+        rig_name=str(meta.get("rig_name", "")), rig_text=str(meta.get("rig_text", "")),
+        material=meta.get("material"), model_path=str(meta.get("model_path", "")),
+        model_hash=str(meta.get("model_hash", "")), plan_doc=meta.get("plan") or {},
+        plan_file=str(meta.get("plan_file", "")), plan=_plan_samples(meta.get("plan") or {}),
+        done=tuple(_done_sample(r) for r in records),
+        events=tuple({k: e[k] for k in ("t_utc", "kind", "axis", "message")} for e in events),
+        run_started_utc=run[0]["t_utc"] if run and _is_start(run[0]) else None,
+        all_captured=any(e["kind"] == "session" and e["message"] == "all samples captured" for e in run),
+        stop=_stop(run), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
+        summary=_read_text(session_dir / SUMMARY_FILE),
+        predicted_error=_predicted_error(events, report), files=files)
+
+
+def connect_read_only(path: Path) -> sqlite3.Connection:
+    """A connection that cannot write the journal and creates no file beside it (module doc)."""
+    path = Path(path).resolve()
+    live_writer = path.with_name(path.name + "-wal").exists()
+    query = "mode=ro" if live_writer else "mode=ro&immutable=1"
+    return sqlite3.connect(f"{path.as_uri()}?{query}", uri=True, isolation_level=None, timeout=2.0,
+                           check_same_thread=False)
+
+
+def _read_journal(path: Path):
+    """(meta, sample records, events, calibration) in ONE read transaction (a consistent moment)."""
+    db = connect_read_only(path)
+    try:
+        journal = Journal(path, db)  # the journal's own reading code, on a read-only connection
+        db.execute("BEGIN")
+        try:
+            return journal.meta(), journal.samples(), journal.events(), journal.calibration()
+        finally:
+            db.execute("COMMIT")
+    finally:
+        db.close()
+
+
+def _read_report(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):  # not written yet (it is replaced atomically, never torn)
+        return None
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except OSError:
+        return ""
+
+
+def _own_files(session_dir: Path) -> tuple:
+    """Names of the regular files directly in the session folder (not the journal's side files)."""
+    try:
+        entries = sorted(p for p in session_dir.iterdir() if p.is_file() and not p.is_symlink())
+    except OSError:
+        return ()
+    return tuple(p.name for p in entries if not p.name.endswith(_SQLITE_SIDE_FILES))
+
+
+def _plan_samples(plan: dict) -> tuple:
+    out = []
+    for i, s in enumerate(plan.get("samples", [])):
+        out.append(PlanSample(i, tuple(s.get("cell", ())), float(s.get("theta_i_deg", float("nan"))),
+                              float(s.get("theta_o_deg", float("nan"))), dict(s.get("joints", {})),
+                              float(s.get("move_s", 0.0))))
+    return tuple(out)
+
+
+def _done_sample(r) -> DoneSample:
+    return DoneSample(r.plan_index, float(r.snr), tuple(r.exposures_s), tuple(r.rgb), r.status, dict(r.joints),
+                      float(r.move_s), float(r.capture_s), float(r.started_utc), float(r.committed_utc),
+                      tuple(r.raw_paths))
+
+
+def _is_start(event: dict) -> bool:
+    return event["kind"] == "session" and event["message"].startswith("started")
+
+
+def _last_run(events: list) -> list:
+    """The events of the last run: from its 'started' event on (all events if there is none)."""
+    starts = [i for i, e in enumerate(events) if _is_start(e)]
+    return events[starts[-1]:] if starts else list(events)
+
+
+_INDEX_IN_STEP = re.compile(r"index=(\d+)")
+
+
+def _stop(run: list) -> Stop | None:
+    """The fault, error or interruption that ended the last run, if any."""
+    stops = [e for e in run if e["kind"] in STOP_KINDS]
+    if not stops:
+        return None
+    e = stops[-1]
+    data = e.get("data") or {}
+    index = data.get("plan_index")
+    if index is None:  # journals written before plan_index was recorded: the step's repr names it
+        found = _INDEX_IN_STEP.search(str(data.get("step", "")))
+        index = int(found.group(1)) if found else None
+    message = data.get("operator_message") or f"{e['message']}. Fix the cause, then run the same command with --resume"
+    return Stop(e["kind"], message, e["message"], e.get("axis"), index, e["t_utc"])
+
+
+def _white_rates(calibration: dict | None) -> tuple | None:
+    """The white reference's signal rate per channel (R, G, B) from the calibration record: what a
+    white surface gives, so dividing by it white-balances a frame."""
+    scale = (calibration or {}).get("scale")
+    ok = isinstance(scale, list) and len(scale) == 3 and all(isinstance(v, (int, float)) and v > 0 for v in scale)
+    return tuple(float(v) for v in scale) if ok else None
+
+
+def _predicted_error(events: list, report: dict | None) -> float | None:
+    """The latest predicted reconstruction error the session records, else None.
+
+    Looked for (the Bayesian capture's format is not fixed yet; adapt here only): a number under
+    ``predicted_error`` in an event's data (the latest wins), then in report.json.
+    """
+    for e in reversed(events):
+        value = (e.get("data") or {}).get("predicted_error")
+        if isinstance(value, (int, float)):
+            return float(value)
+    value = (report or {}).get("predicted_error")
+    return float(value) if isinstance(value, (int, float)) else None
+
+
+def camera_settings(view: SessionView) -> dict:
+    """The rig file's ``camera`` section as journaled (empty if it cannot be read)."""
+    import yaml
+
+    try:
+        rig = yaml.safe_load(view.rig_text) or {}
+    except yaml.YAMLError:
+        return {}
+    section = rig.get("camera") if isinstance(rig, dict) else None
+    return section if isinstance(section, dict) else {}

@@ -1,0 +1,181 @@
+"""What the monitor page shows, computed from a ``SessionView``: one JSON-ready dict.
+
+The state of the session, from the journal's events of its last run:
+
+* ``waiting``: no journal yet (the capture is still checking its inputs, or has not started);
+* ``running``: the last run started and neither ended nor stopped;
+* ``stalled``: running by the journal, but nothing happened for longer than
+  ``stall_after_s`` (only when the monitor is not inside the capture's own process, which would
+  know better): the capture may have been killed;
+* ``reconstructing``: every sample journaled, report.json not written yet;
+* ``finished``: every sample journaled and the report written;
+* ``faulted`` / ``interrupted``: the last run ended on a device fault or error / on SIGINT or
+  SIGTERM; ``stop`` carries the terminal's words (what went wrong, what to do next);
+* ``failed``: the capture process that serves the page ended with an error the journal does not
+  hold (``ended_message`` from the application layer).
+
+The ETA (seconds of wall time) is the plan's move times of the samples left plus, per sample
+left, the median capture time measured so far, in rig seconds (simulated seconds on a simulated
+rig), scaled by the ratio of wall time to rig time measured over this run's samples (which folds
+in a simulated clock's speed-up and the per-sample overhead of calibrating and journaling).
+"""
+from __future__ import annotations
+
+import math
+import statistics
+
+STALL_MIN_S = 300.0      # never call a capture stalled sooner than this
+STALL_SAMPLES = 10.0     # ... or sooner than this many median sample times
+
+
+def page_state(view, now_utc: float, *, attached: bool = False, ended_message: str | None = None,
+               rig=None) -> dict:
+    """The page's state dict for ``view`` at Unix time ``now_utc`` (see module doc).
+
+    ``attached``: the monitor runs inside the capture's process; ``rig``: the session's
+    ``planner.rig.Rig`` for the pose drawings (None: no drawings).
+    """
+    done = {d.plan_index: d for d in view.done}
+    total = len(view.plan)
+    state, hint = _state(view, now_utc, attached, ended_message, done, total)
+    pending = [s.index for s in view.plan if s.index not in done]
+    failed = view.stop.plan_index if view.stop and view.stop.plan_index not in done else None
+    next_index = next((i for i in pending if i != failed), failed) if pending else None
+    eta = eta_seconds(view, done) if state in ("running", "waiting") else None
+    latest = max(view.done, key=lambda d: d.committed_utc) if view.done else None
+    return {
+        "session": str(view.session_dir), "plan_key": view.plan_key, "rig": view.rig_name,
+        "material": view.material, "journal_found": view.journal_found,
+        "state": state, "hint": hint, "attached": attached,
+        "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples",
+        "eta_s": eta, "eta_text": eta_text(eta, state),
+        "last_event": _last_event(view, now_utc),
+        "samples": _sample_columns(view, done, next_index, failed),
+        "latest": None if latest is None else _latest(latest),
+        "poses": _poses(view, rig, latest, next_index),
+        "stop": None if view.stop is None else {
+            "kind": view.stop.kind, "message": view.stop.message, "detail": view.stop.detail,
+            "axis": view.stop.axis, "plan_index": view.stop.plan_index},
+        "ended_message": ended_message,
+        "predicted_error": view.predicted_error,
+        "calibrated": view.calibrated,
+        "files": list(view.files),
+        "summary": view.summary,
+    }
+
+
+def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, str]:
+    """(state, a one-line hint) as the module doc defines them."""
+    if ended_message:
+        return "failed", ended_message
+    if not view.journal_found:
+        return "waiting", f"waiting for the capture to start ({view.note})"
+    if view.stop is not None:
+        return ("interrupted" if view.stop.kind == "interrupted" else "faulted"), view.stop.message
+    if total and len(done) >= total:
+        if view.report is not None:
+            return "finished", f"all {total} samples captured; results written to {view.session_dir}"
+        return "reconstructing", f"all {total} samples captured; reconstructing the BRDF and writing the report"
+    idle = now_utc - last_activity_utc(view)
+    if not attached and idle > stall_after_s(view):
+        return "stalled", (f"no journal activity for {duration_text(idle)}: if the capture process is gone "
+                           f"(killed?), run the same capture command with --resume to continue")
+    if not view.calibrated:
+        return "running", "homing and calibrating (dark frames, flat field, white reference)"
+    return "running", f"capturing: {len(done)} of {total} samples journaled"
+
+
+def last_activity_utc(view) -> float:
+    """Unix time of the latest event or sample commit (0 if none)."""
+    times = [e["t_utc"] for e in view.events] + [d.committed_utc for d in view.done]
+    return max(times, default=0.0)
+
+
+def stall_after_s(view) -> float:
+    """Idle seconds after which a running capture counts as stalled (module doc)."""
+    walls = [d.committed_utc - d.started_utc for d in view.done]
+    typical = statistics.median(walls) if walls else 0.0
+    return max(STALL_MIN_S, STALL_SAMPLES * typical)
+
+
+def eta_seconds(view, done: dict) -> float | None:
+    """Wall seconds left (module doc); None before the first sample of this run is journaled."""
+    this_run = [d for d in done.values()
+                if view.run_started_utc is None or d.started_utc >= view.run_started_utc]
+    rig_s = sum(d.move_s + d.capture_s for d in this_run)
+    if not this_run or rig_s <= 0:
+        return None
+    wall_per_rig_s = sum(d.committed_utc - d.started_utc for d in this_run) / rig_s
+    capture_s = statistics.median(d.capture_s for d in done.values())
+    left = [s for s in view.plan if s.index not in done]
+    return wall_per_rig_s * sum(s.planned_move_s + capture_s for s in left)
+
+
+def duration_text(seconds: float) -> str:
+    """'42 s', '3 min 20 s', '2 h 05 min'."""
+    s = int(round(max(seconds, 0.0)))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {(s % 3600) // 60:02d} min"
+
+
+def eta_text(eta: float | None, state: str) -> str:
+    if state not in ("running", "waiting"):
+        return ""
+    if eta is None:
+        return "ETA after the first sample"
+    return "less than 1 s left" if eta < 1 else f"about {duration_text(eta)} left"
+
+
+def _last_event(view, now_utc: float) -> dict | None:
+    if not view.events:
+        return None
+    e = view.events[-1]
+    return {"kind": e["kind"], "message": e["message"], "axis": e["axis"], "t_utc": e["t_utc"],
+            "ago_text": f"{duration_text(now_utc - e['t_utc'])} ago"}
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _sample_columns(view, done: dict, next_index, failed) -> dict:
+    """Per plan sample (capture order): status done|next|pending|failed, angles, SNR, exposure."""
+    status, snr, exposure, flags = [], [], [], []
+    for s in view.plan:
+        d = done.get(s.index)
+        status.append("done" if d else "failed" if s.index == failed else "next" if s.index == next_index
+                      else "pending")
+        snr.append(None if d is None else _finite(d.snr))
+        exposure.append(None if d is None else _finite(sum(d.exposures_s)))
+        flags.append("" if d is None or d.status == "ok" else d.status)
+    return {"theta_i_deg": [_finite(s.theta_i_deg) for s in view.plan],
+            "theta_o_deg": [_finite(s.theta_o_deg) for s in view.plan],
+            "status": status, "snr": snr, "exposure_s": exposure, "flags": flags}
+
+
+def _latest(d) -> dict:
+    return {"plan_index": d.plan_index, "snr": _finite(d.snr), "exposures_s": list(d.exposures_s),
+            "frames": len(d.raw_paths), "rgb": [_finite(v) for v in d.rgb], "status": d.status}
+
+
+def _poses(view, rig, latest, next_index) -> dict:
+    """Drawings of the current pose (the last journaled sample's joints as reached; the rig's home
+    before any) and of the next plan sample's target pose."""
+    if rig is None:
+        return {"current": None, "next": None}
+    from goniofrost.monitor.rig_pose import pose_drawing
+
+    if latest is not None:
+        current = {"label": f"sample {latest.plan_index} (reached)", **pose_drawing(rig, latest.joints)}
+    else:
+        home = {a.name: a.home_deg for a in rig.ordered_axes}
+        current = {"label": "home", **pose_drawing(rig, home)}
+    nxt = None
+    if next_index is not None:
+        s = view.plan[next_index]
+        nxt = {"label": f"sample {s.index} (target)", "theta_i_deg": s.theta_i_deg, "theta_o_deg": s.theta_o_deg,
+               **pose_drawing(rig, s.joints)}
+    return {"current": current, "next": nxt}

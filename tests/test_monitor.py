@@ -1,0 +1,241 @@
+"""The monitor without a browser: the read-only session reader, the page state (states, ETA,
+colours), the path checks, and the HTTP server on a real session (traversal, writes, pictures).
+The browser tests are in test_monitor_browser.py."""
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import sqlite3
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from goniofrost.app.cli import main
+from goniofrost.capture.journal import Journal, SampleRecord
+from goniofrost.capture.runner import capture
+from goniofrost.monitor.server import MonitorServer
+from goniofrost.monitor.session_view import DoneSample, PlanSample, SessionView, Stop, read_session
+from goniofrost.monitor.safe_path import UnsafePath, session_file
+from goniofrost.monitor.status import page_state
+from monitor_helpers import MATERIAL, folder_state, make_plan
+
+M = 5
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A finished 5-sample session on the simulated rig (read-only for the tests)."""
+    folder = tmp_path_factory.mktemp("monitor")
+    rig, plan = make_plan(folder, M)
+    capture(rig, plan, folder / "s", material=MATERIAL, speedup=50, progress=False)
+    return folder / "s"
+
+
+# ----- the page state from a view ---------------------------------------------------------------
+def plan_samples(moves) -> tuple:
+    return tuple(PlanSample(i, (i, 1, 2), 10.0 * i, 20.0 + i, {"camera_arm": 30.0 + i}, m) for i, m in enumerate(moves))
+
+
+def done_sample(i, move_s, capture_s, started, wall, snr=100.0) -> DoneSample:
+    return DoneSample(i, snr, (0.004, 0.016), (0.1, 0.2, 0.3), "ok", {}, move_s, capture_s, started,
+                      started + wall, (f"raw/sample_{i:04d}_e1.dng",))
+
+
+def view(**kw) -> SessionView:
+    events = kw.pop("events", ({"t_utc": 1000.0, "kind": "session", "axis": None, "message": "started with 0 of 4 samples done"},))
+    base = dict(session_dir=Path("/s"), journal_found=True, plan_key="k", plan=plan_samples([2, 4, 6, 8]),
+                events=events, run_started_utc=1000.0, calibrated=True)
+    return SessionView(**{**base, **kw})
+
+
+def test_eta_is_the_planned_moves_and_median_capture_left_scaled_by_the_measured_wall_per_rig_second():
+    # rig seconds of the two done samples: 2 + 1 and 4 + 3 = 10, their wall time 1.5 + 3.5 = 5 (ratio 0.5);
+    # left: samples 2 and 3, planned moves 6 and 8, each with the median capture time 2 s -> 18 rig s
+    v = view(done=(done_sample(0, 2, 1, 1001.0, 1.5), done_sample(1, 4, 3, 1003.0, 3.5)))
+    st = page_state(v, now_utc=1007.0)
+    assert st["state"] == "running" and st["count_text"] == "2 of 4 samples"
+    assert st["eta_s"] == pytest.approx(9.0) and st["eta_text"] == "about 9 s left"
+    assert st["samples"]["status"] == ["done", "done", "next", "pending"]
+    assert st["samples"]["snr"] == [100.0, 100.0, None, None]
+    assert st["samples"]["exposure_s"] == [pytest.approx(0.02), pytest.approx(0.02), None, None]
+    # a sample done in an earlier run counts for the median capture time, not for the wall ratio
+    v = view(done=(done_sample(0, 2, 5, 10.0, 99.0), done_sample(1, 4, 3, 1003.0, 3.5)))
+    assert page_state(v, now_utc=1007.0)["eta_s"] == pytest.approx(3.5 / 7 * (6 + 4 + 8 + 4))
+    assert page_state(view(), now_utc=1001.0)["eta_text"] == "ETA after the first sample"
+
+
+def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_only_from_outside():
+    one = (done_sample(0, 2, 1, 1001.0, 1.5),)
+    assert page_state(view(journal_found=False, note="no session.sqlite yet"), 0)["state"] == "waiting"
+    assert page_state(view(calibrated=False), 1001)["hint"].startswith("homing and calibrating")
+    idle = page_state(view(done=one), now_utc=1002.5 + 301)
+    assert idle["state"] == "stalled" and "--resume" in idle["hint"]
+    assert page_state(view(done=one), now_utc=1002.5 + 301, attached=True)["state"] == "running"
+    stop = Stop("fault", "device fault at plan sample 1: sample_yaw: alarm. Every axis was stopped; ...", "sample_yaw: alarm",
+                "sample_yaw", 1, 1003.0)
+    faulted = page_state(view(done=one, stop=stop), 1004)
+    assert faulted["state"] == "faulted" and faulted["hint"] == stop.message and faulted["stop"]["plan_index"] == 1
+    assert faulted["samples"]["status"] == ["done", "failed", "next", "pending"] and faulted["eta_s"] is None
+    interrupted = page_state(view(done=one, stop=Stop("interrupted", "interrupted (SIGINT): ...", "", None, 1, 1003.0)), 1004)
+    assert interrupted["state"] == "interrupted"
+    all_done = tuple(done_sample(i, 2, 1, 1001.0 + i, 1.0) for i in range(4))
+    assert page_state(view(done=all_done), 1010)["state"] == "reconstructing"
+    assert page_state(view(done=all_done, report={"samples": 4}), 1010)["state"] == "finished"
+    failed = page_state(view(done=one), 1004, ended_message="goniofrost capture: error: disk full")
+    assert (failed["state"], failed["hint"]) == ("failed", "goniofrost capture: error: disk full")
+
+
+# ----- reading a journal that is being written ----------------------------------------------------
+META = {"plan": {"samples": [{"cell": [1, 2, 3], "theta_i_deg": 10.0, "theta_o_deg": 20.0, "joints": {}, "move_s": 1.0}] * 3},
+        "plan_sha256": "p", "rig_text": "name: x\n", "rig_name": "x", "model_hash": "m"}
+
+
+def record(i: int) -> SampleRecord:
+    return SampleRecord(plan_index=i, cell=7, theta_h_deg=1.0, theta_d_deg=2.0, phi_d_deg=3.0, rgb=(0.1, 0.2, 0.3),
+                        sigma=(0.01, 0.01, 0.01), snr=50.0 + i, started_utc=100.0 + i, committed_utc=100.5 + i)
+
+
+def test_the_reader_follows_a_writer_never_blocks_it_and_leaves_the_journal_as_it_was(tmp_path):
+    path = tmp_path / "session.sqlite"
+    writer = Journal.create(path, META)
+    writer.commit_sample(record(0))
+    assert [d.plan_index for d in read_session(tmp_path).done] == [0]
+    writer.commit_sample(record(1))  # not blocked by the reader
+    writer.add_event("session", "started with 1 of 3 samples done")
+    seen = read_session(tmp_path)
+    assert [d.snr for d in seen.done] == [50.0, 51.0] and seen.events[-1]["message"].startswith("started")
+    writer.close()
+
+    before = folder_state(tmp_path)
+    listing = sorted(p.name for p in tmp_path.iterdir())
+    assert listing == ["session.sqlite"]  # the writer checkpointed and removed its WAL
+    assert len(read_session(tmp_path).done) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == listing and folder_state(tmp_path) == before
+
+    with Journal.open(path) as resumed:  # a resume after reading: still WAL, still writable
+        assert resumed._db.execute("PRAGMA journal_mode").fetchone() == ("wal",)
+        resumed.commit_sample(record(2))
+        assert len(read_session(tmp_path).done) == 3
+    with pytest.raises(sqlite3.OperationalError, match="readonly"):
+        from goniofrost.monitor.session_view import connect_read_only
+        connect_read_only(path).execute("DELETE FROM samples")
+
+
+def test_a_missing_or_half_created_journal_reads_as_waiting(tmp_path):
+    assert read_session(tmp_path / "nothing").journal_found is False
+    sqlite3.connect(tmp_path / "session.sqlite").close()  # created, no table yet
+    got = read_session(tmp_path)
+    assert got.journal_found is False and "not readable yet" in got.note
+
+
+# ----- paths --------------------------------------------------------------------------------------
+@pytest.fixture
+def tree(tmp_path):
+    session = tmp_path / "session"
+    (session / "raw").mkdir(parents=True)
+    (session / "report.json").write_text("{}")
+    (session / "raw" / "a b.dng").write_bytes(b"raw")
+    (tmp_path / "secret.txt").write_text("outside")
+    (session / "out-link").symlink_to(tmp_path / "secret.txt")
+    (session / "raw-link").symlink_to(session / "raw")
+    return session
+
+
+@pytest.mark.parametrize("requested", [
+    "../secret.txt", "..%2Fsecret.txt", "%2e%2e/secret.txt", "%2E%2E%2Fsecret.txt", "raw/../../secret.txt",
+    "raw%2F..%2F..%2Fsecret.txt", "/etc/passwd", "%2Fetc%2Fpasswd", "%252e%252e%252fsecret.txt",
+    "out-link", "raw-link/../../secret.txt", "raw", "", "%00report.json", "raw\\..\\..\\secret.txt", "%ff", "..",
+])
+def test_paths_outside_the_session_or_not_files_are_refused(tree, requested):
+    with pytest.raises(UnsafePath):
+        session_file(tree, requested)
+
+
+def test_files_inside_the_session_are_found_through_any_encoding(tree):
+    assert session_file(tree, "report.json") == tree.resolve() / "report.json"
+    assert session_file(tree, "raw/a%20b.dng") == tree.resolve() / "raw" / "a b.dng"
+    assert session_file(tree, "raw-link/a%20b.dng") == tree.resolve() / "raw" / "a b.dng"  # a link that stays inside
+
+
+# ----- the server on a real session ----------------------------------------------------------------
+def request(server, method: str, path: str, host: str | None = None) -> tuple[int, dict, bytes]:
+    """A raw HTTP request (the path is sent exactly as given, no client-side normalising)."""
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=10)
+    conn.putrequest(method, path, skip_host=True)
+    conn.putheader("Host", host or f"127.0.0.1:{server.port}")
+    conn.endheaders()
+    answer = conn.getresponse()
+    body = answer.read()
+    conn.close()
+    return answer.status, dict(answer.getheaders()), body
+
+
+def test_the_server_serves_session_files_and_refuses_traversal_writes_and_foreign_hosts(finished, tmp_path):
+    (finished.parent / "secret.txt").write_text("outside the session")
+    before = folder_state(finished)
+    with MonitorServer(finished, port=0) as server:
+        status, headers, body = request(server, "GET", "/files/report.json")
+        assert status == 200 and body == (finished / "report.json").read_bytes()
+        assert headers["Content-Type"].startswith("application/json")
+        assert "default-src 'none'" in headers["Content-Security-Policy"]
+        for path in ("/files/../secret.txt", "/files/..%2Fsecret.txt", "/files/%2e%2e%2fsecret.txt",
+                     "/files//etc/passwd", "/files/%2Fetc%2Fpasswd", "/files/raw/..%2F..%2Fsecret.txt",
+                     "/static/../server.py", "/static/%2e%2e%2fserver.py", "/../secret.txt"):
+            status, _, body = request(server, "GET", path)
+            assert status == 404 and b"outside the session" not in body and b"import" not in body, path
+        for method in ("POST", "PUT", "DELETE", "PATCH"):
+            status, headers, _ = request(server, method, "/files/report.json")
+            assert status == 405 and headers["Allow"] == "GET, HEAD"
+        status, _, _ = request(server, "GET", "/api/state", host="attacker.example:8765")
+        assert status == 403  # DNS rebinding: a page of another site cannot read the session
+        status, _, body = request(server, "GET", "/api/state")
+        state = json.loads(body)
+        assert status == 200 and state["state"] == "finished" and state["count_text"] == f"{M} of {M} samples"
+        assert "report.json" in state["files"] and "session.sqlite-wal" not in state["files"]
+    assert folder_state(finished) == before  # nothing written, not even SQLite's side files
+
+
+def test_a_frame_has_its_region_of_interest_outlined_around_the_sample_patch(finished):
+    with Journal.open(finished / "session.sqlite") as journal:  # the reddest measured sample (off the highlight)
+        k = max(journal.samples(), key=lambda r: r.rgb[0] / r.rgb[1]).plan_index
+    with MonitorServer(finished, port=0) as server:
+        request(server, "GET", "/api/state")
+        status, headers, body = request(server, "GET", f"/api/frame.png?sample={k}")
+        assert status == 200 and headers["X-Shows"] == str(k)
+        info = json.loads(headers["X-Info"])
+        image = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape[1] == 320 and info["roi_pixels"] >= 96 and info["file"].startswith(f"sample_{k:04d}_e")
+        outline = np.all(image == (60, 220, 60), axis=-1)  # the ROI colour (BGR)
+        ys, xs = np.nonzero(outline)
+        assert outline.sum() > 20
+        inside = image[ys.min() + 3:ys.max() - 2, xs.min() + 3:xs.max() - 2].reshape(-1, 3).mean(0)
+        assert inside[2] > 1.5 * inside[1] and inside[2] > 1.5 * inside[0]  # red-plastic inside the outline
+        card = image[ys.max() + 12:ys.max() + 16, xs.min():xs.max()].reshape(-1, 3).mean(0)
+        assert np.ptp(card) < 0.15 * card.mean()  # the white card below the patch shows white (balanced)
+        status, headers, body = request(server, "GET", f"/api/preview.png?done={M}")
+        spheres = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
+        assert status == 200 and headers["X-Shows"] == str(M) and spheres.shape == (96, 3 * 96, 3)
+        assert spheres[48, 48, 2] > spheres[48, 48, 1]  # a red sphere
+        # pictures are rate-limited: right after one, the last one comes back with when to ask again
+        status, headers, _ = request(server, "GET", "/api/frame.png?sample=99")
+        assert status == 200 and headers["X-Shows"] == str(k) and int(headers["X-Retry-After-Ms"]) >= 200
+        time.sleep(int(headers["X-Retry-After-Ms"]) / 1000)
+        status, headers, body = request(server, "GET", "/api/frame.png?sample=99")
+        assert status == 503 and body == b"sample 99 is not in the journal" and headers["X-Shows"] == "99"
+
+
+def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_port(tmp_path, capsys):
+    assert main(["monitor", str(tmp_path / "nope")]) == 2
+    assert f"SESSION_DIR: expected a session folder (goniofrost capture --session DIR), found '{tmp_path / 'nope'}'" in capsys.readouterr().err
+    assert main(["monitor", str(tmp_path), "--port", "70000"]) == 2
+    assert "--port: expected a TCP port 0..65535 (0 picks a free one), found 70000" in capsys.readouterr().err
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["monitor", str(tmp_path), "--port", str(port)]) == 2
+    assert f"monitor: cannot serve on 127.0.0.1:{port}" in capsys.readouterr().err
