@@ -47,7 +47,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "session": str(view.session_dir), "plan_key": view.plan_key, "rig": view.rig_name,
         "material": view.material, "journal_found": view.journal_found,
         "state": state, "hint": hint, "attached": attached,
-        "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples",
+        "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples" if total else "no plan yet",
         "eta_s": eta, "eta_text": eta_text(eta, state),
         "last_event": _last_event(view, now_utc),
         "samples": _sample_columns(view, done, next_index, failed),

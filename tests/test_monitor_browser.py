@@ -1,0 +1,181 @@
+"""The monitor page in a real headless Chromium (Debian's ``chromium``; .ci/run installs it),
+driven by Playwright: what a person sees during a simulated capture, after a fault, on a resume,
+and on a session that records a predicted error."""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from goniofrost.capture.engine import SessionFault
+from goniofrost.capture.journal import Journal, SampleRecord
+from goniofrost.capture.runner import capture
+from goniofrost.monitor.server import MonitorServer
+from monitor_helpers import MATERIAL, fault_after, make_plan
+
+CHROMIUM = Path(os.environ.get("GONIOFROST_CHROMIUM", "/usr/bin/chromium"))
+REPO = Path(__file__).resolve().parents[1]
+M = 5
+
+pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"needs headless Chromium at {CHROMIUM} "
+                                "(Debian's chromium package; .ci/run installs it)")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM))
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def page(browser):
+    """A fresh page; any script error or failed console message fails the test."""
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    tab = context.new_page()
+    errors = []
+    tab.on("pageerror", lambda exc: errors.append(str(exc)))
+    yield tab
+    context.close()
+    assert errors == []
+
+
+@pytest.fixture(scope="module")
+def plan(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("browser")
+    return make_plan(folder, M)
+
+
+def expect(locator):
+    from playwright.sync_api import expect as pw_expect
+
+    return pw_expect(locator)
+
+
+def statuses(page) -> list[str]:
+    """The plan chart's dots' statuses in plan order (a next or failed dot is drawn last, on top)."""
+    return page.eval_on_selector_all(
+        "#plan-dots circle", "dots => { const s = []; dots.forEach(d => { s[+d.dataset.index] = d.dataset.status; }); return s; }")
+
+
+def test_the_page_follows_a_capture_started_with_monitor(plan, page, tmp_path):
+    rig, plan_file = plan
+    session = tmp_path / "s"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "goniofrost", "capture", "--rig", str(rig), "--plan", str(plan_file), "--session",
+         str(session), "--material", MATERIAL, "--no-progress", "--speedup", "10", "--monitor", "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        line = proc.stderr.readline()
+        url = re.search(r"monitor page at (http://127\.0\.0\.1:\d+/) \(read-only view of ", line).group(1)
+        page.goto(url)
+        seen = []
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            state, count = page.text_content("#state"), page.text_content("#count")
+            if not seen or seen[-1] != (state, count):
+                seen.append((state, count))
+            if state == "finished":
+                break
+            time.sleep(0.03)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    counts = [int(c.split(" of ")[0]) for _, c in seen if " of " in c]
+    assert counts == sorted(counts) and len(set(counts)) >= 3, seen  # "N of M samples" grew while we watched
+    assert ("running", f"{M} of {M} samples") != seen[0] and seen[-1] == ("finished", f"{M} of {M} samples")
+    assert any(state == "running" for state, _ in seen)
+    # the final state stays on the page after the capture process (and its server) ended
+    expect(page.locator("#connection")).to_contain_text("the monitor stopped serving")
+    assert statuses(page) == ["done"] * M
+    assert page.eval_on_selector_all("#snr-chart circle", "d => d.filter(c => c.style.display !== 'none').length") == M
+    assert page.eval_on_selector("#frame-img", "img => img.naturalWidth") == 320
+    assert page.eval_on_selector("#preview-img", "img => img.naturalWidth") == 3 * 96
+    expect(page.locator("#frame-caption")).to_contain_text("region of interest")
+    expect(page.locator("#file-list")).to_contain_text("report.json")
+    expect(page.locator("#summary-text")).to_contain_text(f"{M} samples on rig 'sim-rig'")
+    assert page.locator("#fault").is_hidden()
+
+
+def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan, page, tmp_path):
+    rig, plan_file = plan
+    session = tmp_path / "s"
+    urls, outcome = queue.Queue(), {}
+    on_ready, axis = fault_after(session, plan_file, 2)
+
+    def run(**kw):
+        from goniofrost.app.monitoring import monitored
+        try:
+            with monitored(session, "127.0.0.1", 0, "capture") as server:
+                urls.put(server.url)
+                capture(rig, plan_file, session, material=MATERIAL, speedup=10, progress=False, **kw)
+        except SessionFault as exc:
+            outcome["fault"] = str(exc)
+
+    worker = threading.Thread(target=run, kwargs={"on_ready": on_ready})
+    worker.start()
+    page.goto(urls.get(timeout=30))
+    expect(page.locator("#state")).to_have_text("faulted", timeout=60_000)
+    worker.join(timeout=60)
+    message = outcome["fault"]
+    assert message.startswith("device fault at plan sample ") and axis in message
+    expect(page.locator("#fault")).to_be_visible()
+    expect(page.locator("#fault-message")).to_have_text(message)  # exactly what the terminal prints
+    expect(page.locator("#fault-title")).to_have_text("Stopped on a fault")
+    failed = int(re.match(r"device fault at plan sample (\d+)", message).group(1))
+    with Journal.open(session / "session.sqlite") as journal:
+        done = len(journal.done_indices())
+    expect(page.locator("#count")).to_have_text(f"{done} of {M} samples")
+    assert statuses(page)[failed] == "failed" and statuses(page).count("done") == done
+
+    # the review page of the stopped session, then the resume as it happens
+    with MonitorServer(session, port=0) as server:
+        page.goto(server.url)
+        expect(page.locator("#state")).to_have_text("faulted")
+        resume = threading.Thread(target=capture, args=(rig, plan_file, session),
+                                  kwargs={"material": MATERIAL, "speedup": 10, "progress": False, "resume": True})
+        resume.start()
+        expect(page.locator("#state")).to_have_text("finished", timeout=60_000)
+        resume.join(timeout=60)
+        expect(page.locator("#count")).to_have_text(f"{M} of {M} samples")
+        assert statuses(page) == ["done"] * M
+        assert page.locator("#fault").is_hidden()
+
+
+def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stalled(page, tmp_path):
+    rig_text = (REPO / "config" / "rigs" / "sim.yaml").read_text()
+    samples = [{"cell": [10, 20, 30], "theta_i_deg": 20.0 + i, "theta_o_deg": 40.0, "move_s": 1.0,
+                "joints": {"camera_arm": 60.0, "sample_yaw": 10.0 * i, "sample_tilt": 5.0}} for i in range(3)]
+    meta = {"plan": {"samples": samples}, "plan_sha256": "p", "rig_text": rig_text, "rig_name": "sim-rig",
+            "model_path": str(tmp_path / "no-model"), "model_hash": "m", "plan_file": str(tmp_path / "plan.json")}
+    long_ago = time.time() - 3600
+    with Journal.create(tmp_path / "session.sqlite", meta) as journal:
+        journal.add_event("session", "started with 0 of 3 samples done")
+        for i in range(2):
+            journal.commit_sample(SampleRecord(i, 7, 1.0, 2.0, 3.0, (0.1, 0.2, 0.3), (0.01,) * 3, 80.0,
+                                               joints=samples[i]["joints"], started_utc=long_ago, committed_utc=long_ago + 1))
+        journal.add_event("batch", "batch 1 reconstructed", data={"predicted_error": 0.0421})
+        journal._db.execute("UPDATE events SET t_utc = ?", (long_ago + 2,))
+    with MonitorServer(tmp_path, port=0) as server:
+        page.goto(server.url)
+        expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421")
+        expect(page.locator("#count")).to_have_text("2 of 3 samples")
+        expect(page.locator("#state")).to_have_text("stalled")
+        expect(page.locator("#hint")).to_contain_text("run the same capture command with --resume")
+        expect(page.locator("#pose-next .pose-label")).to_have_text("sample 2 (target)")
+        expect(page.locator("#pose-next .joints")).to_contain_text("sample_yaw20.00°")
+        expect(page.locator("#preview-caption")).to_contain_text("the session's model cannot be opened")
+        assert json.loads(page.evaluate("JSON.stringify(window.goniofrostMonitor.state.samples.status)")) == \
+            ["done", "done", "next"]
