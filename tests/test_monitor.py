@@ -52,7 +52,7 @@ def view(**kw) -> SessionView:
     return SessionView(**{**base, **kw})
 
 
-def test_eta_is_the_planned_moves_and_median_capture_left_scaled_by_the_measured_wall_per_rig_second():
+def test_before_three_samples_the_eta_scales_planned_moves_and_capture_time_by_the_wall_per_rig_second():
     # rig seconds of the two done samples: 2 + 1 and 4 + 3 = 10, their wall time 1.5 + 3.5 = 5 (ratio 0.5);
     # left: samples 2 and 3, planned moves 6 and 8, each with the median capture time 2 s -> 18 rig s
     v = view(done=(done_sample(0, 2, 1, 1001.0, 1.5), done_sample(1, 4, 3, 1003.0, 3.5)))
@@ -62,10 +62,22 @@ def test_eta_is_the_planned_moves_and_median_capture_left_scaled_by_the_measured
     assert st["samples"]["status"] == ["done", "done", "next", "pending"]
     assert st["samples"]["snr"] == [100.0, 100.0, None, None]
     assert st["samples"]["exposure_s"] == [pytest.approx(0.02), pytest.approx(0.02), None, None]
-    # a sample done in an earlier run counts for the median capture time, not for the wall ratio
+    # a sample of an earlier run (before a resume: another day, maybe another speed-up) is not used
     v = view(done=(done_sample(0, 2, 5, 10.0, 99.0), done_sample(1, 4, 3, 1003.0, 3.5)))
-    assert page_state(v, now_utc=1007.0)["eta_s"] == pytest.approx(3.5 / 7 * (6 + 4 + 8 + 4))
+    assert page_state(v, now_utc=1007.0)["eta_s"] == pytest.approx(3.5 / 7 * (6 + 3 + 8 + 3))
     assert page_state(view(), now_utc=1001.0)["eta_text"] == "ETA after the first sample"
+
+
+def test_with_three_samples_of_different_moves_the_eta_fits_wall_time_to_move_time_and_a_per_sample_rest():
+    # a simulated clock 10x real time (k = 0.1) and 0.5 s per sample of rendering and journaling (c)
+    moves, t, done = [2.0, 4.0, 6.0], 1001.0, []
+    for i, move in enumerate(moves):
+        done.append(done_sample(i, move, 0.3, t, 0.1 * move + 0.5))
+        t += 0.1 * move + 0.5
+    v = view(plan=plan_samples([2, 4, 6, 8, 10]), done=tuple(done))
+    st = page_state(v, now_utc=t)
+    assert st["eta_s"] == pytest.approx(0.1 * (8 + 10) + 0.5 * 2) and st["eta_from_utc"] == pytest.approx(t)
+    assert st["last_event"]["message"] == "sample 2 journaled (SNR 100, 1 frames)"
 
 
 def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_only_from_outside():
@@ -78,8 +90,10 @@ def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_o
     stop = Stop("fault", "device fault at plan sample 1: sample_yaw: alarm. Every axis was stopped; ...", "sample_yaw: alarm",
                 "sample_yaw", 1, 1003.0)
     faulted = page_state(view(done=one, stop=stop), 1004)
-    assert faulted["state"] == "faulted" and faulted["hint"] == stop.message and faulted["stop"]["plan_index"] == 1
-    assert faulted["samples"]["status"] == ["done", "failed", "next", "pending"] and faulted["eta_s"] is None
+    assert faulted["state"] == "faulted" and faulted["stop"]["message"] == stop.message and faulted["stop"]["plan_index"] == 1
+    assert faulted["hint"] == "faulted with 1 of 4 samples safe in the journal: what happened and what to do below"
+    assert faulted["samples"]["status"] == ["done", "failed", "pending", "pending"] and faulted["eta_s"] is None
+    assert faulted["poses"] == {"current": None, "next": None}  # no rig given: no drawings
     interrupted = page_state(view(done=one, stop=Stop("interrupted", "interrupted (SIGINT): ...", "", None, 1, 1003.0)), 1004)
     assert interrupted["state"] == "interrupted"
     all_done = tuple(done_sample(i, 2, 1, 1001.0 + i, 1.0) for i in range(4))

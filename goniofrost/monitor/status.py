@@ -14,16 +14,22 @@ The state of the session, from the journal's events of its last run:
 * ``failed``: the capture process that serves the page ended with an error the journal does not
   hold (``ended_message`` from the application layer).
 
-The ETA (seconds of wall time) is the plan's move times of the samples left plus, per sample
-left, the median capture time measured so far, in rig seconds (simulated seconds on a simulated
-rig), scaled by the ratio of wall time to rig time measured over this run's samples (which folds
-in a simulated clock's speed-up and the per-sample overhead of calibrating and journaling).
+The ETA (wall seconds after the last journaled sample, ``eta_from_utc``) comes from the plan's
+move times and the times measured so far: each sample of this run took ``wall = k x move + c``
+(wall: from the start of its move to its commit; move: its move in rig seconds, simulated seconds
+on a simulated rig, so k folds in a simulated clock's speed-up; c: capturing, calibrating and
+journaling). k and c are fitted by least squares (both >= 0) once MIN_FIT samples with different
+moves are journaled; before that k = wall / (move + capture time) over the samples so far and
+c = k x their median capture time. ETA = k x (the planned moves left) + c x (samples left).
 """
 from __future__ import annotations
 
 import math
 import statistics
 
+import numpy as np
+
+MIN_FIT = 3              # samples of this run before the ETA's wall model is fitted
 STALL_MIN_S = 300.0      # never call a capture stalled sooner than this
 STALL_SAMPLES = 10.0     # ... or sooner than this many median sample times
 
@@ -40,7 +46,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
     state, hint = _state(view, now_utc, attached, ended_message, done, total)
     pending = [s.index for s in view.plan if s.index not in done]
     failed = view.stop.plan_index if view.stop and view.stop.plan_index not in done else None
-    next_index = next((i for i in pending if i != failed), failed) if pending else None
+    next_index = pending[0] if pending else None  # after a stop: the sample a resume starts with
     eta = eta_seconds(view, done) if state in ("running", "waiting") else None
     latest = max(view.done, key=lambda d: d.committed_utc) if view.done else None
     return {
@@ -48,8 +54,8 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "material": view.material, "journal_found": view.journal_found,
         "state": state, "hint": hint, "attached": attached,
         "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples" if total else "no plan yet",
-        "eta_s": eta, "eta_text": eta_text(eta, state),
-        "last_event": _last_event(view, now_utc),
+        "eta_s": eta, "eta_text": eta_text(eta, state), "eta_from_utc": last_activity_utc(view),
+        "last_event": _last_event(view),
         "samples": _sample_columns(view, done, next_index, failed),
         "latest": None if latest is None else _latest(latest),
         "poses": _poses(view, rig, latest, next_index),
@@ -71,7 +77,8 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
     if not view.journal_found:
         return "waiting", f"waiting for the capture to start ({view.note})"
     if view.stop is not None:
-        return ("interrupted" if view.stop.kind == "interrupted" else "faulted"), view.stop.message
+        what = "interrupted" if view.stop.kind == "interrupted" else "faulted"
+        return what, f"{what} with {len(done)} of {total} samples safe in the journal: what happened and what to do below"
     if total and len(done) >= total:
         if view.report is not None:
             return "finished", f"all {total} samples captured; results written to {view.session_dir}"
@@ -99,16 +106,31 @@ def stall_after_s(view) -> float:
 
 
 def eta_seconds(view, done: dict) -> float | None:
-    """Wall seconds left (module doc); None before the first sample of this run is journaled."""
+    """Wall seconds left after the last journaled sample (module doc); None before this run's
+    first sample."""
     this_run = [d for d in done.values()
                 if view.run_started_utc is None or d.started_utc >= view.run_started_utc]
-    rig_s = sum(d.move_s + d.capture_s for d in this_run)
-    if not this_run or rig_s <= 0:
+    if not this_run:
         return None
-    wall_per_rig_s = sum(d.committed_utc - d.started_utc for d in this_run) / rig_s
-    capture_s = statistics.median(d.capture_s for d in done.values())
+    k, c = wall_model([d.move_s for d in this_run], [d.capture_s for d in this_run],
+                      [d.committed_utc - d.started_utc for d in this_run])
     left = [s for s in view.plan if s.index not in done]
-    return wall_per_rig_s * sum(s.planned_move_s + capture_s for s in left)
+    return k * sum(s.planned_move_s for s in left) + c * len(left)
+
+
+def wall_model(move_s, capture_s, wall_s) -> tuple[float, float]:
+    """(k, c) of wall = k x move + c per sample (module doc): least squares with k, c >= 0 over
+    at least MIN_FIT samples whose moves differ; else k = total wall / total rig time and
+    c = k x the median capture time."""
+    from scipy.optimize import nnls
+
+    move, wall = np.asarray(move_s, dtype=np.float64), np.asarray(wall_s, dtype=np.float64)
+    if move.size >= MIN_FIT and np.ptp(move) > 0:
+        (k, c), _ = nnls(np.stack([move, np.ones_like(move)], axis=1), wall)
+        return float(k), float(c)
+    rig = float(np.sum(move) + np.sum(capture_s))
+    k = float(np.sum(wall)) / rig if rig > 0 else 0.0
+    return k, (k * float(np.median(capture_s)) if rig > 0 else float(np.median(wall)))
 
 
 def duration_text(seconds: float) -> str:
@@ -129,12 +151,16 @@ def eta_text(eta: float | None, state: str) -> str:
     return "less than 1 s left" if eta < 1 else f"about {duration_text(eta)} left"
 
 
-def _last_event(view, now_utc: float) -> dict | None:
-    if not view.events:
+def _last_event(view) -> dict | None:
+    """The journal's latest event, or the latest sample commit when that came later."""
+    latest = max(view.done, key=lambda d: d.committed_utc, default=None)
+    e = view.events[-1] if view.events else None
+    if latest is not None and (e is None or latest.committed_utc > e["t_utc"]):
+        e = {"kind": "sample", "axis": None, "t_utc": latest.committed_utc,
+             "message": f"sample {latest.plan_index} journaled (SNR {latest.snr:.0f}, {len(latest.raw_paths)} frames)"}
+    if e is None:
         return None
-    e = view.events[-1]
-    return {"kind": e["kind"], "message": e["message"], "axis": e["axis"], "t_utc": e["t_utc"],
-            "ago_text": f"{duration_text(now_utc - e['t_utc'])} ago"}
+    return {"kind": e["kind"], "message": e["message"], "axis": e["axis"], "t_utc": e["t_utc"]}
 
 
 def _finite(x: float) -> float | None:

@@ -1,0 +1,277 @@
+"""Monitor benchmark: screenshots for the docs, a responsive page with a 1000-sample plan, and what
+serving the page costs a capture.
+
+Usage (from the repository root; needs Debian's chromium, as the browser tests do)::
+
+    .venv/bin/python benchmarks/monitor.py screenshots [--out docs]
+    .venv/bin/python benchmarks/monitor.py responsive [--samples 1000] [--speedup 200]
+    .venv/bin/python benchmarks/monitor.py overhead [--repeats 5] [--samples 20]
+
+Every run is a real capture on the packaged simulated rig (config/rigs/sim.yaml: the demo's rig,
+sensor and exposure ladder) of a plan for the demo's model (the built-in library without
+red-plastic on the full MERL grid, trained once and cached), capturing builtin:red-plastic.
+
+* ``screenshots``: the page in headless Chromium (1280 px wide) while the demo's 20-sample plan
+  is captured: OUT/monitor.png mid-capture (the README's picture), and beside it
+  monitor-finished.png and monitor-fault.png (a fault injected into an axis after 8 samples).
+* ``responsive``: a plan of N cells (default 1000, spread over the cells the rig reaches with
+  theta_i, theta_o <= 70 deg, seeded) captured at a high clock speed-up with the page open;
+  reports the page's render time per state update, the browser's long tasks (> 50 ms main
+  thread), the round trip of a script evaluation every 100 ms (what a click would wait for), and
+  how many samples the page lags behind the journal.
+* ``overhead``: the capture's wall time (capture() call to return, report included) without the
+  monitor, and with it serving a page open in headless Chromium on the same 2 cores, alternating,
+  REPEATS times each; prints the medians and their ratio (the issue's bar: below 1.05).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))  # before benchmarks/, whose planner.py would shadow the planner package
+CHROMIUM = "/usr/bin/chromium"
+MATERIAL = "red-plastic"
+VIEWPORT = {"width": 1280, "height": 1000}
+LONG_TASKS = """window.__longTasks = [];
+new PerformanceObserver((list) => list.getEntries().forEach((e) => window.__longTasks.push(e.duration)))
+  .observe({ type: "longtask", buffered: true });"""
+
+
+# ----- setup ----------------------------------------------------------------------------------------
+def demo_model():
+    from goniofrost.app.demo import train_without
+    from goniofrost.core.grid import FULL_GRID
+
+    return train_without(MATERIAL, FULL_GRID, progress=False)
+
+
+def frost_plan(folder: Path, samples: int) -> Path:
+    """The demo's plan: FROST cells the simulated rig reaches, scheduled for it."""
+    from goniofrost.app.demo import default_rig_path, plan_on_rig
+
+    model, model_path = demo_model()
+    return plan_on_rig(model, model_path, samples, default_rig_path(), folder / f"plan{samples}.json")
+
+
+def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
+    """A dense plan: ``samples`` cells drawn (seeded) from those the rig reaches with theta_i,
+    theta_o <= 70 deg, scheduled for the rig (a validation sweep rather than a FROST plan)."""
+    from planner.reach import reachability
+    from planner.schedule import schedule_plan
+
+    from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
+    from goniofrost.capture.plan_file import sample_entries, write_plan
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.frost.selection import candidate_mask_max_angle
+
+    model, model_path = demo_model()
+    rig = load_checked_rig(default_rig_path())
+    allowed = reachability(rig, model.grid).mask & candidate_mask_max_angle(model.grid, MAX_ANGLE_DEG)
+    cells = np.sort(np.random.default_rng(seed).choice(model.grid.valid_cells[allowed], samples, replace=False))
+    doc = {"model": {"path": str(model_path), "hash": model.content_hash}, "m": samples, "selection_seconds": 0.0,
+           "samples": sample_entries(model.grid, cells)}
+    t0 = time.perf_counter()
+    scheduled = schedule_plan(doc, rig, restarts=1)
+    print(f"scheduled {samples} samples in {time.perf_counter() - t0:.1f} s", flush=True)
+    path = folder / f"spread{samples}.json"
+    write_plan(path, scheduled)
+    return path
+
+
+def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_ready=None, urls=None) -> float:
+    """Wall seconds of one capture (report included); with the monitor serving when asked."""
+    from contextlib import nullcontext
+
+    from goniofrost.app.demo import default_rig_path
+    from goniofrost.app.monitoring import monitored
+    from goniofrost.capture.engine import SessionFault
+    from goniofrost.capture.runner import capture
+
+    t0 = time.perf_counter()
+    with monitored(session, "127.0.0.1", 0, "capture") if monitor else nullcontext() as server:
+        if urls is not None:
+            urls.put(server.url)
+        try:
+            capture(default_rig_path(), plan, session, material=f"builtin:{MATERIAL}", seed=0, speedup=speedup,
+                    progress=False, on_ready=on_ready)
+        except SessionFault as exc:
+            print(f"  (expected) {exc}", flush=True)
+    return time.perf_counter() - t0
+
+
+def in_thread(**kw) -> tuple[threading.Thread, queue.Queue, dict]:
+    """Start run_capture(monitor=True) in a thread; (thread, queue of the page URL, result dict)."""
+    urls, result = queue.Queue(), {}
+
+    def target():
+        result["wall_s"] = run_capture(monitor=True, urls=urls, **kw)
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    return thread, urls, result
+
+
+def browser_page(playwright):
+    chromium = playwright.chromium.launch(executable_path=CHROMIUM)
+    page = chromium.new_context(viewport=VIEWPORT).new_page()
+    return chromium, page
+
+
+# ----- screenshots ------------------------------------------------------------------------------------
+def screenshots(args) -> None:
+    from playwright.sync_api import sync_playwright
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp, sync_playwright() as playwright:
+        plan = frost_plan(Path(tmp), args.samples)
+        chromium, page = browser_page(playwright)
+        thread, urls, _ = in_thread(plan=plan, session=Path(tmp) / "s", speedup=args.speedup)
+        page.goto(urls.get(timeout=120))
+        page.wait_for_function(f"() => {{ const s = window.goniofrostMonitor.state; "
+                               f"return s && s.done >= {int(args.samples * 0.6)} && document.querySelector('#preview-img').naturalWidth > 0; }}",
+                               timeout=300_000)
+        page.wait_for_timeout(300)
+        save(page, out / "monitor.png")
+        page.wait_for_function("() => window.goniofrostMonitor.state.state === 'finished'", timeout=300_000)
+        page.wait_for_timeout(1500)  # the last pictures
+        save(page, out / "monitor-finished.png", full=True)
+        thread.join()
+
+        from goniofrost.app.demo import default_rig_path
+        from goniofrost.capture.rig_file import load_checked_rig
+        axis = load_checked_rig(default_rig_path()).joint_names[1]
+        session = Path(tmp) / "fault"
+        thread, urls, _ = in_thread(plan=plan, session=session, speedup=args.speedup,
+                                    on_ready=inject_after(session, 8, axis))
+        page.goto(urls.get(timeout=120))
+        page.wait_for_function("() => window.goniofrostMonitor.state && window.goniofrostMonitor.state.state === 'faulted'",
+                               timeout=300_000)
+        page.wait_for_timeout(1000)
+        save(page, out / "monitor-fault.png")
+        thread.join()
+        chromium.close()
+
+
+def inject_after(session: Path, n: int, axis: str):
+    from goniofrost.monitor.session_view import read_session
+
+    def on_ready(hardware):
+        def watch():
+            while len(read_session(session).done) < n:
+                time.sleep(0.05)
+            hardware.simulation.device(axis).inject_fault("alarm")
+        threading.Thread(target=watch, daemon=True).start()
+    return on_ready
+
+
+def save(page, path: Path, full: bool = False) -> None:
+    page.screenshot(path=str(path), full_page=full)
+    print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)", flush=True)
+
+
+# ----- responsiveness ---------------------------------------------------------------------------------------
+def responsive(args) -> None:
+    from playwright.sync_api import sync_playwright
+
+    from goniofrost.monitor.session_view import read_session
+
+    with tempfile.TemporaryDirectory() as tmp, sync_playwright() as playwright:
+        plan = spread_plan(Path(tmp), args.samples)
+        chromium, page = browser_page(playwright)
+        page.add_init_script(LONG_TASKS)
+        session = Path(tmp) / "s"
+        thread, urls, result = in_thread(plan=plan, session=session, speedup=args.speedup)
+        t_goto = time.perf_counter()
+        page.goto(urls.get(timeout=120))
+        page.wait_for_function("() => window.goniofrostMonitor.state && window.goniofrostMonitor.state.total > 0",
+                               timeout=120_000)
+        first_render_s = time.perf_counter() - t_goto
+        round_trips, lags = [], []
+        while thread.is_alive():
+            t0 = time.perf_counter()
+            shown = page.evaluate("() => window.goniofrostMonitor.state.done")
+            round_trips.append(1000 * (time.perf_counter() - t0))
+            if len(round_trips) % 10 == 0:
+                lags.append(len(read_session(session).done) - shown)
+            time.sleep(0.1)
+        thread.join()
+        page.wait_for_timeout(1000)
+        renders = page.evaluate("() => window.goniofrostMonitor.renderMs")
+        long_tasks = page.evaluate("() => window.__longTasks")
+        final = page.evaluate("() => [window.goniofrostMonitor.state.state, window.goniofrostMonitor.state.count_text]")
+        chromium.close()
+    summary = {
+        "samples": args.samples, "speedup": args.speedup, "capture_wall_s": round(result["wall_s"], 1),
+        "page_final": final, "first_render_s": round(first_render_s, 2),
+        "state_updates": len(renders), **spread("render_ms", renders),
+        "long_tasks": len(long_tasks), "long_task_max_ms": round(max(long_tasks, default=0.0), 1),
+        **spread("round_trip_ms", round_trips),
+        "lag_samples_median": statistics.median(lags) if lags else None, "lag_samples_max": max(lags, default=None),
+    }
+    print(json.dumps(summary, indent=1))
+
+
+def spread(name: str, values) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    if not v.size:
+        return {f"{name}_median": None}
+    return {f"{name}_median": round(float(np.median(v)), 1), f"{name}_p95": round(float(np.percentile(v, 95)), 1),
+            f"{name}_max": round(float(v.max()), 1)}
+
+
+# ----- overhead -------------------------------------------------------------------------------------
+def overhead(args) -> None:
+    from playwright.sync_api import sync_playwright
+
+    walls = {"off": [], "on": []}
+    with tempfile.TemporaryDirectory() as tmp, sync_playwright() as playwright:
+        plan = frost_plan(Path(tmp), args.samples)
+        chromium, page = browser_page(playwright)
+        run_capture(plan, Path(tmp) / "warm", speedup=args.speedup, monitor=False)  # caches, page cache
+        for i in range(args.repeats):
+            walls["off"].append(run_capture(plan, Path(tmp) / f"off{i}", speedup=args.speedup, monitor=False))
+            thread, urls, result = in_thread(plan=plan, session=Path(tmp) / f"on{i}", speedup=args.speedup)
+            page.goto(urls.get(timeout=120))
+            thread.join()
+            walls["on"].append(result["wall_s"])
+            updates = page.evaluate("() => window.goniofrostMonitor.renderMs.length")
+            print(f"repeat {i + 1}: off {walls['off'][-1]:.2f} s, on {walls['on'][-1]:.2f} s "
+                  f"(page rendered {updates} state updates)", flush=True)
+        chromium.close()
+    off, on = statistics.median(walls["off"]), statistics.median(walls["on"])
+    print(json.dumps({"samples": args.samples, "speedup": args.speedup, "repeats": args.repeats,
+                      "off_s": [round(w, 2) for w in walls["off"]], "on_s": [round(w, 2) for w in walls["on"]],
+                      "median_off_s": round(off, 2), "median_on_s": round(on, 2),
+                      "ratio_on_off": round(on / off, 3)}, indent=1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("screenshots", help="docs screenshots")
+    p.add_argument("--out", default=str(REPO / "docs"))
+    p.add_argument("--samples", type=int, default=20)
+    p.add_argument("--speedup", type=float, default=10.0)
+    p = sub.add_parser("responsive", help="the page with a large plan")
+    p.add_argument("--samples", type=int, default=1000)
+    p.add_argument("--speedup", type=float, default=200.0)
+    p = sub.add_parser("overhead", help="capture wall time, monitor off vs on")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--samples", type=int, default=20)
+    p.add_argument("--speedup", type=float, default=50.0)
+    args = parser.parse_args()
+    {"screenshots": screenshots, "responsive": responsive, "overhead": overhead}[args.what](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
