@@ -20,8 +20,11 @@ red-plastic on the full MERL grid, trained once and cached), capturing builtin:r
   thread), the round trip of a script evaluation every 100 ms (what a click would wait for), and
   how many samples the page lags behind the journal.
 * ``overhead``: the capture's wall time (capture() call to return, report included) without the
-  monitor, and with it serving a page open in headless Chromium on the same 2 cores, alternating,
-  REPEATS times each; prints the medians and their ratio (the issue's bar: below 1.05).
+  monitor, with the monitor serving but no page open, and with a page open in headless Chromium
+  on the same 2 cores (the browser's own work included), in turn, REPEATS times each; prints the
+  medians and their ratios to "off" (the issue's bar: below 1.05), and the CPU seconds of this
+  process and of the browser (user + system): on a shared machine wall times are noisy, while
+  the CPU the monitor adds, as a share of the capture's wall time, bounds what it can cost.
 """
 from __future__ import annotations
 
@@ -88,8 +91,10 @@ def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
     return path
 
 
-def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_ready=None, urls=None) -> float:
-    """Wall seconds of one capture (report included); with the monitor serving when asked."""
+def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_ready=None, urls=None,
+                cpu: dict | None = None) -> float:
+    """Wall seconds of one capture (report included); with the monitor serving when asked.
+    ``cpu``, when given, receives the CPU seconds of this process and of the browser meanwhile."""
     from contextlib import nullcontext
 
     from goniofrost.app.demo import default_rig_path
@@ -97,7 +102,7 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
     from goniofrost.capture.engine import SessionFault
     from goniofrost.capture.runner import capture
 
-    t0 = time.perf_counter()
+    t0, cpu0, browser0 = time.perf_counter(), time.process_time(), browser_cpu_s()
     with monitored(session, "127.0.0.1", 0, "capture") if monitor else nullcontext() as server:
         if urls is not None:
             urls.put(server.url)
@@ -106,7 +111,39 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
                     progress=False, on_ready=on_ready)
         except SessionFault as exc:
             print(f"  (expected) {exc}", flush=True)
+    if cpu is not None:
+        cpu.update(process=time.process_time() - cpu0, browser=browser_cpu_s() - browser0)
     return time.perf_counter() - t0
+
+
+def browser_cpu_s() -> float:
+    """CPU seconds (user + system) used so far by the Chromium processes this benchmark started."""
+    import os
+
+    ticks, me = 0, os.getpid()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            if "chrom" not in stat.split(")")[0] or not _descends_from(int(entry.name), me):
+                continue
+            fields = stat.rsplit(")", 1)[1].split()
+            ticks += int(fields[11]) + int(fields[12])  # utime, stime
+        except (OSError, ValueError, IndexError):
+            continue
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def _descends_from(pid: int, ancestor: int) -> bool:
+    while pid > 1:
+        if pid == ancestor:
+            return True
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            return False
+    return False
 
 
 def in_thread(**kw) -> tuple[threading.Thread, queue.Queue, dict]:
@@ -233,26 +270,37 @@ def spread(name: str, values) -> dict:
 def overhead(args) -> None:
     from playwright.sync_api import sync_playwright
 
-    walls = {"off": [], "on": []}
+    modes = ("off", "server", "page")
+    walls, cpus, split = {m: [] for m in modes}, {m: [] for m in modes}, {}
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as playwright:
         plan = frost_plan(Path(tmp), args.samples)
         chromium, page = browser_page(playwright)
         run_capture(plan, Path(tmp) / "warm", speedup=args.speedup, monitor=False)  # caches, page cache
         for i in range(args.repeats):
-            walls["off"].append(run_capture(plan, Path(tmp) / f"off{i}", speedup=args.speedup, monitor=False))
-            thread, urls, result = in_thread(plan=plan, session=Path(tmp) / f"on{i}", speedup=args.speedup)
-            page.goto(urls.get(timeout=120))
-            thread.join()
-            walls["on"].append(result["wall_s"])
-            updates = page.evaluate("() => window.goniofrostMonitor.renderMs.length")
-            print(f"repeat {i + 1}: off {walls['off'][-1]:.2f} s, on {walls['on'][-1]:.2f} s "
-                  f"(page rendered {updates} state updates)", flush=True)
+            for mode in modes:
+                cpu, session = {}, Path(tmp) / f"{mode}{i}"
+                if mode == "page":
+                    thread, urls, result = in_thread(plan=plan, session=session, speedup=args.speedup, cpu=cpu)
+                    page.goto(urls.get(timeout=120))
+                    thread.join()
+                    walls[mode].append(result["wall_s"])
+                else:
+                    walls[mode].append(run_capture(plan, session, speedup=args.speedup, monitor=mode == "server", cpu=cpu))
+                cpus[mode].append(cpu["process"] + cpu["browser"])
+                split[mode] = f"{cpu['process']:.2f} + {cpu['browser']:.2f}"
+            print(f"repeat {i + 1}: " + ", ".join(f"{m} {walls[m][-1]:.2f} s wall, {cpus[m][-1]:.2f} s CPU "
+                                                   f"(process + browser {split[m]})" for m in modes), flush=True)
         chromium.close()
-    off, on = statistics.median(walls["off"]), statistics.median(walls["on"])
+    wall = {m: statistics.median(v) for m, v in walls.items()}
+    cpu = {m: statistics.median(v) for m, v in cpus.items()}
     print(json.dumps({"samples": args.samples, "speedup": args.speedup, "repeats": args.repeats,
-                      "off_s": [round(w, 2) for w in walls["off"]], "on_s": [round(w, 2) for w in walls["on"]],
-                      "median_off_s": round(off, 2), "median_on_s": round(on, 2),
-                      "ratio_on_off": round(on / off, 3)}, indent=1))
+                      "wall_s": {m: [round(w, 2) for w in v] for m, v in walls.items()},
+                      "cpu_s": {m: [round(w, 2) for w in v] for m, v in cpus.items()},
+                      "median_wall_s": {m: round(v, 2) for m, v in wall.items()},
+                      "median_cpu_s": {m: round(v, 2) for m, v in cpu.items()},
+                      "wall_ratio_to_off": {m: round(wall[m] / wall["off"], 3) for m in modes},
+                      "added_cpu_s_as_share_of_off_wall": {m: round((cpu[m] - cpu["off"]) / wall["off"], 3) for m in modes}},
+                     indent=1))
 
 
 def main() -> None:

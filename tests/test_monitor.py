@@ -253,3 +253,23 @@ def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_por
         port = taken.getsockname()[1]
         assert main(["monitor", str(tmp_path), "--port", str(port)]) == 2
     assert f"monitor: cannot serve on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_show(finished):
+    from goniofrost.brdf.preview import preview_of
+    from goniofrost.capture.report import reconstruct_session
+    from goniofrost.monitor.images import estimate_for_preview, session_inputs, sphere_positions
+    from goniofrost.monitor.rig_pose import rig_from_text
+
+    view = read_session(finished)
+    inputs = session_inputs(view, rig_from_text(view.rig_text, "journal"))
+    grid = inputs.model.grid
+    whole = reconstruct_session(inputs, view.done)  # what the capture wrote to brdf.binary
+    part = estimate_for_preview(inputs, view.done)
+    shown = grid.valid_cells[sphere_positions(grid)]
+    assert 100 < shown.size < grid.n_valid / 2
+    np.testing.assert_allclose(part[shown], whole[shown], rtol=1e-6)
+    computed = np.union1d(shown, inputs.cells[[d.plan_index for d in view.done]])  # and the sampled cells
+    assert np.isnan(np.delete(part, computed, axis=0)).all() and not np.isnan(part[computed]).any()
+    np.testing.assert_allclose(preview_of(part, grid, size=96).estimate, preview_of(whole, grid, size=96).estimate,
+                               rtol=1e-6)

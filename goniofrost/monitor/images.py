@@ -125,16 +125,65 @@ def preview_png(view, rig) -> tuple[bytes, dict]:
     """Spheres (front, side, back light) of the session's reconstruction from the samples journaled
     so far, side by side; and a dict (samples used)."""
     from goniofrost.brdf.preview import exposure_for, preview_of, tone_map
-    from goniofrost.capture.report import reconstruct_session
 
     if not view.done:
         raise PictureUnavailable("no sample journaled yet")
     inputs = session_inputs(view, rig)
-    estimate = reconstruct_session(inputs, view.done)
+    estimate = estimate_for_preview(inputs, view.done)
     hdr = preview_of(estimate, inputs.model.grid, size=PREVIEW_SIZE).estimate
     exposure = exposure_for(hdr)
     image = np.concatenate([tone_map(hdr[k], exposure) for k in range(hdr.shape[0])], axis=1)
     return encode_png((image[..., ::-1] * 255 + 0.5).astype(np.uint8)), {"samples": len(view.done)}
+
+
+def estimate_for_preview(inputs, records) -> np.ndarray:
+    """The session's reconstruction, as ``capture.report.reconstruct_session`` computes it (ridge,
+    ``report.ETA``), but only at the cells the preview spheres look up: (grid.size, 3) in 1/sr,
+    NaN elsewhere. On the full grid that is a few thousand of 1.1 million cells, so a preview costs
+    milliseconds instead of a pass over the whole dictionary. The same numbers as the whole
+    reconstruction at those cells (tests/test_monitor.py compares them; when the capture's
+    estimator changes, change this function with it)."""
+    from goniofrost.capture.report import ETA
+    from goniofrost.frost.reconstruction import reconstruct
+
+    model, grid = inputs.model, inputs.model.grid
+    shown = sphere_positions(grid)
+    sampled = inputs.positions[[r.plan_index for r in records]]
+    rows, inverse = np.unique(np.concatenate([shown, sampled]), return_inverse=True)
+    estimate = reconstruct(restricted_model(model, rows), inverse[shown.size:], [r.rgb for r in records], eta=ETA)
+    full = np.full((grid.size, 3), np.nan)
+    full[grid.valid_cells[rows]] = estimate
+    return full
+
+
+@lru_cache(maxsize=4)
+def sphere_positions(grid) -> np.ndarray:
+    """Valid positions (int64, ascending) of the cells the preview spheres look up: found by
+    rendering them once from a stand-in table that records every lookup."""
+    from goniofrost.brdf.preview import DEFAULT_LIGHTS, render_set
+
+    class Lookups:
+        def __init__(self) -> None:
+            self.flat = []
+
+        def __getitem__(self, flat):
+            self.flat.append(np.asarray(flat, dtype=np.int64).ravel())
+            return np.zeros(np.shape(flat) + (3,))
+
+    table = Lookups()
+    render_set(table, grid, DEFAULT_LIGHTS, PREVIEW_SIZE)
+    cells = np.unique(np.concatenate(table.flat))
+    return grid.valid_position(cells[grid.valid_mask[cells]])
+
+
+def restricted_model(model, rows: np.ndarray):
+    """The model with only the dictionary, mean and mapping rows ``rows`` (valid positions): a
+    reconstruction from samples among those rows gives the full model's values there."""
+    from dataclasses import replace
+
+    return replace(model, dictionary=np.asarray(model.dictionary[rows]), mean=np.asarray(model.mean[rows]),
+                   reference=np.asarray(model.reference[rows]), weight=np.asarray(model.weight[rows]),
+                   content_hash=f"{model.content_hash} rows {rows.size}")
 
 
 def session_inputs(view, rig):

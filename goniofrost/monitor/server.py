@@ -46,6 +46,7 @@ TIME_REFRESH_S = 2.0       # re-derive the state this often even unchanged (stal
 HEARTBEAT_S = 15.0         # an SSE comment keeps idle connections open through proxies
 PICTURE_DUTY = 0.03        # pictures take at most ~3 % of one core
 PICTURE_MIN_GAP_S = 0.5
+SHUTDOWN_POLL_S = 0.05     # how soon serve_forever notices close()
 FINAL_PUSH_S = 2.0         # on close, wait this long at most for pages to receive the last state
 DEFAULT_PORT = 8765
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
@@ -180,6 +181,7 @@ class MonitorServer:
         self.host = host
         self.port = self.httpd.server_address[1]
         self._threads: list[threading.Thread] = []
+        self._stopping = threading.Event()
 
     @property
     def url(self) -> str:
@@ -187,20 +189,20 @@ class MonitorServer:
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '[::]') else host}:{self.port}/"
 
     def start(self) -> "MonitorServer":
-        for target in (self.httpd.serve_forever, self._poll):
-            thread = threading.Thread(target=target, name=f"monitor-{target.__name__}", daemon=True)
+        for name, target in (("serve", lambda: self.httpd.serve_forever(poll_interval=SHUTDOWN_POLL_S)),
+                             ("poll", self._poll)):
+            thread = threading.Thread(target=target, name=f"monitor-{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
         return self
 
     def _poll(self) -> None:
-        while not self.hub.closed:
+        while not self._stopping.wait(POLL_S):
             if self.hub.clients:
                 try:
                     self.hub.refresh()
                 except Exception:  # noqa: BLE001 - a monitor must never stop on a bad read; log it
                     log.exception("monitor: reading the session failed")
-            time.sleep(POLL_S)
 
     def close(self, ended_message: str | None = None) -> None:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
@@ -212,6 +214,7 @@ class MonitorServer:
             while time.monotonic() < deadline and any(v < self.hub.version for v in list(self.hub.clients.values())):
                 time.sleep(0.02)
         finally:
+            self._stopping.set()
             self.hub.close()
             self.httpd.shutdown()
             self.httpd.server_close()
