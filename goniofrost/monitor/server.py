@@ -87,6 +87,13 @@ class StateHub:
                     self._state, self._body, self.version = state, body, self.version + 1
                     self._cond.notify_all()
 
+    def refresh_logged(self, force: bool = False) -> None:
+        """``refresh``, logging instead of raising: the pages keep the last state they got."""
+        try:
+            self.refresh(force)
+        except Exception:  # noqa: BLE001 - a monitor must never stop on a bad read
+            log.exception("monitor: reading the session %s failed", self.session_dir)
+
     def payload(self) -> tuple[int, bytes]:
         """(version, the state JSON with the server's clock, for the page's "ago" texts)."""
         with self._cond:
@@ -199,17 +206,14 @@ class MonitorServer:
     def _poll(self) -> None:
         while not self._stopping.wait(POLL_S):
             if self.hub.clients:
-                try:
-                    self.hub.refresh()
-                except Exception:  # noqa: BLE001 - a monitor must never stop on a bad read; log it
-                    log.exception("monitor: reading the session failed")
+                self.hub.refresh_logged()
 
     def close(self, ended_message: str | None = None) -> None:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
         to the connected pages, then stop serving."""
         self.hub.ended_message = ended_message
         try:
-            self.hub.refresh(force=True)
+            self.hub.refresh_logged(force=True)
             deadline = time.monotonic() + FINAL_PUSH_S
             while time.monotonic() < deadline and any(v < self.hub.version for v in list(self.hub.clients.values())):
                 time.sleep(0.02)
@@ -249,7 +253,7 @@ class _Handler(BaseHTTPRequestHandler):
             if route.startswith("/static/"):
                 return self._static(route[len("/static/"):])
             if route == "/api/state":
-                self.monitor.hub.refresh()
+                self.monitor.hub.refresh_logged()
                 return self._send(HTTPStatus.OK, "application/json", self.monitor.hub.payload()[1])
             if route == "/api/events":
                 return self._events()
@@ -292,7 +296,7 @@ class _Handler(BaseHTTPRequestHandler):
         me = object()
         hub.clients[me] = -1
         try:
-            hub.refresh()
+            hub.refresh_logged()
             sent = -1
             while True:
                 version, payload = hub.payload()

@@ -289,6 +289,7 @@ function renderPredicted(st) {
 
 // ----- the stream -----------------------------------------------------------------------------
 function render(st) {
+  if (!st.state) return;  // the server could not read the session yet
   page.state = st;
   page.clockOffset = Date.now() / 1000 - st.server_time;
   renderOverview(st);
