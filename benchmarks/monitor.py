@@ -173,12 +173,15 @@ def browser_page(playwright):
 def screenshots(args) -> None:
     from playwright.sync_api import sync_playwright
 
-    out = Path(args.out)
+    import os
+
+    out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as playwright:
+        os.chdir(tmp)  # the page names the session as the demo's: demo-out/session
         plan = frost_plan(Path(tmp), args.samples)
         chromium, page = browser_page(playwright)
-        thread, urls, _ = in_thread(plan=plan, session=Path(tmp) / "s", speedup=args.speedup)
+        thread, urls, _ = in_thread(plan=plan, session=Path("demo-out/session"), speedup=args.speedup)
         page.goto(urls.get(timeout=120))
         page.wait_for_function(f"() => {{ const s = window.goniofrostMonitor.state; "
                                f"return s && s.done >= {int(args.samples * 0.6)} && document.querySelector('#preview-img').naturalWidth > 0; }}",
@@ -193,7 +196,7 @@ def screenshots(args) -> None:
         from goniofrost.app.demo import default_rig_path
         from goniofrost.capture.rig_file import load_checked_rig
         axis = load_checked_rig(default_rig_path()).joint_names[1]
-        session = Path(tmp) / "fault"
+        session = Path("demo-out/fault")
         thread, urls, _ = in_thread(plan=plan, session=session, speedup=args.speedup,
                                     on_ready=inject_after(session, 8, axis))
         page.goto(urls.get(timeout=120))
@@ -203,6 +206,7 @@ def screenshots(args) -> None:
         save(page, out / "monitor-fault.png")
         thread.join()
         chromium.close()
+        os.chdir(REPO)
 
 
 def inject_after(session: Path, n: int, axis: str):

@@ -7,6 +7,7 @@ is the session's reconstruction), read-only, and encoded with OpenCV.
 """
 from __future__ import annotations
 
+import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -123,17 +124,21 @@ def encode_png(bgr: np.ndarray) -> bytes:
 # ----- the reconstruction so far ---------------------------------------------------------------
 def preview_png(view, rig) -> tuple[bytes, dict]:
     """Spheres (front, side, back light) of the session's reconstruction from the samples journaled
-    so far, side by side; and a dict (samples used)."""
+    so far, side by side; and a dict (samples used, work_s: seconds of this preview's own work, not
+    counting what is loaded once: the model, the spheres' cells)."""
     from goniofrost.brdf.preview import exposure_for, preview_of, tone_map
 
     if not view.done:
         raise PictureUnavailable("no sample journaled yet")
     inputs = session_inputs(view, rig)
+    sphere_positions(inputs.model.grid)  # once per grid (cached): not part of a preview's own cost
+    t0 = time.perf_counter()
     estimate = estimate_for_preview(inputs, view.done)
     hdr = preview_of(estimate, inputs.model.grid, size=PREVIEW_SIZE).estimate
     exposure = exposure_for(hdr)
     image = np.concatenate([tone_map(hdr[k], exposure) for k in range(hdr.shape[0])], axis=1)
-    return encode_png((image[..., ::-1] * 255 + 0.5).astype(np.uint8)), {"samples": len(view.done)}
+    png = encode_png((image[..., ::-1] * 255 + 0.5).astype(np.uint8))
+    return png, {"samples": len(view.done), "work_s": time.perf_counter() - t0}
 
 
 def estimate_for_preview(inputs, records) -> np.ndarray:

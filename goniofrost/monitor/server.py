@@ -18,7 +18,8 @@ Routes (GET and HEAD only: every other method is answered 405, nothing can be wr
 Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
 POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
 one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
-(on a fast simulated capture some samples get no preview; the last one always does).
+(between PICTURE_MIN_GAP_S and PICTURE_MAX_GAP_S): on a fast simulated capture some samples get
+no picture of their own; the last one does before the server stops.
 """
 from __future__ import annotations
 
@@ -46,8 +47,9 @@ TIME_REFRESH_S = 2.0       # re-derive the state this often even unchanged (stal
 HEARTBEAT_S = 15.0         # an SSE comment keeps idle connections open through proxies
 PICTURE_DUTY = 0.03        # pictures take at most ~3 % of one core
 PICTURE_MIN_GAP_S = 0.5
+PICTURE_MAX_GAP_S = 5.0    # ... but never older than this (a first picture also loads the model)
 SHUTDOWN_POLL_S = 0.05     # how soon serve_forever notices close()
-FINAL_PUSH_S = 2.0         # on close, wait this long at most for pages to receive the last state
+FINAL_PUSH_S = 3.0         # on close, wait this long at most for pages to get the last state and pictures
 DEFAULT_PORT = 8765
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = ("index.html", "monitor.js", "monitor.css")
@@ -163,7 +165,9 @@ class PictureCache:
             took = time.monotonic() - t0
             with self._lock:
                 self.key, self.data, self.info, self.error = made, data, info, error
-                self._busy, self._next_at = False, time.monotonic() + max(PICTURE_MIN_GAP_S, took / PICTURE_DUTY)
+                took = (info or {}).get("work_s", took)  # a first picture's one-off loading does not count
+                gap = min(PICTURE_MAX_GAP_S, max(PICTURE_MIN_GAP_S, took / PICTURE_DUTY))
+                self._busy, self._next_at = False, time.monotonic() + gap
         return made, data, info, error, 0.0
 
 
@@ -215,7 +219,7 @@ class MonitorServer:
         try:
             self.hub.refresh_logged(force=True)
             deadline = time.monotonic() + FINAL_PUSH_S
-            while time.monotonic() < deadline and any(v < self.hub.version for v in list(self.hub.clients.values())):
+            while time.monotonic() < deadline and self.hub.clients and not self._final_page_served():
                 time.sleep(0.02)
         finally:
             self._stopping.set()
@@ -224,6 +228,16 @@ class MonitorServer:
             self.httpd.server_close()
             for thread in self._threads:
                 thread.join(timeout=5)
+
+    def _final_page_served(self) -> bool:
+        """Every open page has the last state, and the pictures of the last sample were made."""
+        view = self.hub.view
+        if any(v < self.hub.version for v in list(self.hub.clients.values())):
+            return False
+        if not view.done:
+            return True
+        latest = max(view.done, key=lambda d: d.committed_utc).plan_index
+        return self.frames.key == latest and self.previews.key == (view.plan_key, len(view.done))
 
     def __enter__(self) -> "MonitorServer":
         return self.start()
