@@ -44,7 +44,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # before benchmarks/, whose planner.py would shadow the planner package
 CHROMIUM = "/usr/bin/chromium"
 MATERIAL = "red-plastic"
-VIEWPORT = {"width": 1280, "height": 1000}
+VIEWPORT = {"width": 1280, "height": 1240}
 LONG_TASKS = """window.__longTasks = [];
 new PerformanceObserver((list) => list.getEntries().forEach((e) => window.__longTasks.push(e.duration)))
   .observe({ type: "longtask", buffered: true });"""
@@ -184,8 +184,10 @@ def screenshots(args) -> None:
         thread, urls, _ = in_thread(plan=plan, session=Path("demo-out/session"), speedup=args.speedup)
         page.goto(urls.get(timeout=120))
         page.wait_for_function(f"() => {{ const s = window.goniofrostMonitor.state; "
-                               f"return s && s.done >= {int(args.samples * 0.6)} && document.querySelector('#preview-img').naturalWidth > 0; }}",
-                               timeout=300_000)
+                               f"const shows = (id) => Number(document.querySelector(id).dataset.shows || -1); "
+                               f"return s && s.state === 'running' && s.done >= {int(args.samples * 0.6)} "
+                               f"&& shows('#preview-img') >= s.done - 3 && shows('#frame-img') >= s.done - 3; }}",
+                               timeout=180_000)
         page.wait_for_timeout(300)
         save(page, out / "monitor.png")
         page.wait_for_function("() => window.goniofrostMonitor.state.state === 'finished'", timeout=300_000)
@@ -320,7 +322,7 @@ def main() -> None:
     p = sub.add_parser("screenshots", help="docs screenshots")
     p.add_argument("--out", default=str(REPO / "docs"))
     p.add_argument("--samples", type=int, default=20)
-    p.add_argument("--speedup", type=float, default=10.0)
+    p.add_argument("--speedup", type=float, default=3.0)
     p = sub.add_parser("responsive", help="the page with a large plan")
     p.add_argument("--samples", type=int, default=1000)
     p.add_argument("--speedup", type=float, default=200.0)

@@ -273,7 +273,8 @@ function updatePictures(again) {
   if (st.latest && (again || st.latest.plan_index !== page.frameShown)) {
     const k = st.latest.plan_index;
     fetchPicture("frame", `/api/frame.png?sample=${k}`, k, $("frame-img"), $("frame-caption"), (shows, info) =>
-      `sample ${shows}: ${info.file || ""}, exposure ${info.exposure_s} s, SNR ${st.latest.snr?.toFixed(0)}, region of interest ${info.roi_pixels} px (green)`);
+      `sample ${shows}: ${info.file || ""}${info.exposure_s ? `, exposure ${info.exposure_s} s` : ""}` +
+      `, SNR ${page.state.samples.snr[shows]?.toFixed(0) ?? "–"}, region of interest ${info.roi_pixels} px (green)`);
   }
   if (st.done > 0 && (again || st.done !== page.previewShown)) {
     fetchPicture("preview", `/api/preview.png?done=${st.done}`, st.done, $("preview-img"), $("preview-caption"),
