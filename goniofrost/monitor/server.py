@@ -143,6 +143,7 @@ class PictureCache:
         self._lock = threading.Lock()
         self.key, self.data, self.info, self.error = None, None, {}, None
         self._busy, self._next_at = False, 0.0
+        self.closing = False  # the server is stopping: make the last pictures without waiting
 
     def get(self, key, make) -> tuple:
         """(key shown, PNG bytes or None, info, error text or None, seconds until a newer one may come).
@@ -151,7 +152,7 @@ class PictureCache:
         """
         with self._lock:
             now = time.monotonic()
-            if key == self.key or self._busy or now < self._next_at:
+            if key == self.key or self._busy or (now < self._next_at and not self.closing):
                 wait = 0.0 if key == self.key else max(self._next_at - now, 0.2)
                 return self.key, self.data, self.info, self.error, wait
             self._busy = True
@@ -216,6 +217,7 @@ class MonitorServer:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
         to the connected pages, then stop serving."""
         self.hub.ended_message = ended_message
+        self.frames.closing = self.previews.closing = True
         try:
             self.hub.refresh_logged(force=True)
             deadline = time.monotonic() + FINAL_PUSH_S
