@@ -70,7 +70,7 @@ class StateHub:
         self.view = read_session(self.session_dir)
         self.rig = None
         self.version, self.closed, self.clients = 0, False, {}
-        self._state, self._body, self._signature, self._read_at = {}, "", None, 0.0
+        self._body, self._signature, self._read_at = "{}", None, 0.0
         self._cond, self._read_lock = threading.Condition(), threading.Lock()
 
     def refresh(self, force: bool = False) -> None:
@@ -86,7 +86,7 @@ class StateHub:
             with self._cond:
                 self.view, self.rig, self._signature, self._read_at = view, rig, signature, now
                 if body != self._body:
-                    self._state, self._body, self.version = state, body, self.version + 1
+                    self._body, self.version = body, self.version + 1
                     self._cond.notify_all()
 
     def refresh_logged(self, force: bool = False) -> None:
@@ -99,7 +99,8 @@ class StateHub:
     def payload(self) -> tuple[int, bytes]:
         """(version, the state JSON with the server's clock, for the page's "ago" texts)."""
         with self._cond:
-            return self.version, json.dumps({**self._state, "server_time": time.time()}).encode()
+            body = self._body[:-1] + ", " if len(self._body) > 2 else "{"
+            return self.version, f'{body}"server_time": {time.time()!r}}}'.encode()
 
     def wait_newer(self, version: int, timeout: float) -> int:
         """Block until the state is newer than ``version``, the hub closes, or ``timeout``."""

@@ -54,7 +54,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "material": view.material, "journal_found": view.journal_found,
         "state": state, "hint": hint, "attached": attached,
         "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples" if total else "no plan yet",
-        "eta_s": eta, "eta_text": eta_text(eta, state), "eta_from_utc": last_activity_utc(view),
+        "eta_s": eta, "eta_text": eta_text(eta, state), "eta_from_utc": latest.committed_utc if latest else None,
         "last_event": _last_event(view),
         "samples": _sample_columns(view, done, next_index, failed),
         "latest": None if latest is None else _latest(latest),
