@@ -101,6 +101,17 @@ def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_o
     assert page_state(view(done=all_done, report={"samples": 4}), 1010)["state"] == "finished"
     failed = page_state(view(done=one), 1004, ended_message="goniofrost capture: error: disk full")
     assert (failed["state"], failed["hint"]) == ("failed", "goniofrost capture: error: disk full")
+    # with the session lock readable, liveness is known: no stall guessing
+    assert page_state(view(done=one, capture_alive=True), now_utc=1002.5 + 3000)["state"] == "running"
+    gone = page_state(view(done=one, capture_alive=False), now_utc=1003)
+    assert gone["state"] == "stopped" and gone["hint"].endswith("run the same capture command with --resume to continue")
+    gone = page_state(view(done=all_done, capture_alive=False), now_utc=1010)
+    assert gone["state"] == "stopped" and gone["hint"].endswith("--resume to write the results")
+    assert page_state(view(done=one, capture_alive=False), 1003, attached=True)["state"] == "running"
+    exposing = {"kind": "Expose", "plan_index": 1, "status": "running", "started_utc": 1003.0,
+                "detail": {"exposure_s": 0.032, "file": "raw/sample_0001_e2.dng", "index": 1}}
+    assert page_state(view(done=one, step=exposing), 1003.1)["hint"] == \
+        "capturing: 1 of 4 samples journaled; now: exposing 0.032 s for sample 1 (raw/sample_0001_e2.dng)"
 
 
 # ----- reading a journal that is being written ----------------------------------------------------
@@ -144,6 +155,26 @@ def test_a_missing_or_half_created_journal_reads_as_waiting(tmp_path):
     sqlite3.connect(tmp_path / "session.sqlite").close()  # created, no table yet
     got = read_session(tmp_path)
     assert got.journal_found is False and "not readable yet" in got.note
+
+
+def test_a_capture_killed_mid_session_reads_as_stopped_and_its_steps_as_they_happened(tmp_path):
+    import signal
+
+    from test_session import start_capture, wait_for_samples
+    rig, plan = make_plan(tmp_path, M)
+    session = tmp_path / "s"
+    proc = start_capture(rig, plan, session, speedup="10")
+    wait_for_samples(session, proc, 2)
+    alive = read_session(session)
+    assert alive.capture_alive is True and alive.step is not None and alive.reached is not None
+    assert page_state(alive, alive.events[-1]["t_utc"])["state"] == "running"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=10)
+    gone = read_session(session)
+    state = page_state(gone, gone.events[-1]["t_utc"])
+    assert gone.capture_alive is False and state["state"] == "stopped"
+    assert f"with {len(gone.done)} of {M} samples safe" in state["hint"]
+    assert state["poses"]["current"] is None  # no rig passed: no drawings (the browser tests draw them)
 
 
 # ----- paths --------------------------------------------------------------------------------------

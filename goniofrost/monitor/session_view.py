@@ -24,6 +24,7 @@ from pathlib import Path
 
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.runner import JOURNAL_FILE
+from goniofrost.capture.session_lock import LOCK_FILE
 
 REPORT_FILE = "report.json"
 SUMMARY_FILE = "summary.txt"
@@ -83,7 +84,10 @@ class SessionView:
     ``journal_found`` is False before the capture created its journal (``note`` says why);
     ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
     last run (a resume starts a new run); ``all_captured`` says that run journaled its last
-    sample; ``white_rates`` the calibration's white signal per channel (None before it);
+    sample; ``white_rates`` the calibration's white signal per channel (None before it); ``step`` the
+    journal's latest plan step (kind, plan_index, detail, status, started_utc); ``reached`` the
+    joints {axis: deg} and plan index of the last completed move (None before one);
+    ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
     ``summary`` the text of summary.txt (empty before the end);
     ``predicted_error`` is the latest predicted reconstruction error when the session
     records one; ``files`` are the names of the folder's own files (journal side files excluded).
@@ -108,6 +112,9 @@ class SessionView:
     stop: Stop | None = None
     calibrated: bool = False
     white_rates: tuple | None = None
+    step: dict | None = None
+    reached: dict | None = None
+    capture_alive: bool | None = None
     report: dict | None = None
     summary: str = ""
     predicted_error: float | None = None
@@ -126,7 +133,7 @@ def read_session(session_dir) -> SessionView:
     if not path.is_file():
         return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
     try:
-        meta, records, events, calibration = _read_journal(path)
+        meta, records, events, calibration, steps = _read_journal(path)
     except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
         return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
     report = _read_report(session_dir / REPORT_FILE)
@@ -142,7 +149,8 @@ def read_session(session_dir) -> SessionView:
         run_started_utc=run[0]["t_utc"] if run and _is_start(run[0]) else None,
         all_captured=any(e["kind"] == "session" and e["message"] == "all samples captured" for e in run),
         stop=_stop(run), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
-        summary=_read_text(session_dir / SUMMARY_FILE),
+        summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
+        capture_alive=lock_held(session_dir / LOCK_FILE),
         predicted_error=_predicted_error(events, report), files=files)
 
 
@@ -162,7 +170,8 @@ def _read_journal(path: Path):
         journal = Journal(path, db)  # the journal's own reading code, on a read-only connection
         db.execute("BEGIN")
         try:
-            return journal.meta(), journal.samples(), journal.events(), journal.calibration()
+            steps = journal.steps() if hasattr(journal, "steps") else []  # older journals: none
+            return journal.meta(), journal.samples(), journal.events(), journal.calibration(), steps
         finally:
             db.execute("COMMIT")
     finally:
@@ -233,6 +242,38 @@ def _stop(run: list) -> Stop | None:
         index = int(found.group(1)) if found else None
     message = data.get("operator_message") or f"{e['message']}. Fix the cause, then run the same command with --resume"
     return Stop(e["kind"], message, e["message"], e.get("axis"), index, e["t_utc"])
+
+
+def _last_step(steps: list) -> dict | None:
+    if not steps:
+        return None
+    last = steps[-1]
+    return {k: last[k] for k in ("kind", "plan_index", "detail", "status", "started_utc")}
+
+
+def _reached(steps: list) -> dict | None:
+    """Joints and plan index of the last Move step that completed (its result: the joints reached)."""
+    for step in reversed(steps):
+        joints = step["result"].get("joints") if isinstance(step["result"], dict) else None
+        if step["kind"] == "Move" and step["status"] == "done" and isinstance(joints, dict):
+            return {"joints": joints, "plan_index": step["plan_index"]}
+    return None
+
+
+def lock_held(lock: Path) -> bool | None:
+    """Whether some process holds the flock on ``lock`` (a capture running on the session), read
+    from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
+    could refuse a capture that starts at that moment). None where that cannot be told (no lock
+    file: a session from before the lock existed; no /proc/locks: not Linux)."""
+    import os
+
+    try:
+        st = os.stat(lock)
+        table = Path("/proc/locks").read_text()
+    except OSError:
+        return None
+    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    return any(line.split()[1:2] == ["FLOCK"] and device in line.split() for line in table.splitlines())
 
 
 def _white_rates(calibration: dict | None) -> tuple | None:

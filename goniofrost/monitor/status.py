@@ -4,9 +4,11 @@ The state of the session, from the journal's events of its last run:
 
 * ``waiting``: no journal yet (the capture is still checking its inputs, or has not started);
 * ``running``: the last run started and neither ended nor stopped;
-* ``stalled``: running by the journal, but nothing happened for longer than
-  ``stall_after_s`` (only when the monitor is not inside the capture's own process, which would
-  know better): the capture may have been killed;
+* ``stopped``: running by the journal, but no process holds the session's lock: the capture
+  ended without journaling why (killed, or the computer stopped);
+* ``stalled``: running by the journal, the lock cannot be checked, and nothing happened for
+  longer than ``stall_after_s`` (only when the monitor is not inside the capture's own process,
+  which would know better): the capture may have been killed;
 * ``reconstructing``: every sample journaled, report.json not written yet;
 * ``finished``: every sample journaled and the report written;
 * ``faulted`` / ``interrupted``: the last run ended on a device fault or error / on SIGINT or
@@ -79,17 +81,37 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
     if view.stop is not None:
         what = "interrupted" if view.stop.kind == "interrupted" else "faulted"
         return what, f"{what} with {len(done)} of {total} samples safe in the journal: what happened and what to do below"
-    if total and len(done) >= total:
-        if view.report is not None:
-            return "finished", f"all {total} samples captured; results written to {view.session_dir}"
+    complete = bool(total) and len(done) >= total
+    if complete and view.report is not None:
+        return "finished", f"all {total} samples captured; results written to {view.session_dir}"
+    if not attached and view.capture_alive is False:
+        return "stopped", (f"the capture process is gone without journaling why (killed, or the computer stopped?) "
+                           f"with {len(done)} of {total} samples safe: run the same capture command with --resume "
+                           f"to {'write the results' if complete else 'continue'}")
+    if complete:
         return "reconstructing", f"all {total} samples captured; reconstructing the BRDF and writing the report"
     idle = now_utc - last_activity_utc(view)
-    if not attached and idle > stall_after_s(view):
+    if not attached and view.capture_alive is None and idle > stall_after_s(view):
         return "stalled", (f"no journal activity for {duration_text(idle)}: if the capture process is gone "
                            f"(killed?), run the same capture command with --resume to continue")
+    doing = step_text(view.step)
     if not view.calibrated:
-        return "running", "homing and calibrating (dark frames, flat field, white reference)"
-    return "running", f"capturing: {len(done)} of {total} samples journaled"
+        return "running", f"homing and calibrating (dark frames, flat field, white reference){doing}"
+    return "running", f"capturing: {len(done)} of {total} samples journaled{doing}"
+
+
+def step_text(step: dict | None) -> str:
+    """'; now: ...' for the journal's running step (empty when none is running)."""
+    if not step or step["status"] != "running":
+        return ""
+    kind, detail, index = step["kind"], step["detail"] or {}, step["plan_index"]
+    sample = f"sample {index}" if index is not None else "the calibration"
+    text = {"Move": f"moving to {sample if index is not None else 'the white reference pose'}",
+            "Expose": f"exposing {detail.get('exposure_s', '?')} s for {sample} ({detail.get('file', '')})",
+            "Home": "homing every axis", "LampOn": "switching the lamp on", "LampOff": "switching the lamp off",
+            "SetTarget": f"showing the camera the {detail.get('target', '?')} target",
+            "Commit": f"journaling {sample}", "SaveCalibration": "saving the calibration"}.get(kind, kind)
+    return f"; now: {text}"
 
 
 def last_activity_utc(view) -> float:
@@ -194,7 +216,11 @@ def _poses(view, rig, latest, next_index) -> dict:
         return {"current": None, "next": None}
     from goniofrost.monitor.rig_pose import pose_drawing
 
-    if latest is not None:
+    if view.reached is not None:
+        index = view.reached["plan_index"]
+        label = f"sample {index} (reached)" if index is not None else "white reference (reached)"
+        current = {"label": label, **pose_drawing(rig, view.reached["joints"])}
+    elif latest is not None:
         current = {"label": f"sample {latest.plan_index} (reached)", **pose_drawing(rig, latest.joints)}
     else:
         home = {a.name: a.home_deg for a in rig.ordered_axes}
