@@ -173,6 +173,11 @@ def test_a_capture_killed_mid_session_reads_as_stopped_and_its_steps_as_they_hap
     gone = read_session(session)
     state = page_state(gone, gone.events[-1]["t_utc"])
     assert gone.capture_alive is False and state["state"] == "stopped"
+    with Journal.open(session / "session.sqlite") as journal:  # the reader's two step rows are the journal's
+        steps = journal.steps()
+    moved = [st for st in steps if st["kind"] == "Move" and st["status"] == "done"][-1]
+    assert gone.step == {k: steps[-1][k] for k in ("kind", "plan_index", "detail", "status", "started_utc")}
+    assert gone.reached == {"joints": moved["result"]["joints"], "plan_index": moved["plan_index"]}
     assert f"with {len(gone.done)} of {M} samples safe" in state["hint"]
     assert state["poses"]["current"] is None  # no rig passed: no drawings (the browser tests draw them)
 

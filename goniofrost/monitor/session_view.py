@@ -170,8 +170,7 @@ def _read_journal(path: Path):
         journal = Journal(path, db)  # the journal's own reading code, on a read-only connection
         db.execute("BEGIN")
         try:
-            steps = journal.steps() if hasattr(journal, "steps") else []  # older journals: none
-            return journal.meta(), journal.samples(), journal.events(), journal.calibration(), steps
+            return journal.meta(), journal.samples(), journal.events(), journal.calibration(), _recent_steps(db)
         finally:
             db.execute("COMMIT")
     finally:
@@ -242,6 +241,23 @@ def _stop(run: list) -> Stop | None:
         index = int(found.group(1)) if found else None
     message = data.get("operator_message") or f"{e['message']}. Fix the cause, then run the same command with --resume"
     return Stop(e["kind"], message, e["message"], e.get("axis"), index, e["t_utc"])
+
+
+def _recent_steps(db: sqlite3.Connection) -> list:
+    """The journal's last step row and its last completed Move, oldest first, as the journal's own
+    ``Journal.steps`` decodes them. Only these two: a long session has thousands of step rows and
+    the page is re-read several times a second. Journals from before the steps table: none."""
+    query = ("SELECT * FROM steps WHERE id IN ((SELECT MAX(id) FROM steps), "
+             "(SELECT MAX(id) FROM steps WHERE kind = 'Move' AND status = 'done')) ORDER BY id")
+    try:
+        cursor = db.execute(query)
+    except sqlite3.OperationalError:  # no steps table
+        return []
+    names = [c[0] for c in cursor.description]
+    rows = [dict(zip(names, row)) for row in cursor]
+    for row in rows:
+        row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
+    return rows
 
 
 def _last_step(steps: list) -> dict | None:
