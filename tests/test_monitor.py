@@ -309,3 +309,25 @@ def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_sho
     assert np.isnan(np.delete(part, computed, axis=0)).all() and not np.isnan(part[computed]).any()
     np.testing.assert_allclose(preview_of(part, grid, size=96).estimate, preview_of(whole, grid, size=96).estimate,
                                rtol=1e-6)
+
+
+def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(finished), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        url = re.fullmatch(rf"goniofrost monitor: (http://127\.0\.0\.1:\d+/) shows {re.escape(str(finished))} "
+                           r"\(read-only\); Ctrl-C stops\n", line).group(1)
+        state = json.loads(urllib.request.urlopen(url + "api/state", timeout=10).read())
+        assert state["state"] == "finished" and state["count_text"] == f"{M} of {M} samples"
+        assert b"<title>goniofrost monitor</title>" in urllib.request.urlopen(url, timeout=10).read()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        proc.kill()
