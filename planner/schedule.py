@@ -115,7 +115,15 @@ def _refuse_unreachable(samples, valid: np.ndarray, reasons: np.ndarray) -> None
             f"plan sample {s} (cell {_cell_label(samples[s])}) cannot be reached on this rig: {why}")
 
 
+def clip_to_limits(rig: Rig, joints: np.ndarray) -> np.ndarray:
+    """Joints (..., n_axes) in degrees with values that the reachability test accepted within its
+    rounding slack of a limit put exactly on it: the drivers and capture compare limits exactly."""
+    lows, highs = np.array([rig.axis(name).limits_deg for name in rig.joint_names]).T
+    return np.clip(joints, lows, highs)
+
+
 def _capture_samples(rig: Rig, samples, tour: Tour, chosen: np.ndarray) -> list[dict]:
+    chosen = clip_to_limits(rig, chosen)
     moves = _move_times(rig, chosen)
     out = []
     for pos, (s, c) in enumerate(zip(tour.order, tour.choice)):

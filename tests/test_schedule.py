@@ -146,3 +146,13 @@ def test_plan_command_refuses_a_malformed_rig_and_writes_nothing(small_model, tm
     assert main(["plan", "--model", str(small_model), "--samples", "5", "--rig", str(bad), "--out", str(out)]) == 2
     assert "axes.sample_tilt.speed_deg_s: expected a number in (0, inf], found -20.0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_joints_within_rounding_of_a_limit_are_written_on_it():
+    from planner.schedule import clip_to_limits
+
+    lo, hi = RIG.axis("camera_arm").limits_deg
+    joints = np.array([[lo - 2e-15, 0.0, 0.0], [hi + 1e-12, 10.0, -5.0], [90.0, 1.0, 2.0]])
+    clipped = clip_to_limits(RIG, joints)
+    assert clipped[0, 0] == lo and clipped[1, 0] == hi
+    np.testing.assert_array_equal(clipped[2], joints[2])
