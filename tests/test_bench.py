@@ -43,14 +43,23 @@ def without_times(rows):
 
 
 def test_rows_cover_every_method_m_fold_trial_material(config, tables, local_rows):
-    assert len(local_rows) == config.folds * designs_per_fold(config) * config.n_test
+    targets = len(config.target_errors)
+    assert len(local_rows) == config.folds * (designs_per_fold(config) + targets) * config.n_test
     keys = {(r["method"], r["m"], r["fold"], r["trial"]) for r in local_rows}
     assert {(k[0], k[3]) for k in keys} == {("frost", 0), ("frost-firstm", 0), ("nielsen", 0),
-                                           ("nielsen", 1), ("random", 0), ("uniform", 0)}
+                                           ("nielsen", 1), ("random", 0), ("uniform", 0), ("bayes", 0),
+                                           ("frost-bayesrec", 0), ("bayes-target", 0)}
     for r in local_rows:
         assert set(r) == set(ROW_FIELDS) and math.isfinite(r["mse"]) and r["mse"] > 0
         _, test = fold_split(len(tables[0]), config, r["fold"])
         assert r["material"] in [tables[0][i] for i in test]
+        bayes = r["method"] in ("bayes", "frost-bayesrec")
+        assert (r["pred_mse"] is not None) == (bayes or r["method"] == "bayes-target")
+        assert (r["cover90"] is not None) == bayes and (r["target"] is not None) == (r["method"] == "bayes-target")
+        if bayes:
+            assert r["pred_mse"] > 0 and 0 <= r["cover50"] <= r["cover90"] <= 1
+        if r["method"] == "bayes-target":  # stopped at a batch end, within the plan
+            assert r["m"] in (8,) and r["target"] == 0.05
     # FROST beats random cells on average even on this tiny problem
     mean = lambda meth: np.mean([r["mse"] for r in local_rows if r["method"] == meth and r["m"] == 8])
     assert mean("frost") < mean("random")
@@ -177,5 +186,5 @@ def test_summary_markdown_time_ratios_keep_two_digits():
 
     rows = [dict(method=method, m=20, fold=0, trial=0, material="a", mse=0.1, select_s=select_s, recon_s=0.01)
             for method, select_s in (("frost", 7.3), ("frost-firstm", 0.54), ("nielsen", 2.86))]
-    line = [l for l in summary_markdown(rows).splitlines() if l.startswith("| 20 |")][-1]
+    line = [l for l in summary_markdown(rows).splitlines() if l.startswith("| 20 |") and l.endswith("x |")][-1]
     assert line.endswith("| 0.39x | 5.3x |")

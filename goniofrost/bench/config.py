@@ -16,9 +16,13 @@ from goniofrost.core.grid import MerlGrid
 # cell edges), so two folds finish in minutes on 2 shared cores.
 QUICK_GRID = MerlGrid(45, 45, 90)
 # Method names as they appear in results rows, in report order.
-METHODS = ("frost", "frost-firstm", "nielsen", "random", "uniform")
-# Distinct integers mixed into the seeds so every method/fold/trial draws its own stream.
-METHOD_SEED = {name: i for i, name in enumerate(METHODS)}
+METHODS = ("bayes", "frost-bayesrec", "frost", "frost-firstm", "nielsen", "random", "uniform")
+# Result rows of these kinds come with a method (not selectable themselves).
+ROW_KINDS = METHODS + ("bayes-target",)
+# Distinct integers mixed into the seeds so every method/fold/trial draws its own stream (fixed
+# per name, so adding a method never changes another's stream).
+METHOD_SEED = {"frost": 0, "frost-firstm": 1, "nielsen": 2, "random": 3, "uniform": 4,
+               "bayes": 5, "frost-bayesrec": 6}
 SPLIT_SEED = 101
 
 
@@ -43,6 +47,8 @@ class BenchConfig:
         random_trials: random selections per fold and m.
         eta: ridge parameter of the reconstruction (paper: 40).
         seed: the one seed of the run.
+        target_errors: targets E of the simulated ``capture --target-error`` (with "bayes";
+            up to max(m_values) samples, batches as ``frost.stopping``).
     """
 
     datasets: tuple[str, ...]
@@ -58,6 +64,7 @@ class BenchConfig:
     random_trials: int = 1
     eta: float = 40.0
     seed: int = 0
+    target_errors: tuple[float, ...] = (0.05,)
 
     def __post_init__(self) -> None:
         _check(self)
@@ -99,6 +106,8 @@ def _check(config: BenchConfig) -> None:
         bad("methods", f"a non-empty subset of {', '.join(METHODS)}", config.methods)
     if not (np.isfinite(config.eta) and config.eta >= 0):
         bad("eta", "a finite number >= 0", config.eta)
+    if any(not (np.isfinite(e) and e > 0) for e in config.target_errors):
+        bad("target_errors", "finite numbers > 0", config.target_errors)
 
 
 def fold_split(n_materials: int, config: BenchConfig, fold: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,11 @@
 """The work of one fold: train once, select with every method and m, reconstruct the test set.
 
+Methods ``bayes`` (Bayesian A-optimal design, posterior-mean reconstruction) and
+``frost-bayesrec`` (FROST first-m cells, posterior-mean reconstruction: the gain of the
+estimator alone) reconstruct with ``bayes_eval``; their rows also carry the predicted error and
+the interval coverage. With ``bayes`` and target errors configured, a fold also simulates
+``capture --target-error`` on its test materials (rows of kind ``bayes-target``).
+
 ``run_fold`` is the unit the executors distribute (a local process or a Dask worker); it reads
 the memory-mapped material tables and returns plain result rows, so whoever runs it, the rows
 are the same (time fields aside).
@@ -16,7 +22,9 @@ from goniofrost.bench.baselines import nielsen_path, random_select, uniform_sele
 from goniofrost.bench.config import BenchConfig, BenchError, fold_split, method_rng
 from goniofrost.bench.data import open_tables
 
-Y_FORMS = {"frost": "all", "frost-firstm": "firstm"}
+Y_FORMS = {"frost": "all", "frost-firstm": "firstm", "frost-bayesrec": "firstm"}
+# Methods whose cells are reconstructed by the Bayesian posterior mean (the others: ridge).
+BAYES_RECON = ("bayes", "frost-bayesrec")
 
 
 @dataclass
@@ -34,6 +42,8 @@ def run_fold(config: BenchConfig, path: str, names: list[str], fold: int,
              progress: Callable[[int], None] | None = None) -> list[dict]:
     """Evaluate every method, m and trial on one fold; returns result rows (see results.ROW_FIELDS).
 
+    With "bayes" among the methods, the rows also hold the fold's target-error simulations.
+
     path: the cached tables (``data.tables_path``); names: their material names.
     progress: called with 1 after each evaluated design (for a progress bar).
     """
@@ -46,28 +56,37 @@ def run_fold(config: BenchConfig, path: str, names: list[str], fold: int,
     truth = np.asarray(tables[test])
     truth_log = model.to_log(truth)
     test_names = [names[i] for i in test]
-    rows = []
-    for design in iter_designs(model, config, fold):
+    rows, cache = [], {}
+    for design in iter_designs(model, config, fold, cache):
         rows += evaluate_design(model, design, truth, test_names, config.eta, fold, truth_log)
         if progress is not None:
             progress(1)
+    if "bayes" in config.methods:
+        rows += target_rows(model, config, truth, truth_log, test_names, fold, cache)
     return rows
 
 
 def designs_per_fold(config: BenchConfig) -> int:
     """How many designs ``iter_designs`` yields for one fold (for progress totals)."""
-    trials = {"frost": 1, "frost-firstm": 1, "uniform": 1,
+    trials = {"frost": 1, "frost-firstm": 1, "uniform": 1, "bayes": 1, "frost-bayesrec": 1,
               "nielsen": config.nielsen_trials, "random": config.random_trials}
     return len(config.m_values) * sum(trials[m] for m in config.methods)
 
 
-def iter_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
-    """Every (method, m, trial) selection of a fold, in a fixed order."""
+def iter_designs(model, config: BenchConfig, fold: int, cache: dict | None = None) -> Iterator[Design]:
+    """Every (method, m, trial) selection of a fold, in a fixed order.
+
+    cache: a dict shared by the fold's calls, so that a selection two methods use (FROST
+    first-m cells for frost-firstm and frost-bayesrec; the Bayesian design) runs once.
+    """
+    cache = {} if cache is None else cache
     for method in config.methods:
         if method in Y_FORMS:
-            yield from _frost_designs(model, config, method)
+            yield from _frost_designs(model, config, method, cache)
         elif method == "nielsen":
             yield from _nielsen_designs(model, config, fold)
+        elif method == "bayes":
+            yield from _bayes_designs(model, config, cache)
         elif method == "random":
             yield from _random_designs(model, config, fold)
         else:
@@ -80,12 +99,51 @@ def _timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
-def _frost_designs(model, config: BenchConfig, method: str) -> Iterator[Design]:
+def _frost_designs(model, config: BenchConfig, method: str, cache: dict) -> Iterator[Design]:
     from goniofrost.frost.selection import select_cells
 
     for m in config.m_values:
-        selection, seconds = _timed(select_cells, model, m, y_form=Y_FORMS[method])
+        key = ("frost", Y_FORMS[method], m)
+        if key not in cache:
+            cache[key] = _timed(select_cells, model, m, y_form=Y_FORMS[method])
+        selection, seconds = cache[key]
         yield Design(method, m, 0, np.asarray(selection.positions, dtype=np.int64), seconds)
+
+
+def bayes_design(model, config: BenchConfig, cache: dict):
+    """The fold's nested Bayesian design of max(m) cells (a Selection with pick_seconds)."""
+    from goniofrost.frost.bayes_selection import select_bayes
+
+    if "bayes" not in cache:
+        cache["bayes"] = select_bayes(model, max(config.m_values))
+    return cache["bayes"]
+
+
+def _bayes_designs(model, config: BenchConfig, cache: dict) -> Iterator[Design]:
+    # The design is nested: one run gives every m; the time of m is the wall time from the
+    # start of that run to the m-th pick (like Nielsen's incremental runs).
+    selection = bayes_design(model, config, cache)
+    for m in config.m_values:
+        yield Design("bayes", m, 0, np.asarray(selection.positions[:m]), float(selection.pick_seconds[m - 1]))
+
+
+def target_rows(model, config: BenchConfig, truth, truth_log, names: list[str], fold: int,
+                cache: dict | None = None) -> list[dict]:
+    """Rows of kind "bayes-target": per target error and test material, where the simulated
+    capture stopped (m = samples), its true error (mse) and predicted error (pred_mse)."""
+    from goniofrost.bench.bayes_eval import target_outcomes
+
+    selection = bayes_design(model, config, {} if cache is None else cache)
+    rows = []
+    for target in config.target_errors:
+        out = target_outcomes(model, np.asarray(selection.positions), truth, truth_log, target)
+        for i, name in enumerate(names):
+            m = int(out["samples"][i])
+            rows.append({"method": "bayes-target", "m": m, "fold": int(fold), "trial": 0, "material": name,
+                         "mse": float(out["mse"][i]), "select_s": float(selection.pick_seconds[m - 1]),
+                         "recon_s": out["seconds"] / len(names), "pred_mse": float(out["pred_mse"][i]),
+                         "cover50": None, "cover90": None, "target": float(target)})
+    return rows
 
 
 def _nielsen_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
@@ -124,15 +182,25 @@ def evaluate_design(model, design: Design, truth: np.ndarray, names: list[str],
     product for all test materials at once, divided by the number of materials.
     """
     truth_log = model.to_log(truth) if truth_log is None else truth_log
-    errors, seconds = _timed_errors(model, design.positions, truth, truth_log, eta)
+    extra = {"pred_mse": None, "cover50": None, "cover90": None, "target": None}
+    if design.method in BAYES_RECON:
+        from goniofrost.bench.bayes_eval import bayes_errors
+
+        out = bayes_errors(model, design.positions, truth, truth_log)
+        errors, seconds = out["mse"], out["seconds"]
+    else:
+        errors, seconds = _timed_errors(model, design.positions, truth, truth_log, eta)
     rows = []
     for i, name in enumerate(names):
         if not np.isfinite(errors[i]):
             raise BenchError(f"fold {fold}: {design.method} m={design.m} trial {design.trial} "
                              f"gives a non-finite error ({errors[i]}) on {name!r}")
+        if design.method in BAYES_RECON:
+            extra = {"pred_mse": float(out["pred_mse"][i]), "cover50": float(out["cover50"][i]),
+                     "cover90": float(out["cover90"][i]), "target": None}
         rows.append({"method": design.method, "m": int(design.m), "fold": int(fold),
                      "trial": int(design.trial), "material": name, "mse": float(errors[i]),
-                     "select_s": float(design.select_s), "recon_s": seconds / len(names)})
+                     "select_s": float(design.select_s), "recon_s": seconds / len(names)} | extra)
     return rows
 
 

@@ -1,7 +1,11 @@
 """Benchmark results: validation, the JSON/CSV files, and summary statistics.
 
 ``results.json`` is ``{"machine": {...}, "command": "...", "config": {...}, "rows": [row, ...]}``
-with each row holding exactly ROW_FIELDS. Every file is written to a temporary name and renamed,
+with each row holding exactly ROW_FIELDS. The OPTIONAL_FIELDS are numbers for the Bayesian
+reconstructions and null otherwise: ``pred_mse`` (the predicted error), ``cover50`` and
+``cover90`` (the fraction of the material's cells inside the nominal 50 % / 90 % predictive
+intervals), ``target`` (the target error of a ``bayes-target`` row, whose ``m`` is the number of
+samples the simulated capture took). Rows of an older run without them load as well. Every file is written to a temporary name and renamed,
 and nothing is written if any number is NaN or inf.
 """
 from __future__ import annotations
@@ -18,10 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.bench.config import METHODS, BenchError
+from goniofrost.bench.config import METHODS, ROW_KINDS, BenchError
 
-ROW_FIELDS = ("method", "m", "fold", "trial", "material", "mse", "select_s", "recon_s")
+BASE_FIELDS = ("method", "m", "fold", "trial", "material", "mse", "select_s", "recon_s")
+OPTIONAL_FIELDS = ("pred_mse", "cover50", "cover90", "target")
+ROW_FIELDS = BASE_FIELDS + OPTIONAL_FIELDS
 FLOAT_FIELDS = ("mse", "select_s", "recon_s")
+# The paper's Table II (MATLAB FROST and the authors' Python Nielsen, Xeon W-2123, 4 cores), s.
+PAPER_TABLE_II = {5: (0.14, 76.01), 10: (0.47, 248.67), 20: (1.86, 772.74), 30: (4.21, 1600.46),
+                  40: (7.49, 2772.74), 50: (12.05, 4357.08), 60: (17.67, 6366.88)}
 
 
 def machine_info() -> dict:
@@ -57,16 +66,20 @@ def _code_version() -> str | None:
 
 
 def check_rows(rows: list[dict]) -> None:
-    """Raise BenchError unless every row has exactly ROW_FIELDS with finite numbers."""
+    """Raise BenchError unless every row has the BASE_FIELDS (and only ROW_FIELDS) with finite
+    numbers (optional fields: finite or null)."""
     for i, row in enumerate(rows):
-        if set(row) != set(ROW_FIELDS):
+        if not set(BASE_FIELDS) <= set(row) <= set(ROW_FIELDS):
             raise BenchError(f"result row {i}: expected fields {ROW_FIELDS}, found {tuple(row)}")
-        if row["method"] not in METHODS:
+        if row["method"] not in ROW_KINDS:
             raise BenchError(f"result row {i}: unknown method {row['method']!r}")
-        for key in FLOAT_FIELDS:
-            if not (isinstance(row[key], float) and math.isfinite(row[key])):
+        for key in FLOAT_FIELDS + OPTIONAL_FIELDS:
+            value = row.get(key)
+            if key in OPTIONAL_FIELDS and value is None:
+                continue
+            if not (isinstance(value, float) and math.isfinite(value)):
                 raise BenchError(f"result row {i} ({row['method']} m={row['m']} {row['material']}): "
-                                 f"{key} must be a finite float, found {row[key]!r}")
+                                 f"{key} must be a finite float, found {value!r}")
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -98,7 +111,8 @@ def rows_csv(rows: list[dict]) -> str:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=ROW_FIELDS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()} for row in rows)
+    writer.writerows({k: (repr(v) if isinstance(v, float) else "" if v is None else v) for k, v in row.items()}
+                     for row in rows)
     return buf.getvalue()
 
 
@@ -126,6 +140,7 @@ def summary(rows: list[dict]) -> dict:
     ``worst_trial_mse`` likewise; ``select_s``: median over folds and trials of the selection
     time; ``recon_s``: median reconstruction time per material.
     """
+    rows = [r for r in rows if r["method"] in METHODS]  # target rows have their own summary
     means, times = trial_means(rows), trial_means(rows, "select_s")
     recon = defaultdict(list)
     for r in rows:
@@ -156,9 +171,11 @@ def methods_in(rows: list[dict]) -> list[str]:
 
 def summary_markdown(rows: list[dict], m_values=None) -> str:
     """Markdown tables: mean log-relative MSE and median selection time per method and m."""
+    from goniofrost.bench.bayes_report import markdown as bayes_markdown
+
     stats = summary(rows)
     methods = methods_in(rows)
-    ms = sorted({r["m"] for r in rows}) if m_values is None else [m for m in m_values if any(k[1] == m for k in stats)]
+    ms = sorted({k[1] for k in stats}) if m_values is None else [m for m in m_values if any(k[1] == m for k in stats)]
     cols = []
     for method in methods:
         cols.append((method, "mse"))
@@ -176,6 +193,7 @@ def summary_markdown(rows: list[dict], m_values=None) -> str:
         sel = [stats.get((meth, m), {}).get("select_s") for meth in methods]
         ratios = [_ratio(stats, m, frost) for frost in ("frost", "frost-firstm")]
         lines.append(f"| {m} | " + " | ".join(_fmt(s, 3) for s in sel) + f" | {ratios[0]} | {ratios[1]} |")
+    lines += bayes_markdown(rows, stats, ms, PAPER_TABLE_II)
     return "\n".join(lines) + "\n"
 
 

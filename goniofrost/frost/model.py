@@ -11,6 +11,14 @@ A model "file" is a **directory** holding one ``.npy`` per array plus ``model.js
       mean.npy              float32 (n_valid,)     mu, per-row mean of the mapped training data
       reference.npy         float32 (n_valid,)     r, per-row median of the weighted training data
       weight.npy            float32 (n_valid,)     w = clip(cos theta_i cos theta_o, 0.01, 1)
+      noise_variance.npy    float32 (n_valid,)     sigma_c^2 (format version 2, optional)
+
+``noise_variance`` is the learned noise model of the Bayesian pipeline (``noise.py``): the
+representation error of unseen materials per cell, in the mapped domain; ``model.json`` then
+holds under ``noise`` how it was learned and the predicted-error calibration
+(``calibration.py``). Format version 1 models (no such file) still load: they get the scalar
+noise ``posterior.SCALAR_ETA / t`` per cell and an uncalibrated predicted error
+(``prediction.UNCALIBRATED``). A version-2 model without the file is read the same way.
 
 Rows follow ``grid.valid_cells`` (ascending flat index). ``FrostModel.load`` memory-maps
 the arrays, so opening a full-size model costs milliseconds and only touched pages are read.
@@ -35,9 +43,11 @@ from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
 
 FORMAT = "goniofrost-frost-model"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 WEIGHT_CONVENTION = "clip(cos(theta_i) * cos(theta_o), 0.01, 1)"
 ARRAYS = ("dictionary", "singular_values", "coefficients", "mean", "reference", "weight")
+OPTIONAL_ARRAYS = ("noise_variance",)
 META_FILE = "model.json"
 
 
@@ -70,6 +80,8 @@ class FrostModel:
         mean: (n,) float32, mu.
         reference: (n,) float32, r (weighted BRDF, 1/sr).
         weight: (n,) float32, w (dimensionless).
+        noise_variance: (n,) float32 sigma_c^2, or None (scalar noise; see the module doc).
+        noise: how the noise model was learned and the predicted-error calibration ({} if none).
         content_hash: hex BLAKE2b of the arrays and metadata (identifies the model).
     """
 
@@ -82,6 +94,8 @@ class FrostModel:
     mean: np.ndarray
     reference: np.ndarray
     weight: np.ndarray
+    noise_variance: np.ndarray | None = None
+    noise: dict = field(default_factory=dict)
     content_hash: str = ""
     info: dict = field(default_factory=dict)
 
@@ -138,7 +152,7 @@ class FrostModel:
             "format": FORMAT, "version": VERSION, "grid": self.grid.as_dict(),
             "names": list(self.names), "eps": float(self.eps), "weight": WEIGHT_CONVENTION,
             "n_valid": int(self.grid.n_valid), "n_components": self.n_components,
-            "n_signals": self.n_signals, "info": self.info,
+            "n_signals": self.n_signals, "noise": self.noise, "info": self.info,
         }
 
     def compute_hash(self) -> str:
@@ -146,11 +160,14 @@ class FrostModel:
         h = hashlib.blake2b(digest_size=32)
         meta = {k: v for k, v in self.metadata().items() if k != "info"}
         h.update(json.dumps(meta, sort_keys=True).encode())
-        for name in ARRAYS:
+        for name in self._present_arrays():
             arr = np.ascontiguousarray(getattr(self, name))
             h.update(f"{name}:{arr.dtype.str}:{arr.shape}".encode())
             h.update(memoryview(arr).cast("B"))
         return h.hexdigest()
+
+    def _present_arrays(self) -> tuple[str, ...]:
+        return ARRAYS + tuple(name for name in OPTIONAL_ARRAYS if getattr(self, name) is not None)
 
     # ----- files ----------------------------------------------------------------------
     def save(self, path) -> Path:
@@ -174,7 +191,7 @@ class FrostModel:
         return path
 
     def _write_into(self, folder: Path) -> None:
-        for name in ARRAYS:
+        for name in self._present_arrays():
             np.save(folder / f"{name}.npy", np.ascontiguousarray(getattr(self, name)))
         meta = self.metadata() | {"content_hash": self.content_hash}
         (folder / META_FILE).write_text(json.dumps(meta, indent=1))
@@ -185,7 +202,8 @@ class FrostModel:
         path = Path(path)
         meta = _read_meta(path)
         arrays = {}
-        for name in ARRAYS:
+        optional = tuple(n for n in OPTIONAL_ARRAYS if (path / f"{n}.npy").is_file()) if meta["version"] >= 2 else ()
+        for name in ARRAYS + optional:
             file = path / f"{name}.npy"
             try:
                 arrays[name] = np.load(file, mmap_mode="r" if mmap else None, allow_pickle=False)
@@ -193,7 +211,8 @@ class FrostModel:
                 raise ModelError(f"{file}: cannot read model array ({exc})") from exc
         grid = MerlGrid(**meta["grid"])
         model = cls(grid=grid, names=list(meta["names"]), eps=float(meta["eps"]),
-                    content_hash=str(meta["content_hash"]), info=meta.get("info", {}), **arrays)
+                    content_hash=str(meta["content_hash"]), info=meta.get("info", {}),
+                    noise=meta.get("noise") or {}, **arrays)
         _check_shapes(path, model, meta)
         return model
 
@@ -211,14 +230,20 @@ def _read_meta(path: Path) -> dict:
     missing = [k for k in ("grid", "names", "eps", "content_hash") if k not in meta]
     if missing:
         raise ModelError(f"{file}: missing fields {missing}")
+    meta.setdefault("version", 1)
+    if meta["version"] not in READABLE_VERSIONS:
+        raise ModelError(f"{file}: version: expected one of {list(READABLE_VERSIONS)}, found {meta['version']!r} "
+                         "(a model written by a newer goniofrost)")
     return meta
 
 
 def _check_shapes(path: Path, model: FrostModel, meta: dict) -> None:
     n, k, t = model.grid.n_valid, meta.get("n_components"), meta.get("n_signals")
     expected = {"dictionary": (n, k), "singular_values": (k,), "coefficients": (k, t),
-                "mean": (n,), "reference": (n,), "weight": (n,)}
+                "mean": (n,), "reference": (n,), "weight": (n,), "noise_variance": (n,)}
     for name, shape in expected.items():
+        if getattr(model, name) is None:
+            continue
         found = getattr(model, name).shape
         if found != shape:
             raise ModelError(f"{path / (name + '.npy')}: shape {found}, expected {shape}")

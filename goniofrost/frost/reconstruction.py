@@ -1,4 +1,9 @@
-"""Reconstruction: a few BRDF samples -> the full BRDF, by ridge regression on the dictionary.
+"""Reconstruction: a few BRDF samples -> the full BRDF, on the FROST dictionary.
+
+Two estimators. ``reconstruct_bayes`` (the default of ``goniofrost reconstruct``) is the
+posterior mean over all K atoms with the model's noise (``posterior.py``; DESIGN.md "The
+Bayesian view"), with a predictive standard deviation for every cell and a predicted error of
+this reconstruction (``prediction.py``). ``reconstruct`` is the paper's ridge regression:
 
 Paper section IV-B (DESIGN.md "Reconstruction"). Samples b (RGB, 1/sr) at l distinct valid
 cells are mapped with the model's w, r, eps and mu is subtracted; with D_a the first a atoms
@@ -13,6 +18,7 @@ with fewer the ridge term keeps the problem well posed even if a > l is forced.
 from __future__ import annotations
 
 import csv
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +30,8 @@ from goniofrost.frost.model import FrostModel
 
 ETA = 40.0
 CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b")
+# Optional SAMPLES.csv columns: each sample's standard deviation in 1/sr (samples.csv of a session).
+SIGMA_COLUMNS = ("sigma_r", "sigma_g", "sigma_b")
 
 
 class ReconstructionError(GoniofrostError, ValueError):
@@ -42,13 +50,99 @@ def reconstruct(model: FrostModel, positions, values, eta: float = ETA,
     unique, mean_values = average_duplicates(positions, values)
     mapped = model.to_log(mean_values, unique)
     estimate = model.from_log(reconstruct_log(model, unique, mapped, eta, n_atoms))
+    _check_overflow(estimate, unique.size, f"eta={eta:g}", f": use eta > 0 (default {ETA:g}) or samples better spread over the BRDF")
+    return estimate
+
+
+def _check_overflow(estimate, n_cells: int, what: str, advice: str = "") -> None:
     overflow = int(np.count_nonzero(~np.isfinite(estimate)))
     if overflow:
         raise ReconstructionError(
             f"reconstruction diverged: {overflow} of {estimate.size} estimated values overflow "
-            f"(beyond 1e308 1/sr); the {unique.size} sampled cells do not constrain the fit with "
-            f"eta={eta:g}: use eta > 0 (default {ETA:g}) or samples better spread over the BRDF")
-    return estimate
+            f"(beyond 1e308 1/sr); the {n_cells} sampled cells do not constrain the fit with "
+            f"{what}{advice}")
+
+
+@dataclass
+class BayesReconstruction:
+    """A posterior-mean reconstruction with its uncertainty.
+
+    brdf: float64 (n_valid, 3) in 1/sr (clamped >= 0). mapped: float64 (n_valid, 3), the
+    estimate of L = log((w x + eps) / (r + eps)) (mu added). std: float64 (n_valid, 3), the
+    predictive standard deviation of that mapped value (equivalently of ln(w x + eps)),
+    scaled so that its mean square over cells is ``predicted_error``. predicted_error: the
+    predicted log-relative MSE of this reconstruction. design_error, z2, energy: its features
+    (``prediction.py``). samples: distinct sampled cells.
+    """
+
+    brdf: np.ndarray
+    mapped: np.ndarray
+    std: np.ndarray | None
+    predicted_error: float
+    design_error: float
+    z2: float
+    energy: float
+    samples: int
+
+
+def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
+                      with_std: bool = True) -> BayesReconstruction:
+    """Posterior-mean reconstruction over all K atoms with the model's noise model.
+
+    positions: int (l,) indices into ``grid.valid_cells`` (repeats allowed: averaged).
+    values: (l, 3) BRDF samples in 1/sr (finite, >= 0). sigmas: optional (l, 3) standard
+    deviations of the samples in 1/sr (added to the noise through the log map).
+    with_std: also compute the per-cell predictive standard deviation (one more product).
+    """
+    from goniofrost.frost import posterior, prediction
+
+    positions, values = _check_samples(model, positions, values)
+    unique, mean_values, noise_extra = _average_with_sigmas(model, positions, values, sigmas)
+    cell_noise = posterior.cell_noise(model)
+    noise = cell_noise[unique][:, None] + noise_extra
+    mu = np.asarray(model.mean, dtype=np.float64)
+    b = model.to_log(mean_values, unique) - mu[unique][:, None]
+    s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
+    post = posterior.fit(model.dictionary[unique], noise, posterior.prior_variance(model), b, s2,
+                         float(cell_noise.sum()), model.grid.n_valid)
+    design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
+    predicted = float(prediction.predict(prediction.calibration_of(model), design, z2, energy, unique.size))
+    if with_std:
+        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post)
+        per_channel = variance[:, np.searchsorted(used, post.group)]
+        std = np.sqrt((per_channel + cell_noise[:, None]) * (predicted / design))
+    else:
+        mapped, std = reconstruct_mapped(model, post), None
+    brdf = model.from_log(mapped)
+    _check_overflow(brdf, unique.size, "the Bayesian estimate")
+    return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
+
+
+def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:
+    """D s_hat + mu over every valid cell: float64 (n_valid, c)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        estimate = model.dictionary @ post.coefficients.astype(np.float32)
+    return estimate.astype(np.float64) + np.asarray(model.mean, dtype=np.float64)[:, None]
+
+
+def _average_with_sigmas(model, positions, values, sigmas):
+    """Distinct positions, mean values and the samples' own mapped variance (u, 3) (0 without sigmas).
+
+    The mean of k samples has the variance sum(sigma^2) / k^2 (independent errors).
+    """
+    unique, mean_values = average_duplicates(positions, values)
+    if sigmas is None:
+        return unique, mean_values, np.zeros_like(mean_values)
+    sigmas = np.asarray(sigmas, dtype=np.float64)
+    if sigmas.shape != values.shape:
+        raise ReconstructionError(f"sigmas: expected shape {values.shape} like the values, found {sigmas.shape}")
+    _check_values(sigmas, lambda i: f"sample {i} standard deviation")
+    _, var_sum = average_duplicates(positions, sigmas ** 2)
+    counts = np.bincount(np.searchsorted(unique, positions), minlength=unique.size)[:, None]
+    sigma_mean = np.sqrt(var_sum / counts)
+    w = np.asarray(model.weight, dtype=np.float64)[unique]
+    from goniofrost.frost.posterior import log_map_variance
+    return unique, mean_values, log_map_variance(mean_values, sigma_mean, w, model.eps)
 
 
 def reconstruct_log(model: FrostModel, positions, log_values, eta: float = ETA,

@@ -60,12 +60,15 @@ class SelectionError(GoniofrostError, ValueError):
 
 @dataclass
 class Selection:
-    """The outcome of FROST selection, in pick (= measurement) order.
+    """The outcome of a selection, in pick (= measurement) order.
 
     positions: int64 (m,) indices into ``grid.valid_cells`` (rows of the model arrays).
     cells: int64 (m,) flat MERL cell indices.
-    residuals: float64 (m,) relative residual ||R||_F / ||Y||_F after each pick.
-    seconds: wall time of the selection (s). y_form: "all" or "firstm". k: atoms used.
+    residuals: float64 (m,) after each pick: FROST's relative residual ||R||_F / ||Y||_F, or
+        for the Bayesian selector the predicted error of a typical material.
+    seconds: wall time of the selection (s). y_form: "all" or "firstm" (FROST; "" for bayes).
+    k: atoms used. selector: "frost" (SOMP) or "bayes" (A-optimal design).
+    pick_seconds: float64 (m,) wall time from the start to each pick (bayes), else None.
     """
 
     positions: np.ndarray
@@ -74,6 +77,8 @@ class Selection:
     seconds: float
     y_form: str
     k: int
+    selector: str = "frost"
+    pick_seconds: np.ndarray | None = None
 
     @property
     def m(self) -> int:

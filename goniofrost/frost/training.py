@@ -11,6 +11,10 @@ columns (t = 3 per material, column ``3 * material + channel``):
 
 Everything row-wise (steps 1-3 and G) is done in one chunked pass; X is kept in float32
 (n x t, 1.75 GB for 131 materials at full size) for the second pass D = X V.
+
+5. the noise model of the Bayesian pipeline (``noise.py``, ``calibration.py``): inner
+   cross-validation over the training materials from G and X, giving sigma_c^2 per cell and the
+   predicted-error calibration (format version 2; ``noise=False`` skips it).
 Why the Gram route and not a randomized SVD: see benchmarks/frost_speed.py (measured there;
 the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 multiply-adds).
 """
@@ -33,6 +37,11 @@ CHANNELS = "RGB"
 CHUNK_ROWS = 1 << 14
 # Eigenvalues below this fraction of the largest are treated as zero (rank deficiency).
 RANK_TOL = 1e-12
+# The noise cross-validation needs materials to hold out and others to train on.
+MIN_NOISE_MATERIALS = 4
+# sigma_c^2 never below this (mapped domain): a cell every training material reproduces exactly
+# must not get an infinite weight.
+NOISE_FLOOR = 1e-6
 
 
 class TrainingError(GoniofrostError, ValueError):
@@ -41,12 +50,14 @@ class TrainingError(GoniofrostError, ValueError):
 
 def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
               k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
-              progress: bool = False) -> FrostModel:
+              progress: bool = False, noise: bool = True) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
     tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype).
     names: M material names (stored in the model; used in error messages).
     k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
+    noise: learn the noise model and predicted-error calibration by inner cross-validation
+        (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
     tables = np.asarray(tables)
@@ -56,9 +67,30 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress)
     svals, vt = _eigen_components(gram, k_max)
     dictionary = _project(mapped, vt)
+    variance, noise_meta = None, {}
+    if noise and len(names) >= MIN_NOISE_MATERIALS:
+        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
     return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
                       singular_values=svals, coefficients=vt, mean=mean,
-                      reference=reference, weight=weight, info=info or {})
+                      reference=reference, weight=weight, noise_variance=variance,
+                      noise=noise_meta, info=info or {})
+
+
+def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
+                progress: bool = False) -> tuple[np.ndarray, dict]:
+    """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
+    calibration.py): inner folds, smoothed representation error, simulated captures, calibration."""
+    from goniofrost.frost import calibration, noise
+
+    folds = noise.inner_folds(gram, n_materials, k)
+    variance = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
+    variance = np.maximum(variance, NOISE_FLOOR).astype(np.float32)
+    records = calibration.simulate(mapped, folds, variance.astype(np.float64), progress=progress)
+    meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
+            "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
+            "mean_variance": float(variance.mean(dtype=np.float64)),
+            "calibration": calibration.fit_calibration(records)}
+    return variance, meta
 
 
 def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: int) -> None:
@@ -183,7 +215,7 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
 
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
-    key = disk_cache.content_key("frost-model-v1", ids, [m.label for m in materials],
+    key = disk_cache.content_key("frost-model-v2", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():

@@ -5,7 +5,8 @@ import os
 import shlex
 from pathlib import Path
 
-HELP = "benchmark FROST against Nielsen et al. 2015, random and uniform sampling (error, time, stress)"
+HELP = ("benchmark the Bayesian pipeline and FROST against Nielsen et al. 2015, random and uniform sampling "
+        "(error, uncertainty, time, stress)")
 SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA",
                                   Path(__file__).resolve().parents[4] / "shared" / "data"))
 DEFAULT_DATASETS = [f"nbrdf:{SHARED_DATA / 'nbrdf_merl.npz'}", f"nbrdf:{SHARED_DATA / 'nbrdf_rgl.npz'}"]
@@ -24,7 +25,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--test", type=int, default=20, help="test materials per fold (default 20)")
     parser.add_argument("--m", type=_int_list, metavar="LIST", help="sample counts, e.g. 5,10,20 or 5:60:5 (default 5:60:5; --quick 10,20,40)")
     parser.add_argument("--methods", type=_str_list, metavar="LIST",
-                        help="comma-separated subset of frost,frost-firstm,nielsen,random,uniform (default all)")
+                        help="comma-separated subset of bayes,frost-bayesrec,frost,frost-firstm,nielsen,random,uniform "
+                             "(default all; bayes = Bayesian design and reconstruction, frost-bayesrec = FROST "
+                             "first-m cells with the Bayesian reconstruction)")
+    parser.add_argument("--target-error", type=_float_list, metavar="LIST",
+                        help="targets E of the simulated capture --target-error, with bayes (default 0.05)")
     parser.add_argument("--nielsen-trials", type=int, help="Nielsen runs per fold (default 5; --quick 2)")
     parser.add_argument("--nielsen-subset", type=int, default=500, help="random candidates per greedy addition (default 500)")
     parser.add_argument("--nielsen-max-iter", type=int,
@@ -70,6 +75,8 @@ def build_config(args):
                   eta=args.eta, seed=args.seed, methods=tuple(args.methods or METHODS))
     if args.grid:
         fields["grid"] = MerlGrid(*args.grid)
+    if args.target_error is not None:
+        fields["target_errors"] = tuple(args.target_error)
     for name, value in (("folds", args.folds), ("m_values", args.m), ("nielsen_trials", args.nielsen_trials),
                         ("nielsen_max_iter", args.nielsen_max_iter)):
         if value is not None:
@@ -89,7 +96,8 @@ def command(config, args) -> str:
               "--m", ",".join(map(str, config.m_values)), "--methods", ",".join(config.methods),
               "--nielsen-trials", str(config.nielsen_trials), "--nielsen-subset", str(config.nielsen_subset),
               "--nielsen-max-iter", str(config.nielsen_max_iter), "--random-trials", str(config.random_trials),
-              "--eta", repr(config.eta), "--seed", str(config.seed)]
+              "--eta", repr(config.eta), "--seed", str(config.seed),
+              "--target-error", ",".join(repr(e) for e in config.target_errors)]
     if args.stress:
         parts += ["--stress", "--stress-m", str(args.stress_m)]
     return shlex.join(parts)
@@ -104,6 +112,14 @@ def _int_list(text: str) -> list[int]:
         return [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected integers like 5,10,20 or 5:60:5, found {text!r}") from None
+
+
+def _float_list(text: str) -> list[float]:
+    import argparse
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 0.05 or 0.05,0.03, found {text!r}") from None
 
 
 def _str_list(text: str) -> list[str]:

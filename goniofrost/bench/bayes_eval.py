@@ -1,0 +1,95 @@
+"""The Bayesian pipeline in a benchmark fold: reconstructions with uncertainty, and captures
+that stop at a target error.
+
+All test materials measured at the same cells share one posterior covariance, so one solve
+and one pass over D (mean and predictive variance) serve them all. For every material the
+rows record the true error, the predicted error (``prediction.py``, from its own samples) and
+the fraction of its cells (and channels) whose true mapped value lies within the nominal 50 %
+and 90 % predictive intervals (estimate +- z std, the std scaled to the predicted error).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from goniofrost.frost import posterior, prediction, stopping
+
+Z50, Z90 = 0.6744897501960817, 1.6448536269514722  # two-sided normal quantiles
+
+
+def _fit(model, positions, truth):
+    """The posterior of every test material (3 columns each) from its values at ``positions``."""
+    n_mat = truth.shape[0]
+    values = truth[:, positions, :].transpose(1, 0, 2).reshape(positions.size, 3 * n_mat)
+    mu = np.asarray(model.mean, dtype=np.float64)
+    b = model.to_log(values, positions) - mu[positions][:, None]
+    noise = posterior.cell_noise(model)
+    s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
+    return posterior.fit(model.dictionary[positions], noise[positions], posterior.prior_variance(model),
+                         b, s2, float(noise.sum()), model.grid.n_valid), noise
+
+
+def _predicted(model, post, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(predicted error, design error) per material, float64 (n_mat,) each."""
+    calibration = prediction.calibration_of(model)
+    feats = np.array([prediction.material_features(post, [3 * i, 3 * i + 1, 3 * i + 2], model.n_signals)
+                      for i in range(n_mat)])
+    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m), feats[:, 0]
+
+
+def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
+    """Reconstruct every test material with the posterior mean; float64 (n_mat,) arrays under
+    "mse", "pred_mse", "cover50", "cover90", and "seconds" (the whole batch, wall time)."""
+    from goniofrost.bench.evaluate import batch_log_errors
+
+    start = time.perf_counter()
+    n_mat = truth.shape[0]
+    positions = np.asarray(positions, dtype=np.int64)
+    post, noise = _fit(model, positions, truth)
+    predicted, design = _predicted(model, post, n_mat, np.unique(positions).size)
+    estimate, variance, _ = posterior.mean_and_variance(model.dictionary, model.mean, post)
+    seconds = time.perf_counter() - start
+    floor = np.log(model.eps) - np.log(np.asarray(model.reference, np.float64) + model.eps)
+    base_var = variance[:, 0] + noise  # one noise group: every column shares Sigma
+    cover50, cover90 = np.empty(n_mat), np.empty(n_mat)
+    for i in range(n_mat):
+        std = np.sqrt(base_var * (predicted[i] / design[i]))[:, None]
+        miss = np.abs(np.maximum(estimate[:, 3 * i:3 * i + 3], floor[:, None]) - truth_log[i])
+        cover50[i], cover90[i] = np.mean(miss <= Z50 * std), np.mean(miss <= Z90 * std)
+    return {"mse": batch_log_errors(model, estimate, truth_log), "pred_mse": predicted,
+            "cover50": cover50, "cover90": cover90, "seconds": seconds}
+
+
+def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
+                    target: float) -> dict:
+    """Simulated ``capture --target-error``: every test material measured in batches along the
+    nested design ``order`` (positions, length m_max) until its predicted error <= target.
+
+    Returns float64/int64 (n_mat,) arrays "samples", "mse" (true error at the stop),
+    "pred_mse" (predicted at the stop), "reached" (1 if the target was reached) and "seconds"
+    (the whole simulation, wall time).
+    """
+    from goniofrost.bench.evaluate import batch_log_errors
+
+    start = time.perf_counter()
+    n_mat, m_max = truth.shape[0], order.size
+    stop_at = np.full(n_mat, -1)
+    predicted_at = np.zeros(n_mat)
+    posts = {}
+    for end in stopping.batch_ends(m_max):
+        post, _ = _fit(model, order[:end], truth)
+        posts[end] = post
+        predicted, _ = _predicted(model, post, n_mat, end)
+        for i in np.flatnonzero(stop_at < 0):
+            if stopping.stop_reason(predicted[i], target, end, m_max) is not None:
+                stop_at[i], predicted_at[i] = end, predicted[i]
+    mse = np.empty(n_mat)
+    for end in np.unique(stop_at):
+        mats = np.flatnonzero(stop_at == end)
+        cols = (3 * mats[:, None] + np.arange(3)).reshape(-1)
+        coef = posts[end].coefficients[:, cols].astype(np.float32)
+        estimate = np.asarray(model.dictionary) @ coef + np.asarray(model.mean, np.float32)[:, None]
+        mse[mats] = batch_log_errors(model, estimate.astype(np.float64), truth_log[mats])
+    return {"samples": stop_at, "mse": mse, "pred_mse": predicted_at,
+            "reached": (predicted_at <= target).astype(np.int64), "seconds": time.perf_counter() - start}

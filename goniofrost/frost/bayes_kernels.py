@@ -1,0 +1,85 @@
+"""Compiled (numba) kernels of the Bayesian selection: one fused pass over D per greedy step.
+
+For every candidate cell c (dictionary row d_c, K float32) the selection keeps two quadratic
+forms of the posterior covariance Sigma (K x K) of the coefficients:
+
+* ``q[c] = d_c^T Sigma d_c`` (the posterior variance of the mapped BRDF at c, noise excluded);
+* ``p[c] = d_c^T Sigma S^2 Sigma d_c`` (how much measuring c would reduce trace(S^2 Sigma),
+  up to the factor 1 / (noise[c] + q[c])).
+
+After a pick with u = Sigma d_j and delta = noise[j] + d_j^T u, Sigma loses u u^T / delta, so
+with a = d_c . u and g = d_c . (Sigma S^2 u) both forms change by rank-1 terms:
+``q -= a^2 / delta`` and ``p += -2 a g / delta + a^2 (u^T S^2 u) / delta^2``. A step therefore
+reads each row of D once, updates q and p in place and returns the best score
+``p / (noise + q)`` of its range of cells (lowest index on ties). Every cell's numbers depend
+on that cell only, so the result does not depend on how the cells are split among threads.
+
+Arrays: dictionary float32 (n_valid, K) (a memory-mapped model is fine); rows int64 (n_c,) the
+candidate rows of D; q, p float64 (n_c,); noise float64 (n_c,) (+inf closes a cell: its score
+is 0); u, v float32 (K,). Each kernel takes a range [i0, i1) of candidates and releases the GIL.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+
+_OPTIONS = dict(nogil=True, fastmath=True, cache=True, boundscheck=False)
+_DICTIONARY = types.Array(types.float32, 2, "C", readonly=True)
+_F64 = types.float64[::1]
+_F32 = types.float32[::1]
+_I64 = types.int64
+_BEST = types.UniTuple(types.float64, 2)
+
+
+@njit(_BEST(_DICTIONARY, types.int64[::1], _F64, _F64, _F64, _F64, _F64, _I64, _I64), **_OPTIONS)
+def init_forms(dictionary, rows, prior_var, q, p, noise, s2, i0, i1):
+    """q, p for the prior Sigma = diag(prior_var) on candidates [i0, i1); returns (best score, its index).
+
+    s2: (K,) squared singular values S^2.
+    """
+    k = dictionary.shape[1]
+    best, best_i = -1.0, -1.0
+    for i in range(i0, i1):
+        row = dictionary[rows[i]]
+        qc = 0.0
+        pc = 0.0
+        for j in range(k):
+            x = np.float64(row[j]) * prior_var[j]
+            qc += x * np.float64(row[j])
+            pc += x * x * s2[j]
+        q[i] = qc
+        p[i] = pc
+        score = pc / (noise[i] + qc)
+        if score > best:
+            best, best_i = score, np.float64(i)
+    return best, best_i
+
+
+@njit(_BEST(_DICTIONARY, types.int64[::1], _F32, _F32, types.float64, types.float64, _F64, _F64, _F64,
+            _I64, _I64), **_OPTIONS)
+def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, i1):
+    """One greedy step on candidates [i0, i1): a = d.u, g = d.v, update q and p; (best, index).
+
+    inv_delta = 1 / delta; usu_delta2 = (u^T S^2 u) / delta^2.
+    """
+    k = dictionary.shape[1]
+    best, best_i = -1.0, -1.0
+    for i in range(i0, i1):
+        row = dictionary[rows[i]]
+        a = np.float32(0.0)
+        g = np.float32(0.0)
+        for j in range(k):
+            a += row[j] * u[j]
+            g += row[j] * v[j]
+        a64 = np.float64(a)
+        qc = q[i] - a64 * a64 * inv_delta
+        pc = p[i] - 2.0 * a64 * np.float64(g) * inv_delta + a64 * a64 * usu_delta2
+        # Rounding can leave a fully determined cell a tiny negative form; neither can be < 0.
+        qc = max(qc, 0.0)
+        pc = max(pc, 0.0)
+        q[i] = qc
+        p[i] = pc
+        score = pc / (noise[i] + qc)
+        if score > best:
+            best, best_i = score, np.float64(i)
+    return best, best_i

@@ -1,0 +1,165 @@
+"""Bayesian sample selection: greedy A-optimal design for the posterior-mean reconstruction.
+
+DESIGN.md "The Bayesian view". The expected squared error of the whole reconstructed (mapped)
+BRDF is trace(S^2 Sigma) (plus the noise, which no design changes), Sigma the posterior
+covariance of the coefficients. Starting from the prior Sigma = I / t, each step adds the cell
+
+    c* = argmax_c  u_c^T S^2 u_c / (sigma_c^2 + d_c^T u_c),   u_c = Sigma d_c,
+
+the largest reduction of that trace, then downdates Sigma <- Sigma - u u^T / (sigma^2 + d^T u).
+D Sigma is never formed: every cell's two quadratic forms change by rank-1 terms, so one step
+is one fused compiled pass over the rows of D (``bayes_kernels``), split among threads, plus
+O(K^2) work. The design is deterministic (lowest index on ties) and nested: the first m picks
+of a longer design are the m-pick design.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from goniofrost.frost import bayes_kernels as kernels
+from goniofrost.frost.posterior import cell_noise, prior_variance
+from goniofrost.frost.prediction import calibration_of, predict_typical
+from goniofrost.frost.selection import THREADS, Selection, SelectionError
+
+# --max-error never plans more samples than this.
+MAX_ERROR_PICKS = 1000
+# A best score at or below this fraction of the first one means no allowed cell still
+# reduces the expected error (float rounding of the updated forms is ~1e-7 of them).
+EXHAUSTED = 1e-9
+
+
+@dataclass
+class GreedyDesign:
+    """A greedy design over candidate rows of D, in pick order.
+
+    rows: int64 (m,) rows of D picked; design_errors: float64 (m,) the design error
+    (trace(S^2 Sigma) + sum sigma^2) / n after each pick; pick_seconds: float64 (m,) wall time
+    from the start to each pick; covariance: float64 (K, K), Sigma after the last pick.
+    """
+
+    rows: np.ndarray
+    design_errors: np.ndarray
+    pick_seconds: np.ndarray
+    covariance: np.ndarray
+
+
+def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None) -> GreedyDesign:
+    """Greedy A-optimal picks among ``rows`` of ``dictionary``.
+
+    dictionary: float32 (n, K) D (memory-mapped is fine); s2: (K,) S^2 = D^T D;
+    prior_var: (K,) prior variance of the coefficients; noise: (n,) sigma_c^2 of every row;
+    rows: int64 candidate rows (default all n); m_max: at most this many picks;
+    stop: optional ``stop(picks, design_error) -> bool`` called after each pick (e.g. an
+    error target). Raises SelectionError when the candidates stop reducing the error first.
+    """
+    start = time.perf_counter()
+    d = np.ascontiguousarray(dictionary, dtype=np.float32)
+    n = d.shape[0]
+    rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    s2, prior_var = np.asarray(s2, np.float64), np.asarray(prior_var, np.float64)
+    noise_all = np.asarray(noise, dtype=np.float64)
+    open_noise = np.ascontiguousarray(noise_all[rows])  # private: a picked cell gets +inf (score 0)
+    q, p = np.empty(rows.size), np.empty(rows.size)
+    sigma = np.diag(prior_var)
+    noise_total = float(noise_all.sum())
+    picks, errors, seconds = [], [], []
+    edges = [int(e) for e in np.linspace(0, rows.size, THREADS + 1)]
+    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+        def run(kernel, *args):
+            parts = [pool.submit(kernel, *args, lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]
+            return _best([f.result() for f in parts])
+
+        best, i = run(kernels.init_forms, d, rows, prior_var, q, p, open_noise, s2)
+        first = best
+        while True:
+            if i < 0 or best <= EXHAUSTED * first:
+                raise SelectionError(
+                    f"selection: after {len(picks)} picks no allowed cell reduces the expected error any "
+                    "more; allow more cells or ask for fewer samples")
+            row = d[rows[i]].astype(np.float64)
+            u = sigma @ row
+            delta = noise_all[rows[i]] + row @ u
+            v = sigma @ (s2 * u)
+            sigma -= np.outer(u, u) / delta
+            open_noise[i] = np.inf
+            picks.append(rows[i])
+            errors.append((float(np.sum(s2 * np.diag(sigma))) + noise_total) / n)
+            seconds.append(time.perf_counter() - start)
+            if len(picks) >= min(m_max, rows.size) or (stop is not None and stop(len(picks), errors[-1])):
+                break
+            best, i = run(kernels.update_forms, d, rows, u.astype(np.float32), v.astype(np.float32),
+                          1.0 / delta, float(u @ (s2 * u)) / delta ** 2, q, p, open_noise)
+    return GreedyDesign(np.array(picks, dtype=np.int64), np.array(errors), np.array(seconds), sigma)
+
+
+def _best(results) -> tuple[float, int]:
+    """The highest score of the threads' (score, index) pairs; lowest index on ties."""
+    best, index = -1.0, -1
+    for score, i in results:  # threads cover increasing index ranges
+        if score > best:
+            best, index = score, int(i)
+    return best, index
+
+
+def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
+                 candidates: np.ndarray | None = None) -> Selection:
+    """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
+
+    m: number of samples; or max_error: stop after the first pick whose predicted error of a
+    typical material (``prediction.predict_typical``) is <= max_error.
+    candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
+    Returns a Selection whose ``residuals`` are the predicted errors after each pick.
+    """
+    start = time.perf_counter()
+    n = model.grid.n_valid
+    rows = _candidate_rows(candidates, n)
+    calibration = calibration_of(model)
+    noise = cell_noise(model)
+    limit = _check(m, max_error, rows.size, calibration, noise)
+    stop = None
+    if max_error is not None:
+        def stop(picks, design_error):
+            return float(predict_typical(calibration, design_error, picks)) <= max_error
+    design = greedy_design(model.dictionary, np.asarray(model.singular_values, np.float64) ** 2,
+                           prior_variance(model), noise, limit, rows=rows, stop=stop)
+    picks = np.arange(1, design.rows.size + 1)
+    predicted = predict_typical(calibration, design.design_errors, picks)
+    if max_error is not None and predicted[-1] > max_error:
+        raise SelectionError(f"max_error: {max_error:g} not reached with {picks[-1]} samples (predicted "
+                             f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
+    return Selection(positions=design.rows, cells=model.grid.valid_cells[design.rows],
+                     residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
+                     y_form="", k=model.n_components, selector="bayes", pick_seconds=design.pick_seconds)
+
+
+def _candidate_rows(candidates, n: int) -> np.ndarray:
+    if candidates is None:
+        return np.arange(n, dtype=np.int64)
+    mask = np.asarray(candidates)
+    if mask.dtype != bool or mask.shape != (n,):
+        raise SelectionError(f"candidates: expected a bool mask of shape ({n},), found {mask.dtype} {mask.shape}")
+    return np.flatnonzero(mask).astype(np.int64)
+
+
+def _check(m, max_error, n_candidates: int, calibration: dict, noise: np.ndarray) -> int:
+    """Validate the options; return the largest number of picks."""
+    if (m is None) == (max_error is None):
+        raise SelectionError("selection: give exactly one of m (--samples) and max_error (--max-error)")
+    if m is not None:
+        if not isinstance(m, (int, np.integer)) or m < 1:
+            raise SelectionError(f"samples m: expected a positive integer, found {m!r}")
+        if m > n_candidates:
+            raise SelectionError(f"candidates: {n_candidates} allowed cells, fewer than the {m} samples asked for")
+        return int(m)
+    if not (isinstance(max_error, (int, float)) and np.isfinite(max_error) and max_error > 0):
+        raise SelectionError(f"max_error: expected a number > 0, found {max_error!r}")
+    floor = float(predict_typical(calibration, float(noise.mean()), calibration["m_range"][1]))
+    if max_error <= floor:
+        raise SelectionError(
+            f"max_error: {max_error:g} is out of reach: the model's own representation error alone "
+            f"predicts {floor:.4g} however many samples are taken; ask for more than that")
+    return min(n_candidates, MAX_ERROR_PICKS)
