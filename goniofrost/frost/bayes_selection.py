@@ -91,7 +91,7 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
             seconds.append(time.perf_counter() - start)
             if len(picks) >= min(m_max, rows.size) or (stop is not None and stop(len(picks), errors[-1])):
                 break
-            best, i = run(kernels.update_forms, d, rows, u.astype(np.float32), v.astype(np.float32),
+            best, i = run(kernels.update_forms, d, rows, u, v,
                           1.0 / delta, float(u @ (s2 * u)) / delta ** 2, q, p, open_noise)
     return GreedyDesign(np.array(picks, dtype=np.int64), np.array(errors), np.array(seconds), sigma)
 

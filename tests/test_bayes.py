@@ -1,0 +1,317 @@
+"""The Bayesian pipeline: noise cross-validation, posterior, predicted error, A-optimal
+selection, stopping rule, model format 2 (small grids, synthetic materials; a few seconds)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import bayes_selection, noise, posterior, prediction, stopping
+from goniofrost.frost.bayes_selection import greedy_design, select_bayes
+from goniofrost.frost.model import FrostModel, ModelError
+from goniofrost.frost.reconstruction import reconstruct, reconstruct_bayes
+from goniofrost.frost.selection import SelectionError
+from goniofrost.frost.training import _map_and_gram, fit_model
+from goniofrost.core.grid import cosine_weight
+
+from test_frost import synthetic_tables
+
+GRID = MerlGrid(10, 10, 20)
+
+
+@pytest.fixture(scope="module")
+def tables() -> np.ndarray:
+    return synthetic_tables(GRID, 24, seed=1)
+
+
+@pytest.fixture(scope="module")
+def model(tables) -> FrostModel:
+    return fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=30)
+
+
+@pytest.fixture(scope="module")
+def scalar_model(model) -> FrostModel:
+    """The same model without a learned noise model (what a format-1 model loads as)."""
+    return FrostModel(**{f: getattr(model, f) for f in ("grid", "names", "eps", "dictionary", "singular_values",
+                                                         "coefficients", "mean", "reference", "weight")})
+
+
+def reference_greedy(d, s2, prior, noise_var, m, rows=None):
+    """Textbook greedy A-optimal design in float64: recompute every score from Sigma each step."""
+    d = np.asarray(d, dtype=np.float64)
+    rows = np.arange(d.shape[0]) if rows is None else rows
+    sigma, picks = np.diag(prior), []
+    for _ in range(m):
+        u = d[rows] @ sigma                                         # (n_c, K) rows of D Sigma
+        score = np.einsum("ij,ij->i", u * s2, u) / (noise_var[rows] + np.einsum("ij,ij->i", u, d[rows]))
+        score[np.isin(rows, picks)] = -1
+        j = int(rows[np.argmax(score)])
+        uj = sigma @ d[j]
+        sigma = sigma - np.outer(uj, uj) / (noise_var[j] + d[j] @ uj)
+        picks.append(j)
+    return np.array(picks), sigma
+
+
+# ----- selection ---------------------------------------------------------------------------
+@pytest.mark.parametrize("masked", [False, True])
+def test_greedy_design_equals_the_textbook_greedy(model, masked):
+    d, s2 = np.asarray(model.dictionary), model.singular_values ** 2
+    prior, noise_var = posterior.prior_variance(model), posterior.cell_noise(model)
+    rows = np.flatnonzero(np.arange(GRID.n_valid) % 3 != 1) if masked else None
+    design = greedy_design(d, s2, prior, noise_var, 25, rows=rows)
+    picks, sigma = reference_greedy(d, s2, prior, noise_var, 25, rows)
+    assert list(design.rows) == list(picks)
+    np.testing.assert_allclose(design.covariance, sigma, rtol=1e-9, atol=1e-12)
+    # the design error after the last pick is the mean predictive variance over all cells
+    q = np.einsum("ij,jk,ik->i", d.astype(np.float64), sigma, d.astype(np.float64))
+    np.testing.assert_allclose(design.design_errors[-1], np.mean(q + noise_var), rtol=1e-5)
+    assert np.all(np.diff(design.design_errors) < 0) and np.all(np.diff(design.pick_seconds) >= 0)
+
+
+def test_bayes_selection_is_deterministic_nested_and_thread_independent(model, monkeypatch):
+    long = select_bayes(model, 30)
+    assert list(select_bayes(model, 30).positions) == list(long.positions)
+    for m in (1, 7, 20):
+        assert list(select_bayes(model, m).positions) == list(long.positions[:m])
+    monkeypatch.setattr(bayes_selection, "THREADS", 3)
+    assert list(select_bayes(model, 30).positions) == list(long.positions)
+    assert long.selector == "bayes" and len(set(long.positions)) == 30
+    np.testing.assert_array_equal(long.cells, GRID.valid_cells[long.positions])
+
+
+def test_bayes_selection_respects_the_candidate_mask(model):
+    from goniofrost.frost.selection import candidate_mask_max_angle
+
+    mask = candidate_mask_max_angle(GRID, 50.0)
+    picks = select_bayes(model, 20, candidates=mask).positions
+    assert mask[picks].all()
+
+
+def test_max_error_stops_at_the_first_pick_below_the_target(model):
+    full = select_bayes(model, 40)
+    target = float(full.residuals[14])  # the predicted error after 15 picks
+    stopped = select_bayes(model, max_error=target)
+    first = int(np.argmax(full.residuals <= target)) + 1
+    assert stopped.m == first and list(stopped.positions) == list(full.positions[:first])
+    assert stopped.residuals[-1] <= target < stopped.residuals[-2]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({}, "give exactly one of m"),
+    ({"m": 0}, "samples m: expected a positive integer, found 0"),
+    ({"m": 5, "max_error": 0.1}, "give exactly one of m"),
+    ({"max_error": -1.0}, "max_error: expected a number > 0, found -1.0"),
+    ({"max_error": 1e-9}, "max_error: 1e-09 is out of reach"),
+    ({"m": 5, "candidates": np.zeros(3, bool)}, r"candidates: expected a bool mask of shape"),
+])
+def test_bad_bayes_selection_options(model, kwargs, message):
+    with pytest.raises(SelectionError, match=message):
+        select_bayes(model, **kwargs)
+
+
+# ----- posterior and reconstruction ------------------------------------------------------------
+def test_scalar_noise_posterior_mean_is_ridge_over_all_atoms(scalar_model, tables):
+    truth = tables[3].astype(np.float64)
+    pos = select_bayes(scalar_model, 12).positions
+    bayes = reconstruct_bayes(scalar_model, pos, truth[pos], with_std=False).brdf
+    ridge = reconstruct(scalar_model, pos, truth[pos], eta=posterior.SCALAR_ETA, n_atoms=scalar_model.n_components)
+    np.testing.assert_allclose(bayes, ridge, rtol=1e-5, atol=1e-9)
+
+
+def test_loo_residuals_equal_refits_without_each_sample(model):
+    rng = np.random.default_rng(3)
+    pos = np.sort(rng.choice(GRID.n_valid, 9, replace=False))
+    rows = np.asarray(model.dictionary[pos], np.float64)
+    noise_var = rng.uniform(0.01, 0.05, (9, 2))
+    b = rng.standard_normal((9, 2))
+    prior = posterior.prior_variance(model)
+    post = posterior.fit(rows, noise_var, prior, b, model.singular_values ** 2, 1.0, GRID.n_valid)
+    for i in range(9):
+        keep = np.arange(9) != i
+        for c in range(2):
+            alone = posterior.fit(rows[keep], noise_var[keep, c], prior, b[keep, c:c + 1],
+                                  model.singular_values ** 2, 1.0, GRID.n_valid)
+            predicted = rows[i] @ alone.coefficients[:, 0]
+            q = rows[i] @ alone.covariances[0] @ rows[i]
+            assert post.loo_residuals[i, c] == pytest.approx(b[i, c] - predicted, rel=1e-8)
+            assert post.loo_variance[i, c] == pytest.approx(noise_var[i, c] + q, rel=1e-8)
+
+
+def test_predictive_std_mean_square_is_the_predicted_error(model, tables):
+    truth = tables[5].astype(np.float64)
+    pos = select_bayes(model, 15).positions
+    rec = reconstruct_bayes(model, pos, truth[pos])
+    assert np.mean(rec.std ** 2) == pytest.approx(rec.predicted_error, rel=2e-4)
+    assert rec.std.shape == (GRID.n_valid, 3) and np.all(rec.std > 0) and rec.samples == 15
+    # the variance pass gives d^T Sigma d exactly
+    post = posterior.fit(np.asarray(model.dictionary[pos]), posterior.cell_noise(model)[pos],
+                         posterior.prior_variance(model), np.zeros((15, 1)), model.singular_values ** 2,
+                         0.0, GRID.n_valid)
+    _, var, _ = posterior.mean_and_variance(model.dictionary, model.mean, post)
+    d = np.asarray(model.dictionary, np.float64)
+    np.testing.assert_allclose(var[:, 0], np.einsum("ij,jk,ik->i", d, post.covariances[0], d), rtol=1e-4)
+
+
+def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):
+    truth = tables[7].astype(np.float64)
+    pos = select_bayes(model, 15).positions
+    plain = reconstruct_bayes(model, pos, truth[pos])
+    noisy = reconstruct_bayes(model, pos, truth[pos], sigmas=0.5 * truth[pos])
+    # 50 % sample noise: a larger design error, residuals the noise now explains, wider std
+    assert noisy.design_error > plain.design_error and noisy.z2 < plain.z2
+    assert np.all(noisy.std[pos] > plain.std[pos])
+    with pytest.raises(Exception, match="sample 2 standard deviation: negative value"):
+        reconstruct_bayes(model, pos, truth[pos], sigmas=np.where(np.arange(15)[:, None] == 2, -1.0, 0.1) * np.ones((15, 3)))
+
+
+def test_predicted_error_is_specific_to_the_material(model, scalar_model, tables):
+    """Same cells, two materials: the one far from the training set gets the larger prediction
+    (learned noise, no calibration: design error x z2, from the leave-one-out residuals at its
+    own samples; a calibration fitted on these alike synthetic materials gives z2 no weight)."""
+    from goniofrost.frost.metrics import log_relative_mse
+
+    model = FrostModel(**{f: getattr(scalar_model, f) for f in ("grid", "names", "eps", "dictionary", "singular_values",
+                                                                "coefficients", "mean", "reference", "weight")},
+                       noise_variance=model.noise_variance)
+    pos = select_bayes(model, 20).positions
+    inside = tables[2].astype(np.float64)
+    outside = synthetic_tables(GRID, 1, seed=99)[0].astype(np.float64) * np.linspace(0.2, 5, GRID.n_valid)[:, None]
+    a, b = (reconstruct_bayes(model, pos, t[pos]) for t in (inside, outside))
+    err_a, err_b = log_relative_mse(model, inside, a.brdf), log_relative_mse(model, outside, b.brdf)
+    assert a.design_error == b.design_error
+    assert err_b > 10 * err_a and b.predicted_error > 10 * a.predicted_error
+    assert b.predicted_error == pytest.approx(b.design_error * b.z2)
+
+
+def test_calibration_fit_recovers_a_known_law():
+    from goniofrost.frost.calibration import CvRecords, fit_calibration
+
+    rng = np.random.default_rng(0)
+    n = 400
+    m = rng.choice([5, 10, 20, 40, 60], n)
+    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
+    actual = np.exp(0.3) * design ** 0.9 * z2 ** 0.5 * energy ** 0.2 * m ** -0.1
+    records = CvRecords(np.zeros(n, int), np.arange(n), m, actual, design, z2, energy)
+    cal = fit_calibration(records)
+    np.testing.assert_allclose(cal["coefficients"], [0.3, 0.9, 0.5, 0.2, -0.1], atol=1e-9)
+    assert cal["fit"]["per_m"]["20"]["spearman"] == pytest.approx(1.0)
+    assert cal["fit"]["per_m"]["20"]["within_factor_2"] == 1.0 and cal["m_range"] == [5, 60]
+
+
+# ----- noise cross-validation -------------------------------------------------------------------
+def test_inner_folds_from_the_gram_equal_explicit_pca(tables):
+    names = [f"mat{i}" for i in range(24)]
+    mapped, _, _, gram = _map_and_gram(tables, names, cosine_weight(GRID).astype(np.float32), 0.001, False)
+    folds = noise.inner_folds(gram, 24, k=10, folds=4)
+    assert sorted(np.concatenate([f.held for f in folds])) == list(range(72))
+    x = mapped.astype(np.float64)
+    fold = folds[1]
+    xa = x[:, fold.train] - x[:, fold.train].mean(axis=1, keepdims=True)
+    u, s, _ = np.linalg.svd(xa, full_matrices=False)
+    np.testing.assert_allclose(fold.singular_values, s[:10], rtol=1e-6)
+    held = x[:, fold.held] - x[:, fold.train].mean(axis=1, keepdims=True)
+    residual = held - u[:, :10] @ (u[:, :10].T @ held)
+    np.testing.assert_allclose(x @ fold.residual_map, residual, atol=1e-4 * np.abs(held).max())
+    np.testing.assert_allclose(fold.residual_norms, np.sum(residual ** 2, axis=0), rtol=1e-4)
+    d_f = x @ fold.projector
+    np.testing.assert_allclose(d_f @ fold.true_coefficients, held - residual, atol=1e-4 * np.abs(held).max())
+    every = np.zeros_like(x)
+    for f in folds:
+        every[:, f.held] = x @ f.residual_map
+    np.testing.assert_allclose(noise.representation_variance(mapped, folds), np.mean(every ** 2, axis=1), rtol=1e-4)
+
+
+def test_smoothing_keeps_a_constant_and_ignores_invalid_cells():
+    values = np.full(GRID.n_valid, 0.25)
+    np.testing.assert_allclose(noise.smooth_on_grid(values, GRID), 0.25, rtol=1e-12)
+    spike = np.zeros(GRID.n_valid)
+    spike[100] = 1.0
+    smooth = noise.smooth_on_grid(spike, GRID)
+    assert smooth[100] < 1.0 and smooth.sum() > 0 and np.all(smooth >= 0)
+
+
+def test_calibration_records_equal_explicit_reconstructions(tables):
+    """The Gram identity of the simulated captures: the true error of a held-out material,
+    computed from the fold's coefficients, equals the error of its explicit reconstruction."""
+    from goniofrost.frost.calibration import simulate
+
+    names = [f"mat{i}" for i in range(24)]
+    mapped, _, _, gram = _map_and_gram(tables, names, cosine_weight(GRID).astype(np.float32), 0.001, False)
+    folds = noise.inner_folds(gram, 24, k=12, folds=3)
+    noise_var = np.full(GRID.n_valid, 0.01)
+    records = simulate(mapped, folds[:1], noise_var, m_values=(6, 12))
+    x = mapped.astype(np.float64)
+    fold = folds[0]
+    d_f = x @ fold.projector
+    design = greedy_design(d_f.astype(np.float32), fold.singular_values ** 2,
+                           np.full(fold.singular_values.size, 1 / fold.n_train_columns), noise_var, 12)
+    held = x @ fold.centring
+    for m in (6, 12):
+        cells = design.rows[:m]
+        post = posterior.fit(d_f[cells], noise_var[cells], np.full(fold.singular_values.size, 1 / fold.n_train_columns),
+                             held[cells], fold.singular_values ** 2, noise_var.sum(), GRID.n_valid)
+        err = np.mean((d_f @ post.coefficients - held) ** 2, axis=0)
+        expected = err.reshape(-1, 3).mean(axis=1)
+        np.testing.assert_allclose(records.actual[records.m == m], expected, rtol=2e-3)
+    assert set(records.material) == {i for i in range(24) if i % 3 == 0}
+
+
+def test_trained_model_carries_the_noise_model(model):
+    assert model.noise_variance.shape == (GRID.n_valid,) and model.noise_variance.dtype == np.float32
+    assert np.all(model.noise_variance > 0)
+    cal = model.noise["calibration"]
+    assert len(cal["coefficients"]) == len(prediction.FEATURES) and cal["m_range"] == [5, 60]
+    assert model.noise["kind"] == "cells" and model.noise["folds"] == 10
+
+
+# ----- model files --------------------------------------------------------------------------------
+def test_model_format_2_round_trip_and_format_1_fallback(model, tmp_path):
+    path = model.save(tmp_path / "m2")
+    loaded = FrostModel.load(path)
+    np.testing.assert_array_equal(loaded.noise_variance, model.noise_variance)
+    assert loaded.noise == json.loads(json.dumps(model.noise)) and loaded.content_hash == model.content_hash
+    meta = json.loads((path / "model.json").read_text())
+    assert meta["version"] == 2
+    # a format-1 model: no noise file, version 1 -> the documented scalar sigma^2 = 10 / t
+    (path / "noise_variance.npy").unlink()
+    meta.update(version=1, noise={})
+    (path / "model.json").write_text(json.dumps(meta))
+    old = FrostModel.load(path)
+    assert old.noise_variance is None and prediction.calibration_of(old) is prediction.UNCALIBRATED
+    np.testing.assert_allclose(posterior.cell_noise(old), posterior.SCALAR_ETA / old.n_signals)
+    meta["version"] = 3
+    (path / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelError, match=r"version: expected one of \[1, 2\], found 3"):
+        FrostModel.load(path)
+
+
+def test_noise_changes_the_content_hash(model, scalar_model):
+    assert model.content_hash != scalar_model.content_hash
+
+
+# ----- stopping rule --------------------------------------------------------------------------------
+def test_batches_follow_the_design_order():
+    assert stopping.batch_ends(60) == [10, 15, 20, 25, 30, 35, 40, 45, 50, 55, 60]
+    assert stopping.batch_ends(22) == [10, 15, 20, 22] and stopping.batch_ends(7) == [7]
+    order = np.arange(100, 123)
+    parts = stopping.batches(order)
+    assert [len(p) for p in parts] == [10, 5, 5, 3] and list(np.concatenate(parts)) == list(order)
+    with pytest.raises(ValueError):
+        stopping.batch_ends(0)
+
+
+def test_run_batches_stops_at_the_first_batch_below_the_target():
+    predicted = {10: 0.2, 15: 0.08, 20: 0.049, 25: 0.01}
+    calls = []
+
+    def after(m):
+        calls.append(m)
+        return predicted.get(m, 0.3)
+
+    out = stopping.run_batches(25, 0.05, after)
+    assert (out.samples, out.reason, calls) == (20, stopping.REASON_TARGET, [10, 15, 20])
+    assert out.history == [(10, 0.2), (15, 0.08), (20, 0.049)]
+    out = stopping.run_batches(25, 0.001, lambda m: predicted[m])
+    assert (out.samples, out.reason, out.predicted_error) == (25, stopping.REASON_PLAN, 0.01)
