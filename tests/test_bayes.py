@@ -241,7 +241,7 @@ def test_calibration_records_equal_explicit_reconstructions(tables):
     mapped, _, _, gram = _map_and_gram(tables, names, cosine_weight(GRID).astype(np.float32), 0.001, False)
     folds = noise.inner_folds(gram, 24, k=12, folds=3)
     noise_var = np.full(GRID.n_valid, 0.01)
-    records = simulate(mapped, folds[:1], noise_var, m_values=(6, 12))
+    records = simulate(mapped, folds[:1], noise_var, m_values=(6, 12))[(1.0, 1.0)]
     x = mapped.astype(np.float64)
     fold = folds[0]
     d_f = x @ fold.projector
@@ -315,3 +315,92 @@ def test_run_batches_stops_at_the_first_batch_below_the_target():
     assert out.history == [(10, 0.2), (15, 0.08), (20, 0.049)]
     out = stopping.run_batches(25, 0.001, lambda m: predicted[m])
     assert (out.samples, out.reason, out.predicted_error) == (25, stopping.REASON_PLAN, 0.01)
+
+
+def test_choose_scales_takes_the_lowest_errors_relative_to_the_best_at_each_m():
+    from goniofrost.frost.calibration import CvRecords, choose_scales
+
+    def records(errors_by_m):
+        m = np.repeat(list(errors_by_m), 2)
+        actual = np.repeat(list(errors_by_m.values()), 2)
+        ones = np.ones(m.size)
+        return CvRecords(np.zeros(m.size, int), np.arange(m.size), m, actual, ones, ones, ones)
+
+    results = {(1.0, 1.0): records({10: 0.10, 20: 0.050, 40: 0.040, 60: 0.040}),
+               (2.0, 1.0): records({10: 0.11, 20: 0.050, 40: 0.030, 60: 0.025}),   # best overall
+               (4.0, 1.0): records({10: 0.20, 20: 0.060, 40: 0.030, 60: 0.025})}
+    assert choose_scales(results) == (2.0, 1.0)
+    assert choose_scales(results, choice_m=(10,)) == (1.0, 1.0)
+
+
+# ----- commands -------------------------------------------------------------------------------------
+def samples_csv(model, truth, positions, sigma: bool = False) -> str:
+    th, td, pd = (np.degrees(a) for a in GRID.flat_angles(GRID.valid_cells[positions]))
+    head = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b" + (",sigma_r,sigma_g,sigma_b" if sigma else "")
+    rows = []
+    for i, p in enumerate(positions):
+        values = list(truth[p]) + (list(0.05 * truth[p]) if sigma else [])
+        rows.append(",".join(repr(float(v)) for v in [th[i], td[i], pd[i]] + values))
+    return head + "\n" + "\n".join(rows) + "\n"
+
+
+def test_plan_bayes_and_reconstruct_with_uncertainty_commands(model, tables, tmp_path):
+    from goniofrost.app.cli import main
+    from goniofrost.brdf.merl_file import read_merl
+    from goniofrost.capture.plan_file import read_plan
+
+    model.save(tmp_path / "model")
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "12", "--out", str(plan)]) == 0
+    doc = read_plan(plan)
+    assert doc["selector"] == "bayes" and len(doc["predicted_errors"]) == 12 and "residuals" not in doc
+    cells = [GRID.flat_index(*s["cell"]) for s in doc["samples"]]
+    positions = GRID.valid_position(np.array(cells))
+    assert list(positions) == list(select_bayes(model, 12).positions)
+    truth = tables[4].astype(np.float64)
+    (tmp_path / "s.csv").write_text(samples_csv(model, truth, positions, sigma=True))
+    out = tmp_path / "rec.binary"
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out)]) == 0
+    expected = reconstruct_bayes(model, positions, truth[positions], sigmas=0.05 * truth[positions])
+    std = read_merl(tmp_path / "rec.std.binary", GRID)
+    np.testing.assert_allclose(std[GRID.valid_cells], expected.std, rtol=1e-12)
+    assert np.isnan(std[~GRID.valid_mask]).all()
+    np.testing.assert_allclose(read_merl(out, GRID)[GRID.valid_cells], expected.brdf, rtol=1e-12)
+    record = json.loads((tmp_path / "rec.json").read_text())
+    assert record["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert record["std"] == "rec.std.binary" and record["cells"] == 12
+    # the paper's ridge stays available, and writes only the BRDF
+    ridge = tmp_path / "ridge.binary"
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--estimator", "ridge", "--eta", "40", "--out", str(ridge)]) == 0
+    assert ridge.is_file() and not (tmp_path / "ridge.std.binary").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--atoms", "5"], "--eta and --atoms apply to --estimator ridge only"),
+])
+def test_reconstruct_command_refuses_ridge_options_with_bayes(model, tables, tmp_path, capsys, args, message):
+    from goniofrost.app.cli import main
+
+    model.save(tmp_path / "model")
+    pos = np.arange(0, 600, 50)
+    (tmp_path / "s.csv").write_text(samples_csv(model, tables[0], pos))
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(tmp_path / "o.binary")] + args) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "o.binary").exists()
+
+
+def test_sigma_columns_are_all_or_none_and_numbers(model, tables, tmp_path):
+    from goniofrost.frost.reconstruction import ReconstructionError, read_samples_csv, sample_sigmas
+
+    text = samples_csv(model, tables[0], np.arange(0, 300, 50), sigma=True)
+    path = tmp_path / "s.csv"
+    path.write_text(text.replace(",sigma_b", ",other"))
+    with pytest.raises(ReconstructionError, match=r"columns \['sigma_r', 'sigma_g'\] without \['sigma_b'\]"):
+        sample_sigmas(path, read_samples_csv(path, GRID)[2])
+    lines = text.splitlines()
+    lines[2] = ",".join(lines[2].split(",")[:-1] + ["abc"])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ReconstructionError, match="data row 2: column sigma_b: expected a number, found 'abc'"):
+        sample_sigmas(path, read_samples_csv(path, GRID)[2])

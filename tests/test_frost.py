@@ -283,7 +283,7 @@ def test_reconstruct_refuses_a_diverging_fit(model):
 
 
 # ----- SAMPLES.csv and the commands ----------------------------------------------------------
-HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r\n"
+HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,note\n"
 
 
 def good_rows(model, count=6) -> str:
@@ -297,7 +297,7 @@ def test_read_samples_csv(model, tmp_path):
     path.write_text(HEADER + good_rows(model))
     cells, values, extra = read_samples_csv(path, GRID)
     assert np.all(GRID.valid_position(cells) >= 0) and values.shape == (6, 3)
-    assert extra == {"sigma_r": ["0.01"] * 6}
+    assert extra == {"note": ["0.01"] * 6}
 
 
 @pytest.mark.parametrize("text, message", [
@@ -344,9 +344,11 @@ def test_plan_and_reconstruct_commands(model, tmp_path):
 def test_plan_max_error_command(model, tmp_path):
     model.save(tmp_path / "model")
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--model", str(tmp_path / "model"), "--max-error", "0.25", "--out", str(plan)]) == 0
+    assert main(["plan", "--model", str(tmp_path / "model"), "--selector", "frost", "--max-error", "0.25",
+                 "--out", str(plan)]) == 0
     doc = read_plan(plan)
     assert doc["residuals"][-1] <= 0.25 < doc["residuals"][-2] and len(doc["samples"]) == doc["m"]
+    assert doc["selector"] == "frost" and doc["y_form"] == "firstm"
 
 
 def test_read_plan_refuses_bad_content(model, tmp_path):

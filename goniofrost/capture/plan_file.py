@@ -3,11 +3,16 @@
 Layout (DESIGN.md "Command line")::
 
     {"model": {"path": str, "hash": str}, "m": int, "selection_seconds": float,
-     "y_form": "all"|"firstm", "k": int, "residuals": [float, ...],
+     "selector": "bayes"|"frost", "k": int,
+     "predicted_errors": [float, ...]                   (bayes: after each pick)
+     "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
                   "w_i": [x, y, z], "w_o": [x, y, z]}, ...]}
 
+Samples are in selection order (the planner may reorder them for motion; a Bayesian design is
+nested, so its first m samples are the best m). ``predicted_errors[i]`` is the log-relative MSE
+a typical material is predicted to have after the first i + 1 samples (``prediction.py``).
 Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
 frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
 """
@@ -29,15 +34,19 @@ TOP_FIELDS = ("model", "m", "selection_seconds", "samples")
 
 def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
     """The PLAN.json content (a JSON-ready dict) for a selection made with ``model``."""
-    return {
+    doc = {
         "model": {"path": str(model_path), "hash": model.content_hash},
         "m": selection.m,
         "selection_seconds": round(float(selection.seconds), 6),
-        "y_form": selection.y_form,
+        "selector": selection.selector,
         "k": int(selection.k),
-        "residuals": [float(r) for r in selection.residuals],
-        "samples": sample_entries(model.grid, selection.cells),
     }
+    values = [float(r) for r in selection.residuals]
+    if selection.selector == "bayes":
+        doc["predicted_errors"] = values
+    else:
+        doc |= {"y_form": selection.y_form, "residuals": values}
+    return doc | {"samples": sample_entries(model.grid, selection.cells)}
 
 
 def sample_entries(grid, cells) -> list[dict]:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniofrost.frost import bayes_kernels as kernels
-from goniofrost.frost.posterior import cell_noise, prior_variance
+from goniofrost.frost.posterior import cell_noise, design_noise, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import THREADS, Selection, SelectionError
 
@@ -89,7 +89,7 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
             picks.append(rows[i])
             errors.append((float(np.sum(s2 * np.diag(sigma))) + noise_total) / n)
             seconds.append(time.perf_counter() - start)
-            if len(picks) >= min(m_max, rows.size) or (stop is not None and stop(len(picks), errors[-1])):
+            if len(picks) >= min(m_max, rows.size) or (stop is not None and stop(int(rows[i]))):
                 break
             best, i = run(kernels.update_forms, d, rows, u, v,
                           1.0 / delta, float(u @ (s2 * u)) / delta ** 2, q, p, open_noise)
@@ -118,22 +118,47 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     n = model.grid.n_valid
     rows = _candidate_rows(candidates, n)
     calibration = calibration_of(model)
-    noise = cell_noise(model)
-    limit = _check(m, max_error, rows.size, calibration, noise)
+    limit = _check(m, max_error, rows.size, calibration, cell_noise(model))
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    tracker = _PredictedError(model, calibration)
     stop = None
     if max_error is not None:
-        def stop(picks, design_error):
-            return float(predict_typical(calibration, design_error, picks)) <= max_error
-    design = greedy_design(model.dictionary, np.asarray(model.singular_values, np.float64) ** 2,
-                           prior_variance(model), noise, limit, rows=rows, stop=stop)
+        def stop(row):
+            return tracker.add(row) <= max_error
+    design = greedy_design(model.dictionary, s2, prior_variance(model), design_noise(model), limit, rows=rows,
+                           stop=stop)
+    if max_error is None:
+        for row in design.rows:
+            tracker.add(int(row))
+    predicted = np.array(tracker.history)
     picks = np.arange(1, design.rows.size + 1)
-    predicted = predict_typical(calibration, design.design_errors, picks)
     if max_error is not None and predicted[-1] > max_error:
         raise SelectionError(f"max_error: {max_error:g} not reached with {picks[-1]} samples (predicted "
                              f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
     return Selection(positions=design.rows, cells=model.grid.valid_cells[design.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=design.pick_seconds)
+
+
+class _PredictedError:
+    """The predicted error of a typical material after each pick, under the reconstruction's
+    noise (the design may assume a larger one): Sigma by rank-1 downdates, O(K^2) per pick."""
+
+    def __init__(self, model, calibration: dict) -> None:
+        self.d, self.calibration = model.dictionary, calibration
+        self.s2 = np.asarray(model.singular_values, np.float64) ** 2
+        self.noise = cell_noise(model)
+        self.total, self.n = float(self.noise.sum()), self.noise.size
+        self.sigma = np.diag(prior_variance(model))
+        self.history: list[float] = []
+
+    def add(self, row: int) -> float:
+        d = np.asarray(self.d[row], dtype=np.float64)
+        u = self.sigma @ d
+        self.sigma -= np.outer(u, u) / (self.noise[row] + d @ u)
+        design_error = (float(np.sum(self.s2 * np.diag(self.sigma))) + self.total) / self.n
+        self.history.append(float(predict_typical(self.calibration, design_error, len(self.history) + 1)))
+        return self.history[-1]
 
 
 def _candidate_rows(candidates, n: int) -> np.ndarray:

@@ -53,6 +53,12 @@ def cell_noise(model) -> np.ndarray:
     return np.full(model.grid.n_valid, SCALAR_ETA / model.n_signals)
 
 
+def design_noise(model) -> np.ndarray:
+    """float64 (n_valid,): the noise the Bayesian design assumes, sigma_c^2 times the model's
+    ``design_scale`` (chosen at training; 1 without a learned noise model)."""
+    return cell_noise(model) * float((getattr(model, "noise", None) or {}).get("design_scale", 1.0))
+
+
 def log_map_variance(values, sigmas, weight, eps: float) -> np.ndarray:
     """Variance of log(w x + eps) from a sample's standard deviation (first order).
 

@@ -118,6 +118,51 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
 
 
+def bayes_output_paths(out) -> tuple[Path, Path]:
+    """(OUT.std.binary, OUT.json) beside OUT (OUT's ``.binary`` suffix replaced, if it has one)."""
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix == ".binary" else out
+    return stem.with_name(stem.name + ".std.binary"), stem.with_name(stem.name + ".json")
+
+
+def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, samples_source=None) -> tuple[Path, Path]:
+    """Write OUT (the BRDF), OUT.std.binary (the predictive std, MERL layout) and OUT.json.
+
+    See ``goniofrost/app/commands/reconstruct.py`` for the std file's format. Returns the paths
+    of the two side files. Nothing is written if any value is not finite.
+    """
+    import json
+
+    from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.core.atomic_file import write_text_atomic
+
+    std_path, record_path = bayes_output_paths(out)
+    if rec.std is None or not np.all(np.isfinite(rec.std)):
+        raise ReconstructionError(f"{std_path}: the predictive standard deviation is missing or not finite")
+    record = reconstruction_record(model, rec, samples_source, Path(out).name, std_path.name)
+    text = json.dumps(record, indent=1, allow_nan=False)
+    write_merl(out, valid_to_full(rec.brdf, model.grid), model.grid)
+    write_merl(std_path, valid_to_full(rec.std, model.grid), model.grid)
+    write_text_atomic(record_path, text + "\n")
+    return std_path, record_path
+
+
+def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_source, brdf_name: str,
+                          std_name: str) -> dict:
+    """The OUT.json content: what was reconstructed, how, and its predicted error."""
+    return {
+        "brdf": brdf_name, "std": std_name,
+        "std_meaning": "predictive standard deviation of ln(w x + eps) per cell and channel (MERL layout; "
+                       "read it with any MERL reader that applies the channel scales)",
+        "estimator": "bayes posterior mean, all atoms",
+        "model": {"hash": model.content_hash, "noise": model.noise.get("kind", "scalar")},
+        "samples_file": None if samples_source is None else str(samples_source),
+        "cells": rec.samples, "predicted_log_relative_mse": rec.predicted_error,
+        "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy},
+        "interval_90": "((w x + eps) * exp(+-1.645 std) - eps) / w",
+    }
+
+
 def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:
     """D s_hat + mu over every valid cell: float64 (n_valid, c)."""
     with threadpool_limits(limits=1, user_api="blas"):
@@ -211,6 +256,28 @@ def _check_values(values: np.ndarray, where) -> None:
 
 
 # ----- SAMPLES.csv ---------------------------------------------------------------------
+def sample_sigmas(path, extra: dict) -> np.ndarray | None:
+    """The samples' standard deviations (l, 3) in 1/sr from the sigma_r,sigma_g,sigma_b columns of
+    ``read_samples_csv``'s extra columns, or None without them. All three or none; each a
+    finite number >= 0 (the error names the file, the row and the column)."""
+    present = [c for c in SIGMA_COLUMNS if c in extra]
+    if not present:
+        return None
+    if len(present) != len(SIGMA_COLUMNS):
+        raise ReconstructionError(f"{path}: columns {present} without {[c for c in SIGMA_COLUMNS if c not in present]}; "
+                                  f"expected all of {','.join(SIGMA_COLUMNS)} or none")
+    out = np.empty((len(extra[present[0]]), 3))
+    for j, name in enumerate(SIGMA_COLUMNS):
+        for i, text in enumerate(extra[name]):
+            try:
+                out[i, j] = float(text)
+            except ValueError:
+                raise ReconstructionError(f"{path}: data row {i + 1}: column {name}: expected a number, found {text!r}") from None
+    _check_values(out, lambda i: f"{path}: data row {i + 1} sigma")
+    return out
+
+
+
 def read_samples_csv(path, grid: MerlGrid):
     """Read SAMPLES.csv (header theta_h_deg,theta_d_deg,phi_d_deg,r,g,b; extra columns allowed).
 

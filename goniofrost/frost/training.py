@@ -20,6 +20,7 @@ the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 
 """
 from __future__ import annotations
 
+import json
 import sys
 from typing import Sequence
 
@@ -83,14 +84,22 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     from goniofrost.frost import calibration, noise
 
     folds = noise.inner_folds(gram, n_materials, k)
-    variance = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
-    variance = np.maximum(variance, NOISE_FLOOR).astype(np.float32)
-    records = calibration.simulate(mapped, folds, variance.astype(np.float64), progress=progress)
+    learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
+    learned = np.maximum(learned, NOISE_FLOOR)
+    results = calibration.simulate(mapped, folds, learned, design_scales=calibration.DESIGN_SCALES,
+                                   recon_scales=calibration.RECON_SCALES, progress=progress)
+    design_scale, recon_scale = calibration.choose_scales(results)
+    variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
+            "recon_scale": recon_scale, "design_scale": design_scale / recon_scale,
             "mean_variance": float(variance.mean(dtype=np.float64)),
-            "calibration": calibration.fit_calibration(records)}
-    return variance, meta
+            "cv_mean_errors": [{"design_scale": a, "recon_scale": b, "by_m": calibration.mean_errors(rec)}
+                               for (a, b), rec in results.items()],
+            "calibration": calibration.fit_calibration(results[(design_scale, recon_scale)])}
+    # As model.json will hold it (string keys, lists): the content hash is the same before and
+    # after a save and load.
+    return variance, json.loads(json.dumps(meta))
 
 
 def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: int) -> None:

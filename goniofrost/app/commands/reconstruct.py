@@ -1,27 +1,59 @@
-"""goniofrost reconstruct: samples (SAMPLES.csv) -> full BRDF as a MERL .binary."""
+"""goniofrost reconstruct: samples (SAMPLES.csv) -> full BRDF as a MERL .binary, with its uncertainty.
+
+Default (``--estimator bayes``): the posterior mean over all model atoms. Beside OUT it writes
+
+* ``OUT.std.binary`` (OUT without ``.binary`` + ``.std.binary``): the per-cell predictive
+  standard deviation in the **MERL layout** (same 12-byte header, R, G, B blocks of float64 in
+  flat cell order, -1 on invalid cells, values divided by the MERL channel scales), so any MERL
+  reader that returns BRDF values (scales applied) returns the standard deviation of
+  ln(w x + eps) (natural log, dimensionless; w = clip(cos theta_i cos theta_o, 0.01, 1),
+  eps = 0.001). Why this and not 1/sr: the posterior is Gaussian in that log domain, so one number
+  per cell gives the whole predictive distribution (the 90 % interval of x is
+  ((w x_hat + eps) exp(+-1.645 std) - eps) / w, not symmetric in 1/sr); and the file lines up cell
+  by cell with OUT, opens with the same tools (``goniofrost preview OUT --std OUT.std.binary``).
+* ``OUT.json``: the predicted log-relative MSE of this reconstruction and how it was made.
+"""
 from __future__ import annotations
 
-HELP = "reconstruct a full BRDF from samples (ridge regression on the FROST dictionary)"
+HELP = ("reconstruct a full BRDF from samples (Bayesian posterior mean with per-cell uncertainty, "
+        "or the paper's ridge regression)")
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("--model", required=True, metavar="MODEL", help="model directory from goniofrost train")
     parser.add_argument("--samples", required=True, metavar="SAMPLES.csv",
-                        help="header theta_h_deg,theta_d_deg,phi_d_deg,r,g,b (1/sr); extra columns allowed")
-    parser.add_argument("--eta", type=float, default=40.0, help="ridge weight (default 40, the published setting)")
+                        help="header theta_h_deg,theta_d_deg,phi_d_deg,r,g,b (1/sr); extra columns allowed; "
+                             "sigma_r,sigma_g,sigma_b (standard deviations, 1/sr) are used when present")
+    parser.add_argument("--estimator", choices=("bayes", "ridge"), default="bayes",
+                        help="bayes (default): posterior mean over all atoms with the model's noise, writes "
+                             "OUT.std.binary and OUT.json; ridge: the paper's ridge regression (--eta, --atoms)")
+    parser.add_argument("--eta", type=float, default=None, help="ridge only: ridge weight (default 40, the published setting)")
     parser.add_argument("--atoms", type=int, metavar="A",
-                        help="atoms used (default min(distinct sampled cells, model components))")
+                        help="ridge only: atoms used (default min(distinct sampled cells, model components))")
     parser.add_argument("--out", required=True, metavar="FILE.binary", help="MERL .binary to write")
 
 
 def run(args) -> int:
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
-    from goniofrost.frost.reconstruction import read_samples_csv, reconstruct
+    from goniofrost.frost.reconstruction import ETA, read_samples_csv, reconstruct, sample_sigmas
 
     model = FrostModel.load(args.model)
-    cells, values, _ = read_samples_csv(args.samples, model.grid)
-    brdf = reconstruct(model, model.grid.valid_position(cells), values, eta=args.eta, n_atoms=args.atoms)
-    write_merl(args.out, valid_to_full(brdf, model.grid), model.grid)
-    print(f"{args.out}: reconstructed from {cells.size} samples")
+    cells, values, extra = read_samples_csv(args.samples, model.grid)
+    positions = model.grid.valid_position(cells)
+    if args.estimator == "ridge":
+        brdf = reconstruct(model, positions, values, eta=ETA if args.eta is None else args.eta, n_atoms=args.atoms)
+        write_merl(args.out, valid_to_full(brdf, model.grid), model.grid)
+        print(f"{args.out}: reconstructed from {cells.size} samples (ridge)")
+        return 0
+    if args.eta is not None or args.atoms is not None:
+        raise GoniofrostError("--eta and --atoms apply to --estimator ridge only")
+    from goniofrost.frost.reconstruction import reconstruct_bayes, write_bayes_outputs
+
+    rec = reconstruct_bayes(model, positions, values, sigmas=sample_sigmas(args.samples, extra))
+    std_path, record_path = write_bayes_outputs(args.out, model, rec, args.samples)
+    print(f"{args.out}: reconstructed from {cells.size} samples ({rec.samples} cells; Bayesian posterior mean)")
+    print(f"predicted error (log-relative MSE): {rec.predicted_error:.4g}; per-cell standard deviation in "
+          f"{std_path}; record in {record_path}")
     return 0
