@@ -264,6 +264,9 @@ def test_trained_model_carries_the_noise_model(model):
     cal = model.noise["calibration"]
     assert len(cal["coefficients"]) == len(prediction.FEATURES) and cal["m_range"] == [5, 60]
     assert model.noise["kind"] == "cells" and model.noise["folds"] == 10
+    # every training material held out once at every m, in the chosen setting's records
+    assert cal["fit"]["records"] == 24 * 9 and sorted(map(int, model.noise["cv_mean_errors"])) == [5, 10, 15, 20, 25, 30, 40, 50, 60]
+    assert len(model.noise["choice_mean_errors"]) == 9 and model.noise["choice_folds"] == 4
 
 
 # ----- model files --------------------------------------------------------------------------------

@@ -38,8 +38,11 @@ M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
 # Candidate factors on the learned noise: in the design, and in the reconstruction.
 DESIGN_SCALES = (1.0, 2.0, 4.0)
 RECON_SCALES = (0.5, 1.0, 2.0)
-# The scales are chosen on the errors at these sample counts (each m weighs the same).
+# The scales are chosen on the errors at these sample counts (each m weighs the same), over
+# the first CHOICE_FOLDS inner folds; the other folds simulate the chosen design scale only
+# (a design of 60 picks takes about a second at full size).
 CHOICE_M = (10, 20, 40, 60)
+CHOICE_FOLDS = 4
 CHUNK_ROWS = 1 << 15
 
 
@@ -75,6 +78,29 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
                 _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)])
         del d_f
     return {key: CvRecords(**{k: np.asarray(v) for k, v in acc.items()}) for key, acc in out.items()}
+
+
+def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
+                        design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False):
+    """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
+    design scale. Returns ((design scale, recon scale), {pair: CvRecords of the choice folds},
+    CvRecords of every fold with the chosen pair)."""
+    head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
+    choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
+                      progress=progress)
+    chosen = choose_scales(choice)
+    rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
+                    progress=progress)[chosen] if tail else None
+    return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
+
+
+def concatenate(parts, offset: int = 0) -> CvRecords:
+    """The records of several simulations in one (the second part's fold numbers + offset)."""
+    parts = [p for p in parts if p is not None]
+    fields = CvRecords.__dataclass_fields__
+    shifted = [parts[0]] + [CvRecords(**{k: getattr(p, k) + (offset if k == "fold" else 0) for k in fields})
+                            for p in parts[1:]]
+    return CvRecords(**{k: np.concatenate([getattr(p, k) for p in shifted]) for k in fields})
 
 
 def _prior(fold: InnerFold) -> np.ndarray:

@@ -66,6 +66,9 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     _check_tables(tables, names, grid, k_max)
     weight = cosine_weight(grid).astype(np.float32)
     mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress)
+    # Our reference is the last one when the caller passed the tables without keeping them
+    # (``train`` does): they are freed before the noise cross-validation needs its memory.
+    del tables
     svals, vt = _eigen_components(gram, k_max)
     dictionary = _project(mapped, vt)
     variance, noise_meta = None, {}
@@ -86,17 +89,18 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     folds = noise.inner_folds(gram, n_materials, k)
     learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
-    results = calibration.simulate(mapped, folds, learned, design_scales=calibration.DESIGN_SCALES,
-                                   recon_scales=calibration.RECON_SCALES, progress=progress)
-    design_scale, recon_scale = calibration.choose_scales(results)
+    (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
+                                                                                     progress=progress)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
             "recon_scale": recon_scale, "design_scale": design_scale / recon_scale,
             "mean_variance": float(variance.mean(dtype=np.float64)),
-            "cv_mean_errors": [{"design_scale": a, "recon_scale": b, "by_m": calibration.mean_errors(rec)}
-                               for (a, b), rec in results.items()],
-            "calibration": calibration.fit_calibration(results[(design_scale, recon_scale)])}
+            "choice_folds": min(calibration.CHOICE_FOLDS, len(folds)),
+            "choice_mean_errors": [{"design_scale": a, "recon_scale": b, "by_m": calibration.mean_errors(rec)}
+                                   for (a, b), rec in choice.items()],
+            "cv_mean_errors": calibration.mean_errors(records),
+            "calibration": calibration.fit_calibration(records)}
     # As model.json will hold it (string keys, lists): the content hash is the same before and
     # after a save and load.
     return variance, json.loads(json.dumps(meta))
@@ -229,10 +233,10 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():
         return FrostModel.load(folder)
-    tables = tabulate_materials(materials, grid, progress=progress)
     info = {"datasets": list(dataset_specs), "cache_key": key}
-    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
-    del tables
+    # No reference kept here: fit_model frees the tables (1.75 GB at full size) once mapped.
+    model = fit_model(tabulate_materials(materials, grid, progress=progress), [m.label for m in materials],
+                      grid, k_max, info=info, progress=progress)
     if folder is None:
         return model
     model.save(folder)
