@@ -76,3 +76,23 @@ def test_preview_of_a_missing_file_is_a_one_line_error_and_writes_nothing(tmp_pa
     assert main(["preview", str(tmp_path / "nope.binary"), "--out", str(png)]) == 2
     assert "nope.binary: no such file" in capsys.readouterr().err
     assert not png.exists()
+
+
+def test_uncertainty_panel_shows_predicted_std_beside_the_actual_log_error(tmp_path, capsys):
+    from goniofrost.core.grid import cosine_weight
+
+    ref, est, std, png = (tmp_path / n for n in ("ref.binary", "est.binary", "est.std.binary", "p.png"))
+    write_merl(ref, lambertian(), GRID)
+    write_merl(est, 0.9 * lambertian(), GRID)
+    write_merl(std, valid_to_full(np.full((GRID.n_valid, 3), 0.1), GRID), GRID)
+    preview = P.make_preview(est, ref, size=40, std_path=std)
+    assert preview.errors["predicted"] == pytest.approx(0.01)
+    w = cosine_weight(GRID)[:, None]
+    x = lambertian()[GRID.valid_cells]
+    actual = np.mean((np.log(w * x + 0.001) - np.log(0.9 * w * x + 0.001)) ** 2)
+    assert preview.errors["actual"] == pytest.approx(actual, rel=1e-9)
+    lit = preview.std > 0
+    assert lit.any() and np.allclose(preview.std[lit], 0.1)  # each lit pixel shows its cell's std
+    assert P.compose(preview).shape == (3 * 40, 5 * 40, 3)  # estimate, reference, error, std, log error
+    assert main(["preview", str(est), "--reference", str(ref), "--std", str(std), "--out", str(png), "--size", "40"]) == 0
+    assert f"predicted log-relative MSE 0.01, actual {actual:.4g}" in capsys.readouterr().out

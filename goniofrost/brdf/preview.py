@@ -6,6 +6,13 @@ sphere. A few directional lights give radiance L = sum_k E_k f(w_i, w_o) cos the
 light's irradiance at normal incidence, f in 1/sr). The BRDF is looked up in the MERL grid cell
 of each pixel's (theta_h, theta_d, phi_d), exactly as a renderer reading the .binary would.
 
+With a predictive standard deviation (``reconstruct``'s OUT.std.binary: the std of
+ln(w x + eps) per cell) the preview adds an uncertainty panel: that std on the same spheres
+(each pixel shows its cell's value, lit pixels only), and with a reference also the actual
+|ln(w x_ref + eps) - ln(w x_est + eps)| on the same colour scale, so the predicted and the
+actual error sit side by side; ``Preview.errors`` then holds the predicted log-relative MSE
+(mean std^2 over valid cells) and the actual one.
+
 The rendering SNR (paper, Figs. 8 and 11) compares the HDR images before tone mapping:
 ``SNR_dB = 10 log10(sum ref^2 / sum (ref - est)^2)`` over every pixel, channel and light.
 Tone mapping follows the paper: a common exposure, then a gamma of 2.0.
@@ -24,6 +31,8 @@ from goniofrost.brdf.merl_file import _read_header, read_merl
 
 GAMMA = 2.0
 ERROR_GAIN = 10.0  # the paper multiplies error images by 10
+EPS = 0.001  # the log-relative map's offset (frost training.EPS)
+STD_COLOURMAP = "magma"
 
 # (name, unit direction towards the light in the world frame, irradiance RGB at normal incidence)
 # A key light from the upper front, a side light and a grazing back light that shows the
@@ -40,12 +49,18 @@ class Preview:
     """A rendered comparison: HDR images (n_lights, size, size, 3) and the rendering SNR in dB.
 
     ``reference`` is None when no reference was given; ``snr_db`` is then None too.
+    ``std``: (n_lights, size, size) the predictive std of each lit pixel's cell (channel mean),
+    or None; ``log_error``: the same for the actual |log error| (std and reference given);
+    ``errors``: {"predicted": mean std^2, "actual": log-relative MSE or None} over valid cells.
     """
 
     estimate: np.ndarray
     reference: np.ndarray | None
     snr_db: float | None
     light_names: tuple[str, ...]
+    std: np.ndarray | None = None
+    log_error: np.ndarray | None = None
+    errors: dict | None = None
 
 
 def sphere_normals(size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -103,6 +118,31 @@ def render_sphere(brdf: np.ndarray, grid: MerlGrid, light, size: int = 192) -> n
     return np.where(lit[..., None], radiance, 0.0)
 
 
+def render_values(values: np.ndarray, grid: MerlGrid, light, size: int = 192) -> np.ndarray:
+    """Per-pixel cell values (size, size) of a sphere under one light: the channel mean of
+    ``values`` (grid.size, 3) at each lit pixel's cell (NaN -> 0), 0 elsewhere. No shading."""
+    direction, _ = light
+    to_light = np.asarray(direction, dtype=np.float64)
+    to_light = to_light / np.linalg.norm(to_light)
+    normals, mask = sphere_normals(size)
+    tangent, bitangent = tangent_frame(normals)
+    frame = np.stack([tangent, bitangent, normals], -2)
+    w_i, w_o = frame @ to_light, frame @ np.array([0.0, 0.0, 1.0])
+    lit = mask & (w_i[..., 2] > 0) & (w_o[..., 2] > 0)
+    return np.where(lit, lookup(values, grid, w_i, w_o).mean(axis=-1), 0.0)
+
+
+def log_error(estimate: np.ndarray, reference: np.ndarray, grid: MerlGrid) -> np.ndarray:
+    """|ln(w x_ref + eps) - ln(w x_est + eps)| per cell and channel (grid.size, 3); NaN where
+    either is missing (w = clip(cos theta_i cos theta_o, 0.01, 1), eps = 0.001, as training)."""
+    from goniofrost.core.grid import cosine_weight
+
+    w = np.full(grid.size, np.nan)
+    w[grid.valid_cells] = cosine_weight(grid)
+    with np.errstate(invalid="ignore"):
+        return np.abs(np.log(w[:, None] * np.maximum(reference, 0) + EPS) - np.log(w[:, None] * np.maximum(estimate, 0) + EPS))
+
+
 def render_set(brdf: np.ndarray, grid: MerlGrid, lights=DEFAULT_LIGHTS, size: int = 192) -> np.ndarray:
     """HDR images (n_lights, size, size, 3), one sphere per light of ``lights``."""
     return np.stack([render_sphere(brdf, grid, (d, e), size) for _, d, e in lights])
@@ -132,18 +172,39 @@ def tone_map(hdr: np.ndarray, exposure: float) -> np.ndarray:
     return np.clip(hdr * exposure, 0.0, 1.0) ** (1.0 / GAMMA)
 
 
-def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size: int = 192) -> Preview:
-    """Render a MERL file (and optionally a reference MERL file) under ``lights``."""
-    estimate = _render_file(estimate_path, lights, size)
-    reference = None if reference_path is None else _render_file(reference_path, lights, size)
-    return _preview(estimate, reference, lights)
+def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size: int = 192,
+                 std_path=None) -> Preview:
+    """Render a MERL file (and optionally a reference MERL file and a std file) under ``lights``.
+
+    The std file (OUT.std.binary of ``reconstruct``) must be on the estimate's grid.
+    """
+    grid = _read_header(Path(estimate_path))  # the file's own grid: a small-grid file renders as well
+    estimate = read_merl(estimate_path, grid)
+    reference = None if reference_path is None else read_merl(reference_path, _read_header(Path(reference_path)))
+    std = None if std_path is None else read_merl(std_path, grid)
+    if reference is not None and reference.shape != estimate.shape:
+        return _preview(render_set(estimate, grid, lights, size),
+                        render_set(reference, _read_header(Path(reference_path)), lights, size), lights)
+    return preview_of(estimate, grid, reference, lights, size, std=std)
 
 
 def preview_of(estimate: np.ndarray, grid: MerlGrid, reference: np.ndarray | None = None,
-               lights=DEFAULT_LIGHTS, size: int = 192) -> Preview:
-    """Render BRDF arrays (grid.size, 3) in 1/sr (NaN = missing), as ``make_preview`` does files."""
+               lights=DEFAULT_LIGHTS, size: int = 192, std: np.ndarray | None = None) -> Preview:
+    """Render BRDF arrays (grid.size, 3) in 1/sr (NaN = missing), as ``make_preview`` does files;
+    ``std``: the predictive std (grid.size, 3) for the uncertainty panel."""
     hdr = render_set(estimate, grid, lights, size)
-    return _preview(hdr, None if reference is None else render_set(reference, grid, lights, size), lights)
+    ref = None if reference is None else render_set(reference, grid, lights, size)
+    out = _preview(hdr, ref, lights)
+    if std is None:
+        return out
+    valid = grid.valid_mask
+    errors = {"predicted": float(np.nanmean(std[valid] ** 2)), "actual": None}
+    panels = {"std": np.stack([render_values(std, grid, (d, e), size) for _, d, e in lights])}
+    if reference is not None:
+        err = log_error(estimate, reference, grid)
+        errors["actual"] = float(np.nanmean(err[valid] ** 2))
+        panels["log_error"] = np.stack([render_values(err, grid, (d, e), size) for _, d, e in lights])
+    return Preview(out.estimate, out.reference, out.snr_db, out.light_names, errors=errors, **panels)
 
 
 def _preview(estimate: np.ndarray, reference: np.ndarray | None, lights) -> Preview:
@@ -151,25 +212,38 @@ def _preview(estimate: np.ndarray, reference: np.ndarray | None, lights) -> Prev
     return Preview(estimate, reference, snr, tuple(name for name, _, _ in lights))
 
 
-def _render_file(path, lights, size: int) -> np.ndarray:
-    path = Path(path)
-    grid = _read_header(path)  # the file's own grid: a small-grid file renders as well
-    return render_set(read_merl(path, grid), grid, lights, size)
-
-
 def compose(preview: Preview) -> np.ndarray:
-    """Tone-mapped image grid (rows = lights; columns = estimate | reference | error x10).
+    """Tone-mapped image grid (rows = lights; columns = estimate | reference | error x10, then
+    predicted std | actual |log error| when given).
 
-    Returns float (n_lights * size, n_columns * size, 3) in [0, 1]; every column shares the
-    reference's exposure so that brightness differences are real.
+    Returns float (n_lights * size, n_columns * size, 3) in [0, 1]; every rendered column shares
+    the reference's exposure so that brightness differences are real; the std and log-error
+    columns share one colour scale (0 to the 99th percentile of both).
     """
     exposure = exposure_for(preview.reference if preview.reference is not None else preview.estimate)
     columns = [preview.estimate]
     if preview.reference is not None:
         columns += [preview.reference, ERROR_GAIN * np.abs(preview.reference - preview.estimate)]
-    rows = [np.concatenate([tone_map(col[k], exposure) for col in columns], axis=1)
-            for k in range(preview.estimate.shape[0])]
+    maps = [m for m in (preview.std, preview.log_error) if m is not None]
+    top = _map_scale(maps)
+    rows = []
+    for k in range(preview.estimate.shape[0]):
+        tiles = [tone_map(col[k], exposure) for col in columns] + [_colour(m[k], top) for m in maps]
+        rows.append(np.concatenate(tiles, axis=1))
     return np.concatenate(rows, axis=0)
+
+
+def _map_scale(maps) -> float:
+    values = np.concatenate([m[m > 0] for m in maps]) if maps else np.empty(0)
+    return float(np.percentile(values, 99)) if values.size else 1.0
+
+
+def _colour(values: np.ndarray, top: float) -> np.ndarray:
+    """(size, size) values -> RGB in [0, 1] with STD_COLOURMAP on [0, top]; 0 (unlit) is black."""
+    from matplotlib import colormaps
+
+    rgb = colormaps[STD_COLOURMAP](np.clip(values / top, 0, 1))[..., :3]
+    return np.where((values > 0)[..., None], rgb, 0.0)
 
 
 def write_png(path, preview: Preview, title: str = "") -> None:
@@ -180,12 +254,22 @@ def write_png(path, preview: Preview, title: str = "") -> None:
 
     image = compose(preview)
     labels = ["estimate"] + (["reference", f"|error| x{ERROR_GAIN:g}"] if preview.reference is not None else [])
-    fig = Figure(figsize=(2.2 * len(labels), 2.2 * len(preview.light_names) + 0.6), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 0.9))
+    labels += ["predicted std of ln(wx+eps)"] if preview.std is not None else []
+    labels += ["actual |log error|"] if preview.log_error is not None else []
+    fig = Figure(figsize=(2.2 * len(labels), 2.2 * len(preview.light_names) + 0.8), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 0.88))
     ax.imshow(image, interpolation="nearest")
     ax.set_axis_off()
     snr = "" if preview.snr_db is None else f"   rendering SNR {preview.snr_db:.2f} dB"
-    fig.suptitle(f"{title}{snr}\n" + "  |  ".join(labels), fontsize=9)
+    fig.suptitle(f"{title}{snr}{_errors_text(preview.errors)}\n" + "  |  ".join(labels), fontsize=9)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", facecolor="white")
     write_bytes_atomic(path, buffer.getvalue())
+
+
+def _errors_text(errors) -> str:
+    """The predicted (and actual) log-relative MSE for the title, or ""."""
+    if not errors:
+        return ""
+    text = f"\npredicted log-relative MSE {errors['predicted']:.4g}"
+    return text + (f", actual {errors['actual']:.4g}" if errors.get("actual") is not None else "")

@@ -8,6 +8,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("binary", metavar="FILE.binary", help="the BRDF to render (MERL .binary)")
     parser.add_argument("--reference", metavar="FILE.binary", help="ground truth to compare against")
     parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
+    parser.add_argument("--std", metavar="FILE.std.binary",
+                        help="predictive standard deviation from goniofrost reconstruct: adds an uncertainty "
+                             "panel (and, with --reference, the actual log error beside it)")
     parser.add_argument("--size", type=int, default=192, help="sphere diameter in pixels (default 192)")
     parser.add_argument("--renderer", choices=["goniofrost", "mitsuba"], default="goniofrost",
                         help="goniofrost: MERL cell lookup per pixel (default); mitsuba: export each file "
@@ -23,12 +26,19 @@ def run(args) -> int:
     if args.size < 16:
         raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
     if args.renderer == "mitsuba":
+        if args.std is not None:
+            raise GoniofrostError("--std: the uncertainty panel is drawn by the goniofrost renderer; "
+                                  "leave out --renderer mitsuba")
         from goniofrost.brdf.mitsuba_render import make_preview_mitsuba
         preview = make_preview_mitsuba(args.binary, args.reference, size=args.size)
     else:
-        preview = make_preview(args.binary, args.reference, size=args.size)
+        preview = make_preview(args.binary, args.reference, size=args.size, std_path=args.std)
     write_png(args.out, preview, title=Path(args.binary).name + (" (Mitsuba 3)" if args.renderer == "mitsuba" else ""))
     print(f"wrote {args.out}")
     if preview.snr_db is not None:
         print(f"rendering SNR: {preview.snr_db:.2f} dB against {args.reference}")
+    if preview.errors is not None:
+        actual = preview.errors["actual"]
+        print(f"predicted log-relative MSE {preview.errors['predicted']:.4g}"
+              + (f", actual {actual:.4g} against {args.reference}" if actual is not None else ""))
     return 0
