@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.core.atomic_file import write_buffers_atomic
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid
 
@@ -91,9 +91,13 @@ def write_merl(path, brdf: np.ndarray, grid: MerlGrid = FULL_GRID) -> None:
         raise MerlFileError(f"write_merl: {int(np.isinf(brdf).sum())} infinite values; refusing to write {path}")
     if (brdf[finite] < 0).any():
         raise MerlFileError(f"write_merl: negative BRDF values; clamp them before writing {path}")
-    stored = np.where(finite, brdf / RGB_SCALE, MISSING_STORED).T.astype("<f8")
+    # Channel blocks built in place (no transposed copies, no joined bytes: 35 MB at full size).
+    stored = np.empty((3, grid.size), dtype="<f8")
+    for c in range(3):
+        np.divide(brdf[:, c], RGB_SCALE[c], out=stored[c])
+        stored[c][~finite[:, c]] = MISSING_STORED
     header = np.array(grid.shape, dtype="<i4")
-    write_bytes_atomic(path, header.tobytes() + stored.tobytes())
+    write_buffers_atomic(path, [header.tobytes(), memoryview(stored).cast("B")])
 
 
 def valid_to_full(values: np.ndarray, grid: MerlGrid = FULL_GRID) -> np.ndarray:

@@ -75,15 +75,21 @@ def write_bytes_atomic(path, payload: bytes) -> None:
     written: a directory in the way, a read-only or full file system, a file where a folder is
     expected.
     """
+    write_buffers_atomic(path, [payload])
+
+
+def write_buffers_atomic(path, buffers) -> None:
+    """``write_bytes_atomic`` of the concatenation of ``buffers`` (bytes-like objects, e.g.
+    numpy arrays' memoryviews, written in turn without joining them into one copy)."""
     path = Path(path)
     with output_errors(path):
         if path.is_dir():
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
         path.parent.mkdir(parents=True, exist_ok=True)
-        _write_via_temporary(path, payload)
+        _write_via_temporary(path, buffers)
 
 
-def _write_via_temporary(path: Path, payload: bytes) -> None:
+def _write_via_temporary(path: Path, buffers) -> None:
     """Write a temporary sibling, fsync it and rename it over ``path``; remove it on failure."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
@@ -92,7 +98,8 @@ def _write_via_temporary(path: Path, payload: bytes) -> None:
         os.umask(umask)
         os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
+            for buffer in buffers:
+                handle.write(buffer)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)

@@ -108,7 +108,8 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
     predicted = float(prediction.predict(prediction.calibration_of(model), design, z2, energy, unique.size))
     if with_std:
-        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post)
+        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
+                                                             posterior.prior_variance(model), noise)
         per_channel = variance[:, np.searchsorted(used, post.group)]
         std = np.sqrt((per_channel + cell_noise[:, None]) * (predicted / design))
     else:
