@@ -5,7 +5,8 @@ a record: ``status`` "ok" with finite numbers, "error" with a GoniofrostError's 
 error is an acceptable outcome), or "failure" / "non-finite" (a finding to fix: an unexplained
 exception or a NaN/inf result). Records never hold NaN or inf, so stress.json is strict JSON.
 
-Cases: measurement noise (multiplicative 0.1 % to 20 %; additive at the level of the darkest
+``bayes`` (Bayesian design, posterior-mean reconstruction with its per-cell std, which must be
+finite too) runs in every case but the eta sweep (it has no eta). Cases: measurement noise (multiplicative 0.1 % to 20 %; additive at the level of the darkest
 training material, raw and clamped at 0), eta from 0 to 1000, float32 against float64 (model
 arrays, training tables), m above the rank of the training set, duplicated training
 materials, a single training material, the highest dynamic range (chrome, black materials),
@@ -31,7 +32,8 @@ NOISE_MULTIPLICATIVE = (0.001, 0.01, 0.05, 0.2)
 ETAS = (0.0, 0.1, 1.0, 10.0, 40.0, 100.0, 1000.0)
 GRAZING_DEG = 80.0
 DYNAMIC_RANGE_WORDS = ("chrome", "black")
-STRESS_METHODS = ("frost", "frost-firstm", "nielsen", "random", "uniform")
+# bayes last: the noise case draws from one stream in this order, so the other methods keep their draws.
+STRESS_METHODS = ("frost", "frost-firstm", "nielsen", "random", "uniform", "bayes")
 
 
 def record(case: str, variant: str, method: str, m, outcome) -> dict:
@@ -86,6 +88,9 @@ def select(model, method: str, m: int, config: BenchConfig, candidates=None) -> 
     """Positions of one method's design (Nielsen: one trial); ``candidates`` a bool mask."""
     from goniofrost.frost.selection import select_cells
 
+    if method == "bayes":
+        from goniofrost.frost.bayes_selection import select_bayes
+        return np.asarray(select_bayes(model, m, candidates=candidates).positions)
     if method in ("frost", "frost-firstm"):
         form = "all" if method == "frost" else "firstm"
         return np.asarray(select_cells(model, m, y_form=form, candidates=candidates).positions)
@@ -102,18 +107,25 @@ def select(model, method: str, m: int, config: BenchConfig, candidates=None) -> 
                         config.nielsen_max_iter)[-1].positions
 
 
-def errors_from_values(model, positions, values: np.ndarray, truth_log: np.ndarray, eta: float) -> np.ndarray:
+def errors_from_values(model, positions, values: np.ndarray, truth_log: np.ndarray, eta: float,
+                       method: str = "frost") -> np.ndarray:
     """Per-material log-relative MSE of reconstructions from samples values (n_mat, m, 3).
 
-    Each material goes through the public ``reconstruct`` (whose checks refuse NaN, inf and
-    negative samples with a clear error) and ``metrics.log_relative_mse``; ``truth_log`` is
-    ``model.to_log(truth)`` (n_mat, n_valid, 3).
+    Each material goes through the public ``reconstruct`` (``reconstruct_bayes`` for method
+    "bayes"; their checks refuse NaN, inf and negative samples with a clear error) and
+    ``metrics.log_relative_mse``; ``truth_log`` is ``model.to_log(truth)`` (n_mat, n_valid, 3).
     """
-    from goniofrost.frost.reconstruction import reconstruct
+    from goniofrost.frost.reconstruction import ReconstructionError, reconstruct, reconstruct_bayes
 
     out = np.empty(values.shape[0])
     for i in range(values.shape[0]):
-        estimate = reconstruct(model, positions, values[i], eta=eta)  # >= 0, so its map is finite
+        if method == "bayes":
+            rec = reconstruct_bayes(model, positions, values[i])
+            if not (np.all(np.isfinite(rec.std)) and np.isfinite(rec.predicted_error)):
+                raise ReconstructionError("the predictive standard deviation or predicted error is not finite")
+            estimate = rec.brdf
+        else:
+            estimate = reconstruct(model, positions, values[i], eta=eta)  # >= 0, so its map is finite
         # = log_relative_mse(model, truth_i, estimate), with the truth's map computed once
         out[i] = np.mean((model.to_log(estimate) - truth_log[i]) ** 2)
     return out
@@ -137,18 +149,18 @@ def case_noise(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     out = []
     for method, pos in designs.items():
         clean = truth[:, pos, :]
-        base = attempt(errors_from_values, model, pos, clean, truth_log, setup.config.eta)
+        base = attempt(errors_from_values, model, pos, clean, truth_log, setup.config.eta, method)
         out.append(record("noise", "none", method, m, base if isinstance(base, Exception) else _summary(base)))
         ref = None if isinstance(base, Exception) else float(np.mean(base))
         for sigma in NOISE_MULTIPLICATIVE:
             noisy = np.maximum(clean * (1 + sigma * rng.standard_normal(clean.shape)), 0.0)
-            res = attempt(errors_from_values, model, pos, noisy, truth_log, setup.config.eta)
+            res = attempt(errors_from_values, model, pos, noisy, truth_log, setup.config.eta, method)
             out.append(record("noise", f"multiplicative {sigma:g}", method, m,
                               res if isinstance(res, Exception) else _summary(res, ref)))
         additive = clean + level * rng.standard_normal(clean.shape)
         for variant, values in ((f"additive {level:.3g} 1/sr, raw", additive),
                                 (f"additive {level:.3g} 1/sr, clamped at 0", np.maximum(additive, 0.0))):
-            res = attempt(errors_from_values, model, pos, values, truth_log, setup.config.eta)
+            res = attempt(errors_from_values, model, pos, values, truth_log, setup.config.eta, method)
             out.append(record("noise", variant, method, m, res if isinstance(res, Exception) else _summary(res, ref)))
     return out
 
@@ -159,6 +171,8 @@ def case_eta(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     truth_log = setup.model.to_log(truth)
     out = []
     for method, pos in designs.items():
+        if method == "bayes":  # no eta: its noise model was learned at training
+            continue
         for eta in ETAS:
             res = attempt(errors_from_values, setup.model, pos, truth[:, pos, :], truth_log, eta)
             out.append(record("eta", f"eta {eta:g}", method, m, res if isinstance(res, Exception) else _summary(res)))
@@ -174,14 +188,21 @@ def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     model, truth = setup.model, setup.truth(setup.test)
     truth_log = model.to_log(truth)
     wide = FrostModel(**{f: getattr(model, f) for f in ("grid", "names", "eps", "singular_values",
-                                                         "coefficients", "mean", "reference", "weight")},
+                                                         "coefficients", "mean", "reference", "weight",
+                                                         "noise_variance", "noise")},
                       dictionary=np.asarray(model.dictionary, dtype=np.float64))
     out = []
     for method, pos in designs.items():
         values = truth[:, pos, :].transpose(1, 0, 2).reshape(pos.size, -1)
         for v_dtype in (np.float32, np.float64):
-            logs = [reconstruct_log(mod, pos, mod.to_log(values.astype(v_dtype), pos), eta=setup.config.eta)
-                    for mod in (model, wide)]
+            if method == "bayes":
+                from goniofrost.frost.reconstruction import reconstruct_bayes
+
+                logs = [np.concatenate([reconstruct_bayes(mod, pos, truth[i, pos].astype(v_dtype), with_std=False).mapped
+                                        for i in range(truth.shape[0])], axis=1) for mod in (model, wide)]
+            else:
+                logs = [reconstruct_log(mod, pos, mod.to_log(values.astype(v_dtype), pos), eta=setup.config.eta)
+                        for mod in (model, wide)]
             e32, e64 = (batch_log_errors(model, lg, truth_log) for lg in logs)
             out.append(record("precision", f"dictionary float32 vs float64, samples {np.dtype(v_dtype).name}",
                               method, m, {"mse_float32": float(e32.mean()), "mse_float64": float(e64.mean()),
@@ -220,7 +241,7 @@ def _small_training(setup: StressSetup, indices, label: str, m: int) -> list[dic
             if isinstance(pos, Exception):
                 out.append(record(label, f"m={mm} (K={model.n_components})", method, mm, pos))
                 continue
-            res = attempt(errors_from_values, model, pos, truth[:, pos, :], truth_log, setup.config.eta)
+            res = attempt(errors_from_values, model, pos, truth[:, pos, :], truth_log, setup.config.eta, method)
             out.append(record(label, f"m={mm} (K={model.n_components})", method, mm,
                               res if isinstance(res, Exception) else _summary(res)))
     return out
@@ -252,7 +273,7 @@ def case_dynamic_range(setup: StressSetup, designs: dict, m: int) -> list[dict]:
         "names": ", ".join(setup.names[i] for i in setup.dr), "max_value": float(truth.max()),
         "min_positive_value": float(positive.min()) if positive.size else 0.0})]
     for method, pos in designs.items():
-        res = attempt(errors_from_values, setup.model, pos, truth[:, pos, :], truth_log, setup.config.eta)
+        res = attempt(errors_from_values, setup.model, pos, truth[:, pos, :], truth_log, setup.config.eta, method)
         out.append(record("dynamic range", f"{len(setup.dr)} materials", method, m,
                           res if isinstance(res, Exception) else _summary(res)))
     return out
@@ -271,12 +292,12 @@ def case_grazing(setup: StressSetup, m: int) -> list[dict]:
     truth = setup.truth(setup.test)
     truth_log = setup.model.to_log(truth)
     out = []
-    for method in ("frost", "frost-firstm", "random"):
+    for method in ("bayes", "frost", "frost-firstm", "random"):
         pos = attempt(select, setup.model, method, m, setup.config, candidates=mask)
         if isinstance(pos, Exception):
             out.append(record("grazing", f">= {GRAZING_DEG:g} deg, {int(mask.sum())} cells", method, m, pos))
             continue
-        res = attempt(errors_from_values, setup.model, pos, truth[:, pos, :], truth_log, setup.config.eta)
+        res = attempt(errors_from_values, setup.model, pos, truth[:, pos, :], truth_log, setup.config.eta, method)
         out.append(record("grazing", f">= {GRAZING_DEG:g} deg, {int(mask.sum())} cells", method, m,
                           res if isinstance(res, Exception) else _summary(res)))
     return out
@@ -287,7 +308,7 @@ def case_condition(setup: StressSetup) -> list[dict]:
     model, config = setup.model, setup.config
     ms = [m for m in config.m_values if m <= model.n_components]
     designs = {}
-    for method in ("frost", "frost-firstm", "random", "uniform"):
+    for method in ("bayes", "frost", "frost-firstm", "random", "uniform"):
         for m in ms:
             designs[(method, m)] = attempt(select, model, method, m, config)
     steps = attempt(nielsen_path, model.dictionary, ms, model.grid, method_rng(config, "nielsen", 0, 0),
