@@ -8,6 +8,11 @@ a new document whose samples are in capture order, each carrying ``selection_ind
 (reciprocity: the lamp plays w_o and the camera w_i; the same BRDF value). The top level gains
 ``rig``, ``planned_motion_s`` (home -> samples -> home), ``return_home_s`` and
 ``selection_order_motion_s`` (same rig, samples in selection order, best pose per sample).
+
+``schedule_batches(plan_doc, rig, batch_ends)`` does the same for a nested design measured in
+batches (a capture that may stop after any batch): the samples of each batch (selection indices
+[0, e_1), [e_1, e_2), ...) are ordered for least motion on their own, each batch starting where
+the previous one ended, and the document gains ``batch_ends`` (cumulative sample counts).
 """
 from __future__ import annotations
 
@@ -34,11 +39,34 @@ class UnreachableSampleError(GoniofrostError, ValueError):
 
 def schedule_plan(plan_doc: Mapping, rig: Rig, *, reciprocity: bool = True, restarts: int = 8) -> dict:
     """A copy of ``plan_doc`` with joints, capture order and motion times for ``rig`` (see module doc)."""
+    return _schedule(plan_doc, rig, [len(plan_doc["samples"])], reciprocity, restarts)
+
+
+def schedule_batches(plan_doc: Mapping, rig: Rig, batch_ends, *, reciprocity: bool = True,
+                     restarts: int = 8) -> dict:
+    """``schedule_plan`` batch by batch (see module doc); ``batch_ends`` increasing, the last = n."""
+    ends = [int(e) for e in batch_ends]
+    n = len(plan_doc["samples"])
+    if not ends or ends[-1] != n or any(b <= a for a, b in zip([0] + ends[:-1], ends)):
+        raise ValueError(f"batch_ends: expected increasing sample counts ending at {n}, found {ends}")
+    return _schedule(plan_doc, rig, ends, reciprocity, restarts) | {"batch_ends": ends}
+
+
+def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, restarts: int) -> dict:
+    """Order each batch [e_{k-1}, e_k) of selection indices for least motion, each starting where
+    the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
     w_i, w_o = sample_directions(plan_doc)
     poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity)
     _refuse_unreachable(samples, valid, reasons)
-    tour = plan_tour(rig, poses, valid, rig.home, restarts=restarts)
+    order, choice, start = [], [], rig.home
+    for a, b in zip([0] + ends[:-1], ends):
+        if b > a:
+            part = plan_tour(rig, poses[a:b], valid[a:b], start, restarts=restarts)
+            order += list(a + part.order)
+            choice += list(part.choice)
+            start = poses[a + part.order[-1], part.choice[-1]]
+    tour = Tour(np.asarray(order, dtype=np.int64), np.asarray(choice, dtype=np.int64), 0.0)
     baseline = fixed_order_tour(rig, poses, valid, rig.home, np.arange(len(samples)))
     chosen = poses[tour.order, tour.choice]
     check_reproduction(rig, chosen, w_i[tour.order], w_o[tour.order], tour.choice >= 2)

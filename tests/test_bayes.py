@@ -303,10 +303,11 @@ def test_noise_changes_the_content_hash(model, scalar_model):
 
 # ----- stopping rule --------------------------------------------------------------------------------
 def test_batches_follow_the_design_order():
-    assert stopping.batch_ends(60) == [10, 15, 20, 25, 30, 35, 40, 45, 50, 55, 60]
-    assert stopping.batch_ends(22) == [10, 15, 20, 22] and stopping.batch_ends(7) == [7]
+    assert stopping.batch_ends(60) == [15, 20, 25, 30, 35, 40, 45, 50, 55, 60]
+    assert stopping.batch_ends(22) == [15, 20, 22] and stopping.batch_ends(7) == [7]
+    assert stopping.batch_ends(22, first=10) == [10, 15, 20, 22]
     order = np.arange(100, 123)
-    parts = stopping.batches(order)
+    parts = stopping.batches(order, first=10)
     assert [len(p) for p in parts] == [10, 5, 5, 3] and list(np.concatenate(parts)) == list(order)
     with pytest.raises(ValueError):
         stopping.batch_ends(0)
@@ -320,10 +321,10 @@ def test_run_batches_stops_at_the_first_batch_below_the_target():
         calls.append(m)
         return predicted.get(m, 0.3)
 
-    out = stopping.run_batches(25, 0.05, after)
+    out = stopping.run_batches(25, 0.05, after, first=10)
     assert (out.samples, out.reason, calls) == (20, stopping.REASON_TARGET, [10, 15, 20])
     assert out.history == [(10, 0.2), (15, 0.08), (20, 0.049)]
-    out = stopping.run_batches(25, 0.001, lambda m: predicted[m])
+    out = stopping.run_batches(25, 0.001, lambda m: predicted[m], first=10)
     assert (out.samples, out.reason, out.predicted_error) == (25, stopping.REASON_PLAN, 0.01)
 
 

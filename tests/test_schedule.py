@@ -156,3 +156,23 @@ def test_joints_within_rounding_of_a_limit_are_written_on_it():
     clipped = clip_to_limits(RIG, joints)
     assert clipped[0, 0] == lo and clipped[1, 0] == hi
     np.testing.assert_array_equal(clipped[2], joints[2])
+
+
+def test_batches_are_ordered_each_on_its_own_and_keep_the_design_order():
+    from planner.motion import path_time
+    from planner.schedule import schedule_batches
+
+    doc = plan_doc(reachable_cells(22, seed=5))
+    out = schedule_batches(doc, RIG, [10, 15, 20, 22])
+    assert out["batch_ends"] == [10, 15, 20, 22]
+    order = [s["selection_index"] for s in out["samples"]]
+    for a, b in ((0, 10), (10, 15), (15, 20), (20, 22)):  # every batch is a permutation of its design block
+        assert sorted(order[a:b]) == list(range(a, b))
+    q = np.array([[s["joints"][n] for n in RIG.joint_names] for s in out["samples"]])
+    moves = path_time(RIG, q, start=RIG.home, end=RIG.home)
+    assert out["planned_motion_s"] == pytest.approx(moves.sum()) and out["return_home_s"] == pytest.approx(moves[-1])
+    # one batch is exactly schedule_plan
+    whole = schedule_batches(doc, RIG, [22])
+    assert [s["selection_index"] for s in whole["samples"]] == [s["selection_index"] for s in schedule_plan(doc, RIG)["samples"]]
+    with pytest.raises(ValueError, match="batch_ends: expected increasing sample counts ending at 22"):
+        schedule_batches(doc, RIG, [10, 30])

@@ -38,7 +38,8 @@ from goniofrost.capture.journal import Journal, SamplesCsv
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
 from goniofrost.capture.signals import Deferral, SessionInterrupted, signals_raise
-from goniofrost.capture.steps import Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration, step_detail
+from goniofrost.capture.steps import (Assess, Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration,
+                                     step_detail)
 
 __all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware"]
 
@@ -65,6 +66,7 @@ class SessionStats:
     wall_s: float = 0.0
     phase_s: dict = field(default_factory=dict)
     per_sample: list = field(default_factory=list)
+    batches: list = field(default_factory=list)
 
     @property
     def calibration_s(self) -> float:
@@ -81,7 +83,7 @@ class SessionEngine:
         self.spec, self.hw, self.journal = spec, hardware, journal
         self.devices = StepExecutor(hardware, session_dir)
         self.session_dir = self.devices.folder
-        self.csv = SamplesCsv(self.session_dir / "samples.csv")
+        self.csv = SamplesCsv(self.session_dir / "samples.csv", spec.batch_ends if spec.target is not None else ())
         self.progress = progress
         self.stats = SessionStats()
         self._run = 0
@@ -94,7 +96,8 @@ class SessionEngine:
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
         self._journal_result = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
                                 Move: self._moved, Expose: _exposed, Phase: self._phase_started,
-                                SaveCalibration: self._calibration_saved, Commit: self._commit}
+                                SaveCalibration: self._calibration_saved, Assess: self._assessed,
+                                Commit: self._commit}
 
     # ----- the run ------------------------------------------------------------------------
     def run(self) -> SessionStats:
@@ -109,7 +112,7 @@ class SessionEngine:
         calibration = self._restore_calibration()
         self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
         plan = session_steps(self.spec, done, calibration=calibration,
-                             measured={r.plan_index: r.rgb for r in records})
+                             measured={r.plan_index: r.rgb for r in records}, records=records)
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
         with signals_raise() as deferral, self._progress(len(done)), self._device_log_scope():
             self._deferral = deferral
@@ -119,8 +122,11 @@ class SessionEngine:
                 self._end_phase()
                 self._journal_device_log(quiet=True)
         self.stats.ended_clock, self.stats.wall_s = self.hw.clock.now(), time.monotonic() - wall0
-        self.journal.add_event("session", "all samples captured",
-                               data={"captured": self.stats.captured, "motion_s": self.stats.motion_s})
+        last = self.stats.batches[-1] if self.stats.batches else None
+        message = ("all samples captured" if last is None or last["decision"] == "plan used up" else
+                   f"capture stopped after {last['samples']} of {len(self.spec.samples)} samples: target reached")
+        self.journal.add_event("session", message, data={"captured": self.stats.captured,
+                                                         "motion_s": self.stats.motion_s})
         return self.stats
 
     def _drive(self, plan) -> None:
@@ -323,6 +329,13 @@ class SessionEngine:
         self.journal.set_calibration(record.to_dict(), step=(self._row, summary))  # kept together with its state
         self.journal.add_event("calibration", "dark, flat and white reference taken",
                                data={"scale": record.scale.tolist(), "white": record.white})
+        return summary
+
+    def _assessed(self, step: Assess, _result) -> dict:
+        summary = dataclasses.asdict(step)
+        self.stats.batches.append(summary)
+        self.journal.add_event("batch", f"batch {step.batch + 1}: {step.samples} samples, predicted error "
+                               f"{step.predicted_error:.4g} (target {step.target:g}): {step.decision}", data=summary)
         return summary
 
     def _commit(self, step: Commit, _result) -> dict:

@@ -355,21 +355,30 @@ def _record_from_row(row: dict) -> SampleRecord:
 class SamplesCsv:
     """``samples.csv``: the DESIGN.md samples format plus uncertainty columns, one line per sample.
 
-    Columns: ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r,sigma_g,sigma_b,snr,plan_index``.
+    Columns: ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r,sigma_g,sigma_b,snr,plan_index``,
+    and ``batch`` (1-based, the plan's batch of the sample) when ``batch_ends`` are given (a
+    capture with a target error).
     """
 
-    def __init__(self, path) -> None:
+    def __init__(self, path, batch_ends=()) -> None:
         self.path = Path(path)
+        self.batch_ends = tuple(batch_ends)
 
     def rewrite(self, records) -> None:
         """Replace the file atomically with exactly ``records`` (the journal is the truth)."""
-        text = ",".join(CSV_COLUMNS) + "\n" + "".join(r.csv_row() + "\n" for r in records)
-        write_text_atomic(self.path, text)
+        header = ",".join(CSV_COLUMNS + (("batch",) if self.batch_ends else ()))
+        write_text_atomic(self.path, header + "\n" + "".join(self._line(r) + "\n" for r in records))
+
+    def _line(self, record: SampleRecord) -> str:
+        if not self.batch_ends:
+            return record.csv_row()
+        from goniofrost.capture.target import batch_of
+        return f"{record.csv_row()},{batch_of(self.batch_ends, record.plan_index)}"
 
     def append(self, record: SampleRecord) -> None:
         """Append one sample's line, flushed and fsynced before returning (OutputError when the disk
         refuses: the journal has the sample, and a resume rewrites this file from it)."""
         with output_errors(self.path), open(self.path, "a") as handle:
-            handle.write(record.csv_row() + "\n")
+            handle.write(self._line(record) + "\n")
             handle.flush()
             os.fsync(handle.fileno())

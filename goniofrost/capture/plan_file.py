@@ -5,13 +5,16 @@ Layout (DESIGN.md "Command line")::
     {"model": {"path": str, "hash": str}, "m": int, "selection_seconds": float,
      "selector": "bayes"|"frost", "k": int,
      "predicted_errors": [float, ...]                   (bayes: after each pick)
+     "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
      "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
                   "w_i": [x, y, z], "w_o": [x, y, z]}, ...]}
 
-Samples are in selection order (the planner may reorder them for motion; a Bayesian design is
-nested, so its first m samples are the best m). ``predicted_errors[i]`` is the log-relative MSE
+Samples are in selection order (the planner reorders them for motion; a Bayesian design is
+nested, so its first m samples are the best m, and it is measured in batches: ``batch_ends``
+(``frost.stopping.batch_ends``) are the cumulative sample counts after each batch, and the
+planner orders each batch on its own, so that ``capture --target-error`` can stop after any). ``predicted_errors[i]`` is the log-relative MSE
 a typical material is predicted to have after the first i + 1 samples (``prediction.py``).
 Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
 frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
@@ -43,7 +46,10 @@ def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
     }
     values = [float(r) for r in selection.residuals]
     if selection.selector == "bayes":
+        from goniofrost.frost.stopping import batch_ends
+
         doc["predicted_errors"] = values
+        doc["batch_ends"] = batch_ends(selection.m)
     else:
         doc |= {"y_form": selection.y_form, "residuals": values}
     return doc | {"samples": sample_entries(model.grid, selection.cells)}

@@ -7,6 +7,12 @@ reference, each frame a step); then per remaining sample: move, its bracket of e
 pose the next steps use, and the Commit carries the whole sample record, so nothing passes
 through the engine between steps. Samples already in the journal are skipped, so a resumed
 session never repeats one.
+
+With a target error (``SessionSpec.target``) the samples are taken batch by batch (the plan's
+``batch_ends``) and after each batch an ``Assess`` step carries the predicted error of the
+samples so far and the decision (``goniofrost.capture.target``): the plan stops as soon as the
+target is reached. Batches already journaled are assessed again first (no device is touched for
+that), so a resumed session makes the same decisions; one that had stopped yields no device step.
 """
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ import numpy as np
 from goniofrost.capture.calibration_steps import calibration_steps
 from goniofrost.capture.journal import SampleRecord
 from goniofrost.capture.sample_steps import sample_steps
-from goniofrost.capture.steps import Commit, Home, LampOff, LampOn, Move, Phase, Reached
+from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, Reached
 
 
 @dataclass(frozen=True)
@@ -30,6 +36,8 @@ class SessionSpec:
     ``axes``: axis names in joint order; ``camera``: the validated ``camera:`` section;
     ``white_joints``: the pose {axis: deg} showing the white reference tile (needed unless a
     calibration is kept); ``pose_of(joints)`` -> (w_i, w_o), each (3,): forward kinematics.
+    With a target error: ``target`` (log-relative MSE), ``batch_ends`` (cumulative samples per
+    batch, the last = all) and ``assess(records) -> predicted error``; otherwise None, (), None.
     """
 
     samples: list
@@ -38,47 +46,100 @@ class SessionSpec:
     camera: Mapping
     white_joints: Mapping | None
     pose_of: Callable
+    target: float | None = None
+    batch_ends: tuple = ()
+    assess: Callable | None = None
 
     @classmethod
-    def from_inputs(cls, inputs) -> "SessionSpec":
-        """From checked ``goniofrost.capture.inputs.SessionInputs``."""
+    def from_inputs(cls, inputs, target_error: float | None = None) -> "SessionSpec":
+        """From checked ``goniofrost.capture.inputs.SessionInputs`` (and the capture's target error)."""
         from calib import validate_camera_section
         from planner.kinematics import forward
 
+        from goniofrost.capture.target import make_assessor
+
         rig = inputs.rig
+        target = {} if target_error is None else {
+            "target": float(target_error), "batch_ends": tuple(int(e) for e in inputs.plan["batch_ends"]),
+            "assess": make_assessor(inputs.model, inputs.positions)}
         return cls(inputs.samples, tuple(int(c) for c in inputs.cells), tuple(rig.joint_names),
                    validate_camera_section(rig.camera, rig.source), inputs.white_joints,
-                   lambda joints: forward(rig, joints))
+                   lambda joints: forward(rig, joints), **target)
 
 
 def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
-                  measured: Mapping[int, Sequence[float]] | None = None):
+                  measured: Mapping[int, Sequence[float]] | None = None, records=()):
     """Yield the steps of a capture session (send each step's result back).
 
     ``done``: plan indices already journaled; ``calibration``: a journaled CalibrationRecord to keep
     (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
     samples. Each sample's bracket starts from what the plan sample before it measured (in this
     run or, resumed, in the journal), so a resumed session takes the frames one run would have.
-    A session with nothing left to capture yields no step at all.
+    ``records``: the journaled SampleRecords (with a target error: its assessments need their
+    values). A session with nothing left to capture yields no device step at all.
     """
+    if spec.target is not None:
+        yield from _target_session(spec, calibration, records, measured)
+        return
     todo = remaining(len(spec.samples), done)
     if not todo:
         return  # nothing left to capture: touch no device
+    calibration = yield from _start(spec, calibration)
+    yield from _capture(spec, calibration, todo, _as_arrays(measured))
+    yield LampOff()
+
+
+def _start(spec: SessionSpec, calibration):
+    """Home, lamp on, calibrate unless a calibration is kept; return the calibration."""
     yield Home(spec.axes)
     yield LampOn()
     if calibration is None:
         white = yield Move(None, joint_targets(spec.white_joints, spec.axes))
         calibration = yield from calibration_steps(spec.camera, spec.pose_of(white.joints))
     yield Phase("samples")
-    measured = {i: np.asarray(rgb, dtype=np.float64) for i, rgb in (measured or {}).items()}
+    return calibration
+
+
+def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict | None = None):
+    """Move, measure and commit each plan sample of ``todo``; their BRDFs go into ``measured``
+    ({plan index: (3,)}; the one before a sample picks its bracket's first exposure) and their
+    records into ``records``."""
     for index in todo:
         reached = yield Move(index, joint_targets(spec.samples[index]["joints"], spec.axes))
         previous = measured.get(index - 1)  # its BRDF picks this bracket's first exposure
         expected = None if previous is None else np.maximum(previous, 1e-6)
         m = yield from sample_steps(spec.camera, calibration, spec.pose_of(reached.joints), index, expected)
         measured[index] = np.asarray(m.rgb, dtype=np.float64)
-        yield Commit(sample_record(spec, index, reached, m))
-    yield LampOff()
+        record = sample_record(spec, index, reached, m)
+        if records is not None:
+            records[index] = record
+        yield Commit(record)
+
+
+def _target_session(spec: SessionSpec, calibration, records, measured):
+    """Batch by batch until the predicted error is at most the target (see module doc)."""
+    from goniofrost.capture.target import CONTINUE, assessment
+
+    by_index = {r.plan_index: r for r in records}
+    measured = _as_arrays(measured) | {i: np.asarray(r.rgb, dtype=np.float64) for i, r in by_index.items()}
+    started, n = False, len(spec.samples)
+    for batch, end in enumerate(spec.batch_ends):
+        todo = [i for i in range(end) if i not in by_index]
+        if todo:
+            if not started:
+                calibration = yield from _start(spec, calibration)
+                started = True
+            yield from _capture(spec, calibration, todo, measured, by_index)
+        result = assessment(spec.assess, batch, end, n, spec.target, [by_index[i] for i in range(end)])
+        yield Assess(**result)
+        if result["decision"] != CONTINUE:
+            break
+    if started:
+        yield LampOff()
+
+
+def _as_arrays(measured) -> dict:
+    return {i: np.asarray(rgb, dtype=np.float64) for i, rgb in (measured or {}).items()}
 
 
 def remaining(n_samples: int, done: Iterable[int]) -> list[int]:

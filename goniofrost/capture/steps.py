@@ -86,6 +86,19 @@ class SaveCalibration:
 
 
 @dataclass(frozen=True)
+class Assess:
+    """The decision after a batch of a capture with a target error (no device action): the
+    predicted error of the ``samples`` measured so far and what the plan does next
+    (``decision``: "continue", "target reached" or "plan used up"; see capture.target)."""
+
+    batch: int
+    samples: int
+    predicted_error: float
+    target: float
+    decision: str
+
+
+@dataclass(frozen=True)
 class Commit:
     """Journal one sample (one transaction; the engine stamps ``committed_utc``) and append it to
     samples.csv."""
@@ -97,7 +110,7 @@ class Commit:
         return self.record.plan_index
 
 
-Step = Home | Move | LampOn | LampOff | SetTarget | Expose | Phase | SaveCalibration | Commit
+Step = Home | Move | LampOn | LampOff | SetTarget | Expose | Phase | SaveCalibration | Assess | Commit
 
 
 @dataclass(frozen=True)

@@ -94,6 +94,31 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     deviations of the samples in 1/sr (added to the noise through the log map).
     with_std: also compute the per-cell predictive standard deviation (one more product).
     """
+    from goniofrost.frost import posterior
+
+    unique, noise, cell_noise, post, (predicted, design, z2, energy) = _posterior(model, positions, values, sigmas)
+    mu = np.asarray(model.mean, dtype=np.float64)
+    if with_std:
+        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
+                                                             posterior.prior_variance(model), noise)
+        per_channel = variance[:, np.searchsorted(used, post.group)]
+        std = np.sqrt((per_channel + cell_noise[:, None]) * (predicted / design))
+    else:
+        mapped, std = reconstruct_mapped(model, post), None
+    brdf = model.from_log(mapped)
+    _check_overflow(brdf, unique.size, "the Bayesian estimate")
+    return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
+
+
+def predicted_error(model: FrostModel, positions, values, sigmas=None) -> float:
+    """The predicted log-relative MSE of ``reconstruct_bayes`` from these samples, without the
+    reconstruction itself (no pass over the cells: a few milliseconds)."""
+    return _posterior(model, positions, values, sigmas)[4][0]
+
+
+def _posterior(model: FrostModel, positions, values, sigmas):
+    """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
+    Posterior, (predicted error, design error, z2, energy))."""
     from goniofrost.frost import posterior, prediction
 
     positions, values = _check_samples(model, positions, values)
@@ -107,16 +132,7 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
                          float(cell_noise.sum()), model.grid.n_valid)
     design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
     predicted = float(prediction.predict(prediction.calibration_of(model), design, z2, energy, unique.size))
-    if with_std:
-        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
-                                                             posterior.prior_variance(model), noise)
-        per_channel = variance[:, np.searchsorted(used, post.group)]
-        std = np.sqrt((per_channel + cell_noise[:, None]) * (predicted / design))
-    else:
-        mapped, std = reconstruct_mapped(model, post), None
-    brdf = model.from_log(mapped)
-    _check_overflow(brdf, unique.size, "the Bayesian estimate")
-    return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
+    return unique, noise, cell_noise, post, (predicted, design, z2, energy)
 
 
 def bayes_output_paths(out) -> tuple[Path, Path]:

@@ -53,8 +53,10 @@ def run(args) -> int:
     selection = _select(model, args, mask)
     doc = plan_document(args.model, model, selection)
     if rig is not None:
-        from planner.schedule import format_table, schedule_plan
-        doc = schedule_plan(doc, rig)
+        from planner.schedule import format_table, schedule_batches, schedule_plan
+        # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
+        # each batch is ordered for motion on its own.
+        doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
         print(format_table(doc))
     write_plan(args.out, doc)
     print(f"{args.out}: m = {selection.m} samples{_outcome(args, selection)}, selection {selection.seconds:.3f} s")
