@@ -23,9 +23,14 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
     import matplotlib.image
     assert matplotlib.image.imread(out / "preview.png").ndim == 3
     report = json.loads((out / "report.json").read_text())
-    assert report["samples"] == 20 and report["demo"]["material"] == "builtin:red-plastic"
+    assert report["demo"]["material"] == "builtin:red-plastic" and report["demo"]["target_error"] == 0.05
+    target = report["target_error"]  # a Bayesian plan of 40, measured batch by batch until the target
+    assert report["samples"] == target["samples_used"] <= 40 and report["samples"] in target["batch_ends"]
+    assert target["stopped"] in ("target reached", "plan used up")
     truth = report["ground_truth"]
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
+    assert truth["predicted_log_relative_mse"] == report["prediction"]["predicted_log_relative_mse"] > 0
+    assert (out / "session" / "brdf.std.binary").is_file()
     assert report["demo"]["rendering_snr_db"] > 10
     assert f"wrote {out / 'session' / 'brdf.binary'}" in proc.stdout
 

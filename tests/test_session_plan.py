@@ -203,3 +203,55 @@ def test_saturated_at_the_shortest_exposure_is_an_error(frames):
     with pytest.raises(SaturationError, match=r"sample 7: \d+ of \d+ sample pixels saturate even at the "
                                               r"shortest exposure 0.002 s"):
         bracket_of([frames["bright", 0.128]], expected=np.full(3, 1e3))
+
+
+# ----- a capture with a target error: batches, assessments, stop -------------------------------
+def target_spec(predicted_after: dict, target: float = 0.05, batch_ends=(1, 2, 3)):
+    """SPEC measured in batches; the predicted error after k samples is ``predicted_after[k]``."""
+    import dataclasses
+
+    return dataclasses.replace(SPEC, target=target, batch_ends=tuple(batch_ends),
+                               assess=lambda records: predicted_after[len(records)])
+
+
+def test_target_session_stops_after_the_first_batch_whose_predicted_error_is_at_most_the_target(frames):
+    from goniofrost.capture.steps import Assess
+
+    script = Script(frames)
+    drive(session_steps(target_spec({1: 0.2, 2: 0.04, 3: 0.01}), calibration=RECORD), script)
+    assert _shown(script.steps) == [
+        Home(AXES), LampOn(), Phase("samples"),
+        sample_moves(0), Expose(0.032, "raw/sample_0000_e2.dng", 0), ("Commit", 0), Assess(0, 1, 0.2, 0.05, "continue"),
+        sample_moves(1), Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), Assess(1, 2, 0.04, 0.05, "target reached"),
+        LampOff()]
+
+
+def test_target_session_uses_up_the_plan_when_the_target_is_never_met(frames):
+    from goniofrost.capture.steps import Assess
+
+    script = Script(frames)
+    drive(session_steps(target_spec({1: 0.2, 2: 0.1, 3: 0.09}, batch_ends=(2, 3)), calibration=RECORD), script)
+    assessed = [s for s in script.steps if isinstance(s, Assess)]
+    assert assessed == [Assess(0, 2, 0.1, 0.05, "continue"), Assess(1, 3, 0.09, 0.05, "plan used up")]
+    assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2] and script.steps[-1] == LampOff()
+
+
+def test_a_resumed_target_session_replays_the_journaled_batches_first(frames):
+    """Sample 0 journaled (batch 1 done), sample 1 not: batch 1 is assessed again before any device
+    step, then batch 2 is captured; a session that had stopped yields no device step at all."""
+    from goniofrost.capture.steps import Assess
+
+    done = []
+
+    def journaled(script_frames):  # a first run of batch 1, recorded as the journal would hold it
+        script = Script(script_frames)
+        drive(session_steps(target_spec({1: 0.2, 2: 0.2, 3: 0.2}), calibration=RECORD), script)
+        return [s.record for s in script.steps if isinstance(s, Commit)][:1]
+
+    records = journaled(frames)
+    script = Script(frames)
+    drive(session_steps(target_spec({1: 0.2, 2: 0.01, 3: 0.0}), done={0}, calibration=RECORD, records=records), script)
+    assert _shown(script.steps)[:2] == [Assess(0, 1, 0.2, 0.05, "continue"), Home(AXES)]
+    assert _shown(script.steps)[-3:] == [("Commit", 1), Assess(1, 2, 0.01, 0.05, "target reached"), LampOff()]
+    stopped = target_spec({1: 0.01, 2: 0.0, 3: 0.0})
+    assert list(session_steps(stopped, done={0}, records=records)) == [Assess(0, 1, 0.01, 0.05, "target reached")]

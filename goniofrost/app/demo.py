@@ -1,8 +1,10 @@
 """The whole chain on the simulated rig with the built-in library: ``goniofrost demo``.
 
-train (built-in library minus the demo material, cached) -> FROST plan of m samples on the
-simulated rig -> capture of the held-out material with sensor noise (journaled session) ->
-reconstruction on the full MERL grid -> ground-truth MERL file, preview PNG, report.
+train (built-in library minus the demo material, cached) -> Bayesian plan of up to m samples on
+the simulated rig, in batches -> capture of the held-out material with sensor noise (journaled
+session) that stops once the material's predicted error is at most the target -> reconstruction
+with its uncertainty on the full MERL grid -> ground-truth MERL file, preview PNG (with the
+predicted uncertainty beside the actual error), report (predicted against actual error).
 """
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.atomic_file import write_text_atomic
 
 DEFAULT_MATERIAL = "red-plastic"
-DEFAULT_SAMPLES = 20
+DEFAULT_SAMPLES = 40  # the plan's m_max; the capture stops earlier once the target is met
+DEFAULT_TARGET_ERROR = 0.05  # log-relative MSE
 DEFAULT_SPEEDUP = 50.0  # simulated seconds per real second: motion and exposures of the demo rig
 # The camera finds the holder's markers up to about this view angle; grazing cells beyond it
 # cannot be measured on the simulated rig (as with a real camera), so the demo leaves them out.
@@ -39,10 +42,11 @@ class DemoResult:
 
 def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SAMPLES, rig_path=None,
              grid=None, seed: int = 0, speedup: float = DEFAULT_SPEEDUP, progress: bool = True,
-             bsdf: bool = False) -> DemoResult:
+             bsdf: bool = False, target_error: float | None = DEFAULT_TARGET_ERROR) -> DemoResult:
     """Run the demo into folder ``out`` (a previous demo's results there are replaced).
 
-    ``bsdf``: also export the session's brdf.binary to brdf.bsdf for Mitsuba 3 (stage "export").
+    ``bsdf``: also export the session's brdf.binary to brdf.bsdf for Mitsuba 3 (stage "export");
+    ``target_error``: stop the capture once the predicted error is at most this (None: all samples).
     """
     from goniofrost.core.grid import FULL_GRID
 
@@ -60,7 +64,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     lap("train")
     plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json")
     lap("plan")
-    outcome = capture_fresh(rig_path, plan_path, out / "session", f"builtin:{material}", seed, speedup, progress)
+    outcome = capture_fresh(rig_path, plan_path, out / "session", f"builtin:{material}", seed, speedup, progress,
+                            target_error)
     lap("capture")
     write_reference_and_preview(material, grid, out)
     lap("reference")
@@ -68,7 +73,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
         from goniofrost.brdf.mitsuba_export import export_beside
         export_beside(out / "session" / "brdf.binary")
         lap("export")
-    report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m": samples, "rig": str(rig_path),
+    report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m_max": samples,
+                                         "target_error": target_error, "rig": str(rig_path),
                                          "rendering_snr_db": outcome.report["rendering_snr_db"], "stages_s": stages,
                                          "total_s": sum(stages.values())}}
     write_text_atomic(out / "report.json", json.dumps(report, indent=1))
@@ -86,26 +92,32 @@ def train_without(material: str, grid, progress: bool):
     return model, cache_path("models", model.info["cache_key"], "")
 
 
-def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = MAX_ANGLE_DEG) -> Path:
-    """FROST-select m reachable cells on the rig (theta_i, theta_o <= max_angle), schedule them,
+def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = MAX_ANGLE_DEG,
+                selector: str = "bayes") -> Path:
+    """Select m reachable cells on the rig (theta_i, theta_o <= max_angle) with the Bayesian
+    design (or FROST: ``selector="frost"``), schedule them (a Bayesian plan batch by batch),
     write PLAN.json."""
     from planner.reach import reachability
-    from planner.schedule import schedule_plan
+    from planner.schedule import schedule_batches, schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
     from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
     rig = load_checked_rig(rig_path)
     candidates = reachability(rig, model.grid).mask
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
-    selection = select_cells(model, m, candidates=candidates)
-    write_plan(out_path, schedule_plan(plan_document(model_path, model, selection), rig))
+    select = select_bayes if selector == "bayes" else select_cells
+    doc = plan_document(model_path, model, select(model, m, candidates=candidates))
+    doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
+    write_plan(out_path, doc)
     return Path(out_path)
 
 
-def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: int, speedup: float, progress: bool):
+def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: int, speedup: float, progress: bool,
+                  target_error: float | None = None):
     """Capture into a fresh session folder (a previous demo session there is removed first)."""
     from goniofrost.capture.runner import capture
 
@@ -113,7 +125,7 @@ def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: i
     if session_dir.exists():
         shutil.rmtree(session_dir)
     return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
-                   progress=progress)
+                   progress=progress, target_error=target_error)
 
 
 def check_replaceable(session_dir: Path) -> None:

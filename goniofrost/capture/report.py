@@ -1,8 +1,14 @@
 """The end of a session: reconstruct the full BRDF, compare with the ground truth, report.
 
-Writes ``DIR/brdf.binary`` (on the model's grid), ``DIR/preview.png`` (spheres; beside the
-ground truth on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times come from the journal, so a resumed session reports every sample's
-motion and capture time, not only the last run's.
+Writes ``DIR/brdf.binary`` (the Bayesian posterior mean on the model's grid, the samples'
+uncertainties used), ``DIR/brdf.std.binary`` (its per-cell predictive standard deviation, MERL
+layout, see ``goniofrost reconstruct``), ``DIR/brdf.json`` (its predicted error),
+``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
+error on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times
+come from the journal, so a resumed session reports every sample's motion and capture time, not
+only the last run's. With a target error the report holds every batch's predicted error and
+decision and why the capture stopped (replayed from the journaled samples: the same decisions
+the session made).
 """
 from __future__ import annotations
 
@@ -13,19 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.brdf.merl_file import valid_to_full, write_merl
+from goniofrost.brdf.merl_file import valid_to_full
 
-ETA = 40.0  # ridge weight of the published reconstruction (paper, section IV-B)
-
-
-def reconstruct_session(inputs, records) -> np.ndarray:
-    """Full BRDF (model.grid.size, 3) in 1/sr (NaN on invalid cells) from journaled samples."""
-    from goniofrost.frost.reconstruction import reconstruct
+def reconstruct_session(inputs, records):
+    """The Bayesian reconstruction (frost.reconstruction.BayesReconstruction, on the valid cells)
+    of the journaled samples, their measured standard deviations included."""
+    from goniofrost.frost.reconstruction import reconstruct_bayes
 
     order = np.array([r.plan_index for r in records], dtype=np.int64)
     values = np.array([r.rgb for r in records], dtype=np.float64)
-    estimate = reconstruct(inputs.model, inputs.positions[order], values, eta=ETA)
-    return valid_to_full(estimate, inputs.model.grid)
+    sigmas = np.array([r.sigma for r in records], dtype=np.float64)
+    return reconstruct_bayes(inputs.model, inputs.positions[order], values, sigmas=sigmas)
 
 
 def build_report(inputs, records, stats, session_dir: Path, material: str | None, events) -> dict:
@@ -58,52 +62,73 @@ def _planned_motion(plan: dict) -> float | None:
     return None if total is None else float(total) - float(plan.get("return_home_s", 0.0))
 
 
-def write_outputs(inputs, journal, stats, session_dir, material: str | None) -> dict:
-    """Reconstruct into brdf.binary, write report.json and summary.txt; return the report."""
+def write_outputs(inputs, journal, stats, session_dir, material: str | None, spec=None) -> dict:
+    """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
+    summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any)."""
     from goniofrost.capture.engine import SessionStats
+    from goniofrost.frost.reconstruction import write_bayes_outputs
 
     records = journal.samples()
     session_dir = Path(session_dir)
     stats = stats or SessionStats(skipped=len(records))  # None: nothing was left to capture
-    estimate = reconstruct_session(inputs, records)
-    write_merl(session_dir / "brdf.binary", estimate, inputs.model.grid)
+    rec = reconstruct_session(inputs, records)
+    grid = inputs.model.grid
+    write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
+    estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
     report = build_report(inputs, records, stats, session_dir, material, journal.events())
+    report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
+                            "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
+    report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
+    if spec is not None and spec.target is not None:
+        report["target_error"] = target_section(spec, records)
     if material:
-        report["ground_truth"] = _truth_section(inputs, records, material, estimate)
-    report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, inputs.model.grid, material)
+        report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
+    report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, grid, material, std)
     report["outputs"]["preview"] = "preview.png"
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
     write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
 
 
-def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None) -> float | None:
-    """Write the sphere preview (beside the ground truth on a simulated rig); return its rendering
-    SNR in dB (None without a ground truth)."""
+def target_section(spec, records) -> dict:
+    """The target-error part of report.json: every batch's predicted error and decision, and why
+    the capture stopped ("target reached", "plan used up", or "not finished" if interrupted)."""
+    from goniofrost.capture.target import CONTINUE, history
+
+    batches = history(spec.assess, spec.batch_ends, spec.target, records)
+    stopped = batches[-1]["decision"] if batches and batches[-1]["decision"] != CONTINUE else "not finished"
+    return {"target": spec.target, "plan_samples": len(spec.samples), "samples_used": len(records),
+            "batch_ends": list(spec.batch_ends), "batches": batches, "stopped": stopped}
+
+
+def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None) -> float | None:
+    """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
+    error on a simulated rig); return its rendering SNR in dB (None without a ground truth)."""
     from goniofrost.brdf.preview import preview_of, write_png
 
     reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
-    preview = preview_of(estimate, grid, reference)
+    preview = preview_of(estimate, grid, reference, std=std)
     write_png(path, preview, title="session estimate" + (f" vs {material}" if material else ""))
     return preview.snr_db
 
 
-def _truth_section(inputs, records, material: str, estimate: np.ndarray) -> dict:
+def _truth_section(inputs, records, material: str, estimate: np.ndarray, predicted: float) -> dict:
     from goniofrost.frost.metrics import log_relative_mse
-    from goniofrost.frost.reconstruction import reconstruct
+    from goniofrost.frost.reconstruction import reconstruct_bayes
 
     model = inputs.model
     truth = ground_truth(material, model.grid)
     order = np.array([r.plan_index for r in records], dtype=np.int64)
     measured = np.array([r.rgb for r in records])
     true_at = truth[inputs.positions[order]]
-    exact = reconstruct(model, inputs.positions, truth[inputs.positions], eta=ETA)
+    exact = reconstruct_bayes(model, inputs.positions[order], true_at, with_std=False).brdf
     error = float(log_relative_mse(model, truth, estimate[model.grid.valid_cells]))
     best = float(log_relative_mse(model, truth, exact))
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.abs(measured - true_at) / true_at
-    return {"material": material, "log_relative_mse": error, "log_relative_mse_exact_samples": best,
-            "ratio_to_exact": error / best if best > 0 else None,
+    return {"material": material, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
+            "predicted_over_actual": predicted / error if error > 0 else None,
+            "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
             "sample_relative_error_median": float(np.nanmedian(rel)),
             "sample_relative_error_max": float(np.nanmax(rel))}
 
@@ -137,13 +162,20 @@ def summary_text(report: dict) -> str:
         f"SNR per sample: min {report['snr']['min']:.1f}, median {report['snr']['median']:.1f}, max {report['snr']['max']:.1f}",
         "  " + " ".join(f"{s['index']}:{s['snr']:.0f}" for s in report["per_sample"]),
     ]
+    target = report.get("target_error")
+    if target:
+        lines.append(f"target error {target['target']:g}: {target['stopped']} after {target['samples_used']} of "
+                     f"{target['plan_samples']} samples; predicted error after each batch: "
+                     + ", ".join(f"{b['samples']}: {b['predicted_error']:.4g}" for b in target["batches"]))
+    lines.append(f"predicted error of this reconstruction: log-relative MSE {report['prediction']['predicted_log_relative_mse']:.4g}"
+                 f" (per-cell standard deviation in {report['outputs']['std']})")
     truth = report.get("ground_truth")
     if truth:
         lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")
         lines.append(f"error against the ground truth {truth['material']}: log-relative MSE {truth['log_relative_mse']:.4g}"
-                     f" (exact values at the same cells: {truth['log_relative_mse_exact_samples']:.4g},"
-                     f" ratio {_fmt(truth['ratio_to_exact'], '.3f')}); median sample error"
-                     f" {100 * truth['sample_relative_error_median']:.2f} %")
-    lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['samples']}, preview.png, report.json "
-                 f"in {report['session']}")
+                     f" (predicted {truth['predicted_log_relative_mse']:.4g}; exact values at the same cells:"
+                     f" {truth['log_relative_mse_exact_samples']:.4g}, ratio {_fmt(truth['ratio_to_exact'], '.3f')});"
+                     f" median sample error {100 * truth['sample_relative_error_median']:.2f} %")
+    lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['std']}, {report['outputs']['samples']}, "
+                 f"preview.png, report.json in {report['session']}")
     return "\n".join(lines) + "\n"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from goniofrost.core.errors import ConfigError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
+from goniofrost.capture.session_steps import SessionSpec
 
 JOURNAL_FILE = "session.sqlite"
 log = logging.getLogger(__name__)
@@ -31,11 +32,13 @@ class CaptureOutcome:
 
 def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
-            on_ready=None) -> CaptureOutcome:
+            on_ready=None, target_error: float | None = None) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
-    ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests).
+    ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests);
+    ``target_error``: measure the plan batch by batch and stop once this material's predicted
+    log-relative MSE is at most this (``goniofrost.capture.target``; the plan needs batch_ends).
     """
     from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
@@ -45,20 +48,22 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     inputs = load_inputs(rig_path, plan_path)
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
+    check_target(inputs, target_error)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material)
+    meta = session_meta(inputs, material, target_error)
+    spec = SessionSpec.from_inputs(inputs, target_error)
     with session_lock(session_dir):
         journal = open_journal(session_dir, meta, resume)
         try:
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
-            if len(done) < len(inputs.samples):
-                stats = run_engine(inputs, journal, session_dir, material=material, seed=seed, speedup=speedup,
-                                   progress=progress, on_ready=on_ready)
+            if not session_finished(spec, journal):
+                stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
+                                   speedup=speedup, progress=progress, on_ready=on_ready)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
-                SamplesCsv(session_dir / "samples.csv").rewrite(journal.samples())
+                SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
-                report = write_outputs(inputs, journal, stats, session_dir, material)
+                report = write_outputs(inputs, journal, stats, session_dir, material, spec)
             except OutputError as exc:
                 raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
                                   f"then run the same command with --resume to write the results") from exc
@@ -67,20 +72,19 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     return CaptureOutcome(report, summary_text(report), session_dir)
 
 
-def run_engine(inputs, journal, session_dir: Path, *, material, seed, speedup, progress, on_ready):
-    """Connect the rig and capture what is left; return the run's SessionStats. From connecting to
-    releasing, the devices' log goes to the journal, not the terminal."""
+def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready):
+    """Connect the rig and capture what is left of the session ``spec``; return the run's
+    SessionStats. From connecting to releasing, the devices' log goes to the journal, not the
+    terminal."""
     from goniofrost.capture.device_log import DeviceLog
     from goniofrost.capture.engine import SessionEngine
     from goniofrost.capture.hardware import open_hardware
-    from goniofrost.capture.session_steps import SessionSpec
 
     with DeviceLog.capture() as device_log:
         try:
-            with open_hardware(inputs.rig, material=material, seed=seed, speedup=speedup,
+            with open_hardware(rig, material=material, seed=seed, speedup=speedup,
                                on_ready=on_ready) as hardware:
-                engine = SessionEngine(SessionSpec.from_inputs(inputs), hardware, journal, session_dir, progress,
-                                       device_log=device_log)
+                engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
                 return engine.run()
         finally:
             journal_device_log(journal, device_log)  # what connecting and releasing logged
@@ -93,6 +97,35 @@ def journal_device_log(journal, device_log) -> None:
         device_log.journal_into(journal)
     except Exception as exc:  # noqa: BLE001
         log.error("could not journal the device log: %s", exc)
+
+
+def check_target(inputs, target_error) -> None:
+    """A target error must be a number > 0, and the plan a Bayesian plan measured in batches."""
+    if target_error is None:
+        return
+    if not (isinstance(target_error, (int, float)) and 0 < target_error < float("inf")):
+        raise ConfigError("command line", "--target-error", "a log-relative MSE > 0 (e.g. 0.05)", target_error)
+    ends, n = inputs.plan.get("batch_ends"), len(inputs.samples)
+    if not isinstance(ends, list) or not ends:
+        raise ConfigError(inputs.plan_path, "batch_ends", "the batches of a Bayesian plan "
+                          "(goniofrost plan --selector bayes --rig RIG.yaml)", ends)
+    if (not all(isinstance(e, int) and not isinstance(e, bool) for e in ends) or ends[-1] != n
+            or any(b <= a for a, b in zip([0] + ends[:-1], ends))):
+        raise ConfigError(inputs.plan_path, "batch_ends", f"increasing sample counts ending at {n}", ends)
+
+
+def csv_batches(spec) -> tuple:
+    """The batch ends samples.csv records (a capture with a target error), else ()."""
+    return spec.batch_ends if spec.target is not None else ()
+
+
+def session_finished(spec, journal) -> bool:
+    """True when nothing is left to capture: every plan sample journaled, or (with a target
+    error) the journaled batches already stopped the session."""
+    if spec.target is not None:
+        from goniofrost.capture.target import finished
+        return finished(spec.assess, spec.batch_ends, spec.target, journal.samples())
+    return len(journal.done_indices()) >= len(spec.samples)
 
 
 def check_material(rig, material: str | None) -> str | None:
@@ -120,14 +153,14 @@ def check_sim_options(rig, seed, speedup) -> None:
         raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
 
 
-def session_meta(inputs, material: str | None) -> dict:
+def session_meta(inputs, material: str | None, target_error: float | None = None) -> dict:
     """What a journal records about its session (and what a resume must match)."""
     return {
         "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
         "rig_file": str(inputs.rig.source), "rig_text": Path(inputs.rig.source).read_text(),
         "rig_name": inputs.rig.name, "kinematic_hash": inputs.rig.kinematic_hash,
         "model_path": str(inputs.model_path), "model_hash": inputs.model.content_hash,
-        "material": material,
+        "material": material, "target_error": None if target_error is None else float(target_error),
     }
 
 
@@ -137,7 +170,7 @@ def plan_sha256(plan: dict) -> str:
 
 
 RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
-               ("model_hash", "model"), ("material", "simulated material"))
+               ("model_hash", "model"), ("material", "simulated material"), ("target_error", "target error"))
 
 
 def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
@@ -175,8 +208,8 @@ def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
     stored = journal.meta()
     for key, what in RESUME_KEYS:
         if stored.get(key) != meta[key]:
-            remedy = ("resume with the same --rig, --plan and --material, or start a new --session" if resume else
-                      f"it holds no sample yet: to start this session there, delete it (rm {journal.path}), or "
-                      f"choose a new --session")
+            remedy = ("resume with the same --rig, --plan, --material and --target-error, or start a new --session"
+                      if resume else f"it holds no sample yet: to start this session there, delete it (rm "
+                      f"{journal.path}), or choose a new --session")
             raise JournalError(f"{journal.path}: meta.{key}: this session was started with another {what}: "
                                f"expected {stored.get(key)!r}, found {meta[key]!r}; {remedy}")

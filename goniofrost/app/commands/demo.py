@@ -1,12 +1,13 @@
 """``goniofrost demo``: the whole chain on the simulated rig, needing nothing but the package."""
 from __future__ import annotations
 
-HELP = ("train on the built-in library, plan 20 samples, capture a held-out material on the simulated rig, "
-        "reconstruct, write the MERL file, a preview and a report")
+HELP = ("train on the built-in library, plan up to 40 samples (Bayesian design), capture a held-out material on "
+        "the simulated rig until its predicted error is at most 0.05, reconstruct with its uncertainty, write the "
+        "MERL file, a preview and a report")
 
 
 def add_arguments(parser) -> None:
-    from goniofrost.app.demo import DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP
+    from goniofrost.app.demo import DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP, DEFAULT_TARGET_ERROR
     from goniofrost.app.monitoring import add_server_options
 
     parser.add_argument("--out", default="demo-out", metavar="DIR", help="output folder (default demo-out; "
@@ -14,7 +15,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--material", default=DEFAULT_MATERIAL, metavar="NAME",
                         help=f"built-in material to capture, left out of training (default {DEFAULT_MATERIAL})")
     parser.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="M",
-                        help=f"number of FROST samples (default {DEFAULT_SAMPLES})")
+                        help=f"samples in the plan, the most the capture takes (default {DEFAULT_SAMPLES})")
+    parser.add_argument("--target-error", type=float, default=DEFAULT_TARGET_ERROR, metavar="E",
+                        help=f"stop once the predicted log-relative MSE is at most E (default {DEFAULT_TARGET_ERROR:g}; "
+                             "0 captures the whole plan)")
     parser.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
     parser.add_argument("--speedup", type=float, default=DEFAULT_SPEEDUP,
                         help=f"simulated clock speed-up (default {DEFAULT_SPEEDUP:g})")
@@ -34,18 +38,26 @@ def run(args) -> int:
     session = Path(args.out) / "session"
     with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
         result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
-                          speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf)
+                          speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf,
+                          target_error=args.target_error if args.target_error > 0 else None)
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
-    print(f"demo: builtin:{args.material}, m = {report['samples']} samples on the simulated rig")
+    print(f"demo: builtin:{args.material}, m = {report['samples']} of {args.samples} planned samples on the simulated rig")
+    target = report.get("target_error")
+    if target:
+        print(f"  target error {target['target']:g}: {target['stopped']} after {target['samples_used']} samples; "
+              "predicted error after each batch: "
+              + ", ".join(f"{b['samples']}: {b['predicted_error']:.4g}" for b in target["batches"]))
     print(f"  motion {times['motion']:.1f} s + capture {times['capture']:.1f} s (simulated rig); "
           f"median sample SNR {report['snr']['median']:.0f}")
     if truth:
-        print(f"  log-relative MSE against the ground truth {truth['log_relative_mse']:.4g} "
-              f"(exact values at the same cells {truth['log_relative_mse_exact_samples']:.4g}, "
-              f"ratio {truth['ratio_to_exact']:.3f}); rendering SNR {report['demo']['rendering_snr_db']:.2f} dB")
-    print(f"  wrote {out / 'session' / 'brdf.binary'} (MERL), {out / 'preview.png'}, {out / 'report.json'}, "
+        print(f"  log-relative MSE against the ground truth {truth['log_relative_mse']:.4g}, predicted "
+              f"{truth['predicted_log_relative_mse']:.4g} (exact values at the same cells "
+              f"{truth['log_relative_mse_exact_samples']:.4g}, ratio {truth['ratio_to_exact']:.3f}); "
+              f"rendering SNR {report['demo']['rendering_snr_db']:.2f} dB")
+    print(f"  wrote {out / 'session' / 'brdf.binary'} (MERL), {out / 'session' / 'brdf.std.binary'} (its per-cell "
+          f"standard deviation), {out / 'preview.png'}, {out / 'report.json'}, "
           f"{out / 'reference.binary'} (ground truth), {out / 'plan.json'}, journal in {out / 'session'}")
     if args.bsdf:
         print(f"  wrote {out / 'session' / 'brdf.bsdf'} (for Mitsuba 3)")
