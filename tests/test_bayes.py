@@ -306,26 +306,25 @@ def test_batches_follow_the_design_order():
     assert stopping.batch_ends(60) == [15, 20, 25, 30, 35, 40, 45, 50, 55, 60]
     assert stopping.batch_ends(22) == [15, 20, 22] and stopping.batch_ends(7) == [7]
     assert stopping.batch_ends(22, first=10) == [10, 15, 20, 22]
-    order = np.arange(100, 123)
-    parts = stopping.batches(order, first=10)
-    assert [len(p) for p in parts] == [10, 5, 5, 3] and list(np.concatenate(parts)) == list(order)
     with pytest.raises(ValueError):
         stopping.batch_ends(0)
 
 
-def test_run_batches_stops_at_the_first_batch_below_the_target():
-    predicted = {10: 0.2, 15: 0.08, 20: 0.049, 25: 0.01}
-    calls = []
+def test_the_stopping_rule_and_its_replay_from_journaled_samples():
+    from goniofrost.capture.journal import SampleRecord
+    from goniofrost.capture.target import batch_of, finished, history
 
-    def after(m):
-        calls.append(m)
-        return predicted.get(m, 0.3)
-
-    out = stopping.run_batches(25, 0.05, after, first=10)
-    assert (out.samples, out.reason, calls) == (20, stopping.REASON_TARGET, [10, 15, 20])
-    assert out.history == [(10, 0.2), (15, 0.08), (20, 0.049)]
-    out = stopping.run_batches(25, 0.001, lambda m: predicted[m], first=10)
-    assert (out.samples, out.reason, out.predicted_error) == (25, stopping.REASON_PLAN, 0.01)
+    assert stopping.stop_reason(0.05, 0.05, 15, 40) == stopping.REASON_TARGET
+    assert stopping.stop_reason(0.06, 0.05, 40, 40) == stopping.REASON_PLAN
+    assert stopping.stop_reason(0.06, 0.05, 15, 40) is None
+    predicted = {2: 0.2, 4: 0.04, 5: 0.01}
+    records = [SampleRecord(i, 0, 0.0, 0.0, 0.0, (1.0,) * 3, (0.1,) * 3, 10.0) for i in range(5)]
+    assess = lambda recs: predicted[len(recs)]  # noqa: E731
+    steps = history(assess, (2, 4, 5), 0.05, records)
+    assert [(b["samples"], b["decision"]) for b in steps] == [(2, "continue"), (4, "target reached")]
+    assert finished(assess, (2, 4, 5), 0.05, records) and not finished(assess, (2, 4, 5), 0.05, records[:3])
+    assert history(assess, (2, 4, 5), 0.05, records[:3]) == steps[:1]  # batch 2 not complete yet
+    assert [batch_of((2, 4, 5), i) for i in range(5)] == [1, 1, 2, 2, 3]
 
 
 def test_choose_scales_takes_the_lowest_errors_relative_to_the_best_at_each_m():
