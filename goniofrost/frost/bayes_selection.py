@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniofrost.frost import bayes_kernels as kernels
-from goniofrost.frost.posterior import cell_noise, design_noise, prior_variance
+from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import THREADS, Selection, SelectionError
 
@@ -51,49 +51,69 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
     """Greedy A-optimal picks among ``rows`` of ``dictionary``.
 
     dictionary: float32 (n, K) D (memory-mapped is fine); s2: (K,) S^2 = D^T D;
-    prior_var: (K,) prior variance of the coefficients; noise: (n,) sigma_c^2 of every row;
-    rows: int64 candidate rows (default all n); m_max: at most this many picks;
-    stop: optional ``stop(picks, design_error) -> bool`` called after each pick (e.g. an
-    error target). Raises SelectionError when the candidates stop reducing the error first.
+    prior_var: (K,) prior variance of the coefficients; noise: (n,) sigma_c^2 of every row (the
+    design errors are under this noise); rows: int64 candidate rows (default all n); m_max: at
+    most this many picks; stop: optional ``stop(row) -> bool`` called with each picked row (e.g.
+    to track an error target). Raises SelectionError when the candidates stop reducing the
+    error first.
     """
     start = time.perf_counter()
-    d = np.ascontiguousarray(dictionary, dtype=np.float32)
-    n = d.shape[0]
-    rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-    s2, prior_var = np.asarray(s2, np.float64), np.asarray(prior_var, np.float64)
-    noise_all = np.asarray(noise, dtype=np.float64)
-    open_noise = np.ascontiguousarray(noise_all[rows])  # private: a picked cell gets +inf (score 0)
-    q, p = np.empty(rows.size), np.empty(rows.size)
-    sigma = np.diag(prior_var)
-    noise_total = float(noise_all.sum())
+    forms = _Forms(dictionary, rows, noise)
+    sigma = np.diag(np.asarray(prior_var, np.float64))
+    s2 = np.asarray(s2, np.float64)
+    noise_total, n = float(forms.noise.sum()), forms.d.shape[0]
     picks, errors, seconds = [], [], []
-    edges = [int(e) for e in np.linspace(0, rows.size, THREADS + 1)]
     with ThreadPoolExecutor(max_workers=THREADS) as pool:
-        def run(kernel, *args):
-            parts = [pool.submit(kernel, *args, lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]
-            return _best([f.result() for f in parts])
-
-        best, i = run(kernels.init_forms, d, rows, prior_var, q, p, open_noise, s2)
+        best, i = forms.first_pass(pool, sigma.diagonal().copy(), s2)
         first = best
         while True:
             if i < 0 or best <= EXHAUSTED * first:
                 raise SelectionError(
                     f"selection: after {len(picks)} picks no allowed cell reduces the expected error any "
                     "more; allow more cells or ask for fewer samples")
-            row = d[rows[i]].astype(np.float64)
+            row, picked = forms.close(i)
             u = sigma @ row
-            delta = noise_all[rows[i]] + row @ u
+            delta = forms.noise[picked] + row @ u
             v = sigma @ (s2 * u)
             sigma -= np.outer(u, u) / delta
-            open_noise[i] = np.inf
-            picks.append(rows[i])
+            picks.append(picked)
             errors.append((float(np.sum(s2 * np.diag(sigma))) + noise_total) / n)
             seconds.append(time.perf_counter() - start)
-            if len(picks) >= min(m_max, rows.size) or (stop is not None and stop(int(rows[i]))):
+            if len(picks) >= min(m_max, forms.rows.size) or (stop is not None and stop(picked)):
                 break
-            best, i = run(kernels.update_forms, d, rows, u, v,
-                          1.0 / delta, float(u @ (s2 * u)) / delta ** 2, q, p, open_noise)
+            best, i = forms.update_pass(pool, u, v, delta, float(u @ (s2 * u)))
     return GreedyDesign(np.array(picks, dtype=np.int64), np.array(errors), np.array(seconds), sigma)
+
+
+class _Forms:
+    """The quadratic forms q, p of every candidate and the fused passes that keep them (split
+    among THREADS threads over contiguous ranges of candidates; see bayes_kernels)."""
+
+    def __init__(self, dictionary, rows, noise) -> None:
+        self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
+        n = self.d.shape[0]
+        self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        self.noise = np.asarray(noise, dtype=np.float64)
+        self.open_noise = np.ascontiguousarray(self.noise[self.rows])  # private: a picked cell gets +inf (score 0)
+        self.q, self.p = np.empty(self.rows.size), np.empty(self.rows.size)
+        self.edges = [int(e) for e in np.linspace(0, self.rows.size, THREADS + 1)]
+
+    def first_pass(self, pool, prior_var, s2) -> tuple[float, int]:
+        return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
+
+    def update_pass(self, pool, u, v, delta: float, usu: float) -> tuple[float, int]:
+        return self._run(pool, kernels.update_forms, self.d, self.rows, u, v, 1.0 / delta, usu / delta ** 2,
+                         self.q, self.p, self.open_noise)
+
+    def close(self, i: int) -> tuple[np.ndarray, int]:
+        """Take candidate i out of the competition; return its dictionary row (float64) and row index."""
+        self.open_noise[i] = np.inf
+        picked = int(self.rows[i])
+        return self.d[picked].astype(np.float64), picked
+
+    def _run(self, pool, kernel, *args) -> tuple[float, int]:
+        parts = [pool.submit(kernel, *args, lo, hi) for lo, hi in zip(self.edges[:-1], self.edges[1:]) if hi > lo]
+        return _best([f.result() for f in parts])
 
 
 def _best(results) -> tuple[float, int]:
@@ -117,16 +137,15 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     start = time.perf_counter()
     n = model.grid.n_valid
     rows = _candidate_rows(candidates, n)
-    calibration = calibration_of(model)
-    limit = _check(m, max_error, rows.size, calibration, cell_noise(model))
-    s2 = np.asarray(model.singular_values, np.float64) ** 2
-    tracker = _PredictedError(model, calibration)
+    calibration, noise = calibration_of(model), cell_noise(model)
+    limit = _check(m, max_error, rows.size, calibration, noise)
+    tracker = _PredictedError(model, calibration, noise)
     stop = None
     if max_error is not None:
         def stop(row):
             return tracker.add(row) <= max_error
-    design = greedy_design(model.dictionary, s2, prior_variance(model), design_noise(model), limit, rows=rows,
-                           stop=stop)
+    design = greedy_design(model.dictionary, tracker.s2, prior_variance(model), noise * design_scale(model), limit,
+                           rows=rows, stop=stop)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
@@ -144,10 +163,10 @@ class _PredictedError:
     """The predicted error of a typical material after each pick, under the reconstruction's
     noise (the design may assume a larger one): Sigma by rank-1 downdates, O(K^2) per pick."""
 
-    def __init__(self, model, calibration: dict) -> None:
+    def __init__(self, model, calibration: dict, noise: np.ndarray) -> None:
         self.d, self.calibration = model.dictionary, calibration
         self.s2 = np.asarray(model.singular_values, np.float64) ** 2
-        self.noise = cell_noise(model)
+        self.noise = noise
         self.total, self.n = float(self.noise.sum()), self.noise.size
         self.sigma = np.diag(prior_variance(model))
         self.history: list[float] = []

@@ -53,10 +53,10 @@ def cell_noise(model) -> np.ndarray:
     return np.full(model.grid.n_valid, SCALAR_ETA / model.n_signals)
 
 
-def design_noise(model) -> np.ndarray:
-    """float64 (n_valid,): the noise the Bayesian design assumes, sigma_c^2 times the model's
-    ``design_scale`` (chosen at training; 1 without a learned noise model)."""
-    return cell_noise(model) * float((getattr(model, "noise", None) or {}).get("design_scale", 1.0))
+def design_scale(model) -> float:
+    """The factor on sigma_c^2 the Bayesian design assumes (chosen at training, see
+    calibration.py; 1 without a learned noise model)."""
+    return float((getattr(model, "noise", None) or {}).get("design_scale", 1.0))
 
 
 def log_map_variance(values, sigmas, weight, eps: float) -> np.ndarray:
@@ -88,11 +88,6 @@ class Posterior:
     loo_residuals: np.ndarray
     loo_variance: np.ndarray
     design_error: np.ndarray
-
-    @property
-    def z2(self) -> np.ndarray:
-        """float64 (c,): mean over samples of e_i^2 / v_i (about 1 when the model fits)."""
-        return np.mean(self.loo_residuals ** 2 / self.loo_variance, axis=0)
 
 
 def fit(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarray,
