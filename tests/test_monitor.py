@@ -41,8 +41,8 @@ def plan_samples(moves) -> tuple:
 
 
 def done_sample(i, move_s, capture_s, started, wall, snr=100.0) -> DoneSample:
-    return DoneSample(i, snr, (0.004, 0.016), (0.1, 0.2, 0.3), "ok", {}, move_s, capture_s, started,
-                      started + wall, (f"raw/sample_{i:04d}_e1.dng",))
+    return DoneSample(i, snr, (0.004, 0.016), (0.1, 0.2, 0.3), (0.001, 0.002, 0.003), "ok", {}, move_s, capture_s,
+                      started, started + wall, (f"raw/sample_{i:04d}_e1.dng",))
 
 
 def view(**kw) -> SessionView:
@@ -300,7 +300,8 @@ def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_sho
     view = read_session(finished)
     inputs = session_inputs(view, rig_from_text(view.rig_text, "journal"))
     grid = inputs.model.grid
-    whole = reconstruct_session(inputs, view.done)  # what the capture wrote to brdf.binary
+    from goniofrost.brdf.merl_file import valid_to_full
+    whole = valid_to_full(reconstruct_session(inputs, view.done).brdf, grid)  # what the capture wrote to brdf.binary
     part = estimate_for_preview(inputs, view.done)
     shown = grid.valid_cells[sphere_positions(grid)]
     assert 100 < shown.size < grid.n_valid / 2

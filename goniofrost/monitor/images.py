@@ -142,20 +142,21 @@ def preview_png(view, rig) -> tuple[bytes, dict]:
 
 
 def estimate_for_preview(inputs, records) -> np.ndarray:
-    """The session's reconstruction, as ``capture.report.reconstruct_session`` computes it (ridge,
-    ``report.ETA``), but only at the cells the preview spheres look up: (grid.size, 3) in 1/sr,
-    NaN elsewhere. On the full grid that is a few thousand of 1.1 million cells, so a preview costs
-    milliseconds instead of a pass over the whole dictionary. The same numbers as the whole
-    reconstruction at those cells (tests/test_monitor.py compares them; when the capture's
-    estimator changes, change this function with it)."""
-    from goniofrost.capture.report import ETA
-    from goniofrost.frost.reconstruction import reconstruct
+    """The session's reconstruction, as ``capture.report.reconstruct_session`` computes it (the
+    Bayesian posterior mean, the samples' sigmas used), but only at the cells the preview spheres
+    look up: (grid.size, 3) in 1/sr, NaN elsewhere. On the full grid that is a few thousand of 1.1
+    million cells, so a preview costs milliseconds instead of a pass over the whole dictionary.
+    The same numbers as the whole reconstruction at those cells (the posterior mean depends on
+    the sampled rows only; tests/test_monitor.py compares them; when the capture's estimator
+    changes, change this function with it)."""
+    from goniofrost.frost.reconstruction import reconstruct_bayes
 
     model, grid = inputs.model, inputs.model.grid
     shown = sphere_positions(grid)
     sampled = inputs.positions[[r.plan_index for r in records]]
     rows, inverse = np.unique(np.concatenate([shown, sampled]), return_inverse=True)
-    estimate = reconstruct(restricted_model(model, rows), inverse[shown.size:], [r.rgb for r in records], eta=ETA)
+    estimate = reconstruct_bayes(restricted_model(model, rows), inverse[shown.size:], [r.rgb for r in records],
+                                 sigmas=[r.sigma for r in records], with_std=False).brdf
     full = np.full((grid.size, 3), np.nan)
     full[grid.valid_cells[rows]] = estimate
     return full
@@ -182,13 +183,18 @@ def sphere_positions(grid) -> np.ndarray:
 
 
 def restricted_model(model, rows: np.ndarray):
-    """The model with only the dictionary, mean and mapping rows ``rows`` (valid positions): a
-    reconstruction from samples among those rows gives the full model's values there."""
+    """The model with only the dictionary, mean, mapping and noise rows ``rows`` (valid positions):
+    a reconstruction from samples among those rows gives the full model's values there (its
+    predicted error and std, which average over every cell, do not hold)."""
     from dataclasses import replace
 
+    noise = None if model.noise_variance is None else np.asarray(model.noise_variance[rows])
+    if noise is None:  # the scalar noise of a format-1 model: keep its value, not its length
+        from goniofrost.frost.posterior import SCALAR_ETA
+        noise = np.full(rows.size, SCALAR_ETA / model.n_signals, dtype=np.float32)
     return replace(model, dictionary=np.asarray(model.dictionary[rows]), mean=np.asarray(model.mean[rows]),
                    reference=np.asarray(model.reference[rows]), weight=np.asarray(model.weight[rows]),
-                   content_hash=f"{model.content_hash} rows {rows.size}")
+                   noise_variance=noise, content_hash=f"{model.content_hash} rows {rows.size}")
 
 
 def session_inputs(view, rig):

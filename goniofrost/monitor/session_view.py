@@ -47,14 +47,16 @@ class PlanSample:
 
 @dataclass(frozen=True)
 class DoneSample:
-    """One journaled sample: SNR (min over channels), exposures (s), joints reached (deg), rig
-    seconds moving and capturing (simulated seconds on a simulated rig), Unix times of the start
-    of its move and of its commit, its RAW frames in the order taken."""
+    """One journaled sample: SNR (min over channels), exposures (s), BRDF and its standard deviation
+    (1/sr), joints reached (deg), rig seconds moving and capturing (simulated seconds on a
+    simulated rig), Unix times of the start of its move and of its commit, its RAW frames in the
+    order taken."""
 
     plan_index: int
     snr: float
     exposures_s: tuple
     rgb: tuple
+    sigma: tuple
     status: str
     joints: dict
     move_s: float
@@ -210,7 +212,8 @@ def _plan_samples(plan: dict) -> tuple:
 
 
 def _done_sample(r) -> DoneSample:
-    return DoneSample(r.plan_index, float(r.snr), tuple(r.exposures_s), tuple(r.rgb), r.status, dict(r.joints),
+    return DoneSample(r.plan_index, float(r.snr), tuple(r.exposures_s), tuple(r.rgb), tuple(r.sigma), r.status,
+                      dict(r.joints),
                       float(r.move_s), float(r.capture_s), float(r.started_utc), float(r.committed_utc),
                       tuple(r.raw_paths))
 
@@ -303,15 +306,18 @@ def _white_rates(calibration: dict | None) -> tuple | None:
 def _predicted_error(events: list, report: dict | None) -> float | None:
     """The latest predicted reconstruction error the session records, else None.
 
-    Looked for (the Bayesian capture's format is not fixed yet; adapt here only): a number under
-    ``predicted_error`` in an event's data (the latest wins), then in report.json.
+    Looked for: report.json's ``prediction.predicted_log_relative_mse`` (the final reconstruction),
+    else the ``predicted_error`` of the latest event that has one (a capture with a target error
+    journals one per batch, kind "batch").
     """
+    value = ((report or {}).get("prediction") or {}).get("predicted_log_relative_mse")
+    if isinstance(value, (int, float)):
+        return float(value)
     for e in reversed(events):
         value = (e.get("data") or {}).get("predicted_error")
         if isinstance(value, (int, float)):
             return float(value)
-    value = (report or {}).get("predicted_error")
-    return float(value) if isinstance(value, (int, float)) else None
+    return None
 
 
 def camera_settings(view: SessionView) -> dict:
