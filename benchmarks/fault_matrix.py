@@ -54,7 +54,7 @@ def prepare(folder: Path, samples: int) -> tuple[Path, Path]:
     rig["sim"]["camera"].update(width=192, height=144)
     (folder / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
     plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), samples, folder / "rig.yaml",
-                       folder / "plan.json")
+                       folder / "plan.json", selector="frost")
     return folder / "rig.yaml", plan
 
 

@@ -63,7 +63,8 @@ def frost_plan(folder: Path, samples: int) -> Path:
     from goniofrost.app.demo import default_rig_path, plan_on_rig
 
     model, model_path = demo_model()
-    return plan_on_rig(model, model_path, samples, default_rig_path(), folder / f"plan{samples}.json")
+    return plan_on_rig(model, model_path, samples, default_rig_path(), folder / f"plan{samples}.json",
+                       selector="frost")
 
 
 def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
