@@ -62,7 +62,7 @@ def plan(n: int, max_angle_deg: float, seed: int) -> list[tuple[np.ndarray, np.n
 
 def run_once(material: str, rig: dict, poses, seed: int, work: Path) -> dict:
     """Calibrate, measure every pose; per-sample rows and the calibration time."""
-    bench = CameraBench(material_brdf(material), rig["sim"]["camera"], seed=seed, speedup=rig["sim"]["clock_speedup"])
+    bench = CameraBench(material_brdf(material), rig["sim"]["camera"], rig["camera"], seed=seed, speedup=rig["sim"]["clock_speedup"])
     settings = validate_camera_section(rig["camera"], "rig file")
     devices = StepExecutor(BenchHardware(bench.lamp, bench.camera, bench.clock), work)
     t0 = time.perf_counter()

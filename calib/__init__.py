@@ -3,7 +3,8 @@ the adaptive exposure bracket, HDR merge, lamp drift and the ArUco region of int
 absolute BRDF with uncertainty. No device is called here: the capture plan takes the frames."""
 from .bracket import Bracket, start_index
 from .config import validate_camera_section
-from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
+from .errors import (CalibrationError, MarkerError, MisalignedError, PatchTooSmallError, SaturationError,
+                     UnderexposedError, WrongTargetError)
 from .measurement import SampleMeasurement, check_record, light_direction, sample_measurement
 from .record import CalibrationRecord
 from .references import dark_map, flat_field, flat_usable, nominal_white_pose, white_scale
@@ -11,4 +12,5 @@ from .references import dark_map, flat_field, flat_usable, nominal_white_pose, w
 __all__ = ["Bracket", "start_index", "SampleMeasurement", "check_record", "light_direction", "sample_measurement",
            "CalibrationRecord", "dark_map", "flat_field", "flat_usable", "nominal_white_pose", "white_scale",
            "validate_camera_section",
-           "CalibrationError", "MarkerError", "SaturationError", "UnderexposedError", "WrongTargetError"]
+           "CalibrationError", "MarkerError", "MisalignedError", "PatchTooSmallError", "SaturationError",
+           "UnderexposedError", "WrongTargetError"]

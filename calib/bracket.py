@@ -6,8 +6,9 @@ returns None; no device is called here.
 
 The rule: start at the longest exposure whose predicted patch level (the previous sample's
 value, or a white tile for the first sample) stays under ``START_LEVEL`` x saturation; until
-the holder's markers are read, try the nearest exposure not yet taken (shorter first when the
-frame is mostly saturated); then a shorter exposure while any patch pixel is saturated in every
+the patch is found (``calib.roi.locate_patch``: the camera model's prediction ``view``, checked
+and refined by the markers; without a prediction the markers alone), try the nearest exposure not
+yet taken (shorter first when the frame is mostly saturated); then a shorter exposure while any patch pixel is saturated in every
 frame taken, a longer one while the patch SNR is below ``target_snr`` and the next exposure is
 predicted not to saturate.
 """
@@ -19,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CalibrationError, MarkerError, SaturationError, UnderexposedError, WrongTargetError
+from .errors import (CalibrationError, MarkerError, MisalignedError, PatchTooSmallError, SaturationError,
+                     UnderexposedError, WrongTargetError)
 from .hdr import BracketFrame, channel_stats, merge
 from .record import CalibrationRecord
-from .roi import find_patch
+from .roi import PredictedView, locate_patch
 
 log = logging.getLogger(__name__)
 START_LEVEL = 0.5   # aim the first frame of a bracket at this fraction of the saturation level
@@ -43,15 +45,24 @@ def start_index(ladder: list, settings: dict, record: CalibrationRecord, expecte
     return fits[-1] if fits else 0
 
 
+def markers_exposed(frame: BracketFrame) -> bool:
+    """Whether a frame is exposed well enough to read markers: at most a quarter saturated, and
+    its bright end (99th percentile) at least 2 % of full scale (far above the read noise)."""
+    return bool(np.mean(frame.saturated) <= 0.25 and np.percentile(frame.linear, 99) >= 0.02)
+
+
 @dataclass
 class Bracket:
     """The frames of one bracket so far, and the rule that asks for the next exposure.
 
     ``ladder`` (n,) exposures in s; ``settings`` the validated camera section; ``record`` the
     calibration (dark maps, flat field; scale once the white reference is known); ``ids`` the
-    marker ids of the mounted target; ``what`` names the sample in errors. Learned as frames are
-    added: ``frames`` (ladder index -> BracketFrame), ``paths``, ``mask_`` (H, W) bool patch,
-    ``channels_`` (H, W) Bayer channel per pixel.
+    marker ids of the mounted target; ``what`` names the sample in errors; ``view`` where the
+    camera model puts the patch and the markers at this pose (``calib.roi.expected_view``; None:
+    the markers alone). Learned as frames are added: ``frames`` (ladder index -> BracketFrame),
+    ``paths``, ``mask_`` (H, W) bool patch, ``channels_`` (H, W) Bayer channel per pixel,
+    ``roi_source_`` ("markers" | "prediction") and ``marker_offset_px_`` (read markers' largest
+    distance from the prediction; None if none was read).
     """
 
     ladder: list
@@ -64,6 +75,10 @@ class Bracket:
     mask_: np.ndarray | None = None
     channels_: np.ndarray | None = None
     marker_error_: MarkerError | None = None
+    view: PredictedView | None = None
+    roi_source_: str = ""
+    marker_offset_px_: float | None = None
+    fallback_: np.ndarray | None = None
 
     def add(self, i: int, raw, lamp_relative: float, path: Path) -> int | None:
         """Add the frame of ladder exposure ``i`` (``raw``: a drivers.rawfile.RawImage; lamp level
@@ -78,7 +93,13 @@ class Bracket:
         log.debug("%s: exposure %s s, lamp %.4f, %d saturated pixels", path, t, lamp_relative, int(saturated.sum()))
         if self.mask_ is None:
             self._find_patch(i)
-        return self._next_index(i) if self.mask_ is not None else self._search_index(i)
+        if self.mask_ is None:
+            following = self._search_index(i)
+            if following is not None or self.fallback_ is None:
+                return following
+            # every exposure tried and no marker read: the camera model alone places the patch
+            self.mask_, self.roi_source_ = self.fallback_, "prediction"
+        return self._next_index(i)
 
     def stats(self) -> tuple[np.ndarray, np.ndarray]:
         """The patch's mean rate and its standard error, each (3,), once the bracket is done.
@@ -105,13 +126,23 @@ class Bracket:
         return float(np.mean([f.lamp_relative for f in self.frames.values()]))
 
     def _find_patch(self, i: int) -> None:
+        s = self.settings
         try:
-            self.mask_ = find_patch(self.frames[i].linear, self.ids, self.settings["roi_margin"], self.what)
-        except WrongTargetError:
-            raise            # another exposure will not change which card is mounted
+            self.mask_, self.roi_source_, self.marker_offset_px_ = locate_patch(
+                self.frames[i].linear, self.ids, s["roi_margin"], self.what, self.view,
+                s["marker_tolerance_px"], self.channels_, s["min_roi_pixels"])
+        except (WrongTargetError, MisalignedError, PatchTooSmallError):
+            raise            # another exposure will not change the card, the rig or the view
         except MarkerError as exc:
             log.debug("%s: markers not found at %s s: %s", self.what, self.ladder[i], exc)
             self.marker_error_ = exc
+            return
+        if self.roi_source_ == "prediction" and self.view.readable and not markers_exposed(self.frames[i]):
+            # markers that should be readable, in a frame too dark or too bright to read them:
+            # another exposure may show them (the prediction stays as the last resort)
+            self.fallback_, self.mask_ = self.mask_, None
+            self.marker_error_ = MarkerError(f"{self.what}: markers {list(self.view.readable)} predicted readable, "
+                                             f"none read at {self.ladder[i]} s")
 
     def _search_index(self, i: int) -> int | None:
         """Markers not found yet: the nearest untaken exposure, shorter first if this frame is

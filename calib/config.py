@@ -1,4 +1,9 @@
-"""The rig file's ``camera:`` section: allowed keys, defaults and one error pattern (ConfigError)."""
+"""The rig file's ``camera:`` section: allowed keys, defaults and one error pattern (ConfigError).
+
+``intrinsics`` and ``mount`` are the camera model (``goniofrost.core.camera_model.CameraModel``):
+the planner decides from it which cells the camera can measure, the calibration predicts where
+the patch and the markers fall in every frame, and the simulated camera renders with it.
+"""
 from __future__ import annotations
 
 from goniofrost.core.config_check import check_section, is_number as _num
@@ -22,6 +27,13 @@ _CAMERA_KEYS = {
     "dark_frames": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
     "flat_frames": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
     "roi_margin": (lambda v: _num(v) and 0 <= v < 0.45, "a number in [0, 0.45) (fraction of the patch side)", 0.15),
+    # a cell is measurable when the region of interest keeps this many pixels of each colour channel
+    "min_roi_pixels": (lambda v: _int(v) and 4 <= v <= 100_000, "an integer in [4, 100000] (pixels per colour channel)", 24),
+    # readable markers may lie this far from where the camera model puts them before the rig is
+    # declared misaligned (pixels; the offsets that `goniofrost align` corrects stay well inside)
+    "marker_tolerance_px": (lambda v: _num(v) and v > 0, "a number > 0 (pixels)", 20.0),
+    "intrinsics": (lambda v: isinstance(v, dict), "a mapping (image_size_px, focal_px, principal_point_px, distortion)", None),
+    "mount": (lambda v: isinstance(v, dict), "a mapping (distance_mm, rotation_deg)", None),
     "photodiode_rel_sigma": (lambda v: _num(v) and 0 <= v < 0.1, "a number in [0, 0.1)", 0.001),
     "white_reference": (lambda v: isinstance(v, dict), "a mapping", {}),
     # kind rawfile only: the folder the camera's tethering software writes RAW files to, and the
@@ -34,6 +46,33 @@ _CAMERA_KEYS = {
                            "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
 _OPTIONAL = {"folder", "trigger_command"}
+
+
+def _int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _pair(check):
+    return lambda v: isinstance(v, list) and len(v) == 2 and all(check(x) for x in v)
+
+
+# The pinhole model in OpenCV's conventions (pixel centres at integers); measure it with
+# cv2.calibrateCamera (e.g. a ChArUco board) at the focus and zoom used on the rig.
+_INTRINSICS_KEYS = {
+    "image_size_px": (_pair(lambda x: _int(x) and 16 <= x <= 16384), "[width, height], integers in [16, 16384]", None),
+    "focal_px": (_pair(lambda x: _num(x) and x > 0), "[fx, fy], numbers > 0 (pixels)", None),
+    "principal_point_px": (_pair(_num), "[cx, cy], numbers (pixels)", None),
+    "distortion": (lambda v: isinstance(v, list) and len(v) == 5 and all(_num(x) and abs(x) < 100 for x in v),
+                   "[k1, k2, p1, p2, k3], five numbers (OpenCV order)", [0.0, 0.0, 0.0, 0.0, 0.0]),
+}
+# Where the camera sits on its arm: its centre of projection at distance_mm from the rotation centre
+# in the lamp's plane, aimed at the centre with the image up along the vertical, then turned by
+# rotation_deg about its own x, y, z axes.
+_MOUNT_KEYS = {
+    "distance_mm": (lambda v: _num(v) and v > 0, "a number > 0 (millimetres from the rotation centre)", None),
+    "rotation_deg": (lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and abs(x) <= 20 for x in v),
+                     "[rx, ry, rz], three numbers within +-20 (degrees)", [0.0, 0.0, 0.0]),
+}
 _WHITE_KEYS = {
     "reflectance": (lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1]", 0.95),
     "theta_i_deg": (lambda v: _num(v) and 0 <= v < 60, "a number in [0, 60)", 0.0),
@@ -46,11 +85,23 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
 
     Raises ConfigError (``SOURCE: camera.KEY: expected ..., found ...``) for a missing, unknown
     or out-of-range value. ``white_reference`` holds the reflectance of the white tile and the
-    pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference.
+    pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference;
+    ``intrinsics`` and ``mount`` the camera model (module doc).
     """
     out = check_section(section, _CAMERA_KEYS, source, keypath, optional=_OPTIONAL)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
+    out["intrinsics"] = _intrinsics(out["intrinsics"], source, f"{keypath}.intrinsics")
+    out["mount"] = check_section(out["mount"], _MOUNT_KEYS, source, f"{keypath}.mount")
     if out["min_snr"] > out["target_snr"]:
         raise ConfigError(source, f"{keypath}.min_snr", f"<= target_snr {out['target_snr']}", out["min_snr"])
     out["exposures_s"] = [float(x) for x in out["exposures_s"]]
+    return out
+
+
+def _intrinsics(section, source, keypath: str) -> dict:
+    out = check_section(section, _INTRINSICS_KEYS, source, keypath)
+    (width, height), (cx, cy) = out["image_size_px"], out["principal_point_px"]
+    if not (0 <= cx <= width - 1 and 0 <= cy <= height - 1):
+        raise ConfigError(source, f"{keypath}.principal_point_px",
+                          f"a point inside the {width} x {height} image", out["principal_point_px"])
     return out

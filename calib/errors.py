@@ -16,6 +16,14 @@ class WrongTargetError(MarkerError):
     """Markers of another target (e.g. the white card where the sample should be) were read."""
 
 
+class PatchTooSmallError(MarkerError):
+    """The region of interest keeps too few pixels of a colour channel (a view too grazing)."""
+
+
+class MisalignedError(CalibrationError):
+    """The markers were read, but far from where the camera model and the kinematics put them."""
+
+
 class SaturationError(CalibrationError):
     """Even the shortest exposure of the ladder saturates pixels of the sample region."""
 

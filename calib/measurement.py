@@ -26,7 +26,9 @@ class SampleMeasurement:
     ``snr`` (3,) of the patch mean; the exposures used (s), frames taken and skipped (of the
     ladder), raw file paths, mean relative lamp level, real seconds inside the camera
     (``capture_seconds``), seconds of exposure on the session clock (``clock_seconds``: simulated
-    on a simulated rig) and flags."""
+    on a simulated rig) and flags; ``roi_source`` ("markers" | "prediction") and
+    ``marker_offset_px`` (the read markers' largest distance from the camera model's prediction;
+    None if no marker was read)."""
 
     sample_id: int
     rgb: np.ndarray
@@ -40,6 +42,8 @@ class SampleMeasurement:
     capture_seconds: float = 0.0
     clock_seconds: float = 0.0
     flags: list = field(default_factory=list)
+    roi_source: str = ""
+    marker_offset_px: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-safe form."""
@@ -47,7 +51,8 @@ class SampleMeasurement:
                 "snr": self.snr.tolist(), "exposures_s": self.exposures_s,
                 "frames_taken": self.frames_taken, "frames_skipped": self.frames_skipped,
                 "raw_paths": [str(p) for p in self.raw_paths], "lamp_relative": self.lamp_relative,
-                "capture_seconds": self.capture_seconds, "clock_seconds": self.clock_seconds, "flags": self.flags}
+                "capture_seconds": self.capture_seconds, "clock_seconds": self.clock_seconds, "flags": self.flags,
+                "roi_source": self.roi_source, "marker_offset_px": self.marker_offset_px}
 
 
 def check_record(record: CalibrationRecord | None, ladder: list) -> None:
@@ -80,7 +85,7 @@ def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, captur
     taken = len(bracket.frames)
     return SampleMeasurement(sample_id, rgb, np.abs(rgb) * rel, snr, bracket.exposures_s, taken,
                              len(bracket.ladder) - taken, list(bracket.paths), bracket.lamp_relative,
-                             capture_seconds, clock_seconds, flags)
+                             capture_seconds, clock_seconds, flags, bracket.roi_source_, bracket.marker_offset_px_)
 
 
 def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:

@@ -1,20 +1,181 @@
-"""Find the sample patch in a frame from the holder's ArUco markers (OpenCV 5 ArucoDetector).
+"""Where the sample patch is in a frame: predicted by the camera model, checked by the ArUco markers.
 
-The detected marker corners give a homography from the holder plane (mm) to the image; the
-patch, shrunk by a margin, is drawn through it as the region of interest. A frame without a
-readable marker set raises MarkerError; nothing is ever guessed.
+``predict_view`` projects the holder (``calib.holder``) through the rig's camera model
+(``goniofrost.core.camera_model``, OpenCV ``projectPoints``) at the pose the kinematics report:
+the patch's region of interest, every marker's corners, and which markers are big enough to read.
+``locate_patch`` then reads the markers the prediction calls readable: if they lie within the
+tolerance of the prediction, their plane-to-image homography draws the region (refined by the
+markers); if they lie farther, the rig looks misaligned (``MisalignedError``); where none can
+be read (grazing views), the prediction alone draws it. Without a prediction (``view=None``),
+only the markers can place the patch (``find_patch``), and a frame without them is a
+MarkerError: nothing is ever guessed. These are pure functions of a frame and a pose.
 """
 from __future__ import annotations
 
+import logging
+from dataclasses import dataclass
+
 import numpy as np
 
-from .errors import MarkerError, WrongTargetError
+from .errors import MarkerError, MisalignedError, PatchTooSmallError, WrongTargetError
 from .holder import DEFAULT_LAYOUT, HolderLayout
+
+log = logging.getLogger(__name__)
 
 MIN_MARKERS = 2            # 8 corners: a well-determined homography
 MAX_REPROJECTION_PX = 2.5  # corners that disagree with one plane mean a misread
 MIN_ROI_PIXELS_PER_CHANNEL = 24
 UPSAMPLE = 2
+# A marker whose predicted image is thinner than this (pixels between opposite edges) is not
+# looked for: the detector reads markers down to about 8 px on 2x upsampled views in the
+# simulated rig, and a misread marker would do more harm than none.
+MIN_MARKER_PX = 10.0
+# Markers thinner than this are also searched for in 2x upsampled views (slower, needed when thin).
+UPSAMPLE_BELOW_PX = 24.0
+# Pixels of a 3x3 erosion survive when their centre lies this far inside the polygon.
+ERODE_PX = float(np.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class PredictedView:
+    """What the camera model expects in one frame.
+
+    ``patch``: (4, 2) pixels, the region of interest (patch shrunk by the margin); ``markers``:
+    marker id -> (4, 2) pixel corners in ArUco order; ``readable``: ids predicted big enough and
+    inside the frame to be read; ``shape``: (H, W) of the frame.
+    """
+
+    patch: np.ndarray
+    markers: dict
+    readable: tuple
+    shape: tuple
+
+    def thinnest_readable_px(self) -> float:
+        """Smallest thickness (pixels) of the readable markers (inf if none)."""
+        return min((polygon_thickness(self.markers[i]) for i in self.readable), default=float("inf"))
+
+
+def predict_view(model, w_i, w_o, expected_ids, margin: float, arm_side: float = 1.0,
+                 layout: HolderLayout = DEFAULT_LAYOUT) -> PredictedView:
+    """The patch region and marker corners at pose (w_i, w_o) (unit (3,), sample frame) seen by
+    ``model`` (a ``CameraModel``); ``margin``: fraction of the patch side left at each edge."""
+    import cv2
+
+    R, t = model.extrinsics(w_i, w_o, arm_side)
+    rvec, _ = cv2.Rodrigues(R)
+    corners = layout.marker_corners(expected_ids)
+    ids = list(corners)
+    plane = np.concatenate([layout.patch_polygon(margin)] + [corners[i] for i in ids])
+    obj = np.column_stack([plane, np.zeros(len(plane))])
+    img, _ = cv2.projectPoints(obj, rvec, np.asarray(t, dtype=np.float64), model.K, model.dist)
+    img = img.reshape(-1, 2)
+    markers = {i: img[4 + 4 * k: 8 + 4 * k] for k, i in enumerate(ids)}
+    shape = (model.height, model.width)
+    readable = tuple(i for i in ids if polygon_thickness(markers[i]) >= MIN_MARKER_PX and _inside(markers[i], shape, 2.0))
+    return PredictedView(img[:4], markers, readable, shape)
+
+
+def expected_view(settings: dict, pose, expected_ids, arm_side: float = 1.0,
+                  layout: HolderLayout = DEFAULT_LAYOUT) -> PredictedView:
+    """``predict_view`` with the camera model and ROI margin of a validated ``camera`` section, at
+    ``pose`` = (w_i, w_o), each (3,), as the kinematics report it."""
+    from goniofrost.core.camera_model import CameraModel
+
+    return predict_view(CameraModel.from_section(settings), pose[0], pose[1], expected_ids, settings["roi_margin"],
+                        arm_side, layout)
+
+
+def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, view: PredictedView | None = None,
+                 tolerance_px: float = 20.0, channels: np.ndarray | None = None,
+                 min_pixels: int = MIN_ROI_PIXELS_PER_CHANNEL, layout: HolderLayout = DEFAULT_LAYOUT):
+    """The region of interest of a frame: ``(mask (H, W) bool, source, offset_px)``.
+
+    ``source`` is ``"markers"`` (homography of the markers read) or ``"prediction"``;
+    ``offset_px`` is the largest distance between a read marker corner and its predicted place
+    (None when no marker was used). ``channels`` (H, W) Bayer channel of each pixel: with it,
+    every colour channel must keep ``min_pixels`` pixels. Raises WrongTargetError when another
+    card's markers are read, MisalignedError when the markers lie more than ``tolerance_px``
+    from the prediction, MarkerError when the region is too small (or, without a prediction,
+    when fewer than MIN_MARKERS expected markers are read).
+    """
+    if view is None:
+        mask = find_patch(linear, expected_ids, margin, what, layout)
+        return _checked(mask, channels, min_pixels, what), "markers", None
+    wanted = [i for i in expected_ids if i in view.readable]
+    scales = (1, UPSAMPLE) if view.thinnest_readable_px() < UPSAMPLE_BELOW_PX else (1,)
+    found, others = ({}, set()) if not wanted else read_markers(linear, expected_ids, scales, stop_at=len(wanted))
+    if len(found) < MIN_MARKERS and len(others) >= MIN_MARKERS:
+        raise _missing(found, others, expected_ids, what)
+    offset = marker_offset_px(found, view)
+    if offset is not None and offset > tolerance_px:
+        raise MisalignedError(
+            f"{what}: the holder markers lie {offset:.1f} px from where the camera model puts them "
+            f"(tolerance {tolerance_px:g} px): the rig looks misaligned (run goniofrost align, or check "
+            f"the camera's intrinsics and mount in the rig file)")
+    if len(found) >= MIN_MARKERS:
+        try:
+            mask = _patch_mask(found, expected_ids, view.shape, margin, what, layout)
+            return _checked(mask, channels, min_pixels, what), "markers", offset
+        except PatchTooSmallError:
+            raise
+        except MarkerError as exc:   # a misread marker set: the prediction is the better region
+            log.info("%s", exc)
+    elif wanted:
+        log.info("%s: markers %s predicted readable, %s read: the region comes from the camera model",
+                 what, wanted, sorted(found))
+    return _checked(polygon_mask(view.patch, view.shape), channels, min_pixels, what), "prediction", offset
+
+
+def marker_offset_px(found: dict, view: PredictedView) -> float | None:
+    """Largest distance (pixels) between a read marker corner and its predicted place (None if
+    no marker was read)."""
+    if not found:
+        return None
+    return max(float(np.max(np.linalg.norm(found[i] - view.markers[i], axis=1))) for i in found)
+
+
+def polygon_mask(polygon: np.ndarray, shape) -> np.ndarray:
+    """Pixels (H, W) bool whose 3x3 neighbourhood lies inside the convex ``polygon`` (4, 2) px:
+    one pixel off every edge, since a partly covered edge pixel would mix patch and card."""
+    import cv2
+
+    mask = np.zeros(shape, dtype=np.uint8)
+    cv2.fillConvexPoly(mask, np.rint(np.asarray(polygon) * 16).astype(np.int32), 1, shift=4)
+    return cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool)
+
+
+def polygon_thickness(polygon: np.ndarray) -> float:
+    """Smallest distance (pixels) between an edge of a convex quadrilateral (4, 2) and the
+    vertex farthest from it: how thin the shape is."""
+    p = np.asarray(polygon, dtype=np.float64)
+    best = np.inf
+    for k in range(4):
+        a, b = p[k], p[(k + 1) % 4]
+        edge = b - a
+        length = float(np.hypot(*edge))
+        if length == 0:
+            return 0.0
+        dist = np.abs(edge[0] * (p[:, 1] - a[1]) - edge[1] * (p[:, 0] - a[0])) / length
+        best = min(best, float(dist.max()))
+    return best
+
+
+def _inside(points: np.ndarray, shape, border: float) -> bool:
+    h, w = shape
+    return bool(np.all(np.isfinite(points)) and np.all(points >= border - 0.5)
+                and np.all(points[:, 0] <= w - 0.5 - border) and np.all(points[:, 1] <= h - 0.5 - border))
+
+
+def _checked(mask: np.ndarray, channels, min_pixels: int, what: str) -> np.ndarray:
+    if channels is None:
+        counts = {"all": int(mask.sum()) // 4}
+    else:
+        counts = {name: int(np.sum(mask & (channels == c))) for c, name in enumerate("RGB")}
+    name, fewest = min(counts.items(), key=lambda kv: kv[1])
+    if fewest < min_pixels:
+        raise PatchTooSmallError(f"{what}: the sample patch keeps only {fewest} pixels of channel {name} "
+                          f"(need {min_pixels}): view too grazing or target too small")
+    return mask
 
 
 def _detector():
@@ -39,7 +200,7 @@ def gray_views(linear: np.ndarray) -> list[np.ndarray]:
     """8-bit renderings (H, W) of a linear Bayer frame to try detection on.
 
     A 2x2 box filter mixes one R, two G and one B at every pixel (no mosaic pattern; shifts the
-    image by half a pixel, compensated in ``find_patch``). Several brightness mappings are
+    image by half a pixel, compensated in ``read_markers``). Several brightness mappings are
     tried because a bright glossy patch or a dark background can dominate one of them.
     """
     import cv2
@@ -55,47 +216,64 @@ def gray_views(linear: np.ndarray) -> list[np.ndarray]:
     return views
 
 
-def _candidates(linear: np.ndarray):
-    """(scale, 8-bit image) pairs to run the detector on: the frame's own pixels first, then
-    2x upsampled views, which read the thin, foreshortened markers of grazing views (on the
-    320x240 simulated camera: 76 deg at every azimuth natively, 82 deg upsampled)."""
+def _candidates(linear: np.ndarray, scales=(1, UPSAMPLE)):
+    """(scale, 8-bit image) pairs to run the detector on, in the order of ``scales``: 1 is the
+    frame's own pixels, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
+    and place corners more precisely (AprilTag refinement: 0.02-0.1 px against 0.1-0.4 px)."""
     import cv2
 
     views = gray_views(linear)
-    for g in views:
-        yield 1, g
-    for g in views:
-        yield UPSAMPLE, cv2.resize(g, None, fx=UPSAMPLE, fy=UPSAMPLE, interpolation=cv2.INTER_CUBIC)
+    for scale in scales:
+        for g in views:
+            yield scale, (g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC))
+
+
+def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None):
+    """Marker corners read in a frame: ``(found, others)``, found = id -> (4, 2) pixel corners of
+    the expected ids (OpenCV convention: pixel centres at integers), others = ids of other
+    markers seen. Stops once ``stop_at`` (default: all expected) markers are read."""
+    det = _detector()
+    stop_at = len(expected_ids) if stop_at is None else stop_at
+    found: dict[int, np.ndarray] = {}
+    others: set[int] = set()
+    for scale, gray in _candidates(linear, scales):
+        corners, ids, _ = det.detectMarkers(gray)
+        ids = [] if ids is None else ids.ravel().tolist()
+        # Back to frame pixels: ArUco puts pixel centres at +0.5 (c - 0.5 in OpenCV's convention),
+        # resize maps x to (x + 0.5) / scale - 0.5, and the 2x2 blur moved features by +0.5.
+        got = {i: c.reshape(4, 2).astype(np.float64) / scale - 1.0
+               for i, c in zip(ids, corners) if i in expected_ids}
+        others |= set(ids) - set(expected_ids)
+        if len(got) > len(found):
+            found = got
+        if len(found) >= stop_at:
+            break
+    return found, others
 
 
 def find_patch(linear: np.ndarray, expected_ids, margin: float, what: str,
                layout: HolderLayout = DEFAULT_LAYOUT) -> np.ndarray:
-    """Boolean mask (H, W) of the sample patch, shrunk by ``margin`` (fraction of its side).
+    """Boolean mask (H, W) of the sample patch from the markers alone, shrunk by ``margin``.
 
     ``expected_ids``: the marker ids of the mounted target; ``what`` names the frame or sample
     in errors. Raises MarkerError when fewer than MIN_MARKERS expected markers are read, when
     ids of another target are seen, or when the corners do not fit one plane.
     """
-
-    det = _detector()
-    found: dict[int, np.ndarray] = {}
-    others: set[int] = set()
-    for scale, gray in _candidates(linear):
-        corners, ids, _ = det.detectMarkers(gray)
-        ids = [] if ids is None else ids.ravel().tolist()
-        # back to frame pixels; the 2x2 blur moved features by +half a pixel: undo it
-        got = {i: (c.reshape(4, 2) + 0.5) / scale - 1.0 for i, c in zip(ids, corners) if i in expected_ids}
-        others |= set(ids) - set(expected_ids)
-        if len(got) > len(found):
-            found = got
-        if len(found) == len(expected_ids):
-            break
+    found, others = read_markers(linear, expected_ids)
     if len(found) < MIN_MARKERS:
-        error = WrongTargetError if len(others) >= MIN_MARKERS else MarkerError
-        extra = f"; saw markers {sorted(others)} of another target" if others else ""
-        raise error(f"{what}: expected holder markers {list(expected_ids)}, read "
-                    f"{sorted(found)} (need at least {MIN_MARKERS}){extra}")
-    return _patch_mask(found, expected_ids, linear.shape, margin, what, layout)
+        raise _missing(found, others, expected_ids, what)
+    mask = _patch_mask(found, expected_ids, linear.shape, margin, what, layout)
+    if mask.sum() < 4 * MIN_ROI_PIXELS_PER_CHANNEL:
+        raise PatchTooSmallError(f"{what}: the sample patch covers only {int(mask.sum())} pixels "
+                          f"(need {4 * MIN_ROI_PIXELS_PER_CHANNEL}): view too grazing or target too small")
+    return mask
+
+
+def _missing(found: dict, others: set, expected_ids, what: str) -> MarkerError:
+    error = WrongTargetError if len(others) >= MIN_MARKERS else MarkerError
+    extra = f"; saw markers {sorted(others)} of another target" if others else ""
+    return error(f"{what}: expected holder markers {list(expected_ids)}, read "
+                 f"{sorted(found)} (need at least {MIN_MARKERS}){extra}")
 
 
 def _patch_mask(found: dict, expected_ids, shape, margin: float, what: str, layout: HolderLayout) -> np.ndarray:
@@ -114,12 +292,4 @@ def _patch_mask(found: dict, expected_ids, shape, margin: float, what: str, layo
         raise MarkerError(f"{what}: marker corners disagree with one plane by {err:.1f} px "
                           f"(limit {MAX_REPROJECTION_PX} px): unreadable marker set")
     patch = cv2.perspectiveTransform(layout.patch_polygon(margin)[None].astype(np.float32), hmg)[0]
-    mask = np.zeros(shape, dtype=np.uint8)
-    cv2.fillConvexPoly(mask, np.rint(patch * 16).astype(np.int32), 1, shift=4)
-    # one pixel off every edge: a partly covered edge pixel would mix patch and card
-    mask = cv2.erode(mask, np.ones((3, 3), np.uint8))
-    if mask.sum() < 4 * MIN_ROI_PIXELS_PER_CHANNEL:
-        raise MarkerError(f"{what}: the sample patch covers only {int(mask.sum())} pixels "
-                          f"(need {4 * MIN_ROI_PIXELS_PER_CHANNEL}): view too grazing or target too small")
-    return mask.astype(bool)
-
+    return polygon_mask(patch, shape)

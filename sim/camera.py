@@ -1,12 +1,16 @@
 """The simulated camera: renders the sample holder from the current pose and writes DNG files.
 
-Far-field model (DESIGN.md): the lamp is collimated and the camera orthographic, so every pixel of
-the sample patch sees the same (w_i, w_o). The holder card (``calib.holder``) is drawn with its
-ArUco markers on matte paper; the patch shows the material's ground-truth BRDF (or the Lambertian
-white tile when the ``white`` target is mounted); the ``flat`` target is a uniform diffuser over
-the lens. The sensor is Bayer RGGB with photon shot noise, read noise, dark current, a fixed
-pixel-response pattern (PRNU), vignetting, a black level and a 14-bit white level with
-full-well saturation. Radiance follows the lamp intensity at the time of each exposure.
+Geometry: the rig file's camera model (``goniofrost.core.camera_model.CameraModel``: pinhole
+intrinsics, distortion, the camera's place on its arm), the very model the planner and the
+calibration predict with, so a simulated frame shows the patch and the markers exactly where a
+correctly built rig would. Radiometry stays far-field (DESIGN.md): the lamp is collimated and the
+camera far enough (1 m for a 17 mm patch) that every pixel of the patch sees the same (w_i, w_o).
+The holder card (``calib.holder``) is drawn with its ArUco markers on matte paper; the patch
+shows the material's ground-truth BRDF (or the Lambertian white tile when the ``white`` target is
+mounted); the ``flat`` target is a uniform diffuser over the lens. The sensor is Bayer RGGB with
+photon shot noise, read noise, dark current, a fixed pixel-response pattern (PRNU), vignetting, a
+black level and a 14-bit white level with full-well saturation. Radiance follows the lamp
+intensity at the time of each exposure.
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import numpy as np
 
 from calib.holder import DEFAULT_LAYOUT, SAMPLE_MARKER_IDS, WHITE_MARKER_IDS, HolderLayout
 from drivers.camera import Camera, CameraError, RawFrame
+from goniofrost.core.camera_model import CameraModel
 from goniofrost.core.config_check import check_section, is_number as _num
 from goniofrost.core.errors import ConfigError
 
@@ -33,8 +38,6 @@ SUPERSAMPLE = 3                 # sub-pixel samples per axis: smooth marker and 
 
 # key: (type check, description, default or None if required)
 _SIM_CAMERA_KEYS = {
-    "width": (lambda v: isinstance(v, int) and 64 <= v <= 8192 and v % 2 == 0, "an even integer in [64, 8192]", None),
-    "height": (lambda v: isinstance(v, int) and 64 <= v <= 8192 and v % 2 == 0, "an even integer in [64, 8192]", None),
     "black_level": (lambda v: isinstance(v, int) and 0 <= v < 65535, "an integer in [0, 65535)", None),
     "white_level": (lambda v: isinstance(v, int) and 0 < v <= 65535, "an integer in (0, 65535]", None),
     "read_noise_e": (lambda v: _num(v) and v >= 0, "a number >= 0 (electrons)", None),
@@ -59,18 +62,6 @@ def validate_sim_camera_section(section, source, keypath: str = "sim.camera") ->
         raise ConfigError(source, f"{keypath}.white_level", f"above black_level {out['black_level']}",
                           out["white_level"])
     return out
-
-
-def view_basis(w_o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Image axes (e1 = columns, e2 = rows up), unit vectors (3,) perpendicular to ``w_o``.
-
-    e1 is the sample x axis projected onto the image plane, so the card's x edges stay
-    horizontal and the card fits the frame at every view.
-    """
-    x = np.array([1.0, 0.0, 0.0])
-    e1 = x - (x @ w_o) * w_o
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(w_o, e1)
 
 
 @lru_cache(maxsize=8)
@@ -106,60 +97,96 @@ BrdfFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 class HolderRenderer:
-    """Orthographic views of the holder card: its reflectance and the patch's coverage per pixel.
+    """Pinhole views of the holder card: its reflectance and the patch's coverage per pixel.
 
-    The card is drawn once as a texture (TEXEL_MM per texel) in the plane; a view is then the
-    affine image of the plane (far-field camera), warped at SUPERSAMPLE x resolution and
-    averaged down, so marker and patch edges are anti-aliased.
+    The card is drawn once as a texture (TEXEL_MM per texel) in the plane; a view warps it through
+    the plane-to-image homography of the camera model at SUPERSAMPLE x resolution (then through
+    the lens distortion, if any) and averages down, so marker and patch edges are anti-aliased.
     """
 
     TEXEL_MM = 0.1
 
-    def __init__(self, width: int, height: int, layout: HolderLayout = DEFAULT_LAYOUT) -> None:
-        self.width, self.height, self.layout = width, height, layout
-        # mm -> px so the card fits at any view (the sheared card can reach sqrt(2) x its side)
-        side = 2 * layout.half_size
-        self.px_per_mm = 0.95 * min(height / side, width / (side * np.sqrt(2)))
+    def __init__(self, model: CameraModel, arm_side: float = 1.0, layout: HolderLayout = DEFAULT_LAYOUT) -> None:
+        self.model, self.arm_side, self.layout = model, float(arm_side), layout
+        self.width, self.height = model.width, model.height
         self._textures = {ids: _card_texture(layout, ids, self.TEXEL_MM)
                           for ids in (SAMPLE_MARKER_IDS, WHITE_MARKER_IDS)}
+        self._lens_maps = None   # distortion remap at supersampled resolution, built on first use
 
-
-    def view(self, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
-        """Mean card reflectance and patch coverage per pixel, each (H, W) float32, seen along
-        -w_o (unit, z > 0); beyond the card lies the background."""
+    def view(self, w_i: np.ndarray, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
+        """Mean card reflectance and patch coverage per pixel, each (H, W) float32, of the pose
+        (w_i, w_o) (unit, sample frame, w_o z > 0); beyond the card lies the background."""
         import cv2
 
-        e1, e2 = view_basis(w_o)
-        n, s, lay = SUPERSAMPLE, self.px_per_mm, self.layout
-        # texel (u, v) -> plane (x, y) -> sub-pixel (col, row); OpenCV puts centres on integers
-        plane = np.array([[self.TEXEL_MM, 0, -lay.half_size + 0.5 * self.TEXEL_MM],
-                          [0, -self.TEXEL_MM, lay.half_size - 0.5 * self.TEXEL_MM]])
-        image = n * np.array([[s * e1[0], s * e1[1], self.width / 2],
-                              [-s * e2[0], -s * e2[1], self.height / 2]])
-        m = image[:, :2] @ plane
-        m[:, 2] = image[:, :2] @ plane[:, 2] + image[:, 2] - 0.5
-        size = (self.width * n, self.height * n)
+        n, lay, tau = SUPERSAMPLE, self.layout, self.TEXEL_MM
+        # texel (u, v) -> plane (x, y) mm -> undistorted pixel -> sub-pixel (OpenCV: centres on integers)
+        plane = np.array([[tau, 0, -lay.half_size + 0.5 * tau], [0, -tau, lay.half_size - 0.5 * tau], [0, 0, 1]])
+        sub = np.array([[n, 0, (n - 1) / 2], [0, n, (n - 1) / 2], [0, 0, 1]])
+        m = sub @ self.model.plane_homography(w_i, w_o, self.arm_side) @ plane
+        x0, y0, x1, y1 = self._card_box(w_i, w_o)
+        shift = np.array([[1, 0, -x0 * n], [0, 1, -y0 * n], [0, 0, 1]])
+        size = ((x1 - x0) * n, (y1 - y0) * n)
         card, patch = self._textures[tuple(marker_ids)]
-        out = [cv2.warpAffine(tex, m, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                              borderValue=border)
-               for tex, border in ((card, BACKGROUND_REFLECTANCE), (patch, 0.0))]
-        return tuple(o.reshape(self.height, n, self.width, n).mean(axis=(1, 3)) for o in out)
+        out = []
+        for tex, border in ((card, BACKGROUND_REFLECTANCE), (patch, 0.0)):
+            full = np.full((self.height, self.width), border, dtype=np.float32)
+            if size[0] > 0 and size[1] > 0:
+                img = cv2.warpPerspective(tex, shift @ m, size, flags=cv2.INTER_LINEAR,
+                                          borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+                if any(self.model.distortion):
+                    img = cv2.remap(img, *self._lens(), cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                    borderValue=border)
+                full[y0:y1, x0:x1] = img.reshape(y1 - y0, n, x1 - x0, n).mean(axis=(1, 3))
+            out.append(full)
+        return out[0], out[1]
+
+    def _card_box(self, w_i, w_o) -> tuple[int, int, int, int]:
+        """Pixel box (x0, y0, x1, y1) holding the card (only it is warped: rendering time follows
+        the card's size, not the frame's); the whole frame when the lens distorts."""
+        if any(self.model.distortion):
+            return 0, 0, self.width, self.height
+        h = self.layout.half_size
+        px = self.model.project_plane([[-h, -h], [h, -h], [h, h], [-h, h]], w_i, w_o, self.arm_side)
+        lo = np.floor(np.nanmin(px, axis=0)).astype(int) - 2
+        hi = np.ceil(np.nanmax(px, axis=0)).astype(int) + 3
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        return x0, y0, max(min(hi[0], self.width), x0), max(min(hi[1], self.height), y0)
+
+    def _lens(self) -> tuple[np.ndarray, np.ndarray]:
+        """Remap tables (sub-pixel grids, float32): for each sub-pixel of the distorted image,
+        where it lies in the undistorted one."""
+        import cv2
+
+        if self._lens_maps is None:
+            n, mdl = SUPERSAMPLE, self.model
+            rows, cols = np.mgrid[0:self.height * n, 0:self.width * n].astype(np.float64)
+            pix = np.stack([(cols + 0.5) / n - 0.5, (rows + 0.5) / n - 0.5], -1).reshape(-1, 1, 2)
+            ideal = cv2.undistortPoints(pix, mdl.K, mdl.dist, R=None, P=mdl.K,
+                                        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9))
+            ideal = ideal.reshape(rows.shape + (2,)) * n + (n - 1) / 2
+            self._lens_maps = (ideal[..., 0].astype(np.float32), ideal[..., 1].astype(np.float32))
+        return self._lens_maps
 
 
 class SimCamera(Camera):
     """A simulated camera looking at the sample holder; implements ``drivers.camera.Camera``.
 
     ``material`` is the material's name (``SPEC:NAME``, written into each DNG's metadata) and
-    ``brdf`` its ground truth (``BrdfFunction``); ``pose_source()`` returns the actual unit vectors (w_i, w_o),
-    each (3,), in the sample frame; ``params`` is the rig's ``sim.camera`` section; ``seed``
-    fixes the pixel-response pattern and, with each frame's nominal start time, its noise.
+    ``brdf`` its ground truth (``BrdfFunction``; None: only the white and flat targets can be
+    shown); ``pose_source()`` returns the actual unit vectors (w_i, w_o), each (3,), in the sample
+    frame; ``params`` is the rig's ``sim.camera`` section (the sensor); ``model`` the rig's camera
+    model (image size, optics, mount) and ``arm_side`` the side of the light the arm works on
+    (``planner.kinematics.arm_side``); ``seed`` fixes the pixel-response pattern and, with each
+    frame's nominal start time, its noise.
     Exposure time passes on ``clock``.
     """
 
-    def __init__(self, material: str, brdf: BrdfFunction, pose_source: Callable[[], tuple[np.ndarray, np.ndarray]],
-                 lamp: LampModel, clock: SimClock, params: dict, seed: int = 0) -> None:
+    def __init__(self, material: str | None, brdf: BrdfFunction | None,
+                 pose_source: Callable[[], tuple[np.ndarray, np.ndarray]], lamp: LampModel, clock: SimClock,
+                 params: dict, seed: int = 0, *, model: CameraModel, arm_side: float = 1.0) -> None:
         self.material, self.brdf, self.pose_source, self.lamp, self.clock = material, brdf, pose_source, lamp, clock
         self.params = validate_sim_camera_section(params, "SimCamera params", "sim.camera")
+        self.model, self.arm_side = model, float(arm_side)
         self.seed = int(seed)
         self.target = "sample"
         self._connected = False
@@ -167,9 +194,9 @@ class SimCamera(Camera):
     def connect(self) -> None:
         """Build the renderer and the fixed pixel pattern."""
         p = self.params
-        self._renderer = HolderRenderer(p["width"], p["height"])
+        self._renderer = HolderRenderer(self.model, self.arm_side)
         pattern = np.random.default_rng(self.seed)  # the sensor's fixed pixel-response pattern
-        shape = (p["height"], p["width"])
+        shape = (self.model.height, self.model.width)
         self._channels = np.zeros(shape, dtype=np.uint8)      # RGGB
         self._channels[0::2, 1::2] = 1
         self._channels[1::2, 0::2] = 1
@@ -185,6 +212,8 @@ class SimCamera(Camera):
 
     def ground_truth(self, w_i, w_o) -> np.ndarray:
         """The material's BRDF (R, G, B) in 1/sr at directions (3,)."""
+        if self.brdf is None:
+            raise CameraError("simulated camera: no material given, so the sample card cannot be shown")
         return np.asarray(self.brdf(np.asarray(w_i, float), np.asarray(w_o, float)), dtype=np.float64).reshape(3)
 
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
@@ -207,15 +236,15 @@ class SimCamera(Camera):
 
     def _radiance(self, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
         """Radiance per pixel (H, W) in its Bayer channel, for nominal lamp irradiance 1."""
-        p = self.params
+        shape = (self.model.height, self.model.width)
         if self.target == "flat":
-            return np.full((p["height"], p["width"]), WHITE_TILE_REFLECTANCE / np.pi)
+            return np.full(shape, WHITE_TILE_REFLECTANCE / np.pi)
         cos_i = max(float(w_i[2]), 0.0)       # light from below the card: unlit
         if w_o[2] <= 1e-3:                    # card seen edge-on: only background
-            return np.full((p["height"], p["width"]), BACKGROUND_REFLECTANCE / np.pi * cos_i)
+            return np.full(shape, BACKGROUND_REFLECTANCE / np.pi * cos_i)
         white = self.target == "white"
         patch = np.full(3, WHITE_TILE_REFLECTANCE / np.pi) if white else self.ground_truth(w_i, w_o)
-        card, cover = self._renderer.view(w_o, WHITE_MARKER_IDS if white else SAMPLE_MARKER_IDS)
+        card, cover = self._renderer.view(w_i, w_o, WHITE_MARKER_IDS if white else SAMPLE_MARKER_IDS)
         return (card / np.pi + cover * patch[self._channels]) * cos_i
 
     def _frame_noise(self, t0: float) -> np.random.Generator:

@@ -12,15 +12,20 @@ from goniofrost.datasets import material_brdf
 from sim.camera_bench import CameraBench
 
 LADDER = [0.002, 0.008, 0.032, 0.128]
-SIM_CAMERA = {"width": 192, "height": 144, "black_level": 512, "white_level": 16383, "read_noise_e": 3.0,
+SIM_CAMERA = {"black_level": 512, "white_level": 16383, "read_noise_e": 3.0,
               "full_well_e": 30000.0, "dark_current_e_s": 5.0, "vignetting": 0.15}
+# a small camera model (1.9 px/mm at the sample: the 68 mm card fills most of 192 x 144)
+CAMERA_MODEL = {"intrinsics": {"image_size_px": [192, 144], "focal_px": [1900.0, 1900.0],
+                               "principal_point_px": [95.5, 71.5]},
+                "mount": {"distance_mm": 1000.0}}
 SEEN = {"dark": ("sample", False, 1), "flat": ("flat", True, 1), "white": ("white", True, 1),
         "sample": ("sample", True, 1), "bright": ("sample", True, 8)}
 
 
 def render(folder: Path, target: str, lamp: bool, seconds: float) -> Path:
     """One DNG of the simulated camera (matte sample, normal light, 30 deg view), ``seconds`` long."""
-    bench = CameraBench(material_brdf("builtin:white-diffuse"), SIM_CAMERA, seed=0)
+    bench = CameraBench(material_brdf("builtin:white-diffuse"), SIM_CAMERA,
+                        {"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, **CAMERA_MODEL}, seed=0)
     bench.set_angles(0.0, 30.0)
     bench.camera.set_target(target)
     if lamp:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import (CalibrationError, CalibrationRecord, MarkerError, SaturationError,
+from calib import (CalibrationError, CalibrationRecord, MarkerError, PatchTooSmallError, SaturationError,
                    UnderexposedError, WrongTargetError, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
@@ -69,7 +69,7 @@ class BenchPlans:
 def calibrated(tmp_path_factory, rig, spec):
     """One calibration (seed 0 sensor) shared by the tests: its journal form, reloaded."""
     out = tmp_path_factory.mktemp("calibration")
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     cal = BenchPlans(bench.camera, bench.lamp, rig["camera"], clock=bench.clock)
     record = cal.calibrate(out, white_pose=bench.pose)
     return json.loads(json.dumps(record.to_dict()))
@@ -81,7 +81,7 @@ def _calibrator(rig, calibrated, bench, **settings):
 
 
 def _errors(rig, calibrated, spec, name, tmp_path):
-    bench = CameraBench(spec(name), rig["sim"]["camera"], seed=0)   # the calibrated sensor
+    bench = CameraBench(spec(name), rig["sim"]["camera"], rig["camera"], seed=0)   # the calibrated sensor
     bench.lamp.on()
     cal = _calibrator(rig, calibrated, bench)
     rel, norm = [], []
@@ -107,7 +107,8 @@ def test_calibrated_brdf_within_2_percent_with_noise(rig, calibrated, spec, name
 def test_calibration_record_round_trip_and_tamper(rig, calibrated, tmp_path):
     record = CalibrationRecord.from_dict(calibrated)
     ladder = len(rig["camera"]["exposures_s"])
-    assert record.dark.shape == (ladder, 240, 320) and record.flat.shape == (240, 320)
+    width, height = rig["camera"]["intrinsics"]["image_size_px"]
+    assert record.dark.shape == (ladder, height, width) and record.flat.shape == (height, width)
     green = np.concatenate([record.flat[0::2, 1::2].ravel(), record.flat[1::2, 0::2].ravel()])
     for plane in (record.flat[0::2, 0::2], green, record.flat[1::2, 1::2]):   # R, G, B: mean 1 each
         assert plane.mean() == pytest.approx(1.0, abs=1e-5)
@@ -130,7 +131,7 @@ class _BrighterLamp(LampModel):
 
 
 def _drifted_bench(spec, rig):
-    bench = CameraBench(spec("white-diffuse-bball"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("white-diffuse-bball"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.model = bench.lamp.model = bench.camera.lamp = _BrighterLamp(bench.clock, 0.02, 0)
     bench.lamp.on()
     return bench
@@ -170,7 +171,7 @@ def test_without_the_photodiode_drift_biases_the_result(rig, calibrated, spec, t
 
 
 def test_bracketing_takes_only_the_frames_it_needs(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(30.0, 50.0, 180.0)
     easy = _calibrator(rig, calibrated, bench, target_snr=20.0).measure(w_i, w_o, tmp_path, 1)
@@ -184,7 +185,7 @@ def test_bracketing_takes_only_the_frames_it_needs(rig, calibrated, spec, tmp_pa
 
 
 def test_bright_specular_peak_steps_down_then_starts_from_the_last_sample(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(20.0, 20.0, 180.0)   # mirror direction: BRDF ~ 26 1/sr
     cal = _calibrator(rig, calibrated, bench)
@@ -200,7 +201,7 @@ def test_bright_specular_peak_steps_down_then_starts_from_the_last_sample(rig, c
 
 def test_saturated_scene_is_a_saturation_error(rig, calibrated, spec, tmp_path):
     params = {**rig["sim"]["camera"], "signal_e_s": 2.0e9}   # 10^4 x too bright a lamp
-    bench = CameraBench(spec("gold-metallic-paint2"), params, seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), params, rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(20.0, 20.0, 180.0)
     with pytest.raises(SaturationError, match=r"sample 4: \d+ of \d+ sample pixels saturate even at the shortest exposure 1.5625e-05 s"):
@@ -208,7 +209,7 @@ def test_saturated_scene_is_a_saturation_error(rig, calibrated, spec, tmp_path):
 
 
 def test_dark_scene_is_underexposed_or_flagged(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(70.0, 50.0, 0.0)   # far from specular, grazing light: BRDF ~ 0.005
     short = {"exposures_s": [0.001]}
@@ -218,13 +219,13 @@ def test_dark_scene_is_underexposed_or_flagged(rig, calibrated, spec, tmp_path):
     assert m.flags == ["low-snr"] and m.frames_skipped == 0
 
 
-def test_view_without_markers_is_a_marker_error(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+def test_too_grazing_a_view_and_the_wrong_card_are_marker_errors(rig, calibrated, spec, tmp_path):
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
-    w_i, w_o = bench.set_angles(20.0, 87.0, 40.0)
-    two = {"exposures_s": [0.016, 0.064]}   # a short ladder: every exposure is tried before giving up
-    with pytest.raises(MarkerError, match=r"sample 7: expected holder markers \[0, 1, 2, 3\].*\(in all 2 exposures\)"):
-        _calibrator(rig, calibrated, bench, **two).measure(w_i, w_o, tmp_path, 7)
+    w_i, w_o = bench.set_angles(20.0, 89.3, 40.0)
+    with pytest.raises(PatchTooSmallError, match=r"sample 7: the sample patch keeps only \d+ pixels of channel [RB] \(need 24\)"):
+        _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 7)
+    assert len(list(tmp_path.glob("sample_0007_*.dng"))) == 1   # no point in other exposures
     bench.set_angles(20.0, 30.0)
     bench.camera.set_target("white")   # the wrong card mounted
     with pytest.raises(WrongTargetError, match=r"sample 8: .*saw markers \[4, 5, 6, 7\] of another target"):
@@ -243,10 +244,10 @@ class _TruncatingCamera(SimCamera):
 
 
 def test_truncated_raw_file_fails_the_sample_naming_the_file(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     cam = _TruncatingCamera(bench.camera.material, bench.camera.brdf, lambda: bench.pose, bench.model, bench.clock,
-                            rig["sim"]["camera"], 0)
+                            rig["sim"]["camera"], 0, model=bench.camera_model)
     cam.connect()
     cal = BenchPlans(cam, bench.lamp, rig["camera"], record=CalibrationRecord.from_dict(calibrated), clock=bench.clock)
     with pytest.raises(RawFileError, match=r"sample_0009_e\d\.dng: cannot decode RAW file"):
@@ -254,14 +255,14 @@ def test_truncated_raw_file_fails_the_sample_naming_the_file(rig, calibrated, sp
 
 
 def test_measure_before_calibrate_and_light_below_are_errors(rig, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     cal = BenchPlans(bench.camera, bench.lamp, rig["camera"], clock=bench.clock)
     with pytest.raises(CalibrationError, match="before calibrate"):
         cal.measure(*bench.pose, tmp_path, 0)
 
 
 def test_ladder_outside_the_calibration_is_refused(rig, calibrated, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     cal = _calibrator(rig, calibrated, bench, exposures_s=[0.001, 0.002])
     with pytest.raises(CalibrationError, match=r"exposures \[0.002\] s have no dark frame.*calibrate again"):
@@ -289,7 +290,7 @@ def test_camera_section_validation(rig):
 
 
 def test_open_camera_builds_a_folder_camera_that_runs_the_trigger(rig, spec, tmp_path):
-    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], seed=0)
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     src = bench.camera.capture(0.004, tmp_path / "src.dng").path
     hot = tmp_path / "hot"
     hot.mkdir()

@@ -19,18 +19,19 @@ from goniofrost.capture.executor import BenchHardware, stop_axes
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.session_steps import SessionSpec
 from goniofrost.capture.signals import SessionInterrupted
-from sim.camera_bench import direction
+from sim.camera_bench import direction, rig_like
 
-from frame_script import LADDER, render_table
+from frame_script import CAMERA_MODEL, LADDER, render_table
 
 AXES = ("theta_i", "theta_o", "phi_o")
 CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
+                                  **CAMERA_MODEL,
                                   "flat_frames": 2}, "test")
 SAMPLES = [{"joints": {"theta_i": 0.0, "theta_o": 30.0 + 5 * i, "phi_o": 180.0 - 10 * i}, "theta_h_deg": 10.0 + i,
             "theta_d_deg": 20.0 + i, "phi_d_deg": 90.0, "theta_i_deg": 0.0, "theta_o_deg": 30.0 + 5 * i}
            for i in range(2)]
 SPEC = SessionSpec(SAMPLES, (101, 102), AXES, CAMERA, {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0},
-                   lambda j: (direction(j["theta_i"]), direction(j["theta_o"], j["phi_o"])))
+                   lambda j: rig_like(direction(j["theta_i"]), direction(j["theta_o"], j["phi_o"])))
 CALIBRATION = (["Phase", "LampOff"] + ["Expose"] * 4 + ["LampOn", "SetTarget", "Expose", "Expose", "SetTarget",
                "SetTarget", "Expose", "SetTarget", "SaveCalibration"])
 SAMPLE = ["Move", "Expose", "Commit"]

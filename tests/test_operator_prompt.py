@@ -13,6 +13,8 @@ import pytest
 from drivers.camera import FolderCamera, OperatorAbort, OperatorPrompt, OperatorTimeout
 from goniofrost.capture.hardware import open_camera
 
+from frame_script import CAMERA_MODEL
+
 REPO = Path(__file__).resolve().parents[1]
 PROMPT = b"press Enter when done, or type abort"
 
@@ -87,7 +89,7 @@ def test_closed_input_is_an_abort(tmp_path):
 def test_the_manual_exposure_prompt_of_open_camera_times_out(terminal, tmp_path):
     master, slave = terminal
     cam = open_camera({"kind": "rawfile", "exposures_s": [0.01], "target_snr": 50, "folder": str(tmp_path),
-                       "operator_timeout_s": 0.2})
+                       "operator_timeout_s": 0.2, **CAMERA_MODEL})
     cam.ask.input_fd, cam.ask.output = slave, open(os.devnull, "w")  # this terminal instead of the test's stdin
     with pytest.raises(OperatorTimeout, match=rf"^expose one RAW frame of 0.01 s into {tmp_path}: no answer from "
                                               r"the operator within 0.2 s$"):

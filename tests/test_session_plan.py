@@ -17,12 +17,13 @@ from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.session_steps import SessionSpec, remaining, session_steps
 from goniofrost.capture.steps import (Commit, Expose, Frame, Home, LampOff, LampOn, Move, Phase, Reached,
                                       SaveCalibration, SetTarget, drive)
-from sim.camera_bench import direction
+from sim.camera_bench import direction, rig_like
 
-from frame_script import LADDER, render_table
+from frame_script import CAMERA_MODEL, LADDER, render_table
 
 AXES = ("theta_i", "theta_o", "phi_o")    # the plan does not care what the joints mean
 CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
+                                  **CAMERA_MODEL,
                                   "flat_frames": 2, "white_reference": {"theta_i_deg": 0.0, "theta_o_deg": 30.0}},
                                  "test")
 WHITE = {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0}
@@ -31,7 +32,7 @@ SAMPLES = [{"joints": {"theta_i": 0.0, "theta_o": 30.0 + 5 * i, "phi_o": 180.0 -
 
 
 def pose_of(joints):
-    return direction(joints["theta_i"]), direction(joints["theta_o"], joints["phi_o"])
+    return rig_like(direction(joints["theta_i"]), direction(joints["theta_o"], joints["phi_o"]))
 
 
 SPEC = SessionSpec(SAMPLES, (101, 102, 103), AXES, CAMERA, WHITE, pose_of)
@@ -114,7 +115,7 @@ def test_fresh_session_homes_calibrates_at_the_white_pose_then_moves_measures_an
     [saved] = [s for s in script.steps if isinstance(s, SaveCalibration)]
     record = saved.record
     assert record.dark.shape == (4, 144, 192) and record.white["exposures_s"] == [0.032]
-    assert record.white["w_o"] == pytest.approx(direction(30.0, 180.0).tolist())
+    assert record.white["w_o"] == pytest.approx(pose_of(WHITE)[1].tolist())
     np.testing.assert_array_equal(record.dark[1], frames["dark", 0.008].linear)
 
     # each Commit carries its sample: where the Move left the axes, what its frames gave

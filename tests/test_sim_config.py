@@ -12,6 +12,7 @@ from goniofrost.app.cli import main
 from goniofrost.capture import rig_file
 from goniofrost.capture.rig_file import load_checked_rig
 from goniofrost.core.errors import ConfigError
+from sim.camera import _SIM_CAMERA_KEYS as SIM_CAMERA_KEYS
 from sim.config import SIM_KEYS, validate_sim_section
 
 REPO = Path(__file__).resolve().parents[1]
@@ -45,7 +46,9 @@ def test_defaults_are_filled_in():
     ({"lamp": {"drift": 0.1}}, "sim.lamp.drift", "one of ['drift_per_hour']", "drift"),
     ({"lamp": {"drift_per_hour": 5}}, "sim.lamp.drift_per_hour",
      "a number in [-1, 1] (relative intensity change per simulated hour)", 5),
-    ({"camera": {"width": 320}}, "sim.camera.height", "an even integer in [64, 8192]", "nothing"),
+    # the image size is the camera model's (camera.intrinsics), not the simulated sensor's
+    ({"camera": {"width": 320}}, "sim.camera.width", f"one of {sorted(SIM_CAMERA_KEYS)}", "width"),
+    ({"camera": {"white_level": 16383}}, "sim.camera.black_level", "an integer in [0, 65535)", "nothing"),
     ([1, 2], "sim", "a mapping", [1, 2]),
     ({"faults": "stall"}, "sim.faults", "a list of {axis, kind, at_sample} mappings", "stall"),
     ({"faults": ["stall"]}, "sim.faults[0]", "a mapping", "stall"),

@@ -67,9 +67,11 @@ def test_same_commands_give_the_same_lamp_readings_whatever_the_real_time_betwee
 
 def camera_run(folder: Path, real_pause_s: float, seed: int = 5) -> tuple[list[bytes], list[float]]:
     """Three exposures and photodiode readings on a camera bench, pausing in real time between."""
-    params = {**yaml.safe_load(RIG.read_text())["sim"]["camera"], "width": 96, "height": 64}
+    rig = yaml.safe_load(RIG.read_text())
+    camera = {**rig["camera"], "intrinsics": {"image_size_px": [96, 64], "focal_px": [800.0, 800.0],
+                                              "principal_point_px": [47.5, 31.5]}}   # a small frame
     grey = ("test:grey", lambda w_i, w_o: np.full(3, 0.2))
-    bench = CameraBench(grey, params, seed=seed, speedup=100.0, drift_per_hour=FAST_DRIFT)
+    bench = CameraBench(grey, rig["sim"]["camera"], camera, seed=seed, speedup=100.0, drift_per_hour=FAST_DRIFT)
     bench.lamp.on()
     frames, readings = [], []
     for i, exposure in enumerate((0.5, 2.0, 1.0)):

@@ -14,19 +14,20 @@ from calib import (Bracket, CalibrationRecord, SaturationError, dark_map, flat_f
                    nominal_white_pose, start_index, white_scale)
 from calib.holder import WHITE_MARKER_IDS
 from calib.references import unit
+from calib.roi import expected_view
 from goniofrost.capture.sample_steps import bracket_steps, frame_file
 from goniofrost.capture.steps import Expose, LampOff, LampOn, Phase, SaveCalibration, SetTarget
 
 CALIBRATION_DIR = "calibration"
 
 
-def calibration_steps(settings: dict, white_pose=None, folder: str = CALIBRATION_DIR):
+def calibration_steps(settings: dict, white_pose=None, folder: str = CALIBRATION_DIR, arm_side: float = 1.0):
     """Yield every step of a calibration; return the saved CalibrationRecord.
 
     ``settings``: the validated camera section; ``white_pose``: the actual (w_i, w_o), each (3,),
     at which the white tile is held (default: the settings' nominal ``white_reference`` angles);
-    ``folder``: where frames and arrays go, relative to the session folder. Leaves the lamp on and
-    the ``sample`` target in place.
+    ``folder``: where frames and arrays go, relative to the session folder; ``arm_side``: see
+    ``sample_steps``. Leaves the lamp on and the ``sample`` target in place.
     """
     ladder = settings["exposures_s"]
     yield Phase("calibration")
@@ -34,7 +35,7 @@ def calibration_steps(settings: dict, white_pose=None, folder: str = CALIBRATION
     flat = yield from flat_steps(ladder, settings, dark, folder)
     record = CalibrationRecord(ladder, dark, flat, np.ones(3), np.zeros(3))
     white_pose = nominal_white_pose(settings) if white_pose is None else white_pose
-    yield from white_steps(record, settings, white_pose, folder)
+    yield from white_steps(record, settings, white_pose, folder, arm_side)
     return (yield SaveCalibration(record, folder))
 
 
@@ -67,12 +68,13 @@ def flat_steps(ladder: list, settings: dict, dark: np.ndarray, folder: str):
     return flat_field(raws, dark[i], ladder[i])
 
 
-def white_steps(record: CalibrationRecord, settings: dict, white_pose, folder: str):
+def white_steps(record: CalibrationRecord, settings: dict, white_pose, folder: str, arm_side: float = 1.0):
     """Bracket the ``white`` target at ``white_pose``; set the record's absolute scale from it."""
     w_i = unit(white_pose[0], "white reference w_i")
     ladder = settings["exposures_s"]
     yield SetTarget("white")
-    bracket = Bracket(ladder, settings, record, WHITE_MARKER_IDS, "white reference")
+    bracket = Bracket(ladder, settings, record, WHITE_MARKER_IDS, "white reference",
+                      view=expected_view(settings, white_pose, WHITE_MARKER_IDS, arm_side))
     yield from bracket_steps(bracket, start_index(ladder, settings, record, None, w_i), folder, "white")
     yield SetTarget("sample")
     mean, se = bracket.stats()

@@ -66,24 +66,36 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
 @contextmanager
 def _simulated(rig, *, material, seed, speedup):
     from drivers.rig_devices import RigDevices
-    from planner.kinematics import forward
+    from goniofrost.core.camera_model import CameraModel
     from goniofrost.datasets import material_brdf
+    from planner.kinematics import arm_side
     from sim.camera import SimCamera
     from sim.rig import SimulatedRig
 
     sim_section = rig.sim or {}
     seed = int(sim_section.get("seed", 0) if seed is None else seed)
+    name, brdf = material_brdf(material) if material is not None else (None, None)
+    side = arm_side(rig)
     with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
         simulation.start()
         devices = RigDevices.from_sections(simulation.resolved_driver_sections())
         with _connected(devices):
-            camera = SimCamera(*material_brdf(material), lambda: forward(rig, simulation.true_joints_deg()),
-                               simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed)
+            camera = SimCamera(name, brdf, lambda: simulated_pose(rig, simulation.true_joints_deg()),
+                               simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
+                               model=CameraModel.from_section(rig.camera), arm_side=side)
             camera.connect()
             try:
                 yield RigHardware(devices.axes, devices.lamp, camera, simulation.clock, simulation)
             finally:
                 camera.close()
+
+
+def simulated_pose(rig, encoder_deg: dict):
+    """The light and view directions (w_i, w_o) the simulated camera really sees at the simulated
+    axes' encoder positions (degrees by axis name)."""
+    from planner.kinematics import forward
+
+    return forward(rig, encoder_deg)
 
 
 @contextmanager

@@ -10,23 +10,27 @@ from pathlib import PurePosixPath
 
 from calib import Bracket, check_record, light_direction, sample_measurement, start_index
 from calib.holder import SAMPLE_MARKER_IDS
+from calib.roi import expected_view
 from goniofrost.capture.steps import Expose
 
 RAW_DIR = "raw"
 
 
-def sample_steps(settings: dict, record, pose, index: int, expected=None, folder: str = RAW_DIR):
+def sample_steps(settings: dict, record, pose, index: int, expected=None, folder: str = RAW_DIR,
+                 arm_side: float = 1.0):
     """Yield the frames of plan sample ``index``; return its SampleMeasurement.
 
     ``settings``: the validated camera section; ``record``: the CalibrationRecord; ``pose``:
     (w_i, w_o), each (3,), actually reached; ``expected``: (3,) BRDF in 1/sr the sample probably
     has (the previous sample's), which picks the first exposure; ``folder``: where the frames go,
-    relative to the session folder.
+    relative to the session folder; ``arm_side``: +1 when the camera arm works counter-clockwise
+    of the light (``planner.kinematics.arm_side``), for the camera model's prediction of the patch.
     """
     ladder = settings["exposures_s"]
     check_record(record, ladder)
     w_i = light_direction(pose[0], index)
-    bracket = Bracket(ladder, settings, record, SAMPLE_MARKER_IDS, f"sample {index}")
+    bracket = Bracket(ladder, settings, record, SAMPLE_MARKER_IDS, f"sample {index}",
+                      view=expected_view(settings, pose, SAMPLE_MARKER_IDS, arm_side))
     first = start_index(ladder, settings, record, expected, w_i)
     seconds, wall_s = yield from bracket_steps(bracket, first, folder, f"sample_{index:04d}", index)
     return sample_measurement(index, bracket, w_i, capture_seconds=wall_s, clock_seconds=seconds)

@@ -35,7 +35,8 @@ class SessionSpec:
     ``theta_h_deg``, ``theta_d_deg``, ``phi_d_deg``; ``cells`` (n,) their flat grid cells;
     ``axes``: axis names in joint order; ``camera``: the validated ``camera:`` section;
     ``white_joints``: the pose {axis: deg} showing the white reference tile (needed unless a
-    calibration is kept); ``pose_of(joints)`` -> (w_i, w_o), each (3,): forward kinematics.
+    calibration is kept); ``pose_of(joints)`` -> (w_i, w_o), each (3,): forward kinematics (with
+    the rig's alignment); ``arm_side``: +1 when the arm works counter-clockwise of the light.
     With a target error: ``target`` (log-relative MSE), ``batch_ends`` (cumulative samples per
     batch, the last = all) and ``assess(records) -> predicted error``; otherwise None, (), None.
     """
@@ -46,6 +47,7 @@ class SessionSpec:
     camera: Mapping
     white_joints: Mapping | None
     pose_of: Callable
+    arm_side: float = 1.0
     target: float | None = None
     batch_ends: tuple = ()
     assess: Callable | None = None
@@ -54,7 +56,7 @@ class SessionSpec:
     def from_inputs(cls, inputs, target_error: float | None = None) -> "SessionSpec":
         """From checked ``goniofrost.capture.inputs.SessionInputs`` (and the capture's target error)."""
         from calib import validate_camera_section
-        from planner.kinematics import forward
+        from planner.kinematics import arm_side, forward
 
         from goniofrost.capture.target import make_assessor
 
@@ -64,7 +66,7 @@ class SessionSpec:
             "assess": make_assessor(inputs.model, inputs.positions)}
         return cls(inputs.samples, tuple(int(c) for c in inputs.cells), tuple(rig.joint_names),
                    validate_camera_section(rig.camera, rig.source), inputs.white_joints,
-                   lambda joints: forward(rig, joints), **target)
+                   lambda joints: forward(rig, joints), arm_side(rig), **target)
 
 
 def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
@@ -95,7 +97,7 @@ def _start(spec: SessionSpec, calibration):
     yield LampOn()
     if calibration is None:
         white = yield Move(None, joint_targets(spec.white_joints, spec.axes))
-        calibration = yield from calibration_steps(spec.camera, spec.pose_of(white.joints))
+        calibration = yield from calibration_steps(spec.camera, spec.pose_of(white.joints), arm_side=spec.arm_side)
     yield Phase("samples")
     return calibration
 
@@ -108,7 +110,8 @@ def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict
         reached = yield Move(index, joint_targets(spec.samples[index]["joints"], spec.axes))
         previous = measured.get(index - 1)  # its BRDF picks this bracket's first exposure
         expected = None if previous is None else np.maximum(previous, 1e-6)
-        m = yield from sample_steps(spec.camera, calibration, spec.pose_of(reached.joints), index, expected)
+        m = yield from sample_steps(spec.camera, calibration, spec.pose_of(reached.joints), index, expected,
+                                    arm_side=spec.arm_side)
         measured[index] = np.asarray(m.rgb, dtype=np.float64)
         record = sample_record(spec, index, reached, m)
         if records is not None:
