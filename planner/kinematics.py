@@ -13,6 +13,11 @@ Notes
 * Sample-frame directions: w_i = M^T L, w_o = M^T C. The sample's own x and y axes turn with the
   stage, so the azimuth of w_i in the sample frame depends on the pose; only (theta_i, theta_o,
   phi_o - phi_i) is fixed by a measurement of an isotropic BRDF.
+* Joint zero offsets (``rig.alignment``, from ``goniofrost align``): an axis that reads q stands
+  physically at q + offset. ``forward`` adds the offsets to the joints it is given (the axes'
+  readings) before the geometry; ``inverse`` subtracts them from the geometric solution, so its
+  joints are the targets to command. Limits apply to commanded joints, the arm separation to the
+  physical arm angle.
 * Inverse: alpha = s * angle(w_i, w_o) (s = side of the light the arm's limits lie on). Write n in
   the light's frame (L, L_perp, z): n.L = cos theta_i and n.C = cos theta_o give n_L and n_perp;
   the third component is +-sin(tau). Branch 0 (``DIRECT``) takes tau with the sign that maps
@@ -39,6 +44,8 @@ class Reason(enum.IntEnum):
     ARM_LIMIT = 2        # the camera arm's angle lies outside its axis limits
     STAGE_LIMIT = 3      # the needed tilt (or yaw) lies outside the stage limits
     BELOW_SURFACE = 4    # w_i or w_o not above the sample surface (not a valid BRDF cell)
+    PATCH_PIXELS = 5     # the camera sees too few patch pixels (view too grazing; planner.view)
+    LAMP_BEAM = 6        # the lamp's beam does not cover the whole patch (planner.view)
 
 
 BRANCHES = ("direct", "mirror")
@@ -67,6 +74,14 @@ class IKResult:
     def best_reason(self) -> np.ndarray:
         """uint8 (...): OK if any branch is reachable, else the reason of branch 0."""
         return np.where(self.any_valid, np.uint8(Reason.OK), self.reason[..., 0]).astype(np.uint8)
+
+
+def joint_offsets(rig: Rig) -> np.ndarray:
+    """Zero offsets (3,) in degrees, joint order: physical angle = axis reading + offset."""
+    alignment = getattr(rig, "alignment", None)
+    if alignment is None:
+        return np.zeros(3)
+    return np.array([alignment.offsets_deg.get(name, 0.0) for name in rig.joint_names], dtype=np.float64)
 
 
 def joints_array(rig: Rig, joints) -> np.ndarray:
@@ -101,8 +116,9 @@ def camera_direction(rig: Rig, alpha_deg) -> np.ndarray:
 
 
 def forward(rig: Rig, joints) -> tuple[np.ndarray, np.ndarray]:
-    """Light and view directions (w_i, w_o), unit (..., 3) in the sample frame, of joints (..., 3) deg."""
-    q = joints_array(rig, joints)
+    """Light and view directions (w_i, w_o), unit (..., 3) in the sample frame, of joints (..., 3) deg
+    as the axes read them (the rig's alignment offsets are added)."""
+    q = joints_array(rig, joints) + joint_offsets(rig)
     M = stage_rotation(rig, q[..., 1], q[..., 2])
     light = np.broadcast_to(np.asarray(rig.geometry.light_direction), q.shape)
     C = camera_direction(rig, q[..., 0])
@@ -119,7 +135,8 @@ def arm_side(rig: Rig) -> float:
 
 
 def inverse(rig: Rig, w_i, w_o) -> IKResult:
-    """Every joint solution reproducing (w_i, w_o) (unit or not, (..., 3), sample frame).
+    """Every joint solution reproducing (w_i, w_o) (unit or not, (..., 3), sample frame): the
+    targets to command (the rig's alignment offsets are taken off the geometric solution).
 
     See the module Notes for the two branches. Vectorised; no Python loop over pairs.
     """
@@ -131,27 +148,31 @@ def inverse(rig: Rig, w_i, w_o) -> IKResult:
         n_l = w_i[..., 2]                                           # n . L = cos theta_i
         n_p = (w_o[..., 2] - n_l * np.cos(alpha)) / np.sin(alpha)   # n . L_perp
         n_z = cross[..., 2] / np.sin(alpha)                         # n . z (direct branch)
-    psi = np.degrees(np.arctan2(n_p, n_l))
+    off = joint_offsets(rig)
+    psi = np.degrees(np.arctan2(n_p, n_l)) - off[1]
     tau = np.degrees(np.arctan2(n_z, np.hypot(n_l, n_p)))
     psi = _wrap_into(psi, rig.axis("sample_yaw").limits_deg)
-    alpha_deg = np.degrees(alpha)
-    joints = np.stack([np.stack([alpha_deg, psi, tau], -1), np.stack([alpha_deg, psi, -tau], -1)], -2)
+    alpha_deg = np.degrees(alpha) - off[0]
+    joints = np.stack([np.stack([alpha_deg, psi, tau - off[2]], -1), np.stack([alpha_deg, psi, -tau - off[2]], -1)], -2)
     reason = np.stack([pose_reason(rig, joints[..., b, :], w_i, w_o) for b in range(2)], -1)
     return IKResult(joints=joints, valid=reason == Reason.OK, reason=reason)
 
 
 def pose_reason(rig: Rig, joints: np.ndarray, w_i=None, w_o=None) -> np.ndarray:
-    """Reason code (uint8, shape (...)) why joints (..., 3) deg cannot be used; OK if they can."""
+    """Reason code (uint8, shape (...)) why commanded joints (..., 3) deg cannot be used; OK if they
+    can. The limits hold for the commanded joints; the stage's tilt limit and the arm separation
+    for the physical angles (joints + alignment offsets)."""
     q = np.asarray(joints, dtype=np.float64)
+    phys = q + joint_offsets(rig)
     g = rig.geometry
     arm, yaw, tilt = rig.ordered_axes
     reason = np.full(q.shape[:-1], Reason.OK, dtype=np.uint8)
     stage_bad = ~(_within(q[..., 1], yaw.limits_deg) & _within(q[..., 2], tilt.limits_deg)
-                  & (np.abs(q[..., 2]) <= g.tilt_limit_deg + _EPS_DEG))
+                  & (np.abs(phys[..., 2]) <= g.tilt_limit_deg + _EPS_DEG))
     reason[stage_bad | ~np.isfinite(q[..., 1:]).all(-1)] = Reason.STAGE_LIMIT
     reason[~_within(q[..., 0], arm.limits_deg)] = Reason.ARM_LIMIT
     # Precedence: the arm separation is the most fundamental (light and camera physically clash).
-    reason[~(np.abs(q[..., 0]) >= g.min_arm_separation_deg - _EPS_DEG)] = Reason.ARM_SEPARATION
+    reason[~(np.abs(phys[..., 0]) >= g.min_arm_separation_deg - _EPS_DEG)] = Reason.ARM_SEPARATION
     if w_i is not None:
         reason[(np.asarray(w_i)[..., 2] <= 0) | (np.asarray(w_o)[..., 2] <= 0)] = Reason.BELOW_SURFACE
     return reason

@@ -1,13 +1,15 @@
 """Reachability of every valid grid cell on a rig, and why the others cannot be measured.
 
-A cell is reachable when some inverse-kinematics branch puts every joint inside its limits.
-Swapping light and camera (reciprocity) never changes reachability on a rig of DESIGN.md's kind:
-the arm angle and the size of the tilt are symmetric in (w_i, w_o); so one inverse suffices.
-Results are cached on disk (``goniofrost.core.cache``) keyed by the rig's kinematic hash and the grid.
+A cell is reachable when some candidate pose (``planner.candidates``: two inverse-kinematics
+branches, each also with light and camera swapped) puts every joint inside its limits and lets the
+camera measure the patch (``planner.view``; when the rig has a camera model). Results are cached on
+disk (``goniofrost.core.cache``) keyed by the rig's kinematic hash, its alignment, its camera model
+and the grid.
 """
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,12 +17,13 @@ import numpy as np
 from goniofrost.core.cache import atomic_replace, cache_path, content_key
 from goniofrost.core.grid import MerlGrid
 
-from .kinematics import Reason, inverse
+from .candidates import best_reason, candidate_poses
+from .kinematics import Reason
 from .rig import Rig
 
 # Cells per chunk: bounds the temporary arrays to a few tens of MB whatever the grid.
 CHUNK_CELLS = 1 << 18
-_CACHE_VERSION = "reach-v1"
+_CACHE_VERSION = "reach-v2"
 
 
 @dataclass(frozen=True)
@@ -46,13 +49,14 @@ class ReachMap:
         return float(self.mask.mean()) if self.mask.size else 0.0
 
 
-def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True) -> ReachMap:
-    """Reachability of every valid cell of ``grid`` on ``rig`` (computed once, then read from disk)."""
-    key = content_key(_CACHE_VERSION, rig.kinematic_hash, grid.as_dict())
+def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True, progress: bool = False) -> ReachMap:
+    """Reachability of every valid cell of ``grid`` on ``rig`` (computed once, then read from disk;
+    ``progress``: a bar on stderr while computing)."""
+    key = content_key(_CACHE_VERSION, rig_key(rig), grid.as_dict())
     path = cache_path("reach", key, ".npy")
     reason = _read_cached(path, grid.n_valid) if use_cache else None
     if reason is None:
-        reason = compute_reasons(rig, grid)
+        reason = compute_reasons(rig, grid, progress=progress)
         if use_cache:
             _write_cached(path, reason)
     reason.setflags(write=False)
@@ -61,15 +65,28 @@ def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True) -> ReachMa
     return ReachMap(mask=mask, reason=reason, rig_hash=rig.kinematic_hash, grid=grid)
 
 
-def compute_reasons(rig: Rig, grid: MerlGrid) -> np.ndarray:
-    """uint8 (n_valid,) Reason codes of the valid cells, computed in chunks (no cache)."""
+def compute_reasons(rig: Rig, grid: MerlGrid, *, progress: bool = False) -> np.ndarray:
+    """uint8 (n_valid,) Reason codes of the valid cells, computed in chunks (no cache).
+
+    With a camera model the full grid takes a few seconds (four candidate poses per cell)."""
+    from tqdm import tqdm
+
     cells = grid.valid_cells
     reason = np.empty(cells.size, dtype=np.uint8)
-    # The full grid takes about a second: no progress bar needed.
-    for start in range(0, cells.size, CHUNK_CELLS):
+    starts = range(0, cells.size, CHUNK_CELLS)
+    for start in tqdm(starts, desc="reachability", unit="chunk", file=sys.stderr, leave=False,
+                      disable=not progress or len(starts) < 2):
         part = cells[start:start + CHUNK_CELLS]
-        reason[start:start + part.size] = inverse(rig, *grid.cell_directions(part)).best_reason
+        _, _, reasons = candidate_poses(rig, *grid.cell_directions(part))
+        reason[start:start + part.size] = best_reason(reasons)
     return reason
+
+
+def rig_key(rig: Rig) -> list:
+    """Everything of a rig that decides reachability: kinematics, alignment and camera model."""
+    alignment = None if rig.alignment is None else rig.alignment.hash
+    view = None if rig.view is None else rig.view.as_dict()
+    return [rig.kinematic_hash, alignment, view]
 
 
 def _read_cached(path, n_valid: int) -> np.ndarray | None:

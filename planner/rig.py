@@ -1,7 +1,8 @@
 """Rig files: the YAML description of a gonioreflectometer's geometry and axes, validated strictly.
 
-A rig file has ``name``, ``simulated``, ``geometry``, ``axes`` and optionally ``lamp``, ``camera``
-and ``sim`` (see ``config/rigs/template.yaml`` for every key, documented). This module owns the
+A rig file has ``name``, ``simulated``, ``geometry``, ``axes`` and optionally ``lamp``, ``camera``,
+``sim`` and ``alignment`` (the ALIGNMENT.json of ``goniofrost align``, relative to the rig file;
+see ``config/rigs/template.yaml`` for every key, documented). This module owns the
 geometry and the motion keys of each axis; the ``driver`` sections (of each axis and of the lamp),
 ``camera`` and ``sim`` belong to other packages and are checked by validators plugged in through
 ``section_validators`` (``goniofrost.capture.rig_file.load_checked_rig`` plugs in the real ones).
@@ -18,6 +19,7 @@ from goniofrost.core.cache import content_key
 from goniofrost.core.errors import ConfigError
 
 from . import schema as S
+from .alignment import load_alignment
 
 # validator(section, source, keypath) raises ConfigError on a bad section; it may return the
 # section with its defaults filled in, which the Rig then keeps.
@@ -36,7 +38,7 @@ class Role(str, enum.Enum):
 ROLE_ORDER = (Role.CAMERA_ARM, Role.SAMPLE_YAW, Role.SAMPLE_TILT)
 
 _TOP_REQUIRED = ("name", "geometry", "axes")
-_TOP_OPTIONAL = ("simulated", "lamp", "camera", "sim")
+_TOP_OPTIONAL = ("simulated", "lamp", "camera", "sim", "alignment")
 _GEOMETRY_KEYS = ("light_direction", "min_arm_separation_deg", "tilt_limit_deg")
 _AXIS_KEYS = ("role", "limits_deg", "speed_deg_s", "accel_deg_s2", "home_deg", "tolerance_deg", "driver")
 
@@ -88,6 +90,11 @@ class Rig:
     source: str
     kinematic_hash: str
     raw: dict = field(compare=False, repr=False)
+    # What the camera can measure (planner.view.Measurability; None: not checked) and the axes'
+    # zero offsets (planner.alignment.Alignment; None: a perfectly built rig). Attached by
+    # goniofrost.capture.rig_file.load_checked_rig from the camera section and the alignment file.
+    view: Any = field(default=None, compare=False, repr=False)
+    alignment: Any = None
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -134,9 +141,14 @@ def rig_from_mapping(raw: Any, source: str,
     lamp = _lamp(top.get("lamp", {}), source, validators.get("driver"))
     camera = _plugged(top, "camera", source, validators.get("camera"))
     sim = _plugged(top, "sim", source, validators.get("sim"))
+    alignment = None
+    if "alignment" in top:
+        written = Path(S.text(top["alignment"], source, "alignment"))
+        joint_order = [next(a.name for a in axes.values() if a.role is role) for role in ROLE_ORDER]
+        alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order)
     return Rig(name=name, simulated=simulated, geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(top))
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(top), alignment=alignment)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:
@@ -200,11 +212,15 @@ def _axis(name: str, value: Any, source: str, driver_check: SectionValidator | N
 
 def _lamp(value: Any, source: str, driver_check: SectionValidator | None) -> dict:
     lamp = S.mapping(value, source, "lamp")
-    S.check_keys(lamp, source, "lamp", (), ("driver",))
+    S.check_keys(lamp, source, "lamp", (), ("driver", "beam_diameter_mm"))
+    out = dict(lamp)
+    if "beam_diameter_mm" in lamp:
+        # the collimated beam, centred on the rotation centre: the patch must lie inside it
+        out["beam_diameter_mm"] = S.number(lamp["beam_diameter_mm"], source, "lamp.beam_diameter_mm",
+                                           low=0.0, low_open=True)
     if "driver" in lamp:
-        driver = _checked(S.mapping(lamp["driver"], source, "lamp.driver"), source, "lamp.driver", driver_check)
-        return {**lamp, "driver": driver}
-    return dict(lamp)
+        out["driver"] = _checked(S.mapping(lamp["driver"], source, "lamp.driver"), source, "lamp.driver", driver_check)
+    return out
 
 
 def _plugged(top: Mapping, key: str, source: str, check: SectionValidator | None) -> dict:

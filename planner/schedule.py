@@ -6,8 +6,10 @@ a new document whose samples are in capture order, each carrying ``selection_ind
 {axis name: deg}, ``move_s`` (planned move from the previous pose, from home for the first),
 ``branch`` ("direct" | "mirror", see ``planner.kinematics``) and ``light_camera_swapped``
 (reciprocity: the lamp plays w_o and the camera w_i; the same BRDF value). The top level gains
-``rig``, ``planned_motion_s`` (home -> samples -> home), ``return_home_s`` and
+``rig``, ``alignment`` (the zero offsets the joints were computed with, or None),
+``planned_motion_s`` (home -> samples -> home), ``return_home_s`` and
 ``selection_order_motion_s`` (same rig, samples in selection order, best pose per sample).
+Only poses the camera can measure are used (``planner.candidates``).
 
 ``schedule_batches(plan_doc, rig, batch_ends)`` does the same for a nested design measured in
 batches (a capture that may stop after any batch): the samples of each batch (selection indices
@@ -24,7 +26,8 @@ import numpy as np
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid, half_diff_to_dirs
 
-from .kinematics import BRANCHES, Reason, forward, inverse
+from .candidates import best_reason, candidate_poses
+from .kinematics import BRANCHES, Reason, forward
 from .motion import path_time
 from .order import Tour, fixed_order_tour, plan_tour
 from .rig import Rig
@@ -57,7 +60,7 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
     w_i, w_o = sample_directions(plan_doc)
-    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity)
+    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity)  # (n, k): usable and measurable
     _refuse_unreachable(samples, valid, reasons)
     order, choice, start = [], [], rig.home
     for a, b in zip([0] + ends[:-1], ends):
@@ -74,6 +77,7 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     out["samples"] = _capture_samples(rig, samples, tour, chosen)
     moves = _move_times(rig, chosen)
     out["rig"] = {"name": rig.name, "file": rig.source, "kinematic_hash": rig.kinematic_hash}
+    out["alignment"] = None if rig.alignment is None else rig.alignment.record()
     out["planned_motion_s"] = float(moves.sum())
     out["return_home_s"] = float(moves[-1])
     out["selection_order_motion_s"] = baseline.total_s
@@ -104,16 +108,6 @@ def cell_indices(sample: Mapping) -> tuple[int, int, int]:
     return tuple(int(c) for c in cell)
 
 
-def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True):
-    """Candidate poses (n, k, 3) deg, valid (n, k), reasons (n, k): k = 2 branches (+2 swapped)."""
-    direct = inverse(rig, w_i, w_o)
-    parts = [direct]
-    if reciprocity:
-        parts.append(inverse(rig, w_o, w_i))
-    return (np.concatenate([p.joints for p in parts], 1), np.concatenate([p.valid for p in parts], 1),
-            np.concatenate([p.reason for p in parts], 1))
-
-
 def check_reproduction(rig: Rig, joints, w_i, w_o, swapped) -> None:
     """Raise if forward(joints) misses theta_i, theta_o or angle(w_i, w_o) by > REPRODUCE_TOL_DEG."""
     f_i, f_o = forward(rig, joints)
@@ -137,8 +131,9 @@ def pair_angles(w_i, w_o) -> np.ndarray:
 
 
 def _refuse_unreachable(samples, valid: np.ndarray, reasons: np.ndarray) -> None:
+    best = best_reason(reasons)
     for s in np.flatnonzero(~valid.any(axis=1)):
-        why = Reason(int(reasons[s, 0])).name
+        why = Reason(int(best[s])).name
         raise UnreachableSampleError(
             f"plan sample {s} (cell {_cell_label(samples[s])}) cannot be reached on this rig: {why}")
 

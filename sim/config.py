@@ -17,9 +17,11 @@ Keys (``SIM_KEYS``; to add one, add a row)::
       faults:                  # fault drills; default none
         - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
                                                           # at or after plan sample 3, once
+      misalignment_deg:        # a rig built wrong on purpose (sim.misalignment); default none
+        {camera_arm: 0.6, sample_yaw: -1.1, sample_tilt: 0.4}   # axis stands at reading + this
 
 ``check_sim_against_rig(rig)`` (a second check the rig loader runs on the loaded rig) checks what
-needs the rest of the rig: every fault names one of the rig's axes.
+needs the rest of the rig: every fault and every misalignment names one of the rig's axes.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from goniofrost.core.config_check import check_section, is_number
 from goniofrost.core.errors import ConfigError
 
 from .faults import FAULT_KINDS
+from .misalignment import check_axes, check_values
 
 _ABSENT = object()  # a key without a default stays absent when not given
 
@@ -89,6 +92,7 @@ SIM_KEYS: dict[str, SimKey] = {
     "lamp": SimKey(_mapping, "a mapping with drift_per_hour", {}, nested=_lamp),
     "faults": SimKey(lambda v: isinstance(v, list), "a list of {axis, kind, at_sample} mappings", [],
                      nested=_faults),
+    "misalignment_deg": SimKey(_mapping, "a mapping {axis name: degrees}", {}, nested=check_values),
 }
 
 
@@ -124,3 +128,4 @@ def check_fault_axes(faults, axis_names, source, keypath: str = "sim.faults") ->
 def check_sim_against_rig(rig) -> None:
     """The checks of a loaded rig's ``sim`` section that need its other sections (planner Rig)."""
     check_fault_axes((rig.sim or {}).get("faults", []), rig.axes, rig.source)
+    check_axes((rig.sim or {}).get("misalignment_deg", {}), list(rig.joint_names), rig.source)

@@ -127,8 +127,10 @@ def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, ca
     rig_file = Path(RIG.source)
     assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    reach = reachability(RIG, GRID)
+    from goniofrost.capture.rig_file import load_checked_rig
+    reach = reachability(load_checked_rig(rig_file), GRID)   # with the camera model: measurable cells only
     assert f"{int(reach.mask.sum())} of {GRID.n_valid} valid cells reachable" in printed
+    assert f"PATCH_PIXELS {reach.counts()['PATCH_PIXELS']}" in printed and reach.counts()["PATCH_PIXELS"] > 0
     assert "selection order" in printed
     doc = read_plan(out)
     assert doc["rig"]["kinematic_hash"] == RIG.kinematic_hash and len(doc["samples"]) == 12

@@ -652,3 +652,84 @@ def test_target_error_needs_a_batched_plan_and_a_positive_number(setup, tmp_path
     assert main(capture_args(rig, plan, tmp_path / "b", "--target-error", "-1")) == 2
     assert "--target-error: expected a log-relative MSE > 0 (e.g. 0.05), found -1.0" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_sample_the_camera_cannot_measure_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = json.loads(plan.read_text())
+    # within every axis limit, but the camera sees the holder edge-on (arm 90 deg from the lamp,
+    # the sample facing the lamp)
+    doc["samples"][2]["joints"] = {"camera_arm": 90.0, "sample_yaw": 0.0, "sample_tilt": 0.0}
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert (f"{tmp_path / 'plan.json'}: samples[2].joints: expected a pose the camera can measure (enough patch "
+            f"pixels, the patch in the lamp's beam), found 'PATCH_PIXELS at theta_i ") in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_plan_scheduled_with_another_alignment_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan, model = setup
+    from goniofrost.core.cache import cache_path
+    from goniofrost.app.demo import plan_on_rig
+
+    aligned = tmp_path / "ALIGNMENT.json"
+    aligned.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.2, "sample_yaw": -0.3, "sample_tilt": 0.1}}))
+    err = run_refused(capture_args(rig, plan, tmp_path / "s", "--alignment", str(aligned)), capsys)
+    assert f"{plan}: alignment.hash: expected " in err and f"(the alignment {aligned} given to this capture)" in err
+    assert "found 'None: this plan was scheduled with another alignment" in err
+    plan_aligned = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig,
+                               tmp_path / "plan-aligned.json", alignment=aligned)
+    doc = json.loads(plan_aligned.read_text())
+    assert doc["alignment"]["offsets_deg"] == {"camera_arm": 0.2, "sample_yaw": -0.3, "sample_tilt": 0.1}
+    err = run_refused(capture_args(rig, plan_aligned, tmp_path / "s"), capsys)
+    assert "alignment.hash: expected null (no alignment given to this capture: pass the plan's with --alignment)" in err
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.2, "sample_yaw": -0.3, "sample_tilt": 0.0}}))
+    err = run_refused(capture_args(rig, plan_aligned, tmp_path / "s", "--alignment", str(other)), capsys)
+    assert f"(from {aligned}): this plan was scheduled with another alignment" in err
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "ALIGNMENT.json: (top level): expected an ALIGNMENT.json file (goniofrost align --out FILE), found 'no such file'"),
+    ("{", "ALIGNMENT.json: (top level): expected valid JSON, found 'Expecting property name"),
+    ({"offsets": {}}, "ALIGNMENT.json: offsets_deg: expected a mapping {axis name: degrees}, found None"),
+    ({"offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0}},
+     "ALIGNMENT.json: offsets_deg.sample_tilt: expected a zero offset in degrees within +-10, found 'nothing'"),
+    ({"offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0, "sample_tilt": 0.0, "lamp": 1.0}},
+     "ALIGNMENT.json: offsets_deg.lamp: expected an axis of the rig (camera_arm, sample_yaw, sample_tilt), found 'lamp'"),
+    ({"offsets_deg": {"camera_arm": "0.1", "sample_yaw": 0.0, "sample_tilt": 0.0}},
+     "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found '0.1'"),
+    ({"offsets_deg": {"camera_arm": 12.0, "sample_yaw": 0.0, "sample_tilt": 0.0}},
+     "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found 12.0"),
+])
+def test_a_bad_alignment_file_is_refused_naming_the_key(setup, tmp_path, capsys, content, message):
+    folder, rig, plan, _ = setup
+    path = tmp_path / "ALIGNMENT.json"
+    if content is not None:
+        path.write_text(content if isinstance(content, str) else json.dumps(content))
+    err = run_refused(capture_args(rig, plan, tmp_path / "s", "--alignment", str(path)), capsys)
+    assert f"{tmp_path}/{message}" in err
+    assert not (tmp_path / "s").exists()
+    # the same file named by the rig file's alignment key
+    raw = yaml.safe_load(rig.read_text())
+    raw["alignment"] = "ALIGNMENT.json"
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+    err = run_refused(capture_args(tmp_path / "rig.yaml", plan, tmp_path / "s"), capsys)
+    assert f"{tmp_path}/{message}" in err
+
+
+def test_a_bad_misalignment_section_is_refused_naming_the_key(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    for value, message in (({"camera_arm": 0.6, "turntable": 1.0},
+                             "sim.misalignment_deg.turntable: expected an axis of the rig (camera_arm, sample_yaw, "
+                             "sample_tilt), found 'turntable'"),
+                           ({"sample_yaw": 45.0}, "sim.misalignment_deg.sample_yaw: expected a zero error in degrees "
+                                                  "within +-10, found 45.0"),
+                           ([0.6, 1.1], "sim.misalignment_deg: expected a mapping {axis name: degrees}, found [0.6, 1.1]")):
+        raw = yaml.safe_load(rig.read_text())
+        raw["sim"]["misalignment_deg"] = value
+        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+        err = run_refused(capture_args(tmp_path / "rig.yaml", plan, tmp_path / "s"), capsys)
+        assert f"{tmp_path / 'rig.yaml'}: {message}" in err
+    assert not (tmp_path / "s").exists()

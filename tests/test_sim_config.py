@@ -30,7 +30,8 @@ def rig_with_sim(tmp_path, sim) -> Path:
 
 def test_defaults_are_filled_in():
     assert validate_sim_section({}, "rig.yaml") == {"clock_speedup": 1.0, "seed": 0,
-                                                    "lamp": {"drift_per_hour": 0.02}, "faults": []}
+                                                    "lamp": {"drift_per_hour": 0.02}, "faults": [],
+                                                    "misalignment_deg": {}}
     checked = load_checked_rig(SIM_RIG).sim
     assert (checked["clock_speedup"], checked["seed"], checked["lamp"]) == (20.0, 0, {"drift_per_hour": 0.02})
     assert checked["camera"]["prnu"] == 0.01  # the camera's own defaults, filled by its validator
@@ -50,6 +51,11 @@ def test_defaults_are_filled_in():
     ({"camera": {"width": 320}}, "sim.camera.width", f"one of {sorted(SIM_CAMERA_KEYS)}", "width"),
     ({"camera": {"white_level": 16383}}, "sim.camera.black_level", "an integer in [0, 65535)", "nothing"),
     ([1, 2], "sim", "a mapping", [1, 2]),
+    ({"misalignment_deg": [0.6, 1.1]}, "sim.misalignment_deg", "a mapping {axis name: degrees}", [0.6, 1.1]),
+    ({"misalignment_deg": {"sample_yaw": 45.0}}, "sim.misalignment_deg.sample_yaw",
+     "a zero error in degrees within +-10", 45.0),
+    ({"misalignment_deg": {"sample_yaw": "1"}}, "sim.misalignment_deg.sample_yaw",
+     "a zero error in degrees within +-10", "1"),
     ({"faults": "stall"}, "sim.faults", "a list of {axis, kind, at_sample} mappings", "stall"),
     ({"faults": ["stall"]}, "sim.faults[0]", "a mapping", "stall"),
     ({"faults": [{"axis": "sample_yaw", "kind": "jam", "at_sample": 3}]}, "sim.faults[0].kind",
@@ -84,6 +90,16 @@ def test_fault_drills_load_and_must_name_an_axis_of_the_rig(tmp_path):
         load_checked_rig(path)
     assert str(err.value) == (f"{path}: sim.faults[1].axis: expected one of the rig's axes "
                               "['camera_arm', 'sample_tilt', 'sample_yaw'], found 'sample_pitch'")
+
+
+def test_a_misalignment_loads_and_must_name_axes_of_the_rig(tmp_path):
+    built_wrong = {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}
+    assert load_checked_rig(rig_with_sim(tmp_path, {"misalignment_deg": built_wrong})).sim["misalignment_deg"] == built_wrong
+    path = rig_with_sim(tmp_path, {"misalignment_deg": {"camera_arm": 0.6, "turntable": 1.0}})
+    with pytest.raises(ConfigError) as err:
+        load_checked_rig(path)
+    assert str(err.value) == (f"{path}: sim.misalignment_deg.turntable: expected an axis of the rig "
+                              "(camera_arm, sample_yaw, sample_tilt), found 'turntable'")
 
 
 @pytest.mark.parametrize("sim, line", [

@@ -21,9 +21,6 @@ DEFAULT_MATERIAL = "red-plastic"
 DEFAULT_SAMPLES = 40  # the plan's m_max; the capture stops earlier once the target is met
 DEFAULT_TARGET_ERROR = 0.05  # log-relative MSE
 DEFAULT_SPEEDUP = 50.0  # simulated seconds per real second: motion and exposures of the demo rig
-# The camera finds the holder's markers up to about this view angle; grazing cells beyond it
-# cannot be measured on the simulated rig (as with a real camera), so the demo leaves them out.
-MAX_ANGLE_DEG = 70.0
 
 
 def default_rig_path() -> Path:
@@ -92,11 +89,11 @@ def train_without(material: str, grid, progress: bool):
     return model, cache_path("models", model.info["cache_key"], "")
 
 
-def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = MAX_ANGLE_DEG,
-                selector: str = "bayes") -> Path:
-    """Select m reachable cells on the rig (theta_i, theta_o <= max_angle) with the Bayesian
-    design (or FROST: ``selector="frost"``), schedule them (a Bayesian plan batch by batch),
-    write PLAN.json."""
+def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = None,
+                selector: str = "bayes", alignment=None) -> Path:
+    """Select m cells the rig can reach and its camera measure (the rig decides; optionally also
+    theta_i, theta_o <= max_angle) with the Bayesian design (or FROST: ``selector="frost"``),
+    schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json."""
     from planner.reach import reachability
     from planner.schedule import schedule_batches, schedule_plan
 
@@ -105,7 +102,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
-    rig = load_checked_rig(rig_path)
+    rig = load_checked_rig(rig_path, alignment)
     candidates = reachability(rig, model.grid).mask
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)

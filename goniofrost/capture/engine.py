@@ -375,10 +375,15 @@ def _exposed(_step: Expose, frame) -> dict:
 
 def _remedy(exc) -> str:
     """What an operator can do about a measurement that failed (empty if nothing specific)."""
-    from calib.errors import MarkerError, SaturationError, UnderexposedError
+    from calib.errors import MarkerError, MisalignedError, PatchTooSmallError, SaturationError, UnderexposedError
 
+    if isinstance(exc, MisalignedError):
+        return ("Run goniofrost align on this rig and capture with --alignment (or fix the camera model in "
+                "the rig file). ")
+    if isinstance(exc, PatchTooSmallError):
+        return "The rig file's camera model differs from the camera: check camera.intrinsics and camera.mount. "
     if isinstance(exc, MarkerError):
-        return "If the camera cannot see the holder at this angle, plan again with --max-angle. "
+        return "Check that the right holder card is mounted and lit. "
     if isinstance(exc, SaturationError):
         return "Add shorter exposures to camera.exposures_s in the rig file (or dim the lamp). "
     if isinstance(exc, UnderexposedError):

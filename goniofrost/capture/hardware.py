@@ -76,11 +76,12 @@ def _simulated(rig, *, material, seed, speedup):
     seed = int(sim_section.get("seed", 0) if seed is None else seed)
     name, brdf = material_brdf(material) if material is not None else (None, None)
     side = arm_side(rig)
+    pose = simulated_pose(rig)
     with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
         simulation.start()
         devices = RigDevices.from_sections(simulation.resolved_driver_sections())
         with _connected(devices):
-            camera = SimCamera(name, brdf, lambda: simulated_pose(rig, simulation.true_joints_deg()),
+            camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()),
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
                                model=CameraModel.from_section(rig.camera), arm_side=side)
             camera.connect()
@@ -90,12 +91,18 @@ def _simulated(rig, *, material, seed, speedup):
                 camera.close()
 
 
-def simulated_pose(rig, encoder_deg: dict):
-    """The light and view directions (w_i, w_o) the simulated camera really sees at the simulated
-    axes' encoder positions (degrees by axis name)."""
-    from planner.kinematics import forward
+def simulated_pose(rig):
+    """``pose(encoder_deg) -> (w_i, w_o)``: the light and view directions the simulated camera
+    really sees at the simulated axes' encoder positions (degrees by axis name): the rig as built,
+    with its ``sim.misalignment_deg`` and without whatever alignment the session believes in."""
+    import dataclasses
 
-    return forward(rig, encoder_deg)
+    from planner.kinematics import forward
+    from sim.misalignment import physical_joints
+
+    built = dataclasses.replace(rig, alignment=None)
+    errors = dict((rig.sim or {}).get("misalignment_deg", {}))   # checked by sim.config with the rig
+    return lambda encoder_deg: forward(built, physical_joints(encoder_deg, errors))
 
 
 @contextmanager

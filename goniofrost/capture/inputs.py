@@ -1,9 +1,11 @@
 """Checks before anything moves: the rig, the plan and the model must belong together.
 
-A plan names the model it was selected with (``model.path`` and ``model.hash``) and the rig it
-was scheduled for (``rig.kinematic_hash``); every sample carries its joint targets. Anything
-that does not match is refused here with a ConfigError naming the file, the field, what was
-expected and what was found, before a single device is connected.
+A plan names the model it was selected with (``model.path`` and ``model.hash``), the rig it was
+scheduled for (``rig.kinematic_hash``) and the alignment its joints were computed with
+(``alignment.hash``, or null); every sample carries its joint targets, and each must be a pose
+the camera can measure (``planner.candidates.measurable_reason``). Anything that does not match
+is refused here with a ConfigError naming the file, the field, what was expected and what was
+found, before a single device is connected.
 """
 from __future__ import annotations
 
@@ -38,20 +40,23 @@ class SessionInputs:
         return self.plan["samples"]
 
 
-def load_inputs(rig_path, plan_path) -> SessionInputs:
-    """Load the rig file, the plan and the plan's model, and check they belong together."""
+def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
+    """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the
+    plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
     from goniofrost.capture.plan_file import read_plan
     from goniofrost.capture.rig_file import load_checked_rig
 
-    rig = load_checked_rig(rig_path)
+    rig = load_checked_rig(rig_path, alignment_path)
     plan_path = Path(plan_path)
     plan = read_plan(plan_path)
     model_path = resolve_model_path(plan, plan_path)
     model = FrostModel.load(model_path)
     check_model(plan, plan_path, model, model_path)
     check_rig(plan, plan_path, rig)
+    check_alignment(plan, plan_path, rig)
     check_joints(plan, plan_path, rig)
+    check_measurable(plan, plan_path, rig)
     cells = plan_cells(plan, plan_path, model.grid)
     check_consistency(plan, plan_path, model.grid, rig, cells)
     return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
@@ -86,6 +91,35 @@ def check_rig(plan: dict, plan_path, rig) -> None:
                           f"{rig.kinematic_hash} of rig {rig.name!r} ({rig.source})",
                           f"{section['kinematic_hash']} (scheduled for rig {section.get('name')!r}, "
                           f"{section.get('file')})")
+
+
+def check_alignment(plan: dict, plan_path, rig) -> None:
+    """Refuse a plan whose joints were computed with other axis zero offsets than the rig's now."""
+    written = plan.get("alignment")
+    want = None if rig.alignment is None else rig.alignment.hash
+    found = written.get("hash") if isinstance(written, dict) else written
+    if found == want:
+        return
+    expected = (f"{want} (the alignment {rig.alignment.source} given to this capture)" if want is not None
+                else "null (no alignment given to this capture: pass the plan's with --alignment)")
+    found_text = f"{found} (from {written.get('file')})" if isinstance(written, dict) else found
+    raise ConfigError(plan_path, "alignment.hash", expected,
+                      f"{found_text}: this plan was scheduled with another alignment; plan again or capture with it")
+
+
+def check_measurable(plan: dict, plan_path, rig) -> None:
+    """Refuse a sample whose pose the camera cannot measure (too few patch pixels, outside the beam)."""
+    from planner.candidates import measurable_reason
+    from planner.kinematics import Reason, joints_array
+
+    samples = plan["samples"]
+    joints = np.array([joints_array(rig, s["joints"]) for s in samples])
+    reason = measurable_reason(rig, joints)
+    for i in np.flatnonzero(reason != Reason.OK):
+        raise ConfigError(plan_path, f"samples[{i}].joints",
+                          "a pose the camera can measure (enough patch pixels, the patch in the lamp's beam)",
+                          f"{Reason(int(reason[i])).name} at theta_i {samples[i].get('theta_i_deg', float('nan')):.1f} deg, "
+                          f"theta_o {samples[i].get('theta_o_deg', float('nan')):.1f} deg")
 
 
 def check_joints(plan: dict, plan_path, rig) -> None:

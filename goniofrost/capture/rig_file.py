@@ -4,6 +4,10 @@
 by ``drivers.config.validate_driver_section``, the ``camera`` section by ``calib.config`` and the
 ``sim`` section by ``sim.config``. Each validator is imported when a rig is loaded; one that is
 named here but cannot be found is an ImportError, never a section left unchecked.
+
+The loaded rig carries what the camera can measure (``planner.view.Measurability``, from the
+camera model and the holder card of ``calib.holder``) and its alignment (the rig file's
+``alignment`` key, or the ``--alignment`` file that overrides it).
 """
 from __future__ import annotations
 
@@ -11,8 +15,12 @@ import importlib
 from pathlib import Path
 from typing import Callable, Mapping
 
+import dataclasses
+
+from planner.alignment import load_alignment
 from planner.rig import Rig
 from planner.rig import load_rig as _load_rig
+from planner.view import Measurability
 
 # section -> (module, function) of its validator: validator(section, source, keypath) -> None.
 VALIDATORS: dict[str, tuple[str, str]] = {
@@ -22,7 +30,7 @@ VALIDATORS: dict[str, tuple[str, str]] = {
 }
 # checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.
 RIG_CHECKS: tuple[tuple[str, str], ...] = (
-    ("sim.config", "check_sim_against_rig"),  # every fault drill names an axis of the rig
+    ("sim.config", "check_sim_against_rig"),  # every fault drill and misalignment names an axis of the rig
 )
 
 
@@ -45,9 +53,28 @@ def section_validators() -> dict[str, Callable[[Mapping, str, str], None]]:
             for section, (module_name, func_name) in VALIDATORS.items()}
 
 
-def load_checked_rig(path: str | Path) -> Rig:
-    """Read and fully validate a rig file (raises goniofrost.core.errors.ConfigError)."""
+def load_checked_rig(path: str | Path, alignment: str | Path | None = None) -> Rig:
+    """Read and fully validate a rig file (raises goniofrost.core.errors.ConfigError); attach its
+    measurability and its alignment (``alignment``: an ALIGNMENT.json overriding the rig file's)."""
     rig = _load_rig(path, section_validators())
     for module_name, func_name in RIG_CHECKS:
         _function(module_name, func_name, "the rig file")(rig)
-    return rig
+    if alignment is not None:
+        rig = dataclasses.replace(rig, alignment=load_alignment(alignment, list(rig.joint_names)))
+    return dataclasses.replace(rig, view=measurability(rig))
+
+
+def measurability(rig: Rig) -> Measurability | None:
+    """What the rig's camera can measure (None without a camera model)."""
+    from calib.holder import DEFAULT_LAYOUT
+    from goniofrost.core.camera_model import CameraModel
+
+    camera = rig.camera or {}
+    if "intrinsics" not in camera or "mount" not in camera:
+        return None
+    beam = rig.lamp.get("beam_diameter_mm")
+    return Measurability(camera=CameraModel.from_section(camera),
+                         roi_mm=tuple(map(tuple, DEFAULT_LAYOUT.patch_polygon(camera["roi_margin"]))),
+                         patch_mm=tuple(map(tuple, DEFAULT_LAYOUT.patch_polygon(0.0))),
+                         min_pixels=int(camera["min_roi_pixels"]),
+                         beam_radius_mm=None if beam is None else beam / 2.0)

@@ -32,20 +32,21 @@ class CaptureOutcome:
 
 def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
-            on_ready=None, target_error: float | None = None) -> CaptureOutcome:
+            on_ready=None, target_error: float | None = None, alignment=None) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests);
     ``target_error``: measure the plan batch by batch and stop once this material's predicted
     log-relative MSE is at most this (``goniofrost.capture.target``; the plan needs batch_ends).
+    ``alignment``: an ALIGNMENT.json that overrides the rig file's ``alignment``.
     """
     from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.report import summary_text, write_outputs
     from goniofrost.capture.session_lock import session_lock
 
-    inputs = load_inputs(rig_path, plan_path)
+    inputs = load_inputs(rig_path, plan_path, alignment)
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
     check_target(inputs, target_error)
@@ -159,6 +160,7 @@ def session_meta(inputs, material: str | None, target_error: float | None = None
         "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
         "rig_file": str(inputs.rig.source), "rig_text": Path(inputs.rig.source).read_text(),
         "rig_name": inputs.rig.name, "kinematic_hash": inputs.rig.kinematic_hash,
+        "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
         "model_path": str(inputs.model_path), "model_hash": inputs.model.content_hash,
         "material": material, "target_error": None if target_error is None else float(target_error),
     }

@@ -12,6 +12,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--session", required=True, metavar="DIR", help="session folder (journal, RAW files, results)")
     parser.add_argument("--material", metavar="SPEC:NAME",
                         help="simulated rig: the ground-truth material the simulated camera sees (e.g. builtin:NAME)")
+    parser.add_argument("--alignment", metavar="ALIGNMENT.json",
+                        help="the axes' zero offsets from goniofrost align (overrides the rig file's alignment key); "
+                             "must be the one the plan was scheduled with")
     parser.add_argument("--resume", action="store_true", help="continue the session journaled in DIR")
     parser.add_argument("--target-error", type=float, metavar="E",
                         help="measure a Bayesian plan batch by batch in design order and stop as soon as this "
@@ -39,7 +42,7 @@ def run(args) -> int:
         with watch:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
-                              target_error=args.target_error)
+                              target_error=args.target_error, alignment=args.alignment)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)

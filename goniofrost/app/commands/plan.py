@@ -17,14 +17,19 @@ def add_arguments(parser) -> None:
                              "reconstruction, nested (the first m samples are the best m); frost: SOMP as in "
                              "the paper")
     parser.add_argument("--max-angle", type=float, metavar="DEG",
-                        help="skip cells whose theta_i or theta_o exceeds DEG degrees")
+                        help="skip cells whose theta_i or theta_o exceeds DEG degrees (not needed with --rig: "
+                             "the rig's camera model keeps only cells it can measure)")
     parser.add_argument("--y-form", choices=("all", "firstm"), default=None,
                         help="frost only: training signals in Y: the first m columns (default, as the authors' "
                              "code) or all of them")
     parser.add_argument("--atoms", type=int, metavar="K",
                         help="frost only: atoms k used in selection (default m; all with --max-error)")
     parser.add_argument("--rig", metavar="RIG.yaml",
-                        help="select only cells this rig can reach, add joint targets and order them for least motion")
+                        help="select only cells this rig can reach and its camera can measure, add joint targets and "
+                             "order them for least motion")
+    parser.add_argument("--alignment", metavar="ALIGNMENT.json",
+                        help="with --rig: the axes' zero offsets from goniofrost align (overrides the rig file's "
+                             "alignment key); the plan records it and capture refuses another")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
 
 
@@ -41,14 +46,19 @@ def run(args) -> int:
         from goniofrost.frost.selection import candidate_mask_max_angle
         mask = candidate_mask_max_angle(model.grid, args.max_angle)
     rig = None
+    if args.alignment is not None and args.rig is None:
+        from goniofrost.core.errors import ConfigError
+        raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
+                          args.alignment)
     if args.rig is not None:
         from goniofrost.capture.rig_file import load_checked_rig
         from planner.reach import reachability
-        rig = load_checked_rig(args.rig)
-        reach = reachability(rig, model.grid)
+        rig = load_checked_rig(args.rig, args.alignment)
+        reach = reachability(rig, model.grid, progress=True)
         mask = reach.mask if mask is None else mask & reach.mask
         why = ", ".join(f"{k} {v}" for k, v in reach.counts().items() if k != "OK" and v)
-        print(f"rig {rig.name}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
+        aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
+        print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
     selection = _select(model, args, mask)
     doc = plan_document(args.model, model, selection)
