@@ -12,7 +12,7 @@ import sys
 
 from goniofrost.core.errors import GoniofrostError
 
-COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "capture", "sim",
+COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "align", "capture", "sim",
             "bench", "preview", "demo", "export", "monitor"]
 
 
