@@ -178,3 +178,34 @@ def test_batches_are_ordered_each_on_its_own_and_keep_the_design_order():
     assert [s["selection_index"] for s in whole["samples"]] == [s["selection_index"] for s in schedule_plan(doc, RIG)["samples"]]
     with pytest.raises(ValueError, match="batch_ends: expected increasing sample counts ending at 22"):
         schedule_batches(doc, RIG, [10, 30])
+
+
+def test_plan_command_with_an_alignment_records_it_and_refuses_a_bad_one(small_model, tmp_path, capsys):
+    import json
+    from goniofrost.app.cli import main
+    from goniofrost.capture.plan_file import read_plan
+    rig_file, out = str(Path(RIG.source)), tmp_path / "plan.json"
+    aligned = tmp_path / "alignment.json"
+    aligned.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}}))
+    base = ["plan", "--model", str(small_model), "--samples", "6", "--out", str(out)]
+    assert main(base + ["--rig", rig_file, "--alignment", str(aligned)]) == 0
+    assert f"rig sim-rig (aligned: {aligned})" in capsys.readouterr().out
+    doc = read_plan(out)
+    assert doc["alignment"]["offsets_deg"] == {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}
+    # the joints are commands: reading + offset reproduces every sample's cell
+    from goniofrost.capture.rig_file import load_checked_rig
+    from planner.kinematics import joints_array
+    from planner.schedule import check_reproduction
+    rig = load_checked_rig(rig_file, aligned)
+    joints = np.array([joints_array(rig, s["joints"]) for s in doc["samples"]])
+    w_i, w_o = np.array([s["w_i"] for s in doc["samples"]]), np.array([s["w_o"] for s in doc["samples"]])
+    check_reproduction(rig, joints, w_i, w_o, np.array([s["light_camera_swapped"] for s in doc["samples"]]))
+    out.unlink()
+    assert main(base + ["--alignment", str(aligned)]) == 2
+    assert "command line: --alignment: expected --rig RIG.yaml as well (an alignment belongs to a rig)" in \
+        capsys.readouterr().err
+    aligned.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.6}}))
+    assert main(base + ["--rig", rig_file, "--alignment", str(aligned)]) == 2
+    assert f"{aligned}: offsets_deg.sample_yaw: expected a zero offset in degrees within +-10, found 'nothing'" in \
+        capsys.readouterr().err
+    assert not out.exists()
