@@ -6,7 +6,9 @@ uncertainty combines the patch's standard error, the white reference's and the p
 
 Error policy: sample pixels saturated even at the shortest exposure -> SaturationError (raised by
 the bracket); SNR below ``min_snr`` even with the longest useful exposure -> UnderexposedError;
-between ``min_snr`` and ``target_snr`` the sample is returned with the flag ``"low-snr"``.
+between ``min_snr`` and ``target_snr`` the sample is returned with the flag ``"low-snr"``; read
+markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
+within it) flag ``"markers-off"``: the rig may be misaligned (``goniofrost align``).
 """
 from __future__ import annotations
 
@@ -81,11 +83,20 @@ def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, captur
     rgb = mean / (rec.scale * w_i[2])
     rel = np.sqrt((se / mean) ** 2 + (rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
     snr = mean / se
-    flags = _snr_flags(snr, bracket)
+    flags = _snr_flags(snr, bracket) + _marker_flags(bracket)
     taken = len(bracket.frames)
     return SampleMeasurement(sample_id, rgb, np.abs(rgb) * rel, snr, bracket.exposures_s, taken,
                              len(bracket.ladder) - taken, list(bracket.paths), bracket.lamp_relative,
                              capture_seconds, clock_seconds, flags, bracket.roi_source_, bracket.marker_offset_px_)
+
+
+MARKERS_OFF_FRACTION = 0.25   # of marker_tolerance_px: beyond it a sample is flagged "markers-off"
+
+
+def _marker_flags(bracket: Bracket) -> list:
+    offset = bracket.marker_offset_px_
+    limit = MARKERS_OFF_FRACTION * bracket.settings["marker_tolerance_px"]
+    return ["markers-off"] if offset is not None and offset > limit else []
 
 
 def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:

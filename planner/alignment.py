@@ -80,7 +80,7 @@ class AlignmentError(GoniofrostError):
     """The alignment could not be measured well enough (names what failed)."""
 
 
-# Limits of a trustworthy fit (tests/test_alignment.py; the simulated rig leaves ~0.05 px and ~0.05 %).
+# Limits of a trustworthy fit (tests/test_alignment.py; the simulated rig leaves ~0.1 px and ~0.03 %).
 MIN_IMAGES = 8                  # images with a readable marker set
 MIN_PHOTOMETRIC = 6             # images with the white tile's brightness
 MAX_RESIDUAL_PX = 1.0           # RMS distance of the marker corners from the fitted model
@@ -154,13 +154,13 @@ def fit_alignment(rig, camera, observations, *, fit_lamp: bool = True) -> Alignm
     sigma = {"rot": np.radians(0.05), "px": 0.2, "ph": 0.002}
     if all(o.pnp_rotation is not None for o in obs):
         x = least_squares(lambda p: model.residuals(p, sigma, rotations=True), x, x_scale=model.scale).x
-    for _ in range(2):   # fit, re-estimate each group's scatter, fit again
-        result = least_squares(lambda p: model.residuals(p, sigma), x, x_scale=model.scale)
-        x = result.x
+    for _ in range(2):   # fit, re-estimate each group's scatter from its residuals
+        x = least_squares(lambda p: model.residuals(p, sigma), x, x_scale=model.scale).x
         px, ph = model.pixel_residuals(x), model.photometric_residuals(x)
         sigma["px"] = max(float(np.sqrt(np.sum(px ** 2) / max(px.size - 3, 1))), 1e-3)
-        sigma["ph"] = max(float(np.sqrt(np.sum(ph ** 2) / max(ph.size - model.n_params + 2, 1))), 1e-5)
-    cov = _covariance(result.jac)
+        sigma["ph"] = max(float(np.sqrt(np.sum(ph ** 2) / max(ph.size - 2, 1))), 1e-5)
+    result = least_squares(lambda p: model.residuals(p, sigma), x, x_scale=model.scale)   # with those weights
+    x, cov = result.x, _covariance(result.jac)
     px = np.linalg.norm(model.pixel_residuals(x).reshape(-1, 2), axis=1)
     ph = model.photometric_residuals(x)
     fit = AlignmentFit(
@@ -194,7 +194,7 @@ def check_fit(fit: AlignmentFit) -> None:
 # lamp keeps the yaw from going further negative with a view in range); views 25-62 deg off the
 # normal foreshorten the card enough for its pose to fix the arm-yaw difference and keep every
 # marker readable; lamp incidence <= 70 deg keeps the tile bright. Two arm angles per (yaw,
-# tilt): at most 36 poses, each one move and one frame.
+# tilt): at most 36 poses, each one move and two frames.
 ALIGN_YAWS_DEG = (-30.0, -15.0, 0.0, 20.0, 40.0, 55.0)
 ALIGN_TILTS_DEG = (-35.0, 0.0, 35.0)
 ALIGN_ARM_FROM_NORMAL_DEG = (25.0, 42.0, 58.0)

@@ -299,3 +299,19 @@ def test_open_camera_builds_a_folder_camera_that_runs_the_trigger(rig, spec, tmp
     cam.connect()
     frame = cam.capture(0.004, tmp_path / "frame.dng")
     assert frame.path.read_bytes() == src.read_bytes() and frame.metadata["source"].endswith("IMG_0.004.dng")
+
+
+def test_a_sample_whose_markers_sit_off_the_prediction_is_flagged(rig, calibrated, spec, tmp_path):
+    """The pose the session believes in is 2 deg off the real one (an unaligned rig): the markers
+    are read some pixels from the camera model's prediction, within the tolerance, and the sample
+    says so; the region still comes from the markers."""
+    import cv2
+    bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(30.0, 45.0, 160.0)
+    up = np.cross(w_i, w_o) / np.linalg.norm(np.cross(w_i, w_o))
+    turn = cv2.Rodrigues(up * np.radians(2.0))[0]
+    m = _calibrator(rig, calibrated, bench).measure(turn @ w_i, turn @ w_o, tmp_path, 3)
+    assert m.roi_source == "markers" and 5.0 < m.marker_offset_px < 20.0 and "markers-off" in m.flags
+    right = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
+    assert right.roi_source == "markers" and right.marker_offset_px < 1.5 and right.flags == []

@@ -25,7 +25,7 @@ from frame_script import CAMERA_MODEL, LADDER, render_table
 
 AXES = ("theta_i", "theta_o", "phi_o")
 CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
-                                  **CAMERA_MODEL,
+                                  **CAMERA_MODEL, "marker_tolerance_px": 200.0,   # scripted frames: one pose
                                   "flat_frames": 2}, "test")
 SAMPLES = [{"joints": {"theta_i": 0.0, "theta_o": 30.0 + 5 * i, "phi_o": 180.0 - 10 * i}, "theta_h_deg": 10.0 + i,
             "theta_d_deg": 20.0 + i, "phi_d_deg": 90.0, "theta_i_deg": 0.0, "theta_o_deg": 30.0 + 5 * i}

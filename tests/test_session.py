@@ -159,6 +159,34 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     np.testing.assert_array_equal(read_merl(session / "brdf.binary", GRID), brdf)
 
 
+def test_on_a_rig_built_wrong_the_capture_without_alignment_completes_flagged_and_worse(setup, tmp_path, capsys):
+    """The same plan on the simulated rig with the issue's zero errors: the markers sit off the camera
+    model's prediction (flagged, under the tolerance), and the samples, measured at other
+    directions than recorded, are far worse; with the true offsets they are right again."""
+    folder, rig, plan, model = setup
+    raw = yaml.safe_load(rig.read_text())
+    raw["sim"]["misalignment_deg"] = {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}
+    raw["camera"]["marker_tolerance_px"] = 8.0   # this sensor sees 2.4 px/mm, a third of sim.yaml's 8
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(capture_args(wrong, plan, tmp_path / "s", "--speedup", "50")) == 0
+    out = capsys.readouterr().out
+    report = json.loads((tmp_path / "s" / "report.json").read_text())
+    assert report["markers_off"] and "the rig may be misaligned; run goniofrost align" in out
+    unaligned = report["ground_truth"]["sample_relative_error_median_at_measured_directions"]
+
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    exact = tmp_path / "alignment.json"
+    exact.write_text(json.dumps({"offsets_deg": raw["sim"]["misalignment_deg"]}))
+    aligned_plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, wrong,
+                               tmp_path / "plan.json", alignment=exact)
+    assert main(capture_args(wrong, aligned_plan, tmp_path / "a", "--speedup", "50", "--alignment", str(exact))) == 0
+    report = json.loads((tmp_path / "a" / "report.json").read_text())
+    aligned = report["ground_truth"]["sample_relative_error_median_at_measured_directions"]
+    assert report["markers_off"] == [] and aligned < 0.01 and unaligned > 5 * aligned
+
+
 # ----- nothing lost ----------------------------------------------------------------------------
 def start_capture(rig, plan, session, speedup: str) -> subprocess.Popen:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}

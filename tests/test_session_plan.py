@@ -23,7 +23,7 @@ from frame_script import CAMERA_MODEL, LADDER, render_table
 
 AXES = ("theta_i", "theta_o", "phi_o")    # the plan does not care what the joints mean
 CAMERA = validate_camera_section({"kind": "sim", "exposures_s": LADDER, "target_snr": 100.0, "dark_frames": 1,
-                                  **CAMERA_MODEL,
+                                  **CAMERA_MODEL, "marker_tolerance_px": 200.0,   # scripted frames: one pose
                                   "flat_frames": 2, "white_reference": {"theta_i_deg": 0.0, "theta_o_deg": 30.0}},
                                  "test")
 WHITE = {"theta_i": 0.0, "theta_o": 30.0, "phi_o": 180.0}

@@ -51,6 +51,7 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
                     "motion_and_capture": motion + capture, "session_clock_this_run": stats.ended_clock - stats.started_clock,
                     "wall_this_run": stats.wall_s, "planned_motion": _planned_motion(inputs.plan)},
         "snr": {"min": float(snr.min()), "median": float(np.median(snr)), "max": float(snr.max())},
+        "markers_off": [r.plan_index for r in records if "markers-off" in r.status.split(",")],
         "per_sample": [{"index": r.plan_index, "cell": r.cell, "theta_h_deg": r.theta_h_deg,
                         "theta_d_deg": r.theta_d_deg, "phi_d_deg": r.phi_d_deg, "rgb": list(r.rgb),
                         "sigma": list(r.sigma), "snr": r.snr, "move_s": r.move_s, "capture_s": r.capture_s}
@@ -205,6 +206,11 @@ def summary_text(report: dict) -> str:
                      + ", ".join(f"{b['samples']}: {b['predicted_error']:.4g}" for b in target["batches"]))
     lines.append(f"predicted error of this reconstruction: log-relative MSE {report['prediction']['predicted_log_relative_mse']:.4g}"
                  f" (per-cell standard deviation in {report['outputs']['std']})")
+    off = report.get("markers_off", [])
+    if off:
+        lines.append(f"{len(off)} sample(s) saw the holder's markers away from where the camera model puts them "
+                     f"(flag markers-off: {' '.join(map(str, off))}): the rig may be misaligned; run goniofrost align "
+                     f"and capture with --alignment")
     truth = report.get("ground_truth")
     if truth:
         lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")
