@@ -379,7 +379,8 @@ def test_capture_with_bsdf_writes_the_export_of_its_binary(tmp_path, capsys):
     repo = Path(__file__).resolve().parents[1]
     rig = yaml.safe_load((repo / "config" / "rigs" / "sim.yaml").read_text())
     rig["camera"].update(exposures_s=[0.002, 0.008, 0.032, 0.128], dark_frames=1, flat_frames=1)
-    rig["sim"]["camera"].update(width=192, height=144)
+    rig["camera"]["intrinsics"].update(image_size_px=[192, 144], focal_px=[1900.0, 1900.0],   # a small sensor
+                                       principal_point_px=[95.5, 71.5])
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
     model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=SMALL, k_max=12,
                   cache=True)
