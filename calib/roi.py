@@ -32,8 +32,6 @@ UPSAMPLE = 2
 MIN_MARKER_PX = 10.0
 # Markers thinner than this are also searched for in 2x upsampled views (slower, needed when thin).
 UPSAMPLE_BELOW_PX = 24.0
-# Pixels of a 3x3 erosion survive when their centre lies this far inside the polygon.
-ERODE_PX = float(np.sqrt(2.0))
 
 
 @dataclass(frozen=True)
