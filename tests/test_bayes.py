@@ -169,6 +169,10 @@ def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):
     # 50 % sample noise: a larger design error, residuals the noise now explains, wider std
     assert noisy.design_error > plain.design_error and noisy.z2 < plain.z2
     assert np.all(noisy.std[pos] > plain.std[pos])
+    # the prediction: calibrated on the noise-free design error, plus what the noise adds to it
+    expected = float(prediction.predict(prediction.calibration_of(model), plain.design_error, noisy.z2,
+                                        noisy.energy, 15)) + noisy.design_error - plain.design_error
+    assert noisy.predicted_error == pytest.approx(expected, rel=1e-9)
     with pytest.raises(Exception, match="sample 2 standard deviation: negative value"):
         reconstruct_bayes(model, pos, truth[pos], sigmas=np.where(np.arange(15)[:, None] == 2, -1.0, 0.1) * np.ones((15, 3)))
 

@@ -15,7 +15,10 @@ The predicted log-relative MSE of the whole reconstructed BRDF is
 
 m' = the number of sampled cells clamped into the range the coefficients were fitted on. The
 coefficients come from the model (fitted by least squares on held-out training materials,
-``calibration.py``); a model without them uses b = (0, 1, 1, 0, 0), i.e. E * z2.
+``calibration.py``); a model without them uses b = (0, 1, 1, 0, 0), i.e. E * z2. The training
+materials' samples are exact, so measured samples with their own variance get the calibrated
+prediction with E computed without that variance, plus the increase of E it causes (what the
+model says the measurement noise costs; ``reconstruction._posterior``).
 """
 from __future__ import annotations
 

@@ -118,7 +118,13 @@ def predicted_error(model: FrostModel, positions, values, sigmas=None) -> float:
 
 def _posterior(model: FrostModel, positions, values, sigmas):
     """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
-    Posterior, (predicted error, design error, z2, energy))."""
+    Posterior, (predicted error, design error, z2, energy)).
+
+    The calibration was fitted on noise-free samples, so the samples' own variance enters the
+    prediction as what the model says it costs: the design error with it minus the design error
+    without it (the extra posterior variance, averaged over every cell), added to the calibrated
+    prediction made with the design error without it.
+    """
     from goniofrost.frost import posterior, prediction
 
     positions, values = _check_samples(model, positions, values)
@@ -128,11 +134,15 @@ def _posterior(model: FrostModel, positions, values, sigmas):
     mu = np.asarray(model.mean, dtype=np.float64)
     b = model.to_log(mean_values, unique) - mu[unique][:, None]
     s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
-    post = posterior.fit(model.dictionary[unique], noise, posterior.prior_variance(model), b, s2,
-                         float(cell_noise.sum()), model.grid.n_valid)
+    rows, prior = model.dictionary[unique], posterior.prior_variance(model)
+    total, n = float(cell_noise.sum()), model.grid.n_valid
+    post = posterior.fit(rows, noise, prior, b, s2, total, n)
     design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
-    predicted = float(prediction.predict(prediction.calibration_of(model), design, z2, energy, unique.size))
-    return unique, noise, cell_noise, post, (predicted, design, z2, energy)
+    clean = design
+    if np.any(noise_extra > 0):
+        clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
+    predicted = float(prediction.predict(prediction.calibration_of(model), clean, z2, energy, unique.size))
+    return unique, noise, cell_noise, post, (predicted + max(design - clean, 0.0), design, z2, energy)
 
 
 def bayes_output_paths(out) -> tuple[Path, Path]:
