@@ -28,11 +28,9 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
     assert report["samples"] == target["samples_used"] <= 40 and report["samples"] in target["batch_ends"]
     assert target["stopped"] in ("target reached", "plan used up")
     truth = report["ground_truth"]
-    # The bar of the FROST demo (20 samples, ridge) was 1.2 x the error from exact values at the
-    # same cells. The Bayesian estimator over all 60 atoms nearly interpolates this smooth
-    # material's 15 samples (its learned noise is 3e-6, theirs ~1e-5 in the log domain), so their
-    # 0.2 to 0.3 % noise shows more: 1.30 measured.
-    assert truth["log_relative_mse"] <= 1.5 * truth["log_relative_mse_exact_samples"]
+    # no more than 20 % above reconstructing the same cells from exact values (1.05 measured; 1.29
+    # with the noisier simulated camera before the camera-model calibration)
+    assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
     predicted = truth["predicted_log_relative_mse"]
     assert predicted == report["prediction"]["predicted_log_relative_mse"]
     assert 0.5 <= predicted / truth["log_relative_mse"] <= 2  # the "within a factor 2"
