@@ -16,6 +16,7 @@ import numpy as np
 ARUCO_DICT = "DICT_4X4_50"
 SAMPLE_MARKER_IDS = (0, 1, 2, 3)
 WHITE_MARKER_IDS = (4, 5, 6, 7)
+CARD_MARKER_IDS = SAMPLE_MARKER_IDS + WHITE_MARKER_IDS   # every id a holder card carries
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import MarkerError, MisalignedError, PatchTooSmallError, WrongTargetError
-from .holder import DEFAULT_LAYOUT, HolderLayout
+from .holder import CARD_MARKER_IDS, DEFAULT_LAYOUT, HolderLayout
 
 log = logging.getLogger(__name__)
 
@@ -228,8 +228,8 @@ def _candidates(linear: np.ndarray, scales=(1, UPSAMPLE)):
 
 def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None):
     """Marker corners read in a frame: ``(found, others)``, found = id -> (4, 2) pixel corners of
-    the expected ids (OpenCV convention: pixel centres at integers), others = ids of other
-    markers seen. Stops once ``stop_at`` (default: all expected) markers are read."""
+    the expected ids (OpenCV convention: pixel centres at integers), others = ids of the other
+    holder card seen (any other id is a misread of a thin, foreshortened marker and is ignored). Stops once ``stop_at`` (default: all expected) markers are read."""
     det = _detector()
     stop_at = len(expected_ids) if stop_at is None else stop_at
     found: dict[int, np.ndarray] = {}
@@ -241,7 +241,7 @@ def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at
         # resize maps x to (x + 0.5) / scale - 0.5, and the 2x2 blur moved features by +0.5.
         got = {i: c.reshape(4, 2).astype(np.float64) / scale - 1.0
                for i, c in zip(ids, corners) if i in expected_ids}
-        others |= set(ids) - set(expected_ids)
+        others |= (set(ids) & set(CARD_MARKER_IDS)) - set(expected_ids)
         if len(got) > len(found):
             found = got
         if len(found) >= stop_at:

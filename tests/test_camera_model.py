@@ -192,3 +192,21 @@ def test_a_bad_camera_model_is_refused_naming_the_key(rig, key, value, message):
         target[last] = value
     with pytest.raises(ConfigError, match=r"^rig\.yaml: " + message + "$"):
         validate_camera_section(section, "rig.yaml")
+
+
+def test_markers_of_no_holder_card_are_misreads_not_another_card():
+    """Thin, foreshortened markers can be misread as any id of the dictionary (chrome at 86 deg
+    gave 17 and 37): only the other card's ids mean the wrong card is mounted."""
+    import cv2
+    from calib.errors import MarkerError
+    from calib.roi import find_patch
+
+    aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    frame = np.full((240, 480), 0.8, dtype=np.float32)
+    for k, marker in enumerate((17, 37, 5)):
+        frame[60:180, 20 + 150 * k: 140 + 150 * k] = cv2.aruco.generateImageMarker(aruco, marker, 120) / 255 * 0.8 + 0.02
+    found, others = read_markers(frame, SAMPLE_MARKER_IDS)
+    assert found == {} and others == {5}
+    with pytest.raises(MarkerError, match=r"read \[\] \(need at least 2\); saw markers \[5\] of another target$") as err:
+        find_patch(frame, SAMPLE_MARKER_IDS, 0.15, "s")
+    assert not isinstance(err.value, WrongTargetError)   # one marker of the white card is not the white card
