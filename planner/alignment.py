@@ -13,7 +13,6 @@ each image and to the white tile's brightness (see its docstring for what is ide
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from goniofrost.core.cache import content_key
+from goniofrost.core.config_check import read_json_file
 from goniofrost.core.errors import ConfigError, GoniofrostError
 
 # An offset this large is not a zero error but a wrong axis, a wrong sign or a wrong file.
@@ -51,12 +51,7 @@ def load_alignment(path, axis_names) -> Alignment:
     """Read ALIGNMENT.json; ConfigError (file, key, expected, found) unless it holds a finite offset
     within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(path, "", "an ALIGNMENT.json file (goniofrost align --out FILE)", "no such file") from None
-    except (OSError, ValueError) as exc:
-        raise ConfigError(path, "", "valid JSON", str(exc)) from None
+    doc = read_json_file(path, "an ALIGNMENT.json file (goniofrost align --out FILE)")
     offsets = doc.get("offsets_deg") if isinstance(doc, dict) else None
     if not isinstance(offsets, dict):
         raise ConfigError(path, "offsets_deg", "a mapping {axis name: degrees}", offsets)

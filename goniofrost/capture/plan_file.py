@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.core.config_check import read_json_file
 from goniofrost.core.errors import ConfigError
 from goniofrost.frost.model import FrostModel
 from goniofrost.frost.selection import Selection
@@ -77,12 +78,7 @@ def write_plan(path, doc: dict) -> None:
 def read_plan(path) -> dict:
     """Read and validate PLAN.json; raise ConfigError naming the field on bad content."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(path, "", "an existing PLAN.json file", "no such file") from None
-    except (OSError, ValueError) as exc:
-        raise ConfigError(path, "", "valid JSON", str(exc)) from None
+    doc = read_json_file(path, "an existing PLAN.json file")
     if not isinstance(doc, dict):
         raise ConfigError(path, "", "a JSON object", type(doc).__name__)
     for key in TOP_FIELDS:

@@ -7,7 +7,9 @@ ConfigError naming the file, the key path, what was expected and what was found.
 """
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from typing import Callable, Mapping
 
 from goniofrost.core.errors import ConfigError
@@ -36,3 +38,15 @@ def check_section(section, keys: KeyTable, source, keypath: str, optional=frozen
             raise ConfigError(source, f"{keypath}.{key}", expected, value)
         out[key] = value
     return out
+
+
+def read_json_file(path, missing: str):
+    """The parsed JSON document at ``path``; ConfigError naming the file when it is absent
+    (``expected missing``) or not valid JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(path, "", missing, "no such file") from None
+    except (OSError, ValueError) as exc:
+        raise ConfigError(path, "", "valid JSON", str(exc)) from None
