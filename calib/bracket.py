@@ -171,3 +171,16 @@ class Bracket:
         rates, _ = merge(list(self.frames.values()), self.record.flat, self.mask_)
         mean, se, _ = channel_stats(rates, self.channels_[self.mask_])
         return mean, se
+
+    def spread_ratio(self) -> float:
+        """Largest, over the colour channels, ratio of the region's pixel standard deviation to its
+        robust spread (1.4826 x median absolute deviation): about 1 for a uniform patch, far more
+        when the region takes in pixels of the card around the patch."""
+        rates, _ = merge(list(self.frames.values()), self.record.flat, self.mask_)
+        channels, worst = self.channels_[self.mask_], 0.0
+        for c in range(3):
+            v = rates[(channels == c) & np.isfinite(rates)]
+            if v.size >= 8:
+                robust = 1.4826 * np.median(np.abs(v - np.median(v)))
+                worst = max(worst, float(np.std(v) / robust) if robust > 0 else float("inf"))
+        return worst

@@ -8,7 +8,10 @@ Error policy: sample pixels saturated even at the shortest exposure -> Saturatio
 the bracket); SNR below ``min_snr`` even with the longest useful exposure -> UnderexposedError;
 between ``min_snr`` and ``target_snr`` the sample is returned with the flag ``"low-snr"``; read
 markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
-within it) flag ``"markers-off"``: the rig may be misaligned (``goniofrost align``).
+within it) flag ``"markers-off"``: the rig may be misaligned (``goniofrost align``); a region the
+camera model placed alone whose pixels spread more than MAX_SPREAD_RATIO times their robust spread
+takes in the card around the patch: flag ``"roi-mixed"``, or MisalignedError when its SNR is
+below ``min_snr``.
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bracket import Bracket
-from .errors import CalibrationError, UnderexposedError
+from .errors import CalibrationError, MisalignedError, UnderexposedError
 from .record import CalibrationRecord
 from .references import unit
 
@@ -99,11 +102,24 @@ def _marker_flags(bracket: Bracket) -> list:
     return ["markers-off"] if offset is not None and offset > limit else []
 
 
+# A region whose pixels spread this many times their robust spread is not one material: it
+# straddles the patch's edge (a uniform patch with shot and read noise stays near 1).
+MAX_SPREAD_RATIO = 3.0
+
+
 def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:
     settings = bracket.settings
     low = float(np.nanmin(snr)) if np.all(np.isfinite(snr)) else 0.0
+    # a region placed by the camera model alone may take in the card around the patch (a rig
+    # that is not aligned): its pixels then spread far beyond their noise
+    mixed = bracket.roi_source_ == "prediction" and bracket.spread_ratio() > MAX_SPREAD_RATIO
     if low < settings["min_snr"]:
+        if mixed:
+            raise MisalignedError(
+                f"{bracket.what}: the region of interest is not uniform (its pixels spread {bracket.spread_ratio():.0f} "
+                f"times their median deviation): it takes in the card around the patch, so the patch is not where the "
+                f"camera model puts it: the rig looks misaligned (run goniofrost align, or check the camera model)")
         longest = bracket.ladder[max(bracket.frames)]
         raise UnderexposedError(f"{bracket.what}: SNR {low:.1f} below the minimum {settings['min_snr']} "
                                 f"with exposures up to {longest} s: too dark to measure")
-    return ["low-snr"] if low < settings["target_snr"] else []
+    return (["low-snr"] if low < settings["target_snr"] else []) + (["roi-mixed"] if mixed else [])

@@ -315,3 +315,23 @@ def test_a_sample_whose_markers_sit_off_the_prediction_is_flagged(rig, calibrate
     assert m.roi_source == "markers" and 5.0 < m.marker_offset_px < 20.0 and "markers-off" in m.flags
     right = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
     assert right.roi_source == "markers" and right.marker_offset_px < 1.5 and right.flags == []
+
+
+def test_a_region_placed_off_the_patch_is_flagged_or_refused_as_misaligned(rig, calibrated, spec, tmp_path):
+    """At an 87.5 deg view no marker is read: the region comes from the camera model alone. Believed
+    2 deg less grazing than it is, it takes in the card: flagged roi-mixed (its SNR passes), and with
+    a minimum SNR it cannot meet, refused as misaligned rather than called too dark."""
+    import cv2
+    from calib import MisalignedError
+    bench = CameraBench(spec("chrome"), rig["sim"]["camera"], rig["camera"], seed=0)
+    bench.lamp.on()
+    w_i, w_o = bench.set_angles(60.0, 87.5, 150.0)
+    up = np.cross(w_i, w_o) / np.linalg.norm(np.cross(w_i, w_o))
+    turn = cv2.Rodrigues(up * np.radians(-2.0))[0]
+    right = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 1)
+    assert right.roi_source == "prediction" and "roi-mixed" not in right.flags
+    m = _calibrator(rig, calibrated, bench).measure(turn @ w_i, turn @ w_o, tmp_path, 2)
+    assert m.roi_source == "prediction" and "roi-mixed" in m.flags
+    with pytest.raises(MisalignedError, match=r"sample 3: the region of interest is not uniform \(its pixels spread "
+                                              r"\d+ times their median deviation\): .* the rig looks misaligned"):
+        _calibrator(rig, calibrated, bench, min_snr=60.0).measure(turn @ w_i, turn @ w_o, tmp_path, 3)

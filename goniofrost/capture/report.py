@@ -52,6 +52,7 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
                     "wall_this_run": stats.wall_s, "planned_motion": _planned_motion(inputs.plan)},
         "snr": {"min": float(snr.min()), "median": float(np.median(snr)), "max": float(snr.max())},
         "markers_off": [r.plan_index for r in records if "markers-off" in r.status.split(",")],
+        "roi_mixed": [r.plan_index for r in records if "roi-mixed" in r.status.split(",")],
         "per_sample": [{"index": r.plan_index, "cell": r.cell, "theta_h_deg": r.theta_h_deg,
                         "theta_d_deg": r.theta_d_deg, "phi_d_deg": r.phi_d_deg, "rgb": list(r.rgb),
                         "sigma": list(r.sigma), "snr": r.snr, "move_s": r.move_s, "capture_s": r.capture_s}
@@ -211,6 +212,11 @@ def summary_text(report: dict) -> str:
         lines.append(f"{len(off)} sample(s) saw the holder's markers away from where the camera model puts them "
                      f"(flag markers-off: {' '.join(map(str, off))}): the rig may be misaligned; run goniofrost align "
                      f"and capture with --alignment")
+    mixed = report.get("roi_mixed", [])
+    if mixed:
+        lines.append(f"{len(mixed)} sample(s) had a region of interest that took in the card around the patch "
+                     f"(flag roi-mixed: {' '.join(map(str, mixed))}): their values are not to be trusted; the rig may be "
+                     f"misaligned")
     truth = report.get("ground_truth")
     if truth:
         lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")
