@@ -166,11 +166,16 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         for i in range(2):
             journal.commit_sample(SampleRecord(i, 7, 1.0, 2.0, 3.0, (0.1, 0.2, 0.3), (0.01,) * 3, 80.0,
                                                joints=samples[i]["joints"], started_utc=long_ago, committed_utc=long_ago + 1))
-        journal.add_event("batch", "batch 1 reconstructed", data={"predicted_error": 0.0421})
+        # the fields the engine journals for an Assess step (the message is not read)
+        journal.add_event("batch", "batch 1 reconstructed", data={
+            "batch": 0, "samples": 2, "predicted_error": 0.0421, "bound": 0.0873, "confidence": 0.95, "target": 0.05,
+            "decision": "continue", "out_of_model": []})
         journal._db.execute("UPDATE events SET t_utc = ?", (long_ago + 2,))
     with MonitorServer(tmp_path, port=0) as server:
         page.goto(server.url)
         expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421")
+        expect(page.locator("#assessment")).to_have_text(
+            "after 2 samples: error <= 0.0873 with 95 % confidence, target 0.05 not reached yet (median estimate 0.0421)")
         expect(page.locator("#count")).to_have_text("2 of 3 samples")
         expect(page.locator("#state")).to_have_text("stalled")
         expect(page.locator("#hint")).to_contain_text("run the same capture command with --resume")

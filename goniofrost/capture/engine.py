@@ -334,8 +334,10 @@ class SessionEngine:
     def _assessed(self, step: Assess, _result) -> dict:
         summary = dataclasses.asdict(step)
         self.stats.batches.append(summary)
-        self.journal.add_event("batch", f"batch {step.batch + 1}: {step.samples} samples, predicted error "
-                               f"{step.predicted_error:.4g} (target {step.target:g}): {step.decision}", data=summary)
+        from goniofrost.capture.target import statement
+
+        self.journal.add_event("batch", f"batch {step.batch + 1}: {step.samples} samples, {statement(summary)}: "
+                               f"{step.decision}", data=summary)
         return summary
 
     def _commit(self, step: Commit, _result) -> dict:

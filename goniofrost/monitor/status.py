@@ -66,6 +66,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
             "axis": view.stop.axis, "plan_index": view.stop.plan_index},
         "ended_message": ended_message,
         "predicted_error": view.predicted_error,
+        "assessment": view.assessment,
         "calibrated": view.calibrated,
         "files": list(view.files),
         "summary": view.summary,
