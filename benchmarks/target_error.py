@@ -17,13 +17,14 @@ Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``built
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
 RGL) and ``rgl-merl`` (the other way round).
 
-Full size (about 1 h 40 min on a quiet 2-core machine; the lead's setting)::
+Full size (not run yet: estimated 45 to 60 min on a quiet 2-core machine from the full-grid training
+time of 78 s per fold, peak RSS about 4 GB; one process, settings in turn)::
 
     .venv/bin/python benchmarks/target_error.py --grid 90,90,180 --folds 10 --out /tmp/target-full
 
-Smallest setting (what tests/test_target_error.py runs)::
+Smallest setting (what tests/test_confidence.py runs)::
 
-    .venv/bin/python benchmarks/target_error.py --grid 12,12,24 --folds 1 --settings builtin \\
+    .venv/bin/python benchmarks/target_error.py --grid 10,10,20 --folds 1 --settings builtin \\
         --m-max 20 --out /tmp/target-small
 """
 from __future__ import annotations

@@ -109,3 +109,28 @@ def test_the_report_flags_an_out_of_model_reconstruction_as_an_extrapolation(mod
     flagged = extrapolation_section(inputs, records(unlike))
     assert flagged["extrapolation"] and "z2" in flagged["out_of_model"]
     assert "leave-one-out residuals" in flagged["out_of_model_features"]
+
+
+def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
+    """benchmarks/target_error.py on one builtin fold of a small grid: every target's row, the
+    per-m rows, and what it promised held for the materials it stopped on."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "target_error.py"
+    spec = importlib.util.spec_from_file_location("target_error_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20",
+                       "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "target_error.json").read_text())
+    stats = doc["summary"]["builtin"]
+    assert sorted(float(e) for e in stats["targets"]) == [0.01, 0.02, 0.05]
+    assert sorted(int(m) for m in stats["by_m"]) == [15, 20]
+    for row in stats["targets"].values():
+        assert row["materials"] == 10 and 15 <= row["mean_samples"] <= 20
+        assert row["within_when_stopped"] is None or row["within_when_stopped"] >= 0.9
+    stops = doc["results"]["builtin"][0]["stops"]
+    assert all(s["upper"] <= s["target"] for s in stops if s["reached"])  # stopped on the bound only
+    assert "| builtin | 0.05 | 10 |" in (tmp_path / "target_error.md").read_text()
