@@ -58,7 +58,8 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)
-        with open_hardware(rig, material=None, seed=seed, speedup=speedup, on_ready=on_ready) as hardware:
+        with open_hardware(rig, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
+                           program="align") as hardware:
             observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress,
                                                   journaled=frames is not None)
     fit = fit_alignment(rig, rig.view.camera, observations)

@@ -171,7 +171,7 @@ class PlanRunner:
                                   lambda: self._failure_message(exc, step))
             raise SessionFault(message) from exc
         except SessionInterrupted as exc:
-            who = str(exc) or "a signal"
+            who = self._stop_request() or str(exc) or "a signal"  # SIGTERM of a stop request names who asked
             message = self._abort(EventKind.INTERRUPTED, RunStatus.STOPPED_BY_OPERATOR, f"{who}: run stopped", None,
                                   step, lambda: f"interrupted by {who}{self.where(step)}. "
                                                 f"{self.safe_text(self.continue_text())}")
@@ -188,10 +188,13 @@ class PlanRunner:
         finally:
             plan.close()
 
-    def _check_stop_request(self) -> None:
-        """A stop request of the rig lock, between steps (a signal interrupts a step itself)."""
+    def _stop_request(self) -> str | None:
         lock = getattr(self.hw, "rig_lock", None)
-        request = lock.stop_request() if lock is not None else None
+        return lock.stop_request() if lock is not None else None
+
+    def _check_stop_request(self) -> None:
+        """A stop request of the rig lock, between steps (its SIGTERM interrupts a step itself)."""
+        request = self._stop_request()
         if request is not None:
             raise SessionInterrupted(request)
 
