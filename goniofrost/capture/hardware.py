@@ -144,6 +144,24 @@ def _connected(devices):
                 log.warning("while releasing the rig: %s", exc)
 
 
+class BarSafeOutput:
+    """Standard error for the operator's prompts that never writes into a progress bar's line: the
+    bar (tqdm) is cleared, the prompt printed on its own lines, the bar drawn again below it."""
+
+    def write(self, text: str) -> None:
+        import sys
+
+        from tqdm import tqdm
+
+        if text:
+            tqdm.write(text, file=sys.stderr, end="")
+
+    def flush(self) -> None:
+        import sys
+
+        sys.stderr.flush()
+
+
 def open_camera(rig):
     """A FolderCamera for a rig (object with ``.camera`` or the ``camera`` mapping itself).
 
@@ -163,7 +181,8 @@ def open_camera(rig):
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
     if section["folder"] is None:
         raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
-    command, prompt = section["trigger_command"], OperatorPrompt(section["operator_timeout_s"])
+    command = section["trigger_command"]
+    prompt = OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput())
     if command is None:
         def trigger(exposure_s: float) -> None:
             prompt(f"expose one RAW frame of {exposure_s} s into {section['folder']}")
