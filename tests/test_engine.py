@@ -394,3 +394,35 @@ def test_drills_are_armed_before_each_sample_and_a_resume_restores_the_journaled
     [restored] = [e for e in events if e["kind"] == "simulation"]
     assert restored["message"] == "simulated rig restored as journaled before plan sample 1"
     assert [e["data"]["state"] for e in events if e["kind"] == "drill"] == ["armed", "struck"]
+
+
+def hand_plan():
+    """A short hand command's plan: move two axes, lamp on and off; returns the joints reached."""
+    from goniofrost.capture.steps import LampOff, LampOn, Move
+
+    reached = yield Move(None, (("theta_i", 10.0), ("theta_o", 40.0)))
+    yield LampOn()
+    yield LampOff()
+    return reached.joints
+
+
+def test_a_short_plan_runs_on_the_engine_core_without_a_journal(table, tmp_path):
+    from goniofrost.capture.plan_runner import PlanRunner
+
+    hardware = rig(table)
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    assert runner.execute_plan(hand_plan()) == {"theta_i": 10.0, "theta_o": 40.0}
+    assert (runner.run_end.status, runner.run_end.reason, runner.run_start.program) == \
+        (RunStatus.FINISHED, "rig move finished", "rig move")
+    assert list(tmp_path.iterdir()) == [] and all(a.stops == 0 for a in hardware.axes.values())
+    # a fault: every axis stopped and confirmed, the lamp off, the same words as a capture's
+    hardware = rig(table, theta_o={"fail_on_move": 1})
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    with pytest.raises(SessionFault) as caught:
+        runner.execute_plan(hand_plan())
+    assert str(caught.value).startswith("device fault during Move: theta_o: move to 40 deg: device fault: alarm "
+                                        "(reply: 0.0). Stopped theta_i at 10.00 deg, ")
+    assert str(caught.value).endswith("the lamp is off. Nothing was journaled. Fix the cause, then run the same "
+                                      "command again")
+    assert runner.run_end.status is RunStatus.FAULT and runner.run_end.axis == "theta_o"
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False

@@ -105,7 +105,7 @@ class PlanRunner:
 
     def saved_text(self) -> str:
         """What is safe, for the messages after a stop."""
-        return f"the journal is {self.journal.path}" if self.journal is not None else "nothing was journaled"
+        return f"The run is journaled in {self.journal.path}" if self.journal is not None else "Nothing was journaled"
 
     def resume_text(self) -> str:
         """What to do after a fault or a refusal."""
