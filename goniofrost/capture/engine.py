@@ -182,7 +182,8 @@ class SessionEngine(PlanRunner):
         try:
             record = CalibrationRecord.from_dict(stored)
         except CalibrationError as exc:
-            self.journal.add_event(EventKind.CALIBRATION, f"cannot reuse the journaled calibration ({exc}); calibrating again")
+            self.journal.add_event(EventKind.CALIBRATION,
+                                   f"cannot reuse the journaled calibration ({exc}); calibrating again")
             return None
         ladder = self.spec.camera["exposures_s"]
         if list(record.exposures_s) != list(ladder):  # the rig file's ladder changed

@@ -256,7 +256,8 @@ class PlanRunner:
         return text
 
     def _failure_message(self, exc, step) -> str:
-        return f"{self.program} failed{self.where(step)}{self.failure_hint(step)}: {exc}. {_remedy(exc)}{self.safe_text()}"
+        where = f"{self.where(step)}{self.failure_hint(step)}"
+        return f"{self.program} failed{where}: {exc}. {_remedy(exc)}{self.safe_text()}"
 
     def safe_text(self, next_step: str | None = None) -> str:
         """What the abort did to the axes and the lamp, what is safe, and what to type next."""

@@ -73,4 +73,4 @@ class Rehearsal:
     def _struck_before(self) -> list[dict]:
         """The drills earlier runs of the session journaled as struck."""
         return [{k: v for k, v in e["data"].items() if k != "state"} for e in self.journal.events()
-                if e["kind"] == "drill" and e["data"].get("state") == "struck"]
+                if e["kind"] is EventKind.DRILL and e["data"].get("state") == "struck"]

@@ -83,7 +83,8 @@ class SessionView:
     ``journal_found`` is False before the capture created its journal (``note`` says why);
     ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
     last run (a resume starts a new run); ``run_end`` how it ended (None while it runs or when its
-    process was killed); ``stop`` the same when it ended early; ``white_rates`` the calibration's white signal per channel (None before it); ``step`` the
+    process was killed); ``stop`` the same when it ended early; ``white_rates`` the calibration's
+    white signal per channel (None before it); ``step`` the
     journal's latest plan step (kind, plan_index, detail, status, started_utc); ``reached`` the
     joints {axis: deg} and plan index of the last completed move (None before one);
     ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
