@@ -9,14 +9,12 @@ records the alignment it was scheduled with (``record()``), and a capture refuse
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
 from goniofrost.core.cache import content_key
-from goniofrost.core.config_check import read_json_file
-from goniofrost.core.errors import ConfigError
+from goniofrost.core.config_check import Key, check_section, is_mapping, is_number, read_json_file
 
 # An offset this large is not a zero error but a wrong axis, a wrong sign or a wrong file.
 MAX_OFFSET_DEG = 10.0
@@ -42,22 +40,15 @@ def alignment_hash(offsets_deg: Mapping[str, float]) -> str:
 
 def load_alignment(path, axis_names) -> Alignment:
     """Read ALIGNMENT.json; ConfigError (file, key, expected, found) unless it holds a finite offset
-    within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other."""
+    within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other (other top-level keys,
+    such as the fit's diagnostics, are kept by the file and not read)."""
     path = Path(path)
     doc = read_json_file(path, "an ALIGNMENT.json file (goniofrost align --out FILE)")
-    offsets = doc.get("offsets_deg") if isinstance(doc, dict) else None
-    if not isinstance(offsets, dict):
-        raise ConfigError(path, "offsets_deg", "a mapping {axis name: degrees}", offsets)
-    names = list(axis_names)
-    for name in offsets:
-        if name not in names:
-            raise ConfigError(path, f"offsets_deg.{name}", f"an axis of the rig ({', '.join(names)})", name)
-    out = {}
-    for name in names:
-        value = offsets.get(name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or abs(value) > MAX_OFFSET_DEG:
-            found = "nothing" if name not in offsets else value
-            raise ConfigError(path, f"offsets_deg.{name}", f"a zero offset in degrees within +-{MAX_OFFSET_DEG:g}", found)
-        out[name] = float(value)
+    offset = Key(lambda v: is_number(v) and abs(v) <= MAX_OFFSET_DEG,
+                 f"a zero offset in degrees within +-{MAX_OFFSET_DEG:g}")
+    table = {"offsets_deg": Key(is_mapping, "a mapping {axis name: degrees}",
+                                nested=lambda v, source, kp: check_section(v, {n: offset for n in axis_names},
+                                                                           source, kp))}
+    offsets = check_section(doc, table, path, "", open_keys=True)["offsets_deg"]
+    out = {name: float(value) for name, value in offsets.items()}
     return Alignment(out, str(path), alignment_hash(out))

@@ -114,7 +114,8 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
         assert r.snr >= 10 and all(np.isfinite(r.rgb)) and all(0 < sg < v for sg, v in zip(r.sigma, r.rgb))
 
     # samples.csv is the journal, readable by the reconstruction's own reader
-    from goniofrost.frost.reconstruction import read_samples_csv, reconstruct_bayes, sample_sigmas
+    from goniofrost.frost.reconstruction import reconstruct_bayes
+    from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
     cells, values, extra = read_samples_csv(session / "samples.csv", GRID)
     np.testing.assert_array_equal(cells, [r.cell for r in records])
     np.testing.assert_array_equal(values, [r.rgb for r in records])
@@ -721,11 +722,11 @@ def test_a_plan_scheduled_with_another_alignment_is_refused_before_anything_move
 @pytest.mark.parametrize("content, message", [
     (None, "ALIGNMENT.json: (top level): expected an ALIGNMENT.json file (goniofrost align --out FILE), found 'no such file'"),
     ("{", "ALIGNMENT.json: (top level): expected valid JSON, found 'Expecting property name"),
-    ({"offsets": {}}, "ALIGNMENT.json: offsets_deg: expected a mapping {axis name: degrees}, found None"),
+    ({"offsets": {}}, "ALIGNMENT.json: offsets_deg: expected a mapping {axis name: degrees}, found 'nothing'"),
     ({"offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0}},
      "ALIGNMENT.json: offsets_deg.sample_tilt: expected a zero offset in degrees within +-10, found 'nothing'"),
     ({"offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0, "sample_tilt": 0.0, "lamp": 1.0}},
-     "ALIGNMENT.json: offsets_deg.lamp: expected an axis of the rig (camera_arm, sample_yaw, sample_tilt), found 'lamp'"),
+     "ALIGNMENT.json: offsets_deg.lamp: expected one of the keys camera_arm, sample_yaw, sample_tilt, found \"unknown key 'lamp'\""),
     ({"offsets_deg": {"camera_arm": "0.1", "sample_yaw": 0.0, "sample_tilt": 0.0}},
      "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found '0.1'"),
     ({"offsets_deg": {"camera_arm": 12.0, "sample_yaw": 0.0, "sample_tilt": 0.0}},
