@@ -142,8 +142,8 @@ def rig_from_mapping(raw: Any, source: str,
         lamp["beam_diameter_mm"] = float(lamp["beam_diameter_mm"])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    camera, sim = (_checked(top.get(key, {}), source, key, validators.get(key)) if key in top else {}
-                   for key in ("camera", "sim"))
+    camera, sim = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                   for key in ("camera", "sim"))  # the sections other packages own
     alignment = None
     if "alignment" in top:
         written = Path(top["alignment"])
