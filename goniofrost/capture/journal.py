@@ -92,11 +92,6 @@ class SampleRecord:
     committed_utc: float = 0.0
     status: str = "ok"
 
-    def csv_row(self) -> str:
-        """The samples.csv line (no newline); floats in repr form so values round-trip exactly."""
-        return samples_file.session_row((self.theta_h_deg, self.theta_d_deg, self.phi_d_deg), self.rgb,
-                                        self.sigma, self.snr, self.plan_index)
-
 
 class Journal:
     """An open session journal (``Journal.create`` for a new session, ``Journal.open`` to resume)."""
