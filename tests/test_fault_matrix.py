@@ -25,6 +25,8 @@ import yaml
 
 from goniofrost.app.cli import main
 from goniofrost.capture import runner
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import EventKind, RunStatus
 from sim.faults import FAULT_KINDS
 
 from test_session import GRID, MATERIAL, TRAINING, frames, write_rig
@@ -144,14 +146,15 @@ def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterru
         assert seen["lamp"].is_on is False
     drills = [d["state"] for k, d in events if k == "drill"]
     assert drills == ["armed", "struck"]
-    # the fault is journaled with the failed sample and the terminal's words (the monitor shows them)
-    [fault] = [d for k, d in events if k == "fault"]
+    # the fault is journaled with the axis, and the run's end with the failed sample and the
+    # terminal's words (the monitor shows them)
     message = err[len("goniofrost capture: error: "):-1]
-    assert fault["operator_message"] == message and fault["plan_index"] == AT_SAMPLE
-    with closing(sqlite3.connect(f"file:{session / 'session.sqlite'}?mode=ro", uri=True)) as db:
-        [(fault_axis, fault_message)] = db.execute("SELECT axis, message FROM events WHERE kind = 'fault'")
-    assert fault_axis == axis and fault_message in message
-    assert not (session / "brdf.binary").exists()
+    with Journal.open(session / "session.sqlite") as handle:
+        [fault] = [e for e in handle.events() if e["kind"] is EventKind.FAULT]
+        _start, end = handle.last_run()
+    assert fault["axis"] == axis and fault["message"] in message
+    assert (end.status, end.reason, end.axis, end.detail) == (RunStatus.FAULT, message, axis, fault["message"])
+    assert end.plan_index == AT_SAMPLE and not (session / "brdf.binary").exists()
 
     # ----- the resume: every sample once, no second rehearsal, the uninterrupted files ---------------
     assert main(args(drilled, plan, session, "--resume")) == 0
