@@ -54,7 +54,7 @@ def _bounds(model, post, n_mat: int, m: int, level: float) -> dict:
 def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
     """Reconstruct every test material with the posterior mean; float64 (n_mat,) arrays under
     "mse", "pred_mse", "cover50", "cover90", and "seconds" (the whole batch, wall time)."""
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
 
     start = time.perf_counter()
     n_mat = truth.shape[0]
@@ -103,7 +103,7 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     the rule stopped on the target), "out_of_model" (1 if the last assessment was out of the
     model), "ever_out" (1 if any assessment was) and "seconds" (the whole simulation, wall time).
     """
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
 
     start = time.perf_counter()
     n_mat, m_max = truth.shape[0], order.size
