@@ -80,7 +80,7 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
     at ``level``) and "out_of_model" (1 if the samples are unlike every training material)."""
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
 
     positions = np.asarray(positions, dtype=np.int64)
     n_mat = truth.shape[0]
