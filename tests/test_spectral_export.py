@@ -142,6 +142,9 @@ def test_spectral_fields_are_the_rgb_fields_with_spectra_as_pbrt_reads_them(smal
     description = bytes(stored["description"]).decode()
     assert "32 wavelengths 380-780 nm" in description and "Jakob-Hanika 2019" in description
     np.testing.assert_array_equal(node_spectra(stored), node_spectra(rs.spectral_fields(rgb)))
+    # evaluated in float32 as the renderers do: the float64 model to float32 precision
+    expected = srgb_spectra.unbounded_spectra(node_rgb(rgb), lam.astype(np.float64))
+    np.testing.assert_allclose(node_spectra(stored), expected, rtol=2e-5, atol=1e-6 * expected.max())
 
 
 def test_spectral_export_is_deterministic(small, tmp_path):

@@ -53,11 +53,10 @@ def spectra_of_rgb(rgb: np.ndarray, wavelengths: np.ndarray) -> np.ndarray:
     """``spectra`` (p, i, n_lambda, n, n) float32 of an ``rgb`` field (p, i, 3, n, n), slice by slice."""
     p, k, _, n, m = rgb.shape
     out = np.empty((p, k, wavelengths.size, n, m), np.float32)
-    lam = wavelengths.astype(np.float64)
     for a in range(p):
-        for b in range(k):  # one incident slice at a time: (n*m, n_lambda) float64 stays ~4 MB
-            values = rgb[a, b].astype(np.float64).reshape(3, -1).T
-            out[a, b] = srgb_spectra.unbounded_spectra(values, lam).T.reshape(wavelengths.size, n, m)
+        for b in range(k):  # one incident slice at a time: the temporaries stay a few MB
+            rows = srgb_spectra.unbounded_spectra_rows(rgb[a, b].reshape(3, -1), wavelengths)
+            out[a, b] = rows.reshape(wavelengths.size, n, m)
     return out
 
 

@@ -95,6 +95,19 @@ def sigmoid_polynomial(coeffs: np.ndarray, wavelengths_nm: np.ndarray) -> np.nda
     return 0.5 + 0.5 * x / np.sqrt(1.0 + x * x)
 
 
+def unbounded_spectra_rows(channels: np.ndarray, wavelengths_nm: np.ndarray) -> np.ndarray:
+    """``unbounded_spectra`` laid out for the file: channels (3, N) -> spectra (n, N) float32.
+
+    The model is evaluated in float32, as Mitsuba and pbrt-v4 evaluate it.
+    """
+    rgb = np.asarray(channels, dtype=np.float64).T
+    scale = 2.0 * rgb.max(axis=-1)
+    coeffs = coefficients(rgb / np.where(scale > 0, scale, 1.0)[:, None]).astype(np.float32)
+    lam = np.asarray(wavelengths_nm, dtype=np.float32)[:, None]
+    x = (coeffs[:, 0] * lam + coeffs[:, 1]) * lam + coeffs[:, 2]
+    return (0.5 + 0.5 * x / np.sqrt(1.0 + x * x)) * scale.astype(np.float32)
+
+
 def unbounded_spectra(rgb, wavelengths_nm) -> np.ndarray:
     """Spectra (..., n) of linear sRGB values (..., 3) >= 0 of any size, at wavelengths (n,) in nm.
 
