@@ -135,7 +135,7 @@ def write_png(path, comparison: Comparison, title: str = "") -> None:
     n = len(comparison.keys)
     width = max(2.0 * n, 6.0)
     image_height = width * image.shape[0] / image.shape[1]
-    text_height = 0.22 * (len(lines) + 2)
+    text_height = 0.15 * (len(lines) + 1) + 0.15
     fig = Figure(figsize=(width, image_height + text_height + 0.5), dpi=100)
     total = image_height + text_height + 0.5
     ax = fig.add_axes((0.0, (text_height + 0.05) / total, 1.0, image_height / total))
