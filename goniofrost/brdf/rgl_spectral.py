@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import srgb_spectra
-from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields, read_merl_checked
+from goniofrost.brdf.mitsuba_export import (DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields, export_mitsuba,
+                                            read_merl_checked)
 from goniofrost.brdf.rgl_tensor import write_tensor_file
 from goniofrost.core.grid import MerlGrid
 
@@ -92,8 +93,6 @@ def export_spectral(path, brdf, grid: MerlGrid, options: ExportOptions = DEFAULT
 def export_file(binary, out, format: str = "mitsuba", options: ExportOptions = DEFAULT_OPTIONS,
                 n_wavelengths: int = DEFAULT_WAVELENGTHS) -> dict:
     """Export a MERL .binary to ``out`` in ``format`` (a key of FORMATS); nothing is written on error."""
-    from goniofrost.brdf.mitsuba_export import export_mitsuba
-
     if format not in FORMATS:
         raise ExportError(f"format: expected one of {', '.join(FORMATS)}, found {format!r}")
     if FORMATS[format] == "spectral":
