@@ -56,7 +56,9 @@ SERIAL_PORT = Field(_text, 'a serial device path (e.g. /dev/ttyUSB0) or "sim"')
 TCP_PORT = Field(_int_in(0, 65535), "a TCP port 1-65535 (0: picked by the simulator)")
 BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1_000_000, 2_000_000,
          3_000_000, 4_000_000, 4_500_000)
-RETRIES = Field(_int_in(0, 10), "an integer 0-10 (extra attempts after a transient error)", False)
+RETRIES = Field(_int_in(0, 10), "an integer 0-10 (extra attempts of an idempotent read after a reply "
+                "timeout or a damaged reply; default 2)", False)
+REPLY_TIMEOUT = Field(_positive, "a positive reply timeout in ms", False)
 
 DYNAMIXEL = {
     "port": SERIAL_PORT,
@@ -65,7 +67,7 @@ DYNAMIXEL = {
     "model": Field(_text, 'an X-series model name such as "XM430-W350"', False),
     "counts_per_deg": Field(_positive, "a positive number of encoder counts per degree (4096/360 direct)"),
     "reboot_after_fault": Field(_bool, "true or false", False),
-    "reply_timeout_ms": Field(_positive, "a positive reply timeout in ms", False),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 100 ms (the SDK's own: bytes x byte time + 34 ms)
     "retries": RETRIES,
 }
 MODBUS_COMMON = {
@@ -73,6 +75,7 @@ MODBUS_COMMON = {
     "steps_per_deg": Field(_positive, "a positive number of drive steps per degree"),
     "word_order": Field(_one_of("big", "little"), '"big" (high word first) or "little"', False),
     "register_map": Field(_map_name_or_mapping, "a register map name (e.g. oriental-az) or a mapping", False),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 300 ms
     "retries": RETRIES,
 }
 MODBUS_TCP = {"host": Field(_text, "a host name or address (127.0.0.1 for the simulator)"),
@@ -85,6 +88,7 @@ SMC100 = {
     "address": Field(_int_in(1, 31), "a controller address 1-31", False),
     "baud": Field(_one_of(*BAUDS), "a baud rate (57600 on the SMC100)", False),
     "units_per_deg": Field(_positive, "a positive number of controller units per degree", False),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 200 ms (the manual: about 10 ms for TP)
     "retries": RETRIES,
 }
 SCHEMAS: dict[str, dict[str, Field]] = {"dynamixel": DYNAMIXEL, "modbus-tcp": MODBUS_TCP,
@@ -96,6 +100,7 @@ LAMP_COMMON = {
     "coil": Field(_int_in(0, 65535), "a coil address 0-65535"),
     "photodiode_register": Field(_int_in(0, 65535), "an input register address 0-65535"),
     "full_scale": Field(_positive, "photodiode counts at nominal intensity (> 0)", False),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # its own connection's; default 300 ms
 }
 LAMP_SCHEMAS: dict[str, dict[str, Field]] = {
     "modbus-tcp": {**LAMP_COMMON, "host": Field(_text, "a host name or address", False),

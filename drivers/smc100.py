@@ -7,11 +7,8 @@ the controller state and readable error bits; a stage error state or any error b
 """
 from __future__ import annotations
 
-import termios
 import time
 from collections.abc import Mapping
-
-import serial
 
 from .axis import Axis, AxisConfig
 from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
@@ -21,26 +18,28 @@ from .smc100_protocol import (
     parse_reply, te_meaning,
 )
 
-# What an unplugged port raises: pyserial's errors, EIO, and termios.error (not an OSError).
-PORT_ERRORS = (serial.SerialException, OSError, termios.error)
+from .transport import PORT_ERRORS
+
 REPLY_TIMEOUT_S = 0.2  # the manual gives about 10 ms for TP; leave room for a busy host
+IDENTITY_QUERIES = {"version": Cmd.VERSION, "stage": Cmd.STAGE_ID}  # VE, ID: read-only
 
 
 class SMC100Axis(Axis):
     """One stage on a Newport SMC100 controller.
 
-    ``port``: serial device path; ``address``: controller address 1-31; ``baud``: 57600 on the
-    real controller; ``units_per_deg``: controller units (deg for a rotation stage) per degree;
-    ``reply_timeout_s``: how long to wait for one reply line (real seconds).
+    ``port``: serial device path (for messages: the rig layer opens it, 57600 8N1 XON/XOFF);
+    ``address``: controller address 1-31; ``units_per_deg``: controller units (deg for a rotation
+    stage) per degree; ``reply_timeout_s``: how long to wait for one reply line (real seconds; the
+    transport's read timeout is set to it at connect).
     """
 
-    def __init__(self, config: AxisConfig, port: str, address: int = 1, baud: int = DEFAULT_BAUD,
+    def __init__(self, config: AxisConfig, port: str = "", address: int = 1,
                  units_per_deg: float = 1.0, reply_timeout_s: float = REPLY_TIMEOUT_S) -> None:
         super().__init__(config)
-        self.port, self.address, self.baud = str(port), int(address), int(baud)
+        self.port, self.address = str(port), int(address)
         self.units_per_deg = float(units_per_deg)
         self.reply_timeout_s = float(reply_timeout_s)
-        self._serial: serial.Serial | None = None
+        self._serial = None  # the ByteTransport handed in by connect()
         self._latched_causes: list[str] = []  # TS error bits clear when read: keep them for _read_fault
         self._last_ts: TellState | None = None
         self.soft_limits_units: tuple[float, float] | None = None
@@ -49,8 +48,8 @@ class SMC100Axis(Axis):
     def from_section(cls, config: AxisConfig, section: Mapping) -> "SMC100Axis":
         """Build from a validated ``smc100`` driver section of the rig file."""
         return cls(config, port=section["port"], address=section.get("address", 1),
-                   baud=section.get("baud", DEFAULT_BAUD),
-                   units_per_deg=section.get("units_per_deg", 1.0))
+                   units_per_deg=section.get("units_per_deg", 1.0),
+                   reply_timeout_s=section.get("reply_timeout_ms", REPLY_TIMEOUT_S * 1000.0) / 1000.0)
 
     # ----- transport ---------------------------------------------------------------------------
     def _send(self, cmd: Cmd, value=None) -> str:
@@ -128,20 +127,37 @@ class SMC100Axis(Axis):
         self.soft_limits_units = (lo_deg * self.units_per_deg, hi_deg * self.units_per_deg)
 
     # ----- protocol hooks ----------------------------------------------------------------------
+    def _attach(self, transport) -> None:
+        transport.timeout = self.reply_timeout_s
+        self._serial = transport
+
     def _connect(self) -> None:
+        self._tell_state()  # proves a controller answers at this address
+        lo, hi = self._query(Cmd.LIMIT_NEGATIVE, QUERY), self._query(Cmd.LIMIT_POSITIVE, QUERY)
         try:
-            self._serial = serial.Serial(self.port, self.baud, bytesize=8, parity="N", stopbits=1,
-                                         xonxoff=True, timeout=self.reply_timeout_s)
-        except PORT_ERRORS as exc:
-            raise DeviceError(self.name, f"open {self.port}", None, f"cannot open port: {exc}") from exc
+            self.soft_limits_units = (float(lo), float(hi))
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}SL?; {self.address}SR?", f"{lo}; {hi}",
+                                "expected two numbers") from exc
+
+    def _read_identity(self) -> dict:
+        """VE (controller firmware) and ID (stage identifier): read-only queries of the manual."""
+        return {"protocol": "smc100", "address": self.address,
+                **{key: self._query(cmd, QUERY if cmd is Cmd.STAGE_ID else None).strip()
+                   for key, cmd in IDENTITY_QUERIES.items()}}
+
+    def error_text(self, letter: str) -> str:
+        """TB: the controller's own text for a TE error letter (read-only)."""
+        self._require_connected("read error text")
+        return self._call(self._query, Cmd.TELL_ERROR_STRING, letter)
+
+    def _move_taken(self, target: float) -> bool:
+        """TH, the set-point: equal to the target once the controller took the PA."""
+        value = self._query(Cmd.TELL_SETPOINT)
         try:
-            self._tell_state()  # proves a controller answers at this address
-            lo = float(self._query(Cmd.LIMIT_NEGATIVE, QUERY))
-            hi = float(self._query(Cmd.LIMIT_POSITIVE, QUERY))
-        except (DeviceError, ValueError):
-            self._close()
-            raise
-        self.soft_limits_units = (lo, hi)
+            return abs(float(value) / self.units_per_deg - target) <= self.config.tolerance_deg
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}TH", value, "expected a number") from exc
 
     def _close(self) -> None:
         if self._serial is not None:

@@ -17,6 +17,7 @@ Keys (``SIM_KEYS``; to add one, add a row)::
       faults:                  # fault drills; default none
         - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
                                                           # at or after plan sample 3, once
+        - {axis: camera_arm, kind: miss_reply, at_sample: 1}   # one lost reply: the capture goes on
       misalignment_deg:        # a rig built wrong on purpose (sim.misalignment); default none
         {camera_arm: 0.6, sample_yaw: -1.1, sample_tilt: 0.4}   # axis stands at reading + this
 
@@ -32,7 +33,7 @@ from typing import Any
 from goniofrost.core.config_check import check_section, is_number
 from goniofrost.core.errors import ConfigError
 
-from .faults import FAULT_KINDS
+from .faults import DRILL_KINDS
 from .misalignment import check_axes, check_values
 
 _ABSENT = object()  # a key without a default stays absent when not given
@@ -75,7 +76,7 @@ def _lamp(section, source: str, keypath: str) -> dict:
 
 _FAULT_KEYS = {  # key: (check, expected, default; None = required)
     "axis": (lambda v: isinstance(v, str) and v != "", "the name of an axis of this rig", None),
-    "kind": (lambda v: v in FAULT_KINDS, f"one of {list(FAULT_KINDS)}", None),
+    "kind": (lambda v: v in DRILL_KINDS, f"one of {list(DRILL_KINDS)}", None),
     "at_sample": (_natural, "a plan sample index >= 0", None),
 }
 

@@ -97,6 +97,7 @@ class SimulatedModbusDrive(ArmedFaults):
         self.alarm_code = 0
         self.free = False  # FREE input on: motor de-energised
         self.faults: set[str] = set()
+        self.missing_replies = 0  # miss_reply: this many replies are lost, then it answers
         self._init_armed()
         self.writes: deque = deque(maxlen=10_000)  # recent holding-register writes (PDU address, values)
         self.requests: deque = deque(maxlen=10_000)  # recent raw requests, for byte-exact tests
@@ -160,6 +161,7 @@ class SimulatedModbusDrive(ArmedFaults):
     def inject_fault(self, kind: str) -> None:
         """Inject a fault (see sim.faults.FAULT_KINDS); all but disconnect last until ``inject_fault('clear')``.
 
+        miss_reply: the next reply is lost (the request is acted on), then it answers as before.
         no_reply: requests are acted on but no reply goes out. bad_checksum: RTU replies carry a
         wrong CRC; TCP has no checksum, so the MBAP protocol id is corrupted instead. drop_byte:
         each reply loses its last byte. alarm: alarm code 0x30 (overload), ALM-A on, motor
@@ -168,6 +170,9 @@ class SimulatedModbusDrive(ArmedFaults):
         """
         check_kind(kind)
         with self._lock:
+            if kind == "miss_reply":  # one lost reply, not a lasting fault
+                self.missing_replies += 1
+                return
             if kind == "clear":  # removes the causes; an alarm stays latched until ALM-RST
                 self.faults.clear()
                 return
@@ -225,6 +230,10 @@ class SimulatedModbusDrive(ArmedFaults):
         if not data:
             return data
         faults = self.faults
+        if self.missing_replies:
+            with self._lock:
+                self.missing_replies -= 1
+            return b""
         if "no_reply" in faults or "disconnect" in faults:
             return b""
         if "bad_checksum" in faults:

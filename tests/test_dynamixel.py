@@ -6,7 +6,8 @@ import time
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
-from scripted import ScriptedLine
+from drivers.rig_devices import open_transport
+from scripted import ScriptedTransport
 from sdk_retry import sdk_call
 
 from drivers.axis import AxisConfig
@@ -131,21 +132,21 @@ def _yaw_config(**kw):
 
 
 def test_driver_connect_and_signed_position_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok((-100).to_bytes(4, "little", signed=True)))])
-    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    line = ScriptedTransport(CONNECT_SCRIPT + [(_read("present_position"), _ok((-100).to_bytes(4, "little", signed=True)))])
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     assert axis.position() == pytest.approx(-100 / CPD)  # the SDK's read4ByteTxRx would say 4294967196
     axis.close()
     line.finish()
 
 
 def test_alert_bit_reads_hardware_error_status_and_raises_device_fault():
-    line = ScriptedLine(CONNECT_SCRIPT + [
+    line = ScriptedTransport(CONNECT_SCRIPT + [
         (_read("moving"), _ok(b"\x00", err=0x80)),                    # Alert bit set
         (_read("hardware_error_status"), _ok(b"\x24", err=0x80)),     # bits 2 and 5
     ])
-    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(_yaw_config(retries=0), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     with pytest.raises(DeviceFault) as info:
         axis.is_moving()
     assert info.value.causes == ["overheating", "overload"]
@@ -156,14 +157,14 @@ def test_alert_bit_reads_hardware_error_status_and_raises_device_fault():
 
 def test_refused_goal_raises_exception_reply_and_commands_a_stop():
     here = (0).to_bytes(4, "little")
-    line = ScriptedLine(CONNECT_SCRIPT + [
+    line = ScriptedTransport(CONNECT_SCRIPT + [
         (_read("present_position"), _ok(here)),
         (_write("goal_position", 1024), _ok(err=ErrorCode.DATA_LIMIT)),   # refused
         (_read("present_position"), _ok(here)),                           # stop: goal := present
         (_write("goal_position", 0), _ok()),
     ])
-    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(_yaw_config(retries=0), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     with pytest.raises(ExceptionReply) as info:
         axis.move_to(90.0)
     assert info.value.code == 6 and "data limit" in str(info.value)
@@ -177,20 +178,20 @@ def test_driver_stuffs_a_goal_whose_bytes_hold_a_header():
     request = _write("goal_position", -131073)
     assert request == H("FF FF FD 00 01 0A 00 03 74 00 FF FF FD FD FF") + request[-2:]
     here = (0).to_bytes(4, "little")
-    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok(here)), (request, _ok())])
+    line = ScriptedTransport(CONNECT_SCRIPT + [(_read("present_position"), _ok(here)), (request, _ok())])
     config = AxisConfig("sample_yaw", (-200000.0, 200000.0), 60.0, 120.0, 0.0, 0.1)
-    axis = DynamixelAxis(config, line.port.path, 1, 57600, "XM430-W350", 1.0, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(config, "scripted", 1, 57600, "XM430-W350", 1.0, reply_timeout_ms=200)
+    axis.connect(line)
     axis.move_to(-131073.0)
     axis.close()
     line.finish()
 
 
 def test_wrong_model_number_is_refused():
-    line = ScriptedLine([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
-    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    line = ScriptedTransport([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
     with pytest.raises(ProtocolError, match="model number 1030, expected 1020"):
-        axis.connect()
+        axis.connect(line)
     assert not axis.connected
     line.finish()
 
@@ -205,12 +206,17 @@ def servo(request):
     dev.stop()
 
 
+def pty_line(entry):
+    """The simulated servo's pty, opened by the rig layer as on a real rig."""
+    return open_transport("sample_yaw", {"protocol": "dynamixel", "port": entry["endpoint"], "baud": 57600})
+
+
 @pytest.fixture
 def axis(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(stall_s=0.3), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
                        reply_timeout_ms=100)
-    ax.connect()
+    ax.connect(pty_line(entry))
     ax.enable()
     yield ax
     dev.inject_fault("clear")
@@ -323,7 +329,7 @@ def test_reboot_after_fault_clears_the_hardware_error(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
                        reboot_after_fault=True, reply_timeout_ms=100)
-    ax.connect()
+    ax.connect(pty_line(entry))
     ax.enable()
     dev.inject_fault("alarm")
     with pytest.raises(DeviceFault, match="overload"):

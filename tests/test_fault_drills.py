@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
-from drivers.rig_devices import axis_from_spec
+from drivers.rig_devices import axis_from_spec, connect_axis
 from goniofrost.core.errors import ConfigError
 from sim.faults import FAULT_KINDS
 from sim.rig import SimulatedRig
@@ -43,7 +43,7 @@ def connected_axis(rig: SimulatedRig, name: str):
     spec = copy.deepcopy(rig.resolved_driver_sections()["axes"][name])
     spec["stall_s"] = 0.3
     axis = axis_from_spec(name, spec)
-    axis.connect()
+    connect_axis(axis, spec["driver"])
     axis.enable()
     axis.home().wait()  # the SMC100 accepts moves only once referenced
     return axis
