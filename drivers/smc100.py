@@ -1,7 +1,8 @@
 """Newport SMC100 axis over RS-232 ASCII (pyserial): the protocol hooks of ``Axis``.
 
 Every set command is followed by ``TE`` so that a silently rejected command (the controller
-replies nothing) becomes an ``ExceptionReply`` naming its error letter. ``TS`` is decoded into
+replies nothing) becomes an ``ExceptionReply`` naming its error letter. The connection (57600
+8N1, XON/XOFF) is opened by the rig layer and handed to ``connect(transport)``. ``TS`` is decoded into
 the controller state and readable error bits; a stage error state or any error bit raises
 ``DeviceFault``. Positions are controller units divided by ``units_per_deg``.
 """
@@ -90,15 +91,10 @@ class SMC100Axis(Axis):
                                  f"refused: {letter} = {te_meaning(letter)}", code=letter)
 
     def _tell_error(self) -> str:
-        """Read TE, retrying only TE on a lost reply: resending the set command itself (e.g. a
-        second PA while the first one moves) would be refused with a spurious 'M'."""
-        for attempt in range(self.config.retries + 1):
-            try:
-                return self._query(Cmd.TELL_ERROR)
-            except (DeviceTimeout, ProtocolError):
-                if attempt == self.config.retries:
-                    raise
-        return ErrorLetter.NONE.value  # not reached: the last attempt returns or raises
+        """Read TE once. TE clears the letter it reports, so a TE whose reply was lost is not asked
+        again (it would answer '@' for a refused command): the timeout goes up, where a move is
+        read back with TH (``_move_taken``) and a repeatable set command (VA, AC, MM) sent again."""
+        return self._query(Cmd.TELL_ERROR)
 
     def _tell_state(self) -> TellState:
         """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""
