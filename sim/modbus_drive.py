@@ -19,6 +19,7 @@ import select
 import threading
 from collections import deque
 
+from pymodbus import ModbusDeviceIdentification
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
 from pymodbus.framer import FramerType
@@ -198,6 +199,9 @@ class SimulatedModbusDrive(ArmedFaults):
         threading.Thread(target=self._go_offline, name="sim-modbus-offline", daemon=True).start()
 
     # --- server ----------------------------------------------------------------------------
+    IDENTITY = {"VendorName": "ORIENTAL MOTOR", "ProductCode": "AZD-KD", "MajorMinorRevision": "4.00",
+                "ProductName": "AZ series driver (simulated)"}  # Read Device Identification (43/14)
+
     def _context(self) -> ModbusServerContext:
         device = ModbusDeviceContext(hr=self._holding, co=self._coils, ir=self._inputs)
         return ModbusServerContext(devices={self.device_id: device}, single=False)
@@ -206,11 +210,13 @@ class SimulatedModbusDrive(ArmedFaults):
         """Create and start the pymodbus server (it needs the running loop of its thread)."""
         if self.transport == "tcp":
             self._server = ModbusTcpServer(self._context(), address=(self.host, self.port),
+                                           identity=ModbusDeviceIdentification(info_name=self.IDENTITY),
                                            trace_packet=self._trace_packet)
         else:
             self._server = ModbusSerialServer(self._context(), framer=FramerType.RTU,
                                               port=self._bridge.server_path, baudrate=self.baud,
-                                              parity=self.parity, trace_packet=self._trace_packet)
+                                              parity=self.parity, trace_packet=self._trace_packet,
+                                              identity=ModbusDeviceIdentification(info_name=self.IDENTITY))
         await self._server.serve_forever(background=True)
         if self.transport == "tcp":
             self.port = self._server.transport.sockets[0].getsockname()[1]

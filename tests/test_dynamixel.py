@@ -367,3 +367,55 @@ def test_sdk_group_sync_write_and_read(servo):
         assert reader.isAvailable(1, 116, 4) and reader.getData(1, 116, 4) == 300
     finally:
         port.closePort()
+
+
+# ----- a lost status packet: reads are asked again, a goal write is read back, never repeated blind -----
+def test_lost_status_of_a_goal_write_is_read_back_not_repeated_on_exact_bytes():
+    goal = round(40.0 * CPD)  # 455 counts
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(bytes(4))),
+        (_write("goal_position", goal), b""),                       # executed, its status lost
+        (_read("goal_position"), _ok(goal.to_bytes(4, "little"))),  # read back: the servo took it
+        (_read("moving"), b""), (_read("moving"), _ok(b"\x00")),    # a lost read is asked again
+        (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
+    axis.close()
+    line.finish()
+
+
+def test_a_goal_the_servo_never_took_is_written_again_once_on_exact_bytes():
+    goal = round(40.0 * CPD)
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(bytes(4))),
+        (_write("goal_position", goal), b""),
+        (_read("goal_position"), _ok(bytes(4))),                    # still 0: the write was lost
+        (_write("goal_position", goal), _ok()),                     # so it is sent again
+        (_read("moving"), _ok(b"\x00")), (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
+    axis.close()
+    line.finish()
+
+
+# ----- identity: PING (model number, firmware) and the control table's model number and firmware -----
+def test_identity_pings_and_reads_the_model_number_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_req(Instruction.PING), _ok(H("FC 03 2E"))),          # model 1020, firmware 46
+        (_read("model_number"), _ok(H("FC 03"))), (_read("firmware_version"), _ok(H("2E"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.identity() == {"protocol": "dynamixel", "id": 1, "model_number": 1020, "model": "XM430-W350",
+                               "firmware_version": 46, "model_number_register": 1020, "firmware_register": 46}
+    axis.close()
+    line.finish()
+
+
+def test_the_twin_identifies_itself(servo, axis):
+    assert axis.identity() == {"protocol": "dynamixel", "id": 1, "model_number": 1020, "model": "XM430-W350",
+                               "firmware_version": 46, "model_number_register": 1020, "firmware_register": 46}

@@ -467,3 +467,46 @@ def test_rtu_axis_from_a_validated_rig_section(drive):
     ax.connect(open_transport("camera_arm", section))
     assert ax.move_to(45.0).wait() == pytest.approx(45.0)
     ax.close()
+
+
+# ----- identity: Read Device Identification (43 / 14), basic objects --------------------------------
+def _objects(*texts: bytes) -> str:
+    return " ".join(f"{i:02X} {len(t):02X} {t.hex(' ')}" for i, t in enumerate(texts))
+
+
+def test_identity_is_read_device_identification_on_exact_bytes():
+    # the request and reply of the spec's 43/14 example (section 6.21): read code 01 (basic), object
+    # 00; conformity 01, no more follows, 3 objects: vendor name, product code, major/minor revision
+    objects = _objects(b"Company identification", b"Product code XX", b"V2.11")
+    reply = "2B 0E 01 01 00 00 03 " + objects
+    server = ScriptedTransport(CONNECT_TCP + [(_tcp(2, 5, "2B 0E 01 00"), _tcp(2, 1 + len(H(reply)), reply))])
+    axis = _scripted_axis()
+    axis.connect(server)
+    assert axis.identity() == {"protocol": "modbus-tcp", "device_id": 1, "register_map": "oriental-az",
+                               "vendor": "Company identification", "product_code": "Product code XX",
+                               "revision": "V2.11"}
+    axis.close()
+    server.finish()
+
+
+def test_a_drive_without_43_14_still_has_an_identity_on_exact_bytes():
+    server = ScriptedTransport(CONNECT_TCP + [(_tcp(2, 5, "2B 0E 01 00"), _tcp(2, 3, "AB 01"))])  # illegal function
+    axis = _scripted_axis()
+    axis.connect(server)
+    assert axis.identity()["identification"] == "not supported (exception 1: illegal function)"
+    axis.close()
+    server.finish()
+
+
+@pytest.mark.parametrize("drive", [("tcp", 40.0), ("rtu", 40.0)], indirect=True)
+def test_the_twin_identifies_itself_to_the_driver_and_the_official_client(drive):
+    ax = make_axis(drive)
+    assert ax.identity() == {"protocol": f"modbus-{drive.transport}", "device_id": 1, "register_map": "oriental-az",
+                             "vendor": "ORIENTAL MOTOR", "product_code": "AZD-KD", "revision": "4.00"}
+    ax.close()
+    if drive.transport == "tcp":
+        client = ModbusTcpClient("127.0.0.1", port=drive.port, timeout=1, retries=0)
+        assert client.connect()
+        info = client.read_device_information(read_code=0x02, device_id=1).information
+        assert info[0x04] == b"AZ series driver (simulated)"  # the regular objects too
+        client.close()

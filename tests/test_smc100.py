@@ -326,3 +326,58 @@ def test_alarm_reports_state_10_and_clear_recovers(axis, device):
     assert axis.status().fault is None
     axis.home().wait()
     assert axis.move_to(5.0).wait() == pytest.approx(5.0)
+
+
+# ----- a lost reply: TE is not asked again (it clears the letter); the move is read back with TH ----------
+def test_lost_te_after_pa_is_read_back_with_th_not_repeated_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA10\r\n", b""), (b"1TE\r\n", b""),  # the TE reply is lost
+        (b"1TH\r\n", b"1TH10\r\n"),                                         # set-point 10: PA taken
+        (b"1TS\r\n", b"1TS000033\r\n"), (b"1TP\r\n", b"1TP10\r\n"),
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    assert axis.move_to(10.0).wait() == 10.0
+    axis.close()
+    line.finish()
+
+
+def test_lost_te_of_a_refused_pa_is_not_taken_for_an_accepted_one_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA60\r\n", b""), (b"1TE\r\n", b""),  # refused (G), TE lost
+        (b"1TH\r\n", b"1TH0\r\n"),                                          # set-point unchanged
+        (b"1ST\r\n", b""),                                                  # retries 0: stop, raise
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    with pytest.raises(DeviceTimeout, match=r"sample_tilt: 1TE: no complete reply within 0.5 s"):
+        axis.move_to(60.0)
+    axis.close()
+    line.finish()
+
+
+# ----- identity and the read-only queries of the manual --------------------------------------------
+def test_identity_reads_ve_and_id_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + [(b"1VE\r\n", b"1VE SMC100CC 2.0.0\r\n"),
+                                            (b"1ID?\r\n", b"1IDURS100CC\r\n"),
+                                            (b"1TBG\r\n", b"1TBG DISPLACEMENT OUT OF LIMITS\r\n")])
+    axis = _scripted_smc(line)
+    assert axis.identity() == {"protocol": "smc100", "address": 1, "version": "SMC100CC 2.0.0",
+                               "stage": "URS100CC"}
+    assert axis.error_text("G") == "G DISPLACEMENT OUT OF LIMITS"
+    axis.close()
+    line.finish()
+
+
+def test_terminal_read_only_queries_answer_in_every_state(terminal, device):
+    assert ask(terminal, b"1VE\r\n") == b"1VE SMC100CC 2.0.0\r\n"
+    assert ask(terminal, b"1ID?\r\n") == b"1IDURS100CC\r\n"
+    assert ask(terminal, b"1PT10\r\n") == b"1PT1\r\n"   # 10 units at VA 20, AC 40: 0.5 + 0.5 s
+    assert ask(terminal, b"1TBH\r\n") == b"1TBH COMMAND NOT ALLOWED IN NOT REFERENCED STATE\r\n"
+    terminal.write(b"1PA5\r\n")  # refused in NOT REFERENCED: TB alone gives the stored error, once
+    assert ask(terminal, b"1TB\r\n") == b"1TBH COMMAND NOT ALLOWED IN NOT REFERENCED STATE\r\n"
+    assert ask(terminal, b"1TE\r\n") == b"1TE@\r\n"
+    for query, reply in [(b"1SA?", b"1SA1"), (b"1OH?", b"1OH10"), (b"1OT?", b"1OT30"), (b"1FE?", b"1FE0.05"),
+                         (b"1BA?", b"1BA0"), (b"1JR?", b"1JR0.05"), (b"1MM?", b"1MM1"), (b"1TH", b"1TH3")]:
+        assert ask(terminal, query + b"\r\n") == reply + b"\r\n"
+    assert device.state == State.NOT_REFERENCED_FROM_RESET and device.true_position_deg() == 3.0  # nothing moved
