@@ -22,9 +22,11 @@ from test_session import GRID, M, TRAINING, write_rig
 READY_S = 60.0  # real seconds for `goniofrost sim` to start (imports, twins, camera service)
 
 
-@pytest.fixture
-def served(tmp_path):
-    """(rig file of the simulated rig, the written rig file, the endpoints) while `goniofrost sim` runs."""
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """(rig file of the simulated rig, the written rig file, the endpoints) while `goniofrost sim` runs
+    (one process for the module: it starts in seconds on a loaded machine)."""
+    tmp_path = tmp_path_factory.mktemp("twins")
     rig = write_rig(tmp_path / "rig.yaml")
     out = tmp_path / "twins.yaml"
     proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out),
