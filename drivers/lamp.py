@@ -62,7 +62,11 @@ class Lamp:
         elif not self.link.is_open:
             raise NotConnectedError(self.name, "connect (no connection: its axis first, or its own port)")
         self._connected = True
-        self.is_on()
+        try:
+            self.is_on()
+        except BaseException:
+            self.close()  # its own connection is closed; a shared one stays with its axis
+            raise
 
     def close(self) -> None:
         """Forget the connection; close the link only if this lamp owns it."""
