@@ -510,3 +510,16 @@ def test_the_twin_identifies_itself_to_the_driver_and_the_official_client(drive)
         info = client.read_device_information(read_code=0x02, device_id=1).information
         assert info[0x04] == b"AZ series driver (simulated)"  # the regular objects too
         client.close()
+
+
+def test_rtu_lamp_asks_a_lost_read_again_and_logs_the_retry(caplog):
+    read_coil, coil_off = RTU_LAMP[0]
+    line = ScriptedTransport([(read_coil, b""), (read_coil, coil_off)])  # one reply lost, then answered
+    lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": "scripted", "device_id": 0x11, "parity": "N",
+                              "coil": 0xAC, "photodiode_register": 0x0008})
+    with caplog.at_level(logging.INFO, logger="drivers.lamp"):
+        lamp.connect(line)  # reads the coil
+    assert [r.getMessage() for r in caplog.records] == [
+        "lamp: read coil 172: retry 1 of 2 after lamp: read coil 172: no reply within 0.3 s"]
+    lamp.close()
+    line.finish()
