@@ -8,6 +8,7 @@ the controller state and readable error bits; a stage error state or any error b
 """
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
 
@@ -21,6 +22,7 @@ from .smc100_protocol import (
 
 from .transport import PORT_ERRORS
 
+log = logging.getLogger(__name__)
 REPLY_TIMEOUT_S = 0.2  # the manual gives about 10 ms for TP; leave room for a busy host
 IDENTITY_QUERIES = {"version": Cmd.VERSION, "stage": Cmd.STAGE_ID}  # VE, ID: read-only
 
@@ -184,21 +186,30 @@ class SMC100Axis(Axis):
         return self._tell_state().state not in MOTION_STATES, self._read_position()
 
     def _command_home(self) -> None:
-        """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``."""
-        ts = self._tell_state()
+        """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``. Reads are
+        retried; a lost reply to OR is read back with TS (HOMING or READY: the search started),
+        one to the PA with TH, as any move."""
+        ts = self._call(self._tell_state)
         if ts.state in NOT_REFERENCED_STATES:
-            self._command(Cmd.HOME)
+            try:
+                self._command(Cmd.HOME)
+            except (DeviceTimeout, ProtocolError) as exc:
+                state = self._call(self._tell_state).state
+                if state != State.HOMING and state not in READY_STATES:
+                    raise
+                log.info("%s: reply to OR lost (%s); read back: TS state %s, the search started",
+                         self.name, exc, state.name)
             if self.config.home_deg == 0.0:
                 return
             self._wait_homed()
-        self._command_move(self.config.home_deg)
+        self._send_move(self.config.home_deg)
 
     def _wait_homed(self) -> None:
         """Block until the home search ends (bounded by the longest possible search)."""
         lo, hi = self.config.limits_deg
         t_end = time.monotonic() + self.move_timeout_s(hi - lo)
         while time.monotonic() < t_end:
-            ts = self._tell_state()
+            ts = self._call(self._tell_state)
             if ts.is_fault:
                 raise DeviceFault(self.name, f"{self.address}OR", None, self._fault_causes(ts))
             if ts.state in READY_STATES:

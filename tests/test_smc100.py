@@ -381,3 +381,16 @@ def test_terminal_read_only_queries_answer_in_every_state(terminal, device):
                          (b"1BA?", b"1BA0"), (b"1JR?", b"1JR0.05"), (b"1MM?", b"1MM1"), (b"1TH", b"1TH3")]:
         assert ask(terminal, query + b"\r\n") == reply + b"\r\n"
     assert device.state == State.NOT_REFERENCED_FROM_RESET and device.true_position_deg() == 3.0  # nothing moved
+
+
+def test_lost_te_after_or_is_read_back_with_ts_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + [
+        (b"1TP\r\n", b"1TP3\r\n"),
+        (b"1TS\r\n", b"1TS00000A\r\n"), (b"1OR\r\n", b""), (b"1TE\r\n", b""),  # the TE reply is lost
+        (b"1TS\r\n", b"1TS00001E\r\n"),                                        # HOMING: OR was taken
+        (b"1TS\r\n", b"1TS000032\r\n"), (b"1TP\r\n", b"1TP0\r\n"),
+    ])
+    axis = _scripted_smc(line)
+    assert axis.home().wait() == 0.0
+    axis.close()
+    line.finish()
