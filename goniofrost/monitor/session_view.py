@@ -10,7 +10,10 @@ journal is in WAL mode (``goniofrost.capture.journal`` sets it; a reader never c
 its ``-wal`` file exists: the reader shares the writer's WAL index, sees every committed
 transaction and never blocks the writer. Without a ``-wal`` file (the writer closed, every
 transaction is in the main file), ``mode=ro`` alone would create ``-wal`` and ``-shm`` files in the
-session folder, so the journal is then opened ``immutable`` instead, which creates nothing. Each
+session folder, so the journal is then opened ``immutable`` instead, which creates nothing. A
+``-wal`` file without a live writer (a capture killed with kill -9 leaves it, with transactions
+not yet in the main file) is read from a copy of the journal and its WAL in a temporary folder:
+SQLite would otherwise rebuild the ``-shm`` index in the session folder. Each
 read is one short read transaction on a fresh connection, so a session folder that is replaced
 (the demo starts afresh) or resumed is followed.
 """
@@ -167,6 +170,9 @@ def connect_read_only(path: Path) -> sqlite3.Connection:
 
 def _read_journal(path: Path):
     """(meta, sample records, events, calibration) in ONE read transaction (a consistent moment)."""
+    wal = path.with_name(path.name + "-wal")
+    if wal.exists() and lock_held(path.with_name(LOCK_FILE)) is not True:
+        return _read_journal_copy(path, wal)
     db = connect_read_only(path)
     try:
         journal = Journal(path, db)  # the journal's own reading code, on a read-only connection
@@ -177,6 +183,31 @@ def _read_journal(path: Path):
             db.execute("COMMIT")
     finally:
         db.close()
+
+
+def _read_journal_copy(path: Path, wal: Path):
+    """``_read_journal`` on a copy of a journal left with its WAL by a writer that died (its
+    ``-shm`` is not copied: SQLite rebuilds it from the WAL, in the copy's folder)."""
+    import shutil
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="goniofrost-monitor-") as tmp:
+        copy = Path(tmp) / path.name
+        shutil.copyfile(path, copy)
+        try:
+            shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
+        except FileNotFoundError:   # checkpointed and removed meanwhile: the main file has it all
+            pass
+        db = sqlite3.connect(copy, isolation_level=None, timeout=2.0, check_same_thread=False)
+        try:
+            journal = Journal(copy, db)
+            db.execute("BEGIN")
+            try:
+                return journal.meta(), journal.samples(), journal.events(), journal.calibration(), _recent_steps(db)
+            finally:
+                db.execute("COMMIT")
+        finally:
+            db.close()
 
 
 def _read_report(path: Path) -> dict | None:
