@@ -80,3 +80,161 @@ def test_a_strongly_coloured_material_is_captured_with_its_dark_channel_at_its_d
     for r in records.values():   # every channel of every sample within 4 sigma of the truth
         t = brdf(np.array(samples[r.plan_index]["w_i"]), np.array(samples[r.plan_index]["w_o"]))
         assert np.all(np.abs(np.array(r.rgb) - t) <= 4 * np.array(r.sigma) + 0.03 * t), (r.plan_index, r.rgb, t)
+
+
+# ----- the monitor ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A finished 3-sample session (read-only for the tests)."""
+    from monitor_helpers import MATERIAL, make_plan
+    folder = tmp_path_factory.mktemp("finished")
+    rig, plan = make_plan(folder, 3)
+    capture(rig, plan, folder / "s", material=MATERIAL, speedup=50, progress=False)
+    return folder / "s"
+
+
+def test_very_long_or_deep_paths_are_a_404_not_a_closed_connection(finished, caplog):
+    from goniofrost.monitor.server import MonitorServer
+    from test_monitor import request
+    with MonitorServer(finished, port=0) as server:
+        for path in ("/files/" + "a" * 60000, "/files/" + "a/" * 5000 + "x", "/files/" + "%2F".join(["b"] * 3000)):
+            status, _, body = request(server, "GET", path)
+            assert status == 404 and body.startswith(b"refused path '") and len(body) < 400, (status, body[:200])
+        status, _, body = request(server, "GET", "/files/report.json")
+        assert status == 200 and body == (finished / "report.json").read_bytes()
+
+
+def test_the_frame_and_preview_answer_for_what_was_asked_from_the_start(finished):
+    from goniofrost.monitor.server import MonitorServer
+    from test_monitor import request
+    with MonitorServer(finished, port=0) as server:   # no /api/state asked first
+        status, headers, body = request(server, "GET", "/api/preview.png?done=3")
+        assert status == 200 and headers["X-Shows"] == "3" and body.startswith(b"\x89PNG")
+        status, headers, body = request(server, "GET", "/api/frame.png?sample=1")
+        assert status == 200 and headers["X-Shows"] == "1"
+        for k in (-5, 99):   # right after a picture: still this sample's own answer
+            status, headers, body = request(server, "GET", f"/api/frame.png?sample={k}")
+            assert status == 404 and body == f"sample {k} is not in the journal".encode() and headers["X-Shows"] == str(k)
+
+
+def test_a_journal_left_by_a_killed_writer_is_read_from_a_copy(tmp_path):
+    """A writer killed with its -wal and -shm in the folder (copied while it is open, as kill -9
+    leaves them): the monitor reads every committed sample and changes no byte of the folder."""
+    import shutil
+
+    from goniofrost.monitor.session_view import read_session
+    from monitor_helpers import folder_state
+    from test_monitor import META, record
+
+    live, dead = tmp_path / "live", tmp_path / "dead"
+    live.mkdir()
+    dead.mkdir()
+    journal = Journal.create(live / "session.sqlite", META)
+    journal.commit_sample(record(0))
+    journal.commit_sample(record(1))
+    for name in ("session.sqlite", "session.sqlite-wal", "session.sqlite-shm"):
+        shutil.copyfile(live / name, dead / name)
+    journal.close()
+    (dead / "session.lock").write_text("")   # nobody holds it
+    before = folder_state(dead)
+    mtimes = {p.name: p.stat().st_mtime_ns for p in dead.iterdir()}
+    view = read_session(dead)
+    assert [d.plan_index for d in view.done] == [0, 1] and view.capture_alive is False
+    assert folder_state(dead) == before and {p.name: p.stat().st_mtime_ns for p in dead.iterdir()} == mtimes
+
+
+def monitor_load(session: Path, clients: int, seconds: float, idle: int, big: str) -> dict:
+    """Start ``goniofrost monitor`` on ``session`` in its own process; hold ``idle`` sockets that
+    send half a request, and run ``clients`` clients asking for pages, the state and the big file
+    ``big`` (read slowly) for ``seconds``; return counts, and the server's memory and threads."""
+    import asyncio
+    import re
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(session), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        port = int(re.search(r":(\d+)/", proc.stdout.readline()).group(1))
+
+        def status() -> tuple[int, int]:
+            text = Path(f"/proc/{proc.pid}/status").read_text()
+            return (int(re.search(r"VmRSS:\s+(\d+)", text).group(1)) // 1024,
+                    int(re.search(r"Threads:\s+(\d+)", text).group(1)))
+
+        async def get(path: str, slow: bool) -> int:
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+            await writer.drain()
+            line = await reader.readline()
+            while await reader.read(65536 if not slow else 4096):
+                if slow:
+                    await asyncio.sleep(0.01)
+            writer.close()
+            return int(line.split()[1])
+
+        async def client(n: int, until: float, out: dict) -> None:
+            paths = ("/", "/api/state", f"/files/{big}", "/static/monitor.js", "/files/" + "a/" * 3000)
+            k = n
+            while asyncio.get_running_loop().time() < until:
+                path = paths[k % len(paths)]
+                k += 1
+                try:
+                    code = await asyncio.wait_for(get(path, slow=path.endswith(big)), 30)
+                    out[code] = out.get(code, 0) + 1
+                except ConnectionRefusedError:
+                    out["refused"] = out.get("refused", 0) + 1
+                except (asyncio.TimeoutError, OSError) as exc:
+                    out[type(exc).__name__] = out.get(type(exc).__name__, 0) + 1
+
+        async def main() -> dict:
+            held = []
+            for _ in range(idle):
+                reader, writer = await asyncio.open_connection("127.0.0.1", port)
+                writer.write(b"GET /api/sta")
+                held.append(writer)
+            await asyncio.sleep(0)
+            out: dict = {}
+            until = asyncio.get_running_loop().time() + seconds
+            await asyncio.gather(*(client(n, until, out) for n in range(clients)))
+            out["peak"] = status()
+            for writer in held:
+                writer.close()
+            return out
+
+        start = status()
+        out = asyncio.run(main())
+        out["start"], out["end"] = start, status()
+        return out
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def load_session(tmp_path: Path, size_mb: int) -> Path:
+    session = tmp_path / "s"
+    session.mkdir()
+    (session / "brdf.std.binary").write_bytes(np.random.default_rng(0).bytes(size_mb << 20))
+    (session / "report.json").write_text("{}")
+    return session
+
+
+def check_load(out: dict, idle: int) -> None:
+    from goniofrost.monitor.server import MAX_WORKERS
+    assert "refused" not in out and out.get(200, 0) > 0 and out.get(404, 0) > 0, out
+    assert out["peak"][0] - out["start"][0] < 100, out           # MB of resident memory
+    assert out["peak"][1] <= out["start"][1] + MAX_WORKERS, out  # threads bounded, not one per socket
+
+
+def test_the_monitor_holds_many_clients_and_idle_sockets(tmp_path):
+    """Small: 40 clients for 2 s beside 60 half-sent requests, on a 8 MB file read slowly."""
+    out = monitor_load(load_session(tmp_path, 8), clients=40, seconds=2.0, idle=60, big="brdf.std.binary")
+    check_load(out, 60)
+
+
+@pytest.mark.slow
+def test_the_monitor_holds_200_clients_and_300_idle_sockets(tmp_path):
+    """Full size: 200 clients for 10 s beside 300 half-sent requests, on a 35 MB file read slowly."""
+    out = monitor_load(load_session(tmp_path, 35), clients=200, seconds=10.0, idle=300, big="brdf.std.binary")
+    print("monitor load 200 clients x 10 s + 300 idle:", out)
+    check_load(out, 300)
