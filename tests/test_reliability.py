@@ -238,3 +238,112 @@ def test_the_monitor_holds_200_clients_and_300_idle_sockets(tmp_path):
     out = monitor_load(load_session(tmp_path, 35), clients=200, seconds=10.0, idle=300, big="brdf.std.binary")
     print("monitor load 200 clients x 10 s + 300 idle:", out)
     check_load(out, 300)
+
+
+# ----- resume, refusals, one-line errors ------------------------------------------------------
+def run_cli(capsys, *argv) -> tuple[int, str]:
+    from goniofrost.app.cli import main
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """(rig, plan) of a 3-sample plan on the test rig."""
+    from monitor_helpers import make_plan
+    return make_plan(tmp_path_factory.mktemp("small"), 3)
+
+
+def capture_argv(rig, plan, session, *extra):
+    from monitor_helpers import MATERIAL
+    return ["capture", "--rig", rig, "--plan", plan, "--session", session, "--material", MATERIAL,
+            "--no-progress", "--speedup", "50", *extra]
+
+
+def test_a_resume_with_another_seed_is_refused_and_stale_temporaries_are_removed(finished, tmp_path, capsys):
+    import shutil
+    session = tmp_path / "s"
+    shutil.copytree(finished, session)
+    meta = Journal.open(session / "session.sqlite")
+    stored = meta.meta()
+    meta.close()
+    rig, plan = stored["rig_file"], stored["plan_file"]
+    code, err = run_cli(capsys, *capture_argv(rig, plan, session, "--resume", "--seed", "7"))
+    assert code == 2 and err == (
+        f"goniofrost capture: error: {session / 'session.sqlite'}: meta.sim_seed: this session was started with another simulated noise "
+        f"seed (--seed or sim.seed): expected 0, found 7; resume with the same --rig, --plan, --material, --seed and "
+        f"--target-error, or start a new --session")
+    # a kill during the atomic writes of the results left their temporaries: the resume removes them
+    for name in (".brdf.binary.k2j_x9ab", ".brdf.std.binary.0a1b2c3d"):
+        (session / name).write_bytes(b"half")
+    code, _ = run_cli(capsys, *capture_argv(rig, plan, session, "--resume"))
+    assert code == 0 and not list(session.glob(".brdf*"))
+
+
+def test_a_plan_with_a_duplicated_sample_and_a_drill_past_the_plan_are_refused(small, tmp_path, capsys):
+    import yaml
+    rig, plan = small
+    doc = json.loads(plan.read_text())
+    doc["samples"][2] = dict(doc["samples"][0])
+    twice = tmp_path / "twice.json"
+    twice.write_text(json.dumps(doc))
+    code, err = run_cli(capsys, *capture_argv(rig, twice, tmp_path / "a"))
+    assert code == 2 and err == (f"goniofrost capture: error: {twice}: samples[2].cell: expected a cell not already in the plan "
+                                 f"(samples[0] has it), found {doc['samples'][0]['cell']}")
+    drilled = yaml.safe_load(Path(rig).read_text())
+    drilled["sim"]["faults"] = [{"axis": "camera_arm", "kind": "alarm", "at_sample": 3}]
+    drill_rig = tmp_path / "drill.yaml"
+    drill_rig.write_text(yaml.safe_dump(drilled))
+    code, err = run_cli(capsys, *capture_argv(drill_rig, plan, tmp_path / "b"))
+    assert code == 2 and err == f"goniofrost capture: error: {drill_rig}: sim.faults[0].at_sample: expected a plan sample index 0..2, found 3"
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_foreign_folder_is_not_a_session_and_a_refused_run_leaves_nothing(small, tmp_path, capsys):
+    import yaml
+    rig, plan = small
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "holiday.jpg").write_bytes(b"jpeg")
+    code, err = run_cli(capsys, *capture_argv(rig, plan, foreign))
+    assert code == 2 and err == (f"goniofrost capture: error: {foreign}: cannot write: it is not a session folder (no "
+                                 f"session.sqlite; it holds holiday.jpg): choose a new or empty --session folder")
+    assert sorted(p.name for p in foreign.iterdir()) == ["holiday.jpg"]
+    # a real rig whose serial port does not exist: refused when connecting, before any step
+    real = yaml.safe_load(Path(rig).read_text())
+    real["simulated"] = False
+    for axis in real["axes"].values():
+        if axis.get("port") == "sim":
+            axis["port"] = str(tmp_path / "no-such-tty")
+    real_rig = tmp_path / "real.yaml"
+    real_rig.write_text(yaml.safe_dump(real))
+    session = tmp_path / "new"
+    from goniofrost.app.cli import main
+    code = main(["capture", "--rig", str(real_rig), "--plan", str(plan), "--session", str(session), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("goniofrost capture: error: ") and err.count("\n") == 1, err
+    assert not session.exists()
+
+
+def test_a_preview_of_a_binary_with_nan_cells_is_refused(tmp_path, capsys):
+    from goniofrost.brdf.merl_file import write_merl
+    table = np.full((GRID.size, 3), 0.1)
+    table[GRID.valid_cells[:5], 1] = np.nan   # written as -1: missing values on valid cells
+    path = tmp_path / "holes.binary"
+    write_merl(path, table, GRID)
+    code, err = run_cli(capsys, "preview", path, "--out", tmp_path / "p.png")
+    assert code == 2 and err == f"goniofrost preview: error: {path}: 5 valid cells hold NaN or infinite values; expected finite BRDF values"
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_samples_csv_angles_out_of_range_are_named_in_plain_numbers(tmp_path):
+    from goniofrost.frost.reconstruction import ReconstructionError, read_samples_csv
+    path = tmp_path / "samples.csv"
+    path.write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n10,20,30,0.1,0.1,0.1\n200,20,30,0.1,0.1,0.1\n")
+    with pytest.raises(ReconstructionError) as got:
+        read_samples_csv(path, GRID)
+    assert str(got.value) == f"{path}: line 3: theta_h_deg=200 is out of range: expected 0 to 90 degrees"
+    path.write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n60,60,0,0.1,0.1,0.1\n")
+    with pytest.raises(ReconstructionError, match=r"line 2: angles theta_h_deg=60, theta_d_deg=60, phi_d_deg=0 "
+                                                  r"fall in cell \(\d+, \d+, \d+\), which is not a valid cell"):
+        read_samples_csv(path, GRID)
