@@ -2,7 +2,8 @@
 
 Usage (from the repository root)::
 
-    .venv/bin/python benchmarks/fault_matrix.py [--samples 5] [--at-sample 2] [--out matrix.json]
+    .venv/bin/python benchmarks/fault_matrix.py [--samples 5] [--at-sample 2] [--kinds K ...] [--axes A ...]
+        [--out matrix.json]
 
 For each kind (no_reply, bad_checksum, drop_byte, alarm, stall, disconnect) on each protocol
 (Modbus TCP camera_arm, Dynamixel sample_yaw, SMC100 sample_tilt) it writes a copy of the small
@@ -183,6 +184,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--samples", type=int, default=5, help="plan samples (default 5)")
     parser.add_argument("--at-sample", type=int, default=2, help="the drills' at_sample (default 2)")
+    parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS), help="fault kinds (default all)")
+    parser.add_argument("--axes", nargs="+", choices=list(AXES), default=list(AXES), help="axes (default all)")
     parser.add_argument("--out", type=Path, help="also write the rows as JSON")
     args = parser.parse_args()
     install_truth_probe()
@@ -194,8 +197,8 @@ def main() -> None:
         if code != 0:
             sys.exit(f"the uninterrupted reference run failed: {err}")
         rows = []
-        for kind in KINDS:
-            for axis in AXES:
+        for kind in args.kinds:
+            for axis in args.axes:
                 rows.append(one_case(folder, rig, plan, reference, axis, kind, args.at_sample, args.samples))
                 print(f"{kind} on {axis}: exit {rows[-1]['exit']}, {rows[-1]['fault_s']:.1f} s + resume "
                       f"{rows[-1]['resume_s']:.1f} s", file=sys.stderr)
