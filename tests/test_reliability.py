@@ -4,6 +4,7 @@ session's 30 x 30 x 60 grid, its 6-material model and short simulated rig."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -204,7 +205,11 @@ def monitor_load(session: Path, clients: int, seconds: float, idle: int, big: st
 
         start = status()
         out = asyncio.run(main())
-        out["start"], out["end"] = start, status()
+        out["start"] = start
+        deadline = time.monotonic() + 30.0   # idle pool threads end after WORKER_IDLE_S
+        while (end := status())[1] > start[1] and time.monotonic() < deadline:
+            time.sleep(0.2)
+        out["end"] = end
         return out
     finally:
         proc.terminate()
@@ -224,6 +229,7 @@ def check_load(out: dict, idle: int) -> None:
     assert "refused" not in out and out.get(200, 0) > 0 and out.get(404, 0) > 0, out
     assert out["peak"][0] - out["start"][0] < 100, out           # MB of resident memory
     assert out["peak"][1] <= out["start"][1] + MAX_WORKERS, out  # threads bounded, not one per socket
+    assert out["end"][1] == out["start"][1], out                 # and back to normal once it is over
 
 
 def test_the_monitor_holds_many_clients_and_idle_sockets(tmp_path):

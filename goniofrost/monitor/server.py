@@ -42,7 +42,7 @@ import socket
 import threading
 import time
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
+import queue
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, HTTPServer
 from importlib import resources
@@ -75,6 +75,7 @@ IDLE_TIMEOUT_S = 10.0      # a connection without a full request head by then is
 WRITE_TIMEOUT_S = 30.0     # a client that reads nothing for this long loses its connection
 MAX_HEAD_BYTES = 128 * 1024  # a request head longer than this is handed on as it is (414 / 431)
 FILE_CHUNK = 256 * 1024
+WORKER_IDLE_S = 5.0        # a pool thread with nothing to do this long ends (threads return to normal)
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = ("index.html", "monitor.js", "monitor.css")
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
@@ -255,7 +256,7 @@ class MonitorServer:
             self.httpd.shutdown()
             self.httpd.server_close()
             self.httpd.waiting.close()
-            self.httpd.pool.shutdown(wait=False, cancel_futures=True)
+            self.httpd.pool.shutdown()
             for thread in self._threads:
                 thread.join(timeout=5)
 
@@ -482,7 +483,7 @@ class _PooledServer(HTTPServer):
 
     def __init__(self, address, handler) -> None:
         super().__init__(address, handler)
-        self.pool = ThreadPoolExecutor(MAX_WORKERS, thread_name_prefix="monitor-worker")
+        self.pool = WorkerPool(MAX_WORKERS, WORKER_IDLE_S)
         self.waiting = WaitingRoom(self._dispatch)
 
     def process_request(self, request, client_address) -> None:
@@ -505,6 +506,57 @@ class _PooledServer(HTTPServer):
 
     def handle_error(self, request, client_address) -> None:
         log.debug("monitor: connection from %s failed", client_address, exc_info=True)
+
+
+class WorkerPool:
+    """At most ``size`` threads running submitted calls; a thread idle ``idle_s`` ends, so after a
+    burst the process returns to its usual threads. (``concurrent.futures`` keeps its threads.)"""
+
+    def __init__(self, size: int, idle_s: float) -> None:
+        self.size, self.idle_s = size, idle_s
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._threads = self._idle = 0
+        self._closed = False
+
+    def submit(self, fn, *args) -> None:
+        """Run ``fn(*args)`` on a pool thread (queued while all are busy); RuntimeError once shut down."""
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the pool is shut down")
+            self._jobs.put((fn, args))
+            if self._idle == 0 and self._threads < self.size:
+                self._threads += 1
+                threading.Thread(target=self._work, name="monitor-worker", daemon=True).start()
+
+    def shutdown(self) -> None:
+        """Run no more calls: queued ones are dropped, running ones finish."""
+        with self._lock:
+            self._closed = True
+            for _ in range(self._threads):
+                self._jobs.put(None)
+
+    def _work(self) -> None:
+        while True:
+            with self._lock:
+                self._idle += 1
+            try:
+                job = self._jobs.get(timeout=self.idle_s)
+            except queue.Empty:
+                with self._lock:
+                    self._idle -= 1
+                    if self._jobs.empty():   # checked under the lock submit puts under: no job is stranded
+                        self._threads -= 1
+                        return
+                continue
+            with self._lock:
+                self._idle -= 1
+            if job is None or self._closed:
+                with self._lock:
+                    self._threads -= 1
+                return
+            fn, args = job
+            fn(*args)
 
 
 class WaitingRoom:
