@@ -73,6 +73,9 @@ def test_a_strongly_coloured_material_is_captured_with_its_dark_channel_at_its_d
     with Journal.open(tmp_path / "s" / "session.sqlite") as journal:
         records = {r.plan_index: r for r in journal.samples()}
     assert sorted(records) == list(range(len(samples)))
+    report = json.loads((tmp_path / "s" / "report.json").read_text())
+    assert k in report["detection_limit"] and "have a channel at its detection limit" in \
+        (tmp_path / "s" / "summary.txt").read_text()
     dark = records[k]
     truth = brdf(np.array(samples[k]["w_i"]), np.array(samples[k]["w_o"]))
     c = int(np.argmin(truth))
