@@ -44,7 +44,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the
     plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.capture.plan_file import check_unique_cells, read_plan
     from goniofrost.capture.rig_file import load_checked_rig
 
     rig = load_checked_rig(rig_path, alignment_path)
@@ -59,6 +59,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     check_measurable(plan, plan_path, rig)
     cells = plan_cells(plan, plan_path, model.grid)
     check_consistency(plan, plan_path, model.grid, rig, cells)
+    check_unique_cells(plan_path, plan)
     check_drills(plan, rig)
     return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
                          white_reference_joints(rig))

@@ -90,14 +90,19 @@ def read_plan(path) -> dict:
     samples = doc["samples"]
     if not isinstance(samples, list) or len(samples) != doc["m"]:
         raise ConfigError(path, "samples", f"a list of m={doc['m']} samples", samples if not isinstance(samples, list) else f"{len(samples)} samples")
-    seen: dict = {}
     for i, sample in enumerate(samples):
         _check_sample(path, i, sample)
+    return doc
+
+
+def check_unique_cells(path, doc: dict) -> None:
+    """A cell measured twice is a plan made wrong: ConfigError naming the second sample."""
+    seen: dict = {}
+    for i, sample in enumerate(doc["samples"]):
         first = seen.setdefault(tuple(sample["cell"]), i)
-        if first != i:   # a cell measured twice is a plan made wrong (and would journal one index twice)
+        if first != i:
             raise ConfigError(path, f"samples[{i}].cell", f"a cell not already in the plan (samples[{first}] has it)",
                               sample["cell"])
-    return doc
 
 
 def _check_sample(path, i: int, sample) -> None:

@@ -85,7 +85,9 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
 
 
 # what a session folder holds besides its results (a folder holding anything else is not a session)
-SESSION_OWN = ("session.lock", JOURNAL_FILE, JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", "samples.csv", "raw")
+SESSION_OWN = ("session.lock", JOURNAL_FILE, JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", "samples.csv", "raw",
+               "brdf.binary", "brdf.std.binary", "brdf.json", "brdf.bsdf", "preview.png", "report.json",
+               "summary.txt")
 
 
 def check_session_folder(session_dir: Path) -> bool:
@@ -107,7 +109,9 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
     """Remove what a run that did nothing created: the journal, its side files and the lock (the
     lock last, still held), and the folder if this run made it and it is empty."""
     for name in (JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", JOURNAL_FILE, "samples.csv", "session.lock"):
-        (session_dir / name).unlink(missing_ok=True)
+        path = session_dir / name
+        if path.is_file() and not path.is_symlink():   # never a directory or a link put there
+            path.unlink(missing_ok=True)
     for folder in ((session_dir / "raw", session_dir) if not existed else (session_dir / "raw",)):
         try:
             folder.rmdir()
