@@ -86,11 +86,13 @@ def run_steps(rig, poses: np.ndarray, disc_px: float, hardware, folder: Path, pr
     (observations, exposure)."""
     from tqdm import tqdm
 
+    from goniofrost.core.progress import show_progress
+
     from goniofrost.capture.executor import StepExecutor
     from goniofrost.capture.steps import Move, drive
 
     devices = StepExecutor(hardware, folder)
-    with tqdm(total=len(poses), unit="pose", desc="align", file=sys.stderr, disable=not progress) as bar:
+    with tqdm(total=len(poses), unit="pose", desc="align", file=sys.stderr, disable=not show_progress(progress)) as bar:
         def execute(step):
             result = devices(step)
             if isinstance(step, Move) and step.index is not None:

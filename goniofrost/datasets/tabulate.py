@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import difflib
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -114,8 +113,8 @@ class _NoBar:
 def _bar(total: int, progress: bool | None):
     if not (progress or (progress is None and total > 1)) or total == 0:
         return _NoBar()
-    from tqdm import tqdm
-    return tqdm(total=total, desc="tabulating", unit="material", file=sys.stderr, leave=False)
+    from goniofrost.core.progress import progress_bar
+    return progress_bar(total=total, desc="tabulating", unit="material", leave=False)
 
 
 # ----- several datasets ------------------------------------------------------------------------

@@ -21,15 +21,14 @@ the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 
 from __future__ import annotations
 
 import json
-import sys
 from typing import Sequence
 
 import numpy as np
-from scipy.linalg import blas
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
 from goniofrost.frost.model import FrostModel
+from goniofrost.frost.threads import imap_chunks, project_rows
 
 EPS = 0.001
 K_MAX = 60
@@ -117,25 +116,33 @@ def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: i
         raise TrainingError(f"training: --components must be a positive integer, found {k_max!r}")
 
 
-def _map_and_gram(tables, names, weight, eps, progress):
-    """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64."""
+def _map_and_gram(tables, names, weight, eps, progress, threads=None):
+    """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64.
+
+    The chunks run on ``threads`` threads (BLAS on one thread each: see frost.threads); their
+    Gram matrices are summed in chunk order, so the result does not depend on the threads.
+    """
     m, n, _ = tables.shape
     t = 3 * m
     mapped = np.empty((n, t), dtype=np.float32)
     reference = np.empty(n, dtype=np.float32)
     mean = np.empty(n, dtype=np.float32)
-    gram = np.zeros((t, t), dtype=np.float64)
-    for start in _chunks(n, progress, "training"):
-        stop = min(start + CHUNK_ROWS, n)
+
+    def chunk(start: int, stop: int) -> np.ndarray:
         block = tables[:, start:stop, :].transpose(1, 0, 2).reshape(stop - start, t)
         block = np.array(block, dtype=np.float32)  # a private, row-contiguous copy
         _check_finite(block, names, start)
         reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
         mapped[start:stop] = block
         # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
-        # sums over thousands of rows would blur them); dsyrk fills only the upper triangle.
-        gram = blas.dsyrk(1.0, block.astype(np.float64), trans=1, beta=1.0, c=gram, overwrite_c=1)
-    return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
+        # sums over thousands of rows would blur them); numpy's a.T @ a is one syrk.
+        wide = block.astype(np.float64)
+        return wide.T @ wide
+
+    gram = np.zeros((t, t), dtype=np.float64)
+    for part in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
+        gram += part
+    return mapped, reference, mean, gram
 
 
 def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
@@ -190,23 +197,16 @@ def _eigen_components(gram: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndar
     return np.sqrt(evals[:k]), vt
 
 
-def _project(mapped: np.ndarray, vt: np.ndarray) -> np.ndarray:
-    """D = X V (n, K) float32, chunked so no float64 copy of X is ever made."""
-    n = mapped.shape[0]
-    v32 = np.ascontiguousarray(vt.T, dtype=np.float32)
-    out = np.empty((n, vt.shape[0]), dtype=np.float32)
-    step = 8 * CHUNK_ROWS
-    for start in range(0, n, step):
-        np.matmul(mapped[start:start + step], v32, out=out[start:start + step])
-    return out
+def _project(mapped: np.ndarray, vt: np.ndarray, threads: int | None = None) -> np.ndarray:
+    """D = X V (n, K) float32, chunked on threads so no float64 copy of X is ever made."""
+    return project_rows(mapped, np.ascontiguousarray(vt.T, dtype=np.float32), threads)
 
 
-def _chunks(n: int, progress: bool, what: str):
-    starts = range(0, n, CHUNK_ROWS)
+def _progress_chunks(parts, n: int, progress: bool, what: str):
     if not progress:
-        return starts
-    from tqdm import tqdm
-    return tqdm(starts, desc=what, unit="chunk", file=sys.stderr, leave=False)
+        return parts
+    from goniofrost.core.progress import progress_bar
+    return progress_bar(parts, total=-(-n // CHUNK_ROWS), desc=what, unit="chunk", leave=False)
 
 
 # ----- training from dataset specs -------------------------------------------------------

@@ -1,0 +1,94 @@
+"""Training on threads gives the model of the sequential algorithm it replaced, within float rounding.
+
+``data/frost_model_before_threads.npz`` holds the model the single-pass sequential training
+(one dsyrk accumulation, BLAS's own threads) produced for these synthetic materials before the
+chunks moved onto our threads; the test fits the same materials with small chunks spread over
+threads and compares every array and every number of the noise model and its calibration.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import training
+from goniofrost.frost.threads import imap_chunks, map_chunks, ranges, resolve_threads
+from goniofrost.frost.training import fit_model
+from test_frost import synthetic_tables
+
+GRID = MerlGrid(10, 10, 20)
+BEFORE = Path(__file__).parent / "data" / "frost_model_before_threads.npz"
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return synthetic_tables(GRID, 12, seed=7)
+
+
+def _close_numbers(before, after, path: str = "") -> None:
+    """Same structure, same strings and integers, floats equal to 1e-5 relative."""
+    if isinstance(before, dict):
+        assert before.keys() == after.keys(), path
+        for key in before:
+            _close_numbers(before[key], after[key], f"{path}/{key}")
+    elif isinstance(before, list):
+        assert len(before) == len(after), path
+        for i, (b, a) in enumerate(zip(before, after)):
+            _close_numbers(b, a, f"{path}[{i}]")
+    elif isinstance(before, float):
+        assert after == pytest.approx(before, rel=1e-5, abs=1e-12), path
+    else:
+        assert after == before, path
+
+
+def test_model_equals_the_sequential_training_within_float_rounding(tables, monkeypatch):
+    monkeypatch.setattr(training, "CHUNK_ROWS", 97)  # 18 chunks over the threads
+    model = fit_model(tables, [f"g{i}" for i in range(12)], GRID, k_max=20)
+    before = np.load(BEFORE)
+    np.testing.assert_array_equal(model.singular_values.size, 20)
+    for name in ("singular_values", "coefficients", "mean", "reference"):
+        np.testing.assert_allclose(getattr(model, name), before[name], rtol=1e-6, atol=1e-9, err_msg=name)
+    scale = float(np.abs(before["dictionary"]).max())
+    np.testing.assert_allclose(np.asarray(model.dictionary), before["dictionary"], rtol=0, atol=1e-6 * scale)
+    np.testing.assert_allclose(model.noise_variance, before["noise_variance"], rtol=1e-5)
+    noise = json.loads(str(before["noise"]))
+    assert (model.noise["design_scale"], model.noise["recon_scale"]) == (noise["design_scale"], noise["recon_scale"])
+    _close_numbers(noise, model.noise)
+
+
+def test_threaded_gram_is_the_textbook_gram_and_independent_of_threads(tables, monkeypatch):
+    """X and X^T X against a direct numpy computation; 1 and 3 threads give identical bits."""
+    monkeypatch.setattr(training, "CHUNK_ROWS", 97)
+    weight = training.cosine_weight(GRID).astype(np.float32)
+    names = [f"g{i}" for i in range(12)]
+    runs = [training._map_and_gram(tables, names, weight, training.EPS, False, threads) for threads in (1, 3)]
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    mapped, _, _, gram = runs[0]
+    w = tables.transpose(1, 0, 2).reshape(GRID.n_valid, -1).astype(np.float64) * weight[:, None]
+    x = np.log(w + training.EPS) - np.log(np.median(w, axis=1) + training.EPS)[:, None]
+    x -= x.mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(mapped, x, rtol=0, atol=2e-5)
+    np.testing.assert_allclose(gram, mapped.astype(np.float64).T @ mapped.astype(np.float64), rtol=1e-12, atol=1e-9)
+
+
+def test_chunks_come_back_in_order_whatever_the_threads():
+    for threads in (1, 2, 5):
+        assert map_chunks(lambda a, b: (a, b), 10, 3, threads) == [(0, 3), (3, 6), (6, 9), (9, 10)]
+        assert list(imap_chunks(lambda a, b: a, 100, 7, threads)) == list(range(0, 100, 7))
+    assert ranges(10, 3) == [(0, 3), (3, 6), (6, 10)] and ranges(2, 4) == [(0, 1), (1, 2)]
+    with pytest.raises(ValueError, match="threads: expected a positive integer, found -1"):
+        resolve_threads(-1)
+
+
+def test_a_failing_chunk_raises_its_own_error():
+    def chunk(a, b):
+        if a == 6:
+            raise ValueError("chunk 6")
+        return a
+
+    with pytest.raises(ValueError, match="chunk 6"):
+        list(imap_chunks(chunk, 20, 3, 2))
