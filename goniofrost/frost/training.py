@@ -24,6 +24,7 @@ import json
 from typing import Sequence
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
@@ -68,11 +69,14 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     # Our reference is the last one when the caller passed the tables without keeping them
     # (``train`` does): they are freed before the noise cross-validation needs its memory.
     del tables
-    svals, vt = _eigen_components(gram, k_max)
-    dictionary = _project(mapped, vt)
-    variance, noise_meta = None, {}
-    if noise and len(names) >= MIN_NOISE_MATERIALS:
-        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
+    # BLAS on one thread throughout: the large products run on our threads (frost.threads);
+    # the small eigenproblems and fits lose time to OpenBLAS's spinning threads.
+    with threadpool_limits(limits=1, user_api="blas"):
+        svals, vt = _eigen_components(gram, k_max)
+        dictionary = _project(mapped, vt)
+        variance, noise_meta = None, {}
+        if noise and len(names) >= MIN_NOISE_MATERIALS:
+            variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
     return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
                       singular_values=svals, coefficients=vt, mean=mean,
                       reference=reference, weight=weight, noise_variance=variance,
