@@ -92,3 +92,24 @@ def test_a_failing_chunk_raises_its_own_error():
 
     with pytest.raises(ValueError, match="chunk 6"):
         list(imap_chunks(chunk, 20, 3, 2))
+
+
+def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_path, monkeypatch):
+    """train() streams the tabulation cache entries (TabulatedFiles) instead of stacking them:
+    the same model, bit for bit, as fitting the stacked tables."""
+    from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulate_materials
+    from goniofrost.frost.training import train
+
+    monkeypatch.setenv("GONIOFROST_CACHE", str(tmp_path))
+    monkeypatch.setattr(training, "CHUNK_ROWS", 300)
+    grid = MerlGrid(8, 8, 16)
+    names = open_dataset("builtin").names()[:6]
+    streamed = train(["builtin"], only=names, grid=grid, k_max=10, cache=False)
+    materials = collect_materials(["builtin"], names, None)
+    stacked = fit_model(tabulate_materials(materials, grid), [m.label for m in materials], grid, k_max=10)
+    for name in ("dictionary", "singular_values", "coefficients", "mean", "reference", "noise_variance"):
+        np.testing.assert_array_equal(np.asarray(getattr(streamed, name)), np.asarray(getattr(stacked, name)), name)
+    assert streamed.noise == stacked.noise
+    files = TabulatedFiles(sorted((tmp_path / "tabulated").glob("*.npy"))[:2])
+    assert files.shape == (2, grid.n_valid, 3) and files.rows(5, 9).shape == (4, 2, 3)

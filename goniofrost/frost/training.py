@@ -54,14 +54,16 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
               progress: bool = False, noise: bool = True) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
-    tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype).
+    tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
+        an object with that ``shape`` whose ``rows(start, stop)`` gives (stop - start, M, 3)
+        (``datasets.tabulate.TabulatedFiles``: the tables are never all in memory).
     names: M material names (stored in the model; used in error messages).
     k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
     noise: learn the noise model and predicted-error calibration by inner cross-validation
         (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
-    tables = np.asarray(tables)
+    tables = tables if hasattr(tables, "rows") else np.asarray(tables)
     names = [str(n) for n in names]
     _check_tables(tables, names, grid, k_max)
     weight = cosine_weight(grid).astype(np.float32)
@@ -133,8 +135,8 @@ def _map_and_gram(tables, names, weight, eps, progress, threads=None):
     mean = np.empty(n, dtype=np.float32)
 
     def chunk(start: int, stop: int) -> np.ndarray:
-        block = tables[:, start:stop, :].transpose(1, 0, 2).reshape(stop - start, t)
-        block = np.array(block, dtype=np.float32)  # a private, row-contiguous copy
+        rows = tables.rows(start, stop) if hasattr(tables, "rows") else tables[:, start:stop, :].transpose(1, 0, 2)
+        block = np.array(rows.reshape(stop - start, t), dtype=np.float32)  # a private, row-contiguous copy
         _check_finite(block, names, start)
         reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
         mapped[start:stop] = block
@@ -228,7 +230,7 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     Returns the model (memory-mapped from the cache when cache=True).
     """
     from goniofrost.core import cache as disk_cache
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulated_material_files
 
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
@@ -238,9 +240,10 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     if folder is not None and (folder / "model.json").is_file():
         return FrostModel.load(folder)
     info = {"datasets": list(dataset_specs), "cache_key": key}
-    # No reference kept here: fit_model frees the tables (1.75 GB at full size) once mapped.
-    model = fit_model(tabulate_materials(materials, grid, progress=progress), [m.label for m in materials],
-                      grid, k_max, info=info, progress=progress)
+    # The tables are read from the tabulation cache in row chunks: at full size 151 materials
+    # are 2 GB, which would double the peak memory beside the mapped X.
+    tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
+    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
     if folder is None:
         return model
     model.save(folder)
