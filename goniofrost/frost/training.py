@@ -24,6 +24,7 @@ import json
 from typing import Sequence
 
 import numpy as np
+from scipy.linalg import blas
 from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
@@ -140,15 +141,16 @@ def _map_and_gram(tables, names, weight, eps, progress, threads=None):
         _check_finite(block, names, start)
         reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
         mapped[start:stop] = block
-        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
-        # sums over thousands of rows would blur them); numpy's a.T @ a is one syrk.
-        wide = block.astype(np.float64)
-        return wide.T @ wide
+        return block.astype(np.float64)
 
     gram = np.zeros((t, t), dtype=np.float64)
-    for part in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
-        gram += part
-    return mapped, reference, mean, gram
+    for wide in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
+        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
+        # sums over thousands of rows would blur them), in chunk order by one dsyrk per chunk
+        # (the upper triangle) as the sequential training did, so the Gram is the same to the
+        # bit: the noise scales chosen downstream are sensitive to its last digits.
+        gram = blas.dsyrk(1.0, wide, trans=1, beta=1.0, c=gram, overwrite_c=1)
+    return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
 
 
 def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
