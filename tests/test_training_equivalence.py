@@ -1,13 +1,16 @@
-"""Training on threads gives the model of the sequential algorithm it replaced, within float rounding.
+"""Training with its mapping on threads gives the model of the sequential training it replaced.
 
-``data/frost_model_before_threads.npz`` holds the model the single-pass sequential training
-(one dsyrk accumulation, BLAS's own threads) produced for these synthetic materials before the
-chunks moved onto our threads; the test fits the same materials with small chunks spread over
-threads and compares every array and every number of the noise model and its calibration.
+``data/frost_model_before_threads.npz`` holds the model the sequential training (one chunk after
+the other, 18 chunks of 97 rows) produced for these synthetic materials before the mapping moved onto threads; the
+test fits the same materials with small chunks spread over threads and compares every array and
+every number of the noise model and its calibration: equal to the bit (the products stay on
+BLAS's threads, whose results depend on their count, so this holds on a machine with the cores
+the file was made on, 2; elsewhere within float rounding).
 """
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -44,18 +47,22 @@ def _close_numbers(before, after, path: str = "") -> None:
         assert after == before, path
 
 
-def test_model_equals_the_sequential_training_within_float_rounding(tables, monkeypatch):
+def test_model_equals_the_sequential_training_to_the_bit(tables, monkeypatch):
     monkeypatch.setattr(training, "CHUNK_ROWS", 97)  # 18 chunks over the threads
     model = fit_model(tables, [f"g{i}" for i in range(12)], GRID, k_max=20)
     before = np.load(BEFORE)
-    np.testing.assert_array_equal(model.singular_values.size, 20)
-    for name in ("singular_values", "coefficients", "mean", "reference"):
-        np.testing.assert_allclose(getattr(model, name), before[name], rtol=1e-6, atol=1e-9, err_msg=name)
-    scale = float(np.abs(before["dictionary"]).max())
-    np.testing.assert_allclose(np.asarray(model.dictionary), before["dictionary"], rtol=0, atol=1e-6 * scale)
-    np.testing.assert_allclose(model.noise_variance, before["noise_variance"], rtol=1e-5)
+    assert model.singular_values.size == 20
+    exact = os.cpu_count() == 2
+    for name in ("singular_values", "coefficients", "mean", "reference", "dictionary", "noise_variance"):
+        after, expected = np.asarray(getattr(model, name)), before[name]
+        if exact:
+            np.testing.assert_array_equal(after, expected, err_msg=name)
+        else:
+            np.testing.assert_allclose(after, expected, rtol=1e-5, atol=1e-6 * float(np.abs(expected).max()), err_msg=name)
     noise = json.loads(str(before["noise"]))
     assert (model.noise["design_scale"], model.noise["recon_scale"]) == (noise["design_scale"], noise["recon_scale"])
+    if exact:
+        assert model.noise == noise
     _close_numbers(noise, model.noise)
 
 

@@ -31,7 +31,6 @@ from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import feature_matrix, material_features, predict
-from goniofrost.frost.threads import project_rows
 
 # Sample counts simulated (the range of m the calibration is fitted on).
 M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
@@ -43,6 +42,7 @@ RECON_SCALES = (0.5, 1.0, 2.0)
 # (a design of 60 picks takes about a second at full size).
 CHOICE_M = (10, 20, 40, 60)
 CHOICE_FOLDS = 4
+CHUNK_ROWS = 1 << 15
 
 
 @dataclass
@@ -141,8 +141,12 @@ def choose_scales(results: dict, choice_m=CHOICE_M) -> tuple:
 
 
 def _fold_dictionary(mapped: np.ndarray, projector: np.ndarray) -> np.ndarray:
-    """D_f = X @ projector, float32 (n, K_f), row chunks on threads (no float64 copy of X)."""
-    return project_rows(mapped, projector.astype(np.float32))
+    """D_f = X @ projector, float32 (n, K_f), chunked (no float64 copy of X)."""
+    p32 = projector.astype(np.float32)
+    out = np.empty((mapped.shape[0], p32.shape[1]), dtype=np.float32)
+    for start in range(0, mapped.shape[0], CHUNK_ROWS):
+        np.matmul(mapped[start:start + CHUNK_ROWS], p32, out=out[start:start + CHUNK_ROWS])
+    return out
 
 
 def _progress(items, progress: bool):

@@ -27,7 +27,6 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from goniofrost.core.grid import MerlGrid
-from goniofrost.frost.threads import map_chunks
 
 # Inner folds of the training materials (fewer when there are fewer materials).
 FOLDS = 10
@@ -115,12 +114,9 @@ def representation_variance(mapped: np.ndarray, folds: list[InnerFold]) -> np.nd
     for fold in folds:
         m[:, fold.held] = fold.residual_map
     out = np.empty(n)
-
-    def chunk(start: int, stop: int) -> None:
-        block = mapped[start:stop] @ m
-        out[start:stop] = np.einsum("ij,ij->i", block, block, dtype=np.float64) / t
-
-    map_chunks(chunk, n, CHUNK_ROWS)  # row chunks on threads
+    for start in range(0, n, CHUNK_ROWS):
+        block = mapped[start:start + CHUNK_ROWS] @ m
+        out[start:start + CHUNK_ROWS] = np.einsum("ij,ij->i", block, block, dtype=np.float64) / t
     return out
 
 

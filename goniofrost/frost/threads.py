@@ -15,7 +15,6 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
-import numpy as np
 
 from threadpoolctl import threadpool_limits
 
@@ -73,36 +72,19 @@ def map_chunks(fn: Callable, n: int, chunk: int, threads: int | None = None) -> 
 
 def imap_chunks(fn: Callable, n: int, chunk: int, threads: int | None = None):
     """Like ``map_chunks`` but yields the results in chunk order as they are ready (a running
-    reduction holds one result at a time, not all of them)."""
+    reduction holds a few results at a time, not all of them). BLAS is not limited: ``fn`` is
+    for element-wise work, and the caller's reduction between results may use BLAS's threads."""
     starts = range(0, n, chunk)
-    with threadpool_limits(limits=1, user_api="blas"):
-        workers = min(resolve_threads(threads), len(starts))
-        if workers <= 1:
-            for s in starts:
-                yield fn(s, min(s + chunk, n))
-            return
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            pending = []
-            for s in starts:
-                pending.append(pool.submit(fn, s, min(s + chunk, n)))
-                if len(pending) > 2 * workers:  # bounded read-ahead
-                    yield pending.pop(0).result()
-            for future in pending:
-                yield future.result()
-
-
-# Rows per chunk of ``project_rows`` (a (rows, K) float32 product: a few MB, in cache).
-PROJECT_ROWS = 1 << 15
-
-
-def project_rows(x: np.ndarray, p: np.ndarray, threads: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
-    """x @ p for a tall float32 x (n, t) and a small p (t, K): float32 (n, K), row chunks on threads."""
-    p = np.ascontiguousarray(p, dtype=np.float32)
-    if out is None:
-        out = np.empty((x.shape[0], p.shape[1]), dtype=np.float32)
-
-    def chunk(start: int, stop: int) -> None:
-        np.matmul(x[start:stop], p, out=out[start:stop])
-
-    map_chunks(chunk, x.shape[0], PROJECT_ROWS, threads)
-    return out
+    workers = min(resolve_threads(threads), len(starts))
+    if workers <= 1:
+        for s in starts:
+            yield fn(s, min(s + chunk, n))
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = []
+        for s in starts:
+            pending.append(pool.submit(fn, s, min(s + chunk, n)))
+            if len(pending) > 2 * workers:  # bounded read-ahead
+                yield pending.pop(0).result()
+        for future in pending:
+            yield future.result()

@@ -25,12 +25,11 @@ from typing import Sequence
 
 import numpy as np
 from scipy.linalg import blas
-from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
 from goniofrost.frost.model import FrostModel
-from goniofrost.frost.threads import imap_chunks, project_rows
+from goniofrost.frost.threads import imap_chunks
 
 EPS = 0.001
 K_MAX = 60
@@ -72,14 +71,14 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     # Our reference is the last one when the caller passed the tables without keeping them
     # (``train`` does): they are freed before the noise cross-validation needs its memory.
     del tables
-    # BLAS on one thread throughout: the large products run on our threads (frost.threads);
-    # the small eigenproblems and fits lose time to OpenBLAS's spinning threads.
-    with threadpool_limits(limits=1, user_api="blas"):
-        svals, vt = _eigen_components(gram, k_max)
-        dictionary = _project(mapped, vt)
-        variance, noise_meta = None, {}
-        if noise and len(names) >= MIN_NOISE_MATERIALS:
-            variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
+    # The products below stay on BLAS's own threads: OpenBLAS's results depend (in the last
+    # bits) on its thread count, and the noise scales chosen downstream follow the last bits
+    # (a design scale of 4 became 1 at full size when these ran on one BLAS thread each).
+    svals, vt = _eigen_components(gram, k_max)
+    dictionary = _project(mapped, vt)
+    variance, noise_meta = None, {}
+    if noise and len(names) >= MIN_NOISE_MATERIALS:
+        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
     return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
                       singular_values=svals, coefficients=vt, mean=mean,
                       reference=reference, weight=weight, noise_variance=variance,
@@ -126,8 +125,8 @@ def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: i
 def _map_and_gram(tables, names, weight, eps, progress, threads=None):
     """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64.
 
-    The chunks run on ``threads`` threads (BLAS on one thread each: see frost.threads); their
-    Gram matrices are summed in chunk order, so the result does not depend on the threads.
+    The mapping of the chunks runs on ``threads`` threads (element-wise numpy, no BLAS); the
+    Gram is accumulated in chunk order on BLAS's threads as before, so it is the same to the bit.
     """
     m, n, _ = tables.shape
     t = 3 * m
@@ -205,9 +204,15 @@ def _eigen_components(gram: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndar
     return np.sqrt(evals[:k]), vt
 
 
-def _project(mapped: np.ndarray, vt: np.ndarray, threads: int | None = None) -> np.ndarray:
-    """D = X V (n, K) float32, chunked on threads so no float64 copy of X is ever made."""
-    return project_rows(mapped, np.ascontiguousarray(vt.T, dtype=np.float32), threads)
+def _project(mapped: np.ndarray, vt: np.ndarray) -> np.ndarray:
+    """D = X V (n, K) float32, chunked so no float64 copy of X is ever made."""
+    n = mapped.shape[0]
+    v32 = np.ascontiguousarray(vt.T, dtype=np.float32)
+    out = np.empty((n, vt.shape[0]), dtype=np.float32)
+    step = 8 * CHUNK_ROWS
+    for start in range(0, n, step):
+        np.matmul(mapped[start:start + step], v32, out=out[start:start + step])
+    return out
 
 
 def _progress_chunks(parts, n: int, progress: bool, what: str):
