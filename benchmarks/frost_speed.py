@@ -290,7 +290,7 @@ def bench_targets(args) -> None:
         med, times = median_time(lambda: fn(model, m), args.repeat)
         limit = reads * d_bytes / (bandwidth * 1e9)
         print(f"{name}: median {med:.3f} s  target {TARGETS[name]:.2f} s  {'met' if med <= TARGETS[name] else 'MISSED'}; "
-              f"bandwidth limit {limit:.3f} s ({reads} reads of D), ratio {med / limit:.2f}  "
+              f"bandwidth limit {limit:.4g} s ({reads} reads of D), ratio {med / limit:.2f}  "
               f"(runs {', '.join(f'{t:.3f}' for t in times)}; {_load()})", flush=True)
     if args.training:
         _target_training(args)
