@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy.linalg import blas
+from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
@@ -143,12 +144,15 @@ def _map_and_gram(tables, names, weight, eps, progress, threads=None):
         return block.astype(np.float64)
 
     gram = np.zeros((t, t), dtype=np.float64)
-    for wide in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
-        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
-        # sums over thousands of rows would blur them), in chunk order by one dsyrk per chunk
-        # (the upper triangle) as the sequential training did, so the Gram is the same to the
-        # bit: the noise scales chosen downstream are sensitive to its last digits.
-        gram = blas.dsyrk(1.0, wide, trans=1, beta=1.0, c=gram, overwrite_c=1)
+    # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32 sums
+    # over thousands of rows would blur them), in chunk order by one dsyrk per chunk (the upper
+    # triangle) as the sequential training did, so the Gram is the same to the bit: the noise
+    # scales chosen downstream follow its last digits. dsyrk on one BLAS thread: the same bits
+    # as on two (it splits the output, not the sums), without OpenBLAS's spinning threads,
+    # which made this pass 4x the CPU time on a loaded host.
+    with threadpool_limits(limits=1, user_api="blas"):
+        for wide in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
+            gram = blas.dsyrk(1.0, wide, trans=1, beta=1.0, c=gram, overwrite_c=1)
     return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
 
 
