@@ -25,6 +25,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--bsdf", action="store_true",
                         help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
                              "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
+    parser.add_argument("--bsdf-format", choices=["mitsuba", "rgl-spectral", "pbrt"], default=None,
+                        help="the format of brdf.bsdf (implies --bsdf): mitsuba (RGB, the default) or rgl-spectral / "
+                             "pbrt (spectral, for pbrt-v4 and Mitsuba 3's spectral variants; about 100 MB)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_server_options(parser, with_flag=True)
 
@@ -52,8 +55,10 @@ def run(args) -> int:
               f"run the same command with --resume", file=sys.stderr)
         return 130
     print(outcome.summary, end="")
-    if args.bsdf:
-        from goniofrost.brdf.mitsuba_export import export_beside
+    if args.bsdf or args.bsdf_format:
+        from goniofrost.brdf.rgl_spectral import export_beside
 
-        print(f"wrote {export_beside(outcome.session_dir / outcome.report['outputs']['brdf'])} (for Mitsuba 3)")
+        fmt = args.bsdf_format or "mitsuba"
+        written = export_beside(outcome.session_dir / outcome.report['outputs']['brdf'], fmt)
+        print(f"wrote {written} ({'for Mitsuba 3' if fmt == 'mitsuba' else 'spectral, for pbrt-v4 and Mitsuba 3'})")
     return 0
