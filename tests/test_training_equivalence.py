@@ -61,9 +61,13 @@ def test_model_equals_the_sequential_training_to_the_bit(tables, monkeypatch):
             np.testing.assert_allclose(after, expected, rtol=1e-5, atol=1e-6 * float(np.abs(expected).max()), err_msg=name)
     noise = json.loads(str(before["noise"]))
     assert (model.noise["design_scale"], model.noise["recon_scale"]) == (noise["design_scale"], noise["recon_scale"])
+    # The predicted-error calibration's record grew since the file was made (the confidence of
+    # the prediction): every number the sequential training recorded is compared, new ones are not.
+    after = {key: model.noise[key] for key in noise}
+    after["calibration"] = {key: model.noise["calibration"][key] for key in noise["calibration"]}
     if exact:
-        assert model.noise == noise
-    _close_numbers(noise, model.noise)
+        assert after == noise
+    _close_numbers(noise, after)
 
 
 def test_threaded_gram_is_the_textbook_gram_and_independent_of_threads(tables, monkeypatch):

@@ -18,7 +18,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue the session journaled in DIR")
     parser.add_argument("--target-error", type=float, metavar="E",
                         help="measure a Bayesian plan batch by batch in design order and stop as soon as this "
-                             "material's predicted log-relative MSE is at most E (e.g. 0.05), or the plan is used up")
+                             "material's log-relative MSE is at most E (e.g. 0.05) with the --confidence, from an "
+                             "upper bound calibrated on held-out training materials; or when the plan is used up. "
+                             "Samples unlike every training material never stop it (an extrapolation)")
+    parser.add_argument("--confidence", type=float, default=0.95, metavar="P",
+                        help="with --target-error: the probability that the error is at most E when the capture "
+                             "stops (default 0.95)")
     parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
@@ -45,7 +50,8 @@ def run(args) -> int:
         with watch:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
-                              target_error=args.target_error, alignment=args.alignment)
+                              target_error=args.target_error, confidence=args.confidence,
+                              alignment=args.alignment)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)
