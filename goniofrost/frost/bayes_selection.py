@@ -23,7 +23,8 @@ import numpy as np
 from goniofrost.frost import bayes_kernels as kernels
 from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
-from goniofrost.frost.selection import THREADS, Selection, SelectionError
+from goniofrost.frost.selection import Selection, SelectionError
+from goniofrost.frost.threads import resolve_threads
 
 # --max-error never plans more samples than this.
 MAX_ERROR_PICKS = 1000
@@ -47,23 +48,26 @@ class GreedyDesign:
     covariance: np.ndarray
 
 
-def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None) -> GreedyDesign:
+def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None,
+                  threads: int | None = None) -> GreedyDesign:
     """Greedy A-optimal picks among ``rows`` of ``dictionary``.
 
     dictionary: float32 (n, K) D (memory-mapped is fine); s2: (K,) S^2 = D^T D;
     prior_var: (K,) prior variance of the coefficients; noise: (n,) sigma_c^2 of every row (the
     design errors are under this noise); rows: int64 candidate rows (default all n); m_max: at
     most this many picks; stop: optional ``stop(row) -> bool`` called with each picked row (e.g.
-    to track an error target). Raises SelectionError when the candidates stop reducing the
-    error first.
+    to track an error target); threads: threads sharing each pass (default: the cores this
+    process may use; the picks do not depend on it). Raises SelectionError when the candidates
+    stop reducing the error first.
     """
     start = time.perf_counter()
-    forms = _Forms(dictionary, rows, noise)
+    threads = resolve_threads(threads)
+    forms = _Forms(dictionary, rows, noise, threads)
     sigma = np.diag(np.asarray(prior_var, np.float64))
     s2 = np.asarray(s2, np.float64)
     noise_total, n = float(forms.noise.sum()), forms.d.shape[0]
     picks, errors, seconds = [], [], []
-    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         best, i = forms.first_pass(pool, sigma.diagonal().copy(), s2)
         first = best
         while True:
@@ -87,16 +91,16 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
 
 class _Forms:
     """The quadratic forms q, p of every candidate and the fused passes that keep them (split
-    among THREADS threads over contiguous ranges of candidates; see bayes_kernels)."""
+    among ``threads`` threads over contiguous ranges of candidates; see bayes_kernels)."""
 
-    def __init__(self, dictionary, rows, noise) -> None:
+    def __init__(self, dictionary, rows, noise, threads: int) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         self.noise = np.asarray(noise, dtype=np.float64)
         self.open_noise = np.ascontiguousarray(self.noise[self.rows])  # private: a picked cell gets +inf (score 0)
         self.q, self.p = np.empty(self.rows.size), np.empty(self.rows.size)
-        self.edges = [int(e) for e in np.linspace(0, self.rows.size, THREADS + 1)]
+        self.edges = [int(e) for e in np.linspace(0, self.rows.size, threads + 1)]
 
     def first_pass(self, pool, prior_var, s2) -> tuple[float, int]:
         return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
@@ -126,12 +130,13 @@ def _best(results) -> tuple[float, int]:
 
 
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
-                 candidates: np.ndarray | None = None) -> Selection:
+                 candidates: np.ndarray | None = None, threads: int | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
     typical material (``prediction.predict_typical``) is <= max_error.
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
+    threads: threads sharing each pass (default: the cores this process may use).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
     """
     start = time.perf_counter()
@@ -145,7 +150,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         def stop(row):
             return tracker.add(row) <= max_error
     design = greedy_design(model.dictionary, tracker.s2, prior_variance(model), noise * design_scale(model), limit,
-                           rows=rows, stop=stop)
+                           rows=rows, stop=stop, threads=threads)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
