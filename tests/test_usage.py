@@ -97,13 +97,13 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
     a design can change, trace(M Sigma), is well below the scene-blind design's (the rest,
     sum u sigma^2, is the model's own floor)."""
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.posterior import cell_noise, prior_variance
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
     from goniofrost.frost.usage_design import scene_matrix
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
     usage /= usage.sum()
-    noise = cell_noise(model)
+    noise = cell_noise(model) * design_scale(model)  # the noise the design assumes
 
     def weighted_error(rows):
         d = np.asarray(model.dictionary[rows], np.float64)
