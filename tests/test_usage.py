@@ -143,3 +143,15 @@ def test_a_usage_file_that_is_not_npy_and_usage_with_frost_are_refused(model_dir
                  "--out", str(out)]) == 2
     assert "--usage applies to --selector bayes only" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
+    import runpy
+    import sys
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "results.json").read_text())
+    assert {(r["scene"], r["design"]) for r in doc["rows"]} == {("retro-sphere", "blind"), ("retro-sphere", "aware")}
+    assert all(np.isfinite(r["image_rel_mse"]) and r["seen_log_mse"] >= 0 for r in doc["rows"])
+    assert (tmp_path / "retro-sphere.png").is_file()
