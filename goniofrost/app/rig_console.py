@@ -1,0 +1,217 @@
+"""What each ``goniofrost rig`` sub-command does and prints (the computations live in goniofrost.capture)."""
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from goniofrost.core.errors import GoniofrostError
+
+
+class RigProblems(GoniofrostError):
+    """``rig check`` found something wrong (the table was printed; exit 2)."""
+
+
+def _load(args):
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    return load_checked_rig(args.rig, args.alignment)
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# ----- check -----------------------------------------------------------------------------------
+def run_check(args) -> int:
+    from goniofrost.capture.rig_check import RigCheckError, rig_file_problems
+
+    problems = rig_file_problems(args.rig, args.alignment)
+    if problems:
+        if args.json:
+            print(json.dumps({"rig": args.rig, "problems": [p.message for p in problems], "devices": []}, indent=1))
+        raise RigCheckError(problems, args.rig)
+    rig = _load(args)
+    reports = [] if args.offline else _probe(rig)
+    if args.json:
+        print(json.dumps({"rig": args.rig, "problems": [], "devices": [r.as_dict() for r in reports]}, indent=1))
+    else:
+        print(f"{args.rig}: the rig file is sound ({len(rig.axes)} axes"
+              f"{', a lamp' if rig.lamp.get('driver') else ''}, camera {rig.camera.get('kind', 'none')})")
+        if reports:
+            print(device_table(reports))
+    silent = [r for r in reports if not r.answers or r.error or r.alarm]
+    if silent:
+        raise RigProblems(f"{len(silent)} of {len(reports)} devices did not answer cleanly: "
+                          + ", ".join(r.device for r in silent))
+    return 0
+
+
+def _probe(rig):
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.console import _device_sections
+    from goniofrost.capture.rig_check import probe_rig
+
+    with _device_sections(rig) as sections:
+        devices = RigDevices.from_sections(sections)
+        axes = sections["axes"] if isinstance(sections, dict) else {n: {"driver": a.driver} for n, a in rig.axes.items()}
+        return probe_rig(rig, devices.axes, devices.lamp, {n: a["driver"] for n, a in axes.items()})
+
+
+def device_table(reports) -> str:
+    """The probe's findings as a fixed-width table, causes under each silent device."""
+    head = ("device", "link", "answers", "identity", "position", "limits", "state")
+    rows = [head]
+    for r in reports:
+        state = ("lamp on" if r.lamp_on else "lamp off") if r.device == "lamp" and r.answers else (
+            "-" if not r.answers else (f"ALARM {r.alarm}" if r.alarm else ("enabled" if r.enabled else "disabled")))
+        rows.append((r.device, r.link, "yes" if r.answers else "NO", r.identity or "-",
+                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg",
+                     "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]", state))
+    widths = [max(len(str(row[i])) for row in rows) for i in range(len(head))]
+    lines = []
+    for k, row in enumerate(rows):
+        lines.append("  ".join(str(v).ljust(w) for v, w in zip(row, widths)).rstrip())
+        report = reports[k - 1] if k else None
+        if report is not None and (report.error or report.causes):
+            if report.error:
+                lines.append(f"    error: {report.error}")
+            lines += [f"    likely cause: {c}" for c in report.causes]
+    return "\n".join(lines)
+
+
+# ----- status ----------------------------------------------------------------------------------
+def run_status(args) -> int:
+    from goniofrost.capture.console import connected_rig, read_status
+
+    rig = _load(args)
+    with connected_rig(rig, enable=False) as hardware:
+        n = 0
+        while True:
+            readings, lamp = read_status(rig, hardware)
+            print(_status_text(readings, lamp, args.json), flush=True)
+            n += 1
+            if not args.watch or (args.count is not None and n >= args.count):
+                return 0
+            time.sleep(max(args.interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _status_text(readings, lamp, as_json: bool) -> str:
+    if as_json:
+        return json.dumps({"axes": [r.as_dict() for r in readings], "lamp": lamp})
+    lines = []
+    for r in readings:
+        state = f"ALARM {r.alarm}" if r.alarm else ("moving" if r.moving else "at rest")
+        lines.append(f"{r.axis:<14} {r.position_deg:10.3f} deg (aligned {r.aligned_deg:10.3f})  "
+                     f"limits [{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]  {state}, "
+                     f"{'enabled' if r.enabled else 'disabled'}")
+    if lamp is not None:
+        lines.append(f"{'lamp':<14} {'on' if lamp['on'] else 'off'}, photodiode {lamp['photodiode']:.4f} of nominal")
+    return "\n".join(lines)
+
+
+# ----- move, home, lamp ----------------------------------------------------------------------------
+def run_move(args) -> int:
+    from goniofrost.capture.console import check_targets, connected_rig, move_plan, parse_targets, run_plan
+
+    rig = _load(args)
+    requested = parse_targets(args.targets, rig)
+    if not args.by:
+        check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
+    with _rig_held(rig, "rig move"), connected_rig(rig, enable=True) as hardware:
+        targets = requested
+        if args.by:
+            targets = {name: hardware.axes[name].position() + by for name, by in requested.items()}
+            check_targets(rig, targets)
+        for name, deg in targets.items():
+            _say(f"moving {name} to {deg:.3f} deg")
+        reached = run_plan(hardware, move_plan(rig, targets), "the move")
+    _say("reached " + ", ".join(f"{n} {d:.3f} deg" for n, d in reached.joints.items()))
+    return 0
+
+
+def run_home(args) -> int:
+    from goniofrost.capture.console import ConsoleError, connected_rig, home_plan, run_plan
+
+    rig = _load(args)
+    axes = args.axes or list(rig.joint_names)
+    unknown = [a for a in axes if a not in rig.axes]
+    if unknown:
+        raise ConsoleError(f"no axis {unknown[0]!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+    if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
+        raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
+    with _rig_held(rig, "rig home"), connected_rig(rig, enable=True) as hardware:
+        _say(f"homing {', '.join(axes)}")
+        reached = run_plan(hardware, home_plan(axes), "homing")
+    _say("homed " + ", ".join(f"{n} at {d:.3f} deg" for n, d in reached.joints.items()))
+    return 0
+
+
+def _confirm(question: str) -> bool:
+    if not sys.stdin or not sys.stdin.isatty():
+        line = sys.stdin.readline() if sys.stdin else ""
+    else:
+        line = input(question)
+    return line.strip().lower() in ("y", "yes")
+
+
+def run_lamp(args) -> int:
+    from goniofrost.capture.console import ConsoleError, connected_rig, lamp_plan, run_plan
+
+    rig = _load(args)
+    if not rig.lamp.get("driver"):
+        raise ConsoleError(f"{rig.source}: this rig has no lamp driver (lamp.driver)")
+    on = args.state == "on"
+    with _rig_held(rig, "rig lamp"), connected_rig(rig, enable=False) as hardware:
+        reading = run_plan(hardware, lamp_plan(on), f"switching the lamp {args.state}")
+    _say(f"lamp on, photodiode {reading:.4f} of nominal" if on else "lamp off")
+    return 0
+
+
+def _rig_held(rig, program: str):
+    """The rig lock for the command (one program drives a rig at a time)."""
+    from contextlib import nullcontext
+
+    try:
+        from goniofrost.capture.rig_lock import hold_rig
+    except ModuleNotFoundError:
+        return nullcontext()
+    return hold_rig(rig, program)
+
+
+# ----- stop -------------------------------------------------------------------------------------
+def run_stop(args) -> int:
+    from goniofrost.capture.console import connected_rig
+    from goniofrost.capture.executor import StepExecutor, stop_text
+
+    rig = _load(args)
+    holder = _ask_holder_to_stop(rig)
+    if holder is not None:
+        _say(f"asked {holder} to stop; its own report follows in its terminal and journal")
+        return 0
+    with connected_rig(rig, enable=False) as hardware:
+        executor = StepExecutor(hardware, ".")
+        stops = executor.stop()
+        lamp_error = executor.switch_lamp_off() if hardware.lamp is not None else None
+    _say(stop_text(stops) + ("; lamp off" if hardware.lamp is not None and lamp_error is None
+                             else f"; lamp NOT confirmed off: {lamp_error}" if lamp_error else ""))
+    return 0 if all(s.confirmed for s in stops) and lamp_error is None else 2
+
+
+def _ask_holder_to_stop(rig):
+    try:
+        from goniofrost.capture.rig_lock import request_stop
+    except ModuleNotFoundError:
+        return None
+    return request_stop(rig)
+
+
+# ----- snap -------------------------------------------------------------------------------------
+def run_snap(args) -> int:
+    from goniofrost.capture.snap import snap, snap_text
+
+    rig = _load(args)
+    with _rig_held(rig, "rig snap"):
+        result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material)
+    print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
+    return 0

@@ -1,0 +1,195 @@
+"""The operator's console: read, move, home and stop a rig's axes and switch its lamp, by hand.
+
+Each command is a short plan of the session's own steps (``Home``, ``Move``, ``LampOn``,
+``LampOff``) run on the connected devices through the one executor and its one stop path
+(``executor.stop_axes``): on any failure or Ctrl-C every axis is stopped and confirmed, axis by
+axis, and the lamp switched off. Targets are checked against the soft limits and the rig's
+geometry before anything is connected, so a refused move sends no byte.
+"""
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Iterable, Mapping
+
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.capture.steps import Home, LampOff, LampOn, Move
+
+
+class ConsoleError(GoniofrostError):
+    """A console command that cannot be carried out as asked (nothing was moved)."""
+
+
+class StoppedError(GoniofrostError):
+    """A console command that failed or was interrupted after it had started: every axis was
+    stopped; ``stops`` says what each one confirmed."""
+
+    def __init__(self, what: str, stops) -> None:
+        from goniofrost.capture.executor import stop_text
+
+        self.stops = stops
+        super().__init__(f"{what}; {stop_text(stops)}")
+
+
+# ----- targets ------------------------------------------------------------------------------
+def parse_targets(words: Iterable[str], rig) -> dict[str, float]:
+    """``["camera_arm=90", "sample_tilt=-5.5"]`` -> {axis: degrees}; ConsoleError naming the word."""
+    targets: dict[str, float] = {}
+    for word in words:
+        name, sep, value = word.partition("=")
+        if not sep or not name:
+            raise ConsoleError(f"{word!r}: expected AXIS=DEGREES, e.g. {next(iter(rig.axes))}=10")
+        if name not in rig.axes:
+            raise ConsoleError(f"{word!r}: no axis {name!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+        try:
+            deg = float(value)
+        except ValueError:
+            raise ConsoleError(f"{word!r}: {value!r} is not a number of degrees") from None
+        if not math.isfinite(deg):
+            raise ConsoleError(f"{word!r}: {value!r} is not a finite number of degrees")
+        if name in targets:
+            raise ConsoleError(f"{word!r}: axis {name} is given twice")
+        targets[name] = deg
+    if not targets:
+        raise ConsoleError("no target: give AXIS=DEGREES (one or more)")
+    return targets
+
+
+def check_targets(rig, targets: Mapping[str, float]) -> None:
+    """Refuse a target outside its axis's soft limits or the rig's geometry (ConsoleError naming the
+    axis, the target, the limit and why)."""
+    from planner.rig import Role
+
+    for name, deg in targets.items():
+        spec = rig.axes[name]
+        lo, hi = spec.limits_deg
+        if not lo <= deg <= hi:
+            raise ConsoleError(f"{name}: target {deg:g} deg is outside its limits [{lo:g}, {hi:g}] deg "
+                               f"(axes.{name}.limits_deg of {rig.source}); nothing was moved")
+        if spec.role is Role.SAMPLE_TILT and abs(deg) > rig.geometry.tilt_limit_deg:
+            raise ConsoleError(f"{name}: target {deg:g} deg is beyond the stage's tilt limit "
+                               f"+-{rig.geometry.tilt_limit_deg:g} deg (geometry.tilt_limit_deg); nothing was moved")
+        if spec.role is Role.CAMERA_ARM and abs(deg) < rig.geometry.min_arm_separation_deg:
+            raise ConsoleError(f"{name}: target {deg:g} deg brings the camera closer to the lamp than "
+                               f"{rig.geometry.min_arm_separation_deg:g} deg (geometry.min_arm_separation_deg); "
+                               f"nothing was moved")
+
+
+# ----- the plans ------------------------------------------------------------------------------
+def move_plan(rig, targets: Mapping[str, float]):
+    """Move the named axes together (in the rig's joint order) to ``targets`` (degrees)."""
+    order = [name for name in rig.joint_names if name in targets]
+    reached = yield Move(None, tuple((name, float(targets[name])) for name in order))
+    return reached
+
+
+def home_plan(axes: Iterable[str]):
+    """Home the named axes together."""
+    reached = yield Home(tuple(axes))
+    return reached
+
+
+def lamp_plan(on: bool):
+    """Switch the lamp on (returns the photodiode's reading) or off."""
+    reading = yield (LampOn() if on else LampOff())
+    return reading
+
+
+def run_plan(hardware, plan, what: str, *, lamp_off_on_failure: bool = True):
+    """Run a console plan on ``hardware``; on any failure or Ctrl-C stop and confirm every axis and
+    switch the lamp off, then raise StoppedError (or KeyboardInterrupt's StoppedError) with the
+    per-axis report."""
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.capture.steps import drive
+
+    executor = StepExecutor(hardware, ".")
+    try:
+        return drive(plan, executor)
+    except BaseException as exc:
+        stops = executor.stop()
+        if lamp_off_on_failure and hardware.lamp is not None:
+            executor.switch_lamp_off()
+        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{what} failed: {exc}"
+        raise StoppedError(reason, stops) from exc
+
+
+# ----- connecting --------------------------------------------------------------------------------
+@dataclass
+class ConsoleHardware:
+    """The connected axes and lamp of a rig, for the console (no camera, the wall clock)."""
+
+    axes: dict
+    lamp: object
+    clock: object
+    simulated: bool = False
+    simulation: object = None
+    camera: object = None
+
+
+@contextmanager
+def connected_rig(rig, *, enable: bool):
+    """Connect every axis (enabled when ``enable``) and the lamp of ``rig``; on exit stop and
+    confirm every axis (the one stop path) and close. A simulated rig's devices start here and
+    end with the command: use ``goniofrost sim --write-rig`` for twins that outlive one command."""
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.executor import stop_axes
+    from goniofrost.capture.hardware import WallClock
+
+    with _device_sections(rig) as sections:
+        devices = RigDevices.from_sections(sections)
+        devices.connect_all(enable=enable)
+        try:
+            yield ConsoleHardware(devices.axes, devices.lamp, WallClock())
+        finally:
+            try:
+                stop_axes(devices.axes)
+            finally:
+                devices.close_all()
+
+
+@contextmanager
+def _device_sections(rig):
+    """The rig (real) or the resolved sections of its simulated devices, started for the command."""
+    if not rig.simulated:
+        yield rig
+        return
+    from sim.rig import SimulatedRig
+
+    with SimulatedRig(rig) as simulation:
+        yield simulation.resolved_driver_sections()
+
+
+# ----- status ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AxisReading:
+    """One axis as read now: position as the axis reads it and aligned (physical = reading + the
+    alignment's zero offset), limits, moving, enabled, alarm (None when healthy); degrees."""
+
+    axis: str
+    position_deg: float
+    aligned_deg: float
+    limits_deg: tuple[float, float]
+    moving: bool
+    enabled: bool
+    alarm: str | None
+
+    def as_dict(self) -> dict:
+        out = dict(self.__dict__)
+        out["limits_deg"] = list(self.limits_deg)
+        return out
+
+
+def read_status(rig, hardware) -> tuple[list[AxisReading], dict | None]:
+    """Every axis's reading and the lamp's state ({"on", "photodiode"}; None without a lamp)."""
+    offsets = rig.alignment.offsets_deg if rig.alignment is not None else {}
+    readings = []
+    for name, axis in hardware.axes.items():
+        status = axis.status()
+        readings.append(AxisReading(name, float(status.position_deg), float(status.position_deg) + offsets.get(name, 0.0),
+                                    tuple(rig.axes[name].limits_deg), bool(status.moving), bool(status.enabled),
+                                    status.fault))
+    lamp = None
+    if hardware.lamp is not None:
+        lamp = {"on": bool(hardware.lamp.is_on()), "photodiode": float(hardware.lamp.photodiode())}
+    return readings, lamp
