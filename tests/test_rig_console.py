@@ -209,3 +209,23 @@ def test_a_lamp_on_a_dynamixel_axis_is_one_line_exit_2_nothing_written(tmp_path,
         err = [line for line in capsys.readouterr().err.strip().splitlines() if "problem(s):" not in line]
         assert len(err) == 1 and "lamp.driver.device: expected an axis whose driver is modbus-tcp or modbus-rtu" in err[0], argv
     assert sorted(tmp_path.iterdir()) == before
+
+
+def test_snap_of_the_simulated_white_card_finds_its_four_markers(tmp_path, capsys):
+    out = tmp_path / "snap.png"
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "--out", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["markers_found"] == [4, 5, 6, 7] and doc["roi_source"] == "markers"
+    assert doc["problem"] is None and doc["pose_deg"]["camera_arm"] == pytest.approx(30.0, abs=0.02)
+    assert min(doc["roi_pixels"]) >= 24 and min(doc["snr"]) >= 100.0  # the camera section's target_snr
+    assert doc["capture_exposures_s"] and doc["roi_saturated_fraction"] == 0.0
+    import cv2
+    image = cv2.imread(str(out))
+    assert image is not None and image.shape == (300, 400, 3)
+
+
+def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--out", str(tmp_path / "s.png"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["markers_found"] == [] and doc["roi_source"] is None
+    assert "the sample patch keeps only 0 pixels of channel R (need 24)" in doc["problem"]

@@ -208,10 +208,15 @@ def _ask_holder_to_stop(rig):
 
 # ----- snap -------------------------------------------------------------------------------------
 def run_snap(args) -> int:
+    from goniofrost.capture.console import check_targets, parse_targets
     from goniofrost.capture.snap import snap, snap_text
 
     rig = _load(args)
+    move_to = parse_targets(args.move, rig) if args.move else None
+    if move_to:
+        check_targets(rig, move_to)
     with _rig_held(rig, "rig snap"):
-        result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material)
+        result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
+                      move_to=move_to)
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     return 0

@@ -80,6 +80,8 @@ def _args_snap(p) -> None:
                    help="one frame of S seconds (default: the bracket the capture would take)")
     p.add_argument("--out", required=True, metavar="FRAME.png", help="the picture, with the region and markers drawn")
     p.add_argument("--json", action="store_true", help="print the findings as JSON")
+    p.add_argument("--move", nargs="+", default=None, metavar="AXIS=DEG",
+                   help="move these axes first (limits checked as for rig move), then snap")
     p.add_argument("--material", default=None, metavar="SPEC:NAME",
                    help="simulated rig only: the material on the stage (default: the white card only)")
 
