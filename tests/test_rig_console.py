@@ -229,3 +229,39 @@ def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["markers_found"] == [] and doc["roi_source"] is None
     assert "the sample patch keeps only 0 pixels of channel R (need 24)" in doc["problem"]
+
+
+@pytest.fixture(scope="module")
+def small_plan(tmp_path_factory):
+    """(rig file, plan file) of a 5-sample plan on the simulated rig (a small model, 30 x 30 x 60 grid)."""
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.training import train
+
+    folder = tmp_path_factory.mktemp("dry")
+    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=MerlGrid(30, 30, 60),
+                  k_max=12, cache=True)
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 5, SIM_RIG, folder / "plan.json")
+    return SIM_RIG, plan
+
+
+def test_capture_dry_run_times_every_move_against_the_plan_and_writes_nothing(small_plan, tmp_path, capsys, monkeypatch):
+    rig, plan = small_plan
+    monkeypatch.chdir(tmp_path)
+    assert main(["capture", "--rig", str(rig), "--plan", str(plan), "--dry-run", "--speedup", "50"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(Path(plan).read_text())
+    assert len([line for line in captured.err.splitlines() if line.startswith("move ")]) == len(doc["samples"])
+    summary = captured.out.splitlines()[0]
+    planned = sum(s["move_s"] for s in doc["samples"]) + doc["return_home_s"]
+    assert summary.startswith(f"{len(doc['samples'])} moves and the return home: planned {planned:.1f} s, measured ")
+    measured = float(summary.split("measured ")[1].split(" s")[0])
+    assert planned * 0.95 <= measured <= planned * 1.5 + 2.0  # the simulated axes follow their trapezoids
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_capture_without_session_or_dry_run_is_one_line(small_plan, capsys):
+    rig, plan = small_plan
+    assert main(["capture", "--rig", str(rig), "--plan", str(plan)]) == 2
+    assert capsys.readouterr().err.strip() == "goniofrost capture: error: command line: --session: expected a session folder (DIR), found 'nothing'"

@@ -52,7 +52,7 @@ def _probe(rig):
     from goniofrost.capture.console import _device_sections
     from goniofrost.capture.rig_check import probe_rig
 
-    with _device_sections(rig) as sections:
+    with _device_sections(rig) as (sections, _simulation):
         devices = RigDevices.from_sections(sections)
         axes = sections["axes"] if isinstance(sections, dict) else {n: {"driver": a.driver} for n, a in rig.axes.items()}
         return probe_rig(rig, devices.axes, devices.lamp, {n: a["driver"] for n, a in axes.items()})
@@ -220,3 +220,45 @@ def run_snap(args) -> int:
                       move_to=move_to)
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     return 0
+
+
+# ----- capture --dry-run -----------------------------------------------------------------------------
+def run_dry_run(args) -> int:
+    """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
+    from goniofrost.capture.console import connected_rig, dry_run
+    from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
+    from goniofrost.capture.plan_file import read_plan
+
+    rig = _load(args)
+    plan = read_plan(args.plan)
+    for check in (check_rig, check_alignment, check_joints):  # before anything is connected
+        check(plan, args.plan, rig)
+    n, done = len(plan["samples"]), []
+
+    def progress(move):
+        if move.index is not None and move.planned_s is not None:
+            done.append(move)
+            if not args.no_progress:
+                _say(f"move {len(done)}/{n} (sample {move.index}): planned {move.planned_s:.2f} s, "
+                     f"measured {move.measured_s:.2f} s{'  DIFFERS' if move.differs else ''}")
+
+    with _rig_held(rig, "capture --dry-run"), connected_rig(rig, enable=True, speedup=args.speedup) as hardware:
+        timed = dry_run(rig, plan, hardware, on_move=progress)
+    print(dry_run_text(timed[1:]))
+    return 0
+
+
+def dry_run_text(timed) -> str:
+    """The planned and measured times in total, and every move where they differ."""
+    planned = sum(m.planned_s for m in timed)
+    measured = sum(m.measured_s for m in timed)
+    differ = [m for m in timed if m.differs]
+    lines = [f"{len(timed) - 1} moves and the return home: planned {planned:.1f} s, measured {measured:.1f} s "
+             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"]
+    if differ:
+        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and 0.5 s:")
+        lines += [f"  {'return home' if m.index is None else f'sample {m.index}'}: planned {m.planned_s:.2f} s, "
+                  f"measured {m.measured_s:.2f} s" for m in differ]
+    else:
+        lines.append("every move within 20 % or 0.5 s of the plan")
+    return "\n".join(lines)

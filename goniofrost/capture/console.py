@@ -128,19 +128,21 @@ class ConsoleHardware:
 
 
 @contextmanager
-def connected_rig(rig, *, enable: bool):
+def connected_rig(rig, *, enable: bool, speedup: float | None = None):
     """Connect every axis (enabled when ``enable``) and the lamp of ``rig``; on exit stop and
     confirm every axis (the one stop path) and close. A simulated rig's devices start here and
-    end with the command: use ``goniofrost sim --write-rig`` for twins that outlive one command."""
+    end with the command (at ``speedup``; its clock is the session clock): use
+    ``goniofrost sim --write-rig`` for twins that outlive one command."""
     from drivers.rig_devices import RigDevices
     from goniofrost.capture.executor import stop_axes
     from goniofrost.capture.hardware import WallClock
 
-    with _device_sections(rig) as sections:
+    with _device_sections(rig, speedup) as (sections, simulation):
         devices = RigDevices.from_sections(sections)
         devices.connect_all(enable=enable)
         try:
-            yield ConsoleHardware(devices.axes, devices.lamp, WallClock())
+            clock = simulation.clock if simulation is not None else WallClock()
+            yield ConsoleHardware(devices.axes, devices.lamp, clock)
         finally:
             try:
                 stop_axes(devices.axes)
@@ -149,15 +151,71 @@ def connected_rig(rig, *, enable: bool):
 
 
 @contextmanager
-def _device_sections(rig):
-    """The rig (real) or the resolved sections of its simulated devices, started for the command."""
+def _device_sections(rig, speedup: float | None = None):
+    """(the rig, None) for a real rig, or (the resolved sections of its simulated devices, the
+    SimulatedRig), started for the command."""
     if not rig.simulated:
-        yield rig
+        yield rig, None
         return
     from sim.rig import SimulatedRig
 
-    with SimulatedRig(rig) as simulation:
-        yield simulation.resolved_driver_sections()
+    with SimulatedRig(rig, speedup=speedup) as simulation:
+        yield simulation.resolved_driver_sections(), simulation
+
+
+# ----- the dry run -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TimedMove:
+    """One move of a dry run: plan ``index`` (None: homing), planned and measured seconds."""
+
+    index: int | None
+    planned_s: float | None
+    measured_s: float
+
+    @property
+    def differs(self) -> bool:
+        """Measured more than 20 % and 0.5 s away from the plan (polling and start-up latency stay within)."""
+        if self.planned_s is None:
+            return False
+        gap = abs(self.measured_s - self.planned_s)
+        return gap > 0.5 and gap > 0.2 * self.planned_s
+
+
+def dry_run_plan(rig, plan_doc: dict):
+    """Home, every sample's pose in capture order, home again: the plan's motion, no camera or lamp."""
+    yield Home(tuple(rig.joint_names))
+    for index, sample in enumerate(plan_doc["samples"]):  # plan index = position in capture order
+        yield Move(index, tuple((name, float(sample["joints"][name])) for name in rig.joint_names))
+    yield Home(tuple(rig.joint_names))
+
+
+def dry_run(rig, plan_doc: dict, hardware, on_move=None) -> list[TimedMove]:
+    """Run ``dry_run_plan`` on ``hardware`` timing each step on its clock; ``on_move(TimedMove)``
+    after each (progress). On failure or Ctrl-C every axis is stopped and confirmed (StoppedError)."""
+    from goniofrost.capture.executor import StepExecutor
+
+    executor = StepExecutor(hardware, ".")
+    planned = [float(s["move_s"]) for s in plan_doc["samples"]] + [float(plan_doc.get("return_home_s", 0.0))]
+    timed: list[TimedMove] = []
+
+    def timing(step):
+        t0 = hardware.clock.now()
+        executor(step)
+        k = len(timed)  # 0: the first homing (the plan's moves start at home), then the samples, then home
+        move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1], hardware.clock.now() - t0)
+        timed.append(move)
+        if on_move is not None:
+            on_move(move)
+
+    try:
+        from goniofrost.capture.steps import drive
+
+        drive(dry_run_plan(rig, plan_doc), timing)
+    except BaseException as exc:
+        stops = executor.stop()
+        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"the dry run failed: {exc}"
+        raise StoppedError(reason, stops) from exc
+    return timed
 
 
 # ----- status ------------------------------------------------------------------------------
