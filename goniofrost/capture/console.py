@@ -1,10 +1,12 @@
 """The operator's console: read, move, home and stop a rig's axes and switch its lamp, by hand.
 
 Each command is a short plan of the session's own steps (``Home``, ``Move``, ``LampOn``,
-``LampOff``) run on the connected devices through the one executor and its one stop path
-(``executor.stop_axes``): on any failure or Ctrl-C every axis is stopped and confirmed, axis by
-axis, and the lamp switched off. Targets are checked against the soft limits and the rig's
-geometry before anything is connected, so a refused move sends no byte.
+``LampOff``) run on the connected devices by the engine core (``plan_runner.PlanRunner``, without
+a journal) and its one stop path (``executor.stop_axes``): on any failure, Ctrl-C or a stop
+request every axis is stopped and confirmed, axis by axis, and the lamp switched off. Every
+command holds the rig lock while it is connected (``rig_lock``: one program drives a rig at a
+time). Targets are checked against the soft limits and the rig's geometry before anything is
+connected, so a refused move sends no byte.
 """
 from __future__ import annotations
 
@@ -19,17 +21,6 @@ from goniofrost.capture.steps import Home, LampOff, LampOn, Move
 
 class ConsoleError(GoniofrostError):
     """A console command that cannot be carried out as asked (nothing was moved)."""
-
-
-class StoppedError(GoniofrostError):
-    """A console command that failed or was interrupted after it had started: every axis was
-    stopped; ``stops`` says what each one confirmed."""
-
-    def __init__(self, what: str, stops) -> None:
-        from goniofrost.capture.executor import stop_text
-
-        self.stops = stops
-        super().__init__(f"{what}; {stop_text(stops)}")
 
 
 # ----- targets ------------------------------------------------------------------------------
@@ -96,22 +87,13 @@ def lamp_plan(on: bool):
     return reading
 
 
-def run_plan(hardware, plan, what: str, *, lamp_off_on_failure: bool = True):
-    """Run a console plan on ``hardware``; on any failure or Ctrl-C stop and confirm every axis and
-    switch the lamp off, then raise StoppedError (or KeyboardInterrupt's StoppedError) with the
-    per-axis report."""
-    from goniofrost.capture.executor import StepExecutor
-    from goniofrost.capture.steps import drive
+def run_plan(hardware, plan, program: str):
+    """Run a console plan on ``hardware`` through the engine core (``PlanRunner``, no journal): on
+    any failure, Ctrl-C or a stop request every axis is stopped and confirmed and the lamp switched
+    off, and ``SessionFault`` / ``SessionInterrupted`` say axis by axis what was confirmed."""
+    from goniofrost.capture.plan_runner import PlanRunner
 
-    executor = StepExecutor(hardware, ".")
-    try:
-        return drive(plan, executor)
-    except BaseException as exc:
-        stops = executor.stop()
-        if lamp_off_on_failure and hardware.lamp is not None:
-            executor.switch_lamp_off()
-        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{what} failed: {exc}"
-        raise StoppedError(reason, stops) from exc
+    return PlanRunner(hardware, ".", program=program).execute_plan(plan)
 
 
 # ----- connecting --------------------------------------------------------------------------------
@@ -125,24 +107,28 @@ class ConsoleHardware:
     simulated: bool = False
     simulation: object = None
     camera: object = None
+    rig_lock: object = None
 
 
 @contextmanager
-def connected_rig(rig, *, enable: bool, speedup: float | None = None):
-    """Connect every axis (enabled when ``enable``) and the lamp of ``rig``; on exit stop and
-    confirm every axis (the one stop path) and close. A simulated rig's devices start here and
-    end with the command (at ``speedup``; its clock is the session clock): use
-    ``goniofrost sim --write-rig`` for twins that outlive one command."""
+def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None):
+    """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
+    of ``rig``; on exit stop and confirm every axis (the one stop path), close, release the lock.
+    A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
+    session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
     from drivers.rig_devices import RigDevices
+    from goniofrost.capture.device_log import DeviceLog
     from goniofrost.capture.executor import stop_axes
     from goniofrost.capture.hardware import WallClock
+    from goniofrost.capture.rig_lock import rig_lock
 
-    with _device_sections(rig, speedup) as (sections, simulation):
+    with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
+            _device_sections(rig, speedup) as (sections, simulation):
         devices = RigDevices.from_sections(sections)
         devices.connect_all(enable=enable)
         try:
             clock = simulation.clock if simulation is not None else WallClock()
-            yield ConsoleHardware(devices.axes, devices.lamp, clock)
+            yield ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
         finally:
             try:
                 stop_axes(devices.axes)
@@ -190,32 +176,31 @@ def dry_run_plan(rig, plan_doc: dict):
 
 
 def dry_run(rig, plan_doc: dict, hardware, on_move=None) -> list[TimedMove]:
-    """Run ``dry_run_plan`` on ``hardware`` timing each step on its clock; ``on_move(TimedMove)``
-    after each (progress). On failure or Ctrl-C every axis is stopped and confirmed (StoppedError)."""
-    from goniofrost.capture.executor import StepExecutor
+    """Run ``dry_run_plan`` on ``hardware`` through the engine core, timing each step on its clock;
+    ``on_move(TimedMove)`` after each (progress). On failure, Ctrl-C or a stop request every axis
+    is stopped and confirmed (``SessionFault`` / ``SessionInterrupted``)."""
+    from goniofrost.capture.plan_runner import PlanRunner
 
-    executor = StepExecutor(hardware, ".")
     planned = [float(s["move_s"]) for s in plan_doc["samples"]] + [float(plan_doc.get("return_home_s", 0.0))]
     timed: list[TimedMove] = []
 
-    def timing(step):
-        t0 = hardware.clock.now()
-        executor(step)
-        k = len(timed)  # 0: the first homing (the plan's moves start at home), then the samples, then home
-        move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1], hardware.clock.now() - t0)
-        timed.append(move)
-        if on_move is not None:
-            on_move(move)
+    def timing(plan):
+        """The dry-run plan, timing each of its steps between yield and answer."""
+        result = None
+        while True:
+            try:
+                step = plan.send(result)
+            except StopIteration:
+                return timed
+            t0 = hardware.clock.now()
+            result = yield step
+            k = len(timed)  # 0: the first homing (the plan's moves start at home), then the samples, then home
+            move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1], hardware.clock.now() - t0)
+            timed.append(move)
+            if on_move is not None:
+                on_move(move)
 
-    try:
-        from goniofrost.capture.steps import drive
-
-        drive(dry_run_plan(rig, plan_doc), timing)
-    except BaseException as exc:
-        stops = executor.stop()
-        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"the dry run failed: {exc}"
-        raise StoppedError(reason, stops) from exc
-    return timed
+    return PlanRunner(hardware, ".", program="capture --dry-run").execute_plan(timing(dry_run_plan(rig, plan_doc)))
 
 
 # ----- status ------------------------------------------------------------------------------

@@ -4,8 +4,8 @@ The operator's exposure check before a session: the per-channel levels and the s
 of the frame, the holder markers read, the region of interest the calibration would use (its
 pixels per channel and, over the bracket, its SNR), the exposures the capture would take, and a
 PNG with the region and the markers drawn. The frames go through the same steps as a capture
-(``SetTarget``, ``LampOn``, ``Expose``, ``LampOff``) on the one executor, so the lamp is off on
-every exit. No dark frames or flat field are taken: levels and SNR are of the raw linear values.
+(``SetTarget``, ``LampOn``, ``Expose``, ``LampOff``) on the engine core (``PlanRunner``), so every
+axis is stopped and confirmed and the lamp is off on every exit. No dark frames or flat field are taken: levels and SNR are of the raw linear values.
 """
 from __future__ import annotations
 
@@ -71,10 +71,8 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
     when given), write the PNG ``out``; return the findings."""
     from goniofrost.capture.console import check_targets, move_plan
 
-    from goniofrost.capture.console import StoppedError
-    from goniofrost.capture.executor import StepExecutor
     from goniofrost.capture.hardware import open_hardware
-    from goniofrost.capture.steps import drive
+    from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.core.atomic_file import output_errors
 
     out = Path(out)
@@ -84,20 +82,14 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
         material = "builtin:red-plastic"  # the simulated stage needs something on it
     settings = rig.camera
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
-            open_hardware(rig, material=material) as hardware:
-        executor = StepExecutor(hardware, folder)
+            open_hardware(rig, material=material, program="rig snap") as hardware:
         joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}
         judge = _Judge(rig, settings, target, joints)
         move = None
         if move_to:
             check_targets(rig, move_to)
             move = next(move_plan(rig, move_to))
-        try:
-            frames = drive(snap_plan(judge, exposure_s, move=move), executor)
-        except BaseException as exc:
-            stops = executor.stop()
-            executor.switch_lamp_off()
-            raise StoppedError(f"the snap failed: {exc}", stops) from exc
+        frames = PlanRunner(hardware, folder, program="rig snap").execute_plan(snap_plan(judge, exposure_s, move=move))
     return judge.result(frames, out)
 
 

@@ -40,8 +40,13 @@ def run(args) -> int:
 
     if args.dry_run:
         from goniofrost.app.rig_console import run_dry_run
+        from goniofrost.capture.signals import SessionInterrupted
 
-        return run_dry_run(args)
+        try:
+            return run_dry_run(args)
+        except SessionInterrupted as exc:
+            print(f"goniofrost capture: {exc}", file=sys.stderr)
+            return 130
     if args.session is None:
         from goniofrost.core.errors import ConfigError
 

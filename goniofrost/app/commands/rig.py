@@ -88,5 +88,10 @@ def _args_snap(p) -> None:
 
 def run(args) -> int:
     from goniofrost.app import rig_console
+    from goniofrost.capture.signals import SessionInterrupted
 
-    return getattr(rig_console, f"run_{args.rig_command}")(args)
+    try:
+        return getattr(rig_console, f"run_{args.rig_command}")(args)
+    except SessionInterrupted as exc:  # Ctrl-C or a stop request: the message says how each axis took it
+        print(f"goniofrost rig {args.rig_command}: {exc}", file=sys.stderr)
+        return 130
