@@ -17,13 +17,15 @@ SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
 TEMPLATE = REPO / "config" / "rigs" / "template.yaml"
 
 
-def real_style_rig(endpoint_sections: dict, folder: Path) -> dict:
-    """The simulated rig's file as a lab's would be: simulated false, drivers at the twins, a folder camera."""
+def real_style_rig(resolved, folder: Path) -> dict:
+    """The simulated rig's file as a lab's would be: simulated false, drivers at the twins (``resolved``:
+    the running SimulatedRig's ``resolved_rig()``), a folder camera."""
     raw = yaml.safe_load(SIM_RIG.read_text())
     raw["simulated"] = False
     raw.pop("sim")
-    raw["axes"] = endpoint_sections["axes"]
-    raw["lamp"]["driver"] = endpoint_sections["lamp"]
+    for name, axis in resolved.axes.items():
+        raw["axes"][name]["driver"] = dict(axis.driver)
+    raw["lamp"]["driver"] = dict(resolved.lamp_driver)
     raw["camera"]["kind"] = "rawfile"
     raw["camera"]["folder"] = str(folder)
     return raw
@@ -37,7 +39,7 @@ def twins(tmp_path):
 
     with SimulatedRig(load_checked_rig(SIM_RIG), speedup=50.0) as simulation:
         path = tmp_path / "lab-rig.yaml"
-        path.write_text(yaml.safe_dump(real_style_rig(simulation.resolved_driver_sections(), tmp_path), sort_keys=False))
+        path.write_text(yaml.safe_dump(real_style_rig(simulation.resolved_rig(), tmp_path), sort_keys=False))
         yield path, simulation
 
 

@@ -52,10 +52,9 @@ def _probe(rig):
     from goniofrost.capture.console import _device_sections
     from goniofrost.capture.rig_check import probe_rig
 
-    with _device_sections(rig) as (sections, _simulation):
-        devices = RigDevices.from_sections(sections)
-        axes = sections["axes"] if isinstance(sections, dict) else {n: {"driver": a.driver} for n, a in rig.axes.items()}
-        return probe_rig(rig, devices.axes, devices.lamp, {n: a["driver"] for n, a in axes.items()})
+    with _device_sections(rig) as (resolved, _simulation):
+        devices = RigDevices.from_rig(resolved)
+        return probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
 
 
 def device_table(reports) -> str:

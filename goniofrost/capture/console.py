@@ -123,8 +123,8 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
     from goniofrost.capture.rig_lock import rig_lock
 
     with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
-            _device_sections(rig, speedup) as (sections, simulation):
-        devices = RigDevices.from_sections(sections)
+            _device_sections(rig, speedup) as (resolved, simulation):
+        devices = RigDevices.from_rig(resolved)
         devices.connect_all(enable=enable)
         try:
             clock = simulation.clock if simulation is not None else WallClock()
@@ -138,7 +138,7 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
 
 @contextmanager
 def _device_sections(rig, speedup: float | None = None):
-    """(the rig, None) for a real rig, or (the resolved sections of its simulated devices, the
+    """(the rig, None) for a real rig, or (the rig with its simulated devices' endpoints, the
     SimulatedRig), started for the command."""
     if not rig.simulated:
         yield rig, None
@@ -146,7 +146,7 @@ def _device_sections(rig, speedup: float | None = None):
     from sim.rig import SimulatedRig
 
     with SimulatedRig(rig, speedup=speedup) as simulation:
-        yield simulation.resolved_driver_sections(), simulation
+        yield simulation.resolved_rig(), simulation
 
 
 # ----- the dry run -------------------------------------------------------------------------------

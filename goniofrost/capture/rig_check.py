@@ -53,9 +53,9 @@ def rig_file_problems(path: str | Path, alignment: str | Path | None = None) -> 
     raw = _collect(problems, S.read_yaml, path)
     if raw is None:
         return problems or [Problem("", f"{source}: (top level): expected a rig file, found nothing")]
-    top = _collect(problems, S.mapping, raw, source, "")
-    if top is None:
-        return problems
+    if not isinstance(raw, Mapping):
+        return [Problem("", str(ConfigError(source, "", "a mapping (a rig file)", raw)))]
+    top = raw
     _check_parts(top, source, problems)
     if not problems:  # the checks across sections need every part sound
         from goniofrost.capture.rig_file import load_checked_rig
@@ -66,14 +66,14 @@ def rig_file_problems(path: str | Path, alignment: str | Path | None = None) -> 
 def _check_parts(top: Mapping, source: str, problems: list[Problem]) -> None:
     """Check each part of the rig mapping on its own, collecting the problems."""
     from planner import rig as R
-    from planner import schema as S
 
+    from goniofrost.core.config_check import check_section
     from goniofrost.capture.rig_file import section_validators
 
     validators = section_validators()
-    _collect(problems, S.check_keys, top, source, "", R.TOP_REQUIRED, R.TOP_OPTIONAL)
+    _collect(problems, check_section, top, R.TOP_KEYS, source, "")
     geometry = _collect(problems, R.geometry_from_mapping, top.get("geometry"), source)
-    axes_map = _collect(problems, S.mapping, top.get("axes", {}), source, "axes") or {}
+    axes_map = _collect(problems, lambda v: check_section(v, {}, source, "axes", open_keys=True), top.get("axes", {})) or {}
     axes = {}
     for name, spec in axes_map.items():
         axis = _collect(problems, R.axis_from_mapping, name, spec, source, validators["driver"])
@@ -81,7 +81,9 @@ def _check_parts(top: Mapping, source: str, problems: list[Problem]) -> None:
             axes[name] = axis
     if geometry is not None and len(axes) == len(axes_map):
         _collect(problems, R.check_roles, axes, geometry, source)
-    _collect(problems, R.lamp_from_mapping, top.get("lamp", {}), source, validators["driver"])
+    lamp = _collect(problems, check_section, top.get("lamp", {}), R.LAMP_KEYS, source, "lamp") or {}
+    if isinstance(lamp.get("driver"), Mapping):
+        _collect(problems, validators["driver"], lamp["driver"], source, "lamp.driver")
     _check_lamp_device(top.get("lamp"), axes_map, source, problems)
     simulated = top.get("simulated", False) is True
     if "camera" in top:
