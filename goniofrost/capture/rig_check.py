@@ -176,10 +176,12 @@ def probe_axis(name: str, spec, axis, section: Mapping | None = None) -> DeviceR
     """Connect ``axis`` (not enabled, not moved), read its identity and state, close it.
 
     ``section``: the driver section the axis was built from (default: the rig file's)."""
+    from drivers.rig_devices import connect_axis
+
     section = dict(spec.driver if section is None else section)
     report = DeviceReport(name, describe_link(section), False, limits_deg=tuple(spec.limits_deg))
     try:
-        axis.connect()
+        connect_axis(axis, section)  # the rig layer opens the port or socket and hands it over
     except Exception as exc:  # noqa: BLE001 - a device that does not answer is a finding, not a crash
         report.error, report.causes = _short(exc), likely_causes(section, exc)
         return report
@@ -196,13 +198,16 @@ def probe_axis(name: str, spec, axis, section: Mapping | None = None) -> DeviceR
     return report
 
 
+_LINK_KEYS = {"protocol", "id", "address", "device_id", "register_map", "model_number_register", "firmware_register"}
+
+
 def _read(call) -> str | None:
     try:
         value = call()
     except Exception as exc:  # noqa: BLE001 - an identity the device will not give is not a failure
         return f"(no identity: {_short(exc)})"
-    if isinstance(value, Mapping):
-        return ", ".join(f"{k} {v}" for k, v in value.items())
+    if isinstance(value, Mapping):  # the link column already says protocol and address
+        return ", ".join(f"{k} {v}" for k, v in value.items() if k not in _LINK_KEYS) or None
     return None if value is None else str(value)
 
 
@@ -233,7 +238,8 @@ def probe_rig(rig, axes: Mapping, lamp=None, sections: Mapping | None = None) ->
                                             error=f"not probed: its link is {owner}'s, which did not answer",
                                             causes=list(silent_owner.causes)))
             else:
-                reports.append(_with_log(probe_lamp(rig, lamp, axes), device_log, rig.lamp.get("driver", {})))
+                reports.append(_with_log(probe_lamp(rig, lamp, axes, sections or None), device_log,
+                                         rig.lamp.get("driver", {})))
     return reports
 
 
@@ -250,16 +256,19 @@ def _with_log(report: DeviceReport, device_log, section: Mapping) -> DeviceRepor
     return report
 
 
-def probe_lamp(rig, lamp, axes: Mapping) -> DeviceReport:
-    """Connect the lamp (through its own link or its axis's), read the coil, close."""
+def probe_lamp(rig, lamp, axes: Mapping, sections: Mapping | None = None) -> DeviceReport:
+    """Connect the lamp (through its own link or its axis's), read the coil, close. ``sections``:
+    {axis name: driver section} when not the rig file's (a simulated rig's endpoints)."""
     section = dict(rig.lamp.get("driver", {}))
     link_owner = section.get("device")
     report = DeviceReport("lamp", describe_link(section), False)
     owner = axes.get(link_owner) if link_owner else None
+    from drivers.rig_devices import connect_axis, open_transport
+
     try:
         if owner is not None:
-            owner.connect()
-        lamp.connect()
+            connect_axis(owner, dict(rig.axes[link_owner].driver) if sections is None else sections[link_owner])
+        lamp.connect(None if owner is not None else open_transport("lamp", section))
         report.answers, report.lamp_on = True, lamp.is_on()
     except Exception as exc:  # noqa: BLE001
         source = dict(rig.axes[link_owner].driver) if link_owner in rig.axes else section
