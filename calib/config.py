@@ -137,10 +137,12 @@ def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
     labels = out["shutter_speeds"]
     seconds = [shutter_seconds(x) for x in labels]
     picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in out["exposures_s"]]
-    for a, b in zip(picked, picked[1:]):
+    ladder = out["exposures_s"]
+    for k, (a, b) in enumerate(zip(picked, picked[1:])):
         if seconds[b] <= seconds[a]:
-            raise ConfigError(source, f"{keypath}.exposures_s", f"rungs that fall on different shutter speeds of "
-                              f"{keypath}.shutter_speeds", f"two on {labels[a]!r} and {labels[b]!r}")
+            raise ConfigError(source, f"{keypath}.exposures_s", f"rungs on different shutter speeds of "
+                              f"{keypath}.shutter_speeds ({ladder[k]:g} and {ladder[k + 1]:g} s both fall on "
+                              f"{labels[a]!r})", ladder)
     return [seconds[k] for k in picked]
 
 

@@ -1,0 +1,141 @@
+"""Whole capture sessions through pylon's emulated camera (config/rigs/sim-pylon.yaml, made small).
+
+The simulated rig's scene is rendered for each exposure into the image the emulated camera serves
+(sim.pylon_scene), so every frame goes through the vendor SDK and the real driver. A session
+matches the ground truth; a camera unplugged mid-session stops it with one line (exit 2),
+nothing captured is lost, and ``--resume`` finishes with the samples an uninterrupted run gets.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+os.environ.setdefault("PYLON_CAMEMU", "1")
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+from goniofrost.capture.engine import SessionFault
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.runner import capture
+from goniofrost.core.grid import MerlGrid
+
+REPO = Path(__file__).resolve().parents[1]
+GRID = MerlGrid(30, 30, 60)
+TRAINING = ["white-diffuse", "blue-plastic", "gold", "white-ceramic", "blue-car-paint", "green-felt"]
+MATERIAL = "builtin:red-plastic"  # held out of TRAINING
+M = 4
+
+
+def write_rig(path: Path) -> Path:
+    """sim-pylon.yaml with a short calibration and a small sensor (as tests/test_session.py's)."""
+    rig = yaml.safe_load((REPO / "config" / "rigs" / "sim-pylon.yaml").read_text())
+    rig["camera"].update(exposures_s=[0.000015625, 0.002, 0.008, 0.032, 0.128], dark_frames=1, flat_frames=1)
+    rig["camera"]["intrinsics"].update(image_size_px=[240, 180], focal_px=[2400.0, 2400.0],
+                                       principal_point_px=[119.5, 89.5])
+    path.write_text(yaml.safe_dump(rig, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+
+    folder = tmp_path_factory.mktemp("pylon-session")
+    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    rig = write_rig(folder / "rig.yaml")
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    return folder, rig, plan
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(setup):
+    folder, rig, plan = setup
+    session = folder / "whole"
+    assert main(capture_args(rig, plan, session)) == 0
+    return session
+
+
+def capture_args(rig, plan, session, *extra) -> list[str]:
+    return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session),
+            "--material", MATERIAL, "--no-progress", "--speedup", "50", *extra]
+
+
+def samples(session: Path) -> list:
+    with Journal.open(session / "session.sqlite") as journal:
+        return journal.samples()
+
+
+def test_a_session_through_the_emulated_camera_measures_the_ground_truth(uninterrupted):
+    report = json.loads((uninterrupted / "report.json").read_text())
+    assert report["samples"] == M
+    assert report["ground_truth"]["sample_relative_error_median"] < 0.03
+    # every frame came through the SDK: the DNGs carry the emulated camera's serial number and the
+    # exposure it read back (15.625 us asked, 16 us taken)
+    darks = sorted((uninterrupted / "calibration").glob("dark_e0_*.dng"))
+    from drivers.rawfile import raw_exposure_s, read_raw
+    meta = read_raw(darks[0]).metadata
+    assert meta["serial"] == "0815-0000" and meta["requested_exposure_s"] == 0.000015625
+    assert raw_exposure_s(darks[0]) == pytest.approx(16e-6, rel=1e-9)
+
+
+def test_an_unplugged_camera_mid_session_is_one_line_then_resume_finishes(setup, uninterrupted, tmp_path, capsys):
+    folder, rig, plan = setup
+    calibration_frames = len(list((uninterrupted / "calibration").glob("*.dng")))
+    session = tmp_path / "s"
+
+    def unplug_in_the_samples(hardware):  # two frames into the second sample's bracket, or so
+        hardware.extra["scene"].arm("unplug", calibration_frames + 4)
+
+    with pytest.raises(SessionFault) as fault:
+        capture(rig, plan, session, material=MATERIAL, speedup=50, progress=False, on_ready=unplug_in_the_samples)
+    message = str(fault.value)
+    assert "\n" not in message
+    assert "pylon camera 0815-0000: the camera was unplugged (device removed) during a" in message
+    done = samples(session)
+    assert 1 <= len(done) < M
+    assert main(capture_args(rig, plan, session, "--resume")) == 0
+    capsys.readouterr()
+    resumed, whole = samples(session), samples(uninterrupted)
+    assert sorted(r.plan_index for r in resumed) == list(range(M))
+    assert resumed[:len(done)] == done                       # nothing captured before the unplug was lost
+    np.testing.assert_allclose([r.rgb for r in sorted(resumed, key=lambda r: r.plan_index)],
+                               [r.rgb for r in sorted(whole, key=lambda r: r.plan_index)], rtol=0.03)
+
+
+def test_a_grab_timeout_mid_session_exits_2_with_one_line(setup, uninterrupted, tmp_path):
+    folder, rig, plan = setup
+    calibration_frames = len(list((uninterrupted / "calibration").glob("*.dng")))
+    raw = yaml.safe_load(rig.read_text())
+    raw["camera"]["timeout_s"] = 0.5
+    short = tmp_path / "rig.yaml"
+    short.write_text(yaml.safe_dump(raw, sort_keys=False))
+
+    def stall(hardware):
+        hardware.extra["scene"].arm("stall", calibration_frames + 1)
+
+    with pytest.raises(SessionFault, match=r"pylon camera 0815-0000: no frame within 0.5 s \(camera.timeout_s\) "
+                                           r"beyond a [0-9.e-]+ s exposure"):
+        capture(short, plan, tmp_path / "s", material=MATERIAL, speedup=50, progress=False, on_ready=stall)
+    assert main(capture_args(short, plan, tmp_path / "s", "--resume")) == 0
+    assert sorted(r.plan_index for r in samples(tmp_path / "s")) == list(range(M))
+
+
+def test_a_ladder_outside_the_camera_s_range_is_refused_before_anything_moves(setup, tmp_path, capsys):
+    folder, rig, plan = setup
+    raw = yaml.safe_load(rig.read_text())
+    raw["camera"]["exposures_s"] = [0.002, 0.008, 0.032, 0.128, 16.384]
+    wide = tmp_path / "rig.yaml"
+    wide.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(capture_args(wide, plan, tmp_path / "s")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith("pylon camera 0815-0000: camera.exposures_s [16.384] outside the camera's exposure "
+                            "range [1e-06, 10] s")
+    with Journal.open(tmp_path / "s" / "session.sqlite") as journal:
+        assert journal.samples() == [] and not [e for e in journal.events() if e["kind"] == "move"]
