@@ -139,3 +139,48 @@ def test_a_ladder_outside_the_camera_s_range_is_refused_before_anything_moves(se
                             "range [1e-06, 10] s")
     with Journal.open(tmp_path / "s" / "session.sqlite") as journal:
         assert journal.samples() == [] and not [e for e in journal.events() if e["kind"] == "move"]
+
+
+def pylon_version_of(raw: dict) -> dict:
+    """A simulated rig's file with its camera made the emulated pylon camera (12 bits)."""
+    raw["camera"].update(kind="pylon", pixel_format="BayerRG12", timeout_s=5.0)
+    raw["sim"]["camera"].update(black_level=64, white_level=4095)
+    return raw
+
+
+def test_align_recovers_the_misalignment_through_the_emulated_camera(tmp_path):
+    from test_alignment import BUILT_WRONG, small_misaligned_rig
+
+    from goniofrost.capture.align import align
+
+    rig = small_misaligned_rig(tmp_path / "rig.yaml")
+    rig.write_text(yaml.safe_dump(pylon_version_of(yaml.safe_load(rig.read_text())), sort_keys=False))
+    doc = align(rig, tmp_path / "ALIGNMENT.json", progress=False)
+    found = np.array([doc["offsets_deg"][n] for n in ("camera_arm", "sample_yaw", "sample_tilt")])
+    assert np.all(np.abs(found - BUILT_WRONG) < 0.05), found
+    assert doc["images"]["used"] == doc["images"]["poses"]
+
+
+@pytest.mark.parametrize("kind, taken_s", [("sim", 0.000015625), ("pylon", 0.000016)])
+def test_snap_takes_a_frame_and_a_bracket_with_any_camera_kind(setup, tmp_path, kind, taken_s):
+    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.capture.snap import snap_bracket, snap_frame
+
+    folder, rig, plan = setup
+    raw = yaml.safe_load(rig.read_text())
+    if kind == "sim":
+        raw["camera"]["kind"] = "sim"
+        for key in ("pixel_format", "gain_db"):
+            raw["camera"].pop(key)
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    with open_hardware(load_checked_rig(path), material=MATERIAL) as hardware:
+        hardware.lamp.on()
+        frame = snap_frame(hardware, tmp_path, 0.000015625)
+        bracket = snap_bracket(hardware, tmp_path, [0.008, 0.002])
+    assert frame.exposure_s == pytest.approx(taken_s, abs=1e-12) and frame.path == tmp_path / "snap.dng"
+    assert frame.raw.linear.shape == (180, 240)
+    assert [f.exposure_s for f in bracket] == pytest.approx([0.002, 0.008], abs=1e-12)
+    assert [f.path.name for f in bracket] == ["snap_e0.dng", "snap_e1.dng"]
+    assert all(f.raw.linear.shape == (180, 240) and f.lamp_relative > 0.9 for f in bracket)
