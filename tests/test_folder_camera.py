@@ -128,3 +128,28 @@ def test_a_trigger_that_cannot_run_is_one_line(tmp_path):
     cam = open_camera(section(tmp_path, trigger_command="no-such-gphoto2 {shutter}"))
     with pytest.raises(CameraError, match=r"^camera trigger 'no-such-gphoto2' cannot run: No such file or directory$"):
         cam.capture(0.001, tmp_path / "f.dng")
+
+
+def test_the_session_s_frame_carries_the_exposure_the_file_was_taken_with(gphoto2, tmp_path, monkeypatch):
+    """The executor (what every capture, align and snap goes through) hands the bracket the RAW
+    file's own exposure, not the one asked for."""
+    from types import SimpleNamespace
+
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.capture.steps import Expose
+
+    class Lamp:
+        def photodiode(self) -> float:
+            return 1.0
+
+    class Clock:
+        def now(self) -> float:
+            return 0.0
+
+    cam = open_camera(section(gphoto2))
+    cam.connect()
+    hardware = SimpleNamespace(axes={}, lamp=Lamp(), camera=cam, clock=Clock(), simulated=False, simulation=None)
+    monkeypatch.setenv("STANDIN_EXPOSURE_S", "0.00103")   # 3 % long: within the tolerance
+    frame = StepExecutor(hardware, tmp_path)(Expose(0.001, "raw/f.dng"))
+    assert frame.exposure_s == pytest.approx(0.00103, rel=1e-6) and frame.path == tmp_path / "raw" / "f.dng"
+    assert frame.raw.linear.shape == (64, 64)
