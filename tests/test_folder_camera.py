@@ -69,6 +69,7 @@ def test_two_rungs_on_one_shutter_speed_are_refused():
 
 
 def test_the_gphoto2_recipe_captures_into_the_folder_with_the_camera_s_label(gphoto2, tmp_path):
+    assert RECIPE in (REPO / "README.md").read_text() and RECIPE in (REPO / "config/rigs/template.yaml").read_text()
     settings = validate_camera_section(section(gphoto2), "rig.yaml")
     cam = open_camera(section(gphoto2))
     cam.connect()
