@@ -190,3 +190,14 @@ def test_snap_takes_a_frame_and_a_bracket_with_any_camera_kind(setup, tmp_path, 
     assert [f.exposure_s for f in bracket] == pytest.approx([0.002, 0.008], abs=1e-12)
     assert [f.path.name for f in bracket] == ["snap_e0.dng", "snap_e1.dng"]
     assert all(f.raw.linear.shape == (180, 240) and f.lamp_relative > 0.9 for f in bracket)
+
+
+def test_a_simulated_sensor_deeper_than_the_pixel_format_is_refused(setup, tmp_path, capsys):
+    folder, rig, plan = setup
+    raw = yaml.safe_load(rig.read_text())
+    raw["sim"]["camera"]["white_level"] = 16383   # sim.yaml's 14-bit sensor behind a 12-bit format
+    deep = tmp_path / "rig.yaml"
+    deep.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(capture_args(deep, plan, tmp_path / "s")) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(
+        "sim.camera.white_level: expected at most 4095 (the 12-bit camera.pixel_format), found 16383")

@@ -104,8 +104,14 @@ def _emulated_pylon(rig, sim_camera):
         return
     from sim.pylon_scene import EmulatedScene
 
+    from goniofrost.core.errors import ConfigError
+
+    bits = int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:])
+    if sim_camera.params["white_level"] > 2 ** bits - 1:  # the served mosaic would wrap around
+        raise ConfigError(rig.source, "sim.camera.white_level", f"at most {2 ** bits - 1} (the {bits}-bit "
+                          f"camera.pixel_format)", sim_camera.params["white_level"])
     os.environ.setdefault("PYLON_CAMEMU", "1")  # read by pylon when it enumerates its devices
-    scene = EmulatedScene(sim_camera, int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:]))
+    scene = EmulatedScene(sim_camera, bits)
     try:
         camera = open_camera(rig, image_source=scene, device_class="BaslerCamEmu")
         camera.connect()
