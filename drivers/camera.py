@@ -19,6 +19,16 @@ from typing import Callable
 from goniofrost.core.errors import GoniofrostError
 
 TARGETS = ("sample", "white", "flat")
+# what each target is and why it is needed: the operator's prompt says it on the line before the question
+TARGET_EXPLAINED = {
+    "flat": ("the 'flat' target is a uniform diffuser (opal glass or a white translucent cap) over the lens, "
+             "lit by the lamp: its frames measure each pixel's gain (lens vignetting, pixel response), which "
+             "every later frame is divided by"),
+    "white": ("the 'white' target is the white reference card (its white tile and four markers) in the sample "
+              "holder, the diffuser off the lens: its known reflectance sets the absolute scale (1/sr) of "
+              "every measurement"),
+    "sample": "the 'sample' target is the sample card in the holder, the diffuser off the lens: the material to measure",
+}
 ABORT_ANSWER = "abort"
 OPERATOR_TIMEOUT_S = 600.0  # default seconds an operator has to answer (change a target, expose)
 
@@ -49,10 +59,12 @@ class OperatorPrompt:
     def __init__(self, timeout_s: float = OPERATOR_TIMEOUT_S, input_fd: int | None = None, output=None) -> None:
         self.timeout_s, self.input_fd, self.output = float(timeout_s), input_fd, output
 
-    def __call__(self, message: str) -> None:
+    def __call__(self, message: str, why: str = "") -> None:
+        """Ask ``message`` (one line; errors name it); ``why``: what it means, on the line before."""
         fd = self._input(message)
         self._discard_typeahead(fd, message)
         output = sys.stderr if self.output is None else self.output
+        output.write(f"{why}\n" if why else "")
         output.write(f"{message} - press Enter when done, or type {ABORT_ANSWER}\n")
         output.flush()
         answer = self._read_line(fd, message)
@@ -128,14 +140,15 @@ class FolderCamera(Camera):
     raw_exposure_s``) is read back: a file without one, whose exposure differs from the one asked
     for by more than ``exposure_tolerance`` (relative), or with the same content as a frame taken
     before (not new) is refused, naming the file and both values, and left where it is. A good
-    file is moved to the requested path, and its own exposure is the frame's. ``ask(message)`` is
-    called when the calibration needs a different target in front of the lens (default: an
-    OperatorPrompt on the terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``).
+    file is moved to the requested path, and its own exposure is the frame's. ``ask(message,
+    why=...)`` is called when the calibration needs a different target in front of the lens,
+    ``why`` saying what that target is (``TARGET_EXPLAINED``) (default: an OperatorPrompt on the
+    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``).
     """
 
     def __init__(self, folder, trigger: Callable[[float], None], timeout_s: float = 30.0,
                  suffixes=(".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf"),
-                 ask: Callable[[str], None] | None = None, poll_s: float = 0.05,
+                 ask: Callable[..., None] | None = None, poll_s: float = 0.05,
                  operator_timeout_s: float = OPERATOR_TIMEOUT_S, exposure_tolerance: float = 0.05) -> None:
         self.folder, self.trigger, self.timeout_s = Path(folder), trigger, float(timeout_s)
         self.suffixes = tuple(s.lower() for s in suffixes)
@@ -153,7 +166,7 @@ class FolderCamera(Camera):
 
     def set_target(self, target: str) -> None:
         if target != self.target:
-            self.ask(f"put the {target!r} target in front of the camera")
+            self.ask(f"put the {target!r} target in front of the camera", why=TARGET_EXPLAINED[target])
         super().set_target(target)
 
     def _raw_files(self) -> set[Path]:

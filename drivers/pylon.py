@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.camera import TARGETS, Camera, CameraError, OperatorPrompt, RawFrame
+from drivers.camera import TARGET_EXPLAINED, TARGETS, Camera, CameraError, OperatorPrompt, RawFrame
 from drivers.dng import write_dng
 
 log = logging.getLogger(__name__)
@@ -55,7 +55,7 @@ class PylonCamera(Camera):
 
     def __init__(self, serial: str | None, pixel_format: str, gain_db: float, ladder_s, image_size,
                  timeout_s: float = 30.0, *, device_class: str | None = None, image_source=None,
-                 ask: Callable[[str], None] | None = None) -> None:
+                 ask: Callable[..., None] | None = None) -> None:
         self.serial, self.pixel_format, self.gain_db = serial, pixel_format, float(gain_db)
         self.ladder_s, self.image_size, self.timeout_s = list(ladder_s), tuple(image_size), float(timeout_s)
         self.device_class, self.image_source = device_class, image_source
@@ -213,7 +213,7 @@ class PylonCamera(Camera):
         if target not in TARGETS:
             raise CameraError(f"camera target: expected one of {TARGETS}, found {target!r}")
         if target != self.target and self.image_source is None:
-            self.ask(f"put the {target!r} target in front of the camera")
+            self.ask(f"put the {target!r} target in front of the camera", why=TARGET_EXPLAINED[target])
         self.target = target
 
     def close(self) -> None:

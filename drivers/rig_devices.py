@@ -1,8 +1,9 @@
 """Build every Axis (and the Lamp) of a rig from its driver sections, and handle them as one.
 
 ``RigDevices.from_sections(...)`` only constructs (nothing is opened); ``connect_all()`` connects
-and enables every axis; ``stop_all()`` tries to stop every axis and never raises mid-way;
-``close_all()`` releases every connection.
+and enables every axis; ``close_all()`` releases every connection. Stopping is not done here: the
+one stop path for all axes (command each to stop, then confirm each at rest) is the engine's
+``goniofrost.capture.executor.stop_axes``, which the rig wiring calls before ``close_all``.
 """
 from __future__ import annotations
 
@@ -75,19 +76,6 @@ class RigDevices:
             self.close_all()
             raise
 
-    def stop_all(self) -> list[str]:
-        """Command every connected axis to stop; return the problems (logged), never raise."""
-        problems = []
-        for name, axis in self.axes.items():
-            if not axis.connected:
-                continue
-            try:
-                axis.stop()
-            except Exception as exc:  # noqa: BLE001 - keep stopping the other axes
-                log.warning("stop %s failed: %s", name, exc)
-                problems.append(f"{name}: {exc}")
-        return problems
-
     def close_all(self) -> None:
         """Close every connection that was opened (lamp first); logs failures, never raises."""
         for device in reversed(self._connected):
@@ -102,5 +90,4 @@ class RigDevices:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.stop_all()
-        self.close_all()
+        self.close_all()  # the caller stops the axes first, through stop_axes (module doc)

@@ -20,6 +20,13 @@ def _private_cache(tmp_path_factory):
     yield
 
 
+@pytest.fixture(autouse=True)
+def _private_rig_locks(tmp_path_factory, monkeypatch):
+    """Each test its own rig locks (subprocesses inherit them): tests of other checkouts on this
+    computer driving a simulated rig of the same name must not refuse ours."""
+    monkeypatch.setenv("GONIOFROST_LOCK_DIR", str(tmp_path_factory.mktemp("locks")))
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """../shared/data (or $GONIOFROST_SHARED_DATA); tests that need it skip without it."""

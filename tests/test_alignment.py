@@ -165,3 +165,30 @@ def test_align_with_a_camera_unlike_its_model_fails_clearly_and_writes_nothing(t
                                              r"from the model \(limit 1 px\): the camera model"):
         align(rig, out, progress=False, on_ready=longer_lens)
     assert not out.exists()
+
+
+def test_a_failed_align_stops_and_confirms_the_axes_switches_the_lamp_off_and_journals(tmp_path):
+    from goniofrost.capture.align import align
+    from goniofrost.capture.journal import Journal
+    from goniofrost.capture.plan_runner import SessionFault
+    from goniofrost.capture.records import EventKind, RunStatus
+
+    rig = small_misaligned_rig(tmp_path / "rig.yaml")
+    out, frames, seen = tmp_path / "ALIGNMENT.json", tmp_path / "frames", {}
+
+    def alarm_on_the_arm(hardware):  # the arm's drive is in alarm: the first move of the plan fails
+        seen["lamp"] = hardware.simulation.lamp_model
+        hardware.simulation.device("camera_arm").inject_fault("alarm")
+
+    frames.mkdir()
+    with pytest.raises(SessionFault) as caught:
+        align(rig, out, progress=False, frames=frames, on_ready=alarm_on_the_arm)
+    message = str(caught.value)
+    assert message.startswith("device fault during Home: camera_arm")
+    assert "Stopped camera_arm at " in message and "; the lamp is off. No alignment was written; the run is " \
+           f"journaled in {frames / 'align.sqlite'}. Fix the cause, then run goniofrost align again" in message
+    assert not out.exists() and seen["lamp"].is_on is False
+    with Journal.open(frames / "align.sqlite") as journal:
+        (start, end), kinds = journal.last_run(), [e["kind"] for e in journal.events()]
+    assert (start.program, end.status, end.reason, end.lamp_off) == ("align", RunStatus.FAULT, message, True)
+    assert all(s.confirmed for s in end.stops) and kinds[-3:] == [EventKind.FAULT, EventKind.STOP, EventKind.LAMP]

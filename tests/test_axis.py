@@ -259,14 +259,16 @@ def test_axis_config_from_a_rig_mapping():
     assert cfg == AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, 90, 0.02, retries=1)
 
 
-def test_stop_all_tries_every_axis_and_never_raises():
+def test_the_one_stop_path_tries_every_axis_and_never_raises():
+    from goniofrost.capture.executor import stop_axes
+
     axes = {n: make_axis() for n in ("a", "b", "c")}
     for ax in axes.values():
         ax.move_to(50.0)
     axes["a"].fail_next = 99
-    problems = RigDevices(axes).stop_all()
-    assert len(problems) == 1 and problems[0].startswith("a: ")
-    assert axes["b"].sent[-1] == "stop" and axes["c"].sent[-1] == "stop"
+    stops = stop_axes(RigDevices(axes).axes)
+    assert [s.confirmed for s in stops] == [False, True, True] and stops[0].error
+    assert "stop" in axes["b"].sent and "stop" in axes["c"].sent  # then asked whether they still move
 
 
 # ----- driver sections ---------------------------------------------------------------------------

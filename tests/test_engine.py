@@ -17,6 +17,7 @@ from goniofrost.capture.contract import Axis, Camera, Clock, Hardware, Lamp
 from goniofrost.capture.engine import SessionEngine, SessionFault
 from goniofrost.capture.executor import BenchHardware, stop_axes
 from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import AxisStop, EventKind, RunStatus
 from goniofrost.capture.session_steps import SessionSpec
 from goniofrost.capture.signals import SessionInterrupted
 from sim.camera_bench import direction, rig_like
@@ -232,12 +233,19 @@ def test_a_device_fault_stops_every_axis_once_switches_the_lamp_off_and_marks_th
            "1 of 2 samples are safe in" in message and message.endswith("run the same command with --resume")
     assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False
     with Journal.open(tmp_path / "session.sqlite") as journal:
-        last, events = journal.steps()[-1], journal.events()
+        last, events, (start, end) = journal.steps()[-1], journal.events(), journal.last_run()
     assert (last["kind"], last["plan_index"], last["status"]) == ("Move", 1, "failed")
     assert "alarm" in last["result"]["error"]
-    assert [e["kind"] for e in events][-3:] == ["fault", "stop", "lamp"]
+    assert [e["kind"] for e in events][-3:] == [EventKind.FAULT, EventKind.STOP, EventKind.LAMP]
     fault, stop, lamp = events[-3:]
-    assert fault["axis"] == "theta_o" and fault["data"]["stop_problems"] == [] and fault["data"]["lamp_off"]
+    assert fault["axis"] == "theta_o" and fault["data"]["lamp_off"]
+    # the typed run end: status, the terminal's words, the counts and the stop report as fields
+    assert (end.status, end.reason, end.axis, end.plan_index) == (RunStatus.FAULT, message, "theta_o", 1)
+    assert (end.samples_planned, end.samples_captured, end.batches, end.lamp_off) == (2, 1, 0, True)
+    assert end.detail.startswith("theta_o: move to 35 deg: device fault: alarm") and end.stopped_early
+    assert [(s.axis, s.confirmed) for s in end.stops] == [("theta_i", True), ("theta_o", True), ("phi_o", True)]
+    assert (start.run, start.program, start.samples_done) == (1, "capture", 0)
+    assert start.started_utc <= end.started_utc < end.ended_utc
     assert stop["message"] == "stopped theta_i at 0.00 deg, theta_o at 30.00 deg, phi_o at 180.00 deg"
     assert [s["confirmed"] for s in stop["data"]["stops"]] == [True, True, True]
     assert (lamp["message"], lamp["data"]) == ("lamp off", {"off": True, "error": None})
@@ -254,8 +262,11 @@ def test_a_failing_stop_is_reported_truthfully_and_the_other_axes_are_still_stop
     assert "every axis" not in str(caught.value).lower()
     assert [a.stops for a in hardware.axes.values()] == [1, 1, 1]
     with Journal.open(tmp_path / "session.sqlite") as journal:
-        [fault] = [e for e in journal.events() if e["kind"] == "fault"]
-    assert fault["data"]["stop_problems"] == ["theta_i did not confirm the stop: it may still be moving towards 0.0 deg"]
+        [fault] = [e for e in journal.events() if e["kind"] is EventKind.FAULT]
+        _start, end = journal.last_run()
+    assert [s.text() for s in end.stops if not s.confirmed] == [
+        "theta_i did not confirm the stop: it may still be moving towards 0.0 deg"]
+    assert end.stops[0] == AxisStop("theta_i", False, None, True, 0.0, "theta_i: stop: no reply")
     assert fault["data"]["stops"][0] == {"axis": "theta_i", "confirmed": False, "position_deg": None,
                                          "under_way": True, "moving_to": 0.0, "error": "theta_i: stop: no reply"}
     # the one stop path reports an axis that is not connected, never raises, and tries every axis
@@ -383,3 +394,35 @@ def test_drills_are_armed_before_each_sample_and_a_resume_restores_the_journaled
     [restored] = [e for e in events if e["kind"] == "simulation"]
     assert restored["message"] == "simulated rig restored as journaled before plan sample 1"
     assert [e["data"]["state"] for e in events if e["kind"] == "drill"] == ["armed", "struck"]
+
+
+def hand_plan():
+    """A short hand command's plan: move two axes, lamp on and off; returns the joints reached."""
+    from goniofrost.capture.steps import LampOff, LampOn, Move
+
+    reached = yield Move(None, (("theta_i", 10.0), ("theta_o", 40.0)))
+    yield LampOn()
+    yield LampOff()
+    return reached.joints
+
+
+def test_a_short_plan_runs_on_the_engine_core_without_a_journal(table, tmp_path):
+    from goniofrost.capture.plan_runner import PlanRunner
+
+    hardware = rig(table)
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    assert runner.execute_plan(hand_plan()) == {"theta_i": 10.0, "theta_o": 40.0}
+    assert (runner.run_end.status, runner.run_end.reason, runner.run_start.program) == \
+        (RunStatus.FINISHED, "rig move finished", "rig move")
+    assert list(tmp_path.iterdir()) == [] and all(a.stops == 0 for a in hardware.axes.values())
+    # a fault: every axis stopped and confirmed, the lamp off, the same words as a capture's
+    hardware = rig(table, theta_o={"fail_on_move": 1})
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    with pytest.raises(SessionFault) as caught:
+        runner.execute_plan(hand_plan())
+    assert str(caught.value).startswith("device fault during Move: theta_o: move to 40 deg: device fault: alarm "
+                                        "(reply: 0.0). Stopped theta_i at 10.00 deg, ")
+    assert str(caught.value).endswith("the lamp is off. Nothing was journaled. Fix the cause, then run the same "
+                                      "command again")
+    assert runner.run_end.status is RunStatus.FAULT and runner.run_end.axis == "theta_o"
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False

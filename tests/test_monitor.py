@@ -16,6 +16,7 @@ import pytest
 
 from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal, SampleRecord
+from goniofrost.capture.records import RunEnd, RunStatus
 from goniofrost.capture.runner import capture
 from goniofrost.monitor.server import MonitorServer
 from goniofrost.monitor.session_view import DoneSample, PlanSample, SessionView, Stop, read_session
@@ -87,14 +88,14 @@ def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_o
     idle = page_state(view(done=one), now_utc=1002.5 + 301)
     assert idle["state"] == "stalled" and "--resume" in idle["hint"]
     assert page_state(view(done=one), now_utc=1002.5 + 301, attached=True)["state"] == "running"
-    stop = Stop("fault", "device fault at plan sample 1: sample_yaw: alarm. Every axis was stopped; ...", "sample_yaw: alarm",
+    stop = Stop(RunStatus.FAULT, "device fault at plan sample 1: sample_yaw: alarm. Every axis was stopped; ...", "sample_yaw: alarm",
                 "sample_yaw", 1, 1003.0)
     faulted = page_state(view(done=one, stop=stop), 1004)
     assert faulted["state"] == "faulted" and faulted["stop"]["message"] == stop.message and faulted["stop"]["plan_index"] == 1
     assert faulted["hint"] == "faulted with 1 of 4 samples safe in the journal: what happened and what to do below"
     assert faulted["samples"]["status"] == ["done", "failed", "pending", "pending"] and faulted["eta_s"] is None
     assert faulted["poses"] == {"current": None, "next": None}  # no rig given: no drawings
-    interrupted = page_state(view(done=one, stop=Stop("interrupted", "interrupted (SIGINT): ...", "", None, 1, 1003.0)), 1004)
+    interrupted = page_state(view(done=one, stop=Stop(RunStatus.STOPPED_BY_OPERATOR, "interrupted (SIGINT): ...", "", None, 1, 1003.0)), 1004)
     assert interrupted["state"] == "interrupted"
     all_done = tuple(done_sample(i, 2, 1, 1001.0 + i, 1.0) for i in range(4))
     assert page_state(view(done=all_done), 1010)["state"] == "reconstructing"
@@ -108,6 +109,16 @@ def test_the_state_follows_the_last_run_and_a_silent_capture_is_called_stalled_o
     gone = page_state(view(done=all_done, capture_alive=False), now_utc=1010)
     assert gone["state"] == "stopped" and gone["hint"].endswith("--resume to write the results")
     assert page_state(view(done=one, capture_alive=False), 1003, attached=True)["state"] == "running"
+    # a target-error capture that stopped early is finished, with why, not "stopped ... killed"
+    two = tuple(done_sample(i, 2, 1, 1001.0 + i, 1.0) for i in range(2))
+    reached = RunEnd(1, RunStatus.TARGET_REACHED, "capture stopped after 2 of 4 samples: target reached", 4, 2, 1,
+                     1000.0, 1004.0)
+    st = page_state(view(done=two, run_end=reached, report={"samples": 2}, capture_alive=False), 1010)
+    assert (st["state"], st["count_text"]) == ("finished", "2 of 4 samples")
+    assert st["hint"] == "finished: capture stopped after 2 of 4 samples: target reached; results written to /s"
+    assert st["run_end"] == {"status": "target_reached", "reason": reached.reason, "samples_planned": 4,
+                             "samples_captured": 2} and st["stop"] is None
+    assert page_state(view(done=two, run_end=reached), 1005, attached=True)["state"] == "reconstructing"
     exposing = {"kind": "Expose", "plan_index": 1, "status": "running", "started_utc": 1003.0,
                 "detail": {"exposure_s": 0.032, "file": "raw/sample_0001_e2.dng", "index": 1}}
     assert page_state(view(done=one, step=exposing), 1003.1)["hint"] == \
@@ -146,8 +157,7 @@ def test_the_reader_follows_a_writer_never_blocks_it_and_leaves_the_journal_as_i
         resumed.commit_sample(record(2))
         assert len(read_session(tmp_path).done) == 3
     with pytest.raises(sqlite3.OperationalError, match="readonly"):
-        from goniofrost.monitor.session_view import connect_read_only
-        connect_read_only(path).execute("DELETE FROM samples")
+        Journal.open_read_only(path)._db.execute("DELETE FROM samples")
 
 
 def test_a_missing_or_half_created_journal_reads_as_waiting(tmp_path):

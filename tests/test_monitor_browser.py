@@ -24,6 +24,7 @@ from monitor_helpers import MATERIAL, fault_after, make_plan
 CHROMIUM = Path(os.environ.get("GONIOFROST_CHROMIUM", "/usr/bin/chromium"))
 REPO = Path(__file__).resolve().parents[1]
 M = 5
+LOADED_MS = 30_000  # a page's first state can take seconds on a loaded 2-core host
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"needs headless Chromium at {CHROMIUM} "
                                 "(Debian's chromium package; .ci/run installs it)")
@@ -80,23 +81,13 @@ def test_the_page_follows_a_capture_started_with_monitor(plan, page, tmp_path):
         line = proc.stderr.readline()
         url = re.search(r"monitor page at (http://127\.0\.0\.1:\d+/) \(read-only view of ", line).group(1)
         page.goto(url)
-        seen = []
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline:
-            state, count = page.text_content("#state"), page.text_content("#count")
-            if not seen or seen[-1] != (state, count):
-                seen.append((state, count))
-            if state == "finished":
-                break
-            time.sleep(0.03)
+        # how the count grows step by step is checked on a scripted journal (no race) below
+        expect(page.locator("#state")).to_have_text("finished", timeout=90_000)
         out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
     assert proc.returncode == 0, err
-    counts = [int(c.split(" of ")[0]) for _, c in seen if " of " in c]
-    assert counts == sorted(counts) and len(set(counts)) >= 3, seen  # "N of M samples" grew while we watched
-    assert ("running", f"{M} of {M} samples") != seen[0] and seen[-1] == ("finished", f"{M} of {M} samples")
-    assert any(state == "running" for state, _ in seen)
+    expect(page.locator("#count")).to_have_text(f"{M} of {M} samples")
     # the final state stays on the page after the capture process (and its server) ended
     expect(page.locator("#connection")).to_contain_text("the monitor stopped serving")
     assert statuses(page) == ["done"] * M
@@ -179,3 +170,67 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         expect(page.locator("#preview-caption")).to_contain_text("the session's model cannot be opened")
         assert json.loads(page.evaluate("JSON.stringify(window.goniofrostMonitor.state.samples.status)")) == \
             ["done", "done", "next"]
+
+
+def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_step(page, tmp_path):
+    """A scripted journal (no live capture to race): after each write the page shows it; a capture
+    whose target error stopped it after 2 of 4 samples, its process gone, is finished, not killed."""
+    from goniofrost.capture.records import RunStatus
+    from journal_script import ScriptedSession
+
+    from goniofrost.capture.session_lock import session_lock
+
+    script = ScriptedSession(tmp_path, 4, batch_ends=[2, 4], target=0.05)
+    reason = "capture stopped after 2 of 4 samples: target reached (predicted error 0.0312 <= 0.05)"
+    try:
+        with MonitorServer(tmp_path, port=0) as server:
+            with session_lock(tmp_path):  # the capture process holds its session while it runs
+                page.goto(server.url)
+                script.start_run()
+                script.calibrate()
+                expect(page.locator("#count")).to_have_text("0 of 4 samples", timeout=LOADED_MS)
+                for i in range(2):  # the count follows each journaled sample while the run is under way
+                    script.capture(i)
+                    expect(page.locator("#count")).to_have_text(f"{i + 1} of 4 samples", timeout=LOADED_MS)
+                    expect(page.locator("#state")).to_have_text("running", timeout=LOADED_MS)
+                assert statuses(page) == ["done", "done", "next", "pending"]
+                script.batch(2, 0.0312, 0.05, "target reached")
+                expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0312",
+                                                                      timeout=LOADED_MS)
+                script.end_run(RunStatus.TARGET_REACHED, reason)
+                expect(page.locator("#state")).to_have_text("reconstructing", timeout=LOADED_MS)
+                script.write_report(0.0312)
+            # the process is gone (its lock with it): finished, with why, not "stopped ... killed"
+            expect(page.locator("#state")).to_have_text("finished", timeout=LOADED_MS)
+            expect(page.locator("#hint")).to_have_text(f"finished: {reason}; results written to {tmp_path}",
+                                                       timeout=LOADED_MS)
+            expect(page.locator("#count")).to_have_text("2 of 4 samples", timeout=LOADED_MS)
+            assert page.locator("#fault").is_hidden()
+            expect(page.locator("#summary-text")).to_contain_text("2 samples on rig 'sim-rig'", timeout=LOADED_MS)
+    finally:
+        script.close()
+
+
+def test_an_operators_stop_is_shown_interrupted_with_the_terminals_words(page, tmp_path):
+    from goniofrost.capture.records import AxisStop, RunEnd, RunStatus
+    from journal_script import ScriptedSession
+
+    script = ScriptedSession(tmp_path, 3)
+    try:
+        with MonitorServer(tmp_path, port=0) as server:
+            page.goto(server.url)
+            script.start_run()
+            script.calibrate()
+            script.capture(0)
+            expect(page.locator("#count")).to_have_text("1 of 3 samples", timeout=LOADED_MS)
+            words = ("interrupted by a stop request from process 42 at plan sample 1. Stopped camera_arm at 60.00 deg; "
+                     "the lamp is off. 1 of 3 samples are safe. Run the same command with --resume to continue")
+            script.journal.end_run(RunEnd(script.start.run, RunStatus.STOPPED_BY_OPERATOR, words, 3, 1, 0,
+                                          script.start.started_utc, time.time(), detail="a stop request: run stopped",
+                                          plan_index=1, stops=(AxisStop("camera_arm", True, 60.0),), lamp_off=True))
+            expect(page.locator("#state")).to_have_text("interrupted", timeout=LOADED_MS)
+            expect(page.locator("#fault-title")).to_have_text("Interrupted", timeout=LOADED_MS)
+            expect(page.locator("#fault-message")).to_have_text(words, timeout=LOADED_MS)
+            assert statuses(page) == ["done", "failed", "pending"]
+    finally:
+        script.close()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.camera import FolderCamera, OperatorAbort, OperatorPrompt, OperatorTimeout
+from drivers.camera import TARGET_EXPLAINED, FolderCamera, OperatorAbort, OperatorPrompt, OperatorTimeout
 from goniofrost.capture.hardware import open_camera
 
 from frame_script import CAMERA_MODEL
@@ -52,7 +52,11 @@ def test_enter_on_the_terminal_confirms_the_target_change(terminal, tmp_path):
     operator(master, b"\n", shown)
     cam.set_target("white")
     assert cam.target == "white"
-    assert shown[0].strip() == "put the 'white' target in front of the camera - press Enter when done, or type abort"
+    # what the target is, on its own line, then the question on its own line
+    lines = "".join(shown).splitlines()
+    assert lines == [TARGET_EXPLAINED["white"],
+                     "put the 'white' target in front of the camera - press Enter when done, or type abort"]
+    assert lines[0].startswith("the 'white' target is the white reference card")
 
 
 def test_abort_on_the_terminal_is_a_clear_error_and_the_target_stays(terminal, tmp_path):
@@ -113,8 +117,10 @@ def test_a_process_is_answered_on_its_own_standard_input(tmp_path):
     child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO)
     try:
-        for answer in (b"\n", b"abort\n"):
-            assert PROMPT in child.stderr.readline()  # the question is on stderr before it is answered
+        for target, answer in (("white", b"\n"), ("flat", b"abort\n")):
+            # what the target is, on its own line, then the question, on stderr before it is answered
+            assert child.stderr.readline().decode() == TARGET_EXPLAINED[target] + "\n"
+            assert PROMPT in child.stderr.readline()
             child.stdin.write(answer)
             child.stdin.flush()
         out, _ = child.communicate(timeout=30)
@@ -122,3 +128,20 @@ def test_a_process_is_answered_on_its_own_standard_input(tmp_path):
         child.kill()
     assert out.decode().splitlines() == ["target white", "OperatorAbort: put the 'flat' target in front of the "
                                                          "camera: the operator answered 'abort'"]
+
+
+def test_a_prompt_during_a_capture_is_on_its_own_lines_not_inside_the_progress_bar(capsys):
+    import sys
+
+    from tqdm import tqdm
+
+    from goniofrost.capture.hardware import BarSafeOutput
+
+    with tqdm(total=40, unit="sample", desc="capture", file=sys.stderr) as bar:
+        bar.update(3)
+        OperatorPrompt(1.0, output=BarSafeOutput()).output.write(TARGET_EXPLAINED["flat"] + "\n")
+        bar.update(1)
+    lines = capsys.readouterr().err.replace("\r", "\n").split("\n")
+    # the explanation is a line of its own: nothing of the bar before it on that line
+    assert TARGET_EXPLAINED["flat"] in lines
+    assert lines.index(TARGET_EXPLAINED["flat"]) < max(i for i, line in enumerate(lines) if "4/40" in line)

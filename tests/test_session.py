@@ -27,6 +27,7 @@ from goniofrost.capture.runner import capture
 from goniofrost.app.cli import main
 from goniofrost.core.grid import MerlGrid
 from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import EventKind, RunStatus
 from goniofrost.brdf.merl_file import read_merl
 from goniofrost.capture.engine import SessionFault
 
@@ -225,8 +226,10 @@ def test_sigkill_mid_session_then_resume_captures_every_sample_exactly_once(setu
     assert after[:len(before)] == before  # earlier samples untouched (same commit times)
     assert sorted(csv_indices(session)) == list(range(M)) and len(csv_indices(session)) == M
     with Journal.open(session / "session.sqlite") as journal:
-        starts = [e["message"] for e in journal.events() if e["kind"] == "session" and e["message"].startswith("started")]
-    assert starts == [f"started with 0 of {M} samples done", f"started with {len(before)} of {M} samples done"]
+        runs = journal.runs()
+    # the killed run has a start and no end; the resume's run ends finished
+    assert [(start.run, start.samples_done) for start, _ in runs] == [(1, 0), (2, len(before))]
+    assert runs[0][1] is None and runs[1][1].status is RunStatus.FINISHED and runs[1][1].samples_captured == M
     # no RAW file of a sample captured before the kill was taken again
     for index, _ in before:
         for path in (session / "raw").glob(f"sample_{index:04d}_e*.dng"):
@@ -352,10 +355,12 @@ def test_sigint_stops_every_axis_and_leaves_a_resumable_journal(setup, tmp_path)
                      r"the lamp is off\. \d of 5 samples are safe in .*\. Run the same command with --resume to "
                      r"continue\n$", err), err
     with Journal.open(session / "session.sqlite") as journal:
-        [event] = [e for e in journal.events() if e["kind"] == "interrupted"]
-        assert event["data"]["stop_problems"] == [] and event["data"]["lamp_off"] is True
-        assert [e["kind"] for e in journal.events()][-2:] == ["stop", "lamp"]
-        assert event["data"]["operator_message"] == err[len("goniofrost capture: "):-1]  # the terminal's words
+        [event] = [e for e in journal.events() if e["kind"] is EventKind.INTERRUPTED]
+        _start, end = journal.last_run()
+        assert all(s.confirmed for s in end.stops) and end.lamp_off is True and event["data"]["lamp_off"] is True
+        assert [e["kind"] for e in journal.events()][-2:] == [EventKind.STOP, EventKind.LAMP]
+        assert end.status is RunStatus.STOPPED_BY_OPERATOR
+        assert end.reason == err[len("goniofrost capture: "):-1]  # the terminal's words
         done = journal.done_indices()
     assert 1 <= len(done) < M and sorted(csv_indices(session)) == sorted(done)
     assert not (session / "brdf.binary").exists()
@@ -386,12 +391,12 @@ def test_device_fault_mid_session_stops_records_and_exits_with_a_clear_message(s
     assert re.search(r"\. Stopped camera_arm at [-\d.]+ deg, sample_yaw at [-\d.]+ deg, sample_tilt at [-\d.]+ deg; "
                      r"the lamp is off\. ", message) and "run the same command with --resume" in message
     with Journal.open(session / "session.sqlite") as journal:
-        [fault] = [e for e in journal.events() if e["kind"] == "fault"]
-        done = journal.done_indices()
+        [fault] = [e for e in journal.events() if e["kind"] is EventKind.FAULT]
+        done, (_start, end) = journal.done_indices(), journal.last_run()
     assert fault["axis"] == axis and fault["message"] in message
     # the terminal's words are journaled too (the monitor page shows them), with the failed sample
-    assert fault["data"]["operator_message"] == message
-    assert message.startswith(f"device fault at plan sample {fault['data']['plan_index']}:")
+    assert (end.status, end.reason, end.axis, end.detail) == (RunStatus.FAULT, message, axis, fault["message"])
+    assert message.startswith(f"device fault at plan sample {end.plan_index}:")
     assert 2 <= len(done) < M and not (session / "brdf.binary").exists()
 
 
@@ -642,7 +647,11 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 2
     assert [s["kind"] for s in steps].count("Assess") == 1
-    assert events[-1]["message"] == "capture stopped after 2 of 5 samples: target reached"
+    assert events[-1]["kind"] is EventKind.SESSION
+    _start, end = journal_last_run(session)
+    assert (end.status, end.samples_planned, end.samples_captured, end.batches) == (RunStatus.TARGET_REACHED, 5, 2, 1)
+    assert end.reason.startswith("capture stopped after 2 of 5 samples: target reached (predicted error ")
+    assert report_last_run(session) == {"status": "target_reached", "reason": end.reason}
     with open(session / "samples.csv") as handle:
         assert [row["batch"] for row in csv.DictReader(handle)] == ["1", "1"]
     report = json.loads((session / "report.json").read_text())
@@ -667,6 +676,9 @@ def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     assert target["stopped"] == "plan used up" and target["samples_used"] == 5
     assert [b["samples"] for b in target["batches"]] == [2, 4, 5]
     assert [b["decision"] for b in target["batches"]] == ["continue", "continue", "plan used up"]
+    _start, end = journal_last_run(session)
+    assert (end.status, end.samples_captured, end.batches) == (RunStatus.PLAN_USED_UP, 5, 3)
+    assert outcome.report["last_run"]["status"] == "plan_used_up"
 
 
 def test_target_error_needs_a_batched_plan_and_a_positive_number(setup, tmp_path, capsys):
@@ -761,3 +773,21 @@ def test_a_bad_misalignment_section_is_refused_naming_the_key(setup, tmp_path, c
         err = run_refused(capture_args(tmp_path / "rig.yaml", plan, tmp_path / "s"), capsys)
         assert f"{tmp_path / 'rig.yaml'}: {message}" in err
     assert not (tmp_path / "s").exists()
+
+
+def journal_last_run(session):
+    """The (RunStart, RunEnd) of the session's last run, as the journal's API returns them."""
+    with Journal.open(session / "session.sqlite") as journal:
+        return journal.last_run()
+
+
+def report_last_run(session) -> dict:
+    return json.loads((session / "report.json").read_text())["last_run"]
+
+
+def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early(setup, tmp_path, capsys):
+    folder, rig, plan, model = setup
+    batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
+    capture(rig, batched, tmp_path / "s", material=MATERIAL, speedup=50, progress=True, target_error=1000.0)
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert last.startswith("capture: 100%") and "| 2/2 " in last, last  # not "2/5"

@@ -7,6 +7,11 @@ Each frame gives the marker corners and the solvePnP pose (``calib.card_pose.rea
 tile's brightness (``tile_rate``); ``planner.alignment.fit_alignment`` fits the offsets, and
 ``alignment_document`` is ALIGNMENT.json. Everything that can be checked is checked before a
 device moves; the file is written only when the fit is good.
+
+The plan runs on the engine core (``AlignRunner``, a ``goniofrost.capture.plan_runner.PlanRunner``):
+a failed or interrupted align stops and confirms every axis, switches the lamp off and says so
+axis by axis; with ``--frames DIR`` its runs are journaled in ``DIR/align.sqlite`` (steps, events,
+RunStart/RunEnd), without it nothing is kept.
 """
 from __future__ import annotations
 
@@ -19,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.errors import ConfigError
+from goniofrost.capture.plan_runner import PlanRunner
+from goniofrost.capture.steps import Move
 
 ALIGNMENT_VERSION = 1
 EXPOSURE_LEVEL = 0.6     # the tile's disc at the brightest pose stays under this fraction of saturation
@@ -51,8 +58,10 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)
-        with open_hardware(rig, material=None, seed=seed, speedup=speedup, on_ready=on_ready) as hardware:
-            observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress)
+        with open_hardware(rig, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
+                           program="align") as hardware:
+            observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress,
+                                                  journaled=frames is not None)
     fit = fit_alignment(rig, rig.view.camera, observations)
     doc = alignment_document(rig, fit, len(poses), exposure, disc_px)
     write_text_atomic(out_path, json.dumps(doc, indent=1) + "\n")
@@ -81,23 +90,57 @@ def usable_poses(rig) -> tuple[np.ndarray, float]:
     return np.array(keep).reshape(-1, 3), (disc_radius_px(cam, tiles) if tiles else 0.0)
 
 
-def run_steps(rig, poses: np.ndarray, disc_px: float, hardware, folder: Path, progress: bool):
-    """Drive ``alignment_steps`` on the hardware (a progress bar over the poses); return
-    (observations, exposure)."""
-    from tqdm import tqdm
+ALIGN_JOURNAL = "align.sqlite"
 
-    from goniofrost.capture.executor import StepExecutor
-    from goniofrost.capture.steps import Move, drive
 
-    devices = StepExecutor(hardware, folder)
-    with tqdm(total=len(poses), unit="pose", desc="align", file=sys.stderr, disable=not progress) as bar:
-        def execute(step):
-            result = devices(step)
-            if isinstance(step, Move) and step.index is not None:
-                bar.update(1)
-            return result
+def run_steps(rig, poses: np.ndarray, disc_px: float, hardware, folder: Path, progress: bool,
+              journaled: bool = False):
+    """Drive ``alignment_steps`` on the hardware through the engine core (a progress bar over the
+    poses); return (observations, exposure). ``journaled``: journal the run in
+    ``folder/align.sqlite`` (a new run appended when it exists)."""
+    from goniofrost.capture.journal import Journal
 
-        return drive(alignment_steps(rig, poses, disc_px), execute)
+    journal = None
+    if journaled:
+        path = Path(folder) / ALIGN_JOURNAL
+        journal = (Journal.open(path) if path.is_file() else
+                   Journal.create(path, {"program": "align", "rig_name": rig.name, "rig_file": str(rig.source),
+                                         "kinematic_hash": rig.kinematic_hash, "poses": len(poses)}))
+    try:
+        runner = AlignRunner(hardware, folder, len(poses), progress, journal=journal)
+        return runner.execute_plan(alignment_steps(rig, poses, disc_px))
+    finally:
+        if journal is not None:
+            journal.close()
+
+
+class AlignRunner(PlanRunner):
+    """The alignment plan on the engine core: a progress bar over the ``n_poses`` poses."""
+
+    program = "align"
+
+    def __init__(self, hardware, folder, n_poses: int, progress: bool, journal=None) -> None:
+        super().__init__(hardware, folder, journal=journal)
+        self.n_poses, self.progress, self._bar = n_poses, progress, None
+        self.step_journal = {Move: self._moved}
+
+    def run_scope(self):
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=self.n_poses, unit="pose", desc="align", file=sys.stderr, disable=not self.progress)
+        return self._bar
+
+    def _moved(self, step, reached) -> dict:
+        if step.index is not None:
+            self._bar.update(1)
+        return {"joints": reached.joints, "seconds": reached.seconds}
+
+    def saved_text(self) -> str:
+        journaled = f"; the run is journaled in {self.journal.path}" if self.journal is not None else ""
+        return f"No alignment was written{journaled}"
+
+    def resume_text(self) -> str:
+        return "Fix the cause, then run goniofrost align again"
 
 
 def alignment_steps(rig, poses: np.ndarray, disc_px: float, folder: str = ""):

@@ -11,6 +11,8 @@ from __future__ import annotations
 import logging
 from contextlib import contextmanager
 
+from goniofrost.capture.records import EventKind
+
 
 class DeviceLog(logging.Handler):
     """Collect the device-side log records (INFO and up) from any thread; the engine journals them
@@ -36,7 +38,7 @@ class DeviceLog(logging.Handler):
     def journal_into(self, journal) -> None:
         """Store the records collected since the last call as ``device`` events of ``journal``."""
         for record in self.drain():
-            journal.add_event("device", record.getMessage(), data={"logger": record.name, "level": record.levelname})
+            journal.add_event(EventKind.DEVICE, record.getMessage(), data={"logger": record.name, "level": record.levelname})
 
     @classmethod
     @contextmanager

@@ -16,36 +16,11 @@ from typing import Mapping
 
 from goniofrost.core.atomic_file import output_errors
 from goniofrost.capture.contract import Axis, Hardware
+from goniofrost.capture.records import AxisStop  # noqa: F401 - re-exported: the stop report's record
 from goniofrost.capture.steps import Expose, Frame, Home, LampOff, LampOn, Move, Reached, SaveCalibration, SetTarget
 
 log = logging.getLogger(__name__)
 LAMP_OFF_ATTEMPTS = 2  # a reply lost once (a loaded host) must not leave the lamp reported on
-
-
-@dataclass(frozen=True)
-class AxisStop:
-    """How one axis took the stop: ``confirmed`` when the device reported it at rest (at
-    ``position_deg``); otherwise ``under_way`` tells whether a move was under way, ``moving_to``
-    its target when known (the axis may still be going there), and ``error`` why the stop was not
-    confirmed."""
-
-    axis: str
-    confirmed: bool
-    position_deg: float | None = None
-    under_way: bool = False
-    moving_to: float | None = None
-    error: str | None = None
-
-    def text(self) -> str:
-        """One clause for the operator, e.g. "sample_yaw did not confirm the stop: it may still be
-        moving towards 56.7 deg"."""
-        if self.confirmed:
-            return f"{self.axis} stopped at {self.position_deg:.2f} deg"
-        if self.under_way and self.moving_to is not None:
-            return f"{self.axis} did not confirm the stop: it may still be moving towards {self.moving_to:.1f} deg"
-        if self.under_way:
-            return f"{self.axis} did not confirm the stop: it may still be moving"
-        return f"{self.axis} did not confirm the stop (it was not moving as far as this session knows)"
 
 
 def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | None = None) -> list[AxisStop]:

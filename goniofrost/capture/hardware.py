@@ -5,7 +5,9 @@ camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig mar
 ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this process: its devices speak the real
 protocols over pseudo-terminals and loopback TCP, and the real drivers connect to them exactly as
 to hardware. The simulated camera sees the pose through forward kinematics of the simulated
-axes' true positions. A real rig's camera comes from ``open_camera``. On leaving, every axis is
+axes' true positions. A real rig's camera comes from ``open_camera``. The rig's lock
+(``goniofrost.capture.rig_lock``: one program drives a rig at a time) is held from before the
+first device is connected until every connection is closed. On leaving, every axis is
 told to stop (through the engine's one stop path, which confirms each; its findings are logged to
 the session's device log) and every connection closed, whatever happened.
 """
@@ -42,6 +44,7 @@ class RigHardware:
     clock: object
     simulation: object = None
     extra: dict = field(default_factory=dict)
+    rig_lock: object = None   # the held goniofrost.capture.rig_lock.RigLock (its stop requests)
 
     @property
     def simulated(self) -> bool:
@@ -50,14 +53,19 @@ class RigHardware:
 
 @contextmanager
 def open_hardware(rig, *, material: str | None = None, seed: int | None = None, speedup: float | None = None,
-                  on_ready=None):
-    """Connect ``rig``'s devices and yield a RigHardware; stop and close everything on exit.
+                  on_ready=None, program: str = "capture"):
+    """Take the rig's lock for ``program``, connect ``rig``'s devices and yield a RigHardware; stop
+    and close everything on exit, then release the lock (``RigInUseError`` when another program
+    holds it: nothing is connected).
 
     ``on_ready(hardware)`` (optional) is called once everything is connected (tests use it to
     inject faults into the simulated devices).
     """
+    from goniofrost.capture.rig_lock import rig_lock
+
     opener = _simulated if rig.simulated else _real
-    with opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+    with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+        hardware.rig_lock = lock
         if on_ready is not None:
             on_ready(hardware)
         yield hardware
@@ -102,9 +110,8 @@ def _emulated_pylon(rig, sim_camera):
     if (rig.camera or {}).get("kind") != "pylon":
         yield None
         return
-    from sim.pylon_scene import EmulatedScene
-
     from goniofrost.core.errors import ConfigError
+    from sim.pylon_scene import EmulatedScene
 
     bits = int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:])
     if sim_camera.params["white_level"] > 2 ** bits - 1:  # the served mosaic would wrap around
@@ -168,6 +175,24 @@ def _connected(devices):
                 log.warning("while releasing the rig: %s", exc)
 
 
+class BarSafeOutput:
+    """Standard error for the operator's prompts that never writes into a progress bar's line: the
+    bar (tqdm) is cleared, the prompt printed on its own lines, the bar drawn again below it."""
+
+    def write(self, text: str) -> None:
+        import sys
+
+        from tqdm import tqdm
+
+        if text:
+            tqdm.write(text, file=sys.stderr, end="")
+
+    def flush(self) -> None:
+        import sys
+
+        sys.stderr.flush()
+
+
 def open_camera(rig, *, image_source=None, device_class: str | None = None):
     """The real camera of a rig (object with ``.camera`` or the ``camera`` mapping itself): a
     ``drivers.pylon.PylonCamera`` for ``kind: pylon`` (``image_source``, ``device_class``: an
@@ -191,13 +216,15 @@ def open_camera(rig, *, image_source=None, device_class: str | None = None):
 
         return PylonCamera(section["serial"], section["pixel_format"], section["gain_db"], section["exposures_s"],
                            section["intrinsics"]["image_size_px"], section["timeout_s"], device_class=device_class,
-                           image_source=image_source, ask=OperatorPrompt(section["operator_timeout_s"]))
+                           image_source=image_source,
+                           ask=OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput()))
     if section["kind"] != "rawfile":
         raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
     if section["folder"] is None:
         raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
-    command, prompt = section["trigger_command"], OperatorPrompt(section["operator_timeout_s"])
+    command = section["trigger_command"]
+    prompt = OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput())
     labels = section["shutter_speeds"]
     if command is None:
         def trigger(exposure_s: float) -> None:

@@ -9,7 +9,10 @@ survives SIGKILL and power loss) holds
 * ``samples``: one row per captured plan sample, keyed by its plan index (so a sample can
   never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
   written in ONE transaction after the sample is measured;
-* ``events``: what happened to the devices and the session (homing, faults, interruptions);
+* ``events``: what happened to the devices and the session (homing, faults, interruptions), each
+  of a kind of ``goniofrost.capture.records.EventKind``;
+* ``runs``: one row per run of the engine: its ``RunStart`` when it begins and its ``RunEnd``
+  (status, reason, counts) when it ends; a killed run has no end (``Journal.runs``);
 * ``steps``: every step of the session plan as the engine executes it (one row per step: its
   run, kind, plan sample, fields, status ``running`` -> ``done``/``failed``/``interrupted``, a
   summary of its result, start and end times). Rows are written as steps start and end, without
@@ -25,11 +28,13 @@ import json
 import os
 import sqlite3
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
+from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus
 
 FORMAT_VERSION = 1
 CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b",
@@ -55,6 +60,9 @@ CREATE TABLE IF NOT EXISTS steps (
     id INTEGER PRIMARY KEY AUTOINCREMENT, run INTEGER NOT NULL, kind TEXT NOT NULL, plan_index INTEGER,
     detail TEXT NOT NULL, status TEXT NOT NULL, result TEXT NOT NULL, started_utc REAL NOT NULL,
     ended_utc REAL);
+CREATE TABLE IF NOT EXISTS runs (
+    run INTEGER PRIMARY KEY, program TEXT NOT NULL, started_utc REAL NOT NULL, samples_planned INTEGER NOT NULL,
+    samples_done INTEGER NOT NULL, status TEXT, end_record TEXT);
 """
 STEP_STATUSES = ("running", "done", "failed", "interrupted")
 
@@ -141,6 +149,22 @@ class Journal:
             raise JournalError(f"{path}: meta.format_version: expected {FORMAT_VERSION}, found {version!r}")
         return journal
 
+    @classmethod
+    def open_read_only(cls, path) -> "Journal":
+        """Open a journal that may be live for reading only (a monitor): it cannot write, and it
+        creates no file beside the journal (``connect_read_only``)."""
+        path = Path(path)
+        return cls(path, connect_read_only(path))
+
+    @contextmanager
+    def snapshot(self):
+        """One read transaction: every read inside sees the same moment of the journal."""
+        self._db.execute("BEGIN")
+        try:
+            yield self
+        finally:
+            self._db.execute("COMMIT")
+
     def close(self) -> None:
         self._db.close()
 
@@ -171,19 +195,38 @@ class Journal:
         return {row[0] for row in self._db.execute("SELECT plan_index FROM samples")}
 
     def events(self) -> list[dict]:
-        """Every event in order: dicts with t_utc, kind, axis, message, data."""
+        """Every event in order: dicts with t_utc, kind (an EventKind; a kind this version does not
+        know stays a str), axis, message, data."""
         rows = self._db.execute("SELECT t_utc, kind, axis, message, data FROM events ORDER BY id")
-        return [{"t_utc": t, "kind": k, "axis": a, "message": m, "data": json.loads(d)} for t, k, a, m, d in rows]
+        return [{"t_utc": t, "kind": _event_kind(k), "axis": a, "message": m, "data": json.loads(d)}
+                for t, k, a, m, d in rows]
 
     def steps(self) -> list[dict]:
         """Every journaled plan step in order: dicts with id, run, kind, plan_index, detail, status,
         result, started_utc, ended_utc (``detail`` and ``result`` decoded from JSON)."""
-        cursor = self._db.execute("SELECT * FROM steps ORDER BY id")
-        names = [c[0] for c in cursor.description]
-        rows = [dict(zip(names, row)) for row in cursor]
-        for row in rows:
-            row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
-        return rows
+        return _step_rows(self._db.execute("SELECT * FROM steps ORDER BY id"))
+
+    def recent_steps(self) -> list[dict]:
+        """The last step row and the last Move that ended done, oldest first, decoded as ``steps``
+        decodes them: what a live view needs without reading thousands of rows several times a second."""
+        return _step_rows(self._db.execute(
+            "SELECT * FROM steps WHERE id IN ((SELECT MAX(id) FROM steps), "
+            "(SELECT MAX(id) FROM steps WHERE kind = 'Move' AND status = 'done')) ORDER BY id"))
+
+    def runs(self) -> list[tuple[RunStart, RunEnd | None]]:
+        """Every run of the engine in order: its RunStart and its RunEnd (None while it runs, or
+        when its process was killed). A journal written before runs were recorded: []."""
+        try:
+            rows = self._db.execute("SELECT run, program, started_utc, samples_planned, samples_done, end_record "
+                                    "FROM runs ORDER BY run").fetchall()
+        except sqlite3.OperationalError:  # a read-only view of a journal from before the runs table
+            return []
+        return [(RunStart(*row[:5]), None if row[5] is None else _run_end_from_json(row[5])) for row in rows]
+
+    def last_run(self) -> tuple[RunStart | None, RunEnd | None]:
+        """The last run's (RunStart, RunEnd), (None, None) before the first run."""
+        runs = self.runs()
+        return runs[-1] if runs else (None, None)
 
     def step_result(self, kind: str, plan_index: int | None = None) -> dict | None:
         """The result of the last step of ``kind`` (for plan sample ``plan_index``) that ended done;
@@ -194,7 +237,8 @@ class Journal:
 
     def next_run(self) -> int:
         """The number of the next engine run of this session (1 for the first)."""
-        return self._db.execute("SELECT COALESCE(MAX(run), 0) + 1 FROM steps").fetchone()[0]
+        return self._db.execute("SELECT MAX(COALESCE((SELECT MAX(run) FROM steps), 0), "
+                                "COALESCE((SELECT MAX(run) FROM runs), 0)) + 1").fetchone()[0]
 
     # ----- writing ------------------------------------------------------------------------
     def set_calibration(self, record: dict, step: tuple[int, dict] | None = None) -> None:
@@ -216,11 +260,30 @@ class Journal:
         except sqlite3.IntegrityError:
             raise JournalError(f"{self.path}: plan sample {record.plan_index} is already in the journal") from None
 
-    def add_event(self, kind: str, message: str, axis: str | None = None, data: dict | None = None) -> None:
-        """Record a device or session event (durably: a fault must outlive the process)."""
+    def add_event(self, kind: EventKind, message: str, axis: str | None = None, data: dict | None = None) -> None:
+        """Record a device or session event (durably: a fault must outlive the process); ``message``
+        is for people, ``data`` for readers."""
+        kind = EventKind(kind)  # an unknown kind is refused here, not found missing by a reader
         with self._transaction() as db:
             db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
-                       (time.time(), kind, axis, message, json.dumps(data or {}, default=str)))
+                       (time.time(), kind.value, axis, message, json.dumps(data or {}, default=str)))
+
+    def start_run(self, program: str, samples_planned: int, samples_done: int) -> RunStart:
+        """Record that a run of ``program`` begins (durably); return its RunStart."""
+        start = RunStart(self.next_run(), program, time.time(), int(samples_planned), int(samples_done))
+        with self._transaction() as db:
+            db.execute("INSERT INTO runs (run, program, started_utc, samples_planned, samples_done) "
+                       "VALUES (?, ?, ?, ?, ?)", (start.run, start.program, start.started_utc,
+                                                  start.samples_planned, start.samples_done))
+        return start
+
+    def end_run(self, end: RunEnd) -> None:
+        """Record how run ``end.run`` ended (durably); a run ends once."""
+        with self._transaction() as db:
+            cursor = db.execute("UPDATE runs SET status = ?, end_record = ? WHERE run = ? AND status IS NULL",
+                                (RunStatus(end.status).value, json.dumps(asdict(end), default=str), end.run))
+            if cursor.rowcount != 1:
+                raise JournalError(f"{self.path}: run {end.run}: expected a started run without an end, found none")
 
     def start_step(self, run: int, kind: str, plan_index: int | None, detail: dict) -> int:
         """Record a plan step as running; return its row id (for ``end_step``)."""
@@ -239,6 +302,43 @@ class Journal:
 
     def _transaction(self, durable: bool = True):
         return _Transaction(self._db, self.path, durable)
+
+
+def _event_kind(value: str):
+    try:
+        return EventKind(value)
+    except ValueError:
+        return value
+
+
+def _step_rows(cursor) -> list[dict]:
+    names = [c[0] for c in cursor.description]
+    rows = [dict(zip(names, row)) for row in cursor]
+    for row in rows:
+        row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
+    return rows
+
+
+def _run_end_from_json(text: str) -> RunEnd:
+    values = json.loads(text)
+    values["status"] = RunStatus(values["status"])
+    values["stops"] = tuple(AxisStop(**s) for s in values.get("stops", ()))
+    return RunEnd(**values)
+
+
+def connect_read_only(path: Path) -> sqlite3.Connection:
+    """A connection that cannot write the journal and creates no file beside it.
+
+    While a capture writes the journal it is in WAL mode and its ``-wal`` file exists: ``mode=ro``
+    shares the writer's WAL index, sees every committed transaction and never blocks the writer.
+    Without a ``-wal`` file (the writer closed), ``mode=ro`` alone would create ``-wal`` and ``-shm``
+    files, so the journal is then opened ``immutable``, which creates nothing.
+    """
+    path = Path(path).resolve()
+    live_writer = path.with_name(path.name + "-wal").exists()
+    query = "mode=ro" if live_writer else "mode=ro&immutable=1"
+    return sqlite3.connect(f"{path.as_uri()}?{query}", uri=True, isolation_level=None, timeout=2.0,
+                           check_same_thread=False)
 
 
 def _end_step(db: sqlite3.Connection, step: tuple[int, dict | None] | None, status: str = "done") -> None:

@@ -11,6 +11,8 @@ sample, so its frames, samples.csv and brdf.binary are those of an uninterrupted
 """
 from __future__ import annotations
 
+from goniofrost.capture.records import EventKind
+
 
 class Rehearsal:
     """Drills and simulated state of one engine run: ``executor`` a StepExecutor (the device calls),
@@ -48,10 +50,10 @@ class Rehearsal:
         if self._resume_state is not None:
             state, self._resume_state = self._resume_state, None
             self.devices.restore(state)
-            self.journal.add_event("simulation", f"simulated rig restored as journaled before plan sample {index}",
+            self.journal.add_event(EventKind.SIMULATION, f"simulated rig restored as journaled before plan sample {index}",
                                    data=state)
         for drill in self.devices.arm_drills(index):
-            self.journal.add_event("drill", f"drill armed: {drill['kind']} on {drill['axis']} when it next moves "
+            self.journal.add_event(EventKind.DRILL, f"drill armed: {drill['kind']} on {drill['axis']} when it next moves "
                                    f"(sim.faults[{drill['drill']}], at_sample {drill['at_sample']})",
                                    axis=drill["axis"], data={**drill, "state": "armed"})
 
@@ -60,7 +62,7 @@ class Rehearsal:
         for drill in self.devices.struck_drills():
             if drill["drill"] not in self._struck:
                 self._struck.add(drill["drill"])
-                self.journal.add_event("drill", f"drill struck: {drill['kind']} on {drill['axis']}",
+                self.journal.add_event(EventKind.DRILL, f"drill struck: {drill['kind']} on {drill['axis']}",
                                        axis=drill["axis"], data={**drill, "state": "struck"})
 
     def with_state(self, summary: dict) -> dict:
@@ -71,4 +73,4 @@ class Rehearsal:
     def _struck_before(self) -> list[dict]:
         """The drills earlier runs of the session journaled as struck."""
         return [{k: v for k, v in e["data"].items() if k != "state"} for e in self.journal.events()
-                if e["kind"] == "drill" and e["data"].get("state") == "struck"]
+                if e["kind"] is EventKind.DRILL and e["data"].get("state") == "struck"]

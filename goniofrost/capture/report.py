@@ -35,8 +35,8 @@ def reconstruct_session(inputs, records):
     return reconstruct_bayes(inputs.model, inputs.positions[order], values, sigmas=sigmas)
 
 
-def build_report(inputs, records, stats, session_dir: Path, material: str | None, events) -> dict:
-    """The report.json content (see module doc)."""
+def build_report(inputs, records, stats, session_dir: Path, material: str | None, runs) -> dict:
+    """The report.json content (see module doc); ``runs``: the journal's (RunStart, RunEnd) pairs."""
     snr = np.array([r.snr for r in records], dtype=np.float64)
     motion = float(sum(r.move_s for r in records))
     capture = float(sum(r.capture_s for r in records))
@@ -46,7 +46,7 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
         "model": {"path": str(inputs.model_path), "hash": inputs.model.content_hash},
         "grid": inputs.model.grid.as_dict(), "material": material,
         "samples": len(records), "captured_this_run": stats.captured, "already_done": stats.skipped,
-        "runs": sum(1 for e in events if e["kind"] == "session" and e["message"].startswith("started")),
+        "runs": len(runs), "last_run": _last_run(runs),
         "times_s": {"motion": motion, "capture": capture, "calibration_wall_this_run": stats.calibration_s,
                     "motion_and_capture": motion + capture, "session_clock_this_run": stats.ended_clock - stats.started_clock,
                     "wall_this_run": stats.wall_s, "planned_motion": _planned_motion(inputs.plan)},
@@ -59,6 +59,13 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
                        for r in records],
         "outputs": {"brdf": "brdf.binary", "samples": "samples.csv", "journal": "session.sqlite"},
     }
+
+
+def _last_run(runs) -> dict | None:
+    """The last run's end as report.json has it: status (a RunStatus value) and reason; None
+    before any run ended."""
+    ends = [end for _start, end in runs if end is not None]
+    return None if not ends else {"status": ends[-1].status.value, "reason": ends[-1].reason}
 
 
 def _planned_motion(plan: dict) -> float | None:
@@ -80,7 +87,7 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     grid = inputs.model.grid
     write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
     estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
-    report = build_report(inputs, records, stats, session_dir, material, journal.events())
+    report = build_report(inputs, records, stats, session_dir, material, journal.runs())
     report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                             "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
     report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}

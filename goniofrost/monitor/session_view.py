@@ -5,30 +5,26 @@ the folder's files into a ``SessionView`` of plain values. Nothing else in gonio
 touches the journal, so when its schema changes (calibration frames and exposures journaled as
 steps; Bayesian batches with a predicted error) only this module changes.
 
-Read-only, always: the journal is opened with SQLite's ``mode=ro``. While a capture writes it, the
-journal is in WAL mode (``goniofrost.capture.journal`` sets it; a reader never changes it) and
-its ``-wal`` file exists: the reader shares the writer's WAL index, sees every committed
-transaction and never blocks the writer. Without a ``-wal`` file (the writer closed, every
-transaction is in the main file), ``mode=ro`` alone would create ``-wal`` and ``-shm`` files in the
-session folder, so the journal is then opened ``immutable`` instead, which creates nothing. Each
-read is one short read transaction on a fresh connection, so a session folder that is replaced
-(the demo starts afresh) or resumed is followed.
+Read-only, always, and only through the journal's own API: ``Journal.open_read_only`` (it
+cannot write and creates no file beside the journal, see ``goniofrost.capture.journal``), one
+``Journal.snapshot`` read transaction per read on a fresh connection (so a session folder that is
+replaced, the demo starts afresh, or resumed is followed). How the last run ended is its typed
+``RunEnd`` (``goniofrost.capture.records``): read by its fields, never by its words.
 """
 from __future__ import annotations
 
 import json
-import re
 import sqlite3
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import RunEnd, RunStatus
 from goniofrost.capture.runner import JOURNAL_FILE
 from goniofrost.capture.session_lock import LOCK_FILE
 
 REPORT_FILE = "report.json"
 SUMMARY_FILE = "summary.txt"
-STOP_KINDS = ("fault", "error", "interrupted")  # journal event kinds that end a run early
 _SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
 
 
@@ -68,10 +64,11 @@ class DoneSample:
 
 @dataclass(frozen=True)
 class Stop:
-    """Why the last run ended early: ``kind`` fault | error | interrupted, ``message`` the terminal's
-    words (what went wrong and what to do next), ``detail`` the device's or library's message."""
+    """Why the last run ended early: ``status`` its RunStatus (fault, refused, stopped_by_operator),
+    ``message`` the terminal's words (what went wrong and what to do next), ``detail`` the device's
+    or library's message."""
 
-    kind: str
+    status: RunStatus
     message: str
     detail: str
     axis: str | None
@@ -85,8 +82,9 @@ class SessionView:
 
     ``journal_found`` is False before the capture created its journal (``note`` says why);
     ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
-    last run (a resume starts a new run); ``all_captured`` says that run journaled its last
-    sample; ``white_rates`` the calibration's white signal per channel (None before it); ``step`` the
+    last run (a resume starts a new run); ``run_end`` how it ended (None while it runs or when its
+    process was killed); ``stop`` the same when it ended early; ``white_rates`` the calibration's
+    white signal per channel (None before it); ``step`` the
     journal's latest plan step (kind, plan_index, detail, status, started_utc); ``reached`` the
     joints {axis: deg} and plan index of the last completed move (None before one);
     ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
@@ -110,7 +108,7 @@ class SessionView:
     done: tuple = ()
     events: tuple = ()
     run_started_utc: float | None = None
-    all_captured: bool = False
+    run_end: RunEnd | None = None
     stop: Stop | None = None
     calibrated: bool = False
     white_rates: tuple | None = None
@@ -135,11 +133,10 @@ def read_session(session_dir) -> SessionView:
     if not path.is_file():
         return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
     try:
-        meta, records, events, calibration, steps = _read_journal(path)
+        meta, records, events, calibration, steps, (start, end) = _read_journal(path)
     except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
         return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
     report = _read_report(session_dir / REPORT_FILE)
-    run = _last_run(events)
     return SessionView(
         session_dir, journal_found=True, plan_key=str(meta.get("plan_sha256", "")),
         rig_name=str(meta.get("rig_name", "")), rig_text=str(meta.get("rig_text", "")),
@@ -148,35 +145,18 @@ def read_session(session_dir) -> SessionView:
         plan_file=str(meta.get("plan_file", "")), plan=_plan_samples(meta.get("plan") or {}),
         done=tuple(_done_sample(r) for r in records),
         events=tuple({k: e[k] for k in ("t_utc", "kind", "axis", "message")} for e in events),
-        run_started_utc=run[0]["t_utc"] if run and _is_start(run[0]) else None,
-        all_captured=any(e["kind"] == "session" and e["message"] == "all samples captured" for e in run),
-        stop=_stop(run), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
+        run_started_utc=None if start is None else start.started_utc, run_end=end,
+        stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
         summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
         capture_alive=lock_held(session_dir / LOCK_FILE),
         predicted_error=_predicted_error(events, report), files=files)
 
 
-def connect_read_only(path: Path) -> sqlite3.Connection:
-    """A connection that cannot write the journal and creates no file beside it (module doc)."""
-    path = Path(path).resolve()
-    live_writer = path.with_name(path.name + "-wal").exists()
-    query = "mode=ro" if live_writer else "mode=ro&immutable=1"
-    return sqlite3.connect(f"{path.as_uri()}?{query}", uri=True, isolation_level=None, timeout=2.0,
-                           check_same_thread=False)
-
-
 def _read_journal(path: Path):
-    """(meta, sample records, events, calibration) in ONE read transaction (a consistent moment)."""
-    db = connect_read_only(path)
-    try:
-        journal = Journal(path, db)  # the journal's own reading code, on a read-only connection
-        db.execute("BEGIN")
-        try:
-            return journal.meta(), journal.samples(), journal.events(), journal.calibration(), _recent_steps(db)
-        finally:
-            db.execute("COMMIT")
-    finally:
-        db.close()
+    """(meta, sample records, events, calibration, recent steps, last run) at one moment."""
+    with Journal.open_read_only(path) as journal, journal.snapshot():
+        return (journal.meta(), journal.samples(), journal.events(), journal.calibration(),
+                journal.recent_steps(), journal.last_run())
 
 
 def _read_report(path: Path) -> dict | None:
@@ -218,49 +198,11 @@ def _done_sample(r) -> DoneSample:
                       tuple(r.raw_paths))
 
 
-def _is_start(event: dict) -> bool:
-    return event["kind"] == "session" and event["message"].startswith("started")
-
-
-def _last_run(events: list) -> list:
-    """The events of the last run: from its 'started' event on (all events if there is none)."""
-    starts = [i for i, e in enumerate(events) if _is_start(e)]
-    return events[starts[-1]:] if starts else list(events)
-
-
-_INDEX_IN_STEP = re.compile(r"index=(\d+)")
-
-
-def _stop(run: list) -> Stop | None:
-    """The fault, error or interruption that ended the last run, if any."""
-    stops = [e for e in run if e["kind"] in STOP_KINDS]
-    if not stops:
+def _stop(end: RunEnd | None) -> Stop | None:
+    """The fault, refusal or operator's stop that ended the last run, if it ended early."""
+    if end is None or not end.stopped_early:
         return None
-    e = stops[-1]
-    data = e.get("data") or {}
-    index = data.get("plan_index")
-    if index is None:  # journals written before plan_index was recorded: the step's repr names it
-        found = _INDEX_IN_STEP.search(str(data.get("step", "")))
-        index = int(found.group(1)) if found else None
-    message = data.get("operator_message") or f"{e['message']}. Fix the cause, then run the same command with --resume"
-    return Stop(e["kind"], message, e["message"], e.get("axis"), index, e["t_utc"])
-
-
-def _recent_steps(db: sqlite3.Connection) -> list:
-    """The journal's last step row and its last completed Move, oldest first, as the journal's own
-    ``Journal.steps`` decodes them. Only these two: a long session has thousands of step rows and
-    the page is re-read several times a second. Journals from before the steps table: none."""
-    query = ("SELECT * FROM steps WHERE id IN ((SELECT MAX(id) FROM steps), "
-             "(SELECT MAX(id) FROM steps WHERE kind = 'Move' AND status = 'done')) ORDER BY id")
-    try:
-        cursor = db.execute(query)
-    except sqlite3.OperationalError:  # no steps table
-        return []
-    names = [c[0] for c in cursor.description]
-    rows = [dict(zip(names, row)) for row in cursor]
-    for row in rows:
-        row["detail"], row["result"] = json.loads(row["detail"]), json.loads(row["result"])
-    return rows
+    return Stop(end.status, end.reason, end.detail, end.axis, end.plan_index, end.ended_utc)
 
 
 def _last_step(steps: list) -> dict | None:

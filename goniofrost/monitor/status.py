@@ -9,10 +9,13 @@ The state of the session, from the journal's events of its last run:
 * ``stalled``: running by the journal, the lock cannot be checked, and nothing happened for
   longer than ``stall_after_s`` (only when the monitor is not inside the capture's own process,
   which would know better): the capture may have been killed;
-* ``reconstructing``: every sample journaled, report.json not written yet;
-* ``finished``: every sample journaled and the report written;
-* ``faulted`` / ``interrupted``: the last run ended on a device fault or error / on SIGINT or
-  SIGTERM; ``stop`` carries the terminal's words (what went wrong, what to do next);
+* ``reconstructing``: the run completed (its RunEnd says finished, target_reached or plan_used_up,
+  or every sample is journaled), report.json not written yet;
+* ``finished``: the run completed and the report is written; ``run_end`` says why it stopped
+  (a target-error capture stops early: "target reached");
+* ``faulted`` / ``interrupted``: the last run's RunEnd says fault or refused / stopped_by_operator
+  (SIGINT, SIGTERM, a stop request); ``stop`` carries the terminal's words (what went wrong, what
+  to do next);
 * ``failed``: the capture process that serves the page ended with an error the journal does not
   hold (``ended_message`` from the application layer).
 
@@ -30,6 +33,8 @@ import math
 import statistics
 
 import numpy as np
+
+from goniofrost.capture.records import RunStatus
 
 MIN_FIT = 3              # samples of this run before the ETA's wall model is fitted
 STALL_MIN_S = 300.0      # never call a capture stalled sooner than this
@@ -62,8 +67,11 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "latest": None if latest is None else _latest(latest),
         "poses": _poses(view, rig, latest, next_index),
         "stop": None if view.stop is None else {
-            "kind": view.stop.kind, "message": view.stop.message, "detail": view.stop.detail,
+            "status": view.stop.status.value, "message": view.stop.message, "detail": view.stop.detail,
             "axis": view.stop.axis, "plan_index": view.stop.plan_index},
+        "run_end": None if view.run_end is None else {
+            "status": view.run_end.status.value, "reason": view.run_end.reason,
+            "samples_planned": view.run_end.samples_planned, "samples_captured": view.run_end.samples_captured},
         "ended_message": ended_message,
         "predicted_error": view.predicted_error,
         "calibrated": view.calibrated,
@@ -79,17 +87,20 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
     if not view.journal_found:
         return "waiting", f"waiting for the capture to start ({view.note})"
     if view.stop is not None:
-        what = "interrupted" if view.stop.kind == "interrupted" else "faulted"
+        what = "interrupted" if view.stop.status is RunStatus.STOPPED_BY_OPERATOR else "faulted"
         return what, f"{what} with {len(done)} of {total} samples safe in the journal: what happened and what to do below"
-    complete = bool(total) and len(done) >= total
+    end = view.run_end
+    complete = (end is not None and end.status.completed) or (bool(total) and len(done) >= total)
     if complete and view.report is not None:
-        return "finished", f"all {total} samples captured; results written to {view.session_dir}"
+        why = end.reason if end is not None else f"all {total} samples captured"
+        return "finished", f"finished: {why}; results written to {view.session_dir}"
     if not attached and view.capture_alive is False:
         return "stopped", (f"the capture process is gone without journaling why (killed, or the computer stopped?) "
                            f"with {len(done)} of {total} samples safe: run the same capture command with --resume "
                            f"to {'write the results' if complete else 'continue'}")
     if complete:
-        return "reconstructing", f"all {total} samples captured; reconstructing the BRDF and writing the report"
+        why = end.reason if end is not None else f"all {total} samples captured"
+        return "reconstructing", f"{why}; reconstructing the BRDF and writing the report"
     idle = now_utc - last_activity_utc(view)
     if not attached and view.capture_alive is None and idle > stall_after_s(view):
         return "stalled", (f"no journal activity for {duration_text(idle)}: if the capture process is gone "

@@ -66,7 +66,7 @@ function renderFault(st) {
   if (!stopped && !st.ended_message) { box.hidden = true; return; }
   box.hidden = false;
   setText("fault-title", st.ended_message ? "The capture ended with an error" :
-          st.stop.kind === "interrupted" ? "Interrupted" : "Stopped on a fault");
+          st.stop.status === "stopped_by_operator" ? "Interrupted" : "Stopped on a fault");
   setText("fault-message", st.ended_message || st.stop.message);
   setText("fault-detail", st.stop && !st.ended_message && st.stop.detail && !st.stop.message.includes(st.stop.detail)
           ? `device: ${st.stop.detail}` : "");

@@ -1,0 +1,136 @@
+"""The typed records of a run: what the engine journals and every reader reads, field by field.
+
+This module is the bottom of ``goniofrost.capture`` (it imports nothing of the project): the
+journal stores these records, the engine writes them, and the monitor, the report and any later
+reader (a session catalogue, the console) read their fields. No reader matches a sentence: the
+``message`` of an event and the ``reason`` of a run end are words for people only.
+
+* ``EventKind``: the kind of every journal event (a ``str`` enum: the journal stores its value).
+* ``RunStatus``: how a run of the engine ended, as a run-stop document's ``exit_status`` does
+  (bluesky's run-stop document carries ``exit_status`` and ``reason``). A killed process records
+  nothing: a run without a ``RunEnd`` whose process is gone (no lock held) was stopped from
+  outside; readers infer that from the lock.
+* ``AxisStop``: how one axis took a stop.
+* ``RunStart`` / ``RunEnd``: one row each per run in the journal's ``runs`` table.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+
+class EventKind(str, enum.Enum):
+    """The kind of a journal event (``Journal.add_event``; ``Journal.events`` returns them)."""
+
+    SESSION = "session"          # a run started or ended (its RunStart / RunEnd are in the runs table)
+    HOME = "home"                # axes homed (data: joints reached)
+    LAMP = "lamp"                # lamp on/off (data: photodiode; after a stop: off, error)
+    CALIBRATION = "calibration"  # the calibration phase started, was saved, or is retaken
+    SAMPLES = "samples"          # the sample phase started
+    ALIGNMENT = "alignment"      # the alignment phase started
+    BATCH = "batch"              # a batch assessed against the target error (data: Assess fields)
+    FAULT = "fault"              # a device failed (the run ends FAULT)
+    ERROR = "error"              # a measurement, camera or output error (the run ends REFUSED or FAULT)
+    INTERRUPTED = "interrupted"  # SIGINT/SIGTERM or a stop request (the run ends STOPPED_BY_OPERATOR)
+    STOP = "stop"                # how every axis took the stop (data: stops)
+    SIMULATION = "simulation"    # a simulated rig's state restored on resume
+    DRILL = "drill"              # a simulated rig's fault drill armed or struck
+    DEVICE = "device"            # a driver's or protocol library's log record
+
+    def __str__(self) -> str:
+        return self.value
+
+
+# the phases a plan names (Phase steps): each journals an event of its own kind
+PHASE_KINDS = {"calibration": EventKind.CALIBRATION, "samples": EventKind.SAMPLES,
+               "alignment": EventKind.ALIGNMENT}
+
+
+class RunStatus(str, enum.Enum):
+    """How a run ended (``RunEnd.status``)."""
+
+    FINISHED = "finished"                        # every step of the plan done (every sample captured)
+    TARGET_REACHED = "target_reached"            # a target-error capture stopped early: target reached
+    PLAN_USED_UP = "plan_used_up"                # a target-error capture measured its whole plan short of the target
+    STOPPED_BY_OPERATOR = "stopped_by_operator"  # Ctrl-C, SIGTERM or a stop request (request_stop)
+    FAULT = "fault"                              # a device failed (or the program itself)
+    REFUSED = "refused"                          # a measurement or an output the run cannot accept
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def completed(self) -> bool:
+        """True when the run did all it set out to do (nothing to resume)."""
+        return self in (RunStatus.FINISHED, RunStatus.TARGET_REACHED, RunStatus.PLAN_USED_UP)
+
+
+@dataclass(frozen=True)
+class AxisStop:
+    """How one axis took the stop: ``confirmed`` when the device reported it at rest (at
+    ``position_deg``); otherwise ``under_way`` tells whether a move was under way, ``moving_to``
+    its target when known (the axis may still be going there), and ``error`` why the stop was not
+    confirmed."""
+
+    axis: str
+    confirmed: bool
+    position_deg: float | None = None
+    under_way: bool = False
+    moving_to: float | None = None
+    error: str | None = None
+
+    def text(self) -> str:
+        """One clause for the operator, e.g. "sample_yaw did not confirm the stop: it may still be
+        moving towards 56.7 deg"."""
+        if self.confirmed:
+            return f"{self.axis} stopped at {self.position_deg:.2f} deg"
+        if self.under_way and self.moving_to is not None:
+            return f"{self.axis} did not confirm the stop: it may still be moving towards {self.moving_to:.1f} deg"
+        if self.under_way:
+            return f"{self.axis} did not confirm the stop: it may still be moving"
+        return f"{self.axis} did not confirm the stop (it was not moving as far as this session knows)"
+
+
+@dataclass(frozen=True)
+class RunStart:
+    """A run of the engine began: its number (1 for the first of a journal), what program runs
+    (``capture``, ``align``, ...), Unix time, the plan's sample count and how many were already done."""
+
+    run: int
+    program: str
+    started_utc: float
+    samples_planned: int
+    samples_done: int
+
+
+@dataclass(frozen=True)
+class RunEnd:
+    """How a run ended (one per run; a killed run has none).
+
+    ``status``: a RunStatus; ``reason``: words for people (the terminal's message after a stop);
+    ``samples_planned``: the plan's samples; ``samples_captured``: journaled by the end of the run
+    (all runs); ``batches``: batches assessed in this run (a target-error capture; 0 otherwise);
+    ``started_utc``/``ended_utc``: Unix times of the run. After a stop: ``detail`` the device's or
+    library's message, ``axis`` the axis at fault, ``plan_index`` the plan sample under way,
+    ``stops`` how each axis took the stop, ``lamp_off`` whether the lamp confirmed it is off (None:
+    not asked, the run completed).
+    """
+
+    run: int
+    status: RunStatus
+    reason: str
+    samples_planned: int
+    samples_captured: int
+    batches: int
+    started_utc: float
+    ended_utc: float
+    detail: str = ""
+    axis: str | None = None
+    plan_index: int | None = None
+    stops: tuple[AxisStop, ...] = field(default_factory=tuple)
+    lamp_off: bool | None = None
+
+    @property
+    def stopped_early(self) -> bool:
+        """True when the run ended on a fault, a refusal or an operator's stop (resumable)."""
+        return not self.status.completed
