@@ -41,41 +41,30 @@ _CAMERA_KEYS = {
     "white_reference": Key(lambda v: isinstance(v, dict), "a mapping", {}),
     # kind rawfile only: the folder the camera's tethering software writes RAW files to, and the
     # command that triggers one exposure ({exposure_s} is replaced); without it the operator is asked
-<<<<<<< HEAD
-    "folder": (lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
-    "trigger_command": (lambda v: v is None or (isinstance(v, str) and ("{exposure_s}" in v or "{shutter}" in v)),
-                        "a command containing {exposure_s} or {shutter} (and optionally {folder})", None),
-    # kind rawfile: the camera's own shutter speeds (its labels, e.g. ["1/4000", "1/2000", ..., "30"]):
-    # each exposures_s rung becomes the nearest of them and the trigger gets its label as {shutter}
-    "shutter_speeds": (lambda v: v is None or (isinstance(v, list) and len(v) >= 1
-                                               and all(shutter_seconds(x) is not None for x in v)),
-                       'a list of shutter speed labels such as "1/4000", "0.3", "30"', None),
-    # kind rawfile: a RAW file's own exposure (EXIF ExposureTime) may differ from the one asked for
-    # by this fraction at most, else it is refused
-    "exposure_tolerance": (lambda v: _num(v) and 0 <= v < 0.5, "a number in [0, 0.5) (relative)", 0.05),
-    "timeout_s": (lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file or, beyond the "
-                  "exposure, for a grabbed frame)", 30.0),
-    # kind pylon: the camera's serial number (none: the first camera found), its pixel format and gain
-    "serial": (lambda v: v is None or (isinstance(v, str) and v != ""), "a serial number (a string)", None),
-    "pixel_format": (lambda v: v in PYLON_PIXEL_FORMATS, f"one of {list(PYLON_PIXEL_FORMATS)}", "BayerRG12"),
-    "gain_db": (lambda v: _num(v) and 0 <= v <= 48, "a number in [0, 48] (dB, fixed)", 0.0),
-    "operator_timeout_s": (lambda v: _num(v) and v > 0,
-                           "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
-}
-_OPTIONAL = {"folder", "trigger_command", "shutter_speeds", "serial"}
-=======
     "folder": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
-    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
-                        "a command containing {exposure_s}", None),
+    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and ("{exposure_s}" in v or "{shutter}" in v)),
+                           "a command containing {exposure_s} or {shutter} (and optionally {folder})", None),
     # command that puts a target in front of the lens ({target}: sample, white or flat), for a motorised
     # target changer (or the simulated camera of `goniofrost sim --write-rig`); without it the operator is asked
     "target_command": Key(lambda v: v is None or (isinstance(v, str) and "{target}" in v),
                           "a command containing {target}", None),
-    "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
+    # kind rawfile: the camera's own shutter speeds (its labels, e.g. ["1/4000", "1/2000", ..., "30"]):
+    # each exposures_s rung becomes the nearest of them and the trigger gets its label as {shutter}
+    "shutter_speeds": Key(lambda v: v is None or (isinstance(v, list) and len(v) >= 1
+                                                  and all(shutter_seconds(x) is not None for x in v)),
+                          'a list of shutter speed labels such as "1/4000", "0.3", "30"', None),
+    # kind rawfile: a RAW file's own exposure (EXIF ExposureTime) may differ from the one asked for
+    # by this fraction at most, else it is refused
+    "exposure_tolerance": Key(lambda v: _num(v) and 0 <= v < 0.5, "a number in [0, 0.5) (relative)", 0.05),
+    "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file or, beyond the "
+                     "exposure, for a grabbed frame)", 30.0),
+    # kind pylon: the camera's serial number (none: the first camera found), its pixel format and gain
+    "serial": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a serial number (a string)", None),
+    "pixel_format": Key(lambda v: v in PYLON_PIXEL_FORMATS, f"one of {list(PYLON_PIXEL_FORMATS)}", "BayerRG12"),
+    "gain_db": Key(lambda v: _num(v) and 0 <= v <= 48, "a number in [0, 48] (dB, fixed)", 0.0),
     "operator_timeout_s": Key(lambda v: _num(v) and v > 0,
-                           "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
+                              "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
->>>>>>> main
 
 
 def _int(v) -> bool:
