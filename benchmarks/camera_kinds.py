@@ -45,16 +45,35 @@ def sample_errors(session: Path, rig: Path, plan: Path, material: str) -> dict:
             "max_per_channel": np.max(rel, axis=0).round(5).tolist()}
 
 
+def smallest_plan(folder: Path, rig: Path) -> Path:
+    """A 3-sample plan of a 4-material built-in model on a 30 x 30 x 60 grid (what a test runs)."""
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.training import train
+
+    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=MerlGrid(30, 30, 60),
+                  k_max=12, cache=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 3, rig, folder / "plan.json")
+
+
 def main(argv=None) -> int:
     from goniofrost.capture.runner import capture
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--plan", type=Path, required=True)
+    parser.add_argument("--plan", type=Path, help="required unless --smallest")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--material", default="nbrdf:../shared/data/nbrdf_merl.npz:gold-metallic-paint2")
     parser.add_argument("--rig", type=Path, action="append")
+    parser.add_argument("--smallest", action="store_true",
+                        help="a 3-sample plan of a small built-in model, builtin:red-plastic (what a test runs)")
     args = parser.parse_args(argv)
     rigs = args.rig or [REPO / "config/rigs/sim.yaml", REPO / "config/rigs/sim-pylon.yaml"]
+    if args.smallest:
+        args.plan, args.material = smallest_plan(args.out, rigs[-1]), "builtin:red-plastic"
+    elif args.plan is None:
+        parser.error("--plan PLAN.json is required (or --smallest)")
     results = []
     for rig in rigs:
         session = args.out / rig.stem

@@ -34,6 +34,7 @@ SLOW = {
     "session": ["--repeats", "1", "--samples", "3"],
     # also run in the default suite by the tests of their own features (test_usage, test_spectral_export,
     # test_confidence), at these settings
+    "camera_kinds": ["--smallest", "--out", "out"],
     "scene_design": ["--smallest", "--scenes", "retro-sphere", "--out", "out"],
     "spectral_export": ["--smallest"],
     "spectral_sphere": ["--size", "16", "--spp", "4", "--out", "sphere.png"],
