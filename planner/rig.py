@@ -38,7 +38,7 @@ class Role(str, enum.Enum):
 ROLE_ORDER = (Role.CAMERA_ARM, Role.SAMPLE_YAW, Role.SAMPLE_TILT)
 
 _TOP_REQUIRED = ("name", "geometry", "axes")
-_TOP_OPTIONAL = ("simulated", "lamp", "camera", "sim", "alignment")
+_TOP_OPTIONAL = ("simulated", "lamp", "camera", "sim", "alignment", "lab")
 _GEOMETRY_KEYS = ("light_direction", "min_arm_separation_deg", "tilt_limit_deg")
 _AXIS_KEYS = ("role", "limits_deg", "speed_deg_s", "accel_deg_s2", "home_deg", "tolerance_deg", "driver")
 
@@ -95,6 +95,8 @@ class Rig:
     # goniofrost.capture.rig_file.load_checked_rig from the camera section and the alignment file.
     view: Any = field(default=None, compare=False, repr=False)
     alignment: Any = None
+    # the lab's metadata (lab, lens, lamp: checked by goniofrost.capture.lab), never kinematics
+    lab: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -141,6 +143,7 @@ def rig_from_mapping(raw: Any, source: str,
     lamp = _lamp(top.get("lamp", {}), source, validators.get("driver"))
     camera = _plugged(top, "camera", source, validators.get("camera"))
     sim = _plugged(top, "sim", source, validators.get("sim"))
+    lab = _plugged(top, "lab", source, validators.get("lab"))
     alignment = None
     if "alignment" in top:
         written = Path(S.text(top["alignment"], source, "alignment"))
@@ -148,7 +151,7 @@ def rig_from_mapping(raw: Any, source: str,
         alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order)
     return Rig(name=name, simulated=simulated, geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(top), alignment=alignment)
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(top), alignment=alignment, lab=lab)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

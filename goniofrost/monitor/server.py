@@ -15,6 +15,11 @@ Routes (GET and HEAD only: every other method is answered 405, nothing can be wr
 * ``/api/preview.png?done=N``: the reconstruction from the samples journaled so far;
 * ``/files/NAME``: a file of the session folder (``safe_path`` refuses anything outside it).
 
+On a folder of sessions (``catalogue=True``) ``/`` is the catalogue (``monitor.catalogue``: one
+row per session, a link to each) and every route above is served under ``/s/NAME/`` for the
+session folder NAME listed there (nothing else: the name must be one of the listing's). The
+page uses relative addresses, so it is the same page at ``/`` and at ``/s/NAME/``.
+
 Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
 POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
 one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
@@ -181,9 +186,13 @@ class MonitorServer:
     pages and stops. Raises MonitorError if the address cannot be bound.
     """
 
-    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False) -> None:
-        self.hub = StateHub(session_dir, attached)
+    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False,
+                 catalogue: bool = False) -> None:
+        self.catalogue, self.root = catalogue, Path(session_dir)
+        self.hub = None if catalogue else StateHub(session_dir, attached)
         self.frames, self.previews = PictureCache(), PictureCache()
+        self._sites: dict[str, _Site] = {}
+        self._sites_lock = threading.Lock()
         handler = type("Handler", (_Handler,), {"monitor": self})
         try:
             self.httpd = ThreadingHTTPServer((host, port), handler)
@@ -211,22 +220,42 @@ class MonitorServer:
 
     def _poll(self) -> None:
         while not self._stopping.wait(POLL_S):
-            if self.hub.clients:
-                self.hub.refresh_logged()
+            for hub in self._hubs():
+                if hub.clients:
+                    hub.refresh_logged()
+
+    def _hubs(self) -> list:
+        with self._sites_lock:
+            return [site.hub for site in self._sites.values()] if self.catalogue else [self.hub]
+
+    def site(self, name: str):
+        """The session NAME of the catalogue (its hub and pictures, made on first use); None unless
+        NAME is a session folder the catalogue lists (no other path can be reached)."""
+        from goniofrost.monitor.catalogue import session_folders
+
+        with self._sites_lock:
+            if name not in self._sites:
+                folders = {p.name: p for p in session_folders(self.root)}
+                if name not in folders:
+                    return None
+                self._sites[name] = _Site(StateHub(folders[name], False), self.host)
+            return self._sites[name]
 
     def close(self, ended_message: str | None = None) -> None:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
         to the connected pages, then stop serving."""
-        self.hub.ended_message = ended_message
         self.frames.closing = self.previews.closing = True
         try:
-            self.hub.refresh_logged(force=True)
-            deadline = time.monotonic() + FINAL_PUSH_S
-            while time.monotonic() < deadline and self.hub.clients and not self._final_page_served():
-                time.sleep(0.02)
+            if self.hub is not None:
+                self.hub.ended_message = ended_message
+                self.hub.refresh_logged(force=True)
+                deadline = time.monotonic() + FINAL_PUSH_S
+                while time.monotonic() < deadline and self.hub.clients and not self._final_page_served():
+                    time.sleep(0.02)
         finally:
             self._stopping.set()
-            self.hub.close()
+            for hub in self._hubs():
+                hub.close()
             self.httpd.shutdown()
             self.httpd.server_close()
             for thread in self._threads:
@@ -249,6 +278,14 @@ class MonitorServer:
         self.close()
 
 
+class _Site:
+    """One session of a catalogue: what a request handler needs of a MonitorServer."""
+
+    def __init__(self, hub: StateHub, host: str) -> None:
+        self.hub, self.host = hub, host
+        self.frames, self.previews = PictureCache(), PictureCache()
+
+
 class _Handler(BaseHTTPRequestHandler):
     """One request (a thread each). ``monitor`` is set on the subclass made per server."""
 
@@ -265,6 +302,20 @@ class _Handler(BaseHTTPRequestHandler):
         url = urlsplit(self.path)
         route, query = url.path, parse_qs(url.query)
         try:
+            if self.monitor.catalogue:
+                if route in ("/", "/index.html"):
+                    return self._catalogue()
+                if route.startswith("/s/"):
+                    name, slash, rest = route[len("/s/"):].partition("/")
+                    site = self.monitor.site(name)
+                    if site is None:
+                        return self._text(HTTPStatus.NOT_FOUND, f"no such session: {name}")
+                    if not slash:  # the page's relative addresses need the slash
+                        return self._send(HTTPStatus.MOVED_PERMANENTLY, "text/plain; charset=utf-8", b"",
+                                          {"Location": f"/s/{name}/"})
+                    self.monitor, route = site, "/" + rest  # this request only: the session's own routes
+                elif not route.startswith("/static/") and route != "/favicon.ico":
+                    return self._text(HTTPStatus.NOT_FOUND, f"no such page: {route}")
             if route in ("/", "/index.html"):
                 return self._static("index.html")
             if route.startswith("/static/"):
@@ -296,6 +347,11 @@ class _Handler(BaseHTTPRequestHandler):
     do_POST = do_PUT = do_DELETE = do_PATCH = _refuse_write  # noqa: N815
 
     # ----- routes -------------------------------------------------------------------------------
+    def _catalogue(self) -> None:
+        from goniofrost.monitor.catalogue import catalogue_html
+
+        self._send(HTTPStatus.OK, "text/html; charset=utf-8", catalogue_html(self.monitor.root).encode())
+
     def _static(self, name: str) -> None:
         if name not in STATIC:
             return self._text(HTTPStatus.NOT_FOUND, f"no such page: {name}")
