@@ -51,7 +51,7 @@ def write_queue(path: Path, rig: Path, plan: Path, **extra) -> Path:
     doc = {"rig": os.path.relpath(rig, path.parent), "plan": os.path.relpath(plan, path.parent), "root": "sessions",
            "operator": "A. Operator", **extra,
            "samples": [{"sample_id": "S-001", "material": "builtin:red-plastic"},
-                       {"sample_id": "S-002", "material": "builtin:gold", "note": "second coat"}]}
+                       {"sample_id": "S-002", "material": "builtin:green-felt", "note": "second coat"}]}
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
 
@@ -113,7 +113,7 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
 
     # the label in report.json and brdf.json (extended beside the reconstruction's own fields)
     report = json.loads((second / "report.json").read_text())
-    assert report["label"] == label.to_dict() and report["material"] == "builtin:gold"
+    assert report["label"] == label.to_dict() and report["material"] == "builtin:green-felt"
     record = json.loads((second / "brdf.json").read_text())
     measured = record["measurement"]
     assert (measured["sample_id"], measured["operator"], measured["notes"], measured["lens"]) == (
@@ -127,7 +127,7 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert [(s["name"], s["sample_id"], s["operator"], s["state"], s["samples"], s["samples_planned"])
             for s in listed] == [("S-001", "S-001", "A. Operator", "finished", M, M),
                                  ("S-002", "S-002", "A. Operator", "finished", M, M)]
-    assert listed[1]["notes"] == ["second coat"] and listed[1]["material"] == "builtin:gold"
+    assert listed[1]["notes"] == ["second coat"] and listed[1]["material"] == "builtin:green-felt"
     assert listed[1]["predicted_error"] == report["prediction"]["predicted_log_relative_mse"]
 
 
@@ -175,7 +175,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     doc = yaml.safe_load(rig.read_text())
     doc["sim"]["faults"] = [{"axis": "sample_tilt", "kind": "alarm", "at_sample": 1}]
     faulty.write_text(yaml.safe_dump(doc, sort_keys=False))
-    assert main(capture_args(faulty, plan, root / "b-fault", "builtin:gold", "--operator", "A. Operator",
+    assert main(capture_args(faulty, plan, root / "b-fault", "builtin:green-felt", "--operator", "A. Operator",
                              "--sample-id", "G-1")) == 2
 
     listed = sessions_json(root, capsys)
@@ -198,7 +198,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     session = root / "b-fault"
     with Journal.open(session / "session.sqlite") as journal:
         runs, events, label = journal.runs(), journal.events(), journal.label()
-    assert main(capture_args(rig, plan, session, "builtin:gold", "--resume", "--sample-id", "G-2")) == 2
+    assert main(capture_args(rig, plan, session, "builtin:green-felt", "--resume", "--sample-id", "G-2")) == 2
     assert capsys.readouterr().err == (
         f"goniofrost capture: error: {session / 'session.sqlite'}: meta.label.sample_id: this session was started "
         f"with sample_id 'G-1', found 'G-2' (--sample-id); resume with the same one, or start a new --session for "
@@ -206,7 +206,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     with Journal.open(session / "session.sqlite") as journal:
         assert (journal.runs(), journal.events(), journal.label()) == (runs, events, label)
     # the same sample (and a note more) resumes it; the label keeps its operator and gains the note
-    assert main(capture_args(rig, plan, session, "builtin:gold", "--resume", "--note", "resumed")) == 0
+    assert main(capture_args(rig, plan, session, "builtin:green-felt", "--resume", "--note", "resumed")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         assert journal.label() == SessionLabel(operator="A. Operator", sample_id="G-1", notes=("resumed",), **LAB)
     assert [s["state"] for s in sessions_json(root, capsys)] == ["target reached", "finished"]
