@@ -6,6 +6,7 @@ plan, a short exposure ladder, a small simulated sensor and a simulated clock 10
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -131,10 +132,16 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert listed[1]["predicted_error"] == report["prediction"]["predicted_log_relative_mse"]
 
 
-def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in_full(setup, tmp_path, capsys):
+def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in_full(setup, tmp_path, capsys,
+                                                                                      monkeypatch):
     folder, rig, plan, _ = setup
     queue = write_queue(tmp_path / "queue.yaml", rig, plan, drift_limit=1e-9)  # any change is too much
-    assert main(["queue", str(queue), "--yes", "--no-progress", "--speedup", "50"]) == 0
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n\n"))  # the operator presses Enter twice
+    assert main(["queue", str(queue), "--no-progress", "--speedup", "50"]) == 0
+    asked = [line for line in capsys.readouterr().err.splitlines() if "mount sample" in line]
+    assert asked == [f"queue {k}/2: mount sample {s} on the stage, then press Enter (Ctrl-C stops the queue; the "
+                     f"same command resumes it)" for k, s in ((1, "S-001 (builtin:red-plastic)"),
+                                                              (2, "S-002 (builtin:green-felt)"))]
     second = tmp_path / "sessions" / "S-002"
     with Journal.open(second / "session.sqlite") as journal:
         [check] = [e["data"] for e in journal.events() if e["kind"] is EventKind.CALIBRATION and "decision" in e["data"]]
