@@ -212,10 +212,15 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
         f"another\n")
     with Journal.open(session / "session.sqlite") as journal:
         assert (journal.runs(), journal.events(), journal.label()) == (runs, events, label)
-    # the same sample (and a note more) resumes it; the label keeps its operator and gains the note
+    # the same sample (and a note more) resumes it; the label keeps its operator and gains the note;
+    # a brdf.json already beside brdf.binary keeps its fields
+    (session / "brdf.json").write_text(json.dumps({"coating": "by hand", "predicted_log_relative_mse": -1}))
     assert main(capture_args(rig, plan, session, "builtin:green-felt", "--resume", "--note", "resumed")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         assert journal.label() == SessionLabel(operator="A. Operator", sample_id="G-1", notes=("resumed",), **LAB)
+    record = json.loads((session / "brdf.json").read_text())
+    assert record["coating"] == "by hand" and record["predicted_log_relative_mse"] > 0
+    assert record["measurement"]["sample_id"] == "G-1" and record["measurement"]["notes"] == ["resumed"]
     assert [s["state"] for s in sessions_json(root, capsys)] == ["target reached", "finished"]
 
     # the monitor on the folder serves the catalogue and each session's page under /s/NAME/
