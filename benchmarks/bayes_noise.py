@@ -61,7 +61,7 @@ def noise_models(raw: np.ndarray, grid: MerlGrid, t: int) -> dict:
 
 def test_errors(model_parts, truth, noise_var, design_scale, recon_scale) -> dict:
     """Mean log-relative MSE of the test materials with this noise and scales, per m."""
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
     from goniofrost.frost.bayes_selection import greedy_design
     from goniofrost.frost.model import FrostModel
 

@@ -18,12 +18,12 @@ import sys
 import time
 from pathlib import Path
 
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.axis import trapezoid_time  # noqa: E402
+from goniofrost.capture.rig_file import load_checked_rig  # noqa: E402
 from drivers.rig_devices import RigDevices  # noqa: E402
 from sim.clock import SimClock  # noqa: E402
 from sim.modbus_drive import SimulatedModbusDrive  # noqa: E402
@@ -97,7 +97,7 @@ def rtu_round_trips(repeats: int) -> dict[str, float]:
     return {"modbus-rtu (pymodbus, read 2 regs)": raw, "modbus-rtu (driver position())": drv}
 
 
-def move_sequence(rig: dict, devices: RigDevices, speedup: float) -> tuple[float, float]:
+def move_sequence(rig, devices: RigDevices, speedup: float) -> tuple[float, float]:
     """Wall time of the pose sequence and its planned time (longest trapezoid per step / speed-up)."""
     axes = devices.axes
     names = ("camera_arm", "sample_yaw", "sample_tilt")
@@ -107,8 +107,8 @@ def move_sequence(rig: dict, devices: RigDevices, speedup: float) -> tuple[float
         statuses = [axes[n].move_to(deg) for n, deg in zip(names, pose)]
         for status in statuses:
             status.wait()
-        planned += max(trapezoid_time(deg - current[n], rig["axes"][n]["speed_deg_s"],
-                                      rig["axes"][n]["accel_deg_s2"]) for n, deg in zip(names, pose))
+        planned += max(trapezoid_time(deg - current[n], rig.axes[n].speed_deg_s,
+                                      rig.axes[n].accel_deg_s2) for n, deg in zip(names, pose))
         current = dict(zip(names, pose))
     return time.perf_counter() - t0, planned / speedup
 
@@ -119,10 +119,10 @@ def main() -> int:
     parser.add_argument("--speedup", type=float, default=20.0)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    rig = yaml.safe_load((ROOT / "config" / "rigs" / "sim.yaml").read_text())
+    rig = load_checked_rig(ROOT / "config" / "rigs" / "sim.yaml")
     with SimulatedRig(rig, speedup=args.speedup) as sim:
         results = raw_clients(sim.endpoints, args.repeats)
-        devices = RigDevices.from_sections(sim.resolved_driver_sections())
+        devices = RigDevices.from_rig(sim.resolved_rig())
         devices.connect_all()
         try:
             for name, axis in devices.axes.items():

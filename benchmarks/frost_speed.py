@@ -83,7 +83,8 @@ def bench_bayes_selection(args) -> None:
 
 def bench_bayes_reconstruction(args) -> None:
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.reconstruction import reconstruct_bayes, write_bayes_outputs
+    from goniofrost.frost.outputs import write_bayes_outputs
+    from goniofrost.frost.reconstruction import reconstruct_bayes
 
     model = _paged_model(args.model)
     positions = select_bayes(model, 20).positions

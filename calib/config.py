@@ -6,7 +6,7 @@ the patch and the markers fall in every frame, and the simulated camera renders 
 """
 from __future__ import annotations
 
-from goniofrost.core.config_check import check_section, is_number as _num
+from goniofrost.core.config_check import Key, check_section, is_number as _num
 from goniofrost.core.errors import ConfigError
 
 CAMERA_KINDS = ("sim", "rawfile")
@@ -17,35 +17,34 @@ def _ladder_ok(v) -> bool:
             and all(a < b for a, b in zip(v, v[1:])))
 
 
-# key: (check, expected, default; None = required)
+# key: Key(check, expected, default: REQUIRED when none is given)
 _CAMERA_KEYS = {
-    "kind": (lambda v: v in CAMERA_KINDS, f"one of {list(CAMERA_KINDS)}", None),
-    "exposures_s": (_ladder_ok, "a non-empty list of exposures > 0 s, shortest first, strictly increasing", None),
-    "target_snr": (lambda v: _num(v) and v > 0, "a number > 0", None),
-    "min_snr": (lambda v: _num(v) and v > 0, "a number > 0 (below it a sample is an error)", 10.0),
-    "saturation": (lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1] (fraction of the white level)", 0.95),
-    "dark_frames": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
-    "flat_frames": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
-    "roi_margin": (lambda v: _num(v) and 0 <= v < 0.45, "a number in [0, 0.45) (fraction of the patch side)", 0.15),
+    "kind": Key(lambda v: v in CAMERA_KINDS, f"one of {list(CAMERA_KINDS)}"),
+    "exposures_s": Key(_ladder_ok, "a non-empty list of exposures > 0 s, shortest first, strictly increasing"),
+    "target_snr": Key(lambda v: _num(v) and v > 0, "a number > 0"),
+    "min_snr": Key(lambda v: _num(v) and v > 0, "a number > 0 (below it a sample is an error)", 10.0),
+    "saturation": Key(lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1] (fraction of the white level)", 0.95),
+    "dark_frames": Key(lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
+    "flat_frames": Key(lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
+    "roi_margin": Key(lambda v: _num(v) and 0 <= v < 0.45, "a number in [0, 0.45) (fraction of the patch side)", 0.15),
     # a cell is measurable when the region of interest keeps this many pixels of each colour channel
-    "min_roi_pixels": (lambda v: _int(v) and 4 <= v <= 100_000, "an integer in [4, 100000] (pixels per colour channel)", 24),
+    "min_roi_pixels": Key(lambda v: _int(v) and 4 <= v <= 100_000, "an integer in [4, 100000] (pixels per colour channel)", 24),
     # readable markers may lie this far from where the camera model puts them before the rig is
     # declared misaligned (pixels; the offsets that `goniofrost align` corrects stay well inside)
-    "marker_tolerance_px": (lambda v: _num(v) and v > 0, "a number > 0 (pixels)", 20.0),
-    "intrinsics": (lambda v: isinstance(v, dict), "a mapping (image_size_px, focal_px, principal_point_px, distortion)", None),
-    "mount": (lambda v: isinstance(v, dict), "a mapping (distance_mm, rotation_deg)", None),
-    "photodiode_rel_sigma": (lambda v: _num(v) and 0 <= v < 0.1, "a number in [0, 0.1)", 0.001),
-    "white_reference": (lambda v: isinstance(v, dict), "a mapping", {}),
+    "marker_tolerance_px": Key(lambda v: _num(v) and v > 0, "a number > 0 (pixels)", 20.0),
+    "intrinsics": Key(lambda v: isinstance(v, dict), "a mapping (image_size_px, focal_px, principal_point_px, distortion)"),
+    "mount": Key(lambda v: isinstance(v, dict), "a mapping (distance_mm, rotation_deg)"),
+    "photodiode_rel_sigma": Key(lambda v: _num(v) and 0 <= v < 0.1, "a number in [0, 0.1)", 0.001),
+    "white_reference": Key(lambda v: isinstance(v, dict), "a mapping", {}),
     # kind rawfile only: the folder the camera's tethering software writes RAW files to, and the
     # command that triggers one exposure ({exposure_s} is replaced); without it the operator is asked
-    "folder": (lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
-    "trigger_command": (lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
+    "folder": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
+    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
                         "a command containing {exposure_s}", None),
-    "timeout_s": (lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
-    "operator_timeout_s": (lambda v: _num(v) and v > 0,
+    "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
+    "operator_timeout_s": Key(lambda v: _num(v) and v > 0,
                            "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
-_OPTIONAL = {"folder", "trigger_command"}
 
 
 def _int(v) -> bool:
@@ -59,24 +58,24 @@ def _pair(check):
 # The pinhole model in OpenCV's conventions (pixel centres at integers); measure it with
 # cv2.calibrateCamera (e.g. a ChArUco board) at the focus and zoom used on the rig.
 _INTRINSICS_KEYS = {
-    "image_size_px": (_pair(lambda x: _int(x) and 16 <= x <= 16384), "[width, height], integers in [16, 16384]", None),
-    "focal_px": (_pair(lambda x: _num(x) and x > 0), "[fx, fy], numbers > 0 (pixels)", None),
-    "principal_point_px": (_pair(_num), "[cx, cy], numbers (pixels)", None),
-    "distortion": (lambda v: isinstance(v, list) and len(v) == 5 and all(_num(x) and abs(x) < 100 for x in v),
+    "image_size_px": Key(_pair(lambda x: _int(x) and 16 <= x <= 16384), "[width, height], integers in [16, 16384]"),
+    "focal_px": Key(_pair(lambda x: _num(x) and x > 0), "[fx, fy], numbers > 0 (pixels)"),
+    "principal_point_px": Key(_pair(_num), "[cx, cy], numbers (pixels)"),
+    "distortion": Key(lambda v: isinstance(v, list) and len(v) == 5 and all(_num(x) and abs(x) < 100 for x in v),
                    "[k1, k2, p1, p2, k3], five numbers (OpenCV order)", [0.0, 0.0, 0.0, 0.0, 0.0]),
 }
 # Where the camera sits on its arm: its centre of projection at distance_mm from the rotation centre
 # in the lamp's plane, aimed at the centre with the image up along the vertical, then turned by
 # rotation_deg about its own x, y, z axes.
 _MOUNT_KEYS = {
-    "distance_mm": (lambda v: _num(v) and v > 0, "a number > 0 (millimetres from the rotation centre)", None),
-    "rotation_deg": (lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and abs(x) <= 20 for x in v),
+    "distance_mm": Key(lambda v: _num(v) and v > 0, "a number > 0 (millimetres from the rotation centre)"),
+    "rotation_deg": Key(lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and abs(x) <= 20 for x in v),
                      "[rx, ry, rz], three numbers within +-20 (degrees)", [0.0, 0.0, 0.0]),
 }
 _WHITE_KEYS = {
-    "reflectance": (lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1]", 0.95),
-    "theta_i_deg": (lambda v: _num(v) and 0 <= v < 60, "a number in [0, 60)", 0.0),
-    "theta_o_deg": (lambda v: _num(v) and 0 <= v <= 60, "a number in [0, 60]", 30.0),
+    "reflectance": Key(lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1]", 0.95),
+    "theta_i_deg": Key(lambda v: _num(v) and 0 <= v < 60, "a number in [0, 60)", 0.0),
+    "theta_o_deg": Key(lambda v: _num(v) and 0 <= v <= 60, "a number in [0, 60]", 30.0),
 }
 
 
@@ -88,7 +87,7 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference;
     ``intrinsics`` and ``mount`` the camera model (module doc).
     """
-    out = check_section(section, _CAMERA_KEYS, source, keypath, optional=_OPTIONAL)
+    out = check_section(section, _CAMERA_KEYS, source, keypath)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
     out["intrinsics"] = _intrinsics(out["intrinsics"], source, f"{keypath}.intrinsics")
     out["mount"] = check_section(out["mount"], _MOUNT_KEYS, source, f"{keypath}.mount")

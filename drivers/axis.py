@@ -15,8 +15,10 @@ import logging
 import math
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
+
+from goniofrost.core.rig_spec import AxisSpec
 
 from .errors import (ArrivalError, AxisLimitError, ChecksumError, DeviceError, DeviceFault,
                      DeviceTimeout, NotConnectedError, ProtocolError)
@@ -58,16 +60,14 @@ class AxisConfig:
     stall_s: float = 2.0
 
     @classmethod
-    def from_spec(cls, name: str, spec, retries: int | None = None) -> "AxisConfig":
-        """Build from a rig-file axis: a mapping (keys as in config/rigs/sim.yaml) or an object with
-        those attributes (planner.rig.AxisSpec). ``retries`` usually comes from the driver section."""
-        get = spec.get if isinstance(spec, Mapping) else (lambda k, d=None: getattr(spec, k, d))
-        lo, hi = get("limits_deg")
-        extra = {k: get(k) for k in ("home_deg", "tolerance_deg", "stall_s") if get(k) is not None}
-        if retries is not None:
-            extra["retries"] = int(retries)
-        return cls(name=name, limits_deg=(float(lo), float(hi)), speed_deg_s=float(get("speed_deg_s")),
-                   accel_deg_s2=float(get("accel_deg_s2")), **extra)
+    def from_spec(cls, spec: AxisSpec, **overrides) -> "AxisConfig":
+        """Build from a rig's typed axis spec; its driver section's ``retries`` (when given) and
+        then ``overrides`` (any field, e.g. ``stall_s``) replace the defaults."""
+        extra = {"retries": int(spec.driver["retries"])} if spec.driver.get("retries") is not None else {}
+        lo, hi = spec.limits_deg
+        return cls(name=spec.name, limits_deg=(float(lo), float(hi)), speed_deg_s=float(spec.speed_deg_s),
+                   accel_deg_s2=float(spec.accel_deg_s2), home_deg=float(spec.home_deg),
+                   tolerance_deg=float(spec.tolerance_deg), **(extra | overrides))
 
 
 @dataclass

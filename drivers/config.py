@@ -1,141 +1,102 @@
 """Validation of the ``driver`` sections of a rig file (each axis's, and the lamp's).
 
-Allowed keys per protocol are declared as data (``SCHEMAS``, ``LAMP_SCHEMAS``): key -> Field(check,
-expected, required). Unknown keys, missing required keys and bad values raise
-``ConfigError(source, keypath, expected, found)``. ``port: sim`` (serial) and ``port: 0`` (TCP)
+Allowed keys per protocol are declared as key tables (``SCHEMAS``, ``LAMP_SCHEMAS``: key ->
+``goniofrost.core.config_check.Key``; ``OPTIONAL`` marks a key that may be left out). Unknown keys,
+missing required keys and bad values raise ``ConfigError(source, keypath, expected, found)`` in the
+one format of ``goniofrost.core.config_check``. ``port: sim`` (serial) and ``port: 0`` (TCP)
 mean "filled in by the simulator at run time".
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Mapping
 
+from goniofrost.core.config_check import ABSENT as OPTIONAL
+from goniofrost.core.config_check import Key, check_section, int_in as _int_in, is_bool as _bool
+from goniofrost.core.config_check import is_text as _text, join, one_of as _one_of
 from goniofrost.core.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class Field:
-    """One allowed key: ``check(value) -> bool`` and the text of what it expects."""
-
-    check: Callable[[Any], bool]
-    expected: str
-    required: bool = True
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _int_in(lo: int, hi: int) -> Callable[[Any], bool]:
-    return lambda v: _is_int(v) and lo <= v <= hi
 
 
 def _positive(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
-def _text(v) -> bool:
-    return isinstance(v, str) and v.strip() != ""
-
-
-def _one_of(*values) -> Callable[[Any], bool]:
-    return lambda v: v in values
-
-
-def _bool(v) -> bool:
-    return isinstance(v, bool)
-
-
 def _map_name_or_mapping(v) -> bool:
     return _text(v) or isinstance(v, Mapping)
 
 
-SERIAL_PORT = Field(_text, 'a serial device path (e.g. /dev/ttyUSB0) or "sim"')
-TCP_PORT = Field(_int_in(0, 65535), "a TCP port 1-65535 (0: picked by the simulator)")
+SERIAL_PORT = Key(_text, 'a serial device path (e.g. /dev/ttyUSB0) or "sim"')
+TCP_PORT = Key(_int_in(0, 65535), "a TCP port 1-65535 (0: picked by the simulator)")
 BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1_000_000, 2_000_000,
          3_000_000, 4_000_000, 4_500_000)
-RETRIES = Field(_int_in(0, 10), "an integer 0-10 (extra attempts after a transient error)", False)
+RETRIES = Key(_int_in(0, 10), "an integer 0-10 (extra attempts after a transient error)", OPTIONAL)
 
 DYNAMIXEL = {
     "port": SERIAL_PORT,
-    "id": Field(_int_in(0, 252), "a Dynamixel ID 0-252"),
-    "baud": Field(_one_of(*BAUDS), f"a baud rate among {', '.join(map(str, BAUDS))}", False),
-    "model": Field(_text, 'an X-series model name such as "XM430-W350"', False),
-    "counts_per_deg": Field(_positive, "a positive number of encoder counts per degree (4096/360 direct)"),
-    "reboot_after_fault": Field(_bool, "true or false", False),
-    "reply_timeout_ms": Field(_positive, "a positive reply timeout in ms", False),
+    "id": Key(_int_in(0, 252), "a Dynamixel ID 0-252"),
+    "baud": Key(_one_of(*BAUDS), f"a baud rate among {', '.join(map(str, BAUDS))}", OPTIONAL),
+    "model": Key(_text, 'an X-series model name such as "XM430-W350"', OPTIONAL),
+    "counts_per_deg": Key(_positive, "a positive number of encoder counts per degree (4096/360 direct)"),
+    "reboot_after_fault": Key(_bool, "true or false", OPTIONAL),
+    "reply_timeout_ms": Key(_positive, "a positive reply timeout in ms", OPTIONAL),
     "retries": RETRIES,
 }
 MODBUS_COMMON = {
-    "device_id": Field(_int_in(0, 247), "a Modbus device id 0-247", False),
-    "steps_per_deg": Field(_positive, "a positive number of drive steps per degree"),
-    "word_order": Field(_one_of("big", "little"), '"big" (high word first) or "little"', False),
-    "register_map": Field(_map_name_or_mapping, "a register map name (e.g. oriental-az) or a mapping", False),
+    "device_id": Key(_int_in(0, 247), "a Modbus device id 0-247", OPTIONAL),
+    "steps_per_deg": Key(_positive, "a positive number of drive steps per degree"),
+    "word_order": Key(_one_of("big", "little"), '"big" (high word first) or "little"', OPTIONAL),
+    "register_map": Key(_map_name_or_mapping, "a register map name (e.g. oriental-az) or a mapping", OPTIONAL),
     "retries": RETRIES,
 }
-MODBUS_TCP = {"host": Field(_text, "a host name or address (127.0.0.1 for the simulator)"),
+MODBUS_TCP = {"host": Key(_text, "a host name or address (127.0.0.1 for the simulator)"),
               "port": TCP_PORT, **MODBUS_COMMON}
 MODBUS_RTU = {"port": SERIAL_PORT,
-              "baud": Field(_one_of(*BAUDS), f"a baud rate among {', '.join(map(str, BAUDS))}", False),
-              "parity": Field(_one_of("N", "E", "O"), '"N", "E" or "O"', False), **MODBUS_COMMON}
+              "baud": Key(_one_of(*BAUDS), f"a baud rate among {', '.join(map(str, BAUDS))}", OPTIONAL),
+              "parity": Key(_one_of("N", "E", "O"), '"N", "E" or "O"', OPTIONAL), **MODBUS_COMMON}
 SMC100 = {
     "port": SERIAL_PORT,
-    "address": Field(_int_in(1, 31), "a controller address 1-31", False),
-    "baud": Field(_one_of(*BAUDS), "a baud rate (57600 on the SMC100)", False),
-    "units_per_deg": Field(_positive, "a positive number of controller units per degree", False),
+    "address": Key(_int_in(1, 31), "a controller address 1-31", OPTIONAL),
+    "baud": Key(_one_of(*BAUDS), "a baud rate (57600 on the SMC100)", OPTIONAL),
+    "units_per_deg": Key(_positive, "a positive number of controller units per degree", OPTIONAL),
     "retries": RETRIES,
 }
-SCHEMAS: dict[str, dict[str, Field]] = {"dynamixel": DYNAMIXEL, "modbus-tcp": MODBUS_TCP,
+SCHEMAS: dict[str, dict[str, Key]] = {"dynamixel": DYNAMIXEL, "modbus-tcp": MODBUS_TCP,
                                         "modbus-rtu": MODBUS_RTU, "smc100": SMC100}
 
 LAMP_COMMON = {
-    "device": Field(_text, "the name of the axis whose Modbus device hosts the lamp", False),
-    "device_id": Field(_int_in(0, 247), "a Modbus device id 0-247", False),
-    "coil": Field(_int_in(0, 65535), "a coil address 0-65535"),
-    "photodiode_register": Field(_int_in(0, 65535), "an input register address 0-65535"),
-    "full_scale": Field(_positive, "photodiode counts at nominal intensity (> 0)", False),
+    "device": Key(_text, "the name of the axis whose Modbus device hosts the lamp", OPTIONAL),
+    "device_id": Key(_int_in(0, 247), "a Modbus device id 0-247", OPTIONAL),
+    "coil": Key(_int_in(0, 65535), "a coil address 0-65535"),
+    "photodiode_register": Key(_int_in(0, 65535), "an input register address 0-65535"),
+    "full_scale": Key(_positive, "photodiode counts at nominal intensity (> 0)", OPTIONAL),
 }
-LAMP_SCHEMAS: dict[str, dict[str, Field]] = {
-    "modbus-tcp": {**LAMP_COMMON, "host": Field(_text, "a host name or address", False),
-                   "port": Field(_int_in(0, 65535), "a TCP port 0-65535", False)},
-    "modbus-rtu": {**LAMP_COMMON, "port": Field(_text, "a serial device path or \"sim\"", False),
-                   "baud": Field(_one_of(*BAUDS), "a baud rate", False),
-                   "parity": Field(_one_of("N", "E", "O"), '"N", "E" or "O"', False)},
+LAMP_SCHEMAS: dict[str, dict[str, Key]] = {
+    "modbus-tcp": {**LAMP_COMMON, "host": Key(_text, "a host name or address", OPTIONAL),
+                   "port": Key(_int_in(0, 65535), "a TCP port 0-65535", OPTIONAL)},
+    "modbus-rtu": {**LAMP_COMMON, "port": Key(_text, "a serial device path or \"sim\"", OPTIONAL),
+                   "baud": Key(_one_of(*BAUDS), "a baud rate", OPTIONAL),
+                   "parity": Key(_one_of("N", "E", "O"), '"N", "E" or "O"', OPTIONAL)},
 }
 
 
-def _join(keypath: str, key: str) -> str:
-    return f"{keypath}.{key}" if keypath else key
-
-
-def validate_driver_section(section: Mapping, source: str, keypath: str) -> None:
+def validate_driver_section(section: Mapping, source: str, keypath: str) -> dict:
     """Check one driver section; ``keypath`` like "axes.sample_yaw.driver" or "lamp.driver".
 
-    A keypath starting with "lamp" is checked against the lamp schemas. Raises ConfigError.
+    A keypath starting with "lamp" is checked against the lamp schemas. Returns the section as
+    given (keys left out stay out: each driver has its own defaults). Raises ConfigError.
     """
     if not isinstance(section, Mapping):
         raise ConfigError(source, keypath, "a mapping with a protocol key", section)
     schemas = LAMP_SCHEMAS if keypath.split(".")[0] == "lamp" else SCHEMAS
     protocol = section.get("protocol")
     if protocol not in schemas:
-        raise ConfigError(source, _join(keypath, "protocol"), f"one of {', '.join(schemas)}", protocol)
-    schema = schemas[protocol]
-    for key in section:
-        if key != "protocol" and key not in schema:
-            raise ConfigError(source, _join(keypath, str(key)),
-                              f"one of the keys protocol, {', '.join(schema)} (protocol {protocol})",
-                              f"unknown key {key!r}")
-    for key, spec in schema.items():
-        if key not in section:
-            if spec.required:
-                raise ConfigError(source, _join(keypath, key), spec.expected, "nothing (key missing)")
-        elif not spec.check(section[key]):
-            raise ConfigError(source, _join(keypath, key), spec.expected, section[key])
+        raise ConfigError(source, join(keypath, "protocol"), f"one of {', '.join(schemas)}", protocol)
+    table = {"protocol": Key(_one_of(*schemas), f"one of {', '.join(schemas)}"), **schemas[protocol]}
+    out = check_section(section, table, source, keypath, context=f"(protocol {protocol})")
     if "register_map" in section:  # a named map must exist; an inline map's own keys are checked too
         from .modbus_map import resolve_map
-        resolve_map(section["register_map"], source, _join(keypath, "register_map"))
+        resolve_map(section["register_map"], source, join(keypath, "register_map"))
     if keypath.split(".")[0] == "lamp" and "device" not in section and "port" not in section:
-        raise ConfigError(source, _join(keypath, "device"),
+        raise ConfigError(source, join(keypath, "device"),
                           "either device (an axis hosting the lamp) or the lamp's own port", "neither")
+    return out

@@ -19,6 +19,7 @@ import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from goniofrost.core.config_check import ABSENT, Key, check_section, is_int, is_mapping, is_text, join
 from goniofrost.core.errors import ConfigError
 
 WORD_ORDERS = ("big", "little")
@@ -155,44 +156,38 @@ def resolve_map(spec, source: str = "rig", keypath: str = "driver.register_map")
     return _inline_map(spec, source, keypath)
 
 
+def _is_address(value) -> bool:
+    return is_int(value) and 0 <= value <= 0xFFFE
+
+
+def _bits_table(bit_enum: type[enum.Enum]) -> dict:
+    return {member.value: Key(lambda v: is_int(v) and 0 <= v <= 15, "a bit number 0..15", ABSENT) for member in bit_enum}
+
+
+# An inline map's keys: each address may be left out when a ``base`` map gives it.
+_INLINE_KEYS = {
+    "base": Key(lambda v: True, "a register map name or a mapping", ABSENT),
+    "name": Key(is_text, "a name for the map", ABSENT),
+    **{key: Key(_is_address, "an integer register address 0..0xFFFE", ABSENT) for key in _ADDRESS_KEYS},
+    **{key: Key(is_mapping, f"a mapping of {tuple(m.value for m in bits)} to bit numbers", {},
+                nested=lambda v, source, kp, bits=bits: check_section(v, _bits_table(bits), source, kp))
+       for key, bits in _BIT_KEYS.items()},
+}
+
+
 def _inline_map(spec: Mapping, source: str, keypath: str) -> RegisterMap:
-    allowed = {"base", "name", *_ADDRESS_KEYS, *_BIT_KEYS}
-    for key in spec:
-        if key not in allowed:
-            raise ConfigError(source, f"{keypath}.{key}", f"one of {sorted(allowed)}", key)
-    base = resolve_map(spec["base"], source, f"{keypath}.base") if "base" in spec else None
+    checked = check_section(spec, _INLINE_KEYS, source, keypath)
+    base = resolve_map(checked["base"], source, join(keypath, "base")) if "base" in checked else None
     values: dict = dataclasses.asdict(base) if base else {"alarm_codes": {}}
-    values["name"] = str(spec.get("name", "inline"))
+    values["name"] = str(checked.get("name", "inline"))
     for key in _ADDRESS_KEYS:
-        if key in spec:
-            values[key] = _address(spec[key], source, f"{keypath}.{key}")
+        if key in checked:
+            values[key] = checked[key]
         elif key not in values:
-            raise ConfigError(source, f"{keypath}.{key}", "a register address (or a 'base' map)", None)
+            raise ConfigError(source, join(keypath, key), "a register address (or a 'base' map)", "nothing")
     for key, bit_enum in _BIT_KEYS.items():
-        bits = dict(values.get(key, {}))
-        bits.update(_bits(spec.get(key, {}), bit_enum, source, f"{keypath}.{key}"))
-        values[key] = bits
+        values[key] = {**values.get(key, {}), **{bit_enum(name): bit for name, bit in checked[key].items()}}
     return RegisterMap(**values)
-
-
-def _address(value, source: str, keypath: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFE:
-        raise ConfigError(source, keypath, "an integer register address 0..0xFFFE", value)
-    return value
-
-
-def _bits(spec, bit_enum: type[enum.Enum], source: str, keypath: str) -> dict:
-    names = tuple(member.value for member in bit_enum)
-    if not isinstance(spec, Mapping):
-        raise ConfigError(source, keypath, f"a mapping of {names} to bit numbers", spec)
-    out = {}
-    for name, bit in spec.items():
-        if name not in names:
-            raise ConfigError(source, f"{keypath}.{name}", f"one of {list(names)}", name)
-        if isinstance(bit, bool) or not isinstance(bit, int) or not 0 <= bit <= 15:
-            raise ConfigError(source, f"{keypath}.{name}", "a bit number 0..15", bit)
-        out[bit_enum(name)] = bit
-    return out
 
 
 # ----- 32-bit values in two 16-bit registers ---------------------------------------------------

@@ -1,6 +1,6 @@
 """Build every Axis (and the Lamp) of a rig from its driver sections, and handle them as one.
 
-``RigDevices.from_sections(...)`` only constructs (nothing is opened); ``connect_all()`` connects
+``RigDevices.from_rig(rig)`` only constructs (nothing is opened); ``connect_all()`` connects
 and enables every axis; ``close_all()`` releases every connection. Stopping is not done here: the
 one stop path for all axes (command each to stop, then confirm each at rest) is the engine's
 ``goniofrost.capture.executor.stop_axes``, which the rig wiring calls before ``close_all``.
@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import importlib
 import logging
-from collections.abc import Mapping
+
+from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
 from .axis import Axis, AxisConfig
 
@@ -24,17 +25,11 @@ AXIS_CLASSES = {
 }
 
 
-def _get(spec, key, default=None):
-    return spec.get(key, default) if isinstance(spec, Mapping) else getattr(spec, key, default)
-
-
-def axis_from_spec(name: str, spec) -> Axis:
-    """One Axis (not connected) from a rig-file axis entry (mapping or planner AxisSpec)."""
-    section = dict(_get(spec, "driver"))
-    module_name, class_name = AXIS_CLASSES[section["protocol"]]
+def axis_from_spec(spec: AxisSpec, **overrides) -> Axis:
+    """One Axis (not connected) of a rig's typed axis spec; ``overrides`` replace AxisConfig fields."""
+    module_name, class_name = AXIS_CLASSES[spec.driver["protocol"]]
     cls = getattr(importlib.import_module(module_name), class_name)
-    config = AxisConfig.from_spec(name, spec, retries=section.get("retries"))
-    return cls.from_section(config, section)
+    return cls.from_section(AxisConfig.from_spec(spec, **overrides), dict(spec.driver))
 
 
 class RigDevices:
@@ -45,20 +40,14 @@ class RigDevices:
         self._connected: list = []
 
     @classmethod
-    def from_sections(cls, axes_specs, lamp_section: Mapping | None = None) -> "RigDevices":
-        """Build from ``axes_specs`` (name -> axis entry with its ``driver`` section) and the lamp's
-        driver section. Also accepts a planner Rig, or ``{"axes": ..., "lamp": ...}`` as returned by
-        ``sim.rig.SimulatedRig.resolved_driver_sections()``."""
-        if hasattr(axes_specs, "axes"):  # a planner Rig
-            lamp_section = (axes_specs.lamp or {}).get("driver")
-            axes_specs = axes_specs.axes
-        elif isinstance(axes_specs, Mapping) and set(axes_specs) <= {"axes", "lamp"} and "axes" in axes_specs:
-            axes_specs, lamp_section = axes_specs["axes"], axes_specs.get("lamp")
-        axes = {name: axis_from_spec(name, spec) for name, spec in axes_specs.items()}
+    def from_rig(cls, rig: RigSpec) -> "RigDevices":
+        """Build from a typed rig spec (a checked ``planner.rig.Rig``, or the spec a simulated rig
+        hands back with its endpoints, ``sim.rig.SimulatedRig.resolved_rig()``)."""
+        axes = {name: axis_from_spec(spec) for name, spec in rig.axes.items()}
         lamp = None
-        if lamp_section:
+        if rig.lamp_driver:
             from .lamp import Lamp  # only rigs with a lamp need the Modbus client
-            lamp = Lamp.from_section(lamp_section, axes)  # ``device``: share that axis's link
+            lamp = Lamp.from_section(rig.lamp_driver, axes)  # ``device``: share that axis's link
         return cls(axes, lamp)
 
     def connect_all(self, enable: bool = True) -> None:

@@ -9,38 +9,58 @@ geometry and the motion keys of each axis; the ``driver`` sections (of each axis
 """
 from __future__ import annotations
 
-import enum
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from goniofrost.core.cache import content_key
+from goniofrost.core.config_check import (ABSENT, Key, check_section, is_bool, is_mapping, is_text, number_in,
+                                          numbers, one_of)
 from goniofrost.core.errors import ConfigError
+from goniofrost.core.rig_spec import ROLE_ORDER, AxisSpec, RigSpec, Role
 
 from . import schema as S
-from .alignment import load_alignment
+from .alignment_file import load_alignment
+
+__all__ = ["ROLE_ORDER", "AxisSpec", "Geometry", "Rig", "Role", "load_rig", "rig_from_mapping", "kinematic_hash"]
 
 # validator(section, source, keypath) raises ConfigError on a bad section; it may return the
 # section with its defaults filled in, which the Rig then keeps.
 SectionValidator = Callable[[Mapping, str, str], None]
 
-
-class Role(str, enum.Enum):
-    """What an axis moves (DESIGN.md, "The default simulated rig")."""
-
-    CAMERA_ARM = "camera_arm"    # camera direction C(alpha) = R_z(alpha) L
-    SAMPLE_YAW = "sample_yaw"    # stage rotation psi about the world z axis
-    SAMPLE_TILT = "sample_tilt"  # stage tilt tau about the yawed horizontal axis
-
-
-# The joint order of every joint array: (camera_arm, sample_yaw, sample_tilt).
-ROLE_ORDER = (Role.CAMERA_ARM, Role.SAMPLE_YAW, Role.SAMPLE_TILT)
-
-_TOP_REQUIRED = ("name", "geometry", "axes")
-_TOP_OPTIONAL = ("simulated", "lamp", "camera", "sim", "alignment", "lab")
-_GEOMETRY_KEYS = ("light_direction", "min_arm_separation_deg", "tilt_limit_deg")
-_AXIS_KEYS = ("role", "limits_deg", "speed_deg_s", "accel_deg_s2", "home_deg", "tolerance_deg", "driver")
+_POSITIVE = number_in(0.0, low_open=True)
+_TOP_KEYS = {
+    "name": Key(is_text, "a non-empty text"),
+    "simulated": Key(is_bool, "true or false", False),
+    "geometry": Key(is_mapping, "a mapping"),
+    "axes": Key(is_mapping, "a mapping"),
+    "lamp": Key(is_mapping, "a mapping", {}),
+    "camera": Key(is_mapping, "a mapping", ABSENT),
+    "sim": Key(is_mapping, "a mapping", ABSENT),
+    "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
+    "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.capture.lab checks it)
+}
+_GEOMETRY_KEYS = {
+    "light_direction": Key(numbers(3), "a list of 3 numbers"),
+    "min_arm_separation_deg": number_in(0.0, 180.0, high_open=True),
+    "tilt_limit_deg": number_in(0.0, 90.0, low_open=True, high_open=True),
+}
+_AXIS_KEYS = {
+    "role": Key(one_of(*(r.value for r in Role)), f"one of {', '.join(r.value for r in Role)}"),
+    "limits_deg": Key(numbers(2), "a list of 2 numbers"),
+    "speed_deg_s": _POSITIVE,
+    "accel_deg_s2": _POSITIVE,
+    "home_deg": number_in(),
+    "tolerance_deg": _POSITIVE,
+    "driver": Key(is_mapping, "a mapping"),
+}
+_LAMP_KEYS = {
+    "driver": Key(is_mapping, "a mapping", ABSENT),
+    # the collimated beam, centred on the rotation centre: the patch must lie inside it
+    "beam_diameter_mm": dataclasses.replace(_POSITIVE, default=ABSENT),
+}
 
 
 @dataclass(frozen=True)
@@ -63,31 +83,14 @@ class Geometry:
 
 
 @dataclass(frozen=True)
-class AxisSpec:
-    """One motorised axis: limits, home and tolerance in degrees, speed in deg/s, accel in deg/s^2."""
-
-    name: str
-    role: Role
-    limits_deg: tuple[float, float]
-    speed_deg_s: float
-    accel_deg_s2: float
-    home_deg: float
-    tolerance_deg: float
-    driver: dict = field(compare=False)
-
-
-@dataclass(frozen=True)
-class Rig:
-    """A validated rig file. ``axes`` maps axis name -> AxisSpec, one axis per Role."""
+class Rig(RigSpec):
+    """A validated rig file: the typed ``RigSpec`` (``axes`` maps axis name -> AxisSpec, one axis
+    per Role; ``lamp``, ``sim``, ``source``) with its geometry and camera section."""
 
     name: str
     simulated: bool
     geometry: Geometry
-    axes: dict
-    lamp: dict
     camera: dict
-    sim: dict
-    source: str
     kinematic_hash: str
     raw: dict = field(compare=False, repr=False)
     # What the camera can measure (planner.view.Measurability; None: not checked) and the axes'
@@ -134,24 +137,24 @@ def rig_from_mapping(raw: Any, source: str,
                      section_validators: Mapping[str, SectionValidator] | None = None) -> Rig:
     """Validate an already parsed rig mapping (``source`` names it in errors)."""
     validators = dict(section_validators or {})
-    top = S.mapping(raw, source, "")
-    S.check_keys(top, source, "", _TOP_REQUIRED, _TOP_OPTIONAL)
-    name = S.text(top["name"], source, "name")
-    simulated = S.boolean(top.get("simulated", False), source, "simulated")
+    top = check_section(raw, _TOP_KEYS, source, "")
     geometry = _geometry(top["geometry"], source)
     axes = _axes(top["axes"], source, geometry, validators.get("driver"))
-    lamp = _lamp(top.get("lamp", {}), source, validators.get("driver"))
-    camera = _plugged(top, "camera", source, validators.get("camera"))
-    sim = _plugged(top, "sim", source, validators.get("sim"))
-    lab = _plugged(top, "lab", source, validators.get("lab"))
+    lamp = check_section(top["lamp"], _LAMP_KEYS, source, "lamp")
+    if "beam_diameter_mm" in lamp:
+        lamp["beam_diameter_mm"] = float(lamp["beam_diameter_mm"])
+    if "driver" in lamp:
+        lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
+    camera, sim, lab = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                        for key in ("camera", "sim", "lab"))  # the sections other packages own
     alignment = None
     if "alignment" in top:
-        written = Path(S.text(top["alignment"], source, "alignment"))
+        written = Path(top["alignment"])
         joint_order = [next(a.name for a in axes.values() if a.role is role) for role in ROLE_ORDER]
         alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order)
-    return Rig(name=name, simulated=simulated, geometry=geometry, axes=axes, lamp=lamp,
+    return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(top), alignment=alignment, lab=lab)
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:
@@ -164,24 +167,19 @@ def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:
 
 
 def _geometry(value: Any, source: str) -> Geometry:
-    geo = S.mapping(value, source, "geometry")
-    S.check_keys(geo, source, "geometry", _GEOMETRY_KEYS)
-    light = S.numbers(geo["light_direction"], source, "geometry.light_direction", 3)
+    geo = check_section(value, _GEOMETRY_KEYS, source, "geometry")
+    light = tuple(float(c) for c in geo["light_direction"])
     norm = math.sqrt(sum(c * c for c in light))
     if abs(norm - 1.0) > 1e-6 or abs(light[2]) > 1e-9:
         # The camera arm turns about the world z axis in the light's horizontal plane.
         raise ConfigError(source, "geometry.light_direction", "a horizontal unit vector [x, y, 0]", list(light))
-    return Geometry(
-        light_direction=tuple(c / norm for c in light),
-        min_arm_separation_deg=S.number(geo["min_arm_separation_deg"], source,
-                                        "geometry.min_arm_separation_deg", low=0.0, high=180.0, high_open=True),
-        tilt_limit_deg=S.number(geo["tilt_limit_deg"], source, "geometry.tilt_limit_deg",
-                                low=0.0, high=90.0, low_open=True, high_open=True),
-    )
+    return Geometry(light_direction=tuple(c / norm for c in light),
+                    min_arm_separation_deg=float(geo["min_arm_separation_deg"]),
+                    tilt_limit_deg=float(geo["tilt_limit_deg"]))
 
 
 def _axes(value: Any, source: str, geometry: Geometry, driver_check: SectionValidator | None) -> dict:
-    axes_map = S.mapping(value, source, "axes")
+    axes_map = check_section(value, {}, source, "axes", open_keys=True)
     axes = {name: _axis(name, spec, source, driver_check) for name, spec in axes_map.items()}
     for role in ROLE_ORDER:
         names = [a.name for a in axes.values() if a.role is role]
@@ -197,43 +195,23 @@ def _axes(value: Any, source: str, geometry: Geometry, driver_check: SectionVali
 
 def _axis(name: str, value: Any, source: str, driver_check: SectionValidator | None) -> AxisSpec:
     kp = f"axes.{name}"
-    spec = S.mapping(value, source, kp)
-    S.check_keys(spec, source, kp, _AXIS_KEYS)
-    role = Role(S.choice(spec["role"], source, f"{kp}.role", [r.value for r in Role]))
-    lo, hi = S.numbers(spec["limits_deg"], source, f"{kp}.limits_deg", 2)
+    spec = check_section(value, _AXIS_KEYS, source, kp)
+    lo, hi = (float(v) for v in spec["limits_deg"])
     if not lo < hi:
         raise ConfigError(source, f"{kp}.limits_deg", "[low, high] with low < high", [lo, hi])
-    home = S.number(spec["home_deg"], source, f"{kp}.home_deg", low=lo, high=hi)
-    driver = _checked(S.mapping(spec["driver"], source, f"{kp}.driver"), source, f"{kp}.driver", driver_check)
-    return AxisSpec(
-        name=name, role=role, limits_deg=(lo, hi), home_deg=home, driver=driver,
-        speed_deg_s=S.number(spec["speed_deg_s"], source, f"{kp}.speed_deg_s", low=0.0, low_open=True),
-        accel_deg_s2=S.number(spec["accel_deg_s2"], source, f"{kp}.accel_deg_s2", low=0.0, low_open=True),
-        tolerance_deg=S.number(spec["tolerance_deg"], source, f"{kp}.tolerance_deg", low=0.0, low_open=True),
-    )
-
-
-def _lamp(value: Any, source: str, driver_check: SectionValidator | None) -> dict:
-    lamp = S.mapping(value, source, "lamp")
-    S.check_keys(lamp, source, "lamp", (), ("driver", "beam_diameter_mm"))
-    out = dict(lamp)
-    if "beam_diameter_mm" in lamp:
-        # the collimated beam, centred on the rotation centre: the patch must lie inside it
-        out["beam_diameter_mm"] = S.number(lamp["beam_diameter_mm"], source, "lamp.beam_diameter_mm",
-                                           low=0.0, low_open=True)
-    if "driver" in lamp:
-        out["driver"] = _checked(S.mapping(lamp["driver"], source, "lamp.driver"), source, "lamp.driver", driver_check)
-    return out
-
-
-def _plugged(top: Mapping, key: str, source: str, check: SectionValidator | None) -> dict:
-    if key not in top:
-        return {}
-    return _checked(S.mapping(top[key], source, key), source, key, check)
+    home = float(spec["home_deg"])
+    if not lo <= home <= hi:
+        raise ConfigError(source, f"{kp}.home_deg", f"a number in [{lo:g}, {hi:g}]", spec["home_deg"])
+    return AxisSpec(name=name, role=Role(spec["role"]), limits_deg=(lo, hi), home_deg=home,
+                    driver=_checked(spec["driver"], source, f"{kp}.driver", driver_check),
+                    speed_deg_s=float(spec["speed_deg_s"]), accel_deg_s2=float(spec["accel_deg_s2"]),
+                    tolerance_deg=float(spec["tolerance_deg"]))
 
 
 def _checked(section: Mapping, source: str, keypath: str, check: SectionValidator | None) -> dict:
     """A plain-dict copy of a section after its validator ran (a validator may return it completed)."""
+    if not isinstance(section, Mapping):
+        raise ConfigError(source, keypath, "a mapping", section)
     if check is None:
         return dict(section)
     completed = check(section, source, keypath)

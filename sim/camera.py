@@ -23,7 +23,7 @@ import numpy as np
 from calib.holder import DEFAULT_LAYOUT, SAMPLE_MARKER_IDS, WHITE_MARKER_IDS, HolderLayout
 from drivers.camera import Camera, CameraError, RawFrame
 from goniofrost.core.camera_model import CameraModel
-from goniofrost.core.config_check import check_section, is_number as _num
+from goniofrost.core.config_check import Key, check_section, is_number as _num
 from goniofrost.core.errors import ConfigError
 
 from .clock import SimClock
@@ -36,19 +36,19 @@ INK_REFLECTANCE = 0.04          # printed marker black
 BACKGROUND_REFLECTANCE = 0.01   # black velvet beyond the card
 SUPERSAMPLE = 3                 # sub-pixel samples per axis: smooth marker and patch edges
 
-# key: (type check, description, default or None if required)
+# key: Key(check, expected, default: REQUIRED when none is given)
 _SIM_CAMERA_KEYS = {
-    "black_level": (lambda v: isinstance(v, int) and 0 <= v < 65535, "an integer in [0, 65535)", None),
-    "white_level": (lambda v: isinstance(v, int) and 0 < v <= 65535, "an integer in (0, 65535]", None),
-    "read_noise_e": (lambda v: _num(v) and v >= 0, "a number >= 0 (electrons)", None),
-    "full_well_e": (lambda v: _num(v) and v > 0, "a number > 0 (electrons)", None),
-    "dark_current_e_s": (lambda v: _num(v) and v >= 0, "a number >= 0 (electrons per second)", None),
-    "vignetting": (lambda v: _num(v) and 0 <= v < 1, "a number in [0, 1) (fractional fall-off at the corners)", None),
-    "signal_e_s": (lambda v: _num(v) and v > 0, "a number > 0 (electrons/s, green, white BRDF 1/pi at normal incidence)", 2.0e5),
-    "channel_gain": (lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and x > 0 for x in v),
+    "black_level": Key(lambda v: isinstance(v, int) and 0 <= v < 65535, "an integer in [0, 65535)"),
+    "white_level": Key(lambda v: isinstance(v, int) and 0 < v <= 65535, "an integer in (0, 65535]"),
+    "read_noise_e": Key(lambda v: _num(v) and v >= 0, "a number >= 0 (electrons)"),
+    "full_well_e": Key(lambda v: _num(v) and v > 0, "a number > 0 (electrons)"),
+    "dark_current_e_s": Key(lambda v: _num(v) and v >= 0, "a number >= 0 (electrons per second)"),
+    "vignetting": Key(lambda v: _num(v) and 0 <= v < 1, "a number in [0, 1) (fractional fall-off at the corners)"),
+    "signal_e_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (electrons/s, green, white BRDF 1/pi at normal incidence)", 2.0e5),
+    "channel_gain": Key(lambda v: isinstance(v, list) and len(v) == 3 and all(_num(x) and x > 0 for x in v),
                      "a list of three numbers > 0 (R, G, B response)", [0.6, 1.0, 0.75]),
-    "prnu": (lambda v: _num(v) and 0 <= v < 0.2, "a number in [0, 0.2) (pixel gain spread, 1 sigma)", 0.01),
-    "noise": (lambda v: isinstance(v, bool), "true or false", True),
+    "prnu": Key(lambda v: _num(v) and 0 <= v < 0.2, "a number in [0, 0.2) (pixel gain spread, 1 sigma)", 0.01),
+    "noise": Key(lambda v: isinstance(v, bool), "true or false", True),
 }
 
 

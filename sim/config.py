@@ -25,37 +25,12 @@ needs the rest of the rig: every fault and every misalignment names one of the r
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Any
-
-from goniofrost.core.config_check import check_section, is_number
+from goniofrost.core.config_check import (ABSENT, Key, check_items, check_section, is_list, is_mapping,
+                                          is_natural, is_number, is_text, one_of)
 from goniofrost.core.errors import ConfigError
 
 from .faults import FAULT_KINDS
 from .misalignment import check_axes, check_values
-
-_ABSENT = object()  # a key without a default stays absent when not given
-
-
-@dataclass(frozen=True)
-class SimKey:
-    """One key of the sim section: ``check(value) -> bool``, what a good value is, its default
-    (``_ABSENT``: none, the key stays out), and an optional validator of the value's own keys,
-    ``nested(value, source, keypath) -> completed value``."""
-
-    check: Callable[[Any], bool]
-    expected: str
-    default: Any = _ABSENT
-    nested: Callable[[Any, str, str], Any] | None = None
-
-
-def _natural(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
-
-
-def _mapping(v) -> bool:
-    return isinstance(v, Mapping)
 
 
 def _camera(section, source: str, keypath: str) -> dict:
@@ -63,36 +38,24 @@ def _camera(section, source: str, keypath: str) -> dict:
     return validate_sim_camera_section(dict(section), source, keypath)
 
 
-_LAMP_KEYS = {  # key: (check, expected, default)
-    "drift_per_hour": (lambda v: is_number(v) and -1.0 <= v <= 1.0,
-                       "a number in [-1, 1] (relative intensity change per simulated hour)", 0.02),
+_LAMP_KEYS = {
+    "drift_per_hour": Key(lambda v: is_number(v) and -1.0 <= v <= 1.0,
+                          "a number in [-1, 1] (relative intensity change per simulated hour)", 0.02),
 }
-
-
-def _lamp(section, source: str, keypath: str) -> dict:
-    return check_section(dict(section), _LAMP_KEYS, source, keypath)
-
-
-_FAULT_KEYS = {  # key: (check, expected, default; None = required)
-    "axis": (lambda v: isinstance(v, str) and v != "", "the name of an axis of this rig", None),
-    "kind": (lambda v: v in FAULT_KINDS, f"one of {list(FAULT_KINDS)}", None),
-    "at_sample": (_natural, "a plan sample index >= 0", None),
+_FAULT_KEYS = {
+    "axis": Key(is_text, "the name of an axis of this rig"),
+    "kind": Key(one_of(*FAULT_KINDS), f"one of {list(FAULT_KINDS)}"),
+    "at_sample": Key(is_natural, "a plan sample index >= 0"),
 }
-
-
-def _faults(items, source: str, keypath: str) -> list[dict]:
-    return [check_section(item, _FAULT_KEYS, source, f"{keypath}[{i}]") for i, item in enumerate(items)]
-
-
-SIM_KEYS: dict[str, SimKey] = {
-    "clock_speedup": SimKey(lambda v: is_number(v) and v > 0,
-                            "a number > 0 (simulated seconds per real second)", 1.0),
-    "seed": SimKey(_natural, "an integer >= 0", 0),
-    "camera": SimKey(_mapping, "a mapping of simulated camera keys", nested=_camera),
-    "lamp": SimKey(_mapping, "a mapping with drift_per_hour", {}, nested=_lamp),
-    "faults": SimKey(lambda v: isinstance(v, list), "a list of {axis, kind, at_sample} mappings", [],
-                     nested=_faults),
-    "misalignment_deg": SimKey(_mapping, "a mapping {axis name: degrees}", {}, nested=check_values),
+SIM_KEYS = {
+    "clock_speedup": Key(lambda v: is_number(v) and v > 0, "a number > 0 (simulated seconds per real second)", 1.0),
+    "seed": Key(is_natural, "an integer >= 0", 0),
+    "camera": Key(is_mapping, "a mapping of simulated camera keys", ABSENT, nested=_camera),
+    "lamp": Key(is_mapping, "a mapping with drift_per_hour", {},
+                nested=lambda v, source, kp: check_section(v, _LAMP_KEYS, source, kp)),
+    "faults": Key(is_list, "a list of {axis, kind, at_sample} mappings", [],
+                  nested=lambda v, source, kp: check_items(v, _FAULT_KEYS, source, kp)),
+    "misalignment_deg": Key(is_mapping, "a mapping {axis name: degrees}", {}, nested=check_values),
 }
 
 
@@ -101,20 +64,7 @@ def validate_sim_section(section, source, keypath: str = "sim") -> dict:
 
     Raises ConfigError(source, KEYPATH.KEY, expected, found) on the first unknown key or bad value.
     """
-    if not isinstance(section, Mapping):
-        raise ConfigError(source, keypath, "a mapping", section)
-    unknown = sorted(set(section) - set(SIM_KEYS))
-    if unknown:
-        raise ConfigError(source, f"{keypath}.{unknown[0]}", f"one of {sorted(SIM_KEYS)}", unknown[0])
-    out = {}
-    for key, spec in SIM_KEYS.items():
-        if key not in section and spec.default is _ABSENT:
-            continue
-        value = section.get(key, spec.default)
-        if not spec.check(value):
-            raise ConfigError(source, f"{keypath}.{key}", spec.expected, value)
-        out[key] = spec.nested(value, source, f"{keypath}.{key}") if spec.nested else value
-    return out
+    return check_section(section, SIM_KEYS, source, keypath)
 
 
 def check_fault_axes(faults, axis_names, source, keypath: str = "sim.faults") -> None:

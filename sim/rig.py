@@ -1,54 +1,41 @@
 """Start every simulated device of a rig on one SimClock and report their endpoints.
 
-``SimulatedRig(rig)`` takes a planner ``Rig`` or the raw rig-file mapping. ``start()`` opens a pty
-per serial device and a loopback TCP port per Modbus TCP device and returns the endpoints (axis
-name / "lamp" -> entry); ``resolved_driver_sections()`` gives the driver sections with those
-endpoints filled in, ready for ``drivers.rig_devices.RigDevices.from_sections``.
+``SimulatedRig(rig)`` takes a typed rig spec (``goniofrost.core.rig_spec.RigSpec``: a checked
+``planner.rig.Rig``). ``start()`` opens a pty per serial device and a loopback TCP port per Modbus
+TCP device and returns the endpoints (axis name / "lamp" -> entry); ``resolved_rig()`` gives the
+same spec with those endpoints in its driver sections, ready for
+``drivers.rig_devices.RigDevices.from_rig``.
 """
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+
+from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
 from .clock import SimClock
 from .config import check_fault_axes, validate_sim_section
 from .lamp_model import LampModel
 
 
-def _get(spec, key, default=None):
-    return spec.get(key, default) if isinstance(spec, Mapping) else getattr(spec, key, default)
-
-
-def _axis_mapping(spec) -> dict:
-    """A planner AxisSpec (or a raw mapping) as a plain rig-file axis mapping."""
-    keys = ("limits_deg", "speed_deg_s", "accel_deg_s2", "home_deg", "tolerance_deg", "driver")
-    out = {k: copy.deepcopy(_get(spec, k)) for k in keys if _get(spec, k) is not None}
-    role = _get(spec, "role")
-    if role is not None:
-        out["role"] = getattr(role, "value", role)
-    return out
-
-
-def _dynamixel(clock, axis, section, lamp_model, lamp_section):
+def _dynamixel(clock, axis: AxisSpec, section, lamp_model, lamp_section):
     from .dynamixel_servo import SimulatedDynamixel
     cpd = float(section["counts_per_deg"])
     return SimulatedDynamixel(clock, id=section["id"], baud=section.get("baud", 57600),
                               model=section.get("model", "XM430-W350"), counts_per_deg=cpd,
-                              position=round(float(axis.get("home_deg", 0.0)) * cpd))
+                              position=round(axis.home_deg * cpd))
 
 
-def _smc100(clock, axis, section, lamp_model, lamp_section):
+def _smc100(clock, axis: AxisSpec, section, lamp_model, lamp_section):
     from .smc100 import SimulatedSMC100
     upd = float(section.get("units_per_deg", 1.0))
-    lo, hi = axis["limits_deg"]
+    lo, hi = axis.limits_deg
     return SimulatedSMC100(clock, address=section.get("address", 1), baud=section.get("baud", 57600),
-                           units_per_deg=upd, position=float(axis.get("home_deg", 0.0)) * upd,
-                           velocity=float(axis["speed_deg_s"]) * upd,
-                           acceleration=float(axis["accel_deg_s2"]) * upd,
+                           units_per_deg=upd, position=axis.home_deg * upd,
+                           velocity=axis.speed_deg_s * upd, acceleration=axis.accel_deg_s2 * upd,
                            limits=(lo * upd - 1.0, hi * upd + 1.0))  # SL/SR just outside the axis limits
 
 
-def _modbus(clock, axis, section, lamp_model, lamp_section):
+def _modbus(clock, axis: AxisSpec, section, lamp_model, lamp_section):
     from .modbus_drive import SimulatedModbusDrive
     rtu = section["protocol"] == "modbus-rtu"
     lamp = dict(coil=lamp_section["coil"], photodiode_register=lamp_section["photodiode_register"]) \
@@ -58,7 +45,7 @@ def _modbus(clock, axis, section, lamp_model, lamp_section):
                                 steps_per_deg=section["steps_per_deg"],
                                 word_order=section.get("word_order", "big"),
                                 register_map=section.get("register_map", "oriental-az"),
-                                position_deg=float(axis.get("home_deg", 0.0)), lamp=lamp_model,
+                                position_deg=axis.home_deg, lamp=lamp_model,
                                 **lamp, **extra)
 
 
@@ -76,15 +63,15 @@ class SimulatedRig:
     journals and restores its state (``checkpoint``, ``restore``).
     """
 
-    def __init__(self, rig, speedup: float | None = None, seed: int = 0) -> None:
-        raw_axes = _get(rig, "axes")
-        self.axes = {name: _axis_mapping(spec) for name, spec in raw_axes.items()}
-        self.lamp_section = dict((_get(rig, "lamp") or {}).get("driver") or {}) or None
-        self.sim = validate_sim_section(_get(rig, "sim") or {}, _get(rig, "source") or "rig", "sim")
+    def __init__(self, rig: RigSpec, speedup: float | None = None, seed: int = 0) -> None:
+        self.rig = rig
+        self.axes = dict(rig.axes)
+        self.lamp_section = dict(rig.lamp_driver) if rig.lamp_driver else None
+        self.sim = validate_sim_section(rig.sim or {}, rig.source, "sim")
         self.clock = SimClock(float(speedup if speedup is not None else self.sim["clock_speedup"]))
         self.lamp_model = LampModel(self.clock, drift_per_hour=self.sim["lamp"]["drift_per_hour"], seed=seed)
         self.faults = [dict(fault) for fault in self.sim["faults"]]
-        check_fault_axes(self.faults, self.axes, _get(rig, "source") or "rig")
+        check_fault_axes(self.faults, self.axes, rig.source)
         self._armed: list[int] = []     # positions in self.faults, in the order armed
         self._retired: set[int] = set()  # drills that struck in an earlier run: never armed again
         self._devices: dict = {}
@@ -99,7 +86,7 @@ class SimulatedRig:
             return dict(self.endpoints)
         try:
             for name, axis in self.axes.items():
-                section = axis["driver"]
+                section = axis.driver
                 lamp = self.lamp_section if self._lamp_host() == name else None
                 device = DEVICE_FACTORIES[section["protocol"]](self.clock, axis, section, self.lamp_model, lamp)
                 self.endpoints[name] = device.start()
@@ -173,13 +160,13 @@ class SimulatedRig:
         """Where every simulated axis really is (degrees), by axis name."""
         return {name: dev.true_position_deg() for name, dev in self._devices.items()}
 
-    def resolved_driver_sections(self) -> dict:
-        """``{"axes": name -> axis mapping with its driver endpoint filled in, "lamp": lamp section}``."""
+    def resolved_rig(self) -> RigSpec:
+        """The rig spec given, with the driver endpoints made at ``start()`` in its driver sections."""
         if not self._devices:
             raise RuntimeError("SimulatedRig.start() first: the endpoints are made at start")
-        axes = copy.deepcopy(self.axes)
-        for name, axis in axes.items():
-            entry, section = self.endpoints[name], axis["driver"]
+        drivers = {}
+        for name, axis in self.axes.items():
+            entry, section = self.endpoints[name], copy.deepcopy(dict(axis.driver))
             if section["protocol"] == "modbus-tcp":
                 host, port = entry["endpoint"].rsplit(":", 1)
                 section["host"], section["port"] = host, int(port)
@@ -187,7 +174,8 @@ class SimulatedRig:
                 section["port"] = entry["endpoint"]
             if section["protocol"] == "modbus-rtu":
                 section["parity"] = "N"  # Linux ptys refuse parity; the simulated drive serves 8N1
-        return {"axes": axes, "lamp": copy.deepcopy(self.lamp_section)}
+            drivers[name] = section
+        return self.rig.with_drivers(drivers)
 
     def __enter__(self) -> "SimulatedRig":
         self.start()

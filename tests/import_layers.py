@@ -7,6 +7,7 @@ The layers, bottom to top (docs/ARCHITECTURE.md):
   modules, calib decodes frames with the drivers' RAW reader).
 - goniofrost's sub-packages (``frost``, ``brdf``, ``datasets``, ``capture``, ``bench``...): anything
   below them, and each other without a cycle.
+- no cycle between modules either, inside a package as between packages (``module_graph``).
 - ``goniofrost.app`` (command line, commands, demo): may import everything; nothing imports it
   but ``goniofrost/__main__.py``.
 Imports inside functions count the same as those at the top of a module.
@@ -93,6 +94,7 @@ def violations(root: Path) -> list[Violation]:
             rule = _rule_broken(here, there)
             found += [Violation(m, there, rule) for m in modules if rule]
     found += _cycles(root)
+    found += _module_cycles(root)
     found += _top_level_modules(root)
     return sorted(set(found), key=str)
 
@@ -121,6 +123,55 @@ def _cycles(root: Path) -> list[Violation]:
     return [Violation(module, there, f"cycle: {there} imports {here} back (directly or through others)")
             for here, targets in full.items() for there, modules in targets.items()
             if _reaches(graph, there, here) for module in modules]
+
+
+def project_modules(root: Path) -> dict[str, Path]:
+    """Dotted name -> file of every module of the project (goniofrost and the lower packages)."""
+    return {module_name(root, path): path for package in (PROJECT, *LOWER)
+            for path in sorted((root / package).rglob("*.py"))}
+
+
+def module_graph(root: Path) -> dict[str, set[str]]:
+    """module -> the project modules it imports. ``from P import x`` is an import of module P.x
+    when there is one, else of P; a name inside a module is an import of that module."""
+    modules = project_modules(root)
+    graph = {}
+    for name, path in modules.items():
+        owners = {_owning_module(imported, modules) for imported in module_imports(root, path, modules)}
+        graph[name] = owners - {None, name}
+    return graph
+
+
+def module_imports(root: Path, path: Path, modules) -> set[str]:
+    """Absolute dotted names the module at ``path`` imports, ``from P import x`` as ``P.x`` when
+    that is one of ``modules`` and as ``P`` otherwise (relative imports resolved)."""
+    name = module_name(root, path)
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            target = ".".join(base + ([node.module] if node.module else []))
+            found.update(f"{target}.{a.name}" if f"{target}.{a.name}" in modules else target for a in node.names)
+    return found
+
+
+def _owning_module(imported: str, modules) -> str | None:
+    """The longest dotted prefix of ``imported`` that is a project module, or None."""
+    parts = imported.split(".")
+    for end in range(len(parts), 0, -1):
+        if ".".join(parts[:end]) in modules:
+            return ".".join(parts[:end])
+    return None
+
+
+def _module_cycles(root: Path) -> list[Violation]:
+    """One violation per import of a module that closes a cycle between modules."""
+    graph = module_graph(root)
+    return [Violation(here, there, f"module cycle: {there} imports {here} back (directly or through others)")
+            for here, targets in graph.items() for there in sorted(targets) if _reaches(graph, there, here)]
 
 
 def _reaches(graph: dict[str, set[str]], start: str, goal: str) -> bool:

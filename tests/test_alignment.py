@@ -114,7 +114,7 @@ def small_misaligned_rig(path: Path, **camera) -> Path:
 def test_align_recovers_the_injected_misalignment_and_writes_the_file(tmp_path, capsys):
     import json
     from goniofrost.app.cli import main
-    from planner.alignment import load_alignment
+    from planner.alignment_file import load_alignment
 
     rig = small_misaligned_rig(tmp_path / "rig.yaml")
     out = tmp_path / "ALIGNMENT.json"

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from import_layers import imports_of, package_graph, violations
+from import_layers import imports_of, module_graph, package_graph, violations
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,3 +81,27 @@ def test_relative_and_function_level_imports_are_resolved(tmp_path):
                                                           "def f():\n    from drivers import axis\n"})
     assert imports_of(root, root / "goniofrost/capture/a.py") == {
         "goniofrost.capture.b", "goniofrost.frost.model", "drivers"}
+
+
+def test_an_import_cycle_between_modules_of_one_package_fails(tmp_path):
+    # frost.model imports frost.helpers (CLEAN); helpers importing model back closes a circle
+    # inside one package, which the package graph cannot see
+    root = _tree(tmp_path, {**CLEAN, "goniofrost/frost/helpers.py": "def f():\n    from .model import M\n"})
+    found = [(v.module, v.imported) for v in violations(root) if v.rule.startswith("module cycle")]
+    assert found == [("goniofrost.frost.helpers", "goniofrost.frost.model"),
+                     ("goniofrost.frost.model", "goniofrost.frost.helpers")]
+    # through a third module, and through ``from package import module``
+    root = _tree(tmp_path, {**CLEAN, "goniofrost/frost/helpers.py": "from goniofrost.frost import third\n",
+                            "goniofrost/frost/third.py": "import goniofrost.frost.model\n"})
+    found = {v.module for v in violations(root) if v.rule.startswith("module cycle")}
+    assert found == {"goniofrost.frost.model", "goniofrost.frost.helpers", "goniofrost.frost.third"}
+
+
+def test_a_package_that_re_exports_its_modules_is_no_cycle(tmp_path):
+    # the package's __init__ imports its modules and they import each other downwards: no circle,
+    # though every module is inside the package that imports it
+    root = _tree(tmp_path, {**CLEAN, "goniofrost/frost/__init__.py": "from goniofrost.frost.model import M\n",
+                            "goniofrost/frost/helpers.py": "from goniofrost.frost import other\n",
+                            "goniofrost/frost/other.py": ""})
+    assert violations(root) == []
+    assert module_graph(root)["goniofrost.frost.helpers"] == {"goniofrost.frost.other"}

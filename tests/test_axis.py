@@ -13,6 +13,7 @@ from drivers.errors import (ArrivalError, AxisLimitError, DeviceFault, DeviceTim
                             NotConnectedError)
 from drivers.rig_devices import RigDevices
 from goniofrost.core.errors import ConfigError
+from goniofrost.core.rig_spec import AxisSpec, Role
 from sim.clock import SimClock
 from sim.motion import TrapezoidMotion
 
@@ -253,10 +254,11 @@ def test_short_arrival_reports_the_fault_or_an_arrival_error():
     assert info.value.causes == ["following error"]
 
 
-def test_axis_config_from_a_rig_mapping():
-    spec = {"limits_deg": [8, 172], "speed_deg_s": 30, "accel_deg_s2": 60, "home_deg": 90, "tolerance_deg": 0.02}
-    cfg = AxisConfig.from_spec("camera_arm", spec, retries=1)
-    assert cfg == AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, 90, 0.02, retries=1)
+def test_axis_config_from_a_typed_axis_spec():
+    spec = AxisSpec("camera_arm", Role.CAMERA_ARM, (8, 172), 30, 60, 90, 0.02, driver={"retries": 1})
+    assert AxisConfig.from_spec(spec) == AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, 90, 0.02, retries=1)
+    assert AxisConfig.from_spec(spec, stall_s=0.3, retries=4) == \
+        AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, 90, 0.02, retries=4, stall_s=0.3)
 
 
 def test_the_one_stop_path_tries_every_axis_and_never_raises():
@@ -305,7 +307,7 @@ def test_bad_driver_sections_name_the_key(sim_rig, change, message):
 def test_missing_key_and_lamp_without_a_device(sim_rig):
     section = dict(sim_rig["axes"]["sample_yaw"]["driver"])
     del section["port"]
-    with pytest.raises(ConfigError, match=r"driver.port: expected a serial device path .* found 'nothing \(key missing\)'"):
+    with pytest.raises(ConfigError, match=r"driver.port: expected a serial device path .* found 'nothing'"):
         validate_driver_section(section, "sim.yaml", "axes.sample_yaw.driver")
     lamp = {k: v for k, v in sim_rig["lamp"]["driver"].items() if k != "device"}
     with pytest.raises(ConfigError, match="lamp.driver.device: expected either device"):

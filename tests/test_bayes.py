@@ -406,7 +406,8 @@ def test_reconstruct_command_refuses_ridge_options_with_bayes(model, tables, tmp
 
 
 def test_sigma_columns_are_all_or_none_and_numbers(model, tables, tmp_path):
-    from goniofrost.frost.reconstruction import ReconstructionError, read_samples_csv, sample_sigmas
+    from goniofrost.frost.reconstruction import ReconstructionError
+    from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
 
     text = samples_csv(model, tables[0], np.arange(0, 300, 50), sigma=True)
     path = tmp_path / "s.csv"

@@ -10,7 +10,8 @@ import pytest
 
 from goniofrost.bench.config import BenchConfig, BenchError, fold_split
 from goniofrost.bench.data import open_tables, tables_path
-from goniofrost.bench.evaluate import batch_log_errors, designs_per_fold
+from goniofrost.bench.evaluate import designs_per_fold
+from goniofrost.frost.metrics import batch_log_errors
 from goniofrost.bench.executors import run_folds
 from goniofrost.bench.results import ROW_FIELDS, write_results
 from goniofrost.app.cli import main

@@ -174,7 +174,7 @@ def test_polygon_thickness_known_values():
     ("intrinsics.image_size_px", [800], r"camera\.intrinsics\.image_size_px: expected \[width, height\], integers in \[16, 16384\], found \[800\]"),
     ("intrinsics.principal_point_px", [900.0, 300.0], r"camera\.intrinsics\.principal_point_px: expected a point inside the 800 x 600 image, found \[900\.0, 300\.0\]"),
     ("intrinsics.distortion", [0.1, 0.0], r"camera\.intrinsics\.distortion: expected \[k1, k2, p1, p2, k3\], five numbers \(OpenCV order\), found \[0\.1, 0\.0\]"),
-    ("intrinsics.skew", 0.0, r"camera\.intrinsics\.skew: expected one of \['distortion', 'focal_px', 'image_size_px', 'principal_point_px'\], found 'skew'"),
+    ("intrinsics.skew", 0.0, r"camera\.intrinsics\.skew: expected one of the keys image_size_px, focal_px, principal_point_px, distortion, found \"unknown key 'skew'\""),
     ("mount.distance_mm", 0, r"camera\.mount\.distance_mm: expected a number > 0 \(millimetres from the rotation centre\), found 0"),
     ("mount.rotation_deg", [0, 0, 45], r"camera\.mount\.rotation_deg: expected \[rx, ry, rz\], three numbers within \+-20 \(degrees\), found \[0, 0, 45\]"),
     ("min_roi_pixels", 2, r"camera\.min_roi_pixels: expected an integer in \[4, 100000\] \(pixels per colour channel\), found 2"),

@@ -174,7 +174,7 @@ def test_the_fakes_and_the_real_drivers_satisfy_the_hardware_contract(table, tmp
     from goniofrost.capture.hardware import RigHardware, WallClock
     from goniofrost.capture.rig_file import load_checked_rig
 
-    devices = RigDevices.from_sections(load_checked_rig(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"))
+    devices = RigDevices.from_rig(load_checked_rig(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"))
     real = RigHardware(devices.axes, devices.lamp, FolderCamera(tmp_path, lambda t: None), WallClock())
     for hardware in (rig(table), real):
         assert isinstance(hardware, Hardware) and isinstance(hardware.lamp, Lamp)

@@ -3,7 +3,6 @@ each drill once its plan sample is reached, and the fault strikes when that axis
 every kind on every protocol raises the driver's typed error."""
 from __future__ import annotations
 
-import copy
 import logging
 from pathlib import Path
 
@@ -12,7 +11,9 @@ import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.rig_devices import axis_from_spec
+from goniofrost.capture.rig_file import section_validators
 from goniofrost.core.errors import ConfigError
+from planner.rig import rig_from_mapping
 from sim.faults import FAULT_KINDS
 from sim.rig import SimulatedRig
 
@@ -32,17 +33,16 @@ ERRORS = {
 }
 
 
-def drill_rig(*faults) -> dict:
+def drill_rig(*faults):
+    """The checked simulated rig with these (axis, kind, at_sample) drills."""
     raw = yaml.safe_load(RIG.read_text())
     raw["sim"]["faults"] = [dict(zip(("axis", "kind", "at_sample"), f)) for f in faults]
-    return raw
+    return rig_from_mapping(raw, str(RIG), section_validators())
 
 
 def connected_axis(rig: SimulatedRig, name: str):
     """The real driver of one simulated axis (homed, enabled), detecting a stall after 0.3 s."""
-    spec = copy.deepcopy(rig.resolved_driver_sections()["axes"][name])
-    spec["stall_s"] = 0.3
-    axis = axis_from_spec(name, spec)
+    axis = axis_from_spec(rig.resolved_rig().axes[name], stall_s=0.3)
     axis.connect()
     axis.enable()
     axis.home().wait()  # the SMC100 accepts moves only once referenced

@@ -9,6 +9,8 @@ brdf.binary (and every RAW frame) byte-identical to an uninterrupted run without
 
 Kept fast: the small rig and plan of tests/test_session.py (5 samples, 192 x 144 sensor, a
 four-exposure ladder), clock speed-up 50, the model, plan and uninterrupted run shared by the module.
+The default run rehearses a covering matrix (``COVERING``: each fault kind once, each protocol
+twice, the lamp's drive both heard and unheard); the full 18 cases run under ``-m slow``.
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ import yaml
 
 from goniofrost.app.cli import main
 from goniofrost.capture import runner
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import EventKind, RunStatus
 from sim.faults import FAULT_KINDS
 
 from test_session import GRID, MATERIAL, TRAINING, frames, write_rig
@@ -30,6 +34,21 @@ from test_session import GRID, MATERIAL, TRAINING, frames, write_rig
 M, AT_SAMPLE = 5, 2  # the drill strikes at plan sample 2: two samples are safe before it
 AXES = ("camera_arm", "sample_yaw", "sample_tilt")  # Modbus TCP, Dynamixel, SMC100
 COMMS = ("no_reply", "bad_checksum", "drop_byte", "disconnect")  # the device can no longer be heard
+# (kind, axis) of the default run: every kind once, every protocol twice; on the camera arm's drive
+# (which hosts the lamp) one fault that silences it and one that does not; the unplugged servo
+# whose goal is checked
+COVERING = (("no_reply", "camera_arm"), ("alarm", "camera_arm"), ("disconnect", "sample_yaw"),
+            ("bad_checksum", "sample_yaw"), ("drop_byte", "sample_tilt"), ("stall", "sample_tilt"))
+CASES = [pytest.param(kind, axis, id=f"{kind}-{axis}", marks=() if (kind, axis) in COVERING else pytest.mark.slow)
+         for axis in AXES for kind in FAULT_KINDS]
+
+
+def test_the_default_matrix_covers_every_kind_once_and_every_protocol_twice():
+    kinds = [kind for kind, _ in COVERING]
+    axes = [axis for _, axis in COVERING]
+    assert sorted(kinds) == sorted(FAULT_KINDS) and all(axes.count(axis) == 2 for axis in AXES)
+    assert {kind in COMMS for kind, axis in COVERING if axis == "camera_arm"} == {True, False}
+    assert ("disconnect", "sample_yaw") in COVERING and len(CASES) == len(FAULT_KINDS) * len(AXES)
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +98,7 @@ def csv_indices(session: Path) -> list[int]:
         return sorted(int(row["plan_index"]) for row in csv.DictReader(handle))
 
 
-@pytest.mark.parametrize("axis", AXES)
-@pytest.mark.parametrize("kind", FAULT_KINDS)
+@pytest.mark.parametrize("kind, axis", CASES)
 def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterrupted_files(
         bench, tmp_path, capsys, monkeypatch, kind, axis):
     folder, rig, plan, reference = bench
@@ -128,6 +146,15 @@ def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterru
         assert seen["lamp"].is_on is False
     drills = [d["state"] for k, d in events if k == "drill"]
     assert drills == ["armed", "struck"]
+    # the fault is journaled with the axis, and the run's end with the failed sample and the
+    # terminal's words (the monitor shows them)
+    message = err[len("goniofrost capture: error: "):-1]
+    with Journal.open(session / "session.sqlite") as handle:
+        [fault] = [e for e in handle.events() if e["kind"] is EventKind.FAULT]
+        _start, end = handle.last_run()
+    assert fault["axis"] == axis and fault["message"] in message
+    assert (end.status, end.reason, end.axis, end.detail) == (RunStatus.FAULT, message, axis, fault["message"])
+    assert end.plan_index == AT_SAMPLE and not (session / "brdf.binary").exists()
 
     # ----- the resume: every sample once, no second rehearsal, the uninterrupted files ---------------
     assert main(args(drilled, plan, session, "--resume")) == 0

@@ -244,6 +244,6 @@ def test_the_rig_files_lab_section_is_checked(setup, tmp_path, capsys):
     bad = tmp_path / "rig.yaml"
     bad.write_text(yaml.safe_dump(doc, sort_keys=False))
     assert main(capture_args(bad, plan, tmp_path / "s")) == 2
-    assert capsys.readouterr().err == (f"goniofrost capture: error: {bad}: lab.lense: expected one of "
-                                       f"['lab', 'lamp', 'lens'], found 'lense'\n")
+    assert capsys.readouterr().err == (f"goniofrost capture: error: {bad}: lab.lense: expected one of the keys "
+                                       f"lab, lens, lamp, found \"unknown key 'lense'\"\n")
     assert not (tmp_path / "s").exists()

@@ -82,8 +82,8 @@ def test_named_and_inline_maps():
 
 @pytest.mark.parametrize("spec, keypath, found", [
     ("yaskawa", "driver.register_map", "yaskawa"),
-    ({"base": "oriental-az", "feedback": 1}, "driver.register_map.feedback", "feedback"),
-    ({"feedback_position": 0x120}, "driver.register_map.direct_data", None),
+    ({"base": "oriental-az", "feedback": 1}, "driver.register_map.feedback", "unknown key 'feedback'"),
+    ({"feedback_position": 0x120}, "driver.register_map.direct_data", "nothing"),
     ({"base": "oriental-az", "alarm_code": 0x10000}, "driver.register_map.alarm_code", 0x10000),
     ({"base": "oriental-az", "input_bits": {"start": 16}}, "driver.register_map.input_bits.start", 16),
 ])

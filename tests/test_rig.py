@@ -74,10 +74,10 @@ BAD_CASES = [
     # (key path edited, new value, key path reported, expected text, found)
     ("axes.camera_arm.speed", 3.0, "axes.camera_arm.speed", "one of the keys role, limits_deg", "unknown key 'speed'"),
     ("geometry.light_dir", [1, 0, 0], "geometry.light_dir", "one of the keys light_direction", "unknown key 'light_dir'"),
-    ("colour", "red", "colour", "one of the keys name, geometry, axes", "unknown key 'colour'"),
-    ("axes.sample_tilt.accel_deg_s2", _DELETE, "axes.sample_tilt.accel_deg_s2", "this key to be present", "nothing"),
+    ("colour", "red", "colour", "one of the keys name, simulated, geometry, axes", "unknown key 'colour'"),
+    ("axes.sample_tilt.accel_deg_s2", _DELETE, "axes.sample_tilt.accel_deg_s2", "a number in (0, inf]", "nothing"),
     ("axes.sample_tilt.speed_deg_s", -5, "axes.sample_tilt.speed_deg_s", "a number in (0, inf]", -5),
-    ("axes.sample_tilt.speed_deg_s", "fast", "axes.sample_tilt.speed_deg_s", "a finite number", "fast"),
+    ("axes.sample_tilt.speed_deg_s", "fast", "axes.sample_tilt.speed_deg_s", "a number in (0, inf]", "fast"),
     ("axes.sample_yaw.limits_deg", [10, -10], "axes.sample_yaw.limits_deg", "[low, high] with low < high", [10.0, -10.0]),
     ("axes.sample_yaw.limits_deg", [10], "axes.sample_yaw.limits_deg", "a list of 2 numbers", [10]),
     ("axes.camera_arm.home_deg", 200.0, "axes.camera_arm.home_deg", "a number in [8, 172]", 200.0),
@@ -86,7 +86,7 @@ BAD_CASES = [
     ("geometry.light_direction", [0, 0, 1], "geometry.light_direction", "a horizontal unit vector [x, y, 0]", [0.0, 0.0, 1.0]),
     ("geometry.tilt_limit_deg", 95, "geometry.tilt_limit_deg", "a number in (0, 90)", 95),
     ("simulated", "yes", "simulated", "true or false", "yes"),
-    ("axes.sample_tilt.driver", "smc100", "axes.sample_tilt.driver", "a mapping (key: value lines)", "smc100"),
+    ("axes.sample_tilt.driver", "smc100", "axes.sample_tilt.driver", "a mapping", "smc100"),
     ("lamp.power", 3, "lamp.power", "one of the keys driver", "unknown key 'power'"),
 ]
 

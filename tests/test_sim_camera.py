@@ -146,7 +146,7 @@ def test_sim_camera_section_validation(params):
     section = yaml.safe_load(RIG.read_text())["sim"]["camera"]
     assert params["black_level"] == section["black_level"] and params["noise"] is True
     # the image size is the camera model's (camera.intrinsics), not the sensor's
-    with pytest.raises(ConfigError, match=r"rig\.yaml: sim\.camera\.width: expected one of \[.*\], found 'width'"):
+    with pytest.raises(ConfigError, match=r"rig\.yaml: sim\.camera\.width: expected one of the keys black_level, .*, noise, found \"unknown key 'width'\""):
         validate_sim_camera_section({**section, "width": 320}, "rig.yaml")
     with pytest.raises(ConfigError, match=r"rig\.yaml: sim\.camera\.read_noise_e: expected a number >= 0 \(electrons\), found 'x'"):
         validate_sim_camera_section({**section, "read_noise_e": "x"}, "rig.yaml")

@@ -22,6 +22,8 @@ from pymodbus.client import ModbusTcpClient
 from drivers.errors import DeviceFault
 from goniofrost.capture.executor import stop_axes
 from drivers.rig_devices import RigDevices
+from goniofrost.capture.rig_file import section_validators
+from planner.rig import rig_from_mapping
 from sim.rig import SimulatedRig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,8 +36,13 @@ def raw_rig():
         return yaml.safe_load(f)
 
 
+def checked(raw):
+    """The typed rig spec of a rig mapping, every section checked."""
+    return rig_from_mapping(raw, str(RIG), section_validators())
+
+
 def test_endpoints_and_resolved_sections(raw_rig):
-    with SimulatedRig(raw_rig, speedup=50) as rig:
+    with SimulatedRig(checked(raw_rig), speedup=50) as rig:
         ep = rig.endpoints
         assert set(ep) == {"camera_arm", "sample_yaw", "sample_tilt", "lamp"}
         assert ep["sample_yaw"] == {"protocol": "dynamixel", "endpoint": ep["sample_yaw"]["endpoint"],
@@ -43,19 +50,20 @@ def test_endpoints_and_resolved_sections(raw_rig):
         assert ep["sample_tilt"]["protocol"] == "smc100" and ep["sample_tilt"]["address"] == 1
         assert ep["camera_arm"]["protocol"] == "modbus-tcp" and ep["camera_arm"]["endpoint"].startswith("127.0.0.1:")
         assert os.path.exists(ep["sample_yaw"]["endpoint"]) and os.path.exists(ep["sample_tilt"]["endpoint"])
-        sections = rig.resolved_driver_sections()
+        resolved = rig.resolved_rig()
         host, port = ep["camera_arm"]["endpoint"].split(":")
-        arm = sections["axes"]["camera_arm"]["driver"]
+        arm = resolved.axes["camera_arm"].driver
         assert (arm["host"], arm["port"]) == (host, int(port))
-        assert sections["axes"]["sample_yaw"]["driver"]["port"] == ep["sample_yaw"]["endpoint"]
-        assert raw_rig["axes"]["sample_yaw"]["driver"]["port"] == "sim"  # the rig itself is untouched
+        assert resolved.axes["sample_yaw"].driver["port"] == ep["sample_yaw"]["endpoint"]
+        assert rig.rig.axes["sample_yaw"].driver["port"] == "sim"  # the rig given is untouched
+        assert type(resolved) is type(rig.rig) and resolved.geometry == rig.rig.geometry
         assert rig.true_joints_deg() == {"camera_arm": 90.0, "sample_yaw": 0.0, "sample_tilt": 0.0}
 
 
 def test_three_axes_move_at_once(raw_rig):
     targets = {"camera_arm": 40.0, "sample_yaw": -120.0, "sample_tilt": 35.0}
-    with SimulatedRig(raw_rig, speedup=20) as rig:
-        with RigDevices.from_sections(rig.resolved_driver_sections()) as devices:
+    with SimulatedRig(checked(raw_rig), speedup=20) as rig:
+        with RigDevices.from_rig(rig.resolved_rig()) as devices:
             for status in [a.home() for a in devices.axes.values()]:
                 status.wait()
             statuses = {n: devices.axes[n].move_to(t) for n, t in targets.items()}
@@ -70,8 +78,8 @@ def test_three_axes_move_at_once(raw_rig):
 
 
 def test_lamp_on_the_modbus_drive(raw_rig):
-    with SimulatedRig(raw_rig, speedup=20) as rig:
-        with RigDevices.from_sections(rig.resolved_driver_sections()) as devices:
+    with SimulatedRig(checked(raw_rig), speedup=20) as rig:
+        with RigDevices.from_rig(rig.resolved_rig()) as devices:
             assert devices.lamp.is_on() is False and devices.lamp.photodiode() == 0.0
             devices.lamp.on()
             assert rig.lamp_model.is_on and devices.lamp.is_on()
@@ -79,8 +87,8 @@ def test_lamp_on_the_modbus_drive(raw_rig):
 
 
 def test_fault_on_one_axis_during_a_three_axis_move_stops_all(raw_rig):
-    with SimulatedRig(raw_rig, speedup=5) as rig:
-        devices = RigDevices.from_sections(rig.resolved_driver_sections())
+    with SimulatedRig(checked(raw_rig), speedup=5) as rig:
+        devices = RigDevices.from_rig(rig.resolved_rig())
         devices.connect_all()
         try:
             for status in [a.home() for a in devices.axes.values()]:
@@ -198,10 +206,10 @@ def test_modbus_rtu_axis_on_a_pty(raw_rig):
         **raw_rig["axes"]["camera_arm"],
         "driver": {"protocol": "modbus-rtu", "port": "sim", "baud": 115200, "parity": "N",
                    "device_id": 1, "steps_per_deg": 100.0}}}}
-    with SimulatedRig(rtu, speedup=20) as rig:
+    with SimulatedRig(checked(rtu), speedup=20) as rig:
         assert rig.endpoints["camera_arm"]["protocol"] == "modbus-rtu"
         assert rig.endpoints["camera_arm"]["endpoint"].startswith("/dev/pts/")
-        with RigDevices.from_sections(rig.resolved_driver_sections()) as devices:
+        with RigDevices.from_rig(rig.resolved_rig()) as devices:
             assert devices.axes["camera_arm"].move_to(45.0).wait() == pytest.approx(45.0, abs=0.02)
             assert rig.true_joints_deg()["camera_arm"] == pytest.approx(45.0, abs=0.02)
 

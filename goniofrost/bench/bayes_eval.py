@@ -41,7 +41,7 @@ def _predicted(model, post, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]
 def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
     """Reconstruct every test material with the posterior mean; float64 (n_mat,) arrays under
     "mse", "pred_mse", "cover50", "cover90", and "seconds" (the whole batch, wall time)."""
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
 
     start = time.perf_counter()
     n_mat = truth.shape[0]
@@ -71,7 +71,7 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     "pred_mse" (predicted at the stop), "reached" (1 if the target was reached) and "seconds"
     (the whole simulation, wall time).
     """
-    from goniofrost.bench.evaluate import batch_log_errors
+    from goniofrost.frost.metrics import batch_log_errors
 
     start = time.perf_counter()
     n_mat, m_max = truth.shape[0], order.size

@@ -21,6 +21,7 @@ import numpy as np
 from goniofrost.bench.baselines import nielsen_path, random_select, uniform_select
 from goniofrost.bench.config import BenchConfig, BenchError, fold_split, method_rng
 from goniofrost.bench.data import open_tables
+from goniofrost.frost.metrics import batch_log_errors
 
 Y_FORMS = {"frost": "all", "frost-firstm": "firstm", "frost-bayesrec": "firstm"}
 # Methods whose cells are reconstructed by the Bayesian posterior mean (the others: ridge).
@@ -214,21 +215,3 @@ def _timed_errors(model, positions, truth, truth_log, eta):
     estimate = reconstruct_log(model, positions, model.to_log(values, positions), eta=eta)
     seconds = time.perf_counter() - start
     return batch_log_errors(model, estimate, truth_log), seconds
-
-
-def batch_log_errors(model, estimate_log: np.ndarray, truth_log: np.ndarray) -> np.ndarray:
-    """Log-relative MSE per material from mapped estimates; float64 (n_mat,).
-
-    estimate_log: (n_valid, 3 n_mat) ``reconstruct_log`` output (column 3 i + c = material i,
-    channel c); truth_log: (n_mat, n_valid, 3) ``model.to_log(truth)``.
-    ``reconstruct`` clamps x = from_log(b) at 0, whose map is max(b, log(eps / (r + eps))),
-    so this equals ``log_relative_mse(model, truth_i, reconstruct(...))`` without the exp/log
-    round trip (tests/test_bench.py checks the two agree).
-    """
-    floor = np.log(model.eps) - np.log(np.asarray(model.reference, np.float64) + model.eps)
-    n_mat = truth_log.shape[0]
-    out = np.empty(n_mat)
-    for i in range(n_mat):
-        est = np.maximum(estimate_log[:, 3 * i:3 * i + 3], floor[:, None])
-        out[i] = np.mean((est - truth_log[i]) ** 2)
-    return out

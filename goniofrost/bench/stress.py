@@ -25,7 +25,7 @@ from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
 from goniofrost.bench.config import BenchConfig, fold_split, method_rng
 from goniofrost.bench.data import open_tables
-from goniofrost.bench.evaluate import batch_log_errors
+from goniofrost.frost.metrics import batch_log_errors
 from goniofrost.bench.results import json_text, write_atomic
 
 NOISE_MULTIPLICATIVE = (0.001, 0.01, 0.05, 0.2)

@@ -87,7 +87,7 @@ def _simulated(rig, *, material, seed, speedup):
     pose = simulated_pose(rig)
     with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
         simulation.start()
-        devices = RigDevices.from_sections(simulation.resolved_driver_sections())
+        devices = RigDevices.from_rig(simulation.resolved_rig())
         with _connected(devices):
             camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()),
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
@@ -117,7 +117,7 @@ def simulated_pose(rig):
 def _real(rig, *, material, seed, speedup):
     from drivers.rig_devices import RigDevices
 
-    devices = RigDevices.from_sections(rig)
+    devices = RigDevices.from_rig(rig)
     with _connected(devices):
         camera = open_camera(rig)
         camera.connect()

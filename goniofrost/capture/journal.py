@@ -36,10 +36,10 @@ from pathlib import Path
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus, SessionLabel
+from goniofrost.frost import samples_file
 
 FORMAT_VERSION = 1
-CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b",
-               "sigma_r", "sigma_g", "sigma_b", "snr", "plan_index")
+CSV_COLUMNS = samples_file.SESSION_COLUMNS  # samples.csv: the format is goniofrost.frost.samples_file
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -100,11 +100,6 @@ class SampleRecord:
     started_utc: float = 0.0
     committed_utc: float = 0.0
     status: str = "ok"
-
-    def csv_row(self) -> str:
-        """The samples.csv line (no newline); floats in repr form so values round-trip exactly."""
-        values = (self.theta_h_deg, self.theta_d_deg, self.phi_d_deg, *self.rgb, *self.sigma, self.snr)
-        return ",".join([*(repr(float(v)) for v in values), str(int(self.plan_index))])
 
 
 class Journal:
@@ -464,11 +459,9 @@ def _record_from_row(row: dict) -> SampleRecord:
 
 
 class SamplesCsv:
-    """``samples.csv``: the DESIGN.md samples format plus uncertainty columns, one line per sample.
-
-    Columns: ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,sigma_r,sigma_g,sigma_b,snr,plan_index``,
-    and ``batch`` (1-based, the plan's batch of the sample) when ``batch_ends`` are given (a
-    capture with a target error).
+    """``samples.csv`` of a session, one line per sample, in the format of
+    ``goniofrost.frost.samples_file`` (``SESSION_COLUMNS``, and ``batch``: 1-based, the plan's batch
+    of the sample, when ``batch_ends`` are given, a capture with a target error).
     """
 
     def __init__(self, path, batch_ends=()) -> None:
@@ -477,14 +470,16 @@ class SamplesCsv:
 
     def rewrite(self, records) -> None:
         """Replace the file atomically with exactly ``records`` (the journal is the truth)."""
-        header = ",".join(CSV_COLUMNS + (("batch",) if self.batch_ends else ()))
+        header = samples_file.header(batched=bool(self.batch_ends))
         write_text_atomic(self.path, header + "\n" + "".join(self._line(r) + "\n" for r in records))
 
     def _line(self, record: SampleRecord) -> str:
-        if not self.batch_ends:
-            return record.csv_row()
-        from goniofrost.capture.target import batch_of
-        return f"{record.csv_row()},{batch_of(self.batch_ends, record.plan_index)}"
+        batch = None
+        if self.batch_ends:
+            from goniofrost.capture.target import batch_of
+            batch = batch_of(self.batch_ends, record.plan_index)
+        return samples_file.session_row((record.theta_h_deg, record.theta_d_deg, record.phi_d_deg), record.rgb,
+                                        record.sigma, record.snr, record.plan_index, batch)
 
     def append(self, record: SampleRecord) -> None:
         """Append one sample's line, flushed and fsynced before returning (OutputError when the disk

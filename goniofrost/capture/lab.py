@@ -7,7 +7,7 @@ notes into the ``SessionLabel`` (``goniofrost.capture.records``) the journal kee
 """
 from __future__ import annotations
 
-from goniofrost.core.config_check import KeyTable, check_section
+from goniofrost.core.config_check import Key, KeyTable, check_section
 from goniofrost.core.errors import ConfigError
 from goniofrost.capture.records import SessionLabel
 
@@ -18,16 +18,15 @@ def _text_or_none(value) -> bool:
 
 TEXT = "a one-line text"
 LAB_KEYS: KeyTable = {
-    "lab": (_text_or_none, TEXT + " (the lab's name)", ""),
-    "lens": (_text_or_none, TEXT + " (the camera's lens)", ""),
-    "lamp": (_text_or_none, TEXT + " (the light source)", ""),
+    "lab": Key(_text_or_none, TEXT + " (the lab's name)", None),
+    "lens": Key(_text_or_none, TEXT + " (the camera's lens)", None),
+    "lamp": Key(_text_or_none, TEXT + " (the light source)", None),
 }
 
 
 def validate_lab_section(section, source, keypath: str = "lab") -> dict:
     """The rig file's ``lab`` mapping checked, absent keys None (ConfigError on the first problem)."""
-    table = {key: (check, expected, None) for key, (check, expected, _default) in LAB_KEYS.items()}
-    return check_section(section, table, source, keypath, optional=frozenset(LAB_KEYS))
+    return check_section(section, LAB_KEYS, source, keypath)
 
 
 def check_text(value, source, keypath: str) -> str | None:

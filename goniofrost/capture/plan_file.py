@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.core.config_check import read_json_file
+from goniofrost.core.config_check import Key, check_section, is_int, is_number, read_json_file
 from goniofrost.core.errors import ConfigError
 from goniofrost.frost.model import FrostModel
 from goniofrost.frost.selection import Selection
@@ -75,36 +75,39 @@ def write_plan(path, doc: dict) -> None:
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
+def _vector(v) -> bool:
+    return isinstance(v, list) and len(v) == 3 and all(is_number(x) for x in v)
+
+
+# PLAN.json's key tables (goniofrost.core.config_check): the keys read here are checked; the keys
+# other layers add (the planner's joint targets and times, the selector's diagnostics) pass through.
+_MODEL_KEYS = {"path": Key(lambda v: isinstance(v, str), "a text"), "hash": Key(lambda v: isinstance(v, str), "a text")}
+_SAMPLE_KEYS = {
+    "cell": Key(lambda v: isinstance(v, list) and len(v) == 3 and all(is_int(x) for x in v),
+                "[i_th, i_td, i_pd] integers"),
+    **{key: Key(is_number, "a number (degrees)") for key in SAMPLE_FIELDS[1:6]},
+    "w_i": Key(_vector, "[x, y, z] numbers"),
+    "w_o": Key(_vector, "[x, y, z] numbers"),
+}
+_TOP_KEYS = {
+    "model": Key(lambda v: isinstance(v, dict), '{"path": str, "hash": str}',
+                 nested=lambda v, source, kp: check_section(v, _MODEL_KEYS, source, kp, open_keys=True)),
+    "m": Key(lambda v: is_int(v) and v >= 1, "an integer >= 1"),
+    "selection_seconds": Key(is_number, "a number (seconds)"),
+    "samples": Key(lambda v: isinstance(v, list), "a list of samples",
+                   nested=lambda v, source, kp: [check_section(item, _SAMPLE_KEYS, source, f"{kp}[{i}]",
+                                                               open_keys=True) for i, item in enumerate(v)]),
+}
+assert tuple(_TOP_KEYS) == TOP_FIELDS and tuple(_SAMPLE_KEYS) == SAMPLE_FIELDS
+
+
 def read_plan(path) -> dict:
     """Read and validate PLAN.json; raise ConfigError naming the field on bad content."""
     path = Path(path)
     doc = read_json_file(path, "an existing PLAN.json file")
     if not isinstance(doc, dict):
         raise ConfigError(path, "", "a JSON object", type(doc).__name__)
-    for key in TOP_FIELDS:
-        if key not in doc:
-            raise ConfigError(path, key, "a field", "nothing")
-    model = doc["model"]
-    if not isinstance(model, dict) or not isinstance(model.get("path"), str) or not isinstance(model.get("hash"), str):
-        raise ConfigError(path, "model", '{"path": str, "hash": str}', model)
-    samples = doc["samples"]
-    if not isinstance(samples, list) or len(samples) != doc["m"]:
-        raise ConfigError(path, "samples", f"a list of m={doc['m']} samples", samples if not isinstance(samples, list) else f"{len(samples)} samples")
-    for i, sample in enumerate(samples):
-        _check_sample(path, i, sample)
+    doc = check_section(doc, _TOP_KEYS, path, "", open_keys=True)
+    if len(doc["samples"]) != doc["m"]:
+        raise ConfigError(path, "samples", f"a list of m={doc['m']} samples", f"{len(doc['samples'])} samples")
     return doc
-
-
-def _check_sample(path, i: int, sample) -> None:
-    if not isinstance(sample, dict):
-        raise ConfigError(path, f"samples[{i}]", "an object", sample)
-    for key in SAMPLE_FIELDS:
-        if key not in sample:
-            raise ConfigError(path, f"samples[{i}].{key}", "a field", "nothing")
-    cell = sample["cell"]
-    if not (isinstance(cell, list) and len(cell) == 3 and all(isinstance(v, int) for v in cell)):
-        raise ConfigError(path, f"samples[{i}].cell", "[i_th, i_td, i_pd] integers", cell)
-    for key in ("w_i", "w_o"):
-        vec = sample[key]
-        if not (isinstance(vec, list) and len(vec) == 3 and all(isinstance(v, (int, float)) for v in vec)):
-            raise ConfigError(path, f"samples[{i}].{key}", "[x, y, z] numbers", vec)

@@ -20,7 +20,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from goniofrost.core.config_check import check_section, is_number
+from goniofrost.core.config_check import Key, check_section, is_number
 from goniofrost.core.errors import ConfigError
 
 DEFAULT_DRIFT_LIMIT = 0.05  # 5 %: the white scale moved more than the flat field's own uncertainty allows
@@ -36,24 +36,24 @@ def _optional_text(value) -> bool:
 
 
 QUEUE_KEYS = {
-    "rig": (_text, "the rig file (a path relative to the queue file)", None),
-    "plan": (_text, "the plan file from goniofrost plan --rig (relative to the queue file)", None),
-    "root": (_text, "the folder of the sessions (relative to the queue file)", None),
-    "operator": (_optional_text, "a one-line text (who measures)", None),
-    "alignment": (_optional_text, "an ALIGNMENT.json (relative to the queue file)", None),
-    "drift_limit": (lambda v: is_number(v) and 0 < v < 1,
-                    "the white scale's relative change beyond which everything is calibrated again, in (0, 1)",
-                    DEFAULT_DRIFT_LIMIT),
-    "samples": (lambda v: isinstance(v, list) and len(v) > 0, "a list of samples ({sample_id: ID, ...})", None),
+    "rig": Key(_text, "the rig file (a path relative to the queue file)"),
+    "plan": Key(_text, "the plan file from goniofrost plan --rig (relative to the queue file)"),
+    "root": Key(_text, "the folder of the sessions (relative to the queue file)"),
+    "operator": Key(_optional_text, "a one-line text (who measures)", None),
+    "alignment": Key(_optional_text, "an ALIGNMENT.json (relative to the queue file)", None),
+    "drift_limit": Key(lambda v: is_number(v) and 0 < v < 1,
+                       "the white scale's relative change beyond which everything is calibrated again, in (0, 1)",
+                       DEFAULT_DRIFT_LIMIT),
+    "samples": Key(lambda v: isinstance(v, list) and len(v) > 0, "a list of samples ({sample_id: ID, ...})"),
 }
 SAMPLE_KEYS = {
-    "sample_id": (lambda v: isinstance(v, str) and SAMPLE_ID.fullmatch(v) is not None,
-                  "a sample id of letters, digits, '.', '_', '-' (it names the session folder)", None),
-    "material": (_optional_text, "SPEC:NAME of the material the simulated rig shows", None),
-    "operator": (_optional_text, "a one-line text (who measures this sample)", None),
-    "note": (_optional_text, "a one-line note", None),
-    "notes": (lambda v: v is None or (isinstance(v, list) and all(_text(n) for n in v)), "a list of one-line notes",
-              None),
+    "sample_id": Key(lambda v: isinstance(v, str) and SAMPLE_ID.fullmatch(v) is not None,
+                     "a sample id of letters, digits, '.', '_', '-' (it names the session folder)"),
+    "material": Key(_optional_text, "SPEC:NAME of the material the simulated rig shows", None),
+    "operator": Key(_optional_text, "a one-line text (who measures this sample)", None),
+    "note": Key(_optional_text, "a one-line note", None),
+    "notes": Key(lambda v: v is None or (isinstance(v, list) and all(_text(n) for n in v)),
+                 "a list of one-line notes", None),
 }
 
 
@@ -89,12 +89,11 @@ def read_queue(path) -> Queue:
     from planner.schema import read_yaml
 
     path = Path(path).resolve()
-    top = check_section(read_yaml(path), QUEUE_KEYS, path, "queue",
-                        optional=frozenset({"operator", "alignment"}))
+    top = check_section(read_yaml(path), QUEUE_KEYS, path, "")
     samples, seen = [], set()
     for i, raw in enumerate(top["samples"]):
         keypath = f"samples[{i}]"
-        s = check_section(raw, SAMPLE_KEYS, path, keypath, optional=frozenset(SAMPLE_KEYS) - {"sample_id"})
+        s = check_section(raw, SAMPLE_KEYS, path, keypath)
         if s["sample_id"] in seen:
             raise ConfigError(path, f"{keypath}.sample_id", "a sample id not used before in the queue", s["sample_id"])
         seen.add(s["sample_id"])

@@ -78,7 +78,7 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
     summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any)."""
     from goniofrost.capture.engine import SessionStats
-    from goniofrost.frost.reconstruction import write_bayes_outputs
+    from goniofrost.frost.outputs import write_bayes_outputs
 
     records = journal.samples()
     session_dir = Path(session_dir)

@@ -17,7 +17,7 @@ from typing import Callable, Mapping
 
 import dataclasses
 
-from planner.alignment import load_alignment
+from planner.alignment_file import load_alignment
 from planner.rig import Rig
 from planner.rig import load_rig as _load_rig
 from planner.view import Measurability

@@ -25,7 +25,7 @@ import numpy as np
 
 from goniofrost.core.cache import atomic_replace, cache_path, content_key
 from goniofrost.core.grid import FULL_GRID, MerlGrid
-from goniofrost.datasets import open_dataset
+from goniofrost.datasets.specs import open_dataset
 from goniofrost.datasets.base import Dataset, DatasetError, UnknownMaterialError
 
 # Bump when the tabulation itself changes (cells, dtype, clamping): invalidates every entry.

@@ -3,7 +3,9 @@
 Two estimators. ``reconstruct_bayes`` (the default of ``goniofrost reconstruct``) is the
 posterior mean over all K atoms with the model's noise (``posterior.py``; DESIGN.md "The
 Bayesian view"), with a predictive standard deviation for every cell and a predicted error of
-this reconstruction (``prediction.py``). ``reconstruct`` is the paper's ridge regression:
+this reconstruction (``prediction.py``). ``reconstruct`` is the paper's ridge regression. The
+samples come from ``samples_file`` (SAMPLES.csv); the output files are written by ``outputs``.
+Ridge:
 
 Paper section IV-B (DESIGN.md "Reconstruction"). Samples b (RGB, 1/sr) at l distinct valid
 cells are mapped with the model's w, r, eps and mu is subtracted; with D_a the first a atoms
@@ -17,21 +19,15 @@ with fewer the ridge term keeps the problem well posed even if a > l is forced.
 """
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
-from goniofrost.core.grid import MerlGrid
 from goniofrost.frost.model import FrostModel
 
 ETA = 40.0
-CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b")
-# Optional SAMPLES.csv columns: each sample's standard deviation in 1/sr (samples.csv of a session).
-SIGMA_COLUMNS = ("sigma_r", "sigma_g", "sigma_b")
 
 
 class ReconstructionError(GoniofrostError, ValueError):
@@ -145,51 +141,6 @@ def _posterior(model: FrostModel, positions, values, sigmas):
     return unique, noise, cell_noise, post, (predicted + max(design - clean, 0.0), design, z2, energy)
 
 
-def bayes_output_paths(out) -> tuple[Path, Path]:
-    """(OUT.std.binary, OUT.json) beside OUT (OUT's ``.binary`` suffix replaced, if it has one)."""
-    out = Path(out)
-    stem = out.with_suffix("") if out.suffix == ".binary" else out
-    return stem.with_name(stem.name + ".std.binary"), stem.with_name(stem.name + ".json")
-
-
-def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, samples_source=None) -> tuple[Path, Path]:
-    """Write OUT (the BRDF), OUT.std.binary (the predictive std, MERL layout) and OUT.json.
-
-    See ``goniofrost/app/commands/reconstruct.py`` for the std file's format. Returns the paths
-    of the two side files. Nothing is written if any value is not finite.
-    """
-    import json
-
-    from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.core.atomic_file import write_text_atomic
-
-    std_path, record_path = bayes_output_paths(out)
-    if rec.std is None or not np.all(np.isfinite(rec.std)):
-        raise ReconstructionError(f"{std_path}: the predictive standard deviation is missing or not finite")
-    record = reconstruction_record(model, rec, samples_source, Path(out).name, std_path.name)
-    text = json.dumps(record, indent=1, allow_nan=False)
-    write_merl(out, valid_to_full(rec.brdf, model.grid), model.grid)
-    write_merl(std_path, valid_to_full(rec.std, model.grid), model.grid)
-    write_text_atomic(record_path, text + "\n")
-    return std_path, record_path
-
-
-def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_source, brdf_name: str,
-                          std_name: str) -> dict:
-    """The OUT.json content: what was reconstructed, how, and its predicted error."""
-    return {
-        "brdf": brdf_name, "std": std_name,
-        "std_meaning": "predictive standard deviation of ln(w x + eps) per cell and channel (MERL layout; "
-                       "read it with any MERL reader that applies the channel scales)",
-        "estimator": "bayes posterior mean, all atoms",
-        "model": {"hash": model.content_hash, "noise": model.noise.get("kind", "scalar")},
-        "samples_file": None if samples_source is None else str(samples_source),
-        "cells": rec.samples, "predicted_log_relative_mse": rec.predicted_error,
-        "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy},
-        "interval_90": "((w x + eps) * exp(+-1.645 std) - eps) / w",
-    }
-
-
 def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:
     """D s_hat + mu over every valid cell: float64 (n_valid, c)."""
     with threadpool_limits(limits=1, user_api="blas"):
@@ -208,7 +159,7 @@ def _average_with_sigmas(model, positions, values, sigmas):
     sigmas = np.asarray(sigmas, dtype=np.float64)
     if sigmas.shape != values.shape:
         raise ReconstructionError(f"sigmas: expected shape {values.shape} like the values, found {sigmas.shape}")
-    _check_values(sigmas, lambda i: f"sample {i} standard deviation")
+    check_values(sigmas, lambda i: f"sample {i} standard deviation")
     _, var_sum = average_duplicates(positions, sigmas ** 2)
     counts = np.bincount(np.searchsorted(unique, positions), minlength=unique.size)[:, None]
     sigma_mean = np.sqrt(var_sum / counts)
@@ -268,11 +219,11 @@ def _check_samples(model: FrostModel, positions, values):
     bad = (positions < 0) | (positions >= model.grid.n_valid)
     if bad.any():
         raise ReconstructionError(f"samples: position {int(positions[bad][0])} is not a valid cell (expected 0..{model.grid.n_valid - 1})")
-    _check_values(values, lambda i: f"sample {i}")
+    check_values(values, lambda i: f"sample {i}")
     return positions.astype(np.int64), values
 
 
-def _check_values(values: np.ndarray, where) -> None:
+def check_values(values: np.ndarray, where) -> None:
     """Refuse NaN, inf and negative BRDF values, naming the first offending sample."""
     for test, what in ((np.isnan, "NaN"), (np.isinf, "infinite"), (lambda v: v < 0, "negative")):
         bad = np.argwhere(test(values))
@@ -280,85 +231,3 @@ def _check_values(values: np.ndarray, where) -> None:
             i, c = bad[0]
             raise ReconstructionError(
                 f"{where(i)}: {what} value {values[i, c]} in channel {'rgb'[c]}; expected a finite BRDF >= 0 (1/sr)")
-
-
-# ----- SAMPLES.csv ---------------------------------------------------------------------
-def sample_sigmas(path, extra: dict) -> np.ndarray | None:
-    """The samples' standard deviations (l, 3) in 1/sr from the sigma_r,sigma_g,sigma_b columns of
-    ``read_samples_csv``'s extra columns, or None without them. All three or none; each a
-    finite number >= 0 (the error names the file, the row and the column)."""
-    present = [c for c in SIGMA_COLUMNS if c in extra]
-    if not present:
-        return None
-    if len(present) != len(SIGMA_COLUMNS):
-        raise ReconstructionError(f"{path}: columns {present} without {[c for c in SIGMA_COLUMNS if c not in present]}; "
-                                  f"expected all of {','.join(SIGMA_COLUMNS)} or none")
-    out = np.empty((len(extra[present[0]]), 3))
-    for j, name in enumerate(SIGMA_COLUMNS):
-        for i, text in enumerate(extra[name]):
-            try:
-                out[i, j] = float(text)
-            except ValueError:
-                raise ReconstructionError(f"{path}: data row {i + 1}: column {name}: expected a number, found {text!r}") from None
-    _check_values(out, lambda i: f"{path}: data row {i + 1} sigma")
-    return out
-
-
-
-def read_samples_csv(path, grid: MerlGrid):
-    """Read SAMPLES.csv (header theta_h_deg,theta_d_deg,phi_d_deg,r,g,b; extra columns allowed).
-
-    Returns (cells int64 (l,) flat indices, values float64 (l, 3) in 1/sr, extra: dict of
-    column name -> list of strings). Raises ReconstructionError naming the file, line and column
-    for an empty file, a missing column, a non-number, NaN/inf/negative values or a cell that is
-    not valid on the grid.
-    """
-    path = Path(path)
-    header, rows = _read_csv_rows(path)
-    index = {name: header.index(name) for name in CSV_COLUMNS}
-    numbers = np.array([[_number(path, line, row, name, index[name]) for name in CSV_COLUMNS]
-                        for line, row in rows], dtype=np.float64)
-    lines = [line for line, _ in rows]
-    _check_values(numbers[:, 3:], lambda i: f"{path}: line {lines[i]}")
-    angles = numbers[:, :3]
-    if not np.isfinite(angles).all():
-        i = int(np.argwhere(~np.isfinite(angles))[0][0])
-        raise ReconstructionError(f"{path}: line {lines[i]}: angles must be finite numbers of degrees")
-    cells = grid.angles_to_flat(*np.radians(angles).T)
-    invalid = grid.valid_position(cells) < 0
-    if invalid.any():
-        i = int(np.flatnonzero(invalid)[0])
-        raise ReconstructionError(
-            f"{path}: line {lines[i]}: angles {tuple(angles[i])} fall in cell "
-            f"{tuple(int(v) for v in grid.unravel(cells[i]))}, which is not a valid cell (light or view below the surface)")
-    extra = {name: [row[col] for _, row in rows] for col, name in enumerate(header) if name not in CSV_COLUMNS}
-    return cells.astype(np.int64), numbers[:, 3:], extra
-
-
-def _read_csv_rows(path: Path):
-    try:
-        with path.open(newline="") as handle:
-            table = [(i + 1, row) for i, row in enumerate(csv.reader(handle)) if any(c.strip() for c in row)]
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise ReconstructionError(f"{path}: cannot read samples CSV ({exc})") from exc
-    if not table:
-        raise ReconstructionError(f"{path}: empty file; expected the header {','.join(CSV_COLUMNS)} and one row per sample")
-    header = [c.strip() for c in table[0][1]]
-    missing = [c for c in CSV_COLUMNS if c not in header]
-    if missing:
-        raise ReconstructionError(f"{path}: missing column(s) {missing}; expected header {','.join(CSV_COLUMNS)} (extra columns allowed), found {header}")
-    rows = table[1:]
-    if not rows:
-        raise ReconstructionError(f"{path}: no samples after the header")
-    for line, row in rows:
-        if len(row) != len(header):
-            raise ReconstructionError(f"{path}: line {line}: {len(row)} fields, expected {len(header)} as in the header")
-    return header, rows
-
-
-def _number(path, line, row, name, col) -> float:
-    text = row[col].strip()
-    try:
-        return float(text)
-    except ValueError:
-        raise ReconstructionError(f"{path}: line {line}: column {name}: expected a number, found {text!r}") from None

@@ -37,7 +37,8 @@ def run(args) -> int:
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
-    from goniofrost.frost.reconstruction import ETA, read_samples_csv, reconstruct, sample_sigmas
+    from goniofrost.frost.reconstruction import ETA, reconstruct
+    from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
 
     model = FrostModel.load(args.model)
     cells, values, extra = read_samples_csv(args.samples, model.grid)
@@ -49,7 +50,8 @@ def run(args) -> int:
         return 0
     if args.eta is not None or args.atoms is not None:
         raise GoniofrostError("--eta and --atoms apply to --estimator ridge only")
-    from goniofrost.frost.reconstruction import reconstruct_bayes, write_bayes_outputs
+    from goniofrost.frost.outputs import write_bayes_outputs
+    from goniofrost.frost.reconstruction import reconstruct_bayes
 
     rec = reconstruct_bayes(model, positions, values, sigmas=sample_sigmas(args.samples, extra))
     std_path, record_path = write_bayes_outputs(args.out, model, rec, args.samples)

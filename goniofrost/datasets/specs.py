@@ -1,0 +1,55 @@
+"""Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``),
+``parse_material_spec(SPEC:NAME)`` and ``material_brdf(SPEC:NAME)`` (a BRDF function for the
+simulated camera). The package ``goniofrost.datasets`` re-exports them.
+"""
+from __future__ import annotations
+
+import difflib
+
+from goniofrost.datasets.base import Dataset, DatasetError
+
+
+def open_dataset(spec: str) -> Dataset:
+    """Open the dataset named by SPEC; raise DatasetError for an unknown or unreadable spec."""
+    if spec == "builtin":
+        from goniofrost.datasets.builtin import BuiltinDataset
+        return BuiltinDataset()
+    kind, sep, arg = spec.partition(":")
+    if sep and kind == "nbrdf" and arg:
+        from goniofrost.datasets.nbrdf import NbrdfDataset
+        return NbrdfDataset(arg)
+    if sep and kind == "merl" and arg:
+        from goniofrost.datasets.merl_dir import MerlDirDataset
+        return MerlDirDataset(arg)
+    close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl"], n=1, cutoff=0.5)
+    hint = f"; did you mean {close[0] if close[0] == 'builtin' else close[0] + ':' + (arg or 'PATH')}?" if close else ""
+    raise DatasetError(
+        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz' or 'merl:DIR'{hint}"
+    )
+
+
+def parse_material_spec(text: str) -> tuple[Dataset, str]:
+    """Split ``SPEC:NAME`` (e.g. ``builtin:gold``, ``nbrdf:data/x.npz:chrome``) into an open
+    dataset and a resolved material name."""
+    spec, sep, name = text.rpartition(":")
+    if not sep or not spec or not name:
+        raise DatasetError(f"material {text!r}: expected SPEC:NAME, e.g. builtin:red-plastic")
+    dataset = open_dataset(spec)
+    return dataset, dataset.resolve(name)
+
+
+def material_brdf(text: str):
+    """``(name, brdf)`` of ``SPEC:NAME``: the resolved ``SPEC:NAME`` and a function
+    ``brdf(w_i, w_o) -> (3,) float64`` RGB in 1/sr of unit directions (3,) in the sample frame
+    (what ``sim.camera.SimCamera`` renders)."""
+    import numpy as np
+
+    from goniofrost.core.grid import dirs_to_half_diff
+
+    dataset, name = parse_material_spec(text)
+
+    def brdf(w_i, w_o):
+        th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
+        return np.asarray(dataset.evaluate(name, th, td, pd), dtype=np.float64)
+
+    return f"{dataset.spec}:{name}", brdf

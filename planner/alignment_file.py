@@ -1,0 +1,54 @@
+"""ALIGNMENT.json: the record of the rig's alignment, each axis's zero offset as ``goniofrost align``
+measured it (the fit itself is ``planner.alignment``).
+
+ALIGNMENT.json holds at least ``"offsets_deg": {AXIS_NAME: degrees, ...}`` for every axis of the
+rig: an axis whose reading is q stands physically at q + offset (so on a simulated rig built wrong
+on purpose, the offsets equal the injected ``sim.misalignment_deg``). The kinematics
+(``planner.kinematics``) add the offsets to the readings and take them off the targets. A plan
+records the alignment it was scheduled with (``record()``), and a capture refuses another one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+from goniofrost.core.cache import content_key
+from goniofrost.core.config_check import Key, check_section, is_mapping, is_number, read_json_file
+
+# An offset this large is not a zero error but a wrong axis, a wrong sign or a wrong file.
+MAX_OFFSET_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """Zero offsets by axis name (degrees), where they came from, and their content hash."""
+
+    offsets_deg: dict
+    source: str
+    hash: str
+
+    def record(self) -> dict:
+        """What a plan stores about its alignment (and what a capture compares)."""
+        return {"file": self.source, "hash": self.hash, "offsets_deg": dict(self.offsets_deg)}
+
+
+def alignment_hash(offsets_deg: Mapping[str, float]) -> str:
+    """16 hex digits of the offsets' canonical form (the same offsets: the same alignment)."""
+    return content_key("alignment-v1", {k: float(v) for k, v in sorted(offsets_deg.items())})[:16]
+
+
+def load_alignment(path, axis_names) -> Alignment:
+    """Read ALIGNMENT.json; ConfigError (file, key, expected, found) unless it holds a finite offset
+    within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other (other top-level keys,
+    such as the fit's diagnostics, are kept by the file and not read)."""
+    path = Path(path)
+    doc = read_json_file(path, "an ALIGNMENT.json file (goniofrost align --out FILE)")
+    offset = Key(lambda v: is_number(v) and abs(v) <= MAX_OFFSET_DEG,
+                 f"a zero offset in degrees within +-{MAX_OFFSET_DEG:g}")
+    table = {"offsets_deg": Key(is_mapping, "a mapping {axis name: degrees}",
+                                nested=lambda v, source, kp: check_section(v, {n: offset for n in axis_names},
+                                                                           source, kp))}
+    offsets = check_section(doc, table, path, "", open_keys=True)["offsets_deg"]
+    out = {name: float(value) for name, value in offsets.items()}
+    return Alignment(out, str(path), alignment_hash(out))
