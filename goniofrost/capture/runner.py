@@ -53,9 +53,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.report import summary_text, write_outputs
-    from goniofrost.capture.session_lock import session_lock
-
     from goniofrost.capture.lab import session_label
+    from goniofrost.capture.session_lock import session_lock
 
     inputs = inputs or load_inputs(rig_path, plan_path, alignment)
     material = check_material(inputs.rig, material)
