@@ -76,6 +76,7 @@ def raw_clients(endpoints: dict, repeats: int) -> dict[str, float]:
 def rtu_round_trips(repeats: int) -> dict[str, float]:
     from drivers.axis import AxisConfig
     from drivers.modbus_drive import ModbusAxis
+    from drivers.rig_devices import open_transport
     from pymodbus.client import ModbusSerialClient
     from pymodbus.framer import FramerType
 
@@ -87,9 +88,8 @@ def rtu_round_trips(repeats: int) -> dict[str, float]:
         client.connect()
         raw = median_ms(lambda: client.read_holding_registers(0x0120, count=2, device_id=1), repeats)
         client.close()
-        axis = ModbusAxis(AxisConfig("rtu", (0.0, 180.0), 30.0, 60.0), serial_port=entry["endpoint"],
-                          parity="N")
-        axis.connect()
+        axis = ModbusAxis(AxisConfig("rtu", (0.0, 180.0), 30.0, 60.0), rtu=True)
+        axis.connect(open_transport("rtu", {"protocol": "modbus-rtu", "port": entry["endpoint"], "parity": "N"}))
         drv = median_ms(axis.position, repeats)
         axis.close()
     finally:

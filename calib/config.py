@@ -41,6 +41,10 @@ _CAMERA_KEYS = {
     "folder": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
     "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
                         "a command containing {exposure_s}", None),
+    # command that puts a target in front of the lens ({target}: sample, white or flat), for a motorised
+    # target changer (or the simulated camera of `goniofrost sim --write-rig`); without it the operator is asked
+    "target_command": Key(lambda v: v is None or (isinstance(v, str) and "{target}" in v),
+                          "a command containing {target}", None),
     "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
     "operator_timeout_s": Key(lambda v: _num(v) and v > 0,
                            "a number > 0 (seconds the operator has to answer a prompt)", 600.0),

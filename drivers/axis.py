@@ -4,10 +4,17 @@ A driver subclasses ``Axis`` and supplies only protocol hooks (``_connect``, ``_
 ``_command_move``, ``_read_position``, ``_read_moving``, ``_command_home``, ``_command_stop``,
 ``_set_enabled``, ``_read_fault``, ``_apply_motion_profile``), all in degrees and deg/s. The base
 class checks limits, computes the move timeout from distance, speed and acceleration, waits,
-checks arrival within the tolerance, retries transient communication errors a bounded number of
-times and, on ANY error during a move, commands the axis to stop before re-raising.
+checks arrival within the tolerance and, on ANY error during a move, commands the axis to stop
+before re-raising.
 
-Connecting is an explicit step: the constructor only stores the configuration.
+Retries where they are safe: a hook that only reads, or whose repetition changes nothing (stop,
+enable, the motion profile), is repeated up to ``config.retries`` times after a reply timeout or
+a damaged reply, each retry logged (INFO, into the session's device log). A move command is never
+blindly repeated: when its reply is lost, ``_move_taken`` reads back whether the device took it
+(its set-point, or motion, or arrival); only a move the device shows it never took is sent again.
+
+Connecting is an explicit step, on a connection the rig layer opened (``connect(transport)``,
+``drivers.transport``): the constructor only stores the configuration.
 """
 from __future__ import annotations
 
@@ -45,8 +52,8 @@ def trapezoid_time(distance: float, speed: float, accel: float) -> float:
 class AxisConfig:
     """What every axis needs besides its driver section (angles in degrees, speeds in deg/s).
 
-    ``retries``: extra attempts after a transient communication error (timeout, checksum, malformed
-    reply). ``stall_s``: real seconds the position may stay frozen while the device reports motion
+    ``retries``: extra attempts of an idempotent read (or a repeatable write) after a reply timeout
+    or a damaged reply (from the driver section). ``stall_s``: real seconds the position may stay frozen while the device reports motion
     before the move is declared stalled.
     """
 
@@ -127,18 +134,21 @@ class Axis(ABC):
         self._enabled = False
 
     # ----- public contract -------------------------------------------------------------------
-    def connect(self) -> None:
-        """Open the connection, then load the speed and acceleration of the configuration.
+    def connect(self, transport) -> None:
+        """Take ``transport`` (a ``drivers.transport.ByteTransport`` the rig layer opened; the axis
+        owns it from now on and closes it), check the device answers, then load the speed and
+        acceleration of the configuration. On failure the transport is closed and the error re-raised.
 
-        ``_connect`` is retried like any hook on a transient error, so it must release what it
-        opened before raising.
+        The handshake (``_connect``) only reads and sets, so it is retried like a read.
         """
-        self._call(self._connect)
-        self._connected = True
+        self._attach(transport)
         try:
+            self._call(self._connect)
+            self._connected = True
             self._call(self._apply_motion_profile, self.config.speed_deg_s, self.config.accel_deg_s2)
         except BaseException:
-            self.close()
+            self._connected = False
+            self._close()
             raise
 
     def close(self) -> None:
@@ -146,6 +156,12 @@ class Axis(ABC):
         if self._connected:
             self._connected = False
             self._close()
+
+    def identity(self) -> dict:
+        """What the device says it is (model, firmware, serial number, ... as its protocol gives;
+        read-only: nothing is enabled or moved). Keys are the driver's; ``protocol`` always."""
+        self._require_connected("read identity")
+        return self._call(self._read_identity)
 
     @property
     def connected(self) -> bool:
@@ -162,7 +178,7 @@ class Axis(ABC):
         self._check_limits(start, deg)
         if abs(deg - start) <= self.config.tolerance_deg:
             return MoveStatus(self, start, deg, 0.0, done=True)
-        return self._start(start, deg, lambda: self._command_move(deg))
+        return self._start(start, deg)
 
     def home(self) -> MoveStatus:
         """Run the device's homing (or move to ``home_deg``); wait on the result like a move."""
@@ -172,7 +188,12 @@ class Axis(ABC):
         except DeviceError:
             start = float("nan")  # some devices cannot report a position before homing
         lo, hi = self.config.limits_deg
-        return self._start(start, self.config.home_deg, self._command_home, distance=hi - lo)
+        try:  # a home search is not repeated: a lost reply fails the home (nothing to read back)
+            self._command_home()
+        except BaseException:
+            self._stop_after_error(f"home to {self.config.home_deg:g} {self.units}")
+            raise
+        return MoveStatus(self, start, self.config.home_deg, self.move_timeout_s(hi - lo))
 
     def position(self) -> float:
         """Present position in degrees."""
@@ -241,16 +262,35 @@ class Axis(ABC):
         if not (lo <= target <= hi) or math.isnan(target):
             raise AxisLimitError(self.name, start, target, (lo, hi), self.units)
 
-    def _start(self, start: float, target: float, command: Callable[[], object],
-               distance: float | None = None) -> MoveStatus:
-        """Send the move command (retrying transient errors); on failure stop and re-raise."""
+    def _start(self, start: float, target: float) -> MoveStatus:
+        """Send the move command; on failure stop and re-raise."""
         try:
-            self._call(command)
+            self._send_move(target)
         except BaseException:
             self._stop_after_error(f"move to {target:g} {self.units}")
             raise
-        dist = abs(target - start) if distance is None else distance
-        return MoveStatus(self, start, target, self.move_timeout_s(dist))
+        return MoveStatus(self, start, target, self.move_timeout_s(abs(target - start)))
+
+    def _send_move(self, target: float) -> None:
+        """The move command, never blindly repeated: after a lost or damaged reply the device is
+        asked whether it took the move (``_move_taken``, reads retried); a move it took is not
+        sent again, one it shows it never took is sent again (up to ``config.retries`` times)."""
+        for attempt in range(self.config.retries + 1):
+            try:
+                self._command_move(target)
+                return
+            except TRANSIENT_ERRORS as exc:
+                if not getattr(exc, "transient", True):
+                    raise
+                taken = self._call(self._move_taken, target)
+                log.info("%s: reply to the move to %g %s lost (%s); read back: %s", self.name, target,
+                         self.units, exc, "the device took it" if taken else "not taken")
+                if taken:
+                    return
+                if attempt == self.config.retries:
+                    raise
+                log.info("%s: sending the move to %g %s again (attempt %d of %d)", self.name, target,
+                         self.units, attempt + 2, self.config.retries + 1)
 
     def _wait_until_stopped(self, status: MoveStatus, timeout_s: float) -> float:
         """Poll until the device stops; check for stalls, faults and arrival within tolerance."""
@@ -291,14 +331,17 @@ class Axis(ABC):
             log.warning("%s: stop after error in %s failed: %s", self.name, context, exc)
 
     def _call(self, hook: Callable, *args):
-        """Call a protocol hook, retrying transient errors up to ``config.retries`` more times."""
+        """Call a hook that is safe to repeat (a read, a stop, a set-point that repeats harmlessly),
+        retrying reply timeouts and damaged replies up to ``config.retries`` more times, each retry
+        logged (the device log of a session)."""
         for attempt in range(self.config.retries + 1):
             try:
                 return hook(*args)
             except TRANSIENT_ERRORS as exc:
                 if attempt == self.config.retries or not getattr(exc, "transient", True):
                     raise
-                log.info("%s: retry %d after %s", self.name, attempt + 1, exc)
+                log.info("%s: %s: retry %d of %d after %s", self.name, hook.__name__.lstrip("_"),
+                         attempt + 1, self.config.retries, exc)
 
     def _require_connected(self, command: str) -> None:
         if not self._connected:
@@ -310,12 +353,27 @@ class Axis(ABC):
 
     # ----- protocol hooks (degrees, deg/s, deg/s^2) -----------------------------------------
     @abstractmethod
+    def _attach(self, transport) -> None:
+        """Keep the connection the rig layer opened (nothing is sent yet)."""
+
+    @abstractmethod
     def _connect(self) -> None:
-        """Open the port/socket and check the device answers (e.g. ping, model number)."""
+        """Check the device answers on the attached transport (e.g. ping, model number)."""
 
     @abstractmethod
     def _close(self) -> None:
-        """Release the port/socket."""
+        """Close the transport (idempotent)."""
+
+    @abstractmethod
+    def _read_identity(self) -> dict:
+        """The device's identity as its protocol gives it (read-only)."""
+
+    def _move_taken(self, target: float) -> bool:
+        """After a lost reply to the move to ``target``: did the device take it? By default: it
+        reports motion, or stands at the target. Drivers that can read the set-point override."""
+        if self._read_moving():
+            return True
+        return abs(self._read_position() - target) <= self.config.tolerance_deg
 
     @abstractmethod
     def _command_move(self, deg: float) -> None:

@@ -29,7 +29,9 @@ SERIAL_PORT = Key(_text, 'a serial device path (e.g. /dev/ttyUSB0) or "sim"')
 TCP_PORT = Key(_int_in(0, 65535), "a TCP port 1-65535 (0: picked by the simulator)")
 BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1_000_000, 2_000_000,
          3_000_000, 4_000_000, 4_500_000)
-RETRIES = Key(_int_in(0, 10), "an integer 0-10 (extra attempts after a transient error)", OPTIONAL)
+RETRIES = Key(_int_in(0, 10), "an integer 0-10 (extra attempts of an idempotent read after a reply "
+              "timeout or a damaged reply; default 2)", OPTIONAL)
+REPLY_TIMEOUT = Key(_positive, "a positive reply timeout in ms", OPTIONAL)
 
 DYNAMIXEL = {
     "port": SERIAL_PORT,
@@ -38,7 +40,7 @@ DYNAMIXEL = {
     "model": Key(_text, 'an X-series model name such as "XM430-W350"', OPTIONAL),
     "counts_per_deg": Key(_positive, "a positive number of encoder counts per degree (4096/360 direct)"),
     "reboot_after_fault": Key(_bool, "true or false", OPTIONAL),
-    "reply_timeout_ms": Key(_positive, "a positive reply timeout in ms", OPTIONAL),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 100 ms (the SDK's own: bytes x byte time + 34 ms)
     "retries": RETRIES,
 }
 MODBUS_COMMON = {
@@ -46,6 +48,7 @@ MODBUS_COMMON = {
     "steps_per_deg": Key(_positive, "a positive number of drive steps per degree"),
     "word_order": Key(_one_of("big", "little"), '"big" (high word first) or "little"', OPTIONAL),
     "register_map": Key(_map_name_or_mapping, "a register map name (e.g. oriental-az) or a mapping", OPTIONAL),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 300 ms
     "retries": RETRIES,
 }
 MODBUS_TCP = {"host": Key(_text, "a host name or address (127.0.0.1 for the simulator)"),
@@ -58,6 +61,7 @@ SMC100 = {
     "address": Key(_int_in(1, 31), "a controller address 1-31", OPTIONAL),
     "baud": Key(_one_of(*BAUDS), "a baud rate (57600 on the SMC100)", OPTIONAL),
     "units_per_deg": Key(_positive, "a positive number of controller units per degree", OPTIONAL),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # default 200 ms (the manual: about 10 ms for TP)
     "retries": RETRIES,
 }
 SCHEMAS: dict[str, dict[str, Key]] = {"dynamixel": DYNAMIXEL, "modbus-tcp": MODBUS_TCP,
@@ -69,6 +73,7 @@ LAMP_COMMON = {
     "coil": Key(_int_in(0, 65535), "a coil address 0-65535"),
     "photodiode_register": Key(_int_in(0, 65535), "an input register address 0-65535"),
     "full_scale": Key(_positive, "photodiode counts at nominal intensity (> 0)", OPTIONAL),
+    "reply_timeout_ms": REPLY_TIMEOUT,   # its own connection's; default 300 ms
 }
 LAMP_SCHEMAS: dict[str, dict[str, Key]] = {
     "modbus-tcp": {**LAMP_COMMON, "host": Key(_text, "a host name or address", OPTIONAL),

@@ -2,11 +2,12 @@
 
 Frames are built and parsed by ``drivers.dxl_protocol``, the module the simulated servo uses too
 (CRC-16, byte stuffing, the control table); dynamixel-sdk's ``PortHandler`` is the serial
-transport (port setup, baud table, reply timeout). The SDK's ``PacketHandler`` is not used: its
+transport (baud table, reply timeout), on the connection the rig layer opened: ``_Port`` adopts
+it in ``setupPort``, the one place where the SDK would open a serial port itself. The SDK's ``PacketHandler`` is not used: its
 ``txPacket`` drops the result of ``addStuffing`` (dynamixel-sdk 4.1.0), so a parameter holding
 FF FF FD would go out unstuffed.
 
-On ``connect()``: open the port at the configured baud, PING (the model number must be an X
+On ``connect(transport)``: check the baud against the SDK's table, PING (the model number must be an X
 series one, and the configured model if given), switch to extended position mode (EEPROM: torque
 off first) and load the profile velocity and acceleration. Every status packet is checked: the
 Alert bit leads to a read of Hardware Error Status (70) and a DeviceFault with readable causes
@@ -16,11 +17,9 @@ the reply timeout is a DeviceTimeout, part of one a ProtocolError, a bad CRC a C
 from __future__ import annotations
 
 import logging
-import select
 import time
 from collections.abc import Mapping
 
-import serial
 from dynamixel_sdk import PortHandler
 
 from .axis import Axis, AxisConfig
@@ -31,6 +30,7 @@ from .dxl_protocol import (ACCEL_UNIT_RPM2, ALERT_BIT, CONTROL_TABLE, MIN_STATUS
                            read_params, write_params)
 from .errors import (ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply,
                      ProtocolError)
+from .transport import PORT_ERRORS
 
 log = logging.getLogger(__name__)
 T = CONTROL_TABLE
@@ -44,36 +44,50 @@ MODEL_NUMBER = CONTROL_TABLE["model_number"]
 PING_REPLY_SIZE = 3  # a PING status carries model number L, H and the firmware version
 
 
-class _Port(PortHandler):
-    """dynamixel-sdk's PortHandler with a reply timeout that can be made longer than the SDK's
-    bytes x byte-time + 34 ms (for USB adapters with a long latency timer, or a loaded machine)."""
+POLL_TIMEOUT_S = 0.001  # the transport's read timeout: the SDK polls; waiting 1 ms frees the CPU
 
-    def __init__(self, path: str, min_timeout_ms: float) -> None:
+
+class _Port(PortHandler):
+    """dynamixel-sdk's PortHandler on a transport it did not open, with a reply timeout that can be
+    made longer than the SDK's bytes x byte-time + 34 ms (USB adapters with a long latency timer,
+    a loaded machine).
+
+    ``setupPort`` (the SDK opens ``serial.Serial`` there) adopts ``transport`` instead; the SDK's
+    time base is the transport's ``now_ms()`` when it has one (an in-memory transport's clock, so
+    that a scripted silence times out without waiting), else the SDK's wall clock.
+    """
+
+    def __init__(self, transport, path: str, min_timeout_ms: float) -> None:
         super().__init__(path)
+        self._transport = transport
         self.min_timeout_ms = float(min_timeout_ms)
+
+    def setupPort(self, cflag_baud):  # noqa: N802 - SDK name
+        transport = self._transport
+        transport.timeout = POLL_TIMEOUT_S
+        self.ser, self.is_open = transport, True
+        transport.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+    def getCurrentTime(self):  # noqa: N802 - SDK name
+        now_ms = getattr(self.ser, "now_ms", None)
+        return now_ms() if now_ms is not None else super().getCurrentTime()
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
         super().setPacketTimeout(packet_length)
         self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
 
-    def readPort(self, length):  # noqa: N802 - SDK name
-        # The SDK polls a timeout=0 port in a busy loop; waiting up to 1 ms for bytes between
-        # polls frees the CPU (and the GIL, for a simulated servo in the same process).
-        data = self.ser.read(length)
-        if not data:
-            select.select([self.ser.fileno()], [], [], 0.001)
-        return data
-
 
 class DynamixelAxis(Axis):
     """An X-series servo in extended position mode; angles in degrees, ``counts_per_deg`` counts/deg.
 
-    Driver section keys: ``port``, ``id``, ``baud``, ``model`` (e.g. "XM430-W350"; checked at
+    Driver section keys: ``port`` (opened by the rig layer), ``id``, ``baud``, ``model`` (e.g. "XM430-W350"; checked at
     connect), ``counts_per_deg`` (4096/360 for a direct drive), optional ``reboot_after_fault``
     (bool) and ``reply_timeout_ms`` (minimum reply timeout, default 100 ms).
     """
 
-    def __init__(self, config: AxisConfig, port: str, id: int = 1, baud: int = 57600,
+    def __init__(self, config: AxisConfig, port: str = "", id: int = 1, baud: int = 57600,
                  model: str | None = None, counts_per_deg: float = REV_COUNTS / 360.0,
                  reboot_after_fault: bool = False, reply_timeout_ms: float = DEFAULT_REPLY_TIMEOUT_MS) -> None:
         super().__init__(config)
@@ -82,6 +96,8 @@ class DynamixelAxis(Axis):
         self.reboot_after_fault = bool(reboot_after_fault)
         self.reply_timeout_ms = float(reply_timeout_ms)
         self.model_number: int | None = None
+        self.firmware_version: int | None = None
+        self._transport = None
         self._port: _Port | None = None
 
     @classmethod
@@ -100,7 +116,7 @@ class DynamixelAxis(Axis):
         request = build_instruction(self.dxl_id, instruction, params)
         try:
             frame, status = self._exchange(what, request, MIN_STATUS + reply_data)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceError(self.name, what, None, f"serial port {self.port_path} failed: {exc}") from exc
         code = status.error & ~ALERT_BIT
         if code:
@@ -175,26 +191,34 @@ class DynamixelAxis(Axis):
         self._apply_motion_profile(self.config.speed_deg_s, self.config.accel_deg_s2)
 
     # ----- Axis hooks ---------------------------------------------------------------------------
-    def _connect(self) -> None:
-        port = _Port(self.port_path, self.reply_timeout_ms)
-        try:
-            port.openPort()
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceError(self.name, f"open {self.port_path}", None, f"cannot open the port: {exc}") from exc
-        if not port.setBaudRate(self.baud):
-            port.closePort()
+    def _attach(self, transport) -> None:
+        self._transport = transport
+        port = _Port(transport, self.port_path, self.reply_timeout_ms)
+        if not port.setBaudRate(self.baud):  # the SDK's baud table; setupPort adopts the transport
             raise DeviceError(self.name, f"set baud {self.baud}", None, "baud rate not supported by the SDK")
         self._port = port
-        try:
-            self._check_model()
-            self._ensure_extended_mode()
-        except BaseException:
-            self._close()
-            raise
+
+    def _connect(self) -> None:
+        self._check_model()
+        self._ensure_extended_mode()
+
+    def _read_identity(self) -> dict:
+        """PING (model number, firmware version), then the control table's own copies (read-only)."""
+        self._check_model()
+        return {"protocol": "dynamixel", "id": self.dxl_id, "model_number": self.model_number,
+                "model": next((m for m, n in MODEL_NUMBERS.items() if n == self.model_number), None),
+                "firmware_version": self.firmware_version,
+                "model_number_register": self._read(T["model_number"], check_alert=False),
+                "firmware_register": self._read(T["firmware_version"], check_alert=False)}
+
+    def _move_taken(self, target: float) -> bool:
+        """Goal Position (116) holds the target once the servo took the write."""
+        return self._read(T["goal_position"], check_alert=False) == round(target * self.counts_per_deg)
 
     def _check_model(self) -> None:
         data = self._transact("PING", Instruction.PING, check_alert=False, reply_data=PING_REPLY_SIZE)
         self.model_number = decode_value(data[:MODEL_NUMBER.size], False)
+        self.firmware_version = data[MODEL_NUMBER.size] if len(data) > MODEL_NUMBER.size else None
         expected = MODEL_NUMBERS.get(self.model) if self.model else None
         ok = self.model_number == expected if expected else self.model_number in MODEL_NUMBERS.values()
         if not ok:
@@ -210,9 +234,10 @@ class DynamixelAxis(Axis):
             self._write(T["operating_mode"], OperatingMode.EXTENDED_POSITION)
 
     def _close(self) -> None:
-        if self._port is not None:
-            self._port.closePort()
-            self._port = None
+        self._port = None
+        if self._transport is not None:
+            transport, self._transport = self._transport, None
+            transport.close()
 
     def _command_move(self, deg: float) -> None:
         self._write(T["goal_position"], round(deg * self.counts_per_deg))

@@ -12,10 +12,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client.base import ModbusBaseSyncClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse
+from pymodbus.transport import CommParams, CommType
 
 from .axis import Axis, AxisConfig
 from .errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
@@ -23,46 +24,85 @@ from .modbus_map import (
     InputBit, OutputBit, RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
 )
 from .modbus_protocol import FrameError, check_rtu_frame, check_tcp_frame, describe_exception
+from .transport import PORT_ERRORS
 
 REPLY_TIMEOUT_S = 0.3
 
 
-class ModbusLink:
-    """One pymodbus client (TCP or RTU) whose calls raise the typed driver errors.
+class TransportClient(ModbusBaseSyncClient):
+    """pymodbus's synchronous client on a byte transport it did not open.
 
-    Shared by the motor axis and the lamp that sits on the same drive. ``name`` is used in
-    error messages (the axis or device name).
+    ``ModbusBaseSyncClient`` is pymodbus's own base of its serial and TCP clients: it owns the
+    framer (RTU with its CRC, or the MBAP "socket" framer), the transaction ids, the PDUs and every
+    request method (``read_holding_registers``, ``write_coil``, ...); a subclass supplies only
+    ``send`` and ``recv``. Here they go to ``transport`` (a pyserial port, a ``SocketTransport``, or
+    a test's in-memory transport): the rig layer opened it, and closing the client closes it.
     """
 
-    def __init__(self, name: str, device_id: int = 1, host: str | None = None, port=None,
-                 baud: int = 115200, parity: str = "E", timeout_s: float = REPLY_TIMEOUT_S) -> None:
-        self.name, self.device_id = name, int(device_id)
-        self.host, self.port, self.baud, self.parity = host, port, int(baud), parity
+    def __init__(self, transport, framer: FramerType, timeout_s: float, trace_packet=None) -> None:
+        params = CommParams(comm_type=CommType.SERIAL if framer == FramerType.RTU else CommType.TCP,
+                            comm_name="goniofrost", timeout_connect=float(timeout_s))
+        super().__init__(framer, 0, params, trace_packet, None, None)
+        transport.timeout = float(timeout_s)
+        self.transport = transport
+
+    def connect(self) -> bool:
+        return self.transport is not None
+
+    @property
+    def connected(self) -> bool:
+        return self.transport is not None
+
+    def close(self) -> None:
+        if self.transport is not None:
+            transport, self.transport = self.transport, None
+            transport.close()
+
+    def send(self, request: bytes, addr: tuple | None = None) -> int:
+        if self.transport is None:
+            raise ConnectionException("transport closed")
+        self.transport.reset_input_buffer()  # a late reply must not answer this request
+        self.transport.write(request)
+        return len(request)
+
+    def recv(self, size: int | None) -> bytes:
+        """What has arrived: waits up to the timeout for a first byte (b"" on silence: pymodbus
+        then calls it a timeout), then takes what is waiting; the framer asks again for the rest."""
+        if self.transport is None:
+            raise ConnectionException("transport closed")
+        data = self.transport.read(1 if size is None else size)
+        if data and size is None and self.transport.in_waiting:
+            data += self.transport.read(self.transport.in_waiting)
+        return data
+
+
+class ModbusLink:
+    """One pymodbus client (TCP or RTU framing) on a transport, whose calls raise the typed driver
+    errors. Shared by the motor axis and the lamp that sits on the same drive. ``name`` is used in
+    error messages (the axis or device name); ``where`` (port path or host:port) too.
+    """
+
+    def __init__(self, name: str, device_id: int = 1, rtu: bool = False,
+                 timeout_s: float = REPLY_TIMEOUT_S, where: str = "") -> None:
+        self.name, self.device_id, self.rtu, self.where = name, int(device_id), bool(rtu), where
         self.timeout_s = float(timeout_s)
-        self.rtu = host is None
-        self.client = None
+        self.client: TransportClient | None = None
         self._last_rx = b""
 
-    def open(self) -> None:
-        """Connect (TCP) or open the serial port (RTU); DeviceError when that fails. Idempotent."""
-        if self.client is not None:
-            return
-        if self.rtu:
-            self.client = ModbusSerialClient(str(self.port), framer=FramerType.RTU, baudrate=self.baud,
-                                             parity=self.parity, timeout=self.timeout_s, retries=0,
-                                             trace_packet=self._trace)
-        else:
-            self.client = ModbusTcpClient(self.host, port=int(self.port), timeout=self.timeout_s,
-                                          retries=0, trace_packet=self._trace)
-        if not self.client.connect():
-            where = self.port if self.rtu else f"{self.host}:{self.port}"
-            self.client = None
-            raise DeviceError(self.name, f"connect {where}", None, "cannot connect")
+    def open(self, transport) -> None:
+        """Take the transport the rig layer opened (the link owns it from now on)."""
+        self.close()
+        self.client = TransportClient(transport, FramerType.RTU if self.rtu else FramerType.SOCKET,
+                                      self.timeout_s, trace_packet=self._trace)
+
+    @property
+    def is_open(self) -> bool:
+        return self.client is not None
 
     def close(self) -> None:
         if self.client is not None:
-            self.client.close()
-            self.client = None
+            client, self.client = self.client, None
+            client.close()
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
         """Keep the raw bytes of the last reply, to tell a bad CRC or frame from silence."""
@@ -78,7 +118,7 @@ class ModbusLink:
             raise DeviceTimeout(self.name, text, None, "not connected")
         try:
             response = getattr(self.client, method)(*args, device_id=self.device_id, **kwargs)
-        except (ConnectionException, OSError) as exc:  # OSError: the serial port vanished (EIO)
+        except (ConnectionException, *PORT_ERRORS) as exc:  # OSError: the port vanished (EIO)
             raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
         except ModbusException as exc:
             raise self._classify_silence(text, exc) from exc
@@ -105,23 +145,29 @@ class ModbusLink:
     def write_holding(self, address: int, values: list[int]) -> None:
         self.call(f"write holding 0x{address:04X} x{len(values)}", "write_registers", address, values)
 
+    def device_identification(self) -> dict[str, str]:
+        """Read Device Identification (function 43 / MEI 14), basic objects: vendor name, product
+        code, revision (object id -> text as the drive gives them)."""
+        response = self.call("read device identification (43/14)", "read_device_information")
+        names = {0: "vendor", 1: "product_code", 2: "revision", 3: "vendor_url", 4: "product_name",
+                 5: "model_name"}
+        return {names.get(k, f"object_{k}"): v.decode("ascii", "replace") if isinstance(v, bytes) else str(v)
+                for k, v in sorted(response.information.items())}
+
 
 class ModbusAxis(Axis):
-    """One motor on a Modbus drive (TCP: ``host`` and ``port``; RTU: ``serial_port``).
+    """One motor on a Modbus drive: RTU framing (``rtu=True``, a serial line) or Modbus TCP.
 
     ``steps_per_deg``: drive steps per degree; ``word_order``: "big" or "little";
-    ``register_map``: a map name, an inline mapping or a RegisterMap.
+    ``register_map``: a map name, an inline mapping or a RegisterMap; ``timeout_s``: reply
+    timeout (real seconds); ``where``: the port path or host:port, for messages (the rig layer opens it).
     """
 
-    def __init__(self, config: AxisConfig, *, host: str | None = None, port=None,
-                 serial_port: str | None = None, device_id: int = 1, steps_per_deg: float = 100.0,
-                 word_order: str = "big", register_map="oriental-az", baud: int = 115200,
-                 parity: str = "E", timeout_s: float = REPLY_TIMEOUT_S) -> None:
+    def __init__(self, config: AxisConfig, *, rtu: bool = False, device_id: int = 1,
+                 steps_per_deg: float = 100.0, word_order: str = "big", register_map="oriental-az",
+                 timeout_s: float = REPLY_TIMEOUT_S, where: str = "") -> None:
         super().__init__(config)
-        if (host is None) == (serial_port is None):
-            raise ValueError("give either host and port (Modbus TCP) or serial_port (RTU)")
-        self.link = ModbusLink(config.name, device_id, host, serial_port if host is None else port,
-                               baud, parity, timeout_s)
+        self.link = ModbusLink(config.name, device_id, rtu, timeout_s, where)
         self.steps_per_deg, self.word_order = float(steps_per_deg), word_order
         self.map: RegisterMap = resolve_map(register_map)
         self._speed_hz, self._rate = 1000, 1000
@@ -129,14 +175,13 @@ class ModbusAxis(Axis):
     @classmethod
     def from_section(cls, config: AxisConfig, section: Mapping) -> "ModbusAxis":
         """Build from a validated ``modbus-tcp`` or ``modbus-rtu`` driver section."""
-        common = dict(device_id=section.get("device_id", 1),
-                      steps_per_deg=section.get("steps_per_deg", 100.0),
-                      word_order=section.get("word_order", "big"),
-                      register_map=section.get("register_map", "oriental-az"))
-        if section["protocol"] == "modbus-rtu":
-            return cls(config, serial_port=section["port"], baud=section.get("baud", 115200),
-                       parity=section.get("parity", "E"), **common)
-        return cls(config, host=section.get("host", "127.0.0.1"), port=section["port"], **common)
+        rtu = section["protocol"] == "modbus-rtu"
+        return cls(config, rtu=rtu, device_id=section.get("device_id", 1),
+                   steps_per_deg=section.get("steps_per_deg", 100.0),
+                   word_order=section.get("word_order", "big"),
+                   register_map=section.get("register_map", "oriental-az"),
+                   timeout_s=section.get("reply_timeout_ms", REPLY_TIMEOUT_S * 1000.0) / 1000.0,
+                   where=section["port"] if rtu else f"{section.get('host', '127.0.0.1')}:{section['port']}")
 
     # ----- registers -------------------------------------------------------------------------
     def _read32(self, address: int, signed: bool = True) -> int:
@@ -161,13 +206,22 @@ class ModbusAxis(Axis):
         self._write_inputs()
 
     # ----- protocol hooks --------------------------------------------------------------------
+    def _attach(self, transport) -> None:
+        self.link.open(transport)
+
     def _connect(self) -> None:
-        self.link.open()
+        self._status_word()  # proves the drive answers at this device id
+
+    def _read_identity(self) -> dict:
+        """The drive's Read Device Identification (43/14) when it answers it; a drive that refuses
+        the function (exception 1) still gives its map's identity and device id."""
+        out = {"protocol": "modbus-rtu" if self.link.rtu else "modbus-tcp", "device_id": self.link.device_id,
+               "register_map": self.map.name}
         try:
-            self._status_word()  # proves the drive answers at this device id
-        except DeviceError:
-            self.link.close()
-            raise
+            out.update(self.link.device_identification())
+        except ExceptionReply as exc:
+            out["identification"] = f"not supported ({exc.detail})"
+        return out
 
     def _close(self) -> None:
         self.link.close()

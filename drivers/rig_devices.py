@@ -1,9 +1,11 @@
 """Build every Axis (and the Lamp) of a rig from its driver sections, and handle them as one.
 
-``RigDevices.from_rig(rig)`` only constructs (nothing is opened); ``connect_all()`` connects
-and enables every axis; ``close_all()`` releases every connection. Stopping is not done here: the
-one stop path for all axes (command each to stop, then confirm each at rest) is the engine's
-``goniofrost.capture.executor.stop_axes``, which the rig wiring calls before ``close_all``.
+``RigDevices.from_rig(rig)`` only constructs (nothing is opened); ``connect_all()`` opens
+each device's serial port or TCP connection (``open_transport``: the drivers never open one),
+hands it to the driver and enables every axis; ``close_all()`` releases every connection.
+Stopping is not done here: the one stop path for all axes (command each to stop, then confirm
+each at rest) is the engine's ``goniofrost.capture.executor.stop_axes``, which the rig wiring
+calls before ``close_all``.
 """
 from __future__ import annotations
 
@@ -13,8 +15,17 @@ import logging
 from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
 from .axis import Axis, AxisConfig
+from .transport import open_serial, open_tcp
 
 log = logging.getLogger(__name__)
+
+# protocol -> (default baud, default parity, XON/XOFF, default reply timeout in ms) of its serial line
+SERIAL_LINES = {
+    "smc100": (57600, "N", True, 200.0),     # the SMC100 manual: 57600 8N1, XON/XOFF
+    "dynamixel": (57600, "N", False, None),  # the SDK polls (drivers.dynamixel._Port)
+    "modbus-rtu": (115200, "E", False, 300.0),  # Modbus over serial line: even parity by default
+}
+TCP_REPLY_TIMEOUT_MS = 300.0
 
 # protocol -> (module, class); each class has ``from_section(config: AxisConfig, section)``.
 AXIS_CLASSES = {
@@ -23,6 +34,25 @@ AXIS_CLASSES = {
     "modbus-rtu": ("drivers.modbus_drive", "ModbusAxis"),
     "smc100": ("drivers.smc100", "SMC100Axis"),
 }
+
+
+def open_transport(name: str, section: Mapping):
+    """Open the serial port or TCP connection of one validated driver section (an axis's or the
+    lamp's own); DeviceError naming ``name`` when it cannot be opened."""
+    protocol = section["protocol"]
+    if protocol == "modbus-tcp":
+        timeout_ms = section.get("reply_timeout_ms", TCP_REPLY_TIMEOUT_MS)
+        return open_tcp(name, section.get("host", "127.0.0.1"), section["port"], timeout_ms / 1000.0)
+    baud, parity, xonxoff, timeout_ms = SERIAL_LINES[protocol]
+    timeout_ms = section.get("reply_timeout_ms", timeout_ms) if timeout_ms is not None else 1.0
+    return open_serial(name, section["port"], section.get("baud", baud), timeout_ms / 1000.0,
+                       parity=section.get("parity", parity), xonxoff=xonxoff)
+
+
+def connect_axis(axis: Axis, section: Mapping) -> None:
+    """Open the connection of ``section`` and connect ``axis`` on it (which then owns it)."""
+    transport = open_transport(axis.name, section)
+    axis.connect(transport)  # closes the transport itself when the handshake fails
 
 
 def axis_from_spec(spec: AxisSpec, **overrides) -> Axis:
@@ -35,8 +65,9 @@ def axis_from_spec(spec: AxisSpec, **overrides) -> Axis:
 class RigDevices:
     """The axes (name -> Axis) and the lamp (or None) of one rig."""
 
-    def __init__(self, axes: dict[str, Axis], lamp=None) -> None:
+    def __init__(self, axes: dict[str, Axis], lamp=None, sections: Mapping | None = None) -> None:
         self.axes, self.lamp = axes, lamp
+        self.sections = dict(sections or {})  # name (and "lamp") -> driver section: what to open
         self._connected: list = []
 
     @classmethod
@@ -44,22 +75,27 @@ class RigDevices:
         """Build from a typed rig spec (a checked ``planner.rig.Rig``, or the spec a simulated rig
         hands back with its endpoints, ``sim.rig.SimulatedRig.resolved_rig()``)."""
         axes = {name: axis_from_spec(spec) for name, spec in rig.axes.items()}
+        sections = {name: dict(spec.driver) for name, spec in rig.axes.items()}
         lamp = None
         if rig.lamp_driver:
             from .lamp import Lamp  # only rigs with a lamp need the Modbus client
             lamp = Lamp.from_section(rig.lamp_driver, axes)  # ``device``: share that axis's link
-        return cls(axes, lamp)
+            sections["lamp"] = dict(rig.lamp_driver)
+        return cls(axes, lamp, sections)
 
     def connect_all(self, enable: bool = True) -> None:
-        """Connect (and enable) every axis, then the lamp; on failure close what was opened, re-raise."""
+        """Open every device's connection and connect (and enable) every axis, then the lamp; on
+        failure close what was opened, re-raise."""
         try:
-            for axis in self.axes.values():
-                axis.connect()
+            for name, axis in self.axes.items():
+                connect_axis(axis, self.sections[name])
                 self._connected.append(axis)
                 if enable:
                     axis.enable()
             if self.lamp is not None:
-                self.lamp.connect()
+                section = self.sections.get("lamp", {})
+                own = "device" not in section  # else it shares its axis's connection
+                self.lamp.connect(open_transport("lamp", section) if own else None)
                 self._connected.append(self.lamp)
         except BaseException:
             self.close_all()

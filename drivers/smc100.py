@@ -1,17 +1,16 @@
 """Newport SMC100 axis over RS-232 ASCII (pyserial): the protocol hooks of ``Axis``.
 
 Every set command is followed by ``TE`` so that a silently rejected command (the controller
-replies nothing) becomes an ``ExceptionReply`` naming its error letter. ``TS`` is decoded into
+replies nothing) becomes an ``ExceptionReply`` naming its error letter. The connection (57600
+8N1, XON/XOFF) is opened by the rig layer and handed to ``connect(transport)``. ``TS`` is decoded into
 the controller state and readable error bits; a stage error state or any error bit raises
 ``DeviceFault``. Positions are controller units divided by ``units_per_deg``.
 """
 from __future__ import annotations
 
-import termios
+import logging
 import time
 from collections.abc import Mapping
-
-import serial
 
 from .axis import Axis, AxisConfig
 from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
@@ -21,26 +20,29 @@ from .smc100_protocol import (
     parse_reply, te_meaning,
 )
 
-# What an unplugged port raises: pyserial's errors, EIO, and termios.error (not an OSError).
-PORT_ERRORS = (serial.SerialException, OSError, termios.error)
+from .transport import PORT_ERRORS
+
+log = logging.getLogger(__name__)
 REPLY_TIMEOUT_S = 0.2  # the manual gives about 10 ms for TP; leave room for a busy host
+IDENTITY_QUERIES = {"version": Cmd.VERSION, "stage": Cmd.STAGE_ID}  # VE, ID: read-only
 
 
 class SMC100Axis(Axis):
     """One stage on a Newport SMC100 controller.
 
-    ``port``: serial device path; ``address``: controller address 1-31; ``baud``: 57600 on the
-    real controller; ``units_per_deg``: controller units (deg for a rotation stage) per degree;
-    ``reply_timeout_s``: how long to wait for one reply line (real seconds).
+    ``port``: serial device path (for messages: the rig layer opens it, 57600 8N1 XON/XOFF);
+    ``address``: controller address 1-31; ``units_per_deg``: controller units (deg for a rotation
+    stage) per degree; ``reply_timeout_s``: how long to wait for one reply line (real seconds; the
+    transport's read timeout is set to it at connect).
     """
 
-    def __init__(self, config: AxisConfig, port: str, address: int = 1, baud: int = DEFAULT_BAUD,
+    def __init__(self, config: AxisConfig, port: str = "", address: int = 1,
                  units_per_deg: float = 1.0, reply_timeout_s: float = REPLY_TIMEOUT_S) -> None:
         super().__init__(config)
-        self.port, self.address, self.baud = str(port), int(address), int(baud)
+        self.port, self.address = str(port), int(address)
         self.units_per_deg = float(units_per_deg)
         self.reply_timeout_s = float(reply_timeout_s)
-        self._serial: serial.Serial | None = None
+        self._serial = None  # the ByteTransport handed in by connect()
         self._latched_causes: list[str] = []  # TS error bits clear when read: keep them for _read_fault
         self._last_ts: TellState | None = None
         self.soft_limits_units: tuple[float, float] | None = None
@@ -49,8 +51,8 @@ class SMC100Axis(Axis):
     def from_section(cls, config: AxisConfig, section: Mapping) -> "SMC100Axis":
         """Build from a validated ``smc100`` driver section of the rig file."""
         return cls(config, port=section["port"], address=section.get("address", 1),
-                   baud=section.get("baud", DEFAULT_BAUD),
-                   units_per_deg=section.get("units_per_deg", 1.0))
+                   units_per_deg=section.get("units_per_deg", 1.0),
+                   reply_timeout_s=section.get("reply_timeout_ms", REPLY_TIMEOUT_S * 1000.0) / 1000.0)
 
     # ----- transport ---------------------------------------------------------------------------
     def _send(self, cmd: Cmd, value=None) -> str:
@@ -91,15 +93,10 @@ class SMC100Axis(Axis):
                                  f"refused: {letter} = {te_meaning(letter)}", code=letter)
 
     def _tell_error(self) -> str:
-        """Read TE, retrying only TE on a lost reply: resending the set command itself (e.g. a
-        second PA while the first one moves) would be refused with a spurious 'M'."""
-        for attempt in range(self.config.retries + 1):
-            try:
-                return self._query(Cmd.TELL_ERROR)
-            except (DeviceTimeout, ProtocolError):
-                if attempt == self.config.retries:
-                    raise
-        return ErrorLetter.NONE.value  # not reached: the last attempt returns or raises
+        """Read TE once. TE clears the letter it reports, so a TE whose reply was lost is not asked
+        again (it would answer '@' for a refused command): the timeout goes up, where a move is
+        read back with TH (``_move_taken``) and a repeatable set command (VA, AC, MM) sent again."""
+        return self._query(Cmd.TELL_ERROR)
 
     def _tell_state(self) -> TellState:
         """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""
@@ -128,20 +125,37 @@ class SMC100Axis(Axis):
         self.soft_limits_units = (lo_deg * self.units_per_deg, hi_deg * self.units_per_deg)
 
     # ----- protocol hooks ----------------------------------------------------------------------
+    def _attach(self, transport) -> None:
+        transport.timeout = self.reply_timeout_s
+        self._serial = transport
+
     def _connect(self) -> None:
+        self._tell_state()  # proves a controller answers at this address
+        lo, hi = self._query(Cmd.LIMIT_NEGATIVE, QUERY), self._query(Cmd.LIMIT_POSITIVE, QUERY)
         try:
-            self._serial = serial.Serial(self.port, self.baud, bytesize=8, parity="N", stopbits=1,
-                                         xonxoff=True, timeout=self.reply_timeout_s)
-        except PORT_ERRORS as exc:
-            raise DeviceError(self.name, f"open {self.port}", None, f"cannot open port: {exc}") from exc
+            self.soft_limits_units = (float(lo), float(hi))
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}SL?; {self.address}SR?", f"{lo}; {hi}",
+                                "expected two numbers") from exc
+
+    def _read_identity(self) -> dict:
+        """VE (controller firmware) and ID (stage identifier): read-only queries of the manual."""
+        return {"protocol": "smc100", "address": self.address,
+                **{key: self._query(cmd, QUERY if cmd is Cmd.STAGE_ID else None).strip()
+                   for key, cmd in IDENTITY_QUERIES.items()}}
+
+    def error_text(self, letter: str) -> str:
+        """TB: the controller's own text for a TE error letter (read-only)."""
+        self._require_connected("read error text")
+        return self._call(self._query, Cmd.TELL_ERROR_STRING, letter)
+
+    def _move_taken(self, target: float) -> bool:
+        """TH, the set-point: equal to the target once the controller took the PA."""
+        value = self._query(Cmd.TELL_SETPOINT)
         try:
-            self._tell_state()  # proves a controller answers at this address
-            lo = float(self._query(Cmd.LIMIT_NEGATIVE, QUERY))
-            hi = float(self._query(Cmd.LIMIT_POSITIVE, QUERY))
-        except (DeviceError, ValueError):
-            self._close()
-            raise
-        self.soft_limits_units = (lo, hi)
+            return abs(float(value) / self.units_per_deg - target) <= self.config.tolerance_deg
+        except ValueError as exc:
+            raise ProtocolError(self.name, f"{self.address}TH", value, "expected a number") from exc
 
     def _close(self) -> None:
         if self._serial is not None:
@@ -172,21 +186,30 @@ class SMC100Axis(Axis):
         return self._tell_state().state not in MOTION_STATES, self._read_position()
 
     def _command_home(self) -> None:
-        """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``."""
-        ts = self._tell_state()
+        """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``. Reads are
+        retried; a lost reply to OR is read back with TS (HOMING or READY: the search started),
+        one to the PA with TH, as any move."""
+        ts = self._call(self._tell_state)
         if ts.state in NOT_REFERENCED_STATES:
-            self._command(Cmd.HOME)
+            try:
+                self._command(Cmd.HOME)
+            except (DeviceTimeout, ProtocolError) as exc:
+                state = self._call(self._tell_state).state
+                if state != State.HOMING and state not in READY_STATES:
+                    raise
+                log.info("%s: reply to OR lost (%s); read back: TS state %s, the search started",
+                         self.name, exc, state.name)
             if self.config.home_deg == 0.0:
                 return
             self._wait_homed()
-        self._command_move(self.config.home_deg)
+        self._send_move(self.config.home_deg)
 
     def _wait_homed(self) -> None:
         """Block until the home search ends (bounded by the longest possible search)."""
         lo, hi = self.config.limits_deg
         t_end = time.monotonic() + self.move_timeout_s(hi - lo)
         while time.monotonic() < t_end:
-            ts = self._tell_state()
+            ts = self._call(self._tell_state)
             if ts.is_fault:
                 raise DeviceFault(self.name, f"{self.address}OR", None, self._fault_causes(ts))
             if ts.state in READY_STATES:

@@ -32,6 +32,10 @@ class Cmd(str, enum.Enum):
     LIMIT_POSITIVE = "SR"
     ENABLE_STATE = "MM"
     TELL_ERROR = "TE"
+    TELL_ERROR_STRING = "TB"
+    VERSION = "VE"
+    STAGE_ID = "ID"
+    MOTION_TIME = "PT"
 
 
 class State(enum.IntEnum):
@@ -231,6 +235,18 @@ def decode_ts(value: str) -> TellState:
     if not re.fullmatch(r"[0-9A-Fa-f]{6}", value):
         raise ValueError(f"expected six hex digits after TS, got {value!r}")
     return TellState(int(value[:4], 16), State(int(value[4:], 16)))
+
+
+# Identity of the simulated controller and stage; VE replies "<model> <firmware>" (QMI reads words 1, 2).
+CONTROLLER_MODEL = "SMC100CC"
+FIRMWARE_VERSION = "2.0.0"
+STAGE_ID = "URS100CC"   # a Newport rotation stage the SMC100CC drives
+
+
+def te_text(letter: str) -> str:
+    """TB's reply value for a TE letter: the letter, a blank, the meaning in capitals (``G DISPLACEMENT
+    OUT OF LIMITS``), the way drivers split it at the first blank."""
+    return f"{letter} {te_meaning(letter).upper()}"
 
 
 def te_meaning(letter: str) -> str:

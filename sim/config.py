@@ -17,6 +17,7 @@ Keys (``SIM_KEYS``; to add one, add a row)::
       faults:                  # fault drills; default none
         - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
                                                           # at or after plan sample 3, once
+        - {axis: camera_arm, kind: miss_reply, at_sample: 1}   # one lost reply: the capture goes on
       misalignment_deg:        # a rig built wrong on purpose (sim.misalignment); default none
         {camera_arm: 0.6, sample_yaw: -1.1, sample_tilt: 0.4}   # axis stands at reading + this
 
@@ -29,7 +30,7 @@ from goniofrost.core.config_check import (ABSENT, Key, check_items, check_sectio
                                           is_natural, is_number, is_text, one_of)
 from goniofrost.core.errors import ConfigError
 
-from .faults import FAULT_KINDS
+from .faults import DRILL_KINDS
 from .misalignment import check_axes, check_values
 
 
@@ -44,7 +45,7 @@ _LAMP_KEYS = {
 }
 _FAULT_KEYS = {
     "axis": Key(is_text, "the name of an axis of this rig"),
-    "kind": Key(one_of(*FAULT_KINDS), f"one of {list(FAULT_KINDS)}"),
+    "kind": Key(one_of(*DRILL_KINDS), f"one of {list(DRILL_KINDS)}"),
     "at_sample": Key(is_natural, "a plan sample index >= 0"),
 }
 SIM_KEYS = {

@@ -54,6 +54,7 @@ class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
         self.table = bytearray(TABLE_SIZE)
         self.motion = TrapezoidMotion(clock, float(position), NO_LIMIT_SPEED, NO_LIMIT_ACCEL)
         self.faults: set[str] = set()
+        self.missing_replies = 0  # miss_reply: this many status packets are lost, then it answers
         self._init_armed()
         self.received: list = []
         self.ignored: list = []
@@ -78,7 +79,8 @@ class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
     def inject_fault(self, kind: str) -> None:
         """Inject a fault; it persists until ``inject_fault("clear")``.
 
-        no_reply: instructions are executed but no status comes back (a broken TX line).
+        miss_reply: the next status packet is lost (the instruction is executed), then it answers
+        as before. no_reply: instructions are executed but no status comes back (a broken TX line).
         bad_checksum: status packets carry a wrong CRC. drop_byte: one byte of every status packet
         is lost. alarm: Hardware Error Status = overload, torque off at once (as the servo's
         shutdown does), Alert bit in every status. stall: the horn freezes while Moving stays 1,
@@ -87,6 +89,9 @@ class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
         """
         check_kind(kind)
         with self._lock:
+            if kind == "miss_reply":  # one lost status, not a lasting fault
+                self.missing_replies += 1
+                return
             if kind == "clear":
                 self.faults.clear()
                 self._set(T["hardware_error_status"], 0)
@@ -150,6 +155,8 @@ class SimulatedDynamixel(ArmedFaults, PtyServedDevice):
                 while (frame := find_frame(buf)) is not None:
                     with self._lock:
                         reply = self._handle_frame(frame)
+                        if reply and self.missing_replies:
+                            self.missing_replies, reply = self.missing_replies - 1, None
                     if reply and not self.faults & {"no_reply", "disconnect"}:
                         port.write(self._corrupt(reply))
         finally:

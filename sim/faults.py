@@ -8,8 +8,12 @@ fault strikes before the reply goes out, once. A rig file schedules armed faults
 from __future__ import annotations
 
 # What each kind does is the twin's to say (see its inject_fault); all three twins support all.
+# The faults that end a capture: a device that stays silent, damages replies, alarms, stalls or goes.
 FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disconnect")
-INJECTABLE_KINDS = FAULT_KINDS + ("clear",)  # "clear" undoes the injected faults
+# A hiccup the drivers must ride out: one reply lost (a loaded host, a noisy line), then answers.
+HICCUP_KINDS = ("miss_reply",)
+DRILL_KINDS = FAULT_KINDS + HICCUP_KINDS  # what a rig file's sim.faults may rehearse
+INJECTABLE_KINDS = DRILL_KINDS + ("clear",)  # "clear" undoes the injected faults
 
 
 def check_kind(kind: str, kinds: tuple[str, ...] = INJECTABLE_KINDS) -> None:
@@ -32,8 +36,8 @@ class ArmedFaults:
         self.struck: list[str] = []  # the armed faults that struck, in order
 
     def arm_fault(self, kind: str) -> None:
-        """Strike ``kind`` (one of FAULT_KINDS) when the device next starts a move, once."""
-        check_kind(kind, FAULT_KINDS)
+        """Strike ``kind`` (one of DRILL_KINDS) when the device next starts a move, once."""
+        check_kind(kind, DRILL_KINDS)
         with self._lock:
             self.armed.append(kind)
 

@@ -19,6 +19,7 @@ import select
 import threading
 from collections import deque
 
+from pymodbus import ModbusDeviceIdentification
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
 from pymodbus.framer import FramerType
@@ -97,6 +98,7 @@ class SimulatedModbusDrive(ArmedFaults):
         self.alarm_code = 0
         self.free = False  # FREE input on: motor de-energised
         self.faults: set[str] = set()
+        self.missing_replies = 0  # miss_reply: this many replies are lost, then it answers
         self._init_armed()
         self.writes: deque = deque(maxlen=10_000)  # recent holding-register writes (PDU address, values)
         self.requests: deque = deque(maxlen=10_000)  # recent raw requests, for byte-exact tests
@@ -160,6 +162,7 @@ class SimulatedModbusDrive(ArmedFaults):
     def inject_fault(self, kind: str) -> None:
         """Inject a fault (see sim.faults.FAULT_KINDS); all but disconnect last until ``inject_fault('clear')``.
 
+        miss_reply: the next reply is lost (the request is acted on), then it answers as before.
         no_reply: requests are acted on but no reply goes out. bad_checksum: RTU replies carry a
         wrong CRC; TCP has no checksum, so the MBAP protocol id is corrupted instead. drop_byte:
         each reply loses its last byte. alarm: alarm code 0x30 (overload), ALM-A on, motor
@@ -168,6 +171,9 @@ class SimulatedModbusDrive(ArmedFaults):
         """
         check_kind(kind)
         with self._lock:
+            if kind == "miss_reply":  # one lost reply, not a lasting fault
+                self.missing_replies += 1
+                return
             if kind == "clear":  # removes the causes; an alarm stays latched until ALM-RST
                 self.faults.clear()
                 return
@@ -193,6 +199,9 @@ class SimulatedModbusDrive(ArmedFaults):
         threading.Thread(target=self._go_offline, name="sim-modbus-offline", daemon=True).start()
 
     # --- server ----------------------------------------------------------------------------
+    IDENTITY = {"VendorName": "ORIENTAL MOTOR", "ProductCode": "AZD-KD", "MajorMinorRevision": "4.00",
+                "ProductName": "AZ series driver (simulated)"}  # Read Device Identification (43/14)
+
     def _context(self) -> ModbusServerContext:
         device = ModbusDeviceContext(hr=self._holding, co=self._coils, ir=self._inputs)
         return ModbusServerContext(devices={self.device_id: device}, single=False)
@@ -201,11 +210,13 @@ class SimulatedModbusDrive(ArmedFaults):
         """Create and start the pymodbus server (it needs the running loop of its thread)."""
         if self.transport == "tcp":
             self._server = ModbusTcpServer(self._context(), address=(self.host, self.port),
+                                           identity=ModbusDeviceIdentification(info_name=self.IDENTITY),
                                            trace_packet=self._trace_packet)
         else:
             self._server = ModbusSerialServer(self._context(), framer=FramerType.RTU,
                                               port=self._bridge.server_path, baudrate=self.baud,
-                                              parity=self.parity, trace_packet=self._trace_packet)
+                                              parity=self.parity, trace_packet=self._trace_packet,
+                                              identity=ModbusDeviceIdentification(info_name=self.IDENTITY))
         await self._server.serve_forever(background=True)
         if self.transport == "tcp":
             self.port = self._server.transport.sockets[0].getsockname()[1]
@@ -225,6 +236,10 @@ class SimulatedModbusDrive(ArmedFaults):
         if not data:
             return data
         faults = self.faults
+        if self.missing_replies:
+            with self._lock:
+                self.missing_replies -= 1
+            return b""
         if "no_reply" in faults or "disconnect" in faults:
             return b""
         if "bad_checksum" in faults:

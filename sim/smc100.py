@@ -3,6 +3,11 @@
 State machine (PROTOCOLS.md section 2): NOT REFERENCED (0A) -OR-> HOMING (1E) -> READY (32)
 -PA/PR-> MOVING (28) -> READY (33); ST decelerates at AC; MM0/MM1 toggle DISABLE (3C) / READY (34).
 A rejected command replies nothing and stores an error letter that ``TE`` returns once.
+The read-only queries of the manual answer in every state: identity (``VE`` controller and
+firmware, ``ID?`` stage), ``TB`` (error text of a letter, or of the stored one), ``PT`` (the
+motion time of a relative move), ``TH``, ``TP``, ``TS``, ``TE``, and the ``?`` form of ``VA``,
+``AC``, ``SL``, ``SR``, ``OH`` (home velocity), ``OT`` (home timeout), ``FE`` (following error
+limit), ``BA`` (backlash), ``JR`` (jerk time), ``SA`` (address), ``MM`` (1 READY, 0 DISABLE).
 Motion is a trapezoid on the shared SimClock. Positions are in controller units (deg for a
 rotation stage); ``units_per_deg`` only converts ``true_position_deg()``.
 """
@@ -12,9 +17,11 @@ import threading
 from collections import deque
 
 from drivers.smc100_protocol import (
-    DEFAULT_BAUD, DISABLE_STATES, MM_DISABLE, MM_ENABLE, NOT_REFERENCED_STATES, READY_STATES,
-    CommandLine, ErrorBit, ErrorLetter, State, build_reply, encode_ts, format_value, parse_command,
+    CONTROLLER_MODEL, DEFAULT_BAUD, DISABLE_STATES, FIRMWARE_VERSION, MM_DISABLE, MM_ENABLE,
+    NOT_REFERENCED_STATES, READY_STATES, STAGE_ID, CommandLine, ErrorBit, ErrorLetter, State,
+    build_reply, encode_ts, format_value, parse_command, te_text,
 )
+from drivers.axis import trapezoid_time
 from sim.clock import SimClock
 from sim.faults import ArmedFaults, check_kind
 from sim.motion import TrapezoidMotion
@@ -22,6 +29,8 @@ from sim.pty_port import PtyPort, PtyServedDevice
 
 ALARM_ERROR_BITS = ErrorBit.FOLLOWING_ERROR  # what a blocked or overloaded stage reports
 _POLL_S = 0.02  # real seconds between state updates while idle
+# Read-only parameters their "?" query reports (values of a URS100CC's factory configuration).
+READ_ONLY_PARAMETERS = {"OH": 10.0, "OT": 30.0, "FE": 0.05, "BA": 0.0, "JR": 0.05}
 
 
 class SimulatedSMC100(ArmedFaults, PtyServedDevice):
@@ -47,6 +56,7 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
         self.error_bits = 0
         self.error_letter = ErrorLetter.NONE
         self.faults: set[str] = set()
+        self.missing_replies = 0  # miss_reply: this many replies are lost, then it answers again
         self._init_armed()
         self.received: deque[bytes] = deque(maxlen=10_000)  # recent command lines, for tests
         self._lock = threading.RLock()
@@ -70,6 +80,7 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
     def inject_fault(self, kind: str) -> None:
         """Inject a fault (see sim.faults.FAULT_KINDS); faults persist until ``inject_fault('clear')``.
 
+        miss_reply: the next reply is lost (a late or garbled line), then it answers as before.
         no_reply: commands are carried out but nothing is sent back (a dead TX line). bad_checksum: ASCII has no checksum, so a reply is
         corrupted instead (its echoed command letters). drop_byte: the LF ending each reply is
         lost. alarm: following-error bit set, state 10 (stage error), motion stopped. stall:
@@ -78,6 +89,9 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
         """
         check_kind(kind)
         with self._lock:
+            if kind == "miss_reply":  # one lost reply, not a lasting fault
+                self.missing_replies += 1
+                return
             if kind == "clear":
                 self.faults.clear()
                 self.error_bits = 0
@@ -116,7 +130,9 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
                 continue
             self.received.append(line)
             reply = self._handle_line(line)
-            if reply and not self.faults & {"no_reply", "disconnect"}:
+            if reply and self.missing_replies:
+                self.missing_replies -= 1
+            elif reply and not self.faults & {"no_reply", "disconnect"}:
                 port.write(self._faulty(reply))
 
     def _faulty(self, reply: bytes) -> bytes:
@@ -195,6 +211,38 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
     def _cmd_TH(self, cmd: CommandLine) -> bytes:
         return self._reply(cmd, format_value(self._target))
 
+    def _cmd_VE(self, cmd: CommandLine) -> bytes:
+        return self._reply(cmd, f" {CONTROLLER_MODEL} {FIRMWARE_VERSION}")
+
+    def _cmd_ID(self, cmd: CommandLine) -> bytes | None:
+        if not cmd.is_query:  # setting the stage identifier needs CONFIGURATION: not simulated
+            return self._reject(self._state_letter())
+        return self._reply(cmd, STAGE_ID)
+
+    def _cmd_TB(self, cmd: CommandLine) -> bytes:
+        """TB with a letter: its text; TB alone (or TB?): the stored error's text, which it clears."""
+        letter = cmd.argument.strip().upper()
+        if letter in ("", "?"):
+            letter, self.error_letter = self.error_letter.value, ErrorLetter.NONE
+        return self._reply(cmd, te_text(letter))
+
+    def _cmd_PT(self, cmd: CommandLine) -> bytes | None:
+        """The time (s) a relative move of the argument would take at VA and AC (nothing moves)."""
+        step = self._number(cmd)
+        if step is None:
+            return self._reject(ErrorLetter.PARAMETER)
+        return self._reply(cmd, format_value(round(trapezoid_time(step, self.velocity, self.acceleration), 4)))
+
+    def _cmd_SA(self, cmd: CommandLine) -> bytes | None:
+        return self._reply(cmd, str(self.address)) if cmd.is_query else self._reject(self._state_letter())
+
+    def _read_only(self, cmd: CommandLine) -> bytes | None:
+        if not cmd.is_query:  # setting them needs CONFIGURATION: not simulated
+            return self._reject(self._state_letter())
+        return self._reply(cmd, format_value(READ_ONLY_PARAMETERS[cmd.letters]))
+
+    _cmd_OH = _cmd_OT = _cmd_FE = _cmd_BA = _cmd_JR = _read_only
+
     def _cmd_OR(self, cmd: CommandLine) -> None:
         if self.state == State.HOMING:
             return self._reject(ErrorLetter.HOME_STARTED)
@@ -233,7 +281,9 @@ class SimulatedSMC100(ArmedFaults, PtyServedDevice):
             self.state = State.NOT_REFERENCED_FROM_HOMING
         return None
 
-    def _cmd_MM(self, cmd: CommandLine) -> None:
+    def _cmd_MM(self, cmd: CommandLine) -> bytes | None:
+        if cmd.is_query:
+            return self._reply(cmd, "0" if self.state in DISABLE_STATES else "1")
         if cmd.argument == MM_DISABLE and self.state in READY_STATES:
             self.state = State.DISABLE_FROM_READY
         elif cmd.argument == MM_ENABLE and self.state in DISABLE_STATES:

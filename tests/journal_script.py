@@ -53,11 +53,14 @@ class ScriptedSession:
                               exposures_s=(0.032,), started_utc=now - 0.5, committed_utc=now)
         self.journal.commit_sample(record, step=(row, {"snr": snr}))
 
-    def batch(self, samples: int, predicted: float, target: float, decision: str) -> None:
+    def batch(self, samples: int, predicted: float, target: float, decision: str, bound: float | None = None,
+              confidence: float = 0.95, out_of_model=()) -> None:
+        """An Assess step's fields as the engine journals them (``predicted``: the median estimate)."""
         self.batches += 1
         self.journal.add_event(EventKind.BATCH, f"batch {self.batches}: {decision}",
                                data={"batch": self.batches - 1, "samples": samples, "predicted_error": predicted,
-                                     "target": target, "decision": decision})
+                                     "target": target, "decision": decision, "bound": bound,
+                                     "confidence": confidence, "out_of_model": list(out_of_model)})
 
     def end_run(self, status: RunStatus, reason: str) -> RunEnd:
         end = RunEnd(self.start.run, status, reason, len(self.samples), len(self.journal.done_indices()),

@@ -1,143 +1,91 @@
-"""Scripted transports: the far end of a pty or a loopback TCP socket plays an exchange of exact bytes.
+"""An in-memory transport that plays an exchange of exact bytes, in the manner of pymeasure's
+``expected_protocol``: the test lists ``(request, reply)`` byte pairs, hands the transport to the
+driver (``axis.connect(ScriptedTransport(...))``) and calls ``finish()``.
 
-A script is a list of ``(request, reply)`` byte strings. The far end waits for exactly
-``request``, answers ``reply`` (b"" for silence), and moves on. ``finish()`` fails the test on the
-first request that differs, on anything the client sent after the script ended, and on reply
-bytes the client never read. The driver under test talks to it through its real transport
-(pyserial, dynamixel-sdk's PortHandler, pymodbus): nothing of the driver is mocked.
+A request must arrive byte for byte: the first byte that differs, or any byte after the script
+ended, fails at once (``AssertionError`` raised inside the driver's write, and kept for
+``finish()``, since a driver may catch it on its way to stopping the axis). A reply is available
+as soon as its request is complete; ``b""`` is silence and a shortened reply a damaged one.
+``finish()`` also fails on a request never sent and on reply bytes never read (dropped by a
+``reset_input_buffer`` included). Nothing waits: a read that finds nothing advances the
+transport's own clock by its timeout (``now_ms()``, which dynamixel-sdk's reply timeout uses
+through ``drivers.dynamixel._Port``) and returns what there is.
 """
 from __future__ import annotations
 
-import array
-import fcntl
-import select
-import socket
-import termios
-import threading
-import time
 
-from sim.pty_port import PtyPort
+class ScriptedTransport:
+    """pyserial's interface (``drivers.transport.ByteTransport``) over a script of exact bytes."""
 
-REQUEST_WAIT_S = 3.0  # real seconds to wait for each scripted request
+    def __init__(self, script, timeout: float | None = 0.1) -> None:
+        self.script = [(bytes(req), bytes(rep)) for req, rep in script]
+        self.timeout = timeout
+        self.problems: list[str] = []
+        self.is_open = True
+        self._step = 0             # the next (request, reply) pair
+        self._sent = bytearray()   # bytes of the current request received so far
+        self._rx = bytearray()     # reply bytes the client has not read
+        self._dropped = 0          # reply bytes thrown away unread by reset_input_buffer
+        self._clock_ms = 0.0
 
+    # ----- the client's side ------------------------------------------------------------------
+    def write(self, data: bytes) -> int:
+        for i, byte in enumerate(bytes(data)):
+            if self._step == len(self.script):
+                self._fail(f"sent after the script: {bytes(data[i:]).hex(' ')}")
+            request, reply = self.script[self._step]
+            self._sent.append(byte)
+            if request[:len(self._sent)] != self._sent:
+                self._fail(f"step {self._step}: expected {request.hex(' ')}, got {bytes(self._sent).hex(' ')}")
+            if len(self._sent) == len(request):
+                self._rx += reply
+                self._sent.clear()
+                self._step += 1
+        return len(data)
 
-class _Player:
-    """Plays a script on ``_read(timeout)`` / ``_write(data)`` in a background thread."""
-
-    quiet_s = 0.2  # after the script: how long to listen for bytes the client should not send
-
-    def __init__(self, script) -> None:
-        self.script, self.problems, self.leftover = list(script), [], b""
-        self.played = threading.Event()  # set once every reply of the script went out
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _start(self) -> None:
-        self._thread.start()
-
-    def _run(self) -> None:
-        buf = b""
-        for step, (request, reply) in enumerate(self.script):
-            deadline = time.monotonic() + REQUEST_WAIT_S
-            while len(buf) < len(request) and time.monotonic() < deadline:
-                buf += self._read(0.05)
-            got, buf = buf[:len(request)], buf[len(request):]
-            if got != request:
-                self.problems.append(f"step {step}: expected {request.hex(' ')}, got {got.hex(' ')}")
-                return
-            if reply:
-                self._write(reply)
-        self.played.set()
-        self.leftover = buf + self._drain()
-
-    def _drain(self) -> bytes:
-        end, out = time.monotonic() + self.quiet_s, b""
-        while time.monotonic() < end:
-            out += self._read(0.05)
+    def read(self, size: int = 1) -> bytes:
+        if not self._rx:
+            self._wait()
+        out, self._rx = bytes(self._rx[:size]), self._rx[size:]
         return out
+
+    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
+        end = self._rx.find(expected)
+        if end < 0:
+            self._wait()
+            end = len(self._rx)
+        else:
+            end += len(expected)
+        out, self._rx = bytes(self._rx[:end]), self._rx[end:]
+        return out
+
+    def reset_input_buffer(self) -> None:
+        self._dropped += len(self._rx)
+        self._rx.clear()
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self._rx)
+
+    def now_ms(self) -> float:
+        """The transport's clock (ms): it advances only while a read waits for nothing."""
+        return self._clock_ms
+
+    def close(self) -> None:
+        self.is_open = False
+
+    # ----- the test's side --------------------------------------------------------------------
+    def _wait(self) -> None:
+        self._clock_ms += 1000.0 * (self.timeout or 0.001)
+
+    def _fail(self, problem: str) -> None:
+        self.problems.append(problem)
+        raise AssertionError(problem)
 
     def finish(self) -> None:
-        """Wait for the player, close the transport and assert the exchange was exact."""
-        self._thread.join(timeout=REQUEST_WAIT_S * (len(self.script) + 1))
-        unread = self._unread_by_client()
-        self._close()
+        """Assert the exchange was exact: every request sent, nothing more, every reply read."""
         assert self.problems == [], self.problems
-        assert self.leftover == b"", f"sent after the script: {self.leftover.hex(' ')}"
+        left = self.script[self._step:]
+        assert not left, f"{len(left)} request(s) never sent, the first {left[0][0].hex(' ')}"
+        unread = len(self._rx) + self._dropped
         assert unread == 0, f"{unread} reply bytes never read by the client"
-
-
-class ScriptedLine(_Player):
-    """A pty (``port.path`` is what the client opens) whose other end plays the script."""
-
-    def __init__(self, script) -> None:
-        super().__init__(script)
-        self.port = PtyPort()
-        self._start()
-
-    def _read(self, timeout: float) -> bytes:
-        return self.port.read(timeout)
-
-    def _write(self, data: bytes) -> None:
-        self.port.write(data)
-
-    def _unread_by_client(self) -> int:
-        """Bytes waiting in the client's input queue (the pty slave stays open in PtyPort)."""
-        count = array.array("i", [0])
-        fcntl.ioctl(self.port._slave_fd, termios.FIONREAD, count)
-        return count[0]
-
-    def _close(self) -> None:
-        self.port.close()
-
-
-class ScriptedSocket(_Player):
-    """A loopback TCP server (``host``, ``port``) that plays the script to its first client.
-
-    The client must close its connection before ``finish()``: closing with reply bytes unread
-    makes Linux reset the connection, which counts as unread bytes.
-    """
-
-    quiet_s = REQUEST_WAIT_S  # wait for the client to close (EOF ends the wait at once)
-
-    def __init__(self, script) -> None:
-        super().__init__(script)
-        self._server = socket.create_server(("127.0.0.1", 0))
-        self.host, self.port = self._server.getsockname()
-        self._conn: socket.socket | None = None
-        self._eof, self._reset = False, False
-        self._start()
-
-    def _read(self, timeout: float) -> bytes:
-        if self._conn is None:
-            ready, _, _ = select.select([self._server], [], [], timeout)
-            if not ready:
-                return b""
-            self._conn, _ = self._server.accept()
-        if self._eof:
-            time.sleep(timeout)
-            return b""
-        ready, _, _ = select.select([self._conn], [], [], timeout)
-        if not ready:
-            return b""
-        try:
-            data = self._conn.recv(4096)
-        except ConnectionResetError:
-            data, self._reset = b"", True
-        self._eof = data == b""
-        return data
-
-    def _drain(self) -> bytes:
-        end, out = time.monotonic() + self.quiet_s, b""
-        while time.monotonic() < end and not self._eof:
-            out += self._read(0.05)
-        return out
-
-    def _write(self, data: bytes) -> None:
-        self._conn.sendall(data)
-
-    def _unread_by_client(self) -> int:
-        return 1 if self._reset else 0  # the count is unknown: a reset says "some"
-
-    def _close(self) -> None:
-        if self._conn is not None:
-            self._conn.close()
-        self._server.close()

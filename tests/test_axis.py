@@ -2,6 +2,7 @@
 sim motion, the driver-section validator and RigDevices' best-effort stop."""
 from __future__ import annotations
 
+import logging
 import math
 
 import pytest
@@ -42,6 +43,7 @@ class MotionAxis(Axis):
         self.motion = TrapezoidMotion(clock, 0.0, 1.0, 1.0)
         self.sent: list[str] = []
         self.fail_next, self.fail_with, self.fault = 0, DeviceTimeout, None
+        self.lose_move_reply = 0  # moves carried out whose reply is then lost
 
     def _hook(self, what):
         if self.fail_next:
@@ -49,15 +51,24 @@ class MotionAxis(Axis):
             raise self.fail_with(self.name, what)
         self.sent.append(what)
 
+    def _attach(self, transport):
+        self.transport = transport
+
     def _connect(self):
         self._hook("connect")
 
     def _close(self):
         pass
 
+    def _read_identity(self):
+        return {"protocol": "motion"}
+
     def _command_move(self, deg):
         self._hook(f"move {deg:g}")
         self.motion.start_move(deg)
+        if self.lose_move_reply:
+            self.lose_move_reply -= 1
+            raise DeviceTimeout(self.name, f"move {deg:g}", None, "no reply")
 
     def _read_position(self):
         return self.motion.position()
@@ -84,7 +95,7 @@ class MotionAxis(Axis):
 def make_axis(speedup=50.0, **kw):
     cfg = AxisConfig("tilt", (-80.0, 80.0), kw.pop("speed", 20.0), 40.0, 0.0, 0.01, **kw)
     ax = MotionAxis(cfg, SimClock(speedup))
-    ax.connect()
+    ax.connect(None)  # its device lives in this process: no transport
     return ax
 
 
@@ -185,21 +196,43 @@ def test_move_within_tolerance_sends_nothing():
     assert status.done and status.wait() == 0.0 and ax.sent == []
 
 
-def test_transient_errors_are_retried_a_bounded_number_of_times():
+def test_a_read_that_times_out_is_retried_a_bounded_number_of_times_each_retry_logged(caplog):
     ax = make_axis(retries=2)
     ax.sent.clear()
     ax.fail_next = 2
-    ax.move_to(5.0).wait()
-    assert ax.sent[0] == "move 5"
-    ax.fail_next, n = 7, len(ax.sent)
+    with caplog.at_level(logging.INFO, logger="drivers.axis"):
+        assert ax.is_moving() is False
+    assert ax.sent == ["moving?"]
+    assert [r.getMessage() for r in caplog.records] == [
+        "tilt: read_moving: retry 1 of 2 after tilt: moving?: no reply",
+        "tilt: read_moving: retry 2 of 2 after tilt: moving?: no reply"]
+    ax.fail_next = 3
+    with pytest.raises(DeviceTimeout, match="tilt: moving\\?: no reply"):
+        ax.is_moving()  # 3 attempts, all lost: the axis is declared faulted
+
+
+def test_a_move_the_device_took_is_not_sent_again_when_its_reply_is_lost(caplog):
+    ax = make_axis(retries=2)
+    ax.sent.clear()
+    ax.lose_move_reply = 1
+    with caplog.at_level(logging.INFO, logger="drivers.axis"):
+        assert ax.move_to(5.0).wait() == pytest.approx(5.0)
+    assert ax.sent.count("move 5") == 1  # read back (moving), never repeated
+    assert "tilt: reply to the move to 5 deg lost (tilt: move 5: no reply); read back: the device took it" \
+        in [r.getMessage() for r in caplog.records]
+
+
+def test_a_move_the_device_never_took_is_sent_again_after_the_read_back():
+    ax = make_axis(retries=2)
+    ax.sent.clear()
+    ax.fail_next = 1  # the move request itself is lost: nothing moves
+    assert ax.move_to(5.0).wait() == pytest.approx(5.0)
+    assert ax.sent[:2] == ["moving?", "move 5"]  # read back: at rest at 0, not 5; then sent once
+    ax.sent.clear()
+    ax.fail_next = 5  # move, read back (x3: retried reads) ... all lost
     with pytest.raises(DeviceTimeout):
         ax.move_to(10.0)
-    assert ax.fail_next == 1  # 3 attempts at the move, then 3 at the stop, all failed
-    assert ax.sent[n:] == []
-    ax.fail_next = 4
-    with pytest.raises(DeviceTimeout):
-        ax.move_to(10.0)
-    assert ax.fail_next == 0 and ax.sent[n:] == ["stop"]  # the stop got through on its 2nd try
+    assert ax.sent == ["stop"] and ax.fail_next == 0  # the stop after the error got through
 
 
 def test_refusals_are_not_retried_and_stop_the_axis():

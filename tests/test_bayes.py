@@ -318,12 +318,27 @@ def test_the_stopping_rule_and_its_replay_from_journaled_samples():
     from goniofrost.capture.journal import SampleRecord
     from goniofrost.capture.target import batch_of, finished, history
 
-    assert stopping.stop_reason(0.05, 0.05, 15, 40) == stopping.REASON_TARGET
-    assert stopping.stop_reason(0.06, 0.05, 40, 40) == stopping.REASON_PLAN
-    assert stopping.stop_reason(0.06, 0.05, 15, 40) is None
+    from goniofrost.frost.confidence import ErrorBound
+
+    def bound(upper, median=0.001, out=()):
+        return ErrorBound(median, upper, 0.95, out)
+
+    assert stopping.stop_reason(bound(0.05), 0.05, 15, 40) == stopping.REASON_TARGET
+    assert stopping.stop_reason(bound(0.06), 0.05, 40, 40) == stopping.REASON_PLAN
+    assert stopping.stop_reason(bound(0.06), 0.05, 15, 40) is None
+    # never on the median estimate alone, never out of the model (measuring on while the plan allows)
+    assert stopping.stop_reason(bound(0.06, median=0.01), 0.05, 15, 40) is None
+    assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 15, 40) is None
+    assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 40, 40) == stopping.REASON_PLAN
+    assert stopping.statement(bound(0.04, 0.012), 0.05) == "error <= 0.05 with 95 % confidence (median estimate 0.012)"
+    assert stopping.statement(bound(0.07, 0.012), 0.05) == ("error <= 0.07 with 95 % confidence, above the target 0.05 "
+                                                            "(median estimate 0.012)")
+    assert stopping.statement(bound(0.01, out=("z2",)), 0.05) == (
+        "the samples are unlike every training material (leave-one-out residuals beyond the training range): "
+        "an extrapolation")
     predicted = {2: 0.2, 4: 0.04, 5: 0.01}
     records = [SampleRecord(i, 0, 0.0, 0.0, 0.0, (1.0,) * 3, (0.1,) * 3, 10.0) for i in range(5)]
-    assess = lambda recs: predicted[len(recs)]  # noqa: E731
+    assess = lambda recs: bound(predicted[len(recs)])  # noqa: E731
     steps = history(assess, (2, 4, 5), 0.05, records)
     assert [(b["samples"], b["decision"]) for b in steps] == [(2, "continue"), (4, "target reached")]
     assert finished(assess, (2, 4, 5), 0.05, records) and not finished(assess, (2, 4, 5), 0.05, records[:3])

@@ -23,10 +23,13 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
     import matplotlib.image
     assert matplotlib.image.imread(out / "preview.png").ndim == 3
     report = json.loads((out / "report.json").read_text())
-    assert report["demo"]["material"] == "builtin:red-plastic" and report["demo"]["target_error"] == 0.05
+    assert report["demo"]["material"] == "builtin:red-plastic" and report["demo"]["target_error"] == 0.005
     target = report["target_error"]  # a Bayesian plan of 40, measured batch by batch until the target
     assert report["samples"] == target["samples_used"] <= 40 and report["samples"] in target["batch_ends"]
-    assert target["stopped"] in ("target reached", "plan used up")
+    assert target["stopped"] in ("target reached", "plan used up") and target["confidence"] == 0.95
+    if target["stopped"] == "target reached":  # what the bound promised holds for this material
+        assert target["bound"] <= 0.005 and report["ground_truth"]["log_relative_mse"] <= 0.005
+    assert "with 95 % confidence" in proc.stdout and "an RMS error of about 7 %" in proc.stdout
     truth = report["ground_truth"]
     # no more than 20 % above reconstructing the same cells from exact values (1.05 measured; 1.29
     # with the noisier simulated camera before the camera-model calibration)

@@ -6,7 +6,8 @@ import time
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
-from scripted import ScriptedLine
+from drivers.rig_devices import open_transport
+from scripted import ScriptedTransport
 from sdk_retry import sdk_call
 
 from drivers.axis import AxisConfig
@@ -131,21 +132,21 @@ def _yaw_config(**kw):
 
 
 def test_driver_connect_and_signed_position_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok((-100).to_bytes(4, "little", signed=True)))])
-    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    line = ScriptedTransport(CONNECT_SCRIPT + [(_read("present_position"), _ok((-100).to_bytes(4, "little", signed=True)))])
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     assert axis.position() == pytest.approx(-100 / CPD)  # the SDK's read4ByteTxRx would say 4294967196
     axis.close()
     line.finish()
 
 
 def test_alert_bit_reads_hardware_error_status_and_raises_device_fault():
-    line = ScriptedLine(CONNECT_SCRIPT + [
+    line = ScriptedTransport(CONNECT_SCRIPT + [
         (_read("moving"), _ok(b"\x00", err=0x80)),                    # Alert bit set
         (_read("hardware_error_status"), _ok(b"\x24", err=0x80)),     # bits 2 and 5
     ])
-    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(_yaw_config(retries=0), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     with pytest.raises(DeviceFault) as info:
         axis.is_moving()
     assert info.value.causes == ["overheating", "overload"]
@@ -156,14 +157,14 @@ def test_alert_bit_reads_hardware_error_status_and_raises_device_fault():
 
 def test_refused_goal_raises_exception_reply_and_commands_a_stop():
     here = (0).to_bytes(4, "little")
-    line = ScriptedLine(CONNECT_SCRIPT + [
+    line = ScriptedTransport(CONNECT_SCRIPT + [
         (_read("present_position"), _ok(here)),
         (_write("goal_position", 1024), _ok(err=ErrorCode.DATA_LIMIT)),   # refused
         (_read("present_position"), _ok(here)),                           # stop: goal := present
         (_write("goal_position", 0), _ok()),
     ])
-    axis = DynamixelAxis(_yaw_config(retries=0), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(_yaw_config(retries=0), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
     with pytest.raises(ExceptionReply) as info:
         axis.move_to(90.0)
     assert info.value.code == 6 and "data limit" in str(info.value)
@@ -177,20 +178,20 @@ def test_driver_stuffs_a_goal_whose_bytes_hold_a_header():
     request = _write("goal_position", -131073)
     assert request == H("FF FF FD 00 01 0A 00 03 74 00 FF FF FD FD FF") + request[-2:]
     here = (0).to_bytes(4, "little")
-    line = ScriptedLine(CONNECT_SCRIPT + [(_read("present_position"), _ok(here)), (request, _ok())])
+    line = ScriptedTransport(CONNECT_SCRIPT + [(_read("present_position"), _ok(here)), (request, _ok())])
     config = AxisConfig("sample_yaw", (-200000.0, 200000.0), 60.0, 120.0, 0.0, 0.1)
-    axis = DynamixelAxis(config, line.port.path, 1, 57600, "XM430-W350", 1.0, reply_timeout_ms=200)
-    axis.connect()
+    axis = DynamixelAxis(config, "scripted", 1, 57600, "XM430-W350", 1.0, reply_timeout_ms=200)
+    axis.connect(line)
     axis.move_to(-131073.0)
     axis.close()
     line.finish()
 
 
 def test_wrong_model_number_is_refused():
-    line = ScriptedLine([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
-    axis = DynamixelAxis(_yaw_config(), line.port.path, 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    line = ScriptedTransport([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
     with pytest.raises(ProtocolError, match="model number 1030, expected 1020"):
-        axis.connect()
+        axis.connect(line)
     assert not axis.connected
     line.finish()
 
@@ -205,12 +206,17 @@ def servo(request):
     dev.stop()
 
 
+def pty_line(entry):
+    """The simulated servo's pty, opened by the rig layer as on a real rig."""
+    return open_transport("sample_yaw", {"protocol": "dynamixel", "port": entry["endpoint"], "baud": 57600})
+
+
 @pytest.fixture
 def axis(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(stall_s=0.3), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
                        reply_timeout_ms=100)
-    ax.connect()
+    ax.connect(pty_line(entry))
     ax.enable()
     yield ax
     dev.inject_fault("clear")
@@ -323,7 +329,7 @@ def test_reboot_after_fault_clears_the_hardware_error(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
                        reboot_after_fault=True, reply_timeout_ms=100)
-    ax.connect()
+    ax.connect(pty_line(entry))
     ax.enable()
     dev.inject_fault("alarm")
     with pytest.raises(DeviceFault, match="overload"):
@@ -361,3 +367,55 @@ def test_sdk_group_sync_write_and_read(servo):
         assert reader.isAvailable(1, 116, 4) and reader.getData(1, 116, 4) == 300
     finally:
         port.closePort()
+
+
+# ----- a lost status packet: reads are asked again, a goal write is read back, never repeated blind -----
+def test_lost_status_of_a_goal_write_is_read_back_not_repeated_on_exact_bytes():
+    goal = round(40.0 * CPD)  # 455 counts
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(bytes(4))),
+        (_write("goal_position", goal), b""),                       # executed, its status lost
+        (_read("goal_position"), _ok(goal.to_bytes(4, "little"))),  # read back: the servo took it
+        (_read("moving"), b""), (_read("moving"), _ok(b"\x00")),    # a lost read is asked again
+        (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
+    axis.close()
+    line.finish()
+
+
+def test_a_goal_the_servo_never_took_is_written_again_once_on_exact_bytes():
+    goal = round(40.0 * CPD)
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(bytes(4))),
+        (_write("goal_position", goal), b""),
+        (_read("goal_position"), _ok(bytes(4))),                    # still 0: the write was lost
+        (_write("goal_position", goal), _ok()),                     # so it is sent again
+        (_read("moving"), _ok(b"\x00")), (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
+    axis.close()
+    line.finish()
+
+
+# ----- identity: PING (model number, firmware) and the control table's model number and firmware -----
+def test_identity_pings_and_reads_the_model_number_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_req(Instruction.PING), _ok(H("FC 03 2E"))),          # model 1020, firmware 46
+        (_read("model_number"), _ok(H("FC 03"))), (_read("firmware_version"), _ok(H("2E"))),
+    ])
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.identity() == {"protocol": "dynamixel", "id": 1, "model_number": 1020, "model": "XM430-W350",
+                               "firmware_version": 46, "model_number_register": 1020, "firmware_register": 46}
+    axis.close()
+    line.finish()
+
+
+def test_the_twin_identifies_itself(servo, axis):
+    assert axis.identity() == {"protocol": "dynamixel", "id": 1, "model_number": 1020, "model": "XM430-W350",
+                               "firmware_version": 46, "model_number_register": 1020, "firmware_register": 46}

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
-from drivers.rig_devices import axis_from_spec
+from drivers.rig_devices import axis_from_spec, connect_axis
 from goniofrost.capture.rig_file import section_validators
 from goniofrost.core.errors import ConfigError
 from planner.rig import rig_from_mapping
@@ -42,8 +42,9 @@ def drill_rig(*faults):
 
 def connected_axis(rig: SimulatedRig, name: str):
     """The real driver of one simulated axis (homed, enabled), detecting a stall after 0.3 s."""
-    axis = axis_from_spec(rig.resolved_rig().axes[name], stall_s=0.3)
-    axis.connect()
+    spec = rig.resolved_rig().axes[name]
+    axis = axis_from_spec(spec, stall_s=0.3)
+    connect_axis(axis, spec.driver)
     axis.enable()
     axis.home().wait()  # the SMC100 accepts moves only once referenced
     return axis

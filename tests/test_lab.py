@@ -177,7 +177,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     batched = batched_plan(tmp_path, rig, plan, [2, 4])
     assert main(capture_args(rig, batched, root / "a-target", "builtin:red-plastic", "--operator", "B. Operator",
                              "--sample-id", "T-7", "--note", "first coat", "--note", "dry", "--target-error",
-                             "1000")) == 0
+                             "10000", "--confidence", "0.8")) == 0
     faulty = tmp_path / "faulty.yaml"
     doc = yaml.safe_load(rig.read_text())
     doc["sim"]["faults"] = [{"axis": "sample_tilt", "kind": "alarm", "at_sample": 1}]

@@ -8,6 +8,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.axis import AxisConfig
 from drivers.errors import DeviceError, DeviceTimeout, ExceptionReply, NotConnectedError
+from drivers.rig_devices import open_transport
 from drivers.lamp import Lamp
 from drivers.modbus_drive import ModbusAxis, ModbusLink
 from sim.clock import SimClock
@@ -27,14 +28,24 @@ def drive():
     dev.stop()
 
 
+def own_section(dev, **kw) -> dict:
+    return {"protocol": "modbus-tcp", "host": "127.0.0.1", "port": dev.port, "coil": 0,
+            "photodiode_register": 0x0200, **kw}
+
+
 def own_lamp(dev, **kw) -> Lamp:
-    return Lamp.from_section({"protocol": "modbus-tcp", "host": "127.0.0.1", "port": dev.port,
-                              "coil": 0, "photodiode_register": 0x0200, **kw})
+    return Lamp.from_section(own_section(dev, **kw))
+
+
+def connected_lamp(dev, **kw) -> Lamp:
+    """A lamp with its own connection, opened by the rig layer."""
+    lamp = own_lamp(dev, **kw)
+    lamp.connect(open_transport("lamp", own_section(dev, **kw)))
+    return lamp
 
 
 def test_on_off_and_photodiode_follow_the_lamp_model(drive):
-    lamp = own_lamp(drive)
-    lamp.connect()
+    lamp = connected_lamp(drive)
     assert not lamp.is_on() and lamp.photodiode() == 0.0
     lamp.on()
     assert lamp.is_on() and drive.lamp.is_on
@@ -46,16 +57,14 @@ def test_on_off_and_photodiode_follow_the_lamp_model(drive):
 
 
 def test_full_scale_sets_what_reads_as_one(drive):
-    lamp = own_lamp(drive, full_scale=PHOTODIODE_FULL_SCALE / 2)
-    lamp.connect()
+    lamp = connected_lamp(drive, full_scale=PHOTODIODE_FULL_SCALE / 2)
     lamp.on()
     assert lamp.photodiode() == pytest.approx(2 * drive.lamp.relative_intensity(), abs=4e-4)
     lamp.close()
 
 
 def test_official_client_sees_the_coil_the_lamp_wrote(drive):
-    lamp = own_lamp(drive)
-    lamp.connect()
+    lamp = connected_lamp(drive)
     lamp.on()
     client = ModbusTcpClient("127.0.0.1", port=drive.port, timeout=1, retries=0)
     client.connect()
@@ -68,11 +77,11 @@ def test_official_client_sees_the_coil_the_lamp_wrote(drive):
 
 def test_lamp_shares_the_axis_connection(drive):
     cfg = AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, home_deg=90.0)
-    axis = ModbusAxis(cfg, host="127.0.0.1", port=drive.port)
+    axis = ModbusAxis(cfg)
     lamp = Lamp.from_section({"protocol": "modbus-tcp", "device": "camera_arm", "coil": 0,
                               "photodiode_register": 0x0200}, {"camera_arm": axis})
     assert lamp.link is axis.link
-    axis.connect()
+    axis.connect(open_transport("camera_arm", own_section(drive)))
     lamp.connect()
     lamp.on()
     lamp.close()  # the axis owns the link: it stays open
@@ -89,8 +98,7 @@ def test_bad_device_and_unconnected_use(drive):
 
 
 def test_unmapped_photodiode_register_is_an_exception_reply(drive):
-    lamp = own_lamp(drive, photodiode_register=0x0300)
-    lamp.connect()
+    lamp = connected_lamp(drive, photodiode_register=0x0300)
     with pytest.raises(ExceptionReply) as err:
         lamp.photodiode()
     assert err.value.code == 2 and err.value.command == "read input 0x0300"
@@ -98,8 +106,8 @@ def test_unmapped_photodiode_register_is_an_exception_reply(drive):
 
 
 def test_silent_drive_is_a_timeout(drive):
-    lamp = Lamp(ModbusLink("lamp", 1, "127.0.0.1", drive.port, timeout_s=0.1))
-    lamp.connect()
+    lamp = Lamp(ModbusLink("lamp", 1, timeout_s=0.1), retries=0)
+    lamp.connect(open_transport("lamp", own_section(drive)))
     drive.inject_fault("no_reply")
     with pytest.raises(DeviceTimeout, match="lamp: write coil 0 on: no reply"):
         lamp.on()

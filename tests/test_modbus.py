@@ -22,7 +22,8 @@ from drivers.modbus_protocol import modbus_crc
 from drivers.modbus_map import ORIENTAL_AZ, direct_data_registers, from_registers, resolve_map, to_registers
 from goniofrost.core.errors import ConfigError
 from pymodbus.framer.rtu import FramerRTU
-from scripted import ScriptedLine, ScriptedSocket
+from drivers.rig_devices import open_transport
+from scripted import ScriptedTransport
 from sim.clock import SimClock
 from sim.modbus_drive import SimulatedModbusDrive
 
@@ -42,14 +43,18 @@ def drive(request):
 def make_axis(dev: SimulatedModbusDrive, register_map="oriental-az", word_order="big") -> ModbusAxis:
     cfg = AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, home_deg=90.0, tolerance_deg=0.02,
                      retries=1, stall_s=0.3)
-    if dev.transport == "rtu":
-        ax = ModbusAxis(cfg, serial_port=dev.endpoint["endpoint"], parity="N", timeout_s=0.1,
-                        register_map=register_map, word_order=word_order)
-    else:
-        ax = ModbusAxis(cfg, host="127.0.0.1", port=dev.port, timeout_s=0.1,
-                        register_map=register_map, word_order=word_order)
-    ax.connect()
+    ax = ModbusAxis(cfg, rtu=dev.transport == "rtu", timeout_s=0.1, register_map=register_map,
+                    word_order=word_order)
+    ax.connect(open_link(dev))
     return ax
+
+
+def open_link(dev: SimulatedModbusDrive):
+    """The drive's pty (8N1: ptys refuse parity) or loopback port, opened by the rig layer."""
+    if dev.transport == "rtu":
+        return open_transport("camera_arm", {"protocol": "modbus-rtu", "port": dev.endpoint["endpoint"],
+                                             "parity": "N"})
+    return open_transport("camera_arm", {"protocol": "modbus-tcp", "host": "127.0.0.1", "port": dev.port})
 
 
 def wait_for(predicate, timeout_s: float = 3.0) -> None:
@@ -179,9 +184,9 @@ def _read_reply(tid: int, words: str) -> bytes:
     return _tcp(tid, 7, "03 04 " + words)
 
 
-def _scripted_axis(server, **kw) -> ModbusAxis:
+def _scripted_axis(**kw) -> ModbusAxis:
     cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, tolerance_deg=0.02, retries=0)
-    return ModbusAxis(cfg, host=server.host, port=server.port, timeout_s=1.0, **kw)
+    return ModbusAxis(cfg, timeout_s=1.0, **kw)
 
 
 CONNECT_TCP = [(_tcp(1, 6, "03 00 7E 00 02"), _read_reply(1, IDLE))]  # output status at connect
@@ -201,12 +206,12 @@ def _stop_tcp(tid: int) -> list:
 
 
 def test_tcp_link_reads_and_writes_the_spec_example_registers():
-    server = ScriptedSocket([
+    server = ScriptedTransport([
         (H("00 01 00 00 00 06 11 03 00 6B 00 03"), H("00 01 00 00 00 09 11 03 06 02 2B 00 00 00 64")),
         (H("00 02 00 00 00 0B 11 10 00 01 00 02 04 00 0A 01 02"), H("00 02 00 00 00 06 11 10 00 01 00 02")),
     ])
-    link = ModbusLink("camera_arm", 0x11, server.host, server.port, timeout_s=1.0)
-    link.open()
+    link = ModbusLink("camera_arm", 0x11, timeout_s=1.0)
+    link.open(server)
     assert link.read_holding(0x006B, 3) == [0x022B, 0x0000, 0x0064]
     link.write_holding(0x0001, [0x000A, 0x0102])
     link.close()
@@ -215,10 +220,10 @@ def test_tcp_link_reads_and_writes_the_spec_example_registers():
 
 def test_tcp_exception_response_of_the_spec_is_an_exception_reply():
     # the spec's exception example: read coils at 0x04A1 (coil 1186), 1 coil -> 81 02
-    server = ScriptedSocket([(H("00 01 00 00 00 06 11 01 04 A1 00 01"), H("00 01 00 00 00 03 11 81 02"))])
-    lamp = Lamp(ModbusLink("lamp", 0x11, server.host, server.port, timeout_s=1.0), coil=0x04A1)
+    server = ScriptedTransport([(H("00 01 00 00 00 06 11 01 04 A1 00 01"), H("00 01 00 00 00 03 11 81 02"))])
+    lamp = Lamp(ModbusLink("lamp", 0x11, timeout_s=1.0), coil=0x04A1)
     with pytest.raises(ExceptionReply) as err:
-        lamp.connect()  # reads the coil to check the lamp answers
+        lamp.connect(server)  # reads the coil to check the lamp answers
     assert err.value.code == 2 and "exception 2: illegal data address" in str(err.value)
     assert err.value.reply == H("00 01 00 00 00 03 11 81 02")
     lamp.link.close()
@@ -226,26 +231,26 @@ def test_tcp_exception_response_of_the_spec_is_an_exception_reply():
 
 
 def test_tcp_axis_connects_moves_and_arrives_on_exact_bytes():
-    server = ScriptedSocket(CONNECT_TCP + START_MOVE_TCP + [
+    server = ScriptedTransport(CONNECT_TCP + START_MOVE_TCP + [
         (_tcp(4, 6, "03 00 7E 00 02"), _read_reply(4, MOVING)),
         (_tcp(5, 6, "03 01 20 00 02"), _read_reply(5, "00 00 05 DC")),  # 1500 steps on the way
         (_tcp(6, 6, "03 00 7E 00 02"), _read_reply(6, IDLE)),
         (_tcp(7, 6, "03 01 20 00 02"), _read_reply(7, "00 00 0B B8")),  # 3000 steps: arrived
     ])
-    axis = _scripted_axis(server)
-    axis.connect()
+    axis = _scripted_axis()
+    axis.connect(server)
     assert axis.move_to(30.0).wait() == pytest.approx(30.0)
     axis.close()
     server.finish()
 
 
 def test_tcp_alarm_state_is_a_device_fault_and_the_axis_is_stopped():
-    server = ScriptedSocket(CONNECT_TCP + START_MOVE_TCP + [
+    server = ScriptedTransport(CONNECT_TCP + START_MOVE_TCP + [
         (_tcp(4, 6, "03 00 7E 00 02"), _read_reply(4, ALARM)),
         (_tcp(5, 6, "03 00 80 00 02"), _read_reply(5, "00 00 00 30")),  # alarm code 0x30: overload
     ] + _stop_tcp(6))
-    axis = _scripted_axis(server)
-    axis.connect()
+    axis = _scripted_axis()
+    axis.connect(server)
     with pytest.raises(DeviceFault, match="alarm 0x30: overload") as err:
         axis.move_to(30.0).wait()
     assert err.value.causes == ["alarm 0x30: overload"]
@@ -255,9 +260,9 @@ def test_tcp_alarm_state_is_a_device_fault_and_the_axis_is_stopped():
 
 def test_tcp_refused_move_is_an_exception_reply_and_the_axis_is_stopped():
     refused = START_MOVE_TCP[:1] + [(START_MOVE_TCP[1][0], _tcp(3, 3, "90 03"))]  # illegal data value
-    server = ScriptedSocket(CONNECT_TCP + refused + _stop_tcp(4))
-    axis = _scripted_axis(server)
-    axis.connect()
+    server = ScriptedTransport(CONNECT_TCP + refused + _stop_tcp(4))
+    axis = _scripted_axis()
+    axis.connect(server)
     with pytest.raises(ExceptionReply, match="exception 3: illegal data value") as err:
         axis.move_to(30.0)
     assert err.value.code == 3
@@ -289,14 +294,14 @@ def test_rtu_frames_of_the_scripts_carry_valid_crcs(script):
         assert modbus_crc(frame[:-2]).to_bytes(2, "little") == frame[-2:]
 
 
-def _rtu_link(line, device_id=0x11) -> ModbusLink:
-    return ModbusLink("camera_arm", device_id, None, line.port.path, baud=115200, parity="N", timeout_s=1.0)
+def _rtu_link(device_id=0x11) -> ModbusLink:
+    return ModbusLink("camera_arm", device_id, rtu=True, timeout_s=1.0)
 
 
 def test_rtu_link_reads_and_writes_the_published_frames():
-    line = ScriptedLine(RTU_SPEC)
-    link = _rtu_link(line)
-    link.open()
+    line = ScriptedTransport(RTU_SPEC)
+    link = _rtu_link()
+    link.open(line)
     assert link.read_holding(0x006B, 3) == [0xAE41, 0x5652, 0x4340]
     link.write_holding(0x0001, [0x000A, 0x0102])
     link.close()
@@ -304,11 +309,11 @@ def test_rtu_link_reads_and_writes_the_published_frames():
 
 
 def test_rtu_lamp_switches_and_reads_the_photodiode_on_published_frames():
-    line = ScriptedLine(RTU_LAMP)
-    lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": line.port.path, "device_id": 0x11,
+    line = ScriptedTransport(RTU_LAMP)
+    lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": "scripted", "device_id": 0x11,
                               "baud": 115200, "parity": "N", "coil": 0xAC, "photodiode_register": 0x0008,
                               "full_scale": 10})
-    lamp.connect()
+    lamp.connect(line)
     lamp.on()
     assert lamp.photodiode() == 1.0
     lamp.close()
@@ -316,20 +321,20 @@ def test_rtu_lamp_switches_and_reads_the_photodiode_on_published_frames():
 
 
 def test_rtu_exception_response_at_connect():
-    line = ScriptedLine([(H("01 03 00 7E 00 02 A4 13"), H("01 83 02 C0 F1"))])
+    line = ScriptedTransport([(H("01 03 00 7E 00 02 A4 13"), H("01 83 02 C0 F1"))])
     cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, retries=0)
-    axis = ModbusAxis(cfg, serial_port=line.port.path, parity="N", timeout_s=1.0)
+    axis = ModbusAxis(cfg, rtu=True, timeout_s=1.0)
     with pytest.raises(ExceptionReply, match="exception 2: illegal data address") as err:
-        axis.connect()
+        axis.connect(line)
     assert err.value.reply == H("01 83 02 C0 F1") and not axis.connected
     line.finish()
 
 
 def test_rtu_alarm_state_is_a_device_fault():
-    line = ScriptedLine(RTU_AXIS_ALARM)
+    line = ScriptedTransport(RTU_AXIS_ALARM)
     cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, retries=0)
-    axis = ModbusAxis(cfg, serial_port=line.port.path, parity="N", timeout_s=1.0)
-    axis.connect()
+    axis = ModbusAxis(cfg, rtu=True, timeout_s=1.0)
+    axis.connect(line)
     with pytest.raises(DeviceFault, match="alarm 0x30: overload"):
         axis.is_moving()
     axis.close()
@@ -338,10 +343,10 @@ def test_rtu_alarm_state_is_a_device_fault():
 
 def test_rtu_reply_with_a_bad_crc_is_a_checksum_error():
     bad = H("11 03 06 AE 41 56 52 43 40 49 AE")  # the published reply, last CRC byte damaged
-    line = ScriptedLine([(RTU_SPEC[0][0], bad)])
-    link = _rtu_link(line)
+    line = ScriptedTransport([(RTU_SPEC[0][0], bad)])
+    link = _rtu_link()
     link.timeout_s = 0.3
-    link.open()
+    link.open(line)
     with pytest.raises(ChecksumError, match="CRC mismatch") as err:
         link.read_holding(0x006B, 3)
     assert err.value.reply == bad
@@ -459,6 +464,62 @@ def test_rtu_axis_from_a_validated_rig_section(drive):
     cfg = AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, home_deg=90.0, tolerance_deg=0.02)
     ax = ModbusAxis.from_section(cfg, section)
     assert ax.link.rtu and ax.map.name == "az-copy"
-    ax.connect()
+    ax.connect(open_transport("camera_arm", section))
     assert ax.move_to(45.0).wait() == pytest.approx(45.0)
     ax.close()
+
+
+# ----- identity: Read Device Identification (43 / 14), basic objects --------------------------------
+def _objects(*texts: bytes) -> str:
+    return " ".join(f"{i:02X} {len(t):02X} {t.hex(' ')}" for i, t in enumerate(texts))
+
+
+def test_identity_is_read_device_identification_on_exact_bytes():
+    # the request and reply of the spec's 43/14 example (section 6.21): read code 01 (basic), object
+    # 00; conformity 01, no more follows, 3 objects: vendor name, product code, major/minor revision
+    objects = _objects(b"Company identification", b"Product code XX", b"V2.11")
+    reply = "2B 0E 01 01 00 00 03 " + objects
+    server = ScriptedTransport(CONNECT_TCP + [(_tcp(2, 5, "2B 0E 01 00"), _tcp(2, 1 + len(H(reply)), reply))])
+    axis = _scripted_axis()
+    axis.connect(server)
+    assert axis.identity() == {"protocol": "modbus-tcp", "device_id": 1, "register_map": "oriental-az",
+                               "vendor": "Company identification", "product_code": "Product code XX",
+                               "revision": "V2.11"}
+    axis.close()
+    server.finish()
+
+
+def test_a_drive_without_43_14_still_has_an_identity_on_exact_bytes():
+    server = ScriptedTransport(CONNECT_TCP + [(_tcp(2, 5, "2B 0E 01 00"), _tcp(2, 3, "AB 01"))])  # illegal function
+    axis = _scripted_axis()
+    axis.connect(server)
+    assert axis.identity()["identification"] == "not supported (exception 1: illegal function)"
+    axis.close()
+    server.finish()
+
+
+@pytest.mark.parametrize("drive", [("tcp", 40.0), ("rtu", 40.0)], indirect=True)
+def test_the_twin_identifies_itself_to_the_driver_and_the_official_client(drive):
+    ax = make_axis(drive)
+    assert ax.identity() == {"protocol": f"modbus-{drive.transport}", "device_id": 1, "register_map": "oriental-az",
+                             "vendor": "ORIENTAL MOTOR", "product_code": "AZD-KD", "revision": "4.00"}
+    ax.close()
+    if drive.transport == "tcp":
+        client = ModbusTcpClient("127.0.0.1", port=drive.port, timeout=1, retries=0)
+        assert client.connect()
+        info = client.read_device_information(read_code=0x02, device_id=1).information
+        assert info[0x04] == b"AZ series driver (simulated)"  # the regular objects too
+        client.close()
+
+
+def test_rtu_lamp_asks_a_lost_read_again_and_logs_the_retry(caplog):
+    read_coil, coil_off = RTU_LAMP[0]
+    line = ScriptedTransport([(read_coil, b""), (read_coil, coil_off)])  # one reply lost, then answered
+    lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": "scripted", "device_id": 0x11, "parity": "N",
+                              "coil": 0xAC, "photodiode_register": 0x0008})
+    with caplog.at_level(logging.INFO, logger="drivers.lamp"):
+        lamp.connect(line)  # reads the coil
+    assert [r.getMessage() for r in caplog.records] == [
+        "lamp: read coil 172: retry 1 of 2 after lamp: read coil 172: no reply within 0.3 s"]
+    lamp.close()
+    line.finish()

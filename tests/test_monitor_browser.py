@@ -157,11 +157,18 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         for i in range(2):
             journal.commit_sample(SampleRecord(i, 7, 1.0, 2.0, 3.0, (0.1, 0.2, 0.3), (0.01,) * 3, 80.0,
                                                joints=samples[i]["joints"], started_utc=long_ago, committed_utc=long_ago + 1))
-        journal.add_event("batch", "batch 1 reconstructed", data={"predicted_error": 0.0421})
+        # the fields the engine journals for an Assess step (the message is not read)
+        journal.add_event("batch", "batch 1 reconstructed", data={
+            "batch": 0, "samples": 2, "predicted_error": 0.0421, "bound": 0.0873, "confidence": 0.95, "target": 0.05,
+            "decision": "continue", "out_of_model": []})
         journal._db.execute("UPDATE events SET t_utc = ?", (long_ago + 2,))
     with MonitorServer(tmp_path, port=0) as server:
         page.goto(server.url)
-        expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421")
+        expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421",
+                                                              timeout=LOADED_MS)
+        expect(page.locator("#assessment")).to_have_text(
+            "after 2 samples: error <= 0.0873 with 95 % confidence, target 0.05 not reached yet (median estimate 0.0421)",
+            timeout=LOADED_MS)
         expect(page.locator("#count")).to_have_text("2 of 3 samples")
         expect(page.locator("#state")).to_have_text("stalled")
         expect(page.locator("#hint")).to_contain_text("run the same capture command with --resume")
@@ -181,7 +188,8 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
     from goniofrost.capture.session_lock import session_lock
 
     script = ScriptedSession(tmp_path, 4, batch_ends=[2, 4], target=0.05)
-    reason = "capture stopped after 2 of 4 samples: target reached (predicted error 0.0312 <= 0.05)"
+    reason = ("capture stopped after 2 of 4 samples: target reached: error <= 0.05 with 95 % confidence "
+              "(median estimate 0.0312)")
     try:
         with MonitorServer(tmp_path, port=0) as server:
             with session_lock(tmp_path):  # the capture process holds its session while it runs
@@ -194,9 +202,11 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
                     expect(page.locator("#count")).to_have_text(f"{i + 1} of 4 samples", timeout=LOADED_MS)
                     expect(page.locator("#state")).to_have_text("running", timeout=LOADED_MS)
                 assert statuses(page) == ["done", "done", "next", "pending"]
-                script.batch(2, 0.0312, 0.05, "target reached")
+                script.batch(2, 0.0312, 0.05, "target reached", bound=0.0471)
                 expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0312",
                                                                       timeout=LOADED_MS)
+                expect(page.locator("#assessment")).to_have_text(
+                    "error <= 0.05 with 95 % confidence (median estimate 0.0312)", timeout=LOADED_MS)
                 script.end_run(RunStatus.TARGET_REACHED, reason)
                 expect(page.locator("#state")).to_have_text("reconstructing", timeout=LOADED_MS)
                 script.write_report(0.0312)

@@ -1,58 +1,57 @@
-"""The scripted transports of tests/scripted.py can fail: a different byte, a byte too many and a
-reply left unread each fail ``finish()``, on a pty and on a loopback socket."""
+"""The in-memory scripted transport of tests/scripted.py can fail: a different byte, a byte too many,
+a request never sent and a reply left unread (or thrown away) each fail, without waiting."""
 from __future__ import annotations
 
-import socket
-
 import pytest
-import serial
 
-from scripted import ScriptedLine, ScriptedSocket
+from scripted import ScriptedTransport
 
 SCRIPT = [(b"1TP\r\n", b"1TP0\r\n")]
 
 
-def _serial(line):
-    return serial.Serial(line.port.path, 57600, timeout=1.0)
-
-
-def test_pty_exact_exchange_passes():
-    line = ScriptedLine(SCRIPT)
-    with _serial(line) as port:
-        port.write(b"1TP\r\n")
-        assert port.read_until(b"\r\n") == b"1TP0\r\n"
+def test_exact_exchange_passes():
+    line = ScriptedTransport(SCRIPT)
+    line.write(b"1TP\r\n")
+    assert line.read_until(b"\r\n") == b"1TP0\r\n"
     line.finish()
 
 
-@pytest.mark.parametrize("sent, read, problem", [
-    (b"1TS\r\n", False, "expected 31 54 50 0d 0a, got 31 54 53 0d 0a"),
-    (b"1TP\r\n1TE\r\n", True, "sent after the script: 31 54 45 0d 0a"),
-    (b"1TP\r\n", False, "6 reply bytes never read"),
-], ids=["different", "too-many", "unread"])
-def test_pty_exchange_fails_on(sent, read, problem):
-    line = ScriptedLine(SCRIPT)
-    with _serial(line) as port:
-        port.write(sent)
-        if read:
-            port.read_until(b"\r\n")
-        elif problem.endswith("never read"):
-            assert line.played.wait(5)  # the reply went out; closing now leaves it unread
-    with pytest.raises(AssertionError, match=problem):
+def test_a_different_byte_fails_at_once_and_at_finish():
+    line = ScriptedTransport(SCRIPT)
+    with pytest.raises(AssertionError, match="step 0: expected 31 54 50 0d 0a, got 31 54 53"):
+        line.write(b"1TS\r\n")
+    with pytest.raises(AssertionError, match="got 31 54 53"):
         line.finish()
 
 
-@pytest.mark.parametrize("read, problem", [(True, None), (False, "reply bytes never read")],
-                         ids=["exact", "unread"])
-def test_socket_exchange_checks_the_reply_was_read(read, problem):
-    server = ScriptedSocket(SCRIPT)
-    with socket.create_connection((server.host, server.port), timeout=2) as client:
-        client.sendall(b"1TP\r\n")
-        if read:
-            assert client.recv(64) == b"1TP0\r\n"
-        else:
-            assert server.played.wait(5)  # the reply went out; closing now leaves it unread
-    if problem is None:
-        server.finish()
-    else:
-        with pytest.raises(AssertionError, match=problem):
-            server.finish()
+def test_a_byte_after_the_script_fails():
+    line = ScriptedTransport(SCRIPT)
+    with pytest.raises(AssertionError, match="sent after the script: 31 54 45 0d 0a"):
+        line.write(b"1TP\r\n1TE\r\n")
+
+
+@pytest.mark.parametrize("drop", [False, True], ids=["left", "reset"])
+def test_an_unread_reply_fails(drop):
+    line = ScriptedTransport(SCRIPT)
+    line.write(b"1TP\r\n")
+    if drop:
+        line.reset_input_buffer()
+    with pytest.raises(AssertionError, match="6 reply bytes never read"):
+        line.finish()
+
+
+def test_a_request_never_sent_fails():
+    line = ScriptedTransport(SCRIPT + [(b"1TS\r\n", b"1TS00000A\r\n")])
+    line.write(b"1TP\r\n")
+    line.read_until(b"\r\n")
+    with pytest.raises(AssertionError, match="1 request\\(s\\) never sent, the first 31 54 53 0d 0a"):
+        line.finish()
+
+
+def test_silence_and_a_partial_reply_advance_the_clock_not_the_wall():
+    line = ScriptedTransport([(b"1TP\r\n", b""), (b"1TP\r\n", b"1TP\r")], timeout=0.3)
+    line.write(b"1TP\r\n")
+    assert line.read_until(b"\r\n") == b"" and line.now_ms() == pytest.approx(300.0)
+    line.write(b"1TP\r\n")
+    assert line.read_until(b"\r\n") == b"1TP\r" and line.now_ms() == pytest.approx(600.0)
+    line.finish()

@@ -591,41 +591,58 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    # a target every prediction meets (this 6-material model predicts wildly from 2 samples):
-    # the capture stops after the first batch
-    assert main(capture_args(rig, batched, session, "--speedup", "50", "--target-error", "1000")) == 0
+    # this 6-material model's bound is calibrated on 6 held-out training materials: 95 % cannot be
+    # given, and the capture says so before anything moves
+    assert main(capture_args(rig, batched, session, "--target-error", "10000")) == 2
+    assert ("command line: --confidence: expected at most 0.857 with this model (its bound is calibrated on 6 "
+            "held-out training materials; 0.95 needs 19), found 0.95") in capsys.readouterr().err
+    assert not session.exists()
+    # a target every bound meets (this model predicts wildly from 2 samples): the capture stops
+    # after the first batch
+    assert main(capture_args(rig, batched, session, "--speedup", "50", "--target-error", "10000",
+                             "--confidence", "0.8")) == 0
     out = capsys.readouterr().out
     with Journal.open(session / "session.sqlite") as journal:
         records, events, steps = journal.samples(), journal.events(), journal.steps()
     assert [r.plan_index for r in records] == [0, 1]
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 2
+    assert batch["data"]["confidence"] == 0.8 and batch["data"]["bound"] <= 10000 and batch["data"]["out_of_model"] == []
+    assert batch["message"] == (f"batch 1: 2 samples, error <= 10000 with 80 % confidence (median estimate "
+                                f"{batch['data']['predicted_error']:.4g}): target reached")
     assert [s["kind"] for s in steps].count("Assess") == 1
     assert events[-1]["kind"] is EventKind.SESSION
     _start, end = journal_last_run(session)
     assert (end.status, end.samples_planned, end.samples_captured, end.batches) == (RunStatus.TARGET_REACHED, 5, 2, 1)
-    assert end.reason.startswith("capture stopped after 2 of 5 samples: target reached (predicted error ")
+    assert end.reason == f"capture stopped after 2 of 5 samples: target reached: {batch['message'].split(', ', 1)[1].rsplit(':', 1)[0]}"
     assert report_last_run(session) == {"status": "target_reached", "reason": end.reason}
     with open(session / "samples.csv") as handle:
         assert [row["batch"] for row in csv.DictReader(handle)] == ["1", "1"]
     report = json.loads((session / "report.json").read_text())
     target = report["target_error"]
-    assert (target["target"], target["samples_used"], target["plan_samples"], target["stopped"]) == (1000.0, 2, 5, "target reached")
-    assert target["batches"][0]["predicted_error"] == pytest.approx(report["prediction"]["predicted_log_relative_mse"])
-    assert "target error 1000: target reached after 2 of 5 samples" in out
-    # resuming a stopped session moves nothing; another target is refused
-    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "1000")) == 0
+    assert (target["target"], target["samples_used"], target["plan_samples"], target["stopped"]) == (10000.0, 2, 5, "target reached")
+    assert (target["confidence"], target["bound"], target["extrapolation"]) == (0.8, batch["data"]["bound"], False)
+    assert target["statement"] == batch["message"].split(", ", 1)[1].rsplit(":", 1)[0]
+    assert target["batches"][0]["predicted_error"] == pytest.approx(batch["data"]["predicted_error"])
+    assert f"target error 10000 at 80 % confidence: target reached after 2 of 5 samples: {target['statement']}" in out
+    # resuming a stopped session moves nothing and keeps the stopping decision; another target or
+    # confidence is refused
+    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         assert len(journal.events()) == len(events) and len(journal.samples()) == 2
-    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "0.01")) == 2
+    assert json.loads((session / "report.json").read_text())["target_error"] == target
+    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "0.01", "--confidence", "0.8")) == 2
     assert "meta.target_error: this session was started with another target error" in capsys.readouterr().err
+    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "10000", "--confidence", "0.7")) == 2
+    assert "meta.confidence: this session was started with another confidence: expected 0.8, found 0.7" in capsys.readouterr().err
 
 
 def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(rig, batched, session, material=MATERIAL, speedup=50, progress=False, target_error=1e-12)
+    outcome = capture(rig, batched, session, material=MATERIAL, speedup=50, progress=False, target_error=1e-12,
+                      confidence=0.8)
     target = outcome.report["target_error"]
     assert target["stopped"] == "plan used up" and target["samples_used"] == 5
     assert [b["samples"] for b in target["batches"]] == [2, 4, 5]
@@ -645,6 +662,8 @@ def test_target_error_needs_a_batched_plan_and_a_positive_number(setup, tmp_path
     assert f"{unbatched}: batch_ends: expected the batches of a Bayesian plan" in capsys.readouterr().err
     assert main(capture_args(rig, plan, tmp_path / "b", "--target-error", "-1")) == 2
     assert "--target-error: expected a log-relative MSE > 0 (e.g. 0.05), found -1.0" in capsys.readouterr().err
+    assert main(capture_args(rig, plan, tmp_path / "b", "--target-error", "0.05", "--confidence", "1")) == 2
+    assert "--confidence: expected a probability between 0 and 1 (e.g. 0.95), found 1.0" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
@@ -742,6 +761,7 @@ def report_last_run(session) -> dict:
 def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early(setup, tmp_path, capsys):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
-    capture(rig, batched, tmp_path / "s", material=MATERIAL, speedup=50, progress=True, target_error=1000.0)
+    capture(rig, batched, tmp_path / "s", material=MATERIAL, speedup=50, progress=True, target_error=10000.0,
+            confidence=0.8)  # the bound of this 6-material model after 2 samples: about 7000
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("capture: 100%") and "| 2/2 " in last, last  # not "2/5"

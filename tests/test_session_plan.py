@@ -208,11 +208,22 @@ def test_saturated_at_the_shortest_exposure_is_an_error(frames):
 
 # ----- a capture with a target error: batches, assessments, stop -------------------------------
 def target_spec(predicted_after: dict, target: float = 0.05, batch_ends=(1, 2, 3)):
-    """SPEC measured in batches; the predicted error after k samples is ``predicted_after[k]``."""
+    """SPEC measured in batches; the error bound after k samples is ``predicted_after[k]``."""
     import dataclasses
 
-    return dataclasses.replace(SPEC, target=target, batch_ends=tuple(batch_ends),
-                               assess=lambda records: predicted_after[len(records)])
+    from goniofrost.frost.confidence import ErrorBound
+
+    # the bound after k samples is predicted_after[k], its median estimate a tenth of it
+    return dataclasses.replace(SPEC, target=target, batch_ends=tuple(batch_ends), confidence=0.95,
+                               assess=lambda records: ErrorBound(predicted_after[len(records)] / 10,
+                                                                 predicted_after[len(records)], 0.95))
+
+
+def assess_step(batch, samples, bound, decision, target=0.05):
+    """The Assess step target_spec's bounds give."""
+    from goniofrost.capture.steps import Assess
+
+    return Assess(batch, samples, bound / 10, target, decision, bound, 0.95, ())
 
 
 def test_target_session_stops_after_the_first_batch_whose_predicted_error_is_at_most_the_target(frames):
@@ -222,8 +233,8 @@ def test_target_session_stops_after_the_first_batch_whose_predicted_error_is_at_
     drive(session_steps(target_spec({1: 0.2, 2: 0.04, 3: 0.01}), calibration=RECORD), script)
     assert _shown(script.steps) == [
         Home(AXES), LampOn(), Phase("samples"),
-        sample_moves(0), Expose(0.032, "raw/sample_0000_e2.dng", 0), ("Commit", 0), Assess(0, 1, 0.2, 0.05, "continue"),
-        sample_moves(1), Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), Assess(1, 2, 0.04, 0.05, "target reached"),
+        sample_moves(0), Expose(0.032, "raw/sample_0000_e2.dng", 0), ("Commit", 0), assess_step(0, 1, 0.2, "continue"),
+        sample_moves(1), Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), assess_step(1, 2, 0.04, "target reached"),
         LampOff()]
 
 
@@ -233,7 +244,7 @@ def test_target_session_uses_up_the_plan_when_the_target_is_never_met(frames):
     script = Script(frames)
     drive(session_steps(target_spec({1: 0.2, 2: 0.1, 3: 0.09}, batch_ends=(2, 3)), calibration=RECORD), script)
     assessed = [s for s in script.steps if isinstance(s, Assess)]
-    assert assessed == [Assess(0, 2, 0.1, 0.05, "continue"), Assess(1, 3, 0.09, 0.05, "plan used up")]
+    assert assessed == [assess_step(0, 2, 0.1, "continue"), assess_step(1, 3, 0.09, "plan used up")]
     assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2] and script.steps[-1] == LampOff()
 
 
@@ -252,7 +263,23 @@ def test_a_resumed_target_session_replays_the_journaled_batches_first(frames):
     records = journaled(frames)
     script = Script(frames)
     drive(session_steps(target_spec({1: 0.2, 2: 0.01, 3: 0.0}), done={0}, calibration=RECORD, records=records), script)
-    assert _shown(script.steps)[:2] == [Assess(0, 1, 0.2, 0.05, "continue"), Home(AXES)]
-    assert _shown(script.steps)[-3:] == [("Commit", 1), Assess(1, 2, 0.01, 0.05, "target reached"), LampOff()]
+    assert _shown(script.steps)[:2] == [assess_step(0, 1, 0.2, "continue"), Home(AXES)]
+    assert _shown(script.steps)[-3:] == [("Commit", 1), assess_step(1, 2, 0.01, "target reached"), LampOff()]
     stopped = target_spec({1: 0.01, 2: 0.0, 3: 0.0})
-    assert list(session_steps(stopped, done={0}, records=records)) == [Assess(0, 1, 0.01, 0.05, "target reached")]
+    assert list(session_steps(stopped, done={0}, records=records)) == [assess_step(0, 1, 0.01, "target reached")]
+
+
+def test_samples_out_of_the_model_keep_the_capture_measuring_while_the_plan_allows(frames):
+    """A bound far below the target, but the samples unlike every training material: the capture
+    never stops on it and measures the whole plan."""
+    import dataclasses
+
+    from goniofrost.capture.steps import Assess
+    from goniofrost.frost.confidence import ErrorBound
+
+    spec = dataclasses.replace(target_spec({}), assess=lambda records: ErrorBound(0.001, 0.01, 0.95, ("z2",)))
+    script = Script(frames)
+    drive(session_steps(spec, calibration=RECORD), script)
+    decisions = [(s.samples, s.decision, s.out_of_model) for s in script.steps if isinstance(s, Assess)]
+    assert decisions == [(1, "continue", ("z2",)), (2, "continue", ("z2",)), (3, "plan used up", ("z2",))]
+    assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2]

@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from drivers.axis import AxisConfig
+from drivers.rig_devices import open_transport
 from drivers.lamp import Lamp
 from drivers.modbus_drive import ModbusAxis
 from sim.camera_bench import CameraBench
@@ -41,11 +42,12 @@ def lamp_readings(real_pause_s: float) -> list[float]:
     drive = SimulatedModbusDrive(clock, lamp=LampModel(clock, drift_per_hour=FAST_DRIFT, seed=1), position_deg=90.0)
     drive.start()
     axis = ModbusAxis(AxisConfig("camera_arm", (8.0, 172.0), 30.0, 60.0, home_deg=90.0, tolerance_deg=0.02),
-                      host="127.0.0.1", port=drive.port)
+                      )
     lamp = Lamp.from_section({"protocol": "modbus-tcp", "device": "camera_arm", "coil": 0,
                               "photodiode_register": 0x0200}, {"camera_arm": axis})
     try:
-        axis.connect()
+        axis.connect(open_transport("camera_arm", {"protocol": "modbus-tcp", "host": "127.0.0.1",
+                                                   "port": drive.port}))
         lamp.connect()
         lamp.on()
         readings = [lamp.photodiode()]

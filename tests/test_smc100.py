@@ -13,7 +13,8 @@ from drivers.smc100 import SMC100Axis
 from drivers.smc100_protocol import (
     Cmd, State, build_command, decode_ts, encode_ts, parse_command, parse_reply, te_meaning,
 )
-from scripted import ScriptedLine
+from drivers.rig_devices import open_transport
+from scripted import ScriptedTransport
 from sim.clock import SimClock
 from sim.smc100 import SimulatedSMC100
 
@@ -42,9 +43,14 @@ def axis(device):
     cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, home_deg=0.0, tolerance_deg=0.01,
                      retries=1, stall_s=0.3)
     ax = SMC100Axis(cfg, device._port.path, address=1, reply_timeout_s=0.1)
-    ax.connect()
+    ax.connect(pty_line(device))
     yield ax
     ax.close()
+
+
+def pty_line(device):
+    """The simulated controller's pty, opened by the rig layer as on a real rig (57600 8N1 XON/XOFF)."""
+    return open_transport("sample_tilt", {"protocol": "smc100", "port": device._port.path})
 
 
 def ask(ser: serial.Serial, line: bytes) -> bytes:
@@ -163,13 +169,13 @@ HOME_SMC = [
 
 def _scripted_smc(line) -> SMC100Axis:
     cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, home_deg=0.0, tolerance_deg=0.01, retries=0)
-    axis = SMC100Axis(cfg, line.port.path, address=1, reply_timeout_s=0.5)
-    axis.connect()
+    axis = SMC100Axis(cfg, "scripted", address=1, reply_timeout_s=0.5)
+    axis.connect(line)
     return axis
 
 
 def test_driver_connects_homes_and_moves_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
         (b"1TP\r\n", b"1TP0\r\n"), (b"1PA10\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),
         (b"1TS\r\n", b"1TS000028\r\n"), (b"1TP\r\n", b"1TP4.2\r\n"),   # MOVING
         (b"1TS\r\n", b"1TS000033\r\n"), (b"1TP\r\n", b"1TP10\r\n"),    # READY from MOVING
@@ -183,7 +189,7 @@ def test_driver_connects_homes_and_moves_on_exact_bytes():
 
 
 def test_refused_move_reads_te_g_and_stops_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
         (b"1TP\r\n", b"1TP0\r\n"), (b"1PA60\r\n", b""), (b"1TE\r\n", b"1TEG\r\n"),  # beyond SR
         (b"1ST\r\n", b""),                                                        # the stop
     ])
@@ -197,7 +203,7 @@ def test_refused_move_reads_te_g_and_stops_on_exact_bytes():
 
 
 def test_stage_error_state_is_a_device_fault_and_stops_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SMC + HOME_SMC + [
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
         (b"1TP\r\n", b"1TP0\r\n"), (b"1PA-30\r\n", b""), (b"1TE\r\n", b"1TE@\r\n"),
         (b"1TS\r\n", b"1TS002010\r\n"),   # following error (bit 5), state 10: stage error
         (b"1ST\r\n", b""),
@@ -213,10 +219,10 @@ def test_stage_error_state_is_a_device_fault_and_stops_on_exact_bytes():
 
 
 def test_silence_is_a_timeout_after_the_retry_on_exact_bytes():
-    line = ScriptedLine(CONNECT_SMC + [(b"1TP\r\n", b""), (b"1TP\r\n", b"1TP\r")])  # nothing, then no LF
+    line = ScriptedTransport(CONNECT_SMC + [(b"1TP\r\n", b""), (b"1TP\r\n", b"1TP\r")])  # nothing, then no LF
     cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, retries=1)
-    axis = SMC100Axis(cfg, line.port.path, address=1, reply_timeout_s=0.3)
-    axis.connect()
+    axis = SMC100Axis(cfg, "scripted", address=1, reply_timeout_s=0.3)
+    axis.connect(line)
     with pytest.raises(DeviceTimeout, match=r"1TP: no complete reply within 0.3 s \(reply: 31 54 50 0D\)"):
         axis.position()
     axis.close()
@@ -242,7 +248,7 @@ def test_driver_homes_moves_and_reports(axis, device):
 def test_driver_converts_units(device):
     cfg = AxisConfig("tilt", (-80.0, 80.0), 10.0, 20.0, home_deg=0.0, tolerance_deg=0.01, retries=0)
     ax = SMC100Axis(cfg, device._port.path, units_per_deg=0.5, reply_timeout_s=0.1)
-    ax.connect()
+    ax.connect(pty_line(device))
     ax.home().wait()
     assert ax.move_to(30.0).wait() == pytest.approx(30.0)
     assert device.motion.position() == pytest.approx(15.0)  # controller units
@@ -320,3 +326,71 @@ def test_alarm_reports_state_10_and_clear_recovers(axis, device):
     assert axis.status().fault is None
     axis.home().wait()
     assert axis.move_to(5.0).wait() == pytest.approx(5.0)
+
+
+# ----- a lost reply: TE is not asked again (it clears the letter); the move is read back with TH ----------
+def test_lost_te_after_pa_is_read_back_with_th_not_repeated_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA10\r\n", b""), (b"1TE\r\n", b""),  # the TE reply is lost
+        (b"1TH\r\n", b"1TH10\r\n"),                                         # set-point 10: PA taken
+        (b"1TS\r\n", b"1TS000033\r\n"), (b"1TP\r\n", b"1TP10\r\n"),
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    assert axis.move_to(10.0).wait() == 10.0
+    axis.close()
+    line.finish()
+
+
+def test_lost_te_of_a_refused_pa_is_not_taken_for_an_accepted_one_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + HOME_SMC + [
+        (b"1TP\r\n", b"1TP0\r\n"), (b"1PA60\r\n", b""), (b"1TE\r\n", b""),  # refused (G), TE lost
+        (b"1TH\r\n", b"1TH0\r\n"),                                          # set-point unchanged
+        (b"1ST\r\n", b""),                                                  # retries 0: stop, raise
+    ])
+    axis = _scripted_smc(line)
+    axis.home().wait()
+    with pytest.raises(DeviceTimeout, match=r"sample_tilt: 1TE: no complete reply within 0.5 s"):
+        axis.move_to(60.0)
+    axis.close()
+    line.finish()
+
+
+# ----- identity and the read-only queries of the manual --------------------------------------------
+def test_identity_reads_ve_and_id_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + [(b"1VE\r\n", b"1VE SMC100CC 2.0.0\r\n"),
+                                            (b"1ID?\r\n", b"1IDURS100CC\r\n"),
+                                            (b"1TBG\r\n", b"1TBG DISPLACEMENT OUT OF LIMITS\r\n")])
+    axis = _scripted_smc(line)
+    assert axis.identity() == {"protocol": "smc100", "address": 1, "version": "SMC100CC 2.0.0",
+                               "stage": "URS100CC"}
+    assert axis.error_text("G") == "G DISPLACEMENT OUT OF LIMITS"
+    axis.close()
+    line.finish()
+
+
+def test_terminal_read_only_queries_answer_in_every_state(terminal, device):
+    assert ask(terminal, b"1VE\r\n") == b"1VE SMC100CC 2.0.0\r\n"
+    assert ask(terminal, b"1ID?\r\n") == b"1IDURS100CC\r\n"
+    assert ask(terminal, b"1PT10\r\n") == b"1PT1\r\n"   # 10 units at VA 20, AC 40: 0.5 + 0.5 s
+    assert ask(terminal, b"1TBH\r\n") == b"1TBH COMMAND NOT ALLOWED IN NOT REFERENCED STATE\r\n"
+    terminal.write(b"1PA5\r\n")  # refused in NOT REFERENCED: TB alone gives the stored error, once
+    assert ask(terminal, b"1TB\r\n") == b"1TBH COMMAND NOT ALLOWED IN NOT REFERENCED STATE\r\n"
+    assert ask(terminal, b"1TE\r\n") == b"1TE@\r\n"
+    for query, reply in [(b"1SA?", b"1SA1"), (b"1OH?", b"1OH10"), (b"1OT?", b"1OT30"), (b"1FE?", b"1FE0.05"),
+                         (b"1BA?", b"1BA0"), (b"1JR?", b"1JR0.05"), (b"1MM?", b"1MM1"), (b"1TH", b"1TH3")]:
+        assert ask(terminal, query + b"\r\n") == reply + b"\r\n"
+    assert device.state == State.NOT_REFERENCED_FROM_RESET and device.true_position_deg() == 3.0  # nothing moved
+
+
+def test_lost_te_after_or_is_read_back_with_ts_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + [
+        (b"1TP\r\n", b"1TP3\r\n"),
+        (b"1TS\r\n", b"1TS00000A\r\n"), (b"1OR\r\n", b""), (b"1TE\r\n", b""),  # the TE reply is lost
+        (b"1TS\r\n", b"1TS00001E\r\n"),                                        # HOMING: OR was taken
+        (b"1TS\r\n", b"1TS000032\r\n"), (b"1TP\r\n", b"1TP0\r\n"),
+    ])
+    axis = _scripted_smc(line)
+    assert axis.home().wait() == 0.0
+    axis.close()
+    line.finish()

@@ -13,9 +13,10 @@ import time
 
 import numpy as np
 
-from goniofrost.frost import posterior, prediction, stopping
+from goniofrost.frost import confidence, posterior, prediction, stopping
 
 Z50, Z90 = 0.6744897501960817, 1.6448536269514722  # two-sided normal quantiles
+DEFAULT_CONFIDENCE = 0.95  # of the simulated captures (capture --confidence's default)
 
 
 def _fit(model, positions, truth):
@@ -30,12 +31,24 @@ def _fit(model, positions, truth):
                          b, s2, float(noise.sum()), model.grid.n_valid), noise
 
 
+def _features(model, post, n_mat: int) -> np.ndarray:
+    """float64 (n_mat, 3): (design error, z2, energy) of every material."""
+    return np.array([prediction.material_features(post, [3 * i, 3 * i + 1, 3 * i + 2], model.n_signals)
+                     for i in range(n_mat)])
+
+
 def _predicted(model, post, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """(predicted error, design error) per material, float64 (n_mat,) each."""
+    feats = _features(model, post, n_mat)
+    return prediction.predict(prediction.calibration_of(model), feats[:, 0], feats[:, 1], feats[:, 2], m), feats[:, 0]
+
+
+def _bounds(model, post, n_mat: int, m: int, level: float) -> dict:
+    """``confidence.error_bounds`` of every material (exact samples: nothing extra)."""
     calibration = prediction.calibration_of(model)
-    feats = np.array([prediction.material_features(post, [3 * i, 3 * i + 1, 3 * i + 2], model.n_signals)
-                      for i in range(n_mat)])
-    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m), feats[:, 0]
+    feats = _features(model, post, n_mat)
+    predicted = prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m)
+    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level)
 
 
 def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
@@ -62,29 +75,55 @@ def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.
             "cover50": cover50, "cover90": cover90, "seconds": seconds}
 
 
+def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
+               level: float = DEFAULT_CONFIDENCE) -> dict:
+    """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
+    error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
+    at ``level``) and "out_of_model" (1 if the samples are unlike every training material)."""
+    from goniofrost.frost.metrics import batch_log_errors
+
+    positions = np.asarray(positions, dtype=np.int64)
+    n_mat = truth.shape[0]
+    post, _ = _fit(model, positions, truth)
+    b = _bounds(model, post, n_mat, np.unique(positions).size, level)
+    estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
+    estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
+    return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
+            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64)}
+
+
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-                    target: float) -> dict:
-    """Simulated ``capture --target-error``: every test material measured in batches along the
-    nested design ``order`` (positions, length m_max) until its predicted error <= target.
+                    target: float, confidence_level: float = DEFAULT_CONFIDENCE) -> dict:
+    """Simulated ``capture --target-error target --confidence confidence_level``: every test
+    material measured in batches along the nested design ``order`` (positions, length m_max)
+    until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
 
     Returns float64/int64 (n_mat,) arrays "samples", "mse" (true error at the stop),
-    "pred_mse" (predicted at the stop), "reached" (1 if the target was reached) and "seconds"
-    (the whole simulation, wall time).
+    "pred_mse" (median estimate at the stop), "upper" (the bound at the stop), "reached" (1 if
+    the rule stopped on the target), "out_of_model" (1 if the last assessment was out of the
+    model), "ever_out" (1 if any assessment was) and "seconds" (the whole simulation, wall time).
     """
     from goniofrost.frost.metrics import batch_log_errors
 
     start = time.perf_counter()
     n_mat, m_max = truth.shape[0], order.size
-    stop_at = np.full(n_mat, -1)
-    predicted_at = np.zeros(n_mat)
+    stop_at, reached = np.full(n_mat, -1), np.zeros(n_mat, dtype=np.int64)
+    median_at, upper_at = np.zeros(n_mat), np.zeros(n_mat)
+    out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
     posts = {}
     for end in stopping.batch_ends(m_max):
         post, _ = _fit(model, order[:end], truth)
         posts[end] = post
-        predicted, _ = _predicted(model, post, n_mat, end)
+        b = _bounds(model, post, n_mat, end, confidence_level)
+        out = b["out_of_model_z2"] | b["out_of_model_energy"]
         for i in np.flatnonzero(stop_at < 0):
-            if stopping.stop_reason(predicted[i], target, end, m_max) is not None:
-                stop_at[i], predicted_at[i] = end, predicted[i]
+            bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level,
+                                          ("z2",) if out[i] else ())
+            ever_out[i] |= int(out[i])
+            reason = stopping.stop_reason(bound, target, end, m_max)
+            if reason is not None:
+                stop_at[i], median_at[i], upper_at[i] = end, bound.median, bound.upper
+                reached[i], out_at[i] = int(reason == stopping.REASON_TARGET), int(out[i])
     mse = np.empty(n_mat)
     for end in np.unique(stop_at):
         mats = np.flatnonzero(stop_at == end)
@@ -92,5 +131,5 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         coef = posts[end].coefficients[:, cols].astype(np.float32)
         estimate = np.asarray(model.dictionary) @ coef + np.asarray(model.mean, np.float32)[:, None]
         mse[mats] = batch_log_errors(model, estimate.astype(np.float64), truth_log[mats])
-    return {"samples": stop_at, "mse": mse, "pred_mse": predicted_at,
-            "reached": (predicted_at <= target).astype(np.int64), "seconds": time.perf_counter() - start}
+    return {"samples": stop_at, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
+            "out_of_model": out_at, "ever_out": ever_out, "seconds": time.perf_counter() - start}

@@ -4,7 +4,8 @@ Mitsuba 3 (and pbrt-v4) read measured BRDFs only in the adaptive parameterisatio
 Jakob 2018 ("An Adaptive Parameterization for Efficient Material Acquisition and Rendering",
 ACM TOG 37(6)), through the ``measured`` plugin. This writes the RGB form, which Mitsuba 3's RGB
 variants load; the spectral form (``spectra``, ``wavelengths``), which Mitsuba's spectral
-variants and pbrt-v4 need, is not written. Sources followed, field by field:
+variants and pbrt-v4 need, is ``goniofrost.brdf.rgl_spectral`` on the same fields. Sources
+followed, field by field:
 
 * Mitsuba 3 ``src/bsdfs/measured.cpp`` (v3.9.1): the fields, dtypes and the shapes that must
   agree; ``u = sqrt(2 theta / pi)`` for elevations, ``u = (phi + pi) / (2 pi)`` for azimuths;

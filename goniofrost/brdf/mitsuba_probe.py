@@ -4,27 +4,72 @@ Used by the export tests and benchmarks/mitsuba_export.py: Mitsuba's eval at dir
 its sampled weights, the integral of its pdf, and the table's directional albedo by quadrature.
 Mitsuba's convention: ``si.wi`` is the direction towards the viewer, ``wo`` towards the light,
 and eval returns f cos theta_o. Needs the optional dependency ``mitsuba``.
+
+A spectral file (``goniofrost.brdf.rgl_spectral``) is probed in Mitsuba's ``scalar_spectral``
+variant: its eval at the file's wavelength nodes, turned into linear sRGB the way Mitsuba turns a
+spectrum into a pixel (CIE 1931 under its D65, ``xyz_to_srgb``), with Mitsuba's own colour
+functions. The renderer holds the spectrum linear between the nodes and constant beyond them
+(the interpolant's parameter is clamped), so ``spectral_to_rgb_weights`` integrates exactly that
+function at 1 nm over Mitsuba's 360-830 nm.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from goniofrost.brdf.mitsuba_export import elevation_dir, lookup, u_to_theta
-from goniofrost.brdf.mitsuba_render import load_mitsuba
+from goniofrost.brdf.mitsuba_render import SPECTRAL_VARIANT, VARIANT, load_mitsuba
 from goniofrost.core.grid import MerlGrid
 
 
-def load_bsdf(path):
-    """The ``measured`` BSDF of a tensor file (RGB variant)."""
-    mi = load_mitsuba()
+def load_bsdf(path, variant: str = VARIANT):
+    """The ``measured`` BSDF of a tensor file (RGB variant; SPECTRAL_VARIANT for a spectral file)."""
+    mi = load_mitsuba(variant)
     return mi.load_dict({"type": "measured", "filename": str(path)})
 
 
-def _surface(w_i):
-    mi = load_mitsuba()
+def _surface(w_i, variant: str = VARIANT):
+    mi = load_mitsuba(variant)
     si = mi.SurfaceInteraction3f()
     si.wi = mi.Vector3f(*np.asarray(w_i, dtype=float))
     return si
+
+
+def eval_pairs_spectral(bsdf, w_i: np.ndarray, w_o: np.ndarray, wavelengths: np.ndarray) -> np.ndarray:
+    """Mitsuba's spectral eval (n, n_lambda) at direction pairs (n, 3) and wavelengths (nm), 4 at a time."""
+    mi = load_mitsuba(SPECTRAL_VARIANT)
+    lam = np.asarray(wavelengths, dtype=np.float64)
+    width = mi.MI_WAVELENGTH_SAMPLES
+    padded = np.concatenate([lam, np.full(-lam.size % width, lam[-1])]).reshape(-1, width)
+    ctx, out = mi.BSDFContext(), np.empty((len(w_i), padded.size))
+    for k in range(len(w_i)):
+        si, wo = _surface(w_i[k], SPECTRAL_VARIANT), mi.Vector3f(*w_o[k])
+        for j, group in enumerate(padded):
+            si.wavelengths = mi.Spectrum(*group)
+            out[k, j * width:(j + 1) * width] = np.array(bsdf.eval(ctx, si, wo))
+    return out[:, :lam.size]
+
+
+def spectral_to_rgb_weights(wavelengths: np.ndarray) -> np.ndarray:
+    """W (n_lambda, 3): linear sRGB = values @ W of a spectrum given at its nodes (Mitsuba's colour functions).
+
+    The spectrum between the nodes is linear and constant beyond them (as the renderer
+    interpolates the file), integrated at 1 nm over 360-830 nm against CIE 1931 x D65 and
+    normalised so that a spectrum of 1 is Y = 1; then Mitsuba's ``xyz_to_srgb``.
+    """
+    mi = load_mitsuba(SPECTRAL_VARIANT)
+    lam = np.asarray(wavelengths, dtype=np.float64)
+    fine = np.arange(mi.MI_CIE_MIN, mi.MI_CIE_MAX + 0.5, 1.0)
+    xyz = np.array([mi.cie1931_xyz(float(x)) for x in fine], dtype=np.float64).reshape(fine.size, 3)
+    d65 = np.array([mi.cie_d65(float(x)) for x in fine])
+    weight = xyz * d65[:, None] / np.sum(d65 * xyz[:, 1])
+    hats = np.stack([np.interp(fine, lam, e) for e in np.eye(lam.size)], axis=0)    # (n_lambda, fine)
+    to_srgb = np.array([np.array(mi.xyz_to_srgb(mi.Color3f(*e))) for e in np.eye(3)]).T
+    return hats @ weight @ to_srgb.T
+
+
+def eval_pairs_spectral_rgb(bsdf, w_i: np.ndarray, w_o: np.ndarray, wavelengths: np.ndarray) -> np.ndarray:
+    """Mitsuba's spectral eval at direction pairs converted to linear sRGB (n, 3), as its film does."""
+    return eval_pairs_spectral(bsdf, w_i, w_o, wavelengths) @ spectral_to_rgb_weights(wavelengths)
 
 
 def eval_pairs(bsdf, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:

@@ -7,6 +7,12 @@ the ``direct`` integrator (a sphere is convex: no interreflection), and one unji
 pixel so that each pixel is shaded at its centre, as goniofrost's preview does. HDR radiance in
 the same units, so the two renderings compare pixel for pixel.
 
+A spectral file renders in SPECTRAL_VARIANT: the light's RGB irradiance becomes Mitsuba's D65
+spectrum (white) and the film turns the spectrum into linear sRGB. One sample per pixel carries
+only 4 wavelengths, and the unjittered sampler draws the same ones everywhere, so with ``spp`` > 1
+the scene uses Mitsuba's independent sampler (positions jittered over the pixel too): compare it
+with the RGB file rendered at the same ``spp``.
+
 Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
 """
 from __future__ import annotations
@@ -17,24 +23,25 @@ from goniofrost.brdf.preview import DEFAULT_LIGHTS
 from goniofrost.core.errors import GoniofrostError
 
 VARIANT = "scalar_rgb"  # the exported file is RGB: an RGB variant; scalar runs everywhere
+SPECTRAL_VARIANT = "scalar_spectral"  # the spectral file (rgl-spectral): Mitsuba's spectral variants only
 
 
 class MitsubaMissingError(GoniofrostError, ImportError):
     """Mitsuba 3 is not installed (it is the optional 'render' extra)."""
 
 
-def load_mitsuba():
-    """The ``mitsuba`` module with the RGB variant set; a clear error when it is not installed."""
+def load_mitsuba(variant: str = VARIANT):
+    """The ``mitsuba`` module with ``variant`` set (RGB by default); a clear error when it is not installed."""
     try:
         import mitsuba as mi
     except ImportError:
         raise MitsubaMissingError("rendering with Mitsuba needs Mitsuba 3: pip install 'goniofrost[render]' "
                                   "(or pip install mitsuba)") from None
-    mi.set_variant(VARIANT)
+    mi.set_variant(variant)
     return mi
 
 
-def scene_dict(bsdf_path, light, size: int) -> dict:
+def scene_dict(bsdf_path, light, size: int, spp: int = 1) -> dict:
     """The Mitsuba scene of one preview sphere lit by ``light`` = (direction to the light, irradiance)."""
     direction, irradiance = light
     to_light = np.asarray(direction, dtype=np.float64)
@@ -47,7 +54,8 @@ def scene_dict(bsdf_path, light, size: int) -> dict:
             "to_world": _look_along_minus_z(),
             "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},
                      "pixel_format": "rgb"},
-            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
+            "sampler": ({"type": "stratified", "sample_count": 1, "jitter": False} if spp == 1 else
+                        {"type": "independent", "sample_count": spp}),
         },
         "sphere": {"type": "sphere", "bsdf": {"type": "measured", "filename": str(bsdf_path)}},
         "light": {"type": "directional", "direction": (-to_light).tolist(),
@@ -56,17 +64,23 @@ def scene_dict(bsdf_path, light, size: int) -> dict:
 
 
 def _look_along_minus_z():
-    mi = load_mitsuba()
+    import mitsuba as mi  # the caller has set the variant
+
     return mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
 
 
-def render_set_mitsuba(bsdf_path, lights=DEFAULT_LIGHTS, size: int = 192) -> np.ndarray:
-    """HDR images (n_lights, size, size, 3) of the sphere under each light, rendered by Mitsuba."""
-    mi = load_mitsuba()
+def render_set_mitsuba(bsdf_path, lights=DEFAULT_LIGHTS, size: int = 192, variant: str = VARIANT,
+                       spp: int = 1) -> np.ndarray:
+    """HDR images (n_lights, size, size, 3) of the sphere under each light, rendered by Mitsuba.
+
+    ``variant``: VARIANT for an RGB file, SPECTRAL_VARIANT for a spectral one; ``spp`` > 1: the
+    independent sampler (module docstring), seed 0.
+    """
+    mi = load_mitsuba(variant)
     images = []
     for _, direction, irradiance in lights:
-        scene = mi.load_dict(scene_dict(bsdf_path, (direction, irradiance), size))
-        images.append(np.array(mi.render(scene, spp=1), dtype=np.float64))
+        scene = mi.load_dict(scene_dict(bsdf_path, (direction, irradiance), size, spp))
+        images.append(np.array(mi.render(scene, spp=spp, seed=0), dtype=np.float64))
     return np.stack(images)
 
 

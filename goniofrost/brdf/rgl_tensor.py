@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.core.atomic_file import write_buffers_atomic
 from goniofrost.core.errors import GoniofrostError
 
 MAGIC = b"tensor_file\x00"
@@ -43,6 +43,14 @@ class TensorFileError(GoniofrostError, ValueError):
 
 def encode(fields: dict) -> bytes:
     """The bytes of a tensor file holding ``fields`` (name -> numpy array or str), in order."""
+    return b"".join(bytes(buffer) for buffer in encode_buffers(fields))
+
+
+def encode_buffers(fields: dict) -> list:
+    """The file as a list of bytes-like pieces (header, zero padding, each array's memory), in order.
+
+    Written in turn without joining them: a 100 MB spectral file is not copied three times.
+    """
     arrays = {name: _as_field(name, value) for name, value in fields.items()}
     header = bytearray(MAGIC + struct.pack("<BBI", *VERSION, len(arrays)))
     header_size = len(header) + sum(_entry_size(name, a) for name, a in arrays.items())
@@ -56,16 +64,17 @@ def encode(fields: dict) -> bytes:
         header += struct.pack("<H", len(label)) + label
         header += struct.pack("<HBQ", array.ndim, DTYPE_CODES[array.dtype], offset)
         header += struct.pack(f"<{array.ndim}Q", *array.shape)
-    body = bytearray(header)
+    buffers, end = [bytes(header)], len(header)
     for array, offset in zip(arrays.values(), offsets):
-        body += bytes(offset - len(body))  # zero padding up to the aligned offset
-        body += array.tobytes(order="C")
-    return bytes(body)
+        buffers.append(bytes(offset - end))  # zero padding up to the aligned offset
+        buffers.append(memoryview(array).cast("B"))
+        end = offset + array.nbytes
+    return buffers
 
 
 def write_tensor_file(path, fields: dict) -> None:
     """Write ``fields`` (name -> array or str) as a tensor file, atomically."""
-    write_bytes_atomic(path, encode(fields))
+    write_buffers_atomic(path, encode_buffers(fields))
 
 
 def read_tensor_file(path) -> dict[str, np.ndarray]:

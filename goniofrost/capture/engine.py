@@ -125,12 +125,13 @@ class SessionEngine(PlanRunner):
         last, n = (self.stats.batches[-1] if self.stats.batches else None), len(self.spec.samples)
         if last is None:
             return RunStatus.FINISHED, "all samples captured"
+        from goniofrost.capture.target import statement
+
         if last["decision"] == PLAN_USED_UP:
-            return RunStatus.PLAN_USED_UP, (f"all {n} samples captured: the plan was used up with a predicted "
-                                            f"error of {last['predicted_error']:.4g} (target {last['target']:g})")
+            return RunStatus.PLAN_USED_UP, (f"all {n} samples captured: the plan was used up short of the target "
+                                            f"{last['target']:g}: {statement(last)}")
         return RunStatus.TARGET_REACHED, (f"capture stopped after {last['samples']} of {n} samples: target "
-                                          f"reached (predicted error {last['predicted_error']:.4g} <= "
-                                          f"{last['target']:g})")
+                                          f"reached: {statement(last)}")
 
     def before_step(self, step) -> None:
         if isinstance(step, Move) and step.index is not None:
@@ -266,8 +267,10 @@ class SessionEngine(PlanRunner):
     def _assessed(self, step: Assess, _result) -> dict:
         summary = dataclasses.asdict(step)
         self.stats.batches.append(summary)
-        self.journal.add_event(EventKind.BATCH, f"batch {step.batch + 1}: {step.samples} samples, predicted error "
-                               f"{step.predicted_error:.4g} (target {step.target:g}): {step.decision}", data=summary)
+        from goniofrost.capture.target import statement
+
+        self.journal.add_event(EventKind.BATCH, f"batch {step.batch + 1}: {step.samples} samples, {statement(summary)}: "
+                               f"{step.decision}", data=summary)
         if self._bar is not None and step.decision not in (CONTINUE, PLAN_USED_UP):
             self._bar.total = self._bar.n  # stopped early: the bar ends at the count captured, not "15/40"
             self._bar.refresh()

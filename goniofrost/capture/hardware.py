@@ -166,12 +166,13 @@ def open_camera(rig):
     """A FolderCamera for a rig (object with ``.camera`` or the ``camera`` mapping itself).
 
     ``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={exposure_s} --trigger-capture``)
-    is run for each exposure; without it the operator is asked to expose (and, always, to change
-    the target), with ``operator_timeout_s`` to answer and ``abort`` as a way out. The simulated
-    camera is built by the session from the ``sim`` section, not here.
+    is run for each exposure; without it the operator is asked to expose, with
+    ``operator_timeout_s`` to answer and ``abort`` as a way out. ``target_command`` (``{target}``:
+    sample, white, flat) changes the target in front of the lens; without it the operator is asked.
+    The simulated camera is built by the session from the ``sim`` section, not here.
     """
     from calib.config import validate_camera_section
-    from drivers.camera import CameraError, FolderCamera, OperatorPrompt
+    from drivers.camera import CameraError, OperatorPrompt
     from goniofrost.core.errors import ConfigError
 
     source = getattr(rig, "source", "rig file")
@@ -181,19 +182,49 @@ def open_camera(rig):
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
     if section["folder"] is None:
         raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
-    command = section["trigger_command"]
     prompt = OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput())
+    timeout_s = section["timeout_s"]
+    command, target_command = section["trigger_command"], section.get("target_command")
     if command is None:
         def trigger(exposure_s: float) -> None:
             prompt(f"expose one RAW frame of {exposure_s} s into {section['folder']}")
     else:
         def trigger(exposure_s: float) -> None:
-            args = shlex.split(command.format(exposure_s=exposure_s))
-            try:
-                done = subprocess.run(args, capture_output=True, text=True, timeout=section["timeout_s"])
-            except subprocess.TimeoutExpired:
-                raise CameraError(f"camera trigger {args[0]!r} did not finish within {section['timeout_s']:g} s "
-                                  f"(camera.timeout_s)") from None
-            if done.returncode != 0:
-                raise CameraError(f"camera trigger {args[0]!r} failed ({done.returncode}): {done.stderr.strip()[:200]}")
-    return FolderCamera(section["folder"], trigger, timeout_s=section["timeout_s"], ask=prompt)
+            _run_camera_command(command.format(exposure_s=exposure_s), "camera trigger", "camera.timeout_s", timeout_s)
+    change_target = None if target_command is None else (
+        lambda target: _run_camera_command(target_command.format(target=target), "camera target",
+                                           "camera.timeout_s", timeout_s))
+    return _TargetFolderCamera(section["folder"], trigger, timeout_s=timeout_s, ask=prompt,
+                               change_target=change_target)
+
+
+def _run_camera_command(text: str, what: str, key: str, timeout_s: float) -> None:
+    """Run one camera command line; CameraError naming it when it fails or outlasts ``timeout_s``."""
+    from drivers.camera import CameraError
+
+    args = shlex.split(text)
+    try:
+        done = subprocess.run(args, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise CameraError(f"{what} {args[0]!r} did not finish within {timeout_s:g} s ({key})") from None
+    except OSError as exc:
+        raise CameraError(f"{what} {args[0]!r} cannot run: {exc}") from None
+    if done.returncode != 0:
+        raise CameraError(f"{what} {args[0]!r} failed ({done.returncode}): {done.stderr.strip()[:200]}")
+
+
+def _TargetFolderCamera(folder, trigger, *, timeout_s, ask, change_target):
+    """A FolderCamera; with ``change_target(target)`` its targets are changed by that (a command)
+    instead of asking the operator."""
+    from drivers.camera import Camera, FolderCamera
+
+    if change_target is None:
+        return FolderCamera(folder, trigger, timeout_s=timeout_s, ask=ask)
+
+    class CommandTargets(FolderCamera):
+        def set_target(self, target: str) -> None:
+            if target != self.target:
+                change_target(target)
+            Camera.set_target(self, target)  # checks the name; no operator prompt
+
+    return CommandTargets(folder, trigger, timeout_s=timeout_s, ask=ask)

@@ -93,6 +93,7 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     report["label"] = journal.label().to_dict()
     report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                             "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
+    report["prediction"] |= extrapolation_section(inputs, records)
     report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
     if spec is not None and spec.target is not None:
         report["target_error"] = target_section(spec, records)
@@ -104,6 +105,19 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
     write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
+
+
+def extrapolation_section(inputs, records) -> dict:
+    """Whether the samples are unlike every training material (``frost.confidence``): the
+    reconstruction is then an extrapolation the model's training does not back."""
+    from goniofrost.frost.confidence import FEATURE_NAMES
+    from goniofrost.frost.reconstruction import error_bound
+
+    order = np.array([r.plan_index for r in records], dtype=np.int64)
+    bound = error_bound(inputs.model, inputs.positions[order], np.array([r.rgb for r in records]),
+                        np.array([r.sigma for r in records]))
+    return {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
+            "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
 
 
 def read_earlier_record(path: Path) -> dict:
@@ -152,12 +166,19 @@ def _version() -> str | None:
 def target_section(spec, records) -> dict:
     """The target-error part of report.json: every batch's predicted error and decision, and why
     the capture stopped ("target reached", "plan used up", or "not finished" if interrupted)."""
-    from goniofrost.capture.target import CONTINUE, history
+    from goniofrost.capture.target import CONTINUE, history, statement
 
     batches = history(spec.assess, spec.batch_ends, spec.target, records)
+    for batch in batches:
+        batch["out_of_model"] = list(batch["out_of_model"])
     stopped = batches[-1]["decision"] if batches and batches[-1]["decision"] != CONTINUE else "not finished"
-    return {"target": spec.target, "plan_samples": len(spec.samples), "samples_used": len(records),
-            "batch_ends": list(spec.batch_ends), "batches": batches, "stopped": stopped}
+    last = batches[-1] if batches else None
+    return {"target": spec.target, "confidence": spec.confidence, "plan_samples": len(spec.samples),
+            "samples_used": len(records), "batch_ends": list(spec.batch_ends), "batches": batches,
+            "stopped": stopped, "statement": statement(last) if last else "no batch was completed",
+            "bound": None if last is None else last["bound"],
+            "median_estimate": None if last is None else last["predicted_error"],
+            "extrapolation": bool(last and last["out_of_model"])}
 
 
 def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None) -> float | None:
@@ -259,11 +280,17 @@ def summary_text(report: dict) -> str:
     ]
     target = report.get("target_error")
     if target:
-        lines.append(f"target error {target['target']:g}: {target['stopped']} after {target['samples_used']} of "
-                     f"{target['plan_samples']} samples; predicted error after each batch: "
-                     + ", ".join(f"{b['samples']}: {b['predicted_error']:.4g}" for b in target["batches"]))
+        lines.append(f"target error {target['target']:g} at {100 * target['confidence']:g} % confidence: "
+                     f"{target['stopped']} after {target['samples_used']} of {target['plan_samples']} samples: "
+                     f"{target['statement']}")
+        lines.append("  bound (median estimate) after each batch: " + ", ".join(
+            f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
     lines.append(f"predicted error of this reconstruction: log-relative MSE {report['prediction']['predicted_log_relative_mse']:.4g}"
                  f" (per-cell standard deviation in {report['outputs']['std']})")
+    if report["prediction"].get("extrapolation"):
+        lines.append("EXTRAPOLATION: the samples are unlike every material the model was trained on ("
+                     + " and ".join(report["prediction"]["out_of_model_features"]) + " beyond the training range): "
+                     "this reconstruction and its predicted error are not backed by the training set")
     off = report.get("markers_off", [])
     if off:
         lines.append(f"{len(off)} sample(s) saw the holder's markers away from where the camera model puts them "

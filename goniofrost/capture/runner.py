@@ -11,12 +11,14 @@ import dataclasses
 import hashlib
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from goniofrost.core.errors import ConfigError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 from goniofrost.capture.session_steps import SessionSpec
+from goniofrost.capture.target import DEFAULT_CONFIDENCE
 
 JOURNAL_FILE = "session.sqlite"
 log = logging.getLogger(__name__)
@@ -33,15 +35,16 @@ class CaptureOutcome:
 
 def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
-            on_ready=None, target_error: float | None = None, alignment=None, label=None,
-            reuse_calibration: dict | None = None, drift_limit: float | None = None,
+            on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
+            alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
             inputs=None, progress_desc: str = "capture") -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests);
-    ``target_error``: measure the plan batch by batch and stop once this material's predicted
-    log-relative MSE is at most this (``goniofrost.capture.target``; the plan needs batch_ends).
+    ``target_error``: measure the plan batch by batch and stop once this material's log-relative
+    MSE is at most this with probability ``confidence`` (the calibrated bound of
+    ``frost.confidence``; ``goniofrost.capture.target``; the plan needs batch_ends).
     ``alignment``: an ALIGNMENT.json that overrides the rig file's ``alignment``.
     ``label``: who measures what (``goniofrost.capture.lab.session_label``; default: the rig
     file's lab section alone); a resume keeps the journaled one, adds new notes and refuses
@@ -59,11 +62,11 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     inputs = inputs or load_inputs(rig_path, plan_path, alignment)
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
-    check_target(inputs, target_error)
+    check_target(inputs, target_error, confidence)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material, target_error) | {
+    meta = session_meta(inputs, material, target_error, confidence) | {
         "label": (label or session_label(inputs.rig)).to_dict()}
-    spec = SessionSpec.from_inputs(inputs, target_error)
+    spec = SessionSpec.from_inputs(inputs, target_error, confidence)
     if drift_limit is not None:
         spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
     with session_lock(session_dir):
@@ -116,12 +119,18 @@ def journal_device_log(journal, device_log) -> None:
         log.error("could not journal the device log: %s", exc)
 
 
-def check_target(inputs, target_error) -> None:
-    """A target error must be a number > 0, and the plan a Bayesian plan measured in batches."""
+def check_target(inputs, target_error, confidence: float = DEFAULT_CONFIDENCE) -> None:
+    """A target error must be a number > 0, the confidence in (0, 1) and one the model's calibrated
+    bound can give, and the plan a Bayesian plan measured in batches."""
+    from goniofrost.frost.confidence import max_confidence, unavailability
+    from goniofrost.frost.prediction import calibration_of
+
     if target_error is None:
         return
     if not (isinstance(target_error, (int, float)) and 0 < target_error < float("inf")):
         raise ConfigError("command line", "--target-error", "a log-relative MSE > 0 (e.g. 0.05)", target_error)
+    if not (isinstance(confidence, (int, float)) and 0 < confidence < 1):
+        raise ConfigError("command line", "--confidence", "a probability between 0 and 1 (e.g. 0.95)", confidence)
     ends, n = inputs.plan.get("batch_ends"), len(inputs.samples)
     if not isinstance(ends, list) or not ends:
         raise ConfigError(inputs.plan_path, "batch_ends", "the batches of a Bayesian plan "
@@ -129,6 +138,15 @@ def check_target(inputs, target_error) -> None:
     if (not all(isinstance(e, int) and not isinstance(e, bool) for e in ends) or ends[-1] != n
             or any(b <= a for a, b in zip([0] + ends[:-1], ends))):
         raise ConfigError(inputs.plan_path, "batch_ends", f"increasing sample counts ending at {n}", ends)
+    calibration = calibration_of(inputs.model)
+    if not calibration.get("bound"):
+        raise ConfigError(inputs.model_path, "noise.calibration.bound", "the calibrated error bound --target-error "
+                          "stops on (train the model again with this version of goniofrost)", None)
+    if unavailability(calibration, confidence):
+        n = len(calibration["bound"]["scores"])
+        raise ConfigError("command line", "--confidence", f"at most {max_confidence(calibration['bound']):.3f} with "
+                          f"this model (its bound is calibrated on {n} held-out training materials; "
+                          f"{confidence:g} needs {math.ceil(confidence / (1 - confidence) - 1e-9)})", confidence)
 
 
 def csv_batches(spec) -> tuple:
@@ -170,7 +188,8 @@ def check_sim_options(rig, seed, speedup) -> None:
         raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
 
 
-def session_meta(inputs, material: str | None, target_error: float | None = None) -> dict:
+def session_meta(inputs, material: str | None, target_error: float | None = None,
+                 confidence: float = DEFAULT_CONFIDENCE) -> dict:
     """What a journal records about its session (and what a resume must match)."""
     return {
         "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
@@ -179,6 +198,7 @@ def session_meta(inputs, material: str | None, target_error: float | None = None
         "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
         "model_path": str(inputs.model_path), "model_hash": inputs.model.content_hash,
         "material": material, "target_error": None if target_error is None else float(target_error),
+        "confidence": None if target_error is None else float(confidence),
     }
 
 
@@ -188,7 +208,8 @@ def plan_sha256(plan: dict) -> str:
 
 
 RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
-               ("model_hash", "model"), ("material", "simulated material"), ("target_error", "target error"))
+               ("model_hash", "model"), ("material", "simulated material"), ("target_error", "target error"),
+               ("confidence", "confidence"))
 
 
 def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
@@ -229,7 +250,7 @@ def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
     stored = journal.meta()
     for key, what in RESUME_KEYS:
         if stored.get(key) != meta[key]:
-            remedy = ("resume with the same --rig, --plan, --material and --target-error, or start a new --session"
+            remedy = ("resume with the same --rig, --plan, --material, --target-error and --confidence, or start a new --session"
                       if resume else f"it holds no sample yet: to start this session there, delete it (rm "
                       f"{journal.path}), or choose a new --session")
             raise JournalError(f"{journal.path}: meta.{key}: this session was started with another {what}: "

@@ -9,7 +9,7 @@ through the engine between steps. Samples already in the journal are skipped, so
 session never repeats one.
 
 With a target error (``SessionSpec.target``) the samples are taken batch by batch (the plan's
-``batch_ends``) and after each batch an ``Assess`` step carries the predicted error of the
+``batch_ends``) and after each batch an ``Assess`` step carries the error bound of the
 samples so far and the decision (``goniofrost.capture.target``): the plan stops as soon as the
 target is reached. Batches already journaled are assessed again first (no device is touched for
 that), so a resumed session makes the same decisions; one that had stopped yields no device step.
@@ -37,8 +37,9 @@ class SessionSpec:
     ``white_joints``: the pose {axis: deg} showing the white reference tile (needed unless a
     calibration is kept); ``pose_of(joints)`` -> (w_i, w_o), each (3,): forward kinematics (with
     the rig's alignment); ``arm_side``: +1 when the arm works counter-clockwise of the light.
-    With a target error: ``target`` (log-relative MSE), ``batch_ends`` (cumulative samples per
-    batch, the last = all) and ``assess(records) -> predicted error``; otherwise None, (), None.
+    With a target error: ``target`` (log-relative MSE), ``confidence``, ``batch_ends`` (cumulative samples per
+    batch, the last = all) and ``assess(records) -> frost.confidence.ErrorBound`` at the
+    session's confidence; otherwise None, (), None.
     ``drift_limit``: with a calibration to reuse (a queue), the relative change of the white scale
     beyond which the session calibrates again in full.
     """
@@ -53,11 +54,13 @@ class SessionSpec:
     target: float | None = None
     batch_ends: tuple = ()
     assess: Callable | None = None
+    confidence: float | None = None
     drift_limit: float = 0.05
 
     @classmethod
-    def from_inputs(cls, inputs, target_error: float | None = None) -> "SessionSpec":
-        """From checked ``goniofrost.capture.inputs.SessionInputs`` (and the capture's target error)."""
+    def from_inputs(cls, inputs, target_error: float | None = None, confidence: float = 0.95) -> "SessionSpec":
+        """From checked ``goniofrost.capture.inputs.SessionInputs`` (and the capture's target error
+        and confidence)."""
         from calib import validate_camera_section
         from planner.kinematics import arm_side, forward
 
@@ -66,7 +69,7 @@ class SessionSpec:
         rig = inputs.rig
         target = {} if target_error is None else {
             "target": float(target_error), "batch_ends": tuple(int(e) for e in inputs.plan["batch_ends"]),
-            "assess": make_assessor(inputs.model, inputs.positions)}
+            "assess": make_assessor(inputs.model, inputs.positions, confidence), "confidence": float(confidence)}
         return cls(inputs.samples, tuple(int(c) for c in inputs.cells), tuple(rig.joint_names),
                    validate_camera_section(rig.camera, rig.source), inputs.white_joints,
                    lambda joints: forward(rig, joints), arm_side(rig), **target)
@@ -132,7 +135,8 @@ def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict
 
 
 def _target_session(spec: SessionSpec, calibration, records, measured, reuse=None):
-    """Batch by batch until the predicted error is at most the target (see module doc)."""
+    """Batch by batch until the error is at most the target with the session's confidence (see
+    module doc)."""
     from goniofrost.capture.target import CONTINUE, assessment
 
     by_index = {r.plan_index: r for r in records}

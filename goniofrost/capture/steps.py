@@ -87,15 +87,23 @@ class SaveCalibration:
 
 @dataclass(frozen=True)
 class Assess:
-    """The decision after a batch of a capture with a target error (no device action): the
-    predicted error of the ``samples`` measured so far and what the plan does next
-    (``decision``: "continue", "target reached" or "plan used up"; see capture.target)."""
+    """The decision after a batch of a capture with a target error (no device action): what the
+    ``samples`` measured so far say about the error and what the plan does next (``decision``:
+    "continue", "target reached" or "plan used up"; see capture.target).
+
+    predicted_error: the median estimate of the log-relative MSE; bound: the calibrated upper
+    bound at ``confidence`` (None when none can be given); out_of_model: the features beyond
+    every held-out training material (``frost.confidence.FEATURE_NAMES``; () if none).
+    """
 
     batch: int
     samples: int
     predicted_error: float
     target: float
     decision: str
+    bound: float | None = None
+    confidence: float = 0.95
+    out_of_model: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

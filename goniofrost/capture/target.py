@@ -2,42 +2,65 @@
 
 With ``capture --target-error E`` the plan (a nested Bayesian design, scheduled batch by batch;
 PLAN.json ``batch_ends``) is measured one batch at a time. After a batch the samples measured
-so far are reconstructed and this material's predicted error (``frost.prediction``, from its
-own samples) decides (``frost.stopping.stop_reason``): stop when it is at most E, or when the
-plan is used up. Everything here is a pure function of the journaled samples, so a resumed
+so far are reconstructed and the calibrated bound on this material's error at the session's
+confidence (``frost.confidence``, from its own samples) decides (``frost.stopping.stop_reason``):
+stop when the error is at most E with that confidence and the samples are not unlike every
+training material, or when the plan is used up. Everything here is a pure function of the journaled samples, so a resumed
 session replays the same decisions and the report can show them.
 """
 from __future__ import annotations
 
 from typing import Callable, Sequence
 
+import math
+
 import numpy as np
 
+from goniofrost.frost.confidence import ErrorBound
 from goniofrost.frost.stopping import stop_reason
 
 CONTINUE = "continue"
+DEFAULT_CONFIDENCE = 0.95
 
 
-def make_assessor(model, positions: np.ndarray) -> Callable:
-    """``assess(records) -> predicted error`` of the samples ``records`` (SampleRecords; their
-    plan indices index ``positions``, the plan samples' rows in the model), uncertainties used."""
-    from goniofrost.frost.reconstruction import predicted_error
+def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONFIDENCE) -> Callable:
+    """``assess(records) -> ErrorBound`` of the samples ``records`` (SampleRecords; their plan
+    indices index ``positions``, the plan samples' rows in the model), uncertainties used."""
+    from goniofrost.frost.reconstruction import error_bound
 
-    def assess(records) -> float:
+    def assess(records) -> ErrorBound:
         order = np.array([r.plan_index for r in records], dtype=np.int64)
         values = np.array([r.rgb for r in records], dtype=np.float64)
         sigmas = np.array([r.sigma for r in records], dtype=np.float64)
-        return predicted_error(model, positions[order], values, sigmas)
+        return error_bound(model, positions[order], values, sigmas, confidence)
 
     return assess
 
 
 def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records) -> dict:
-    """The assessment after batch ``batch`` (0-based) ending at ``end`` samples: a dict of
-    batch, samples, predicted_error, target and decision (CONTINUE or a stopping reason)."""
-    predicted = float(assess(records))
-    decision = stop_reason(predicted, target, end, n_samples) or CONTINUE
-    return {"batch": batch, "samples": end, "predicted_error": predicted, "target": target, "decision": decision}
+    """The assessment after batch ``batch`` (0-based) ending at ``end`` samples: the fields of an
+    ``Assess`` step (batch, samples, predicted_error = the median estimate, target, decision =
+    CONTINUE or a stopping reason, bound = the upper bound or None, confidence, out_of_model)."""
+    bound = assess(records)
+    decision = stop_reason(bound, target, end, n_samples) or CONTINUE
+    return {"batch": batch, "samples": end, "predicted_error": float(bound.median), "target": target,
+            "decision": decision, "bound": float(bound.upper) if math.isfinite(bound.upper) else None,
+            "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model)}
+
+
+def bound_of(assessed: dict) -> ErrorBound:
+    """The ErrorBound an assessment (a dict of ``assessment`` or an Assess step's fields) holds."""
+    upper = assessed.get("bound")
+    return ErrorBound(float(assessed["predicted_error"]), math.inf if upper is None else float(upper),
+                      float(assessed["confidence"]), tuple(assessed.get("out_of_model") or ()))
+
+
+def statement(assessed: dict) -> str:
+    """The operator's sentence of an assessment: "error <= E with 95 % confidence (median
+    estimate X)" or why not (``frost.stopping.statement``)."""
+    from goniofrost.frost.stopping import statement as sentence
+
+    return sentence(bound_of(assessed), float(assessed["target"]))
 
 
 def history(assess: Callable, batch_ends: Sequence[int], target: float, records) -> list[dict]:

@@ -30,6 +30,7 @@ import numpy as np
 
 from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_design
+from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import feature_matrix, material_features, predict
 
@@ -161,7 +162,7 @@ def fit_calibration(records: CvRecords) -> dict:
     """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record.
 
     Returns the calibration dict stored in the model (coefficients, m_range, the typical log
-    z2 and log energy) with ``fit`` statistics: the residual standard deviation in log units
+    z2 and log energy, the error bound's calibration ``confidence.fit_bound``) with ``fit`` statistics: the residual standard deviation in log units
     and, per m, the Spearman correlation of predicted and actual error and the fraction of
     materials predicted within a factor 2 (in-sample for the calibration).
     """
@@ -172,6 +173,7 @@ def fit_calibration(records: CvRecords) -> dict:
     calibration = {"coefficients": [float(b) for b in beta], "m_range": m_range,
                    "typical_log_z2": float(np.mean(np.log(records.z2))),
                    "typical_log_energy": float(np.mean(np.log(records.energy)))}
+    calibration["bound"] = fit_bound(records, m_range)
     calibration["fit"] = {"residual_sd_log": float(np.std(y - x @ beta)), "records": int(y.size),
                           "per_m": prediction_quality(records, calibration)}
     return calibration

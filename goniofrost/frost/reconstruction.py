@@ -92,7 +92,7 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     """
     from goniofrost.frost import posterior
 
-    unique, noise, cell_noise, post, (predicted, design, z2, energy) = _posterior(model, positions, values, sigmas)
+    unique, noise, cell_noise, post, (predicted, design, z2, energy, _) = _posterior(model, positions, values, sigmas)
     mu = np.asarray(model.mean, dtype=np.float64)
     if with_std:
         mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
@@ -112,9 +112,21 @@ def predicted_error(model: FrostModel, positions, values, sigmas=None) -> float:
     return _posterior(model, positions, values, sigmas)[4][0]
 
 
+def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: float = 0.95):
+    """The calibrated bound on ``reconstruct_bayes``'s error from these samples at ``confidence``
+    and whether they are unlike every training material (a ``confidence.ErrorBound``; no pass over
+    the cells). Its median estimate counts the samples' variance as ``predicted_error`` does."""
+    from goniofrost.frost import prediction
+    from goniofrost.frost.confidence import error_bound as bound_of
+
+    unique, _, _, _, (predicted, _, z2, energy, extra) = _posterior(model, positions, values, sigmas)
+    return bound_of(prediction.calibration_of(model), predicted - extra, z2, energy, unique.size, confidence, extra)
+
+
 def _posterior(model: FrostModel, positions, values, sigmas):
     """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
-    Posterior, (predicted error, design error, z2, energy)).
+    Posterior, (predicted error, design error, z2, energy, the part of the predicted error the
+    samples' own variance adds)).
 
     The calibration was fitted on noise-free samples, so the samples' own variance enters the
     prediction as what the model says it costs: the design error with it minus the design error
@@ -138,7 +150,8 @@ def _posterior(model: FrostModel, positions, values, sigmas):
     if np.any(noise_extra > 0):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
     predicted = float(prediction.predict(prediction.calibration_of(model), clean, z2, energy, unique.size))
-    return unique, noise, cell_noise, post, (predicted + max(design - clean, 0.0), design, z2, energy)
+    extra = max(design - clean, 0.0)
+    return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra)
 
 
 def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:

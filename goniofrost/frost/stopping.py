@@ -3,11 +3,18 @@
 A nested design (``bayes_selection``: its first m picks are the m-pick design) is measured in
 batches: the first FIRST_BATCH picks, then BATCH more at a time, up to the whole plan. After
 each batch the samples so far are reconstructed and the capture stops as soon as this
-material's predicted error (``prediction.py``, from its own samples) is at most the target,
-or when the plan is used up. These functions hold no device and no file: the planner's batches,
-the capture's assessments (``capture.target``) and the benchmark's simulation use them.
+material's error is at most the target with the stated confidence: the calibrated upper bound
+(``confidence.py``, from its own samples) at most the target, and the samples not unlike every
+training material (the bound was calibrated on training materials: out of the model it means
+nothing, so the capture measures on while the plan allows); or when the plan is used up.
+These functions hold no device and no file: the planner's batches, the capture's assessments
+(``capture.target``) and the benchmark's simulation use them.
 """
 from __future__ import annotations
+
+import math
+
+from goniofrost.frost.confidence import FIRST_LOOK, ErrorBound
 
 # The first batch: fewer samples say too little about a material to stop on. Chosen on the
 # held-out training materials of training's cross-validation (45 x 45 x 90 grid, 10 benchmark
@@ -15,7 +22,7 @@ from __future__ import annotations
 # 11.1 / 10.2 % of them with a first batch of 10 / 15 / 20 samples (mean samples 19 / 22 / 26;
 # part of it is materials that stay above 1.5 x the target at 60 samples); 15 is the knee.
 # (The test materials of those folds gave 11.0 / 8.5 / 8.0 %.)
-FIRST_BATCH = 15
+FIRST_BATCH = FIRST_LOOK
 BATCH = 5
 
 REASON_TARGET = "target reached"
@@ -34,10 +41,32 @@ def batch_ends(m_max: int, first: int = FIRST_BATCH, step: int = BATCH) -> list[
     return ends + [m_max] if not ends or ends[-1] != m_max else ends
 
 
-def stop_reason(predicted_error: float, target: float, done: int, total: int) -> str | None:
-    """Why to stop after a batch (REASON_TARGET or REASON_PLAN), or None to go on."""
-    if predicted_error <= target:
+def stop_reason(bound: ErrorBound, target: float, done: int, total: int) -> str | None:
+    """Why to stop after a batch (REASON_TARGET or REASON_PLAN), or None to go on; never on a
+    median estimate alone, never out of the model."""
+    if bound.upper <= target and not bound.out_of_model:
         return REASON_TARGET
     if done >= total:
         return REASON_PLAN
     return None
+
+
+def why_not_reached(bound: ErrorBound, target: float) -> str:
+    """One line: why ``bound`` does not reach ``target`` ("" when it does)."""
+    if bound.unavailable or not math.isfinite(bound.upper):
+        return f"no bound at {100 * bound.confidence:g} % confidence: {bound.unavailable or 'none can be given'}"
+    if bound.out_of_model:
+        from goniofrost.frost.confidence import FEATURE_NAMES
+        what = " and ".join(FEATURE_NAMES[k] for k in bound.out_of_model)
+        return f"the samples are unlike every training material ({what} beyond the training range): an extrapolation"
+    if bound.upper > target:
+        return (f"error <= {bound.upper:.4g} with {100 * bound.confidence:g} % confidence, above the target "
+                f"{target:g} (median estimate {bound.median:.4g})")
+    return ""
+
+
+def statement(bound: ErrorBound, target: float) -> str:
+    """The operator's sentence after an assessment: "error <= E with 95 % confidence (median
+    estimate X)" when the target is reached, else why not."""
+    reason = why_not_reached(bound, target)
+    return reason or f"error <= {target:g} with {100 * bound.confidence:g} % confidence (median estimate {bound.median:.4g})"

@@ -228,7 +228,8 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
 
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
-    key = disk_cache.content_key("frost-model-v2", ids, [m.label for m in materials],
+    # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
+    key = disk_cache.content_key("frost-model-v3", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():

@@ -90,7 +90,9 @@ class SessionView:
     ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
     ``summary`` the text of summary.txt (empty before the end);
     ``predicted_error`` is the latest predicted reconstruction error when the session
-    records one; ``files`` are the names of the folder's own files (journal side files excluded);
+    records one; ``assessment`` the latest batch assessment of a capture with a target error (the
+    typed fields of its Assess step: batch, samples, predicted_error = the median estimate, bound,
+    confidence, target, decision, out_of_model), None before one; ``files`` are the names of the folder's own files (journal side files excluded);
     ``label`` who measured what (``SessionLabel.to_dict``: operator, sample_id, notes, lab, lens,
     lamp, queue); ``first_started_utc`` the first run's start; ``run_spans`` (started, ended or
     None) Unix times of every run.
@@ -121,6 +123,7 @@ class SessionView:
     report: dict | None = None
     summary: str = ""
     predicted_error: float | None = None
+    assessment: dict | None = None
     files: tuple = field(default_factory=tuple)
     label: dict = field(default_factory=dict)
     first_started_utc: float | None = None
@@ -156,8 +159,8 @@ def read_session(session_dir) -> SessionView:
         stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
         summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
         capture_alive=lock_held(session_dir / LOCK_FILE),
-        predicted_error=_predicted_error(events, report), files=files, label=label.to_dict(),
-        first_started_utc=runs[0][0].started_utc if runs else None,
+        predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files,
+        label=label.to_dict(), first_started_utc=runs[0][0].started_utc if runs else None,
         run_spans=tuple((s.started_utc, None if e is None else e.ended_utc) for s, e in runs))
 
 
@@ -268,6 +271,19 @@ def _predicted_error(events: list, report: dict | None) -> float | None:
         value = (e.get("data") or {}).get("predicted_error")
         if isinstance(value, (int, float)):
             return float(value)
+    return None
+
+
+ASSESSMENT_FIELDS = ("batch", "samples", "predicted_error", "bound", "confidence", "target", "decision",
+                     "out_of_model")
+
+
+def _assessment(events: list) -> dict | None:
+    """The fields of the latest "batch" event (the engine journals an Assess step's fields), or None."""
+    for e in reversed(events):
+        data = e.get("data") or {}
+        if e.get("kind") == "batch" and all(k in data for k in ASSESSMENT_FIELDS):
+            return {k: data[k] for k in ASSESSMENT_FIELDS}
     return None
 
 

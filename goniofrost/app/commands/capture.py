@@ -22,13 +22,21 @@ def add_arguments(parser) -> None:
                         help="a note on the session (repeatable; a resume may add notes)")
     parser.add_argument("--target-error", type=float, metavar="E",
                         help="measure a Bayesian plan batch by batch in design order and stop as soon as this "
-                             "material's predicted log-relative MSE is at most E (e.g. 0.05), or the plan is used up")
+                             "material's log-relative MSE is at most E (e.g. 0.05) with the --confidence, from an "
+                             "upper bound calibrated on held-out training materials; or when the plan is used up. "
+                             "Samples unlike every training material never stop it (an extrapolation)")
+    parser.add_argument("--confidence", type=float, default=0.95, metavar="P",
+                        help="with --target-error: the probability that the error is at most E when the capture "
+                             "stops (default 0.95)")
     parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
     parser.add_argument("--bsdf", action="store_true",
                         help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
                              "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
+    parser.add_argument("--bsdf-format", choices=["mitsuba", "rgl-spectral", "pbrt"], default=None,
+                        help="the format of brdf.bsdf (implies --bsdf): mitsuba (RGB, the default) or rgl-spectral / "
+                             "pbrt (spectral, for pbrt-v4 and Mitsuba 3's spectral variants; about 100 MB)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_server_options(parser, with_flag=True)
 
@@ -51,8 +59,8 @@ def run(args) -> int:
         with watch:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
-                              target_error=args.target_error, alignment=args.alignment, label=label,
-                              inputs=inputs)
+                              target_error=args.target_error, confidence=args.confidence,
+                              alignment=args.alignment, label=label, inputs=inputs)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)
@@ -62,8 +70,10 @@ def run(args) -> int:
               f"run the same command with --resume", file=sys.stderr)
         return 130
     print(outcome.summary, end="")
-    if args.bsdf:
-        from goniofrost.brdf.mitsuba_export import export_beside
+    if args.bsdf or args.bsdf_format:
+        from goniofrost.brdf.rgl_spectral import export_beside
 
-        print(f"wrote {export_beside(outcome.session_dir / outcome.report['outputs']['brdf'])} (for Mitsuba 3)")
+        fmt = args.bsdf_format or "mitsuba"
+        written = export_beside(outcome.session_dir / outcome.report['outputs']['brdf'], fmt)
+        print(f"wrote {written} ({'for Mitsuba 3' if fmt == 'mitsuba' else 'spectral, for pbrt-v4 and Mitsuba 3'})")
     return 0

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 HELP = ("train on the built-in library, plan up to 40 samples (Bayesian design), capture a held-out material on "
-        "the simulated rig until its predicted error is at most 0.05, reconstruct with its uncertainty, write the "
+        "the simulated rig until its error is at most 0.005 with 95 % confidence, reconstruct with its uncertainty, write the "
         "MERL file, a preview and a report")
 
 
 def add_arguments(parser) -> None:
-    from goniofrost.app.demo import DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP, DEFAULT_TARGET_ERROR
+    from goniofrost.app.demo import (DEFAULT_CONFIDENCE, DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP,
+                                     DEFAULT_TARGET_ERROR)
     from goniofrost.app.monitoring import add_server_options
 
     parser.add_argument("--out", default="demo-out", metavar="DIR", help="output folder (default demo-out; "
@@ -17,8 +18,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="M",
                         help=f"samples in the plan, the most the capture takes (default {DEFAULT_SAMPLES})")
     parser.add_argument("--target-error", type=float, default=DEFAULT_TARGET_ERROR, metavar="E",
-                        help=f"stop once the predicted log-relative MSE is at most E (default {DEFAULT_TARGET_ERROR:g}; "
-                             "0 captures the whole plan)")
+                        help=f"stop once the log-relative MSE is at most E with the --confidence (default "
+                             f"{DEFAULT_TARGET_ERROR:g}: an RMS error of about 7 %% in the log of the cosine-weighted "
+                             "BRDF; 0 captures the whole plan)")
+    parser.add_argument("--confidence", type=float, default=DEFAULT_CONFIDENCE, metavar="P",
+                        help=f"with --target-error: how sure the stop must be (default {DEFAULT_CONFIDENCE:g})")
     parser.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
     parser.add_argument("--speedup", type=float, default=DEFAULT_SPEEDUP,
                         help=f"simulated clock speed-up (default {DEFAULT_SPEEDUP:g})")
@@ -39,16 +43,23 @@ def run(args) -> int:
     with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
         result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
                           speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf,
-                          target_error=args.target_error if args.target_error > 0 else None)
+                          target_error=args.target_error if args.target_error > 0 else None,
+                          confidence=args.confidence)
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
     print(f"demo: builtin:{args.material}, m = {report['samples']} of {args.samples} planned samples on the simulated rig")
     target = report.get("target_error")
     if target:
-        print(f"  target error {target['target']:g}: {target['stopped']} after {target['samples_used']} samples; "
-              "predicted error after each batch: "
-              + ", ".join(f"{b['samples']}: {b['predicted_error']:.4g}" for b in target["batches"]))
+        from goniofrost.app.demo import rms_relative_error
+
+        print(f"  target: log-relative MSE <= {target['target']:g} (an RMS error of about "
+              f"{100 * rms_relative_error(target['target']):.0f} % in the log of the cosine-weighted BRDF) with "
+              f"{100 * target['confidence']:g} % confidence: {target['stopped']} after {target['samples_used']} "
+              f"samples: {target['statement']}")
+        print("  bound (median estimate) after each batch: " + ", ".join(
+            f"{b['samples']}: {b['bound']:.4g} ({b['predicted_error']:.4g})" if b["bound"] is not None
+            else f"{b['samples']}: none ({b['predicted_error']:.4g})" for b in target["batches"]))
     print(f"  motion {times['motion']:.1f} s + capture {times['capture']:.1f} s (simulated rig); "
           f"median sample SNR {report['snr']['median']:.0f}")
     if truth:

@@ -1,30 +1,40 @@
-"""``goniofrost export FILE.binary --format mitsuba --out FILE.bsdf``: a MERL file for Mitsuba 3.
+"""``goniofrost export FILE.binary --format mitsuba|rgl-spectral|pbrt --out FILE.bsdf``: a MERL file for renderers.
 
-Writes the RGL tensor file (Dupuy and Jakob 2018) that Mitsuba 3's ``measured`` BSDF loads in
-its RGB variants (pbrt-v4 reads only the spectral form, which is not written); see
-``goniofrost.brdf.mitsuba_export``. Nothing is written when the input is refused (truncated or
-oversized file, NaN or inf stored, no valid value).
+``mitsuba`` writes the RGB RGL tensor file (Dupuy and Jakob 2018) that Mitsuba 3's ``measured``
+BSDF loads in its RGB variants (``goniofrost.brdf.mitsuba_export``); ``rgl-spectral`` (alias
+``pbrt``) the spectral one, with ``spectra`` and ``wavelengths`` instead of ``rgb``, that pbrt-v4's
+``measured`` material and Mitsuba 3's spectral variants load (``goniofrost.brdf.rgl_spectral``).
+Nothing is written when the input is refused (truncated or oversized file, NaN or inf stored, no
+valid value, a bad option).
 """
 from __future__ import annotations
 
 import argparse
 
-HELP = "export a MERL .binary to the RGL tensor format (.bsdf) that Mitsuba 3's 'measured' BSDF renders"
-FORMATS = ["mitsuba"]
+HELP = ("export a MERL .binary to the RGL tensor format (.bsdf): RGB for Mitsuba 3, spectral for pbrt-v4 and "
+        "Mitsuba 3's spectral variants")
+FORMATS = ["mitsuba", "rgl-spectral", "pbrt"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
+    from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, WAVELENGTH_RANGE_NM
 
     parser.add_argument("binary", metavar="FILE.binary", help="the BRDF to export (MERL .binary, any grid)")
     parser.add_argument("--format", choices=FORMATS, default="mitsuba",
-                        help="mitsuba: RGL tensor file for Mitsuba 3's 'measured' BSDF (RGB variants); the default")
+                        help="mitsuba: the RGB file for Mitsuba 3's 'measured' BSDF (RGB variants; the default); "
+                             "rgl-spectral, or its alias pbrt: the spectral file for pbrt-v4's 'measured' material "
+                             "and Mitsuba 3's spectral variants")
     parser.add_argument("--out", metavar="FILE.bsdf", help="output file (default: FILE.bsdf beside the input)")
     parser.add_argument("--theta-i", type=int, default=DEFAULT_OPTIONS.theta_i, metavar="N",
                         help=f"incident elevations tabulated (default {DEFAULT_OPTIONS.theta_i})")
     parser.add_argument("--sample", type=int, default=DEFAULT_OPTIONS.sample, metavar="N",
-                        help=f"rgb/luminance nodes per side of each incident slice (default {DEFAULT_OPTIONS.sample}; "
-                             f"the file grows with N^2)")
+                        help=f"rgb/spectra and luminance nodes per side of each incident slice (default "
+                             f"{DEFAULT_OPTIONS.sample}; the file grows with N^2)")
+    lo, hi = WAVELENGTH_RANGE_NM
+    parser.add_argument("--wavelengths", type=int, default=DEFAULT_WAVELENGTHS, metavar="N",
+                        help=f"spectral formats: wavelengths from {lo:g} to {hi:g} nm (default {DEFAULT_WAVELENGTHS}; "
+                             f"the file grows with N)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,20 +42,28 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS, export_binary_file
+    from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
+    from goniofrost.brdf.rgl_spectral import FORMATS as KINDS, export_file
     from goniofrost.core.errors import GoniofrostError
 
     source = Path(args.binary)
     out = Path(args.out) if args.out else source.with_suffix(".bsdf")
     if out.resolve() == source.resolve():
         raise GoniofrostError(f"--out {out}: is the input file; expected another name such as {source.stem}.bsdf")
-    for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample)):
+    for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample), ("--wavelengths", args.wavelengths)):
         if value < 2:
             raise GoniofrostError(f"{flag}: expected an integer >= 2, found {value}")
     options = replace(DEFAULT_OPTIONS, theta_i=args.theta_i, sample=args.sample)
     start = time.perf_counter()
-    fields = export_binary_file(source, out, options)
-    rgb = fields["rgb"].shape
-    print(f"wrote {out}: {out.stat().st_size / 1e6:.1f} MB, {rgb[1]} incident elevations x {rgb[3]}x{rgb[4]} "
-          f"rgb nodes, in {time.perf_counter() - start:.1f} s (load it with Mitsuba 3: type 'measured', an RGB variant)")
+    fields = export_file(source, out, args.format, options, args.wavelengths)
+    seconds, size = time.perf_counter() - start, out.stat().st_size / 1e6
+    if KINDS[args.format] == "rgb":
+        rgb = fields["rgb"].shape
+        print(f"wrote {out}: {size:.1f} MB, {rgb[1]} incident elevations x {rgb[3]}x{rgb[4]} rgb nodes, in "
+              f"{seconds:.1f} s (load it with Mitsuba 3: type 'measured', an RGB variant)")
+    else:
+        spectra, lam = fields["spectra"].shape, fields["wavelengths"]
+        print(f"wrote {out}: {size:.1f} MB, {spectra[1]} incident elevations x {spectra[3]}x{spectra[4]} nodes x "
+              f"{spectra[2]} wavelengths ({lam[0]:g}-{lam[-1]:g} nm), in {seconds:.1f} s (load it with pbrt-v4: "
+              f"Material \"measured\", or Mitsuba 3: type 'measured', a spectral variant)")
     return 0

@@ -3,10 +3,17 @@
 Prints one JSON line on stdout mapping each axis (and "lamp") to its endpoint entry
 ``{"protocol", "endpoint", "id" or "address", "baud"}``, so that any client (dynamixel-sdk, a
 pymodbus client, a serial terminal) can talk to the devices.
+
+With ``--write-rig OUT.yaml`` it also writes a rig file (``simulated: false``) whose drivers point
+at the running twins (pty paths, loopback ports) and whose camera is a ``rawfile`` camera served
+by the simulation (``sim.camera_service``: hot folder ``OUT.frames/``, trigger and target commands),
+so that a capture, align or the console runs on it exactly as on a real rig. It is written before
+the JSON line, which therefore also says the rig file is ready.
 """
 from __future__ import annotations
 
 HELP = "start the simulated devices of a rig, print their endpoints as one JSON line, serve until stopped"
+DEFAULT_MATERIAL = "builtin:white-diffuse"  # what the simulated camera sees through --write-rig's rig file
 
 
 def add_arguments(parser) -> None:
@@ -14,6 +21,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated seconds per real second (default: the rig's sim.clock_speedup)")
     parser.add_argument("--seed", type=int, default=None, help="seed of the simulation (default: the rig's sim.seed)")
+    parser.add_argument("--write-rig", metavar="OUT.yaml", default=None,
+                        help="also write a rig file (simulated: false) whose drivers and camera are the running "
+                             "twins, to rehearse a capture or the console exactly as on a real rig")
+    parser.add_argument("--material", default=DEFAULT_MATERIAL,
+                        help=f"what the simulated camera sees with --write-rig (default {DEFAULT_MATERIAL})")
 
 
 def run(args) -> int:
@@ -21,6 +33,7 @@ def run(args) -> int:
     import signal
     import sys
     import threading
+    from contextlib import ExitStack
 
     from goniofrost.core.errors import ConfigError
     from goniofrost.capture.rig_file import load_checked_rig
@@ -30,13 +43,60 @@ def run(args) -> int:
         raise ConfigError("command line", "--speedup", "a number > 0", args.speedup)
     rig = load_checked_rig(args.rig)
     seed = args.seed if args.seed is not None else int((rig.sim or {}).get("seed", 0))
+    if args.write_rig is not None:
+        from goniofrost.core.atomic_file import check_output_dir
+        from goniofrost.datasets import material_brdf
+        check_output_dir(args.write_rig)
+        material = material_brdf(args.material)  # a bad name fails before anything starts
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with SimulatedRig(rig, speedup=args.speedup, seed=seed) as simulation:
+    with ExitStack() as stack:
+        simulation = stack.enter_context(SimulatedRig(rig, speedup=args.speedup, seed=seed))
+        if args.write_rig is not None:
+            stack.enter_context(_served_rig_file(rig, simulation, material, seed, args.write_rig))
         print(json.dumps(simulation.endpoints), flush=True)
         print(f"goniofrost sim: serving the {len(rig.axes)} axes (and lamp) of {rig.name} "
               f"(speed-up {simulation.clock.speedup:g}); stop with Ctrl-C", file=sys.stderr, flush=True)
         while not stop.wait(0.2):
             pass
     return 0
+
+
+def _served_rig_file(rig, simulation, material, seed: int, out_path):
+    """Start the simulated camera's service and write the rig file; stop the service on exit."""
+    from contextlib import contextmanager
+
+    @contextmanager
+    def served():
+        from pathlib import Path
+
+        import yaml
+
+        from goniofrost.capture.hardware import simulated_pose
+        from goniofrost.core.atomic_file import write_text_atomic
+        from goniofrost.core.camera_model import CameraModel
+        from planner.kinematics import arm_side
+        from sim.camera import SimCamera
+        from sim.camera_service import CameraService
+        from sim.rig_file import real_rig_document
+
+        pose = simulated_pose(rig)
+        name, brdf = material
+        camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model,
+                           simulation.clock, (rig.sim or {}).get("camera", {}), seed,
+                           model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
+        camera.connect()
+        out = Path(out_path)
+        service = CameraService(camera, out.with_name(out.name + ".frames"))
+        service.start()
+        try:
+            document = real_rig_document(rig.source, simulation.resolved_rig(), service)
+            write_text_atomic(out, f"# written by goniofrost sim --write-rig from {rig.source}: the running "
+                                   f"simulation's twins, as a real rig\n" + yaml.safe_dump(document, sort_keys=False))
+            yield out
+        finally:
+            service.stop()
+            camera.close()
+
+    return served()

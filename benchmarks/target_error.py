@@ -1,0 +1,172 @@
+"""The calibrated stopping rule: simulated ``capture --target-error E --confidence C`` on test materials.
+
+For every fold of every setting a model is trained on the fold's training materials only (its
+noise model, scales, predicted-error calibration and error bound all come from training's inner
+cross-validation of those materials), a Bayesian design of ``--m-max`` cells is picked, and
+every test material is measured along it in batches (``frost.stopping``) until the bound at
+the confidence is at most E and the samples are not out of the model, or the plan is used up
+(``bench.bayes_eval.target_outcomes``). Reported per setting and E:
+
+* stopped on the target, and of those the fraction whose true error is <= E (the goal: at
+  least the confidence minus 2 points);
+* mean samples against the plan; materials flagged out of the model (at any look, at the end);
+* per m: the fraction of materials whose median estimate is within a factor 2 of the true error,
+  and whose true error is below the bound (the bound's coverage at a single look).
+
+Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``builtin`` (the 74
+analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
+RGL) and ``rgl-merl`` (the other way round).
+
+Full size (not run yet: estimated 45 to 60 min on a quiet 2-core machine from the full-grid training
+time of 78 s per fold, peak RSS about 4 GB; one process, settings in turn)::
+
+    .venv/bin/python benchmarks/target_error.py --grid 90,90,180 --folds 10 --out /tmp/target-full
+
+Smallest setting (what tests/test_confidence.py runs)::
+
+    .venv/bin/python benchmarks/target_error.py --grid 10,10,20 --folds 1 --settings builtin \\
+        --m-max 20 --out /tmp/target-small
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from goniofrost.bench import bayes_eval  # noqa: E402
+from goniofrost.bench.config import BenchConfig, fold_split  # noqa: E402
+from goniofrost.bench.data import open_tables, tables_path  # noqa: E402
+from goniofrost.core.grid import MerlGrid  # noqa: E402
+from goniofrost.frost import stopping  # noqa: E402
+
+DATA = REPO.parent / "shared" / "data"
+MERL, RGL = f"nbrdf:{DATA / 'nbrdf_merl.npz'}", f"nbrdf:{DATA / 'nbrdf_rgl.npz'}"
+SETTINGS = ("split", "builtin", "merl-rgl", "rgl-merl")
+TARGETS = (0.01, 0.02, 0.05)
+
+
+def folds_of(setting: str, grid: MerlGrid, folds: int):
+    """Yield (fold, training tables, training names, test tables, test names) of a setting."""
+    if setting in ("split", "builtin"):
+        specs, (n_train, n_test) = ((MERL, RGL), (131, 20)) if setting == "split" else (("builtin",), (64, 10))
+        names, path = tables_path(list(specs), grid, progress=False)
+        tables = open_tables(path)
+        config = BenchConfig(tuple(specs), grid=grid, n_train=n_train, n_test=n_test)
+        for fold in range(folds):
+            train, test = fold_split(len(names), config, fold)
+            yield fold, tables[train], [names[i] for i in train], tables[test], [names[i] for i in test]
+        return
+    train_spec, test_spec = (MERL, RGL) if setting == "merl-rgl" else (RGL, MERL)
+    train_names, train_path = tables_path([train_spec], grid, progress=False)
+    test_names, test_path = tables_path([test_spec], grid, progress=False)
+    yield 0, open_tables(train_path), train_names, open_tables(test_path), test_names
+
+
+def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targets) -> dict:
+    """Train, design, and simulate every target; per-m prediction quality. Plain rows."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(np.asarray(train), train_names, grid, k_max=60)
+    order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
+    truth = np.asarray(test, dtype=np.float64)
+    truth_log = model.to_log(truth)
+    stops = []
+    for target in targets:
+        out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence)
+        for i, name in enumerate(test_names):
+            stops.append({"material": name, "target": target, **{k: float(out[k][i]) for k in
+                          ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out")}})
+    per_m = []
+    for m in [e for e in stopping.batch_ends(m_max)]:
+        out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
+        per_m += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
+    bound = model.noise["calibration"]["bound"]
+    return {"stops": stops, "per_m": per_m, "calibration_materials": len(bound["scores"])}
+
+
+def summary(results: dict, m_max: int, confidence: float) -> dict:
+    """Per setting: per target the stopping figures, per m the prediction figures."""
+    out = {}
+    for setting, folds in results.items():
+        stops = [s for f in folds for s in f["stops"]]
+        per_m = [r for f in folds for r in f["per_m"]]
+        rows = {}
+        for target in sorted({s["target"] for s in stops}):
+            group = [s for s in stops if s["target"] == target]
+            hit = [s for s in group if s["reached"]]
+            rows[target] = {"materials": len(group), "stopped_on_target": len(hit),
+                            "within_when_stopped": float(np.mean([s["mse"] <= target for s in hit])) if hit else None,
+                            "within_all": float(np.mean([s["mse"] <= target for s in group])),
+                            "mean_samples": float(np.mean([s["samples"] for s in group])), "plan": m_max,
+                            "ever_out": int(sum(s["ever_out"] for s in group)),
+                            "out_at_end": int(sum(s["out_of_model"] for s in group))}
+        by_m = {}
+        for m in sorted({r["m"] for r in per_m}):
+            group = [r for r in per_m if r["m"] == m]
+            ratio = np.array([r["median"] / r["mse"] for r in group])
+            by_m[m] = {"within_factor_2": float(np.mean((ratio <= 2) & (ratio >= 0.5))),
+                       "bound_covers": float(np.mean([r["mse"] <= r["upper"] for r in group])),
+                       "out_of_model": float(np.mean([r["out_of_model"] for r in group])), "materials": len(group)}
+        out[setting] = {"targets": rows, "by_m": by_m, "confidence": confidence}
+    return out
+
+
+def markdown(stats: dict) -> str:
+    lines = ["| setting | E | materials | stopped on the target | of those, true error <= E | all: true error <= E "
+             "| mean samples / plan | out of the model (any look / at the end) |", "|---|---|---|---|---|---|---|---|"]
+    for setting, s in stats.items():
+        for target, r in s["targets"].items():
+            within = "n/a" if r["within_when_stopped"] is None else f"{100 * r['within_when_stopped']:.1f} %"
+            lines.append(f"| {setting} | {target:g} | {r['materials']} | {r['stopped_on_target']} | {within} | "
+                         f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
+                         f"{r['ever_out']} / {r['out_at_end']} |")
+    lines += ["", "| setting | m | median estimate within x2 | true error <= bound | out of the model |",
+              "|---|---|---|---|---|"]
+    for setting, s in stats.items():
+        for m, r in s["by_m"].items():
+            lines.append(f"| {setting} | {m} | {100 * r['within_factor_2']:.1f} % | {100 * r['bound_covers']:.1f} % | "
+                         f"{100 * r['out_of_model']:.1f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--grid", default="45,45,90", help="NTH,NTD,NPD (default 45,45,90; full: 90,90,180)")
+    parser.add_argument("--folds", type=int, default=10, help="folds of the split and builtin settings (default 10)")
+    parser.add_argument("--settings", default=",".join(SETTINGS), help=f"comma-separated subset of {','.join(SETTINGS)}")
+    parser.add_argument("--m-max", type=int, default=60, help="the plan's samples (default 60)")
+    parser.add_argument("--confidence", type=float, default=0.95)
+    parser.add_argument("--targets", default=",".join(map(str, TARGETS)))
+    parser.add_argument("--out", type=Path, required=True, help="folder: target_error.json, target_error.md")
+    args = parser.parse_args(argv)
+    grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
+    targets = tuple(float(v) for v in args.targets.split(","))
+    args.out.mkdir(parents=True, exist_ok=True)
+    results, started = {}, time.time()
+    for setting in args.settings.split(","):
+        results[setting] = []
+        for fold, train, train_names, test, test_names in folds_of(setting, grid, args.folds):
+            t0 = time.time()
+            row = run_fold(train, train_names, test, test_names, grid, args.m_max, args.confidence, targets)
+            results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
+            print(f"{setting} fold {fold}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
+            stats = summary(results, args.m_max, args.confidence)
+            doc = {"command": " ".join(sys.argv), "grid": grid.as_dict(), "folds": args.folds,
+                   "wall_s": time.time() - started, "load_average": list(__import__("os").getloadavg()),
+                   "summary": stats, "results": results}
+            (args.out / "target_error.json").write_text(json.dumps(doc, indent=1))
+            (args.out / "target_error.md").write_text(markdown(stats))
+    print(markdown(summary(results, args.m_max, args.confidence)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""``goniofrost compare A B [C ...] --out compare.png [--json]``: BRDFs side by side, with the pairwise numbers.
+
+Each input is a session folder (its ``brdf.binary``, as its report.json names it) or a MERL
+.binary file. Writes the spheres of every input under the same lights (``goniofrost.brdf.compare``)
+and prints the pairwise rendering SNR and log-relative MSE, or with ``--json`` the numbers as one
+JSON document. Nothing is written when an input is refused.
+"""
+from __future__ import annotations
+
+import argparse
+
+HELP = "render several BRDFs (session folders or .binary files) side by side; pairwise rendering SNR and log-relative MSE"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="SESSION_OR_BINARY",
+                        help="two or more session folders or MERL .binary files, keyed A, B, C, ... in this order")
+    parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
+    parser.add_argument("--json", action="store_true", help="print the numbers as JSON instead of lines")
+    parser.add_argument("--size", type=int, default=128, help="sphere diameter in pixels (default 128)")
+
+
+def resolve(path_text: str):
+    """(MERL file, label) of an input: a session folder's BRDF (label: the folder name) or a .binary."""
+    import json
+    from pathlib import Path
+
+    from goniofrost.core.errors import GoniofrostError
+
+    path = Path(path_text)
+    if path.is_dir():
+        name = "brdf.binary"
+        report = path / "report.json"
+        if report.is_file():
+            try:
+                name = json.loads(report.read_text())["outputs"]["brdf"]
+            except (ValueError, KeyError, TypeError):
+                raise GoniofrostError(f"{report}: expected a session report with outputs.brdf, found an unreadable "
+                                      f"or different document") from None
+        binary = path / name
+        if not binary.is_file():
+            raise GoniofrostError(f"{path}: no {name}: expected a finished session folder (its reconstruction "
+                                  f"{binary}) or a MERL .binary file")
+        return binary, path.resolve().name
+    if not path.exists():
+        raise GoniofrostError(f"{path}: no such session folder or file")
+    return path, path.name
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from goniofrost.brdf.compare import KEYS, compare_files, write_png
+    from goniofrost.core.errors import GoniofrostError
+
+    if len(args.inputs) < 2:
+        raise GoniofrostError(f"inputs: expected at least 2 session folders or .binary files, found {len(args.inputs)}")
+    if len(args.inputs) > len(KEYS):
+        raise GoniofrostError(f"inputs: expected at most {len(KEYS)}, found {len(args.inputs)}")
+    if Path(args.out).suffix.lower() != ".png":
+        raise GoniofrostError(f"--out {args.out}: expected a file name ending in .png")
+    if args.size < 16:
+        raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
+    resolved = [resolve(text) for text in args.inputs]
+    comparison = compare_files([p for p, _ in resolved], [label for _, label in resolved], size=args.size)
+    write_png(args.out, comparison, title="goniofrost compare")
+    if args.json:
+        print(json.dumps(comparison.to_json() | {"picture": str(args.out)}, indent=2))
+        return 0
+    print(f"wrote {args.out}")
+    for key, (path, label) in zip(comparison.keys, resolved):
+        print(f"{key}: {label} ({path})")
+    for line in comparison.table():
+        print(line)
+    return 0

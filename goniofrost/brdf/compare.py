@@ -1,0 +1,151 @@
+"""Compare several BRDFs: spheres side by side under the same lights and the pairwise differences.
+
+Each BRDF is rendered by ``goniofrost.brdf.preview`` (its own MERL grid, the preview's lights and
+orthographic sphere). For every pair (a, b) of the inputs:
+
+* the rendering SNR (``preview.rendering_snr_db``, paper Figs. 8 and 11) both ways: b's
+  rendering against a's as the reference, and a's against b's (the SNR is not symmetric: the
+  reference's energy is the signal);
+* the log-relative MSE: the mean over the valid cells of (ln(w a + eps) - ln(w b + eps))^2 with
+  the cosine weight w (``preview.log_error``, the error FROST minimises and predicts), when both
+  are on the same grid (None otherwise: no common cells).
+
+Inputs are keyed A, B, C, ... in the order given. Identical renderings have an infinite SNR,
+which JSON cannot hold: ``to_json`` writes null with ``"identical": true``.
+"""
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.brdf import preview
+from goniofrost.brdf.merl_file import _read_header, read_merl
+from goniofrost.core.atomic_file import write_bytes_atomic
+from goniofrost.core.grid import MerlGrid
+
+KEYS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Renderings and pairwise numbers of n inputs.
+
+    ``images`` (n, n_lights, size, size, 3) HDR; ``snr_db`` (n, n): [i, j] the SNR of input j's
+    rendering against input i's as the reference (NaN on the diagonal, inf when identical);
+    ``log_mse`` (n, n) symmetric, NaN where the grids differ (0 on the diagonal).
+    """
+
+    keys: tuple[str, ...]
+    labels: tuple[str, ...]
+    paths: tuple[str, ...]
+    light_names: tuple[str, ...]
+    images: np.ndarray
+    snr_db: np.ndarray
+    log_mse: np.ndarray
+
+    def pairs(self):
+        """(i, j) for every pair i < j, in input order."""
+        n = len(self.keys)
+        return [(i, j) for i in range(n) for j in range(i + 1, n)]
+
+    def to_json(self) -> dict:
+        """The numbers as a JSON-ready document (no infinities: see the module docstring)."""
+        def finite(value):
+            return None if not math.isfinite(value) else round(float(value), 6)
+
+        pairs = []
+        for i, j in self.pairs():
+            pairs.append({
+                "a": self.keys[i], "b": self.keys[j],
+                "rendering_snr_db": {"b_against_a": finite(self.snr_db[i, j]), "a_against_b": finite(self.snr_db[j, i])},
+                "identical": bool(np.isinf(self.snr_db[i, j])),
+                "log_relative_mse": finite(self.log_mse[i, j]),
+            })
+        return {"inputs": [{"key": k, "label": label, "path": p} for k, label, p in zip(self.keys, self.labels, self.paths)],
+                "lights": list(self.light_names), "size_px": int(self.images.shape[2]), "pairs": pairs}
+
+    def table(self) -> list[str]:
+        """Text lines: one per pair (the command prints them, the picture shows them)."""
+        lines = []
+        for i, j in self.pairs():
+            a, b = self.keys[i], self.keys[j]
+            log = "grids differ" if np.isnan(self.log_mse[i, j]) else f"{self.log_mse[i, j]:.4g}"
+            if np.isinf(self.snr_db[i, j]):
+                lines.append(f"{a}-{b}: identical renderings; log-relative MSE {log}")
+                continue
+            lines.append(f"{a}-{b}: rendering SNR {self.snr_db[i, j]:.2f} dB ({b} against {a}), "
+                         f"{self.snr_db[j, i]:.2f} dB ({a} against {b}); log-relative MSE {log}")
+        return lines
+
+
+def log_relative_mse(a: np.ndarray, b: np.ndarray, grid: MerlGrid) -> float:
+    """Mean over valid cells and channels of (ln(w a + eps) - ln(w b + eps))^2; tables (grid.size, 3)."""
+    error = preview.log_error(a, b, grid)
+    return float(np.nanmean(error[grid.valid_mask] ** 2))
+
+
+def compare_tables(tables, labels, paths=None, lights=preview.DEFAULT_LIGHTS, size: int = 128) -> Comparison:
+    """Compare BRDF tables: ``tables`` a list of (brdf (grid.size, 3) in 1/sr, grid), at least two."""
+    n = len(tables)
+    if not 2 <= n <= len(KEYS):
+        raise ValueError(f"compare: expected 2 to {len(KEYS)} BRDFs, found {n}")
+    images = np.stack([preview.render_set(brdf, grid, lights, size) for brdf, grid in tables])
+    snr = np.full((n, n), np.nan)
+    log_mse = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                snr[i, j] = preview.rendering_snr_db(images[i], images[j])
+            if i < j:
+                (a, grid_a), (b, grid_b) = tables[i], tables[j]
+                log_mse[i, j] = log_mse[j, i] = log_relative_mse(a, b, grid_a) if grid_a == grid_b else np.nan
+    return Comparison(tuple(KEYS[:n]), tuple(labels), tuple(str(p) for p in (paths or labels)),
+                      tuple(name for name, _, _ in lights), images, snr, log_mse)
+
+
+def compare_files(paths, labels=None, lights=preview.DEFAULT_LIGHTS, size: int = 128) -> Comparison:
+    """Compare MERL .binary files (each on its own grid); ``labels`` default to the file names."""
+    tables = []
+    for path in paths:
+        grid = _read_header(Path(path))
+        tables.append((read_merl(path, grid), grid))
+    return compare_tables(tables, labels or [Path(p).name for p in paths], paths, lights, size)
+
+
+def compose(comparison: Comparison) -> np.ndarray:
+    """Tone-mapped grid (rows = lights, columns = inputs), one exposure: input A's (float in [0, 1])."""
+    exposure = preview.exposure_for(comparison.images[0])
+    rows = [np.concatenate([preview.tone_map(images[k], exposure) for images in comparison.images], axis=1)
+            for k in range(comparison.images.shape[1])]
+    return np.concatenate(rows, axis=0)
+
+
+def write_png(path, comparison: Comparison, title: str = "") -> None:
+    """Write the spheres (column headers A: label, ...) and the pairwise table below as a PNG, atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    image = compose(comparison)
+    lines = comparison.table()
+    n = len(comparison.keys)
+    width = max(2.0 * n, 6.0)
+    image_height = width * image.shape[0] / image.shape[1]
+    text_height = 0.15 * (len(lines) + 1) + 0.15
+    fig = Figure(figsize=(width, image_height + text_height + 0.5), dpi=100)
+    total = image_height + text_height + 0.5
+    ax = fig.add_axes((0.0, (text_height + 0.05) / total, 1.0, image_height / total))
+    ax.imshow(image, interpolation="nearest")
+    ax.set_axis_off()
+    header = "  |  ".join(f"{k}: {label}" for k, label in zip(comparison.keys, comparison.labels))
+    fig.suptitle(f"{title}\n{header}" if title else header, fontsize=8)
+    fig.text(0.01, text_height / total, "\n".join(
+        [f"rows: lights {', '.join(comparison.light_names)}; one exposure (A's)"] + lines),
+        fontsize=7, va="top", family="monospace")
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", facecolor="white")
+    write_bytes_atomic(path, buffer.getvalue())

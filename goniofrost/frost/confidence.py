@@ -1,0 +1,161 @@
+"""A calibrated upper bound on a reconstruction's error, and samples unlike every training material.
+
+The point prediction (``prediction.py``) says how large a material's error typically is; an
+operator who stops a capture on it cannot tell how sure that is. This module turns it into a
+statement with a stated confidence: "the error is at most U with probability c".
+
+The bound is split-conformal on the prediction's log residual, calibrated on the held-out
+training materials of training's inner cross-validation (``calibration.py``):
+
+* cross-fitted residuals: for every inner fold f the calibration is fitted again without the
+  fold's records, and r = log(actual) - log(predicted) is taken on the fold's held-out
+  materials (each residual comes from a predictor that never saw that material: the
+  exchangeability split-conformal needs, with the materials as the exchangeable units);
+* per m, the residuals' median c_m and spread s_m (their standard deviation; they shrink as
+  samples accumulate: 0.6 at m = 15, 0.36 at m = 60 on a fold of MERL + RGL);
+* one score per held-out material, the largest of (r_m - c_m) / s_m over every m at which a
+  capture can stop (m >= stopping.FIRST_BATCH): a *simultaneous* band. A capture looks after
+  every batch and stops at the first look whose bound is small enough; with a bound that holds
+  at every look at once, P(error at the stop <= bound at the stop) >= c whatever look the rule
+  stops at (no penalty for looking many times, no optional-stopping bias);
+* the bound at confidence c is predicted * exp(c_m + q s_m), q the ceil((n + 1) c)-th smallest
+  of the n materials' scores (the finite-sample conformal quantile; infinite when
+  ceil((n + 1) c) > n: too few training materials for that confidence).
+
+The median estimate is predicted * exp(c_m). c_m and s_m between the calibrated m are
+interpolated in log m (clamped at the ends).
+
+Out of the model: the features the prediction is made from are z2 (the samples' leave-one-out
+residuals against their model variance) and the coefficient energy. The calibration records the
+largest of each among the held-out training materials at every m; samples whose z2 or energy
+lies more than a factor OUT_OF_MODEL_FACTOR beyond that are unlike every training material, the
+bound (calibrated on training materials) says nothing about them, and the capture must not stop
+on it (``stopping.stop_reason``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from goniofrost.frost.prediction import feature_matrix
+
+# Captures stop only at m >= this (stopping.FIRST_BATCH; kept here so frost.stopping can import us).
+FIRST_LOOK = 15
+# Beyond the largest z2 / energy of every held-out training material by this factor: out of the
+# model. A factor rather than the bare maximum: among n exchangeable materials a new one exceeds
+# the maximum with probability 1 / (n + 1) per feature and look, which is no sign of anything;
+# the held-out training materials' largest z2 at an m varied by less than a factor 2 from one m
+# to the next (45 x 45 x 90 grid, fold 0 of MERL + RGL: log z2 max 2.3 to 2.9 from m = 5 to 60).
+OUT_OF_MODEL_FACTOR = 2.0
+FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy"}
+
+
+@dataclass(frozen=True)
+class ErrorBound:
+    """What a set of samples says about this material's error (log-relative MSE).
+
+    median: the median estimate; upper: the bound at ``confidence`` (inf when none can be
+    given; ``unavailable`` then says why); out_of_model: the features (keys of FEATURE_NAMES)
+    beyond every held-out training material, () when the samples look like the training set.
+    """
+
+    median: float
+    upper: float
+    confidence: float
+    out_of_model: tuple[str, ...] = ()
+    unavailable: str | None = None
+
+
+def cross_fitted_residuals(records, m_range) -> np.ndarray:
+    """float64 (records,): log(actual / predicted), each predicted by the calibration refitted
+    without the record's inner fold (CvRecords of ``calibration.py``)."""
+    x = feature_matrix(records.design_error, records.z2, records.energy, records.m, m_range)
+    y = np.log(np.maximum(records.actual, 1e-12))
+    out = np.empty_like(y)
+    for fold in np.unique(records.fold):
+        held = records.fold == fold
+        beta, *_ = np.linalg.lstsq(x[~held], y[~held], rcond=None)
+        out[held] = y[held] - x[held] @ beta
+    return out
+
+
+def fit_bound(records, m_range) -> dict:
+    """The bound's calibration (JSON-ready) from the inner cross-validation's records: per m the
+    residuals' median and spread and the largest log z2 / log energy, and every held-out
+    material's simultaneous score, sorted."""
+    r = cross_fitted_residuals(records, m_range)
+    ms = np.unique(records.m)
+    center = np.array([np.median(r[records.m == m]) for m in ms])
+    scale = np.array([max(float(np.std(r[records.m == m])), 1e-6) for m in ms])
+    looks = ms[ms >= FIRST_LOOK] if np.any(ms >= FIRST_LOOK) else ms
+    standard = (r - center[np.searchsorted(ms, records.m)]) / scale[np.searchsorted(ms, records.m)]
+    keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
+    in_look = np.isin(records.m, looks)
+    _, material = np.unique(keys[in_look], return_inverse=True)
+    scores = np.full(int(material.max()) + 1, -np.inf)
+    np.maximum.at(scores, material, standard[in_look])
+    return {"method": "split-conformal, simultaneous over the looks m >= %d" % int(looks[0]),
+            "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
+            "looks": [int(m) for m in looks], "scores": sorted(float(s) for s in scores),
+            "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
+            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]}
+
+
+def conformal_quantile(scores, confidence: float) -> float:
+    """The ceil((n + 1) c)-th smallest of n sorted scores; inf when that exceeds n."""
+    k = math.ceil((len(scores) + 1) * confidence - 1e-9)
+    return float(scores[k - 1]) if 1 <= k <= len(scores) else math.inf
+
+
+def max_confidence(bound_calibration: dict) -> float:
+    """The highest confidence n scores support: n / (n + 1)."""
+    n = len(bound_calibration["scores"])
+    return n / (n + 1)
+
+
+def _at_m(bound_calibration: dict, key: str, m) -> np.ndarray:
+    ms = np.log(np.asarray(bound_calibration["m"], dtype=np.float64))
+    return np.interp(np.log(np.asarray(m, dtype=np.float64)), ms, np.asarray(bound_calibration[key], dtype=np.float64))
+
+
+def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float, extra=0.0) -> dict:
+    """Vectorised bounds: {"median", "upper", "out_of_model_z2", "out_of_model_energy"} arrays
+    (broadcast shape of the arguments). predicted: the calibrated point prediction (exact
+    samples); extra: the increase the samples' own variance causes, added to both (what the
+    model says it costs, ``reconstruction._posterior``)."""
+    bound = calibration.get("bound")
+    predicted = np.asarray(predicted, dtype=np.float64)
+    if not bound:
+        inf = np.full(np.broadcast(predicted, m).shape, np.inf)
+        return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0}
+    c, s = _at_m(bound, "center", m), _at_m(bound, "scale", m)
+    q = conformal_quantile(bound["scores"], confidence)
+    margin = math.log(OUT_OF_MODEL_FACTOR)
+    with np.errstate(over="ignore"):
+        upper = predicted * np.exp(c + q * s) + extra
+    return {"median": predicted * np.exp(c) + extra, "upper": upper,
+            "out_of_model_z2": np.log(z2) > _at_m(bound, "log_z2_max", m) + margin,
+            "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin}
+
+
+def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
+                confidence: float, extra: float = 0.0) -> ErrorBound:
+    """The ErrorBound of one reconstruction (see ``error_bounds``)."""
+    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra)
+    flags = tuple(k for k in FEATURE_NAMES if bool(out[f"out_of_model_{k}"]))
+    return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
+                      unavailability(calibration, confidence))
+
+
+def unavailability(calibration: dict, confidence: float) -> str | None:
+    """Why no bound at ``confidence`` can be given from this calibration, or None."""
+    bound = calibration.get("bound")
+    if not bound:
+        return "the model has no calibrated error bound (train it again with this version)"
+    if conformal_quantile(bound["scores"], confidence) == math.inf:
+        n = len(bound["scores"])
+        return (f"the model's {n} held-out training materials support a confidence of at most "
+                f"{max_confidence(bound):.3f}; {confidence:g} needs {math.ceil(confidence / (1 - confidence) - 1e-9)}")
+    return None

@@ -1,0 +1,104 @@
+"""The simulated camera served on loopback, for a rig file that treats the twins as real hardware.
+
+``goniofrost sim --write-rig OUT.yaml`` writes a rig file whose camera is a ``rawfile`` camera (a
+hot folder with a trigger command, as on a real rig): the running simulation renders each frame
+through this service, so a capture on that rig file sees the twins' true positions and lamp.
+
+Protocol (one text line each way, on 127.0.0.1): ``target NAME`` puts a target in front of the
+lens (``sample``, ``white``, ``flat``); ``expose SECONDS`` renders one DNG into the hot folder.
+Each is answered ``ok`` (``ok PATH`` for a frame) or ``error TEXT``.
+
+``python -m sim.camera_service --port P target white`` / ``... expose 0.004`` is the client the rig
+file's ``target_command`` / ``trigger_command`` run (exit 0 on ``ok``; else the text on stderr, 1).
+It imports nothing heavy: it runs once per frame.
+"""
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import threading
+from pathlib import Path
+
+LOOPBACK = "127.0.0.1"
+CLIENT_TIMEOUT_S = 60.0  # the longest exposure of a ladder (16 s) at speed-up 1, with margin
+
+
+class CameraService:
+    """Serve ``camera`` (a connected ``sim.camera.SimCamera``) on a loopback port; frames go to
+    ``folder`` as ``frame_NNNNNN.dng``. ``start()`` returns the port; ``stop()`` ends it."""
+
+    def __init__(self, camera, folder: Path) -> None:
+        self.camera, self.folder = camera, Path(folder)
+        self._server = socket.create_server((LOOPBACK, 0))
+        self.port = self._server.getsockname()[1]
+        self._count = 0
+        self._lock = threading.Lock()  # one frame at a time, as one camera gives
+        self._thread = threading.Thread(target=self._serve, name="sim-camera-service", daemon=True)
+        self._running = False
+
+    def start(self) -> int:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._running = True
+        self._thread.start()
+        return self.port
+
+    def stop(self) -> None:
+        self._running = False
+        self._server.close()
+        self._thread.join(timeout=5)
+
+    def _serve(self) -> None:
+        while self._running:
+            try:
+                conn, _ = self._server.accept()
+            except OSError:  # closed by stop()
+                return
+            with conn:
+                line = conn.makefile("rb").readline().decode("ascii", "replace").strip()
+                conn.sendall((self.handle(line) + "\n").encode())
+
+    def handle(self, line: str) -> str:
+        """One request line -> its answer line."""
+        verb, _, arg = line.partition(" ")
+        try:
+            with self._lock:
+                if verb == "target":
+                    self.camera.set_target(arg)
+                    return "ok"
+                if verb == "expose":
+                    self._count += 1
+                    path = self.folder / f"frame_{self._count:06d}.dng"
+                    self.camera.capture(float(arg), path)
+                    return f"ok {path}"
+        except Exception as exc:  # noqa: BLE001 - the client reports it; the service goes on
+            return f"error {exc}"
+        return f"error unknown request {line!r} (expected 'target NAME' or 'expose SECONDS')"
+
+
+def request(port: int, line: str, timeout_s: float = CLIENT_TIMEOUT_S) -> str:
+    """Send one request line to the service on ``port``; return its answer line."""
+    with socket.create_connection((LOOPBACK, int(port)), timeout=timeout_s) as sock:
+        sock.sendall((line + "\n").encode())
+        return sock.makefile("rb").readline().decode("ascii", "replace").strip()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sim.camera_service",
+                                     description="ask a running `goniofrost sim` for a target or a frame")
+    parser.add_argument("--port", type=int, required=True, help="the service's loopback port")
+    parser.add_argument("verb", choices=("target", "expose"))
+    parser.add_argument("value", help="a target name, or an exposure in seconds")
+    args = parser.parse_args(argv)
+    try:
+        answer = request(args.port, f"{args.verb} {args.value}")
+    except OSError as exc:
+        answer = f"error no simulated camera on 127.0.0.1:{args.port}: {exc}"
+    if answer == "ok" or answer.startswith("ok "):
+        return 0
+    print(f"sim camera: {answer.removeprefix('error ')}", file=sys.stderr)
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,37 @@
+"""A rig file that treats the running twins as real hardware (``goniofrost sim --write-rig``).
+
+``real_rig_document(source, resolved, service)`` returns the rig file ``source`` as a mapping with
+``simulated: false``, no ``sim`` section, every driver section pointing at its running twin
+(``SimulatedRig.resolved_rig()``: pty paths, loopback ports) and a ``rawfile`` camera
+whose frames come from the simulated camera's service (``sim.camera_service``), keeping the
+camera model, ladder and references of the original: the kinematics, and so a plan's
+``rig.kinematic_hash``, stay those of the simulated rig.
+"""
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+
+import yaml
+
+# the simulated camera's own keys (sim.camera) that a real rawfile camera section does not have
+_SIM_ONLY_CAMERA_KEYS = ("kind",)
+
+
+def real_rig_document(source, resolved, service) -> dict:
+    """The rig file at ``source`` rewritten for the running simulation (see the module doc);
+    ``resolved``: the running SimulatedRig's ``resolved_rig()``."""
+    doc = yaml.safe_load(Path(source).read_text())
+    doc["simulated"] = False
+    doc.pop("sim", None)
+    for name, axis in resolved.axes.items():
+        doc["axes"][name]["driver"] = dict(axis.driver)
+    if resolved.lamp_driver:
+        doc.setdefault("lamp", {})["driver"] = dict(resolved.lamp_driver)
+    client = f"{shlex.quote(sys.executable)} -m sim.camera_service --port {service.port}"
+    camera = {k: v for k, v in (doc.get("camera") or {}).items() if k not in _SIM_ONLY_CAMERA_KEYS}
+    doc["camera"] = {"kind": "rawfile", "folder": str(service.folder),
+                     "trigger_command": f"{client} expose {{exposure_s}}",
+                     "target_command": f"{client} target {{target}}", **camera}
+    return doc

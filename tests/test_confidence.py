@@ -1,0 +1,136 @@
+"""The calibrated error bound and the out-of-model warning (frost.confidence): coverage on a
+synthetic set whose truth is known, the conformal quantile, a material unlike the training set."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import confidence, stopping
+from goniofrost.frost.calibration import CvRecords, fit_calibration
+from goniofrost.frost.prediction import predict
+from goniofrost.frost.reconstruction import error_bound
+from goniofrost.frost.training import fit_model
+
+from test_frost import synthetic_tables
+
+GRID = MerlGrid(10, 10, 20)
+MS = (5, 10, 15, 20, 30, 40, 60)
+BETA = np.array([0.3, 1.0, 0.5, 0.2, -0.1])  # the truth: log(actual) = x . BETA + material + noise
+
+
+def synthetic_records(n_materials: int, seed: int, folds: int = 10) -> CvRecords:
+    """Records whose log error follows a known linear law in the features plus a per-material
+    offset (a hard material is hard at every m) and per-(material, m) noise shrinking with m."""
+    rng = np.random.default_rng(seed)
+    m = np.tile(np.asarray(MS), n_materials)
+    material = np.repeat(np.arange(n_materials), len(MS))
+    design = np.exp(rng.normal(-4, 0.3, m.size)) * 20 / m
+    z2, energy = np.exp(rng.normal(0, 0.5, m.size)), np.exp(rng.normal(0, 0.5, m.size))
+    x = np.stack([np.ones(m.size), np.log(design), np.log(z2), np.log(energy), np.log(m)], axis=1)
+    offset = rng.standard_t(5, n_materials)[material] * 0.3
+    log_actual = x @ BETA + offset + rng.normal(0, 1, m.size) * 3.0 / np.sqrt(m)
+    return CvRecords(fold=material % folds, material=material, m=m, actual=np.exp(log_actual),
+                     design_error=design, z2=z2, energy=energy)
+
+
+def test_the_bound_covers_the_stated_fraction_of_new_materials_at_every_look_at_once():
+    calibration = fit_calibration(synthetic_records(300, seed=1))
+    fresh = synthetic_records(4000, seed=2)
+    predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m)
+    looks = fresh.m >= confidence.FIRST_LOOK
+    for level in (0.8, 0.9, 0.95):
+        b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, level)
+        covered = (fresh.actual <= b["upper"]).reshape(4000, len(MS))[:, looks[:len(MS)]]
+        simultaneous = covered.all(axis=1).mean()  # every look of a material at once
+        # conformal: at least the level (up to the calibration set's own sampling, 300 materials)
+        assert level - 0.025 <= simultaneous <= level + 0.04, (level, simultaneous)
+        assert covered.mean(axis=0).min() >= simultaneous  # one look alone is covered more often
+    # the median estimate is the median: about half the errors above it at each m
+    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95)
+    for m in MS:
+        assert 0.45 <= np.mean(fresh.actual[fresh.m == m] <= b["median"][fresh.m == m]) <= 0.55
+    # in-range features are never out of the model
+    assert not (b["out_of_model_z2"] | b["out_of_model_energy"]).any()
+
+
+def test_the_conformal_quantile_and_what_too_few_materials_support():
+    scores = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]  # n = 6
+    assert confidence.conformal_quantile(scores, 0.5) == 0.4  # ceil(7 * 0.5) = 4th smallest
+    assert confidence.conformal_quantile(scores, 6 / 7) == 0.6
+    assert confidence.conformal_quantile(scores, 0.9) == math.inf  # ceil(6.3) = 7 > 6
+    calibration = {"bound": {"scores": scores}}
+    assert confidence.max_confidence(calibration["bound"]) == pytest.approx(6 / 7)
+    assert confidence.unavailability(calibration, 0.95) == ("the model's 6 held-out training materials support a "
+                                                            "confidence of at most 0.857; 0.95 needs 19")
+    assert confidence.unavailability({}, 0.95).startswith("the model has no calibrated error bound")
+
+
+@pytest.fixture(scope="module")
+def model():
+    tables = synthetic_tables(GRID, 40, seed=3)
+    return fit_model(tables, [f"mat{i}" for i in range(40)], GRID, k_max=30)
+
+
+def test_a_trained_model_holds_its_bound_and_flags_a_material_unlike_its_training_set(model):
+    bound = model.noise["calibration"]["bound"]
+    assert len(bound["scores"]) == 40 and bound["looks"][0] == confidence.FIRST_LOOK
+    rng = np.random.default_rng(5)
+    positions = rng.choice(GRID.n_valid, 20, replace=False)
+    like = synthetic_tables(GRID, 1, seed=11)[0].astype(np.float64)  # the training set's kind
+    usual = error_bound(model, positions, like[positions], confidence=0.95)
+    assert usual.out_of_model == () and usual.median < usual.upper < math.inf
+    # unlike every training material: a BRDF that jumps by a factor 100 from cell to cell
+    unlike = like * np.where(rng.random((GRID.n_valid, 1)) < 0.5, 0.1, 10.0)
+    odd = error_bound(model, positions, unlike[positions], confidence=0.95)
+    assert "z2" in odd.out_of_model
+    assert stopping.stop_reason(odd, target=1e9, done=20, total=40) is None  # measures on
+    assert stopping.why_not_reached(odd, 1e9).startswith("the samples are unlike every training material")
+
+
+def test_the_report_flags_an_out_of_model_reconstruction_as_an_extrapolation(model):
+    from goniofrost.capture.report import extrapolation_section
+
+    rng = np.random.default_rng(5)
+    positions = rng.choice(GRID.n_valid, 20, replace=False)
+    like = synthetic_tables(GRID, 1, seed=11)[0].astype(np.float64)
+    unlike = like * np.where(rng.random((GRID.n_valid, 1)) < 0.5, 0.1, 10.0)
+    inputs = SimpleNamespace(model=model, positions=positions)
+
+    def records(table):
+        return [SimpleNamespace(plan_index=i, rgb=tuple(table[p]), sigma=tuple(0.001 * table[p]))
+                for i, p in enumerate(positions)]
+
+    assert extrapolation_section(inputs, records(like)) == {"extrapolation": False, "out_of_model": [],
+                                                            "out_of_model_features": []}
+    flagged = extrapolation_section(inputs, records(unlike))
+    assert flagged["extrapolation"] and "z2" in flagged["out_of_model"]
+    assert "leave-one-out residuals" in flagged["out_of_model_features"]
+
+
+def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
+    """benchmarks/target_error.py on one builtin fold of a small grid: every target's row, the
+    per-m rows, and what it promised held for the materials it stopped on."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "target_error.py"
+    spec = importlib.util.spec_from_file_location("target_error_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20",
+                       "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "target_error.json").read_text())
+    stats = doc["summary"]["builtin"]
+    assert sorted(float(e) for e in stats["targets"]) == [0.01, 0.02, 0.05]
+    assert sorted(int(m) for m in stats["by_m"]) == [15, 20]
+    for row in stats["targets"].values():
+        assert row["materials"] == 10 and 15 <= row["mean_samples"] <= 20
+        assert row["within_when_stopped"] is None or row["within_when_stopped"] >= 0.9
+    stops = doc["results"]["builtin"][0]["stops"]
+    assert all(s["upper"] <= s["target"] for s in stops if s["reached"])  # stopped on the bound only
+    assert "| builtin | 0.05 | 10 |" in (tmp_path / "target_error.md").read_text()

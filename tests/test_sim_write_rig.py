@@ -1,0 +1,74 @@
+"""``goniofrost sim --rig RIG --write-rig OUT.yaml``: a rig file (``simulated: false``) whose drivers
+point at the running twins and whose camera is the simulation's, so that a capture runs on it
+exactly as on a real rig: the real rig path of ``capture`` (rig layer opens the ports, a rawfile
+camera with trigger and target commands), in another process than the twins."""
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+
+from test_session import GRID, M, TRAINING, write_rig
+
+READY_S = 60.0  # real seconds for `goniofrost sim` to start (imports, twins, camera service)
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """(rig file of the simulated rig, the written rig file, the endpoints) while `goniofrost sim` runs
+    (one process for the module: it starts in seconds on a loaded machine)."""
+    tmp_path = tmp_path_factory.mktemp("twins")
+    rig = write_rig(tmp_path / "rig.yaml")
+    out = tmp_path / "twins.yaml"
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out),
+                             "--speedup", "50", "--material", "builtin:red-plastic"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        assert ready, "goniofrost sim did not print its endpoints"
+        endpoints = json.loads(proc.stdout.readline())
+        yield rig, out, endpoints
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+
+
+def test_the_written_rig_file_points_at_the_running_twins(served):
+    rig, out, endpoints = served
+    doc = yaml.safe_load(out.read_text())
+    assert doc["simulated"] is False and "sim" not in doc
+    drivers = {name: axis["driver"] for name, axis in doc["axes"].items()}
+    host, port = endpoints["camera_arm"]["endpoint"].rsplit(":", 1)
+    assert (drivers["camera_arm"]["host"], drivers["camera_arm"]["port"]) == (host, int(port)) == ("127.0.0.1", int(port))
+    assert drivers["sample_yaw"]["port"] == endpoints["sample_yaw"]["endpoint"] and os.path.exists(drivers["sample_yaw"]["port"])
+    assert drivers["sample_tilt"]["port"] == endpoints["sample_tilt"]["endpoint"]
+    camera = doc["camera"]
+    assert camera["kind"] == "rawfile" and Path(camera["folder"]).is_dir()
+    assert "{exposure_s}" in camera["trigger_command"] and "{target}" in camera["target_command"]
+    original = yaml.safe_load(rig.read_text())
+    assert camera["intrinsics"] == original["camera"]["intrinsics"] and doc["geometry"] == original["geometry"]
+
+
+def test_a_capture_through_the_written_rig_file_completes(served, tmp_path, capsys):
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+
+    rig, out, _ = served
+    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, tmp_path / "plan.json")
+    session = tmp_path / "s"
+    assert main(["capture", "--rig", str(out), "--plan", str(plan), "--session", str(session), "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
+    with open(session / "samples.csv") as handle:
+        assert len(handle.read().strip().splitlines()) == M + 1  # the header and every plan sample
+    assert (session / "brdf.binary").is_file()
