@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import (CalibrationError, MarkerError, MisalignedError, PatchTooSmallError, SaturationError,
-                     UnderexposedError, WrongTargetError)
+                     WrongTargetError)
 from .hdr import BracketFrame, channel_stats, merge
 from .record import CalibrationRecord
 from .roi import PredictedView, locate_patch
@@ -104,16 +104,12 @@ class Bracket:
     def stats(self) -> tuple[np.ndarray, np.ndarray]:
         """The patch's mean rate and its standard error, each (3,), once the bracket is done.
 
-        MarkerError when no frame showed the markers; UnderexposedError when a channel has no
-        signal above the dark level.
+        MarkerError when no frame showed the markers. A mean may be <= 0 (a channel with no signal
+        above the dark level): ``calib.measurement`` records it as a detection limit.
         """
         if self.mask_ is None:
             raise MarkerError(f"{self.marker_error_} (in all {len(self.frames)} exposures)") from self.marker_error_
-        mean, se = self._stats()
-        if not np.all(mean > 0):
-            raise UnderexposedError(f"{self.what}: no signal above the dark level in channel(s) "
-                                    f"{[c for c, m in zip('RGB', mean) if not m > 0]}")
-        return mean, se
+        return self._stats()
 
     @property
     def exposures_s(self) -> list:
@@ -161,11 +157,28 @@ class Bracket:
                 raise SaturationError(f"{self.what}: {int((~covered).sum())} of {covered.size} sample pixels "
                                       f"saturate even at the shortest exposure {self.ladder[0]} s")
             return lo - 1
+        return hi + 1 if self.lagging(hi) else None
+
+    def lagging(self, hi: int) -> list:
+        """The channels (0..2) that are below ``target_snr`` and that the next longer ladder exposure
+        than index ``hi`` would still expose (the median of the channel's own pixels predicted below
+        saturation): each channel is exposed as long as it needs, whatever a brighter channel does
+        (its saturated pixels are left out of the merge). Empty at the end of the ladder."""
+        if hi + 1 >= len(self.ladder):
+            return []
         mean, se = self._stats()
-        if np.all(mean / se >= self.settings["target_snr"]) or hi + 1 >= len(self.ladder):
-            return None
-        level = np.median(self.frames[hi].linear[self.mask_]) * self.ladder[hi + 1] / self.ladder[hi]
-        return hi + 1 if level < self.settings["saturation"] else None
+        frame, channels = self.frames[hi].linear[self.mask_], self.channels_[self.mask_]
+        gain = self.ladder[hi + 1] / self.ladder[hi]
+        # a channel whose value is consistent with zero has an SNR near 0 (NaN when 0 / 0):
+        # it is lagging until the ladder ends, then its uncertainty is its detection limit
+        below = ~(np.nan_to_num(mean / se, nan=0.0) >= self.settings["target_snr"])
+        return [c for c in range(3) if below[c] and
+                np.median(frame[channels == c]) * gain < self.settings["saturation"]]
+
+    @property
+    def ladder_exhausted(self) -> bool:
+        """Whether the longest exposure taken is the ladder's longest (the rig has no longer one)."""
+        return max(self.frames) == len(self.ladder) - 1
 
     def _stats(self) -> tuple[np.ndarray, np.ndarray]:
         rates, _ = merge(list(self.frames.values()), self.record.flat, self.mask_)

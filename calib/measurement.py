@@ -5,8 +5,10 @@ Pure: the bracket's frames, the calibration record and the camera settings in, a
 uncertainty combines the patch's standard error, the white reference's and the photodiode's.
 
 Error policy: sample pixels saturated even at the shortest exposure -> SaturationError (raised by
-the bracket); SNR below ``min_snr`` even with the longest useful exposure -> UnderexposedError;
-between ``min_snr`` and ``target_snr`` the sample is returned with the flag ``"low-snr"``; read
+the bracket); every channel below ``min_snr`` even with the ladder's longest exposure ->
+UnderexposedError; some channels below ``min_snr`` but not all -> those channels are measurements
+at their detection limit (value >= 0 with its sigma, flag ``"detection-limit"``); any channel
+between ``min_snr`` and ``target_snr`` -> the flag ``"low-snr"``; read
 markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
 within it) flag ``"markers-off"``: the rig may be misaligned (``goniofrost align``); a region the
 camera model placed alone whose pixels spread more than MAX_SPREAD_RATIO times their robust spread
@@ -80,15 +82,26 @@ def light_direction(w_i, sample_id: int) -> np.ndarray:
 
 def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, capture_seconds: float = 0.0,
                        clock_seconds: float = 0.0) -> SampleMeasurement:
-    """Calibrate a finished bracket at unit light direction ``w_i`` (3,) into a SampleMeasurement."""
+    """Calibrate a finished bracket at unit light direction ``w_i`` (3,) into a SampleMeasurement.
+
+    A channel below ``min_snr`` while another channel reaches it (a strongly coloured material:
+    the blue of an orange paint at grazing light) is a measurement at its detection limit: its
+    value is clipped at 0 (a BRDF is >= 0, and the reconstruction takes no negative value), its
+    sigma is the patch's standard error, and the flag ``"detection-limit"`` says so; the
+    reconstruction's log map weighs it by that sigma.
+    """
     mean, se = bracket.stats()
     rec, settings = bracket.record, bracket.settings
-    rgb = mean / (rec.scale * w_i[2])
-    rel = np.sqrt((se / mean) ** 2 + (rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
+    to_brdf = 1.0 / (rec.scale * w_i[2])
+    rgb = np.maximum(mean, 0.0) * to_brdf
+    # the patch's standard error in absolute terms (a value near 0 keeps its uncertainty), the
+    # white reference's and the photodiode's relative to the value
+    rel_sys = np.sqrt((rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
+    sigma = np.sqrt((se * to_brdf) ** 2 + (rgb * rel_sys) ** 2)
     snr = mean / se
     flags = _snr_flags(snr, bracket) + _marker_flags(bracket)
     taken = len(bracket.frames)
-    return SampleMeasurement(sample_id, rgb, np.abs(rgb) * rel, snr, bracket.exposures_s, taken,
+    return SampleMeasurement(sample_id, rgb, sigma, snr, bracket.exposures_s, taken,
                              len(bracket.ladder) - taken, list(bracket.paths), bracket.lamp_relative,
                              capture_seconds, clock_seconds, flags, bracket.roi_source_, bracket.marker_offset_px_)
 
@@ -109,17 +122,30 @@ MAX_SPREAD_RATIO = 3.0
 
 def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:
     settings = bracket.settings
-    low = float(np.nanmin(snr)) if np.all(np.isfinite(snr)) else 0.0
+    snr = np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0)
+    low, best = float(np.min(snr)), float(np.max(snr))
     # a region placed by the camera model alone may take in the card around the patch (a rig
     # that is not aligned): its pixels then spread far beyond their noise
     mixed = bracket.roi_source_ == "prediction" and bracket.spread_ratio() > MAX_SPREAD_RATIO
-    if low < settings["min_snr"]:
-        if mixed:
-            raise MisalignedError(
-                f"{bracket.what}: the region of interest is not uniform (its pixels spread {bracket.spread_ratio():.0f} "
-                f"times their median deviation): it takes in the card around the patch, so the patch is not where the "
-                f"camera model puts it: the rig looks misaligned (run goniofrost align, or check the camera model)")
-        longest = bracket.ladder[max(bracket.frames)]
-        raise UnderexposedError(f"{bracket.what}: SNR {low:.1f} below the minimum {settings['min_snr']} "
-                                f"with exposures up to {longest} s: too dark to measure")
-    return (["low-snr"] if low < settings["target_snr"] else []) + (["roi-mixed"] if mixed else [])
+    if low < settings["min_snr"] and mixed:
+        raise MisalignedError(
+            f"{bracket.what}: the region of interest is not uniform (its pixels spread {bracket.spread_ratio():.0f} "
+            f"times their median deviation): it takes in the card around the patch, so the patch is not where the "
+            f"camera model puts it: the rig looks misaligned (run goniofrost align, or check the camera model)")
+    if best < settings["min_snr"]:
+        _too_dark(best, bracket)
+    flags = ["low-snr"] if low < settings["target_snr"] else []
+    flags += ["detection-limit"] if low < settings["min_snr"] else []
+    return flags + (["roi-mixed"] if mixed else [])
+
+
+def _too_dark(best: float, bracket: Bracket) -> None:
+    """No channel reaches ``min_snr``: too dark for the ladder (UnderexposedError, whose remedy is a
+    longer exposure) only when the ladder's longest exposure was taken; else the bracket stopped
+    because a longer frame would saturate the patch, and the patch scatters beyond its noise."""
+    longest, minimum = bracket.ladder[max(bracket.frames)], bracket.settings["min_snr"]
+    if bracket.ladder_exhausted:
+        raise UnderexposedError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum} with exposures up to "
+                                f"{longest} s (the longest of camera.exposures_s): too dark to measure")
+    raise CalibrationError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum} at {longest} s, and a longer "
+                           f"exposure would saturate the patch: its pixels scatter far beyond their noise")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import CalibrationError
+from .errors import CalibrationError, UnderexposedError
 
 
 def dark_map(raws) -> np.ndarray:
@@ -57,6 +57,11 @@ def white_scale(mean: np.ndarray, se: np.ndarray, white_pose, settings: dict, ex
     (w_i, w_o) of the tile. Returns ``scale`` (3,), ``scale_sigma`` (3,) and the white-reference
     facts for the record.
     """
+    if not np.all(mean > 0):
+        # the white tile is the scale of every sample: a channel without signal is no reference
+        raise UnderexposedError(f"white reference: no signal above the dark level in channel(s) "
+                                f"{[c for c, m in zip('RGB', mean) if not m > 0]} with exposures up to "
+                                f"{max(exposures_s)} s")
     wr = settings["white_reference"]
     w_i = unit(white_pose[0], "white reference w_i")
     rho = wr["reflectance"]

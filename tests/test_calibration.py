@@ -213,9 +213,16 @@ def test_dark_scene_is_underexposed_or_flagged(rig, calibrated, spec, tmp_path):
     bench.lamp.on()
     w_i, w_o = bench.set_angles(70.0, 50.0, 0.0)   # far from specular, grazing light: BRDF ~ 0.005
     short = {"exposures_s": [0.001]}
-    with pytest.raises(UnderexposedError, match=r"sample 5: SNR [\d.]+ below the minimum 10.0 with exposures up to 0.001 s"):
-        _calibrator(rig, calibrated, bench, **short).measure(w_i, w_o, tmp_path, 5)
-    m = _calibrator(rig, calibrated, bench, **short, min_snr=1.0).measure(w_i, w_o, tmp_path, 6)
+    # no channel reaches the minimum with the ladder's longest exposure: the rig cannot measure it
+    with pytest.raises(UnderexposedError, match=r"^sample 5: SNR [\d.]+ below the minimum 30.0 with exposures up to "
+                                                r"0.001 s \(the longest of camera.exposures_s\): too dark to measure$"):
+        _calibrator(rig, calibrated, bench, **short, min_snr=30.0).measure(w_i, w_o, tmp_path, 5)
+    # one channel below the minimum, others above: a measurement at its detection limit
+    m = _calibrator(rig, calibrated, bench, **short).measure(w_i, w_o, tmp_path, 6)
+    low = m.snr < 10.0
+    assert 0 < low.sum() < 3 and m.flags == ["low-snr", "detection-limit"] and m.frames_skipped == 0
+    np.testing.assert_allclose(m.sigma[low], m.rgb[low] / m.snr[low], rtol=0.05)   # its sigma is its noise
+    m = _calibrator(rig, calibrated, bench, **short, min_snr=1.0).measure(w_i, w_o, tmp_path, 7)
     assert m.flags == ["low-snr"] and m.frames_skipped == 0
 
 

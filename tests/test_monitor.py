@@ -281,11 +281,15 @@ def test_a_frame_has_its_region_of_interest_outlined_around_the_sample_patch(fin
         assert status == 200 and headers["X-Shows"] == str(M) and spheres.shape == (96, 3 * 96, 3)
         assert spheres[48, 48, 2] > spheres[48, 48, 1]  # a red sphere
         # pictures are rate-limited: right after one, the last one comes back with when to ask again
-        status, headers, _ = request(server, "GET", "/api/frame.png?sample=99")
+        other = (k + 1) % M
+        status, headers, _ = request(server, "GET", f"/api/frame.png?sample={other}")
         assert status == 200 and headers["X-Shows"] == str(k) and int(headers["X-Retry-After-Ms"]) >= 200
         time.sleep(int(headers["X-Retry-After-Ms"]) / 1000)
+        status, headers, body = request(server, "GET", f"/api/frame.png?sample={other}")
+        assert status == 200 and headers["X-Shows"] == str(other)
+        # a sample not in the journal is answered at once, with its own message
         status, headers, body = request(server, "GET", "/api/frame.png?sample=99")
-        assert status == 503 and body == b"sample 99 is not in the journal" and headers["X-Shows"] == "99"
+        assert status == 404 and body == b"sample 99 is not in the journal" and headers["X-Shows"] == "99"
 
 
 def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_port(tmp_path, capsys):
@@ -315,11 +319,12 @@ def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_sho
     part = estimate_for_preview(inputs, view.done)
     shown = grid.valid_cells[sphere_positions(grid)]
     assert 100 < shown.size < grid.n_valid / 2
-    np.testing.assert_allclose(part[shown], whole[shown], rtol=1e-6)
+    # float32 dictionary products over a subset of rows vs all rows: rounding in another order
+    np.testing.assert_allclose(part[shown], whole[shown], rtol=2e-5)
     computed = np.union1d(shown, inputs.cells[[d.plan_index for d in view.done]])  # and the sampled cells
     assert np.isnan(np.delete(part, computed, axis=0)).all() and not np.isnan(part[computed]).any()
     np.testing.assert_allclose(preview_of(part, grid, size=96).estimate, preview_of(whole, grid, size=96).estimate,
-                               rtol=1e-6)
+                               rtol=2e-5)
 
 
 def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):

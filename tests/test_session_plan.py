@@ -183,10 +183,14 @@ def test_a_low_snr_frame_asks_for_longer_exposures_until_the_target_or_saturatio
     asked, m = bracket_of([frames["sample", 0.002], frames["sample", 0.008], frames["sample", 0.032],
                            frames["sample", 0.128]], expected=np.full(3, 10.0), target_snr=1e6, min_snr=1.0)
     assert [t for t, _ in asked] == [0.002, 0.008, 0.032, 0.128] and m.flags == ["low-snr"]
-    # ... so the 8x brighter sample stops after 0.008 s (0.032 s would saturate)
-    asked, m = bracket_of([frames["bright", 0.002], frames["bright", 0.008]], expected=np.full(3, 10.0),
-                          target_snr=1e6, min_snr=1.0)
-    assert [t for t, _ in asked] == [0.002, 0.008]
+    # ... so the 8x brighter sample stops after 0.032 s: 0.128 s would saturate every channel, and
+    # 0.032 s saturates the green channel's pixels (left out of the merge) but not red and blue
+    asked, m = bracket_of([frames["bright", 0.002], frames["bright", 0.008], frames["bright", 0.032]],
+                          expected=np.full(3, 10.0), target_snr=1e6, min_snr=1.0)
+    assert [t for t, _ in asked] == [0.002, 0.008, 0.032]
+    bright = frames["bright", 0.032]
+    green = bright.channels == 1
+    assert bright.saturated[green].mean() > 2 * bright.saturated[~green].mean()
     # with a reachable target the bracket stops as soon as the SNR is there (0.002 s: SNR 140)
     asked, m = bracket_of([frames["sample", 0.002], frames["sample", 0.008]], expected=np.full(3, 10.0),
                           target_snr=200.0)

@@ -44,7 +44,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the
     plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.capture.plan_file import check_unique_cells, read_plan
     from goniofrost.capture.rig_file import load_checked_rig
 
     rig = load_checked_rig(rig_path, alignment_path)
@@ -59,8 +59,20 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     check_measurable(plan, plan_path, rig)
     cells = plan_cells(plan, plan_path, model.grid)
     check_consistency(plan, plan_path, model.grid, rig, cells)
+    check_unique_cells(plan_path, plan)
+    check_drills(plan, rig)
     return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
                          white_reference_joints(rig))
+
+
+def check_drills(plan: dict, rig) -> None:
+    """A fault drill of a simulated rig must fire within the plan: one at a sample the plan does
+    not have would never fire, and the drill would pass unseen."""
+    n = len(plan["samples"])
+    for i, drill in enumerate((rig.sim or {}).get("faults", []) if rig.simulated else []):
+        if drill["at_sample"] >= n:
+            raise ConfigError(rig.source, f"sim.faults[{i}].at_sample", f"a plan sample index 0..{n - 1}",
+                              drill["at_sample"])
 
 
 def resolve_model_path(plan: dict, plan_path: Path) -> Path:

@@ -111,3 +111,13 @@ def read_plan(path) -> dict:
     if len(doc["samples"]) != doc["m"]:
         raise ConfigError(path, "samples", f"a list of m={doc['m']} samples", f"{len(doc['samples'])} samples")
     return doc
+
+
+def check_unique_cells(path, doc: dict) -> None:
+    """A cell measured twice is a plan made wrong: ConfigError naming the second sample."""
+    seen: dict = {}
+    for i, sample in enumerate(doc["samples"]):
+        first = seen.setdefault(tuple(sample["cell"]), i)
+        if first != i:
+            raise ConfigError(path, f"samples[{i}].cell", f"a cell not already in the plan (samples[{first}] has it)",
+                              sample["cell"])

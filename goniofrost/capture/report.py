@@ -53,6 +53,7 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
         "snr": {"min": float(snr.min()), "median": float(np.median(snr)), "max": float(snr.max())},
         "markers_off": [r.plan_index for r in records if "markers-off" in r.status.split(",")],
         "roi_mixed": [r.plan_index for r in records if "roi-mixed" in r.status.split(",")],
+        "detection_limit": [r.plan_index for r in records if "detection-limit" in r.status.split(",")],
         "per_sample": [{"index": r.plan_index, "cell": r.cell, "theta_h_deg": r.theta_h_deg,
                         "theta_d_deg": r.theta_d_deg, "phi_d_deg": r.phi_d_deg, "rgb": list(r.rgb),
                         "sigma": list(r.sigma), "snr": r.snr, "move_s": r.move_s, "capture_s": r.capture_s}
@@ -301,6 +302,11 @@ def summary_text(report: dict) -> str:
         lines.append(f"{len(mixed)} sample(s) had a region of interest that took in the card around the patch "
                      f"(flag roi-mixed: {' '.join(map(str, mixed))}): their values are not to be trusted; the rig may be "
                      f"misaligned")
+    limited = report.get("detection_limit", [])
+    if limited:
+        lines.append(f"{len(limited)} sample(s) have a channel at its detection limit (flag detection-limit: "
+                     f"{' '.join(map(str, limited))}): below the minimum SNR with the longest exposure the channel "
+                     f"allows, recorded with its uncertainty, which the reconstruction weighs")
     truth = report.get("ground_truth")
     if truth:
         lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")

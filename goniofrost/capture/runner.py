@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from goniofrost.core.errors import ConfigError, OutputError
+from goniofrost.core.errors import ConfigError, GoniofrostError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 from goniofrost.capture.session_steps import SessionSpec
 from goniofrost.capture.target import DEFAULT_CONFIDENCE
@@ -64,13 +64,18 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     check_sim_options(inputs.rig, seed, speedup)
     check_target(inputs, target_error, confidence)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material, target_error, confidence) | {
+    meta = session_meta(inputs, material, target_error, confidence, sim_seed(inputs.rig, seed)) | {
         "label": (label or session_label(inputs.rig)).to_dict()}
     spec = SessionSpec.from_inputs(inputs, target_error, confidence)
     if drift_limit is not None:
         spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
+    existed = check_session_folder(session_dir)
     with session_lock(session_dir):
+        from goniofrost.core.atomic_file import remove_stale_temporaries
+        for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
+            log.info("removed %s, left by an interrupted write", name)
         journal = open_journal(session_dir, meta, resume)
+        fresh = not journal.done_indices() and not journal.steps()
         try:
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
@@ -85,9 +90,50 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             except OutputError as exc:
                 raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
                                   f"then run the same command with --resume to write the results") from exc
+        except GoniofrostError:
+            refused = fresh and not journal.done_indices() and not journal.steps()
+            journal.close()
+            if refused:   # nothing was done (e.g. a port that does not answer): leave nothing behind
+                remove_refused_session(session_dir, existed)
+            raise
         finally:
             journal.close()
     return CaptureOutcome(report, summary_text(report), session_dir)
+
+
+# what a session folder holds besides its results (a folder holding anything else is not a session)
+SESSION_OWN = ("session.lock", JOURNAL_FILE, JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", "samples.csv", "raw",
+               "brdf.binary", "brdf.std.binary", "brdf.json", "brdf.bsdf", "preview.png", "report.json",
+               "summary.txt")
+
+
+def check_session_folder(session_dir: Path) -> bool:
+    """Whether ``session_dir`` exists; OutputError for a non-empty folder that is not a session
+    (no journal in it): a capture must not write into some other folder's files."""
+    if not session_dir.is_dir():
+        return session_dir.exists()
+    if (session_dir / JOURNAL_FILE).exists():
+        return True
+    foreign = sorted(p.name for p in session_dir.iterdir() if p.name not in SESSION_OWN)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OutputError(session_dir, f"it is not a session folder (no {JOURNAL_FILE}; it holds {shown}): "
+                          f"choose a new or empty --session folder")
+    return True
+
+
+def remove_refused_session(session_dir: Path, existed: bool) -> None:
+    """Remove what a run that did nothing created: the journal, its side files and the lock (the
+    lock last, still held), and the folder if this run made it and it is empty."""
+    for name in (JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", JOURNAL_FILE, "samples.csv", "session.lock"):
+        path = session_dir / name
+        if path.is_file() and not path.is_symlink():   # never a directory or a link put there
+            path.unlink(missing_ok=True)
+    for folder in ((session_dir / "raw", session_dir) if not existed else (session_dir / "raw",)):
+        try:
+            folder.rmdir()
+        except OSError:   # not empty or not there: kept
+            pass
 
 
 def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready,
@@ -188,10 +234,18 @@ def check_sim_options(rig, seed, speedup) -> None:
         raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
 
 
+def sim_seed(rig, seed: int | None) -> int | None:
+    """The seed of a simulated rig's noise (--seed, else the rig file's sim.seed, else 0); None on
+    a real rig. Part of the resume check: one session's samples all come from one seed."""
+    if not rig.simulated:
+        return None
+    return int((rig.sim or {}).get("seed", 0) if seed is None else seed)
+
+
 def session_meta(inputs, material: str | None, target_error: float | None = None,
-                 confidence: float = DEFAULT_CONFIDENCE) -> dict:
+                 confidence: float = DEFAULT_CONFIDENCE, seed: int | None = None) -> dict:
     """What a journal records about its session (and what a resume must match)."""
-    return {
+    return {"sim_seed": seed, **{
         "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
         "rig_file": str(inputs.rig.source), "rig_text": Path(inputs.rig.source).read_text(),
         "rig_name": inputs.rig.name, "kinematic_hash": inputs.rig.kinematic_hash,
@@ -199,7 +253,7 @@ def session_meta(inputs, material: str | None, target_error: float | None = None
         "model_path": str(inputs.model_path), "model_hash": inputs.model.content_hash,
         "material": material, "target_error": None if target_error is None else float(target_error),
         "confidence": None if target_error is None else float(confidence),
-    }
+    }}
 
 
 def plan_sha256(plan: dict) -> str:
@@ -209,7 +263,8 @@ def plan_sha256(plan: dict) -> str:
 
 RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
                ("model_hash", "model"), ("material", "simulated material"), ("target_error", "target error"),
-               ("confidence", "confidence"))
+               ("confidence", "confidence"), ("sim_seed", "simulated noise seed (--seed or sim.seed)"))
+OPTIONAL_RESUME_KEYS = ("sim_seed",)   # journals written before it was recorded: not checked
 
 
 def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
@@ -249,8 +304,11 @@ def _check_nothing_captured(journal: Journal, meta: dict) -> None:
 def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
     stored = journal.meta()
     for key, what in RESUME_KEYS:
+        if key in OPTIONAL_RESUME_KEYS and key not in stored:
+            continue
         if stored.get(key) != meta[key]:
-            remedy = ("resume with the same --rig, --plan, --material, --target-error and --confidence, or start a new --session"
+            remedy = ("resume with the same --rig, --plan, --material, --seed, --target-error and --confidence, or "
+                      "start a new --session"
                       if resume else f"it holds no sample yet: to start this session there, delete it (rm "
                       f"{journal.path}), or choose a new --session")
             raise JournalError(f"{journal.path}: meta.{key}: this session was started with another {what}: "

@@ -108,6 +108,21 @@ def _write_via_temporary(path: Path, buffers) -> None:
         raise
 
 
+TEMPORARY_NAME = re.compile(r"\.(?P<name>.+)\.[A-Za-z0-9_]{8}")   # mkstemp(prefix=".NAME.")
+
+
+def remove_stale_temporaries(folder) -> list:
+    """Remove the temporaries of atomic writes into ``folder`` that a killed process left
+    (``.NAME.XXXXXXXX``); call it only while no other process may write there (a held lock).
+    Returns the names removed."""
+    removed = []
+    for p in Path(folder).iterdir():
+        if TEMPORARY_NAME.fullmatch(p.name) and p.is_file():
+            p.unlink(missing_ok=True)
+            removed.append(p.name)
+    return sorted(removed)
+
+
 def write_text_atomic(path, text: str) -> None:
     """Replace ``path`` with UTF-8 ``text`` atomically."""
     write_bytes_atomic(path, text.encode("utf-8"))

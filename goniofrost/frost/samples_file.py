@@ -77,15 +77,30 @@ def read_samples_csv(path, grid: MerlGrid):
     if not np.isfinite(angles).all():
         i = int(np.argwhere(~np.isfinite(angles))[0][0])
         raise ReconstructionError(f"{path}: line {lines[i]}: angles must be finite numbers of degrees")
+    _check_angle_ranges(path, lines, angles)
     cells = grid.angles_to_flat(*np.radians(angles).T)
     invalid = grid.valid_position(cells) < 0
     if invalid.any():
         i = int(np.flatnonzero(invalid)[0])
+        named = ", ".join(f"{n}={float(v):g}" for n, v in zip(CSV_COLUMNS[:3], angles[i]))
         raise ReconstructionError(
-            f"{path}: line {lines[i]}: angles {tuple(angles[i])} fall in cell "
-            f"{tuple(int(v) for v in grid.unravel(cells[i]))}, which is not a valid cell (light or view below the surface)")
+            f"{path}: line {lines[i]}: angles {named} fall in cell {tuple(int(v) for v in grid.unravel(cells[i]))}, "
+            f"which is not a valid cell (light or view below the surface)")
     extra = {name: [row[col] for _, row in rows] for col, name in enumerate(header) if name not in CSV_COLUMNS}
     return cells.astype(np.int64), numbers[:, 3:], extra
+
+
+ANGLE_RANGES = ((0.0, 90.0), (0.0, 90.0), (-360.0, 360.0))   # theta_h, theta_d, phi_d in degrees
+
+
+def _check_angle_ranges(path: Path, lines: list, angles: np.ndarray) -> None:
+    """Each angle within its range (degrees), or the first one outside named in plain numbers."""
+    for col, (name, (lo, hi)) in enumerate(zip(CSV_COLUMNS[:3], ANGLE_RANGES)):
+        bad = np.flatnonzero((angles[:, col] < lo) | (angles[:, col] > hi))
+        if bad.size:
+            i = int(bad[0])
+            raise ReconstructionError(f"{path}: line {lines[i]}: {name}={float(angles[i, col]):g} is out of range: "
+                                      f"expected {lo:g} to {hi:g} degrees")
 
 
 def _read_csv_rows(path: Path):

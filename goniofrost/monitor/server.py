@@ -15,6 +15,15 @@ Routes (GET and HEAD only: every other method is answered 405, nothing can be wr
 * ``/api/preview.png?done=N``: the reconstruction from the samples journaled so far;
 * ``/files/NAME``: a file of the session folder (``safe_path`` refuses anything outside it).
 
+Under load: the listening socket is accepted by one thread and every connection waits in a
+``WaitingRoom`` (one selector thread, no thread per socket) until its request head has arrived:
+then it is served by a pool of MAX_WORKERS threads; a connection that sends no full request within
+IDLE_TIMEOUT_S is closed, at most MAX_WAITING wait at once (the oldest are closed first), and the
+listen backlog is LISTEN_BACKLOG. Files are streamed in FILE_CHUNK pieces, at most MAX_TRANSFERS
+at once (more are answered 503 with a Retry-After), so memory does not grow with the file size or
+the number of readers; event streams are at most MAX_EVENT_STREAMS, so the pool always has threads
+for the other answers. A socket write blocked WRITE_TIMEOUT_S ends its connection.
+
 On a folder of sessions (``catalogue=True``) ``/`` is the catalogue (``monitor.catalogue``: one
 row per session, a link to each) and every route above is served under ``/s/NAME/`` for the
 session folder NAME listed there (nothing else: the name must be one of the listing's). The
@@ -28,20 +37,26 @@ no picture of their own; the last one does before the server stops.
 """
 from __future__ import annotations
 
+import io
 import json
 import logging
 import mimetypes
+import selectors
+import shutil
+import socket
 import threading
 import time
+from collections import OrderedDict
+import queue
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler, HTTPServer
 from importlib import resources
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.monitor.images import PictureUnavailable, frame_png, preview_png
-from goniofrost.monitor.safe_path import UnsafePath, session_file
+from goniofrost.monitor.safe_path import UnsafePath, session_file, shown
 from goniofrost.monitor.session_view import REPORT_FILE, journal_path, read_session
 from goniofrost.monitor.status import page_state
 
@@ -56,6 +71,16 @@ PICTURE_MAX_GAP_S = 5.0    # ... but never older than this (a first picture also
 SHUTDOWN_POLL_S = 0.05     # how soon serve_forever notices close()
 FINAL_PUSH_S = 3.0         # on close, wait this long at most for pages to get the last state and pictures
 DEFAULT_PORT = 8765
+LISTEN_BACKLOG = 128       # connections the kernel queues before the accept thread takes them
+MAX_WORKERS = 16           # threads answering requests (event streams included)
+MAX_EVENT_STREAMS = 8      # open pages at once: the others' event streams are answered 503
+MAX_TRANSFERS = 4          # /files/ answers streaming at once
+MAX_WAITING = 512          # connections waiting for their request head
+IDLE_TIMEOUT_S = 10.0      # a connection without a full request head by then is closed
+WRITE_TIMEOUT_S = 30.0     # a client that reads nothing for this long loses its connection
+MAX_HEAD_BYTES = 128 * 1024  # a request head longer than this is handed on as it is (414 / 431)
+FILE_CHUNK = 256 * 1024
+WORKER_IDLE_S = 5.0        # a pool thread with nothing to do this long ends (threads return to normal)
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = ("index.html", "monitor.js", "monitor.css")
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
@@ -193,13 +218,14 @@ class MonitorServer:
         self.frames, self.previews = PictureCache(), PictureCache()
         self._sites: dict[str, _Site] = {}
         self._sites_lock = threading.Lock()
+        self.transfers = threading.BoundedSemaphore(MAX_TRANSFERS)
+        self.streams = threading.BoundedSemaphore(MAX_EVENT_STREAMS)
         handler = type("Handler", (_Handler,), {"monitor": self})
         try:
-            self.httpd = ThreadingHTTPServer((host, port), handler)
+            self.httpd = _PooledServer((host, port), handler)
         except OSError as exc:
             raise MonitorError(f"monitor: cannot serve on {host}:{port} ({exc.strerror or exc}); "
                                f"pass another --port (0 picks a free one)") from None
-        self.httpd.daemon_threads = True
         self.host = host
         self.port = self.httpd.server_address[1]
         self._threads: list[threading.Thread] = []
@@ -212,7 +238,7 @@ class MonitorServer:
 
     def start(self) -> "MonitorServer":
         for name, target in (("serve", lambda: self.httpd.serve_forever(poll_interval=SHUTDOWN_POLL_S)),
-                             ("poll", self._poll)):
+                             ("wait", self.httpd.waiting.run), ("poll", self._poll)):
             thread = threading.Thread(target=target, name=f"monitor-{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
@@ -238,7 +264,7 @@ class MonitorServer:
                 folders = {p.name: p for p in session_folders(self.root)}
                 if name not in folders:
                     return None
-                self._sites[name] = _Site(StateHub(folders[name], False), self.host)
+                self._sites[name] = _Site(StateHub(folders[name], False), self)
             return self._sites[name]
 
     def close(self, ended_message: str | None = None) -> None:
@@ -258,6 +284,8 @@ class MonitorServer:
                 hub.close()
             self.httpd.shutdown()
             self.httpd.server_close()
+            self.httpd.waiting.close()
+            self.httpd.pool.shutdown()
             for thread in self._threads:
                 thread.join(timeout=5)
 
@@ -279,10 +307,12 @@ class MonitorServer:
 
 
 class _Site:
-    """One session of a catalogue: what a request handler needs of a MonitorServer."""
+    """One session of a catalogue: what a request handler needs of a MonitorServer (its own state
+    and pictures; the server's host and its limits on transfers and event streams, shared)."""
 
-    def __init__(self, hub: StateHub, host: str) -> None:
-        self.hub, self.host = hub, host
+    def __init__(self, hub: StateHub, server: MonitorServer) -> None:
+        self.hub, self.host = hub, server.host
+        self.transfers, self.streams = server.transfers, server.streams
         self.frames, self.previews = PictureCache(), PictureCache()
 
 
@@ -291,6 +321,14 @@ class _Handler(BaseHTTPRequestHandler):
 
     monitor: MonitorServer
     server_version = "goniofrost-monitor"
+    timeout = WRITE_TIMEOUT_S
+
+    def setup(self) -> None:
+        """``request`` is (socket, the request head the waiting room read): the head is read from
+        memory, the answer written to the socket (HTTP/1.0: one request per connection)."""
+        self.request, head = self.request
+        super().setup()
+        self.rfile = io.BufferedReader(io.BytesIO(head))
 
     def log_message(self, fmt, *args) -> None:  # the capture's terminal stays quiet
         log.debug("monitor %s: " + fmt, self.client_address[0], *args)
@@ -309,7 +347,7 @@ class _Handler(BaseHTTPRequestHandler):
                     name, slash, rest = route[len("/s/"):].partition("/")
                     site = self.monitor.site(name)
                     if site is None:
-                        return self._text(HTTPStatus.NOT_FOUND, f"no such session: {name}")
+                        return self._text(HTTPStatus.NOT_FOUND, f"no such session: {name[:64]}")
                     if not slash:  # the page's relative addresses need the slash
                         return self._send(HTTPStatus.MOVED_PERMANENTLY, "text/plain; charset=utf-8", b"",
                                           {"Location": f"/s/{name}/"})
@@ -360,6 +398,15 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(HTTPStatus.OK, f"{kind}; charset=utf-8", data)
 
     def _events(self) -> None:
+        if not self.monitor.streams.acquire(blocking=False):
+            return self._text(HTTPStatus.SERVICE_UNAVAILABLE, f"at most {MAX_EVENT_STREAMS} pages at once",
+                              {"Retry-After": "5"})
+        try:
+            self._stream_events()
+        finally:
+            self.monitor.streams.release()
+
+    def _stream_events(self) -> None:
         hub = self.monitor.hub
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
@@ -389,31 +436,38 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _frame(self, query) -> None:
         hub = self.monitor.hub
+        hub.refresh_logged()   # the session as it is now, whether or not a page asked for the state
         wanted = _int(query, "sample")
-        view, rig = hub.view, hub.rig
+        view = hub.view
+        if not any(d.plan_index == wanted for d in view.done):
+            return self._text(HTTPStatus.NOT_FOUND, f"sample {wanted} is not in the journal", {"X-Shows": str(wanted)})
 
         def make():
             png, info = frame_png(view, wanted)
             return wanted, png, info
-        self._picture(self.monitor.frames.get(wanted, make))
+        self._picture(self.monitor.frames.get(wanted, make), wanted, f"the frame of sample {wanted}")
 
     def _preview(self, query) -> None:
         hub = self.monitor.hub
+        hub.refresh_logged()
         view, rig = hub.view, hub.rig
         wanted = (view.plan_key, _int(query, "done"))
 
         def make():
             png, info = preview_png(view, rig)
             return (view.plan_key, len(view.done)), png, info
-        self._picture(self.monitor.previews.get(wanted, make))
+        self._picture(self.monitor.previews.get(wanted, make), wanted, f"the preview from {wanted[1]} samples")
 
-    def _picture(self, got) -> None:
+    def _picture(self, got, wanted, what: str) -> None:
+        """An older picture may answer (X-Shows says which: the page asks again after
+        X-Retry-After-Ms), but a message is only ever the one of the picture asked for."""
         key, data, info, error, wait = got
         shows = key[1] if isinstance(key, tuple) else key
         headers = {"X-Shows": str(shows), "X-Retry-After-Ms": str(int(wait * 1000)),
                    "X-Info": json.dumps(info or {})}
         if data is None:
-            return self._text(HTTPStatus.SERVICE_UNAVAILABLE, error or "not made yet", headers)
+            message = error if key == wanted and error else f"{what} is not made yet"
+            return self._text(HTTPStatus.SERVICE_UNAVAILABLE, message, headers)
         self._send(HTTPStatus.OK, "image/png", data, headers)
 
     def _file(self, requested: str) -> None:
@@ -424,7 +478,28 @@ class _Handler(BaseHTTPRequestHandler):
         kind = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
         if kind.startswith("text/") or kind == "application/json":
             kind += "; charset=utf-8"
-        self._send(HTTPStatus.OK, kind, path.read_bytes())
+        if not self.monitor.transfers.acquire(blocking=False):
+            return self._text(HTTPStatus.SERVICE_UNAVAILABLE, f"at most {MAX_TRANSFERS} file transfers at once",
+                              {"Retry-After": "1"})
+        try:
+            self._stream_file(path, kind, requested)
+        finally:
+            self.monitor.transfers.release()
+
+    def _stream_file(self, path: Path, kind: str, requested: str) -> None:
+        """The file in FILE_CHUNK pieces (its size from the open file: a file replaced meanwhile is
+        sent whole as it was opened)."""
+        import os
+
+        try:
+            source = open(path, "rb")   # noqa: SIM115 - closed below
+        except OSError as exc:
+            return self._text(HTTPStatus.NOT_FOUND, f"refused path {shown(requested)}: {exc.strerror or exc}")
+        with source:
+            size = os.fstat(source.fileno()).st_size
+            self._head(HTTPStatus.OK, kind, size)
+            if not getattr(self, "_head_only", False):
+                shutil.copyfileobj(source, self.wfile, FILE_CHUNK)
 
     # ----- answers ------------------------------------------------------------------------------
     def _host_allowed(self) -> bool:
@@ -440,19 +515,222 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Referrer-Policy", "no-referrer")
 
     def _send(self, status, kind: str, data: bytes, headers: dict | None = None) -> None:
+        self._head(status, kind, len(data), headers)
+        if not getattr(self, "_head_only", False):
+            self.wfile.write(data)
+
+    def _head(self, status, kind: str, length: int, headers: dict | None = None) -> None:
         self.send_response(status)
         self.send_header("Content-Type", kind)
-        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Content-Length", str(length))
         self.send_header("Cache-Control", "no-store")
         for name, value in (headers or {}).items():
             self.send_header(name, value)
         self._security_headers()
         self.end_headers()
-        if not getattr(self, "_head_only", False):
-            self.wfile.write(data)
 
     def _text(self, status, message: str, headers: dict | None = None) -> None:
         self._send(status, "text/plain; charset=utf-8", message.encode(), headers)
+
+
+class _PooledServer(HTTPServer):
+    """An HTTPServer whose accepted connections wait in a WaitingRoom, then are answered by a
+    bounded pool (module doc). Errors of one connection are logged, never printed."""
+
+    request_queue_size = LISTEN_BACKLOG
+
+    def __init__(self, address, handler) -> None:
+        super().__init__(address, handler)
+        self.pool = WorkerPool(MAX_WORKERS, WORKER_IDLE_S)
+        self.waiting = WaitingRoom(self._dispatch)
+
+    def process_request(self, request, client_address) -> None:
+        self.waiting.add(request, client_address)
+
+    def _dispatch(self, sock: socket.socket, client_address, head: bytes) -> None:
+        try:
+            self.pool.submit(self._answer, sock, client_address, head)
+        except RuntimeError:   # the pool is shut down: the server is closing
+            _close(sock)
+
+    def _answer(self, sock: socket.socket, client_address, head: bytes) -> None:
+        try:
+            sock.setblocking(True)
+            self.finish_request((sock, head), client_address)
+        except Exception:  # noqa: BLE001 - one connection's failure (a reset, a timeout) ends only it
+            self.handle_error(sock, client_address)
+        finally:
+            self.shutdown_request(sock)
+
+    def handle_error(self, request, client_address) -> None:
+        log.debug("monitor: connection from %s failed", client_address, exc_info=True)
+
+
+class WorkerPool:
+    """At most ``size`` threads running submitted calls; a thread idle ``idle_s`` ends, so after a
+    burst the process returns to its usual threads. (``concurrent.futures`` keeps its threads.)"""
+
+    def __init__(self, size: int, idle_s: float) -> None:
+        self.size, self.idle_s = size, idle_s
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._threads = self._idle = 0
+        self._closed = False
+
+    def submit(self, fn, *args) -> None:
+        """Run ``fn(*args)`` on a pool thread (queued while all are busy); RuntimeError once shut down."""
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the pool is shut down")
+            self._jobs.put((fn, args))
+            if self._idle == 0 and self._threads < self.size:
+                self._threads += 1
+                threading.Thread(target=self._work, name="monitor-worker", daemon=True).start()
+
+    def shutdown(self) -> None:
+        """Run no more calls: queued ones are dropped, running ones finish."""
+        with self._lock:
+            self._closed = True
+            for _ in range(self._threads):
+                self._jobs.put(None)
+
+    def _work(self) -> None:
+        while True:
+            with self._lock:
+                self._idle += 1
+            try:
+                job = self._jobs.get(timeout=self.idle_s)
+            except queue.Empty:
+                with self._lock:
+                    self._idle -= 1
+                    if self._jobs.empty():   # checked under the lock submit puts under: no job is stranded
+                        self._threads -= 1
+                        return
+                continue
+            with self._lock:
+                self._idle -= 1
+            if job is None or self._closed:
+                with self._lock:
+                    self._threads -= 1
+                return
+            fn, args = job
+            fn(*args)
+
+
+class WaitingRoom:
+    """Connections waiting for their request head, all on one selector thread.
+
+    ``add(sock, address)`` from the accept thread; ``run()`` is the thread; a connection whose head
+    is complete (a blank line, or MAX_HEAD_BYTES) goes to ``dispatch(sock, address, head)``; one
+    that closes, fails or waits longer than IDLE_TIMEOUT_S is closed; beyond MAX_WAITING the
+    oldest is closed.
+    """
+
+    def __init__(self, dispatch) -> None:
+        self.dispatch = dispatch
+        self._selector = selectors.DefaultSelector()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._selector.register(self._wake_r, selectors.EVENT_READ)
+        self._new: list = []
+        self._lock = threading.Lock()
+        self._waiting: OrderedDict = OrderedDict()   # socket -> [address, deadline, head bytes]
+        self._closed = False
+
+    def add(self, sock: socket.socket, address) -> None:
+        with self._lock:
+            if self._closed:
+                return _close(sock)
+            self._new.append((sock, address))
+        self._wake()
+
+    def run(self) -> None:
+        try:
+            while not self._closed:
+                for key, _ in self._selector.select(timeout=1.0):
+                    if key.fileobj is self._wake_r:
+                        self._drain_wake()
+                    else:
+                        self._read(key.fileobj)
+                self._admit()
+                self._expire(time.monotonic())
+        finally:
+            for sock in list(self._waiting):
+                self._drop(sock)
+            self._selector.close()
+            self._wake_r.close()
+            self._wake_w.close()
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            pending, self._new = self._new, []
+        self._wake()
+        for sock, _ in pending:
+            _close(sock)
+
+    def _wake(self) -> None:
+        try:
+            self._wake_w.send(b"x")
+        except OSError:   # its buffer is full (the thread is awake anyway) or it is closed
+            pass
+
+    def _drain_wake(self) -> None:
+        try:
+            while self._wake_r.recv(4096):
+                pass
+        except (BlockingIOError, OSError):
+            pass
+
+    def _admit(self) -> None:
+        with self._lock:
+            new, self._new = self._new, []
+        deadline = time.monotonic() + IDLE_TIMEOUT_S
+        for sock, address in new:
+            sock.setblocking(False)
+            self._waiting[sock] = [address, deadline, b""]
+            self._selector.register(sock, selectors.EVENT_READ)
+        while len(self._waiting) > MAX_WAITING:
+            self._drop(next(iter(self._waiting)))
+
+    def _read(self, sock: socket.socket) -> None:
+        entry = self._waiting.get(sock)
+        if entry is None:
+            return
+        try:
+            data = sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            return self._drop(sock)
+        if not data:
+            return self._drop(sock)
+        entry[2] += data
+        head = entry[2]
+        if b"\r\n\r\n" in head or b"\n\n" in head or len(head) >= MAX_HEAD_BYTES:
+            self._selector.unregister(sock)
+            del self._waiting[sock]
+            self.dispatch(sock, entry[0], head)
+
+    def _expire(self, now: float) -> None:
+        for sock in [s for s, (_, deadline, _) in self._waiting.items() if deadline < now]:
+            self._drop(sock)
+
+    def _drop(self, sock: socket.socket) -> None:
+        self._waiting.pop(sock, None)
+        try:
+            self._selector.unregister(sock)
+        except (KeyError, ValueError):
+            pass
+        _close(sock)
+
+
+def _close(sock: socket.socket) -> None:
+    try:
+        sock.close()
+    except OSError:
+        pass
 
 
 def _int(query: dict, name: str) -> int:

@@ -9,7 +9,10 @@ Read-only, always, and only through the journal's own API: ``Journal.open_read_o
 cannot write and creates no file beside the journal, see ``goniofrost.capture.journal``), one
 ``Journal.snapshot`` read transaction per read on a fresh connection (so a session folder that is
 replaced, the demo starts afresh, or resumed is followed). How the last run ended is its typed
-``RunEnd`` (``goniofrost.capture.records``): read by its fields, never by its words.
+``RunEnd`` (``goniofrost.capture.records``): read by its fields, never by its words. A ``-wal``
+file without a live writer (a capture killed with kill -9 leaves it, with transactions not yet in
+the main file) is read from a copy of the journal and its WAL in a temporary folder: SQLite would
+otherwise rebuild the ``-shm`` index in the session folder.
 """
 from __future__ import annotations
 
@@ -166,9 +169,32 @@ def read_session(session_dir) -> SessionView:
 
 def _read_journal(path: Path):
     """(meta, sample records, events, calibration, recent steps, runs, label) at one moment."""
+    wal = path.with_name(path.name + "-wal")
+    if wal.exists() and lock_held(path.with_name(LOCK_FILE)) is not True:
+        return _read_journal_copy(path, wal)
+    return _read_journal_at(path)
+
+
+def _read_journal_at(path: Path):
     with Journal.open_read_only(path) as journal, journal.snapshot():
         return (journal.meta(), journal.samples(), journal.events(), journal.calibration(),
                 journal.recent_steps(), journal.runs(), journal.label())
+
+
+def _read_journal_copy(path: Path, wal: Path):
+    """``_read_journal`` on a copy of a journal left with its WAL by a writer that died (its
+    ``-shm`` is not copied: SQLite rebuilds it from the WAL, in the copy's folder)."""
+    import shutil
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="goniofrost-monitor-") as tmp:
+        copy = Path(tmp) / path.name
+        shutil.copyfile(path, copy)
+        try:
+            shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
+        except FileNotFoundError:   # checkpointed and removed meanwhile: the main file has it all
+            pass
+        return _read_journal_at(copy)
 
 
 def _read_report(path: Path) -> dict | None:
