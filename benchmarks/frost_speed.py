@@ -1,5 +1,8 @@
 """FROST speed: selection, training (time + peak memory), reconstruction + .binary writing.
 
+    .venv/bin/python benchmarks/frost_speed.py targets [--model MODEL] [--training] [--demo]
+        every figure of the "first five minutes" (median of 5) beside its target, the machine's
+        streaming bandwidth and the load: the one command to rerun on a quiet machine
     .venv/bin/python benchmarks/frost_speed.py selection --model MODEL [--repeat 5]
     .venv/bin/python benchmarks/frost_speed.py bayes-selection --model MODEL [--repeat 7]
     .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
@@ -198,8 +201,8 @@ def bench_floor(args) -> None:
     for m in (5, 10, 20, 40, 60):
         cb = np.ones((-(-n // w), m, w), dtype=np.float32)
         scores = np.empty(cb.shape[0] * w, dtype=np.float32)
-        one_read, _ = median_time(lambda: selection._in_threads(somp_kernels.block_scores, cb.shape[0], cb, scores),
-                                  args.repeat)
+        one_read, _ = median_time(lambda: selection._in_threads(somp_kernels.block_scores, cb.shape[0], None, cb,
+                                                                scores), args.repeat)
         line = (f"m={m:2d}: one read of C ({cb.nbytes / 1e6:.0f} MB) {one_read * 1e3:.1f} ms, "
                 f"floor ({m - 1} reads) {(m - 1) * one_read:.3f} s")
         if model is not None:
@@ -249,6 +252,99 @@ def bench_bounds(args) -> None:
         z -= np.outer(z @ b, b)
 
 
+# Targets (issue 26, 2 cores, nothing else running): selection s, training s and GB, demo s.
+TARGETS = {"bayes m=20": 0.25, "bayes m=60": 0.75, "somp m=20": 0.25, "training s": 45.0, "training GB": 3.0,
+           "demo cold s": 35.0, "demo warm s": 15.0}
+
+
+def stream_bandwidth(nbytes: int = 1 << 29, repeat: int = 5) -> float:
+    """GB/s of a numpy read of a large float32 array (the median of ``repeat`` sums; np.add.reduce
+    is vectorised well past the memory's speed, so this is the read limit a pass can reach)."""
+    x = np.ones(nbytes // 4, dtype=np.float32)
+    x.sum()
+    med, _ = median_time(lambda: np.add.reduce(x), repeat)
+    return nbytes / med / 1e9
+
+
+def _load() -> str:
+    return "load " + " ".join(f"{v:.1f}" for v in os.getloadavg())
+
+
+def bench_targets(args) -> None:
+    """Selection (Bayesian m = 20 and 60, SOMP m = 20), optionally training and the demo, each
+    beside its target; the bandwidth limit of a selection is one read of D per greedy step."""
+    from goniofrost.core.grid import FULL_GRID, MerlGrid
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.selection import select_cells
+    from goniofrost.frost.training import train
+
+    grid = MerlGrid(*args.grid) if args.grid else FULL_GRID
+    print(f"machine: {os.cpu_count()} cores, {_load()}", flush=True)
+    bandwidth = stream_bandwidth(min(1 << 29, 64 * grid.n_valid * 60 * 4))
+    print(f"streaming read bandwidth (numpy sum of a large float32 array): {bandwidth:.1f} GB/s  ({_load()})", flush=True)
+    model = _paged_model(args.model) if args.model else train(["builtin"], exclude=["red-plastic"], grid=grid)
+    d_bytes = model.grid.n_valid * model.n_components * 4
+    print(f"model: K = {model.n_components}, n = {model.grid.n_valid} cells, D = {d_bytes / 1e6:.0f} MB", flush=True)
+    select_bayes(model, 2), select_cells(model, 2)  # nothing compiles or pages in inside the timings
+    # A Bayesian step reads D (n x K float32) once; a first-m SOMP step at least the n x m
+    # float32 score matrix C (see ``floor``), m - 1 times.
+    c_bytes = model.grid.n_valid * 20 * 4
+    for name, fn, m, reads, nbytes, what in (("bayes m=20", select_bayes, 20, 20, d_bytes, "D"),
+                                             ("bayes m=60", select_bayes, 60, 60, d_bytes, "D"),
+                                             ("somp m=20", select_cells, 20, 19, c_bytes, "C")):
+        med, times = median_time(lambda: fn(model, m), args.repeat)
+        limit = reads * nbytes / (bandwidth * 1e9)
+        print(f"{name}: median {med:.3f} s  target {TARGETS[name]:.2f} s  {'met' if med <= TARGETS[name] else 'MISSED'}; "
+              f"bandwidth limit {limit:.4g} s ({reads} reads of {what}), ratio {med / limit:.2f}  "
+              f"(runs {', '.join(f'{t:.3f}' for t in times)}; {_load()})", flush=True)
+    if args.training:
+        _target_training(args)
+    if args.demo:
+        _target_demo(args)
+
+
+def _timed(cmd, env) -> tuple[float, float, str]:
+    """(wall s, peak RSS GB, stdout) of a command under /usr/bin/time -v."""
+    result = subprocess.run(["/usr/bin/time", "-v", *cmd], env=env, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{result.stderr[-3000:]}")
+    wall = re.search(r"Elapsed \(wall clock\) time.*: (?:(\d+):)?(\d+):([\d.]+)", result.stderr)
+    hours, minutes, secs = wall.groups()
+    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", result.stderr).group(1))
+    return int(hours or 0) * 3600 + int(minutes) * 60 + float(secs), rss / 1e6, result.stdout
+
+
+def _target_training(args) -> None:
+    data = REPO.parent / "shared" / "data"
+    specs = [f"nbrdf:{args.data or data}/{name}" for name in ("nbrdf_merl.npz", "nbrdf_rgl.npz")]
+    cmd = [str(REPO / ".venv/bin/goniofrost"), "train", "--no-cache"]
+    for spec in specs:
+        cmd += ["--dataset", spec]
+    tabulate = ("from goniofrost.datasets.tabulate import collect_materials, tabulate_cached\n"
+                f"for m in collect_materials({specs!r}, None, None): tabulate_cached(m.dataset, [m.name])")
+    with tempfile.TemporaryDirectory() as tmp:
+        # The user's cache (GONIOFROST_CACHE or ~/.cache): the tabulations are made once and
+        # kept, so the figure is the training itself; --no-cache retrains the model.
+        env = dict(os.environ)
+        subprocess.run([str(REPO / ".venv/bin/python"), "-c", tabulate], env=env, check=True)
+        wall, gb, _ = _timed(cmd + ["--out", str(Path(tmp) / "model")], env)
+    for name, value in (("training s", wall), ("training GB", gb)):
+        print(f"{name.replace(' s', ' wall').replace(' GB', ' peak RSS')} (151 materials, tabulation cached): "
+              f"{value:.2f}  target {TARGETS[name]:g}  {'met' if value <= TARGETS[name] else 'MISSED'}  ({_load()})",
+              flush=True)
+
+
+def _target_demo(args) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, GONIOFROST_CACHE=str(Path(tmp) / "cache"))
+        cmd = [str(REPO / ".venv/bin/goniofrost"), "demo", "--out", str(Path(tmp) / "demo"), "--no-progress"]
+        for name in ("demo cold s", "demo warm s"):
+            wall, gb, out = _timed(cmd, env)
+            stages = re.search(r"time .*", out).group(0)
+            print(f"{name[:-2]}: {wall:.1f} s  target {TARGETS[name]:g} s  {'met' if wall <= TARGETS[name] else 'MISSED'}; "
+                  f"peak RSS {gb:.2f} GB; {stages}  ({_load()})", flush=True)
+
+
 def _paged_model(path):
     from goniofrost.frost.model import FrostModel
 
@@ -259,7 +355,7 @@ def _paged_model(path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("selection", "bayes-selection", "training", "reconstruction",
+    parser.add_argument("what", choices=("targets", "selection", "bayes-selection", "training", "reconstruction",
                                          "bayes-reconstruction", "pca", "floor", "bounds"))
     parser.add_argument("--model", help="model directory (selection, reconstruction, bounds; optional for floor)")
     parser.add_argument("--repeat", type=int, default=5)
@@ -267,8 +363,13 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=1_111_432)
     parser.add_argument("--results", help="a goniofrost bench results.json (floor: Nielsen's times)")
     parser.add_argument("--m", type=int, default=20, help="samples (bounds)")
+    parser.add_argument("--grid", type=int, nargs=3, metavar=("TH", "TD", "PD"),
+                        help="targets: train the demo model on this grid instead of the full one (a quick check)")
+    parser.add_argument("--training", action="store_true", help="targets: also time training 151 materials")
+    parser.add_argument("--demo", action="store_true", help="targets: also time the demo, cold and warm")
+    parser.add_argument("--data", help="targets --training: the folder of nbrdf_merl.npz and nbrdf_rgl.npz")
     args = parser.parse_args()
-    {"selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
+    {"targets": bench_targets, "selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
      "reconstruction": bench_reconstruction, "bayes-reconstruction": bench_bayes_reconstruction,
      "pca": bench_pca, "floor": bench_floor, "bounds": bench_bounds}[args.what](args)
 

@@ -97,6 +97,10 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     out["mount"] = check_section(out["mount"], _MOUNT_KEYS, source, f"{keypath}.mount")
     if out["min_snr"] > out["target_snr"]:
         raise ConfigError(source, f"{keypath}.min_snr", f"<= target_snr {out['target_snr']}", out["min_snr"])
+    if out["kind"] == "rawfile" and out.get("folder") is None:
+        # found by `plan --rig` and `rig check`, not after every motor was connected
+        raise ConfigError(source, f"{keypath}.folder",
+                          "the folder the camera writes RAW files to (kind rawfile)", "nothing")
     out["exposures_s"] = [float(x) for x in out["exposures_s"]]
     return out
 

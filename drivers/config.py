@@ -105,3 +105,31 @@ def validate_driver_section(section: Mapping, source: str, keypath: str) -> dict
         raise ConfigError(source, join(keypath, "device"),
                           "either device (an axis hosting the lamp) or the lamp's own port", "neither")
     return out
+
+
+LAMP_HOST_PROTOCOLS = ("modbus-tcp", "modbus-rtu")  # the lamp's coil and photodiode sit on a Modbus device
+
+
+def check_lamp_host(lamp_driver: Mapping, axis_drivers: Mapping[str, Mapping], source: str) -> None:
+    """A lamp ``device:`` must name an axis of the rig whose driver speaks Modbus (ConfigError otherwise).
+
+    ``axis_drivers``: {axis name: its driver section}.
+    """
+    if not isinstance(lamp_driver, Mapping) or "device" not in lamp_driver:
+        return
+    device = lamp_driver["device"]
+    keypath = "lamp.driver.device"
+    if not isinstance(device, str) or device not in axis_drivers:
+        raise ConfigError(source, keypath, f"the name of a Modbus axis of this rig ({', '.join(axis_drivers) or 'none'})",
+                          device)
+    driver = axis_drivers[device]
+    protocol = driver.get("protocol") if isinstance(driver, Mapping) else None
+    if protocol not in LAMP_HOST_PROTOCOLS:
+        raise ConfigError(source, keypath, "an axis whose driver is modbus-tcp or modbus-rtu "
+                          "(the lamp's coil and photodiode sit on a Modbus device)", f"{device} ({protocol})")
+
+
+def check_lamp_against_rig(rig) -> None:
+    """``check_lamp_host`` on a loaded rig (a rig-file check across sections)."""
+    check_lamp_host((rig.lamp or {}).get("driver", {}), {n: a.driver for n, a in rig.axes.items()}, rig.source)
+

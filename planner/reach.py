@@ -9,7 +9,6 @@ and the grid.
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,13 +68,13 @@ def compute_reasons(rig: Rig, grid: MerlGrid, *, progress: bool = False) -> np.n
     """uint8 (n_valid,) Reason codes of the valid cells, computed in chunks (no cache).
 
     With a camera model the full grid takes a few seconds (four candidate poses per cell)."""
-    from tqdm import tqdm
+    from goniofrost.core.progress import progress_bar
 
     cells = grid.valid_cells
     reason = np.empty(cells.size, dtype=np.uint8)
     starts = range(0, cells.size, CHUNK_CELLS)
-    for start in tqdm(starts, desc="reachability", unit="chunk", file=sys.stderr, leave=False,
-                      disable=not progress or len(starts) < 2):
+    for start in progress_bar(starts, asked=progress and len(starts) >= 2, desc="reachability", unit="chunk",
+                              leave=False):
         part = cells[start:start + CHUNK_CELLS]
         _, _, reasons = candidate_poses(rig, *grid.cell_directions(part))
         reason[start:start + part.size] = best_reason(reasons)

@@ -181,6 +181,12 @@ def _geometry(value: Any, source: str) -> Geometry:
 def _axes(value: Any, source: str, geometry: Geometry, driver_check: SectionValidator | None) -> dict:
     axes_map = check_section(value, {}, source, "axes", open_keys=True)
     axes = {name: _axis(name, spec, source, driver_check) for name, spec in axes_map.items()}
+    check_roles(axes, geometry, source)
+    return axes
+
+
+def check_roles(axes: Mapping[str, "AxisSpec"], geometry: Geometry, source: str) -> None:
+    """Exactly one axis per role, and the tilt axis homes within the stage's tilt limit."""
     for role in ROLE_ORDER:
         names = [a.name for a in axes.values() if a.role is role]
         if len(names) != 1:
@@ -190,7 +196,6 @@ def _axes(value: Any, source: str, geometry: Geometry, driver_check: SectionVali
     if abs(tilt.home_deg) > geometry.tilt_limit_deg:
         raise ConfigError(source, f"axes.{tilt.name}.home_deg",
                           f"a tilt within the stage limit +-{geometry.tilt_limit_deg:g}", tilt.home_deg)
-    return axes
 
 
 def _axis(name: str, value: Any, source: str, driver_check: SectionValidator | None) -> AxisSpec:
@@ -216,3 +221,9 @@ def _checked(section: Mapping, source: str, keypath: str, check: SectionValidato
         return dict(section)
     completed = check(section, source, keypath)
     return dict(completed) if isinstance(completed, Mapping) else dict(section)
+
+
+# Each part of a rig file checked on its own (``goniofrost rig check`` reports every problem in one run).
+TOP_KEYS, LAMP_KEYS = _TOP_KEYS, _LAMP_KEYS
+geometry_from_mapping = _geometry
+axis_from_mapping = _axis

@@ -70,13 +70,13 @@ def test_greedy_design_equals_the_textbook_greedy(model, masked):
     assert np.all(np.diff(design.design_errors) < 0) and np.all(np.diff(design.pick_seconds) >= 0)
 
 
-def test_bayes_selection_is_deterministic_nested_and_thread_independent(model, monkeypatch):
+def test_bayes_selection_is_deterministic_nested_and_thread_independent(model):
     long = select_bayes(model, 30)
     assert list(select_bayes(model, 30).positions) == list(long.positions)
     for m in (1, 7, 20):
         assert list(select_bayes(model, m).positions) == list(long.positions[:m])
-    monkeypatch.setattr(bayes_selection, "THREADS", 3)
-    assert list(select_bayes(model, 30).positions) == list(long.positions)
+    for threads in (1, 3):
+        assert list(select_bayes(model, 30, threads=threads).positions) == list(long.positions)
     assert long.selector == "bayes" and len(set(long.positions)) == 30
     np.testing.assert_array_equal(long.cells, GRID.valid_cells[long.positions])
 

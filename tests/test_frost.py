@@ -164,9 +164,8 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
     mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25)
     mask = np.random.default_rng(5).random(GRID.n_valid) < 0.8
     monkeypatch.setattr(selection, "BLOCK_CELLS", 64)
-    monkeypatch.setattr(selection, "THREADS", 3)
-    assert select_cells(mdl, 15, y_form=y_form).positions.tolist() == textbook_somp(mdl, 15, y_form)
-    assert select_cells(mdl, 12, y_form=y_form, candidates=mask).positions.tolist() == \
+    assert select_cells(mdl, 15, y_form=y_form, threads=3).positions.tolist() == textbook_somp(mdl, 15, y_form)
+    assert select_cells(mdl, 12, y_form=y_form, candidates=mask, threads=3).positions.tolist() == \
         textbook_somp(mdl, 12, y_form, mask)
 
 
@@ -371,3 +370,11 @@ def test_row_median_matches_numpy(t):
     from goniofrost.frost.training import _row_median
     block = np.random.default_rng(t).random((50, t)).astype(np.float32)
     np.testing.assert_array_equal(_row_median(block), np.median(block, axis=1).astype(np.float32))
+
+
+def test_thread_count_is_a_checked_parameter(model):
+    """threads is per call (no module global): any positive count gives the same picks; 0 is refused."""
+    picks = select_cells(model, 10, threads=1).positions.tolist()
+    assert select_cells(model, 10, threads=2).positions.tolist() == picks
+    with pytest.raises(ValueError, match="threads: expected a positive integer, found 0"):
+        select_cells(model, 10, threads=0)

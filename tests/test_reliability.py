@@ -280,8 +280,8 @@ def test_a_resume_with_another_seed_is_refused_and_stale_temporaries_are_removed
     code, err = run_cli(capsys, *capture_argv(rig, plan, session, "--resume", "--seed", "7"))
     assert code == 2 and err == (
         f"goniofrost capture: error: {session / 'session.sqlite'}: meta.sim_seed: this session was started with another simulated noise "
-        f"seed (--seed or sim.seed): expected 0, found 7; resume with the same --rig, --plan, --material, --seed and "
-        f"--target-error, or start a new --session")
+        f"seed (--seed or sim.seed): expected 0, found 7; resume with the same --rig, --plan, --material, --seed, "
+        f"--target-error and --confidence, or start a new --session")
     # a kill during the atomic writes of the results left their temporaries: the resume removes them
     for name in (".brdf.binary.k2j_x9ab", ".brdf.std.binary.0a1b2c3d"):
         (session / name).write_bytes(b"half")
@@ -346,7 +346,8 @@ def test_a_preview_of_a_binary_with_nan_cells_is_refused(tmp_path, capsys):
 
 
 def test_samples_csv_angles_out_of_range_are_named_in_plain_numbers(tmp_path):
-    from goniofrost.frost.reconstruction import ReconstructionError, read_samples_csv
+    from goniofrost.frost.reconstruction import ReconstructionError
+    from goniofrost.frost.samples_file import read_samples_csv
     path = tmp_path / "samples.csv"
     path.write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n10,20,30,0.1,0.1,0.1\n200,20,30,0.1,0.1,0.1\n")
     with pytest.raises(ReconstructionError) as got:

@@ -58,7 +58,8 @@ def wait_until(condition, proc, what: str, timeout: float = 60.0):
     pytest.fail(f"no {what} within {timeout} s")
 
 
-def test_a_stop_request_stops_a_running_capture_with_its_own_report_and_resume_completes_it(plan, tmp_path):
+def test_rig_stop_stops_a_running_capture_with_its_own_report_and_resume_completes_it(plan, tmp_path, capsys):
+    """`goniofrost rig stop` from another terminal (request_stop underneath)."""
     rig, plan_file = plan
     session = tmp_path / "s"
     args = ["capture", "--rig", str(rig), "--plan", str(plan_file), "--session", str(session),
@@ -68,8 +69,9 @@ def test_a_stop_request_stops_a_running_capture_with_its_own_report_and_resume_c
     try:
         wait_until(lambda: len(journal_rows(session)) >= 1, proc, "a journaled sample")
         asked, asked_utc = time.monotonic(), time.time()
-        holder = request_stop("sim-rig")
-        assert (holder.pid, holder.program, holder.rig) == (proc.pid, "capture", "sim-rig")
+        capsys.readouterr()
+        assert main(["rig", "stop", "--rig", str(rig)]) == 0
+        assert capsys.readouterr().err.startswith(f"asked capture (process {proc.pid}) to stop sim-rig: ")
         assert proc.wait(timeout=30) == 130
         stopped_s = time.monotonic() - asked
         err = proc.stderr.read()

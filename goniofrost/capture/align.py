@@ -127,7 +127,10 @@ class AlignRunner(PlanRunner):
     def run_scope(self):
         from tqdm import tqdm
 
-        self._bar = tqdm(total=self.n_poses, unit="pose", desc="align", file=sys.stderr, disable=not self.progress)
+        from goniofrost.core.progress import show_progress
+
+        self._bar = tqdm(total=self.n_poses, unit="pose", desc="align", file=sys.stderr,
+                         disable=not show_progress(self.progress))
         return self._bar
 
     def _moved(self, step, reached) -> dict:

@@ -293,9 +293,11 @@ class SessionEngine(PlanRunner):
     def _progress(self, initial: int):
         from tqdm import tqdm
 
+        from goniofrost.core.progress import show_progress
+
         total = len(self.spec.samples)
         with tqdm(total=total, initial=initial, unit="sample", desc=self.progress_desc, file=sys.stderr,
-                  disable=not self.progress, dynamic_ncols=True) as bar:
+                  disable=not show_progress(self.progress), dynamic_ncols=True) as bar:
             self._bar = bar
             try:
                 yield bar

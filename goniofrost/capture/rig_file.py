@@ -32,6 +32,7 @@ VALIDATORS: dict[str, tuple[str, str]] = {
 # checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.
 RIG_CHECKS: tuple[tuple[str, str], ...] = (
     ("sim.config", "check_sim_against_rig"),  # every fault drill and misalignment names an axis of the rig
+    ("drivers.config", "check_lamp_against_rig"),  # a lamp on an axis sits on a Modbus axis
 )
 
 

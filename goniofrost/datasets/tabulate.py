@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import difflib
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -49,14 +48,28 @@ def tabulate_cached(dataset: Dataset, names: Sequence[str] | None = None,
     """
     names = dataset.names() if names is None else [dataset.resolve(n) for n in names]
     out = np.empty((len(names), grid.n_valid, 3), dtype=np.float32)
+    for i, values in enumerate(_cached_values(dataset, names, grid, progress)):
+        out[i] = values
+    return out
+
+
+def tabulated_files(dataset: Dataset, names: Sequence[str], grid: MerlGrid = FULL_GRID,
+                    progress: bool | None = None) -> list[Path]:
+    """The cache entries (``.npy``, float32 (n_valid, 3)) of these materials, computed when
+    missing; nothing is kept in memory (training reads them in row chunks)."""
+    names = [dataset.resolve(n) for n in names]
+    for _ in _cached_values(dataset, names, grid, progress):
+        pass
+    return [cache_entry(dataset, name, grid) for name in names]
+
+
+def _cached_values(dataset: Dataset, names: list[str], grid: MerlGrid, progress: bool | None):
+    """Yield every material's (n_valid, 3) values in order (memory-mapped when cached, else
+    computed in batches and saved first)."""
     paths = [cache_entry(dataset, name, grid) for name in names]
-    todo = []
-    for i, path in enumerate(paths):
-        cached = _load(path, grid)
-        if cached is None:
-            todo.append(i)
-        else:
-            out[i] = cached
+    cached = [_load(path, grid) for path in paths]
+    todo = [i for i, values in enumerate(cached) if values is None]
+    computed = {}
     with _bar(len(todo), progress) as bar:
         for start in range(0, len(todo), MATERIALS_PER_BATCH):
             batch = todo[start:start + MATERIALS_PER_BATCH]
@@ -64,9 +77,10 @@ def tabulate_cached(dataset: Dataset, names: Sequence[str] | None = None,
             _require_finite(dataset, [names[i] for i in batch], values)
             for j, i in enumerate(batch):
                 _save(paths[i], values[j])
-                out[i] = values[j]
+                computed[i] = _load(paths[i], grid)
             bar.update(len(batch))
-    return out
+    for i, values in enumerate(cached):
+        yield values if values is not None else computed.pop(i)
 
 
 def _load(path: Path, grid: MerlGrid) -> np.ndarray | None:
@@ -114,8 +128,8 @@ class _NoBar:
 def _bar(total: int, progress: bool | None):
     if not (progress or (progress is None and total > 1)) or total == 0:
         return _NoBar()
-    from tqdm import tqdm
-    return tqdm(total=total, desc="tabulating", unit="material", file=sys.stderr, leave=False)
+    from goniofrost.core.progress import progress_bar
+    return progress_bar(total=total, desc="tabulating", unit="material", leave=False)
 
 
 # ----- several datasets ------------------------------------------------------------------------
@@ -178,6 +192,20 @@ def _check_selectors(materials: list[Material], selectors: Sequence[str], option
     return set(selectors)
 
 
+def tabulated_material_files(materials: Sequence[Material], grid: MerlGrid = FULL_GRID,
+                             progress: bool | None = None) -> list[Path]:
+    """The tabulation cache entries of ``materials``, in order, computed when missing."""
+    files: list[Path | None] = [None] * len(materials)
+    groups: dict[int, list[int]] = {}
+    for i, material in enumerate(materials):
+        groups.setdefault(id(material.dataset), []).append(i)
+    for indices in groups.values():
+        dataset = materials[indices[0]].dataset
+        for i, path in zip(indices, tabulated_files(dataset, [materials[i].name for i in indices], grid, progress)):
+            files[i] = path
+    return files
+
+
 def tabulate_materials(materials: Sequence[Material], grid: MerlGrid = FULL_GRID,
                        progress: bool | None = None) -> np.ndarray:
     """float32 (len(materials), grid.n_valid, 3) in 1/sr, in order, through the cache."""
@@ -189,3 +217,42 @@ def tabulate_materials(materials: Sequence[Material], grid: MerlGrid = FULL_GRID
         dataset = materials[indices[0]].dataset
         out[indices] = tabulate_cached(dataset, [materials[i].name for i in indices], grid, progress)
     return out
+
+
+class TabulatedFiles:
+    """M tabulated materials read from their cache files in row chunks, never all in memory.
+
+    Stands in for the stacked float32 (M, n_valid, 3) array of ``tabulate_materials`` where only
+    row chunks are needed (training: 151 materials at full size are 2 GB). Plain reads, not a
+    memory map, so what was read leaves the process's memory with the chunk.
+    """
+
+    ndim = 3
+
+    def __init__(self, paths: Sequence[Path]) -> None:
+        self.paths = [Path(p) for p in paths]
+        self.offsets = [_npy_data_offset(p) for p in self.paths]
+        rows = {shape[0] for _, shape in self.offsets}
+        if len(rows) > 1:
+            raise DatasetError(f"tabulated files of different grids: {sorted(rows)} rows")
+        self.shape = (len(self.paths), rows.pop() if rows else 0, 3)
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """float32 (stop - start, M, 3): rows [start, stop) of every material."""
+        out = np.empty((stop - start, len(self.paths), 3), dtype=np.float32)
+        for j, (path, (offset, _)) in enumerate(zip(self.paths, self.offsets)):
+            with open(path, "rb") as handle:
+                handle.seek(offset + start * 3 * 4)
+                out[:, j, :] = np.fromfile(handle, dtype=np.float32, count=(stop - start) * 3).reshape(-1, 3)
+        return out
+
+
+def _npy_data_offset(path: Path) -> tuple[int, tuple]:
+    """(byte offset of the data, shape) of a C-ordered float32 (n, 3) .npy file."""
+    with open(path, "rb") as handle:
+        major, _ = np.lib.format.read_magic(handle)
+        read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read(handle)
+        if fortran or dtype != np.float32 or len(shape) != 2 or shape[1] != 3:
+            raise DatasetError(f"{path}: expected a C-ordered float32 (n, 3) table, found {dtype} {shape}")
+        return handle.tell(), shape

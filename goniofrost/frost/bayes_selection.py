@@ -23,7 +23,9 @@ import numpy as np
 from goniofrost.frost import bayes_kernels as kernels
 from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
-from goniofrost.frost.selection import THREADS, Selection, SelectionError
+from goniofrost.frost.selection import Selection, SelectionError
+from goniofrost.frost.threads import resolve_threads
+from goniofrost.frost.usage_design import is_uniform, scene_prior
 
 # --max-error never plans more samples than this.
 MAX_ERROR_PICKS = 1000
@@ -47,23 +49,26 @@ class GreedyDesign:
     covariance: np.ndarray
 
 
-def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None) -> GreedyDesign:
+def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None,
+                  threads: int | None = None) -> GreedyDesign:
     """Greedy A-optimal picks among ``rows`` of ``dictionary``.
 
     dictionary: float32 (n, K) D (memory-mapped is fine); s2: (K,) S^2 = D^T D;
     prior_var: (K,) prior variance of the coefficients; noise: (n,) sigma_c^2 of every row (the
     design errors are under this noise); rows: int64 candidate rows (default all n); m_max: at
     most this many picks; stop: optional ``stop(row) -> bool`` called with each picked row (e.g.
-    to track an error target). Raises SelectionError when the candidates stop reducing the
-    error first.
+    to track an error target); threads: threads sharing each pass (default: the cores this
+    process may use; the picks do not depend on it). Raises SelectionError when the candidates
+    stop reducing the error first.
     """
     start = time.perf_counter()
-    forms = _Forms(dictionary, rows, noise)
+    threads = resolve_threads(threads)
+    forms = _Forms(dictionary, rows, noise, threads)
     sigma = np.diag(np.asarray(prior_var, np.float64))
     s2 = np.asarray(s2, np.float64)
     noise_total, n = float(forms.noise.sum()), forms.d.shape[0]
     picks, errors, seconds = [], [], []
-    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         best, i = forms.first_pass(pool, sigma.diagonal().copy(), s2)
         first = best
         while True:
@@ -87,16 +92,16 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
 
 class _Forms:
     """The quadratic forms q, p of every candidate and the fused passes that keep them (split
-    among THREADS threads over contiguous ranges of candidates; see bayes_kernels)."""
+    among ``threads`` threads over contiguous ranges of candidates; see bayes_kernels)."""
 
-    def __init__(self, dictionary, rows, noise) -> None:
+    def __init__(self, dictionary, rows, noise, threads: int) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         self.noise = np.asarray(noise, dtype=np.float64)
         self.open_noise = np.ascontiguousarray(self.noise[self.rows])  # private: a picked cell gets +inf (score 0)
         self.q, self.p = np.empty(self.rows.size), np.empty(self.rows.size)
-        self.edges = [int(e) for e in np.linspace(0, self.rows.size, THREADS + 1)]
+        self.edges = [int(e) for e in np.linspace(0, self.rows.size, threads + 1)]
 
     def first_pass(self, pool, prior_var, s2) -> tuple[float, int]:
         return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
@@ -126,12 +131,18 @@ def _best(results) -> tuple[float, int]:
 
 
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
-                 candidates: np.ndarray | None = None) -> Selection:
+                 candidates: np.ndarray | None = None, threads: int | None = None,
+                 usage: np.ndarray | None = None, uniform_is_plain: bool = True) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
     typical material (``prediction.predict_typical``) is <= max_error.
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
+    threads: threads sharing each pass (default: the cores this process may use).
+    usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
+    design then minimises the expected error of what the scene sees (``usage_design``), and the
+    predicted errors are usage-weighted. A uniform map is the plain design (``uniform_is_plain``:
+    taken as such without the change of basis; False computes it the long way, for tests).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
     """
     start = time.perf_counter()
@@ -139,13 +150,20 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     rows = _candidate_rows(candidates, n)
     calibration, noise = calibration_of(model), cell_noise(model)
     limit = _check(m, max_error, rows.size, calibration, noise)
-    tracker = _PredictedError(model, calibration, noise)
+    if usage is not None and not (uniform_is_plain and is_uniform(usage)):
+        scene = scene_prior(model.dictionary, usage, prior_variance(model))
+        dictionary, prior_var = scene.dictionary, scene.prior_var
+        tracker = _PredictedError(dictionary, scene.weights, prior_var, calibration, noise, usage=scene.usage)
+    else:
+        dictionary, prior_var = model.dictionary, prior_variance(model)
+        tracker = _PredictedError(dictionary, np.asarray(model.singular_values, np.float64) ** 2, prior_var,
+                                  calibration, noise)
     stop = None
     if max_error is not None:
         def stop(row):
             return tracker.add(row) <= max_error
-    design = greedy_design(model.dictionary, tracker.s2, prior_variance(model), noise * design_scale(model), limit,
-                           rows=rows, stop=stop)
+    design = greedy_design(dictionary, tracker.s2, prior_var, noise * design_scale(model), limit,
+                           rows=rows, stop=stop, threads=threads)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
@@ -161,14 +179,20 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
 
 class _PredictedError:
     """The predicted error of a typical material after each pick, under the reconstruction's
-    noise (the design may assume a larger one): Sigma by rank-1 downdates, O(K^2) per pick."""
+    noise (the design may assume a larger one): Sigma by rank-1 downdates, O(K^2) per pick.
 
-    def __init__(self, model, calibration: dict, noise: np.ndarray) -> None:
-        self.d, self.calibration = model.dictionary, calibration
-        self.s2 = np.asarray(model.singular_values, np.float64) ** 2
+    d: (n, K) dictionary; s2: (K,) the error weights of the coefficients (S^2; Lambda of a scene);
+    prior_var: (K,); noise: (n,) sigma_c^2; usage: (n,) sum 1, or None for every cell alike (the
+    design error is then the mean over the n cells)."""
+
+    def __init__(self, d, s2, prior_var, calibration: dict, noise: np.ndarray, usage=None) -> None:
+        self.d, self.calibration, self.s2 = d, calibration, np.asarray(s2, np.float64)
         self.noise = noise
-        self.total, self.n = float(self.noise.sum()), self.noise.size
-        self.sigma = np.diag(prior_variance(model))
+        if usage is None:
+            self.total, self.n = float(self.noise.sum()), self.noise.size
+        else:  # weights summing to 1: the weighted noise, no division
+            self.total, self.n = float(np.dot(usage, self.noise)), 1
+        self.sigma = np.diag(np.asarray(prior_var, np.float64))
         self.history: list[float] = []
 
     def add(self, row: int) -> float:

@@ -23,7 +23,6 @@ noisier spreads the design; how much is chosen on the held-out training material
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,8 +153,8 @@ def _fold_dictionary(mapped: np.ndarray, projector: np.ndarray) -> np.ndarray:
 def _progress(items, progress: bool):
     if not progress:
         return items
-    from tqdm import tqdm
-    return tqdm(items, desc="noise cross-validation", unit="fold", file=sys.stderr, leave=False)
+    from goniofrost.core.progress import progress_bar
+    return progress_bar(items, desc="noise cross-validation", unit="fold", leave=False)
 
 
 def fit_calibration(records: CvRecords) -> dict:

@@ -21,9 +21,7 @@ with y_form "all" (t = 393).
 """
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +31,7 @@ from goniofrost.frost import somp_kernels as kernels
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost.model import FrostModel
+from goniofrost.frost.threads import resolve_threads, run_ranges
 
 Y_FORMS = ("all", "firstm")
 # Measured (benchmarks/frost_accuracy.py, full grid, 20 held-out materials): the first-m form
@@ -45,8 +44,6 @@ RESCORE_MARGIN = 1e-4
 # Cells per block of Q and C (the kernels' vector length; measured at full size, t = 20 and
 # 60: 256 is as fast as 64 ... 1024 within a few percent).
 BLOCK_CELLS = 256
-# Threads sharing the blocks of one pass (the passes are memory-bound: two saturate 2 cores).
-THREADS = max(1, min(8, os.cpu_count() or 1))
 # Steps may take Q^T b from C (see _ScoreState) once ||Y||_2 / sigma_min(R) <= this bound on
 # the growth of C's float32 error (measured: Q-pass error ~2e-7 of the first top score at full
 # size, so the worst case stays below RESCORE_MARGIN; from the first step, where the ratio is
@@ -95,7 +92,7 @@ def candidate_mask_max_angle(grid: MerlGrid, max_angle_deg: float) -> np.ndarray
 
 def select_cells(model: FrostModel, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, y_form: str = DEFAULT_Y_FORM,
-                 k: int | None = None) -> Selection:
+                 k: int | None = None, threads: int | None = None) -> Selection:
     """Pick measurement cells with FROST (SOMP); deterministic.
 
     m: number of samples; or max_error: stop once ||R||_F / ||Y||_F <= max_error (eq. 8).
@@ -104,13 +101,16 @@ def select_cells(model: FrostModel, m: int | None = None, *, max_error: float | 
         (every training column; same accuracy here, ~20x the memory and time at full size).
     k: atoms used for Q and Y; default m (paper), or all K model atoms with max_error
         (then "firstm" uses the first k training columns, m being unknown in advance).
+    threads: threads sharing the blocks of each pass (default: the cores this process may use;
+        the passes are memory-bound, two saturate 2 cores); the picks do not depend on it.
     Returns a Selection; raises SelectionError for bad options or too few candidate cells.
     """
     start = time.perf_counter()
     k, limit = _check_options(model, m, max_error, y_form, k)
-    pos_of_row, qb, n = _atoms(model, k, candidates, limit)
+    threads = resolve_threads(threads)
+    pos_of_row, qb, n = _atoms(model, k, candidates, limit, threads)
     y = _training_matrix(model, k, y_form, m if m is not None else k)
-    rows, residuals = _somp(qb, n, y, limit, max_error)
+    rows, residuals = _somp(qb, n, y, limit, max_error, threads)
     positions = pos_of_row[rows] if pos_of_row is not None else rows
     positions = np.asarray(positions, dtype=np.int64)
     return Selection(positions=positions, cells=model.grid.valid_cells[positions],
@@ -140,7 +140,7 @@ def _check_options(model, m, max_error, y_form, k) -> tuple[int, int]:
     return int(k), int(k)
 
 
-def _atoms(model: FrostModel, k: int, candidates, limit: int):
+def _atoms(model: FrostModel, k: int, candidates, limit: int, threads: int):
     """Q packed for the kernels: (positions or None for all valid cells, qb, n_c).
 
     qb: float32 (ceil(n_c / BLOCK_CELLS), k, BLOCK_CELLS), qb[b, :, r] the unit-norm atom
@@ -159,19 +159,13 @@ def _atoms(model: FrostModel, k: int, candidates, limit: int):
     inv_s2 = 1.0 / np.asarray(model.singular_values[:k], dtype=np.float64) ** 2
     qb = np.empty((-(-rows.size // BLOCK_CELLS), k, BLOCK_CELLS), dtype=np.float32)
     # A zero atom (a cell where every training material maps to its mean) is never picked.
-    _in_threads(kernels.pack_atoms, qb.shape[0], d, rows, k, inv_s2, qb)
+    _in_threads(kernels.pack_atoms, qb.shape[0], threads, d, rows, k, inv_s2, qb)
     return pos, qb, rows.size
 
 
-def _in_threads(kernel, n_blocks: int, *args) -> None:
-    """Run kernel(*args, b0, b1) on THREADS contiguous ranges of the n_blocks blocks."""
-    if THREADS == 1:
-        kernel(*args, 0, n_blocks)
-        return
-    edges = np.linspace(0, n_blocks, THREADS + 1).astype(int)
-    with ThreadPoolExecutor(max_workers=THREADS) as pool:
-        for future in [pool.submit(kernel, *args, int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]:
-            future.result()
+def _in_threads(kernel, n_blocks: int, threads: int, *args) -> None:
+    """Run kernel(*args, b0, b1) on ``threads`` contiguous ranges of the n_blocks blocks."""
+    run_ranges(kernel, n_blocks, threads, *args)
 
 
 def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarray:
@@ -180,12 +174,12 @@ def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarr
     return y if y_form == "all" else y[:, :m].copy()
 
 
-def _somp(qb: np.ndarray, n: int, y: np.ndarray, limit: int, max_error: float | None):
+def _somp(qb: np.ndarray, n: int, y: np.ndarray, limit: int, max_error: float | None, threads: int):
     """Run SOMP on the packed atoms qb of n cells and Y (k, t); return picked rows and residual ratios."""
     # The batched matmul that fills C runs in our threads: BLAS's own threads would only
     # compete with them.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _somp_steps(_ScoreState(qb, n, y), y, limit, max_error)
+        return _somp_steps(_ScoreState(qb, n, y, threads), y, limit, max_error)
 
 
 def _somp_steps(state, y, limit, max_error):
@@ -228,13 +222,13 @@ class _ScoreState:
     -(Q^T b)(R^T b)^T. C is stored like Q in blocks of BLOCK_CELLS cells, cb[b, :, r] the row
     of cell b * BLOCK_CELLS + r. One step is one fused pass of a compiled kernel over the
     blocks (somp_kernels): v = Q_blk b, C_blk -= u v^T and the scores 1^T |C_blk|, the
-    blocks split among THREADS threads; once R is well conditioned v = C_blk z instead
+    blocks split among ``threads`` threads; once R is well conditioned v = C_blk z instead
     (``_from_c``), so the pass reads C only. float32 rounding in C is harmless: the best
     cells within a small margin are re-scored exactly in float64 from Q and R.
     """
 
-    def __init__(self, qb: np.ndarray, n: int, y: np.ndarray) -> None:
-        self.qb, self.n, self.r = qb, n, y.copy()
+    def __init__(self, qb: np.ndarray, n: int, y: np.ndarray, threads: int) -> None:
+        self.qb, self.n, self.r, self.threads = qb, n, y.copy(), threads
         t = y.shape[1]
         # Q^T b from C (square Y only: then every new direction b is in range(R)).
         self.cz = "wait" if y.shape[0] == t else "off"
@@ -242,7 +236,7 @@ class _ScoreState:
         self.cb = np.empty((qb.shape[0], t, BLOCK_CELLS), dtype=np.float32)
         self.scores = np.empty(qb.shape[0] * BLOCK_CELLS, dtype=np.float32)
         self.picked: list[int] = []  # their scores are set to -1 after each pass
-        _in_threads(self._fill, qb.shape[0], np.ascontiguousarray(self.r.T, dtype=np.float32))
+        _in_threads(self._fill, qb.shape[0], threads, np.ascontiguousarray(self.r.T, dtype=np.float32))
         self.scale = float(self.scores[:n].max())
 
     def _fill(self, rt: np.ndarray, b0: int, b1: int) -> None:
@@ -265,7 +259,7 @@ class _ScoreState:
         self.picked.append(j)
         if update_scores:
             source, w = (self.qb, b) if z is None else (self.cb, z)
-            _in_threads(kernels.rank1_step, self.qb.shape[0], source, w.astype(np.float32),
+            _in_threads(kernels.rank1_step, self.qb.shape[0], self.threads, source, w.astype(np.float32),
                         self.cb, u.astype(np.float32), self.scores)
             self.scores[self.picked] = -1.0
 

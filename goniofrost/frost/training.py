@@ -21,15 +21,16 @@ the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 
 from __future__ import annotations
 
 import json
-import sys
 from typing import Sequence
 
 import numpy as np
 from scipy.linalg import blas
+from threadpoolctl import threadpool_limits
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import FULL_GRID, MerlGrid, cosine_weight
 from goniofrost.frost.model import FrostModel
+from goniofrost.frost.threads import imap_chunks
 
 EPS = 0.001
 K_MAX = 60
@@ -54,14 +55,16 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
               progress: bool = False, noise: bool = True) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
-    tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype).
+    tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
+        an object with that ``shape`` whose ``rows(start, stop)`` gives (stop - start, M, 3)
+        (``datasets.tabulate.TabulatedFiles``: the tables are never all in memory).
     names: M material names (stored in the model; used in error messages).
     k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
     noise: learn the noise model and predicted-error calibration by inner cross-validation
         (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
-    tables = np.asarray(tables)
+    tables = tables if hasattr(tables, "rows") else np.asarray(tables)
     names = [str(n) for n in names]
     _check_tables(tables, names, grid, k_max)
     weight = cosine_weight(grid).astype(np.float32)
@@ -69,6 +72,9 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     # Our reference is the last one when the caller passed the tables without keeping them
     # (``train`` does): they are freed before the noise cross-validation needs its memory.
     del tables
+    # The products below stay on BLAS's own threads: OpenBLAS's results depend (in the last
+    # bits) on its thread count, and the noise scales chosen downstream follow the last bits
+    # (a design scale of 4 became 1 at full size when these ran on one BLAS thread each).
     svals, vt = _eigen_components(gram, k_max)
     dictionary = _project(mapped, vt)
     variance, noise_meta = None, {}
@@ -117,24 +123,36 @@ def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: i
         raise TrainingError(f"training: --components must be a positive integer, found {k_max!r}")
 
 
-def _map_and_gram(tables, names, weight, eps, progress):
-    """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64."""
+def _map_and_gram(tables, names, weight, eps, progress, threads=None):
+    """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64.
+
+    The mapping of the chunks runs on ``threads`` threads (element-wise numpy, no BLAS); the
+    Gram is accumulated in chunk order on BLAS's threads as before, so it is the same to the bit.
+    """
     m, n, _ = tables.shape
     t = 3 * m
     mapped = np.empty((n, t), dtype=np.float32)
     reference = np.empty(n, dtype=np.float32)
     mean = np.empty(n, dtype=np.float32)
-    gram = np.zeros((t, t), dtype=np.float64)
-    for start in _chunks(n, progress, "training"):
-        stop = min(start + CHUNK_ROWS, n)
-        block = tables[:, start:stop, :].transpose(1, 0, 2).reshape(stop - start, t)
-        block = np.array(block, dtype=np.float32)  # a private, row-contiguous copy
+
+    def chunk(start: int, stop: int) -> np.ndarray:
+        rows = tables.rows(start, stop) if hasattr(tables, "rows") else tables[:, start:stop, :].transpose(1, 0, 2)
+        block = np.array(rows.reshape(stop - start, t), dtype=np.float32)  # a private, row-contiguous copy
         _check_finite(block, names, start)
         reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
         mapped[start:stop] = block
-        # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32
-        # sums over thousands of rows would blur them); dsyrk fills only the upper triangle.
-        gram = blas.dsyrk(1.0, block.astype(np.float64), trans=1, beta=1.0, c=gram, overwrite_c=1)
+        return block.astype(np.float64)
+
+    gram = np.zeros((t, t), dtype=np.float64)
+    # Gram accumulated in float64 (the tail eigenvalues are ~1e-5 of the first: float32 sums
+    # over thousands of rows would blur them), in chunk order by one dsyrk per chunk (the upper
+    # triangle) as the sequential training did, so the Gram is the same to the bit: the noise
+    # scales chosen downstream follow its last digits. dsyrk on one BLAS thread: the same bits
+    # as on two (it splits the output, not the sums), without OpenBLAS's spinning threads,
+    # which made this pass 4x the CPU time on a loaded host.
+    with threadpool_limits(limits=1, user_api="blas"):
+        for wide in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
+            gram = blas.dsyrk(1.0, wide, trans=1, beta=1.0, c=gram, overwrite_c=1)
     return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
 
 
@@ -201,12 +219,11 @@ def _project(mapped: np.ndarray, vt: np.ndarray) -> np.ndarray:
     return out
 
 
-def _chunks(n: int, progress: bool, what: str):
-    starts = range(0, n, CHUNK_ROWS)
+def _progress_chunks(parts, n: int, progress: bool, what: str):
     if not progress:
-        return starts
-    from tqdm import tqdm
-    return tqdm(starts, desc=what, unit="chunk", file=sys.stderr, leave=False)
+        return parts
+    from goniofrost.core.progress import progress_bar
+    return progress_bar(parts, total=-(-n // CHUNK_ROWS), desc=what, unit="chunk", leave=False)
 
 
 # ----- training from dataset specs -------------------------------------------------------
@@ -224,7 +241,7 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     Returns the model (memory-mapped from the cache when cache=True).
     """
     from goniofrost.core import cache as disk_cache
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulated_material_files
 
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
@@ -235,9 +252,10 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     if folder is not None and (folder / "model.json").is_file():
         return FrostModel.load(folder)
     info = {"datasets": list(dataset_specs), "cache_key": key}
-    # No reference kept here: fit_model frees the tables (1.75 GB at full size) once mapped.
-    model = fit_model(tabulate_materials(materials, grid, progress=progress), [m.label for m in materials],
-                      grid, k_max, info=info, progress=progress)
+    # The tables are read from the tabulation cache in row chunks: at full size 151 materials
+    # are 2 GB, which would double the peak memory beside the mapped X.
+    tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
+    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
     if folder is None:
         return model
     model.save(folder)

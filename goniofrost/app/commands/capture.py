@@ -9,7 +9,8 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (simulated: true starts its own devices)")
     parser.add_argument("--plan", required=True, metavar="PLAN.json", help="plan from goniofrost plan --rig")
-    parser.add_argument("--session", required=True, metavar="DIR", help="session folder (journal, RAW files, results)")
+    parser.add_argument("--session", metavar="DIR", help="session folder (journal, RAW files, results); "
+                        "required unless --dry-run")
     parser.add_argument("--material", metavar="SPEC:NAME",
                         help="simulated rig: the ground-truth material the simulated camera sees (e.g. builtin:NAME)")
     parser.add_argument("--alignment", metavar="ALIGNMENT.json",
@@ -38,12 +39,30 @@ def add_arguments(parser) -> None:
                         help="the format of brdf.bsdf (implies --bsdf): mitsuba (RGB, the default) or rgl-spectral / "
                              "pbrt (spectral, for pbrt-v4 and Mitsuba 3's spectral variants; about 100 MB)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="only the plan's motion on the rig (home, every pose in capture order, home), without "
+                             "camera or lamp: each move's planned against measured time, and where they differ; "
+                             "writes nothing")
     add_server_options(parser, with_flag=True)
 
 
 def run(args) -> int:
     import sys
     from contextlib import nullcontext
+
+    if args.dry_run:
+        from goniofrost.app.rig_console import run_dry_run
+        from goniofrost.capture.signals import SessionInterrupted
+
+        try:
+            return run_dry_run(args)
+        except SessionInterrupted as exc:
+            print(f"goniofrost capture: {exc}", file=sys.stderr)
+            return 130
+    if args.session is None:
+        from goniofrost.core.errors import ConfigError
+
+        raise ConfigError("command line", "--session", "a session folder (DIR)", "nothing")
 
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.runner import capture

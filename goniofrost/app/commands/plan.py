@@ -30,6 +30,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--alignment", metavar="ALIGNMENT.json",
                         help="with --rig: the axes' zero offsets from goniofrost align (overrides the rig file's "
                              "alignment key); the plan records it and capture refuses another")
+    parser.add_argument("--usage", metavar="USAGE.npy",
+                        help="bayes only: a scene's use of every cell (goniofrost usage): the design minimises the "
+                             "expected error of what that scene sees instead of the whole BRDF's")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
 
 
@@ -40,7 +43,13 @@ def run(args) -> int:
 
     if args.selector == "bayes" and (args.y_form is not None or args.atoms is not None):
         raise GoniofrostError("--y-form and --atoms apply to --selector frost only")
+    if args.usage is not None and args.selector != "bayes":
+        raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
     model = FrostModel.load(args.model)
+    usage = None
+    if args.usage is not None:
+        from goniofrost.brdf.usage import load_usage
+        usage = load_usage(args.usage, model.grid.n_valid)
     mask = None
     if args.max_angle is not None:
         from goniofrost.frost.selection import candidate_mask_max_angle
@@ -60,8 +69,13 @@ def run(args) -> int:
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
-    selection = _select(model, args, mask)
+    selection = _select(model, args, mask, usage)
     doc = plan_document(args.model, model, selection)
+    if usage is not None:
+        import hashlib
+        # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF
+        doc["usage"] = {"file": str(args.usage), "hash": hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16],
+                        "cells_used": int((usage > 0).sum()), "predicted_errors": "usage-weighted"}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
@@ -73,10 +87,10 @@ def run(args) -> int:
     return 0
 
 
-def _select(model, args, mask):
+def _select(model, args, mask, usage=None):
     if args.selector == "bayes":
         from goniofrost.frost.bayes_selection import select_bayes
-        return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask)
+        return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage)
     from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
     return select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
@@ -84,7 +98,8 @@ def _select(model, args, mask):
 
 def _outcome(args, selection) -> str:
     if selection.selector == "bayes":
-        return f", predicted error of a typical material {selection.residuals[-1]:.4f} (log-relative MSE)"
+        weighted = " weighted by the scene's use" if args.usage is not None else ""
+        return f", predicted error of a typical material {selection.residuals[-1]:.4f} (log-relative MSE{weighted})"
     # With k = m atoms the residual after the m-th pick is 0 by construction; it only says
     # something for --max-error (k = all atoms).
     return f", residual {selection.residuals[-1]:.4f}" if args.max_error is not None else ""

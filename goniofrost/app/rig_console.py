@@ -1,0 +1,246 @@
+"""What each ``goniofrost rig`` sub-command does and prints (the computations live in goniofrost.capture)."""
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from goniofrost.core.errors import GoniofrostError
+
+
+class RigProblems(GoniofrostError):
+    """``rig check`` found something wrong (the table was printed; exit 2)."""
+
+
+def _load(args):
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    return load_checked_rig(args.rig, args.alignment)
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# ----- check -----------------------------------------------------------------------------------
+def run_check(args) -> int:
+    from goniofrost.capture.rig_check import RigCheckError, rig_file_problems
+
+    problems = rig_file_problems(args.rig, args.alignment)
+    if problems:
+        if args.json:
+            print(json.dumps({"rig": args.rig, "problems": [p.message for p in problems], "devices": []}, indent=1))
+        raise RigCheckError(problems, args.rig)
+    rig = _load(args)
+    reports = [] if args.offline else _probe(rig)
+    if args.json:
+        print(json.dumps({"rig": args.rig, "problems": [], "devices": [r.as_dict() for r in reports]}, indent=1))
+    else:
+        print(f"{args.rig}: the rig file is sound ({len(rig.axes)} axes"
+              f"{', a lamp' if rig.lamp.get('driver') else ''}, camera {rig.camera.get('kind', 'none')})")
+        if reports:
+            print(device_table(reports))
+    silent = [r for r in reports if not r.answers or r.error or r.alarm]
+    if silent:
+        raise RigProblems(f"{len(silent)} of {len(reports)} devices did not answer cleanly: "
+                          + ", ".join(r.device for r in silent))
+    return 0
+
+
+def _probe(rig):
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.console import _device_sections
+    from goniofrost.capture.rig_check import probe_rig
+
+    with _device_sections(rig) as (resolved, _simulation):
+        devices = RigDevices.from_rig(resolved)
+        return probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
+
+
+def device_table(reports) -> str:
+    """The probe's findings as a fixed-width table, causes under each silent device."""
+    head = ("device", "link", "answers", "identity", "position", "limits", "state")
+    rows = [head]
+    for r in reports:
+        state = ("lamp on" if r.lamp_on else "lamp off") if r.device == "lamp" and r.answers else (
+            "-" if not r.answers else (f"ALARM {r.alarm}" if r.alarm else ("enabled" if r.enabled else "disabled")))
+        rows.append((r.device, r.link, "yes" if r.answers else "NO", r.identity or "-",
+                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg",
+                     "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]", state))
+    widths = [max(len(str(row[i])) for row in rows) for i in range(len(head))]
+    lines = []
+    for k, row in enumerate(rows):
+        lines.append("  ".join(str(v).ljust(w) for v, w in zip(row, widths)).rstrip())
+        report = reports[k - 1] if k else None
+        if report is not None and (report.error or report.causes):
+            if report.error:
+                lines.append(f"    error: {report.error}")
+            lines += [f"    likely cause: {c}" for c in report.causes]
+    return "\n".join(lines)
+
+
+# ----- status ----------------------------------------------------------------------------------
+def run_status(args) -> int:
+    from goniofrost.capture.console import connected_rig, read_status
+
+    rig = _load(args)
+    with connected_rig(rig, enable=False, program="rig status") as hardware:
+        n = 0
+        while True:
+            readings, lamp = read_status(rig, hardware)
+            print(_status_text(readings, lamp, args.json), flush=True)
+            n += 1
+            if not args.watch or (args.count is not None and n >= args.count):
+                return 0
+            time.sleep(max(args.interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _status_text(readings, lamp, as_json: bool) -> str:
+    if as_json:
+        return json.dumps({"axes": [r.as_dict() for r in readings], "lamp": lamp})
+    lines = []
+    for r in readings:
+        state = f"ALARM {r.alarm}" if r.alarm else ("moving" if r.moving else "at rest")
+        lines.append(f"{r.axis:<14} {r.position_deg:10.3f} deg (aligned {r.aligned_deg:10.3f})  "
+                     f"limits [{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]  {state}, "
+                     f"{'enabled' if r.enabled else 'disabled'}")
+    if lamp is not None:
+        lines.append(f"{'lamp':<14} {'on' if lamp['on'] else 'off'}, photodiode {lamp['photodiode']:.4f} of nominal")
+    return "\n".join(lines)
+
+
+# ----- move, home, lamp ----------------------------------------------------------------------------
+def run_move(args) -> int:
+    from goniofrost.capture.console import check_targets, connected_rig, move_plan, parse_targets, run_plan
+
+    rig = _load(args)
+    requested = parse_targets(args.targets, rig)
+    if not args.by:
+        check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
+    with connected_rig(rig, enable=True, program="rig move") as hardware:
+        targets = requested
+        if args.by:
+            targets = {name: hardware.axes[name].position() + by for name, by in requested.items()}
+            check_targets(rig, targets)
+        for name, deg in targets.items():
+            _say(f"moving {name} to {deg:.3f} deg")
+        reached = run_plan(hardware, move_plan(rig, targets), "rig move")
+    _say("reached " + ", ".join(f"{n} {d:.3f} deg" for n, d in reached.joints.items()))
+    return 0
+
+
+def run_home(args) -> int:
+    from goniofrost.capture.console import ConsoleError, connected_rig, home_plan, run_plan
+
+    rig = _load(args)
+    axes = args.axes or list(rig.joint_names)
+    unknown = [a for a in axes if a not in rig.axes]
+    if unknown:
+        raise ConsoleError(f"no axis {unknown[0]!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+    if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
+        raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
+    with connected_rig(rig, enable=True, program="rig home") as hardware:
+        _say(f"homing {', '.join(axes)}")
+        reached = run_plan(hardware, home_plan(axes), "rig home")
+    _say("homed " + ", ".join(f"{n} at {d:.3f} deg" for n, d in reached.joints.items()))
+    return 0
+
+
+def _confirm(question: str) -> bool:
+    if not sys.stdin or not sys.stdin.isatty():
+        line = sys.stdin.readline() if sys.stdin else ""
+    else:
+        line = input(question)
+    return line.strip().lower() in ("y", "yes")
+
+
+def run_lamp(args) -> int:
+    from goniofrost.capture.console import ConsoleError, connected_rig, lamp_plan, run_plan
+
+    rig = _load(args)
+    if not rig.lamp.get("driver"):
+        raise ConsoleError(f"{rig.source}: this rig has no lamp driver (lamp.driver)")
+    on = args.state == "on"
+    with connected_rig(rig, enable=False, program="rig lamp") as hardware:
+        reading = run_plan(hardware, lamp_plan(on), "rig lamp")
+    _say(f"lamp on, photodiode {reading:.4f} of nominal" if on else "lamp off")
+    return 0
+
+
+# ----- stop -------------------------------------------------------------------------------------
+def run_stop(args) -> int:
+    from goniofrost.capture.console import connected_rig
+    from goniofrost.capture.executor import StepExecutor, stop_text
+
+    from goniofrost.capture.rig_lock import request_stop
+
+    rig = _load(args)
+    holder = request_stop(rig.name)
+    if holder is not None:
+        _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
+             f"switches the lamp off; its own report follows in its terminal and journal")
+        return 0
+    with connected_rig(rig, enable=False, program="rig stop") as hardware:
+        executor = StepExecutor(hardware, ".")
+        stops = executor.stop()
+        lamp_error = executor.switch_lamp_off() if hardware.lamp is not None else None
+    _say(stop_text(stops) + ("; lamp off" if hardware.lamp is not None and lamp_error is None
+                             else f"; lamp NOT confirmed off: {lamp_error}" if lamp_error else ""))
+    return 0 if all(s.confirmed for s in stops) and lamp_error is None else 2
+
+
+# ----- snap -------------------------------------------------------------------------------------
+def run_snap(args) -> int:
+    from goniofrost.capture.console import check_targets, parse_targets
+    from goniofrost.capture.snap import snap, snap_text
+
+    rig = _load(args)
+    move_to = parse_targets(args.move, rig) if args.move else None
+    if move_to:
+        check_targets(rig, move_to)
+    result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
+                  move_to=move_to)  # open_hardware takes the rig lock
+    print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
+    return 0
+
+
+# ----- capture --dry-run -----------------------------------------------------------------------------
+def run_dry_run(args) -> int:
+    """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
+    from goniofrost.capture.console import connected_rig, dry_run
+    from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
+    from goniofrost.capture.plan_file import read_plan
+
+    rig = _load(args)
+    plan = read_plan(args.plan)
+    for check in (check_rig, check_alignment, check_joints):  # before anything is connected
+        check(plan, args.plan, rig)
+    n, done = len(plan["samples"]), []
+
+    def progress(move):
+        if move.index is not None and move.planned_s is not None:
+            done.append(move)
+            if not args.no_progress:
+                _say(f"move {len(done)}/{n} (sample {move.index}): planned {move.planned_s:.2f} s, "
+                     f"measured {move.measured_s:.2f} s{'  DIFFERS' if move.differs else ''}")
+
+    with connected_rig(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
+        timed = dry_run(rig, plan, hardware, on_move=progress)
+    print(dry_run_text(timed[1:]))
+    return 0
+
+
+def dry_run_text(timed) -> str:
+    """The planned and measured times in total, and every move where they differ."""
+    planned = sum(m.planned_s for m in timed)
+    measured = sum(m.measured_s for m in timed)
+    differ = [m for m in timed if m.differs]
+    lines = [f"{len(timed) - 1} moves and the return home: planned {planned:.1f} s, measured {measured:.1f} s "
+             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"]
+    if differ:
+        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and 0.5 s:")
+        lines += [f"  {'return home' if m.index is None else f'sample {m.index}'}: planned {m.planned_s:.2f} s, "
+                  f"measured {m.measured_s:.2f} s" for m in differ]
+    else:
+        lines.append("every move within 20 % or 0.5 s of the plan")
+    return "\n".join(lines)

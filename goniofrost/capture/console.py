@@ -1,0 +1,238 @@
+"""The operator's console: read, move, home and stop a rig's axes and switch its lamp, by hand.
+
+Each command is a short plan of the session's own steps (``Home``, ``Move``, ``LampOn``,
+``LampOff``) run on the connected devices by the engine core (``plan_runner.PlanRunner``, without
+a journal) and its one stop path (``executor.stop_axes``): on any failure, Ctrl-C or a stop
+request every axis is stopped and confirmed, axis by axis, and the lamp switched off. Every
+command holds the rig lock while it is connected (``rig_lock``: one program drives a rig at a
+time). Targets are checked against the soft limits and the rig's geometry before anything is
+connected, so a refused move sends no byte.
+"""
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Iterable, Mapping
+
+from goniofrost.core.errors import GoniofrostError
+from goniofrost.capture.steps import Home, LampOff, LampOn, Move
+
+
+class ConsoleError(GoniofrostError):
+    """A console command that cannot be carried out as asked (nothing was moved)."""
+
+
+# ----- targets ------------------------------------------------------------------------------
+def parse_targets(words: Iterable[str], rig) -> dict[str, float]:
+    """``["camera_arm=90", "sample_tilt=-5.5"]`` -> {axis: degrees}; ConsoleError naming the word."""
+    targets: dict[str, float] = {}
+    for word in words:
+        name, sep, value = word.partition("=")
+        if not sep or not name:
+            raise ConsoleError(f"{word!r}: expected AXIS=DEGREES, e.g. {next(iter(rig.axes))}=10")
+        if name not in rig.axes:
+            raise ConsoleError(f"{word!r}: no axis {name!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+        try:
+            deg = float(value)
+        except ValueError:
+            raise ConsoleError(f"{word!r}: {value!r} is not a number of degrees") from None
+        if not math.isfinite(deg):
+            raise ConsoleError(f"{word!r}: {value!r} is not a finite number of degrees")
+        if name in targets:
+            raise ConsoleError(f"{word!r}: axis {name} is given twice")
+        targets[name] = deg
+    if not targets:
+        raise ConsoleError("no target: give AXIS=DEGREES (one or more)")
+    return targets
+
+
+def check_targets(rig, targets: Mapping[str, float]) -> None:
+    """Refuse a target outside its axis's soft limits or the rig's geometry (ConsoleError naming the
+    axis, the target, the limit and why)."""
+    from planner.rig import Role
+
+    for name, deg in targets.items():
+        spec = rig.axes[name]
+        lo, hi = spec.limits_deg
+        if not lo <= deg <= hi:
+            raise ConsoleError(f"{name}: target {deg:g} deg is outside its limits [{lo:g}, {hi:g}] deg "
+                               f"(axes.{name}.limits_deg of {rig.source}); nothing was moved")
+        if spec.role is Role.SAMPLE_TILT and abs(deg) > rig.geometry.tilt_limit_deg:
+            raise ConsoleError(f"{name}: target {deg:g} deg is beyond the stage's tilt limit "
+                               f"+-{rig.geometry.tilt_limit_deg:g} deg (geometry.tilt_limit_deg); nothing was moved")
+        if spec.role is Role.CAMERA_ARM and abs(deg) < rig.geometry.min_arm_separation_deg:
+            raise ConsoleError(f"{name}: target {deg:g} deg brings the camera closer to the lamp than "
+                               f"{rig.geometry.min_arm_separation_deg:g} deg (geometry.min_arm_separation_deg); "
+                               f"nothing was moved")
+
+
+# ----- the plans ------------------------------------------------------------------------------
+def move_plan(rig, targets: Mapping[str, float]):
+    """Move the named axes together (in the rig's joint order) to ``targets`` (degrees)."""
+    order = [name for name in rig.joint_names if name in targets]
+    reached = yield Move(None, tuple((name, float(targets[name])) for name in order))
+    return reached
+
+
+def home_plan(axes: Iterable[str]):
+    """Home the named axes together."""
+    reached = yield Home(tuple(axes))
+    return reached
+
+
+def lamp_plan(on: bool):
+    """Switch the lamp on (returns the photodiode's reading) or off."""
+    reading = yield (LampOn() if on else LampOff())
+    return reading
+
+
+def run_plan(hardware, plan, program: str):
+    """Run a console plan on ``hardware`` through the engine core (``PlanRunner``, no journal): on
+    any failure, Ctrl-C or a stop request every axis is stopped and confirmed and the lamp switched
+    off, and ``SessionFault`` / ``SessionInterrupted`` say axis by axis what was confirmed."""
+    from goniofrost.capture.plan_runner import PlanRunner
+
+    return PlanRunner(hardware, ".", program=program).execute_plan(plan)
+
+
+# ----- connecting --------------------------------------------------------------------------------
+@dataclass
+class ConsoleHardware:
+    """The connected axes and lamp of a rig, for the console (no camera, the wall clock)."""
+
+    axes: dict
+    lamp: object
+    clock: object
+    simulated: bool = False
+    simulation: object = None
+    camera: object = None
+    rig_lock: object = None
+
+
+@contextmanager
+def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None):
+    """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
+    of ``rig``; on exit stop and confirm every axis (the one stop path), close, release the lock.
+    A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
+    session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
+    from drivers.rig_devices import RigDevices
+    from goniofrost.capture.device_log import DeviceLog
+    from goniofrost.capture.executor import stop_axes
+    from goniofrost.capture.hardware import WallClock
+    from goniofrost.capture.rig_lock import rig_lock
+
+    with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
+            _device_sections(rig, speedup) as (resolved, simulation):
+        devices = RigDevices.from_rig(resolved)
+        devices.connect_all(enable=enable)
+        try:
+            clock = simulation.clock if simulation is not None else WallClock()
+            yield ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
+        finally:
+            try:
+                stop_axes(devices.axes)
+            finally:
+                devices.close_all()
+
+
+@contextmanager
+def _device_sections(rig, speedup: float | None = None):
+    """(the rig, None) for a real rig, or (the rig with its simulated devices' endpoints, the
+    SimulatedRig), started for the command."""
+    if not rig.simulated:
+        yield rig, None
+        return
+    from sim.rig import SimulatedRig
+
+    with SimulatedRig(rig, speedup=speedup) as simulation:
+        yield simulation.resolved_rig(), simulation
+
+
+# ----- the dry run -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TimedMove:
+    """One move of a dry run: plan ``index`` (None: homing), planned and measured seconds."""
+
+    index: int | None
+    planned_s: float | None
+    measured_s: float
+
+    @property
+    def differs(self) -> bool:
+        """Measured more than 20 % and 0.5 s away from the plan (polling and start-up latency stay within)."""
+        if self.planned_s is None:
+            return False
+        gap = abs(self.measured_s - self.planned_s)
+        return gap > 0.5 and gap > 0.2 * self.planned_s
+
+
+def dry_run_plan(rig, plan_doc: dict):
+    """Home, every sample's pose in capture order, home again: the plan's motion, no camera or lamp."""
+    yield Home(tuple(rig.joint_names))
+    for index, sample in enumerate(plan_doc["samples"]):  # plan index = position in capture order
+        yield Move(index, tuple((name, float(sample["joints"][name])) for name in rig.joint_names))
+    yield Home(tuple(rig.joint_names))
+
+
+def dry_run(rig, plan_doc: dict, hardware, on_move=None) -> list[TimedMove]:
+    """Run ``dry_run_plan`` on ``hardware`` through the engine core, timing each step on its clock;
+    ``on_move(TimedMove)`` after each (progress). On failure, Ctrl-C or a stop request every axis
+    is stopped and confirmed (``SessionFault`` / ``SessionInterrupted``)."""
+    from goniofrost.capture.plan_runner import PlanRunner
+
+    planned = [float(s["move_s"]) for s in plan_doc["samples"]] + [float(plan_doc.get("return_home_s", 0.0))]
+    timed: list[TimedMove] = []
+
+    def timing(plan):
+        """The dry-run plan, timing each of its steps between yield and answer."""
+        result = None
+        while True:
+            try:
+                step = plan.send(result)
+            except StopIteration:
+                return timed
+            t0 = hardware.clock.now()
+            result = yield step
+            k = len(timed)  # 0: the first homing (the plan's moves start at home), then the samples, then home
+            move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1], hardware.clock.now() - t0)
+            timed.append(move)
+            if on_move is not None:
+                on_move(move)
+
+    return PlanRunner(hardware, ".", program="capture --dry-run").execute_plan(timing(dry_run_plan(rig, plan_doc)))
+
+
+# ----- status ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AxisReading:
+    """One axis as read now: position as the axis reads it and aligned (physical = reading + the
+    alignment's zero offset), limits, moving, enabled, alarm (None when healthy); degrees."""
+
+    axis: str
+    position_deg: float
+    aligned_deg: float
+    limits_deg: tuple[float, float]
+    moving: bool
+    enabled: bool
+    alarm: str | None
+
+    def as_dict(self) -> dict:
+        out = dict(self.__dict__)
+        out["limits_deg"] = list(self.limits_deg)
+        return out
+
+
+def read_status(rig, hardware) -> tuple[list[AxisReading], dict | None]:
+    """Every axis's reading and the lamp's state ({"on", "photodiode"}; None without a lamp)."""
+    offsets = rig.alignment.offsets_deg if rig.alignment is not None else {}
+    readings = []
+    for name, axis in hardware.axes.items():
+        status = axis.status()
+        readings.append(AxisReading(name, float(status.position_deg), float(status.position_deg) + offsets.get(name, 0.0),
+                                    tuple(rig.axes[name].limits_deg), bool(status.moving), bool(status.enabled),
+                                    status.fault))
+    lamp = None
+    if hardware.lamp is not None:
+        lamp = {"on": bool(hardware.lamp.is_on()), "photodiode": float(hardware.lamp.photodiode())}
+    return readings, lamp

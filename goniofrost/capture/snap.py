@@ -1,0 +1,228 @@
+"""``rig snap``: one frame (or the bracket a capture would take) of the target at the current pose.
+
+The operator's exposure check before a session: the per-channel levels and the saturated fraction
+of the frame, the holder markers read, the region of interest the calibration would use (its
+pixels per channel and, over the bracket, its SNR), the exposures the capture would take, and a
+PNG with the region and the markers drawn. The frames go through the same steps as a capture
+(``SetTarget``, ``LampOn``, ``Expose``, ``LampOff``) on the engine core (``PlanRunner``), so every
+axis is stopped and confirmed and the lamp is off on every exit. No dark frames or flat field are taken: levels and SNR are of the raw linear values.
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from goniofrost.capture.steps import Expose, LampOff, LampOn, SetTarget
+
+
+@dataclass
+class SnapResult:
+    """What one snap found. Levels: linear sensor values (0 = black level, 1 = white level) inside
+    the region of interest, per channel (R, G, B), in the longest unsaturated frame."""
+
+    target: str
+    pose_deg: dict
+    exposures_s: list
+    capture_exposures_s: list | None
+    markers_found: list
+    markers_expected: list
+    roi_source: str | None
+    roi_pixels: list
+    levels_median: list
+    levels_p99: list
+    saturated_fraction: float
+    roi_saturated_fraction: float
+    snr: list | None
+    png: str
+    problem: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def snap_plan(judge: "_Judge", exposure_s: float | None, folder: str = "snap", move=None):
+    """Yield the snap's steps; return the frames taken ({exposure s: Frame}). ``judge`` holds the
+    capture's bracket rule (a pure computation on the frames, as in ``sample_steps``); ``move``: a
+    Move step to take first (None: snap where the axes are)."""
+    if move is not None:
+        reached = yield move
+        judge.set_pose({**judge.joints, **reached.joints})
+    yield SetTarget(judge.target)
+    yield LampOn()
+    frames = {}
+    ladder = list(judge.settings["exposures_s"])
+    if exposure_s is not None:
+        frames[exposure_s] = yield Expose(float(exposure_s), f"{folder}/snap.dng")
+    else:
+        i = len(ladder) // 2  # the middle of the ladder; the bracket rule goes up or down from there
+        while i is not None:
+            frames[ladder[i]] = frame = yield Expose(ladder[i], f"{folder}/snap_e{i}.dng")
+            i = judge.next_index(i, frame)
+    yield LampOff()
+    return frames
+
+
+def snap(rig, *, target: str, exposure_s: float | None, out, material: str | None = None,
+         move_to: dict | None = None) -> SnapResult:
+    """Connect the rig, take the snap at the current pose (after moving to ``move_to``, {axis: deg},
+    when given), write the PNG ``out``; return the findings."""
+    from goniofrost.capture.console import check_targets, move_plan
+
+    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.capture.plan_runner import PlanRunner
+    from goniofrost.core.atomic_file import output_errors
+
+    out = Path(out)
+    with output_errors(out):
+        out.parent.mkdir(parents=True, exist_ok=True)
+    if rig.simulated and material is None:
+        material = "builtin:red-plastic"  # the simulated stage needs something on it
+    settings = rig.camera
+    with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
+            open_hardware(rig, material=material, program="rig snap") as hardware:
+        joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}
+        judge = _Judge(rig, settings, target, joints)
+        move = None
+        if move_to:
+            check_targets(rig, move_to)
+            move = next(move_plan(rig, move_to))
+        frames = PlanRunner(hardware, folder, program="rig snap").execute_plan(snap_plan(judge, exposure_s, move=move))
+    return judge.result(frames, out)
+
+
+def _pose(rig, joints: dict):
+    from planner.kinematics import forward
+
+    return forward(rig, [joints[name] for name in rig.joint_names])
+
+
+def _arm_side(rig) -> float:
+    from planner.kinematics import arm_side
+
+    return arm_side(rig)
+
+
+class _Judge:
+    """The capture's own bracket rule and region of interest, on frames without darks or flat."""
+
+    def __init__(self, rig, settings: dict, target: str, joints: dict) -> None:
+        from calib.holder import SAMPLE_MARKER_IDS, WHITE_MARKER_IDS
+
+        self.rig, self.settings, self.target = rig, settings, target
+        self.ids = WHITE_MARKER_IDS if target == "white" else SAMPLE_MARKER_IDS
+        self.arm_side = _arm_side(rig)
+        self.bracket, self.problem = None, None
+        self.set_pose(joints)
+
+    def set_pose(self, joints: dict) -> None:
+        """The axes' positions (degrees by name) the frames are taken at."""
+        self.joints = {name: float(joints[name]) for name in self.rig.joint_names}
+        self.pose = _pose(self.rig, self.joints)
+
+    def next_index(self, i: int, frame):
+        """The bracket's next ladder index after the frame of index ``i`` (None: done)."""
+        from calib import Bracket, CalibrationRecord
+        from calib.roi import expected_view
+
+        if self.bracket is None:
+            ladder = self.settings["exposures_s"]
+            shape = frame.raw.linear.shape
+            dark = np.broadcast_to(np.zeros((1,) + shape, np.float32), (len(ladder),) + shape)  # no darks: zero
+            record = CalibrationRecord(ladder, dark, np.ones(shape, np.float32), np.ones(3), np.zeros(3))
+            self.bracket = Bracket(ladder, self.settings, record, self.ids, f"{self.target} card",
+                                   view=expected_view(self.settings, self.pose, self.ids, self.arm_side))
+        try:
+            return self.bracket.add(i, frame.raw, max(frame.lamp_relative, 1e-9), frame.path)
+        except Exception as exc:  # noqa: BLE001 - a finding of the snap (saturated, markers), not a crash
+            self.problem = " ".join(str(exc).split())
+            return None
+
+    def result(self, frames: dict, out: Path) -> SnapResult:
+        from calib.roi import expected_view, locate_patch, read_markers
+
+        exposures = sorted(frames)
+        raw = _best_frame(frames, self.settings["saturation"])
+        found, _ = read_markers(raw.linear, self.ids)
+        mask, source = None, None
+        try:
+            mask, source, _ = locate_patch(raw.linear, self.ids, self.settings["roi_margin"], f"{self.target} card",
+                                           expected_view(self.settings, self.pose, self.ids, self.arm_side),
+                                           self.settings["marker_tolerance_px"], raw.channels, 1)
+        except Exception as exc:  # noqa: BLE001 - reported, with the picture
+            self.problem = self.problem or " ".join(str(exc).split())
+        pixels, med, p99, roi_sat = _roi_levels(raw, mask)
+        snr = None
+        if self.bracket is not None and self.bracket.mask_ is not None:
+            mean, se = self.bracket._stats()
+            snr = [float(v) for v in mean / se]
+        _write_png(raw, mask, found, out)
+        return SnapResult(self.target, self.joints, exposures,
+                          self.bracket.exposures_s if self.bracket is not None and self.problem is None else None,
+                          sorted(found), list(self.ids), source, pixels, med, p99, float(np.mean(raw.saturated)),
+                          roi_sat, snr, str(out), self.problem)
+
+
+def _best_frame(frames: dict, saturation: float):
+    """The longest exposure whose frame is at most a quarter saturated (else the shortest)."""
+    ordered = [frames[t].raw for t in sorted(frames)]
+    usable = [r for r in ordered if np.mean(r.saturated | (r.linear >= saturation)) <= 0.25]
+    return usable[-1] if usable else ordered[0]
+
+
+def _roi_levels(raw, mask):
+    if mask is None:
+        return [0, 0, 0], [None] * 3, [None] * 3, 0.0
+    pixels, med, p99 = [], [], []
+    for c in range(3):
+        v = raw.linear[mask & (raw.channels == c)]
+        pixels.append(int(v.size))
+        med.append(float(np.median(v)) if v.size else None)
+        p99.append(float(np.percentile(v, 99)) if v.size else None)
+    return pixels, med, p99, float(np.mean(raw.saturated[mask]))
+
+
+def _write_png(raw, mask, found: dict, out: Path) -> None:
+    """The frame (half resolution, gamma 2.2) with the region outlined in green and the markers in yellow."""
+    import cv2
+
+    from goniofrost.core.atomic_file import write_bytes_atomic
+
+    h, w = raw.linear.shape[0] // 2 * 2, raw.linear.shape[1] // 2 * 2
+    cells = raw.linear[:h, :w].reshape(h // 2, 2, w // 2, 2)
+    colour = raw.channels[:h, :w].reshape(h // 2, 2, w // 2, 2)
+    rgb = np.stack([np.where(colour == c, cells, 0).sum((1, 3)) / np.maximum((colour == c).sum((1, 3)), 1)
+                    for c in range(3)], -1)
+    top = float(np.percentile(rgb, 99.5)) or 1.0
+    image = np.ascontiguousarray((np.clip(rgb / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)[..., ::-1])
+    if mask is not None:
+        contours, _ = cv2.findContours(mask[:h:2, :w:2].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cv2.polylines(image, contours, True, (0, 220, 0), 1, cv2.LINE_AA)
+    for corners in found.values():
+        cv2.polylines(image, [np.rint((corners + 0.5) / 2).astype(np.int32)], True, (0, 220, 255), 1, cv2.LINE_AA)
+    ok, data = cv2.imencode(".png", image)
+    write_bytes_atomic(out, data.tobytes())
+
+
+def snap_text(result: SnapResult) -> str:
+    """The findings for the operator, a few lines."""
+    def triple(values, fmt):
+        return " / ".join("-" if v is None else format(v, fmt) for v in values)
+
+    lines = [f"{result.target} card at " + ", ".join(f"{k} {v:.2f} deg" for k, v in result.pose_deg.items()),
+             f"frames: {', '.join(f'{t:g} s' for t in result.exposures_s)}",
+             f"markers found: {result.markers_found or 'none'} of {result.markers_expected}",
+             f"region of interest ({result.roi_source or 'not found'}): pixels R/G/B {triple(result.roi_pixels, 'd')}, "
+             f"median level {triple(result.levels_median, '.4f')}, 99th percentile {triple(result.levels_p99, '.4f')}",
+             f"saturated: {100 * result.saturated_fraction:.2f} % of the frame, "
+             f"{100 * result.roi_saturated_fraction:.2f} % of the region"]
+    if result.snr is not None:
+        lines.append(f"SNR R/G/B {triple(result.snr, '.1f')}")
+    if result.capture_exposures_s is not None:
+        lines.append(f"the capture would take: {', '.join(f'{t:g} s' for t in result.capture_exposures_s)}")
+    if result.problem:
+        lines.append(f"problem: {result.problem}")
+    lines.append(f"picture: {result.png}")
+    return "\n".join(lines)

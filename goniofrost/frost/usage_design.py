@@ -1,0 +1,65 @@
+"""The scene-aware Bayesian design: the expected error of what a scene sees, in the plain design's form.
+
+With u_c a scene's use of cell c (``goniofrost.brdf.usage``, sum 1), the expected squared error of
+the mapped BRDF that the scene sees is sum_c u_c d_c^T Sigma d_c = trace(M Sigma), with the K x K
+matrix M = D^T diag(u) D (DESIGN.md, "Scene-aware design"). The plain design's trace(S^2 Sigma)
+has a diagonal S^2 and a diagonal prior, which its one-pass kernels rely on. A change of the
+coefficients' basis keeps that form: with W = diag(sqrt(prior_var)) and W M W = Q Lambda Q^T,
+the coefficients z = Q^T W^-1 s have the prior N(0, I), the dictionary becomes D' = D W Q, and
+trace(M Sigma) = trace(Lambda Sigma_z). Every cell's prediction d_c^T s = d'_c^T z is unchanged,
+so the greedy design on (D', Lambda, I) is exactly the scene-weighted design, at the cost of one
+n x K x K product to form D'. A uniform map (u = 1/n on every valid cell) is the plain design.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Rows of D handled at once (float64 copies of 64k x 60 = 31 MB).
+CHUNK_ROWS = 1 << 16
+
+
+@dataclass(frozen=True)
+class ScenePrior:
+    """The scene-weighted design problem in the rotated basis.
+
+    dictionary: float32 (n, K) D' = D W Q; weights: float64 (K,) Lambda, the eigenvalues of W M W;
+    prior_var: float64 (K,) ones (the rotated prior); usage: float64 (n,) u, sum 1.
+    """
+
+    dictionary: np.ndarray
+    weights: np.ndarray
+    prior_var: np.ndarray
+    usage: np.ndarray
+
+
+def scene_matrix(dictionary, usage: np.ndarray) -> np.ndarray:
+    """M = D^T diag(u) D, float64 (K, K), over the rows the scene uses (u > 0) only."""
+    rows = np.flatnonzero(usage > 0)
+    k = dictionary.shape[1]
+    m = np.zeros((k, k))
+    for lo in range(0, rows.size, CHUNK_ROWS):
+        part = rows[lo:lo + CHUNK_ROWS]
+        d = np.asarray(dictionary[part], dtype=np.float64)
+        m += d.T @ (d * usage[part, None])
+    return 0.5 * (m + m.T)
+
+
+def is_uniform(usage: np.ndarray) -> bool:
+    """True when every cell weighs the same (to float32 rounding): the plain design."""
+    return bool(np.ptp(usage) <= 1e-6 * float(np.mean(usage)))
+
+
+def scene_prior(dictionary, usage: np.ndarray, prior_var: np.ndarray) -> ScenePrior:
+    """The rotated problem (module doc) of ``dictionary`` (n, K) float32, ``usage`` (n,) and the
+    prior variances (K,)."""
+    usage = np.asarray(usage, dtype=np.float64)
+    w = np.sqrt(np.asarray(prior_var, dtype=np.float64))
+    lam, q = np.linalg.eigh(w[:, None] * scene_matrix(dictionary, usage) * w[None, :])
+    lam = np.clip(lam, 0.0, None)  # M is positive semi-definite; rounding can leave -1e-18
+    rotation = (w[:, None] * q).astype(np.float32)  # W Q
+    rotated = np.empty(dictionary.shape, dtype=np.float32)
+    for lo in range(0, dictionary.shape[0], CHUNK_ROWS):
+        rotated[lo:lo + CHUNK_ROWS] = np.asarray(dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
+    return ScenePrior(rotated, lam, np.ones(lam.size), usage)

@@ -1,0 +1,24 @@
+"""The smallest setting of ``benchmarks/frost_speed.py targets``: a small grid, one run each."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_targets_report_each_figure_beside_its_target_and_the_bandwidth(tmp_path):
+    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frost_speed.py"), "targets",
+                             "--grid", "8", "8", "16", "--repeat", "1"], capture_output=True, text=True,
+                            env={"GONIOFROST_CACHE": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=600)
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert re.search(r"streaming read bandwidth .*: [\d.]+ GB/s  \(load [\d.]+ [\d.]+ [\d.]+\)", out), out
+    for name, target in (("bayes m=20", "0.25"), ("bayes m=60", "0.75"), ("somp m=20", "0.25")):
+        line = re.search(rf"^{name}: median ([\d.]+) s  target {target} s  (met|MISSED); bandwidth limit ([\d.e-]+) s "
+                         rf"\(\d+ reads of [DC]\), ratio ([\d.]+)  \(runs [\d.]+; load ", out, re.M)
+        assert line, (name, out)
+        median, _, limit, ratio = line.groups()
+        assert abs(float(median) / float(limit) - float(ratio)) <= 0.02 * float(ratio) + 0.01

@@ -1,0 +1,270 @@
+"""The operator's console (`goniofrost rig ...`) against the simulated twins, reached as a real rig is:
+a rig file with `simulated: false` whose drivers point at the twins' ptys and loopback port."""
+from __future__ import annotations
+
+import copy
+import json
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
+TEMPLATE = REPO / "config" / "rigs" / "template.yaml"
+
+
+def real_style_rig(resolved, folder: Path) -> dict:
+    """The simulated rig's file as a lab's would be: simulated false, drivers at the twins (``resolved``:
+    the running SimulatedRig's ``resolved_rig()``), a folder camera."""
+    raw = yaml.safe_load(SIM_RIG.read_text())
+    raw["simulated"] = False
+    raw.pop("sim")
+    for name, axis in resolved.axes.items():
+        raw["axes"][name]["driver"] = dict(axis.driver)
+    raw["lamp"]["driver"] = dict(resolved.lamp_driver)
+    raw["camera"]["kind"] = "rawfile"
+    raw["camera"]["folder"] = str(folder)
+    return raw
+
+
+@pytest.fixture
+def twins(tmp_path):
+    """(rig file path, running SimulatedRig) of twins that outlive each console command."""
+    from goniofrost.capture.rig_file import load_checked_rig
+    from sim.rig import SimulatedRig
+
+    with SimulatedRig(load_checked_rig(SIM_RIG), speedup=50.0) as simulation:
+        path = tmp_path / "lab-rig.yaml"
+        path.write_text(yaml.safe_dump(real_style_rig(simulation.resolved_rig(), tmp_path), sort_keys=False))
+        yield path, simulation
+
+
+@pytest.fixture
+def homed(twins):
+    """The twins after `rig home --yes` (the SMC100 refuses moves until it is referenced)."""
+    assert main(["rig", "home", "--rig", str(twins[0]), "--yes"]) == 0
+    return twins
+
+
+def status(path, capsys) -> dict:
+    capsys.readouterr()
+    assert main(["rig", "status", "--rig", str(path), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_check_names_all_four_problems_of_a_rig_file_in_one_run(tmp_path, capsys):
+    raw = yaml.safe_load(TEMPLATE.read_text())
+    raw["axes"]["camera_arm"]["driver"]["port"] = 70000                 # 1: a TCP port out of range
+    raw["axes"]["sample_yaw"]["speed_deg_s"] = -45.0                    # 2: a negative speed
+    raw["lamp"]["driver"]["device"] = "sample_yaw"                      # 3: the lamp on a Dynamixel axis
+    del raw["camera"]                                                   # 4: no camera on a real rig
+    path = tmp_path / "four.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(["rig", "check", "--rig", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: 4 problem(s):" in err
+    for expected in ("axes.camera_arm.driver.port: expected a TCP port", "axes.sample_yaw.speed_deg_s: expected a number in (0",
+                     "lamp.driver.device: expected an axis whose driver is modbus-tcp or modbus-rtu",
+                     "camera: expected a camera section"):
+        assert expected in err
+
+
+def test_check_offline_of_the_template_is_clean_and_connects_to_nothing(capsys):
+    # --offline: the template's drives sit on a lab network that this machine must never reach
+    assert main(["rig", "check", "--rig", str(TEMPLATE), "--offline"]) == 0
+    assert "the rig file is sound (3 axes, a lamp, camera rawfile)" in capsys.readouterr().out
+
+
+def test_check_of_the_twins_reports_every_device_answering(twins, capsys):
+    path, _ = twins
+    assert main(["rig", "check", "--rig", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    devices = {d["device"]: d for d in doc["devices"]}
+    assert set(devices) == {"camera_arm", "sample_yaw", "sample_tilt", "lamp"}
+    assert all(d["answers"] and d["error"] is None for d in devices.values())
+    assert devices["camera_arm"]["position_deg"] == pytest.approx(90.0)
+    assert devices["sample_tilt"]["limits_deg"] == [-80.0, 80.0]
+    assert devices["lamp"]["lamp_on"] is False
+
+
+def test_check_with_one_device_missing_reports_every_device_and_its_causes(twins, tmp_path, capsys):
+    path, _ = twins
+    raw = yaml.safe_load(path.read_text())
+    raw["axes"]["sample_tilt"]["driver"]["port"] = str(tmp_path / "ttyGONE")
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(["rig", "check", "--rig", str(path)]) == 2
+    captured = capsys.readouterr()
+    table = captured.out
+    for device in ("camera_arm", "sample_yaw", "sample_tilt", "lamp"):
+        assert any(line.startswith(device) for line in table.splitlines())
+    tilt_line = next(line for line in table.splitlines() if line.startswith("sample_tilt"))
+    assert " NO " in tilt_line
+    assert f"likely cause: the port {tmp_path / 'ttyGONE'} does not exist" in table
+    assert "1 of 4 devices did not answer cleanly: sample_tilt" in captured.err
+
+
+def test_move_then_status_shows_the_new_position(homed, capsys):
+    path, simulation = homed
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=120", "sample_tilt=-5.5"]) == 0
+    axes = {a["axis"]: a for a in status(path, capsys)["axes"]}
+    assert axes["camera_arm"]["position_deg"] == pytest.approx(120.0, abs=0.02)
+    assert axes["sample_tilt"]["position_deg"] == pytest.approx(-5.5, abs=0.01)
+    assert axes["sample_yaw"]["position_deg"] == pytest.approx(0.0, abs=0.1)
+    assert simulation.true_joints_deg()["camera_arm"] == pytest.approx(120.0, abs=0.02)
+    assert main(["rig", "move", "--rig", str(path), "--by", "camera_arm=-10"]) == 0
+    axes = {a["axis"]: a for a in status(path, capsys)["axes"]}
+    assert axes["camera_arm"]["position_deg"] == pytest.approx(110.0, abs=0.02)
+
+
+def test_status_reports_aligned_positions_with_the_rig_alignment(twins, tmp_path, capsys):
+    path, _ = twins
+    alignment = tmp_path / "alignment.json"
+    alignment.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.5, "sample_yaw": -1.0, "sample_tilt": 0.25}}))
+    capsys.readouterr()
+    assert main(["rig", "status", "--rig", str(path), "--alignment", str(alignment), "--json"]) == 0
+    axes = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
+    assert axes["camera_arm"]["aligned_deg"] - axes["camera_arm"]["position_deg"] == pytest.approx(0.5)
+    assert axes["sample_yaw"]["aligned_deg"] - axes["sample_yaw"]["position_deg"] == pytest.approx(-1.0)
+
+
+@pytest.mark.parametrize("target, message", [
+    ("sample_tilt=85", "sample_tilt: target 85 deg is outside its limits [-80, 80] deg"),
+    ("camera_arm=200", "camera_arm: target 200 deg is outside its limits [8, 172] deg"),
+    ("nosuch=1", "'nosuch=1': no axis 'nosuch'"),
+    ("camera_arm=ten", "'camera_arm=ten': 'ten' is not a number of degrees"),
+])
+def test_move_beyond_a_limit_sends_no_byte_and_exits_2(tmp_path, capsys, target, message):
+    """The drives sit on ptys nobody else reads: any byte the console sent would be waiting there."""
+    masters = {}
+    raw = yaml.safe_load(SIM_RIG.read_text())
+    raw["simulated"] = False
+    raw.pop("sim")
+    for name, proto_port in (("sample_yaw", "port"), ("sample_tilt", "port")):
+        master, slave = os.openpty()
+        masters[name] = master
+        raw["axes"][name]["driver"]["port"] = os.ttyname(slave)
+    raw["camera"]["kind"], raw["camera"]["folder"] = "rawfile", str(tmp_path)
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(["rig", "move", "--rig", str(path), target]) == 2
+    assert message in capsys.readouterr().err
+    for master in masters.values():
+        os.set_blocking(master, False)
+        with pytest.raises(BlockingIOError):
+            os.read(master, 1)  # nothing was written to the port
+
+
+def test_move_before_homing_is_refused_by_the_stage_and_every_axis_is_stopped(twins, capsys):
+    path, _ = twins
+    assert main(["rig", "move", "--rig", str(path), "sample_tilt=-5.5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "device fault during Move: sample_tilt: 1PA-5.5: refused: H = command not allowed in NOT REFERENCED state" in err
+    assert "the lamp is off" in err
+    assert "Stopped camera_arm at 90.00 deg, sample_yaw at 0.00 deg, sample_tilt at 0.00 deg" in err
+
+
+def test_home_asks_unless_yes_and_homes(homed, capsys, monkeypatch):
+    import io
+
+    path, _ = homed
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=60"]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["rig", "home", "--rig", str(path)]) == 2
+    assert "not homed: the rig was not confirmed clear" in capsys.readouterr().err
+    assert {a["axis"]: a for a in status(path, capsys)["axes"]}["camera_arm"]["position_deg"] == pytest.approx(60.0, abs=0.02)
+    assert main(["rig", "home", "--rig", str(path), "--yes"]) == 0
+    assert {a["axis"]: a for a in status(path, capsys)["axes"]}["camera_arm"]["position_deg"] == pytest.approx(90.0, abs=0.02)
+
+
+def test_lamp_on_then_off(twins, capsys):
+    path, simulation = twins
+    assert main(["rig", "lamp", "--rig", str(path), "on"]) == 0
+    assert "lamp on, photodiode" in capsys.readouterr().err
+    assert status(path, capsys)["lamp"]["on"] is True
+    assert main(["rig", "lamp", "--rig", str(path), "off"]) == 0
+    assert status(path, capsys)["lamp"]["on"] is False
+
+
+def test_stop_without_a_holder_stops_every_axis_and_switches_the_lamp_off(twins, capsys):
+    path, _ = twins
+    assert main(["rig", "lamp", "--rig", str(path), "on"]) == 0
+    capsys.readouterr()
+    assert main(["rig", "stop", "--rig", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "stopped camera_arm at 90.00 deg, sample_yaw at 0.00 deg, sample_tilt at 0.00 deg; lamp off" in err
+    assert status(path, capsys)["lamp"]["on"] is False
+
+
+def test_a_lamp_on_a_dynamixel_axis_is_one_line_exit_2_nothing_written(tmp_path, capsys):
+    raw = yaml.safe_load(SIM_RIG.read_text())
+    raw["lamp"]["driver"]["device"] = "sample_yaw"
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    before = sorted(tmp_path.iterdir())
+    for argv in (["rig", "check", "--rig", str(path), "--offline"],
+                 ["sim", "--rig", str(path)],
+                 ["capture", "--rig", str(path), "--plan", str(tmp_path / "plan.json"), "--session", str(tmp_path / "s")]):
+        assert main(argv) == 2, argv
+        err = [line for line in capsys.readouterr().err.strip().splitlines() if "problem(s):" not in line]
+        assert len(err) == 1 and "lamp.driver.device: expected an axis whose driver is modbus-tcp or modbus-rtu" in err[0], argv
+    assert sorted(tmp_path.iterdir()) == before
+
+
+def test_snap_of_the_simulated_white_card_finds_its_four_markers(tmp_path, capsys):
+    out = tmp_path / "snap.png"
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "--out", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["markers_found"] == [4, 5, 6, 7] and doc["roi_source"] == "markers"
+    assert doc["problem"] is None and doc["pose_deg"]["camera_arm"] == pytest.approx(30.0, abs=0.02)
+    assert min(doc["roi_pixels"]) >= 24 and min(doc["snr"]) >= 100.0  # the camera section's target_snr
+    assert doc["capture_exposures_s"] and doc["roi_saturated_fraction"] == 0.0
+    import cv2
+    image = cv2.imread(str(out))
+    assert image is not None and image.shape == (300, 400, 3)
+
+
+def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--out", str(tmp_path / "s.png"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["markers_found"] == [] and doc["roi_source"] is None
+    assert "the sample patch keeps only 0 pixels of channel R (need 24)" in doc["problem"]
+
+
+@pytest.fixture(scope="module")
+def small_plan(tmp_path_factory):
+    """(rig file, plan file) of a 5-sample plan on the simulated rig (a small model, 30 x 30 x 60 grid)."""
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.training import train
+
+    folder = tmp_path_factory.mktemp("dry")
+    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=MerlGrid(30, 30, 60),
+                  k_max=12, cache=True)
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 5, SIM_RIG, folder / "plan.json")
+    return SIM_RIG, plan
+
+
+def test_capture_dry_run_times_every_move_against_the_plan_and_writes_nothing(small_plan, tmp_path, capsys, monkeypatch):
+    rig, plan = small_plan
+    monkeypatch.chdir(tmp_path)
+    assert main(["capture", "--rig", str(rig), "--plan", str(plan), "--dry-run", "--speedup", "50"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(Path(plan).read_text())
+    assert len([line for line in captured.err.splitlines() if line.startswith("move ")]) == len(doc["samples"])
+    summary = captured.out.splitlines()[0]
+    planned = sum(s["move_s"] for s in doc["samples"]) + doc["return_home_s"]
+    assert summary.startswith(f"{len(doc['samples'])} moves and the return home: planned {planned:.1f} s, measured ")
+    measured = float(summary.split("measured ")[1].split(" s")[0])
+    assert measured >= planned * 0.95  # no axis moves faster than its trapezoid (host latency only adds)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_capture_without_session_or_dry_run_is_one_line(small_plan, capsys):
+    rig, plan = small_plan
+    assert main(["capture", "--rig", str(rig), "--plan", str(plan)]) == 2
+    assert capsys.readouterr().err.strip() == "goniofrost capture: error: command line: --session: expected a session folder (DIR), found 'nothing'"

@@ -1,0 +1,126 @@
+"""Training with its mapping on threads gives the model of the sequential training it replaced.
+
+``data/frost_model_before_threads.npz`` holds the model the sequential training (one chunk after
+the other, 18 chunks of 97 rows) produced for these synthetic materials before the mapping moved onto threads; the
+test fits the same materials with small chunks spread over threads and compares every array and
+every number of the noise model and its calibration: equal to the bit (the products stay on
+BLAS's threads, whose results depend on their count, so this holds on a machine with the cores
+the file was made on, 2; elsewhere within float rounding).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import training
+from goniofrost.frost.threads import imap_chunks, map_chunks, ranges, resolve_threads
+from goniofrost.frost.training import fit_model
+from test_frost import synthetic_tables
+
+GRID = MerlGrid(10, 10, 20)
+BEFORE = Path(__file__).parent / "data" / "frost_model_before_threads.npz"
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return synthetic_tables(GRID, 12, seed=7)
+
+
+def _close_numbers(before, after, path: str = "") -> None:
+    """Same structure, same strings and integers, floats equal to 1e-5 relative."""
+    if isinstance(before, dict):
+        assert before.keys() == after.keys(), path
+        for key in before:
+            _close_numbers(before[key], after[key], f"{path}/{key}")
+    elif isinstance(before, list):
+        assert len(before) == len(after), path
+        for i, (b, a) in enumerate(zip(before, after)):
+            _close_numbers(b, a, f"{path}[{i}]")
+    elif isinstance(before, float):
+        assert after == pytest.approx(before, rel=1e-5, abs=1e-12), path
+    else:
+        assert after == before, path
+
+
+def test_model_equals_the_sequential_training_to_the_bit(tables, monkeypatch):
+    monkeypatch.setattr(training, "CHUNK_ROWS", 97)  # 18 chunks over the threads
+    model = fit_model(tables, [f"g{i}" for i in range(12)], GRID, k_max=20)
+    before = np.load(BEFORE)
+    assert model.singular_values.size == 20
+    exact = os.cpu_count() == 2
+    for name in ("singular_values", "coefficients", "mean", "reference", "dictionary", "noise_variance"):
+        after, expected = np.asarray(getattr(model, name)), before[name]
+        if exact:
+            np.testing.assert_array_equal(after, expected, err_msg=name)
+        else:
+            np.testing.assert_allclose(after, expected, rtol=1e-5, atol=1e-6 * float(np.abs(expected).max()), err_msg=name)
+    noise = json.loads(str(before["noise"]))
+    assert (model.noise["design_scale"], model.noise["recon_scale"]) == (noise["design_scale"], noise["recon_scale"])
+    # The predicted-error calibration's record grew since the file was made (the confidence of
+    # the prediction): every number the sequential training recorded is compared, new ones are not.
+    after = {key: model.noise[key] for key in noise}
+    after["calibration"] = {key: model.noise["calibration"][key] for key in noise["calibration"]}
+    if exact:
+        assert after == noise
+    _close_numbers(noise, after)
+
+
+def test_threaded_gram_is_the_textbook_gram_and_independent_of_threads(tables, monkeypatch):
+    """X and X^T X against a direct numpy computation; 1 and 3 threads give identical bits."""
+    monkeypatch.setattr(training, "CHUNK_ROWS", 97)
+    weight = training.cosine_weight(GRID).astype(np.float32)
+    names = [f"g{i}" for i in range(12)]
+    runs = [training._map_and_gram(tables, names, weight, training.EPS, False, threads) for threads in (1, 3)]
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    mapped, _, _, gram = runs[0]
+    w = tables.transpose(1, 0, 2).reshape(GRID.n_valid, -1).astype(np.float64) * weight[:, None]
+    x = np.log(w + training.EPS) - np.log(np.median(w, axis=1) + training.EPS)[:, None]
+    x -= x.mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(mapped, x, rtol=0, atol=2e-5)
+    np.testing.assert_allclose(gram, mapped.astype(np.float64).T @ mapped.astype(np.float64), rtol=1e-12, atol=1e-9)
+
+
+def test_chunks_come_back_in_order_whatever_the_threads():
+    for threads in (1, 2, 5):
+        assert map_chunks(lambda a, b: (a, b), 10, 3, threads) == [(0, 3), (3, 6), (6, 9), (9, 10)]
+        assert list(imap_chunks(lambda a, b: a, 100, 7, threads)) == list(range(0, 100, 7))
+    assert ranges(10, 3) == [(0, 3), (3, 6), (6, 10)] and ranges(2, 4) == [(0, 1), (1, 2)]
+    with pytest.raises(ValueError, match="threads: expected a positive integer, found -1"):
+        resolve_threads(-1)
+
+
+def test_a_failing_chunk_raises_its_own_error():
+    def chunk(a, b):
+        if a == 6:
+            raise ValueError("chunk 6")
+        return a
+
+    with pytest.raises(ValueError, match="chunk 6"):
+        list(imap_chunks(chunk, 20, 3, 2))
+
+
+def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_path, monkeypatch):
+    """train() streams the tabulation cache entries (TabulatedFiles) instead of stacking them:
+    the same model, bit for bit, as fitting the stacked tables."""
+    from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulate_materials
+    from goniofrost.frost.training import train
+
+    monkeypatch.setenv("GONIOFROST_CACHE", str(tmp_path))
+    monkeypatch.setattr(training, "CHUNK_ROWS", 300)
+    grid = MerlGrid(8, 8, 16)
+    names = open_dataset("builtin").names()[:6]
+    streamed = train(["builtin"], only=names, grid=grid, k_max=10, cache=False)
+    materials = collect_materials(["builtin"], names, None)
+    stacked = fit_model(tabulate_materials(materials, grid), [m.label for m in materials], grid, k_max=10)
+    for name in ("dictionary", "singular_values", "coefficients", "mean", "reference", "noise_variance"):
+        np.testing.assert_array_equal(np.asarray(getattr(streamed, name)), np.asarray(getattr(stacked, name)), name)
+    assert streamed.noise == stacked.noise
+    files = TabulatedFiles(sorted((tmp_path / "tabulated").glob("*.npy"))[:2])
+    assert files.shape == (2, grid.n_valid, 3) and files.rows(5, 9).shape == (4, 2, 3)

@@ -1,0 +1,157 @@
+"""Scene-aware design: a scene's usage map recorded by the real Mitsuba 3, and plan --usage."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.app.cli import main
+from goniofrost.core.grid import FULL_GRID, MerlGrid
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO / "config" / "scenes"
+GRID = MerlGrid(30, 30, 60)
+pytest.importorskip("mitsuba")
+
+
+@pytest.fixture(scope="module")
+def model():
+    from goniofrost.frost.training import train
+
+    return train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt", "red-plastic"], grid=GRID,
+                 k_max=15, cache=True)
+
+
+@pytest.fixture(scope="module")
+def model_dir(model):
+    from goniofrost.core.cache import cache_path
+
+    return cache_path("models", model.info["cache_key"], "")
+
+
+def test_a_scene_lit_from_the_camera_uses_the_brdf_near_retro_reflection(tmp_path, capsys):
+    out = tmp_path / "retro.npy"
+    assert main(["usage", "--scene", str(SCENES / "retro-sphere.xml"), "--object", "sample", "--out", str(out),
+                 "--spp", "4"]) == 0
+    usage = np.load(out)
+    assert usage.dtype == np.float32 and usage.shape == (FULL_GRID.n_valid,)
+    assert usage.sum() == pytest.approx(1.0, abs=1e-5) and usage.min() >= 0
+    _, theta_d, _ = FULL_GRID.flat_angles(FULL_GRID.valid_cells)
+    assert usage[np.degrees(theta_d) < 5].sum() > 0.9  # the light sits 0.7 deg from the lens
+    assert "light/view pairs of 'sample'" in capsys.readouterr().out
+
+
+def test_a_grazing_view_puts_the_mass_at_grazing_angles():
+    from goniofrost.brdf.mitsuba_usage import record_usage
+
+    usage, _ = record_usage(SCENES / "grazing-plane.xml", "sample", spp=2, grid=GRID)
+    w_i, w_o = GRID.cell_directions(GRID.valid_cells)
+    grazing = np.minimum(w_i[:, 2], w_o[:, 2]) < np.cos(np.radians(65))
+    assert usage[grazing].sum() > 0.6  # the camera looks 80 deg off the normal
+
+
+@pytest.mark.parametrize("scene, obj, message", [
+    ("retro-sphere.xml", "teapot", "no shape with id 'teapot' (shapes with an id: sample)"),
+    ("missing.xml", "sample", "missing.xml: scene file not found"),
+])
+def test_a_scene_without_the_object_or_file_is_one_line_exit_2(tmp_path, capsys, scene, obj, message):
+    out = tmp_path / "u.npy"
+    assert main(["usage", "--scene", str(SCENES / scene), "--object", obj, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and not out.exists()
+
+
+def test_a_scene_mitsuba_cannot_load_is_one_line_exit_2(tmp_path, capsys):
+    scene = tmp_path / "bad.xml"
+    scene.write_text('<scene version="3.0.0"><shape type="nosuchshape" id="sample"/></scene>')
+    assert main(["usage", "--scene", str(scene), "--object", "sample", "--out", str(tmp_path / "u.npy")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Mitsuba cannot load the scene" in err[0]
+
+
+def test_plan_with_a_uniform_usage_map_equals_the_plain_design(model, model_dir, tmp_path, capsys):
+    uniform = tmp_path / "uniform.npy"
+    np.save(uniform, np.full(GRID.n_valid, 1.0 / GRID.n_valid, dtype=np.float32))
+    plain, scene = tmp_path / "plain.json", tmp_path / "scene.json"
+    assert main(["plan", "--model", str(model_dir), "--samples", "12", "--out", str(plain)]) == 0
+    assert main(["plan", "--model", str(model_dir), "--samples", "12", "--usage", str(uniform), "--out", str(scene)]) == 0
+    cells = [[s["cell"] for s in json.loads(p.read_text())["samples"]] for p in (plain, scene)]
+    assert cells[0] == cells[1]
+
+
+def test_the_rotated_basis_with_a_uniform_map_picks_as_the_plain_design(model):
+    """The change of basis itself (not the shortcut) is exact: same picks, same predicted errors."""
+    from goniofrost.frost.bayes_selection import select_bayes
+
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    plain = select_bayes(model, 10)
+    rotated = select_bayes(model, 10, usage=uniform, uniform_is_plain=False)
+    assert plain.positions.tolist() == rotated.positions.tolist()
+    np.testing.assert_allclose(rotated.residuals, plain.residuals, rtol=1e-4)
+
+
+def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
+    """On a map that uses only near-retro-reflection cells, the part of the expected weighted error
+    a design can change, trace(M Sigma), is well below the scene-blind design's (the rest,
+    sum u sigma^2, is the model's own floor)."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+    from goniofrost.frost.usage_design import scene_matrix
+
+    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
+    usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
+    usage /= usage.sum()
+    noise = cell_noise(model) * design_scale(model)  # the noise the design assumes
+
+    def weighted_error(rows):
+        d = np.asarray(model.dictionary[rows], np.float64)
+        sigma = np.linalg.inv(np.diag(1 / prior_variance(model)) + d.T @ (d / noise[rows, None]))
+        return float(np.trace(scene_matrix(model.dictionary, usage) @ sigma))
+
+    # this 5-material model has about six effective atoms: both designs pin them down by m = 8,
+    # so the scene's gain shows at few samples and the scene design is never worse after
+    ratios = {m: weighted_error(select_bayes(model, m, usage=usage).positions)
+              / weighted_error(select_bayes(model, m).positions) for m in (4, 8, 15, 30)}
+    assert ratios[4] < 0.8 and max(ratios.values()) <= 1.0, ratios
+
+
+@pytest.mark.parametrize("array, message", [
+    (np.ones(7, np.float32), "expected float weights of shape"),
+    (np.full(GRID.n_valid, np.nan, np.float32), "weights are not finite"),
+    (-np.ones(GRID.n_valid, np.float32), "weights are negative"),
+    (np.zeros(GRID.n_valid, np.float32), "every weight is 0"),
+    (np.ones(GRID.n_valid, np.int64), "expected float weights of shape"),
+])
+def test_bad_usage_files_are_refused_in_one_line(model_dir, tmp_path, capsys, array, message):
+    path = tmp_path / "bad.npy"
+    np.save(path, array)
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(model_dir), "--samples", "5", "--usage", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and not out.exists()
+
+
+def test_a_usage_file_that_is_not_npy_and_usage_with_frost_are_refused(model_dir, tmp_path, capsys):
+    text = tmp_path / "u.npy"
+    text.write_text("not numpy")
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(model_dir), "--samples", "5", "--usage", str(text), "--out", str(out)]) == 2
+    assert "not a usage map (.npy of float32 weights)" in capsys.readouterr().err
+    assert main(["plan", "--model", str(model_dir), "--samples", "5", "--usage", str(text), "--selector", "frost",
+                 "--out", str(out)]) == 2
+    assert "--usage applies to --selector bayes only" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
+    import runpy
+    import sys
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "results.json").read_text())
+    assert {(r["scene"], r["design"]) for r in doc["rows"]} == {("retro-sphere", "blind"), ("retro-sphere", "aware")}
+    assert all(np.isfinite(r["image_rel_mse"]) and r["seen_log_mse"] >= 0 for r in doc["rows"])
+    assert (tmp_path / "retro-sphere.png").is_file()
