@@ -80,14 +80,15 @@ class Bracket:
     marker_offset_px_: float | None = None
     fallback_: np.ndarray | None = None
 
-    def add(self, i: int, raw, lamp_relative: float, path: Path) -> int | None:
+    def add(self, i: int, raw, lamp_relative: float, path: Path, exposure_s: float | None = None) -> int | None:
         """Add the frame of ladder exposure ``i`` (``raw``: a drivers.rawfile.RawImage; lamp level
-        relative to nominal during it); return the next ladder index to take, or None when done."""
+        relative to nominal during it; ``exposure_s``: the exposure the camera reports it took,
+        default the rung's); return the next ladder index to take, or None when done."""
         if not lamp_relative > 0:
             raise CalibrationError(f"{path}: the monitor photodiode reads {lamp_relative}: is the lamp on?")
-        t = self.ladder[i]
+        t = self.ladder[i] if exposure_s is None else float(exposure_s)
         saturated = raw.saturated | (raw.linear >= self.settings["saturation"])
-        self.frames[i] = BracketFrame(raw.linear, saturated, t, self.record.dark_for(t), lamp_relative)
+        self.frames[i] = BracketFrame(raw.linear, saturated, t, self.record.dark_for(self.ladder[i]), lamp_relative)
         self.paths.append(path)
         self.channels_ = raw.channels
         log.debug("%s: exposure %s s, lamp %.4f, %d saturated pixels", path, t, lamp_relative, int(saturated.sum()))
@@ -113,8 +114,8 @@ class Bracket:
 
     @property
     def exposures_s(self) -> list:
-        """The exposures taken, shortest first (s)."""
-        return [self.ladder[i] for i in sorted(self.frames)]
+        """The exposures taken, shortest first (s): as the camera reported them."""
+        return [self.frames[i].exposure_s for i in sorted(self.frames)]
 
     @property
     def lamp_relative(self) -> float:

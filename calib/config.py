@@ -9,7 +9,10 @@ from __future__ import annotations
 from goniofrost.core.config_check import Key, check_section, is_number as _num
 from goniofrost.core.errors import ConfigError
 
-CAMERA_KINDS = ("sim", "rawfile")
+CAMERA_KINDS = ("sim", "rawfile", "pylon")
+# kind pylon: the pixel formats a measurement can use (12 or 16 bits; Bayer for colour, Mono for grey)
+PYLON_PIXEL_FORMATS = tuple(f"{cfa}{bits}" for bits in (12, 16)
+                            for cfa in ("BayerRG", "BayerGR", "BayerGB", "BayerBG", "Mono"))
 
 
 def _ladder_ok(v) -> bool:
@@ -39,15 +42,28 @@ _CAMERA_KEYS = {
     # kind rawfile only: the folder the camera's tethering software writes RAW files to, and the
     # command that triggers one exposure ({exposure_s} is replaced); without it the operator is asked
     "folder": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
-    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and "{exposure_s}" in v),
-                        "a command containing {exposure_s}", None),
+    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and ("{exposure_s}" in v or "{shutter}" in v)),
+                           "a command containing {exposure_s} or {shutter} (and optionally {folder})", None),
     # command that puts a target in front of the lens ({target}: sample, white or flat), for a motorised
     # target changer (or the simulated camera of `goniofrost sim --write-rig`); without it the operator is asked
     "target_command": Key(lambda v: v is None or (isinstance(v, str) and "{target}" in v),
                           "a command containing {target}", None),
-    "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file)", 30.0),
+    # kind rawfile: the camera's own shutter speeds (its labels, e.g. ["1/4000", "1/2000", ..., "30"]):
+    # each exposures_s rung becomes the nearest of them and the trigger gets its label as {shutter}
+    "shutter_speeds": Key(lambda v: v is None or (isinstance(v, list) and len(v) >= 1
+                                                  and all(shutter_seconds(x) is not None for x in v)),
+                          'a list of shutter speed labels such as "1/4000", "0.3", "30"', None),
+    # kind rawfile: a RAW file's own exposure (EXIF ExposureTime) may differ from the one asked for
+    # by this fraction at most, else it is refused
+    "exposure_tolerance": Key(lambda v: _num(v) and 0 <= v < 0.5, "a number in [0, 0.5) (relative)", 0.05),
+    "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file or, beyond the "
+                     "exposure, for a grabbed frame)", 30.0),
+    # kind pylon: the camera's serial number (none: the first camera found), its pixel format and gain
+    "serial": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a serial number (a string)", None),
+    "pixel_format": Key(lambda v: v in PYLON_PIXEL_FORMATS, f"one of {list(PYLON_PIXEL_FORMATS)}", "BayerRG12"),
+    "gain_db": Key(lambda v: _num(v) and 0 <= v <= 48, "a number in [0, 48] (dB, fixed)", 0.0),
     "operator_timeout_s": Key(lambda v: _num(v) and v > 0,
-                           "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
+                              "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
 
 
@@ -102,7 +118,47 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
         raise ConfigError(source, f"{keypath}.folder",
                           "the folder the camera writes RAW files to (kind rawfile)", "nothing")
     out["exposures_s"] = [float(x) for x in out["exposures_s"]]
+    if out["shutter_speeds"] is not None:
+        out["exposures_s"] = _on_shutter_speeds(out, source, keypath)
     return out
+
+
+def shutter_seconds(label) -> float | None:
+    """Seconds of a camera's shutter speed label ("1/4000", "0.3", "30", "2.5s"); None if it is not one."""
+    if not isinstance(label, str):
+        return None
+    text = label.strip().removesuffix("s").strip()
+    num, _, den = text.partition("/")
+    try:
+        value = float(num) / (float(den) if den else 1.0)
+    except (ValueError, ZeroDivisionError):
+        return None
+    return value if 0 < value < float("inf") else None
+
+
+def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
+    """The ladder (s) with each rung moved to the nearest (in stops) of the camera's shutter
+    speeds (``shutter_label`` gives a rung's label back); ConfigError when two rungs land on one."""
+    import math
+
+    labels = out["shutter_speeds"]
+    seconds = [shutter_seconds(x) for x in labels]
+    picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in out["exposures_s"]]
+    ladder = out["exposures_s"]
+    for k, (a, b) in enumerate(zip(picked, picked[1:])):
+        if seconds[b] <= seconds[a]:
+            raise ConfigError(source, f"{keypath}.exposures_s", f"rungs on different shutter speeds of "
+                              f"{keypath}.shutter_speeds ({ladder[k]:g} and {ladder[k + 1]:g} s both fall on "
+                              f"{labels[a]!r})", ladder)
+    return [seconds[k] for k in picked]
+
+
+def shutter_label(labels: list, exposure_s: float) -> str:
+    """The label among ``labels`` (a camera's shutter speeds) whose seconds are ``exposure_s``
+    (a rung of a ladder moved onto them), else the nearest in stops."""
+    import math
+
+    return min(labels, key=lambda x: abs(math.log(shutter_seconds(x) / exposure_s)))
 
 
 def _intrinsics(section, source, keypath: str) -> dict:

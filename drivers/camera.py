@@ -136,20 +136,26 @@ class FolderCamera(Camera):
 
     ``trigger(exposure_s)`` starts an exposure (e.g. a gphoto2 or serial-remote call, supplied by
     the caller); the newest new file with a suffix in ``suffixes`` that appears in ``folder``
-    within ``timeout_s`` is moved to the requested path. ``ask(message, why=...)`` is called when
-    the calibration needs a different target in front of the lens, ``why`` saying what that target
-    is (``TARGET_EXPLAINED``) (default: an OperatorPrompt on the terminal that waits
-    ``operator_timeout_s`` for Enter and accepts ``abort``).
+    within ``timeout_s`` is taken. Its own exposure (EXIF ExposureTime, ``drivers.rawfile.
+    raw_exposure_s``) is read back: a file without one, whose exposure differs from the one asked
+    for by more than ``exposure_tolerance`` (relative), or with the same content as a frame taken
+    before (not new) is refused, naming the file and both values, and left where it is. A good
+    file is moved to the requested path, and its own exposure is the frame's. ``ask(message,
+    why=...)`` is called when the calibration needs a different target in front of the lens,
+    ``why`` saying what that target is (``TARGET_EXPLAINED``) (default: an OperatorPrompt on the
+    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``).
     """
 
     def __init__(self, folder, trigger: Callable[[float], None], timeout_s: float = 30.0,
                  suffixes=(".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf"),
                  ask: Callable[..., None] | None = None, poll_s: float = 0.05,
-                 operator_timeout_s: float = OPERATOR_TIMEOUT_S) -> None:
+                 operator_timeout_s: float = OPERATOR_TIMEOUT_S, exposure_tolerance: float = 0.05) -> None:
         self.folder, self.trigger, self.timeout_s = Path(folder), trigger, float(timeout_s)
         self.suffixes = tuple(s.lower() for s in suffixes)
         self.ask = ask or OperatorPrompt(operator_timeout_s)
         self.poll_s = poll_s
+        self.exposure_tolerance = float(exposure_tolerance)
+        self._taken: dict[str, Path] = {}   # content hash -> the frame it became
 
     def connect(self) -> None:
         if not self.folder.is_dir():
@@ -173,10 +179,29 @@ class FolderCamera(Camera):
         while time.monotonic() < deadline:
             new = self._raw_files() - before
             if new:
-                src = max(new, key=lambda p: p.stat().st_mtime)
-                dest = Path(path).with_suffix(src.suffix)
-                src.replace(dest)
-                return RawFrame(dest, float(exposure_s), {"source": str(src)})
+                return self._take(max(new, key=lambda p: p.stat().st_mtime), float(exposure_s), Path(path))
             time.sleep(self.poll_s)
         raise CameraError(f"folder camera: no new RAW file in {self.folder} within "
                           f"{self.timeout_s} s of a {exposure_s} s exposure")
+
+    def _take(self, src: Path, asked_s: float, path: Path) -> RawFrame:
+        """Check ``src`` (its exposure, that it is new) and move it to ``path``'s name."""
+        import hashlib
+
+        from drivers.rawfile import raw_exposure_s
+
+        digest = hashlib.sha256(src.read_bytes()).hexdigest()
+        if digest in self._taken:
+            raise CameraError(f"folder camera: {src} is not new: the same file as frame {self._taken[digest]} "
+                              f"(asked for {asked_s:g} s)")
+        actual_s = raw_exposure_s(src)
+        if actual_s is None:
+            raise CameraError(f"folder camera: {src} has no exposure time (EXIF ExposureTime) to check against "
+                              f"the {asked_s:g} s asked for")
+        if abs(actual_s / asked_s - 1.0) > self.exposure_tolerance:
+            raise CameraError(f"folder camera: {src} was exposed {actual_s:g} s (EXIF ExposureTime), asked for "
+                              f"{asked_s:g} s: more than camera.exposure_tolerance {self.exposure_tolerance:g} apart")
+        dest = path.with_suffix(src.suffix)
+        src.replace(dest)
+        self._taken[digest] = dest
+        return RawFrame(dest, actual_s, {"source": str(src), "requested_exposure_s": asked_s})

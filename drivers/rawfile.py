@@ -89,3 +89,22 @@ def _metadata(path: Path) -> dict:
     except json.JSONDecodeError:
         return {"description": text}
     return meta if isinstance(meta, dict) else {"description": text}
+
+
+def raw_exposure_s(path) -> float | None:
+    """The exposure (s) a RAW file says it was taken with: its EXIF ExposureTime (in the EXIF
+    directory, or in the first image directory as DNG writers put it); None if it has none."""
+    import exifread
+
+    try:
+        with open(path, "rb") as fh:
+            tags = exifread.process_file(fh, details=False, extract_thumbnail=False)
+    except OSError as exc:
+        raise RawFileError(f"{path}: cannot read its EXIF tags: {exc}") from exc
+    for key in ("EXIF ExposureTime", "Image ExposureTime"):
+        if key in tags and tags[key].values:
+            value = tags[key].values[0]
+            seconds = float(value.num) / float(value.den) if hasattr(value, "num") else float(value)
+            if seconds > 0:
+                return seconds
+    return None

@@ -218,6 +218,13 @@ class SimCamera(Camera):
 
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
         """Render, expose, digitise and write one DNG at ``path``."""
+        mosaic, meta = self.expose(exposure_s)
+        write_dng(Path(path), mosaic, self.params["black_level"], self.params["white_level"], meta)
+        return RawFrame(Path(path), float(exposure_s), meta)
+
+    def expose(self, exposure_s: float) -> tuple[np.ndarray, dict]:
+        """Render the current pose and target, expose for ``exposure_s`` (the clock advances) and
+        digitise: the RGGB mosaic (H, W) uint16 in DN and the frame's metadata."""
         if not self._connected:
             raise CameraError("simulated camera: capture before connect()")
         if not (_num(exposure_s) and exposure_s > 0):
@@ -231,8 +238,7 @@ class SimCamera(Camera):
         meta = {"exposure_s": float(exposure_s), "time_s": t0, "target": self.target,
                 "w_i": w_i.tolist(), "w_o": w_o.tolist(), "sim_lamp_relative": lamp,
                 "seed": self.seed, "material": self.material}  # time_s names the frame: no counter that a resume restarts
-        write_dng(Path(path), mosaic, self.params["black_level"], self.params["white_level"], meta)
-        return RawFrame(Path(path), float(exposure_s), meta)
+        return mosaic, meta
 
     def _radiance(self, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
         """Radiance per pixel (H, W) in its Bayer channel, for nominal lamp irradiance 1."""

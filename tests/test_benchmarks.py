@@ -32,6 +32,12 @@ SLOW = {
     "mitsuba_sphere": ["--size", "16", "--out", "sphere.png"],
     "monitor": ["overhead", "--repeats", "1", "--samples", "2"],
     "session": ["--repeats", "1", "--samples", "3"],
+    # also run in the default suite by the tests of their own features (test_usage, test_spectral_export,
+    # test_confidence), at these settings
+    "scene_design": ["--smallest", "--scenes", "retro-sphere", "--out", "out"],
+    "spectral_export": ["--smallest"],
+    "spectral_sphere": ["--size", "16", "--spp", "4", "--out", "sphere.png"],
+    "target_error": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
 }
 
 

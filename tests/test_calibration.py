@@ -284,7 +284,7 @@ def test_camera_section_validation(rig):
     assert full["exposures_s"] == section["exposures_s"] and full["white_reference"]["reflectance"] == 0.95
     with pytest.raises(ConfigError, match=r"sim\.yaml: camera\.exposures_s: expected a non-empty list of exposures > 0 s, shortest first"):
         validate_camera_section({**section, "exposures_s": [0.01, 0.001]}, "sim.yaml")
-    with pytest.raises(ConfigError, match=r"camera\.kind: expected one of \['sim', 'rawfile'\], found 'webcam'"):
+    with pytest.raises(ConfigError, match=r"camera\.kind: expected one of \['sim', 'rawfile', 'pylon'\], found 'webcam'"):
         validate_camera_section({**section, "kind": "webcam"}, "sim.yaml")
     with pytest.raises(ConfigError, match=r"camera\.white_reference\.reflectance: expected a number in \(0, 1\], found 1.5"):
         validate_camera_section({**section, "white_reference": {"reflectance": 1.5}}, "sim.yaml")

@@ -758,8 +758,9 @@ def report_last_run(session) -> dict:
     return json.loads((session / "report.json").read_text())["last_run"]
 
 
-def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early(setup, tmp_path, capsys):
+def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early(setup, tmp_path, capsys, monkeypatch):
     folder, rig, plan, model = setup
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # bars are drawn on a terminal only
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     capture(rig, batched, tmp_path / "s", material=MATERIAL, speedup=50, progress=True, target_error=10000.0,
             confidence=0.8)  # the bound of this 6-material model after 2 samples: about 7000

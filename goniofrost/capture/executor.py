@@ -207,9 +207,11 @@ class StepExecutor:
             written = self.hw.camera.capture(step.exposure_s, path)
         wall_s, clock_s = time.perf_counter() - wall0, self.hw.clock.now() - t0
         lamp = 0.5 * (before + self.hw.lamp.photodiode())
+        # the exposure the camera reports it took (read back: a camera rounds), not the one asked for
+        exposure_s = float(getattr(written, "exposure_s", step.exposure_s))
         # simulated: the exposure time the camera integrated (the clock would add rendering time)
-        seconds = float(step.exposure_s) if self.hw.simulated else clock_s
-        return Frame(Path(written.path), float(step.exposure_s), read_raw(written.path), lamp, seconds, wall_s)
+        seconds = exposure_s if self.hw.simulated else clock_s
+        return Frame(Path(written.path), exposure_s, read_raw(written.path), lamp, seconds, wall_s)
 
     def save_calibration(self, step: SaveCalibration):
         with output_errors(self.folder / step.folder):

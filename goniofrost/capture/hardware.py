@@ -93,10 +93,41 @@ def _simulated(rig, *, material, seed, speedup):
                                simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
                                model=CameraModel.from_section(rig.camera), arm_side=side)
             camera.connect()
-            try:
-                yield RigHardware(devices.axes, devices.lamp, camera, simulation.clock, simulation)
-            finally:
-                camera.close()
+            with _emulated_pylon(rig, camera) as pylon_camera:
+                try:
+                    yield RigHardware(devices.axes, devices.lamp, pylon_camera or camera, simulation.clock,
+                                      simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
+                finally:
+                    camera.close()
+
+
+@contextmanager
+def _emulated_pylon(rig, sim_camera):
+    """On a simulated rig whose camera is ``kind: pylon``: the real pylon driver on pylon's emulated
+    camera, which serves the simulated camera's frames (``sim.pylon_scene``); else None."""
+    import os
+
+    if (rig.camera or {}).get("kind") != "pylon":
+        yield None
+        return
+    from goniofrost.core.errors import ConfigError
+    from sim.pylon_scene import EmulatedScene
+
+    bits = int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:])
+    if sim_camera.params["white_level"] > 2 ** bits - 1:  # the served mosaic would wrap around
+        raise ConfigError(rig.source, "sim.camera.white_level", f"at most {2 ** bits - 1} (the {bits}-bit "
+                          f"camera.pixel_format)", sim_camera.params["white_level"])
+    os.environ.setdefault("PYLON_CAMEMU", "1")  # read by pylon when it enumerates its devices
+    scene = EmulatedScene(sim_camera, bits)
+    try:
+        camera = open_camera(rig, image_source=scene, device_class="BaslerCamEmu")
+        camera.connect()
+        try:
+            yield camera
+        finally:
+            camera.close()
+    finally:
+        scene.close()
 
 
 def simulated_pose(rig):
@@ -162,14 +193,18 @@ class BarSafeOutput:
         sys.stderr.flush()
 
 
-def open_camera(rig):
-    """A FolderCamera for a rig (object with ``.camera`` or the ``camera`` mapping itself).
+def open_camera(rig, *, image_source=None, device_class: str | None = None):
+    """The real camera of a rig (object with ``.camera`` or the ``camera`` mapping itself): a
+    ``drivers.pylon.PylonCamera`` for ``kind: pylon`` (``image_source``, ``device_class``: an
+    emulated camera's, see there), else a FolderCamera.
 
-    ``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={exposure_s} --trigger-capture``)
-    is run for each exposure; without it the operator is asked to expose, with
-    ``operator_timeout_s`` to answer and ``abort`` as a way out. ``target_command`` (``{target}``:
-    sample, white, flat) changes the target in front of the lens; without it the operator is asked.
-    The simulated camera is built by the session from the ``sim`` section, not here.
+    ``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={shutter} --capture-image-and-download
+    --filename {folder}/%Y%m%d-%H%M%S-%n.%C``) is run for each exposure with ``{shutter}`` the
+    camera's own label (from ``shutter_speeds``), ``{exposure_s}`` the seconds and ``{folder}``
+    the watched folder; without it the operator is asked to expose (and, always, to change the
+    target), with ``operator_timeout_s`` to answer and ``abort`` as a way out. ``target_command``
+    (``{target}``: sample, white, flat) changes the target in front of the lens; without it the
+    operator is asked. The simulated camera is built by the session from the ``sim`` section, not here.
     """
     from calib.config import validate_camera_section
     from drivers.camera import CameraError, OperatorPrompt
@@ -177,6 +212,13 @@ def open_camera(rig):
 
     source = getattr(rig, "source", "rig file")
     section = validate_camera_section(getattr(rig, "camera", rig), source)
+    if section["kind"] == "pylon":
+        from drivers.pylon import PylonCamera
+
+        return PylonCamera(section["serial"], section["pixel_format"], section["gain_db"], section["exposures_s"],
+                           section["intrinsics"]["image_size_px"], section["timeout_s"], device_class=device_class,
+                           image_source=image_source,
+                           ask=OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput()))
     if section["kind"] != "rawfile":
         raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
@@ -185,17 +227,21 @@ def open_camera(rig):
     prompt = OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput())
     timeout_s = section["timeout_s"]
     command, target_command = section["trigger_command"], section.get("target_command")
+    labels = section["shutter_speeds"]
     if command is None:
         def trigger(exposure_s: float) -> None:
-            prompt(f"expose one RAW frame of {exposure_s} s into {section['folder']}")
+            speed = f"{exposure_s} s" if not labels else f"{_shutter(labels, exposure_s)} ({exposure_s:g} s)"
+            prompt(f"expose one RAW frame of {speed} into {section['folder']}")
     else:
         def trigger(exposure_s: float) -> None:
-            _run_camera_command(command.format(exposure_s=exposure_s), "camera trigger", "camera.timeout_s", timeout_s)
+            _run_camera_command(command.format(exposure_s=exposure_s, shutter=_shutter(labels, exposure_s),
+                                               folder=section["folder"]),
+                                "camera trigger", "camera.timeout_s", timeout_s)
     change_target = None if target_command is None else (
         lambda target: _run_camera_command(target_command.format(target=target), "camera target",
                                            "camera.timeout_s", timeout_s))
     return _TargetFolderCamera(section["folder"], trigger, timeout_s=timeout_s, ask=prompt,
-                               change_target=change_target)
+                               change_target=change_target, exposure_tolerance=section["exposure_tolerance"])
 
 
 def _run_camera_command(text: str, what: str, key: str, timeout_s: float) -> None:
@@ -213,13 +259,13 @@ def _run_camera_command(text: str, what: str, key: str, timeout_s: float) -> Non
         raise CameraError(f"{what} {args[0]!r} failed ({done.returncode}): {done.stderr.strip()[:200]}")
 
 
-def _TargetFolderCamera(folder, trigger, *, timeout_s, ask, change_target):
+def _TargetFolderCamera(folder, trigger, *, timeout_s, ask, change_target, exposure_tolerance=0.05):
     """A FolderCamera; with ``change_target(target)`` its targets are changed by that (a command)
     instead of asking the operator."""
     from drivers.camera import Camera, FolderCamera
 
     if change_target is None:
-        return FolderCamera(folder, trigger, timeout_s=timeout_s, ask=ask)
+        return FolderCamera(folder, trigger, timeout_s=timeout_s, ask=ask, exposure_tolerance=exposure_tolerance)
 
     class CommandTargets(FolderCamera):
         def set_target(self, target: str) -> None:
@@ -227,4 +273,16 @@ def _TargetFolderCamera(folder, trigger, *, timeout_s, ask, change_target):
                 change_target(target)
             Camera.set_target(self, target)  # checks the name; no operator prompt
 
-    return CommandTargets(folder, trigger, timeout_s=timeout_s, ask=ask)
+    return CommandTargets(folder, trigger, timeout_s=timeout_s, ask=ask, exposure_tolerance=exposure_tolerance)
+
+
+def _shutter(labels, exposure_s: float) -> str:
+    """The camera's own label of an exposure: from its ``shutter_speeds``, else 1/N below a second."""
+    from fractions import Fraction
+
+    from calib.config import shutter_label
+
+    if labels:
+        return shutter_label(labels, exposure_s)
+    fraction = Fraction(exposure_s).limit_denominator(100_000)
+    return f"1/{fraction.denominator}" if exposure_s < 1 and fraction.numerator == 1 else f"{exposure_s:g}"

@@ -151,11 +151,7 @@ def _in_use(rig_name: str, holder: RigHolder | None) -> str:
 
 
 def _flock_held(path: Path) -> bool:
-    """Whether some process holds an flock on ``path`` (Linux /proc/locks); False without the file."""
-    try:
-        st = os.stat(path)
-        table = Path("/proc/locks").read_text()
-    except OSError:
-        return False
-    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    return any(line.split()[1:2] == ["FLOCK"] and device in line.split() for line in table.splitlines())
+    """Whether some process holds the rig lock file's flock (False without the file)."""
+    from goniofrost.capture.session_lock import flock_held
+
+    return bool(flock_held(path))

@@ -43,7 +43,7 @@ def bracket_steps(bracket: Bracket, first: int, folder: str, stem: str, index: i
     while i is not None:
         frame = yield Expose(bracket.ladder[i], frame_file(folder, f"{stem}_e{i}.dng"), index)
         seconds, wall_s = seconds + frame.seconds, wall_s + frame.wall_s
-        i = bracket.add(i, frame.raw, frame.lamp_relative, frame.path)
+        i = bracket.add(i, frame.raw, frame.lamp_relative, frame.path, frame.exposure_s)
     return seconds, wall_s
 
 

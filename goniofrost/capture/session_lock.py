@@ -49,3 +49,17 @@ def _acquire(fd: int, session_dir: Path) -> None:
         holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
         raise SessionInUseError(f"session {session_dir} is in use by process {holder}; wait for it to finish "
                                 f"or stop it (Ctrl-C) before starting another capture on it") from None
+
+
+def flock_held(lock) -> bool | None:
+    """Whether some process holds the flock on the file ``lock`` (a session's or a rig's lock), read
+    from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
+    could refuse a program that starts at that moment). None where that cannot be told (no lock
+    file; no /proc/locks: not Linux)."""
+    try:
+        st = os.stat(lock)
+        table = Path("/proc/locks").read_text()
+    except OSError:
+        return None
+    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    return any(line.split()[1:2] == ["FLOCK"] and device in line.split() for line in table.splitlines())

@@ -135,7 +135,8 @@ class _Judge:
             self.bracket = Bracket(ladder, self.settings, record, self.ids, f"{self.target} card",
                                    view=expected_view(self.settings, self.pose, self.ids, self.arm_side))
         try:
-            return self.bracket.add(i, frame.raw, max(frame.lamp_relative, 1e-9), frame.path)
+            return self.bracket.add(i, frame.raw, max(frame.lamp_relative, 1e-9), frame.path,
+                                    exposure_s=frame.exposure_s)  # the exposure the camera reports
         except Exception as exc:  # noqa: BLE001 - a finding of the snap (saturated, markers), not a crash
             self.problem = " ".join(str(exc).split())
             return None
@@ -143,7 +144,7 @@ class _Judge:
     def result(self, frames: dict, out: Path) -> SnapResult:
         from calib.roi import expected_view, locate_patch, read_markers
 
-        exposures = sorted(frames)
+        exposures = sorted(frame.exposure_s for frame in frames.values())  # as the camera took them
         raw = _best_frame(frames, self.settings["saturation"])
         found, _ = read_markers(raw.linear, self.ids)
         mask, source = None, None

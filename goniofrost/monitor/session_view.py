@@ -24,7 +24,7 @@ from pathlib import Path
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import RunEnd, RunStatus
 from goniofrost.capture.runner import JOURNAL_FILE
-from goniofrost.capture.session_lock import LOCK_FILE
+from goniofrost.capture.session_lock import LOCK_FILE, flock_held
 
 REPORT_FILE = "report.json"
 SUMMARY_FILE = "summary.txt"
@@ -161,7 +161,7 @@ def read_session(session_dir) -> SessionView:
         run_started_utc=None if start is None else start.started_utc, run_end=end,
         stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
         summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
-        capture_alive=lock_held(session_dir / LOCK_FILE),
+        capture_alive=flock_held(session_dir / LOCK_FILE),
         predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files,
         label=label.to_dict(), first_started_utc=runs[0][0].started_utc if runs else None,
         run_spans=tuple((s.started_utc, None if e is None else e.ended_utc) for s, e in runs))
@@ -170,7 +170,7 @@ def read_session(session_dir) -> SessionView:
 def _read_journal(path: Path):
     """(meta, sample records, events, calibration, recent steps, runs, label) at one moment."""
     wal = path.with_name(path.name + "-wal")
-    if wal.exists() and lock_held(path.with_name(LOCK_FILE)) is not True:
+    if wal.exists() and flock_held(path.with_name(LOCK_FILE)) is not True:
         return _read_journal_copy(path, wal)
     return _read_journal_at(path)
 
@@ -257,22 +257,6 @@ def _reached(steps: list) -> dict | None:
         if step["kind"] == "Move" and step["status"] == "done" and isinstance(joints, dict):
             return {"joints": joints, "plan_index": step["plan_index"]}
     return None
-
-
-def lock_held(lock: Path) -> bool | None:
-    """Whether some process holds the flock on ``lock`` (a capture running on the session), read
-    from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
-    could refuse a capture that starts at that moment). None where that cannot be told (no lock
-    file: a session from before the lock existed; no /proc/locks: not Linux)."""
-    import os
-
-    try:
-        st = os.stat(lock)
-        table = Path("/proc/locks").read_text()
-    except OSError:
-        return None
-    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    return any(line.split()[1:2] == ["FLOCK"] and device in line.split() for line in table.splitlines())
 
 
 def _white_rates(calibration: dict | None) -> tuple | None:
