@@ -40,6 +40,7 @@ _TOP_KEYS = {
     "camera": Key(is_mapping, "a mapping", ABSENT),
     "sim": Key(is_mapping, "a mapping", ABSENT),
     "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
+    "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.capture.lab checks it)
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -97,6 +98,8 @@ class Rig(RigSpec):
     # goniofrost.capture.rig_file.load_checked_rig from the camera section and the alignment file.
     view: Any = field(default=None, compare=False, repr=False)
     alignment: Any = None
+    # the lab's metadata (lab, lens, lamp: checked by goniofrost.capture.lab), never kinematics
+    lab: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -142,8 +145,8 @@ def rig_from_mapping(raw: Any, source: str,
         lamp["beam_diameter_mm"] = float(lamp["beam_diameter_mm"])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    camera, sim = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
-                   for key in ("camera", "sim"))  # the sections other packages own
+    camera, sim, lab = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                        for key in ("camera", "sim", "lab"))  # the sections other packages own
     alignment = None
     if "alignment" in top:
         written = Path(top["alignment"])
@@ -151,7 +154,7 @@ def rig_from_mapping(raw: Any, source: str,
         alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order)
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment)
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

@@ -13,7 +13,7 @@ import sys
 from goniofrost.core.errors import GoniofrostError
 
 COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "align", "capture", "sim",
-            "bench", "preview", "compare", "demo", "export", "monitor", "usage", "rig"]
+            "bench", "preview", "compare", "demo", "export", "monitor", "usage", "rig", "queue", "sessions"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,7 +16,7 @@ from calib.holder import WHITE_MARKER_IDS
 from calib.references import unit
 from calib.roi import expected_view
 from goniofrost.capture.sample_steps import bracket_steps, frame_file
-from goniofrost.capture.steps import Expose, LampOff, LampOn, Phase, SaveCalibration, SetTarget
+from goniofrost.capture.steps import Expose, LampOff, LampOn, Phase, SaveCalibration, SetTarget, WhiteCheck
 
 CALIBRATION_DIR = "calibration"
 
@@ -37,6 +37,29 @@ def calibration_steps(settings: dict, white_pose=None, folder: str = CALIBRATION
     white_pose = nominal_white_pose(settings) if white_pose is None else white_pose
     yield from white_steps(record, settings, white_pose, folder, arm_side)
     return (yield SaveCalibration(record, folder))
+
+
+def white_check_steps(settings: dict, kept: CalibrationRecord, white_pose, drift_limit: float,
+                      folder: str = CALIBRATION_DIR, arm_side: float = 1.0):
+    """Re-measure the white reference with ``kept``'s dark maps and flat field (the calibration of
+    the queue's sample before); return the saved record, or None when the white scale moved by
+    more than ``drift_limit`` (relative, any channel: the lamp drifted) and a full calibration
+    is due. Needs the lamp on and the white pose reached; leaves the ``sample`` target in place."""
+    yield Phase("white_reference")
+    record = CalibrationRecord(list(kept.exposures_s), kept.dark, kept.flat, np.ones(3), np.zeros(3))
+    yield from white_steps(record, settings, white_pose, folder, arm_side)
+    drift = white_drift(kept.scale, record.scale)
+    decision = "reuse" if drift <= drift_limit else "recalibrate"
+    yield WhiteCheck(drift, float(drift_limit), decision)
+    if decision != "reuse":
+        return None
+    return (yield SaveCalibration(record, folder))
+
+
+def white_drift(before, after) -> float:
+    """The largest relative change |after / before - 1| over the channels of two white scales (3,)."""
+    before, after = np.asarray(before, dtype=np.float64), np.asarray(after, dtype=np.float64)
+    return float(np.max(np.abs(after / before - 1.0)))
 
 
 def dark_steps(ladder: list, n_frames: int, folder: str):

@@ -35,7 +35,8 @@ from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInte
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
-from goniofrost.capture.steps import Assess, Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration
+from goniofrost.capture.steps import (Assess, Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration,
+                                      WhiteCheck)
 from goniofrost.capture.target import CONTINUE
 from goniofrost.frost.stopping import REASON_PLAN as PLAN_USED_UP
 
@@ -85,10 +86,12 @@ class SessionEngine(PlanRunner):
         self._bar = None
         self._initial = 0
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
+        self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
+        self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
         self.step_journal = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
                              Move: self._moved, Expose: _exposed, Phase: self._phase_started,
                              SaveCalibration: self._calibration_saved, Assess: self._assessed,
-                             Commit: self._commit}
+                             WhiteCheck: self._white_checked, Commit: self._commit}
 
     # ----- the run ------------------------------------------------------------------------
     def run(self) -> SessionStats:
@@ -98,9 +101,10 @@ class SessionEngine(PlanRunner):
         self.csv.rewrite(records)  # the journal is the truth; no torn line survives
         self.stats.skipped = self._initial = len(done)
         calibration = self._restore_calibration()
+        reuse = self._reused_calibration() if calibration is None else None
         self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
         plan = session_steps(self.spec, done, calibration=calibration,
-                             measured={r.plan_index: r.rgb for r in records}, records=records)
+                             measured={r.plan_index: r.rgb for r in records}, records=records, reuse=reuse)
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
         self.execute_plan(plan)
         self.stats.ended_clock, self.stats.wall_s = self.hw.clock.now(), time.monotonic() - wall0
@@ -172,6 +176,26 @@ class SessionEngine(PlanRunner):
     def _fault_message(self, exc, step) -> str:
         return f"device fault{self.where(step)}: {exc}. {self.safe_text()}"
 
+    def _reused_calibration(self):
+        """The calibration of another session this one may reuse (``reuse_calibration``: a queue's
+        sample before), as a CalibrationRecord; None if there is none, or its arrays changed or its
+        exposure ladder is not this rig's (then the session calibrates in full)."""
+        from calib import CalibrationError, CalibrationRecord
+
+        if self.reuse_calibration is None:
+            return None
+        try:
+            record = CalibrationRecord.from_dict(self.reuse_calibration)
+        except CalibrationError as exc:
+            self.journal.add_event(EventKind.CALIBRATION, f"cannot reuse the queue's calibration ({exc}); "
+                                   f"calibrating in full")
+            return None
+        if list(record.exposures_s) != list(self.spec.camera["exposures_s"]):
+            self.journal.add_event(EventKind.CALIBRATION, "the queue's calibration has another exposure ladder; "
+                                   "calibrating in full")
+            return None
+        return record
+
     def _restore_calibration(self):
         """The journaled calibration to keep (a resumed session); None if there is none or its
         arrays or the exposure ladder changed (then the session calibrates again)."""
@@ -226,8 +250,18 @@ class SessionEngine(PlanRunner):
     def _calibration_saved(self, _step: SaveCalibration, record) -> dict:
         summary = self.rehearsal.with_state({"arrays": str(record.path), "sha256": record.sha256})
         self.journal.set_calibration(record.to_dict(), step=(self._row, summary))  # kept together with its state
-        self.journal.add_event(EventKind.CALIBRATION, "dark, flat and white reference taken",
-                               data={"scale": record.scale.tolist(), "white": record.white})
+        whole = self._phase is None or self._phase[0] != "white_reference"
+        self.journal.add_event(EventKind.CALIBRATION, "dark, flat and white reference taken" if whole else
+                               "white reference taken; dark frames and flat field reused",
+                               data={"scale": record.scale.tolist(), "white": record.white, "reused": not whole})
+        return summary
+
+    def _white_checked(self, step: WhiteCheck, _result) -> dict:
+        summary = dataclasses.asdict(step)
+        then = ("dark frames and flat field reused" if step.decision == "reuse"
+                else "the lamp drifted: calibrating in full")
+        self.journal.add_event(EventKind.CALIBRATION, f"white reference re-measured: drift {100 * step.drift:.2f} % "
+                               f"(limit {100 * step.limit:.2f} %): {then}", data=summary)
         return summary
 
     def _assessed(self, step: Assess, _result) -> dict:
@@ -262,7 +296,7 @@ class SessionEngine(PlanRunner):
         from goniofrost.core.progress import show_progress
 
         total = len(self.spec.samples)
-        with tqdm(total=total, initial=initial, unit="sample", desc="capture", file=sys.stderr,
+        with tqdm(total=total, initial=initial, unit="sample", desc=self.progress_desc, file=sys.stderr,
                   disable=not show_progress(self.progress), dynamic_ncols=True) as bar:
             self._bar = bar
             try:
@@ -272,6 +306,7 @@ class SessionEngine(PlanRunner):
 
 
 PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, white reference",
+                  "white_reference": "white reference re-measured with the kept dark frames and flat field",
                   "samples": "sample capture started"}
 
 

@@ -4,7 +4,8 @@ One file ``DIR/session.sqlite`` (WAL mode, ``synchronous=FULL``: a committed tra
 survives SIGKILL and power loss) holds
 
 * ``meta``: the session's plan (JSON), rig file text and kinematic hash, model path and hash,
-  the simulated material, the format version;
+  the simulated material, the format version, and its ``label`` (a ``SessionLabel``: operator,
+  sample id, notes, the rig's lab section);
 * ``calibration``: the calibration record (JSON), at most one row;
 * ``samples``: one row per captured plan sample, keyed by its plan index (so a sample can
   never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
@@ -34,7 +35,7 @@ from pathlib import Path
 
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
-from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus
+from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus, SessionLabel
 from goniofrost.frost import samples_file
 
 FORMAT_VERSION = 1
@@ -174,6 +175,11 @@ class Journal:
         """The session's meta data (key -> decoded JSON value)."""
         return {k: json.loads(v) for k, v in self._db.execute("SELECT key, value FROM meta")}
 
+    def label(self) -> SessionLabel:
+        """Who measured what, where (meta ``label``; a journal from before labels: an empty label)."""
+        row = self._db.execute("SELECT value FROM meta WHERE key = 'label'").fetchone()
+        return SessionLabel.from_dict(None if row is None else json.loads(row[0]))
+
     def calibration(self) -> dict | None:
         """The stored calibration record, or None before calibration."""
         row = self._db.execute("SELECT record FROM calibration WHERE id = 1").fetchone()
@@ -236,6 +242,11 @@ class Journal:
                                 "COALESCE((SELECT MAX(run) FROM runs), 0)) + 1").fetchone()[0]
 
     # ----- writing ------------------------------------------------------------------------
+    def set_label(self, label: SessionLabel) -> None:
+        """Store (or replace: a resume's new notes) the session's label, in one transaction."""
+        with self._transaction() as db:
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('label', ?)", (json.dumps(label.to_dict()),))
+
     def set_calibration(self, record: dict, step: tuple[int, dict] | None = None) -> None:
         """Store (or replace) the calibration record in one transaction; ``step`` (row, result): the
         step that saved it ends done in the same transaction."""

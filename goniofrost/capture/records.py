@@ -43,7 +43,7 @@ class EventKind(str, enum.Enum):
 
 # the phases a plan names (Phase steps): each journals an event of its own kind
 PHASE_KINDS = {"calibration": EventKind.CALIBRATION, "samples": EventKind.SAMPLES,
-               "alignment": EventKind.ALIGNMENT}
+               "alignment": EventKind.ALIGNMENT, "white_reference": EventKind.CALIBRATION}
 
 
 class RunStatus(str, enum.Enum):
@@ -134,3 +134,51 @@ class RunEnd:
     def stopped_early(self) -> bool:
         """True when the run ended on a fault, a refusal or an operator's stop (resumable)."""
         return not self.status.completed
+
+
+LABEL_TEXT_FIELDS = ("operator", "sample_id", "lab", "lens", "lamp", "queue")
+
+
+@dataclass(frozen=True)
+class SessionLabel:
+    """Who measured what, where (a lab's metadata; bluesky keeps the like in a run's ``md``).
+
+    ``operator``, ``sample_id``, ``notes`` come from the command line (``capture --operator
+    --sample-id --note``) or a queue file; ``lab``, ``lens``, ``lamp`` from the rig file's ``lab:``
+    section; ``queue``: the queue file that measured the session (None: a single capture). Kept in
+    the journal's meta (``Journal.label``), report.json and brdf.json; a resume keeps it and
+    refuses one that contradicts it (``contradiction``).
+    """
+
+    operator: str | None = None
+    sample_id: str | None = None
+    notes: tuple[str, ...] = ()
+    lab: str | None = None
+    lens: str | None = None
+    lamp: str | None = None
+    queue: str | None = None
+
+    def to_dict(self) -> dict:
+        return {**{name: getattr(self, name) for name in LABEL_TEXT_FIELDS}, "notes": list(self.notes)}
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> "SessionLabel":
+        """From ``to_dict`` (a journal from before labels: an empty label)."""
+        values = values or {}
+        return cls(**{name: values.get(name) for name in LABEL_TEXT_FIELDS}, notes=tuple(values.get("notes") or ()))
+
+    def contradiction(self, given: "SessionLabel") -> tuple[str, object, object] | None:
+        """(field, stored, given) of the first field ``given`` sets to another value than this
+        stored label; None when it only repeats or adds to it (new notes are added)."""
+        for name in LABEL_TEXT_FIELDS:
+            stored, found = getattr(self, name), getattr(given, name)
+            if found is not None and stored is not None and found != stored:
+                return name, stored, found
+            if found is not None and stored is None:
+                return name, stored, found
+        return None
+
+    def merged(self, given: "SessionLabel") -> "SessionLabel":
+        """This label with ``given``'s new notes appended (once each)."""
+        notes = self.notes + tuple(n for n in given.notes if n not in self.notes)
+        return SessionLabel(**{name: getattr(self, name) for name in LABEL_TEXT_FIELDS}, notes=notes)

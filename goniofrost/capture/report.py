@@ -86,9 +86,12 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     stats = stats or SessionStats(skipped=len(records))  # None: nothing was left to capture
     rec = reconstruct_session(inputs, records)
     grid = inputs.model.grid
+    earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
     write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
     estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
-    report = build_report(inputs, records, stats, session_dir, material, journal.runs())
+    runs = journal.runs()
+    report = build_report(inputs, records, stats, session_dir, material, runs)
+    report["label"] = journal.label().to_dict()
     report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                             "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
     report["prediction"] |= extrapolation_section(inputs, records)
@@ -99,6 +102,7 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
         report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
     report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, grid, material, std)
     report["outputs"]["preview"] = "preview.png"
+    extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, records, runs))
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
     write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
@@ -115,6 +119,49 @@ def extrapolation_section(inputs, records) -> dict:
                         np.array([r.sigma for r in records]))
     return {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
             "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
+
+
+def read_earlier_record(path: Path) -> dict:
+    """The fields of a brdf.json already in the session folder ({} when there is none or it is
+    not a JSON object): a record someone extended is extended again, not replaced."""
+    try:
+        earlier = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return earlier if isinstance(earlier, dict) else {}
+
+
+def extend_record(path: Path, earlier: dict, measurement: dict) -> None:
+    """brdf.json = the earlier fields, the reconstruction's (just written) and ``measurement``."""
+    record = {**earlier, **json.loads(Path(path).read_text()), "measurement": measurement}
+    write_text_atomic(path, json.dumps(record, indent=1, allow_nan=False) + "\n")
+
+
+def measurement_section(inputs, report: dict, records, runs) -> dict:
+    """What brdf.json says of the measurement: what was measured, by whom, when (Unix times: the
+    first run's start, the last sample's commit), on which rig (its lab section), with which
+    alignment and model, its predicted error and the goniofrost version that made it."""
+    label = report["label"]
+    return {"sample_id": label["sample_id"], "material": report["material"], "operator": label["operator"],
+            "notes": label["notes"], "lab": label["lab"], "lens": label["lens"], "lamp": label["lamp"],
+            "queue": label["queue"], "started_utc": runs[0][0].started_utc if runs else None,
+            "ended_utc": max((r.committed_utc for r in records), default=None),
+            "rig": {"name": inputs.rig.name, "file": str(inputs.rig.source), "simulated": bool(inputs.rig.simulated),
+                    "kinematic_hash": inputs.rig.kinematic_hash},
+            "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
+            "model": report["model"], "samples": report["samples"],
+            "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
+            "last_run": report["last_run"], "goniofrost_version": _version()}
+
+
+def _version() -> str | None:
+    """The installed goniofrost's version (None when it runs from a folder without installing)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("goniofrost")
+    except PackageNotFoundError:
+        return None
 
 
 def target_section(spec, records) -> dict:
@@ -219,9 +266,12 @@ def ground_truth(material: str, grid) -> np.ndarray:
 def summary_text(report: dict) -> str:
     """A short readable summary of a report (a few lines)."""
     t = report["times_s"]
+    label = report.get("label") or {}
+    who = ", ".join(f"{k.replace('_', ' ')} {label[k]}" for k in ("sample_id", "operator") if label.get(k))
     lines = [
         f"session {report['session']}: {report['samples']} samples on rig {report['rig']!r}"
-        f" ({report['captured_this_run']} this run, {report['already_done']} from before; {report['runs']} run(s))",
+        f" ({report['captured_this_run']} this run, {report['already_done']} from before; {report['runs']} run(s))"
+        + (f"; {who}" if who else ""),
         f"motion {t['motion']:.1f} s + capture {t['capture']:.1f} s = {t['motion_and_capture']:.1f} s"
         + (" (simulated rig: axis motion profiles and exposure time)" if report["simulated"] else "")
         + (f"; planned motion {t['planned_motion']:.1f} s" if t.get("planned_motion") is not None else ""),

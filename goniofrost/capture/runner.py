@@ -7,6 +7,7 @@ belong together, every joint target within its axis limits, the simulated materi
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -35,7 +36,8 @@ class CaptureOutcome:
 def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
             on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
-            alignment=None) -> CaptureOutcome:
+            alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
+            inputs=None, progress_desc: str = "capture") -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
@@ -44,19 +46,29 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     MSE is at most this with probability ``confidence`` (the calibrated bound of
     ``frost.confidence``; ``goniofrost.capture.target``; the plan needs batch_ends).
     ``alignment``: an ALIGNMENT.json that overrides the rig file's ``alignment``.
+    ``label``: who measures what (``goniofrost.capture.lab.session_label``; default: the rig
+    file's lab section alone); a resume keeps the journaled one, adds new notes and refuses
+    another value. ``reuse_calibration``: another session's journaled calibration record (a
+    queue's sample before): only the white reference is measured again, and everything when its
+    scale moved by more than ``drift_limit`` (relative). ``inputs``: already loaded inputs (a
+    queue loads them once).
     """
     from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.report import summary_text, write_outputs
+    from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
-    inputs = load_inputs(rig_path, plan_path, alignment)
+    inputs = inputs or load_inputs(rig_path, plan_path, alignment)
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
     check_target(inputs, target_error, confidence)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material, target_error, confidence, sim_seed(inputs.rig, seed))
+    meta = session_meta(inputs, material, target_error, confidence, sim_seed(inputs.rig, seed)) | {
+        "label": (label or session_label(inputs.rig)).to_dict()}
     spec = SessionSpec.from_inputs(inputs, target_error, confidence)
+    if drift_limit is not None:
+        spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
     existed = check_session_folder(session_dir)
     with session_lock(session_dir):
         from goniofrost.core.atomic_file import remove_stale_temporaries
@@ -69,7 +81,8 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if not session_finished(spec, journal):
                 stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
-                                   speedup=speedup, progress=progress, on_ready=on_ready)
+                                   speedup=speedup, progress=progress, on_ready=on_ready,
+                                   reuse_calibration=reuse_calibration, progress_desc=progress_desc)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
@@ -123,7 +136,8 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
             pass
 
 
-def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready):
+def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready,
+               reuse_calibration=None, progress_desc: str = "capture"):
     """Connect the rig and capture what is left of the session ``spec``; return the run's
     SessionStats. From connecting to releasing, the devices' log goes to the journal, not the
     terminal."""
@@ -136,6 +150,7 @@ def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup
             with open_hardware(rig, material=material, seed=seed, speedup=speedup,
                                on_ready=on_ready) as hardware:
                 engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
+                engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
                 return engine.run()
         finally:
             journal_device_log(journal, device_log)  # what connecting and releasing logged
@@ -270,6 +285,9 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
         if not resume:
             _check_nothing_captured(journal, meta)
         _check_same_session(journal, meta, resume)
+        label = _check_same_label(journal, meta)
+        if label != journal.label():  # new notes: the only change a resume may bring
+            journal.set_label(label)
     except BaseException:
         journal.close()
         raise
@@ -295,3 +313,22 @@ def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
                       f"{journal.path}), or choose a new --session")
             raise JournalError(f"{journal.path}: meta.{key}: this session was started with another {what}: "
                                f"expected {stored.get(key)!r}, found {meta[key]!r}; {remedy}")
+
+
+LABEL_OPTIONS = {"operator": "--operator", "sample_id": "--sample-id", "queue": "the queue file",
+                 "lab": "the rig file's lab.lab", "lens": "the rig file's lab.lens", "lamp": "the rig file's lab.lamp"}
+
+
+def _check_same_label(journal: Journal, meta: dict):
+    """The journaled label with the new notes of ``meta``'s added; JournalError when ``meta``
+    gives a field another value (nothing is written then)."""
+    from goniofrost.capture.records import SessionLabel
+
+    stored, given = journal.label(), SessionLabel.from_dict(meta.get("label"))
+    clash = stored.contradiction(given)
+    if clash is not None:
+        name, was, found = clash
+        raise JournalError(f"{journal.path}: meta.label.{name}: this session was started with {name} {was!r}, "
+                           f"found {found!r} ({LABEL_OPTIONS[name]}); resume with the same one, or start a new "
+                           f"--session for another")
+    return stored.merged(given)

@@ -21,7 +21,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from goniofrost.capture.calibration_steps import calibration_steps
+from goniofrost.capture.calibration_steps import calibration_steps, white_check_steps
 from goniofrost.capture.journal import SampleRecord
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, Reached
@@ -40,6 +40,8 @@ class SessionSpec:
     With a target error: ``target`` (log-relative MSE), ``confidence``, ``batch_ends`` (cumulative samples per
     batch, the last = all) and ``assess(records) -> frost.confidence.ErrorBound`` at the
     session's confidence; otherwise None, (), None.
+    ``drift_limit``: with a calibration to reuse (a queue), the relative change of the white scale
+    beyond which the session calibrates again in full.
     """
 
     samples: list
@@ -53,6 +55,7 @@ class SessionSpec:
     batch_ends: tuple = ()
     assess: Callable | None = None
     confidence: float | None = None
+    drift_limit: float = 0.05
 
     @classmethod
     def from_inputs(cls, inputs, target_error: float | None = None, confidence: float = 0.95) -> "SessionSpec":
@@ -73,7 +76,7 @@ class SessionSpec:
 
 
 def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
-                  measured: Mapping[int, Sequence[float]] | None = None, records=()):
+                  measured: Mapping[int, Sequence[float]] | None = None, records=(), reuse=None):
     """Yield the steps of a capture session (send each step's result back).
 
     ``done``: plan indices already journaled; ``calibration``: a journaled CalibrationRecord to keep
@@ -81,26 +84,35 @@ def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
     samples. Each sample's bracket starts from what the plan sample before it measured (in this
     run or, resumed, in the journal), so a resumed session takes the frames one run would have.
     ``records``: the journaled SampleRecords (with a target error: its assessments need their
-    values). A session with nothing left to capture yields no device step at all.
+    values). A session with nothing left to capture yields no device step at all. ``reuse``: a
+    CalibrationRecord of another session (a queue's sample before) whose darks and flat field are
+    kept, when no ``calibration`` is: only the white reference is measured again
+    (``white_check_steps``), and everything when it drifted past ``spec.drift_limit``.
     """
     if spec.target is not None:
-        yield from _target_session(spec, calibration, records, measured)
+        yield from _target_session(spec, calibration, records, measured, reuse)
         return
     todo = remaining(len(spec.samples), done)
     if not todo:
         return  # nothing left to capture: touch no device
-    calibration = yield from _start(spec, calibration)
+    calibration = yield from _start(spec, calibration, reuse)
     yield from _capture(spec, calibration, todo, _as_arrays(measured))
     yield LampOff()
 
 
-def _start(spec: SessionSpec, calibration):
-    """Home, lamp on, calibrate unless a calibration is kept; return the calibration."""
+def _start(spec: SessionSpec, calibration, reuse=None):
+    """Home, lamp on, calibrate unless a calibration is kept (only the white reference when one
+    is reused and the lamp has not drifted); return the calibration."""
     yield Home(spec.axes)
     yield LampOn()
     if calibration is None:
         white = yield Move(None, joint_targets(spec.white_joints, spec.axes))
-        calibration = yield from calibration_steps(spec.camera, spec.pose_of(white.joints), arm_side=spec.arm_side)
+        pose = spec.pose_of(white.joints)
+        if reuse is not None:
+            calibration = yield from white_check_steps(spec.camera, reuse, pose, spec.drift_limit,
+                                                       arm_side=spec.arm_side)
+        if calibration is None:
+            calibration = yield from calibration_steps(spec.camera, pose, arm_side=spec.arm_side)
     yield Phase("samples")
     return calibration
 
@@ -122,7 +134,7 @@ def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict
         yield Commit(record)
 
 
-def _target_session(spec: SessionSpec, calibration, records, measured):
+def _target_session(spec: SessionSpec, calibration, records, measured, reuse=None):
     """Batch by batch until the error is at most the target with the session's confidence (see
     module doc)."""
     from goniofrost.capture.target import CONTINUE, assessment
@@ -134,7 +146,7 @@ def _target_session(spec: SessionSpec, calibration, records, measured):
         todo = [i for i in range(end) if i not in by_index]
         if todo:
             if not started:
-                calibration = yield from _start(spec, calibration)
+                calibration = yield from _start(spec, calibration, reuse)
                 started = True
             yield from _capture(spec, calibration, todo, measured, by_index)
         result = assessment(spec.assess, batch, end, n, spec.target, [by_index[i] for i in range(end)])

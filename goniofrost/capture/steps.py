@@ -107,6 +107,18 @@ class Assess:
 
 
 @dataclass(frozen=True)
+class WhiteCheck:
+    """The decision after the white reference was re-measured with a kept calibration's darks and
+    flat field (a queue's next sample; no device action): ``drift`` the largest relative change
+    of the white scale over the channels, ``limit`` the queue's threshold, ``decision`` "reuse"
+    (the darks and flat field are kept, the new white scale used) or "recalibrate"."""
+
+    drift: float
+    limit: float
+    decision: str
+
+
+@dataclass(frozen=True)
 class Commit:
     """Journal one sample (one transaction; the engine stamps ``committed_utc``) and append it to
     samples.csv."""
@@ -118,7 +130,8 @@ class Commit:
         return self.record.plan_index
 
 
-Step = Home | Move | LampOn | LampOff | SetTarget | Expose | Phase | SaveCalibration | Assess | Commit
+Step = (Home | Move | LampOn | LampOff | SetTarget | Expose | Phase | SaveCalibration | Assess | WhiteCheck
+        | Commit)
 
 
 @dataclass(frozen=True)

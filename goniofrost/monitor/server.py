@@ -24,6 +24,11 @@ at once (more are answered 503 with a Retry-After), so memory does not grow with
 the number of readers; event streams are at most MAX_EVENT_STREAMS, so the pool always has threads
 for the other answers. A socket write blocked WRITE_TIMEOUT_S ends its connection.
 
+On a folder of sessions (``catalogue=True``) ``/`` is the catalogue (``monitor.catalogue``: one
+row per session, a link to each) and every route above is served under ``/s/NAME/`` for the
+session folder NAME listed there (nothing else: the name must be one of the listing's). The
+page uses relative addresses, so it is the same page at ``/`` and at ``/s/NAME/``.
+
 Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
 POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
 one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
@@ -206,9 +211,13 @@ class MonitorServer:
     pages and stops. Raises MonitorError if the address cannot be bound.
     """
 
-    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False) -> None:
-        self.hub = StateHub(session_dir, attached)
+    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False,
+                 catalogue: bool = False) -> None:
+        self.catalogue, self.root = catalogue, Path(session_dir)
+        self.hub = None if catalogue else StateHub(session_dir, attached)
         self.frames, self.previews = PictureCache(), PictureCache()
+        self._sites: dict[str, _Site] = {}
+        self._sites_lock = threading.Lock()
         self.transfers = threading.BoundedSemaphore(MAX_TRANSFERS)
         self.streams = threading.BoundedSemaphore(MAX_EVENT_STREAMS)
         handler = type("Handler", (_Handler,), {"monitor": self})
@@ -237,22 +246,42 @@ class MonitorServer:
 
     def _poll(self) -> None:
         while not self._stopping.wait(POLL_S):
-            if self.hub.clients:
-                self.hub.refresh_logged()
+            for hub in self._hubs():
+                if hub.clients:
+                    hub.refresh_logged()
+
+    def _hubs(self) -> list:
+        with self._sites_lock:
+            return [site.hub for site in self._sites.values()] if self.catalogue else [self.hub]
+
+    def site(self, name: str):
+        """The session NAME of the catalogue (its hub and pictures, made on first use); None unless
+        NAME is a session folder the catalogue lists (no other path can be reached)."""
+        from goniofrost.monitor.catalogue import session_folders
+
+        with self._sites_lock:
+            if name not in self._sites:
+                folders = {p.name: p for p in session_folders(self.root)}
+                if name not in folders:
+                    return None
+                self._sites[name] = _Site(StateHub(folders[name], False), self)
+            return self._sites[name]
 
     def close(self, ended_message: str | None = None) -> None:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
         to the connected pages, then stop serving."""
-        self.hub.ended_message = ended_message
         self.frames.closing = self.previews.closing = True
         try:
-            self.hub.refresh_logged(force=True)
-            deadline = time.monotonic() + FINAL_PUSH_S
-            while time.monotonic() < deadline and self.hub.clients and not self._final_page_served():
-                time.sleep(0.02)
+            if self.hub is not None:
+                self.hub.ended_message = ended_message
+                self.hub.refresh_logged(force=True)
+                deadline = time.monotonic() + FINAL_PUSH_S
+                while time.monotonic() < deadline and self.hub.clients and not self._final_page_served():
+                    time.sleep(0.02)
         finally:
             self._stopping.set()
-            self.hub.close()
+            for hub in self._hubs():
+                hub.close()
             self.httpd.shutdown()
             self.httpd.server_close()
             self.httpd.waiting.close()
@@ -275,6 +304,16 @@ class MonitorServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _Site:
+    """One session of a catalogue: what a request handler needs of a MonitorServer (its own state
+    and pictures; the server's host and its limits on transfers and event streams, shared)."""
+
+    def __init__(self, hub: StateHub, server: MonitorServer) -> None:
+        self.hub, self.host = hub, server.host
+        self.transfers, self.streams = server.transfers, server.streams
+        self.frames, self.previews = PictureCache(), PictureCache()
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -301,6 +340,20 @@ class _Handler(BaseHTTPRequestHandler):
         url = urlsplit(self.path)
         route, query = url.path, parse_qs(url.query)
         try:
+            if self.monitor.catalogue:
+                if route in ("/", "/index.html"):
+                    return self._catalogue()
+                if route.startswith("/s/"):
+                    name, slash, rest = route[len("/s/"):].partition("/")
+                    site = self.monitor.site(name)
+                    if site is None:
+                        return self._text(HTTPStatus.NOT_FOUND, f"no such session: {name[:64]}")
+                    if not slash:  # the page's relative addresses need the slash
+                        return self._send(HTTPStatus.MOVED_PERMANENTLY, "text/plain; charset=utf-8", b"",
+                                          {"Location": f"/s/{name}/"})
+                    self.monitor, route = site, "/" + rest  # this request only: the session's own routes
+                elif not route.startswith("/static/") and route != "/favicon.ico":
+                    return self._text(HTTPStatus.NOT_FOUND, f"no such page: {route}")
             if route in ("/", "/index.html"):
                 return self._static("index.html")
             if route.startswith("/static/"):
@@ -332,6 +385,11 @@ class _Handler(BaseHTTPRequestHandler):
     do_POST = do_PUT = do_DELETE = do_PATCH = _refuse_write  # noqa: N815
 
     # ----- routes -------------------------------------------------------------------------------
+    def _catalogue(self) -> None:
+        from goniofrost.monitor.catalogue import catalogue_html
+
+        self._send(HTTPStatus.OK, "text/html; charset=utf-8", catalogue_html(self.monitor.root).encode())
+
     def _static(self, name: str) -> None:
         if name not in STATIC:
             return self._text(HTTPStatus.NOT_FOUND, f"no such page: {name}")

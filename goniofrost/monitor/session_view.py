@@ -95,7 +95,10 @@ class SessionView:
     ``predicted_error`` is the latest predicted reconstruction error when the session
     records one; ``assessment`` the latest batch assessment of a capture with a target error (the
     typed fields of its Assess step: batch, samples, predicted_error = the median estimate, bound,
-    confidence, target, decision, out_of_model), None before one; ``files`` are the names of the folder's own files (journal side files excluded).
+    confidence, target, decision, out_of_model), None before one; ``files`` are the names of the folder's own files (journal side files excluded);
+    ``label`` who measured what (``SessionLabel.to_dict``: operator, sample_id, notes, lab, lens,
+    lamp, queue); ``first_started_utc`` the first run's start; ``run_spans`` (started, ended or
+    None) Unix times of every run.
     """
 
     session_dir: Path
@@ -125,6 +128,9 @@ class SessionView:
     predicted_error: float | None = None
     assessment: dict | None = None
     files: tuple = field(default_factory=tuple)
+    label: dict = field(default_factory=dict)
+    first_started_utc: float | None = None
+    run_spans: tuple = ()
 
 
 def journal_path(session_dir) -> Path:
@@ -139,10 +145,11 @@ def read_session(session_dir) -> SessionView:
     if not path.is_file():
         return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
     try:
-        meta, records, events, calibration, steps, (start, end) = _read_journal(path)
+        meta, records, events, calibration, steps, runs, label = _read_journal(path)
     except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
         return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
     report = _read_report(session_dir / REPORT_FILE)
+    start, end = runs[-1] if runs else (None, None)
     return SessionView(
         session_dir, journal_found=True, plan_key=str(meta.get("plan_sha256", "")),
         rig_name=str(meta.get("rig_name", "")), rig_text=str(meta.get("rig_text", "")),
@@ -155,11 +162,13 @@ def read_session(session_dir) -> SessionView:
         stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
         summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
         capture_alive=flock_held(session_dir / LOCK_FILE),
-        predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files)
+        predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files,
+        label=label.to_dict(), first_started_utc=runs[0][0].started_utc if runs else None,
+        run_spans=tuple((s.started_utc, None if e is None else e.ended_utc) for s, e in runs))
 
 
 def _read_journal(path: Path):
-    """(meta, sample records, events, calibration, recent steps, last run) at one moment."""
+    """(meta, sample records, events, calibration, recent steps, runs, label) at one moment."""
     wal = path.with_name(path.name + "-wal")
     if wal.exists() and flock_held(path.with_name(LOCK_FILE)) is not True:
         return _read_journal_copy(path, wal)
@@ -169,7 +178,7 @@ def _read_journal(path: Path):
 def _read_journal_at(path: Path):
     with Journal.open_read_only(path) as journal, journal.snapshot():
         return (journal.meta(), journal.samples(), journal.events(), journal.calibration(),
-                journal.recent_steps(), journal.last_run())
+                journal.recent_steps(), journal.runs(), journal.label())
 
 
 def _read_journal_copy(path: Path, wal: Path):

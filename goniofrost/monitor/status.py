@@ -59,6 +59,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
     return {
         "session": str(view.session_dir), "plan_key": view.plan_key, "rig": view.rig_name,
         "material": view.material, "journal_found": view.journal_found,
+        "label": view.label, "label_text": label_text(view.label),
         "state": state, "hint": hint, "attached": attached,
         "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples" if total else "no plan yet",
         "eta_s": eta, "eta_text": eta_text(eta, state), "eta_from_utc": latest.committed_utc if latest else None,
@@ -243,3 +244,13 @@ def _poses(view, rig, latest, next_index) -> dict:
         nxt = {"label": f"sample {s.index} (target)", "theta_i_deg": s.theta_i_deg, "theta_o_deg": s.theta_o_deg,
                **pose_drawing(rig, s.joints)}
     return {"current": current, "next": nxt}
+
+
+def label_text(label: dict) -> str:
+    """Who measured what, for the page's header ("sample S-001 · operator A. Operator · lab ..."); ''
+    for a session without a label."""
+    label = label or {}
+    parts = [f"{name.replace('_id', '')} {label[name]}" for name in ("sample_id", "operator", "lab", "lens", "lamp")
+             if label.get(name)]
+    parts += [f"note: {note}" for note in label.get("notes") or ()]
+    return "  ·  ".join(parts)

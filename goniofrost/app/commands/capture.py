@@ -17,6 +17,10 @@ def add_arguments(parser) -> None:
                         help="the axes' zero offsets from goniofrost align (overrides the rig file's alignment key); "
                              "must be the one the plan was scheduled with")
     parser.add_argument("--resume", action="store_true", help="continue the session journaled in DIR")
+    parser.add_argument("--operator", metavar="NAME", help="who measures (kept in the journal, report.json, brdf.json)")
+    parser.add_argument("--sample-id", metavar="ID", help="the sample on the stage (a resume must name the same)")
+    parser.add_argument("--note", action="append", default=[], metavar="TEXT",
+                        help="a note on the session (repeatable; a resume may add notes)")
     parser.add_argument("--target-error", type=float, metavar="E",
                         help="measure a Bayesian plan batch by batch in design order and stop as soon as this "
                              "material's log-relative MSE is at most E (e.g. 0.05) with the --confidence, from an "
@@ -64,13 +68,18 @@ def run(args) -> int:
     from goniofrost.capture.runner import capture
     from goniofrost.capture.engine import SessionInterrupted
 
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.lab import session_label
+
+    inputs = load_inputs(args.rig, args.plan, args.alignment)
+    label = session_label(inputs.rig, args.operator, args.sample_id, args.note)
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
                               target_error=args.target_error, confidence=args.confidence,
-                              alignment=args.alignment)
+                              alignment=args.alignment, label=label, inputs=inputs)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 HELP = ("serve a read-only web page of a capture session: state, N of M samples, ETA, rig poses, the "
-        "plan's samples, SNR, the latest frame, the reconstruction so far, faults and what to do")
+        "plan's samples, SNR, the latest frame, the reconstruction so far, faults and what to do; on a folder "
+        "of sessions, their catalogue with a link to each session's page")
 
 
 def add_arguments(parser) -> None:
@@ -10,7 +11,7 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("session", metavar="SESSION_DIR",
                         help="session folder of goniofrost capture --session (it may still be running, "
-                             "or not have started yet)")
+                             "or not have started yet), or a folder of session folders (a queue's root)")
     add_server_options(parser, with_flag=False)
 
 
@@ -25,9 +26,13 @@ def run(args) -> int:
     if not Path(args.session).is_dir():
         raise ConfigError("command line", "SESSION_DIR", "a session folder (goniofrost capture --session DIR)",
                           args.session)
+    from goniofrost.monitor.catalogue import is_catalogue
+
     check_port(args.port)
-    server = MonitorServer(args.session, host=args.host, port=args.port).start()
-    print(f"goniofrost monitor: {server.url} shows {args.session} (read-only); Ctrl-C stops", flush=True)
+    many = is_catalogue(args.session)
+    server = MonitorServer(args.session, host=args.host, port=args.port, catalogue=many).start()
+    what = "the sessions under " if many else ""
+    print(f"goniofrost monitor: {server.url} shows {what}{args.session} (read-only); Ctrl-C stops", flush=True)
     try:
         while True:
             time.sleep(3600)

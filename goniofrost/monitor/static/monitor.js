@@ -31,6 +31,7 @@ function agoText(seconds) {
 // ----- overview, fault, files -------------------------------------------------------------
 function renderOverview(st) {
   setText("session", st.session + (st.rig ? `  ·  rig ${st.rig}` : "") + (st.material ? `  ·  ${st.material}` : ""));
+  setText("label", st.label_text || "");
   const badge = $("state");
   badge.dataset.state = st.state;
   setText("state", st.state);
@@ -83,7 +84,7 @@ function renderFiles(st) {
   list.replaceChildren(...st.files.map((name) => {
     const li = document.createElement("li");
     const a = document.createElement("a");
-    a.href = "/files/" + encodeURIComponent(name);
+    a.href = "files/" + encodeURIComponent(name);
     a.textContent = name;
     li.appendChild(a);
     return li;
@@ -272,12 +273,12 @@ function updatePictures(again) {
   if (!st) return;
   if (st.latest && (again || st.latest.plan_index !== page.frameShown)) {
     const k = st.latest.plan_index;
-    fetchPicture("frame", `/api/frame.png?sample=${k}`, k, $("frame-img"), $("frame-caption"), (shows, info) =>
+    fetchPicture("frame", `api/frame.png?sample=${k}`, k, $("frame-img"), $("frame-caption"), (shows, info) =>
       `sample ${shows}: ${info.file || ""}${info.exposure_s ? `, exposure ${info.exposure_s} s` : ""}` +
       `, SNR ${page.state.samples.snr[shows]?.toFixed(0) ?? "–"}, region of interest ${info.roi_pixels} px (green)`);
   }
   if (st.done > 0 && (again || st.done !== page.previewShown)) {
-    fetchPicture("preview", `/api/preview.png?done=${st.done}`, st.done, $("preview-img"), $("preview-caption"),
+    fetchPicture("preview", `api/preview.png?done=${st.done}`, st.done, $("preview-img"), $("preview-caption"),
       (shows) => `from ${shows} of ${st.total} samples; lit from the front, the side and the back`);
   }
 }
@@ -328,7 +329,7 @@ function render(st) {
 }
 
 function connect() {
-  const source = new EventSource("/api/events");
+  const source = new EventSource("api/events");
   source.addEventListener("state", (event) => {
     const t0 = performance.now();
     render(JSON.parse(event.data));

@@ -1,0 +1,40 @@
+"""``goniofrost queue``: measure several samples in one run, one session folder each."""
+from __future__ import annotations
+
+HELP = ("measure the samples of QUEUE.yaml one after another (one session each, the calibration shot once "
+        "and the white reference re-measured between samples); the same command resumes")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("queue", metavar="QUEUE.yaml", help="rig, plan, root, operator and the samples "
+                                                            "(paths relative to the queue file)")
+    parser.add_argument("--yes", action="store_true",
+                        help="do not ask to mount each sample (a rig with a sample changer, or the simulated rig)")
+    parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
+    parser.add_argument("--speedup", type=float, default=None,
+                        help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    import sys
+
+    from goniofrost.capture.engine import SessionInterrupted
+    from goniofrost.capture.queue import ask_to_mount, run_queue
+    from goniofrost.capture.queue_file import read_queue
+
+    queue = read_queue(args.queue)
+    try:
+        items = run_queue(queue, confirm=None if args.yes else ask_to_mount, seed=args.seed, speedup=args.speedup,
+                          progress=not args.no_progress)
+    except SessionInterrupted as exc:
+        print(f"goniofrost queue: {exc}; run the same command to continue the queue", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"goniofrost queue: interrupted; every session under {queue.root} keeps what it captured: run the "
+              f"same command to continue the queue", file=sys.stderr)
+        return 130
+    measured = sum(item.action == "measured" for item in items)
+    print(f"queue {queue.path.name}: {len(items)} samples, {measured} measured this run, "
+          f"{len(items) - measured} from before; sessions in {queue.root} (goniofrost sessions {queue.root})")
+    return 0

@@ -1,0 +1,110 @@
+"""A queue of samples measured in one run (``goniofrost queue QUEUE.yaml``), one session each.
+
+Each sample is a capture session (``goniofrost.capture.runner.capture``: the one engine, its
+journal, its report) in ``ROOT/SAMPLE_ID``. The first sample calibrates in full (dark frames,
+flat field, white reference); every later one reuses the calibration of the sample before it
+(read from that session's journal) and only measures the white reference again, to follow the
+lamp: when its scale moved by more than the queue's ``drift_limit`` the session calibrates in
+full (``calibration_steps.white_check_steps``). The queue keeps no state of its own: the
+journals are the truth, so running the same command again after Ctrl-C or kill -9 skips the
+sessions that completed, resumes the one under way and measures nothing twice.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from goniofrost.core.errors import ConfigError
+from goniofrost.capture.queue_file import Queue, QueueSample
+from goniofrost.capture.runner import JOURNAL_FILE
+
+REPORT_FILE = "report.json"
+
+
+@dataclass(frozen=True)
+class QueueItem:
+    """What the queue did with one sample: ``action`` "measured" or "skipped" (measured before)."""
+
+    sample_id: str
+    session_dir: Path
+    action: str
+    summary: str = ""
+
+
+def check_queue(queue: Queue, inputs, *, seed=None, speedup=None) -> None:
+    """Every sample's material and the simulation options, before anything moves (ConfigError
+    naming the queue file and the sample)."""
+    from goniofrost.capture.runner import check_material, check_sim_options
+
+    check_sim_options(inputs.rig, seed, speedup)
+    for i, sample in enumerate(queue.samples):
+        try:
+            check_material(inputs.rig, sample.material)
+        except ConfigError as exc:
+            raise ConfigError(queue.path, f"samples[{i}].material", exc.expected, sample.material) from None
+
+
+def completed(session_dir: Path) -> bool:
+    """True when the session wrote its results: a capture writes report.json last, and only once
+    nothing is left to capture (a stopped or failed run writes none)."""
+    return (Path(session_dir) / JOURNAL_FILE).is_file() and (Path(session_dir) / REPORT_FILE).is_file()
+
+
+def calibration_of(session_dir: Path) -> dict | None:
+    """The calibration record journaled by the session in ``session_dir`` (None: none yet)."""
+    from goniofrost.capture.journal import Journal
+
+    path = Path(session_dir) / JOURNAL_FILE
+    if not path.is_file():
+        return None
+    with Journal.open_read_only(path) as journal:
+        return journal.calibration()
+
+
+def ask_to_mount(sample: QueueSample, position: str) -> None:
+    """Ask the operator to mount ``sample`` (Enter goes on; Ctrl-C stops the queue, resumable)."""
+    what = f" ({sample.material})" if sample.material else ""
+    print(f"queue {position}: mount sample {sample.sample_id}{what} on the stage, then press Enter "
+          f"(Ctrl-C stops the queue; the same command resumes it)", file=sys.stderr, flush=True)
+    sys.stdin.readline()
+
+
+def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,
+              seed=None, speedup=None, progress: bool = True, out=print) -> list[QueueItem]:
+    """Measure every sample of ``queue`` not yet measured, in order; return what was done.
+
+    ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
+    ``--yes``). A fault or an interruption propagates (the capture's own exception and message);
+    the sessions already completed stay, and the same call resumes.
+    """
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.lab import session_label
+    from goniofrost.capture.runner import capture
+
+    inputs = load_inputs(queue.rig, queue.plan, queue.alignment)
+    check_queue(queue, inputs, seed=seed, speedup=speedup)
+    items, previous, n = [], None, len(queue.samples)
+    for k, sample in enumerate(queue.samples, start=1):
+        session, position = queue.session_dir(sample), f"{k}/{n}"
+        if completed(session):
+            out(f"queue {position}: {sample.sample_id} already measured in {session}; skipped")
+            items.append(QueueItem(sample.sample_id, session, "skipped"))
+            previous = session
+            continue
+        label = session_label(inputs.rig, sample.operator, sample.sample_id, sample.notes, queue=str(queue.path),
+                              source=queue.path)
+        if confirm is not None:
+            confirm(sample, position)
+        reuse = calibration_of(previous) if previous is not None else None
+        out(f"queue {position}: measuring {sample.sample_id} into {session}"
+            + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
+        outcome = capture(queue.rig, queue.plan, session, material=sample.material,
+                          resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
+                          label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
+                          progress_desc=f"queue {position} {sample.sample_id}")
+        out(outcome.summary.rstrip("\n"))
+        items.append(QueueItem(sample.sample_id, session, "measured", outcome.summary))
+        previous = session
+    return items

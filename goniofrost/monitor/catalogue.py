@@ -1,0 +1,162 @@
+"""The catalogue of a folder of sessions (``goniofrost sessions ROOT``, ``goniofrost monitor ROOT``).
+
+One ``SessionEntry`` per session folder directly under ROOT (a folder holding a journal): its
+name, when it started, who measured which sample, its state, samples, predicted error and
+duration. Everything is read through the monitor's read-only session reader
+(``session_view.read_session``); the state comes from the typed run-end record (``RunEnd.status``)
+and, for a run without one, from the session lock (held: running; free: the process was killed).
+"""
+from __future__ import annotations
+
+import datetime as dt
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from goniofrost.core.errors import ConfigError
+from goniofrost.capture.records import RunStatus
+from goniofrost.monitor.session_view import journal_path, read_session
+
+STATE_OF_STATUS = {RunStatus.FINISHED: "finished", RunStatus.TARGET_REACHED: "target reached",
+                   RunStatus.PLAN_USED_UP: "plan used up", RunStatus.STOPPED_BY_OPERATOR: "interrupted",
+                   RunStatus.FAULT: "faulted", RunStatus.REFUSED: "faulted"}
+STATES = ("finished", "target reached", "plan used up", "interrupted", "faulted", "running", "not started")
+
+
+@dataclass(frozen=True)
+class SessionEntry:
+    """One session of the catalogue. Times are Unix seconds (``started_utc``: the first run's
+    start; ``duration_s``: the runs' time added up, a run under way until now, a killed one
+    until its last sample); ``state`` one of STATES; ``predicted_error`` the log-relative MSE
+    of the reconstruction (or the last batch), None before one."""
+
+    name: str
+    path: str
+    started_utc: float | None
+    operator: str | None
+    sample_id: str | None
+    material: str | None
+    notes: tuple
+    lab: str | None
+    rig: str
+    state: str
+    samples: int
+    samples_planned: int
+    predicted_error: float | None
+    duration_s: float
+
+    def as_json(self) -> dict:
+        out = asdict(self)
+        out["notes"] = list(self.notes)
+        out["started"] = None if self.started_utc is None else iso_minutes(self.started_utc)
+        return out
+
+
+def session_state(view) -> str:
+    """The state of a session (a SessionView) from its last run's RunEnd and the session lock."""
+    if view.run_end is not None:
+        return STATE_OF_STATUS[view.run_end.status]
+    if view.capture_alive:
+        return "running"
+    return "interrupted" if view.run_spans else "not started"
+
+
+def read_entry(session_dir: Path) -> SessionEntry:
+    """The catalogue entry of the session in ``session_dir`` (read-only)."""
+    view = read_session(session_dir)
+    label, state = view.label or {}, session_state(view)
+    last_commit = max((d.committed_utc for d in view.done), default=None)
+    duration = 0.0
+    for k, (start, end) in enumerate(view.run_spans):
+        if end is None:  # under way (now), or killed: until its last sample, if it took one after it started
+            live = state == "running" and k == len(view.run_spans) - 1
+            end = time.time() if live else max(start, last_commit or start)
+        duration += max(0.0, end - start)
+    return SessionEntry(name=Path(session_dir).name, path=str(session_dir), started_utc=view.first_started_utc,
+                        operator=label.get("operator"), sample_id=label.get("sample_id"), material=view.material,
+                        notes=tuple(label.get("notes") or ()), lab=label.get("lab"), rig=view.rig_name, state=state,
+                        samples=len(view.done), samples_planned=len(view.plan),
+                        predicted_error=view.predicted_error, duration_s=duration)
+
+
+def session_folders(root: Path) -> list[Path]:
+    """The session folders directly under ``root`` (those holding a journal), by name."""
+    return sorted(p for p in Path(root).iterdir() if p.is_dir() and journal_path(p).is_file())
+
+
+def parse_since(text: str | None) -> float | None:
+    """``--since`` (an ISO date or date and time, UTC) as Unix seconds; ConfigError when it is none."""
+    if text is None:
+        return None
+    try:
+        when = dt.datetime.fromisoformat(text)
+    except ValueError:
+        raise ConfigError("command line", "--since", "a date YYYY-MM-DD or YYYY-MM-DDTHH:MM (UTC)", text) from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=dt.timezone.utc)
+    return when.timestamp()
+
+
+def catalogue(root, sample: str | None = None, operator: str | None = None, since: float | None = None) -> list:
+    """Every session under ``root`` matching the filters (sample id and operator exactly, started at
+    or after ``since``), oldest first (then by name)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ConfigError("command line", "ROOT", "a folder of session folders", str(root))
+    entries = [read_entry(p) for p in session_folders(root)]
+    entries = [e for e in entries if (sample is None or e.sample_id == sample)
+               and (operator is None or e.operator == operator)
+               and (since is None or (e.started_utc is not None and e.started_utc >= since))]
+    return sorted(entries, key=lambda e: (e.started_utc if e.started_utc is not None else float("inf"), e.name))
+
+
+def iso_minutes(t_utc: float) -> str:
+    return dt.datetime.fromtimestamp(t_utc, dt.timezone.utc).strftime("%Y-%m-%d %H:%M")
+
+
+COLUMNS = ("session", "started (UTC)", "operator", "sample", "state", "samples", "predicted error", "duration")
+
+
+def table_rows(entries) -> list[tuple[str, ...]]:
+    """The text cells of each entry, in COLUMNS order."""
+    return [(e.name, "-" if e.started_utc is None else iso_minutes(e.started_utc), e.operator or "-",
+             e.sample_id or "-", e.state, f"{e.samples}/{e.samples_planned}",
+             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}", duration_text(e.duration_s))
+            for e in entries]
+
+
+def table_text(entries) -> str:
+    """One line per session under a header, columns aligned."""
+    rows = [COLUMNS, *table_rows(entries)]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(COLUMNS))]
+    return "".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() + "\n" for r in rows)
+
+
+def duration_text(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+def catalogue_html(root) -> str:
+    """The monitor's page of a folder of sessions: the catalogue as a table, each session's name a
+    link to its own page (``/s/NAME/``); re-read every 5 s (a meta refresh: the page has no script)."""
+    from html import escape
+    from urllib.parse import quote
+
+    entries = catalogue(root)
+    head = "".join(f"<th>{escape(c)}</th>" for c in COLUMNS)
+    body = "".join(
+        "<tr>" + f'<td><a href="/s/{quote(e.name)}/">{escape(e.name)}</a></td>'
+        + "".join(f"<td>{escape(cell)}</td>" for cell in cells[1:]) + "</tr>"
+        for e, cells in zip(entries, table_rows(entries)))
+    return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta http-equiv="refresh" content="5">'
+            '<title>goniofrost sessions</title><link rel="stylesheet" href="/static/monitor.css"></head><body>'
+            f'<header><h1>goniofrost sessions</h1><span class="muted">{escape(str(root))}</span></header>'
+            f'<section class="card"><table id="sessions"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+            f'<p class="muted">{len(entries)} session(s)</p></section></body></html>\n')
+
+
+def is_catalogue(folder) -> bool:
+    """True for a folder of sessions: no journal of its own, and a session folder in it."""
+    folder = Path(folder)
+    return not journal_path(folder).exists() and bool(session_folders(folder))

@@ -1,0 +1,249 @@
+"""A day in the lab on the simulated rig: who measured what (the label), a queue of samples, the
+catalogue of sessions (`goniofrost sessions`, `goniofrost monitor ROOT`).
+
+Small and fast, as tests/test_session.py: a 6-material model on the 30 x 30 x 60 grid, a 4-sample
+plan, a short exposure ladder, a small simulated sensor and a simulated clock 10-50x real time.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+import yaml
+
+from goniofrost.app.cli import main
+from goniofrost.capture.journal import Journal
+from goniofrost.capture.records import EventKind, RunStatus, SessionLabel
+from test_session import GRID, TRAINING, batched_plan, journal_rows, write_rig
+
+REPO = Path(__file__).resolve().parents[1]
+M = 4
+LAB = {"lab": "Optics lab 2", "lens": "50 mm f/8", "lamp": "LED 6500 K"}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(folder, rig file with a lab section, plan file, model), read-only for the module's tests."""
+    from goniofrost.app.demo import plan_on_rig
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+
+    folder = tmp_path_factory.mktemp("lab")
+    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    rig = write_rig(folder / "rig.yaml")
+    doc = yaml.safe_load(rig.read_text())
+    doc["lab"] = LAB
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    return folder, rig, plan, model
+
+
+def write_queue(path: Path, rig: Path, plan: Path, **extra) -> Path:
+    """The issue's two-sample queue, its paths relative to the queue file."""
+    doc = {"rig": os.path.relpath(rig, path.parent), "plan": os.path.relpath(plan, path.parent), "root": "sessions",
+           "operator": "A. Operator", **extra,
+           "samples": [{"sample_id": "S-001", "material": "builtin:red-plastic"},
+                       {"sample_id": "S-002", "material": "builtin:green-felt", "note": "second coat"}]}
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def frame_files(session: Path, prefix: str) -> list[str]:
+    """The RAW files of every Expose step the session journaled whose name starts with ``prefix``."""
+    with Journal.open(session / "session.sqlite") as journal:
+        return [Path(s["detail"]["file"]).name for s in journal.steps()
+                if s["kind"] == "Expose" and Path(s["detail"]["file"]).name.startswith(prefix)]
+
+
+def sessions_json(root: Path, capsys, *options) -> list[dict]:
+    capsys.readouterr()
+    assert main(["sessions", str(root), "--json", *options]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+# ----- a queue ----------------------------------------------------------------------------------
+def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survives_kill_9(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    queue = write_queue(tmp_path / "queue.yaml", rig, plan)
+    root = tmp_path / "sessions"
+    command = [sys.executable, "-m", "goniofrost", "queue", str(queue), "--yes", "--no-progress", "--speedup", "10"]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    t_end = time.monotonic() + 120  # wait on the second session's journal, not a clock
+    while len(journal_rows(root / "S-002")) < 1:
+        assert proc.poll() is None, f"the queue ended early: {proc.stderr.read().decode()}"
+        assert time.monotonic() < t_end, "no sample of S-002 journaled within 120 s"
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait(timeout=10) == -signal.SIGKILL
+    before = journal_rows(root / "S-002")
+    assert 1 <= len(before) < M and not (root / "S-002" / "report.json").exists(), "the kill must land in S-002"
+
+    capsys.readouterr()
+    assert main(["queue", str(queue), "--yes", "--no-progress", "--speedup", "50"]) == 0
+    out = capsys.readouterr().out
+    assert f"queue 1/2: S-001 already measured in {root / 'S-001'}; skipped" in out
+    assert "queue queue.yaml: 2 samples, 1 measured this run, 1 from before" in out
+
+    first, second = root / "S-001", root / "S-002"
+    # the dark frames and the flat field were shot once, in the first session; the second re-measured
+    # the white reference with them (in its killed run; the resume kept that calibration)
+    assert frame_files(first, "dark_") and frame_files(first, "flat_") and frame_files(first, "white")
+    assert frame_files(second, "dark_") == [] and frame_files(second, "flat_") == []
+    assert frame_files(second, "white")
+    with Journal.open(second / "session.sqlite") as journal:
+        checks = [e for e in journal.events() if e["kind"] is EventKind.CALIBRATION and "decision" in e["data"]]
+        runs, label, samples = journal.runs(), journal.label(), journal.samples()
+    assert [c["data"]["decision"] for c in checks] == ["reuse"] and checks[0]["data"]["limit"] == 0.05
+    assert 0 <= checks[0]["data"]["drift"] <= 0.05
+    # nothing measured twice: the killed run has no end, the resume started from the samples journaled
+    assert len(runs) == 2 and runs[0][1] is None and runs[1][0].samples_done == len(before)
+    assert runs[1][1].status is RunStatus.FINISHED and [r.plan_index for r in samples] == list(range(M))
+    assert [row for row in journal_rows(second) if row[0] < len(before)] == before
+    assert label == SessionLabel(operator="A. Operator", sample_id="S-002", notes=("second coat",), **LAB,
+                                 queue=str(queue.resolve()))
+
+    # the label in report.json and brdf.json (extended beside the reconstruction's own fields)
+    report = json.loads((second / "report.json").read_text())
+    assert report["label"] == label.to_dict() and report["material"] == "builtin:green-felt"
+    record = json.loads((second / "brdf.json").read_text())
+    measured = record["measurement"]
+    assert (measured["sample_id"], measured["operator"], measured["notes"], measured["lens"]) == (
+        "S-002", "A. Operator", ["second coat"], LAB["lens"])
+    assert measured["rig"]["name"] == "sim-rig" and measured["model"] == report["model"]
+    assert measured["predicted_log_relative_mse"] == record["predicted_log_relative_mse"] == \
+        report["prediction"]["predicted_log_relative_mse"]
+    assert measured["started_utc"] == runs[0][0].started_utc and measured["goniofrost_version"] == "0.1.0"
+
+    listed = sessions_json(root, capsys)
+    assert [(s["name"], s["sample_id"], s["operator"], s["state"], s["samples"], s["samples_planned"])
+            for s in listed] == [("S-001", "S-001", "A. Operator", "finished", M, M),
+                                 ("S-002", "S-002", "A. Operator", "finished", M, M)]
+    assert listed[1]["notes"] == ["second coat"] and listed[1]["material"] == "builtin:green-felt"
+    assert listed[1]["predicted_error"] == report["prediction"]["predicted_log_relative_mse"]
+
+
+def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in_full(setup, tmp_path, capsys,
+                                                                                      monkeypatch):
+    folder, rig, plan, _ = setup
+    queue = write_queue(tmp_path / "queue.yaml", rig, plan, drift_limit=1e-9)  # any change is too much
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n\n"))  # the operator presses Enter twice
+    assert main(["queue", str(queue), "--no-progress", "--speedup", "50"]) == 0
+    asked = [line for line in capsys.readouterr().err.splitlines() if "mount sample" in line]
+    assert asked == [f"queue {k}/2: mount sample {s} on the stage, then press Enter (Ctrl-C stops the queue; the "
+                     f"same command resumes it)" for k, s in ((1, "S-001 (builtin:red-plastic)"),
+                                                              (2, "S-002 (builtin:green-felt)"))]
+    second = tmp_path / "sessions" / "S-002"
+    with Journal.open(second / "session.sqlite") as journal:
+        [check] = [e["data"] for e in journal.events() if e["kind"] is EventKind.CALIBRATION and "decision" in e["data"]]
+    assert check["decision"] == "recalibrate" and check["drift"] > 1e-9
+    assert frame_files(second, "dark_") and frame_files(second, "flat_")
+
+
+def test_a_bad_queue_file_is_one_line_and_nothing_is_made(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    queue = write_queue(tmp_path / "queue.yaml", rig, plan)
+    doc = yaml.safe_load(queue.read_text())
+    doc["samples"][1]["sample_id"] = "S-001"
+    queue.write_text(yaml.safe_dump(doc))
+    assert main(["queue", str(queue), "--yes"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost queue: error: {queue}: samples[1].sample_id: expected a sample id "
+                                       f"not used before in the queue, found 'S-001'\n")
+    doc["samples"][1] = {"sample_id": "S-002"}  # the simulated rig needs a material
+    queue.write_text(yaml.safe_dump(doc))
+    assert main(["queue", str(queue), "--yes"]) == 2
+    assert capsys.readouterr().err.startswith(f"goniofrost queue: error: {queue}: samples[1].material: expected SPEC:NAME")
+    assert not (tmp_path / "sessions").exists()
+
+
+# ----- the label of a capture, the catalogue ------------------------------------------------------
+def capture_args(rig, plan, session, material="builtin:red-plastic", *extra) -> list[str]:
+    return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session), "--material", material,
+            "--no-progress", "--speedup", "50", *extra]
+
+
+def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample_is_refused(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    root = tmp_path / "day"
+    batched = batched_plan(tmp_path, rig, plan, [2, 4])
+    assert main(capture_args(rig, batched, root / "a-target", "builtin:red-plastic", "--operator", "B. Operator",
+                             "--sample-id", "T-7", "--note", "first coat", "--note", "dry", "--target-error",
+                             "10000", "--confidence", "0.8")) == 0
+    faulty = tmp_path / "faulty.yaml"
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"axis": "sample_tilt", "kind": "alarm", "at_sample": 1}]
+    faulty.write_text(yaml.safe_dump(doc, sort_keys=False))
+    assert main(capture_args(faulty, plan, root / "b-fault", "builtin:green-felt", "--operator", "A. Operator",
+                             "--sample-id", "G-1")) == 2
+
+    listed = sessions_json(root, capsys)
+    assert [(s["name"], s["state"], s["operator"], s["sample_id"], s["samples"]) for s in listed] == [
+        ("a-target", "target reached", "B. Operator", "T-7", 2), ("b-fault", "faulted", "A. Operator", "G-1", 1)]
+    assert listed[0]["notes"] == ["first coat", "dry"] and listed[0]["lab"] == LAB["lab"]
+    assert [s["name"] for s in sessions_json(root, capsys, "--operator", "A. Operator")] == ["b-fault"]
+    assert [s["name"] for s in sessions_json(root, capsys, "--sample", "T-7")] == ["a-target"]
+    assert sessions_json(root, capsys, "--since", "2999-01-01") == []
+    assert main(["sessions", str(root), "--since", "yesterday"]) == 2
+    assert capsys.readouterr().err == ("goniofrost sessions: error: command line: --since: expected a date YYYY-MM-DD "
+                                       "or YYYY-MM-DDTHH:MM (UTC), found 'yesterday'\n")
+    assert main(["sessions", str(root)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split() == ["session", "started", "(UTC)", "operator", "sample", "state", "samples",
+                                "predicted", "error", "duration"]
+    assert lines[1].startswith("a-target") and " B. Operator " in lines[1] and " target reached " in lines[1]
+
+    # a resume with another sample id: one line, exit 2, nothing changed (no run, no event, same label)
+    session = root / "b-fault"
+    with Journal.open(session / "session.sqlite") as journal:
+        runs, events, label = journal.runs(), journal.events(), journal.label()
+    assert main(capture_args(rig, plan, session, "builtin:green-felt", "--resume", "--sample-id", "G-2")) == 2
+    assert capsys.readouterr().err == (
+        f"goniofrost capture: error: {session / 'session.sqlite'}: meta.label.sample_id: this session was started "
+        f"with sample_id 'G-1', found 'G-2' (--sample-id); resume with the same one, or start a new --session for "
+        f"another\n")
+    with Journal.open(session / "session.sqlite") as journal:
+        assert (journal.runs(), journal.events(), journal.label()) == (runs, events, label)
+    # the same sample (and a note more) resumes it; the label keeps its operator and gains the note;
+    # a brdf.json already beside brdf.binary keeps its fields
+    (session / "brdf.json").write_text(json.dumps({"coating": "by hand", "predicted_log_relative_mse": -1}))
+    assert main(capture_args(rig, plan, session, "builtin:green-felt", "--resume", "--note", "resumed")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        assert journal.label() == SessionLabel(operator="A. Operator", sample_id="G-1", notes=("resumed",), **LAB)
+    record = json.loads((session / "brdf.json").read_text())
+    assert record["coating"] == "by hand" and record["predicted_log_relative_mse"] > 0
+    assert record["measurement"]["sample_id"] == "G-1" and record["measurement"]["notes"] == ["resumed"]
+    assert [s["state"] for s in sessions_json(root, capsys)] == ["target reached", "finished"]
+
+    # the monitor on the folder serves the catalogue and each session's page under /s/NAME/
+    from goniofrost.monitor.server import MonitorServer
+    with MonitorServer(root, port=0, catalogue=True) as server:
+        page = urllib.request.urlopen(server.url).read().decode()
+        assert '<a href="/s/a-target/">a-target</a>' in page and "target reached" in page
+        state = json.loads(urllib.request.urlopen(server.url + "s/b-fault/api/state").read())
+        assert state["label"]["sample_id"] == "G-1" and "sample G-1" in state["label_text"]
+        assert b"static/monitor.js" in urllib.request.urlopen(server.url + "s/b-fault/").read()
+        for path in ("s/elsewhere/", "s/..%2F/api/state", "files/a-target/report.json"):
+            with pytest.raises(urllib.error.HTTPError) as refused:
+                urllib.request.urlopen(server.url + path)
+            assert refused.value.code == 404, path
+
+
+def test_the_rig_files_lab_section_is_checked(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = yaml.safe_load(rig.read_text())
+    doc["lab"] = {"lab": "Optics lab 2", "lense": "50 mm"}
+    bad = tmp_path / "rig.yaml"
+    bad.write_text(yaml.safe_dump(doc, sort_keys=False))
+    assert main(capture_args(bad, plan, tmp_path / "s")) == 2
+    assert capsys.readouterr().err == (f"goniofrost capture: error: {bad}: lab.lense: expected one of the keys "
+                                       f"lab, lens, lamp, found \"unknown key 'lense'\"\n")
+    assert not (tmp_path / "s").exists()
