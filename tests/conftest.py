@@ -15,8 +15,11 @@ SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA", REPO.parent / "share
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache(tmp_path_factory):
-    """Every test run uses its own cache folder, never the user's."""
+    """Every test run uses its own cache folder, never the user's, and its own rig-lock folder
+    (module-scoped fixtures run captures before any per-test folder exists: a test run must never
+    take, or ask to stop, a rig lock of another program on this computer)."""
     os.environ["GONIOFROST_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    os.environ["GONIOFROST_LOCK_DIR"] = str(tmp_path_factory.mktemp("session-locks"))
     yield
 
 
