@@ -44,21 +44,29 @@ def module_name(root: Path, path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imports_of(root: Path, path: Path) -> set[str]:
-    """Absolute dotted names that the module at ``path`` imports (relative imports resolved)."""
+def import_statements(root: Path, path: Path):
+    """Each import of the module at ``path`` (functions' too) as (target, names, from_module):
+    ``import a.b`` is ("a.b", None, True); ``from T import x, y`` is (T, ["x", "y"], True) with
+    relative imports resolved; ``from . import x`` is (the package, ["x"], False)."""
     name = module_name(root, path)
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    found = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
+            for alias in node.names:
+                yield alias.name, None, True
         elif isinstance(node, ast.ImportFrom):
             base = package[: len(package) - node.level + 1] if node.level else []
-            target = ".".join(base + ([node.module] if node.module else []))
-            if node.module:
-                found.add(target)
-            else:  # from . import x: each x may be a module
-                found.update(f"{target}.{alias.name}" for alias in node.names)
+            yield ".".join(base + ([node.module] if node.module else [])), [a.name for a in node.names], bool(node.module)
+
+
+def imports_of(root: Path, path: Path) -> set[str]:
+    """Absolute dotted names that the module at ``path`` imports (relative imports resolved)."""
+    found = set()
+    for target, names, from_module in import_statements(root, path):
+        if names is None or from_module:
+            found.add(target)
+        else:  # from . import x: each x may be a module
+            found.update(f"{target}.{n}" for n in names)
     return found
 
 
@@ -145,16 +153,12 @@ def module_graph(root: Path) -> dict[str, set[str]]:
 def module_imports(root: Path, path: Path, modules) -> set[str]:
     """Absolute dotted names the module at ``path`` imports, ``from P import x`` as ``P.x`` when
     that is one of ``modules`` and as ``P`` otherwise (relative imports resolved)."""
-    name = module_name(root, path)
-    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = package[: len(package) - node.level + 1] if node.level else []
-            target = ".".join(base + ([node.module] if node.module else []))
-            found.update(f"{target}.{a.name}" if f"{target}.{a.name}" in modules else target for a in node.names)
+    for target, names, _from_module in import_statements(root, path):
+        if names is None:
+            found.add(target)
+        else:
+            found.update(f"{target}.{n}" if f"{target}.{n}" in modules else target for n in names)
     return found
 
 
