@@ -369,7 +369,9 @@ def test_export_reads_back_what_read_merl_reads(tmp_path):
 
 
 # ----- capture --bsdf and demo --bsdf ----------------------------------------------------------
-def test_capture_with_bsdf_writes_the_export_of_its_binary(tmp_path, capsys):
+def capture_small_session(tmp_path, *flags) -> Path:
+    """A 4-sample capture of builtin:red-plastic on a small simulated rig, with the command-line
+    ``flags`` (e.g. ``--bsdf``); returns the session folder (the run must succeed)."""
     import yaml
 
     from goniofrost.app.demo import plan_on_rig
@@ -388,7 +390,12 @@ def test_capture_with_bsdf_writes_the_export_of_its_binary(tmp_path, capsys):
                        tmp_path / "plan.json")
     session = tmp_path / "s"
     assert main(["capture", "--rig", str(tmp_path / "rig.yaml"), "--plan", str(plan), "--session", str(session),
-                 "--material", "builtin:red-plastic", "--speedup", "50", "--no-progress", "--bsdf"]) == 0
+                 "--material", "builtin:red-plastic", "--speedup", "50", "--no-progress", *flags]) == 0
+    return session
+
+
+def test_capture_with_bsdf_writes_the_export_of_its_binary(tmp_path, capsys):
+    session = capture_small_session(tmp_path, "--bsdf")
     assert capsys.readouterr().out.endswith(f"wrote {session / 'brdf.bsdf'} (for Mitsuba 3)\n")
     me.export_binary_file(session / "brdf.binary", tmp_path / "again.bsdf")
     assert (session / "brdf.bsdf").read_bytes() == (tmp_path / "again.bsdf").read_bytes()

@@ -284,26 +284,9 @@ def test_benchmark_smallest_setting_runs(capsys):
 
 @pytest.mark.slow  # a whole simulated capture (about 4 min on the loaded machine): the wiring of one flag
 def test_capture_with_bsdf_format_pbrt_writes_the_spectral_export_of_its_binary(tmp_path, capsys):
-    import yaml
+    from test_mitsuba_export import capture_small_session
 
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
-    repo = Path(__file__).resolve().parents[1]
-    rig = yaml.safe_load((repo / "config" / "rigs" / "sim.yaml").read_text())
-    rig["camera"].update(exposures_s=[0.002, 0.008, 0.032, 0.128], dark_frames=1, flat_frames=1)
-    rig["camera"]["intrinsics"].update(image_size_px=[192, 144], focal_px=[1900.0, 1900.0],   # a small sensor
-                                       principal_point_px=[95.5, 71.5])
-    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
-    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=SMALL, k_max=12,
-                  cache=True)
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 4, tmp_path / "rig.yaml",
-                       tmp_path / "plan.json")
-    session = tmp_path / "s"
-    assert main(["capture", "--rig", str(tmp_path / "rig.yaml"), "--plan", str(plan), "--session", str(session),
-                 "--material", "builtin:red-plastic", "--speedup", "50", "--no-progress",
-                 "--bsdf-format", "pbrt"]) == 0
+    session = capture_small_session(tmp_path, "--bsdf-format", "pbrt")
     assert capsys.readouterr().out.endswith(f"wrote {session / 'brdf.bsdf'} (spectral, for pbrt-v4 and Mitsuba 3)\n")
     rs.export_file(session / "brdf.binary", tmp_path / "again.bsdf", "rgl-spectral")
     assert (session / "brdf.bsdf").read_bytes() == (tmp_path / "again.bsdf").read_bytes()
