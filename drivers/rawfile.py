@@ -108,3 +108,13 @@ def raw_exposure_s(path) -> float | None:
             if seconds > 0:
                 return seconds
     return None
+
+
+def bayer_rgb(linear: np.ndarray, channels: np.ndarray) -> np.ndarray:
+    """Half-resolution RGB (H/2, W/2, 3) of a Bayer frame (``RawImage.linear`` and ``.channels``):
+    each 2x2 cell's mean per channel (for pictures of a frame: the monitor, ``rig snap``)."""
+    h, w = linear.shape[0] // 2 * 2, linear.shape[1] // 2 * 2
+    cells = linear[:h, :w].reshape(h // 2, 2, w // 2, 2)
+    colour = channels[:h, :w].reshape(h // 2, 2, w // 2, 2)
+    out = [np.where(colour == c, cells, 0).sum((1, 3)) / np.maximum((colour == c).sum((1, 3)), 1) for c in range(3)]
+    return np.stack(out, -1)

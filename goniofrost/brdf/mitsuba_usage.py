@@ -30,13 +30,10 @@ _REGISTERED: set[str] = set()
 
 
 def _mitsuba():
-    from goniofrost.brdf.mitsuba_render import MitsubaMissingError
+    """Mitsuba with the scalar RGB variant set and the recording BSDF registered."""
+    from goniofrost.brdf.mitsuba_render import load_mitsuba
 
-    try:
-        import mitsuba as mi
-    except ImportError:
-        raise MitsubaMissingError("recording a scene's usage needs Mitsuba 3: pip install 'goniofrost[render]'") from None
-    mi.set_variant(VARIANT)
+    mi = load_mitsuba(VARIANT)
     if VARIANT not in _REGISTERED:
         mi.register_bsdf(RECORDER, lambda props: _recorder_class(mi)(props))
         _REGISTERED.add(VARIANT)

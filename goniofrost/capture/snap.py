@@ -189,13 +189,11 @@ def _write_png(raw, mask, found: dict, out: Path) -> None:
     """The frame (half resolution, gamma 2.2) with the region outlined in green and the markers in yellow."""
     import cv2
 
+    from drivers.rawfile import bayer_rgb
     from goniofrost.core.atomic_file import write_bytes_atomic
 
     h, w = raw.linear.shape[0] // 2 * 2, raw.linear.shape[1] // 2 * 2
-    cells = raw.linear[:h, :w].reshape(h // 2, 2, w // 2, 2)
-    colour = raw.channels[:h, :w].reshape(h // 2, 2, w // 2, 2)
-    rgb = np.stack([np.where(colour == c, cells, 0).sum((1, 3)) / np.maximum((colour == c).sum((1, 3)), 1)
-                    for c in range(3)], -1)
+    rgb = bayer_rgb(raw.linear, raw.channels)
     top = float(np.percentile(rgb, 99.5)) or 1.0
     image = np.ascontiguousarray((np.clip(rgb / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)[..., ::-1])
     if mask is not None:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.rawfile import bayer_rgb
 from goniofrost.monitor.safe_path import UnsafePath, inside
 
 THUMB_WIDTH = 320      # px of the frame thumbnail (a small sensor is enlarged, a big one reduced)
@@ -76,15 +77,6 @@ def frame_path(session_dir, journaled: str) -> Path:
         return inside(session_dir, journaled)
     except UnsafePath:
         return inside(session_dir, Path(session_dir) / "raw" / Path(journaled).name, journaled)
-
-
-def bayer_rgb(linear: np.ndarray, channels: np.ndarray) -> np.ndarray:
-    """Half-resolution RGB (H/2, W/2, 3) of a Bayer frame: each 2x2 cell's mean per channel."""
-    h, w = linear.shape[0] // 2 * 2, linear.shape[1] // 2 * 2
-    cells = linear[:h, :w].reshape(h // 2, 2, w // 2, 2)
-    colour = channels[:h, :w].reshape(h // 2, 2, w // 2, 2)
-    out = [np.where(colour == c, cells, 0).sum((1, 3)) / np.maximum((colour == c).sum((1, 3)), 1) for c in range(3)]
-    return np.stack(out, -1)
 
 
 def _thumbnail(linear: np.ndarray, channels: np.ndarray, mask: np.ndarray, white_rates=None) -> np.ndarray:
