@@ -226,15 +226,14 @@ def gray_views(linear: np.ndarray) -> list[np.ndarray]:
     return views
 
 
-def _candidates(linear: np.ndarray, scales=(1, UPSAMPLE), box=None):
+def _candidates(views: list[np.ndarray], scales=(1, UPSAMPLE), box=None):
     """(scale, 8-bit image) pairs to run the detector on, in the order of ``scales``: 1 is the
-    frame's own pixels, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
+    frame's ``gray_views``, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
     and place corners more precisely (AprilTag refinement: 0.02-0.1 px against 0.1-0.4 px).
     ``box`` (x0, y0, x1, y1): only that part of the frame, its brightness mapped as in the whole
     frame's views (upsampling a crop gives the upsampled frame's pixels, offset by scale x0)."""
     import cv2
 
-    views = gray_views(linear)
     if box is not None:
         x0, y0, x1, y1 = box
         views = [g[y0:y1, x0:x1] for g in views]
@@ -254,22 +253,23 @@ def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at
     without a box, so markers far from the prediction (a misaligned rig) are still read.
     """
     stop_at = len(expected_ids) if stop_at is None else stop_at
+    views = gray_views(linear)
     if box is not None:
-        found, others = _read_markers(linear, expected_ids, scales, stop_at, box)
+        found, others = _read_markers(views, expected_ids, scales, stop_at, box)
         if len(found) >= MIN_MARKERS:
             return found, others
-    return _read_markers(linear, expected_ids, scales, stop_at, None)
+    return _read_markers(views, expected_ids, scales, stop_at, None)
 
 
-def _read_markers(linear: np.ndarray, expected_ids, scales, stop_at: int, box):
-    h, w = linear.shape
+def _read_markers(views: list[np.ndarray], expected_ids, scales, stop_at: int, box):
+    h, w = views[0].shape
     x0, y0, x1, y1 = (0, 0, w, h) if box is None else box
     # The detector's size limits are fractions of the image's larger side: scaled so that a crop
     # accepts the same candidates (in pixels) as the whole frame.
     det = _detector(max(h, w) / max(x1 - x0, y1 - y0))
     found: dict[int, np.ndarray] = {}
     others: set[int] = set()
-    for scale, gray in _candidates(linear, scales, box):
+    for scale, gray in _candidates(views, scales, box):
         corners, ids, _ = det.detectMarkers(gray)
         ids = [] if ids is None else ids.ravel().tolist()
         # Back to frame pixels: ArUco puts pixel centres at +0.5 (c - 0.5 in OpenCV's convention),
