@@ -112,10 +112,22 @@ class HolderRenderer:
         self._textures = {ids: _card_texture(layout, ids, self.TEXEL_MM)
                           for ids in (SAMPLE_MARKER_IDS, WHITE_MARKER_IDS)}
         self._lens_maps = None   # distortion remap at supersampled resolution, built on first use
+        self._last = None        # (key, view): the frames of one bracket share their pose
 
     def view(self, w_i: np.ndarray, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
-        """Mean card reflectance and patch coverage per pixel, each (H, W) float32, of the pose
-        (w_i, w_o) (unit, sample frame, w_o z > 0); beyond the card lies the background."""
+        """Mean card reflectance and patch coverage per pixel, each (H, W) float32 read-only, of
+        the pose (w_i, w_o) (unit, sample frame, w_o z > 0); beyond the card lies the background.
+        The last pose's view is kept: a bracket's exposures at one pose render it once."""
+        key = (np.asarray(w_i, dtype=np.float64).tobytes(), np.asarray(w_o, dtype=np.float64).tobytes(),
+               tuple(marker_ids))
+        if self._last is None or self._last[0] != key:
+            card, cover = self._render(w_i, w_o, marker_ids)
+            card.flags.writeable = cover.flags.writeable = False
+            self._last = (key, (card, cover))
+        return self._last[1]
+
+    def _render(self, w_i: np.ndarray, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
+        """``view`` computed: the card warped through the pose's homography (no memo)."""
         import cv2
 
         n, lay, tau = SUPERSAMPLE, self.layout, self.TEXEL_MM
