@@ -18,7 +18,7 @@ import pytest
 
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import training
-from goniofrost.frost.threads import imap_chunks, map_chunks, ranges, resolve_threads
+from goniofrost.frost.threads import PIECES_PER_THREAD, imap_chunks, map_chunks, pass_ranges, ranges, resolve_threads, run_ranges
 from goniofrost.frost.training import fit_model
 from test_frost import synthetic_tables
 
@@ -91,6 +91,11 @@ def test_chunks_come_back_in_order_whatever_the_threads():
         assert map_chunks(lambda a, b: (a, b), 10, 3, threads) == [(0, 3), (3, 6), (6, 9), (9, 10)]
         assert list(imap_chunks(lambda a, b: a, 100, 7, threads)) == list(range(0, 100, 7))
     assert ranges(10, 3) == [(0, 3), (3, 6), (6, 10)] and ranges(2, 4) == [(0, 1), (1, 2)]
+    # A pass: one piece on one thread, PIECES_PER_THREAD per thread otherwise, results in order.
+    assert pass_ranges(100, 1) == [(0, 100)] and pass_ranges(100, 2) == ranges(100, 2 * PIECES_PER_THREAD)
+    for threads in (1, 2, 3):
+        assert run_ranges(lambda k, lo, hi: (k, lo, hi), 50, threads, "x") == \
+            [("x", lo, hi) for lo, hi in pass_ranges(50, threads)]
     with pytest.raises(ValueError, match="threads: expected a positive integer, found -1"):
         resolve_threads(-1)
 

@@ -100,7 +100,7 @@ def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, thr
                 row, picked = forms.close(s, int(index[s]))
                 sigma = sigmas[s]
                 u[s] = sigma @ row
-                delta = forms.noise[s, picked] + row @ u[s]
+                delta = forms.noise[s][picked] + row @ u[s]
                 v[s] = sigma @ (s2 * u[s])
                 sigma -= np.outer(u[s], u[s]) / delta
                 picks[s].append(picked)
@@ -123,9 +123,9 @@ class _Forms:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-        self.noise = np.array([np.asarray(noise, dtype=np.float64) for noise in noises])  # (S, n)
+        self.noise = [np.asarray(noise, dtype=np.float64) for noise in noises]  # S of (n,), the callers'
         # private: a picked cell gets +inf (score 0)
-        self.open_noise = np.ascontiguousarray(self.noise[:, self.rows])
+        self.open_noise = np.array([noise[self.rows] for noise in self.noise])  # (S, n_c)
         self.q, self.p = np.empty(self.open_noise.shape), np.empty(self.open_noise.shape)
         self.parts = pass_ranges(self.rows.size, threads)  # several per thread, taken as threads come free
 
