@@ -114,6 +114,7 @@ def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_pa
     """train() streams the tabulation cache entries (TabulatedFiles) instead of stacking them:
     the same model, bit for bit, as fitting the stacked tables."""
     from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.base import DatasetError
     from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulate_materials
     from goniofrost.frost.training import train
 
@@ -127,5 +128,13 @@ def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_pa
     for name in ("dictionary", "singular_values", "coefficients", "mean", "reference", "noise_variance"):
         np.testing.assert_array_equal(np.asarray(getattr(streamed, name)), np.asarray(getattr(stacked, name)), name)
     assert streamed.noise == stacked.noise
-    files = TabulatedFiles(sorted((tmp_path / "tabulated").glob("*.npy"))[:2])
+    paths = sorted((tmp_path / "tabulated").glob("*.npy"))[:2]
+    files = TabulatedFiles(paths)
     assert files.shape == (2, grid.n_valid, 3) and files.rows(5, 9).shape == (4, 2, 3)
+    tables = np.stack([np.load(path) for path in paths])  # (2, n, 3)
+    np.testing.assert_array_equal(files.rows(5, 9), tables[:, 5:9].transpose(1, 0, 2))
+    np.testing.assert_array_equal(files.rows(0, grid.n_valid), tables.transpose(1, 0, 2))
+    short = tmp_path / "short.npy"
+    short.write_bytes(paths[0].read_bytes()[:-12])  # the header still says n rows
+    with pytest.raises(DatasetError, match=rf"short.npy: expected rows 0 to {grid.n_valid}, found the file shorter"):
+        TabulatedFiles([short]).rows(0, grid.n_valid)
