@@ -20,11 +20,11 @@ from threadpoolctl import threadpool_limits
 
 # More threads than this never help a memory-bound pass.
 MAX_THREADS = 8
-# Pieces of a pass per thread. A pass split in one half per thread waits for the half whose
-# core another process is using; with several pieces per thread the thread on the free core
-# takes more of them. Each piece costs ~20 us of scheduling (at load 6 on 2 cores, m = 20
-# Bayesian selections timed the same with 1 and 4 pieces per thread, within the noise).
-PIECES_PER_THREAD = 4
+# Pieces of a pass per thread. More than one lets the thread on a free core take more of a pass
+# when another process holds the other core, but in paired m = 60 runs at load 5-8 four pieces
+# cost 10-20 % more CPU than one (3.0-3.4 s against 2.6-2.8 s) and no wall time was gained: on a
+# machine that is not shared, one half per thread is the cheapest.
+PIECES_PER_THREAD = 1
 
 
 def default_threads() -> int:
