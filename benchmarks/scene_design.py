@@ -41,6 +41,10 @@ def parse(argv=None):
     p.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
     p.add_argument("--usage-spp", type=int, default=16, help="samples per pixel of the usage recording")
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
+    p.add_argument("--validation", type=int, default=None,
+                   help="validation materials choosing the weighting (default as many as test materials)")
+    p.add_argument("--no-export", action="store_true",
+                   help="direct renders only (the export-based figure is the slow part: RGL tensors of every reconstruction)")
     p.add_argument("--smallest", action="store_true",
                    help="the built-in library on a 30 x 30 x 60 grid, 1 test material, m = 4, 4 spp (a test runs it)")
     return p.parse_args(argv)
@@ -152,7 +156,7 @@ def main(argv=None) -> int:
 
     args = parse(argv)
     specs, grid, names, test, ms, spp, uspp = setting(args)
-    validation = [n for n in names[0::7] if n not in test][:len(test)]
+    validation = [n for n in names[0::7] if n not in test][:args.validation or len(test)]
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     scenes = {s: REPO / "config" / "scenes" / f"{s}.xml" for s in args.scenes}
@@ -160,9 +164,11 @@ def main(argv=None) -> int:
     direct = {s: TabulatedScene(path, "sample") for s, path in scenes.items()}
     # 1. the weighting, chosen on training materials only: a model without the validation materials
     inner = train(specs, only=[n for n in names if n not in test and n not in validation], grid=grid, cache=True)
+    print(f"validation model: {len(names) - len(test) - len(validation)} materials ({time.perf_counter() - t0:.0f} s)",
+          flush=True)
     v_rows, _ = direct_rows(inner, scene_designs(inner, usage, max(ms)),
                             tabulate_materials(collect_materials(specs, only=validation), grid),
-                            validation, ms, direct, usage, grid, spp)
+                            validation, ms, direct, usage, grid, spp, extra=progress_only(t0, len(validation)))
     choice, scores = choose_weighting(v_rows)
     del inner
     print(f"weighting chosen on {len(validation)} validation materials: {choice} "
@@ -175,7 +181,8 @@ def main(argv=None) -> int:
     designs = scene_designs(model, usage, max(ms))
     truths = tabulate_materials(collect_materials(specs, only=test), grid)
     with tempfile.TemporaryDirectory() as tmp:
-        exported = export_renders(model, designs, choice, scenes, ms, grid, spp, Path(tmp), t0, len(test))
+        exported = (progress_only(t0, len(test)) if args.no_export else
+                    export_renders(model, designs, choice, scenes, ms, grid, spp, Path(tmp), t0, len(test)))
         rows, pictures = direct_rows(model, designs, truths, test, ms, direct, usage, grid, spp, extra=exported)
     (args.out / "results.json").write_text(json.dumps({
         "test": test, "validation": validation, "weighting": choice, "weighting_scores": scores,
@@ -186,6 +193,15 @@ def main(argv=None) -> int:
     save_pictures(pictures, args.out, choice)
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0
+
+
+def progress_only(t0, n_test):
+    """The per-material callback of ``direct_rows`` without export renders: a progress line."""
+    def rows_of(k, name, _truth):
+        print(f"{k + 1}/{n_test} {name} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return []
+
+    return rows_of
 
 
 def export_renders(model, designs, choice, scenes, ms, grid, spp, tmp: Path, t0, n_test):
