@@ -43,6 +43,8 @@ def parse(argv=None):
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
     p.add_argument("--validation", type=int, default=None,
                    help="validation materials choosing the weighting (default as many as test materials)")
+    p.add_argument("--validation-only", action="store_true",
+                   help="stop after choosing the weighting on the validation materials")
     p.add_argument("--no-export", action="store_true",
                    help="direct renders only (the export-based figure is the slow part: RGL tensors of every reconstruction)")
     p.add_argument("--smallest", action="store_true",
@@ -78,21 +80,27 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return rel, 10.0 * np.log10(peak * peak / err) if err > 0 else float("inf")
 
 
-WEIGHTINGS = ("log", "linear")
+# The candidate objectives of the scene-aware design (``scene_designs``); one is chosen on the
+# validation materials before the test materials are looked at.
+WEIGHTINGS = ("log", "linear", "root", "mixed")
 
 
 def scene_designs(model, usage: dict, m_max: int) -> dict:
     """{"blind": rows, (scene, weighting): rows} of nested designs of m_max picks: the plain
     design, and per scene the usage-weighted one on the mapped error ("log", what ``plan --usage``
-    minimises) and on the BRDF's own error to first order ("linear", ``usage_design.linear_usage``)."""
+    minimises), on the BRDF's own error to first order ("linear", u g^2, ``usage_design.linear_usage``),
+    half-way between them ("root", u g) and on the scene's use and the whole BRDF alike ("mixed",
+    (u + 1/n) / 2)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_design import linear_usage
 
     designs = {"blind": select_bayes(model, m_max).positions}
     for s, u in usage.items():
         designs[(s, "log")] = select_bayes(model, m_max, usage=u).positions
-        lin = linear_usage(u, model.mean, model.reference, model.weight, model.eps)
-        designs[(s, "linear")] = select_bayes(model, m_max, usage=lin).positions
+        for name, power in (("linear", 2.0), ("root", 1.0)):
+            weighted = linear_usage(u, model.mean, model.reference, model.weight, model.eps, power)
+            designs[(s, name)] = select_bayes(model, m_max, usage=weighted).positions
+        designs[(s, "mixed")] = select_bayes(model, m_max, usage=0.5 * u + 0.5 / u.size).positions
     return designs
 
 
@@ -173,6 +181,11 @@ def main(argv=None) -> int:
     del inner
     print(f"weighting chosen on {len(validation)} validation materials: {choice} "
           f"(geometric-mean image error / blind: {scores}) ({time.perf_counter() - t0:.0f} s)", flush=True)
+    print(validation_table(v_rows, ms))
+    if args.validation_only:
+        (args.out / "validation.json").write_text(json.dumps({"validation": validation, "weighting": choice,
+                                                              "weighting_scores": scores, "rows": v_rows}, indent=1))
+        return 0
     # 2. the test materials, the model trained on every other material
     training = [n for n in names if n not in test]
     model = train(specs, only=training, grid=grid, cache=True)
@@ -236,10 +249,22 @@ def export_renders(model, designs, choice, scenes, ms, grid, spp, tmp: Path, t0,
     return rows_of
 
 
+def validation_table(rows: list[dict], ms: list[int]) -> str:
+    """Per scene and m: each weighting's median direct-render image error / the blind design's."""
+    med = medians(rows)
+    lines = ["| scene | m | " + " | ".join(WEIGHTINGS) + " |", "|---|---|" + "---|" * len(WEIGHTINGS)]
+    for s in SCENES:
+        for m in ms:
+            if (s, m, "blind", "direct") in med:
+                lines.append(f"| {s} | {m} | " + " | ".join(
+                    f"{med[(s, m, w, 'direct')] / med[(s, m, 'blind', 'direct')]:.2f}" for w in WEIGHTINGS) + " |")
+    return "\n".join(lines)
+
+
 def table(rows: list[dict], ms: list[int], choice: str) -> str:
     """Median over materials per scene and m: image rel. MSE of both renders (direct: the same
     paths for every BRDF; export: RGL tensors), the other weighting's, and the whole-BRDF error."""
-    other = next(w for w in WEIGHTINGS if w != choice)
+    other = next(w for w in WEIGHTINGS if w != choice)  # the others: validation_table, results.json
     med, brdf, seen = medians(rows), medians([r for r in rows if r["render"] == "direct"], "brdf_log_mse"), \
         medians([r for r in rows if r["render"] == "direct"], "seen_log_mse")
     lines = [f"| scene | m | direct: image rel. MSE blind | aware ({choice}) | change | aware ({other}) | change "

@@ -152,9 +152,10 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
     assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
-    assert doc["weighting"] in ("log", "linear") and not set(doc["validation"]) & set(doc["test"])
+    assert doc["weighting"] in ("log", "linear", "root", "mixed") and not set(doc["validation"]) & set(doc["test"])
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
-        ("blind", "direct"), ("log", "direct"), ("linear", "direct"), ("blind", "export"), (doc["weighting"], "export")}
+        ("blind", "direct"), ("log", "direct"), ("linear", "direct"), ("root", "direct"), ("mixed", "direct"),
+        ("blind", "export"), (doc["weighting"], "export")}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()
