@@ -41,6 +41,12 @@ def parse(argv=None):
     p.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
     p.add_argument("--usage-spp", type=int, default=16, help="samples per pixel of the usage recording")
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
+    p.add_argument("--validation", type=int, default=None,
+                   help="validation materials choosing the weighting (default as many as test materials)")
+    p.add_argument("--validation-only", action="store_true",
+                   help="stop after choosing the weighting on the validation materials")
+    p.add_argument("--no-export", action="store_true",
+                   help="direct renders only (the export-based figure is the slow part: RGL tensors of every reconstruction)")
     p.add_argument("--smallest", action="store_true",
                    help="the built-in library on a 30 x 30 x 60 grid, 1 test material, m = 4, 4 spp (a test runs it)")
     return p.parse_args(argv)
@@ -74,94 +80,239 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return rel, 10.0 * np.log10(peak * peak / err) if err > 0 else float("inf")
 
 
-def main(argv=None) -> int:
-    from goniofrost.brdf.mitsuba_export import export_mitsuba
-    from goniofrost.brdf.mitsuba_usage import record_usage, render_with_bsdf
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+# The candidate objectives of the scene-aware design (``scene_designs``); one is chosen on the
+# validation materials before the test materials are looked at.
+WEIGHTINGS = ("log", "linear", "root", "mixed")
+
+
+def scene_designs(model, usage: dict, m_max: int) -> dict:
+    """{"blind": rows, (scene, weighting): rows} of nested designs of m_max picks: the plain
+    design, and per scene the usage-weighted one on the mapped error ("log", what ``plan --usage``
+    minimises), on the BRDF's own error to first order ("linear", u g^2, ``usage_design.linear_usage``),
+    half-way between them ("root", u g) and on the scene's use and the whole BRDF alike ("mixed",
+    (u + 1/n) / 2)."""
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import linear_usage
+
+    designs = {"blind": select_bayes(model, m_max).positions}
+    for s, u in usage.items():
+        designs[(s, "log")] = select_bayes(model, m_max, usage=u).positions
+        for name, power in (("linear", 2.0), ("root", 1.0)):
+            weighted = linear_usage(u, model.mean, model.reference, model.weight, model.eps, power)
+            designs[(s, name)] = select_bayes(model, m_max, usage=weighted).positions
+        designs[(s, "mixed")] = select_bayes(model, m_max, usage=0.5 * u + 0.5 / u.size).positions
+    return designs
+
+
+def direct_rows(model, designs, truths, names, ms, direct, usage, grid, spp, extra=None):
+    """Rows of the direct renders (``mitsuba_tabulated``: the same paths for every BRDF) of every
+    material, scene, m and design; ``extra(k, name, truth)`` may add rows of its own (export
+    renders) and is called once per material; ``usage``: {scene: map}. Returns (rows, pictures of the first material)."""
     from goniofrost.frost.metrics import log_relative_mse
     from goniofrost.frost.reconstruction import reconstruct_bayes
+
+    weight = np.asarray(model.weight, dtype=np.float64)[:, None]
+    rows, pictures = [], {}
+    for k, name in enumerate(names):
+        truth = np.asarray(truths[k], dtype=np.float64)
+        reference = {s: scene.render(grid, truth, spp) for s, scene in direct.items()}
+        for m in ms:
+            for key, picked in designs.items():
+                rec = reconstruct_bayes(model, picked[:m], truth[picked[:m]], with_std=False).brdf
+                diff = (np.log(weight * truth + model.eps) - np.log(weight * np.maximum(rec, 0) + model.eps)) ** 2
+                for s, scene in direct.items():
+                    if key != "blind" and key[0] != s:
+                        continue
+                    image = scene.render(grid, rec, spp)
+                    rel, psnr = image_errors(image, reference[s])
+                    rows.append({"material": name, "scene": s, "m": m, "design": "blind" if key == "blind" else key[1],
+                                 "render": "direct", "image_rel_mse": rel, "psnr_db": psnr,
+                                 "brdf_log_mse": log_relative_mse(model, truth, rec),
+                                 "seen_log_mse": float(usage[s] @ diff.mean(1))})
+                    if k == 0 and m == ms[len(ms) // 2]:
+                        pictures[(s, rows[-1]["design"])] = image
+                        pictures[(s, "truth")] = reference[s]
+        if extra is not None:
+            rows.extend(extra(k, name, truth))
+    return rows, pictures
+
+
+def medians(rows: list[dict], key="image_rel_mse") -> dict:
+    """{(scene, m, design, render): median of ``key`` over the materials}."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["scene"], r["m"], r["design"], r["render"]), []).append(r[key])
+    return {g: float(np.median(v)) for g, v in groups.items()}
+
+
+def choose_weighting(rows: list[dict]) -> tuple[str, dict]:
+    """The weighting (of WEIGHTINGS) whose median direct-render image error, relative to the blind
+    design's, has the lower geometric mean over every scene and m; fixed before the test run and
+    applied to the validation rows only. Returns (choice, {weighting: geometric mean ratio})."""
+    med = medians(rows)
+    keys = sorted({(s, m) for s, m, _, _ in med})
+    score = {w: float(np.exp(np.mean([np.log(med[(s, m, w, "direct")] / med[(s, m, "blind", "direct")])
+                                      for s, m in keys]))) for w in WEIGHTINGS}
+    return min(WEIGHTINGS, key=lambda w: score[w]), score
+
+
+def main(argv=None) -> int:
+    from goniofrost.brdf.mitsuba_tabulated import TabulatedScene
+    from goniofrost.brdf.mitsuba_usage import record_usage
+    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
     from goniofrost.frost.training import train
 
     args = parse(argv)
     specs, grid, names, test, ms, spp, uspp = setting(args)
+    validation = [n for n in names[0::7] if n not in test][:args.validation or len(test)]
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    scenes = {s: REPO / "config" / "scenes" / f"{s}.xml" for s in args.scenes}
+    usage = {s: record_usage(path, "sample", spp=uspp, grid=grid)[0] for s, path in scenes.items()}
+    direct = {s: TabulatedScene(path, "sample") for s, path in scenes.items()}
+    # 1. the weighting, chosen on training materials only: a model without the validation materials
+    inner = train(specs, only=[n for n in names if n not in test and n not in validation], grid=grid, cache=True)
+    print(f"validation model: {len(names) - len(test) - len(validation)} materials ({time.perf_counter() - t0:.0f} s)",
+          flush=True)
+    v_rows, _ = direct_rows(inner, scene_designs(inner, usage, max(ms)),
+                            tabulate_materials(collect_materials(specs, only=validation), grid),
+                            validation, ms, direct, usage, grid, spp, extra=progress_only(t0, len(validation)))
+    choice, scores = choose_weighting(v_rows)
+    del inner
+    print(f"weighting chosen on {len(validation)} validation materials: {choice} "
+          f"(geometric-mean image error / blind: {scores}) ({time.perf_counter() - t0:.0f} s)", flush=True)
+    print(validation_table(v_rows, ms))
+    if args.validation_only:
+        (args.out / "validation.json").write_text(json.dumps({"validation": validation, "weighting": choice,
+                                                              "weighting_scores": scores, "rows": v_rows}, indent=1))
+        return 0
+    # 2. the test materials, the model trained on every other material
     training = [n for n in names if n not in test]
     model = train(specs, only=training, grid=grid, cache=True)
     print(f"model: {len(training)} training materials, K = {model.n_components} ({time.perf_counter() - t0:.0f} s); "
           f"{len(test)} test materials: {', '.join(test)}", flush=True)
-    scenes = {s: REPO / "config" / "scenes" / f"{s}.xml" for s in args.scenes}
-    usage = {s: record_usage(path, "sample", spp=uspp, grid=grid)[0] for s, path in scenes.items()}
-    m_max = max(ms)
-    designs = {"blind": select_bayes(model, m_max).positions}
-    designs |= {s: select_bayes(model, m_max, usage=usage[s]).positions for s in scenes}
+    designs = scene_designs(model, usage, max(ms))
     truths = tabulate_materials(collect_materials(specs, only=test), grid)
-    weight = np.asarray(model.weight, dtype=np.float64)[:, None]
-    rows, pictures = [], {}
     with tempfile.TemporaryDirectory() as tmp:
-        for k, name in enumerate(test):
-            truth = np.asarray(truths[k], dtype=np.float64)
-            full = np.full((grid.size, 3), np.nan)
-            full[grid.valid_cells] = truth
-            export_mitsuba(Path(tmp) / "truth.bsdf", full, grid, source=name)
-            reference = {s: render_with_bsdf(path, "sample", Path(tmp) / "truth.bsdf", spp) for s, path in scenes.items()}
-            for m in ms:
-                for design, rows_picked in designs.items():
-                    positions = rows_picked[:m]
-                    rec = reconstruct_bayes(model, positions, truth[positions], with_std=False)
-                    whole = log_relative_mse(model, truth, rec.brdf)
-                    diff = (np.log(weight * truth + model.eps) - np.log(weight * np.maximum(rec.brdf, 0) + model.eps)) ** 2
-                    full[grid.valid_cells] = rec.brdf
-                    export_mitsuba(Path(tmp) / "rec.bsdf", full, grid, source=f"{name} {design} m={m}")
-                    for s, path in scenes.items():
-                        if design not in ("blind", s):
-                            continue
-                        image = render_with_bsdf(path, "sample", Path(tmp) / "rec.bsdf", spp)
-                        rel, psnr = image_errors(image, reference[s])
-                        rows.append({"material": name, "scene": s, "m": m, "design": "aware" if design == s else "blind",
-                                     "image_rel_mse": rel, "psnr_db": psnr, "brdf_log_mse": whole,
-                                     "seen_log_mse": float(usage[s] @ diff.mean(1))})
-                        if k == 0 and m == ms[len(ms) // 2]:
-                            pictures[(s, rows[-1]["design"])] = image
-                            pictures[(s, "truth")] = reference[s]
-            print(f"{k + 1}/{len(test)} {name} ({time.perf_counter() - t0:.0f} s)", flush=True)
-    (args.out / "results.json").write_text(json.dumps({"test": test, "spp": spp, "usage_spp": uspp, "m": ms,
-                                                       "grid": grid.as_dict(), "rows": rows}, indent=1))
-    print(table(rows, ms))
-    save_pictures(pictures, args.out)
+        exported = (progress_only(t0, len(test)) if args.no_export else
+                    export_renders(model, designs, choice, scenes, ms, grid, spp, Path(tmp), t0, len(test)))
+        rows, pictures = direct_rows(model, designs, truths, test, ms, direct, usage, grid, spp, extra=exported)
+    (args.out / "results.json").write_text(json.dumps({
+        "test": test, "validation": validation, "weighting": choice, "weighting_scores": scores,
+        "validation_rows": v_rows, "spp": spp, "usage_spp": uspp, "m": ms, "grid": grid.as_dict(), "rows": rows},
+        indent=1))
+    print(table(rows, ms, choice))
+    print(goal_lines(rows, ms, choice))
+    save_pictures(pictures, args.out, choice)
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0
 
 
-def table(rows: list[dict], ms: list[int]) -> str:
-    """Median over materials per scene and m: image rel. MSE and PSNR, whole-BRDF error, both designs."""
-    lines = ["| scene | m | image rel. MSE blind | aware | change | PSNR blind | aware (dB) | seen log-MSE blind | aware "
-             "| whole BRDF log-MSE blind | aware |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+def progress_only(t0, n_test):
+    """The per-material callback of ``direct_rows`` without export renders: a progress line."""
+    def rows_of(k, name, _truth):
+        print(f"{k + 1}/{n_test} {name} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return []
+
+    return rows_of
+
+
+def export_renders(model, designs, choice, scenes, ms, grid, spp, tmp: Path, t0, n_test):
+    """The export-based figure: truth and reconstructions (blind, and the chosen weighting) as RGL
+    tensors, rendered by Mitsuba's ``measured`` BSDF. Returns the per-material callback of
+    ``direct_rows``."""
+    from goniofrost.brdf.mitsuba_export import export_mitsuba
+    from goniofrost.brdf.mitsuba_usage import render_with_bsdf
+    from goniofrost.frost.reconstruction import reconstruct_bayes
+
+    def rows_of(k, name, truth):
+        full = np.full((grid.size, 3), np.nan)
+        full[grid.valid_cells] = truth
+        export_mitsuba(tmp / "truth.bsdf", full, grid, source=name)
+        reference = {s: render_with_bsdf(path, "sample", tmp / "truth.bsdf", spp) for s, path in scenes.items()}
+        out = []
+        for m in ms:
+            for key, picked in designs.items():
+                if key != "blind" and key[1] != choice:
+                    continue
+                full[grid.valid_cells] = reconstruct_bayes(model, picked[:m], truth[picked[:m]], with_std=False).brdf
+                export_mitsuba(tmp / "rec.bsdf", full, grid, source=f"{name} {key} m={m}")
+                for s, path in scenes.items():
+                    if key != "blind" and key[0] != s:
+                        continue
+                    rel, psnr = image_errors(render_with_bsdf(path, "sample", tmp / "rec.bsdf", spp), reference[s])
+                    out.append({"material": name, "scene": s, "m": m, "design": "blind" if key == "blind" else key[1],
+                                "render": "export", "image_rel_mse": rel, "psnr_db": psnr})
+        print(f"{k + 1}/{n_test} {name} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return out
+
+    return rows_of
+
+
+def validation_table(rows: list[dict], ms: list[int]) -> str:
+    """Per scene and m: each weighting's median direct-render image error / the blind design's."""
+    med = medians(rows)
+    lines = ["| scene | m | " + " | ".join(WEIGHTINGS) + " |", "|---|---|" + "---|" * len(WEIGHTINGS)]
     for s in SCENES:
-        for m in ms:  # scenes not run have no rows
-            pick = {d: [r for r in rows if r["scene"] == s and r["m"] == m and r["design"] == d] for d in ("blind", "aware")}
-            if not pick["blind"]:
-                continue
-            med = {d: {k: float(np.median([r[k] for r in v]))
-                       for k in ("image_rel_mse", "psnr_db", "seen_log_mse", "brdf_log_mse")} for d, v in pick.items()}
-            change = 100.0 * (med["aware"]["image_rel_mse"] / med["blind"]["image_rel_mse"] - 1.0)
-            lines.append(f"| {s} | {m} | {med['blind']['image_rel_mse']:.4g} | {med['aware']['image_rel_mse']:.4g} | "
-                         f"{change:+.0f} % | {med['blind']['psnr_db']:.1f} | {med['aware']['psnr_db']:.1f} | "
-                         f"{med['blind']['seen_log_mse']:.4f} | {med['aware']['seen_log_mse']:.4f} | "
-                         f"{med['blind']['brdf_log_mse']:.4f} | {med['aware']['brdf_log_mse']:.4f} |")
+        for m in ms:
+            if (s, m, "blind", "direct") in med:
+                lines.append(f"| {s} | {m} | " + " | ".join(
+                    f"{med[(s, m, w, 'direct')] / med[(s, m, 'blind', 'direct')]:.2f}" for w in WEIGHTINGS) + " |")
     return "\n".join(lines)
 
 
-def save_pictures(pictures: dict, out: Path) -> None:
-    """One PNG per scene: truth | scene-blind | scene-aware, tone-mapped alike."""
+def table(rows: list[dict], ms: list[int], choice: str) -> str:
+    """Median over materials per scene and m: image rel. MSE of both renders (direct: the same
+    paths for every BRDF; export: RGL tensors), the other weighting's, and the whole-BRDF error."""
+    other = next(w for w in WEIGHTINGS if w != choice)  # the others: validation_table, results.json
+    med, brdf, seen = medians(rows), medians([r for r in rows if r["render"] == "direct"], "brdf_log_mse"), \
+        medians([r for r in rows if r["render"] == "direct"], "seen_log_mse")
+    lines = [f"| scene | m | direct: image rel. MSE blind | aware ({choice}) | change | aware ({other}) | change "
+             f"| export: blind | aware ({choice}) | change | seen log-MSE blind | aware | whole BRDF log-MSE blind | aware |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for s in SCENES:
+        for m in ms:
+            if (s, m, "blind", "direct") not in med:
+                continue
+            d = {w: med[(s, m, w, "direct")] for w in ("blind", *WEIGHTINGS)}
+            e = {w: med.get((s, m, w, "export"), float("nan")) for w in ("blind", choice)}
+            lines.append(f"| {s} | {m} | {d['blind']:.4g} | {d[choice]:.4g} | {100 * (d[choice] / d['blind'] - 1):+.0f} % | "
+                         f"{d[other]:.4g} | {100 * (d[other] / d['blind'] - 1):+.0f} % | {e['blind']:.4g} | {e[choice]:.4g} | "
+                         f"{100 * (e[choice] / e['blind'] - 1):+.0f} % | {seen[(s, m, 'blind', 'direct')]:.4f} | "
+                         f"{seen[(s, m, choice, 'direct')]:.4f} | {brdf[(s, m, 'blind', 'direct')]:.4f} | "
+                         f"{brdf[(s, m, choice, 'direct')]:.4f} |")
+    return "\n".join(lines)
+
+
+def goal_lines(rows: list[dict], ms: list[int], choice: str) -> str:
+    """Per scene, render and m: is the chosen design's median error >= 30 % below the blind one's
+    at the same m, or at most the blind one's at an m' with m <= 0.6 m'?"""
+    med = medians(rows)
+    out = []
+    for s in SCENES:
+        for render in ("direct", "export"):
+            verdicts = []
+            for m in ms:
+                if (s, m, choice, render) not in med:
+                    continue
+                aware = med[(s, m, choice, render)]
+                lower = aware <= 0.7 * med[(s, m, "blind", render)]
+                fewer = [m2 for m2 in ms if m <= 0.6 * m2 and aware <= med[(s, m2, "blind", render)]]
+                verdicts.append(f"m={m}: {'yes' if lower or fewer else 'no'}"
+                                f"{' (30 % lower)' if lower else ''}{f' (<= blind at m={fewer[0]})' if fewer else ''}")
+            if verdicts:
+                out.append(f"goal {s} {render}: " + "; ".join(verdicts))
+    return "\n".join(out)
+
+
+def save_pictures(pictures: dict, out: Path, choice: str) -> None:
+    """One PNG per scene: truth | scene-blind | scene-aware (direct renders), tone-mapped alike."""
     import cv2
 
     for s in SCENES:
         if (s, "truth") not in pictures:
             continue
-        panels = [pictures[(s, k)] for k in ("truth", "blind", "aware")]
+        panels = [pictures[(s, k)] for k in ("truth", "blind", choice)]
         top = float(np.percentile(panels[0], 99.5)) or 1.0
         strip = np.concatenate([np.clip(p / top, 0, 1) ** (1 / 2.2) for p in panels], axis=1)
         image = (strip * 255).astype(np.uint8)[..., ::-1]

@@ -180,6 +180,13 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         expect(page.locator("#preview-caption")).to_contain_text("the session's model cannot be opened")
         assert json.loads(page.evaluate("JSON.stringify(window.goniofrostMonitor.state.samples.status)")) == \
             ["done", "done", "next"]
+        # a plan made for a scene: the assessment is of the error in the scene's use, and says so
+        with Journal.open(tmp_path / "session.sqlite") as journal:
+            journal.add_event("batch", "batch 1 reconstructed", data={
+                "batch": 0, "samples": 2, "predicted_error": 0.0121, "bound": 0.0305, "confidence": 0.95,
+                "target": 0.05, "decision": "target reached", "out_of_model": [], "scope": "scene"})
+        expect(page.locator("#assessment")).to_have_text(
+            "error in the scene's use <= 0.05 with 95 % confidence (median estimate 0.0121)", timeout=LOADED_MS)
 
 
 def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_step(page, tmp_path):

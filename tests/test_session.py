@@ -637,6 +637,75 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     assert "meta.confidence: this session was started with another confidence: expected 0.8, found 0.7" in capsys.readouterr().err
 
 
+def scene_plan(folder: Path, rig, plan, ends, model) -> Path:
+    """The module's plan in batches ``ends`` as a plan made for a scene: its usage section (a map of
+    the cells near retro-reflection) with the error in the scene's use calibrated on the model's
+    training materials, as ``plan --usage`` writes it."""
+    from goniofrost.capture.plan_file import write_plan
+    from goniofrost.frost.scene_error import scene_error
+    from goniofrost.frost.usage_calibration import calibrate_scene
+
+    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
+    usage = np.where(np.degrees(theta_d) < 20, 1.0, 0.0)
+    usage /= usage.sum()
+    doc = json.loads(batched_plan(folder, rig, plan, ends).read_text())
+    doc["usage"] = {"file": "retro.npy", "hash": "retro-20deg", "cells_used": int((usage > 0).sum()),
+                    "predicted_errors": "usage-weighted",
+                    "error": scene_error(model, usage, calibrate_scene(model, usage), "retro-20deg").to_plan()}
+    out = folder / "scene-plan.json"
+    write_plan(out, doc)
+    return out
+
+
+def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_scenes_use(setup, tmp_path, capsys):
+    from goniofrost.frost.reconstruction import error_bound, predicted_error
+    from goniofrost.frost.scene_error import from_plan
+
+    folder, rig, plan, model = setup
+    path = scene_plan(tmp_path, rig, plan, [2, 4, 5], model)
+    session = tmp_path / "s"
+    assert main(capture_args(rig, path, session, "--speedup", "50", "--target-error", "10000",
+                             "--confidence", "0.8")) == 0
+    out = capsys.readouterr().out
+    with Journal.open(session / "session.sqlite") as journal:
+        records, events = journal.samples(), journal.events()
+    [batch] = [e for e in events if e["kind"] == "batch"]
+    assert batch["data"]["scope"] == "scene" and batch["data"]["decision"] == "target reached"
+    assert batch["message"] == (f"batch 1: 2 samples, error in the scene's use <= 10000 with 80 % confidence "
+                                f"(median estimate {batch['data']['predicted_error']:.4g}): target reached")
+    # the bound is the scene's: its own calibration, not the model's
+    scene = from_plan(json.loads(path.read_text()), model)
+    rows = model.grid.valid_position(np.array([GRID.flat_index(*json.loads(path.read_text())["samples"][r.plan_index]
+                                                               ["cell"]) for r in records]))
+    values, sigmas = np.array([r.rgb for r in records]), np.array([r.sigma for r in records])
+    assert batch["data"]["bound"] == pytest.approx(error_bound(model, rows, values, sigmas, 0.8, scene=scene).upper)
+    assert batch["data"]["bound"] != pytest.approx(error_bound(model, rows, values, sigmas, 0.8).upper)
+    report = json.loads((session / "report.json").read_text())
+    target, scene_section = report["target_error"], report["prediction"]["scene"]
+    assert (target["scope"], target["error"]) == ("scene", "error in the scene's use")
+    assert target["statement"].startswith("error in the scene's use <= 10000 with 80 % confidence (median estimate ")
+    assert scene_section["predicted_log_relative_mse"] == pytest.approx(
+        predicted_error(model, rows, values, sigmas, scene=scene))
+    assert scene_section["calibrated"] and scene_section["usage_hash"] == "retro-20deg"
+    summary = (session / "summary.txt").read_text()
+    assert "target error in the scene's use 10000 at 80 % confidence: target reached after 2 of 5 samples" in out
+    assert "predicted error in the scene's use (the plan's usage map): log-relative MSE" in summary
+    # a resume rebuilds the report from the journal and the plan: still the scene's error
+    (session / "report.json").unlink()
+    assert main(capture_args(rig, path, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
+    again = json.loads((session / "report.json").read_text())
+    assert again["target_error"] == target and again["prediction"]["scene"] == scene_section
+    # a plan for a scene without that calibration (the training materials were not at hand) cannot stop on it
+    doc = json.loads(path.read_text())
+    doc["usage"]["error"] |= {"calibration": None, "unavailable": "no calibration: datasets gone"}
+    path.write_text(json.dumps(doc))
+    assert main(capture_args(rig, path, tmp_path / "s2", "--target-error", "0.05", "--confidence", "0.8")) == 2
+    assert (f"{path}: usage.error.calibration: expected the calibrated bound on the error in the scene's use "
+            f"(plan --usage with the model's training materials at hand), found 'no calibration: datasets gone'"
+            ) in capsys.readouterr().err
+    assert not (tmp_path / "s2").exists()
+
+
 def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])

@@ -152,6 +152,120 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
     assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
-    assert {(r["scene"], r["design"]) for r in doc["rows"]} == {("retro-sphere", "blind"), ("retro-sphere", "aware")}
-    assert all(np.isfinite(r["image_rel_mse"]) and r["seen_log_mse"] >= 0 for r in doc["rows"])
+    assert doc["weighting"] in ("log", "linear", "root", "mixed") and not set(doc["validation"]) & set(doc["test"])
+    assert {(r["design"], r["render"]) for r in doc["rows"]} == {
+        ("blind", "direct"), ("log", "direct"), ("linear", "direct"), ("root", "direct"), ("mixed", "direct"),
+        ("blind", "export"), (doc["weighting"], "export")}
+    assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
+    assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()
+
+
+def test_the_tabulated_bsdf_looks_up_the_cell_of_each_direction_pair():
+    from goniofrost.brdf.mitsuba_tabulated import full_table, lookup
+    from goniofrost.core.grid import half_diff_to_dirs
+
+    cells = GRID.valid_cells[::97]
+    values = np.random.default_rng(0).uniform(0.1, 5.0, (GRID.n_valid, 3))
+    # the directions at each cell's centre, and their reciprocal swap (the same cell)
+    w_i, w_o = half_diff_to_dirs(*GRID.cell_angles(*(np.asarray(i) + 0.5 for i in GRID.unravel(cells))))
+    keep = (w_i[:, 2] > 0) & (w_o[:, 2] > 0)
+    cells, w_i, w_o = cells[keep], w_i[keep], w_o[keep]
+    table = full_table(GRID, values)
+    assert cells.size > 100
+    np.testing.assert_array_equal(lookup(GRID, table, w_i, w_o), table[cells])
+    np.testing.assert_array_equal(lookup(GRID, table, w_o, w_i), table[cells])
+    below = w_o * np.array([1.0, 1.0, -1.0])
+    assert not lookup(GRID, table, w_i, below).any()
+
+
+def test_two_brdfs_rendered_with_the_tabulated_bsdf_trace_the_same_paths():
+    """Same seed and spp: a BRDF half as large gives exactly half the image of the lit sphere
+    (cosine-hemisphere sampling and next-event estimation depend on no BRDF value)."""
+    from goniofrost.brdf.mitsuba_tabulated import TabulatedScene
+
+    scene = TabulatedScene(SCENES / "retro-sphere.xml", "sample")
+    values = np.random.default_rng(1).uniform(0.05, 2.0, (GRID.n_valid, 3))
+    image = scene.render(GRID, values, spp=4)
+    half = scene.render(GRID, 0.5 * values, spp=4)
+    assert image.shape == (64, 64, 3) and image.max() > 0
+    np.testing.assert_allclose(half, 0.5 * image, rtol=1e-6, atol=0)
+    other = scene.render(GRID, values, spp=4, seed=1)
+    assert np.abs(other - image).max() > 1e-3  # another seed traces other paths
+
+
+# ----- the error in the scene's use: prediction, bound, calibration ------------------------------------
+def retro_map() -> np.ndarray:
+    """A map that uses only the cells near retro-reflection (theta_d < 10 deg), sum 1."""
+    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
+    usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
+    return usage / usage.sum()
+
+
+def test_the_weighted_error_of_a_held_out_material_is_its_cell_by_cell_error(model):
+    """The calibration's true error from the weighted Gram equals sum_c u_c (x_c - d_c s)^2 over
+    the cells, for any coefficients."""
+    from goniofrost.frost import noise, training
+    from goniofrost.frost.calibration import _fold_dictionary
+    from goniofrost.frost.usage_calibration import weighted_errors, weighted_gram
+
+    mapped, gram = training.remap(model)
+    fold = noise.inner_folds(gram, len(model.names), model.n_components)[1]
+    usage = retro_map()
+    coefficients = np.random.default_rng(3).normal(0, 0.05, fold.true_coefficients.shape)
+    x = np.asarray(mapped, np.float64) @ fold.centring                   # the held-out columns, centred
+    d_f = np.asarray(_fold_dictionary(mapped, fold.projector), np.float64)
+    explicit = usage @ (x - d_f @ coefficients) ** 2
+    np.testing.assert_allclose(weighted_errors(fold, weighted_gram(mapped, usage), coefficients), explicit, rtol=1e-4)
+
+
+def test_a_uniform_usage_map_predicts_and_bounds_the_error_as_the_whole_brdf(model):
+    """For a map that weighs every cell alike the error in the scene's use is the whole BRDF's: the
+    calibration fitted again on the held-out training materials is the model's, and so are the
+    predicted error and the bound of any samples."""
+    from goniofrost.datasets import open_dataset
+    from goniofrost.frost.prediction import calibration_of
+    from goniofrost.frost.reconstruction import error_bound, predicted_error
+    from goniofrost.frost.scene_error import scene_error
+    from goniofrost.frost.usage_calibration import calibrate_scene
+
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    fitted, plain = calibrate_scene(model, uniform), calibration_of(model)
+    # (to the rounding of the noise stored in float32 and of the Gram's two routes)
+    np.testing.assert_allclose(fitted["coefficients"], plain["coefficients"], rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(fitted["bound"]["scores"], plain["bound"]["scores"], rtol=1e-3, atol=1e-6)
+    scene = scene_error(model, uniform, fitted)
+    truth = np.asarray(open_dataset("builtin").tabulate(["red-plastic"], GRID)[0], np.float64)
+    rows = np.arange(0, GRID.n_valid, GRID.n_valid // 17)[:16]
+    sigmas = 0.02 * truth[rows] + 1e-4
+    assert predicted_error(model, rows, truth[rows], sigmas, scene=scene) == pytest.approx(
+        predicted_error(model, rows, truth[rows], sigmas), rel=1e-3)
+    bounds = [error_bound(model, rows, truth[rows], sigmas, 0.8, scene=s) for s in (scene, None)]
+    assert bounds[0].upper == pytest.approx(bounds[1].upper, rel=1e-3) and np.isfinite(bounds[1].upper)
+
+
+def test_plan_with_a_usage_map_carries_the_error_in_the_scenes_use(model, model_dir, tmp_path):
+    """PLAN.json holds M, the weighted noise and a calibration of the usage-weighted error with its
+    bound; the plan's predicted errors use that calibration."""
+    from goniofrost.core.errors import ConfigError
+    from goniofrost.frost.posterior import cell_noise, prior_variance
+    from goniofrost.frost.prediction import predict_typical
+    from goniofrost.frost.scene_error import from_plan
+
+    path, out = tmp_path / "retro.npy", tmp_path / "plan.json"
+    np.save(path, retro_map().astype(np.float32))
+    assert main(["plan", "--model", str(model_dir), "--samples", "20", "--usage", str(path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    scene = from_plan(doc, model)
+    assert scene.matrix.shape == (model.n_components,) * 2 and scene.calibration["bound"]["scores"]
+    assert scene.calibration["coefficients"] != model.noise["calibration"]["coefficients"]
+    rows = model.grid.valid_position(np.array([GRID.flat_index(*s["cell"]) for s in doc["samples"]]))
+    d, noise = np.asarray(model.dictionary[rows], np.float64), cell_noise(model)[rows]
+    sigma = np.linalg.inv(np.diag(1 / prior_variance(model)) + d.T @ (d / noise[:, None]))
+    design = float(np.sum(scene.matrix * sigma)) + scene.noise_total  # trace(M Sigma) + sum u sigma_c^2
+    assert doc["predicted_errors"][-1] == pytest.approx(float(predict_typical(scene.calibration, design, 20)), rel=1e-6)
+    doc["usage"]["error"]["matrix"] = [[1.0]]
+    with pytest.raises(ConfigError) as refused:
+        from_plan(doc, model, out)
+    assert str(refused.value) == (f"{out}: usage.error.matrix: expected {model.n_components} x {model.n_components} "
+                                  f"finite numbers (the model's components), found 'shape (1, 1)'")

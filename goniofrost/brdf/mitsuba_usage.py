@@ -116,9 +116,10 @@ def _replace_bsdf(shape: ET.Element, replacement: ET.Element, keep_inner: bool) 
     shape.append(replacement)
 
 
-def load_scene(scene_path, object_id: str, bsdf: ET.Element, keep_inner: bool = False):
-    """The Mitsuba scene with the object's BSDF replaced by ``bsdf``; UsageError when it cannot load."""
-    mi = _mitsuba()
+def load_scene(scene_path, object_id: str, bsdf: ET.Element, keep_inner: bool = False, mi=None):
+    """The Mitsuba scene with the object's BSDF replaced by ``bsdf``; UsageError when it cannot load.
+    ``mi``: the mitsuba module with the variant to load in (default: this module's scalar RGB)."""
+    mi = _mitsuba() if mi is None else mi
     tree = _read_scene(scene_path)
     _replace_bsdf(_object(tree, object_id, scene_path), bsdf, keep_inner)
     resolver = mi.file_resolver()

@@ -34,6 +34,7 @@ class SessionInputs:
     cells: np.ndarray
     positions: np.ndarray
     white_joints: dict
+    scene: object = None  # frost.scene_error.SceneError of a plan made with a usage map, else None
 
     @property
     def samples(self) -> list[dict]:
@@ -44,6 +45,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the
     plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
+    from goniofrost.frost.scene_error import from_plan as scene_from_plan
     from goniofrost.capture.plan_file import check_unique_cells, read_plan
     from goniofrost.capture.rig_file import load_checked_rig
 
@@ -62,7 +64,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     check_unique_cells(plan_path, plan)
     check_drills(plan, rig)
     return SessionInputs(rig, plan, plan_path, model, model_path, cells, model.grid.valid_position(cells),
-                         white_reference_joints(rig))
+                         white_reference_joints(rig), scene_from_plan(plan, model, plan_path))
 
 
 def check_drills(plan: dict, rig) -> None:

@@ -97,6 +97,8 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                             "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
     report["prediction"] |= extrapolation_section(inputs, records)
+    if inputs.scene is not None:
+        report["prediction"]["scene"] = scene_prediction(inputs, records)
     report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
     if spec is not None and spec.target is not None:
         report["target_error"] = target_section(spec, records)
@@ -166,6 +168,20 @@ def _version() -> str | None:
         return None
 
 
+def scene_prediction(inputs, records) -> dict:
+    """The predicted error in the scene's use of a plan made with a usage map (``frost.scene_error``):
+    the usage-weighted log-relative MSE of this reconstruction, beside the whole BRDF's."""
+    from goniofrost.frost.reconstruction import predicted_error
+    from goniofrost.frost.scene_error import NAMES, SCOPE_SCENE
+
+    order = np.array([r.plan_index for r in records], dtype=np.int64)
+    value = predicted_error(inputs.model, inputs.positions[order], np.array([r.rgb for r in records], dtype=np.float64),
+                            np.array([r.sigma for r in records], dtype=np.float64), scene=inputs.scene)
+    return {"error": NAMES[SCOPE_SCENE], "predicted_log_relative_mse": value, "usage_hash": inputs.scene.usage_hash,
+            "calibrated": bool(inputs.scene.calibration), "weighting": "log-relative squared error weighted by the "
+            "scene's use of every cell (PLAN.json usage)"}
+
+
 def target_section(spec, records) -> dict:
     """The target-error part of report.json: every batch's predicted error and decision, and why
     the capture stopped ("target reached", "plan used up", or "not finished" if interrupted)."""
@@ -176,7 +192,11 @@ def target_section(spec, records) -> dict:
         batch["out_of_model"] = list(batch["out_of_model"])
     stopped = batches[-1]["decision"] if batches and batches[-1]["decision"] != CONTINUE else "not finished"
     last = batches[-1] if batches else None
-    return {"target": spec.target, "confidence": spec.confidence, "plan_samples": len(spec.samples),
+    from goniofrost.frost.scene_error import NAMES
+
+    scope = getattr(spec.assess, "scope", "brdf")
+    return {"target": spec.target, "error": NAMES[scope], "scope": scope, "confidence": spec.confidence,
+            "plan_samples": len(spec.samples),
             "samples_used": len(records), "batch_ends": list(spec.batch_ends), "batches": batches,
             "stopped": stopped, "statement": statement(last) if last else "no batch was completed",
             "bound": None if last is None else last["bound"],
@@ -306,13 +326,17 @@ def summary_text(report: dict) -> str:
     ]
     target = report.get("target_error")
     if target:
-        lines.append(f"target error {target['target']:g} at {100 * target['confidence']:g} % confidence: "
+        lines.append(f"target {target.get('error', 'error')} {target['target']:g} at {100 * target['confidence']:g} % confidence: "
                      f"{target['stopped']} after {target['samples_used']} of {target['plan_samples']} samples: "
                      f"{target['statement']}")
         lines.append("  bound (median estimate) after each batch: " + ", ".join(
             f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
     lines.append(f"predicted error of this reconstruction: log-relative MSE {report['prediction']['predicted_log_relative_mse']:.4g}"
                  f" (per-cell standard deviation in {report['outputs']['std']})")
+    scene = report["prediction"].get("scene")
+    if scene:
+        lines.append(f"predicted {scene['error']} (the plan's usage map): log-relative MSE "
+                     f"{scene['predicted_log_relative_mse']:.4g}" + ("" if scene["calibrated"] else " (uncalibrated)"))
     if report["prediction"].get("extrapolation"):
         lines.append("EXTRAPOLATION: the samples are unlike every material the model was trained on ("
                      + " and ".join(report["prediction"]["out_of_model_features"]) + " beyond the training range): "

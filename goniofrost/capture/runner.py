@@ -186,13 +186,20 @@ def check_target(inputs, target_error, confidence: float = DEFAULT_CONFIDENCE) -
             or any(b <= a for a, b in zip([0] + ends[:-1], ends))):
         raise ConfigError(inputs.plan_path, "batch_ends", f"increasing sample counts ending at {n}", ends)
     calibration = calibration_of(inputs.model)
+    if inputs.scene is not None:  # a plan made for a scene: its own error and calibration
+        calibration = inputs.scene.calibration or {}
+        if not calibration.get("bound"):
+            raise ConfigError(inputs.plan_path, "usage.error.calibration", "the calibrated bound on the error in "
+                              "the scene's use (plan --usage with the model's training materials at hand)",
+                              inputs.scene.unavailable)
     if not calibration.get("bound"):
         raise ConfigError(inputs.model_path, "noise.calibration.bound", "the calibrated error bound --target-error "
                           "stops on (train the model again with this version of goniofrost)", None)
     if unavailability(calibration, confidence):
         n = len(calibration["bound"]["scores"])
+        what = "this plan's scene" if inputs.scene is not None else "this model"
         raise ConfigError("command line", "--confidence", f"at most {max_confidence(calibration['bound']):.3f} with "
-                          f"this model (its bound is calibrated on {n} held-out training materials; "
+                          f"{what} (its bound is calibrated on {n} held-out training materials; "
                           f"{confidence:g} needs {math.ceil(confidence / (1 - confidence) - 1e-9)})", confidence)
 
 

@@ -93,7 +93,9 @@ class Assess:
 
     predicted_error: the median estimate of the log-relative MSE; bound: the calibrated upper
     bound at ``confidence`` (None when none can be given); out_of_model: the features beyond
-    every held-out training material (``frost.confidence.FEATURE_NAMES``; () if none).
+    every held-out training material (``frost.confidence.FEATURE_NAMES``; () if none); scope:
+    the error assessed (``frost.scene_error``: "brdf", the whole BRDF's; "scene", the error in the
+    scene's use of a plan made with a usage map).
     """
 
     batch: int
@@ -104,6 +106,7 @@ class Assess:
     bound: float | None = None
     confidence: float = 0.95
     out_of_model: tuple[str, ...] = ()
+    scope: str = "brdf"
 
 
 @dataclass(frozen=True)

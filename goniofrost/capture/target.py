@@ -5,11 +5,14 @@ PLAN.json ``batch_ends``) is measured one batch at a time. After a batch the sam
 so far are reconstructed and the calibrated bound on this material's error at the session's
 confidence (``frost.confidence``, from its own samples) decides (``frost.stopping.stop_reason``):
 stop when the error is at most E with that confidence and the samples are not unlike every
-training material, or when the plan is used up. Everything here is a pure function of the journaled samples, so a resumed
+training material, or when the plan is used up. A plan made for a scene (``plan --usage``) is
+judged by the error in the scene's use (``frost.scene_error``): its prediction, its bound and
+its calibration are of that error, and every assessment says so (``scope``). Everything here is a pure function of the journaled samples, so a resumed
 session replays the same decisions and the report can show them.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import math
@@ -17,35 +20,53 @@ import math
 import numpy as np
 
 from goniofrost.frost.confidence import ErrorBound
+from goniofrost.frost.scene_error import NAMES, SCOPE_BRDF, SCOPE_SCENE
 from goniofrost.frost.stopping import stop_reason
 
 CONTINUE = "continue"
 DEFAULT_CONFIDENCE = 0.95
 
 
-def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONFIDENCE) -> Callable:
+@dataclass(frozen=True)
+class Assessor:
     """``assess(records) -> ErrorBound`` of the samples ``records`` (SampleRecords; their plan
-    indices index ``positions``, the plan samples' rows in the model), uncertainties used."""
-    from goniofrost.frost.reconstruction import error_bound
+    indices index ``positions``, the plan samples' rows in the model), uncertainties used;
+    ``scene``: the plan's ``scene_error.SceneError`` (the error in the scene's use) or None."""
 
-    def assess(records) -> ErrorBound:
+    model: object
+    positions: np.ndarray
+    confidence: float = DEFAULT_CONFIDENCE
+    scene: object = None
+
+    @property
+    def scope(self) -> str:
+        return SCOPE_BRDF if self.scene is None else SCOPE_SCENE
+
+    def __call__(self, records) -> ErrorBound:
+        from goniofrost.frost.reconstruction import error_bound
+
         order = np.array([r.plan_index for r in records], dtype=np.int64)
         values = np.array([r.rgb for r in records], dtype=np.float64)
         sigmas = np.array([r.sigma for r in records], dtype=np.float64)
-        return error_bound(model, positions[order], values, sigmas, confidence)
+        return error_bound(self.model, self.positions[order], values, sigmas, self.confidence, scene=self.scene)
 
-    return assess
+
+def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONFIDENCE, scene=None) -> Assessor:
+    """The ``Assessor`` of a session's samples (see there)."""
+    return Assessor(model, positions, confidence, scene)
 
 
 def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records) -> dict:
     """The assessment after batch ``batch`` (0-based) ending at ``end`` samples: the fields of an
     ``Assess`` step (batch, samples, predicted_error = the median estimate, target, decision =
-    CONTINUE or a stopping reason, bound = the upper bound or None, confidence, out_of_model)."""
+    CONTINUE or a stopping reason, bound = the upper bound or None, confidence, out_of_model,
+    scope = the error assessed: the assessor's, "brdf" for a plain callable)."""
     bound = assess(records)
     decision = stop_reason(bound, target, end, n_samples) or CONTINUE
     return {"batch": batch, "samples": end, "predicted_error": float(bound.median), "target": target,
             "decision": decision, "bound": float(bound.upper) if math.isfinite(bound.upper) else None,
-            "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model)}
+            "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model),
+            "scope": getattr(assess, "scope", SCOPE_BRDF)}
 
 
 def bound_of(assessed: dict) -> ErrorBound:
@@ -57,10 +78,11 @@ def bound_of(assessed: dict) -> ErrorBound:
 
 def statement(assessed: dict) -> str:
     """The operator's sentence of an assessment: "error <= E with 95 % confidence (median
-    estimate X)" or why not (``frost.stopping.statement``)."""
+    estimate X)" ("error in the scene's use <= E ..." for a scene's plan) or why not
+    (``frost.stopping.statement``)."""
     from goniofrost.frost.stopping import statement as sentence
 
-    return sentence(bound_of(assessed), float(assessed["target"]))
+    return sentence(bound_of(assessed), float(assessed["target"]), NAMES[assessed.get("scope", SCOPE_BRDF)])
 
 
 def history(assess: Callable, batch_ends: Sequence[int], target: float, records) -> list[dict]:

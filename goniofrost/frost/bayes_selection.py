@@ -164,7 +164,8 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
-                 usage: np.ndarray | None = None, uniform_is_plain: bool = True) -> Selection:
+                 usage: np.ndarray | None = None, uniform_is_plain: bool = True,
+                 calibration: dict | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -175,12 +176,14 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     design then minimises the expected error of what the scene sees (``usage_design``), and the
     predicted errors are usage-weighted. A uniform map is the plain design (``uniform_is_plain``:
     taken as such without the change of basis; False computes it the long way, for tests).
+    calibration: the predicted-error calibration to use (default the model's; a scene's own,
+    ``usage_calibration``, for the usage-weighted error).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
     """
     start = time.perf_counter()
     n = model.grid.n_valid
     rows = _candidate_rows(candidates, n)
-    calibration, noise = calibration_of(model), cell_noise(model)
+    calibration, noise = calibration or calibration_of(model), cell_noise(model)
     limit = _check(m, max_error, rows.size, calibration, noise)
     if usage is not None and not (uniform_is_plain and is_uniform(usage)):
         scene = scene_prior(model.dictionary, usage, prior_variance(model))

@@ -95,7 +95,9 @@ def fit(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarra
     """The posterior from samples.
 
     rows: (l, K) dictionary rows of the sampled cells; noise: (l,) or (l, c) sigma_i^2;
-    prior_var: (K,); b: (l, c) mapped samples minus mu; s2: (K,) S^2 (D^T D);
+    prior_var: (K,); b: (l, c) mapped samples minus mu; s2: (K,) S^2 (D^T D), or (K, K) a
+    scene's M = D^T diag(u) D (``usage_design``; the design error is then trace(M Sigma) +
+    noise_total with noise_total = sum_c u_c sigma_c^2 and n_cells = 1);
     noise_total: sum of sigma_c^2 over all n_cells valid cells.
     """
     rows = np.asarray(rows, dtype=np.float64)
@@ -116,7 +118,8 @@ def fit(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarra
         residuals[:, cols] = (b[:, cols] - rows @ s) / (1.0 - h)[:, None]
         variance[:, cols] = (sig2 + q / (1.0 - h))[:, None]
         coefficients[:, cols], covariances[gi] = s, cov
-        design[cols] = (float(np.sum(s2 * np.diag(cov))) + noise_total) / n_cells
+        weighted = np.sum(s2 * cov) if np.ndim(s2) == 2 else np.sum(s2 * np.diag(cov))  # trace(M Sigma)
+        design[cols] = (float(weighted) + noise_total) / n_cells
     return Posterior(coefficients, covariances, group, residuals, variance, design)
 
 

@@ -106,24 +106,36 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
 
 
-def predicted_error(model: FrostModel, positions, values, sigmas=None) -> float:
+def predicted_error(model: FrostModel, positions, values, sigmas=None, scene=None) -> float:
     """The predicted log-relative MSE of ``reconstruct_bayes`` from these samples, without the
-    reconstruction itself (no pass over the cells: a few milliseconds)."""
-    return _posterior(model, positions, values, sigmas)[4][0]
+    reconstruction itself (no pass over the cells: a few milliseconds). ``scene``: a
+    ``scene_error.SceneError``: the error of the scene's use (usage-weighted) instead of the
+    whole BRDF's."""
+    return _posterior(model, positions, values, sigmas, scene)[4][0]
 
 
-def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: float = 0.95):
+def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: float = 0.95, scene=None):
     """The calibrated bound on ``reconstruct_bayes``'s error from these samples at ``confidence``
     and whether they are unlike every training material (a ``confidence.ErrorBound``; no pass over
-    the cells). Its median estimate counts the samples' variance as ``predicted_error`` does."""
-    from goniofrost.frost import prediction
+    the cells). Its median estimate counts the samples' variance as ``predicted_error`` does.
+    ``scene``: bound the error of the scene's use instead, with its own calibration."""
     from goniofrost.frost.confidence import error_bound as bound_of
 
-    unique, _, _, _, (predicted, _, z2, energy, extra) = _posterior(model, positions, values, sigmas)
-    return bound_of(prediction.calibration_of(model), predicted - extra, z2, energy, unique.size, confidence, extra)
+    unique, _, _, _, (predicted, _, z2, energy, extra) = _posterior(model, positions, values, sigmas, scene)
+    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra)
 
 
-def _posterior(model: FrostModel, positions, values, sigmas):
+def _calibration(model: FrostModel, scene) -> dict:
+    """The calibration of the error asked for: the model's, or the scene's (none: ``{}``, so no
+    bound, and the point prediction uncalibrated)."""
+    from goniofrost.frost import prediction
+
+    if scene is None:
+        return prediction.calibration_of(model)
+    return scene.calibration or {}
+
+
+def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
     """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
     Posterior, (predicted error, design error, z2, energy, the part of the predicted error the
     samples' own variance adds)).
@@ -131,7 +143,8 @@ def _posterior(model: FrostModel, positions, values, sigmas):
     The calibration was fitted on noise-free samples, so the samples' own variance enters the
     prediction as what the model says it costs: the design error with it minus the design error
     without it (the extra posterior variance, averaged over every cell), added to the calibrated
-    prediction made with the design error without it.
+    prediction made with the design error without it. With a ``scene`` the design error is the
+    usage-weighted one (trace(M Sigma) + sum u sigma^2) and the calibration the scene's.
     """
     from goniofrost.frost import posterior, prediction
 
@@ -144,12 +157,15 @@ def _posterior(model: FrostModel, positions, values, sigmas):
     s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
     rows, prior = model.dictionary[unique], posterior.prior_variance(model)
     total, n = float(cell_noise.sum()), model.grid.n_valid
+    if scene is not None:
+        s2, total, n = scene.matrix, scene.noise_total, 1
     post = posterior.fit(rows, noise, prior, b, s2, total, n)
     design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
     clean = design
     if np.any(noise_extra > 0):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
-    predicted = float(prediction.predict(prediction.calibration_of(model), clean, z2, energy, unique.size))
+    fitted = _calibration(model, scene) or prediction.UNCALIBRATED
+    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size))
     extra = max(design - clean, 0.0)
     return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra)
 

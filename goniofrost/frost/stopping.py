@@ -51,8 +51,9 @@ def stop_reason(bound: ErrorBound, target: float, done: int, total: int) -> str 
     return None
 
 
-def why_not_reached(bound: ErrorBound, target: float) -> str:
-    """One line: why ``bound`` does not reach ``target`` ("" when it does)."""
+def why_not_reached(bound: ErrorBound, target: float, error: str = "error") -> str:
+    """One line: why ``bound`` does not reach ``target`` ("" when it does); ``error`` names the
+    error bounded ("error in the scene's use" for a scene's plan)."""
     if bound.unavailable or not math.isfinite(bound.upper):
         return f"no bound at {100 * bound.confidence:g} % confidence: {bound.unavailable or 'none can be given'}"
     if bound.out_of_model:
@@ -60,13 +61,13 @@ def why_not_reached(bound: ErrorBound, target: float) -> str:
         what = " and ".join(FEATURE_NAMES[k] for k in bound.out_of_model)
         return f"the samples are unlike every training material ({what} beyond the training range): an extrapolation"
     if bound.upper > target:
-        return (f"error <= {bound.upper:.4g} with {100 * bound.confidence:g} % confidence, above the target "
+        return (f"{error} <= {bound.upper:.4g} with {100 * bound.confidence:g} % confidence, above the target "
                 f"{target:g} (median estimate {bound.median:.4g})")
     return ""
 
 
-def statement(bound: ErrorBound, target: float) -> str:
+def statement(bound: ErrorBound, target: float, error: str = "error") -> str:
     """The operator's sentence after an assessment: "error <= E with 95 % confidence (median
-    estimate X)" when the target is reached, else why not."""
-    reason = why_not_reached(bound, target)
-    return reason or f"error <= {target:g} with {100 * bound.confidence:g} % confidence (median estimate {bound.median:.4g})"
+    estimate X)" when the target is reached, else why not (``error``: see ``why_not_reached``)."""
+    reason = why_not_reached(bound, target, error)
+    return reason or f"{error} <= {target:g} with {100 * bound.confidence:g} % confidence (median estimate {bound.median:.4g})"

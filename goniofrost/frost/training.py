@@ -262,3 +262,30 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
         return model
     model.save(folder)
     return FrostModel.load(folder)
+
+
+def remap(model: FrostModel, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The centred mapped training data X (float32 (n, t)) and its Gram matrix (float64 (t, t))
+    of a model trained by ``train``, from its datasets (``model.info["datasets"]``) and names,
+    mapped again exactly as in training (what a later cross-validation of the model needs).
+
+    TrainingError when the model does not name its datasets, they cannot be opened, or they no
+    longer hold its training materials (the mean map differs from the model's).
+    """
+    from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulated_material_files
+
+    specs = (model.info or {}).get("datasets")
+    if not specs:
+        raise TrainingError("the model does not name the datasets it was trained on (train it with goniofrost train)")
+    try:
+        materials = collect_materials(list(specs), only=list(model.names))
+    except GoniofrostError as exc:
+        raise TrainingError(f"the model's training materials cannot be opened again: {exc}") from None
+    if [m.label for m in materials] != list(model.names):
+        raise TrainingError(f"the datasets {list(specs)} no longer hold the model's {len(model.names)} training "
+                            f"materials in its order")
+    tables = TabulatedFiles(tabulated_material_files(materials, model.grid, progress=progress))
+    mapped, _, mean, gram = _map_and_gram(tables, list(model.names), np.asarray(model.weight), model.eps, progress)
+    if not np.array_equal(mean, np.asarray(model.mean)):
+        raise TrainingError(f"the datasets {list(specs)} no longer give the model's training data (its mean map differs)")
+    return mapped, gram

@@ -63,3 +63,20 @@ def scene_prior(dictionary, usage: np.ndarray, prior_var: np.ndarray) -> ScenePr
     for lo in range(0, dictionary.shape[0], CHUNK_ROWS):
         rotated[lo:lo + CHUNK_ROWS] = np.asarray(dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
     return ScenePrior(rotated, lam, np.ones(lam.size), usage)
+
+
+def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: float = 2.0) -> np.ndarray:
+    """The usage map for the error of the BRDF itself rather than of its mapped (log) values.
+
+    The design's objective is the error of the mapped values L = log((w x + eps) / (r + eps));
+    an image is linear in the BRDF x, and to first order at the prior mean (L = mu) an error dL_c
+    is an error dx_c = g_c dL_c with g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Weighting each
+    cell by u_c g_c^2 makes trace(M Sigma) the expected squared error of x the scene sees.
+    Arguments: usage (n,) sum 1; the model's mean, reference, weight (n,) and eps; ``power``: the
+    exponent of g (2: the linear error; 1: half-way between it and the mapped one). Returns
+    float64 (n,), sum 1.
+    """
+    mu = np.asarray(mean, dtype=np.float64)
+    g = np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
+    out = np.asarray(usage, dtype=np.float64) * g ** power
+    return out / out.sum()

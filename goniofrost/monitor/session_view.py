@@ -95,7 +95,8 @@ class SessionView:
     ``predicted_error`` is the latest predicted reconstruction error when the session
     records one; ``assessment`` the latest batch assessment of a capture with a target error (the
     typed fields of its Assess step: batch, samples, predicted_error = the median estimate, bound,
-    confidence, target, decision, out_of_model), None before one; ``files`` are the names of the folder's own files (journal side files excluded);
+    confidence, target, decision, out_of_model, scope: "brdf" or "scene", the error assessed), None
+    before one; ``files`` are the names of the folder's own files (journal side files excluded);
     ``label`` who measured what (``SessionLabel.to_dict``: operator, sample_id, notes, lab, lens,
     lamp, queue); ``first_started_utc`` the first run's start; ``run_spans`` (started, ended or
     None) Unix times of every run.
@@ -293,7 +294,8 @@ def _assessment(events: list) -> dict | None:
     for e in reversed(events):
         data = e.get("data") or {}
         if e.get("kind") == "batch" and all(k in data for k in ASSESSMENT_FIELDS):
-            return {k: data[k] for k in ASSESSMENT_FIELDS}
+            # scope (the error assessed, frost.scene_error) came later: older journals assessed the BRDF's
+            return {k: data[k] for k in ASSESSMENT_FIELDS} | {"scope": data.get("scope", "brdf")}
     return None
 
 

@@ -1,6 +1,8 @@
 """goniofrost plan: choose the m measurement directions (Bayesian design or FROST) and write PLAN.json."""
 from __future__ import annotations
 
+import sys
+
 HELP = "select sample directions (Bayesian A-optimal design by default, or FROST's SOMP) and write PLAN.json"
 
 
@@ -69,13 +71,14 @@ def run(args) -> int:
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
-    selection = _select(model, args, mask, usage)
+    scene = None if usage is None else _scene_error(model, usage)
+    selection = _select(model, args, mask, usage, scene)
     doc = plan_document(args.model, model, selection)
     if usage is not None:
-        import hashlib
-        # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF
-        doc["usage"] = {"file": str(args.usage), "hash": hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16],
-                        "cells_used": int((usage > 0).sum()), "predicted_errors": "usage-weighted"}
+        # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
+        # the capture judges its samples by the same error (usage.error: frost.scene_error)
+        doc["usage"] = {"file": str(args.usage), "hash": scene.usage_hash, "cells_used": int((usage > 0).sum()),
+                        "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
@@ -87,10 +90,29 @@ def run(args) -> int:
     return 0
 
 
-def _select(model, args, mask, usage=None):
+def _scene_error(model, usage):
+    """The plan's SceneError: the usage-weighted error and its calibration on the model's training
+    materials (mapped again; without them the plan has no calibrated bound, and says why)."""
+    import hashlib
+
+    from goniofrost.frost.scene_error import scene_error
+    from goniofrost.frost.training import TrainingError
+    from goniofrost.frost.usage_calibration import calibrate_scene
+
+    digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
+    try:
+        calibration, unavailable = calibrate_scene(model, usage, progress=True), None
+    except TrainingError as exc:
+        calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
+        print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
+    return scene_error(model, usage, calibration, digest, unavailable)
+
+
+def _select(model, args, mask, usage=None, scene=None):
     if args.selector == "bayes":
         from goniofrost.frost.bayes_selection import select_bayes
-        return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage)
+        return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage,
+                            calibration=None if scene is None else scene.calibration)
     from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
     return select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)

@@ -286,13 +286,14 @@ function updatePictures(again) {
 // The stopping rule's latest assessment, worded from its numbers (never from a journaled sentence).
 function assessmentText(a) {
   const pct = `${+(100 * a.confidence).toPrecision(3)} %`;
+  const error = a.scope === "scene" ? "error in the scene's use" : "error";  // a plan made for a scene
   const median = `median estimate ${a.predicted_error.toPrecision(3)}`;
   if (a.out_of_model.length) {
     return `after ${a.samples} samples: unlike every training material (an extrapolation): ` +
       (a.decision === "continue" ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
   }
-  if (a.decision === "target reached") return `error <= ${a.target} with ${pct} confidence (${median})`;
-  const bound = a.bound == null ? "no bound" : `error <= ${a.bound.toPrecision(3)} with ${pct} confidence`;
+  if (a.decision === "target reached") return `${error} <= ${a.target} with ${pct} confidence (${median})`;
+  const bound = a.bound == null ? "no bound" : `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence`;
   return `after ${a.samples} samples: ${bound}, target ${a.target} ` +
     (a.decision === "continue" ? "not reached yet" : `not reached (${a.decision})`) + ` (${median})`;
 }

@@ -1,0 +1,97 @@
+"""The predicted-error calibration of a scene's error, on the held-out training materials.
+
+The model's calibration (``calibration.py``) was fitted on the whole-BRDF error of held-out
+training materials measured at the plain design. A plan made for a scene is measured at the
+scene-aware design and judged by the usage-weighted error (``scene_error``), so its prediction
+and its split-conformal bound are fitted again the same way on that error: the model's training
+data mapped again (``training.remap``), the same inner folds and noise, and for every fold the
+scene-aware design on the fold's dictionary (``usage_design.scene_prior``, the design the
+capture will measure) and the usage-weighted error of each held-out material at its first m
+cells. The residuals stay cross-fitted per fold, so the conformal exchangeability argument of
+``confidence.py`` holds for this error as it does for the whole one.
+
+The true weighted error needs the held-out column's residual off D_f cell by cell; with the
+weighted Gram G_u = X^T diag(u) X (one pass over the rows the scene uses) it is, for the
+column x_b = D_f a_b + X m_b (``noise.InnerFold``) and the estimate D_f s,
+
+    (a - s)^T P^T G_u P (a - s) + 2 (a - s)^T P^T G_u m_b + m_b^T G_u m_b,   D_f = X P.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from goniofrost.frost import calibration, posterior
+from goniofrost.frost.bayes_selection import greedy_design
+from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
+from goniofrost.frost.prediction import material_features
+from goniofrost.frost.usage_design import is_uniform, scene_prior
+
+# Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
+CHUNK_ROWS = 1 << 14
+
+
+def calibrate_scene(model, usage: np.ndarray, progress: bool = False) -> dict:
+    """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
+    error of ``usage`` (n_valid,) sum 1. TrainingError when the model's training data cannot be
+    opened again."""
+    from goniofrost.frost import noise, training
+
+    mapped, gram = training.remap(model, progress=progress)
+    folds = noise.inner_folds(gram, len(model.names), model.n_components)
+    recon = posterior.cell_noise(model)
+    records = simulate_scene(mapped, folds, np.asarray(usage, np.float64), posterior.design_scale(model) * recon,
+                             recon, progress=progress)
+    return fit_calibration(records)
+
+
+def weighted_gram(mapped: np.ndarray, usage: np.ndarray) -> np.ndarray:
+    """G_u = X^T diag(u) X, float64 (t, t), over the rows with u > 0."""
+    rows = np.flatnonzero(usage > 0)
+    g = np.zeros((mapped.shape[1],) * 2)
+    for lo in range(0, rows.size, CHUNK_ROWS):
+        part = rows[lo:lo + CHUNK_ROWS]
+        x = np.asarray(mapped[part], dtype=np.float64)
+        g += x.T @ (x * usage[part, None])
+    return 0.5 * (g + g.T)
+
+
+def weighted_errors(fold, g_u: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """sum_c u_c (x_b - D_f s_b)_c^2 of every held-out column b of ``fold`` (float64 (|B|,)) for
+    the coefficients s (K_f, |B|) on D_f = X P, from G_u alone (module doc)."""
+    p, r = fold.projector, fold.residual_map
+    delta = fold.true_coefficients - coefficients
+    return (np.einsum("ij,ij->j", delta, p.T @ g_u @ p @ delta) + 2.0 * np.einsum("ij,ij->j", delta, p.T @ g_u @ r)
+            + np.einsum("ij,ij->j", r, g_u @ r))
+
+
+def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_VALUES,
+                   progress: bool = False) -> CvRecords:
+    """Records (``calibration.CvRecords``) of every fold's held-out materials measured at the
+    first m cells of the fold's scene-aware design; ``actual`` and ``design_error`` are the
+    usage-weighted error and its expectation. mapped: X float32 (n, t); usage (n,) sum 1; the
+    design's and the reconstruction's sigma_c^2 (n,)."""
+    g_u = weighted_gram(mapped, usage)
+    total = float(usage @ recon_noise)
+    m_values = [m for m in m_values if m <= mapped.shape[0]]
+    acc = {key: [] for key in CvRecords.__dataclass_fields__}
+    for f, fold in enumerate(calibration._progress(folds, progress)):
+        d_f = calibration._fold_dictionary(mapped, fold.projector)
+        prior = calibration._prior(fold)
+        if is_uniform(usage):  # the plain design, as select_bayes picks it for a uniform map
+            rows = greedy_design(d_f, fold.singular_values ** 2, prior, design_noise, max(m_values)).rows
+        else:
+            scene = scene_prior(d_f, usage, prior)
+            rows = greedy_design(scene.dictionary, scene.weights, scene.prior_var, design_noise, max(m_values)).rows
+        m_f = fold.projector.T @ g_u @ fold.projector
+        for m in m_values:
+            cells = rows[:m]
+            b = np.asarray(mapped[cells], dtype=np.float64) @ fold.centring
+            post = posterior.fit(d_f[cells], recon_noise[cells], prior, b, m_f, total, 1)
+            error = weighted_errors(fold, g_u, post.coefficients)
+            for j in range(0, fold.held.size, 3):
+                features = material_features(post, np.arange(j, j + 3), fold.n_train_columns)
+                values = (f, int(fold.held[j]) // 3, m, float(max(error[j:j + 3].mean(), 0.0))) + features
+                for key, value in zip(acc, values):
+                    acc[key].append(value)
+        del d_f
+    return CvRecords(**{k: np.asarray(v) for k, v in acc.items()})
