@@ -171,7 +171,9 @@ def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):
     assert np.all(noisy.std[pos] > plain.std[pos])
     # the prediction: calibrated on the noise-free design error, plus what the noise adds to it
     expected = float(prediction.predict(prediction.calibration_of(model), plain.design_error, noisy.z2,
-                                        noisy.energy, 15)) + noisy.design_error - plain.design_error
+                                        noisy.energy, 15, noisy.level, noisy.spread)) + noisy.design_error - plain.design_error
+    # level and spread are the samples' own: the sigmas change neither
+    assert (noisy.level, noisy.spread) == (plain.level, plain.spread)
     assert noisy.predicted_error == pytest.approx(expected, rel=1e-9)
     with pytest.raises(Exception, match="sample 2 standard deviation: negative value"):
         reconstruct_bayes(model, pos, truth[pos], sigmas=np.where(np.arange(15)[:, None] == 2, -1.0, 0.1) * np.ones((15, 3)))

@@ -31,7 +31,7 @@ from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
-from goniofrost.frost.prediction import feature_matrix, material_features, predict
+from goniofrost.frost.prediction import feature_matrix, material_features, predict, sample_level
 
 # Sample counts simulated (the range of m the calibration is fitted on).
 M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
@@ -49,7 +49,9 @@ CHUNK_ROWS = 1 << 15
 @dataclass
 class CvRecords:
     """Flat arrays, one entry per (fold, held-out material, m): fold, material (index among the
-    training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy."""
+    training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy,
+    level and spread (``prediction.sample_level``; None: records without them, fitted on the
+    first ``prediction.BASIC_FEATURES`` features)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -58,6 +60,12 @@ class CvRecords:
     design_error: np.ndarray
     z2: np.ndarray
     energy: np.ndarray
+    level: np.ndarray | None = None
+    spread: np.ndarray | None = None
+
+    def features(self, m_range) -> np.ndarray:
+        """float64 (records, features): ``prediction.feature_matrix`` of every record."""
+        return feature_matrix(self.design_error, self.z2, self.energy, self.m, m_range, self.level, self.spread)
 
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
@@ -98,9 +106,10 @@ def concatenate(parts, offset: int = 0) -> CvRecords:
     """The records of several simulations in one (the second part's fold numbers + offset)."""
     parts = [p for p in parts if p is not None]
     fields = CvRecords.__dataclass_fields__
-    shifted = [parts[0]] + [CvRecords(**{k: getattr(p, k) + (offset if k == "fold" else 0) for k in fields})
+    shifted = [parts[0]] + [CvRecords(**{k: getattr(p, k) + offset if k == "fold" else getattr(p, k) for k in fields})
                             for p in parts[1:]]
-    return CvRecords(**{k: np.concatenate([getattr(p, k) for p in shifted]) for k in fields})
+    return CvRecords(**{k: None if any(getattr(p, k) is None for p in shifted)
+                        else np.concatenate([getattr(p, k) for p in shifted]) for k in fields})
 
 
 def _prior(fold: InnerFold) -> np.ndarray:
@@ -120,7 +129,8 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         miss = fold.singular_values[:, None] * (fold.true_coefficients - post.coefficients)
         column_error = (fold.residual_norms + np.sum(miss ** 2, axis=0)) / n
         for j in range(0, fold.held.size, 3):
-            features = material_features(post, np.arange(j, j + 3), fold.n_train_columns)
+            columns = np.arange(j, j + 3)
+            features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
             values = (f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
             for key, value in zip(acc, values):
                 acc[key].append(value)
@@ -166,12 +176,15 @@ def fit_calibration(records: CvRecords) -> dict:
     materials predicted within a factor 2 (in-sample for the calibration).
     """
     m_range = [int(records.m.min()), int(records.m.max())]
-    x = feature_matrix(records.design_error, records.z2, records.energy, records.m, m_range)
+    x = records.features(m_range)
     y = np.log(np.maximum(records.actual, 1e-12))
     beta, *_ = np.linalg.lstsq(x, y, rcond=None)
     calibration = {"coefficients": [float(b) for b in beta], "m_range": m_range,
                    "typical_log_z2": float(np.mean(np.log(records.z2))),
                    "typical_log_energy": float(np.mean(np.log(records.energy)))}
+    if records.level is not None:
+        calibration |= {"typical_level": float(np.mean(records.level)),
+                        "typical_log_spread": float(np.mean(np.log(records.spread)))}
     calibration["bound"] = fit_bound(records, m_range)
     calibration["fit"] = {"residual_sd_log": float(np.std(y - x @ beta)), "records": int(y.size),
                           "per_m": prediction_quality(records, calibration)}
@@ -182,7 +195,8 @@ def prediction_quality(records: CvRecords, calibration: dict) -> dict:
     """Per m: mean actual error, Spearman(predicted, actual), fraction within a factor 2."""
     from scipy.stats import spearmanr
 
-    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m)
+    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m,
+                        records.level, records.spread)
     out = {}
     for m in np.unique(records.m):
         sel = records.m == m

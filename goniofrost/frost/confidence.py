@@ -39,7 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniofrost.frost.prediction import feature_matrix
 
 # Captures stop only at m >= this (stopping.FIRST_BATCH; kept here so frost.stopping can import us).
 FIRST_LOOK = 15
@@ -71,7 +70,7 @@ class ErrorBound:
 def cross_fitted_residuals(records, m_range) -> np.ndarray:
     """float64 (records,): log(actual / predicted), each predicted by the calibration refitted
     without the record's inner fold (CvRecords of ``calibration.py``)."""
-    x = feature_matrix(records.design_error, records.z2, records.energy, records.m, m_range)
+    x = records.features(m_range)
     y = np.log(np.maximum(records.actual, 1e-12))
     out = np.empty_like(y)
     for fold in np.unique(records.fold):
