@@ -198,6 +198,34 @@ def test_predicted_error_is_specific_to_the_material(model, scalar_model, tables
     assert b.predicted_error == pytest.approx(b.design_error * b.z2)
 
 
+def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
+    from goniofrost.frost.calibration import CvRecords, fit_calibration
+
+    rng = np.random.default_rng(3)
+    n = 600
+    m = rng.choice([5, 10, 20, 40, 60], n)
+    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
+    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1])
+    x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread)
+    assert x.shape == (n, len(prediction.FEATURES))
+    records = CvRecords(np.zeros(n, int), np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread)
+    cal = fit_calibration(records)
+    np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
+    assert cal["typical_level"] == pytest.approx(level.mean())
+    assert cal["typical_log_spread"] == pytest.approx(np.log(spread).mean())
+    np.testing.assert_allclose(prediction.predict(cal, design, z2, energy, m, level, spread), np.exp(x @ beta), rtol=1e-9)
+    with pytest.raises(ValueError, match=r"^predict: this calibration needs the samples' level and spread$"):
+        prediction.predict(cal, design, z2, energy, m)
+    # a calibration of the five basic features (a model trained before level and spread) ignores them
+    basic = {"coefficients": beta[:5].tolist(), "m_range": [5, 60]}
+    np.testing.assert_allclose(prediction.predict(basic, design, z2, energy, m, level, spread),
+                               np.exp(x[:, :5] @ beta[:5]), rtol=1e-12)
+    # level and spread of one material: over its sampled cells and its channels only
+    b = np.array([[1.0, 2.0, 3.0, 100.0], [3.0, 4.0, 5.0, -100.0]])
+    assert prediction.sample_level(b, [0, 1, 2]) == (3.0, pytest.approx(np.var([1, 2, 3, 3, 4, 5])))
+
+
 def test_calibration_fit_recovers_a_known_law():
     from goniofrost.frost.calibration import CvRecords, fit_calibration
 

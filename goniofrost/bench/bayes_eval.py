@@ -86,7 +86,9 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``) and "out_of_model" (1 if the samples are unlike every training material)."""
+    at ``level``), "out_of_model" (1 if the samples are unlike every training material) and
+    "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
+    materials)."""
     from goniofrost.frost.metrics import batch_log_errors
 
     positions = np.asarray(positions, dtype=np.int64)
@@ -95,8 +97,12 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     b = _bounds(model, post, samples, n_mat, np.unique(positions).size, level)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
+    feats = _features(model, post, samples, n_mat)
+    distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
+                                           feats[:, 4], np.unique(positions).size)
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
-            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64)}
+            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
+            "feature_distance": distance}
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,

@@ -99,7 +99,42 @@ def fit_bound(records, m_range) -> dict:
             "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
             "looks": [int(m) for m in looks], "scores": sorted(float(s) for s in scores),
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
-            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]}
+            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]} | _feature_spread(records, ms)
+
+
+def _feature_spread(records, ms) -> dict:
+    """Per m the mean, inverse covariance and 95th percentile of the squared Mahalanobis
+    distance of the held-out materials' (log z2, log energy, level, log spread); {} for records
+    without level and spread. What ``feature_distance`` compares a capture's samples with."""
+    if records.level is None:
+        return {}
+    u = _feature_vectors(records.z2, records.energy, records.level, records.spread)
+    means, inverses, q95 = [], [], []
+    for m in ms:
+        at = u[records.m == m]
+        mean, inverse = at.mean(axis=0), np.linalg.pinv(np.cov(at.T))
+        d2 = np.einsum("ij,jk,ik->i", at - mean, inverse, at - mean)
+        means.append(mean.tolist()), inverses.append(inverse.tolist()), q95.append(float(np.quantile(d2, 0.95)))
+    return {"feature_mean": means, "feature_inverse_covariance": inverses, "feature_d2_q95": q95}
+
+
+def _feature_vectors(z2, energy, level, spread) -> np.ndarray:
+    return np.stack(np.broadcast_arrays(np.log(z2), np.log(energy), np.asarray(level, np.float64), np.log(spread)), -1)
+
+
+def feature_distance(calibration: dict, z2, energy, level, spread, m: int) -> np.ndarray:
+    """The squared Mahalanobis distance of samples' (log z2, log energy, level, log spread) from
+    the held-out training materials' at the calibrated m nearest ``m``, over their 95th
+    percentile (> 1: less typical than 95 % of them; NaN when the model has no such record).
+    A diagnostic the benchmark measures (does it single out the materials the bound fails on?);
+    the stopping rule does not use it."""
+    bound = calibration.get("bound") or {}
+    if "feature_mean" not in bound:
+        return np.full(np.broadcast(z2, energy).shape, np.nan)
+    i = int(np.argmin(np.abs(np.log(np.asarray(bound["m"], np.float64)) - np.log(m))))
+    diff = _feature_vectors(z2, energy, level, spread) - np.asarray(bound["feature_mean"][i])
+    inverse = np.asarray(bound["feature_inverse_covariance"][i])
+    return np.einsum("...j,jk,...k->...", diff, inverse, diff) / bound["feature_d2_q95"][i]
 
 
 def conformal_quantile(scores, confidence: float) -> float:
