@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
-import time
 from pathlib import Path
+
+import yaml
 
 from test_session import GRID, MATERIAL, TRAINING, journal_rows, write_rig
 
@@ -22,24 +22,17 @@ def make_plan(folder: Path, m: int) -> tuple[Path, Path]:
     return rig, plan
 
 
-def fault_after(session: Path, plan: Path, n_done: int):
-    """An ``on_ready`` that injects an alarm into an axis that still has to move once ``n_done``
-    samples are journaled; returns (on_ready, the axis name)."""
+def drilled_rig(rig: Path, plan: Path, at_sample: int, out: Path) -> tuple[Path, str]:
+    """A copy of ``rig`` at ``out`` with one ``sim: faults:`` drill: an alarm on an axis that moves
+    at plan sample ``at_sample``, so the drill strikes there (the capture's own clock, no thread
+    watching the journal); returns (the drilled rig file, the axis name)."""
     samples = json.loads(plan.read_text())["samples"]
-
-    def turns_later(axis: str) -> bool:
-        return any(abs(a["joints"][axis] - b["joints"][axis]) > 1.0
-                   for a, b in zip(samples[n_done - 1:], samples[n_done:]))
-
-    axis = next(a for a in ("camera_arm", "sample_yaw", "sample_tilt") if turns_later(a))
-
-    def on_ready(hardware):
-        def watch():
-            while len(journal_rows(session)) < n_done:
-                time.sleep(0.005)
-            hardware.simulation.device(axis).inject_fault("alarm")
-        threading.Thread(target=watch, daemon=True).start()
-    return on_ready, axis
+    before, at = samples[at_sample - 1]["joints"], samples[at_sample]["joints"]
+    axis = next(a for a in ("camera_arm", "sample_yaw", "sample_tilt") if abs(at[a] - before[a]) > 1.0)
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"axis": axis, "kind": "alarm", "at_sample": at_sample}]
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out, axis
 
 
 def folder_state(folder: Path) -> dict:
@@ -48,4 +41,4 @@ def folder_state(folder: Path) -> dict:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-__all__ = ["GRID", "MATERIAL", "make_plan", "fault_after", "folder_state", "journal_rows"]
+__all__ = ["GRID", "MATERIAL", "make_plan", "drilled_rig", "folder_state", "journal_rows"]

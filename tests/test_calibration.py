@@ -337,7 +337,8 @@ def test_a_region_placed_off_the_patch_is_flagged_or_refused_as_misaligned(rig, 
     turn = cv2.Rodrigues(up * np.radians(-2.0))[0]
     right = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 1)
     assert right.roi_source == "prediction" and "roi-mixed" not in right.flags
-    m = _calibrator(rig, calibrated, bench).measure(turn @ w_i, turn @ w_o, tmp_path, 2)
+    # its SNR (about 10 on the longest exposure) passes a minimum of 5 whatever the frame's noise draws
+    m = _calibrator(rig, calibrated, bench, min_snr=5.0).measure(turn @ w_i, turn @ w_o, tmp_path, 2)
     assert m.roi_source == "prediction" and "roi-mixed" in m.flags
     with pytest.raises(MisalignedError, match=r"sample 3: the region of interest is not uniform \(its pixels spread "
                                               r"\d+ times their median deviation\): .* the rig looks misaligned"):

@@ -19,7 +19,7 @@ from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal, SampleRecord
 from goniofrost.capture.runner import capture
 from goniofrost.monitor.server import MonitorServer
-from monitor_helpers import MATERIAL, fault_after, make_plan
+from monitor_helpers import MATERIAL, drilled_rig, make_plan
 
 CHROMIUM = Path(os.environ.get("GONIOFROST_CHROMIUM", "/usr/bin/chromium"))
 REPO = Path(__file__).resolve().parents[1]
@@ -104,7 +104,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
     rig, plan_file = plan
     session = tmp_path / "s"
     urls, outcome = queue.Queue(), {}
-    on_ready, axis = fault_after(session, plan_file, 2)
+    # the rig file's drill strikes at plan sample 2 on the capture's own clock (no racing thread)
+    rig, axis = drilled_rig(rig, plan_file, 2, tmp_path / "drilled.yaml")
 
     def run(**kw):
         from goniofrost.app.monitoring import monitored
@@ -115,7 +116,7 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         except SessionFault as exc:
             outcome["fault"] = str(exc)
 
-    worker = threading.Thread(target=run, kwargs={"on_ready": on_ready})
+    worker = threading.Thread(target=run)
     worker.start()
     page.goto(urls.get(timeout=30))
     expect(page.locator("#state")).to_have_text("faulted", timeout=60_000)
@@ -126,8 +127,10 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
     expect(page.locator("#fault-message")).to_have_text(message)  # exactly what the terminal prints
     expect(page.locator("#fault-title")).to_have_text("Stopped on a fault")
     failed = int(re.match(r"device fault at plan sample (\d+)", message).group(1))
+    assert failed == 2  # where the drill was set to strike
     with Journal.open(session / "session.sqlite") as journal:
         done = len(journal.done_indices())
+    assert done == 2  # samples 0 and 1, before the drill
     expect(page.locator("#count")).to_have_text(f"{done} of {M} samples")
     assert statuses(page)[failed] == "failed" and statuses(page).count("done") == done
 

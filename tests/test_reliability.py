@@ -147,10 +147,12 @@ def test_a_journal_left_by_a_killed_writer_is_read_from_a_copy(tmp_path):
     assert folder_state(dead) == before and {p.name: p.stat().st_mtime_ns for p in dead.iterdir()} == mtimes
 
 
-def monitor_load(session: Path, clients: int, seconds: float, idle: int, big: str) -> dict:
+def monitor_load(session: Path, clients: int, seconds: float, idle: int, big: str,
+                 slow_bytes: int | None = None) -> dict:
     """Start ``goniofrost monitor`` on ``session`` in its own process; hold ``idle`` sockets that
     send half a request, and run ``clients`` clients asking for pages, the state and the big file
-    ``big`` (read slowly) for ``seconds``; return counts, and the server's memory and threads."""
+    ``big`` (read slowly: 4 KiB per 10 ms, the whole file or its first ``slow_bytes`` before the
+    client hangs up) for ``seconds``; return counts, and the server's memory and threads."""
     import asyncio
     import re
     import subprocess
@@ -171,8 +173,12 @@ def monitor_load(session: Path, clients: int, seconds: float, idle: int, big: st
             writer.write(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
             await writer.drain()
             line = await reader.readline()
-            while await reader.read(65536 if not slow else 4096):
+            got = 0
+            while chunk := await reader.read(65536 if not slow else 4096):
+                got += len(chunk)
                 if slow:
+                    if slow_bytes is not None and got >= slow_bytes:
+                        break  # hangs up mid-file, as a closed browser tab does
                     await asyncio.sleep(0.01)
             writer.close()
             return int(line.split()[1])
@@ -236,8 +242,10 @@ def check_load(out: dict, idle: int) -> None:
 
 
 def test_the_monitor_holds_many_clients_and_idle_sockets(tmp_path):
-    """Small: 40 clients for 2 s beside 60 half-sent requests, on a 8 MB file read slowly."""
-    out = monitor_load(load_session(tmp_path, 8), clients=40, seconds=2.0, idle=60, big="brdf.std.binary")
+    """Small: 40 clients for 2 s beside 60 half-sent requests, on a 8 MB file read slowly (its first
+    256 KiB, then the client hangs up: a whole 8 MB at 400 KB/s would hold the test for 20 s)."""
+    out = monitor_load(load_session(tmp_path, 8), clients=40, seconds=2.0, idle=60, big="brdf.std.binary",
+                       slow_bytes=256 << 10)
     check_load(out, 60)
 
 
