@@ -67,10 +67,11 @@ class ErrorBound:
     unavailable: str | None = None
 
 
-def cross_fitted_residuals(records, m_range) -> np.ndarray:
-    """float64 (records,): log(actual / predicted), each predicted by the calibration refitted
-    without the record's inner fold (CvRecords of ``calibration.py``)."""
-    x = records.features(m_range)
+def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None) -> np.ndarray:
+    """float64 (records,): log(actual / predicted), each predicted by the calibration (its first
+    n_features features, all when None) refitted without the record's inner fold (CvRecords of
+    ``calibration.py``)."""
+    x = records.features(m_range, n_features, feature_range)
     y = np.log(np.maximum(records.actual, 1e-12))
     out = np.empty_like(y)
     for fold in np.unique(records.fold):
@@ -80,11 +81,21 @@ def cross_fitted_residuals(records, m_range) -> np.ndarray:
     return out
 
 
-def fit_bound(records, m_range) -> dict:
+def choice_score(records, residuals) -> float:
+    """The mean over the looks m >= FIRST_LOOK (every m when there are none) of the fraction of
+    records whose residual lies within log 2 of its m's median: how often the median estimate
+    is within a factor 2 of the truth."""
+    ms = np.unique(records.m)
+    looks = ms[ms >= FIRST_LOOK] if np.any(ms >= FIRST_LOOK) else ms
+    return float(np.mean([np.mean(np.abs(residuals[records.m == m] - np.median(residuals[records.m == m])) <= math.log(2))
+                          for m in looks]))
+
+
+def fit_bound(records, m_range, n_features=None, feature_range=None) -> dict:
     """The bound's calibration (JSON-ready) from the inner cross-validation's records: per m the
     residuals' median and spread and the largest log z2 / log energy, and every held-out
     material's simultaneous score, sorted."""
-    r = cross_fitted_residuals(records, m_range)
+    r = cross_fitted_residuals(records, m_range, n_features, feature_range)
     ms = np.unique(records.m)
     center = np.array([np.median(r[records.m == m]) for m in ms])
     scale = np.array([max(float(np.std(r[records.m == m])), 1e-6) for m in ms])

@@ -50,18 +50,30 @@ def calibration_of(model) -> dict:
     return stored if stored else UNCALIBRATED
 
 
-def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None) -> np.ndarray:
+def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None, feature_range=None) -> np.ndarray:
     """float64 (..., 11) features of FEATURES (arguments broadcast), or (..., 5) of the first
-    five when level and spread are None."""
+    five when level and spread are None. feature_range: [lows, highs] of (log z2, log energy,
+    level, log spread) that the 11 features are computed within (clamped: the quadratic terms
+    must not extrapolate beyond the materials they were fitted on; samples that far are out of
+    the model anyway), None: no clamping."""
     lo, hi = m_range
     parts = list(np.broadcast_arrays(np.log(design_error), np.log(z2), np.log(energy),
                                      np.log(np.clip(m, lo, hi)).astype(np.float64)))
     if level is not None:
-        log_z2, log_energy = parts[1], parts[2]
-        level, log_spread = np.broadcast_arrays(np.asarray(level, np.float64), np.log(spread))
+        raw = list(np.broadcast_arrays(parts[1], parts[2], np.asarray(level, np.float64), np.log(spread)))
+        if feature_range is not None:
+            raw = [np.clip(v, a, b) for v, a, b in zip(raw, *feature_range)]
+        log_z2, log_energy, level, log_spread = raw
+        parts[1], parts[2] = log_z2, log_energy
         parts += [level, level ** 2, log_spread, log_z2 ** 2, log_energy ** 2, log_z2 * log_energy]
-        parts = np.broadcast_arrays(*parts)
+        parts = list(np.broadcast_arrays(*parts))
     return np.stack([np.ones_like(parts[0])] + list(parts), axis=-1)
+
+
+def feature_range_of(z2, energy, level, spread) -> list[list[float]]:
+    """[lows, highs] of (log z2, log energy, level, log spread) over records (``feature_matrix``)."""
+    raw = np.stack([np.log(z2), np.log(energy), np.asarray(level, np.float64), np.log(spread)])
+    return [raw.min(axis=1).tolist(), raw.max(axis=1).tolist()]
 
 
 def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None) -> np.ndarray:
@@ -72,7 +84,7 @@ def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=N
         raise ValueError("predict: this calibration needs the samples' level and spread")
     full = beta.size > BASIC_FEATURES
     x = feature_matrix(design_error, z2, energy, m, calibration["m_range"],
-                       level if full else None, spread if full else None)
+                       level if full else None, spread if full else None, calibration.get("feature_range"))
     return np.exp(x @ beta)
 
 
