@@ -344,6 +344,6 @@ def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
         assert state["state"] == "finished" and state["count_text"] == f"{M} of {M} samples"
         assert b"<title>goniofrost monitor</title>" in urllib.request.urlopen(url, timeout=10).read()
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=60) == 0  # a bound, not a wait: on a loaded machine 10 s was seen to pass
     finally:
         proc.kill()
