@@ -3,6 +3,8 @@
     .venv/bin/python benchmarks/frost_speed.py targets [--model MODEL] [--training] [--demo]
         every figure of the "first five minutes" (median of 5) beside its target, the machine's
         streaming bandwidth and the load: the one command to rerun on a quiet machine
+    .venv/bin/python benchmarks/frost_speed.py kernels [--model MODEL] [--repeat 5]
+        one pass of every selection kernel: time, the bytes it must move, GB/s against the stream
     .venv/bin/python benchmarks/frost_speed.py selection --model MODEL [--repeat 5]
     .venv/bin/python benchmarks/frost_speed.py bayes-selection --model MODEL [--repeat 7]
     .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
@@ -303,6 +305,61 @@ def bench_targets(args) -> None:
         _target_demo(args)
 
 
+def bench_kernels(args) -> None:
+    """One pass of each selection kernel on the model (median of --repeat), on the selection's
+    threads: its time, the bytes it must move (reads + writes of its arrays) and the GB/s that
+    makes, beside the machine's streaming read bandwidth. A Bayesian step of S designs reads D
+    (n x K float32), the candidate rows (int64) and, per design, q, p (float64, read and
+    written) and the noise; a SOMP step reads Q (n x k) and C (n x t) and writes C (Q pass),
+    or reads and writes C alone (C pass)."""
+    from goniofrost.core.grid import FULL_GRID, MerlGrid
+    from goniofrost.frost import bayes_kernels, selection, somp_kernels
+    from goniofrost.frost.threads import resolve_threads, run_ranges
+    from goniofrost.frost.training import train
+
+    grid = MerlGrid(*args.grid) if args.grid else FULL_GRID
+    model = _paged_model(args.model) if args.model else train(["builtin"], exclude=["red-plastic"], grid=grid)
+    d = np.ascontiguousarray(model.dictionary, dtype=np.float32)
+    n, k_all = d.shape
+    threads = resolve_threads(None)
+    bandwidth = stream_bandwidth(min(1 << 29, max(d.nbytes, 1 << 20)))
+    print(f"{os.cpu_count()} cores, {threads} threads; streaming read {bandwidth:.1f} GB/s; n = {n}, K = {k_all}  "
+          f"({_load()})", flush=True)
+    rng = np.random.default_rng(0)
+    rows = np.arange(n, dtype=np.int64)
+
+    def report(name, fn, nbytes, floor_bytes):
+        med, _ = median_time(fn, args.repeat)
+        print(f"{name}: {med * 1e3:.1f} ms, {nbytes / 1e6:.0f} MB moved, {nbytes / med / 1e9:.1f} GB/s; "
+              f"one read of {floor_bytes / 1e6:.0f} MB at the stream: {floor_bytes / bandwidth / 1e6:.1f} ms, ratio "
+              f"{med / (floor_bytes / bandwidth / 1e9):.2f}  ({_load()})", flush=True)
+
+    for designs in (1, 3):
+        q, p = np.ones((designs, n)), np.ones((designs, n))
+        noise = rng.uniform(0.5, 1.0, (designs, n))
+        u, v = rng.normal(size=(designs, k_all)) * 1e-3, rng.normal(size=(designs, k_all)) * 1e-3
+        scalars = np.full(designs, 0.5), np.full(designs, 1e-3)
+
+        def step():
+            run_ranges(lambda lo, hi: bayes_kernels.update_forms(d, rows, u, v, *scalars, q, p, noise,
+                                                                 np.empty(designs), np.empty(designs, np.int64),
+                                                                 lo, hi), n, threads)
+        report(f"bayes step, {designs} design{'s' * (designs > 1)}", step, d.nbytes + 8 * n + 40 * n * designs, d.nbytes)
+
+    k = t = min(20, k_all)
+    start = time.perf_counter()
+    pos, qb, n_c = selection._atoms(model, k, None, k, threads)
+    print(f"somp pack (k = {k}, one run): {(time.perf_counter() - start) * 1e3:.1f} ms", flush=True)
+    state = selection._ScoreState(qb, n_c, np.asarray(model.coefficients[:k, :t], np.float64), threads)
+    b, z, u = (rng.normal(size=x).astype(np.float32) * 1e-3 for x in (k, t, t))
+    blocks = qb.shape[0]
+    report(f"somp Q pass (k = t = {t})", lambda: run_ranges(somp_kernels.rank1_step, blocks, threads, qb, b,
+                                                             state.cb, u, state.scores), qb.nbytes + 2 * state.cb.nbytes,
+           state.cb.nbytes)
+    report(f"somp C pass (t = {t})", lambda: run_ranges(somp_kernels.rank1_step, blocks, threads, state.cb, z,
+                                                          state.cb, u, state.scores), 2 * state.cb.nbytes, state.cb.nbytes)
+
+
 def _timed(cmd, env) -> tuple[float, float, str]:
     """(wall s, peak RSS GB, stdout) of a command under /usr/bin/time -v."""
     result = subprocess.run(["/usr/bin/time", "-v", *cmd], env=env, capture_output=True, text=True)
@@ -355,7 +412,7 @@ def _paged_model(path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("targets", "selection", "bayes-selection", "training", "reconstruction",
+    parser.add_argument("what", choices=("targets", "kernels", "selection", "bayes-selection", "training", "reconstruction",
                                          "bayes-reconstruction", "pca", "floor", "bounds"))
     parser.add_argument("--model", help="model directory (selection, reconstruction, bounds; optional for floor)")
     parser.add_argument("--repeat", type=int, default=5)
@@ -364,12 +421,12 @@ def main() -> None:
     parser.add_argument("--results", help="a goniofrost bench results.json (floor: Nielsen's times)")
     parser.add_argument("--m", type=int, default=20, help="samples (bounds)")
     parser.add_argument("--grid", type=int, nargs=3, metavar=("TH", "TD", "PD"),
-                        help="targets: train the demo model on this grid instead of the full one (a quick check)")
+                        help="targets, kernels: train the demo model on this grid instead of the full one (a quick check)")
     parser.add_argument("--training", action="store_true", help="targets: also time training 151 materials")
     parser.add_argument("--demo", action="store_true", help="targets: also time the demo, cold and warm")
     parser.add_argument("--data", help="targets --training: the folder of nbrdf_merl.npz and nbrdf_rgl.npz")
     args = parser.parse_args()
-    {"targets": bench_targets, "selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
+    {"targets": bench_targets, "kernels": bench_kernels, "selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
      "reconstruction": bench_reconstruction, "bayes-reconstruction": bench_bayes_reconstruction,
      "pca": bench_pca, "floor": bench_floor, "bounds": bench_bounds}[args.what](args)
 

@@ -32,6 +32,14 @@ UPSAMPLE = 2
 MIN_MARKER_PX = 10.0
 # Markers thinner than this are also searched for in 2x upsampled views (slower, needed when thin).
 UPSAMPLE_BELOW_PX = 24.0
+# With a prediction the markers are first searched for in a box around their predicted corners,
+# this many pixels beyond the misalignment tolerance: wider than half the largest adaptive
+# threshold window (53 px in the 2x views) and the corner refinement, so that a marker inside
+# it is read as in the whole frame. Its edges fall on multiples of SEARCH_ALIGN_PX pixels, which
+# keeps the AprilTag refinement's 4 px tiles (8 in the 2x views) where the whole frame has them:
+# corners then agree with the whole frame's to float32 rounding (3e-5 px).
+SEARCH_MARGIN_PX = 32.0
+SEARCH_ALIGN_PX = 8
 
 
 @dataclass(frozen=True)
@@ -101,7 +109,8 @@ def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, vie
         return _checked(mask, channels, min_pixels, what), "markers", None
     wanted = [i for i in expected_ids if i in view.readable]
     scales = (1, UPSAMPLE) if view.thinnest_readable_px() < UPSAMPLE_BELOW_PX else (1,)
-    found, others = ({}, set()) if not wanted else read_markers(linear, expected_ids, scales, stop_at=len(wanted))
+    box = search_box(view, wanted, tolerance_px + SEARCH_MARGIN_PX)
+    found, others = ({}, set()) if not wanted else read_markers(linear, expected_ids, scales, len(wanted), box)
     if len(found) < MIN_MARKERS and len(others) >= MIN_MARKERS:
         raise _missing(found, others, expected_ids, what)
     offset = marker_offset_px(found, view)
@@ -176,7 +185,9 @@ def _checked(mask: np.ndarray, channels, min_pixels: int, what: str) -> np.ndarr
     return mask
 
 
-def _detector():
+def _detector(size_scale: float = 1.0):
+    """OpenCV's ArUco detector with our settings; ``size_scale`` multiplies the marker perimeter
+    limits (fractions of the image's larger side), for a crop of a larger frame."""
     import cv2
 
     params = cv2.aruco.DetectorParameters()
@@ -184,7 +195,8 @@ def _detector():
     # where SUBPIX and CONTOUR reached 2 px on thin foreshortened markers
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
     # foreshortened markers at grazing views are thin: accept small, slanted quads
-    params.minMarkerPerimeterRate = 0.02
+    params.minMarkerPerimeterRate = 0.02 * size_scale
+    params.maxMarkerPerimeterRate = params.maxMarkerPerimeterRate * size_scale
     params.polygonalApproxAccuracyRate = 0.05
     params.minCornerDistanceRate = 0.02
     params.perspectiveRemovePixelPerCell = 8
@@ -214,32 +226,55 @@ def gray_views(linear: np.ndarray) -> list[np.ndarray]:
     return views
 
 
-def _candidates(linear: np.ndarray, scales=(1, UPSAMPLE)):
+def _candidates(views: list[np.ndarray], scales=(1, UPSAMPLE), box=None):
     """(scale, 8-bit image) pairs to run the detector on, in the order of ``scales``: 1 is the
-    frame's own pixels, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
-    and place corners more precisely (AprilTag refinement: 0.02-0.1 px against 0.1-0.4 px)."""
+    frame's ``gray_views``, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
+    and place corners more precisely (AprilTag refinement: 0.02-0.1 px against 0.1-0.4 px).
+    ``box`` (x0, y0, x1, y1): only that part of the frame, its brightness mapped as in the whole
+    frame's views (upsampling a crop gives the upsampled frame's pixels, offset by scale x0)."""
     import cv2
 
-    views = gray_views(linear)
+    if box is not None:
+        x0, y0, x1, y1 = box
+        views = [g[y0:y1, x0:x1] for g in views]
     for scale in scales:
         for g in views:
             yield scale, (g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC))
 
 
-def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None):
+def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None, box=None):
     """Marker corners read in a frame: ``(found, others)``, found = id -> (4, 2) pixel corners of
     the expected ids (OpenCV convention: pixel centres at integers), others = ids of the other
-    holder card seen (any other id is a misread of a thin, foreshortened marker and is ignored). Stops once ``stop_at`` (default: all expected) markers are read."""
-    det = _detector()
+    holder card seen (any other id is a misread of a thin, foreshortened marker and is ignored). Stops once ``stop_at`` (default: all expected) markers are read.
+
+    ``box`` (x0, y0, x1, y1) frame pixels (``search_box``: where the prediction puts the markers)
+    is searched first: a thin marker needs the 2x views, and a crop of them costs a fraction of
+    the frame's. When it holds fewer than MIN_MARKERS markers the whole frame is searched as
+    without a box, so markers far from the prediction (a misaligned rig) are still read.
+    """
     stop_at = len(expected_ids) if stop_at is None else stop_at
+    views = gray_views(linear)
+    if box is not None:
+        found, others = _read_markers(views, expected_ids, scales, stop_at, box)
+        if len(found) >= MIN_MARKERS:
+            return found, others
+    return _read_markers(views, expected_ids, scales, stop_at, None)
+
+
+def _read_markers(views: list[np.ndarray], expected_ids, scales, stop_at: int, box):
+    h, w = views[0].shape
+    x0, y0, x1, y1 = (0, 0, w, h) if box is None else box
+    # The detector's size limits are fractions of the image's larger side: scaled so that a crop
+    # accepts the same candidates (in pixels) as the whole frame.
+    det = _detector(max(h, w) / max(x1 - x0, y1 - y0))
     found: dict[int, np.ndarray] = {}
     others: set[int] = set()
-    for scale, gray in _candidates(linear, scales):
+    for scale, gray in _candidates(views, scales, box):
         corners, ids, _ = det.detectMarkers(gray)
         ids = [] if ids is None else ids.ravel().tolist()
         # Back to frame pixels: ArUco puts pixel centres at +0.5 (c - 0.5 in OpenCV's convention),
         # resize maps x to (x + 0.5) / scale - 0.5, and the 2x2 blur moved features by +0.5.
-        got = {i: c.reshape(4, 2).astype(np.float64) / scale - 1.0
+        got = {i: c.reshape(4, 2).astype(np.float64) / scale - 1.0 + (x0, y0)
                for i, c in zip(ids, corners) if i in expected_ids}
         others |= (set(ids) & set(CARD_MARKER_IDS)) - set(expected_ids)
         if len(got) > len(found):
@@ -247,6 +282,23 @@ def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at
         if len(found) >= stop_at:
             break
     return found, others
+
+
+def search_box(view: PredictedView, ids, margin_px: float):
+    """(x0, y0, x1, y1) frame pixels around the predicted corners of markers ``ids``, widened by
+    ``margin_px``, its edges on multiples of SEARCH_ALIGN_PX, clipped to the frame (None without
+    such markers)."""
+    align = SEARCH_ALIGN_PX
+    corners = [view.markers[i] for i in ids if i in view.markers]
+    if not corners:
+        return None
+    pts = np.concatenate(corners)
+    h, w = view.shape
+    lo = np.floor((pts.min(axis=0) - margin_px) / align) * align
+    hi = np.ceil((pts.max(axis=0) + margin_px + 1) / align) * align
+    x0, y0 = (int(v) for v in np.clip(lo, 0, (w, h)))
+    x1, y1 = (int(v) for v in np.clip(hi, 0, (w, h)))
+    return (x0, y0, x1, y1) if x1 - x0 >= 8 and y1 - y0 >= 8 else None
 
 
 def find_patch(linear: np.ndarray, expected_ids, margin: float, what: str,

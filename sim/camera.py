@@ -35,7 +35,6 @@ PAPER_REFLECTANCE = 0.85        # holder card around the markers
 INK_REFLECTANCE = 0.04          # printed marker black
 BACKGROUND_REFLECTANCE = 0.01   # black velvet beyond the card
 SUPERSAMPLE = 3                 # sub-pixel samples per axis: smooth marker and patch edges
-POISSON_EXACT_BELOW_E = 1000.0  # mean electrons under which shot noise is drawn as Poisson itself
 
 # key: Key(check, expected, default: REQUIRED when none is given)
 _SIM_CAMERA_KEYS = {
@@ -113,10 +112,22 @@ class HolderRenderer:
         self._textures = {ids: _card_texture(layout, ids, self.TEXEL_MM)
                           for ids in (SAMPLE_MARKER_IDS, WHITE_MARKER_IDS)}
         self._lens_maps = None   # distortion remap at supersampled resolution, built on first use
+        self._last = None        # (key, view): the frames of one bracket share their pose
 
     def view(self, w_i: np.ndarray, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
-        """Mean card reflectance and patch coverage per pixel, each (H, W) float32, of the pose
-        (w_i, w_o) (unit, sample frame, w_o z > 0); beyond the card lies the background."""
+        """Mean card reflectance and patch coverage per pixel, each (H, W) float32 read-only, of
+        the pose (w_i, w_o) (unit, sample frame, w_o z > 0); beyond the card lies the background.
+        The last pose's view is kept: a bracket's exposures at one pose render it once."""
+        key = (np.asarray(w_i, dtype=np.float64).tobytes(), np.asarray(w_o, dtype=np.float64).tobytes(),
+               tuple(marker_ids))
+        if self._last is None or self._last[0] != key:
+            card, cover = self._render(w_i, w_o, marker_ids)
+            card.flags.writeable = cover.flags.writeable = False
+            self._last = (key, (card, cover))
+        return self._last[1]
+
+    def _render(self, w_i: np.ndarray, w_o: np.ndarray, marker_ids) -> tuple[np.ndarray, np.ndarray]:
+        """``view`` computed: the card warped through the pose's homography (no memo)."""
         import cv2
 
         n, lay, tau = SUPERSAMPLE, self.layout, self.TEXEL_MM
@@ -267,7 +278,7 @@ class SimCamera(Camera):
         electrons = radiance * np.pi * p["signal_e_s"] * gain_c * self._gain * exposure_s
         dark = p["dark_current_e_s"] * exposure_s
         if p["noise"]:
-            electrons = shot_noise(electrons + dark, rng)
+            electrons = rng.poisson(electrons + dark).astype(np.float64)
         else:
             electrons = electrons + dark
         if p["noise"]:
@@ -277,19 +288,3 @@ class SimCamera(Camera):
         dn_per_e = (p["white_level"] - p["black_level"]) / p["full_well_e"]
         dn = np.rint(p["black_level"] + electrons * dn_per_e)
         return np.clip(dn, 0, p["white_level"]).astype(np.uint16)
-
-
-
-def shot_noise(mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Photon shot noise: electrons (H, W) float64 drawn around ``mean_e`` (H, W) electrons.
-
-    Poisson below ``POISSON_EXACT_BELOW_E`` electrons; above it the Gaussian of the same mean and
-    variance, rounded to whole electrons (the Poisson's skewness there is under 0.03). numpy's
-    Poisson sampler costs 3-4x a normal draw at the tens of thousands of electrons a well-exposed
-    pixel holds, and the simulated camera draws a million such pixels per session."""
-    out = np.empty_like(mean_e, dtype=np.float64)
-    low = mean_e < POISSON_EXACT_BELOW_E
-    out[low] = rng.poisson(mean_e[low])
-    high = mean_e[~low]
-    out[~low] = np.rint(high + np.sqrt(high) * rng.standard_normal(high.shape))
-    return out

@@ -3,13 +3,14 @@ selection, stopping rule, model format 2 (small grids, synthetic materials; a fe
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import bayes_selection, noise, posterior, prediction, stopping
-from goniofrost.frost.bayes_selection import greedy_design, select_bayes
+from goniofrost.frost.bayes_selection import greedy_design, greedy_designs, select_bayes
 from goniofrost.frost.model import FrostModel, ModelError
 from goniofrost.frost.reconstruction import reconstruct, reconstruct_bayes
 from goniofrost.frost.selection import SelectionError
@@ -68,6 +69,30 @@ def test_greedy_design_equals_the_textbook_greedy(model, masked):
     q = np.einsum("ij,jk,ik->i", d.astype(np.float64), sigma, d.astype(np.float64))
     np.testing.assert_allclose(design.design_errors[-1], np.mean(q + noise_var), rtol=1e-5)
     assert np.all(np.diff(design.design_errors) < 0) and np.all(np.diff(design.pick_seconds) >= 0)
+
+
+BEFORE_FUSION = Path(__file__).parent / "data" / "bayes_designs_before_fusion.npz"
+
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_designs_equal_the_single_design_passes_to_the_bit(model, masked):
+    """``data/bayes_designs_before_fusion.npz``: greedy_design's picks, design errors and final
+    covariance (40 picks, design scales 1, 2, 4, all cells or every third cell left out, one
+    thread) from the implementation before several designs shared a pass. The shared passes
+    (three designs at once, on 3 threads of 4 pieces each) and greedy_design (any thread count)
+    give the same numbers to the bit."""
+    d, s2 = np.asarray(model.dictionary), model.singular_values ** 2
+    prior, noise_var = posterior.prior_variance(model), posterior.cell_noise(model)
+    rows = np.flatnonzero(np.arange(GRID.n_valid) % 3 != 1) if masked else None
+    before, scales = np.load(BEFORE_FUSION), (1.0, 2.0, 4.0)
+    shared = greedy_designs(d, s2, prior, [a * noise_var for a in scales], 40, rows=rows, threads=3)
+    for a, together in zip(scales, shared):
+        key = f"{'masked' if masked else 'all'}_x{a:g}"
+        for design in (together, greedy_design(d, s2, prior, a * noise_var, 40, rows=rows, threads=2)):
+            np.testing.assert_array_equal(design.rows, before[f"{key}_rows"])
+            np.testing.assert_array_equal(design.design_errors, before[f"{key}_errors"])
+            np.testing.assert_array_equal(design.covariance, before[f"{key}_covariance"])
+    assert len({tuple(design.rows) for design in shared}) == 3  # the scales do pick differently
 
 
 def test_bayes_selection_is_deterministic_nested_and_thread_independent(model):

@@ -1,4 +1,4 @@
-"""The smallest setting of ``benchmarks/frost_speed.py targets``: a small grid, one run each."""
+"""The smallest settings of ``benchmarks/frost_speed.py targets`` and ``kernels``: a small grid, one run each."""
 from __future__ import annotations
 
 import re
@@ -24,3 +24,16 @@ def test_targets_report_each_figure_beside_its_target_and_the_bandwidth(tmp_path
         # the median is printed to the millisecond: its rounding bounds the ratio it implies
         low, high = (float(median) - 5e-4) / float(limit), (float(median) + 5e-4) / float(limit)
         assert 0.99 * low - 0.01 <= float(ratio) <= 1.01 * high + 0.01, (median, limit, ratio)
+
+
+def test_kernels_report_each_pass_with_its_bytes_and_the_stream(tmp_path):
+    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frost_speed.py"), "kernels",
+                             "--grid", "8", "8", "16", "--repeat", "1"], capture_output=True, text=True,
+                            env={"GONIOFROST_CACHE": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=600)
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert re.search(r"streaming read [\d.]+ GB/s; n = \d+, K = \d+", out), out
+    for name in ("bayes step, 1 design", "bayes step, 3 designs", r"somp Q pass \(k = t = \d+\)", r"somp C pass \(t = \d+\)"):
+        assert re.search(rf"^{name}: [\d.]+ ms, \d+ MB moved, [\d.]+ GB/s; one read of \d+ MB at the stream: "
+                         rf"[\d.]+ ms, ratio [\d.]+  \(load ", out, re.M), (name, out)
+    assert re.search(r"^somp pack \(k = \d+, one run\): [\d.]+ ms$", out, re.M), out

@@ -11,7 +11,7 @@ import yaml
 from calib.config import validate_camera_section
 from calib.errors import MisalignedError, PatchTooSmallError, WrongTargetError
 from calib.holder import SAMPLE_MARKER_IDS, WHITE_MARKER_IDS
-from calib.roi import locate_patch, polygon_thickness, predict_view, read_markers
+from calib.roi import SEARCH_MARGIN_PX, locate_patch, polygon_thickness, predict_view, read_markers, search_box
 from drivers.rawfile import read_raw
 from goniofrost.core.camera_model import CameraModel
 from goniofrost.core.errors import ConfigError
@@ -135,6 +135,29 @@ def test_where_markers_are_unreadable_the_prediction_alone_places_the_patch(rig,
     mask, source, offset = locate_patch(raw.linear, SAMPLE_MARKER_IDS, 0.15, "s", view, 20.0, raw.channels, 24)
     assert source == "prediction" and offset is None
     assert min(np.sum(mask & (raw.channels == c)) for c in range(3)) >= 24 and np.all(cover[mask] == 1.0)
+
+
+@pytest.mark.parametrize("theta_o, phi_o, scales", [(55.0, 140.0, (1,)), (70.0, 30.0, (1, 2)), (80.0, 160.0, (1, 2)),
+                                                  (84.0, 200.0, (2,))])
+def test_the_search_box_reads_the_markers_of_the_whole_frame(rig, model, tmp_path, theta_o, phi_o, scales):
+    raw, _, (w_i, w_o) = _frame_and_cover(rig, tmp_path, theta_o, phi_o)
+    view = predict_view(model, w_i, w_o, SAMPLE_MARKER_IDS, 0.15)
+    box = search_box(view, view.readable, 20.0 + SEARCH_MARGIN_PX)
+    assert box is not None and (box[2] - box[0]) * (box[3] - box[1]) < raw.linear.size
+    whole, _ = read_markers(raw.linear, SAMPLE_MARKER_IDS, scales)
+    boxed, _ = read_markers(raw.linear, SAMPLE_MARKER_IDS, scales, box=box)
+    assert sorted(boxed) == sorted(whole) and len(whole) >= 2
+    for i in whole:   # the same corners but for float32 rounding of the larger coordinates
+        np.testing.assert_allclose(boxed[i], whole[i], atol=1e-3)
+
+
+def test_markers_outside_the_search_box_are_still_read(rig, model, tmp_path):
+    raw, _, (w_i, w_o) = _frame_and_cover(rig, tmp_path, 40.0, 160.0)
+    view = predict_view(model, w_i, w_o, SAMPLE_MARKER_IDS, 0.15)
+    x0, y0, x1, y1 = search_box(view, view.readable, 20.0 + SEARCH_MARGIN_PX)
+    away = (0, 0, 16, 16) if x0 >= 16 or y0 >= 16 else (x1 - 16, y1 - 16, x1, y1)   # a box holding no marker
+    found, _ = read_markers(raw.linear, SAMPLE_MARKER_IDS, (1,), box=away)
+    assert sorted(found) == sorted(read_markers(raw.linear, SAMPLE_MARKER_IDS, (1,))[0]) and len(found) >= 2
 
 
 def test_markers_far_from_the_prediction_mean_a_misaligned_rig(rig, model, tmp_path):

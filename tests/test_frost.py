@@ -169,6 +169,24 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
         textbook_somp(mdl, 12, y_form, mask)
 
 
+def test_packed_atoms_are_the_unit_scaled_dictionary_rows(model, monkeypatch):
+    """qb[b, :, r] is cell b * W + r's atom S_k^-2 d / ||S_k^-2 d|| (the candidates' rows in
+    order), the padding after the last candidate zero; whatever the threads."""
+    import goniofrost.frost.selection as selection
+
+    monkeypatch.setattr(selection, "BLOCK_CELLS", 64)
+    k, mask = 12, np.random.default_rng(3).random(GRID.n_valid) < 0.6
+    rows = np.flatnonzero(mask)
+    x = np.asarray(model.dictionary, np.float64)[rows, :k] / np.asarray(model.singular_values[:k], np.float64) ** 2
+    expected = x / np.linalg.norm(x, axis=1)[:, None]
+    for threads in (1, 3):
+        pos, qb, n = selection._atoms(model, k, mask, k, threads)
+        assert n == rows.size and pos.tolist() == rows.tolist() and qb.shape == (-(-n // 64), k, 64)
+        cells = qb.transpose(0, 2, 1).reshape(-1, k)
+        np.testing.assert_allclose(cells[:n], expected, rtol=2e-6, atol=1e-7)
+        assert not cells[n:].any()
+
+
 def test_zero_atoms_are_never_picked(model):
     """Cells whose dictionary row is zero (every training material at its mean there) have a
     zero atom: SOMP passes them over, and allowing only such cells is a clear error."""

@@ -37,6 +37,21 @@ def test_valid_mask_is_both_directions_above_the_surface(grid):
     assert np.all(grid.valid_position(np.flatnonzero(~grid.valid_mask)) == -1)
 
 
+@pytest.mark.parametrize("shape", [(90, 90, 180), (45, 45, 90), (30, 30, 60), (8, 8, 16), (7, 11, 13)])
+def test_valid_mask_has_the_signs_of_every_cells_directions(shape):
+    # The mask is computed from broadcast z components; the directions of every cell must give
+    # the same signs, horizon cells (theta_h + theta_d = 90 deg) included.
+    grid = MerlGrid(*shape)
+    w_i, w_o = half_diff_to_dirs(*grid.flat_angles(np.arange(grid.size)))
+    assert np.array_equal(grid.valid_mask, (w_i[:, 2] > 0) & (w_o[:, 2] > 0))
+
+
+def test_grids_of_one_shape_share_their_validity():
+    a, b = MerlGrid(30, 30, 60), MerlGrid(30, 30, 60)
+    assert a.valid_cells is b.valid_cells and a.valid_mask is b.valid_mask
+    assert not a.valid_mask.flags.writeable and not a.valid_cells.flags.writeable
+
+
 def test_lower_edge_formulas_match_the_design():
     th, td, pd = FULL_GRID.cell_angles(45, 30, 90)
     assert th == pytest.approx((45 / 90) ** 2 * np.pi / 2, rel=1e-15)

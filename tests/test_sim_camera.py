@@ -84,23 +84,6 @@ def test_shot_noise_follows_the_photon_transfer_curve(tmp_path, gold, params, ca
     assert diff_var_e / 2 == pytest.approx(mean_e + params["read_noise_e"] ** 2, rel=0.06)
 
 
-@pytest.mark.parametrize("mean_e", [3.0, 400.0, 999.0, 1000.0, 30000.0])
-def test_shot_noise_has_the_poisson_mean_and_variance_on_both_sides_of_the_exact_range(mean_e):
-    """Below POISSON_EXACT_BELOW_E the draws are Poisson; at and above it the Gaussian of the same
-    mean and variance, whole electrons, never negative; the same generator state, the same draws."""
-    from sim.camera import POISSON_EXACT_BELOW_E, shot_noise
-
-    lam = np.full((400, 500), mean_e)
-    draws = shot_noise(lam, np.random.default_rng(5))
-    assert draws.dtype == np.float64 and np.all(draws == np.rint(draws)) and draws.min() >= 0
-    n = draws.size  # 2e5 draws: the sample mean within 5 standard errors, the variance within 2 %
-    assert abs(draws.mean() - mean_e) < 5 * np.sqrt(mean_e / n)
-    assert draws.var() == pytest.approx(mean_e, rel=0.02)
-    np.testing.assert_array_equal(draws, shot_noise(lam, np.random.default_rng(5)))
-    exact = np.random.default_rng(5).poisson(lam).astype(np.float64)
-    assert np.array_equal(draws, exact) == (mean_e < POISSON_EXACT_BELOW_E)
-
-
 def test_saturation_clips_at_the_white_level(tmp_path, gold, params, camera):
     bench = CameraBench(gold, params, camera, speedup=1e4)
     bench.lamp.on()

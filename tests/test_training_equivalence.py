@@ -18,7 +18,7 @@ import pytest
 
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import training
-from goniofrost.frost.threads import imap_chunks, map_chunks, ranges, resolve_threads
+from goniofrost.frost.threads import PIECES_PER_THREAD, imap_chunks, map_chunks, pass_ranges, ranges, resolve_threads, run_ranges
 from goniofrost.frost.training import fit_model
 from test_frost import synthetic_tables
 
@@ -98,6 +98,11 @@ def test_chunks_come_back_in_order_whatever_the_threads():
         assert map_chunks(lambda a, b: (a, b), 10, 3, threads) == [(0, 3), (3, 6), (6, 9), (9, 10)]
         assert list(imap_chunks(lambda a, b: a, 100, 7, threads)) == list(range(0, 100, 7))
     assert ranges(10, 3) == [(0, 3), (3, 6), (6, 10)] and ranges(2, 4) == [(0, 1), (1, 2)]
+    # A pass: one piece on one thread, PIECES_PER_THREAD per thread otherwise, results in order.
+    assert pass_ranges(100, 1) == [(0, 100)] and pass_ranges(100, 2) == ranges(100, 2 * PIECES_PER_THREAD)
+    for threads in (1, 2, 3):
+        assert run_ranges(lambda k, lo, hi: (k, lo, hi), 50, threads, "x") == \
+            [("x", lo, hi) for lo, hi in pass_ranges(50, threads)]
     with pytest.raises(ValueError, match="threads: expected a positive integer, found -1"):
         resolve_threads(-1)
 
@@ -116,6 +121,7 @@ def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_pa
     """train() streams the tabulation cache entries (TabulatedFiles) instead of stacking them:
     the same model, bit for bit, as fitting the stacked tables."""
     from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.base import DatasetError
     from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulate_materials
     from goniofrost.frost.training import train
 
@@ -129,5 +135,13 @@ def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_pa
     for name in ("dictionary", "singular_values", "coefficients", "mean", "reference", "noise_variance"):
         np.testing.assert_array_equal(np.asarray(getattr(streamed, name)), np.asarray(getattr(stacked, name)), name)
     assert streamed.noise == stacked.noise
-    files = TabulatedFiles(sorted((tmp_path / "tabulated").glob("*.npy"))[:2])
+    paths = sorted((tmp_path / "tabulated").glob("*.npy"))[:2]
+    files = TabulatedFiles(paths)
     assert files.shape == (2, grid.n_valid, 3) and files.rows(5, 9).shape == (4, 2, 3)
+    tables = np.stack([np.load(path) for path in paths])  # (2, n, 3)
+    np.testing.assert_array_equal(files.rows(5, 9), tables[:, 5:9].transpose(1, 0, 2))
+    np.testing.assert_array_equal(files.rows(0, grid.n_valid), tables.transpose(1, 0, 2))
+    short = tmp_path / "short.npy"
+    short.write_bytes(paths[0].read_bytes()[:-12])  # the header still says n rows
+    with pytest.raises(DatasetError, match=rf"short.npy: expected rows 0 to {grid.n_valid}, found the file shorter"):
+        TabulatedFiles([short]).rows(0, grid.n_valid)

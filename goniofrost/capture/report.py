@@ -13,6 +13,8 @@ the session made).
 from __future__ import annotations
 
 import json
+import sys
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -182,10 +184,33 @@ def target_section(spec, records) -> dict:
             "extrapolation": bool(last and last["out_of_model"])}
 
 
+_RENDERER_IMPORT: threading.Thread | None = None
+
+
+def preload_preview() -> None:
+    """Import the preview's renderer (matplotlib: 1 to 3 s) on a thread while the session runs, whose
+    steps mostly wait on devices and on compiled code; ``write_preview`` waits for it."""
+    global _RENDERER_IMPORT
+    if _RENDERER_IMPORT is None and "matplotlib.figure" not in sys.modules:
+        _RENDERER_IMPORT = threading.Thread(target=_import_renderer, name="preview-import", daemon=True)
+        _RENDERER_IMPORT.start()
+
+
+def _import_renderer() -> None:
+    try:
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import matplotlib.figure  # noqa: F401
+    except ImportError:   # write_png's own import raises it where it can be reported
+        pass
+
+
 def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None) -> float | None:
     """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
     error on a simulated rig); return its rendering SNR in dB (None without a ground truth)."""
     from goniofrost.brdf.preview import preview_of, write_png
+
+    if _RENDERER_IMPORT is not None:
+        _RENDERER_IMPORT.join()
 
     reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
     preview = preview_of(estimate, grid, reference, std=std)

@@ -55,7 +55,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     """
     from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.inputs import load_inputs
-    from goniofrost.capture.report import summary_text, write_outputs
+    from goniofrost.capture.report import preload_preview, summary_text, write_outputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
@@ -80,6 +80,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if not session_finished(spec, journal):
+                preload_preview()
                 stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
                                    speedup=speedup, progress=progress, on_ready=on_ready,
                                    reuse_calibration=reuse_calibration, progress_desc=progress_desc)

@@ -239,11 +239,20 @@ class TabulatedFiles:
 
     def rows(self, start: int, stop: int) -> np.ndarray:
         """float32 (stop - start, M, 3): rows [start, stop) of every material."""
-        out = np.empty((stop - start, len(self.paths), 3), dtype=np.float32)
+        m, count = len(self.paths), stop - start
+        # Every file's rows are read contiguously, then one transpose moves whole 12-byte (3,)
+        # records: reading straight into (rows, M, 3) scattered each file's rows 12 M bytes
+        # apart, and numpy copies a strided float array value by value (a chunk of 16384 rows
+        # of 151 materials: 100 ms CPU that way, ~40 ms this way).
+        by_file = np.empty((m, count, 3), dtype=np.float32)
         for j, (path, (offset, _)) in enumerate(zip(self.paths, self.offsets)):
             with open(path, "rb") as handle:
                 handle.seek(offset + start * 3 * 4)
-                out[:, j, :] = np.fromfile(handle, dtype=np.float32, count=(stop - start) * 3).reshape(-1, 3)
+                if handle.readinto(memoryview(by_file[j]).cast("B")) != by_file[j].nbytes:
+                    raise DatasetError(f"{path}: expected rows {start} to {stop}, found the file shorter")
+        out = np.empty((count, m, 3), dtype=np.float32)
+        record = np.dtype((np.void, 12))
+        out.view(record).reshape(count, m)[:] = by_file.view(record).reshape(m, count).T
         return out
 
 

@@ -1,4 +1,5 @@
-"""Compiled (numba) kernels of the Bayesian selection: one fused pass over D per greedy step.
+"""Compiled (numba) kernels of the Bayesian selection: one fused pass over D per greedy step,
+shared by several designs on the same dictionary.
 
 For every candidate cell c (dictionary row d_c, K float32) the selection keeps two quadratic
 forms of the posterior covariance Sigma (K x K) of the coefficients:
@@ -14,9 +15,17 @@ reads each row of D once, updates q and p in place and returns the best score
 ``p / (noise + q)`` of its range of cells (lowest index on ties). Every cell's numbers depend
 on that cell only, so the result does not depend on how the cells are split among threads.
 
+Several designs (S of them: the training's inner cross-validation runs one per noise scale on
+each fold's dictionary) share each pass: a row of D is read from memory once and, while it is
+in cache (tiles of TILE_ROWS candidates), every design's forms of those cells are updated. Each
+design's arithmetic is the single design's, in the same order (``_update_one``), so its numbers
+are the same to the bit with or without the designs beside it.
+
 Arrays: dictionary float32 (n_valid, K) (a memory-mapped model is fine); rows int64 (n_c,) the
-candidate rows of D; q, p float64 (n_c,); noise float64 (n_c,) (+inf closes a cell: its score
-is 0); u, v float64 (K,). Each kernel takes a range [i0, i1) of candidates and releases the GIL.
+candidate rows of D; q, p float64 (S, n_c); noise float64 (S, n_c) (+inf closes a cell: its
+score is 0); prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64 (S,). Each kernel
+takes a range [i0, i1) of candidates, writes every design's best score of the range and its
+index (lowest on ties; -1 if none) into best (S,) and best_i (S,), and releases the GIL.
 """
 from __future__ import annotations
 
@@ -28,42 +37,44 @@ _DICTIONARY = types.Array(types.float32, 2, "C", readonly=True)
 _F64 = types.float64[::1]
 _F32 = types.float32[::1]
 _I64 = types.int64
-_BEST = types.UniTuple(types.float64, 2)
+_F64_2 = types.float64[:, ::1]
+# Candidates per tile of the several-design pass: 512 rows of D (K = 60) are 123 kB, in L2.
+TILE_ROWS = 512
 
 
-@njit(_BEST(_DICTIONARY, types.int64[::1], _F64, _F64, _F64, _F64, _F64, _I64, _I64), **_OPTIONS)
-def init_forms(dictionary, rows, prior_var, q, p, noise, s2, i0, i1):
-    """q, p for the prior Sigma = diag(prior_var) on candidates [i0, i1); returns (best score, its index).
+@njit(types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64_2, _F64_2, _F64, _F64, types.int64[::1],
+                 _I64, _I64), **_OPTIONS)
+def init_forms(dictionary, rows, prior_var, q, p, noise, s2, best, best_i, i0, i1):
+    """q, p for the prior Sigma = diag(prior_var[s]) of every design s on candidates [i0, i1).
 
     s2: (K,) squared singular values S^2.
     """
-    k = dictionary.shape[1]
-    best, best_i = -1.0, -1.0
+    k, designs = dictionary.shape[1], q.shape[0]
+    best[:] = -1.0
+    best_i[:] = -1
     for i in range(i0, i1):
         row = dictionary[rows[i]]
-        qc = 0.0
-        pc = 0.0
-        for j in range(k):
-            x = np.float64(row[j]) * prior_var[j]
-            qc += x * np.float64(row[j])
-            pc += x * x * s2[j]
-        q[i] = qc
-        p[i] = pc
-        score = pc / (noise[i] + qc)
-        if score > best:
-            best, best_i = score, np.float64(i)
-    return best, best_i
+        for s in range(designs):
+            var = prior_var[s]
+            qc = 0.0
+            pc = 0.0
+            for j in range(k):
+                x = np.float64(row[j]) * var[j]
+                qc += x * np.float64(row[j])
+                pc += x * x * s2[j]
+            q[s, i] = qc
+            p[s, i] = pc
+            score = pc / (noise[s, i] + qc)
+            if score > best[s]:
+                best[s], best_i[s] = score, i
 
 
-@njit(_BEST(_DICTIONARY, types.int64[::1], _F64, _F64, types.float64, types.float64, _F64, _F64, _F64,
-            _I64, _I64), **_OPTIONS)
-def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, i1):
-    """One greedy step on candidates [i0, i1): a = d.u, g = d.v, update q and p; (best, index).
-
-    inv_delta = 1 / delta; usu_delta2 = (u^T S^2 u) / delta^2.
-    """
+@njit(**_OPTIONS)
+def _update_one(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, i1):
+    """One design's step on candidates [i0, i1) (the single-design kernel's loop, unchanged, so
+    a design's numbers are the same to the bit with or without others); (best, its index)."""
     k = dictionary.shape[1]
-    best, best_i = -1.0, -1.0
+    best, best_i = -1.0, -1
     for i in range(i0, i1):
         row = dictionary[rows[i]]
         # float64 sums: a and g are small differences of large terms once Sigma has shrunk
@@ -83,5 +94,25 @@ def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0,
         p[i] = pc
         score = pc / (noise[i] + qc)
         if score > best:
-            best, best_i = score, np.float64(i)
+            best, best_i = score, i
     return best, best_i
+
+
+@njit(types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64, _F64, _F64_2, _F64_2, _F64_2, _F64,
+                 types.int64[::1], _I64, _I64), **_OPTIONS)
+def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, best, best_i, i0, i1):
+    """One greedy step of every design s on candidates [i0, i1): a = d.u[s], g = d.v[s], update
+    q[s] and p[s].
+
+    inv_delta[s] = 1 / delta; usu_delta2[s] = (u^T S^2 u) / delta^2. The candidates go in tiles
+    of TILE_ROWS rows: every design's step on a tile while its rows of D are in cache.
+    """
+    best[:] = -1.0
+    best_i[:] = -1
+    for t0 in range(i0, i1, TILE_ROWS):
+        t1 = min(t0 + TILE_ROWS, i1)
+        for s in range(q.shape[0]):
+            score, index = _update_one(dictionary, rows, u[s], v[s], inv_delta[s], usu_delta2[s], q[s], p[s],
+                                       noise[s], t0, t1)
+            if score > best[s]:
+                best[s], best_i[s] = score, index

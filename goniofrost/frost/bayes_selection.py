@@ -24,7 +24,7 @@ from goniofrost.frost import bayes_kernels as kernels
 from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
-from goniofrost.frost.threads import resolve_threads
+from goniofrost.frost.threads import pass_ranges, resolve_threads
 from goniofrost.frost.usage_design import is_uniform, scene_prior
 
 # --max-error never plans more samples than this.
@@ -61,73 +61,105 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
     process may use; the picks do not depend on it). Raises SelectionError when the candidates
     stop reducing the error first.
     """
+    return _greedy(dictionary, s2, prior_var, [noise], m_max, rows, stop, threads)[0]
+
+
+def greedy_designs(dictionary, s2, prior_var, noises, m_max: int, rows=None,
+                   threads: int | None = None) -> list[GreedyDesign]:
+    """One greedy design per noise vector of ``noises`` (each (n,)), on the same dictionary,
+    S^2, prior and candidates, sharing every pass over D (it is read once per step for all of
+    them). Each design is ``greedy_design``'s with that noise, to the bit: its arithmetic is the
+    same, in the same order. Their ``pick_seconds`` are the shared passes' times.
+    """
+    return _greedy(dictionary, s2, prior_var, list(noises), m_max, rows, None, threads)
+
+
+def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, threads) -> list[GreedyDesign]:
+    """The greedy loop of every design in ``noises`` (see greedy_designs); ``stop`` sees the
+    first design's picks."""
     start = time.perf_counter()
     threads = resolve_threads(threads)
-    forms = _Forms(dictionary, rows, noise, threads)
-    sigma = np.diag(np.asarray(prior_var, np.float64))
+    forms = _Forms(dictionary, rows, noises, threads)
+    prior = np.asarray(prior_var, np.float64)
+    sigmas = [np.diag(prior) for _ in noises]
     s2 = np.asarray(s2, np.float64)
-    noise_total, n = float(forms.noise.sum()), forms.d.shape[0]
-    picks, errors, seconds = [], [], []
+    designs, n = len(noises), forms.d.shape[0]
+    noise_totals = [float(forms.noise[s].sum()) for s in range(designs)]
+    picks, errors, seconds = [[] for _ in noises], [[] for _ in noises], []
+    u, v = np.empty((designs, prior.size)), np.empty((designs, prior.size))
+    inv_delta, usu_delta2 = np.empty(designs), np.empty(designs)
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        best, i = forms.first_pass(pool, sigma.diagonal().copy(), s2)
-        first = best
+        best, index = forms.first_pass(pool, np.tile(prior, (designs, 1)), s2)
+        first = best.copy()
         while True:
-            if i < 0 or best <= EXHAUSTED * first:
-                raise SelectionError(
-                    f"selection: after {len(picks)} picks no allowed cell reduces the expected error any "
-                    "more; allow more cells or ask for fewer samples")
-            row, picked = forms.close(i)
-            u = sigma @ row
-            delta = forms.noise[picked] + row @ u
-            v = sigma @ (s2 * u)
-            sigma -= np.outer(u, u) / delta
-            picks.append(picked)
-            errors.append((float(np.sum(s2 * np.diag(sigma))) + noise_total) / n)
+            for s in range(designs):
+                if index[s] < 0 or best[s] <= EXHAUSTED * first[s]:
+                    raise SelectionError(
+                        f"selection: after {len(picks[s])} picks no allowed cell reduces the expected error any "
+                        "more; allow more cells or ask for fewer samples")
+                row, picked = forms.close(s, int(index[s]))
+                sigma = sigmas[s]
+                u[s] = sigma @ row
+                delta = forms.noise[s][picked] + row @ u[s]
+                v[s] = sigma @ (s2 * u[s])
+                sigma -= np.outer(u[s], u[s]) / delta
+                picks[s].append(picked)
+                errors[s].append((float(np.sum(s2 * np.diag(sigma))) + noise_totals[s]) / n)
+                inv_delta[s], usu_delta2[s] = 1.0 / delta, float(u[s] @ (s2 * u[s])) / delta ** 2
             seconds.append(time.perf_counter() - start)
-            if len(picks) >= min(m_max, forms.rows.size) or (stop is not None and stop(picked)):
+            if len(picks[0]) >= min(m_max, forms.rows.size) or (stop is not None and stop(picks[0][-1])):
                 break
-            best, i = forms.update_pass(pool, u, v, delta, float(u @ (s2 * u)))
-    return GreedyDesign(np.array(picks, dtype=np.int64), np.array(errors), np.array(seconds), sigma)
+            best, index = forms.update_pass(pool, u, v, inv_delta, usu_delta2)
+    return [GreedyDesign(np.array(picks[s], dtype=np.int64), np.array(errors[s]), np.array(seconds), sigmas[s])
+            for s in range(designs)]
 
 
 class _Forms:
-    """The quadratic forms q, p of every candidate and the fused passes that keep them (split
-    among ``threads`` threads over contiguous ranges of candidates; see bayes_kernels)."""
+    """The quadratic forms q, p of every candidate in every design and the fused passes that
+    keep them (shared by ``threads`` threads over contiguous pieces of the candidates; see
+    bayes_kernels)."""
 
-    def __init__(self, dictionary, rows, noise, threads: int) -> None:
+    def __init__(self, dictionary, rows, noises: list, threads: int) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-        self.noise = np.asarray(noise, dtype=np.float64)
-        self.open_noise = np.ascontiguousarray(self.noise[self.rows])  # private: a picked cell gets +inf (score 0)
-        self.q, self.p = np.empty(self.rows.size), np.empty(self.rows.size)
-        self.edges = [int(e) for e in np.linspace(0, self.rows.size, threads + 1)]
+        self.noise = [np.asarray(noise, dtype=np.float64) for noise in noises]  # S of (n,), the callers'
+        # private: a picked cell gets +inf (score 0)
+        self.open_noise = np.array([noise[self.rows] for noise in self.noise])  # (S, n_c)
+        self.q, self.p = np.empty(self.open_noise.shape), np.empty(self.open_noise.shape)
+        self.parts = pass_ranges(self.rows.size, threads)  # several per thread, taken as threads come free
 
-    def first_pass(self, pool, prior_var, s2) -> tuple[float, int]:
+    def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
 
-    def update_pass(self, pool, u, v, delta: float, usu: float) -> tuple[float, int]:
-        return self._run(pool, kernels.update_forms, self.d, self.rows, u, v, 1.0 / delta, usu / delta ** 2,
+    def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
+        return self._run(pool, kernels.update_forms, self.d, self.rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
 
-    def close(self, i: int) -> tuple[np.ndarray, int]:
-        """Take candidate i out of the competition; return its dictionary row (float64) and row index."""
-        self.open_noise[i] = np.inf
+    def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
+        """Take candidate i out of design s's competition; return its dictionary row (float64)
+        and row index."""
+        self.open_noise[s, i] = np.inf
         picked = int(self.rows[i])
         return self.d[picked].astype(np.float64), picked
 
-    def _run(self, pool, kernel, *args) -> tuple[float, int]:
-        parts = [pool.submit(kernel, *args, lo, hi) for lo, hi in zip(self.edges[:-1], self.edges[1:]) if hi > lo]
-        return _best([f.result() for f in parts])
+    def _run(self, pool, kernel, *args) -> tuple[np.ndarray, np.ndarray]:
+        """Every design's best score and its candidate index (-1: none) over all pieces."""
+        designs = self.q.shape[0]
+        best = np.empty((len(self.parts), designs))
+        best_i = np.empty((len(self.parts), designs), dtype=np.int64)
+        futures = [pool.submit(kernel, *args, best[k], best_i[k], lo, hi) for k, (lo, hi) in enumerate(self.parts)]
+        for future in futures:
+            future.result()
+        return _best(best, best_i)
 
 
-def _best(results) -> tuple[float, int]:
-    """The highest score of the threads' (score, index) pairs; lowest index on ties."""
-    best, index = -1.0, -1
-    for score, i in results:  # threads cover increasing index ranges
-        if score > best:
-            best, index = score, int(i)
-    return best, index
+def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per design, the highest of the pieces' scores (pieces, S); lowest index on ties (the
+    pieces cover increasing index ranges, so the first piece holding the maximum)."""
+    piece = np.argmax(best, axis=0)  # the first occurrence of the maximum
+    designs = np.arange(best.shape[1])
+    return best[piece, designs], best_i[piece, designs]
 
 
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,

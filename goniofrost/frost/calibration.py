@@ -2,9 +2,9 @@
 training materials, the choice of the noise scales, and the predicted-error calibration.
 
 For every inner fold (``noise.inner_folds``) the fold's dictionary D_f = X J_A V_f is formed
-(one pass over X), a greedy Bayesian design of up to max(m) cells is picked on it
-(``bayes_selection.greedy_design``, the fold's prior 1 / |A|, the learned noise times a design
-scale), and every held-out material is reconstructed from its own mapped values at the first m
+(one pass over X), a greedy Bayesian design of up to max(m) cells is picked on it for every
+design scale (``bayes_selection.greedy_designs``: the designs share each pass over D_f; the
+fold's prior 1 / |A|, the learned noise times a design scale), and every held-out material is reconstructed from its own mapped values at the first m
 cells of that design (the learned noise times a reconstruction scale). Its true error needs no
 pass over the cells: the held-out column is D_f s + r with r orthogonal to D_f's columns, so
 over all n cells
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniofrost.frost import posterior
-from goniofrost.frost.bayes_selection import greedy_design
+from goniofrost.frost.bayes_selection import greedy_designs
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, FEATURES, feature_matrix, feature_range_of,
@@ -85,8 +85,10 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
     out = {(a, b): {key: [] for key in CvRecords.__dataclass_fields__} for a in design_scales for b in recon_scales}
     for f, fold in enumerate(_progress(folds, progress)):
         d_f = _fold_dictionary(mapped, fold.projector)
-        for a in design_scales:
-            design = greedy_design(d_f, fold.singular_values ** 2, _prior(fold), a * noise, max(m_values))
+        # The designs of every design scale share each pass over D_f (one read per step for all).
+        designs = greedy_designs(d_f, fold.singular_values ** 2, _prior(fold), [a * noise for a in design_scales],
+                                 max(m_values))
+        for a, design in zip(design_scales, designs):
             for b in recon_scales:
                 _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)])
         del d_f

@@ -22,6 +22,7 @@ with y_form "all" (t = 393).
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -163,9 +164,10 @@ def _atoms(model: FrostModel, k: int, candidates, limit: int, threads: int):
     return pos, qb, rows.size
 
 
-def _in_threads(kernel, n_blocks: int, threads: int, *args) -> None:
-    """Run kernel(*args, b0, b1) on ``threads`` contiguous ranges of the n_blocks blocks."""
-    run_ranges(kernel, n_blocks, threads, *args)
+def _in_threads(kernel, n_blocks: int, threads: int, *args, pool=None) -> None:
+    """Run kernel(*args, b0, b1) on contiguous ranges of the n_blocks blocks shared by
+    ``threads`` threads (those of ``pool`` if given)."""
+    run_ranges(kernel, n_blocks, threads, *args, pool=pool)
 
 
 def _training_matrix(model: FrostModel, k: int, y_form: str, m: int) -> np.ndarray:
@@ -178,8 +180,9 @@ def _somp(qb: np.ndarray, n: int, y: np.ndarray, limit: int, max_error: float | 
     """Run SOMP on the packed atoms qb of n cells and Y (k, t); return picked rows and residual ratios."""
     # The batched matmul that fills C runs in our threads: BLAS's own threads would only
     # compete with them.
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _somp_steps(_ScoreState(qb, n, y, threads), y, limit, max_error)
+    # One pool of threads for every pass of the selection.
+    with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=threads) as pool:
+        return _somp_steps(_ScoreState(qb, n, y, threads, pool), y, limit, max_error)
 
 
 def _somp_steps(state, y, limit, max_error):
@@ -227,8 +230,8 @@ class _ScoreState:
     cells within a small margin are re-scored exactly in float64 from Q and R.
     """
 
-    def __init__(self, qb: np.ndarray, n: int, y: np.ndarray, threads: int) -> None:
-        self.qb, self.n, self.r, self.threads = qb, n, y.copy(), threads
+    def __init__(self, qb: np.ndarray, n: int, y: np.ndarray, threads: int, pool=None) -> None:
+        self.qb, self.n, self.r, self.threads, self.pool = qb, n, y.copy(), threads, pool
         t = y.shape[1]
         # Q^T b from C (square Y only: then every new direction b is in range(R)).
         self.cz = "wait" if y.shape[0] == t else "off"
@@ -236,7 +239,7 @@ class _ScoreState:
         self.cb = np.empty((qb.shape[0], t, BLOCK_CELLS), dtype=np.float32)
         self.scores = np.empty(qb.shape[0] * BLOCK_CELLS, dtype=np.float32)
         self.picked: list[int] = []  # their scores are set to -1 after each pass
-        _in_threads(self._fill, qb.shape[0], threads, np.ascontiguousarray(self.r.T, dtype=np.float32))
+        _in_threads(self._fill, qb.shape[0], threads, np.ascontiguousarray(self.r.T, dtype=np.float32), pool=pool)
         self.scale = float(self.scores[:n].max())
 
     def _fill(self, rt: np.ndarray, b0: int, b1: int) -> None:
@@ -260,7 +263,7 @@ class _ScoreState:
         if update_scores:
             source, w = (self.qb, b) if z is None else (self.cb, z)
             _in_threads(kernels.rank1_step, self.qb.shape[0], self.threads, source, w.astype(np.float32),
-                        self.cb, u.astype(np.float32), self.scores)
+                        self.cb, u.astype(np.float32), self.scores, pool=self.pool)
             self.scores[self.picked] = -1.0
 
     def _from_c(self, b: np.ndarray) -> np.ndarray | None:

@@ -29,24 +29,33 @@ _I64 = types.int64
 def pack_atoms(dictionary, positions, k, inv_s2, qb, b0, b1):
     """Fill blocks [b0, b1) of qb (n_blocks, k, W): the first k entries of dictionary rows
     ``positions`` (float32 (n_valid, K) -> cells), times inv_s2 (k,), scaled to unit l2 norm
-    (a zero row stays zero); cells past positions.size are zero padding."""
+    (a zero row stays zero); cells past positions.size are zero padding.
+
+    A block is a transpose of W rows of D: the norms first (row by row), then the block written
+    entry by entry along its W cells while those rows are still in cache, so every store goes
+    to the cache line of the one before (writing each cell's k entries, W apart, made this the
+    slowest part of a selection: 0.28 s of 0.84 s CPU at full size, m = 20).
+    """
     w = qb.shape[2]
     n = positions.size
+    scale = np.empty(w)
+    tile = np.empty((k, w))  # the block's x = d * inv_s2, entry-major (in L2)
     for b in range(b0, b1):
-        for r in range(w):
-            cell = b * w + r
-            if cell >= n:
-                for i in range(k):
-                    qb[b, i, r] = 0.0
-                continue
-            row = dictionary[positions[cell]]
+        cells = min(w, n - b * w)
+        for r in range(cells):
+            row = dictionary[positions[b * w + r]]
             norm2 = 0.0
             for i in range(k):
                 x = np.float64(row[i]) * inv_s2[i]
+                tile[i, r] = x
                 norm2 += x * x
-            scale = 1.0 / np.sqrt(norm2) if norm2 > 0.0 else 0.0
-            for i in range(k):
-                qb[b, i, r] = np.float32(np.float64(row[i]) * inv_s2[i] * scale)
+            scale[r] = 1.0 / np.sqrt(norm2) if norm2 > 0.0 else 0.0
+        for i in range(k):
+            out = qb[b, i]
+            for r in range(cells):
+                out[r] = np.float32(tile[i, r] * scale[r])
+            for r in range(cells, w):
+                out[r] = 0.0
 
 
 @njit(types.void(_F32_3, _F32_1, _I64, _I64), **_OPTIONS)

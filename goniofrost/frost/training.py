@@ -76,10 +76,12 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     # bits) on its thread count, and the noise scales chosen downstream follow the last bits
     # (a design scale of 4 became 1 at full size when these ran on one BLAS thread each).
     svals, vt = _eigen_components(gram, k_max)
-    dictionary = _project(mapped, vt)
     variance, noise_meta = None, {}
     if noise and len(names) >= MIN_NOISE_MATERIALS:
         variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
+    # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
+    # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
+    dictionary = _project(mapped, vt)
     return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
                       singular_values=svals, coefficients=vt, mean=mean,
                       reference=reference, weight=weight, noise_variance=variance,
