@@ -196,7 +196,9 @@ def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):
     assert np.all(noisy.std[pos] > plain.std[pos])
     # the prediction: calibrated on the noise-free design error, plus what the noise adds to it
     expected = float(prediction.predict(prediction.calibration_of(model), plain.design_error, noisy.z2,
-                                        noisy.energy, 15)) + noisy.design_error - plain.design_error
+                                        noisy.energy, 15, noisy.level, noisy.spread)) + noisy.design_error - plain.design_error
+    # level and spread are the samples' own: the sigmas change neither
+    assert (noisy.level, noisy.spread) == (plain.level, plain.spread)
     assert noisy.predicted_error == pytest.approx(expected, rel=1e-9)
     with pytest.raises(Exception, match="sample 2 standard deviation: negative value"):
         reconstruct_bayes(model, pos, truth[pos], sigmas=np.where(np.arange(15)[:, None] == 2, -1.0, 0.1) * np.ones((15, 3)))
@@ -219,6 +221,40 @@ def test_predicted_error_is_specific_to_the_material(model, scalar_model, tables
     assert a.design_error == b.design_error
     assert err_b > 10 * err_a and b.predicted_error > 10 * a.predicted_error
     assert b.predicted_error == pytest.approx(b.design_error * b.z2)
+
+
+def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
+    from goniofrost.frost.calibration import CvRecords, fit_calibration
+
+    rng = np.random.default_rng(3)
+    n = 600
+    m = rng.choice([5, 10, 20, 40, 60], n)
+    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
+    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1])
+    x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread)
+    assert x.shape == (n, len(prediction.FEATURES))
+    records = CvRecords(np.arange(n) % 10, np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread)
+    cal = fit_calibration(records)
+    np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
+    assert cal["typical_level"] == pytest.approx(level.mean())
+    assert cal["typical_log_spread"] == pytest.approx(np.log(spread).mean())
+    np.testing.assert_allclose(prediction.predict(cal, design, z2, energy, m, level, spread), np.exp(x @ beta), rtol=1e-9)
+    # beyond the features' range of the records the quadratic terms do not extrapolate: clamped
+    lo, hi = cal["feature_range"]
+    assert lo[2] == pytest.approx(level.min()) and hi[2] == pytest.approx(level.max())
+    at_edge = prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2], 1.0)
+    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2] + 50.0, 1.0) == pytest.approx(at_edge, rel=1e-12)
+    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2] - 0.5, 1.0) != pytest.approx(at_edge, rel=1e-3)
+    with pytest.raises(ValueError, match=r"^predict: this calibration needs the samples' level and spread$"):
+        prediction.predict(cal, design, z2, energy, m)
+    # a calibration of the five basic features (a model trained before level and spread) ignores them
+    basic = {"coefficients": beta[:5].tolist(), "m_range": [5, 60]}
+    np.testing.assert_allclose(prediction.predict(basic, design, z2, energy, m, level, spread),
+                               np.exp(x[:, :5] @ beta[:5]), rtol=1e-12)
+    # level and spread of one material: over its sampled cells and its channels only
+    b = np.array([[1.0, 2.0, 3.0, 100.0], [3.0, 4.0, 5.0, -100.0]])
+    assert prediction.sample_level(b, [0, 1, 2]) == (3.0, pytest.approx(np.var([1, 2, 3, 3, 4, 5])))
 
 
 def test_calibration_fit_recovers_a_known_law():
@@ -298,7 +334,13 @@ def test_trained_model_carries_the_noise_model(model):
     assert model.noise_variance.shape == (GRID.n_valid,) and model.noise_variance.dtype == np.float32
     assert np.all(model.noise_variance > 0)
     cal = model.noise["calibration"]
-    assert len(cal["coefficients"]) == len(prediction.FEATURES) and cal["m_range"] == [5, 60]
+    assert cal["m_range"] == [5, 60]
+    # the feature set is the one whose cross-fitted median estimates were within x2 more often
+    # (the five basic ones on a tie): on these few synthetic materials, the five
+    scores = cal["fit"]["cross_fitted_within_factor_2"]
+    assert set(scores) == {str(prediction.BASIC_FEATURES), str(len(prediction.FEATURES))}
+    chosen = max(sorted(scores, key=int), key=lambda n: scores[n])
+    assert len(cal["coefficients"]) == int(chosen) == prediction.BASIC_FEATURES
     assert model.noise["kind"] == "cells" and model.noise["folds"] == 10
     # every training material held out once at every m, in the chosen setting's records
     assert cal["fit"]["records"] == 24 * 9 and sorted(map(int, model.noise["cv_mean_errors"])) == [5, 10, 15, 20, 25, 30, 40, 50, 60]

@@ -22,9 +22,11 @@ MS = (5, 10, 15, 20, 30, 40, 60)
 BETA = np.array([0.3, 1.0, 0.5, 0.2, -0.1])  # the truth: log(actual) = x . BETA + material + noise
 
 
-def synthetic_records(n_materials: int, seed: int, folds: int = 10) -> CvRecords:
+def synthetic_records(n_materials: int, seed: int, folds: int = 10, level_effect: float | None = None) -> CvRecords:
     """Records whose log error follows a known linear law in the features plus a per-material
-    offset (a hard material is hard at every m) and per-(material, m) noise shrinking with m."""
+    offset (a hard material is hard at every m) and per-(material, m) noise shrinking with m.
+    level_effect: the records carry a level and spread, the material's level (the same at every m)
+    adding level_effect * level to its log error (None: records without them)."""
     rng = np.random.default_rng(seed)
     m = np.tile(np.asarray(MS), n_materials)
     material = np.repeat(np.arange(n_materials), len(MS))
@@ -33,8 +35,12 @@ def synthetic_records(n_materials: int, seed: int, folds: int = 10) -> CvRecords
     x = np.stack([np.ones(m.size), np.log(design), np.log(z2), np.log(energy), np.log(m)], axis=1)
     offset = rng.standard_t(5, n_materials)[material] * 0.3
     log_actual = x @ BETA + offset + rng.normal(0, 1, m.size) * 3.0 / np.sqrt(m)
-    return CvRecords(fold=material % folds, material=material, m=m, actual=np.exp(log_actual),
-                     design_error=design, z2=z2, energy=energy)
+    if level_effect is None:
+        return CvRecords(fold=material % folds, material=material, m=m, actual=np.exp(log_actual),
+                         design_error=design, z2=z2, energy=energy)
+    level = rng.normal(0, 1, n_materials)[material]
+    return CvRecords(fold=material % folds, material=material, m=m, actual=np.exp(log_actual + level_effect * level),
+                     design_error=design, z2=z2, energy=energy, level=level, spread=np.exp(rng.normal(0, 0.3, m.size)))
 
 
 def test_the_bound_covers_the_stated_fraction_of_new_materials_at_every_look_at_once():
@@ -55,6 +61,37 @@ def test_the_bound_covers_the_stated_fraction_of_new_materials_at_every_look_at_
         assert 0.45 <= np.mean(fresh.actual[fresh.m == m] <= b["median"][fresh.m == m]) <= 0.55
     # in-range features are never out of the model
     assert not (b["out_of_model_z2"] | b["out_of_model_energy"]).any()
+
+
+def test_a_material_feature_the_calibration_learns_narrows_the_bound_at_the_same_coverage():
+    # the truth depends on the samples' level: fitted with it, the bound is as sure and tighter
+    train, fresh = synthetic_records(300, seed=3, level_effect=0.8), synthetic_records(4000, seed=4, level_effect=0.8)
+    blind = CvRecords(**{k: getattr(train, k) for k in ("fold", "material", "m", "actual", "design_error", "z2", "energy")})
+    looks = np.isin(fresh.m, [m for m in MS if m >= confidence.FIRST_LOOK])
+    widths = []
+    for calibration, kwargs in ((fit_calibration(train), {"level": fresh.level, "spread": fresh.spread}),
+                                (fit_calibration(blind), {})):
+        predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m, **kwargs)
+        b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.9)
+        covered = (fresh.actual <= b["upper"])[looks].reshape(4000, -1).all(axis=1).mean()
+        # conformal coverage given 300 calibration materials is Beta-distributed, sd 0.017: 2 sd
+        assert 0.865 <= covered <= 0.935, covered
+        widths.append(np.median(np.log(b["upper"] / fresh.actual)[looks]))
+    assert widths[0] < widths[1] - 0.3, widths
+
+
+def test_the_feature_distance_is_beyond_one_for_five_percent_of_typical_materials_and_for_an_unlike_one():
+    calibration = fit_calibration(synthetic_records(300, seed=5, level_effect=0.5))
+    fresh = synthetic_records(4000, seed=6, level_effect=0.5)
+    for m in (15, 30, 60):
+        at = fresh.m == m
+        d = confidence.feature_distance(calibration, fresh.z2[at], fresh.energy[at], fresh.level[at],
+                                        fresh.spread[at], m)
+        assert 0.03 <= np.mean(d > 1) <= 0.08, (m, np.mean(d > 1))
+    # typical z2 and energy, but a level 6 standard deviations off: far
+    assert confidence.feature_distance(calibration, 1.0, 1.0, 6.0, 1.0, 20) > 3
+    # a calibration without the samples' level and spread cannot say
+    assert np.isnan(confidence.feature_distance(fit_calibration(synthetic_records(50, seed=7)), 1.0, 1.0, 0.0, 1.0, 20))
 
 
 def test_the_conformal_quantile_and_what_too_few_materials_support():
@@ -134,3 +171,6 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
     stops = doc["results"]["builtin"][0]["stops"]
     assert all(s["upper"] <= s["target"] for s in stops if s["reached"])  # stopped on the bound only
     assert "| builtin | 0.05 | 10 |" in (tmp_path / "target_error.md").read_text()
+    for row in stats["by_m"].values():  # every material is a miss of the bound or not, near or far
+        assert row["missed_far"] <= row["missed"] and row["covered_far"] <= row["materials"] - row["missed"]
+    assert all(np.isfinite(r["feature_distance"]) for r in doc["results"]["builtin"][0]["per_m"])

@@ -20,34 +20,41 @@ DEFAULT_CONFIDENCE = 0.95  # of the simulated captures (capture --confidence's d
 
 
 def _fit(model, positions, truth):
-    """The posterior of every test material (3 columns each) from its values at ``positions``."""
+    """The posterior of every test material (3 columns each) from its values at ``positions``,
+    the cells' noise (n,) and the centred mapped samples b (positions, 3 n_mat)."""
     n_mat = truth.shape[0]
     values = truth[:, positions, :].transpose(1, 0, 2).reshape(positions.size, 3 * n_mat)
     mu = np.asarray(model.mean, dtype=np.float64)
     b = model.to_log(values, positions) - mu[positions][:, None]
     noise = posterior.cell_noise(model)
     s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
-    return posterior.fit(model.dictionary[positions], noise[positions], posterior.prior_variance(model),
-                         b, s2, float(noise.sum()), model.grid.n_valid), noise
+    post = posterior.fit(model.dictionary[positions], noise[positions], posterior.prior_variance(model),
+                         b, s2, float(noise.sum()), model.grid.n_valid)
+    return post, noise, b
 
 
-def _features(model, post, n_mat: int) -> np.ndarray:
-    """float64 (n_mat, 3): (design error, z2, energy) of every material."""
-    return np.array([prediction.material_features(post, [3 * i, 3 * i + 1, 3 * i + 2], model.n_signals)
-                     for i in range(n_mat)])
+def _features(model, post, b, n_mat: int) -> np.ndarray:
+    """float64 (n_mat, 5): (design error, z2, energy, level, spread) of every material."""
+    cols = [[3 * i, 3 * i + 1, 3 * i + 2] for i in range(n_mat)]
+    return np.array([prediction.material_features(post, c, model.n_signals) + prediction.sample_level(b, c)
+                     for c in cols])
 
 
-def _predicted(model, post, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+def _predict(calibration, feats: np.ndarray, m: int) -> np.ndarray:
+    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4])
+
+
+def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """(predicted error, design error) per material, float64 (n_mat,) each."""
-    feats = _features(model, post, n_mat)
-    return prediction.predict(prediction.calibration_of(model), feats[:, 0], feats[:, 1], feats[:, 2], m), feats[:, 0]
+    feats = _features(model, post, b, n_mat)
+    return _predict(prediction.calibration_of(model), feats, m), feats[:, 0]
 
 
-def _bounds(model, post, n_mat: int, m: int, level: float) -> dict:
+def _bounds(model, post, b, n_mat: int, m: int, level: float) -> dict:
     """``confidence.error_bounds`` of every material (exact samples: nothing extra)."""
     calibration = prediction.calibration_of(model)
-    feats = _features(model, post, n_mat)
-    predicted = prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m)
+    feats = _features(model, post, b, n_mat)
+    predicted = _predict(calibration, feats, m)
     return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level)
 
 
@@ -59,8 +66,8 @@ def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.
     start = time.perf_counter()
     n_mat = truth.shape[0]
     positions = np.asarray(positions, dtype=np.int64)
-    post, noise = _fit(model, positions, truth)
-    predicted, design = _predicted(model, post, n_mat, np.unique(positions).size)
+    post, noise, b = _fit(model, positions, truth)
+    predicted, design = _predicted(model, post, b, n_mat, np.unique(positions).size)
     estimate, variance, _ = posterior.mean_and_variance(model.dictionary, model.mean, post, model.dictionary[positions],
                                                         posterior.prior_variance(model), noise[positions])
     seconds = time.perf_counter() - start
@@ -79,17 +86,23 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``) and "out_of_model" (1 if the samples are unlike every training material)."""
+    at ``level``), "out_of_model" (1 if the samples are unlike every training material) and
+    "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
+    materials)."""
     from goniofrost.frost.metrics import batch_log_errors
 
     positions = np.asarray(positions, dtype=np.int64)
     n_mat = truth.shape[0]
-    post, _ = _fit(model, positions, truth)
-    b = _bounds(model, post, n_mat, np.unique(positions).size, level)
+    post, _, samples = _fit(model, positions, truth)
+    b = _bounds(model, post, samples, n_mat, np.unique(positions).size, level)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
+    feats = _features(model, post, samples, n_mat)
+    distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
+                                           feats[:, 4], np.unique(positions).size)
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
-            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64)}
+            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
+            "feature_distance": distance}
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
@@ -112,9 +125,9 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
     posts = {}
     for end in stopping.batch_ends(m_max):
-        post, _ = _fit(model, order[:end], truth)
+        post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post
-        b = _bounds(model, post, n_mat, end, confidence_level)
+        b = _bounds(model, post, samples, n_mat, end, confidence_level)
         out = b["out_of_model_z2"] | b["out_of_model_energy"]
         for i in np.flatnonzero(stop_at < 0):
             bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level,

@@ -31,7 +31,8 @@ from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_designs
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
-from goniofrost.frost.prediction import feature_matrix, material_features, predict
+from goniofrost.frost.prediction import (BASIC_FEATURES, FEATURES, feature_matrix, feature_range_of,
+                                         material_features, predict, sample_level)
 
 # Sample counts simulated (the range of m the calibration is fitted on).
 M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
@@ -49,7 +50,9 @@ CHUNK_ROWS = 1 << 15
 @dataclass
 class CvRecords:
     """Flat arrays, one entry per (fold, held-out material, m): fold, material (index among the
-    training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy."""
+    training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy,
+    level and spread (``prediction.sample_level``; None: records without them, fitted on the
+    first ``prediction.BASIC_FEATURES`` features)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -58,6 +61,16 @@ class CvRecords:
     design_error: np.ndarray
     z2: np.ndarray
     energy: np.ndarray
+    level: np.ndarray | None = None
+    spread: np.ndarray | None = None
+
+    def features(self, m_range, n_features: int | None = None, feature_range=None) -> np.ndarray:
+        """float64 (records, n_features): ``prediction.feature_matrix`` of every record (all of
+        them when n_features is None; the first BASIC_FEATURES need no level and spread)."""
+        full = self.level is not None and (n_features is None or n_features > BASIC_FEATURES)
+        x = feature_matrix(self.design_error, self.z2, self.energy, self.m, m_range,
+                           self.level if full else None, self.spread if full else None, feature_range)
+        return x if n_features is None else x[:, :n_features]
 
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
@@ -100,9 +113,10 @@ def concatenate(parts, offset: int = 0) -> CvRecords:
     """The records of several simulations in one (the second part's fold numbers + offset)."""
     parts = [p for p in parts if p is not None]
     fields = CvRecords.__dataclass_fields__
-    shifted = [parts[0]] + [CvRecords(**{k: getattr(p, k) + (offset if k == "fold" else 0) for k in fields})
+    shifted = [parts[0]] + [CvRecords(**{k: getattr(p, k) + offset if k == "fold" else getattr(p, k) for k in fields})
                             for p in parts[1:]]
-    return CvRecords(**{k: np.concatenate([getattr(p, k) for p in shifted]) for k in fields})
+    return CvRecords(**{k: None if any(getattr(p, k) is None for p in shifted)
+                        else np.concatenate([getattr(p, k) for p in shifted]) for k in fields})
 
 
 def _prior(fold: InnerFold) -> np.ndarray:
@@ -122,7 +136,8 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         miss = fold.singular_values[:, None] * (fold.true_coefficients - post.coefficients)
         column_error = (fold.residual_norms + np.sum(miss ** 2, axis=0)) / n
         for j in range(0, fold.held.size, 3):
-            features = material_features(post, np.arange(j, j + 3), fold.n_train_columns)
+            columns = np.arange(j, j + 3)
+            features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
             values = (f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
             for key, value in zip(acc, values):
                 acc[key].append(value)
@@ -162,20 +177,41 @@ def _progress(items, progress: bool):
 def fit_calibration(records: CvRecords) -> dict:
     """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record.
 
+    The feature set (the BASIC_FEATURES, or all of FEATURES when the records carry the samples'
+    level and spread) is the one whose cross-fitted residuals (``confidence.cross_fitted_residuals``:
+    each inner fold predicted by a fit without it) put more held-out materials within a factor 2
+    of the truth, averaged over the looks m >= FIRST_LOOK (the fewer on a tie): eleven
+    coefficients on a few training materials predict worse than five, and which is better is
+    measured on the training materials only.
+
     Returns the calibration dict stored in the model (coefficients, m_range, the typical log
-    z2 and log energy, the error bound's calibration ``confidence.fit_bound``) with ``fit`` statistics: the residual standard deviation in log units
-    and, per m, the Spearman correlation of predicted and actual error and the fraction of
-    materials predicted within a factor 2 (in-sample for the calibration).
+    z2, log energy, level and log spread, the range of the features, the error bound's
+    calibration ``confidence.fit_bound``) with ``fit`` statistics: the residual standard
+    deviation in log units, the cross-fitted fractions the choice was made on, and per m the
+    Spearman correlation of predicted and actual error and the fraction of materials predicted
+    within a factor 2 (in-sample for the calibration).
     """
+    from goniofrost.frost.confidence import choice_score, cross_fitted_residuals
+
     m_range = [int(records.m.min()), int(records.m.max())]
-    x = feature_matrix(records.design_error, records.z2, records.energy, records.m, m_range)
+    feature_range = None if records.level is None else feature_range_of(records.z2, records.energy,
+                                                                         records.level, records.spread)
+    sets = [BASIC_FEATURES] + ([len(FEATURES)] if records.level is not None else [])
+    scores = {n: choice_score(records, cross_fitted_residuals(records, m_range, n, feature_range)) for n in sets}
+    n_features = max(sets, key=lambda n: (scores[n], -n))
+    x = records.features(m_range, n_features, feature_range)
     y = np.log(np.maximum(records.actual, 1e-12))
     beta, *_ = np.linalg.lstsq(x, y, rcond=None)
     calibration = {"coefficients": [float(b) for b in beta], "m_range": m_range,
                    "typical_log_z2": float(np.mean(np.log(records.z2))),
                    "typical_log_energy": float(np.mean(np.log(records.energy)))}
-    calibration["bound"] = fit_bound(records, m_range)
+    if n_features > BASIC_FEATURES:
+        calibration |= {"typical_level": float(np.mean(records.level)),
+                        "typical_log_spread": float(np.mean(np.log(records.spread))),
+                        "feature_range": feature_range}
+    calibration["bound"] = fit_bound(records, m_range, n_features, feature_range)
     calibration["fit"] = {"residual_sd_log": float(np.std(y - x @ beta)), "records": int(y.size),
+                          "cross_fitted_within_factor_2": {str(n): scores[n] for n in sets},
                           "per_m": prediction_quality(records, calibration)}
     return calibration
 
@@ -184,7 +220,8 @@ def prediction_quality(records: CvRecords, calibration: dict) -> dict:
     """Per m: mean actual error, Spearman(predicted, actual), fraction within a factor 2."""
     from scipy.stats import spearmanr
 
-    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m)
+    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m,
+                        records.level, records.spread)
     out = {}
     for m in np.unique(records.m):
         sel = records.m == m

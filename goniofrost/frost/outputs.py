@@ -52,6 +52,7 @@ def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_s
         "model": {"hash": model.content_hash, "noise": model.noise.get("kind", "scalar")},
         "samples_file": None if samples_source is None else str(samples_source),
         "cells": rec.samples, "predicted_log_relative_mse": rec.predicted_error,
-        "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy},
+        "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy,
+                     "level": rec.level, "spread": rec.spread},
         "interval_90": "((w x + eps) * exp(+-1.645 std) - eps) / w",
     }

@@ -79,6 +79,8 @@ class BayesReconstruction:
     z2: float
     energy: float
     samples: int
+    level: float = 0.0
+    spread: float = 1.0
 
 
 def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
@@ -92,7 +94,8 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     """
     from goniofrost.frost import posterior
 
-    unique, noise, cell_noise, post, (predicted, design, z2, energy, _) = _posterior(model, positions, values, sigmas)
+    unique, noise, cell_noise, post, (predicted, design, z2, energy, _, level, spread) = _posterior(
+        model, positions, values, sigmas)
     mu = np.asarray(model.mean, dtype=np.float64)
     if with_std:
         mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
@@ -103,7 +106,7 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
         mapped, std = reconstruct_mapped(model, post), None
     brdf = model.from_log(mapped)
     _check_overflow(brdf, unique.size, "the Bayesian estimate")
-    return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size))
+    return BayesReconstruction(brdf, mapped, std, predicted, design, z2, energy, int(unique.size), level, spread)
 
 
 def predicted_error(model: FrostModel, positions, values, sigmas=None, scene=None) -> float:
@@ -121,7 +124,7 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     ``scene``: bound the error of the scene's use instead, with its own calibration."""
     from goniofrost.frost.confidence import error_bound as bound_of
 
-    unique, _, _, _, (predicted, _, z2, energy, extra) = _posterior(model, positions, values, sigmas, scene)
+    unique, _, _, _, (predicted, _, z2, energy, extra, _, _) = _posterior(model, positions, values, sigmas, scene)
     return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra)
 
 
@@ -138,7 +141,7 @@ def _calibration(model: FrostModel, scene) -> dict:
 def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
     """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
     Posterior, (predicted error, design error, z2, energy, the part of the predicted error the
-    samples' own variance adds)).
+    samples' own variance adds, level, spread)).
 
     The calibration was fitted on noise-free samples, so the samples' own variance enters the
     prediction as what the model says it costs: the design error with it minus the design error
@@ -161,13 +164,14 @@ def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
         s2, total, n = scene.matrix, scene.noise_total, 1
     post = posterior.fit(rows, noise, prior, b, s2, total, n)
     design, z2, energy = prediction.material_features(post, [0, 1, 2], model.n_signals)
+    level, spread = prediction.sample_level(b, [0, 1, 2])
     clean = design
     if np.any(noise_extra > 0):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
     fitted = _calibration(model, scene) or prediction.UNCALIBRATED
-    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size))
+    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread))
     extra = max(design - clean, 0.0)
-    return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra)
+    return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread)
 
 
 def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:
