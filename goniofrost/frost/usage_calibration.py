@@ -23,7 +23,7 @@ import numpy as np
 from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
-from goniofrost.frost.prediction import material_features
+from goniofrost.frost.prediction import material_features, sample_level
 from goniofrost.frost.usage_design import is_uniform, scene_prior
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
@@ -89,7 +89,8 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
             post = posterior.fit(d_f[cells], recon_noise[cells], prior, b, m_f, total, 1)
             error = weighted_errors(fold, g_u, post.coefficients)
             for j in range(0, fold.held.size, 3):
-                features = material_features(post, np.arange(j, j + 3), fold.n_train_columns)
+                columns = np.arange(j, j + 3)  # the samples' level and spread too, as calibration.py records
+                features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
                 values = (f, int(fold.held[j]) // 3, m, float(max(error[j:j + 3].mean(), 0.0))) + features
                 for key, value in zip(acc, values):
                     acc[key].append(value)
