@@ -182,7 +182,9 @@ class CountingBuiltin(BuiltinDataset):
         return super().tabulate(names, grid, cells)
 
 
-def test_cache_hit_is_identical_and_does_not_recompute():
+def test_cache_hit_is_identical_and_does_not_recompute(tmp_path, monkeypatch):
+    # a cache of its own: other tests in this process may have tabulated these materials already
+    monkeypatch.setenv("GONIOFROST_CACHE", str(tmp_path / "cache"))
     first_ds, second_ds = CountingBuiltin(), CountingBuiltin()
     names = ["copper", "green-felt"]
     first = tabulate_cached(first_ds, names, SMALL)
