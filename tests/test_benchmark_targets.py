@@ -9,12 +9,17 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_targets_report_each_figure_beside_its_target_and_the_bandwidth(tmp_path):
-    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frost_speed.py"), "targets",
+def smallest_run(command: str, cache: Path) -> str:
+    """What ``frost_speed.py COMMAND`` prints at its smallest setting (a fresh cache in ``cache``)."""
+    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frost_speed.py"), command,
                              "--grid", "8", "8", "16", "--repeat", "1"], capture_output=True, text=True,
-                            env={"GONIOFROST_CACHE": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=600)
+                            env={"GONIOFROST_CACHE": str(cache), "PATH": "/usr/bin:/bin"}, timeout=600)
     assert result.returncode == 0, result.stderr
-    out = result.stdout
+    return result.stdout
+
+
+def test_targets_report_each_figure_beside_its_target_and_the_bandwidth(tmp_path):
+    out = smallest_run("targets", tmp_path)
     assert re.search(r"streaming read bandwidth .*: [\d.]+ GB/s  \(load [\d.]+ [\d.]+ [\d.]+\)", out), out
     for name, target in (("bayes m=20", "0.25"), ("bayes m=60", "0.75"), ("somp m=20", "0.25")):
         line = re.search(rf"^{name}: median ([\d.]+) s  target {target} s  (met|MISSED); bandwidth limit ([\d.e-]+) s "
@@ -27,11 +32,7 @@ def test_targets_report_each_figure_beside_its_target_and_the_bandwidth(tmp_path
 
 
 def test_kernels_report_each_pass_with_its_bytes_and_the_stream(tmp_path):
-    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frost_speed.py"), "kernels",
-                             "--grid", "8", "8", "16", "--repeat", "1"], capture_output=True, text=True,
-                            env={"GONIOFROST_CACHE": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=600)
-    assert result.returncode == 0, result.stderr
-    out = result.stdout
+    out = smallest_run("kernels", tmp_path)
     assert re.search(r"streaming read [\d.]+ GB/s; n = \d+, K = \d+", out), out
     for name in ("bayes step, 1 design", "bayes step, 3 designs", r"somp Q pass \(k = t = \d+\)", r"somp C pass \(t = \d+\)"):
         assert re.search(rf"^{name}: [\d.]+ ms, \d+ MB moved, [\d.]+ GB/s; one read of \d+ MB at the stream: "

@@ -41,6 +41,19 @@ def load_mitsuba(variant: str = VARIANT):
     return mi
 
 
+_PLUGINS: set[tuple[str, str]] = set()
+
+
+def load_with_bsdf(variant: str, name: str, make_class):
+    """``load_mitsuba(variant)`` with the Python BSDF plugin ``name`` registered (once per process
+    and variant: Mitsuba keeps a registered plugin); ``make_class(mi)`` -> the plugin's class."""
+    mi = load_mitsuba(variant)
+    if (variant, name) not in _PLUGINS:
+        mi.register_bsdf(name, lambda props: make_class(mi)(props))
+        _PLUGINS.add((variant, name))
+    return mi
+
+
 def scene_dict(bsdf_path, light, size: int, spp: int = 1) -> dict:
     """The Mitsuba scene of one preview sphere lit by ``light`` = (direction to the light, irradiance)."""
     direction, irradiance = light

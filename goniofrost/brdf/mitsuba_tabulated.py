@@ -29,22 +29,18 @@ from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
 
 VARIANT = "llvm_ad_rgb"
 PLUGIN = "goniofrost_tabulated"
-_REGISTERED: set[str] = set()
 
 
 def _mitsuba():
     """Mitsuba in the LLVM RGB variant, wavefront loops, the tabulated BSDF registered."""
     import drjit as dr
 
-    from goniofrost.brdf.mitsuba_render import load_mitsuba
+    from goniofrost.brdf.mitsuba_render import load_with_bsdf
 
-    mi = load_mitsuba(VARIANT)
+    mi = load_with_bsdf(VARIANT, PLUGIN, lambda mi: _tabulated_class(mi, dr))
     # evaluated loops and calls: the BSDF receives computed arrays that numpy can read
     dr.set_flag(dr.JitFlag.SymbolicLoops, False)
     dr.set_flag(dr.JitFlag.SymbolicCalls, False)
-    if VARIANT not in _REGISTERED:
-        mi.register_bsdf(PLUGIN, lambda props: _tabulated_class(mi, dr)(props))
-        _REGISTERED.add(VARIANT)
     return mi
 
 

@@ -26,18 +26,13 @@ from goniofrost.core.grid import FULL_GRID, MerlGrid
 
 VARIANT = "scalar_rgb"
 RECORDER = "goniofrost_recorder"
-_REGISTERED: set[str] = set()
 
 
 def _mitsuba():
     """Mitsuba with the scalar RGB variant set and the recording BSDF registered."""
-    from goniofrost.brdf.mitsuba_render import load_mitsuba
+    from goniofrost.brdf.mitsuba_render import load_with_bsdf
 
-    mi = load_mitsuba(VARIANT)
-    if VARIANT not in _REGISTERED:
-        mi.register_bsdf(RECORDER, lambda props: _recorder_class(mi)(props))
-        _REGISTERED.add(VARIANT)
-    return mi
+    return load_with_bsdf(VARIANT, RECORDER, _recorder_class)
 
 
 def _recorder_class(mi):
