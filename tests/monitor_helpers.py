@@ -7,19 +7,13 @@ from pathlib import Path
 
 import yaml
 
-from test_session import GRID, MATERIAL, TRAINING, journal_rows, write_rig
+from test_session import GRID, MATERIAL, journal_rows, small_plan, write_rig
 
 
 def make_plan(folder: Path, m: int) -> tuple[Path, Path]:
     """(rig file, plan file) of an m-sample plan on the small simulated rig, in ``folder``."""
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
     rig = write_rig(folder / "rig.yaml")
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), m, rig, folder / f"plan{m}.json")
-    return rig, plan
+    return rig, small_plan(rig, m, folder / f"plan{m}.json")[0]
 
 
 def drilled_rig(rig: Path, plan: Path, at_sample: int, out: Path) -> tuple[Path, str]:

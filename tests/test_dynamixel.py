@@ -370,6 +370,15 @@ def test_sdk_group_sync_write_and_read(servo):
 
 
 # ----- a lost status packet: reads are asked again, a goal write is read back, never repeated blind -----
+def _move_to_40_on(line: ScriptedTransport) -> None:
+    """Move the yaw servo (one retry) to 40 deg over ``line``; every scripted exchange is used."""
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
+    axis.close()
+    line.finish()
+
+
 def test_lost_status_of_a_goal_write_is_read_back_not_repeated_on_exact_bytes():
     goal = round(40.0 * CPD)  # 455 counts
     line = ScriptedTransport(CONNECT_SCRIPT + [
@@ -379,11 +388,7 @@ def test_lost_status_of_a_goal_write_is_read_back_not_repeated_on_exact_bytes():
         (_read("moving"), b""), (_read("moving"), _ok(b"\x00")),    # a lost read is asked again
         (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
     ])
-    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect(line)
-    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
-    axis.close()
-    line.finish()
+    _move_to_40_on(line)
 
 
 def test_a_goal_the_servo_never_took_is_written_again_once_on_exact_bytes():
@@ -395,11 +400,7 @@ def test_a_goal_the_servo_never_took_is_written_again_once_on_exact_bytes():
         (_write("goal_position", goal), _ok()),                     # so it is sent again
         (_read("moving"), _ok(b"\x00")), (_read("present_position"), _ok(goal.to_bytes(4, "little"))),
     ])
-    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
-    axis.connect(line)
-    assert axis.move_to(40.0).wait() == pytest.approx(40.0, abs=0.1)
-    axis.close()
-    line.finish()
+    _move_to_40_on(line)
 
 
 # ----- identity: PING (model number, firmware) and the control table's model number and firmware -----

@@ -29,7 +29,7 @@ from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus
 from sim.faults import FAULT_KINDS
 
-from test_session import GRID, MATERIAL, TRAINING, frames, write_rig
+from test_session import MATERIAL, frames, small_plan, write_rig
 
 M, AT_SAMPLE = 5, 2  # the drill strikes at plan sample 2: two samples are safe before it
 AXES = ("camera_arm", "sample_yaw", "sample_tilt")  # Modbus TCP, Dynamixel, SMC100
@@ -54,16 +54,10 @@ def test_the_default_matrix_covers_every_kind_once_and_every_protocol_twice():
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     """(folder, rig file, plan, uninterrupted session) shared by the matrix (read-only)."""
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
     folder = tmp_path_factory.mktemp("matrix")
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
     rig = write_rig(folder / "rig.yaml")
     # FROST's plan: the drill needs every axis to move at its sample, which this plan gives
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json",
-                       selector="frost")
+    plan, _ = small_plan(rig, M, folder / "plan.json", selector="frost")
     samples = json.loads(plan.read_text())["samples"]
     for axis in AXES:  # every axis moves at the drill's sample, so every drill strikes there
         assert abs(samples[AT_SAMPLE]["joints"][axis] - samples[AT_SAMPLE - 1]["joints"][axis]) > 0.5

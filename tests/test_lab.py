@@ -23,7 +23,7 @@ import yaml
 from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus, SessionLabel
-from test_session import GRID, TRAINING, batched_plan, journal_rows, write_rig
+from test_session import batched_plan, journal_rows, small_plan, write_rig
 
 REPO = Path(__file__).resolve().parents[1]
 M = 4
@@ -33,17 +33,12 @@ LAB = {"lab": "Optics lab 2", "lens": "50 mm f/8", "lamp": "LED 6500 K"}
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     """(folder, rig file with a lab section, plan file, model), read-only for the module's tests."""
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
     folder = tmp_path_factory.mktemp("lab")
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
     rig = write_rig(folder / "rig.yaml")
     doc = yaml.safe_load(rig.read_text())
     doc["lab"] = LAB
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    plan, model = small_plan(rig, M, folder / "plan.json")
     return folder, rig, plan, model
 
 

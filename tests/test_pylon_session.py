@@ -23,12 +23,10 @@ from goniofrost.app.cli import main
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.runner import capture
-from goniofrost.core.grid import MerlGrid
+
+from test_session import MATERIAL, small_plan
 
 REPO = Path(__file__).resolve().parents[1]
-GRID = MerlGrid(30, 30, 60)
-TRAINING = ["white-diffuse", "blue-plastic", "gold", "white-ceramic", "blue-car-paint", "green-felt"]
-MATERIAL = "builtin:red-plastic"  # held out of TRAINING
 M = 4
 
 
@@ -44,14 +42,9 @@ def write_rig(path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
     folder = tmp_path_factory.mktemp("pylon-session")
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
     rig = write_rig(folder / "rig.yaml")
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    plan, _ = small_plan(rig, M, folder / "plan.json")
     return folder, rig, plan
 
 

@@ -49,17 +49,24 @@ def write_rig(path: Path, **camera_arm) -> Path:
     return path
 
 
-@pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    """(folder, rig file, plan file, model) shared by the module's tests (read-only)."""
+def small_plan(rig: Path, m: int, out: Path, **plan_options):
+    """(plan file ``out``, model): the small model (TRAINING on GRID, cached) and its m-sample
+    plan on ``rig`` (Bayesian unless ``plan_options`` of ``plan_on_rig`` say otherwise), the
+    setting the session tests share."""
     from goniofrost.core.cache import cache_path
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.frost.training import train
 
-    folder = tmp_path_factory.mktemp("session")
     model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), m, rig, out, **plan_options), model
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(folder, rig file, plan file, model) shared by the module's tests (read-only)."""
+    folder = tmp_path_factory.mktemp("session")
     rig = write_rig(folder / "rig.yaml")
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, folder / "plan.json")
+    plan, model = small_plan(rig, M, folder / "plan.json")
     return folder, rig, plan, model
 
 

@@ -17,7 +17,7 @@ import yaml
 
 from goniofrost.app.cli import main
 
-from test_session import GRID, M, TRAINING, write_rig
+from test_session import M, small_plan, write_rig
 
 READY_S = 60.0  # real seconds for `goniofrost sim` to start (imports, twins, camera service)
 
@@ -59,13 +59,8 @@ def test_the_written_rig_file_points_at_the_running_twins(served):
 
 
 def test_a_capture_through_the_written_rig_file_completes(served, tmp_path, capsys):
-    from goniofrost.app.demo import plan_on_rig
-    from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-
     rig, out, _ = served
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig, tmp_path / "plan.json")
+    plan, _ = small_plan(rig, M, tmp_path / "plan.json")
     session = tmp_path / "s"
     assert main(["capture", "--rig", str(out), "--plan", str(plan), "--session", str(session), "--no-progress"]) == 0
     assert capsys.readouterr().err == ""
