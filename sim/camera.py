@@ -229,28 +229,37 @@ class SimCamera(Camera):
         return np.asarray(self.brdf(np.asarray(w_i, float), np.asarray(w_o, float)), dtype=np.float64).reshape(3)
 
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
-        """Render, expose, digitise and write one DNG at ``path``."""
-        mosaic, meta = self.expose(exposure_s)
+        """Render, expose, digitise and write one DNG at ``path``; returns once the exposure's
+        (simulated) time has passed, the rendering and the file written within it."""
+        mosaic, meta, ends = self._expose(exposure_s)
         write_dng(Path(path), mosaic, self.params["black_level"], self.params["white_level"], meta)
+        self.clock.wait_until(ends)
         return RawFrame(Path(path), float(exposure_s), meta)
 
     def expose(self, exposure_s: float) -> tuple[np.ndarray, dict]:
         """Render the current pose and target, expose for ``exposure_s`` (the clock advances) and
         digitise: the RGGB mosaic (H, W) uint16 in DN and the frame's metadata."""
+        mosaic, meta, ends = self._expose(exposure_s)
+        self.clock.wait_until(ends)
+        return mosaic, meta
+
+    def _expose(self, exposure_s: float) -> tuple[np.ndarray, dict, float]:
+        """``expose`` without its wait: the mosaic, the metadata and the wall-clock instant
+        (``time.monotonic``) the exposure ends, to be waited for (``SimClock.wait_until``)."""
         if not self._connected:
             raise CameraError("simulated camera: capture before connect()")
         if not (_num(exposure_s) and exposure_s > 0):
             raise CameraError(f"simulated camera: exposure must be > 0 s, found {exposure_s!r}")
         w_i, w_o = (np.asarray(v, dtype=np.float64) for v in self.pose_source())
         t0 = self.clock.nominal_time()  # not the wall clock: reruns give the same frames
-        self.clock.sleep(exposure_s)
+        ends = self.clock.start_sleep(exposure_s)   # the frame is computed while it is exposed
         lamp = 0.5 * (self.lamp.relative_intensity(t0) + self.lamp.relative_intensity(t0 + exposure_s))
         radiance = self._radiance(w_i, w_o) * lamp
         mosaic = self._digitise(radiance, exposure_s, self._frame_noise(t0))
         meta = {"exposure_s": float(exposure_s), "time_s": t0, "target": self.target,
                 "w_i": w_i.tolist(), "w_o": w_o.tolist(), "sim_lamp_relative": lamp,
                 "seed": self.seed, "material": self.material}  # time_s names the frame: no counter that a resume restarts
-        return mosaic, meta
+        return mosaic, meta, ends
 
     def _radiance(self, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
         """Radiance per pixel (H, W) in its Bayer channel, for nominal lamp irradiance 1."""

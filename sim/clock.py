@@ -58,7 +58,23 @@ class SimClock:
 
     def sleep(self, sim_seconds: float) -> None:
         """Block for ``sim_seconds`` of simulated time (and spend them on the nominal time)."""
+        self.wait_until(self.start_sleep(sim_seconds))
+
+    def start_sleep(self, sim_seconds: float) -> float:
+        """Spend ``sim_seconds`` on the nominal time now and return the wall-clock instant
+        (``time.monotonic``) the matching real wait ends: ``wait_until`` it. Between the two the
+        caller computes what the wait stands for (a simulated frame while it is exposed), so the
+        host's work hides in the wait instead of adding to it."""
+        deadline = time.monotonic()
         if sim_seconds > 0:
             with self._lock:
                 self._nominal = max(self._nominal, self._horizon) + float(sim_seconds)
-            time.sleep(sim_seconds / self.speedup)
+            deadline += sim_seconds / self.speedup
+        return deadline
+
+    @staticmethod
+    def wait_until(deadline: float) -> None:
+        """Block until the wall-clock instant ``deadline`` (``time.monotonic``; past: at once)."""
+        remaining = deadline - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
