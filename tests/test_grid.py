@@ -46,6 +46,18 @@ def test_valid_mask_has_the_signs_of_every_cells_directions(shape):
     assert np.array_equal(grid.valid_mask, (w_i[:, 2] > 0) & (w_o[:, 2] > 0))
 
 
+@pytest.mark.parametrize("shape", [(90, 90, 180), (45, 45, 90), (9, 11, 13)])
+def test_the_cosine_weight_of_the_valid_cells_has_the_bits_of_their_directions(shape):
+    """cosine_weight(grid) comes from the axes broadcast, cosine_weight(grid, cells) from every
+    cell's directions: training's row weights must not move by a bit."""
+    from goniofrost.core.grid import cosine_weight
+
+    grid = MerlGrid(*shape)
+    fast, each = cosine_weight(grid), cosine_weight(grid, grid.valid_cells)
+    assert fast.shape == (grid.n_valid,) and fast.dtype == np.float64
+    assert np.array_equal(fast.view(np.uint64), each.view(np.uint64))
+
+
 def test_grids_of_one_shape_share_their_validity():
     a, b = MerlGrid(30, 30, 60), MerlGrid(30, 30, 60)
     assert a.valid_cells is b.valid_cells and a.valid_mask is b.valid_mask

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 
@@ -100,11 +101,17 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     if inputs.scene is not None:
         report["prediction"]["scene"] = scene_prediction(inputs, records)
     report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
-    if spec is not None and spec.target is not None:
-        report["target_error"] = target_section(spec, records)
     if material:
-        report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
-    report["rendering_snr_db"] = write_preview(session_dir / "preview.png", estimate, grid, material, std)
+        ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
+    # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
+    # beside the report's other sections, which mostly run in numpy with the GIL released.
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
+        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std)
+        if spec is not None and spec.target is not None:
+            report["target_error"] = target_section(spec, records)
+        if material:
+            report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
+        report["rendering_snr_db"] = preview.result()
     report["outputs"]["preview"] = "preview.png"
     extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, records, runs))
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
