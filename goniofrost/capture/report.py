@@ -89,24 +89,24 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     stats = stats or SessionStats(skipped=len(records))  # None: nothing was left to capture
     rec = reconstruct_session(inputs, records)
     grid = inputs.model.grid
-    earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
-    write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
     estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
-    runs = journal.runs()
-    report = build_report(inputs, records, stats, session_dir, material, runs)
-    report["label"] = journal.label().to_dict()
-    report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
-                            "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
-    report["prediction"] |= extrapolation_section(inputs, records)
-    if inputs.scene is not None:
-        report["prediction"]["scene"] = scene_prediction(inputs, records)
-    report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
     if material:
         ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
     # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
-    # beside the report's other sections, which mostly run in numpy with the GIL released.
+    # beside the files and the report's other sections, which mostly run in numpy (GIL released).
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
         preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std)
+        earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
+        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
+        runs = journal.runs()
+        report = build_report(inputs, records, stats, session_dir, material, runs)
+        report["label"] = journal.label().to_dict()
+        report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
+                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
+        report["prediction"] |= extrapolation_section(inputs, records)
+        if inputs.scene is not None:
+            report["prediction"]["scene"] = scene_prediction(inputs, records)
+        report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
         if spec is not None and spec.target is not None:
             report["target_error"] = target_section(spec, records)
         if material:
