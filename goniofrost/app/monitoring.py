@@ -19,7 +19,7 @@ HOST_HELP = ("address to listen on (default 127.0.0.1: this computer only). RISK
 
 def add_server_options(parser, *, with_flag: bool) -> None:
     """--port and --host (and, for a command that may serve, --monitor)."""
-    from goniofrost.monitor.server import DEFAULT_PORT
+    from goniofrost.monitor import DEFAULT_PORT
 
     if with_flag:
         parser.add_argument("--monitor", action="store_true",

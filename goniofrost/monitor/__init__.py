@@ -8,3 +8,7 @@ page shows (state, "N of M samples", ETA, poses, per-sample colours, the fault a
 data in ``static/``) with server-sent events. ``goniofrost monitor`` and ``capture --monitor``
 (goniofrost.app) start it.
 """
+
+# The monitor page's TCP port; here, not in server, so that building the command line's parser
+# (every --port option) does not import the server and the session reader behind it.
+DEFAULT_PORT = 8765

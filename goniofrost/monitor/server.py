@@ -55,6 +55,7 @@ from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 from goniofrost.core.errors import GoniofrostError
+from goniofrost.monitor import DEFAULT_PORT
 from goniofrost.monitor.images import PictureUnavailable, frame_png, preview_png
 from goniofrost.monitor.safe_path import UnsafePath, session_file, shown
 from goniofrost.monitor.session_view import REPORT_FILE, journal_path, read_session
@@ -70,7 +71,6 @@ PICTURE_MIN_GAP_S = 0.5
 PICTURE_MAX_GAP_S = 5.0    # ... but never older than this (a first picture also loads the model)
 SHUTDOWN_POLL_S = 0.05     # how soon serve_forever notices close()
 FINAL_PUSH_S = 3.0         # on close, wait this long at most for pages to get the last state and pictures
-DEFAULT_PORT = 8765
 LISTEN_BACKLOG = 128       # connections the kernel queues before the accept thread takes them
 MAX_WORKERS = 16           # threads answering requests (event streams included)
 MAX_EVENT_STREAMS = 8      # open pages at once: the others' event streams are answered 503
