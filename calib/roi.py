@@ -206,27 +206,64 @@ def _detector(size_scale: float = 1.0):
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), params)
 
 
-def gray_views(linear: np.ndarray) -> list[np.ndarray]:
-    """8-bit renderings (H, W) of a linear Bayer frame to try detection on.
+def gray_views(linear: np.ndarray) -> "GrayViews":
+    """8-bit renderings (H, W) of a linear Bayer frame to try detection on (a sequence, each
+    rendered when first asked for: detection mostly stops at the first).
 
     A 2x2 box filter mixes one R, two G and one B at every pixel (no mosaic pattern; shifts the
     image by half a pixel, compensated in ``read_markers``). Several brightness mappings are
     tried because a bright glossy patch or a dark background can dominate one of them.
     """
-    import cv2
-
-    g = cv2.blur(np.maximum(linear, 0).astype(np.float32), (2, 2))
-    views = []
-    for q in (99.5, 90.0, 60.0):
-        top = float(np.percentile(g, q))
-        if top > 0:
-            views.append(np.clip(g * (230.0 / top), 0, 255).astype(np.uint8))
-    logg = np.log(g + 2e-3)
-    views.append(np.clip((logg - logg.min()) / max(np.ptp(logg), 1e-9) * 255, 0, 255).astype(np.uint8))
-    return views
+    return GrayViews(linear)
 
 
-def _candidates(views: list[np.ndarray], scales=(1, UPSAMPLE), box=None):
+class GrayViews:
+    """``gray_views`` of one frame: the percentile mappings (99.5, 90, 60 % of the blurred frame
+    to 230, those whose percentile is > 0) and a log mapping, in that order; ``crop(k, box)`` is
+    view k's part in ``box`` (x0, y0, x1, y1) with the whole frame's mapping, rendered alone (the
+    same pixels as cropping the view: the mappings are per pixel; the log view is cropped from the
+    whole one, whose range it needs)."""
+
+    PERCENTILES = (99.5, 90.0, 60.0)
+
+    def __init__(self, linear: np.ndarray) -> None:
+        import cv2
+
+        self._g = cv2.blur(np.maximum(linear, 0).astype(np.float32), (2, 2))
+        self.shape = self._g.shape
+        # one partition for the three (the same order statistics as three calls)
+        tops = np.percentile(self._g, self.PERCENTILES)
+        self._tops = [float(t) for t in tops if float(t) > 0]
+        self._views: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self._tops) + 1
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        if k not in self._views:
+            self._views[k] = self._render(k, self._g)
+        return self._views[k]
+
+    def __iter__(self):
+        return (self[k] for k in range(len(self)))
+
+    def crop(self, k: int, box) -> np.ndarray:
+        """View k's pixels in ``box`` (x0, y0, x1, y1); None: the whole view."""
+        if box is None or k in self._views or k == len(self._tops):   # the log view: whole (a strided log may round apart)
+            view = self[k]
+            return view if box is None else view[box[1]:box[3], box[0]:box[2]]
+        return self._render(k, self._g[box[1]:box[3], box[0]:box[2]])
+
+    def _render(self, k: int, g: np.ndarray) -> np.ndarray:
+        if k < len(self._tops):
+            return np.clip(g * (230.0 / self._tops[k]), 0, 255).astype(np.uint8)
+        logg = np.log(g + 2e-3)
+        return np.clip((logg - logg.min()) / max(np.ptp(logg), 1e-9) * 255, 0, 255).astype(np.uint8)
+
+
+def _candidates(views: GrayViews, scales=(1, UPSAMPLE), box=None):
     """(scale, 8-bit image) pairs to run the detector on, in the order of ``scales``: 1 is the
     frame's ``gray_views``, UPSAMPLE the 2x upsampled views, which read thin, foreshortened markers
     and place corners more precisely (AprilTag refinement: 0.02-0.1 px against 0.1-0.4 px).
@@ -234,11 +271,9 @@ def _candidates(views: list[np.ndarray], scales=(1, UPSAMPLE), box=None):
     frame's views (upsampling a crop gives the upsampled frame's pixels, offset by scale x0)."""
     import cv2
 
-    if box is not None:
-        x0, y0, x1, y1 = box
-        views = [g[y0:y1, x0:x1] for g in views]
     for scale in scales:
-        for g in views:
+        for k in range(len(views)):
+            g = views.crop(k, box)
             yield scale, (g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC))
 
 
@@ -261,8 +296,8 @@ def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at
     return _read_markers(views, expected_ids, scales, stop_at, None)
 
 
-def _read_markers(views: list[np.ndarray], expected_ids, scales, stop_at: int, box):
-    h, w = views[0].shape
+def _read_markers(views: GrayViews, expected_ids, scales, stop_at: int, box):
+    h, w = views.shape
     x0, y0, x1, y1 = (0, 0, w, h) if box is None else box
     # The detector's size limits are fractions of the image's larger side: scaled so that a crop
     # accepts the same candidates (in pixels) as the whole frame.

@@ -156,3 +156,38 @@ def test_sim_camera_section_validation(params):
         validate_sim_camera_section({**section, "gain": 2}, "rig.yaml")
     with pytest.raises(ConfigError, match=r"sim\.camera\.white_level: expected above black_level 512, found 100"):
         validate_sim_camera_section({**section, "white_level": 100}, "rig.yaml")
+
+
+def test_gray_views_render_their_crops_as_the_crops_of_the_whole_views(tmp_path, gold, params, camera):
+    """read_markers searches a box first: a view rendered from the crop alone must hold the whole
+    view's pixels there (the percentile mappings are the whole frame's; the log view is cropped)."""
+    from calib.roi import gray_views
+
+    bench = CameraBench(gold, params, camera, speedup=1e4)
+    bench.lamp.on()
+    bench.set_angles(30.0, 40.0, 120.0)
+    linear = read_raw(bench.camera.capture(0.064, tmp_path / "v.dng").path).linear
+    g = np.maximum(linear, 0).astype(np.float32)
+    whole, lazy = gray_views(linear), gray_views(linear)
+    assert len(whole) == 4 and [v.shape for v in whole] == [linear.shape] * 4
+    for k, q in enumerate((99.5, 90.0, 60.0)):   # one percentile call gives each call's value
+        import cv2
+        top = float(np.percentile(cv2.blur(g, (2, 2)), q))
+        assert np.array_equal(whole[k], np.clip(cv2.blur(g, (2, 2)) * (230.0 / top), 0, 255).astype(np.uint8))
+    box = (104, 56, 480, 392)
+    for k in range(len(whole)):
+        assert np.array_equal(lazy.crop(k, box), whole[k][56:392, 104:480]), k
+
+
+def test_a_capture_returns_once_its_exposure_passed_with_the_frame_made_inside_it(tmp_path, gold, params, camera):
+    """The frame is rendered while it is exposed: the capture still lasts the exposure (real
+    seconds = simulated / speedup) and the nominal time advances by exactly the exposure."""
+    import time
+
+    bench = CameraBench(gold, params, camera, speedup=10.0)
+    bench.lamp.on()
+    bench.set_angles(20.0, 30.0, 90.0)
+    before, start = bench.camera.clock.nominal_time(), time.monotonic()
+    bench.camera.capture(4.0, tmp_path / "long.dng")
+    assert time.monotonic() - start >= 0.4
+    assert bench.camera.clock.nominal_time() == before + 4.0
