@@ -5,9 +5,7 @@ the compiled kernels (cache=True, stored beside the sources in __pycache__) inst
 them inside the command, and ``selection_seconds`` never includes a compilation. The kernels with
 explicit signatures compile at import; the others compile on a first call with tiny inputs of
 the types the callers pass. It also byte-compiles every module of the project (an editable install
-compiles none) and imports the dependencies the commands use (uv installs them without byte
-code), so the first command after set-up compiles no module either. The kernels of the three
-parts compile in processes side by side (numba compiles on one thread).
+compiles none), so the first command after set-up does not compile them either.
 """
 from __future__ import annotations
 
@@ -30,46 +28,21 @@ def byte_compile() -> bool:
     return ok
 
 
-# Third-party modules the commands import (many inside functions): imported once at set-up so
-# their byte code is written then (uv installs without compiling it, and compiling every module
-# of every dependency, as `--compile-bytecode` does, takes 15-20 s of which the commands use a fifth).
-DEPENDENCIES = ("numpy", "scipy.linalg", "scipy.stats", "scipy.optimize", "scipy.spatial", "scipy.ndimage",
-                "cv2", "matplotlib", "matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.pyplot",
-                "tqdm", "threadpoolctl", "yaml", "tifffile", "rawpy", "exifread", "serial", "pymodbus.client",
-                "pymodbus.server", "pymodbus.datastore", "dynamixel_sdk", "numba")
-
-# What each part warms, run as separate processes side by side (each numba compilation is
-# single-threaded): {part: seconds} from warm_part.
-PARTS = ("frost.bayes_kernels", "frost.somp_kernels", "planner.view and the dependencies")
-
-
-def warm_part(part: str) -> dict:
-    """Warm one of PARTS in this process; return {what: seconds}."""
-    import importlib
-
+def warm_kernels() -> dict:
+    """Byte-compile the project, import or call every compiled kernel once; return {what: seconds}."""
+    seconds = {}
     start = time.perf_counter()
-    if part == "frost.bayes_kernels":   # explicit signatures: compiled (or loaded) at import
-        from goniofrost.frost import bayes_kernels  # noqa: F401
-    elif part == "frost.somp_kernels":
-        from goniofrost.frost import somp_kernels  # noqa: F401
-    elif part == "planner.view and the dependencies":
-        import matplotlib
-        matplotlib.use("Agg")   # pyplot without a display
-        for name in DEPENDENCIES:
-            try:
-                importlib.import_module(name)
-            except ImportError:   # an optional one a demo-only install lacks is compiled on its first import
-                pass
-        _warm_view()
-    else:
-        raise ValueError(f"warm: unknown part {part!r} (one of {', '.join(PARTS)})")
-    return {part: time.perf_counter() - start}
+    if not byte_compile():
+        raise SystemExit("warm: a module of the project does not compile")
+    seconds["byte-compiled modules"] = time.perf_counter() - start
 
-
-def _warm_view() -> None:
-    """Call planner.view's kernels (compiled on a first call) with tiny inputs of the callers' types."""
     import numpy as np
 
+    start = time.perf_counter()
+    from goniofrost.frost import bayes_kernels, somp_kernels  # noqa: F401  (signatures: compiled at import)
+    seconds["frost kernels"] = time.perf_counter() - start
+
+    start = time.perf_counter()
     from goniofrost.core.camera_model import CameraModel
     from planner.view import Measurability, roi_pixels
 
@@ -79,39 +52,11 @@ def _warm_view() -> None:
                          patch_mm=((-6, -6), (6, -6), (6, 6), (-6, 6)), min_pixels=10)
     w = np.array([[0.0, 0.0, 1.0]])
     roi_pixels(view, w, w)
-
-
-def warm_kernels(parallel: bool = True) -> dict:
-    """Byte-compile the project, then warm every part of PARTS (``parallel``: each in its own
-    process, all at once); return {what: seconds}. Raises SystemExit when a part fails."""
-    import subprocess
-    import sys
-
-    seconds = {}
-    start = time.perf_counter()
-    if not byte_compile():
-        raise SystemExit("warm: a module of the project does not compile")
-    seconds["byte-compiled modules"] = time.perf_counter() - start
-    if not parallel:
-        for part in PARTS:
-            seconds |= warm_part(part)
-        return seconds
-    starts = {part: time.perf_counter() for part in PARTS}
-    runs = {part: subprocess.Popen([sys.executable, "-m", "goniofrost.app.warm", "--part", part]) for part in PARTS}
-    for part, run in runs.items():
-        if run.wait() != 0:
-            raise SystemExit(f"warm: warming {part} failed (exit code {run.returncode})")
-        seconds[part] = time.perf_counter() - starts[part]
+    seconds["planner.view"] = time.perf_counter() - start
     return seconds
 
 
-def main(argv=None) -> int:
-    import sys
-
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) == 2 and argv[0] == "--part":
-        warm_part(argv[1])
-        return 0
+def main() -> int:
     for name, s in warm_kernels().items():
         print(f"{name}: {s:.1f} s")
     return 0
