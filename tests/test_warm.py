@@ -32,3 +32,10 @@ def test_the_kernels_are_cached_on_disk_after_warming():
     for kernel in kernels:   # numba's on-disk index of the kernel's compiled versions, and one at least
         index = Path(kernel._cache._cache_file._index_path)
         assert index.is_file() and kernel.signatures, index
+
+
+def test_every_dependency_set_up_imports_is_installed_under_that_name():
+    """A misspelt or dropped name would leave its byte code to the first command, unseen."""
+    from goniofrost.app.warm import import_dependencies
+
+    assert import_dependencies() == []
