@@ -39,3 +39,27 @@ def test_every_dependency_set_up_imports_is_installed_under_that_name():
     from goniofrost.app.warm import import_dependencies
 
     assert import_dependencies() == []
+
+
+def test_byte_code_is_written_for_imported_modules_even_where_imports_write_none(tmp_path, monkeypatch):
+    """PYTHONDONTWRITEBYTECODE (set on these machines) stops imports from writing .pyc files;
+    set-up writes them for what it imported, or every command would compile them again."""
+    import importlib
+    import sys
+
+    from goniofrost.app.warm import write_byte_code
+
+    (tmp_path / "warm_probe_module.py").write_text("VALUE = 3\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    module = importlib.import_module("warm_probe_module")
+    cached = Path(importlib.util.cache_from_source(module.__file__))
+    assert not cached.exists()
+    try:
+        assert write_byte_code() >= 1
+        assert cached.is_file() and cached.stat().st_mtime >= Path(module.__file__).stat().st_mtime
+        written = cached.stat().st_mtime_ns
+        write_byte_code()   # a fresh .pyc is kept, not written again
+        assert cached.stat().st_mtime_ns == written
+    finally:
+        sys.modules.pop("warm_probe_module", None)

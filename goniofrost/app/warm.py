@@ -6,8 +6,8 @@ them inside the command, and ``selection_seconds`` never includes a compilation.
 explicit signatures compile at import; the others compile on a first call with tiny inputs of
 the types the callers pass. It also byte-compiles every module of the project (an editable install
 compiles none) and, in a second process beside the kernels, imports the dependencies the
-commands use (uv installs them without byte code), so the first command after set-up compiles
-no module either.
+commands use and writes their modules' byte code (uv installs none), so no command after set-up
+compiles a module.
 """
 from __future__ import annotations
 
@@ -58,10 +58,9 @@ def warm_kernels() -> dict:
     return seconds
 
 
-# Third-party modules the commands import (most inside functions) that warm_kernels does not:
-# imported once at set-up so that their byte code is written then (uv installs without it;
-# compiling every module of every dependency, as `uv pip install --compile-bytecode` does, took
-# 18 s against the 3 to 4 s these take).
+# Third-party modules the commands import (most inside functions): imported once at set-up and
+# the byte code of every module that brings in written then (uv installs without it; compiling
+# every module of every dependency, as `uv pip install --compile-bytecode` does, took 18 s at load 5).
 DEPENDENCIES = ("scipy.linalg", "scipy.stats", "scipy.optimize", "scipy.spatial", "scipy.ndimage", "cv2",
                 "matplotlib.figure", "matplotlib.backends.backend_agg", "tqdm", "yaml", "tifffile", "rawpy",
                 "exifread", "serial", "pymodbus.client", "pymodbus.server", "pymodbus.datastore", "dynamixel_sdk")
@@ -72,12 +71,38 @@ def import_dependencies() -> list[str]:
     import importlib
 
     missing = []
-    for name in DEPENDENCIES:
+    for name in ("numpy", "numba") + DEPENDENCIES:
         try:
             importlib.import_module(name)
         except ImportError:
             missing.append(name)
     return missing
+
+
+def write_byte_code() -> int:
+    """Write the .pyc of every imported module whose source has none or an older one; return how
+    many were written. Explicitly, with py_compile, because importing writes none where
+    PYTHONDONTWRITEBYTECODE is set (as on these machines), and uv installs none: every command
+    would then compile numpy, scipy, matplotlib... again on each start (2 to 4 s)."""
+    import importlib.util
+    import os
+    import py_compile
+    import sys
+
+    written = 0
+    for module in list(sys.modules.values()):
+        source = getattr(module, "__file__", None)
+        if not source or not source.endswith(".py") or not os.path.isfile(source):
+            continue
+        cached = importlib.util.cache_from_source(source)
+        if os.path.isfile(cached) and os.stat(cached).st_mtime >= os.stat(source).st_mtime:
+            continue
+        try:
+            py_compile.compile(source, cfile=cached, doraise=True)
+            written += 1
+        except (py_compile.PyCompileError, OSError):   # a read-only install: its modules compile on import
+            pass
+    return written
 
 
 def main(argv=None) -> int:
@@ -90,6 +115,7 @@ def main(argv=None) -> int:
     if argv == ["--dependencies"]:
         for name in import_dependencies():
             print(f"not installed: {name}")
+        print(f"byte code written for {write_byte_code()} modules of the dependencies")
         return 0
     start = time.perf_counter()
     helper = subprocess.Popen([sys.executable, "-m", "goniofrost.app.warm", "--dependencies"])
