@@ -55,6 +55,7 @@ def warm_kernels() -> dict:
     w = np.array([[0.0, 0.0, 1.0]])
     roi_pixels(view, w, w)
     seconds["planner.view"] = time.perf_counter() - start
+    write_byte_code()   # numba's own modules that its first compilation or cache load imported
     return seconds
 
 
@@ -63,7 +64,9 @@ def warm_kernels() -> dict:
 # every module of every dependency, as `uv pip install --compile-bytecode` does, took 18 s at load 5).
 DEPENDENCIES = ("scipy.linalg", "scipy.stats", "scipy.optimize", "scipy.spatial", "scipy.ndimage", "cv2",
                 "matplotlib.figure", "matplotlib.backends.backend_agg", "tqdm", "yaml", "tifffile", "rawpy",
-                "exifread", "serial", "pymodbus.client", "pymodbus.server", "pymodbus.datastore", "dynamixel_sdk")
+                "exifread", "serial", "pymodbus.client", "pymodbus.server", "pymodbus.datastore", "dynamixel_sdk",
+                "threadpoolctl", "PIL.BmpImagePlugin", "PIL.GifImagePlugin", "PIL.JpegImagePlugin",
+                "PIL.PpmImagePlugin", "PIL.PngImagePlugin")   # PIL's: what matplotlib's savefig loads
 
 
 def import_dependencies() -> list[str]:
