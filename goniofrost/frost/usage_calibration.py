@@ -95,4 +95,5 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
                 for key, value in zip(acc, values):
                     acc[key].append(value)
         del d_f
-    return CvRecords(**{k: np.asarray(v) for k, v in acc.items()})
+    # No prequential score (a scene's bound has no use for the diagnostic, ``confidence.py``).
+    return CvRecords(**{k: np.asarray(v) if v else None for k, v in acc.items()})
