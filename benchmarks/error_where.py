@@ -15,9 +15,14 @@ on wrongly) with the materials the bound covers:
   their squared error (an unbiased estimate of the true error), and how often it exceeds the
   bound (would k extra, randomly placed samples reveal the miss?), over --draws draws.
 
-A diagnostic of the test materials (nothing is chosen on it). About 2 minutes at 45 x 45 x 90::
+A diagnostic of the test materials (nothing is chosen on it). 10 s to 2 minutes at 45 x 45 x 90
+(the tables tabulated before or not)::
 
     .venv/bin/python benchmarks/error_where.py --grid 45,45,90 --setting merl-rgl
+
+Smallest setting (tests/test_benchmarks.py)::
+
+    .venv/bin/python benchmarks/error_where.py --grid 10,10,20 --setting builtin --draws 50
 """
 from __future__ import annotations
 
@@ -41,6 +46,11 @@ def region_masks(grid: MerlGrid) -> dict:
     w_i, w_o = grid.cell_directions(grid.valid_cells)
     grazing = np.degrees(np.arccos(np.clip(np.minimum(w_i[..., 2], w_o[..., 2]), -1, 1))) > 80
     return {"max(theta_i, theta_o) > 80": grazing, "theta_d > 80": theta_d > 80, "theta_h > 70": theta_h > 70}
+
+
+def median(values: np.ndarray, mask: np.ndarray) -> str:
+    """The median of values[mask], "n/a" for an empty group."""
+    return f"{np.median(values[mask]):.2f}" if mask.any() else "n/a"
 
 
 def main(argv=None) -> int:
@@ -87,21 +97,21 @@ def main(argv=None) -> int:
         for name, mask in regions.items():
             share = sq[:, mask].sum(axis=1) / sq.sum(axis=1)
             print(f"| error share in {name} ({100 * mask.mean():.1f} % of cells) | "
-                  + " | ".join(f"{np.median(share[g]):.2f}" for g in groups.values()) + " |")
+                  + " | ".join(median(share, g) for g in groups.values()) + " |")
         for name, cells in (("grazing", grazing_design[:m]), ("other", ~grazing_design[:m])):
             cells = cells.copy()
             cells[0] = False  # the prior's prediction of the first sample
             score = np.array([one_step[cells][:, 3 * i:3 * i + 3].mean() for i in range(truth.shape[0])])
             print(f"| prequential score, {name} design cells ({int(cells.sum())}) | "
-                  + " | ".join(f"{np.median(score[g]):.2f}" for g in groups.values()) + " |")
+                  + " | ".join(median(score, g) for g in groups.values()) + " |")
         for k in (5, 10, 20):
             draws = rng.integers(0, sq.shape[1], size=(args.draws, k))
             alarm = (sq[:, draws].mean(axis=2) > rows["upper"][:, None]).mean(axis=1)
             print(f"| spot check of {k} random cells above the bound (probability) | "
                   + " | ".join(f"{np.median(alarm[g]):.2f} ({alarm[g].min():.2f} to {alarm[g].max():.2f})"
                                if g.any() else "n/a" for g in groups.values()) + " |")
-        print(f"| median true error / median estimate | " + " | ".join(
-            f"{np.median(rows['mse'][g] / rows['median'][g]):.2f}" if g.any() else "n/a" for g in groups.values()) + " |\n")
+        print("| median true error / median estimate | "
+              + " | ".join(median(rows["mse"] / rows["median"], g) for g in groups.values()) + " |\n")
     print(f"wall {time.time() - started:.0f} s")
     return 0
 
