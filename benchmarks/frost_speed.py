@@ -259,12 +259,24 @@ TARGETS = {"bayes m=20": 0.25, "bayes m=60": 0.75, "somp m=20": 0.25, "training 
            "demo cold s": 35.0, "demo warm s": 15.0}
 
 
-def stream_bandwidth(nbytes: int = 1 << 29, repeat: int = 5) -> float:
-    """GB/s of a numpy read of a large float32 array (the median of ``repeat`` sums; np.add.reduce
-    is vectorised well past the memory's speed, so this is the read limit a pass can reach)."""
+def stream_bandwidth(nbytes: int = 1 << 29, repeat: int = 5, threads: int | None = None) -> float:
+    """GB/s of a read of a large float32 array on ``threads`` threads (default: the selection's,
+    each summing a contiguous part with np.add.reduce, which releases the GIL and is vectorised
+    well past the memory's speed), the median of ``repeat`` reads: the read limit a pass split
+    among those threads can reach. One thread alone reads about half of what two do on this
+    2-core machine (7.3 against about 15 GB/s), so a one-thread figure would put the limit of a
+    two-thread pass at twice its real value."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from goniofrost.frost.threads import ranges, resolve_threads
+
     x = np.ones(nbytes // 4, dtype=np.float32)
-    x.sum()
-    med, _ = median_time(lambda: np.add.reduce(x), repeat)
+    parts = [x[lo:hi] for lo, hi in ranges(x.size, resolve_threads(threads))]
+    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        def read():
+            list(pool.map(np.add.reduce, parts))
+        read()
+        med, _ = median_time(read, repeat)
     return nbytes / med / 1e9
 
 
@@ -278,12 +290,14 @@ def bench_targets(args) -> None:
     from goniofrost.core.grid import FULL_GRID, MerlGrid
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import select_cells
+    from goniofrost.frost.threads import resolve_threads
     from goniofrost.frost.training import train
 
     grid = MerlGrid(*args.grid) if args.grid else FULL_GRID
     print(f"machine: {os.cpu_count()} cores, {_load()}", flush=True)
     bandwidth = stream_bandwidth(min(1 << 29, 64 * grid.n_valid * 60 * 4))
-    print(f"streaming read bandwidth (numpy sum of a large float32 array): {bandwidth:.1f} GB/s  ({_load()})", flush=True)
+    print(f"streaming read bandwidth (numpy sums of a large float32 array on {resolve_threads(None)} threads): "
+          f"{bandwidth:.1f} GB/s  ({_load()})", flush=True)
     model = _paged_model(args.model) if args.model else train(["builtin"], exclude=["red-plastic"], grid=grid)
     d_bytes = model.grid.n_valid * model.n_components * 4
     print(f"model: K = {model.n_components}, n = {model.grid.n_valid} cells, D = {d_bytes / 1e6:.0f} MB", flush=True)

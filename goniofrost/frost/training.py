@@ -151,10 +151,13 @@ def _map_and_gram(tables, names, weight, eps, progress, threads=None):
     # triangle) as the sequential training did, so the Gram is the same to the bit: the noise
     # scales chosen downstream follow its last digits. dsyrk on one BLAS thread: the same bits
     # as on two (it splits the output, not the sums), without OpenBLAS's spinning threads,
-    # which made this pass 4x the CPU time on a loaded host.
+    # which made this pass 4x the CPU time on a loaded host. The chunk goes in as its transpose
+    # (t x rows, Fortran-ordered: no copy) with trans=0: the same bits as dsyrk(wide, trans=1),
+    # which made scipy copy every chunk into Fortran order first (21 % of the Gram's CPU time
+    # at t = 453).
     with threadpool_limits(limits=1, user_api="blas"):
         for wide in _progress_chunks(imap_chunks(chunk, n, CHUNK_ROWS, threads), n, progress, "training"):
-            gram = blas.dsyrk(1.0, wide, trans=1, beta=1.0, c=gram, overwrite_c=1)
+            gram = blas.dsyrk(1.0, wide.T, trans=0, beta=1.0, c=gram, overwrite_c=1)
     return mapped, reference, mean, np.triu(gram) + np.triu(gram, 1).T
 
 
