@@ -122,18 +122,20 @@ class _Forms:
     def __init__(self, dictionary, rows, noises: list, threads: int) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
+        # Every row a candidate: the kernels take candidate i as row i and read no index array.
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        self.kernel_rows = np.empty(0, dtype=np.int64) if rows is None else self.rows
         self.noise = [np.asarray(noise, dtype=np.float64) for noise in noises]  # S of (n,), the callers'
         # private: a picked cell gets +inf (score 0)
-        self.open_noise = np.array([noise[self.rows] for noise in self.noise])  # (S, n_c)
+        self.open_noise = _compact(np.array([noise if rows is None else noise[self.rows] for noise in self.noise]))
         self.q, self.p = np.empty(self.open_noise.shape), np.empty(self.open_noise.shape)
         self.parts = pass_ranges(self.rows.size, threads)  # several per thread, taken as threads come free
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
+        return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
 
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(pool, kernels.update_forms, self.d, self.rows, u, v, inv_delta, usu_delta2,
+        return self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
@@ -152,6 +154,14 @@ class _Forms:
         for future in futures:
             future.result()
         return _best(best, best_i)
+
+
+def _compact(noise: np.ndarray) -> np.ndarray:
+    """The (S, n_c) float64 noise as float32 when that holds every value exactly (the kernels
+    widen it back to the same float64: the same scores, 4 bytes a cell less in every pass),
+    else unchanged."""
+    narrow = noise.astype(np.float32)
+    return narrow if np.array_equal(narrow, noise) else noise
 
 
 def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
