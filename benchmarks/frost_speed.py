@@ -13,6 +13,8 @@
     .venv/bin/python benchmarks/frost_speed.py pca [--rows N]           # Gram vs randomized SVD
     .venv/bin/python benchmarks/frost_speed.py floor [--model MODEL] [--results BENCH/results.json]
     .venv/bin/python benchmarks/frost_speed.py bounds --model MODEL [--m 20]
+    .venv/bin/python benchmarks/frost_speed.py flatness [--model MODEL] [--m 20]
+        the share of cells near the best Bayesian score per step (why every step reads all of D)
 
 Timings are medians of repeated runs; the machine is shared, so say so when quoting them.
 Targets (DESIGN.md): selection full grid m=20 <= 0.3 s, m=60 <= 2 s; Bayesian selection (K = 60)
@@ -213,6 +215,44 @@ def bench_floor(args) -> None:
         if m in nielsen:
             line += f"; Nielsen (bench median) {nielsen[m]:.3f} s / 100 = {nielsen[m] / 100:.4f} s"
         print(line + f"  (load {os.getloadavg()[0]:.1f})", flush=True)
+
+
+def bench_flatness(args) -> None:
+    """Why a Bayesian step reads every row of D: how flat the score field is near its top.
+
+    The exact greedy design (numpy, float64, the selection's prior, noise and design scale) on
+    the demo's model (or --model); at each of the first --m steps it prints the best score and
+    the share of the n cells whose exact score is within a factor 2 of it, and the share a
+    per-row bound could rule out: score_c <= ||d_c||^2 lambda_max(Sigma S^2 Sigma) /
+    (sigma_c^2 + lambda_min(Sigma) ||d_c||^2) (the Rayleigh quotients of both forms). A cell
+    can be skipped only when its bound is below the best score; when most cells are near the
+    top and no bound rules any out, the step must read every row (and a float16 shortlist
+    must re-score most of them).
+    """
+    from goniofrost.core.grid import FULL_GRID, MerlGrid
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+    from goniofrost.frost.training import train
+
+    grid = MerlGrid(*args.grid) if args.grid else FULL_GRID
+    model = _paged_model(args.model) if args.model else train(["builtin"], exclude=["red-plastic"], grid=grid)
+    d = np.asarray(model.dictionary, dtype=np.float64)
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    noise = cell_noise(model) * design_scale(model)
+    sigma = np.diag(prior_variance(model))
+    norm2 = np.einsum("ij,ij->i", d, d)
+    for step in range(args.m):
+        u = d @ sigma
+        q, p = np.einsum("ij,ij->i", u, d), np.einsum("ij,ij->i", u * s2, u)
+        score = p / (noise + q)
+        best = int(np.argmax(score))
+        top = np.linalg.eigvalsh(sigma @ np.diag(s2) @ sigma)[-1]
+        bound = top * norm2 / (noise + np.linalg.eigvalsh(sigma)[0] * norm2)
+        print(f"step {step + 1:2d}: best score {score[best]:.4g}; cells within a factor 2 of it "
+              f"{np.mean(score >= 0.5 * score[best]):.1%}; ruled out by the bound {np.mean(bound < score[best]):.1%}",
+              flush=True)
+        row = d[best]
+        gain = sigma @ row
+        sigma = sigma - np.outer(gain, gain) / (noise[best] + row @ gain)
 
 
 def bench_bounds(args) -> None:
@@ -427,22 +467,22 @@ def _paged_model(path):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("targets", "kernels", "selection", "bayes-selection", "training", "reconstruction",
-                                         "bayes-reconstruction", "pca", "floor", "bounds"))
+                                         "bayes-reconstruction", "pca", "floor", "bounds", "flatness"))
     parser.add_argument("--model", help="model directory (selection, reconstruction, bounds; optional for floor)")
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rows", type=int, default=1_111_432)
     parser.add_argument("--results", help="a goniofrost bench results.json (floor: Nielsen's times)")
-    parser.add_argument("--m", type=int, default=20, help="samples (bounds)")
+    parser.add_argument("--m", type=int, default=20, help="samples (bounds), steps (flatness)")
     parser.add_argument("--grid", type=int, nargs=3, metavar=("TH", "TD", "PD"),
-                        help="targets, kernels: train the demo model on this grid instead of the full one (a quick check)")
+                        help="targets, kernels, flatness: train the demo model on this grid instead of the full one (a quick check)")
     parser.add_argument("--training", action="store_true", help="targets: also time training 151 materials")
     parser.add_argument("--demo", action="store_true", help="targets: also time the demo, cold and warm")
     parser.add_argument("--data", help="targets --training: the folder of nbrdf_merl.npz and nbrdf_rgl.npz")
     args = parser.parse_args()
     {"targets": bench_targets, "kernels": bench_kernels, "selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
      "reconstruction": bench_reconstruction, "bayes-reconstruction": bench_bayes_reconstruction,
-     "pca": bench_pca, "floor": bench_floor, "bounds": bench_bounds}[args.what](args)
+     "pca": bench_pca, "floor": bench_floor, "bounds": bench_bounds, "flatness": bench_flatness}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ For each shipped scene (config/scenes) and m, a test material is "measured" at t
 mean, exported as an RGL tensor and rendered by Mitsuba 3 in that scene; the same scene rendered
 with the true material (same seed, same spp) is the reference. Reported per scene and m, as the
 median over the test materials: the image's relative MSE and PSNR, the scene-seen error (the
-log-relative MSE weighted by the scene's usage map: what the design minimises) and the
+log-relative MSE weighted by the scene's usage map: what the plan predicts) and the
 whole-BRDF log-relative MSE, for the scene-blind design (``plan``) and the scene-aware one
 (``plan --usage``). Test materials are fixed before any result: every 7th material of the
 combined, sorted shared library starting at the 4th; the model is trained on the others only.
@@ -81,26 +81,25 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 # The candidate objectives of the scene-aware design (``scene_designs``); one is chosen on the
-# validation materials before the test materials are looked at.
-WEIGHTINGS = ("log", "linear", "root", "mixed")
+# validation materials before the test materials are looked at. Each weighs a cell's use u by the
+# image's sensitivity g to its mapped value to a power (``usage_design.design_usage``): 0 ("log",
+# the mapped error the scene sees), 0.25, 0.5 (``usage_design.SENSITIVITY_POWER``, what
+# ``plan --usage`` weighs), 0.75, 1 ("root") and 2 ("linear": the first-order image error);
+# "mixed" is (u + 1/n) / 2 on the mapped error (the scene's use and the whole BRDF alike).
+POWERS = {"log": 0.0, "g^0.25": 0.25, "g^0.5": 0.5, "g^0.75": 0.75, "root": 1.0, "linear": 2.0}
+WEIGHTINGS = (*POWERS, "mixed")
 
 
-def scene_designs(model, usage: dict, m_max: int) -> dict:
+def scene_designs(model, usage: dict, m_max: int, weightings=WEIGHTINGS) -> dict:
     """{"blind": rows, (scene, weighting): rows} of nested designs of m_max picks: the plain
-    design, and per scene the usage-weighted one on the mapped error ("log", what ``plan --usage``
-    minimises), on the BRDF's own error to first order ("linear", u g^2, ``usage_design.linear_usage``),
-    half-way between them ("root", u g) and on the scene's use and the whole BRDF alike ("mixed",
-    (u + 1/n) / 2)."""
+    design, and per scene the design of every weighting of ``weightings`` (see WEIGHTINGS)."""
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import linear_usage
 
     designs = {"blind": select_bayes(model, m_max).positions}
     for s, u in usage.items():
-        designs[(s, "log")] = select_bayes(model, m_max, usage=u).positions
-        for name, power in (("linear", 2.0), ("root", 1.0)):
-            weighted = linear_usage(u, model.mean, model.reference, model.weight, model.eps, power)
-            designs[(s, name)] = select_bayes(model, m_max, usage=weighted).positions
-        designs[(s, "mixed")] = select_bayes(model, m_max, usage=0.5 * u + 0.5 / u.size).positions
+        for w in weightings:
+            designs[(s, w)] = (select_bayes(model, m_max, usage=u, sensitivity_power=POWERS[w]) if w in POWERS else
+                               select_bayes(model, m_max, usage=0.5 * u + 0.5 / u.size, sensitivity_power=0.0)).positions
     return designs
 
 
@@ -191,7 +190,10 @@ def main(argv=None) -> int:
     model = train(specs, only=training, grid=grid, cache=True)
     print(f"model: {len(training)} training materials, K = {model.n_components} ({time.perf_counter() - t0:.0f} s); "
           f"{len(test)} test materials: {', '.join(test)}", flush=True)
-    designs = scene_designs(model, usage, max(ms))
+    # the test renders: the chosen weighting and one other (the mapped error alone, "log", the
+    # rule before the sensitivity weighting; or g^0.5 when log is chosen)
+    compared = (choice, "log" if choice != "log" else "g^0.5")
+    designs = scene_designs(model, usage, max(ms), compared)
     truths = tabulate_materials(collect_materials(specs, only=test), grid)
     with tempfile.TemporaryDirectory() as tmp:
         exported = (progress_only(t0, len(test)) if args.no_export else
@@ -201,7 +203,7 @@ def main(argv=None) -> int:
         "test": test, "validation": validation, "weighting": choice, "weighting_scores": scores,
         "validation_rows": v_rows, "spp": spp, "usage_spp": uspp, "m": ms, "grid": grid.as_dict(), "rows": rows},
         indent=1))
-    print(table(rows, ms, choice))
+    print(table(rows, ms, choice, compared[1]))
     print(goal_lines(rows, ms, choice))
     save_pictures(pictures, args.out, choice)
     print(f"total {time.perf_counter() - t0:.0f} s")
@@ -261,10 +263,9 @@ def validation_table(rows: list[dict], ms: list[int]) -> str:
     return "\n".join(lines)
 
 
-def table(rows: list[dict], ms: list[int], choice: str) -> str:
+def table(rows: list[dict], ms: list[int], choice: str, other: str) -> str:
     """Median over materials per scene and m: image rel. MSE of both renders (direct: the same
     paths for every BRDF; export: RGL tensors), the other weighting's, and the whole-BRDF error."""
-    other = next(w for w in WEIGHTINGS if w != choice)  # the others: validation_table, results.json
     med, brdf, seen = medians(rows), medians([r for r in rows if r["render"] == "direct"], "brdf_log_mse"), \
         medians([r for r in rows if r["render"] == "direct"], "seen_log_mse")
     lines = [f"| scene | m | direct: image rel. MSE blind | aware ({choice}) | change | aware ({other}) | change "
@@ -274,7 +275,7 @@ def table(rows: list[dict], ms: list[int], choice: str) -> str:
         for m in ms:
             if (s, m, "blind", "direct") not in med:
                 continue
-            d = {w: med[(s, m, w, "direct")] for w in ("blind", *WEIGHTINGS)}
+            d = {w: med[(s, m, w, "direct")] for w in ("blind", choice, other)}
             e = {w: med.get((s, m, w, "export"), float("nan")) for w in ("blind", choice)}
             lines.append(f"| {s} | {m} | {d['blind']:.4g} | {d[choice]:.4g} | {100 * (d[choice] / d['blind'] - 1):+.0f} % | "
                          f"{d[other]:.4g} | {100 * (d[other] / d['blind'] - 1):+.0f} % | {e['blind']:.4g} | {e[choice]:.4g} | "

@@ -14,7 +14,9 @@ the confidence is at most E and the samples are not out of the model, or the pla
   and whose true error is below the bound (the bound's coverage at a single look); and how many
   of the materials the bound misses, and of the others, have samples less typical than 95 % of
   the held-out training materials (``confidence.feature_distance``: would an out-of-model
-  statistic on the samples' features single out the misses?).
+  statistic on the samples' features single out the misses?), and whose samples were predicted
+  (each from the ones measured before it) worse than 95 % of theirs
+  (``confidence.prequential_excess``: would a held-out statistic?).
 
 Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``builtin`` (the 74
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
@@ -117,11 +119,13 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
             ratio = np.array([r["median"] / r["mse"] for r in group])
             missed = np.array([r["mse"] > r["upper"] for r in group])
             far = np.array([r.get("feature_distance", np.nan) > 1 for r in group])
+            poor = np.array([r.get("prequential", np.nan) > 1 for r in group])
             by_m[m] = {"within_factor_2": float(np.mean((ratio <= 2) & (ratio >= 0.5))),
                        "bound_covers": float(np.mean(~missed)),
                        "out_of_model": float(np.mean([r["out_of_model"] for r in group])), "materials": len(group),
                        "missed": int(missed.sum()), "missed_far": int((missed & far).sum()),
-                       "covered_far": int((~missed & far).sum())}
+                       "covered_far": int((~missed & far).sum()),
+                       "missed_prequential": int((missed & poor).sum()), "covered_prequential": int((~missed & poor).sum())}
         out[setting] = {"targets": rows, "by_m": by_m, "confidence": confidence}
     return out
 
@@ -136,12 +140,15 @@ def markdown(stats: dict) -> str:
                          f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
                          f"{r['ever_out']} / {r['out_at_end']} |")
     lines += ["", "| setting | m | median estimate within x2 | true error <= bound | out of the model "
-              "| features beyond 95 % of training: of the bound's misses / of the rest |", "|---|---|---|---|---|---|"]
+              "| features beyond 95 % of training: of the bound's misses / of the rest "
+              "| prequential score beyond 95 % of training: of the misses / of the rest |", "|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
         for m, r in s["by_m"].items():
             lines.append(f"| {setting} | {m} | {100 * r['within_factor_2']:.1f} % | {100 * r['bound_covers']:.1f} % | "
                          f"{100 * r['out_of_model']:.1f} % | {r['missed_far']} of {r['missed']} / "
-                         f"{r['covered_far']} of {r['materials'] - r['missed']} |")
+                         f"{r['covered_far']} of {r['materials'] - r['missed']} | "
+                         f"{r.get('missed_prequential', 0)} of {r['missed']} / "
+                         f"{r.get('covered_prequential', 0)} of {r['materials'] - r['missed']} |")
     return "\n".join(lines) + "\n"
 
 

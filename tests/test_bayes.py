@@ -95,6 +95,22 @@ def test_designs_equal_the_single_design_passes_to_the_bit(model, masked):
     assert len({tuple(design.rows) for design in shared}) == 3  # the scales do pick differently
 
 
+def test_the_passes_hold_the_noise_in_float32_only_where_that_is_exact(model):
+    """A model's learned noise times a power-of-two scale is float32 exactly and goes to the
+    kernels narrowed (the test above: the same bits as before); a noise that is not keeps
+    float64, and its design is still the textbook greedy."""
+    exact = np.array([[0.5, 3.0, np.inf]])
+    assert bayes_selection._compact(exact).dtype == np.float32
+    np.testing.assert_array_equal(bayes_selection._compact(exact), exact)
+    inexact = np.array([[0.1, 3.0]])  # 0.1 has no float32 twin
+    assert bayes_selection._compact(inexact).dtype == np.float64
+    d, s2 = np.asarray(model.dictionary), model.singular_values ** 2
+    prior, noise_var = posterior.prior_variance(model), posterior.cell_noise(model) * (1 + 2.0 ** -40)
+    assert bayes_selection._Forms(d, None, [noise_var], 1).open_noise.dtype == np.float64
+    picks, _ = reference_greedy(d, s2, prior, noise_var, 20)
+    np.testing.assert_array_equal(greedy_design(d, s2, prior, noise_var, 20).rows, picks)
+
+
 def test_bayes_selection_is_deterministic_nested_and_thread_independent(model):
     long = select_bayes(model, 30)
     assert list(select_bayes(model, 30).positions) == list(long.positions)

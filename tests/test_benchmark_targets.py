@@ -38,3 +38,13 @@ def test_kernels_report_each_pass_with_its_bytes_and_the_stream(tmp_path):
         assert re.search(rf"^{name}: [\d.]+ ms, \d+ MB moved, [\d.]+ GB/s; one read of \d+ MB at the stream: "
                          rf"[\d.]+ ms, ratio [\d.]+  \(load ", out, re.M), (name, out)
     assert re.search(r"^somp pack \(k = \d+, one run\): [\d.]+ ms$", out, re.M), out
+
+
+def test_flatness_reports_each_step_s_share_of_cells_near_the_best(tmp_path):
+    out = smallest_run("flatness", tmp_path)  # --m 20 steps by default
+    steps = re.findall(r"^step +(\d+): best score ([\d.e+-]+); cells within a factor 2 of it ([\d.]+)%; "
+                       r"ruled out by the bound ([\d.]+)%$", out, re.M)
+    assert [int(s[0]) for s in steps] == list(range(1, 21)), out
+    for _, best, near, ruled_out in steps:
+        # the best cell itself is within a factor 2 of the best; a cell at the best is never ruled out
+        assert float(best) > 0 and 0 < float(near) <= 100 and 0 <= float(ruled_out) < 100

@@ -28,6 +28,7 @@ SLOW = {
     "frost_accuracy": ["--grid", "small", "--m", "5"],
     "selection_vs_nielsen": ["--grid", "30,30,60", "--m", "5", "--nielsen-max-iter", "1"],
     "bayes_noise": ["--grid", "30,30,60"],
+    "error_where": ["--grid", "10,10,20", "--setting", "builtin", "--draws", "50"],
     "mitsuba_export": ["--repeats", "1", "--skip-variants"],
     "mitsuba_sphere": ["--size", "16", "--out", "sphere.png"],
     "monitor": ["overhead", "--repeats", "1", "--samples", "2"],

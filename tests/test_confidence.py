@@ -173,4 +173,43 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert "| builtin | 0.05 | 10 |" in (tmp_path / "target_error.md").read_text()
     for row in stats["by_m"].values():  # every material is a miss of the bound or not, near or far
         assert row["missed_far"] <= row["missed"] and row["covered_far"] <= row["materials"] - row["missed"]
+        assert row["missed_prequential"] <= row["missed"] and row["covered_prequential"] <= row["materials"] - row["missed"]
     assert all(np.isfinite(r["feature_distance"]) for r in doc["results"]["builtin"][0]["per_m"])
+
+
+def test_the_prequential_errors_are_the_batch_posteriors_predictions_of_each_next_sample():
+    from goniofrost.frost import posterior
+
+    rng = np.random.default_rng(8)
+    rows, noise = rng.normal(size=(12, 6)), np.exp(rng.normal(-2, 0.5, 12))
+    prior, b = np.full(6, 0.3), rng.normal(size=(12, 4))
+    one_step = posterior.prequential_errors(rows, noise, prior, b)
+    assert one_step[0] == pytest.approx(b[0] ** 2 / (noise[0] + rows[0] ** 2 @ prior), rel=1e-12)  # the prior's
+    for k in (1, 5, 11):  # the posterior of the first k samples (``fit``) predicting sample k
+        post = posterior.fit(rows[:k], noise[:k], prior, b[:k], np.ones(6), 1.0, 1)
+        mean, var = rows[k] @ post.coefficients, noise[k] + rows[k] @ post.covariances[0] @ rows[k]
+        np.testing.assert_allclose(one_step[k], (b[k] - mean) ** 2 / var, rtol=1e-9)
+    # samples drawn from the model itself: the standardized errors average 1 (chi-square, 1 dof)
+    big = rng.normal(size=(40, 6))
+    truth = rng.normal(size=(6, 2000)) * np.sqrt(prior)[:, None]
+    draws = big @ truth + rng.normal(size=(40, 2000)) * 0.2
+    mean = posterior.prequential_errors(big, np.full(40, 0.04), prior, draws).mean()
+    assert abs(mean - 1.0) < 0.02, mean
+
+
+def test_the_prequential_score_skips_the_priors_prediction_and_reads_the_materials_columns():
+    from goniofrost.frost.prediction import prequential_score
+
+    one_step = np.array([[100.0, 0.0, 0.0, 7.0], [1.0, 2.0, 3.0, 7.0], [3.0, 4.0, 5.0, 7.0]])
+    assert prequential_score(one_step, [0, 1, 2]) == 3.0
+    assert prequential_score(one_step[:1], [0, 1, 2]) == 1.0  # one sample: nothing predicted yet
+
+
+def test_a_trained_model_records_its_held_out_materials_prequential_scores(model):
+    bound = model.noise["calibration"]["bound"]
+    assert len(bound["log_prequential_q95"]) == len(bound["m"])
+    calibration = model.noise["calibration"]
+    # at the 95th percentile: exactly 1; a score 3 x as large: 3 (interpolated between the m)
+    q = math.exp(bound["log_prequential_q95"][2])
+    assert confidence.prequential_excess(calibration, [q, 3 * q], bound["m"][2]) == pytest.approx([1.0, 3.0])
+    assert np.isnan(confidence.prequential_excess({"bound": {"scores": [1.0]}}, 1.0, 20))

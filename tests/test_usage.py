@@ -52,6 +52,43 @@ def test_a_grazing_view_puts_the_mass_at_grazing_angles():
     assert usage[grazing].sum() > 0.6  # the camera looks 80 deg off the normal
 
 
+AREA_LIGHT_SCENE = """<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="20"/>
+        <transform name="to_world"><lookat origin="0, -3, 3" target="0, 0, 0" up="0, 0, 1"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    <shape type="rectangle" id="sample"><bsdf type="diffuse"/></shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="0.5"/><rotate x="1" angle="180"/><translate z="4"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1"/></emitter>
+    </shape>
+</scene>"""
+
+
+def test_a_bsdf_sample_counts_only_when_its_ray_reaches_the_light(tmp_path):
+    """A flat sample under a small area light 4 above it (half-size 0.5): of the BSDF samples only
+    those whose rays hit the light are kept, so every kept direction is within atan(2 sqrt(2) / 4)
+    of the normal (the sample spans [-1, 1]^2), and most samples (cosine-distributed) are dropped."""
+    import xml.etree.ElementTree as ET
+
+    from goniofrost.brdf import mitsuba_usage as mu
+
+    path = tmp_path / "area.xml"
+    path.write_text(AREA_LIGHT_SCENE)
+    mi = mu._mitsuba()
+    scene = mu.load_scene(path, "sample", ET.Element("bsdf", {"type": mu.RECORDER}), keep_inner=True)
+    recorder = mu._find_shape(scene, "sample").bsdf()
+    mi.render(scene, spp=4)
+    seen_without = len(recorder.sampled)  # no scene given: every sample counts
+    recorder.scene, recorder.sampled = scene, []
+    mi.render(scene, spp=4)
+    kept = np.asarray(recorder.sampled).reshape(-1, 6)
+    assert 0 < len(kept) < 0.2 * seen_without
+    assert kept[:, 5].min() > np.cos(np.arctan(2 * np.sqrt(2) / 4))
+
+
 @pytest.mark.parametrize("scene, obj, message", [
     ("retro-sphere.xml", "teapot", "no shape with id 'teapot' (shapes with an id: sample)"),
     ("missing.xml", "sample", "missing.xml: scene file not found"),
@@ -112,9 +149,42 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
 
     # this 5-material model has about six effective atoms: both designs pin them down by m = 8,
     # so the scene's gain shows at few samples and the scene design is never worse after
-    ratios = {m: weighted_error(select_bayes(model, m, usage=usage).positions)
+    # (sensitivity_power=0: the design of this mapped error itself; the default weighs the image's
+    # sensitivity too, tested below)
+    ratios = {m: weighted_error(select_bayes(model, m, usage=usage, sensitivity_power=0).positions)
               / weighted_error(select_bayes(model, m).positions) for m in (4, 8, 15, 30)}
     assert ratios[4] < 0.8 and max(ratios.values()) <= 1.0, ratios
+
+
+def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_use_alone(model):
+    """The default design is the mapped-error design of u g^0.5 (``design_usage``), while its
+    predicted errors stay those of u: the same as the prediction from trace(M_u Sigma) of its picks."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import cell_noise, prior_variance
+    from goniofrost.frost.prediction import calibration_of, predict_typical
+    from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, scene_matrix
+
+    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
+    usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
+    usage /= usage.sum()
+    weights = design_usage(model, usage)
+    g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
+        / np.asarray(model.weight, np.float64)
+    np.testing.assert_allclose(weights, usage * g ** 0.5 / np.sum(usage * g ** 0.5), rtol=1e-12)
+    assert SENSITIVITY_POWER == 0.5 and design_usage(model, usage, 0.0) is not weights
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    assert np.array_equal(design_usage(model, uniform), uniform)  # no scene: the plain design's weights
+
+    aware = select_bayes(model, 12, usage=usage)
+    assert aware.positions.tolist() == select_bayes(model, 12, usage=weights, sensitivity_power=0).positions.tolist()
+    assert aware.positions.tolist() != select_bayes(model, 12, usage=usage, sensitivity_power=0).positions.tolist()
+    noise, m_u = cell_noise(model), scene_matrix(model.dictionary, usage)
+    expected = []
+    for m in range(1, 13):
+        d = np.asarray(model.dictionary[aware.positions[:m]], np.float64)
+        sigma = np.linalg.inv(np.diag(1 / prior_variance(model)) + d.T @ (d / noise[aware.positions[:m], None]))
+        expected.append(predict_typical(calibration_of(model), float(np.sum(m_u * sigma) + usage @ noise), m))
+    np.testing.assert_allclose(aware.residuals, expected, rtol=1e-4)
 
 
 @pytest.mark.parametrize("array, message", [
@@ -152,9 +222,12 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
     assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
-    assert doc["weighting"] in ("log", "linear", "root", "mixed") and not set(doc["validation"]) & set(doc["test"])
+    weightings = ("log", "g^0.25", "g^0.5", "g^0.75", "root", "linear", "mixed")
+    assert doc["weighting"] in weightings and not set(doc["validation"]) & set(doc["test"])
+    assert {r["design"] for r in doc["validation_rows"]} == {"blind", *weightings}
+    other = "log" if doc["weighting"] != "log" else "g^0.5"  # the test renders: the choice and one other
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
-        ("blind", "direct"), ("log", "direct"), ("linear", "direct"), ("root", "direct"), ("mixed", "direct"),
+        ("blind", "direct"), (doc["weighting"], "direct"), (other, "direct"),
         ("blind", "export"), (doc["weighting"], "export")}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")

@@ -86,23 +86,29 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``), "out_of_model" (1 if the samples are unlike every training material) and
+    at ``level``), "out_of_model" (1 if the samples are unlike every training material),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
-    materials)."""
+    materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
+    order of ``positions``: > 1 beyond 95 % of them)."""
     from goniofrost.frost.metrics import batch_log_errors
 
     positions = np.asarray(positions, dtype=np.int64)
     n_mat = truth.shape[0]
-    post, _, samples = _fit(model, positions, truth)
+    post, noise, samples = _fit(model, positions, truth)
     b = _bounds(model, post, samples, n_mat, np.unique(positions).size, level)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
     feats = _features(model, post, samples, n_mat)
     distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
                                            feats[:, 4], np.unique(positions).size)
+    one_step = posterior.prequential_errors(model.dictionary[positions], noise[positions],
+                                            posterior.prior_variance(model), samples)
+    scores = np.array([prediction.prequential_score(one_step, [3 * i, 3 * i + 1, 3 * i + 2]) for i in range(n_mat)])
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
             "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
-            "feature_distance": distance}
+            "feature_distance": distance,
+            "prequential": confidence.prequential_excess(prediction.calibration_of(model), scores,
+                                                         np.unique(positions).size)}
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,

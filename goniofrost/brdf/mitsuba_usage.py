@@ -5,10 +5,13 @@ recording BSDF (``goniofrost_recorder``, a Python plugin of Mitsuba's ``scalar_r
 that forwards every call to the scene's own BSDF and keeps the local directions of each
 evaluation (next-event estimation: ``eval``, ``eval_pdf``) and each BSDF sample (``sample``).
 Mitsuba does not hand a BSDF the path throughput, so every kept call weighs the same: the map is
-the share of the renderer's visits per cell, the cells whose error the image can show. BSDF
-samples are kept only when the scene has an emitter they can hit (an area light, the sky): with
-delta lights alone (point, spot, directional) a sampled direction never reaches light and only
-the evaluations towards the emitters carry the image. ``render_with_bsdf`` renders the same scene with the object's BSDF replaced (the
+the share of the renderer's visits per cell, the cells whose error the image can show. A BSDF
+sample is kept only when its ray reaches an emitter (it hits an area light, or escapes to the sky):
+a sampled direction that misses every light carries nothing to the image, and with a small area
+light most of them miss (the sphere under the soft box: counting them all put most of the map on
+cells the render never lights, and the scene-aware design on them; BENCHMARKS.md). With delta
+lights alone (point, spot, directional) no sampled direction reaches light and only the
+evaluations towards the emitters carry the image. ``render_with_bsdf`` renders the same scene with the object's BSDF replaced (the
 benchmark renders reconstructions this way).
 
 Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
@@ -50,12 +53,23 @@ def _recorder_class(mi):
             # (emitter sampling, MIS) and BSDF samples
             self.pairs: list[tuple] = []
             self.sampled: list[tuple] = []
+            self.scene = None  # set once the scene is loaded: a sample is kept when its ray reaches light
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             bs, weight = self.inner.sample(ctx, si, sample1, sample2, active)
-            if bs.pdf > 0:
+            if bs.pdf > 0 and self._reaches_light(si, bs.wo):
                 self.sampled.append((*si.wi, *bs.wo))
             return bs, weight
+
+        def _reaches_light(self, si, wo) -> bool:
+            """True when the ray from ``si`` along the local direction ``wo`` hits an emitting
+            shape, or escapes a scene that has an environment emitter (the sky)."""
+            if self.scene is None:
+                return True
+            hit = self.scene.ray_intersect(si.spawn_ray(si.to_world(wo)))
+            if hit.is_valid():
+                return hit.shape.emitter() is not None
+            return self.scene.environment() is not None
 
         def eval(self, ctx, si, wo, active=True):
             self.pairs.append((*si.wi, *wo))
@@ -141,6 +155,7 @@ def record_usage(scene_path, object_id: str, spp: int | None = None, grid: MerlG
     mi = _mitsuba()
     scene = load_scene(scene_path, object_id, ET.Element("bsdf", {"type": RECORDER}), keep_inner=True)
     recorder = _find_shape(scene, object_id).bsdf()
+    recorder.scene = scene
     total = int(spp) if spp is not None else int(scene.sensors()[0].sampler().sample_count())
     chunks = [c for c in np.diff(np.linspace(0, total, min(passes, total) + 1).round().astype(int)) if c > 0]
     for k, chunk in enumerate(chunks):

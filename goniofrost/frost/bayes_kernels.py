@@ -22,8 +22,11 @@ design's arithmetic is the single design's, in the same order (``_update_one``),
 are the same to the bit with or without the designs beside it.
 
 Arrays: dictionary float32 (n_valid, K) (a memory-mapped model is fine); rows int64 (n_c,) the
-candidate rows of D; q, p float64 (S, n_c); noise float64 (S, n_c) (+inf closes a cell: its
-score is 0); prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64 (S,). Each kernel
+candidate rows of D, or empty for every row (candidate i is row i: a pass then reads no index,
+8 of its ~290 bytes a cell); q, p float64 (S, n_c); noise (S, n_c) float64, or float32 when
+every value is a float32 exactly (a model's learned noise times a power-of-two design scale:
+the same bits once widened, 4 bytes a cell less) (+inf closes a cell: its score is 0);
+prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64 (S,). Each kernel
 takes a range [i0, i1) of candidates, writes every design's best score of the range and its
 index (lowest on ties; -1 if none) into best (S,) and best_i (S,), and releases the GIL.
 """
@@ -38,22 +41,25 @@ _F64 = types.float64[::1]
 _F32 = types.float32[::1]
 _I64 = types.int64
 _F64_2 = types.float64[:, ::1]
+# The noise array's two types (see the module doc): one compiled version each.
+_NOISE = (types.float64[:, ::1], types.float32[:, ::1])
 # Candidates per tile of the several-design pass: 512 rows of D (K = 60) are 123 kB, in L2.
 TILE_ROWS = 512
 
 
-@njit(types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64_2, _F64_2, _F64, _F64, types.int64[::1],
-                 _I64, _I64), **_OPTIONS)
+@njit([types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64_2, noise, _F64, _F64, types.int64[::1],
+                  _I64, _I64) for noise in _NOISE], **_OPTIONS)
 def init_forms(dictionary, rows, prior_var, q, p, noise, s2, best, best_i, i0, i1):
     """q, p for the prior Sigma = diag(prior_var[s]) of every design s on candidates [i0, i1).
 
     s2: (K,) squared singular values S^2.
     """
     k, designs = dictionary.shape[1], q.shape[0]
+    every_row = rows.size == 0
     best[:] = -1.0
     best_i[:] = -1
     for i in range(i0, i1):
-        row = dictionary[rows[i]]
+        row = dictionary[i if every_row else rows[i]]
         for s in range(designs):
             var = prior_var[s]
             qc = 0.0
@@ -74,9 +80,10 @@ def _update_one(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, 
     """One design's step on candidates [i0, i1) (the single-design kernel's loop, unchanged, so
     a design's numbers are the same to the bit with or without others); (best, its index)."""
     k = dictionary.shape[1]
+    every_row = rows.size == 0
     best, best_i = -1.0, -1
     for i in range(i0, i1):
-        row = dictionary[rows[i]]
+        row = dictionary[i if every_row else rows[i]]
         # float64 sums: a and g are small differences of large terms once Sigma has shrunk
         # (float32 sums moved scores by 0.2 %); the pass stays memory-bound.
         a = 0.0
@@ -98,8 +105,8 @@ def _update_one(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, 
     return best, best_i
 
 
-@njit(types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64, _F64, _F64_2, _F64_2, _F64_2, _F64,
-                 types.int64[::1], _I64, _I64), **_OPTIONS)
+@njit([types.void(_DICTIONARY, types.int64[::1], _F64_2, _F64_2, _F64, _F64, _F64_2, _F64_2, noise, _F64,
+                  types.int64[::1], _I64, _I64) for noise in _NOISE], **_OPTIONS)
 def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, best, best_i, i0, i1):
     """One greedy step of every design s on candidates [i0, i1): a = d.u[s], g = d.v[s], update
     q[s] and p[s].

@@ -25,7 +25,7 @@ from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
-from goniofrost.frost.usage_design import is_uniform, scene_prior
+from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
 
 # --max-error never plans more samples than this.
 MAX_ERROR_PICKS = 1000
@@ -122,18 +122,20 @@ class _Forms:
     def __init__(self, dictionary, rows, noises: list, threads: int) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
+        # Every row a candidate: the kernels take candidate i as row i and read no index array.
         self.rows = np.arange(n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        self.kernel_rows = np.empty(0, dtype=np.int64) if rows is None else self.rows
         self.noise = [np.asarray(noise, dtype=np.float64) for noise in noises]  # S of (n,), the callers'
         # private: a picked cell gets +inf (score 0)
-        self.open_noise = np.array([noise[self.rows] for noise in self.noise])  # (S, n_c)
+        self.open_noise = _compact(np.array([noise if rows is None else noise[self.rows] for noise in self.noise]))
         self.q, self.p = np.empty(self.open_noise.shape), np.empty(self.open_noise.shape)
         self.parts = pass_ranges(self.rows.size, threads)  # several per thread, taken as threads come free
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(pool, kernels.init_forms, self.d, self.rows, prior_var, self.q, self.p, self.open_noise, s2)
+        return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
 
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(pool, kernels.update_forms, self.d, self.rows, u, v, inv_delta, usu_delta2,
+        return self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
@@ -154,6 +156,14 @@ class _Forms:
         return _best(best, best_i)
 
 
+def _compact(noise: np.ndarray) -> np.ndarray:
+    """The (S, n_c) float64 noise as float32 when that holds every value exactly (the kernels
+    widen it back to the same float64: the same scores, 4 bytes a cell less in every pass),
+    else unchanged."""
+    narrow = noise.astype(np.float32)
+    return narrow if np.array_equal(narrow, noise) else noise
+
+
 def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per design, the highest of the pieces' scores (pieces, S); lowest index on ties (the
     pieces cover increasing index ranges, so the first piece holding the maximum)."""
@@ -165,7 +175,7 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
-                 calibration: dict | None = None) -> Selection:
+                 calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -173,9 +183,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
     threads: threads sharing each pass (default: the cores this process may use).
     usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
-    design then minimises the expected error of what the scene sees (``usage_design``), and the
-    predicted errors are usage-weighted. A uniform map is the plain design (``uniform_is_plain``:
-    taken as such without the change of basis; False computes it the long way, for tests).
+    design then minimises the expected error of what the scene sees, each cell's use weighted by
+    the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone),
+    and the predicted errors are of the mapped error the scene sees (weighted by u alone). A uniform
+    map is the plain design (``uniform_is_plain``: taken as such without the change of basis; False
+    computes it the long way, for tests).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
@@ -186,18 +198,22 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     calibration, noise = calibration or calibration_of(model), cell_noise(model)
     limit = _check(m, max_error, rows.size, calibration, noise)
     if usage is not None and not (uniform_is_plain and is_uniform(usage)):
-        scene = scene_prior(model.dictionary, usage, prior_variance(model))
-        dictionary, prior_var = scene.dictionary, scene.prior_var
-        tracker = _PredictedError(dictionary, scene.weights, prior_var, calibration, noise, usage=scene.usage)
+        weights = design_usage(model, usage, sensitivity_power)
+        scene = scene_prior(model.dictionary, weights, prior_variance(model))
+        dictionary, prior_var, s2 = scene.dictionary, scene.prior_var, scene.weights
+        # the predicted error is of u alone: M_u in the design's basis (a second pass over the used
+        # rows) unless the design weighs u itself (then Lambda, diagonal)
+        error_matrix = s2 if weights is usage or np.array_equal(weights, usage) else scene_matrix(dictionary, usage)
+        tracker = _PredictedError(dictionary, error_matrix, prior_var, calibration, noise, usage=usage)
     else:
         dictionary, prior_var = model.dictionary, prior_variance(model)
-        tracker = _PredictedError(dictionary, np.asarray(model.singular_values, np.float64) ** 2, prior_var,
-                                  calibration, noise)
+        s2 = np.asarray(model.singular_values, np.float64) ** 2
+        tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise)
     stop = None
     if max_error is not None:
         def stop(row):
             return tracker.add(row) <= max_error
-    design = greedy_design(dictionary, tracker.s2, prior_var, noise * design_scale(model), limit,
+    design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
                            rows=rows, stop=stop, threads=threads)
     if max_error is None:
         for row in design.rows:
@@ -216,7 +232,8 @@ class _PredictedError:
     """The predicted error of a typical material after each pick, under the reconstruction's
     noise (the design may assume a larger one): Sigma by rank-1 downdates, O(K^2) per pick.
 
-    d: (n, K) dictionary; s2: (K,) the error weights of the coefficients (S^2; Lambda of a scene);
+    d: (n, K) dictionary; s2: (K,) the error weights of the coefficients (S^2; Lambda of a scene),
+    or (K, K) the error's matrix in the dictionary's basis (a scene's M_u when the design weighs more);
     prior_var: (K,); noise: (n,) sigma_c^2; usage: (n,) sum 1, or None for every cell alike (the
     design error is then the mean over the n cells)."""
 
@@ -234,7 +251,8 @@ class _PredictedError:
         d = np.asarray(self.d[row], dtype=np.float64)
         u = self.sigma @ d
         self.sigma -= np.outer(u, u) / (self.noise[row] + d @ u)
-        design_error = (float(np.sum(self.s2 * np.diag(self.sigma))) + self.total) / self.n
+        weighted = np.sum(self.s2 * self.sigma) if self.s2.ndim == 2 else np.sum(self.s2 * np.diag(self.sigma))
+        design_error = (float(weighted) + self.total) / self.n
         self.history.append(float(predict_typical(self.calibration, design_error, len(self.history) + 1)))
         return self.history[-1]
 

@@ -32,7 +32,8 @@ from goniofrost.frost.bayes_selection import greedy_designs
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, FEATURES, feature_matrix, feature_range_of,
-                                         material_features, predict, sample_level)
+                                         material_features, predict, prequential_score,
+                                         sample_level)
 
 # Sample counts simulated (the range of m the calibration is fitted on).
 M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
@@ -52,7 +53,8 @@ class CvRecords:
     """Flat arrays, one entry per (fold, held-out material, m): fold, material (index among the
     training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy,
     level and spread (``prediction.sample_level``; None: records without them, fitted on the
-    first ``prediction.BASIC_FEATURES`` features)."""
+    first ``prediction.BASIC_FEATURES`` features), prequential (``prediction.prequential_score``
+    of the first m samples in design order; None: records without it, e.g. a scene's)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -63,6 +65,7 @@ class CvRecords:
     energy: np.ndarray
     level: np.ndarray | None = None
     spread: np.ndarray | None = None
+    prequential: np.ndarray | None = None
 
     def features(self, m_range, n_features: int | None = None, feature_range=None) -> np.ndarray:
         """float64 (records, n_features): ``prediction.feature_matrix`` of every record (all of
@@ -127,6 +130,11 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
     """Append the records of the fold's held-out materials measured at the first m ``rows``."""
     n = mapped.shape[0]
     s2 = fold.singular_values ** 2
+    # Every sample's prediction from the ones before it, in design order (one sequential pass):
+    # the prequential score at m is a held-out measure the fit at m never saw.
+    ordered = rows[:max(m_values)]
+    one_step = posterior.prequential_errors(d_f[ordered], noise[ordered], _prior(fold),
+                                            np.asarray(mapped[ordered], dtype=np.float64) @ fold.centring)
     for m in m_values:
         if m > rows.size:
             break
@@ -138,8 +146,9 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
-            values = (f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
-            for key, value in zip(acc, values):
+            values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
+                      + (prequential_score(one_step[:m], columns),))
+            for key, value in zip(acc, values, strict=True):
                 acc[key].append(value)
 
 

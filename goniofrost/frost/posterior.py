@@ -182,3 +182,32 @@ def _factor(rows, sig2, prior_var, covariance, woodbury: bool) -> np.ndarray:
     gram[np.diag_indices_from(gram)] += sig2
     chol = np.linalg.cholesky(gram)
     return np.linalg.solve(chol, a_rows).T
+
+
+def prequential_errors(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Standardized one-step-ahead prediction errors of samples taken in order.
+
+    rows: (l, K) dictionary rows of the sampled cells in measurement order; noise: (l,)
+    sigma_i^2 (shared by every column); prior_var: (K,); b: (l, c) mapped samples minus mu.
+    Returns float64 (l, c): row k is (b_k - d_k^T s_k)^2 / (sigma_k^2 + d_k^T Sigma_k d_k), s_k
+    and Sigma_k the posterior of the first k samples (k = 0: the prior), i.e. how well the
+    samples so far predicted one that was never fitted (about 1 on average when the model
+    describes the material; row 0 is the prior's). Sequential rank-one (Kalman) updates: the
+    posterior of the first k samples is exactly ``fit``'s, O(l K^2) in all.
+    """
+    rows = np.asarray(rows, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    noise = np.broadcast_to(np.asarray(noise, dtype=np.float64).reshape(-1), (rows.shape[0],))
+    cov = np.diag(np.asarray(prior_var, dtype=np.float64))
+    s = np.zeros((rows.shape[1], b.shape[1]))
+    out = np.empty_like(b)
+    for k in range(rows.shape[0]):
+        d = rows[k]
+        cd = cov @ d
+        v = float(noise[k] + d @ cd)
+        miss = b[k] - d @ s
+        out[k] = miss ** 2 / v
+        gain = cd / v
+        s += np.outer(gain, miss)
+        cov -= np.outer(gain, cd)
+    return out

@@ -104,6 +104,16 @@ def material_features(post, columns, t: int) -> tuple[float, float, float]:
     return float(np.mean(post.design_error[cols])), max(z2, 1e-12), max(energy, 1e-12)
 
 
+def prequential_score(one_step, columns) -> float:
+    """The mean of ``posterior.prequential_errors`` rows 1.. over the material's ``columns``:
+    every sample predicted from the ones measured before it (row 0, the prior's prediction of
+    the first, says how far the material is from the training mean, not how well the model
+    extrapolates for it); about 1 when the model describes the material. one_step: (l, c) in
+    measurement order; 1.0 when l < 2 (nothing predicted yet)."""
+    values = np.asarray(one_step, dtype=np.float64)[1:, np.asarray(columns)]
+    return float(values.mean()) if values.size else 1.0
+
+
 def sample_level(b, columns) -> tuple[float, float]:
     """(level, spread) of one material: the mean and the variance (floored at 1e-12) of its
     centred mapped samples b (l, c) over the sampled cells and its ``columns`` (channels)."""

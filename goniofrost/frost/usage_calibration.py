@@ -24,23 +24,26 @@ from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
 from goniofrost.frost.prediction import material_features, sample_level
-from goniofrost.frost.usage_design import is_uniform, scene_prior
+from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_prior
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
 CHUNK_ROWS = 1 << 14
 
 
-def calibrate_scene(model, usage: np.ndarray, progress: bool = False) -> dict:
+def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
+                    sensitivity_power: float = SENSITIVITY_POWER) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
-    error of ``usage`` (n_valid,) sum 1. TrainingError when the model's training data cannot be
-    opened again."""
+    error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
+    weights ``usage_design.design_usage``, with the model's g on every fold). TrainingError when
+    the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
     mapped, gram = training.remap(model, progress=progress)
     folds = noise.inner_folds(gram, len(model.names), model.n_components)
     recon = posterior.cell_noise(model)
-    records = simulate_scene(mapped, folds, np.asarray(usage, np.float64), posterior.design_scale(model) * recon,
-                             recon, progress=progress)
+    usage = np.asarray(usage, np.float64)
+    records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
+                             design_weights=design_usage(model, usage, sensitivity_power))
     return fit_calibration(records)
 
 
@@ -65,11 +68,13 @@ def weighted_errors(fold, g_u: np.ndarray, coefficients: np.ndarray) -> np.ndarr
 
 
 def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_VALUES,
-                   progress: bool = False) -> CvRecords:
+                   progress: bool = False, design_weights=None) -> CvRecords:
     """Records (``calibration.CvRecords``) of every fold's held-out materials measured at the
     first m cells of the fold's scene-aware design; ``actual`` and ``design_error`` are the
     usage-weighted error and its expectation. mapped: X float32 (n, t); usage (n,) sum 1; the
-    design's and the reconstruction's sigma_c^2 (n,)."""
+    design's and the reconstruction's sigma_c^2 (n,); design_weights: (n,) sum 1, what the design
+    weighs (``usage_design.design_usage``; default the usage itself)."""
+    design_weights = usage if design_weights is None else design_weights
     g_u = weighted_gram(mapped, usage)
     total = float(usage @ recon_noise)
     m_values = [m for m in m_values if m <= mapped.shape[0]]
@@ -80,7 +85,7 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
         if is_uniform(usage):  # the plain design, as select_bayes picks it for a uniform map
             rows = greedy_design(d_f, fold.singular_values ** 2, prior, design_noise, max(m_values)).rows
         else:
-            scene = scene_prior(d_f, usage, prior)
+            scene = scene_prior(d_f, design_weights, prior)
             rows = greedy_design(scene.dictionary, scene.weights, scene.prior_var, design_noise, max(m_values)).rows
         m_f = fold.projector.T @ g_u @ fold.projector
         for m in m_values:
@@ -95,4 +100,5 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
                 for key, value in zip(acc, values):
                     acc[key].append(value)
         del d_f
-    return CvRecords(**{k: np.asarray(v) for k, v in acc.items()})
+    # No prequential score (a scene's bound has no use for the diagnostic, ``confidence.py``).
+    return CvRecords(**{k: np.asarray(v) if v else None for k, v in acc.items()})

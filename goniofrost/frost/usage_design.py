@@ -9,6 +9,14 @@ the coefficients z = Q^T W^-1 s have the prior N(0, I), the dictionary becomes D
 trace(M Sigma) = trace(Lambda Sigma_z). Every cell's prediction d_c^T s = d'_c^T z is unchanged,
 so the greedy design on (D', Lambda, I) is exactly the scene-weighted design, at the cost of one
 n x K x K product to form D'. A uniform map (u = 1/n on every valid cell) is the plain design.
+
+What the design weighs (``design_usage``): the error the plan predicts and reports is the mapped
+(log) error the scene sees, weighted by u. A render, though, is linear in the BRDF, so the image's
+error at a cell is the mapped error times the cell's sensitivity g_c = d rho / d L; weighting by
+u g^2 (the first-order image error, at the prior mean) spends every sample on the prior mean's few
+brightest cells, and u alone on cells too dark to show. The design weighs u g^SENSITIVITY_POWER,
+half-way in the exponent (the power chosen on validation materials, BENCHMARKS.md "Skip what the
+scene does not need"); a uniform map stays the plain design (no scene: the whole BRDF alike).
 """
 from __future__ import annotations
 
@@ -18,6 +26,10 @@ import numpy as np
 
 # Rows of D handled at once (float64 copies of 64k x 60 = 31 MB).
 CHUNK_ROWS = 1 << 16
+# The exponent of the sensitivity g in the design's weights u g^p (module doc): 0 weighs the mapped
+# error the scene sees, 2 its first-order image error; chosen on the 11 validation materials of
+# benchmarks/scene_design.py among 0, 0.25, 0.5, 0.75, 1 and 2 (the lowest geometric-mean image error).
+SENSITIVITY_POWER = 0.5
 
 
 @dataclass(frozen=True)
@@ -73,10 +85,19 @@ def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: 
     is an error dx_c = g_c dL_c with g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Weighting each
     cell by u_c g_c^2 makes trace(M Sigma) the expected squared error of x the scene sees.
     Arguments: usage (n,) sum 1; the model's mean, reference, weight (n,) and eps; ``power``: the
-    exponent of g (2: the linear error; 1: half-way between it and the mapped one). Returns
+    exponent of g (2: the linear error; 0.5, SENSITIVITY_POWER: what the design weighs). Returns
     float64 (n,), sum 1.
     """
     mu = np.asarray(mean, dtype=np.float64)
     g = np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
     out = np.asarray(usage, dtype=np.float64) * g ** power
     return out / out.sum()
+
+
+def design_usage(model, usage: np.ndarray, power: float = SENSITIVITY_POWER) -> np.ndarray:
+    """The weights the scene-aware design minimises the mapped error under (module doc): float64
+    (n,) u g^power / sum, or ``usage`` itself when it is uniform (the plain design) or power is 0.
+    ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g."""
+    if power == 0 or is_uniform(usage):
+        return np.asarray(usage, dtype=np.float64)
+    return linear_usage(usage, model.mean, model.reference, model.weight, model.eps, power)
