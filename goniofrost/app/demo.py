@@ -68,9 +68,21 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
         now = time.perf_counter()
         stages[name], clock = now - clock, now
 
-    model, model_path = train_without(material, grid, progress)
-    lap("train")
-    plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json")
+    # The rig's reachability map depends on the rig and grid alone: it is computed (or read from
+    # its cache) on a thread while the model trains, whose single-threaded stretches (imports, the
+    # calibration fit, the held-out reconstructions, saving) leave a core free (cold: 1.5 s of the
+    # plan stage). A bad rig file fails here, before the training.
+    from concurrent.futures import ThreadPoolExecutor
+
+    from goniofrost.capture.rig_file import load_checked_rig
+    from planner.reach import reachability
+
+    rig = load_checked_rig(rig_path)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        reach = pool.submit(reachability, rig, grid)
+        model, model_path = train_without(material, grid, progress)
+        lap("train")
+        plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.result().mask)
     lap("plan")
     outcome = capture_fresh(rig_path, plan_path, out / "session", f"builtin:{material}", seed, speedup, progress,
                             target_error, confidence)
@@ -102,10 +114,11 @@ def train_without(material: str, grid, progress: bool):
 
 
 def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = None,
-                selector: str = "bayes", alignment=None) -> Path:
+                selector: str = "bayes", alignment=None, candidates=None) -> Path:
     """Select m cells the rig can reach and its camera measure (the rig decides; optionally also
     theta_i, theta_o <= max_angle) with the Bayesian design (or FROST: ``selector="frost"``),
-    schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json."""
+    schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json.
+    candidates: the rig's reachability mask (bool (n_valid,)) when already computed."""
     from planner.reach import reachability
     from planner.schedule import schedule_batches, schedule_plan
 
@@ -115,7 +128,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
     rig = load_checked_rig(rig_path, alignment)
-    candidates = reachability(rig, model.grid).mask
+    candidates = reachability(rig, model.grid).mask if candidates is None else candidates
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
     select = select_bayes if selector == "bayes" else select_cells
