@@ -154,6 +154,13 @@ def _valid_z(grid: MerlGrid) -> np.ndarray:
     The same floating-point operations as ``half_diff_to_dirs`` on every cell (so the same signs
     where a cell's w_o lies on the horizon), on angles broadcast from their three axes: a tenth of
     the time of computing every direction."""
+    z_i, z_o = _broadcast_z(grid)
+    return (z_i > 0) & (z_o > 0)
+
+
+def _broadcast_z(grid: MerlGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(w_i z, w_o z), float64 broadcast to (n_th, n_td, n_pd), with the floating-point operations
+    of ``half_diff_to_dirs`` on angles broadcast from the grid's three axes."""
     th, td, pd = grid.cell_angles(np.arange(grid.n_th), np.arange(grid.n_td), np.arange(grid.n_pd))
     st, ct = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
     d0 = (np.sin(td)[:, None] * np.cos(pd)[None, :])[None]
@@ -161,7 +168,7 @@ def _valid_z(grid: MerlGrid) -> np.ndarray:
     d2 = np.cos(td)[None, :, None]
     x, z = ct * d0 + st * d2, -st * d0 + ct * d2        # w_i = R_y(theta_h) d: its x and z
     dot = x * st + d1 * 0.0 + z * ct                   # w_i . h, summed in np.sum's order
-    return (z > 0) & (2.0 * dot * ct - z > 0)          # w_o = 2 (w_i . h) h - w_i
+    return z, 2.0 * dot * ct - z                       # w_o = 2 (w_i . h) h - w_i
 
 
 def _edge_floor(x: np.ndarray, n: int) -> np.ndarray:
@@ -230,11 +237,5 @@ def _cosine_product(grid: MerlGrid) -> np.ndarray:
     operations of ``half_diff_to_dirs`` (as ``_valid_z``) on angles broadcast from the three axes:
     the same values as from every cell's directions (a signed zero can differ, which the clip of
     ``cosine_weight`` removes) in a third of the time, without the (cells, 3) directions."""
-    th, td, pd = grid.cell_angles(np.arange(grid.n_th), np.arange(grid.n_td), np.arange(grid.n_pd))
-    st, ct = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
-    d0 = (np.sin(td)[:, None] * np.cos(pd)[None, :])[None]
-    d1 = (np.sin(td)[:, None] * np.sin(pd)[None, :])[None]
-    d2 = np.cos(td)[None, :, None]
-    x, z = ct * d0 + st * d2, -st * d0 + ct * d2        # w_i = R_y(theta_h) d: its x and z
-    dot = x * st + d1 * 0.0 + z * ct                   # w_i . h, summed in np.sum's order
-    return z * (2.0 * dot * ct - z)                    # w_i z times w_o z, w_o = 2 (w_i . h) h - w_i
+    z_i, z_o = _broadcast_z(grid)
+    return z_i * z_o
