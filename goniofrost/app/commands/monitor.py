@@ -34,8 +34,11 @@ def run(args) -> int:
     what = "the sessions under " if many else ""
     print(f"goniofrost monitor: {server.url} shows {what}{args.session} (read-only); Ctrl-C stops", flush=True)
     try:
+        # Short sleeps: Ctrl-C's handler runs in the main thread only when it next runs Python
+        # code, and a SIGINT the kernel hands to one of the server's threads does not wake a
+        # long sleep (an hour, before: a suite run once saw the command outlive 60 s after it).
         while True:
-            time.sleep(3600)
+            time.sleep(0.5)
     except KeyboardInterrupt:
         return 0
     finally:
