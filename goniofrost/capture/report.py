@@ -199,9 +199,9 @@ def target_section(spec, records) -> dict:
         batch["out_of_model"] = list(batch["out_of_model"])
     stopped = batches[-1]["decision"] if batches and batches[-1]["decision"] != CONTINUE else "not finished"
     last = batches[-1] if batches else None
-    from goniofrost.frost.scene_error import NAMES
+    from goniofrost.frost.scene_error import NAMES, SCOPE_BRDF
 
-    scope = getattr(spec.assess, "scope", "brdf")
+    scope = getattr(spec.assess, "scope", SCOPE_BRDF)
     return {"target": spec.target, "error": NAMES[scope], "scope": scope, "confidence": spec.confidence,
             "plan_samples": len(spec.samples),
             "samples_used": len(records), "batch_ends": list(spec.batch_ends), "batches": batches,

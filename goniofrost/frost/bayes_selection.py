@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniofrost.frost import bayes_kernels as kernels
-from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+from goniofrost.frost.posterior import cell_noise, design_scale, error_trace, prior_variance
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
@@ -104,7 +104,7 @@ def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, thr
                 v[s] = sigma @ (s2 * u[s])
                 sigma -= np.outer(u[s], u[s]) / delta
                 picks[s].append(picked)
-                errors[s].append((float(np.sum(s2 * np.diag(sigma))) + noise_totals[s]) / n)
+                errors[s].append((error_trace(s2, sigma) + noise_totals[s]) / n)
                 inv_delta[s], usu_delta2[s] = 1.0 / delta, float(u[s] @ (s2 * u[s])) / delta ** 2
             seconds.append(time.perf_counter() - start)
             if len(picks[0]) >= min(m_max, forms.rows.size) or (stop is not None and stop(picks[0][-1])):
@@ -251,8 +251,7 @@ class _PredictedError:
         d = np.asarray(self.d[row], dtype=np.float64)
         u = self.sigma @ d
         self.sigma -= np.outer(u, u) / (self.noise[row] + d @ u)
-        weighted = np.sum(self.s2 * self.sigma) if self.s2.ndim == 2 else np.sum(self.s2 * np.diag(self.sigma))
-        design_error = (float(weighted) + self.total) / self.n
+        design_error = (error_trace(self.s2, self.sigma) + self.total) / self.n
         self.history.append(float(predict_typical(self.calibration, design_error, len(self.history) + 1)))
         return self.history[-1]
 

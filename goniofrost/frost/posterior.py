@@ -118,9 +118,16 @@ def fit(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarra
         residuals[:, cols] = (b[:, cols] - rows @ s) / (1.0 - h)[:, None]
         variance[:, cols] = (sig2 + q / (1.0 - h))[:, None]
         coefficients[:, cols], covariances[gi] = s, cov
-        weighted = np.sum(s2 * cov) if np.ndim(s2) == 2 else np.sum(s2 * np.diag(cov))  # trace(M Sigma)
-        design[cols] = (float(weighted) + noise_total) / n_cells
+        design[cols] = (error_trace(s2, cov) + noise_total) / n_cells
     return Posterior(coefficients, covariances, group, residuals, variance, design)
+
+
+def error_trace(weights: np.ndarray, covariance: np.ndarray) -> float:
+    """trace(W Sigma): the expected squared error the coefficients' covariance Sigma (K, K) leaves,
+    weighted by W: (K,) the diagonal S^2 (or a scene's Lambda), or (K, K) a scene's M."""
+    if np.ndim(weights) == 2:
+        return float(np.sum(weights * covariance))
+    return float(np.sum(weights * np.diag(covariance)))
 
 
 def _covariance(rows: np.ndarray, w: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
