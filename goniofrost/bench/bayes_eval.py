@@ -50,10 +50,10 @@ def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarr
     return _predict(prediction.calibration_of(model), feats, m), feats[:, 0]
 
 
-def _bounds(model, post, b, n_mat: int, m: int, level: float) -> dict:
-    """``confidence.error_bounds`` of every material (exact samples: nothing extra)."""
+def _bounds(model, feats: np.ndarray, m: int, level: float) -> dict:
+    """``confidence.error_bounds`` of every material from its ``_features`` (exact samples:
+    nothing extra)."""
     calibration = prediction.calibration_of(model)
-    feats = _features(model, post, b, n_mat)
     predicted = _predict(calibration, feats, m)
     return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level)
 
@@ -95,10 +95,10 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     positions = np.asarray(positions, dtype=np.int64)
     n_mat = truth.shape[0]
     post, noise, samples = _fit(model, positions, truth)
-    b = _bounds(model, post, samples, n_mat, np.unique(positions).size, level)
+    feats = _features(model, post, samples, n_mat)
+    b = _bounds(model, feats, np.unique(positions).size, level)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
-    feats = _features(model, post, samples, n_mat)
     distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
                                            feats[:, 4], np.unique(positions).size)
     one_step = posterior.prequential_errors(model.dictionary[positions], noise[positions],
@@ -133,7 +133,7 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post
-        b = _bounds(model, post, samples, n_mat, end, confidence_level)
+        b = _bounds(model, _features(model, post, samples, n_mat), end, confidence_level)
         out = b["out_of_model_z2"] | b["out_of_model_energy"]
         for i in np.flatnonzero(stop_at < 0):
             bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level,
