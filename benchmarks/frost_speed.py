@@ -300,21 +300,20 @@ TARGETS = {"bayes m=20": 0.25, "bayes m=60": 0.75, "somp m=20": 0.25, "training 
 
 
 def stream_bandwidth(nbytes: int = 1 << 29, repeat: int = 5, threads: int | None = None) -> float:
-    """GB/s of a read of a large float32 array on ``threads`` threads (default: the selection's,
-    each summing a contiguous part with np.add.reduce, which releases the GIL and is vectorised
-    well past the memory's speed), the median of ``repeat`` reads: the read limit a pass split
-    among those threads can reach. One thread alone reads about half of what two do on this
-    2-core machine (7.3 against about 15 GB/s), so a one-thread figure would put the limit of a
-    two-thread pass at twice its real value."""
+    """GB/s of a read of a large float32 array on ``threads`` threads (default: the selection's),
+    split as a selection pass is (``threads.run_ranges``), each piece summed by np.add.reduce
+    (it releases the GIL and is vectorised well past the memory's speed); the median of
+    ``repeat`` reads: the read limit such a pass can reach. One thread reads a fraction of what
+    two do (``threads=1``), so a one-thread figure would put a two-thread pass's limit too low."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from goniofrost.frost.threads import ranges, resolve_threads
+    from goniofrost.frost.threads import resolve_threads, run_ranges
 
     x = np.ones(nbytes // 4, dtype=np.float32)
-    parts = [x[lo:hi] for lo, hi in ranges(x.size, resolve_threads(threads))]
-    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+    threads = resolve_threads(threads)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         def read():
-            list(pool.map(np.add.reduce, parts))
+            run_ranges(lambda lo, hi: np.add.reduce(x[lo:hi]), x.size, threads, pool=pool)
         read()
         med, _ = median_time(read, repeat)
     return nbytes / med / 1e9
