@@ -100,3 +100,23 @@ def test_bench_default_data_is_the_shared_folder_beside_the_project(monkeypatch)
     monkeypatch.delenv("GONIOFROST_SHARED_DATA", raising=False)
     module = importlib.reload(bench_command)
     assert module.SHARED_DATA == Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _commands() -> list[str]:
+    import argparse
+
+    from goniofrost.app.cli import build_parser
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return list(sub.choices)
+
+
+@pytest.mark.parametrize("command", [None] + _commands())
+def test_help_of_every_command_prints_and_exits_0(command, capsys):
+    # argparse %-formats every help string when --help is asked for: one literal "%" (the
+    # demo's "95 % confidence") made `goniofrost --help` a TypeError
+    argv = ["--help"] if command is None else [command, "--help"]
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: ") and ("demo" in out if command is None else command in out.splitlines()[0])
