@@ -157,6 +157,11 @@ def test_a_bad_queue_file_is_one_line_and_nothing_is_made(setup, tmp_path, capsy
     queue.write_text(yaml.safe_dump(doc))
     assert main(["queue", str(queue), "--yes"]) == 2
     assert capsys.readouterr().err.startswith(f"goniofrost queue: error: {queue}: samples[1].material: expected SPEC:NAME")
+    doc["samples"][1] = {"sample_id": "S-002", "material": "builtin:gld"}  # a typo names the queue file too
+    queue.write_text(yaml.safe_dump(doc))
+    assert main(["queue", str(queue), "--yes"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost queue: error: {queue}: samples[1].material: unknown material "
+                                       f"'gld' in dataset 'builtin'; did you mean gold?\n")
     assert not (tmp_path / "sessions").exists()
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from goniofrost.core.errors import ConfigError
+from goniofrost.core.errors import ConfigError, GoniofrostError
 from goniofrost.capture.queue_file import Queue, QueueSample
 from goniofrost.capture.runner import JOURNAL_FILE
 
@@ -44,6 +44,8 @@ def check_queue(queue: Queue, inputs, *, seed=None, speedup=None) -> None:
             check_material(inputs.rig, sample.material)
         except ConfigError as exc:
             raise ConfigError(queue.path, f"samples[{i}].material", exc.expected, sample.material) from None
+        except GoniofrostError as exc:  # an unknown dataset or material name: its own words, under the queue's key
+            raise GoniofrostError(f"{queue.path}: samples[{i}].material: {exc}") from None
 
 
 def completed(session_dir: Path) -> bool:
