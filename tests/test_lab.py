@@ -165,6 +165,20 @@ def test_a_bad_queue_file_is_one_line_and_nothing_is_made(setup, tmp_path, capsy
     assert not (tmp_path / "sessions").exists()
 
 
+def test_a_fault_in_a_queue_says_to_run_the_queue_again_which_has_no_resume_option(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"axis": "sample_tilt", "kind": "alarm", "at_sample": 1}]
+    drilled = tmp_path / "rig.yaml"
+    drilled.write_text(yaml.safe_dump(doc, sort_keys=False))
+    queue = write_queue(tmp_path / "queue.yaml", drilled, plan)
+    capsys.readouterr()
+    assert main(["queue", str(queue), "--yes", "--no-progress", "--speedup", "50"]) == 2
+    err = capsys.readouterr().err
+    assert "device fault at plan sample" in err and err.endswith("Fix the cause, then run the same queue command\n")
+    assert "--resume" not in err  # `goniofrost queue --resume` is refused by the parser
+
+
 # ----- the label of a capture, the catalogue ------------------------------------------------------
 def capture_args(rig, plan, session, material="builtin:red-plastic", *extra) -> list[str]:
     return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session), "--material", material,

@@ -88,6 +88,7 @@ class SessionEngine(PlanRunner):
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
         self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
         self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
+        self.rerun = RERUN  # what to type to go on after a stop (a queue: the queue command, which resumes)
         self.step_journal = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
                              Move: self._moved, Expose: _exposed, Phase: self._phase_started,
                              SaveCalibration: self._calibration_saved, Assess: self._assessed,
@@ -168,10 +169,10 @@ class SessionEngine(PlanRunner):
         return f"{done} samples are safe in {self.journal.path}"
 
     def resume_text(self) -> str:
-        return "Fix the cause, then run the same command with --resume"
+        return f"Fix the cause, then run {self.rerun}"
 
     def continue_text(self) -> str:
-        return "Run the same command with --resume to continue"
+        return f"Run {self.rerun} to continue"
 
     def _fault_message(self, exc, step) -> str:
         return f"device fault{self.where(step)}: {exc}. {self.safe_text()}"
@@ -304,6 +305,8 @@ class SessionEngine(PlanRunner):
             finally:
                 self._bar = None
 
+
+RERUN = "the same command with --resume"  # what a stopped capture tells the user to type next
 
 PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, white reference",
                   "white_reference": "white reference re-measured with the kept dark frames and flat field",

@@ -23,6 +23,9 @@ from goniofrost.capture.runner import JOURNAL_FILE
 REPORT_FILE = "report.json"
 
 
+RERUN_QUEUE = "the same queue command"  # it resumes the session under way: a queue has no --resume
+
+
 @dataclass(frozen=True)
 class QueueItem:
     """What the queue did with one sample: ``action`` "measured" or "skipped" (measured before)."""
@@ -105,7 +108,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         outcome = capture(queue.rig, queue.plan, session, material=sample.material,
                           resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
                           label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
-                          progress_desc=f"queue {position} {sample.sample_id}")
+                          progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
         out(outcome.summary.rstrip("\n"))
         items.append(QueueItem(sample.sample_id, session, "measured", outcome.summary))
         previous = session

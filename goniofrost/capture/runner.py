@@ -37,7 +37,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
             on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
             alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
-            inputs=None, progress_desc: str = "capture") -> CaptureOutcome:
+            inputs=None, progress_desc: str = "capture", rerun: str | None = None) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
@@ -51,15 +51,17 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     another value. ``reuse_calibration``: another session's journaled calibration record (a
     queue's sample before): only the white reference is measured again, and everything when its
     scale moved by more than ``drift_limit`` (relative). ``inputs``: already loaded inputs (a
-    queue loads them once).
+    queue loads them once). ``rerun``: what the messages after a stop tell the user to type (a
+    queue: the queue command itself, which has no --resume; default ``engine.RERUN``).
     """
-    from goniofrost.capture.engine import SessionStats
+    from goniofrost.capture.engine import RERUN, SessionStats
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.report import preload_preview, summary_text, write_outputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
     inputs = inputs or load_inputs(rig_path, plan_path, alignment)
+    rerun = rerun or RERUN
     material = check_material(inputs.rig, material)
     check_sim_options(inputs.rig, seed, speedup)
     check_target(inputs, target_error, confidence)
@@ -83,14 +85,14 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
                 preload_preview()
                 stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
                                    speedup=speedup, progress=progress, on_ready=on_ready,
-                                   reuse_calibration=reuse_calibration, progress_desc=progress_desc)
+                                   reuse_calibration=reuse_calibration, progress_desc=progress_desc, rerun=rerun)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
                 report = write_outputs(inputs, journal, stats, session_dir, material, spec)
             except OutputError as exc:
                 raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
-                                  f"then run the same command with --resume to write the results") from exc
+                                  f"then run {rerun} to write the results") from exc
         except GoniofrostError:
             refused = fresh and not journal.done_indices() and not journal.steps()
             journal.close()
@@ -138,12 +140,12 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
 
 
 def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready,
-               reuse_calibration=None, progress_desc: str = "capture"):
+               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None):
     """Connect the rig and capture what is left of the session ``spec``; return the run's
     SessionStats. From connecting to releasing, the devices' log goes to the journal, not the
     terminal."""
     from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.engine import SessionEngine
+    from goniofrost.capture.engine import RERUN, SessionEngine
     from goniofrost.capture.hardware import open_hardware
 
     with DeviceLog.capture() as device_log:
@@ -152,6 +154,7 @@ def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup
                                on_ready=on_ready) as hardware:
                 engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
                 engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
+                engine.rerun = rerun or RERUN
                 return engine.run()
         finally:
             journal_device_log(journal, device_log)  # what connecting and releasing logged

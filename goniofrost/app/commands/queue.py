@@ -28,7 +28,7 @@ def run(args) -> int:
         items = run_queue(queue, confirm=None if args.yes else ask_to_mount, seed=args.seed, speedup=args.speedup,
                           progress=not args.no_progress)
     except SessionInterrupted as exc:
-        print(f"goniofrost queue: {exc}; run the same command to continue the queue", file=sys.stderr)
+        print(f"goniofrost queue: {exc}", file=sys.stderr)  # it says to run the same queue command
         return 130
     except KeyboardInterrupt:
         print(f"goniofrost queue: interrupted; every session under {queue.root} keeps what it captured: run the "
