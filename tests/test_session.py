@@ -740,6 +740,10 @@ def test_target_error_needs_a_batched_plan_and_a_positive_number(setup, tmp_path
     assert "--target-error: expected a log-relative MSE > 0 (e.g. 0.05), found -1.0" in capsys.readouterr().err
     assert main(capture_args(rig, plan, tmp_path / "b", "--target-error", "0.05", "--confidence", "1")) == 2
     assert "--confidence: expected a probability between 0 and 1 (e.g. 0.95), found 1.0" in capsys.readouterr().err
+    assert main(capture_args(rig, plan, tmp_path / "b", "--confidence", "0.9")) == 2  # alone it would change nothing
+    assert capsys.readouterr().err == ("goniofrost capture: error: command line: --confidence: expected --target-error "
+                                       "E as well (the confidence is that of the bound that stops the capture at E), "
+                                       "found 0.9\n")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 

@@ -26,7 +26,7 @@ def add_arguments(parser) -> None:
                              "material's log-relative MSE is at most E (e.g. 0.05) with the --confidence, from an "
                              "upper bound calibrated on held-out training materials; or when the plan is used up. "
                              "Samples unlike every training material never stop it (an extrapolation)")
-    parser.add_argument("--confidence", type=float, default=0.95, metavar="P",
+    parser.add_argument("--confidence", type=float, default=None, metavar="P",
                         help="with --target-error: the probability that the error is at most E when the capture "
                              "stops (default 0.95)")
     parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
@@ -59,13 +59,17 @@ def run(args) -> int:
         except SessionInterrupted as exc:
             print(f"goniofrost capture: {exc}", file=sys.stderr)
             return 130
-    if args.session is None:
-        from goniofrost.core.errors import ConfigError
+    from goniofrost.core.errors import ConfigError
 
+    if args.session is None:
         raise ConfigError("command line", "--session", "a session folder (DIR)", "nothing")
+    if args.confidence is not None and args.target_error is None:  # it would change nothing, silently
+        raise ConfigError("command line", "--confidence", "--target-error E as well (the confidence is that of the "
+                          "bound that stops the capture at E)", args.confidence)
 
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.runner import capture
+    from goniofrost.capture.target import DEFAULT_CONFIDENCE
     from goniofrost.capture.engine import SessionInterrupted
 
     from goniofrost.capture.inputs import load_inputs
@@ -73,12 +77,13 @@ def run(args) -> int:
 
     inputs = load_inputs(args.rig, args.plan, args.alignment)
     label = session_label(inputs.rig, args.operator, args.sample_id, args.note)
+    confidence = DEFAULT_CONFIDENCE if args.confidence is None else args.confidence
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
-                              target_error=args.target_error, confidence=args.confidence,
+                              target_error=args.target_error, confidence=confidence,
                               alignment=args.alignment, label=label, inputs=inputs)
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
