@@ -120,3 +120,4 @@ def test_help_of_every_command_prints_and_exits_0(command, capsys):
     assert done.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: ") and ("demo" in out if command is None else command in out.splitlines()[0])
+    assert "%%" not in out  # a command's description is printed as written, not %-formatted

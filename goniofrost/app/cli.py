@@ -30,7 +30,8 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name != f"goniofrost.app.commands.{name}":
                 raise
             continue  # a command not built yet is simply not offered
-        command = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        # argparse %-formats a command's help line but prints its description as written
+        command = sub.add_parser(name, help=module.HELP.replace("%", "%%"), description=module.HELP)
         module.add_arguments(command)
         command.set_defaults(_run=module.run)
     return parser

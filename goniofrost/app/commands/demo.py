@@ -1,10 +1,11 @@
 """``goniofrost demo``: the whole chain on the simulated rig, needing nothing but the package."""
 from __future__ import annotations
 
-# argparse formats help with %: a literal percent sign is written %%
+# plain text: cli.py escapes it for argparse's %-formatting of help lines (the arguments' own help
+# below is %-formatted too: a literal percent sign there is written %%)
 HELP = ("train on the built-in library, plan up to 40 samples (Bayesian design), capture a held-out material on "
-        "the simulated rig until its error is at most 0.005 with 95 %% confidence, reconstruct with its uncertainty, write the "
-        "MERL file, a preview and a report")
+        "the simulated rig until its error is at most 0.005 with 95 % confidence, reconstruct with its uncertainty, "
+        "write the MERL file, a preview and a report")
 
 
 def add_arguments(parser) -> None:
