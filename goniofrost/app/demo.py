@@ -138,6 +138,9 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     return Path(out_path)
 
 
+RERUN_DEMO = "the demo again"  # what a stopped demo says to type: it has no --resume and starts a new session
+
+
 def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: int, speedup: float, progress: bool,
                   target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE):
     """Capture into a fresh session folder (a previous demo session there is removed first)."""
@@ -147,7 +150,7 @@ def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: i
     if session_dir.exists():
         shutil.rmtree(session_dir)
     return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
-                   progress=progress, target_error=target_error, confidence=confidence)
+                   progress=progress, target_error=target_error, confidence=confidence, rerun=RERUN_DEMO)
 
 
 def check_replaceable(session_dir: Path) -> None:

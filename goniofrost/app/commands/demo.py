@@ -35,18 +35,24 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    import sys
     from contextlib import nullcontext
     from pathlib import Path
 
     from goniofrost.app.demo import run_demo
     from goniofrost.app.monitoring import monitored
+    from goniofrost.capture.signals import SessionInterrupted
 
     session = Path(args.out) / "session"
-    with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
-        result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
-                          speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf,
-                          target_error=args.target_error if args.target_error > 0 else None,
-                          confidence=args.confidence)
+    try:
+        with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
+            result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
+                              speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf,
+                              target_error=args.target_error if args.target_error > 0 else None,
+                              confidence=args.confidence)
+    except SessionInterrupted as exc:  # Ctrl-C in the capture: the engine's message says how the axes took it
+        print(f"goniofrost demo: {exc}", file=sys.stderr)
+        return 130
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
