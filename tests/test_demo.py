@@ -75,3 +75,12 @@ def test_ctrl_c_in_the_demo_is_one_line_exit_130_and_names_no_resume_option(tmp_
     assert main(["demo", "--out", str(tmp_path), "--no-progress"]) == 130  # not a traceback
     assert capsys.readouterr().err == ("goniofrost demo: interrupted by SIGINT at plan sample 3. Run the demo again "
                                        "to continue\n")
+
+
+def test_a_negative_target_error_is_refused_before_anything_runs(tmp_path, capsys):
+    from goniofrost.app.cli import main
+
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--target-error", "-1", "--no-progress"]) == 2
+    assert capsys.readouterr().err == ("goniofrost demo: error: command line: --target-error: expected a log-relative "
+                                       "MSE >= 0 (0 captures the whole plan), found -1.0\n")
+    assert not (tmp_path / "demo").exists()

@@ -42,7 +42,11 @@ def run(args) -> int:
     from goniofrost.app.demo import run_demo
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.signals import SessionInterrupted
+    from goniofrost.core.errors import ConfigError
 
+    if not 0 <= args.target_error < float("inf"):  # -1 or nan would silently capture the whole plan
+        raise ConfigError("command line", "--target-error", "a log-relative MSE >= 0 (0 captures the whole plan)",
+                          args.target_error)
     session = Path(args.out) / "session"
     try:
         with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
