@@ -29,9 +29,10 @@ def served(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("twins")
     rig = write_rig(tmp_path / "rig.yaml")
     out = tmp_path / "twins.yaml"
-    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out),
+    # --write-rig relative to where sim runs (not where the rig file is then used)
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", out.name,
                              "--speedup", "50", "--material", "builtin:red-plastic"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
         ready, _, _ = select.select([proc.stdout], [], [], READY_S)
         assert ready, "goniofrost sim did not print its endpoints"
@@ -52,7 +53,7 @@ def test_the_written_rig_file_points_at_the_running_twins(served):
     assert drivers["sample_yaw"]["port"] == endpoints["sample_yaw"]["endpoint"] and os.path.exists(drivers["sample_yaw"]["port"])
     assert drivers["sample_tilt"]["port"] == endpoints["sample_tilt"]["endpoint"]
     camera = doc["camera"]
-    assert camera["kind"] == "rawfile" and Path(camera["folder"]).is_dir()
+    assert camera["kind"] == "rawfile" and Path(camera["folder"]).is_dir() and Path(camera["folder"]).is_absolute()
     assert "{exposure_s}" in camera["trigger_command"] and "{target}" in camera["target_command"]
     original = yaml.safe_load(rig.read_text())
     assert camera["intrinsics"] == original["camera"]["intrinsics"] and doc["geometry"] == original["geometry"]
@@ -67,3 +68,4 @@ def test_a_capture_through_the_written_rig_file_completes(served, tmp_path, caps
     with open(session / "samples.csv") as handle:
         assert len(handle.read().strip().splitlines()) == M + 1  # the header and every plan sample
     assert (session / "brdf.binary").is_file()
+

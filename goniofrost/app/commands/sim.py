@@ -87,7 +87,7 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
                            simulation.clock, (rig.sim or {}).get("camera", {}), seed,
                            model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
         camera.connect()
-        out = Path(out_path)
+        out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
         service = CameraService(camera, out.with_name(out.name + ".frames"))
         service.start()
         try:
