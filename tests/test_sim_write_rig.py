@@ -69,3 +69,14 @@ def test_a_capture_through_the_written_rig_file_completes(served, tmp_path, caps
         assert len(handle.read().strip().splitlines()) == M + 1  # the header and every plan sample
     assert (session / "brdf.binary").is_file()
 
+
+def test_a_snap_of_the_sample_after_a_snap_of_the_white_card_shows_the_sample(served, tmp_path, capsys):
+    # each console command is a new process whose camera starts out believing the sample is in
+    # front; the target command must still be sent, or the white card left by the first snap stays
+    rig, out, _ = served
+    snap = ["rig", "snap", "--rig", str(out), "--json", "--move", "camera_arm=60"]
+    assert main([*snap, "--target", "white", "--out", str(tmp_path / "white.png")]) == 0
+    capsys.readouterr()
+    assert main([*snap, "--target", "sample", "--out", str(tmp_path / "sample.png")]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert found["problem"] is None and sorted(found["markers_found"]) == [0, 1, 2, 3], found

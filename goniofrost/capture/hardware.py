@@ -268,9 +268,12 @@ def _TargetFolderCamera(folder, trigger, *, timeout_s, ask, change_target, expos
         return FolderCamera(folder, trigger, timeout_s=timeout_s, ask=ask, exposure_tolerance=exposure_tolerance)
 
     class CommandTargets(FolderCamera):
+        commanded = False  # a new process does not know what the last one left in front of the lens
+
         def set_target(self, target: str) -> None:
-            if target != self.target:
+            if target != self.target or not self.commanded:
                 change_target(target)
+                self.commanded = True
             Camera.set_target(self, target)  # checks the name; no operator prompt
 
     return CommandTargets(folder, trigger, timeout_s=timeout_s, ask=ask, exposure_tolerance=exposure_tolerance)
