@@ -121,3 +121,14 @@ def test_help_of_every_command_prints_and_exits_0(command, capsys):
     out = capsys.readouterr().out
     assert out.startswith("usage: ") and ("demo" in out if command is None else command in out.splitlines()[0])
     assert "%%" not in out  # a command's description is printed as written, not %-formatted
+
+
+@pytest.mark.parametrize("angle", ["0", "-10", "nan", "95"])
+def test_plan_refuses_a_max_angle_outside_0_to_90_degrees(angle, tmp_path, capsys):
+    # --max-angle 0 planned every sample at normal incidence (predicted error 39), nan found no cell
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "10", "--max-angle", angle,
+                 "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (f"goniofrost plan: error: command line: --max-angle: expected degrees in "
+                                       f"(0, 90], found {float(angle)!r}\n")
+    assert not out.exists()

@@ -47,6 +47,9 @@ def run(args) -> int:
         raise GoniofrostError("--y-form and --atoms apply to --selector frost only")
     if args.usage is not None and args.selector != "bayes":
         raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
+    if args.max_angle is not None and not 0 < args.max_angle <= 90:  # 0 left one direction, nan none
+        from goniofrost.core.errors import ConfigError
+        raise ConfigError("command line", "--max-angle", "degrees in (0, 90]", args.max_angle)
     model = FrostModel.load(args.model)
     usage = None
     if args.usage is not None:
