@@ -535,6 +535,7 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
     assert "meta.plan_sha256: this session was started with another plan" in err
     err = run_refused(capture_args(rig, plan, tmp_path / "nothing", "--resume"), capsys)
     assert "no session journal to resume" in err
+    assert not (tmp_path / "nothing").exists()  # refused: not even the folder and its lock are left
 
 
 def test_a_journal_without_samples_of_another_session_says_what_to_type(setup, tmp_path, capsys):

@@ -76,7 +76,12 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
         from goniofrost.core.atomic_file import remove_stale_temporaries
         for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
             log.info("removed %s, left by an interrupted write", name)
-        journal = open_journal(session_dir, meta, resume)
+        try:
+            journal = open_journal(session_dir, meta, resume)
+        except GoniofrostError:
+            if not existed:  # made for this run (--resume of nothing): only its lock is in it
+                remove_refused_session(session_dir, existed)
+            raise
         fresh = not journal.done_indices() and not journal.steps()
         try:
             done = journal.done_indices()
