@@ -84,11 +84,14 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     truth = np.asarray(test, dtype=np.float64)
     truth_log = model.to_log(truth)
     stops = []
+    variants = (False, True) if bayes_eval.sentinel_cells(model).size else (False,)
     for target in targets:
-        out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence)
-        for i, name in enumerate(test_names):
-            stops.append({"material": name, "target": target, **{k: float(out[k][i]) for k in
-                          ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out")}})
+        for checked in variants:
+            out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked)
+            for i, name in enumerate(test_names):
+                stops.append({"material": name, "target": target, "sentinels": checked, **{k: float(out[k][i]) for k in
+                              ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out",
+                               "ever_sentinel")}})
     per_m = []
     for m in [e for e in stopping.batch_ends(m_max)]:
         out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
@@ -104,10 +107,12 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
         stops = [s for f in folds for s in f["stops"]]
         per_m = [r for f in folds for r in f["per_m"]]
         rows = {}
-        for target in sorted({s["target"] for s in stops}):
-            group = [s for s in stops if s["target"] == target]
+        for checked, target in sorted({(s.get("sentinels", False), s["target"]) for s in stops}):
+            group = [s for s in stops if s["target"] == target and s.get("sentinels", False) == checked]
             hit = [s for s in group if s["reached"]]
-            rows[target] = {"materials": len(group), "stopped_on_target": len(hit),
+            rows[f"{target:g}{' sentinels' if checked else ''}"] = {"target": target, "sentinels": checked,
+                            "sentinel_flagged": int(sum(s.get("ever_sentinel", 0) for s in group)),
+                            "materials": len(group), "stopped_on_target": len(hit),
                             "within_when_stopped": float(np.mean([s["mse"] <= target for s in hit])) if hit else None,
                             "within_all": float(np.mean([s["mse"] <= target for s in group])),
                             "mean_samples": float(np.mean([s["samples"] for s in group])), "plan": m_max,
@@ -120,7 +125,9 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
             missed = np.array([r["mse"] > r["upper"] for r in group])
             far = np.array([r.get("feature_distance", np.nan) > 1 for r in group])
             poor = np.array([r.get("prequential", np.nan) > 1 for r in group])
+            flagged = np.array([r.get("sentinel", 0.0) > 0 for r in group])
             by_m[m] = {"within_factor_2": float(np.mean((ratio <= 2) & (ratio >= 0.5))),
+                       "missed_sentinel": int((missed & flagged).sum()), "covered_sentinel": int((~missed & flagged).sum()),
                        "bound_covers": float(np.mean(~missed)),
                        "out_of_model": float(np.mean([r["out_of_model"] for r in group])), "materials": len(group),
                        "missed": int(missed.sum()), "missed_far": int((missed & far).sum()),
@@ -131,24 +138,28 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
 
 
 def markdown(stats: dict) -> str:
-    lines = ["| setting | E | materials | stopped on the target | of those, true error <= E | all: true error <= E "
-             "| mean samples / plan | out of the model (any look / at the end) |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| setting | E | sentinels | materials | stopped on the target | of those, true error <= E | all: true error <= E "
+             "| mean samples / plan | out of the model (any look / at the end) | flagged by the sentinels |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
-        for target, r in s["targets"].items():
+        for r in s["targets"].values():
             within = "n/a" if r["within_when_stopped"] is None else f"{100 * r['within_when_stopped']:.1f} %"
-            lines.append(f"| {setting} | {target:g} | {r['materials']} | {r['stopped_on_target']} | {within} | "
+            lines.append(f"| {setting} | {r['target']:g} | {'yes' if r.get('sentinels') else 'no'} | {r['materials']} | {r['stopped_on_target']} | {within} | "
                          f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
-                         f"{r['ever_out']} / {r['out_at_end']} |")
+                         f"{r['ever_out']} / {r['out_at_end']} | {r.get('sentinel_flagged', 0)} |")
     lines += ["", "| setting | m | median estimate within x2 | true error <= bound | out of the model "
               "| features beyond 95 % of training: of the bound's misses / of the rest "
-              "| prequential score beyond 95 % of training: of the misses / of the rest |", "|---|---|---|---|---|---|---|"]
+              "| prequential score beyond 95 % of training: of the misses / of the rest "
+              "| sentinels flag: of the misses / of the rest |", "|---|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
         for m, r in s["by_m"].items():
             lines.append(f"| {setting} | {m} | {100 * r['within_factor_2']:.1f} % | {100 * r['bound_covers']:.1f} % | "
                          f"{100 * r['out_of_model']:.1f} % | {r['missed_far']} of {r['missed']} / "
                          f"{r['covered_far']} of {r['materials'] - r['missed']} | "
                          f"{r.get('missed_prequential', 0)} of {r['missed']} / "
-                         f"{r.get('covered_prequential', 0)} of {r['materials'] - r['missed']} |")
+                         f"{r.get('covered_prequential', 0)} of {r['materials'] - r['missed']} | "
+                         f"{r.get('missed_sentinel', 0)} of {r['missed']} / "
+                         f"{r.get('covered_sentinel', 0)} of {r['materials'] - r['missed']} |")
     return "\n".join(lines) + "\n"
 
 
