@@ -8,7 +8,9 @@ the confidence is at most E and the samples are not out of the model, or the pla
 (``bench.bayes_eval.target_outcomes``). Reported per setting and E:
 
 * stopped on the target, and of those the fraction whose true error is <= E (the goal: at
-  least the confidence minus 2 points);
+  least the confidence minus 2 points); every target twice when the model has sentinel cells
+  (``frost.sentinel``): without them, and with them measured with the first batch (counted as
+  samples) and checked at every look (how many captures they flag);
 * mean samples against the plan; materials flagged out of the model (at any look, at the end);
 * per m: the fraction of materials whose median estimate is within a factor 2 of the true error,
   and whose true error is below the bound (the bound's coverage at a single look); and how many
@@ -16,7 +18,8 @@ the confidence is at most E and the samples are not out of the model, or the pla
   the held-out training materials (``confidence.feature_distance``: would an out-of-model
   statistic on the samples' features single out the misses?), and whose samples were predicted
   (each from the ones measured before it) worse than 95 % of theirs
-  (``confidence.prequential_excess``: would a held-out statistic?).
+  (``confidence.prequential_excess``: would a held-out statistic?), and whose sentinels flag them
+  (``confidence.sentinel_excess``: would a check where the design does not look?).
 
 Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``builtin`` (the 74
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51

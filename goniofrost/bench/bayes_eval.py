@@ -103,7 +103,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``), "out_of_model" (1 if the samples are unlike every training material),
+    at ``level``), "out_of_model" (1 if the samples are unlike every training material by z2 or
+    energy), "sentinel" (1 if the model's sentinel cells flag them, ``confidence.sentinel_excess``),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
     materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
     order of ``positions``: > 1 beyond 95 % of them)."""
