@@ -132,7 +132,7 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = True) -> dict:
+                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False) -> dict:
     """Simulated ``capture --target-error target --confidence confidence_level``: every test
     material measured in batches along the nested design ``order`` (positions, length m_max)
     until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
