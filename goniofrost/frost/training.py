@@ -255,7 +255,8 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
-    key = disk_cache.content_key("frost-model-v3", ids, [m.label for m in materials],
+    # v4: the bound holds the sentinel check's calibration (sentinel.py)
+    key = disk_cache.content_key("frost-model-v4", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():
