@@ -104,3 +104,29 @@ def test_a_trained_model_calibrates_its_sentinels():
     spread = model.noise["calibration"]["bound"]["sentinel"]
     assert spread["cells"] == sentinel.cells(GRID).tolist() and len(spread["scores"]) == 40
     assert len(spread["center"]) == len(model.noise["calibration"]["bound"]["m"])
+
+
+def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_by_its_sentinels():
+    """End to end on a trained model: the same material with its BRDF x 20 in the sentinels'
+    region (the design's cells left as they were) gives the design's samples, and so the bound,
+    to the bit; only the sentinels see it, and the simulated capture measures on."""
+    from test_frost import synthetic_tables
+    from goniofrost.bench import bayes_eval
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    order = np.asarray(select_bayes(model, 20).positions, dtype=np.int64)
+    like = synthetic_tables(GRID, 2, seed=11).astype(np.float64)
+    hidden = sentinel.region(GRID)
+    hidden[order] = False
+    odd = like.copy()
+    odd[:, hidden] *= 20.0
+    truth = np.concatenate([like, odd])
+    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    plain = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9)
+    np.testing.assert_array_equal(plain["upper"][:2], plain["upper"][2:])  # the same samples, the same bound
+    np.testing.assert_array_equal(out["ever_sentinel"], [0, 0, 1, 1])
+    np.testing.assert_array_equal(out["samples"], [18, 18, 23, 23])  # 15 + 3; the flagged ones measure on
+    np.testing.assert_array_equal(out["reached"], [1, 1, 0, 0])
+    np.testing.assert_array_equal(plain["samples"], [15, 15, 15, 15])  # without the check all four stop
