@@ -115,7 +115,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     post, noise, samples = _fit(model, positions, truth)
     feats = _features(model, post, samples, n_mat)
     cells = sentinel_cells(model)
-    b = _bounds(model, feats, np.unique(positions).size, level, _checks(model, post, truth, cells) if cells.size else None)
+    check = _checks(model, post, truth, cells) if cells.size else None
+    b = _bounds(model, feats, np.unique(positions).size, level, check)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
     distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
@@ -163,8 +164,8 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
                     _checks(model, post, truth, cells) if cells.size else None)
         out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"]
         for i in np.flatnonzero(stop_at < 0):
-            bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level,
-                                          ("z2",) if out[i] else ())
+            flags = ("sentinel",) if b["out_of_model_sentinel"][i] else ("z2",) if out[i] else ()
+            bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level, flags)
             ever_out[i] |= int(out[i])
             ever_sentinel[i] |= int(b["out_of_model_sentinel"][i])
             reason = stopping.stop_reason(bound, target, end, m_max)
@@ -179,4 +180,5 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         estimate = np.asarray(model.dictionary) @ coef + np.asarray(model.mean, np.float32)[:, None]
         mse[mats] = batch_log_errors(model, estimate.astype(np.float64), truth_log[mats])
     return {"samples": stop_at + cells.size, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
-            "out_of_model": out_at, "ever_out": ever_out, "ever_sentinel": ever_sentinel, "seconds": time.perf_counter() - start}
+            "out_of_model": out_at, "ever_out": ever_out, "ever_sentinel": ever_sentinel,
+            "seconds": time.perf_counter() - start}

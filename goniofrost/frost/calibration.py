@@ -110,8 +110,8 @@ def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.nd
                         design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
                         sentinels=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale (``sentinels``: see ``simulate``). Returns ((design scale, recon scale), {pair: CvRecords of the choice folds},
-    CvRecords of every fold with the chosen pair)."""
+    design scale (``sentinels``: see ``simulate``). Returns ((design scale, recon scale),
+    {pair: CvRecords of the choice folds}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
                       progress=progress, sentinels=sentinels)

@@ -156,10 +156,11 @@ def _sentinel_spread(records, residuals, ms, looks) -> dict:
 
 def sentinel_excess(calibration: dict, check, predicted, m, level: float) -> np.ndarray:
     """The sentinels' error ``check`` (``sentinel.check_error``) against the ``predicted`` whole
-    error (the calibrated point prediction, ``prediction.predict``), standardized at m (interpolated in log m) and over the conformal quantile
-    at ``level`` of the held-out training materials' simultaneous scores: bool, True beyond it
-    (the error where the check looked is not the one predicted: out of the model); all False for
-    a model calibrated without sentinels. Arguments broadcast."""
+    error (the calibrated point prediction, ``prediction.predict``), standardized at m
+    (interpolated in log m), over the conformal quantile at ``level`` of the held-out training
+    materials' simultaneous scores: bool, True beyond it (the error where the check looked is
+    not the one predicted: out of the model); all False for a model calibrated without
+    sentinels. Arguments broadcast."""
     bound = calibration.get("bound") or {}
     shape = np.broadcast(check, predicted, m).shape
     if "sentinel" not in bound:
@@ -264,8 +265,8 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
     return {"median": predicted * np.exp(c) + extra, "upper": upper,
             "out_of_model_z2": np.log(z2) > _at_m(bound, "log_z2_max", m) + margin,
             "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin,
-            "out_of_model_sentinel": np.zeros(np.shape(upper), bool) if check is None
-            else sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool)}
+            "out_of_model_sentinel": np.zeros(np.shape(upper), bool) if check is None else
+            sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool)}
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
