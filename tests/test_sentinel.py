@@ -2,6 +2,8 @@
 posterior of the design's samples, calibrated on held-out training materials."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -130,3 +132,53 @@ def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_
     np.testing.assert_array_equal(out["samples"], [18, 18, 23, 23])  # 15 + 3; the flagged ones measure on
     np.testing.assert_array_equal(out["reached"], [1, 1, 0, 0])
     np.testing.assert_array_equal(plain["samples"], [15, 15, 15, 15])  # without the check all four stop
+
+
+def test_a_plan_with_sentinels_measures_them_with_the_first_batch():
+    from goniofrost.capture.plan_file import add_sentinels, sample_entries
+
+    design = np.array([5, 6, 7, 8], dtype=np.int64)
+    doc = {"m": 4, "batch_ends": [2, 4], "samples": sample_entries(GRID, GRID.valid_cells[design]), "selector": "bayes"}
+    out = add_sentinels(doc, GRID, np.array([180, 199]))
+    assert (out["m"], out["sentinels"], out["batch_ends"], out["selector"]) == (6, 2, [4, 6], "bayes")
+    cells = [tuple(s["cell"]) for s in out["samples"]]
+    expected = [tuple(int(v) for v in c) for c in np.stack(GRID.unravel(GRID.valid_cells[[5, 6, 180, 199, 7, 8]]), 1)]
+    assert cells == expected
+    assert [s.get("sentinel", False) for s in out["samples"]] == [False, False, True, True, False, False]
+    assert doc["m"] == 4 and len(doc["samples"]) == 4  # the design's plan is left as it was
+
+
+@pytest.fixture(scope="module")
+def trained():
+    from test_frost import synthetic_tables
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+
+
+def test_a_captures_bound_leaves_its_sentinels_out_and_checks_them(trained):
+    from test_frost import synthetic_tables
+    from goniofrost.capture.target import make_assessor
+    from goniofrost.frost.reconstruction import error_bound
+
+    model, design = trained
+    cells = np.asarray(model.noise["calibration"]["bound"]["sentinel"]["cells"])
+    positions = np.concatenate([design, cells])
+    flags = np.arange(positions.size) >= design.size
+    like = synthetic_tables(GRID, 1, seed=11)[0].astype(np.float64)
+    odd = like.copy()
+    odd[cells] *= 20.0
+    alone = error_bound(model, design, like[design], confidence=0.95)
+    for table, flagged in ((like, ()), (odd, ("sentinel",))):
+        bound = error_bound(model, positions, table[positions], confidence=0.95, sentinel=flags)
+        assert (bound.median, bound.upper, bound.out_of_model) == (alone.median, alone.upper, flagged)
+    records = [SimpleNamespace(plan_index=i, rgb=tuple(odd[p]), sigma=(0.0, 0.0, 0.0)) for i, p in enumerate(positions)]
+    assessed = make_assessor(model, positions, 0.95, sentinel=flags)(records)
+    assert assessed.out_of_model == ("sentinel",)
+    assert stopping.stop_reason(assessed, target=1e9, done=positions.size, total=40) is None
+    # the same samples all fitted (a plan without sentinels): x 20 at 3 of 18 cells shows in the
+    # leave-one-out residuals instead; the design's 15 alone show nothing
+    assert make_assessor(model, positions, 0.95)(records).out_of_model == ("z2",)
+    assert make_assessor(model, design, 0.95)(records[:design.size]).out_of_model == ()
