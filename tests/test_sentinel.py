@@ -182,3 +182,44 @@ def test_a_captures_bound_leaves_its_sentinels_out_and_checks_them(trained):
     # leave-one-out residuals instead; the design's 15 alone show nothing
     assert make_assessor(model, positions, 0.95)(records).out_of_model == ("z2",)
     assert make_assessor(model, design, 0.95)(records[:design.size]).out_of_model == ()
+
+
+def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_resume_keeps_it(tmp_path, capsys):
+    """plan --sentinels on the simulated rig, capture --target-error: the first batch measures the
+    sentinels too, the bound is the design samples' alone, and a resume moves nothing."""
+    import json
+
+    from goniofrost.app.cli import main
+    from goniofrost.capture.journal import Journal
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.reconstruction import error_bound
+    from test_session import GRID as SESSION_GRID, TRAINING, capture_args, write_rig
+    from goniofrost.frost.training import train
+
+    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    rig, plan, session = write_rig(tmp_path / "rig.yaml"), tmp_path / "plan.json", tmp_path / "s"
+    assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "17",
+                 "--rig", str(rig), "--sentinels", "--out", str(plan)]) == 0
+    assert "sentinels: 3 samples with the first batch" in capsys.readouterr().out
+    doc = json.loads(plan.read_text())
+    assert (doc["m"], doc["sentinels"], doc["batch_ends"]) == (20, 3, [18, 20])
+    flags = [bool(s.get("sentinel")) for s in doc["samples"]]
+    assert sum(flags[:18]) == 3 and not any(flags[18:])
+    # 6 training materials: the bound exists at 0.8, the sentinel check (at 0.95) cannot flag
+    assert main(capture_args(rig, plan, session, "--speedup", "50", "--target-error", "10000",
+                             "--confidence", "0.8")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        records, events = journal.samples(), journal.events()
+    assert len(records) == 18
+    [batch] = [e for e in events if e["kind"] == "batch"]
+    assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 18
+    design = [r for r in records if not flags[r.plan_index]]
+    positions = SESSION_GRID.valid_position(np.array([SESSION_GRID.flat_index(*doc["samples"][r.plan_index]["cell"])
+                                                      for r in design]))
+    alone = error_bound(model, positions, np.array([r.rgb for r in design]), np.array([r.sigma for r in design]), 0.8)
+    assert batch["data"]["bound"] == pytest.approx(alone.upper, rel=1e-12)
+    report = json.loads((session / "report.json").read_text())
+    assert report["target_error"]["samples_used"] == 18 and not report["target_error"]["extrapolation"]
+    assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        assert len(journal.events()) == len(events) and len(journal.samples()) == 18
