@@ -200,7 +200,8 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     rig, plan, session = write_rig(tmp_path / "rig.yaml"), tmp_path / "plan.json", tmp_path / "s"
     assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "17",
                  "--rig", str(rig), "--sentinels", "--out", str(plan)]) == 0
-    assert "sentinels: 3 samples with the first batch" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "sentinels: 3 samples with the first batch" in out and f"{plan}: m = 17 samples + 3 sentinels" in out
     doc = json.loads(plan.read_text())
     assert (doc["m"], doc["sentinels"], doc["batch_ends"]) == (20, 3, [18, 20])
     flags = [bool(s.get("sentinel")) for s in doc["samples"]]

@@ -94,7 +94,8 @@ def run(args) -> int:
         doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
         print(format_table(doc))
     write_plan(args.out, doc)
-    print(f"{args.out}: m = {selection.m} samples{_outcome(args, selection)}, selection {selection.seconds:.3f} s")
+    extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""
+    print(f"{args.out}: m = {selection.m} samples{extra}{_outcome(args, selection)}, selection {selection.seconds:.3f} s")
     return 0
 
 
