@@ -8,7 +8,9 @@ the confidence is at most E and the samples are not out of the model, or the pla
 (``bench.bayes_eval.target_outcomes``). Reported per setting and E:
 
 * stopped on the target, and of those the fraction whose true error is <= E (the goal: at
-  least the confidence minus 2 points);
+  least the confidence minus 2 points); every target twice when the model has sentinel cells
+  (``frost.sentinel``): without them, and with them measured with the first batch (counted as
+  samples) and checked at every look (how many captures they flag);
 * mean samples against the plan; materials flagged out of the model (at any look, at the end);
 * per m: the fraction of materials whose median estimate is within a factor 2 of the true error,
   and whose true error is below the bound (the bound's coverage at a single look); and how many
@@ -16,7 +18,8 @@ the confidence is at most E and the samples are not out of the model, or the pla
   the held-out training materials (``confidence.feature_distance``: would an out-of-model
   statistic on the samples' features single out the misses?), and whose samples were predicted
   (each from the ones measured before it) worse than 95 % of theirs
-  (``confidence.prequential_excess``: would a held-out statistic?).
+  (``confidence.prequential_excess``: would a held-out statistic?), and whose sentinels flag them
+  (``confidence.sentinel_excess``: would a check where the design does not look?).
 
 Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``builtin`` (the 74
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
@@ -84,11 +87,14 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     truth = np.asarray(test, dtype=np.float64)
     truth_log = model.to_log(truth)
     stops = []
+    variants = (False, True) if bayes_eval.sentinel_cells(model).size else (False,)
     for target in targets:
-        out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence)
-        for i, name in enumerate(test_names):
-            stops.append({"material": name, "target": target, **{k: float(out[k][i]) for k in
-                          ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out")}})
+        for checked in variants:
+            out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked)
+            for i, name in enumerate(test_names):
+                stops.append({"material": name, "target": target, "sentinels": checked, **{k: float(out[k][i]) for k in
+                              ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out",
+                               "ever_sentinel")}})
     per_m = []
     for m in [e for e in stopping.batch_ends(m_max)]:
         out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
@@ -104,10 +110,12 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
         stops = [s for f in folds for s in f["stops"]]
         per_m = [r for f in folds for r in f["per_m"]]
         rows = {}
-        for target in sorted({s["target"] for s in stops}):
-            group = [s for s in stops if s["target"] == target]
+        for checked, target in sorted({(s.get("sentinels", False), s["target"]) for s in stops}):
+            group = [s for s in stops if s["target"] == target and s.get("sentinels", False) == checked]
             hit = [s for s in group if s["reached"]]
-            rows[target] = {"materials": len(group), "stopped_on_target": len(hit),
+            rows[f"{target:g}{' sentinels' if checked else ''}"] = {"target": target, "sentinels": checked,
+                            "sentinel_flagged": int(sum(s.get("ever_sentinel", 0) for s in group)),
+                            "materials": len(group), "stopped_on_target": len(hit),
                             "within_when_stopped": float(np.mean([s["mse"] <= target for s in hit])) if hit else None,
                             "within_all": float(np.mean([s["mse"] <= target for s in group])),
                             "mean_samples": float(np.mean([s["samples"] for s in group])), "plan": m_max,
@@ -120,7 +128,9 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
             missed = np.array([r["mse"] > r["upper"] for r in group])
             far = np.array([r.get("feature_distance", np.nan) > 1 for r in group])
             poor = np.array([r.get("prequential", np.nan) > 1 for r in group])
+            flagged = np.array([r.get("sentinel", 0.0) > 0 for r in group])
             by_m[m] = {"within_factor_2": float(np.mean((ratio <= 2) & (ratio >= 0.5))),
+                       "missed_sentinel": int((missed & flagged).sum()), "covered_sentinel": int((~missed & flagged).sum()),
                        "bound_covers": float(np.mean(~missed)),
                        "out_of_model": float(np.mean([r["out_of_model"] for r in group])), "materials": len(group),
                        "missed": int(missed.sum()), "missed_far": int((missed & far).sum()),
@@ -131,24 +141,28 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
 
 
 def markdown(stats: dict) -> str:
-    lines = ["| setting | E | materials | stopped on the target | of those, true error <= E | all: true error <= E "
-             "| mean samples / plan | out of the model (any look / at the end) |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| setting | E | sentinels | materials | stopped on the target | of those, true error <= E | all: true error <= E "
+             "| mean samples / plan | out of the model (any look / at the end) | flagged by the sentinels |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
-        for target, r in s["targets"].items():
+        for r in s["targets"].values():
             within = "n/a" if r["within_when_stopped"] is None else f"{100 * r['within_when_stopped']:.1f} %"
-            lines.append(f"| {setting} | {target:g} | {r['materials']} | {r['stopped_on_target']} | {within} | "
+            lines.append(f"| {setting} | {r['target']:g} | {'yes' if r.get('sentinels') else 'no'} | {r['materials']} | {r['stopped_on_target']} | {within} | "
                          f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
-                         f"{r['ever_out']} / {r['out_at_end']} |")
+                         f"{r['ever_out']} / {r['out_at_end']} | {r.get('sentinel_flagged', 0)} |")
     lines += ["", "| setting | m | median estimate within x2 | true error <= bound | out of the model "
               "| features beyond 95 % of training: of the bound's misses / of the rest "
-              "| prequential score beyond 95 % of training: of the misses / of the rest |", "|---|---|---|---|---|---|---|"]
+              "| prequential score beyond 95 % of training: of the misses / of the rest "
+              "| sentinels flag: of the misses / of the rest |", "|---|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
         for m, r in s["by_m"].items():
             lines.append(f"| {setting} | {m} | {100 * r['within_factor_2']:.1f} % | {100 * r['bound_covers']:.1f} % | "
                          f"{100 * r['out_of_model']:.1f} % | {r['missed_far']} of {r['missed']} / "
                          f"{r['covered_far']} of {r['materials'] - r['missed']} | "
                          f"{r.get('missed_prequential', 0)} of {r['missed']} / "
-                         f"{r.get('covered_prequential', 0)} of {r['materials'] - r['missed']} |")
+                         f"{r.get('covered_prequential', 0)} of {r['materials'] - r['missed']} | "
+                         f"{r.get('missed_sentinel', 0)} of {r['missed']} / "
+                         f"{r.get('covered_sentinel', 0)} of {r['materials'] - r['missed']} |")
     return "\n".join(lines) + "\n"
 
 

@@ -163,17 +163,22 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
                        "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "target_error.json").read_text())
     stats = doc["summary"]["builtin"]
-    assert sorted(float(e) for e in stats["targets"]) == [0.01, 0.02, 0.05]
+    # every target without and with the sentinels (3 more samples, measured with the first batch)
+    assert sorted((r["target"], r["sentinels"]) for r in stats["targets"].values()) == [
+        (0.01, False), (0.01, True), (0.02, False), (0.02, True), (0.05, False), (0.05, True)]
     assert sorted(int(m) for m in stats["by_m"]) == [15, 20]
     for row in stats["targets"].values():
-        assert row["materials"] == 10 and 15 <= row["mean_samples"] <= 20
+        extra = 3 if row["sentinels"] else 0
+        assert row["materials"] == 10 and 15 + extra <= row["mean_samples"] <= 20 + extra
         assert row["within_when_stopped"] is None or row["within_when_stopped"] >= 0.9
+        assert row["sentinel_flagged"] == 0 or row["sentinels"]
     stops = doc["results"]["builtin"][0]["stops"]
     assert all(s["upper"] <= s["target"] for s in stops if s["reached"])  # stopped on the bound only
-    assert "| builtin | 0.05 | 10 |" in (tmp_path / "target_error.md").read_text()
+    assert "| builtin | 0.05 | no | 10 |" in (tmp_path / "target_error.md").read_text()
     for row in stats["by_m"].values():  # every material is a miss of the bound or not, near or far
         assert row["missed_far"] <= row["missed"] and row["covered_far"] <= row["materials"] - row["missed"]
         assert row["missed_prequential"] <= row["missed"] and row["covered_prequential"] <= row["materials"] - row["missed"]
+        assert row["missed_sentinel"] <= row["missed"] and row["covered_sentinel"] <= row["materials"] - row["missed"]
     assert all(np.isfinite(r["feature_distance"]) for r in doc["results"]["builtin"][0]["per_m"])
 
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from goniofrost.frost import confidence, posterior, prediction, stopping
+from goniofrost.frost import confidence, posterior, prediction, sentinel, stopping
 
 Z50, Z90 = 0.6744897501960817, 1.6448536269514722  # two-sided normal quantiles
 DEFAULT_CONFIDENCE = 0.95  # of the simulated captures (capture --confidence's default)
@@ -50,12 +50,29 @@ def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarr
     return _predict(prediction.calibration_of(model), feats, m), feats[:, 0]
 
 
-def _bounds(model, feats: np.ndarray, m: int, level: float) -> dict:
+def _bounds(model, feats: np.ndarray, m: int, level: float, check=None) -> dict:
     """``confidence.error_bounds`` of every material from its ``_features`` (exact samples:
-    nothing extra)."""
+    nothing extra); check: float64 (n_mat,) the sentinels' error (``_checks``), None: unchecked."""
     calibration = prediction.calibration_of(model)
     predicted = _predict(calibration, feats, m)
-    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level)
+    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check)
+
+
+def sentinel_cells(model) -> np.ndarray:
+    """int64 (s,): the sentinel cells the model's bound was calibrated with (empty: none)."""
+    bound = prediction.calibration_of(model).get("bound") or {}
+    return np.asarray((bound.get("sentinel") or {}).get("cells", []), dtype=np.int64)
+
+
+def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """float64 (n_mat,): every material's ``sentinel.check_error`` at ``cells`` against the
+    posterior ``post`` of its design samples (truth: (n_mat, n_valid, 3) BRDF)."""
+    n_mat = truth.shape[0]
+    values = truth[:, cells, :].transpose(1, 0, 2).reshape(cells.size, 3 * n_mat)
+    b = model.to_log(values, cells) - np.asarray(model.mean, np.float64)[cells][:, None]
+    rows = np.asarray(model.dictionary[cells], np.float64)
+    return np.array([sentinel.check_error(rows, post.coefficients, b, [3 * i, 3 * i + 1, 3 * i + 2])
+                     for i in range(n_mat)])
 
 
 def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
@@ -86,7 +103,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``), "out_of_model" (1 if the samples are unlike every training material),
+    at ``level``), "out_of_model" (1 if the samples are unlike every training material by z2 or
+    energy), "sentinel" (1 if the model's sentinel cells flag them, ``confidence.sentinel_excess``),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
     materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
     order of ``positions``: > 1 beyond 95 % of them)."""
@@ -96,7 +114,9 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     n_mat = truth.shape[0]
     post, noise, samples = _fit(model, positions, truth)
     feats = _features(model, post, samples, n_mat)
-    b = _bounds(model, feats, np.unique(positions).size, level)
+    cells = sentinel_cells(model)
+    check = _checks(model, post, truth, cells) if cells.size else None
+    b = _bounds(model, feats, np.unique(positions).size, level, check)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
     distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
@@ -106,21 +126,26 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     scores = np.array([prediction.prequential_score(one_step, [3 * i, 3 * i + 1, 3 * i + 2]) for i in range(n_mat)])
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
             "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
+            "sentinel": b["out_of_model_sentinel"].astype(np.float64),
             "feature_distance": distance,
             "prequential": confidence.prequential_excess(prediction.calibration_of(model), scores,
                                                          np.unique(positions).size)}
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-                    target: float, confidence_level: float = DEFAULT_CONFIDENCE) -> dict:
+                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False) -> dict:
     """Simulated ``capture --target-error target --confidence confidence_level``: every test
     material measured in batches along the nested design ``order`` (positions, length m_max)
     until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
+    sentinels: measure the model's sentinel cells (``sentinel.py``) with the first batch and
+    check them at every look (out of the model beyond their calibrated range); they count in
+    "samples".
 
-    Returns float64/int64 (n_mat,) arrays "samples", "mse" (true error at the stop),
+    Returns float64/int64 (n_mat,) arrays "samples" (with the sentinels), "mse" (true error at the stop),
     "pred_mse" (median estimate at the stop), "upper" (the bound at the stop), "reached" (1 if
     the rule stopped on the target), "out_of_model" (1 if the last assessment was out of the
-    model), "ever_out" (1 if any assessment was) and "seconds" (the whole simulation, wall time).
+    model), "ever_out" (1 if any assessment was), "ever_sentinel" (1 if the sentinels flagged
+    any) and "seconds" (the whole simulation, wall time).
     """
     from goniofrost.frost.metrics import batch_log_errors
 
@@ -129,16 +154,20 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     stop_at, reached = np.full(n_mat, -1), np.zeros(n_mat, dtype=np.int64)
     median_at, upper_at = np.zeros(n_mat), np.zeros(n_mat)
     out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
+    ever_sentinel = np.zeros(n_mat, dtype=np.int64)
     posts = {}
+    cells = sentinel_cells(model) if sentinels else np.zeros(0, dtype=np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post
-        b = _bounds(model, _features(model, post, samples, n_mat), end, confidence_level)
-        out = b["out_of_model_z2"] | b["out_of_model_energy"]
+        b = _bounds(model, _features(model, post, samples, n_mat), end, confidence_level,
+                    _checks(model, post, truth, cells) if cells.size else None)
+        out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"]
         for i in np.flatnonzero(stop_at < 0):
-            bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level,
-                                          ("z2",) if out[i] else ())
+            flags = ("sentinel",) if b["out_of_model_sentinel"][i] else ("z2",) if out[i] else ()
+            bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level, flags)
             ever_out[i] |= int(out[i])
+            ever_sentinel[i] |= int(b["out_of_model_sentinel"][i])
             reason = stopping.stop_reason(bound, target, end, m_max)
             if reason is not None:
                 stop_at[i], median_at[i], upper_at[i] = end, bound.median, bound.upper
@@ -150,5 +179,6 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         coef = posts[end].coefficients[:, cols].astype(np.float32)
         estimate = np.asarray(model.dictionary) @ coef + np.asarray(model.mean, np.float32)[:, None]
         mse[mats] = batch_log_errors(model, estimate.astype(np.float64), truth_log[mats])
-    return {"samples": stop_at, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
-            "out_of_model": out_at, "ever_out": ever_out, "seconds": time.perf_counter() - start}
+    return {"samples": stop_at + cells.size, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
+            "out_of_model": out_at, "ever_out": ever_out, "ever_sentinel": ever_sentinel,
+            "seconds": time.perf_counter() - start}

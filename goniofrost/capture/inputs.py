@@ -40,6 +40,12 @@ class SessionInputs:
     def samples(self) -> list[dict]:
         return self.plan["samples"]
 
+    @property
+    def sentinel(self) -> np.ndarray | None:
+        """bool (n,): the plan's sentinel samples (``plan --sentinels``), None for a plan without."""
+        flags = np.array([bool(s.get("sentinel", False)) for s in self.samples])
+        return flags if flags.any() else None
+
 
 def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the

@@ -6,10 +6,11 @@ Layout (DESIGN.md "Command line")::
      "selector": "bayes"|"frost", "k": int,
      "predicted_errors": [float, ...]                   (bayes: after each pick)
      "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
+     "sentinels": int                                   (plan --sentinels: how many samples are)
      "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
-                  "w_i": [x, y, z], "w_o": [x, y, z]}, ...]}
+                  "w_i": [x, y, z], "w_o": [x, y, z], "sentinel": true (only on sentinels)}, ...]}
 
 Samples are in selection order (the planner reorders them for motion; a Bayesian design is
 nested, so its first m samples are the best m, and it is measured in batches: ``batch_ends``
@@ -54,6 +55,19 @@ def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
     else:
         doc |= {"y_form": selection.y_form, "residuals": values}
     return doc | {"samples": sample_entries(model.grid, selection.cells)}
+
+
+def add_sentinels(doc: dict, grid, positions) -> dict:
+    """A Bayesian plan with sentinel samples (``frost.sentinel``) at the valid-cell ``positions``
+    (int64 (s,)): their entries, marked ``"sentinel": true``, right after the first batch's and
+    measured with it; ``m`` and every ``batch_ends`` grow by s and ``sentinels`` = s. The capture
+    checks them against the design's samples and never fits them into the bound."""
+    positions = np.asarray(positions, dtype=np.int64)
+    first = int(doc["batch_ends"][0])
+    extra = [entry | {"sentinel": True} for entry in sample_entries(grid, np.asarray(grid.valid_cells)[positions])]
+    return doc | {"m": int(doc["m"]) + positions.size, "sentinels": int(positions.size),
+                  "batch_ends": [int(e) + positions.size for e in doc["batch_ends"]],
+                  "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])}
 
 
 def sample_entries(grid, cells) -> list[dict]:

@@ -126,8 +126,9 @@ def extrapolation_section(inputs, records) -> dict:
     from goniofrost.frost.reconstruction import error_bound
 
     order = np.array([r.plan_index for r in records], dtype=np.int64)
+    sentinel = getattr(inputs, "sentinel", None)
     bound = error_bound(inputs.model, inputs.positions[order], np.array([r.rgb for r in records]),
-                        np.array([r.sigma for r in records]))
+                        np.array([r.sigma for r in records]), sentinel=None if sentinel is None else sentinel[order])
     return {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
             "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
 

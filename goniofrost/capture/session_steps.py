@@ -69,7 +69,8 @@ class SessionSpec:
         rig = inputs.rig
         target = {} if target_error is None else {
             "target": float(target_error), "batch_ends": tuple(int(e) for e in inputs.plan["batch_ends"]),
-            "assess": make_assessor(inputs.model, inputs.positions, confidence, inputs.scene), "confidence": float(confidence)}
+            "assess": make_assessor(inputs.model, inputs.positions, confidence, inputs.scene, inputs.sentinel),
+            "confidence": float(confidence)}
         return cls(inputs.samples, tuple(int(c) for c in inputs.cells), tuple(rig.joint_names),
                    validate_camera_section(rig.camera, rig.source), inputs.white_joints,
                    lambda joints: forward(rig, joints), arm_side(rig), **target)

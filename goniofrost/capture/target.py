@@ -31,12 +31,14 @@ DEFAULT_CONFIDENCE = 0.95
 class Assessor:
     """``assess(records) -> ErrorBound`` of the samples ``records`` (SampleRecords; their plan
     indices index ``positions``, the plan samples' rows in the model), uncertainties used;
-    ``scene``: the plan's ``scene_error.SceneError`` (the error in the scene's use) or None."""
+    ``scene``: the plan's ``scene_error.SceneError`` (the error in the scene's use) or None;
+    ``sentinel``: bool (n,) per plan sample, the sentinels (``plan --sentinels``) or None."""
 
     model: object
     positions: np.ndarray
     confidence: float = DEFAULT_CONFIDENCE
     scene: object = None
+    sentinel: np.ndarray | None = None
 
     @property
     def scope(self) -> str:
@@ -48,12 +50,14 @@ class Assessor:
         order = np.array([r.plan_index for r in records], dtype=np.int64)
         values = np.array([r.rgb for r in records], dtype=np.float64)
         sigmas = np.array([r.sigma for r in records], dtype=np.float64)
-        return error_bound(self.model, self.positions[order], values, sigmas, self.confidence, scene=self.scene)
+        return error_bound(self.model, self.positions[order], values, sigmas, self.confidence, scene=self.scene,
+                           sentinel=None if self.sentinel is None else self.sentinel[order])
 
 
-def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONFIDENCE, scene=None) -> Assessor:
+def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONFIDENCE, scene=None,
+                  sentinel=None) -> Assessor:
     """The ``Assessor`` of a session's samples (see there)."""
-    return Assessor(model, positions, confidence, scene)
+    return Assessor(model, positions, confidence, scene, sentinel)
 
 
 def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records) -> dict:

@@ -34,6 +34,7 @@ from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, FEATURES, feature_matrix, feature_range_of,
                                          material_features, predict, prequential_score,
                                          sample_level)
+from goniofrost.frost.sentinel import check_error
 
 # Sample counts simulated (the range of m the calibration is fitted on).
 M_VALUES = (5, 10, 15, 20, 25, 30, 40, 50, 60)
@@ -54,7 +55,9 @@ class CvRecords:
     training materials), m, actual (true log-relative MSE, no clamping), design_error, z2, energy,
     level and spread (``prediction.sample_level``; None: records without them, fitted on the
     first ``prediction.BASIC_FEATURES`` features), prequential (``prediction.prequential_score``
-    of the first m samples in design order; None: records without it, e.g. a scene's)."""
+    of the first m samples in design order; None: records without it, e.g. a scene's), sentinel
+    (``sentinel.check_error``: the mean squared error at the sentinel cells, never fitted, of the
+    posterior of the first m samples; None: records without sentinels)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -66,6 +69,7 @@ class CvRecords:
     level: np.ndarray | None = None
     spread: np.ndarray | None = None
     prequential: np.ndarray | None = None
+    sentinel: np.ndarray | None = None
 
     def features(self, m_range, n_features: int | None = None, feature_range=None) -> np.ndarray:
         """float64 (records, n_features): ``prediction.feature_matrix`` of every record (all of
@@ -77,10 +81,12 @@ class CvRecords:
 
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
-             design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False) -> dict:
+             design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None) -> dict:
     """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
 
-    mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2.
+    mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
+    sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
+    records without ``sentinel``.
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
     n = mapped.shape[0]
@@ -93,22 +99,25 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
                                  max(m_values))
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
-                _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)])
+                _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels)
         del d_f
-    return {key: CvRecords(**{k: np.asarray(v) for k, v in acc.items()}) for key, acc in out.items()}
+    unchecked = sentinels is None or not len(sentinels)
+    return {key: CvRecords(**{k: None if k == "sentinel" and unchecked else np.asarray(v) for k, v in acc.items()})
+            for key, acc in out.items()}
 
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
-                        design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False):
+                        design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
+                        sentinels=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale. Returns ((design scale, recon scale), {pair: CvRecords of the choice folds},
-    CvRecords of every fold with the chosen pair)."""
+    design scale (``sentinels``: see ``simulate``). Returns ((design scale, recon scale),
+    {pair: CvRecords of the choice folds}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress)
+                      progress=progress, sentinels=sentinels)
     chosen = choose_scales(choice)
     rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress)[chosen] if tail else None
+                    progress=progress, sentinels=sentinels)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 
@@ -126,8 +135,12 @@ def _prior(fold: InnerFold) -> np.ndarray:
     return np.full(fold.singular_values.size, 1.0 / fold.n_train_columns)
 
 
-def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values, acc: dict) -> None:
-    """Append the records of the fold's held-out materials measured at the first m ``rows``."""
+def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values, acc: dict,
+                          sentinels=None) -> None:
+    """Append the records of the fold's held-out materials measured at the first m ``rows``
+    (with their error at the ``sentinels``; NaN without)."""
+    checked = sentinels is not None and len(sentinels) > 0
+    sentinel_b = np.asarray(mapped[sentinels], dtype=np.float64) @ fold.centring if checked else None
     n = mapped.shape[0]
     s2 = fold.singular_values ** 2
     # Every sample's prediction from the ones before it, in design order (one sequential pass):
@@ -146,8 +159,9 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
+            check = check_error(d_f[sentinels], post.coefficients, sentinel_b, columns) if checked else np.nan
             values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
-                      + (prequential_score(one_step[:m], columns),))
+                      + (prequential_score(one_step[:m], columns), check))
             for key, value in zip(acc, values, strict=True):
                 acc[key].append(value)
 

@@ -41,6 +41,13 @@ samples look like training materials while their error sits where the design doe
 from the ones measured before it (``posterior.prequential_errors``). Measured the same way, it
 fails the same way: the missed materials' samples are predicted as well as a typical training
 material's (their error sits at unsampled grazing cells, where no design sample sees it).
+
+``sentinel_excess`` looks there: the error at a few sentinel cells in the region the design
+leaves empty (``sentinel.py``), never fitted, against the predicted error, calibrated on the
+held-out training materials like the bound (simultaneous over the looks). Given a capture's
+sentinel error (``error_bounds(check=)``), beyond the SENTINEL_CONFIDENCE quantile the samples
+are out of the model ("sentinel"). Trained on MERL it flags 15 of the 16 RGL captures that
+stopped at 0.05 (9 of them wrongly) and 3 to 5.5 % of the split's (docs/BENCHMARKS.md, issue 28).
 """
 from __future__ import annotations
 
@@ -48,6 +55,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from goniofrost.frost.sentinel import SENTINEL_CONFIDENCE
 
 
 # Captures stop only at m >= this (stopping.FIRST_BATCH; kept here so frost.stopping can import us).
@@ -58,7 +67,8 @@ FIRST_LOOK = 15
 # the held-out training materials' largest z2 at an m varied by less than a factor 2 from one m
 # to the next (45 x 45 x 90 grid, fold 0 of MERL + RGL: log z2 max 2.3 to 2.9 from m = 5 to 60).
 OUT_OF_MODEL_FACTOR = 2.0
-FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy"}
+FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
+                 "sentinel": "the sentinel samples' error"}
 
 
 @dataclass(frozen=True)
@@ -107,21 +117,58 @@ def fit_bound(records, m_range, n_features=None, feature_range=None) -> dict:
     material's simultaneous score, sorted."""
     r = cross_fitted_residuals(records, m_range, n_features, feature_range)
     ms = np.unique(records.m)
-    center = np.array([np.median(r[records.m == m]) for m in ms])
-    scale = np.array([max(float(np.std(r[records.m == m])), 1e-6) for m in ms])
     looks = ms[ms >= FIRST_LOOK] if np.any(ms >= FIRST_LOOK) else ms
-    standard = (r - center[np.searchsorted(ms, records.m)]) / scale[np.searchsorted(ms, records.m)]
+    center, scale, scores = _simultaneous(records, r, ms, looks)
+    return {"method": "split-conformal, simultaneous over the looks m >= %d" % int(looks[0]),
+            "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
+            "looks": [int(m) for m in looks], "scores": scores,
+            "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
+            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]} \
+        | _feature_spread(records, ms) | _prequential_spread(records, ms) | _sentinel_spread(records, r, ms, looks)
+
+
+def _simultaneous(records, values, ms, looks):
+    """Per m the median (ms,) and standard deviation (ms,) of ``values`` (records,), and every
+    held-out material's largest standardized value over ``looks``, sorted (list of floats)."""
+    center = np.array([np.median(values[records.m == m]) for m in ms])
+    scale = np.array([max(float(np.std(values[records.m == m])), 1e-6) for m in ms])
+    at = np.searchsorted(ms, records.m)
+    standard = (values - center[at]) / scale[at]
     keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
     in_look = np.isin(records.m, looks)
     _, material = np.unique(keys[in_look], return_inverse=True)
     scores = np.full(int(material.max()) + 1, -np.inf)
     np.maximum.at(scores, material, standard[in_look])
-    return {"method": "split-conformal, simultaneous over the looks m >= %d" % int(looks[0]),
-            "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
-            "looks": [int(m) for m in looks], "scores": sorted(float(s) for s in scores),
-            "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
-            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]} \
-        | _feature_spread(records, ms) | _prequential_spread(records, ms)
+    return center, scale, sorted(float(s) for s in scores)
+
+
+def _sentinel_spread(records, residuals, ms, looks) -> dict:
+    """The sentinel check's calibration (``sentinel.py``): g = log(sentinel error / cross-fitted
+    prediction) = log(sentinel / actual) + residual per record, its per-m median and spread and
+    every held-out material's simultaneous score over the looks, sorted; {} for records without
+    sentinels."""
+    if records.sentinel is None:
+        return {}
+    g = np.log(np.maximum(records.sentinel, 1e-12)) - np.log(np.maximum(records.actual, 1e-12)) + residuals
+    center, scale, scores = _simultaneous(records, g, ms, looks)
+    return {"sentinel": {"center": center.tolist(), "scale": scale.tolist(), "scores": scores}}
+
+
+def sentinel_excess(calibration: dict, check, predicted, m, level: float) -> np.ndarray:
+    """The sentinels' error ``check`` (``sentinel.check_error``) against the ``predicted`` whole
+    error (the calibrated point prediction, ``prediction.predict``), standardized at m
+    (interpolated in log m), over the conformal quantile at ``level`` of the held-out training
+    materials' simultaneous scores: bool, True beyond it (the error where the check looked is
+    not the one predicted: out of the model); all False for a model calibrated without
+    sentinels. Arguments broadcast."""
+    bound = calibration.get("bound") or {}
+    shape = np.broadcast(check, predicted, m).shape
+    if "sentinel" not in bound:
+        return np.zeros(shape, dtype=bool)
+    spread = bound["sentinel"] | {"m": bound["m"]}
+    g = np.log(np.maximum(check, 1e-12)) - np.log(np.maximum(predicted, 1e-12))
+    standard = (g - _at_m(spread, "center", m)) / _at_m(spread, "scale", m)
+    return np.broadcast_to(standard > conformal_quantile(spread["scores"], level), shape).copy()
 
 
 def _prequential_spread(records, ms) -> dict:
@@ -197,16 +244,19 @@ def _at_m(bound_calibration: dict, key: str, m) -> np.ndarray:
     return np.interp(np.log(np.asarray(m, dtype=np.float64)), ms, np.asarray(bound_calibration[key], dtype=np.float64))
 
 
-def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float, extra=0.0) -> dict:
-    """Vectorised bounds: {"median", "upper", "out_of_model_z2", "out_of_model_energy"} arrays
-    (broadcast shape of the arguments). predicted: the calibrated point prediction (exact
-    samples); extra: the increase the samples' own variance causes, added to both (what the
-    model says it costs, ``reconstruction._posterior``)."""
+def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float, extra=0.0, check=None) -> dict:
+    """Vectorised bounds: {"median", "upper", "out_of_model_z2", "out_of_model_energy",
+    "out_of_model_sentinel"} arrays (broadcast shape of the arguments). predicted: the calibrated
+    point prediction (exact samples); extra: the increase the samples' own variance causes, added
+    to both (what the model says it costs, ``reconstruction._posterior``); check: the error at
+    the sentinel cells (``sentinel.check_error``), None: not checked (never out of the model by it;
+    ``sentinel_excess`` at ``sentinel.SENTINEL_CONFIDENCE`` otherwise)."""
     bound = calibration.get("bound")
     predicted = np.asarray(predicted, dtype=np.float64)
     if not bound:
         inf = np.full(np.broadcast(predicted, m).shape, np.inf)
-        return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0}
+        return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0,
+                "out_of_model_sentinel": inf == 0}
     c, s = _at_m(bound, "center", m), _at_m(bound, "scale", m)
     q = conformal_quantile(bound["scores"], confidence)
     margin = math.log(OUT_OF_MODEL_FACTOR)
@@ -214,13 +264,15 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
         upper = predicted * np.exp(c + q * s) + extra
     return {"median": predicted * np.exp(c) + extra, "upper": upper,
             "out_of_model_z2": np.log(z2) > _at_m(bound, "log_z2_max", m) + margin,
-            "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin}
+            "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin,
+            "out_of_model_sentinel": np.zeros(np.shape(upper), bool) if check is None else
+            sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool)}
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
-                confidence: float, extra: float = 0.0) -> ErrorBound:
+                confidence: float, extra: float = 0.0, check: float | None = None) -> ErrorBound:
     """The ErrorBound of one reconstruction (see ``error_bounds``)."""
-    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra)
+    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra, check)
     flags = tuple(k for k in FEATURE_NAMES if bool(out[f"out_of_model_{k}"]))
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
                       unavailability(calibration, confidence))

@@ -117,15 +117,36 @@ def predicted_error(model: FrostModel, positions, values, sigmas=None, scene=Non
     return _posterior(model, positions, values, sigmas, scene)[4][0]
 
 
-def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: float = 0.95, scene=None):
+def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: float = 0.95, scene=None,
+                sentinel=None):
     """The calibrated bound on ``reconstruct_bayes``'s error from these samples at ``confidence``
     and whether they are unlike every training material (a ``confidence.ErrorBound``; no pass over
     the cells). Its median estimate counts the samples' variance as ``predicted_error`` does.
-    ``scene``: bound the error of the scene's use instead, with its own calibration."""
+    ``scene``: bound the error of the scene's use instead, with its own calibration.
+    ``sentinel``: bool (l,), the samples that are sentinels (``frost.sentinel``): the bound is of
+    the other samples, and the sentinels' error against their posterior is checked (out of the
+    model, "sentinel", beyond its calibrated range)."""
     from goniofrost.frost.confidence import error_bound as bound_of
 
-    unique, _, _, _, (predicted, _, z2, energy, extra, _, _) = _posterior(model, positions, values, sigmas, scene)
-    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra)
+    checked = sentinel is not None and bool(np.any(sentinel))
+    if checked:
+        flags, positions, values = np.asarray(sentinel, bool), np.asarray(positions), np.asarray(values, np.float64)
+        checks = (positions[flags], values[flags])
+        positions, values = positions[~flags], values[~flags]
+        sigmas = None if sigmas is None else np.asarray(sigmas)[~flags]
+    unique, _, _, post, (predicted, _, z2, energy, extra, _, _) = _posterior(model, positions, values, sigmas, scene)
+    check = _sentinel_check(model, *checks, post) if checked else None
+    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check)
+
+
+def _sentinel_check(model: FrostModel, positions, values, post) -> float:
+    """``sentinel.check_error`` of measured sentinel samples (positions (s,), values (s, 3) BRDF)
+    against the posterior ``post`` of the design's samples (the mapped error, log-relative MSE units)."""
+    from goniofrost.frost.sentinel import check_error
+
+    positions = np.asarray(positions, dtype=np.int64)
+    b = model.to_log(np.asarray(values, np.float64), positions) - np.asarray(model.mean, np.float64)[positions][:, None]
+    return check_error(np.asarray(model.dictionary[positions], np.float64), post.coefficients, b, [0, 1, 2])
 
 
 def _calibration(model: FrostModel, scene) -> dict:

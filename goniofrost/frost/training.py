@@ -92,13 +92,15 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
                 progress: bool = False) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration."""
-    from goniofrost.frost import calibration, noise
+    from goniofrost.frost import calibration, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
     learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
+    sentinels = sentinel.cells(grid)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
-                                                                                     progress=progress)
+                                                                                     progress=progress,
+                                                                                     sentinels=sentinels)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
@@ -109,6 +111,8 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
                                    for (a, b), rec in choice.items()],
             "cv_mean_errors": calibration.mean_errors(records),
             "calibration": calibration.fit_calibration(records)}
+    if "sentinel" in meta["calibration"]["bound"]:
+        meta["calibration"]["bound"]["sentinel"]["cells"] = sentinels.tolist()
     # As model.json will hold it (string keys, lists): the content hash is the same before and
     # after a save and load.
     return variance, json.loads(json.dumps(meta))
@@ -251,7 +255,8 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     materials = collect_materials(list(dataset_specs), only, exclude)
     ids = [m.dataset.content_id(m.name) for m in materials]
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
-    key = disk_cache.content_key("frost-model-v3", ids, [m.label for m in materials],
+    # v4: the bound holds the sentinel check's calibration (sentinel.py)
+    key = disk_cache.content_key("frost-model-v4", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():

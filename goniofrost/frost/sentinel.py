@@ -1,0 +1,70 @@
+"""Sentinel samples: a few cells the design leaves empty, measured as a held-out check.
+
+The calibrated bound (``confidence.py``) holds for materials exchangeable with the training
+ones. A material from another population can look like a training material at every cell
+the design samples and err elsewhere: trained on MERL, the diffuse RGL materials (felts,
+papers, spectralon) the bound missed had 48 % of their error at theta_d > 80 degrees and 28 %
+at theta_h > 70 degrees (4 % of the cells each), where the first 30 design cells never go, and
+no statistic of the design's samples told them apart (docs/BENCHMARKS.md, issue 28). The A-optimal
+design cannot be asked where to look: its variance is small exactly where the training set
+agrees with itself.
+
+So a few cells are chosen by geometry alone, spread over that region (``cells``: farthest-point
+sampling of the cells' (w_i, w_o) among the candidates with theta_d > 80 or theta_h > 70
+degrees), measured with the first batch and never fitted: at every look the posterior of the
+design's samples predicts them, and their mean squared mapped error (``check_error``) is compared
+with the median estimate of the whole error. The ratio is calibrated like the bound, on the
+held-out training materials of training's inner cross-validation (``confidence.fit_bound``);
+beyond the ratio of all but 5 % of them (SENTINEL_CONFIDENCE, simultaneous over the looks), the
+error where the check looked is not what the model predicts: the capture is out of the model,
+measures on and never stops on the bound.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from goniofrost.core.grid import MerlGrid
+
+# Cells reserved as sentinels (measured once, with the first batch).
+SENTINELS = 3
+# The region the A-optimal design leaves empty (degrees).
+THETA_D_MIN, THETA_H_MIN = 80.0, 70.0
+# The check flags a capture whose simultaneous sentinel score exceeds this conformal quantile
+# of the held-out training materials' (at most 5 % of materials like the training ones flagged).
+SENTINEL_CONFIDENCE = 0.95
+
+
+def region(grid: MerlGrid) -> np.ndarray:
+    """bool (n_valid,): the valid cells with theta_d > THETA_D_MIN or theta_h > THETA_H_MIN (lower
+    cell edges)."""
+    theta_h, theta_d, _ = (np.degrees(a) for a in grid.flat_angles(grid.valid_cells))
+    return (theta_d > THETA_D_MIN) | (theta_h > THETA_H_MIN)
+
+
+def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None = None) -> np.ndarray:
+    """int64 (count,) valid-cell positions: farthest-point sampling over the 6-vectors (w_i, w_o)
+    of the candidate cells (bool (n_valid,), default all) in ``region``, starting at the one
+    farthest from their mean; fewer when the region holds fewer, none when it is empty.
+    Deterministic (ties: the lowest position)."""
+    mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
+    where = np.flatnonzero(mask)
+    if where.size == 0 or count < 1:
+        return np.zeros(0, dtype=np.int64)
+    w_i, w_o = grid.cell_directions(grid.valid_cells[where])
+    x = np.concatenate([w_i, w_o], axis=1)
+    picks = [int(np.argmax(((x - x.mean(axis=0)) ** 2).sum(axis=1)))]
+    distance = ((x - x[picks[0]]) ** 2).sum(axis=1)
+    while len(picks) < min(count, where.size):
+        picks.append(int(np.argmax(distance)))
+        distance = np.minimum(distance, ((x - x[picks[-1]]) ** 2).sum(axis=1))
+    return where[picks].astype(np.int64)
+
+
+def check_error(rows: np.ndarray, coefficients: np.ndarray, b: np.ndarray, columns) -> float:
+    """The mean squared mapped error at the sentinels of one material: rows (s, K) dictionary
+    rows of the sentinel cells, coefficients (K, c) the posterior mean of the design's samples,
+    b (s, c) the sentinels' mapped values minus mu, ``columns`` the material's channels; floored
+    at 1e-12 (log-relative MSE units, as the whole error)."""
+    cols = np.asarray(columns)
+    miss = np.asarray(b, np.float64)[:, cols] - np.asarray(rows, np.float64) @ np.asarray(coefficients)[:, cols]
+    return max(float(np.mean(miss ** 2)), 1e-12)

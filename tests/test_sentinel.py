@@ -1,0 +1,226 @@
+"""Sentinel samples (frost.sentinel): cells the design leaves empty, checked against the
+posterior of the design's samples, calibrated on held-out training materials."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import confidence, sentinel, stopping
+from goniofrost.frost.calibration import CvRecords, fit_calibration
+from goniofrost.frost.prediction import predict
+
+from test_confidence import MS, synthetic_records
+
+GRID = MerlGrid(10, 10, 20)
+
+
+def test_the_sentinels_spread_over_the_region_the_design_leaves_empty():
+    cells = sentinel.cells(GRID, 5)
+    # farthest-point order: the two grazing forward-scatter extremes, then theta_h > 70, then between
+    assert cells.tolist() == [180, 199, 1590, 1469, 988]
+    theta_h, theta_d, phi_d = (np.degrees(a) for a in GRID.flat_angles(GRID.valid_cells[cells]))
+    np.testing.assert_allclose(theta_d, [81, 81, 0, 81, 81])
+    np.testing.assert_allclose(phi_d, [0, 171, 0, 81, 126])
+    assert theta_h[2] == pytest.approx(72.9, abs=0.05)
+    assert sentinel.region(GRID).sum() == 181 and sentinel.region(GRID)[cells].all()
+    assert sentinel.cells(GRID).tolist() == [180, 199, 1590]  # nested: the default 3 are the first 3
+    # only candidate cells (what a rig can measure); none when the region holds none of them
+    allowed = np.ones(GRID.n_valid, bool)
+    allowed[[180, 199]] = False
+    assert 180 not in sentinel.cells(GRID, 3, allowed) and sentinel.cells(GRID, 3, allowed).size == 3
+    assert sentinel.cells(GRID, 3, ~sentinel.region(GRID)).size == 0
+
+
+def test_the_check_error_is_the_mean_squared_miss_of_the_materials_columns():
+    rows = np.array([[1.0, 0.0], [0.0, 2.0]])
+    coefficients = np.array([[1.0, 0.0, 5.0], [0.5, 1.0, 5.0]])
+    b = np.array([[2.0, 0.0, 0.0], [1.0, 2.0, 0.0]])  # predicted [[1, 0, 5], [1, 2, 10]]
+    assert sentinel.check_error(rows, coefficients, b, [0, 1]) == pytest.approx((1 + 0 + 0 + 0) / 4)
+    assert sentinel.check_error(rows, coefficients, b, [2]) == pytest.approx((25 + 100) / 2)
+    assert sentinel.check_error(rows, coefficients, rows @ coefficients, [0]) == 1e-12  # floored
+
+
+def sentinel_records(n_materials, seed, odd=0.0):
+    """synthetic_records with a sentinel error: the actual error times a per-material factor
+    (lognormal, sd 0.5) times noise shrinking with m; ``odd``: log factor added to every material."""
+    records = synthetic_records(n_materials, seed)
+    rng = np.random.default_rng(seed + 100)
+    factor = rng.normal(0, 0.5, n_materials)[records.material] + rng.normal(0, 1, records.m.size) / np.sqrt(records.m)
+    return CvRecords(**{k: getattr(records, k) for k in ("fold", "material", "m", "actual", "design_error", "z2",
+                                                         "energy")}, sentinel=records.actual * np.exp(factor + odd))
+
+
+def test_the_sentinel_check_flags_five_percent_of_typical_materials_and_one_whose_error_hides_elsewhere():
+    calibration = fit_calibration(sentinel_records(300, seed=1))
+    spread = calibration["bound"]["sentinel"]
+    assert len(spread["scores"]) == 300 and len(spread["center"]) == len(MS)
+    fresh = sentinel_records(4000, seed=2)
+    predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m)
+    looks = fresh.m >= confidence.FIRST_LOOK
+    flagged = confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m, 0.95)
+    any_look = flagged.reshape(4000, len(MS))[:, looks[:len(MS)]].any(axis=1).mean()
+    assert 0.035 <= any_look <= 0.075, any_look  # simultaneous over the looks: about 1 - 0.95
+    # the sentinels' error 20 x what the training materials show where they looked: flagged
+    odd = sentinel_records(200, seed=3, odd=np.log(20.0))
+    assert confidence.sentinel_excess(calibration, odd.sentinel, predict(calibration, odd.design_error, odd.z2,
+                                      odd.energy, odd.m), odd.m, 0.95)[odd.m == 30].mean() > 0.9
+    # in error_bounds: a flag of its own, unchecked samples never flagged, a model without sentinels never
+    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95, check=fresh.sentinel)
+    np.testing.assert_array_equal(b["out_of_model_sentinel"],
+                                  confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m,
+                                                             sentinel.SENTINEL_CONFIDENCE))
+    assert not confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95)[
+        "out_of_model_sentinel"].any()
+    assert not confidence.sentinel_excess(fit_calibration(synthetic_records(50, seed=7)), 1e9, 1.0, 20, 0.95)
+
+
+def test_the_sentinel_excess_reads_the_calibrated_center_scale_and_quantile():
+    calibration = {"bound": {"m": [15, 60], "sentinel": {"center": [0.0, 1.0], "scale": [1.0, 2.0],
+                                                          "scores": [0.5, 1.0, 2.0]}}}
+    # n = 3: at 0.5 the ceil(4 * 0.5) = 2nd smallest score, 1.0; m = 30 is halfway in log m
+    check = np.exp(np.array([0.99, 1.01]))
+    np.testing.assert_array_equal(confidence.sentinel_excess(calibration, check, 1.0, 15, 0.5), [False, True])
+    np.testing.assert_array_equal(confidence.sentinel_excess(calibration, np.exp([2.99, 3.01]), 1.0, 60, 0.5),
+                                  [False, True])
+    np.testing.assert_array_equal(confidence.sentinel_excess(calibration, np.exp([1.99, 2.01]), 1.0, 30, 0.5),
+                                  [False, True])  # center 0.5, scale 1.5
+
+
+def test_a_capture_flagged_by_its_sentinels_never_stops_on_the_bound():
+    flagged = confidence.ErrorBound(0.001, 0.002, 0.95, ("sentinel",))
+    assert stopping.stop_reason(flagged, target=0.05, done=15, total=40) is None
+    assert stopping.stop_reason(flagged, target=0.05, done=40, total=40) == stopping.REASON_PLAN
+    assert stopping.why_not_reached(flagged, 0.05) == ("the samples are unlike every training material "
+                                                       "(the sentinel samples' error beyond the training range): "
+                                                       "an extrapolation")
+
+
+def test_a_trained_model_calibrates_its_sentinels():
+    from test_frost import synthetic_tables
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    spread = model.noise["calibration"]["bound"]["sentinel"]
+    assert spread["cells"] == sentinel.cells(GRID).tolist() and len(spread["scores"]) == 40
+    assert len(spread["center"]) == len(model.noise["calibration"]["bound"]["m"])
+
+
+def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_by_its_sentinels():
+    """End to end on a trained model: the same material with its BRDF x 20 in the sentinels'
+    region (the design's cells left as they were) gives the design's samples, and so the bound,
+    to the bit; only the sentinels see it, and the simulated capture measures on."""
+    from test_frost import synthetic_tables
+    from goniofrost.bench import bayes_eval
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    order = np.asarray(select_bayes(model, 20).positions, dtype=np.int64)
+    like = synthetic_tables(GRID, 2, seed=11).astype(np.float64)
+    hidden = sentinel.region(GRID)
+    hidden[order] = False
+    odd = like.copy()
+    odd[:, hidden] *= 20.0
+    truth = np.concatenate([like, odd])
+    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    plain = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9)
+    np.testing.assert_array_equal(plain["upper"][:2], plain["upper"][2:])  # the same samples, the same bound
+    np.testing.assert_array_equal(out["ever_sentinel"], [0, 0, 1, 1])
+    np.testing.assert_array_equal(out["samples"], [18, 18, 23, 23])  # 15 + 3; the flagged ones measure on
+    np.testing.assert_array_equal(out["reached"], [1, 1, 0, 0])
+    np.testing.assert_array_equal(plain["samples"], [15, 15, 15, 15])  # without the check all four stop
+
+
+def test_a_plan_with_sentinels_measures_them_with_the_first_batch():
+    from goniofrost.capture.plan_file import add_sentinels, sample_entries
+
+    design = np.array([5, 6, 7, 8], dtype=np.int64)
+    doc = {"m": 4, "batch_ends": [2, 4], "samples": sample_entries(GRID, GRID.valid_cells[design]), "selector": "bayes"}
+    out = add_sentinels(doc, GRID, np.array([180, 199]))
+    assert (out["m"], out["sentinels"], out["batch_ends"], out["selector"]) == (6, 2, [4, 6], "bayes")
+    cells = [tuple(s["cell"]) for s in out["samples"]]
+    expected = [tuple(int(v) for v in c) for c in np.stack(GRID.unravel(GRID.valid_cells[[5, 6, 180, 199, 7, 8]]), 1)]
+    assert cells == expected
+    assert [s.get("sentinel", False) for s in out["samples"]] == [False, False, True, True, False, False]
+    assert doc["m"] == 4 and len(doc["samples"]) == 4  # the design's plan is left as it was
+
+
+@pytest.fixture(scope="module")
+def trained():
+    from test_frost import synthetic_tables
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+
+
+def test_a_captures_bound_leaves_its_sentinels_out_and_checks_them(trained):
+    from test_frost import synthetic_tables
+    from goniofrost.capture.target import make_assessor
+    from goniofrost.frost.reconstruction import error_bound
+
+    model, design = trained
+    cells = np.asarray(model.noise["calibration"]["bound"]["sentinel"]["cells"])
+    positions = np.concatenate([design, cells])
+    flags = np.arange(positions.size) >= design.size
+    like = synthetic_tables(GRID, 1, seed=11)[0].astype(np.float64)
+    odd = like.copy()
+    odd[cells] *= 20.0
+    alone = error_bound(model, design, like[design], confidence=0.95)
+    for table, flagged in ((like, ()), (odd, ("sentinel",))):
+        bound = error_bound(model, positions, table[positions], confidence=0.95, sentinel=flags)
+        assert (bound.median, bound.upper, bound.out_of_model) == (alone.median, alone.upper, flagged)
+    records = [SimpleNamespace(plan_index=i, rgb=tuple(odd[p]), sigma=(0.0, 0.0, 0.0)) for i, p in enumerate(positions)]
+    assessed = make_assessor(model, positions, 0.95, sentinel=flags)(records)
+    assert assessed.out_of_model == ("sentinel",)
+    assert stopping.stop_reason(assessed, target=1e9, done=positions.size, total=40) is None
+    # the same samples all fitted (a plan without sentinels): x 20 at 3 of 18 cells shows in the
+    # leave-one-out residuals instead; the design's 15 alone show nothing
+    assert make_assessor(model, positions, 0.95)(records).out_of_model == ("z2",)
+    assert make_assessor(model, design, 0.95)(records[:design.size]).out_of_model == ()
+
+
+def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_resume_keeps_it(tmp_path, capsys):
+    """plan --sentinels on the simulated rig, capture --target-error: the first batch measures the
+    sentinels too, the bound is the design samples' alone, and a resume moves nothing."""
+    import json
+
+    from goniofrost.app.cli import main
+    from goniofrost.capture.journal import Journal
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.reconstruction import error_bound
+    from test_session import GRID as SESSION_GRID, TRAINING, capture_args, write_rig
+    from goniofrost.frost.training import train
+
+    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    rig, plan, session = write_rig(tmp_path / "rig.yaml"), tmp_path / "plan.json", tmp_path / "s"
+    assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "17",
+                 "--rig", str(rig), "--sentinels", "--out", str(plan)]) == 0
+    out = capsys.readouterr().out
+    assert "sentinels: 3 samples with the first batch" in out and f"{plan}: m = 17 samples + 3 sentinels" in out
+    doc = json.loads(plan.read_text())
+    assert (doc["m"], doc["sentinels"], doc["batch_ends"]) == (20, 3, [18, 20])
+    flags = [bool(s.get("sentinel")) for s in doc["samples"]]
+    assert sum(flags[:18]) == 3 and not any(flags[18:])
+    # 6 training materials: the bound exists at 0.8, the sentinel check (at 0.95) cannot flag
+    assert main(capture_args(rig, plan, session, "--speedup", "50", "--target-error", "10000",
+                             "--confidence", "0.8")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        records, events = journal.samples(), journal.events()
+    assert len(records) == 18
+    [batch] = [e for e in events if e["kind"] == "batch"]
+    assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 18
+    design = [r for r in records if not flags[r.plan_index]]
+    positions = SESSION_GRID.valid_position(np.array([SESSION_GRID.flat_index(*doc["samples"][r.plan_index]["cell"])
+                                                      for r in design]))
+    alone = error_bound(model, positions, np.array([r.rgb for r in design]), np.array([r.sigma for r in design]), 0.8)
+    assert batch["data"]["bound"] == pytest.approx(alone.upper, rel=1e-12)
+    report = json.loads((session / "report.json").read_text())
+    assert report["target_error"]["samples_used"] == 18 and not report["target_error"]["extrapolation"]
+    assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        assert len(journal.events()) == len(events) and len(journal.samples()) == 18
