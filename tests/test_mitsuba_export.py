@@ -350,6 +350,7 @@ def test_bad_in_memory_tables_are_refused(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--sample", "1"], "--sample: expected an integer >= 2, found 1"),
     (["--out", "m.binary"], "--out m.binary: is the input file; expected another name such as m.bsdf"),
+    (["--wavelengths", "8"], "--wavelengths: applies to the spectral formats only (--format rgl-spectral or pbrt)"),
 ])
 def test_bad_options_exit_2(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)

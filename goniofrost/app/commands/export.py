@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"rgb/spectra and luminance nodes per side of each incident slice (default "
                              f"{DEFAULT_OPTIONS.sample}; the file grows with N^2)")
     lo, hi = WAVELENGTH_RANGE_NM
-    parser.add_argument("--wavelengths", type=int, default=DEFAULT_WAVELENGTHS, metavar="N",
+    parser.add_argument("--wavelengths", type=int, default=None, metavar="N",
                         help=f"spectral formats: wavelengths from {lo:g} to {hi:g} nm (default {DEFAULT_WAVELENGTHS}; "
                              f"the file grows with N)")
 
@@ -43,19 +43,22 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
-    from goniofrost.brdf.rgl_spectral import FORMATS as KINDS, export_file
+    from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, FORMATS as KINDS, export_file
     from goniofrost.core.errors import GoniofrostError
 
     source = Path(args.binary)
     out = Path(args.out) if args.out else source.with_suffix(".bsdf")
     if out.resolve() == source.resolve():
         raise GoniofrostError(f"--out {out}: is the input file; expected another name such as {source.stem}.bsdf")
-    for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample), ("--wavelengths", args.wavelengths)):
+    if args.wavelengths is not None and KINDS[args.format] == "rgb":  # it would change nothing, silently
+        raise GoniofrostError("--wavelengths: applies to the spectral formats only (--format rgl-spectral or pbrt)")
+    wavelengths = DEFAULT_WAVELENGTHS if args.wavelengths is None else args.wavelengths
+    for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample), ("--wavelengths", wavelengths)):
         if value < 2:
             raise GoniofrostError(f"{flag}: expected an integer >= 2, found {value}")
     options = replace(DEFAULT_OPTIONS, theta_i=args.theta_i, sample=args.sample)
     start = time.perf_counter()
-    fields = export_file(source, out, args.format, options, args.wavelengths)
+    fields = export_file(source, out, args.format, options, wavelengths)
     seconds, size = time.perf_counter() - start, out.stat().st_size / 1e6
     if KINDS[args.format] == "rgb":
         rgb = fields["rgb"].shape
