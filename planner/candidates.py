@@ -13,9 +13,9 @@ import numpy as np
 
 from .kinematics import Reason, arm_side, forward, inverse
 from .rig import Rig
-from .view import beam_covers, roi_pixels
+from .view import beam_covers, light_reaches, roi_pixels
 
-MEASURABILITY = (Reason.PATCH_PIXELS, Reason.LAMP_BEAM)
+MEASURABILITY = (Reason.PATCH_PIXELS, Reason.LAMP_BEAM, Reason.LIGHT_GRAZING)
 
 
 def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True):
@@ -33,8 +33,8 @@ def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True):
 
 
 def measurable_reason(rig: Rig, joints) -> np.ndarray:
-    """uint8 (...): OK, PATCH_PIXELS or LAMP_BEAM for commanded joints (..., 3) (OK everywhere
-    when the rig has no camera model)."""
+    """uint8 (...): OK, PATCH_PIXELS, LAMP_BEAM or LIGHT_GRAZING for commanded joints (..., 3)
+    (OK everywhere when the rig has no camera model)."""
     q = np.asarray(joints, dtype=np.float64)
     reason = np.full(q.shape[:-1], Reason.OK, dtype=np.uint8)
     if rig.view is None:
@@ -42,6 +42,7 @@ def measurable_reason(rig: Rig, joints) -> np.ndarray:
     w_i, w_o = forward(rig, q)
     reason[roi_pixels(rig.view, w_i, w_o, arm_side(rig)) < rig.view.min_pixels] = Reason.PATCH_PIXELS
     reason[~beam_covers(rig.view, w_i)] = Reason.LAMP_BEAM
+    reason[~light_reaches(rig.view, w_i)] = Reason.LIGHT_GRAZING
     return reason
 
 

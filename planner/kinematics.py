@@ -46,6 +46,7 @@ class Reason(enum.IntEnum):
     BELOW_SURFACE = 4    # w_i or w_o not above the sample surface (not a valid BRDF cell)
     PATCH_PIXELS = 5     # the camera sees too few patch pixels (view too grazing; planner.view)
     LAMP_BEAM = 6        # the lamp's beam does not cover the whole patch (planner.view)
+    LIGHT_GRAZING = 7    # the light meets the sample beyond lamp.max_incidence_deg: too dark (planner.view)
 
 
 BRANCHES = ("direct", "mirror")

@@ -60,6 +60,9 @@ _LAMP_KEYS = {
     "driver": Key(is_mapping, "a mapping", ABSENT),
     # the collimated beam, centred on the rotation centre: the patch must lie inside it
     "beam_diameter_mm": dataclasses.replace(_POSITIVE, default=ABSENT),
+    # the light's largest angle from the sample's normal that still lights the patch enough to
+    # measure (its irradiance falls as cos theta_i: 1/57 of the normal's at 89 deg)
+    "max_incidence_deg": dataclasses.replace(number_in(0.0, 90.0, low_open=True), default=ABSENT),
 }
 
 
@@ -141,8 +144,9 @@ def rig_from_mapping(raw: Any, source: str,
     geometry = _geometry(top["geometry"], source)
     axes = _axes(top["axes"], source, geometry, validators.get("driver"))
     lamp = check_section(top["lamp"], _LAMP_KEYS, source, "lamp")
-    if "beam_diameter_mm" in lamp:
-        lamp["beam_diameter_mm"] = float(lamp["beam_diameter_mm"])
+    for key in ("beam_diameter_mm", "max_incidence_deg"):
+        if key in lamp:
+            lamp[key] = float(lamp[key])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
     camera, sim, lab = (_checked(top[key], source, key, validators.get(key)) if key in top else {}

@@ -5,7 +5,11 @@ A pose (w_i, w_o) is measurable when
   rig's camera model, lies inside the image and keeps at least ``min_pixels`` pixels of every
   Bayer colour channel after the one-pixel erosion the calibration applies (``PATCH_PIXELS``);
 * every corner of the patch lies inside the lamp's beam, a cylinder of ``beam_radius_mm`` about
-  the light direction through the rotation centre (``LAMP_BEAM``).
+  the light direction through the rotation centre (``LAMP_BEAM``);
+* the light meets the sample at most ``max_incidence_deg`` from its normal (``LIGHT_GRAZING``):
+  the patch's irradiance is cos theta_i of the normal's, and a light at 89.97 deg (cos 0.0005,
+  the MERL grid's most grazing cells) left a capture's sample below its SNR minimum at the
+  longest exposure, which ends the session (and a resume meets the same sample again).
 The pixel count is a lower bound computed in closed form (no rasterisation), in one compiled
 (numba) pass over any number of poses: the eroded mask holds every pixel whose centre lies ERODE_PX inside the
 polygon, and a convex region of area A and perimeter P holds at least A/4 - P/4 - 1 points of a
@@ -31,7 +35,8 @@ class Measurability:
     ``camera``: ``goniofrost.core.camera_model.CameraModel``; ``roi_mm``: (4, 2) corners of the
     region of interest in the sample plane (mm); ``patch_mm``: (4, 2) corners of the whole
     patch (mm); ``min_pixels``: pixels per colour channel; ``beam_radius_mm``: radius of the
-    lamp's collimated beam (None: it covers the whole holder).
+    lamp's collimated beam (None: it covers the whole holder); ``max_incidence_deg``: the light's
+    largest angle from the sample's normal (None: no limit).
     """
 
     camera: object
@@ -39,12 +44,13 @@ class Measurability:
     patch_mm: tuple
     min_pixels: int
     beam_radius_mm: float | None = None
+    max_incidence_deg: float | None = None
 
     def as_dict(self) -> dict:
         """JSON-friendly description (cache keys)."""
         return {"camera": self.camera.as_dict(), "roi_mm": np.asarray(self.roi_mm).tolist(),
                 "patch_mm": np.asarray(self.patch_mm).tolist(), "min_pixels": self.min_pixels,
-                "beam_radius_mm": self.beam_radius_mm}
+                "beam_radius_mm": self.beam_radius_mm, "max_incidence_deg": self.max_incidence_deg}
 
 
 def roi_pixels(view: Measurability, w_i, w_o, arm_side: float = 1.0) -> np.ndarray:
@@ -73,6 +79,15 @@ def beam_covers(view: Measurability, w_i) -> np.ndarray:
     along = np.einsum("kj,...j->...k", p, w_i)                                        # (..., 4)
     off_axis = np.sum(p ** 2, -1) - along ** 2                                         # squared distances
     return np.all(off_axis <= view.beam_radius_mm ** 2 + 1e-9, axis=-1)
+
+
+def light_reaches(view: Measurability, w_i) -> np.ndarray:
+    """bool (...): the light direction w_i (..., 3, unit, sample frame) lies within
+    ``max_incidence_deg`` of the sample's normal (everywhere True without a limit)."""
+    w_i = np.asarray(w_i, dtype=np.float64)
+    if view.max_incidence_deg is None:
+        return np.ones(w_i.shape[:-1], dtype=bool)
+    return w_i[..., 2] >= np.cos(np.radians(view.max_incidence_deg))
 
 
 @njit(parallel=True, cache=True)

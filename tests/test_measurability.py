@@ -71,7 +71,9 @@ def test_cells_up_to_85_degrees_are_measurable_on_the_simulated_rig(rig):
     geometric = ~np.isin(reason, [Reason.ARM_SEPARATION, Reason.ARM_LIMIT, Reason.STAGE_LIMIT, Reason.BELOW_SURFACE])
     f_i, f_o = forward(rig, joints[geometric])
     view_deg = np.degrees(np.arccos(np.clip(f_o[:, 2], -1, 1)))
-    assert np.all(reason[geometric][view_deg <= 85.0] == Reason.OK)
+    light_deg = np.degrees(np.arccos(np.clip(f_i[:, 2], -1, 1)))
+    assert np.all(reason[geometric][(view_deg <= 85.0) & (light_deg <= 89.0)] == Reason.OK)
+    assert np.all(reason[geometric][light_deg > 89.0] == Reason.LIGHT_GRAZING)   # lamp.max_incidence_deg
     assert np.any(reason[geometric][view_deg > 88.8] == Reason.PATCH_PIXELS)
     cells = compute_reasons(rig, GRID)
     theta = np.degrees(np.arccos(np.stack([w_i[:, 2], w_o[:, 2]], 1))).max(1)
@@ -118,9 +120,11 @@ def test_the_scheduler_uses_only_poses_the_camera_can_measure(rig):
     assert all(s["light_camera_swapped"] for s in doc["samples"])
     joints = np.array([[s["joints"][n] for n in rig.joint_names] for s in doc["samples"]])
     assert np.all(measurable_reason(rig, joints) == Reason.OK)
-    # both grazing: no pose can measure it, and the plan says so
+    # both grazing, or one beyond the lamp's 89 deg (the camera cannot see it there and the light,
+    # swapped, cannot light it): no pose can measure it, and the plan says so
     both = np.flatnonzero(compute_reasons(rig, GRID) == Reason.PATCH_PIXELS)
-    assert both.size > 0 and np.all(np.minimum(theta_i, theta_o)[both] > 85.0)
+    lo, hi = np.minimum(theta_i, theta_o)[both], np.maximum(theta_i, theta_o)[both]
+    assert both.size > 0 and np.all((lo > 85.0) | (hi > 89.0))
     with pytest.raises(UnreachableSampleError, match=r"plan sample 0 \(cell \(\d+, \d+, \d+\)\) cannot be reached "
                                                      r"on this rig: PATCH_PIXELS"):
         schedule_plan(_plan(GRID.valid_cells[both[:1]]), rig)
@@ -130,4 +134,31 @@ def test_the_lamp_beam_diameter_is_checked(tmp_path):
     from goniofrost.core.errors import ConfigError
     bad = _variant(tmp_path, "bad.yaml", lambda r: r["lamp"].update(beam_diameter_mm=0))
     with pytest.raises(ConfigError, match=r"bad\.yaml: lamp\.beam_diameter_mm: expected a number in \(0, inf\], found 0"):
+        load_checked_rig(bad)
+
+
+def test_a_light_beyond_the_lamps_largest_incidence_is_not_measurable(rig, tmp_path):
+    # the rig's light is horizontal: the yaw turns the sample's normal away from it
+    assert measurable_reason(rig, np.array([20.0, 88.9, 0.0])) == Reason.OK
+    assert measurable_reason(rig, np.array([20.0, 89.1, 0.0])) == Reason.LIGHT_GRAZING   # default 89 deg
+    steep = load_checked_rig(_variant(tmp_path, "steep.yaml", lambda r: r["lamp"].update(max_incidence_deg=80)))
+    assert measurable_reason(steep, np.array([20.0, 79.0, 0.0])) == Reason.OK
+    assert measurable_reason(steep, np.array([20.0, 81.0, 0.0])) == Reason.LIGHT_GRAZING
+    # a cell is kept when some pose lights it within the limit (the swap by reciprocity included),
+    # and every candidate pose the planner may use has its light within the limit
+    w_i, w_o = GRID.cell_directions(GRID.valid_cells)
+    joints, usable, _ = candidate_poses(rig, w_i, w_o)
+    light, _ = forward(rig, joints[usable])
+    assert np.all(light[:, 2] >= np.cos(np.radians(89.0)))
+    counts = {name: reachability(r, GRID).counts() for name, r in (("sim", rig), ("steep", steep))}
+    assert 0 < counts["sim"]["LIGHT_GRAZING"] < counts["steep"]["LIGHT_GRAZING"]
+    assert reachability(rig, GRID).mask.sum() > reachability(steep, GRID).mask.sum()
+
+
+@pytest.mark.parametrize("value, found", [(0, "0"), (90.5, "90.5"), ("high", "'high'")])
+def test_the_lamps_largest_incidence_is_checked(tmp_path, value, found):
+    from goniofrost.core.errors import ConfigError
+    bad = _variant(tmp_path, "bad.yaml", lambda r: r["lamp"].update(max_incidence_deg=value))
+    with pytest.raises(ConfigError, match=rf"bad\.yaml: lamp\.max_incidence_deg: expected a number in \(0, 90\], "
+                                          rf"found {found}$"):
         load_checked_rig(bad)

@@ -22,6 +22,11 @@ from planner.rig import Rig
 from planner.rig import load_rig as _load_rig
 from planner.view import Measurability
 
+# lamp.max_incidence_deg when the rig file does not say: the light's irradiance on the patch is
+# cos theta_i of the normal's, 1/57 at 89 deg; the MERL grid's most grazing cells (89.97 deg,
+# 1/1900) left a capture's sample below its SNR minimum at 16 s, which ends the session.
+DEFAULT_MAX_INCIDENCE_DEG = 89.0
+
 # section -> (module, function) of its validator: validator(section, source, keypath) -> None.
 VALIDATORS: dict[str, tuple[str, str]] = {
     "driver": ("drivers.config", "validate_driver_section"),
@@ -75,8 +80,9 @@ def measurability(rig: Rig) -> Measurability | None:
     if "intrinsics" not in camera or "mount" not in camera:
         return None
     beam = rig.lamp.get("beam_diameter_mm")
+    incidence = rig.lamp.get("max_incidence_deg", DEFAULT_MAX_INCIDENCE_DEG)
     return Measurability(camera=CameraModel.from_section(camera),
                          roi_mm=tuple(map(tuple, DEFAULT_LAYOUT.patch_polygon(camera["roi_margin"]))),
                          patch_mm=tuple(map(tuple, DEFAULT_LAYOUT.patch_polygon(0.0))),
                          min_pixels=int(camera["min_roi_pixels"]),
-                         beam_radius_mm=None if beam is None else beam / 2.0)
+                         beam_radius_mm=None if beam is None else beam / 2.0, max_incidence_deg=incidence)
