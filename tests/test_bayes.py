@@ -141,7 +141,8 @@ def test_max_error_stops_at_the_first_pick_below_the_target(model):
 
 @pytest.mark.parametrize("kwargs, message", [
     ({}, "give exactly one of m"),
-    ({"m": 0}, "samples m: expected a positive integer, found 0"),
+    ({"m": 0}, r"samples m: expected an integer in \[1, 1000\], found 0"),
+    ({"m": 100000}, r"samples m: expected an integer in \[1, 1000\], found 100000"),  # not minutes of picks
     ({"m": 5, "max_error": 0.1}, "give exactly one of m"),
     ({"max_error": -1.0}, "max_error: expected a number > 0, found -1.0"),
     ({"max_error": 1e-9}, "max_error: 1e-09 is out of reach"),

@@ -27,8 +27,8 @@ from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
 from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
 
-# --max-error never plans more samples than this.
-MAX_ERROR_PICKS = 1000
+# No plan has more samples than this (--samples, and --max-error picks at most this many).
+MAX_PICKS = 1000
 # A best score at or below this fraction of the first one means no allowed cell still
 # reduces the expected error (float rounding of the updated forms is ~1e-7 of them).
 EXHAUSTED = 1e-9
@@ -270,8 +270,9 @@ def _check(m, max_error, n_candidates: int, calibration: dict, noise: np.ndarray
     if (m is None) == (max_error is None):
         raise SelectionError("selection: give exactly one of m (--samples) and max_error (--max-error)")
     if m is not None:
-        if not isinstance(m, (int, np.integer)) or m < 1:
-            raise SelectionError(f"samples m: expected a positive integer, found {m!r}")
+        if not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PICKS:
+            # each pick reads the whole dictionary: 100000 picks ran for longer than 10 minutes
+            raise SelectionError(f"samples m: expected an integer in [1, {MAX_PICKS}], found {m!r}")
         if m > n_candidates:
             raise SelectionError(f"candidates: {n_candidates} allowed cells, fewer than the {m} samples asked for")
         return int(m)
@@ -282,4 +283,4 @@ def _check(m, max_error, n_candidates: int, calibration: dict, noise: np.ndarray
         raise SelectionError(
             f"max_error: {max_error:g} is out of reach: the model's own representation error alone "
             f"predicts {floor:.4g} however many samples are taken; ask for more than that")
-    return min(n_candidates, MAX_ERROR_PICKS)
+    return min(n_candidates, MAX_PICKS)
