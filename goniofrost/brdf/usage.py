@@ -62,7 +62,11 @@ def load_usage(path, n_valid: int) -> np.ndarray:
         usage = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise UsageError(f"{path}: usage map not found (goniofrost usage --scene SCENE.xml --object ID --out FILE.npy)") from None
-    except (OSError, ValueError) as exc:
+    except ValueError:
+        # numpy reads a file without the .npy header as a pickle and refuses it, with advice to
+        # "load it unsafely" that a user must not follow: say what the file is not, instead
+        raise UsageError(f"{path}: not a usage map (.npy of float32 weights): not in NumPy's .npy format") from None
+    except OSError as exc:
         raise UsageError(f"{path}: not a usage map (.npy of float32 weights): {exc}") from None
     if usage.ndim != 1 or usage.shape[0] != n_valid or not np.issubdtype(usage.dtype, np.floating):
         raise UsageError(f"{path}: expected float weights of shape ({n_valid},) (one per valid cell of the model's "

@@ -102,7 +102,10 @@ def _read_archive(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as archive:
             data = {k: archive[k] for k in archive.files}
-    except (OSError, ValueError) as exc:
+    except ValueError:
+        # not a zip: numpy tries it as a pickle and refuses, advising to "load it unsafely"
+        raise DatasetError(f"{path}: not a readable .npz archive (not in NumPy's .npz format)") from None
+    except OSError as exc:
         raise DatasetError(f"{path}: not a readable .npz archive ({exc})") from exc
     missing = [k for k in ("names", *LAYER_KEYS) if k not in data]
     if missing:
