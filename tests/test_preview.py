@@ -96,3 +96,12 @@ def test_uncertainty_panel_shows_predicted_std_beside_the_actual_log_error(tmp_p
     assert P.compose(preview).shape == (3 * 40, 5 * 40, 3)  # estimate, reference, error, std, log error
     assert main(["preview", str(est), "--reference", str(ref), "--std", str(std), "--out", str(png), "--size", "40"]) == 0
     assert f"predicted log-relative MSE 0.01, actual {actual:.4g}" in capsys.readouterr().out
+
+
+def test_preview_to_a_name_that_is_not_png_is_refused_and_writes_nothing(tmp_path, capsys):
+    est, jpg = tmp_path / "est.binary", tmp_path / "p.jpg"
+    write_merl(est, lambertian(), GRID)
+    assert main(["preview", str(est), "--out", str(jpg)]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"--out {jpg}: expected a file name ending in .png "
+                                                   "(the picture is written as PNG)")
+    assert not jpg.exists()

@@ -268,3 +268,16 @@ def test_capture_without_session_or_dry_run_is_one_line(small_plan, capsys):
     rig, plan = small_plan
     assert main(["capture", "--rig", str(rig), "--plan", str(plan)]) == 2
     assert capsys.readouterr().err.strip() == "goniofrost capture: error: command line: --session: expected a session folder (DIR), found 'nothing'"
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--out", "look.jpg"], "--out look.jpg: expected a file name ending in .png (the picture is written as PNG)"),
+    (["--out", "look.png", "--exposure", "-1"], "--exposure: expected a positive number of seconds, found -1"),
+])
+def test_snap_refuses_a_bad_option_before_it_connects(tmp_path, monkeypatch, capsys, option, message):
+    # the refusal comes before the rig is opened: on the simulated rig a snap that went ahead would
+    # start the twins and write the picture (never the template's rig: its drives sit on a lab network)
+    monkeypatch.chdir(tmp_path)
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), *option]) == 2
+    assert capsys.readouterr().err.strip().endswith(message)
+    assert list(tmp_path.iterdir()) == []

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 
@@ -192,9 +193,13 @@ def run_stop(args) -> int:
 # ----- snap -------------------------------------------------------------------------------------
 def run_snap(args) -> int:
     from goniofrost.capture.console import check_targets, parse_targets
+    from goniofrost.app.png_out import check_png_name
     from goniofrost.capture.snap import snap, snap_text
 
-    rig = _load(args)
+    check_png_name(args.out)
+    if args.exposure is not None and not (math.isfinite(args.exposure) and args.exposure > 0):
+        raise GoniofrostError(f"--exposure: expected a positive number of seconds, found {args.exposure:g}")
+    rig = _load(args)  # the options first: a bad one connects nothing
     move_to = parse_targets(args.move, rig) if args.move else None
     if move_to:
         check_targets(rig, move_to)

@@ -49,8 +49,8 @@ def resolve(path_text: str):
 
 def run(args: argparse.Namespace) -> int:
     import json
-    from pathlib import Path
 
+    from goniofrost.app.png_out import check_png_name
     from goniofrost.brdf.compare import KEYS, compare_files, write_png
     from goniofrost.core.errors import GoniofrostError
 
@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
         raise GoniofrostError(f"inputs: expected at least 2 session folders or .binary files, found {len(args.inputs)}")
     if len(args.inputs) > len(KEYS):
         raise GoniofrostError(f"inputs: expected at most {len(KEYS)}, found {len(args.inputs)}")
-    if Path(args.out).suffix.lower() != ".png":
-        raise GoniofrostError(f"--out {args.out}: expected a file name ending in .png")
+    check_png_name(args.out)
     if args.size < 16:
         raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
     resolved = [resolve(text) for text in args.inputs]

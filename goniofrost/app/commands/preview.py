@@ -21,8 +21,10 @@ def run(args) -> int:
     from pathlib import Path
 
     from goniofrost.core.errors import GoniofrostError
+    from goniofrost.app.png_out import check_png_name
     from goniofrost.brdf.preview import make_preview, write_png
 
+    check_png_name(args.out)
     if args.size < 16:
         raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
     if args.renderer == "mitsuba":
