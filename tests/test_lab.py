@@ -205,6 +205,8 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     assert listed[0]["notes"] == ["first coat", "dry"] and listed[0]["lab"] == LAB["lab"]
     assert [s["name"] for s in sessions_json(root, capsys, "--operator", "A. Operator")] == ["b-fault"]
     assert [s["name"] for s in sessions_json(root, capsys, "--sample", "T-7")] == ["a-target"]
+    # one session folder given as ROOT lists that session (it was an empty table)
+    assert [s["name"] for s in sessions_json(root / "b-fault", capsys)] == ["b-fault"]
     assert sessions_json(root, capsys, "--since", "2999-01-01") == []
     assert main(["sessions", str(root), "--since", "yesterday"]) == 2
     assert capsys.readouterr().err == ("goniofrost sessions: error: command line: --since: expected a date YYYY-MM-DD "

@@ -80,7 +80,10 @@ def read_entry(session_dir: Path) -> SessionEntry:
 
 
 def session_folders(root: Path) -> list[Path]:
-    """The session folders directly under ``root`` (those holding a journal), by name."""
+    """The session folders directly under ``root`` (those holding a journal), by name; ``root``
+    itself when it is one (``sessions s1`` lists s1, not an empty table)."""
+    if journal_path(root).is_file():
+        return [Path(root)]
     return sorted(p for p in Path(root).iterdir() if p.is_dir() and journal_path(p).is_file())
 
 

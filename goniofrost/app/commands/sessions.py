@@ -6,7 +6,7 @@ HELP = ("list the sessions under ROOT: name, started, operator, sample, state, s
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("root", metavar="ROOT", help="a folder of session folders (a queue's root)")
+    parser.add_argument("root", metavar="ROOT", help="a folder of session folders (a queue's root), or one session folder")
     parser.add_argument("--sample", metavar="ID", help="only the sessions of this sample id")
     parser.add_argument("--operator", metavar="NAME", help="only the sessions of this operator")
     parser.add_argument("--since", metavar="DATE", help="only sessions started on or after DATE (YYYY-MM-DD[THH:MM], UTC)")
