@@ -67,6 +67,11 @@ class ExceptionReply(DeviceError):
         super().__init__(axis, command, reply, detail)
 
 
+class NotHomedError(ExceptionReply):
+    """The device refused a command because its axis is not referenced (homed) yet: an SMC100
+    stage refuses moves until it is (TE letter H)."""
+
+
 class DeviceFault(DeviceError):
     """A hardware error, alarm or stall reported by (or detected on) the device.
 

@@ -13,7 +13,7 @@ import time
 from collections.abc import Mapping
 
 from .axis import Axis, AxisConfig
-from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, ProtocolError
+from .errors import DeviceError, DeviceFault, DeviceTimeout, ExceptionReply, NotHomedError, ProtocolError
 from .smc100_protocol import (
     DEFAULT_BAUD, DISABLE_STATES, MM_DISABLE, MM_ENABLE, MOTION_STATES, NOT_REFERENCED_STATES, QUERY,
     READY_STATES, TERMINATOR, Cmd, ErrorLetter, State, TellState, build_command, decode_ts,
@@ -89,8 +89,9 @@ class SMC100Axis(Axis):
         if len(letter) != 1:
             raise ProtocolError(self.name, f"{text}; TE", letter, "expected one error letter")
         if letter != ErrorLetter.NONE:
-            raise ExceptionReply(self.name, text, f"{self.address}TE{letter}",
-                                 f"refused: {letter} = {te_meaning(letter)}", code=letter)
+            error = NotHomedError if letter == ErrorLetter.IN_NOT_REFERENCED else ExceptionReply
+            raise error(self.name, text, f"{self.address}TE{letter}", f"refused: {letter} = {te_meaning(letter)}",
+                        code=letter)
 
     def _tell_error(self) -> str:
         """Read TE once. TE clears the letter it reports, so a TE whose reply was lost is not asked

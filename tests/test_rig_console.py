@@ -281,3 +281,13 @@ def test_snap_refuses_a_bad_option_before_it_connects(tmp_path, monkeypatch, cap
     assert main(["rig", "snap", "--rig", str(SIM_RIG), *option]) == 2
     assert capsys.readouterr().err.strip().endswith(message)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_move_of_a_stage_that_is_not_homed_says_to_home_it(capsys):
+    # the SMC100 refuses a move until it is referenced; each command on a simulated rig file starts
+    # fresh devices, so a move alone meets an unhomed stage and the message says what to do
+    assert main(["rig", "move", "--rig", str(SIM_RIG), "sample_tilt=10"]) == 2
+    err = capsys.readouterr().err
+    assert "sample_tilt: 1PA10: refused: H = command not allowed in NOT REFERENCED state" in err
+    assert ("Home sample_tilt first (goniofrost rig home; on a simulated rig file every command starts its devices "
+            "afresh: rehearse with the twins of goniofrost sim --write-rig).") in err

@@ -257,8 +257,10 @@ def test_driver_converts_units(device):
 
 
 def test_pa_in_not_referenced_is_refused_with_h_and_stopped(axis, device):
-    with pytest.raises(ExceptionReply) as err:
+    from drivers.errors import NotHomedError
+    with pytest.raises(NotHomedError) as err:   # an ExceptionReply the console can name a remedy for
         axis.move_to(10.0)
+    assert isinstance(err.value, ExceptionReply)
     assert err.value.code == "H" and err.value.axis == "sample_tilt"
     assert err.value.command == "1PA10" and err.value.reply == "1TEH"
     assert "NOT REFERENCED" in str(err.value)

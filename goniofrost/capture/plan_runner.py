@@ -164,7 +164,7 @@ class PlanRunner:
                 result = self._execute(step)
         except DeviceError as exc:
             message = self._abort(EventKind.FAULT, RunStatus.FAULT, f"{exc}", getattr(exc, "axis", None), step,
-                                  lambda: f"device fault{self.where(step)}: {exc}. {self.safe_text()}")
+                                  lambda: f"device fault{self.where(step)}: {exc}. {_remedy(exc)}{self.safe_text()}")
             raise SessionFault(message) from exc
         except GoniofrostError as exc:  # calibration, camera or an output path: the run cannot go on
             message = self._abort(EventKind.ERROR, RunStatus.REFUSED, f"{exc}", None, step,
@@ -295,7 +295,12 @@ class PlanRunner:
 def _remedy(exc) -> str:
     """What an operator can do about a measurement that failed (empty if nothing specific)."""
     from calib.errors import MarkerError, MisalignedError, PatchTooSmallError, SaturationError, UnderexposedError
+    from drivers.errors import NotHomedError
 
+    if isinstance(exc, NotHomedError):
+        # a simulated rig file starts fresh devices for every command: a home does not outlive it
+        return (f"Home {exc.axis} first (goniofrost rig home; on a simulated rig file every command starts its "
+                "devices afresh: rehearse with the twins of goniofrost sim --write-rig). ")
     if isinstance(exc, MisalignedError):
         return ("Run goniofrost align on this rig and capture with --alignment (or fix the camera model in "
                 "the rig file). ")
