@@ -52,6 +52,11 @@ def _command(name: str, inputs: Path, out: Path) -> list[str]:
 COMMANDS = ("plan", "reconstruct", "preview", "export")
 
 
+def _named(name: str, path: Path) -> Path:
+    """``path`` as the command's --out: preview draws a picture, whose name must end in .png."""
+    return path.with_name(path.name + ".png") if name == "preview" else path
+
+
 def _run(capsys, argv) -> tuple[int, str]:
     code = main(argv)
     err = capsys.readouterr().err.strip()
@@ -60,23 +65,23 @@ def _run(capsys, argv) -> tuple[int, str]:
 
 def test_the_commands_write_where_they_should(inputs, tmp_path, capsys):
     for name in COMMANDS:
-        out = tmp_path / f"{name}.out"
+        out = _named(name, tmp_path / f"{name}.out")
         assert _run(capsys, _command(name, inputs, out))[0] == 0 and out.is_file()
 
 
 @pytest.mark.parametrize("name", COMMANDS)
 def test_out_that_is_a_directory(inputs, tmp_path, capsys, name):
-    out = tmp_path / "a-folder"
+    out = _named(name, tmp_path / "a-folder")
     out.mkdir()
     code, err = _run(capsys, _command(name, inputs, out))
     assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: it is a directory; give a file name"
-    assert list(out.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["a-folder"]
+    assert list(out.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == [out.name]
 
 
 @pytest.mark.parametrize("name", COMMANDS)
 def test_out_below_a_file(inputs, tmp_path, capsys, name):
     (tmp_path / "a-file").write_text("keep me")
-    out = tmp_path / "a-file" / "result"
+    out = _named(name, tmp_path / "a-file" / "result")
     code, err = _run(capsys, _command(name, inputs, out))
     assert code == 2 and err == (f"goniofrost {name}: error: {out}: cannot write: "
                                  "a part of the path is a file, not a directory")
@@ -86,7 +91,7 @@ def test_out_below_a_file(inputs, tmp_path, capsys, name):
 @pytest.mark.parametrize("name", COMMANDS)
 def test_out_on_a_read_only_file_system(inputs, mounted, capsys, name):
     folder = mounted("ro,size=64k")
-    out = folder / "result"
+    out = _named(name, folder / "result")
     code, err = _run(capsys, _command(name, inputs, out))
     assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: the file system is read-only"
     assert list(folder.iterdir()) == []
@@ -100,7 +105,7 @@ def test_out_on_a_full_disk_leaves_no_partial_file(inputs, mounted, capsys, name
         with pytest.raises(OSError, match="No space left"):
             while True:
                 handle.write(b"\0" * 4096)
-    out = folder / "result"
+    out = _named(name, folder / "result")
     code, err = _run(capsys, _command(name, inputs, out))
     assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: no space left on the device"
     assert [p.name for p in folder.iterdir()] == ["filler"]
