@@ -31,10 +31,11 @@ CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
-                    sensitivity_power: float = SENSITIVITY_POWER) -> dict:
+                    sensitivity_power: float = SENSITIVITY_POWER, hedge: float = 1.0) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
-    weights ``usage_design.design_usage``, with the model's g on every fold). TrainingError when
+    weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
+    every fold). TrainingError when
     the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
@@ -43,7 +44,7 @@ def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
     recon = posterior.cell_noise(model)
     usage = np.asarray(usage, np.float64)
     records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
-                             design_weights=design_usage(model, usage, sensitivity_power))
+                             design_weights=design_usage(model, usage, sensitivity_power, hedge))
     return fit_calibration(records)
 
 
@@ -82,7 +83,7 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
     for f, fold in enumerate(calibration._progress(folds, progress)):
         d_f = calibration._fold_dictionary(mapped, fold.projector)
         prior = calibration._prior(fold)
-        if is_uniform(usage):  # the plain design, as select_bayes picks it for a uniform map
+        if is_uniform(design_weights):  # the plain design, as select_bayes picks it for uniform weights
             rows = greedy_design(d_f, fold.singular_values ** 2, prior, design_noise, max(m_values)).rows
         else:
             scene = scene_prior(d_f, design_weights, prior)

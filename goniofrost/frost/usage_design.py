@@ -94,10 +94,14 @@ def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: 
     return out / out.sum()
 
 
-def design_usage(model, usage: np.ndarray, power: float = SENSITIVITY_POWER) -> np.ndarray:
+def design_usage(model, usage: np.ndarray, power: float = SENSITIVITY_POWER, hedge: float = 1.0) -> np.ndarray:
     """The weights the scene-aware design minimises the mapped error under (module doc): float64
-    (n,) u g^power / sum, or ``usage`` itself when it is uniform (the plain design) or power is 0.
+    (n,) (1 - hedge) / n + hedge u g^power / sum, sum 1: the plain design's weight (every cell
+    alike) and the scene's, mixed. ``usage`` itself when it is uniform (the plain design) or when
+    power is 0 and hedge 1; hedge 0 is the uniform map (the plain design).
     ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g."""
-    if power == 0 or is_uniform(usage):
-        return np.asarray(usage, dtype=np.float64)
-    return linear_usage(usage, model.mean, model.reference, model.weight, model.eps, power)
+    usage = np.asarray(usage, dtype=np.float64)
+    if is_uniform(usage) or (power == 0 and hedge == 1):
+        return usage
+    scene = usage if power == 0 else linear_usage(usage, model.mean, model.reference, model.weight, model.eps, power)
+    return scene if hedge == 1 else (1.0 - hedge) / usage.size + hedge * scene
