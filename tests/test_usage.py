@@ -151,38 +151,33 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
     # so the scene's gain shows at few samples and the scene design is never worse after
     # (sensitivity_power=0: the design of this mapped error itself; the default weighs the image's
     # sensitivity too, tested below)
-    ratios = {m: weighted_error(select_bayes(model, m, usage=usage, sensitivity_power=0, hedge=1.0).positions)
+    ratios = {m: weighted_error(select_bayes(model, m, usage=usage, sensitivity_power=0).positions)
               / weighted_error(select_bayes(model, m).positions) for m in (4, 8, 15, 30)}
     assert ratios[4] < 0.8 and max(ratios.values()) <= 1.0, ratios
 
 
 def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_use_alone(model):
-    """The default design of m samples is the mapped-error design of (1 - a) / n + a u g^p / sum
-    with (p, a) = ``design_rule(m)`` (``design_usage``), while its predicted errors stay those of
-    u: the same as the prediction from trace(M_u Sigma) of its picks."""
+    """The default design is the mapped-error design of u g^0.5 (``design_usage``), while its
+    predicted errors stay those of u: the same as the prediction from trace(M_u Sigma) of its picks."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import cell_noise, prior_variance
     from goniofrost.frost.prediction import calibration_of, predict_typical
-    from goniofrost.frost.usage_design import design_rule, design_usage, scene_matrix
+    from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, scene_matrix
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
     usage /= usage.sum()
-    p, a = design_rule(12)
-    weights = design_usage(model, usage, p, a)
+    weights = design_usage(model, usage)
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
-    np.testing.assert_allclose(weights, (1 - a) / usage.size + a * usage * g ** p / np.sum(usage * g ** p),
-                               rtol=1e-12)
-    assert p > 0 and design_usage(model, usage, 0.0) is not weights
+    np.testing.assert_allclose(weights, usage * g ** 0.5 / np.sum(usage * g ** 0.5), rtol=1e-12)
+    assert SENSITIVITY_POWER == 0.5 and design_usage(model, usage, 0.0) is not weights
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
-    assert np.array_equal(design_usage(model, uniform, p, a), uniform)  # no scene: the plain design's weights
+    assert np.array_equal(design_usage(model, uniform), uniform)  # no scene: the plain design's weights
 
     aware = select_bayes(model, 12, usage=usage)
-    assert aware.positions.tolist() == select_bayes(model, 12, usage=weights, sensitivity_power=0,
-                                                    hedge=1.0).positions.tolist()
-    assert aware.positions.tolist() != select_bayes(model, 12, usage=usage, sensitivity_power=0,
-                                                    hedge=1.0).positions.tolist()
+    assert aware.positions.tolist() == select_bayes(model, 12, usage=weights, sensitivity_power=0).positions.tolist()
+    assert aware.positions.tolist() != select_bayes(model, 12, usage=usage, sensitivity_power=0).positions.tolist()
     noise, m_u = cell_noise(model), scene_matrix(model.dictionary, usage)
     expected = []
     for m in range(1, 13):

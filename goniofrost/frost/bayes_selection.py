@@ -25,7 +25,7 @@ from goniofrost.frost.posterior import cell_noise, design_scale, error_trace, pr
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
-from goniofrost.frost.usage_design import design_rule, design_usage, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
 
 # --max-error never plans more samples than this.
 MAX_ERROR_PICKS = 1000
@@ -175,8 +175,8 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
-                 calibration: dict | None = None, sensitivity_power: float | None = None,
-                 hedge: float | None = None) -> Selection:
+                 calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER,
+                 hedge: float = 1.0) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -187,7 +187,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     design then minimises the expected error of what the scene sees, each cell's use weighted by
     the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone)
     and mixed with the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0
-    the plain design); both default to ``usage_design.design_rule(m)``; the predicted errors are of the mapped error the scene sees (weighted by u alone). A uniform
+    the plain design), and the predicted errors are of the mapped error the scene sees (weighted by u alone). A uniform
     map is the plain design (``uniform_is_plain``: taken as such without the change of basis; False
     computes it the long way, for tests).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
@@ -200,9 +200,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     calibration, noise = calibration or calibration_of(model), cell_noise(model)
     limit = _check(m, max_error, rows.size, calibration, noise)
     if usage is not None and not (uniform_is_plain and is_uniform(usage)):
-        power, share = design_rule(m)
-        weights = design_usage(model, usage, power if sensitivity_power is None else sensitivity_power,
-                               share if hedge is None else hedge)
+        weights = design_usage(model, usage, sensitivity_power, hedge)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2

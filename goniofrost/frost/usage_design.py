@@ -30,12 +30,6 @@ CHUNK_ROWS = 1 << 16
 # error the scene sees, 2 its first-order image error; chosen on the 11 validation materials of
 # benchmarks/scene_design.py among 0, 0.25, 0.5, 0.75, 1 and 2 (the lowest geometric-mean image error).
 SENSITIVITY_POWER = 0.5
-# The design's (sensitivity power p, hedge a) by its number of samples m (module doc): entries
-# (largest m, p, a) in increasing m, the last (None) for every larger m and for a design without a
-# fixed m (``--max-error``). Chosen per m in {10, 20, 40} on the 129 training materials in inner
-# folds (benchmarks/scene_design.py ``choose_rule``: the candidate whose worst scene is best), each
-# up to the geometric middle of its m and the next.
-DESIGN_RULE = ((14, SENSITIVITY_POWER, 1.0), (28, SENSITIVITY_POWER, 1.0), (None, SENSITIVITY_POWER, 1.0))
 
 
 @dataclass(frozen=True)
@@ -98,14 +92,6 @@ def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: 
     g = np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
     out = np.asarray(usage, dtype=np.float64) * g ** power
     return out / out.sum()
-
-
-def design_rule(m: int | None) -> tuple[float, float]:
-    """(sensitivity power p, hedge a) of the scene-aware design of m samples (DESIGN_RULE)."""
-    for top, power, hedge in DESIGN_RULE:
-        if top is None or (m is not None and m <= top):
-            return power, hedge
-    raise AssertionError("DESIGN_RULE ends with None")
 
 
 def design_usage(model, usage: np.ndarray, power: float = SENSITIVITY_POWER, hedge: float = 1.0) -> np.ndarray:

@@ -71,7 +71,7 @@ def run(args) -> int:
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
-    scene = None if usage is None else _scene_error(model, usage, args.samples)
+    scene = None if usage is None else _scene_error(model, usage)
     selection = _select(model, args, mask, usage, scene)
     doc = plan_document(args.model, model, selection)
     if usage is not None:
@@ -90,10 +90,9 @@ def run(args) -> int:
     return 0
 
 
-def _scene_error(model, usage, m=None):
+def _scene_error(model, usage):
     """The plan's SceneError: the usage-weighted error and its calibration on the model's training
-    materials (mapped again; without them the plan has no calibrated bound, and says why), at the
-    design of m samples (None: --max-error)."""
+    materials (mapped again; without them the plan has no calibrated bound, and says why)."""
     import hashlib
 
     from goniofrost.frost.scene_error import scene_error
@@ -102,7 +101,7 @@ def _scene_error(model, usage, m=None):
 
     digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
     try:
-        calibration, unavailable = calibrate_scene(model, usage, progress=True, m=m), None
+        calibration, unavailable = calibrate_scene(model, usage, progress=True), None
     except TrainingError as exc:
         calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
         print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
