@@ -25,7 +25,7 @@ from goniofrost.frost.posterior import cell_noise, design_scale, error_trace, pr
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
-from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import HEDGE, SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
 
 # --max-error never plans more samples than this.
 MAX_ERROR_PICKS = 1000
@@ -176,7 +176,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
                  calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER,
-                 hedge: float = 1.0) -> Selection:
+                 hedge: float = HEDGE) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a

@@ -24,14 +24,14 @@ from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
 from goniofrost.frost.prediction import material_features, sample_level
-from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_prior
+from goniofrost.frost.usage_design import HEDGE, SENSITIVITY_POWER, design_usage, is_uniform, scene_prior
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
 CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
-                    sensitivity_power: float = SENSITIVITY_POWER, hedge: float = 1.0) -> dict:
+                    sensitivity_power: float = SENSITIVITY_POWER, hedge: float = HEDGE) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
     weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
