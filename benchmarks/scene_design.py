@@ -13,8 +13,20 @@ combined, sorted shared library starting at the 4th; the model is trained on the
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
 
-Prints the table; writes results.json (every row) and, per scene, a picture of the truth and both
-reconstructions at the middle m for the first test material.
+The scene-aware design's candidates (``CANDIDATES``: the sensitivity power and the hedge of
+``usage_design.design_usage``) are compared first on validation materials only: every training
+material held out once in ``--folds`` inner folds, each fold's model trained on the others; the
+rule ``choose_rule`` picks per m. The test run then compares the shipped design (``select_bayes``'s
+defaults for m samples, as ``plan --usage`` picks them) with the blind one, and with ``--fewer``
+also the shipped design at 0.6 m (the goal's fewer-samples branch).
+
+    DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
+        --spp 32 --no-export --validation-only --out DIR          # the choice
+    ... --spp 32 --no-export --test-only --fewer --out DIR         # the test run, once
+
+Prints the tables; writes validation.json and validation-fF.json (every validation row), results.json
+(every test row) and, per scene, a picture of the truth and both reconstructions at the middle m
+for the first test material.
 """
 from __future__ import annotations
 
