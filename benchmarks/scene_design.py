@@ -218,8 +218,8 @@ def main(argv=None) -> int:
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         print(validation_table(v_rows, ms))
         (args.out / "validation.json").write_text(json.dumps(
-            {"choice": {str(m): c for m, c in choice.items()}, "scores": {f"{m} {w}": v for (m, w), v in scores.items()},
-             "rows": v_rows}, indent=1))
+            {"choice": {str(m): c for m, c in choice.items()},
+             "scores": {f"{m} {w}": v for (m, w), v in scores.items()}, "rows": v_rows}, indent=1))
         if args.validation_only:
             return 0
     # 2. the test materials, the model trained on every other material; the shipped rule

@@ -187,9 +187,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     design then minimises the expected error of what the scene sees, each cell's use weighted by
     the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone)
     and mixed with the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0
-    the plain design), and the predicted errors are of the mapped error the scene sees (weighted by u alone). A uniform
-    map is the plain design (``uniform_is_plain``: taken as such without the change of basis; False
-    computes it the long way, for tests).
+    the plain design), and the predicted errors are of the mapped error the scene sees (weighted
+    by u alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
+    change of basis; False computes it the long way, for tests).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.

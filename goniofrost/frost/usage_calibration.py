@@ -35,8 +35,7 @@ def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
     weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
-    every fold). TrainingError when
-    the model's training data cannot be opened again."""
+    every fold). TrainingError when the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
     mapped, gram = training.remap(model, progress=progress)
