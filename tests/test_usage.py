@@ -187,6 +187,28 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     np.testing.assert_allclose(aware.residuals, expected, rtol=1e-4)
 
 
+def test_the_hedge_mixes_the_plain_design_with_the_scene_and_zero_is_the_plain_design(model):
+    """design_usage's hedge a: (1 - a) / n + a (the scene's weights); a = 0 picks as the plain
+    design (the shortcut and the rotated basis alike) and still predicts the scene's error."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_usage
+
+    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
+    usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
+    usage /= usage.sum()
+    mixed = design_usage(model, usage, 0.5, 0.7)
+    np.testing.assert_allclose(mixed, 0.3 / usage.size + 0.7 * design_usage(model, usage, 0.5, 1.0), rtol=1e-12)
+    assert mixed.sum() == pytest.approx(1.0)
+    plain = select_bayes(model, 12)
+    shortcut = select_bayes(model, 12, usage=usage, hedge=0.0)
+    rotated = select_bayes(model, 12, usage=usage, hedge=0.0, uniform_is_plain=False)
+    assert shortcut.positions.tolist() == plain.positions.tolist() == rotated.positions.tolist()
+    np.testing.assert_allclose(shortcut.residuals, rotated.residuals, rtol=1e-4)
+    assert not np.allclose(shortcut.residuals, plain.residuals, rtol=1e-2)  # the scene's error, not the whole BRDF's
+    hedged = select_bayes(model, 12, usage=usage, hedge=0.7).positions.tolist()
+    assert hedged != plain.positions.tolist()
+
+
 @pytest.mark.parametrize("array, message", [
     (np.ones(7, np.float32), "expected float weights of shape"),
     (np.full(GRID.n_valid, np.nan, np.float32), "weights are not finite"),
@@ -224,13 +246,13 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
     assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
-    weightings = ("log", "g^0.25", "g^0.5", "g^0.75", "root", "linear", "mixed")
-    assert doc["weighting"] in weightings and not set(doc["validation"]) & set(doc["test"])
-    assert {r["design"] for r in doc["validation_rows"]} == {"blind", *weightings}
-    other = "log" if doc["weighting"] != "log" else "g^0.5"  # the test renders: the choice and one other
+    val = json.loads((tmp_path / "validation.json").read_text())
+    assert set(val["choice"]) == {"4"} and set(val["choice"].values()) <= set(module["CANDIDATES"])
+    assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
+    assert not {r["material"] for r in val["rows"]} & set(doc["test"])  # the validation never sees a test material
+    # the test renders: the shipped rule ("aware"), the rule before the hedge, the blind design
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
-        ("blind", "direct"), (doc["weighting"], "direct"), (other, "direct"),
-        ("blind", "export"), (doc["weighting"], "export")}
+        ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), ("blind", "export"), ("aware", "export")}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()

@@ -25,7 +25,7 @@ from goniofrost.frost.posterior import cell_noise, design_scale, error_trace, pr
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
-from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import HEDGE, SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
@@ -175,7 +175,8 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
-                 calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER) -> Selection:
+                 calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER,
+                 hedge: float = HEDGE) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -184,10 +185,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     threads: threads sharing each pass (default: the cores this process may use).
     usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
     design then minimises the expected error of what the scene sees, each cell's use weighted by
-    the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone),
-    and the predicted errors are of the mapped error the scene sees (weighted by u alone). A uniform
-    map is the plain design (``uniform_is_plain``: taken as such without the change of basis; False
-    computes it the long way, for tests).
+    the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone)
+    and mixed with the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0
+    the plain design), and the predicted errors are of the mapped error the scene sees (weighted
+    by u alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
+    change of basis; False computes it the long way, for tests).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
@@ -198,9 +200,13 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     calibration, noise = calibration or calibration_of(model), cell_noise(model)
     limit = _check(m, max_error, rows.size, calibration, noise)
     if usage is not None and not (uniform_is_plain and is_uniform(usage)):
-        weights = design_usage(model, usage, sensitivity_power)
-        scene = scene_prior(model.dictionary, weights, prior_variance(model))
-        dictionary, prior_var, s2 = scene.dictionary, scene.prior_var, scene.weights
+        weights = design_usage(model, usage, sensitivity_power, hedge)
+        if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
+            dictionary, prior_var = model.dictionary, prior_variance(model)
+            s2 = np.asarray(model.singular_values, np.float64) ** 2
+        else:
+            scene = scene_prior(model.dictionary, weights, prior_variance(model))
+            dictionary, prior_var, s2 = scene.dictionary, scene.prior_var, scene.weights
         # the predicted error is of u alone: M_u in the design's basis (a second pass over the used
         # rows) unless the design weighs u itself (then Lambda, diagonal)
         error_matrix = s2 if weights is usage or np.array_equal(weights, usage) else scene_matrix(dictionary, usage)

@@ -24,18 +24,18 @@ from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
 from goniofrost.frost.prediction import material_features, sample_level
-from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, is_uniform, scene_prior
+from goniofrost.frost.usage_design import HEDGE, SENSITIVITY_POWER, design_usage, is_uniform, scene_prior
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
 CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
-                    sensitivity_power: float = SENSITIVITY_POWER) -> dict:
+                    sensitivity_power: float = SENSITIVITY_POWER, hedge: float = HEDGE) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
-    weights ``usage_design.design_usage``, with the model's g on every fold). TrainingError when
-    the model's training data cannot be opened again."""
+    weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
+    every fold). TrainingError when the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
     mapped, gram = training.remap(model, progress=progress)
@@ -43,7 +43,7 @@ def calibrate_scene(model, usage: np.ndarray, progress: bool = False,
     recon = posterior.cell_noise(model)
     usage = np.asarray(usage, np.float64)
     records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
-                             design_weights=design_usage(model, usage, sensitivity_power))
+                             design_weights=design_usage(model, usage, sensitivity_power, hedge))
     return fit_calibration(records)
 
 
@@ -82,7 +82,7 @@ def simulate_scene(mapped, folds, usage, design_noise, recon_noise, m_values=M_V
     for f, fold in enumerate(calibration._progress(folds, progress)):
         d_f = calibration._fold_dictionary(mapped, fold.projector)
         prior = calibration._prior(fold)
-        if is_uniform(usage):  # the plain design, as select_bayes picks it for a uniform map
+        if is_uniform(design_weights):  # the plain design, as select_bayes picks it for uniform weights
             rows = greedy_design(d_f, fold.singular_values ** 2, prior, design_noise, max(m_values)).rows
         else:
             scene = scene_prior(d_f, design_weights, prior)
