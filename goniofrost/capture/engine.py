@@ -174,9 +174,6 @@ class SessionEngine(PlanRunner):
     def continue_text(self) -> str:
         return f"Run {self.rerun} to continue"
 
-    def _fault_message(self, exc, step) -> str:
-        return f"device fault{self.where(step)}: {exc}. {self.safe_text()}"
-
     def _reused_calibration(self):
         """The calibration of another session this one may reuse (``reuse_calibration``: a queue's
         sample before), as a CalibrationRecord; None if there is none, or its arrays changed or its
