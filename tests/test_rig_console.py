@@ -228,7 +228,9 @@ def test_snap_of_the_simulated_white_card_finds_its_four_markers(tmp_path, capsy
 
 
 def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
-    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--out", str(tmp_path / "s.png"), "--json"]) == 0
+    # the report and its picture are written, and the exit code says the check failed
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--out", str(tmp_path / "s.png"), "--json"]) == 2
+    assert (tmp_path / "s.png").is_file()
     doc = json.loads(capsys.readouterr().out)
     assert doc["markers_found"] == [] and doc["roi_source"] is None
     assert "the sample patch keeps only 0 pixels of channel R (need 24)" in doc["problem"]

@@ -206,7 +206,9 @@ def run_snap(args) -> int:
     result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
                   move_to=move_to)  # open_hardware takes the rig lock
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
-    return 0
+    # as rig check: a check that found a problem (a capture could not measure here) exits 2, so
+    # `rig snap ... && goniofrost capture ...` does not go on past it
+    return 2 if result.problem else 0
 
 
 # ----- capture --dry-run -----------------------------------------------------------------------------
