@@ -49,6 +49,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from goniofrost.bench import bayes_eval  # noqa: E402
+from goniofrost.frost import sentinel  # noqa: E402
 from goniofrost.bench.config import BenchConfig, fold_split  # noqa: E402
 from goniofrost.bench.data import open_tables, tables_path  # noqa: E402
 from goniofrost.core.grid import MerlGrid  # noqa: E402
@@ -87,7 +88,7 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     truth = np.asarray(test, dtype=np.float64)
     truth_log = model.to_log(truth)
     stops = []
-    variants = (False, True) if bayes_eval.sentinel_cells(model).size else (False,)
+    variants = (False, True) if sentinel.calibrated_cells(model).size else (False,)
     for target in targets:
         for checked in variants:
             out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked)

@@ -58,22 +58,11 @@ def _bounds(model, feats: np.ndarray, m: int, level: float, check=None) -> dict:
     return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check)
 
 
-def sentinel_cells(model) -> np.ndarray:
-    """int64 (s,): the sentinel cells the model's bound was calibrated with (empty: none)."""
-    bound = prediction.calibration_of(model).get("bound") or {}
-    return np.asarray((bound.get("sentinel") or {}).get("cells", []), dtype=np.int64)
-
-
 def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """float64 (n_mat,): every material's ``sentinel.check_error`` at ``cells`` against the
     posterior ``post`` of its design samples (truth: (n_mat, n_valid, 3) BRDF)."""
-    n_mat = truth.shape[0]
-    values = truth[:, cells, :].transpose(1, 0, 2).reshape(cells.size, 3 * n_mat)
-    b = model.to_log(values, cells) - np.asarray(model.mean, np.float64)[cells][:, None]
-    rows = np.asarray(model.dictionary[cells], np.float64)
-    return np.array([sentinel.check_error(rows, post.coefficients, b, [3 * i, 3 * i + 1, 3 * i + 2])
-                     for i in range(n_mat)])
-
+    values = truth[:, cells, :].transpose(1, 0, 2).reshape(cells.size, 3 * truth.shape[0])
+    return sentinel.measured_check_errors(model, cells, values, post.coefficients)
 
 def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray) -> dict:
     """Reconstruct every test material with the posterior mean; float64 (n_mat,) arrays under
@@ -114,7 +103,7 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     n_mat = truth.shape[0]
     post, noise, samples = _fit(model, positions, truth)
     feats = _features(model, post, samples, n_mat)
-    cells = sentinel_cells(model)
+    cells = sentinel.calibrated_cells(model)
     check = _checks(model, post, truth, cells) if cells.size else None
     b = _bounds(model, feats, np.unique(positions).size, level, check)
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
@@ -156,7 +145,7 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
     ever_sentinel = np.zeros(n_mat, dtype=np.int64)
     posts = {}
-    cells = sentinel_cells(model) if sentinels else np.zeros(0, dtype=np.int64)
+    cells = sentinel.calibrated_cells(model) if sentinels else np.zeros(0, dtype=np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post

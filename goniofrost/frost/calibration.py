@@ -141,6 +141,7 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
     (with their error at the ``sentinels``; NaN without)."""
     checked = sentinels is not None and len(sentinels) > 0
     sentinel_b = np.asarray(mapped[sentinels], dtype=np.float64) @ fold.centring if checked else None
+    sentinel_rows = np.asarray(d_f[sentinels], dtype=np.float64) if checked else None
     n = mapped.shape[0]
     s2 = fold.singular_values ** 2
     # Every sample's prediction from the ones before it, in design order (one sequential pass):
@@ -159,7 +160,7 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
-            check = check_error(d_f[sentinels], post.coefficients, sentinel_b, columns) if checked else np.nan
+            check = check_error(sentinel_rows, post.coefficients, sentinel_b, columns) if checked else np.nan
             values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
                       + (prequential_score(one_step[:m], columns), check))
             for key, value in zip(acc, values, strict=True):

@@ -127,6 +127,7 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     the other samples, and the sentinels' error against their posterior is checked (out of the
     model, "sentinel", beyond its calibrated range)."""
     from goniofrost.frost.confidence import error_bound as bound_of
+    from goniofrost.frost.sentinel import measured_check_errors
 
     checked = sentinel is not None and bool(np.any(sentinel))
     if checked:
@@ -135,18 +136,8 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
         positions, values = positions[~flags], values[~flags]
         sigmas = None if sigmas is None else np.asarray(sigmas)[~flags]
     unique, _, _, post, (predicted, _, z2, energy, extra, _, _) = _posterior(model, positions, values, sigmas, scene)
-    check = _sentinel_check(model, *checks, post) if checked else None
+    check = float(measured_check_errors(model, *checks, post.coefficients)[0]) if checked else None
     return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check)
-
-
-def _sentinel_check(model: FrostModel, positions, values, post) -> float:
-    """``sentinel.check_error`` of measured sentinel samples (positions (s,), values (s, 3) BRDF)
-    against the posterior ``post`` of the design's samples (the mapped error, log-relative MSE units)."""
-    from goniofrost.frost.sentinel import check_error
-
-    positions = np.asarray(positions, dtype=np.int64)
-    b = model.to_log(np.asarray(values, np.float64), positions) - np.asarray(model.mean, np.float64)[positions][:, None]
-    return check_error(np.asarray(model.dictionary[positions], np.float64), post.coefficients, b, [0, 1, 2])
 
 
 def _calibration(model: FrostModel, scene) -> dict:

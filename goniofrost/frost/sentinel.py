@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.prediction import calibration_of
 
 # Cells reserved as sentinels (measured once, with the first batch).
 SENTINELS = 3
@@ -68,3 +69,20 @@ def check_error(rows: np.ndarray, coefficients: np.ndarray, b: np.ndarray, colum
     cols = np.asarray(columns)
     miss = np.asarray(b, np.float64)[:, cols] - np.asarray(rows, np.float64) @ np.asarray(coefficients)[:, cols]
     return max(float(np.mean(miss ** 2)), 1e-12)
+
+
+def calibrated_cells(model) -> np.ndarray:
+    """int64 (s,): the sentinel cells the model's bound was calibrated with (empty: none, a model
+    trained before the check)."""
+    bound = calibration_of(model).get("bound") or {}
+    return np.asarray((bound.get("sentinel") or {}).get("cells", []), dtype=np.int64)
+
+
+def measured_check_errors(model, cells, values, coefficients) -> np.ndarray:
+    """float64 (c / 3,): ``check_error`` of every material measured at the sentinel ``cells``
+    (int64 (s,) valid-cell positions): ``values`` (s, c) their BRDF in 1/sr, three channels per
+    material; ``coefficients`` (K, c) the posterior mean of each material's design samples."""
+    cells = np.asarray(cells, dtype=np.int64)
+    b = model.to_log(np.asarray(values, np.float64), cells) - np.asarray(model.mean, np.float64)[cells][:, None]
+    rows = np.asarray(model.dictionary[cells], np.float64)
+    return np.array([check_error(rows, coefficients, b, [j, j + 1, j + 2]) for j in range(0, b.shape[1], 3)])

@@ -111,9 +111,8 @@ def _with_sentinels(doc, model, selection, mask):
     from goniofrost.capture.plan_file import add_sentinels
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost import sentinel
-    from goniofrost.frost.prediction import calibration_of
 
-    calibrated = (calibration_of(model).get("bound") or {}).get("sentinel", {}).get("cells")
+    calibrated = sentinel.calibrated_cells(model).tolist()
     if not calibrated:
         raise GoniofrostError("--sentinels: the model has no sentinel calibration (train it again with this version)")
     allowed = np.ones(model.grid.n_valid, dtype=bool) if mask is None else np.array(mask, dtype=bool)
