@@ -464,12 +464,20 @@ def test_plan_bayes_and_reconstruct_with_uncertainty_commands(model, tables, tmp
 
     model.save(tmp_path / "model")
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "12", "--out", str(plan)]) == 0
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "12", "--no-sentinels",
+                 "--out", str(plan)]) == 0
     doc = read_plan(plan)
     assert doc["selector"] == "bayes" and len(doc["predicted_errors"]) == 12 and "residuals" not in doc
+    assert "sentinels" not in doc
     cells = [GRID.flat_index(*s["cell"]) for s in doc["samples"]]
     positions = GRID.valid_position(np.array(cells))
     assert list(positions) == list(select_bayes(model, 12).positions)
+    # by default the plan adds the model's sentinels after the design's first batch (here all 12)
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "12", "--out", str(plan)]) == 0
+    with_sentinels = read_plan(plan)
+    assert (with_sentinels["m"], with_sentinels["sentinels"], with_sentinels["batch_ends"]) == (15, 3, [15])
+    assert with_sentinels["samples"][:12] == doc["samples"]
+    assert all(s["sentinel"] for s in with_sentinels["samples"][12:])
     truth = tables[4].astype(np.float64)
     (tmp_path / "s.csv").write_text(samples_csv(model, truth, positions, sigma=True))
     out = tmp_path / "rec.binary"

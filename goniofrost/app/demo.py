@@ -114,11 +114,12 @@ def train_without(material: str, grid, progress: bool):
 
 
 def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = None,
-                selector: str = "bayes", alignment=None, candidates=None) -> Path:
+                selector: str = "bayes", alignment=None, candidates=None, sentinels: bool = True) -> Path:
     """Select m cells the rig can reach and its camera measure (the rig decides; optionally also
     theta_i, theta_o <= max_angle) with the Bayesian design (or FROST: ``selector="frost"``),
     schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json.
-    candidates: the rig's reachability mask (bool (n_valid,)) when already computed."""
+    candidates: the rig's reachability mask (bool (n_valid,)) when already computed. A Bayesian
+    plan gets the model's sentinel samples (as ``plan``; ``sentinels=False``: none)."""
     from planner.reach import reachability
     from planner.schedule import schedule_batches, schedule_plan
 
@@ -132,7 +133,12 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
     select = select_bayes if selector == "bayes" else select_cells
-    doc = plan_document(model_path, model, select(model, m, candidates=candidates))
+    selection = select(model, m, candidates=candidates)
+    doc = plan_document(model_path, model, selection)
+    if sentinels and selector == "bayes":
+        from goniofrost.capture.plan_file import with_sentinels
+
+        doc, _ = with_sentinels(doc, model, selection.positions, candidates)
     doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
     write_plan(out_path, doc)
     return Path(out_path)

@@ -70,6 +70,47 @@ def add_sentinels(doc: dict, grid, positions) -> dict:
                   "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])}
 
 
+def with_sentinels(doc: dict, model, design, candidates=None, asked: bool = False) -> tuple[dict, str]:
+    """(the Bayesian plan ``doc`` with the model's sentinel samples, a line saying which or why
+    none): as many as the model calibrated, among the ``candidates`` (bool (n_valid,), default
+    every cell) outside the ``design`` (its valid-cell positions), by ``frost.sentinel.cells``.
+    None for a model trained before the check, or when no candidate lies in their region:
+    GoniofrostError when they were ``asked`` for, else the plan unchanged. A model whose
+    held-out training materials are too few for a check at SENTINEL_CONFIDENCE (it would never
+    flag) gets them only when asked (the line says so)."""
+    import math
+
+    from goniofrost.core.errors import GoniofrostError
+    from goniofrost.frost import sentinel
+    from goniofrost.frost.confidence import conformal_quantile
+    from goniofrost.frost.prediction import calibration_of
+
+    calibrated = sentinel.calibrated_cells(model)
+    why = None
+    if calibrated.size == 0:
+        why = "the model has no sentinel calibration (train it again with this version)"
+    else:
+        scores = calibration_of(model)["bound"]["sentinel"]["scores"]
+        mute = conformal_quantile(scores, sentinel.SENTINEL_CONFIDENCE) == math.inf
+        allowed = np.ones(model.grid.n_valid, dtype=bool) if candidates is None else np.array(candidates, dtype=bool)
+        allowed[np.asarray(design, dtype=np.int64)] = False
+        cells = sentinel.cells(model.grid, calibrated.size, allowed)
+        if cells.size == 0:
+            why = "no candidate cell lies where the design leaves the grid empty (theta_d > 80 or theta_h > 70 deg)"
+        elif mute and not asked:
+            why = (f"the model's {len(scores)} held-out training materials are too few for a check at "
+                   f"{sentinel.SENTINEL_CONFIDENCE:g}: it would never flag")
+    if why is not None:
+        if asked:
+            raise GoniofrostError(f"--sentinels: {why}")
+        return doc, f"sentinels: none ({why})"
+    where = "the model's calibrated cells" if np.array_equal(cells, calibrated) else \
+        "not the model's calibrated cells (the design samples some, or the rig or --max-angle excludes them): " \
+        "the check is an approximation"
+    never = f" (the model's {len(scores)} held-out training materials are too few: it never flags)" if mute else ""
+    return add_sentinels(doc, model.grid, cells), f"sentinels: {cells.size} samples with the first batch, {where}{never}"
+
+
 def sample_entries(grid, cells) -> list[dict]:
     """One PLAN.json sample dict per flat cell index, in the given order."""
     cells = np.asarray(cells, dtype=np.int64)

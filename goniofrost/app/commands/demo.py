@@ -60,7 +60,8 @@ def run(args) -> int:
     report, out = result.report, result.out
     truth, times = report.get("ground_truth", {}), report["times_s"]
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.stages_s.items())
-    print(f"demo: builtin:{args.material}, m = {report['samples']} of {args.samples} planned samples on the simulated rig")
+    print(f"demo: builtin:{args.material}, m = {report['samples']} of {_planned(report['plan'])} samples on the "
+          f"simulated rig")
     target = report.get("target_error")
     if target:
         from goniofrost.app.demo import rms_relative_error
@@ -86,3 +87,13 @@ def run(args) -> int:
         print(f"  wrote {out / 'session' / 'brdf.bsdf'} (for Mitsuba 3)")
     print(f"  time {sum(result.stages_s.values()):.1f} s ({stages})")
     return 0
+
+
+def _planned(plan_path) -> str:
+    """How many samples the demo's plan holds: "43 planned (40 + 3 sentinels)" or "40 planned"."""
+    import json
+    from pathlib import Path
+
+    doc = json.loads(Path(plan_path).read_text())
+    sentinels = int(doc.get("sentinels", 0))
+    return f"{doc['m']} planned ({doc['m'] - sentinels} + {sentinels} sentinels)" if sentinels else f"{doc['m']} planned"

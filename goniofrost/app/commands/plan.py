@@ -1,6 +1,7 @@
 """goniofrost plan: choose the m measurement directions (Bayesian design or FROST) and write PLAN.json."""
 from __future__ import annotations
 
+import argparse
 import sys
 
 HELP = "select sample directions (Bayesian A-optimal design by default, or FROST's SOMP) and write PLAN.json"
@@ -35,10 +36,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--usage", metavar="USAGE.npy",
                         help="bayes only: a scene's use of every cell (goniofrost usage): the design minimises the "
                              "expected error of what that scene sees instead of the whole BRDF's")
-    parser.add_argument("--sentinels", action="store_true",
-                        help="bayes only: add the model's sentinel samples to the first batch, cells in the region the "
-                             "design leaves empty (theta_d > 80 or theta_h > 70 deg), never fitted: capture --target-error "
-                             "checks the design's reconstruction there and does not stop when they disagree")
+    parser.add_argument("--sentinels", action=argparse.BooleanOptionalAction, default=None,
+                        help="bayes without --usage: add the model's 3 sentinel samples to the first batch (the default "
+                             "when the model has their calibration), cells in the region the design leaves empty "
+                             "(theta_d > 80 or theta_h > 70 deg), never fitted: capture --target-error checks the "
+                             "design's reconstruction there and does not stop when they disagree (a material unlike "
+                             "the training set); --no-sentinels: the design's samples only")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
 
 
@@ -49,7 +52,7 @@ def run(args) -> int:
 
     if args.selector == "bayes" and (args.y_form is not None or args.atoms is not None):
         raise GoniofrostError("--y-form and --atoms apply to --selector frost only")
-    if args.sentinels and (args.selector != "bayes" or args.usage is not None):
+    if args.sentinels and (args.selector != "bayes" or args.usage is not None):  # asked for: refused
         raise GoniofrostError("--sentinels applies to --selector bayes without --usage (the whole BRDF's bound)")
     if args.usage is not None and args.selector != "bayes":
         raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
@@ -83,8 +86,10 @@ def run(args) -> int:
     scene = None if usage is None else _scene_error(model, usage)
     selection = _select(model, args, mask, usage, scene)
     doc = plan_document(args.model, model, selection)
-    if args.sentinels:
-        doc = _with_sentinels(doc, model, selection, mask)
+    if args.sentinels is not False and args.selector == "bayes" and usage is None:
+        from goniofrost.capture.plan_file import with_sentinels
+        doc, said = with_sentinels(doc, model, selection.positions, mask, asked=bool(args.sentinels))
+        print(said)
     if usage is not None:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
@@ -100,31 +105,6 @@ def run(args) -> int:
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""
     print(f"{args.out}: m = {selection.m} samples{extra}{_outcome(args, selection)}, selection {selection.seconds:.3f} s")
     return 0
-
-
-def _with_sentinels(doc, model, selection, mask):
-    """The plan with the model's sentinel samples (``frost.sentinel``; as many as it calibrated,
-    among the candidate cells and not already in the design); GoniofrostError for a model
-    trained without them."""
-    import numpy as np
-
-    from goniofrost.capture.plan_file import add_sentinels
-    from goniofrost.core.errors import GoniofrostError
-    from goniofrost.frost import sentinel
-
-    calibrated = sentinel.calibrated_cells(model).tolist()
-    if not calibrated:
-        raise GoniofrostError("--sentinels: the model has no sentinel calibration (train it again with this version)")
-    allowed = np.ones(model.grid.n_valid, dtype=bool) if mask is None else np.array(mask, dtype=bool)
-    allowed[np.asarray(selection.positions, dtype=np.int64)] = False
-    cells = sentinel.cells(model.grid, len(calibrated), allowed)
-    if cells.size == 0:
-        raise GoniofrostError("--sentinels: no candidate cell lies where the design leaves the grid empty "
-                              "(theta_d > 80 or theta_h > 70 degrees)")
-    same = "the model's calibrated cells" if cells.tolist() == list(calibrated) else \
-        "not the model's calibrated cells (the rig or --max-angle excludes some): the check is an approximation"
-    print(f"sentinels: {cells.size} samples with the first batch, {same}")
-    return add_sentinels(doc, model.grid, cells)
 
 
 def _scene_error(model, usage):
