@@ -2,6 +2,8 @@
 posterior of the design's samples, calibrated on held-out training materials."""
 from __future__ import annotations
 
+import copy
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -224,3 +226,42 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         assert len(journal.events()) == len(events) and len(journal.samples()) == 18
+
+
+def test_a_plan_gets_sentinels_by_default_only_from_a_model_whose_check_can_flag(tmp_path, capsys):
+    from goniofrost.app.cli import main
+    from goniofrost.core.cache import cache_path
+    from goniofrost.frost.training import train
+    from test_session import GRID as SESSION_GRID, TRAINING
+
+    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    folder, plan = str(cache_path("models", model.info["cache_key"], "")), tmp_path / "plan.json"
+    assert main(["plan", "--model", folder, "--samples", "17", "--out", str(plan)]) == 0
+    out = capsys.readouterr().out
+    # 6 training materials: a check at 0.95 needs 19, so the default plan is the design alone
+    assert ("sentinels: none (the model's 6 held-out training materials are too few for a check at 0.95: it "
+            "would never flag)") in out
+    doc = json.loads(plan.read_text())
+    assert doc["m"] == 17 and "sentinels" not in doc
+    # asked for, they are planned, and the plan says the check cannot flag
+    assert main(["plan", "--model", folder, "--samples", "17", "--sentinels", "--out", str(plan)]) == 0
+    assert "it never flags" in capsys.readouterr().out and json.loads(plan.read_text())["sentinels"] == 3
+
+
+def test_a_model_without_the_sentinel_calibration_plans_none_unless_asked(trained, tmp_path):
+    from goniofrost.capture.plan_file import with_sentinels
+    from goniofrost.core.errors import GoniofrostError
+
+    model, design = trained
+    bound = dict(model.noise["calibration"]["bound"])
+    bound.pop("sentinel")
+    old = copy.copy(model)
+    old.noise = model.noise | {"calibration": model.noise["calibration"] | {"bound": bound}}
+    doc = {"m": 15, "batch_ends": [15], "samples": [], "selector": "bayes"}
+    same, said = with_sentinels(doc, old, design)
+    assert same is doc and said == ("sentinels: none (the model has no sentinel calibration (train it again "
+                                    "with this version))")
+    with pytest.raises(GoniofrostError, match=r"^--sentinels: the model has no sentinel calibration"):
+        with_sentinels(doc, old, design, asked=True)
+    planned, said = with_sentinels(doc, model, design)
+    assert planned["sentinels"] == 3 and said.startswith("sentinels: 3 samples with the first batch, ")
