@@ -114,7 +114,9 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert [r.plan_index for r in records] == list(range(M))
     assert [r.cell for r in records] == [int(GRID.flat_index(*s["cell"])) for s in doc["samples"]]
     assert meta["model_hash"] == model.content_hash and meta["material"] == MATERIAL
-    kinds = [e["kind"] for e in events]
+    # the engine's own events; a driver's log record ("device": a read retried on a busy machine)
+    # may fall anywhere between them
+    kinds = [e["kind"] for e in events if e["kind"] != "device"]
     assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-2:] == ["lamp", "session"]
     for r, s in zip(records, doc["samples"]):  # the axes reached the plan's joints within tolerance
         assert all(abs(r.joints[a] - s["joints"][a]) <= 0.1 for a in s["joints"])
