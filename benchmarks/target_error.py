@@ -78,11 +78,14 @@ def folds_of(setting: str, grid: MerlGrid, folds: int):
     yield 0, open_tables(train_path), train_names, open_tables(test_path), test_names
 
 
-def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targets) -> dict:
-    """Train, design, and simulate every target; per-m prediction quality. Plain rows."""
+def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask=None) -> dict:
+    """Train, design, and simulate every target; per-m prediction quality. Plain rows.
+    rig_mask: bool (n_valid,) a rig's measurable cells: ``run_rig_fold``."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import fit_model
 
+    if rig_mask is not None:
+        return run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask)
     model = fit_model(np.asarray(train), train_names, grid, k_max=60)
     order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
     truth = np.asarray(test, dtype=np.float64)
@@ -104,6 +107,45 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     return {"stops": stops, "per_m": per_m, "calibration_materials": len(bound["scores"])}
 
 
+def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, mask) -> dict:
+    """As ``run_fold`` on a rig that measures only the cells of ``mask``: the design among them,
+    every target simulated three ways ("sentinels" of the rows): "no" (none), "approx" (the
+    model's check calibrated at the whole grid's sentinels, measured at the cells ``plan --rig``
+    puts in their place) and "rig" (a model trained with ``sentinel_candidates=mask``, as
+    ``train --rig``: measured where they were calibrated). The two models differ only in their
+    sentinel calibration; per-m rows from the second."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    model = fit_model(np.asarray(train), train_names, grid, k_max=60)
+    rig_model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
+    order = np.asarray(select_bayes(model, m_max, candidates=mask).positions, dtype=np.int64)
+    assert np.array_equal(order, select_bayes(rig_model, m_max, candidates=mask).positions)
+    allowed = mask & ~np.isin(np.arange(grid.n_valid), order)
+    n = sentinel.calibrated_cells(model).size
+    placed = {"approx": sentinel.cells(grid, n, allowed), "rig": sentinel.cells(grid, n, allowed)}
+    truth = np.asarray(test, dtype=np.float64)
+    truth_log = model.to_log(truth)
+    stops = []
+    for target in targets:
+        for label, which, checked in (("no", model, False), ("approx", model, True), ("rig", rig_model, True)):
+            out = bayes_eval.target_outcomes(which, order, truth, truth_log, target, confidence, sentinels=checked,
+                                             sentinel_cells=placed.get(label))
+            for i, name in enumerate(test_names):
+                stops.append({"material": name, "target": target, "sentinels": label, **{k: float(out[k][i]) for k in
+                              ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out",
+                               "ever_sentinel")}})
+    per_m = []
+    for m in [e for e in stopping.batch_ends(m_max)]:
+        out = bayes_eval.bound_rows(rig_model, order[:m], truth, truth_log, confidence)
+        per_m += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
+    bound = rig_model.noise["calibration"]["bound"]
+    return {"stops": stops, "per_m": per_m, "calibration_materials": len(bound["scores"]),
+            "sentinel_cells": {"whole_grid": sentinel.calibrated_cells(model).tolist(),
+                               "rig_calibrated": sentinel.calibrated_cells(rig_model).tolist(),
+                               "placed": placed["rig"].tolist()}}
+
+
 def summary(results: dict, m_max: int, confidence: float) -> dict:
     """Per setting: per target the stopping figures, per m the prediction figures."""
     out = {}
@@ -114,7 +156,8 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
         for checked, target in sorted({(s.get("sentinels", False), s["target"]) for s in stops}):
             group = [s for s in stops if s["target"] == target and s.get("sentinels", False) == checked]
             hit = [s for s in group if s["reached"]]
-            rows[f"{target:g}{' sentinels' if checked else ''}"] = {"target": target, "sentinels": checked,
+            label = checked if isinstance(checked, str) else "sentinels" if checked else ""
+            rows[f"{target:g} {label}".strip()] = {"target": target, "sentinels": checked,
                             "sentinel_flagged": int(sum(s.get("ever_sentinel", 0) for s in group)),
                             "materials": len(group), "stopped_on_target": len(hit),
                             "within_when_stopped": float(np.mean([s["mse"] <= target for s in hit])) if hit else None,
@@ -141,6 +184,11 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
     return out
 
 
+def _said(sentinels) -> str:
+    """The sentinels column: yes / no, or a rig run's variant (no, approx, rig)."""
+    return sentinels if isinstance(sentinels, str) else "yes" if sentinels else "no"
+
+
 def markdown(stats: dict) -> str:
     lines = ["| setting | E | sentinels | materials | stopped on the target | of those, true error <= E | all: true error <= E "
              "| mean samples / plan | out of the model (any look / at the end) | flagged by the sentinels |",
@@ -148,7 +196,7 @@ def markdown(stats: dict) -> str:
     for setting, s in stats.items():
         for r in s["targets"].values():
             within = "n/a" if r["within_when_stopped"] is None else f"{100 * r['within_when_stopped']:.1f} %"
-            lines.append(f"| {setting} | {r['target']:g} | {'yes' if r.get('sentinels') else 'no'} | {r['materials']} | {r['stopped_on_target']} | {within} | "
+            lines.append(f"| {setting} | {r['target']:g} | {_said(r.get('sentinels'))} | {r['materials']} | {r['stopped_on_target']} | {within} | "
                          f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
                          f"{r['ever_out']} / {r['out_at_end']} | {r.get('sentinel_flagged', 0)} |")
     lines += ["", "| setting | m | median estimate within x2 | true error <= bound | out of the model "
@@ -175,9 +223,18 @@ def main(argv=None) -> int:
     parser.add_argument("--m-max", type=int, default=60, help="the plan's samples (default 60)")
     parser.add_argument("--confidence", type=float, default=0.95)
     parser.add_argument("--targets", default=",".join(map(str, TARGETS)))
+    parser.add_argument("--rig", type=Path, default=None,
+                        help="a rig file: designs among the cells it can measure, and its sentinels placed for it "
+                             "against calibrated among its cells (run_rig_fold)")
     parser.add_argument("--out", type=Path, required=True, help="folder: target_error.json, target_error.md")
     args = parser.parse_args(argv)
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
+    rig_mask = None
+    if args.rig is not None:
+        from goniofrost.capture.rig_file import load_checked_rig
+        from planner.reach import reachability
+
+        rig_mask = reachability(load_checked_rig(args.rig), grid).mask
     targets = tuple(float(v) for v in args.targets.split(","))
     args.out.mkdir(parents=True, exist_ok=True)
     results, started = {}, time.time()
@@ -185,7 +242,7 @@ def main(argv=None) -> int:
         results[setting] = []
         for fold, train, train_names, test, test_names in folds_of(setting, grid, args.folds):
             t0 = time.time()
-            row = run_fold(train, train_names, test, test_names, grid, args.m_max, args.confidence, targets)
+            row = run_fold(train, train_names, test, test_names, grid, args.m_max, args.confidence, targets, rig_mask)
             results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
             print(f"{setting} fold {fold}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
             stats = summary(results, args.m_max, args.confidence)

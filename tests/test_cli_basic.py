@@ -132,3 +132,15 @@ def test_plan_refuses_a_max_angle_outside_0_to_90_degrees(angle, tmp_path, capsy
     assert capsys.readouterr().err == (f"goniofrost plan: error: command line: --max-angle: expected degrees in "
                                        f"(0, 90], found {float(angle)!r}\n")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--alignment", "a.json"], "--alignment"),
+    (["--rig", "no-such-rig.yaml"], "no-such-rig.yaml"),
+])
+def test_train_with_a_bad_rig_exits_2_before_training_and_writes_nothing(tmp_path, capsys, args, message):
+    out = tmp_path / "model"
+    assert main(["train", "--dataset", "builtin", "--only", "gold", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("goniofrost train: error: ") and message in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []

@@ -108,6 +108,19 @@ def test_a_trained_model_calibrates_its_sentinels():
     spread = model.noise["calibration"]["bound"]["sentinel"]
     assert spread["cells"] == sentinel.cells(GRID).tolist() and len(spread["scores"]) == 40
     assert len(spread["center"]) == len(model.noise["calibration"]["bound"]["m"])
+    # calibrated among a rig's cells: the plan with that rig measures exactly those
+    allowed = np.ones(GRID.n_valid, bool)
+    allowed[[180, 199]] = False
+    rig_model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30,
+                          sentinel_candidates=allowed)
+    cells = rig_model.noise["calibration"]["bound"]["sentinel"]["cells"]
+    assert cells == sentinel.cells(GRID, 3, allowed).tolist() and not {180, 199} & set(cells)
+    design = np.array([0, 1, 2], dtype=np.int64)
+    doc = {"m": 3, "batch_ends": [3], "samples": [{}] * 3, "selector": "bayes"}
+    from goniofrost.capture.plan_file import with_sentinels
+    assert with_sentinels(doc, rig_model, design, allowed)[1] == \
+        "sentinels: 3 samples with the first batch, the model's calibrated cells"
+    assert "the check is an approximation" in with_sentinels(doc, model, design, allowed)[1]
 
 
 def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_by_its_sentinels():
@@ -265,3 +278,20 @@ def test_a_model_without_the_sentinel_calibration_plans_none_unless_asked(traine
         with_sentinels(doc, old, design, asked=True)
     planned, said = with_sentinels(doc, model, design)
     assert planned["sentinels"] == 3 and said.startswith("sentinels: 3 samples with the first batch, ")
+
+
+def test_training_among_a_rigs_cells_is_cached_apart_and_records_them():
+    from goniofrost.frost.training import train
+    from test_session import GRID as SESSION_GRID, TRAINING
+
+    whole = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    allowed = np.ones(SESSION_GRID.n_valid, bool)
+    allowed[sentinel.calibrated_cells(whole)] = False  # a rig that cannot reach the whole grid's sentinels
+    rig = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True, sentinel_candidates=allowed)
+    assert rig.info["cache_key"] != whole.info["cache_key"] and "sentinel_candidates" not in whole.info
+    assert rig.info["sentinel_candidates"]["cells"] == SESSION_GRID.n_valid - 3
+    assert sentinel.calibrated_cells(rig).tolist() == sentinel.cells(SESSION_GRID, 3, allowed).tolist()
+    assert not set(sentinel.calibrated_cells(rig).tolist()) & set(sentinel.calibrated_cells(whole).tolist())
+    # the same inputs again: the cached model
+    again = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True, sentinel_candidates=allowed)
+    assert again.content_hash == rig.content_hash

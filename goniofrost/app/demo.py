@@ -68,21 +68,17 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
         now = time.perf_counter()
         stages[name], clock = now - clock, now
 
-    # The rig's reachability map depends on the rig and grid alone: it is computed (or read from
-    # its cache) on a thread while the model trains, whose single-threaded stretches (imports, the
-    # calibration fit, the held-out reconstructions, saving) leave a core free (cold: 1.5 s of the
-    # plan stage). A bad rig file fails here, before the training.
-    from concurrent.futures import ThreadPoolExecutor
-
+    # The rig's reachability map (cached on disk after the first run) comes first: the model's
+    # sentinel check is calibrated at cells this rig can measure (as ``train --rig``), so the plan
+    # measures its sentinels exactly there. A bad rig file fails here, before the training.
     from goniofrost.capture.rig_file import load_checked_rig
     from planner.reach import reachability
 
-    rig = load_checked_rig(rig_path)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        reach = pool.submit(reachability, rig, grid)
-        model, model_path = train_without(material, grid, progress)
-        lap("train")
-        plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.result().mask)
+    reach = reachability(load_checked_rig(rig_path), grid)
+    lap("reach")
+    model, model_path = train_without(material, grid, progress, reach.mask)
+    lap("train")
+    plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.mask)
     lap("plan")
     outcome = capture_fresh(rig_path, plan_path, out / "session", f"builtin:{material}", seed, speedup, progress,
                             target_error, confidence)
@@ -102,14 +98,17 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     return DemoResult(out, report, stages)
 
 
-def train_without(material: str, grid, progress: bool):
-    """Train on the built-in library without ``material`` (cached); return (model, its folder)."""
+def train_without(material: str, grid, progress: bool, sentinel_candidates=None):
+    """Train on the built-in library without ``material`` (cached; the sentinel check calibrated
+    among ``sentinel_candidates``, a rig's measurable cells, or the whole grid); return (model,
+    its folder)."""
     from goniofrost.core.cache import cache_path
     from goniofrost.datasets import open_dataset
     from goniofrost.frost.training import train
 
     open_dataset("builtin").resolve(material)  # an unknown name fails here, with suggestions
-    model = train(["builtin"], exclude=[material], grid=grid, cache=True, progress=progress)
+    model = train(["builtin"], exclude=[material], grid=grid, cache=True, progress=progress,
+                  sentinel_candidates=sentinel_candidates)
     return model, cache_path("models", model.info["cache_key"], "")
 
 

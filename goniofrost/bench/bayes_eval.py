@@ -122,13 +122,15 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
 
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False) -> dict:
+                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False,
+                    sentinel_cells: np.ndarray | None = None) -> dict:
     """Simulated ``capture --target-error target --confidence confidence_level``: every test
     material measured in batches along the nested design ``order`` (positions, length m_max)
     until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
     sentinels: measure the model's sentinel cells (``sentinel.py``) with the first batch and
     check them at every look (out of the model beyond their calibrated range); they count in
-    "samples".
+    "samples". sentinel_cells: int64 (s,) positions measured instead of the calibrated ones (as
+    ``plan --rig`` places them when the rig cannot reach those: the check is then approximate).
 
     Returns float64/int64 (n_mat,) arrays "samples" (with the sentinels), "mse" (true error at the stop),
     "pred_mse" (median estimate at the stop), "upper" (the bound at the stop), "reached" (1 if
@@ -145,7 +147,8 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
     ever_sentinel = np.zeros(n_mat, dtype=np.int64)
     posts = {}
-    cells = sentinel.calibrated_cells(model) if sentinels else np.zeros(0, dtype=np.int64)
+    cells = np.zeros(0, dtype=np.int64) if not sentinels else \
+        sentinel.calibrated_cells(model) if sentinel_cells is None else np.asarray(sentinel_cells, dtype=np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post

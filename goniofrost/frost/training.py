@@ -52,7 +52,7 @@ class TrainingError(GoniofrostError, ValueError):
 
 def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
               k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
-              progress: bool = False, noise: bool = True) -> FrostModel:
+              progress: bool = False, noise: bool = True, sentinel_candidates=None) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
     tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
@@ -62,6 +62,8 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
     noise: learn the noise model and predicted-error calibration by inner cross-validation
         (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
+    sentinel_candidates: bool (n_valid,) the cells the sentinel check may be calibrated at (a
+        rig's measurable cells: ``plan --rig`` then places the sentinels exactly there), None: all.
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
     tables = tables if hasattr(tables, "rows") else np.asarray(tables)
@@ -78,7 +80,7 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     svals, vt = _eigen_components(gram, k_max)
     variance, noise_meta = None, {}
     if noise and len(names) >= MIN_NOISE_MATERIALS:
-        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress)
+        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates)
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     dictionary = _project(mapped, vt)
@@ -89,15 +91,16 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
 
 
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
-                progress: bool = False) -> tuple[np.ndarray, dict]:
+                progress: bool = False, sentinel_candidates=None) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
-    calibration.py): inner folds, smoothed representation error, simulated captures, calibration."""
+    calibration.py): inner folds, smoothed representation error, simulated captures, calibration
+    (the sentinel check's at ``sentinel.cells`` among ``sentinel_candidates``, bool (n,) or None)."""
     from goniofrost.frost import calibration, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
     learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
-    sentinels = sentinel.cells(grid)
+    sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
                                                                                      sentinels=sentinels)
@@ -238,7 +241,8 @@ def _progress_chunks(parts, n: int, progress: bool, what: str):
 # ----- training from dataset specs -------------------------------------------------------
 def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
           exclude: Sequence[str] | None = None, grid: MerlGrid = FULL_GRID,
-          k_max: int = K_MAX, cache: bool = True, progress: bool = False) -> FrostModel:
+          k_max: int = K_MAX, cache: bool = True, progress: bool = False,
+          sentinel_candidates=None) -> FrostModel:
     """Train a FrostModel on the materials of one or more datasets.
 
     dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``), combined in order.
@@ -247,6 +251,8 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     Tabulated values come from the tabulation cache (``datasets.tabulate``).
     cache: reuse a model trained before on exactly the same inputs (keyed by the materials'
         content ids, grid, k_max, eps and the code version) from the goniofrost cache.
+    sentinel_candidates: bool (n_valid,) where the sentinel check is calibrated (``fit_model``;
+        ``train --rig``: the rig's measurable cells), None: the whole grid.
     Returns the model (memory-mapped from the cache when cache=True).
     """
     from goniofrost.core import cache as disk_cache
@@ -256,20 +262,31 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     ids = [m.dataset.content_id(m.name) for m in materials]
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
+    among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
     key = disk_cache.content_key("frost-model-v4", ids, [m.label for m in materials],
-                                 grid.as_dict(), int(k_max), EPS)
+                                 grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():
         return FrostModel.load(folder)
     info = {"datasets": list(dataset_specs), "cache_key": key}
+    if sentinel_candidates is not None:
+        info["sentinel_candidates"] = {"cells": int(np.count_nonzero(sentinel_candidates)), "sha256": among[0]}
     # The tables are read from the tabulation cache in row chunks: at full size 151 materials
     # are 2 GB, which would double the peak memory beside the mapped X.
     tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
-    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress)
+    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress,
+                      sentinel_candidates=sentinel_candidates)
     if folder is None:
         return model
     model.save(folder)
     return FrostModel.load(folder)
+
+
+def _mask_digest(mask) -> str:
+    """sha256 hex of a bool (n_valid,) cell mask (its packed bits): part of a model's cache key."""
+    import hashlib
+
+    return hashlib.sha256(np.packbits(np.asarray(mask, dtype=bool)).tobytes()).hexdigest()
 
 
 def remap(model: FrostModel, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:

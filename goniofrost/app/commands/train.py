@@ -10,6 +10,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--only", action="append", metavar="NAME", help="train on this material only (repeatable)")
     parser.add_argument("--exclude", action="append", metavar="NAME", help="leave this material out (repeatable)")
     parser.add_argument("--components", type=int, default=60, metavar="K", help="keep up to K components (default 60)")
+    parser.add_argument("--rig", metavar="RIG.yaml",
+                        help="calibrate the sentinel check at cells this rig can reach and its camera measure (plan "
+                             "--rig with the same rig then measures the sentinels exactly where they were calibrated; "
+                             "without it they are calibrated at the whole grid's and a rig's plan approximates them)")
+    parser.add_argument("--alignment", metavar="ALIGNMENT.json",
+                        help="with --rig: the axes' zero offsets from goniofrost align (as for plan)")
     parser.add_argument("--no-cache", action="store_true", help="retrain even if the same inputs were trained before")
     parser.add_argument("--out", required=True, metavar="MODEL", help="model directory to write")
 
@@ -19,9 +25,29 @@ def run(args) -> int:
     from goniofrost.frost.training import train
 
     check_model_destination(args.out)  # before training, not after it
+    candidates = _rig_cells(args)
     model = train(args.dataset, only=args.only, exclude=args.exclude, k_max=args.components,
-                  cache=not args.no_cache, progress=True)
+                  cache=not args.no_cache, progress=True, sentinel_candidates=candidates)
     model.save(args.out)
     print(f"{args.out}: {len(model.names)} materials, {model.n_components} components, "
           f"{model.grid.n_valid} valid cells, hash {model.content_hash[:16]}")
     return 0
+
+
+def _rig_cells(args):
+    """bool (n_valid,) of the full grid: the cells the --rig can measure (None without --rig);
+    a bad rig file or alignment fails here, before the training."""
+    if args.rig is None:
+        if args.alignment is not None:
+            from goniofrost.core.errors import ConfigError
+            raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
+                              args.alignment)
+        return None
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.core.grid import FULL_GRID
+    from planner.reach import reachability
+
+    rig = load_checked_rig(args.rig, args.alignment)
+    reach = reachability(rig, FULL_GRID, progress=True)
+    print(f"rig {rig.name}: the sentinel check is calibrated among its {int(reach.mask.sum())} measurable cells")
+    return reach.mask
