@@ -79,6 +79,27 @@ def test_the_sentinel_check_flags_five_percent_of_typical_materials_and_one_whos
     assert not confidence.sentinel_excess(fit_calibration(synthetic_records(50, seed=7)), 1e9, 1.0, 20, 0.95)
 
 
+def test_a_sentinel_flag_stays_for_the_rest_of_the_capture_and_its_replay():
+    from goniofrost.capture.journal import SampleRecord
+    from goniofrost.capture.target import finished, history, statement
+
+    # the sentinels flag the first look only; the second's bound is below the target
+    looks = {2: confidence.ErrorBound(0.01, 0.2, 0.95, ("sentinel",)), 4: confidence.ErrorBound(0.001, 0.02, 0.95),
+             5: confidence.ErrorBound(0.001, 0.01, 0.95)}
+    records = [SampleRecord(i, 0, 0.0, 0.0, 0.0, (1.0,) * 3, (0.1,) * 3, 10.0) for i in range(5)]
+    steps = history(lambda recs: looks[len(recs)], (2, 4, 5), 0.05, records)
+    assert [(b["samples"], b["decision"], b["out_of_model"]) for b in steps] == [
+        (2, "continue", ("sentinel",)), (4, "continue", ("sentinel_earlier",)),
+        (5, "plan used up", ("sentinel_earlier",))]
+    assert statement(steps[1]) == ("the samples are unlike every training material (the sentinel samples' error at "
+                                   "an earlier batch beyond the training range): an extrapolation")
+    assert finished(lambda recs: looks[len(recs)], (2, 4, 5), 0.05, records)
+    # never flagged: the second look stops
+    looks[2] = confidence.ErrorBound(0.01, 0.2, 0.95)
+    assert [b["decision"] for b in history(lambda recs: looks[len(recs)], (2, 4, 5), 0.05, records)] == [
+        "continue", "target reached"]
+
+
 def test_the_sentinel_excess_reads_the_calibrated_center_scale_and_quantile():
     calibration = {"bound": {"m": [15, 60], "sentinel": {"center": [0.0, 1.0], "scale": [1.0, 2.0],
                                                           "scores": [0.5, 1.0, 2.0]}}}

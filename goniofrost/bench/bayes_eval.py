@@ -157,6 +157,8 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"]
         for i in np.flatnonzero(stop_at < 0):
             flags = ("sentinel",) if b["out_of_model_sentinel"][i] else ("z2",) if out[i] else ()
+            # a flag of the sentinels stays (capture.target.sticky)
+            flags += ("sentinel_earlier",) if ever_sentinel[i] and not b["out_of_model_sentinel"][i] else ()
             bound = confidence.ErrorBound(float(b["median"][i]), float(b["upper"][i]), confidence_level, flags)
             ever_out[i] |= int(out[i])
             ever_sentinel[i] |= int(b["out_of_model_sentinel"][i])

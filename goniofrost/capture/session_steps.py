@@ -142,7 +142,7 @@ def _target_session(spec: SessionSpec, calibration, records, measured, reuse=Non
 
     by_index = {r.plan_index: r for r in records}
     measured = _as_arrays(measured) | {i: np.asarray(r.rgb, dtype=np.float64) for i, r in by_index.items()}
-    started, n = False, len(spec.samples)
+    started, n, done = False, len(spec.samples), []
     for batch, end in enumerate(spec.batch_ends):
         todo = [i for i in range(end) if i not in by_index]
         if todo:
@@ -150,7 +150,8 @@ def _target_session(spec: SessionSpec, calibration, records, measured, reuse=Non
                 calibration = yield from _start(spec, calibration, reuse)
                 started = True
             yield from _capture(spec, calibration, todo, measured, by_index)
-        result = assessment(spec.assess, batch, end, n, spec.target, [by_index[i] for i in range(end)])
+        result = assessment(spec.assess, batch, end, n, spec.target, [by_index[i] for i in range(end)], done)
+        done.append(result)
         yield Assess(**result)
         if result["decision"] != CONTINUE:
             break

@@ -12,7 +12,7 @@ session replays the same decisions and the report can show them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import math
@@ -60,17 +60,34 @@ def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONF
     return Assessor(model, positions, confidence, scene, sentinel)
 
 
-def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records) -> dict:
+def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records,
+               earlier: Sequence[dict] = ()) -> dict:
     """The assessment after batch ``batch`` (0-based) ending at ``end`` samples: the fields of an
     ``Assess`` step (batch, samples, predicted_error = the median estimate, target, decision =
     CONTINUE or a stopping reason, bound = the upper bound or None, confidence, out_of_model,
-    scope = the error assessed: the assessor's, "brdf" for a plain callable)."""
-    bound = assess(records)
+    scope = the error assessed: the assessor's, "brdf" for a plain callable). ``earlier``: the
+    session's assessments before this one: once its sentinels flagged the material, it stays
+    out of the model ("sentinel_earlier"; see ``sticky``)."""
+    bound = sticky(assess(records), earlier)
     decision = stop_reason(bound, target, end, n_samples) or CONTINUE
     return {"batch": batch, "samples": end, "predicted_error": float(bound.median), "target": target,
             "decision": decision, "bound": float(bound.upper) if math.isfinite(bound.upper) else None,
             "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model),
             "scope": getattr(assess, "scope", SCOPE_BRDF)}
+
+
+def sticky(bound: ErrorBound, earlier: Sequence[dict]) -> ErrorBound:
+    """``bound`` still out of the model ("sentinel_earlier") when the sentinels flagged any of the
+    ``earlier`` assessments. The check is calibrated on the largest of a held-out training
+    material's standardized sentinel scores over every look (``confidence._sentinel_spread``):
+    at most 5 % of materials like the training ones are ever flagged, so a flag speaks of the
+    material, not of one look, and a later look that happens to agree does not undo it. Measured
+    (docs/BENCHMARKS.md, issue 28): trained on MERL on the simulated rig, 9 RGL captures stopped
+    at 0.05 of which 4 above it, all flagged at an earlier batch; with the flag kept, 1 (within)."""
+    flagged = any({"sentinel", "sentinel_earlier"} & set(a.get("out_of_model") or ()) for a in earlier)
+    if not flagged or "sentinel" in bound.out_of_model:
+        return bound
+    return replace(bound, out_of_model=tuple(bound.out_of_model) + ("sentinel_earlier",))
 
 
 def bound_of(assessed: dict) -> ErrorBound:
@@ -97,7 +114,7 @@ def history(assess: Callable, batch_ends: Sequence[int], target: float, records)
     for batch, end in enumerate(batch_ends):
         if any(i not in by_index for i in range(end)):
             break
-        out.append(assessment(assess, batch, end, n, target, [by_index[i] for i in range(end)]))
+        out.append(assessment(assess, batch, end, n, target, [by_index[i] for i in range(end)], out))
         if out[-1]["decision"] != CONTINUE:
             break
     return out

@@ -68,7 +68,8 @@ FIRST_LOOK = 15
 # to the next (45 x 45 x 90 grid, fold 0 of MERL + RGL: log z2 max 2.3 to 2.9 from m = 5 to 60).
 OUT_OF_MODEL_FACTOR = 2.0
 FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
-                 "sentinel": "the sentinel samples' error"}
+                 "sentinel": "the sentinel samples' error",
+                 "sentinel_earlier": "the sentinel samples' error at an earlier batch"}
 
 
 @dataclass(frozen=True)
@@ -273,7 +274,7 @@ def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m
                 confidence: float, extra: float = 0.0, check: float | None = None) -> ErrorBound:
     """The ErrorBound of one reconstruction (see ``error_bounds``)."""
     out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra, check)
-    flags = tuple(k for k in FEATURE_NAMES if bool(out[f"out_of_model_{k}"]))
+    flags = tuple(k for k in FEATURE_NAMES if bool(out.get(f"out_of_model_{k}", False)))  # one look's
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
                       unavailability(calibration, confidence))
 
