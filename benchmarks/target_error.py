@@ -78,6 +78,9 @@ def folds_of(setting: str, grid: MerlGrid, folds: int):
     yield 0, open_tables(train_path), train_names, open_tables(test_path), test_names
 
 
+STOP_FIELDS = ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out", "ever_sentinel")
+
+
 def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask=None) -> dict:
     """Train, design, and simulate every target; per-m prediction quality. Plain rows.
     rig_mask: bool (n_valid,) a rig's measurable cells: ``run_rig_fold``."""
@@ -88,23 +91,13 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
         return run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask)
     model = fit_model(np.asarray(train), train_names, grid, k_max=60)
     order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
+    variants = [(False, model, False, None)]
+    if sentinel.calibrated_cells(model).size:
+        variants.append((True, model, True, None))
     truth = np.asarray(test, dtype=np.float64)
-    truth_log = model.to_log(truth)
-    stops = []
-    variants = (False, True) if sentinel.calibrated_cells(model).size else (False,)
-    for target in targets:
-        for checked in variants:
-            out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked)
-            for i, name in enumerate(test_names):
-                stops.append({"material": name, "target": target, "sentinels": checked, **{k: float(out[k][i]) for k in
-                              ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out",
-                               "ever_sentinel")}})
-    per_m = []
-    for m in [e for e in stopping.batch_ends(m_max)]:
-        out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
-        per_m += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
-    bound = model.noise["calibration"]["bound"]
-    return {"stops": stops, "per_m": per_m, "calibration_materials": len(bound["scores"])}
+    return {"stops": stop_rows(variants, order, truth, model.to_log(truth), test_names, targets, confidence),
+            "per_m": per_m_rows(model, order, truth, test_names, m_max, confidence),
+            "calibration_materials": len(model.noise["calibration"]["bound"]["scores"])}
 
 
 def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, mask) -> dict:
@@ -121,29 +114,38 @@ def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, 
     rig_model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
     order = np.asarray(select_bayes(model, m_max, candidates=mask).positions, dtype=np.int64)
     assert np.array_equal(order, select_bayes(rig_model, m_max, candidates=mask).positions)
-    allowed = mask & ~np.isin(np.arange(grid.n_valid), order)
-    n = sentinel.calibrated_cells(model).size
-    placed = {"approx": sentinel.cells(grid, n, allowed), "rig": sentinel.cells(grid, n, allowed)}
+    # where plan --rig puts them (the same cells for both models: only the calibration differs)
+    placed = sentinel.cells(grid, sentinel.calibrated_cells(model).size, mask & ~np.isin(np.arange(grid.n_valid), order))
+    variants = [("no", model, False, None), ("approx", model, True, placed), ("rig", rig_model, True, placed)]
     truth = np.asarray(test, dtype=np.float64)
-    truth_log = model.to_log(truth)
-    stops = []
-    for target in targets:
-        for label, which, checked in (("no", model, False), ("approx", model, True), ("rig", rig_model, True)):
-            out = bayes_eval.target_outcomes(which, order, truth, truth_log, target, confidence, sentinels=checked,
-                                             sentinel_cells=placed.get(label))
-            for i, name in enumerate(test_names):
-                stops.append({"material": name, "target": target, "sentinels": label, **{k: float(out[k][i]) for k in
-                              ("samples", "mse", "pred_mse", "upper", "reached", "out_of_model", "ever_out",
-                               "ever_sentinel")}})
-    per_m = []
-    for m in [e for e in stopping.batch_ends(m_max)]:
-        out = bayes_eval.bound_rows(rig_model, order[:m], truth, truth_log, confidence)
-        per_m += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
-    bound = rig_model.noise["calibration"]["bound"]
-    return {"stops": stops, "per_m": per_m, "calibration_materials": len(bound["scores"]),
+    return {"stops": stop_rows(variants, order, truth, model.to_log(truth), test_names, targets, confidence),
+            "per_m": per_m_rows(rig_model, order, truth, test_names, m_max, confidence),
+            "calibration_materials": len(rig_model.noise["calibration"]["bound"]["scores"]),
             "sentinel_cells": {"whole_grid": sentinel.calibrated_cells(model).tolist(),
                                "rig_calibrated": sentinel.calibrated_cells(rig_model).tolist(),
-                               "placed": placed["rig"].tolist()}}
+                               "placed": placed.tolist()}}
+
+
+def stop_rows(variants, order, truth, truth_log, test_names, targets, confidence) -> list[dict]:
+    """Every test material's simulated capture at every target, per variant (label, model,
+    sentinels measured, their cells or None: the model's calibrated ones)."""
+    rows = []
+    for target in targets:
+        for label, model, checked, cells in variants:
+            out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked,
+                                             sentinel_cells=cells)
+            rows += [{"material": name, "target": target, "sentinels": label, **{k: float(out[k][i]) for k in STOP_FIELDS}}
+                     for i, name in enumerate(test_names)]
+    return rows
+
+
+def per_m_rows(model, order, truth, test_names, m_max, confidence) -> list[dict]:
+    """The bound and median estimate of every test material at every batch end of the design."""
+    rows, truth_log = [], model.to_log(truth)
+    for m in stopping.batch_ends(m_max):
+        out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
+        rows += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
+    return rows
 
 
 def summary(results: dict, m_max: int, confidence: float) -> dict:

@@ -182,6 +182,34 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert all(np.isfinite(r["feature_distance"]) for r in doc["results"]["builtin"][0]["per_m"])
 
 
+def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp_path):
+    """target_error.py --rig: the design and the sentinels among the rig's cells, three variants;
+    the rig-calibrated model's sentinels are the cells the plan measures."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.core.grid import MerlGrid
+    from planner.reach import reachability
+
+    repo = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("target_error_bench", repo / "benchmarks" / "target_error.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    rig = repo / "goniofrost" / "rigs" / "sim.yaml"
+    assert bench.main(["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20",
+                       "--rig", str(rig), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "target_error.json").read_text())
+    assert sorted({(r["target"], r["sentinels"]) for r in doc["summary"]["builtin"]["targets"].values()}) == [
+        (t, v) for t in (0.01, 0.02, 0.05) for v in ("approx", "no", "rig")]
+    cells = doc["results"]["builtin"][0]["sentinel_cells"]
+    mask = reachability(load_checked_rig(rig), MerlGrid(10, 10, 20)).mask
+    assert cells["placed"] == cells["rig_calibrated"] and mask[cells["placed"]].all()
+    assert not mask[cells["whole_grid"]].all()  # the whole grid's sentinels are beyond this rig
+    assert "| builtin | 0.05 | rig | 10 |" in (tmp_path / "target_error.md").read_text()
+
+
 def test_the_prequential_errors_are_the_batch_posteriors_predictions_of_each_next_sample():
     from goniofrost.frost import posterior
 
