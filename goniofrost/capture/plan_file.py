@@ -6,7 +6,7 @@ Layout (DESIGN.md "Command line")::
      "selector": "bayes"|"frost", "k": int,
      "predicted_errors": [float, ...]                   (bayes: after each pick)
      "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
-     "sentinels": int                                   (plan --sentinels: how many samples are)
+     "sentinels": int                                   (bayes: how many samples are sentinels; with_sentinels)
      "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,

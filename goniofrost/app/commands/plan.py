@@ -52,7 +52,7 @@ def run(args) -> int:
 
     if args.selector == "bayes" and (args.y_form is not None or args.atoms is not None):
         raise GoniofrostError("--y-form and --atoms apply to --selector frost only")
-    if args.sentinels and (args.selector != "bayes" or args.usage is not None):  # asked for: refused
+    if args.sentinels and (args.selector != "bayes" or args.usage is not None):
         raise GoniofrostError("--sentinels applies to --selector bayes without --usage (the whole BRDF's bound)")
     if args.usage is not None and args.selector != "bayes":
         raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
