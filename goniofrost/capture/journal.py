@@ -327,12 +327,16 @@ class Journal:
         ``step`` (row, result): the step that commits it ends done in the same transaction."""
         self._commit_row("samples", "not_measured", _row_from_record(record), step)
 
-    def commit_not_measured(self, record: NotMeasuredRecord, step: tuple[int, dict] | None = None) -> None:
+    def commit_not_measured(self, record: NotMeasuredRecord, step: tuple[int, dict] | None = None,
+                            message: str | None = None) -> None:
         """Store one plan sample the rig could not measure, as ``commit_sample`` stores a measured
-        one (one durable transaction; a plan index already journaled, either way, is refused)."""
-        self._commit_row("not_measured", "samples", _row_from_not_measured(record), step)
+        one (one durable transaction; a plan index already journaled, either way, is refused);
+        ``message``: also a ``not_measured`` event with these words and the record as its data, in
+        the same transaction."""
+        event = None if message is None else (EventKind.NOT_MEASURED, message, record.to_dict())
+        self._commit_row("not_measured", "samples", _row_from_not_measured(record), step, event)
 
-    def _commit_row(self, table: str, other: str, row: dict, step) -> None:
+    def _commit_row(self, table: str, other: str, row: dict, step, event=None) -> None:
         index = row["plan_index"]
         try:
             with self._transaction() as db:
@@ -341,16 +345,16 @@ class Journal:
                 db.execute(f"INSERT INTO {table} ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                            tuple(row.values()))
                 _end_step(db, step)
+                if event is not None:
+                    _insert_event(db, *event)
         except sqlite3.IntegrityError:
             raise JournalError(f"{self.path}: plan sample {index} is already in the journal") from None
 
     def add_event(self, kind: EventKind, message: str, axis: str | None = None, data: dict | None = None) -> None:
         """Record a device or session event (durably: a fault must outlive the process); ``message``
         is for people, ``data`` for readers."""
-        kind = EventKind(kind)  # an unknown kind is refused here, not found missing by a reader
         with self._transaction() as db:
-            db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
-                       (time.time(), kind.value, axis, message, json.dumps(data or {}, default=str)))
+            _insert_event(db, kind, message, data, axis)
 
     def start_run(self, program: str, samples_planned: int, samples_done: int) -> RunStart:
         """Record that a run of ``program`` begins (durably); return its RunStart."""
@@ -423,6 +427,13 @@ def connect_read_only(path: Path) -> sqlite3.Connection:
     query = "mode=ro" if live_writer else "mode=ro&immutable=1"
     return sqlite3.connect(f"{path.as_uri()}?{query}", uri=True, isolation_level=None, timeout=2.0,
                            check_same_thread=False)
+
+
+def _insert_event(db: sqlite3.Connection, kind: EventKind, message: str, data: dict | None, axis: str | None = None):
+    """Within a transaction: add an event (an unknown kind is refused here, not found missing by a reader)."""
+    kind = EventKind(kind)
+    db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
+               (time.time(), kind.value, axis, message, json.dumps(data or {}, default=str)))
 
 
 def _end_step(db: sqlite3.Connection, step: tuple[int, dict | None] | None, status: str = "done") -> None:
