@@ -110,7 +110,7 @@ class RunEnd:
 
     ``status``: a RunStatus; ``reason``: words for people (the terminal's message after a stop);
     ``samples_planned``: the plan's samples; ``samples_captured``: journaled by the end of the run
-    (all runs); ``batches``: batches assessed in this run (a target-error capture; 0 otherwise);
+    (all runs; measured or journaled as not measured: both are done); ``batches``: batches assessed in this run (a target-error capture; 0 otherwise);
     ``started_utc``/``ended_utc``: Unix times of the run. After a stop: ``detail`` the device's or
     library's message, ``axis`` the axis at fault, ``plan_index`` the plan sample under way,
     ``stops`` how each axis took the stop, ``lamp_off`` whether the lamp confirmed it is off (None:
