@@ -4,8 +4,8 @@
 reference pose and the calibration (``calibration_steps``: dark frames, flat field, white
 reference, each frame a step); then per remaining sample: move, its bracket of exposures
 (``sample_steps``), commit (a measured sample's record, or the record of a sample too dark to
-measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off. Each Move's result (the joints reached) gives the
-pose the next steps use, and the Commit carries the whole sample record, so nothing passes
+measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off. Each Move's result
+(the joints reached) gives the pose the next steps use, and the Commit carries the whole sample record, so nothing passes
 through the engine between steps. Samples already in the journal, measured or not, are
 skipped, so a resumed session never repeats one.
 
@@ -23,8 +23,8 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from goniofrost.capture.calibration_steps import calibration_steps, white_check_steps
 from calib import NotMeasured
+from goniofrost.capture.calibration_steps import calibration_steps, white_check_steps
 from goniofrost.capture.journal import NotMeasuredRecord, SampleRecord
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, Reached
@@ -84,8 +84,8 @@ def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
                   not_measured: Iterable[int] = ()):
     """Yield the steps of a capture session (send each step's result back).
 
-    ``done``: plan indices already journaled (measured or not); ``calibration``: a journaled CalibrationRecord to keep
-    (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
+    ``done``: plan indices already journaled (measured or not); ``calibration``: a journaled
+    CalibrationRecord to keep (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
     samples. Each sample's bracket starts from what the plan sample before it measured (in this
     run or, resumed, in the journal), so a resumed session takes the frames one run would have.
     ``records``: the journaled SampleRecords (with a target error: its assessments need their
