@@ -5,7 +5,8 @@
 the run's ``RunStart``/``RunEnd``). On top of it the engine commits each sample in one transaction
 the moment it is measured, appends it to samples.csv (a sample too dark to measure is committed
 as not measured instead, with a ``not_measured`` event, and the capture goes on), journals the
-calibration, lamp and homing events, times the parts of the session and shows a progress bar with the ETA, and
+calibration, lamp and homing events, times the parts of the session and shows a progress bar
+with the ETA, and
 
 * on SIGINT, SIGTERM or a stop request: stops every axis, switches the lamp off, records the
   event and the RunEnd (``stopped_by_operator``) and raises ``SessionInterrupted`` (the command
