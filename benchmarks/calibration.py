@@ -73,6 +73,8 @@ def run_once(material: str, rig: dict, poses, seed: int, work: Path) -> dict:
         bench.pose = (w_i, w_o)
         t0 = time.perf_counter()
         m = drive(sample_steps(settings, record, (w_i, w_o), k, expected), devices)
+        if not hasattr(m, "rgb"):   # calib.NotMeasured: too dark for this ladder
+            raise SystemExit(f"benchmark pose {k}: {m.text()}")
         sample_s, expected = time.perf_counter() - t0, np.maximum(m.rgb, 1e-6)
         truth = bench.camera.ground_truth(w_i, w_o)
         rows.append({"sample": k, "theta_i_deg": float(np.degrees(np.arccos(w_i[2]))),

@@ -5,11 +5,12 @@ from .bracket import Bracket, start_index
 from .config import validate_camera_section
 from .errors import (CalibrationError, MarkerError, MisalignedError, PatchTooSmallError, SaturationError,
                      UnderexposedError, WrongTargetError)
-from .measurement import SampleMeasurement, check_record, light_direction, sample_measurement
+from .measurement import (NotMeasured, NotMeasuredReason, SampleMeasurement, check_record, light_direction,
+                          sample_measurement)
 from .record import CalibrationRecord
 from .references import dark_map, flat_field, flat_usable, nominal_white_pose, white_scale
 
-__all__ = ["Bracket", "start_index", "SampleMeasurement", "check_record", "light_direction", "sample_measurement",
+__all__ = ["Bracket", "start_index", "NotMeasured", "NotMeasuredReason", "SampleMeasurement", "check_record", "light_direction", "sample_measurement",
            "CalibrationRecord", "dark_map", "flat_field", "flat_usable", "nominal_white_pose", "white_scale",
            "validate_camera_section",
            "CalibrationError", "MarkerError", "MisalignedError", "PatchTooSmallError", "SaturationError",

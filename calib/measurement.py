@@ -5,8 +5,9 @@ Pure: the bracket's frames, the calibration record and the camera settings in, a
 uncertainty combines the patch's standard error, the white reference's and the photodiode's.
 
 Error policy: sample pixels saturated even at the shortest exposure -> SaturationError (raised by
-the bracket); every channel below ``min_snr`` even with the ladder's longest exposure ->
-UnderexposedError; some channels below ``min_snr`` but not all -> those channels are measurements
+the bracket); every channel below ``min_snr`` even with the ladder's longest exposure -> not an
+error but a ``NotMeasured`` record (reason ``below-detection-limit``: the SNR reached, the longest
+exposure and an upper limit of the BRDF per channel; a session records it and goes on); some channels below ``min_snr`` but not all -> those channels are measurements
 at their detection limit (value >= 0 with its sigma, flag ``"detection-limit"``); any channel
 between ``min_snr`` and ``target_snr`` -> the flag ``"low-snr"``; read
 markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
@@ -17,12 +18,13 @@ below ``min_snr``.
 """
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .bracket import Bracket
-from .errors import CalibrationError, MisalignedError, UnderexposedError
+from .errors import CalibrationError, MisalignedError
 from .record import CalibrationRecord
 from .references import unit
 
@@ -62,6 +64,60 @@ class SampleMeasurement:
                 "roi_source": self.roi_source, "marker_offset_px": self.marker_offset_px}
 
 
+class NotMeasuredReason(str, enum.Enum):
+    """Why a sample has no measured value (``NotMeasured.reason``; journals store the value)."""
+
+    BELOW_DETECTION_LIMIT = "below-detection-limit"   # no channel reached min_snr at the ladder's longest exposure
+
+    def __str__(self) -> str:
+        return self.value
+
+
+# The upper limit of a channel not measured: its patch mean (>= 0) plus this many standard errors,
+# a one-sided bound at about 99.9 % for Gaussian noise ("darker than X" is information).
+UPPER_LIMIT_SIGMAS = 3.0
+
+
+@dataclass
+class NotMeasured:
+    """A sample the rig could not measure, recorded instead of a value.
+
+    ``reason`` a NotMeasuredReason; ``snr`` (3,) the patch mean's SNR reached per channel (0 where
+    none could be computed); ``min_snr`` the rig's minimum; ``longest_exposure_s`` the longest
+    exposure taken (the ladder's longest); ``upper_limit`` (3,) BRDF in 1/sr the channel is below
+    (patch mean + UPPER_LIMIT_SIGMAS standard errors); the frames as in SampleMeasurement.
+    """
+
+    sample_id: int
+    reason: NotMeasuredReason
+    snr: np.ndarray
+    min_snr: float
+    longest_exposure_s: float
+    upper_limit: np.ndarray
+    exposures_s: list
+    frames_taken: int
+    frames_skipped: int
+    raw_paths: list
+    lamp_relative: float
+    capture_seconds: float = 0.0
+    clock_seconds: float = 0.0
+
+    @property
+    def best_snr(self) -> float:
+        """The highest SNR over the channels."""
+        return float(np.max(self.snr))
+
+    def text(self) -> str:
+        """One line for people (readers use the fields)."""
+        return (f"sample {self.sample_id}: not measured ({self.reason}): SNR {self.best_snr:.1f} below the minimum "
+                f"{self.min_snr:g} with exposures up to {self.longest_exposure_s:g} s (the longest of "
+                f"camera.exposures_s); BRDF below {_triple_text(self.upper_limit)} 1/sr (R, G, B)")
+
+
+def _triple_text(values) -> str:
+    return "/".join(f"{v:.3g}" for v in values)
+
+
 def check_record(record: CalibrationRecord | None, ladder: list) -> None:
     """Refuse to measure without a calibration, or with ladder exposures it has no dark frame for."""
     if record is None:
@@ -81,8 +137,9 @@ def light_direction(w_i, sample_id: int) -> np.ndarray:
 
 
 def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, capture_seconds: float = 0.0,
-                       clock_seconds: float = 0.0) -> SampleMeasurement:
-    """Calibrate a finished bracket at unit light direction ``w_i`` (3,) into a SampleMeasurement.
+                       clock_seconds: float = 0.0) -> SampleMeasurement | NotMeasured:
+    """Calibrate a finished bracket at unit light direction ``w_i`` (3,) into a SampleMeasurement,
+    or a NotMeasured record when no channel reaches ``min_snr`` with the ladder's longest exposure.
 
     A channel below ``min_snr`` while another channel reaches it (a strongly coloured material:
     the blue of an orange paint at grazing light) is a measurement at its detection limit: its
@@ -99,6 +156,9 @@ def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, captur
     rel_sys = np.sqrt((rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
     sigma = np.sqrt((se * to_brdf) ** 2 + (rgb * rel_sys) ** 2)
     snr = mean / se
+    dark = _too_dark(sample_id, snr, mean, se, to_brdf, bracket)
+    if dark is not None:
+        return NotMeasured(**dark, capture_seconds=capture_seconds, clock_seconds=clock_seconds)
     flags = _snr_flags(snr, bracket) + _marker_flags(bracket)
     taken = len(bracket.frames)
     return SampleMeasurement(sample_id, rgb, sigma, snr, bracket.exposures_s, taken,
@@ -122,30 +182,45 @@ MAX_SPREAD_RATIO = 3.0
 
 def _snr_flags(snr: np.ndarray, bracket: Bracket) -> list:
     settings = bracket.settings
-    snr = np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0)
-    low, best = float(np.min(snr)), float(np.max(snr))
-    # a region placed by the camera model alone may take in the card around the patch (a rig
-    # that is not aligned): its pixels then spread far beyond their noise
-    mixed = bracket.roi_source_ == "prediction" and bracket.spread_ratio() > MAX_SPREAD_RATIO
-    if low < settings["min_snr"] and mixed:
-        raise MisalignedError(
-            f"{bracket.what}: the region of interest is not uniform (its pixels spread {bracket.spread_ratio():.0f} "
-            f"times their median deviation): it takes in the card around the patch, so the patch is not where the "
-            f"camera model puts it: the rig looks misaligned (run goniofrost align, or check the camera model)")
-    if best < settings["min_snr"]:
-        _too_dark(best, bracket)
+    low = float(np.min(np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0)))
+    mixed = _mixed(low, bracket)
     flags = ["low-snr"] if low < settings["target_snr"] else []
     flags += ["detection-limit"] if low < settings["min_snr"] else []
     return flags + (["roi-mixed"] if mixed else [])
 
 
-def _too_dark(best: float, bracket: Bracket) -> None:
-    """No channel reaches ``min_snr``: too dark for the ladder (UnderexposedError, whose remedy is a
-    longer exposure) only when the ladder's longest exposure was taken; else the bracket stopped
-    because a longer frame would saturate the patch, and the patch scatters beyond its noise."""
-    longest, minimum = bracket.ladder[max(bracket.frames)], bracket.settings["min_snr"]
+def _mixed(low: float, bracket: Bracket) -> bool:
+    """Whether a region placed by the camera model alone takes in the card around the patch (a rig
+    that is not aligned: its pixels spread far beyond their noise); MisalignedError when that
+    leaves a channel below ``min_snr`` (a dark reading that says the rig, not the sample, is off)."""
+    mixed = bracket.roi_source_ == "prediction" and bracket.spread_ratio() > MAX_SPREAD_RATIO
+    if low < bracket.settings["min_snr"] and mixed:
+        raise MisalignedError(
+            f"{bracket.what}: the region of interest is not uniform (its pixels spread {bracket.spread_ratio():.0f} "
+            f"times their median deviation): it takes in the card around the patch, so the patch is not where the "
+            f"camera model puts it: the rig looks misaligned (run goniofrost align, or check the camera model)")
+    return mixed
+
+
+def _too_dark(sample_id: int, snr: np.ndarray, mean: np.ndarray, se: np.ndarray, to_brdf: np.ndarray,
+              bracket: Bracket) -> dict | None:
+    """None when a channel reaches ``min_snr``. Else, when the ladder's longest exposure was taken,
+    the fields of a NotMeasured record (below the detection limit: too dark for this rig); else
+    CalibrationError: the bracket stopped because a longer frame would saturate the patch, and the
+    patch scatters beyond its noise. A misaligned region is refused first (``_mixed``)."""
+    snr = np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0)
+    best, minimum = float(np.max(snr)), float(bracket.settings["min_snr"])
+    if best >= minimum:
+        return None
+    _mixed(float(np.min(snr)), bracket)
+    longest = bracket.ladder[max(bracket.frames)]
     if bracket.ladder_exhausted:
-        raise UnderexposedError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum} with exposures up to "
-                                f"{longest} s (the longest of camera.exposures_s): too dark to measure")
-    raise CalibrationError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum} at {longest} s, and a longer "
+        upper = (np.maximum(np.nan_to_num(mean, nan=0.0), 0.0) + UPPER_LIMIT_SIGMAS * se) * to_brdf
+        taken = len(bracket.frames)
+        return {"sample_id": sample_id, "reason": NotMeasuredReason.BELOW_DETECTION_LIMIT, "snr": snr,
+                "min_snr": minimum, "longest_exposure_s": float(longest), "upper_limit": upper,
+                "exposures_s": bracket.exposures_s, "frames_taken": taken,
+                "frames_skipped": len(bracket.ladder) - taken, "raw_paths": list(bracket.paths),
+                "lamp_relative": bracket.lamp_relative}
+    raise CalibrationError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum:g} at {longest} s, and a longer "
                            f"exposure would saturate the patch: its pixels scatter far beyond their noise")

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import (CalibrationError, CalibrationRecord, MarkerError, PatchTooSmallError, SaturationError,
-                   UnderexposedError, WrongTargetError, validate_camera_section)
+from calib import (CalibrationError, CalibrationRecord, MarkerError, NotMeasured, NotMeasuredReason, PatchTooSmallError,
+                   SaturationError, WrongTargetError, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.capture.calibration_steps import calibration_steps
@@ -61,7 +61,7 @@ class BenchPlans:
     def measure(self, w_i, w_o, out_dir, sample_id):
         plan = sample_steps(self.settings, self.record, (w_i, w_o), sample_id, self.expected, folder="")
         m = drive(plan, StepExecutor(self.hardware, out_dir))
-        self.expected = np.maximum(m.rgb, 1e-6)
+        self.expected = None if isinstance(m, NotMeasured) else np.maximum(m.rgb, 1e-6)
         return m
 
 
@@ -208,15 +208,20 @@ def test_saturated_scene_is_a_saturation_error(rig, calibrated, spec, tmp_path):
         _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
 
 
-def test_dark_scene_is_underexposed_or_flagged(rig, calibrated, spec, tmp_path):
+def test_dark_scene_is_not_measured_or_flagged(rig, calibrated, spec, tmp_path):
     bench = CameraBench(spec("gold-metallic-paint2"), rig["sim"]["camera"], rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(70.0, 50.0, 0.0)   # far from specular, grazing light: BRDF ~ 0.005
     short = {"exposures_s": [0.001]}
-    # no channel reaches the minimum with the ladder's longest exposure: the rig cannot measure it
-    with pytest.raises(UnderexposedError, match=r"^sample 5: SNR [\d.]+ below the minimum 30.0 with exposures up to "
-                                                r"0.001 s \(the longest of camera.exposures_s\): too dark to measure$"):
-        _calibrator(rig, calibrated, bench, **short, min_snr=30.0).measure(w_i, w_o, tmp_path, 5)
+    # no channel reaches the minimum with the ladder's longest exposure: the rig cannot measure it,
+    # which is a typed record (not an error), with an upper limit of the BRDF above the truth
+    dark = _calibrator(rig, calibrated, bench, **short, min_snr=30.0).measure(w_i, w_o, tmp_path, 5)
+    assert isinstance(dark, NotMeasured) and dark.reason is NotMeasuredReason.BELOW_DETECTION_LIMIT
+    assert dark.sample_id == 5 and dark.min_snr == 30.0 and dark.longest_exposure_s == 0.001
+    assert dark.best_snr < 30.0 and dark.frames_taken == 1 and len(dark.raw_paths) == 1
+    truth = bench.camera.ground_truth(w_i, w_o)
+    assert np.all(dark.upper_limit > truth) and np.all(dark.upper_limit < 30.0 / dark.snr * truth * 2)
+    assert dark.text().startswith("sample 5: not measured (below-detection-limit): SNR ")
     # one channel below the minimum, others above: a measurement at its detection limit
     m = _calibrator(rig, calibrated, bench, **short).measure(w_i, w_o, tmp_path, 6)
     low = m.snr < 10.0

@@ -6,7 +6,8 @@ import sqlite3
 
 import pytest
 
-from goniofrost.capture.journal import CSV_COLUMNS, Journal, JournalError, SampleRecord, SamplesCsv
+from calib import NotMeasuredReason
+from goniofrost.capture.journal import CSV_COLUMNS, Journal, JournalError, NotMeasuredRecord, SampleRecord, SamplesCsv
 
 META = {"plan": {"samples": [1, 2]}, "rig_text": "name: x\n", "kinematic_hash": "abc", "model_hash": "m1"}
 
@@ -44,6 +45,54 @@ def test_a_plan_sample_is_stored_once_and_the_refused_duplicate_changes_nothing(
         with pytest.raises(JournalError, match="plan sample 4 is already in the journal"):
             journal.commit_sample(changed)
         assert journal.samples() == [record(4)]
+
+
+def not_measured(i: int) -> NotMeasuredRecord:
+    return NotMeasuredRecord(
+        plan_index=i, cell=2000 + i, theta_h_deg=1 / 3, theta_d_deg=80.5, phi_d_deg=12.0 + i,
+        reason=NotMeasuredReason.BELOW_DETECTION_LIMIT, snr=(3.25, 0.0, 1 / 7), min_snr=10.0,
+        longest_exposure_s=0.128, upper_limit=(1e-3 / 3, 2.5e-4, 1e-17), joints={"camera_arm": 150.0 + i},
+        exposures_s=(0.032, 0.128), frames_taken=2, frames_skipped=2, raw_paths=(f"raw/s{i:03d}_e3.dng",),
+        lamp_relative=0.9987, move_s=1.25, capture_s=0.16, started_utc=1.7e9 + i, committed_utc=1.7e9 + i + 0.25)
+
+
+def test_a_sample_not_measured_round_trips_exactly_is_done_and_has_no_value(tmp_path):
+    """A not-measured sample keeps every typed field (its reason an enum again), counts as done
+    (a resume skips it), and is not among the measured samples the reconstruction reads."""
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(0))
+        journal.commit_not_measured(not_measured(1))
+        journal.commit_sample(record(2))
+    with Journal.open(path) as journal:
+        assert journal.not_measured() == [not_measured(1)]
+        assert journal.not_measured()[0].reason is NotMeasuredReason.BELOW_DETECTION_LIMIT
+        assert journal.samples() == [record(0), record(2)] and journal.done_indices() == {0, 1, 2}
+    with Journal.open_read_only(path) as journal:   # what the monitor reads
+        assert journal.not_measured() == [not_measured(1)]
+    assert not_measured(1).to_dict()["reason"] == "below-detection-limit"
+
+
+def test_a_plan_sample_is_either_measured_or_not_measured_never_both(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(3))
+        journal.commit_not_measured(not_measured(4))
+        with pytest.raises(JournalError, match="plan sample 3 is already in the journal"):
+            journal.commit_not_measured(not_measured(3))
+        for again in (lambda: journal.commit_sample(record(4)), lambda: journal.commit_not_measured(not_measured(4))):
+            with pytest.raises(JournalError, match="plan sample 4 is already in the journal"):
+                again()
+        assert journal.samples() == [record(3)] and journal.not_measured() == [not_measured(4)]
+
+
+def test_a_read_only_journal_from_before_the_not_measured_table_has_none(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_sample(record(0))
+        journal._db.execute("DROP TABLE not_measured")
+    with Journal.open_read_only(path) as journal:
+        assert journal.not_measured() == [] and journal.done_indices() == {0}
 
 
 def test_create_refuses_an_existing_journal_and_open_refuses_a_missing_or_foreign_file(tmp_path):

@@ -849,3 +849,168 @@ def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early
             confidence=0.8)  # the bound of this 6-material model after 2 samples: about 7000
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("capture: 100%") and "| 2/2 " in last, last  # not "2/5"
+
+
+# ----- a sample too dark for the rig's longest exposure: recorded as not measured, the capture goes on
+DARK_MATERIAL = "builtin:black-diffuse"  # plan sample 0 (light at 85.6 deg) is about 7 x darker than the others
+DARK_LADDER = [0.0005, 0.001, 0.002, 0.004]  # its longest exposure is too short for that one pose
+
+
+def short_ladder_rig(rig: Path, out: Path, **camera) -> Path:
+    """The module's rig file with the DARK_LADDER (and ``camera`` overrides): the same kinematics."""
+    raw = yaml.safe_load(rig.read_text())
+    raw["camera"].update(exposures_s=DARK_LADDER, **camera)
+    out.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return out
+
+
+def dark_args(rig, plan, session, *extra) -> list[str]:
+    return ["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session),
+            "--material", DARK_MATERIAL, "--no-progress", *extra]
+
+
+@pytest.fixture(scope="module")
+def dark(setup, tmp_path_factory):
+    """(the short-ladder rig file, a session of DARK_MATERIAL captured with it in one run) (read-only)."""
+    folder, rig, plan, _ = setup
+    where = tmp_path_factory.mktemp("dark")
+    short = short_ladder_rig(rig, where / "short-ladder.yaml")
+    assert main(dark_args(short, plan, where / "s", "--speedup", "50")) == 0
+    return short, where / "s"
+
+
+def not_measured_rows(session: Path) -> list[tuple]:
+    """(plan_index, committed_utc) of every sample journaled as not measured, read by a second connection."""
+    try:
+        with closing(sqlite3.connect(f"file:{session / 'session.sqlite'}?mode=ro", uri=True, timeout=1)) as db:
+            return db.execute("SELECT plan_index, committed_utc FROM not_measured ORDER BY plan_index").fetchall()
+    except sqlite3.OperationalError:  # no journal or no table yet
+        return []
+
+
+def test_a_sample_too_dark_for_the_ladder_is_journaled_not_measured_and_the_capture_finishes(setup, dark, capsys):
+    from calib import NotMeasuredReason
+    from goniofrost.datasets import material_brdf
+    from goniofrost.frost.reconstruction import reconstruct_bayes
+    from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
+    from goniofrost.monitor.session_view import read_session
+    from goniofrost.monitor.status import page_state
+    from planner.kinematics import forward
+    from planner.rig import load_rig
+
+    folder, rig, plan, model = setup
+    short, session = dark
+    with Journal.open(session / "session.sqlite") as journal:
+        records, [nm], events, runs = journal.samples(), journal.not_measured(), journal.events(), journal.runs()
+    # the typed record: why, the SNR reached, the longest exposure, and an upper limit above the truth
+    assert nm.plan_index == 0 and nm.reason is NotMeasuredReason.BELOW_DETECTION_LIMIT
+    assert nm.best_snr < nm.min_snr == 10.0 and nm.longest_exposure_s == DARK_LADDER[-1] == nm.exposures_s[-1]
+    assert nm.raw_paths and all((session / p).is_file() for p in nm.raw_paths)
+    truth = material_brdf(DARK_MATERIAL)[1](*forward(load_rig(short), nm.joints))
+    assert np.all(truth < np.array(nm.upper_limit)) and np.all(np.array(nm.upper_limit) < 10 * truth)
+    # the capture went on: every other sample measured, the run finished, the event says why
+    assert [r.plan_index for r in records] == [1, 2, 3, 4] and csv_indices(session) == [1, 2, 3, 4]
+    [event] = [e for e in events if e["kind"] is EventKind.NOT_MEASURED]
+    assert event["data"]["plan_index"] == 0 and event["data"]["reason"] == "below-detection-limit"
+    assert event["data"]["upper_limit"] == list(nm.upper_limit)
+    [(_start, end)] = runs
+    assert end.status is RunStatus.FINISHED and end.samples_captured == M
+
+    # the reconstruction is of the measured samples only, as `goniofrost reconstruct` makes it from samples.csv
+    cells, values, extra = read_samples_csv(session / "samples.csv", GRID)
+    expected = reconstruct_bayes(model, GRID.valid_position(cells), values, sigmas=sample_sigmas("x", extra))
+    np.testing.assert_allclose(read_merl(session / "brdf.binary", GRID)[GRID.valid_cells], expected.brdf, rtol=1e-12)
+
+    report = json.loads((session / "report.json").read_text())
+    assert (report["samples"], report["plan_samples"]) == (4, M)
+    assert report["prediction"]["samples_used"] == 4 and report["prediction"]["not_measured_left_out"] == 1
+    assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    dark_section = report["not_measured"]
+    assert (dark_section["count"], dark_section["indices"], dark_section["reasons"]) == (1, [0], {"below-detection-limit": 1})
+    [listed] = dark_section["samples"]
+    assert (listed["index"], listed["cell"], listed["longest_exposure_s"], listed["upper_limit"]) == (
+        0, nm.cell, DARK_LADDER[-1], list(nm.upper_limit))
+    summary = (session / "summary.txt").read_text()
+    assert f"4 samples measured and 1 not measured on rig 'sim-rig'" in summary
+    assert "1 sample(s) NOT MEASURED, left out of the reconstruction and its predicted error" in summary
+    assert f"  sample 0: below-detection-limit: SNR {nm.best_snr:.1f} below the minimum 10 with exposures up to 0.004 s" in summary
+    assert json.loads((session / "brdf.json").read_text())["measurement"]["samples_not_measured"] == 1
+
+    # the sessions listing and the monitor say so too
+    capsys.readouterr()
+    assert main(["sessions", str(session.parent), "--json"]) == 0
+    [entry] = json.loads(capsys.readouterr().out)
+    assert (entry["state"], entry["samples"], entry["not_measured"], entry["samples_planned"]) == ("finished", 4, 1, M)
+    assert main(["sessions", str(session.parent)]) == 0
+    assert "4/5 (1 not measured)" in capsys.readouterr().out
+    page = page_state(read_session(session), time.time())
+    assert page["state"] == "finished" and page["count_text"] == "5 of 5 samples (1 not measured)"
+    assert page["samples"]["status"] == ["not-measured", "done", "done", "done", "done"]
+    assert page["samples"]["flags"][0] == "below-detection-limit" and page["not_measured"][0]["plan_index"] == 0
+
+
+def test_a_run_killed_after_a_sample_not_measured_resumes_without_taking_it_again(setup, dark, tmp_path, capsys):
+    folder, _rig, plan, _ = setup
+    short, uninterrupted = dark
+    session = tmp_path / "s"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", *dark_args(short, plan, session, "--speedup", "10")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO)
+    t_end = time.monotonic() + 60
+    while not not_measured_rows(session):
+        assert proc.poll() is None and time.monotonic() < t_end, "capture ended or hung before sample 0 was journaled"
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait(timeout=10) == -signal.SIGKILL
+    before, measured = not_measured_rows(session), journal_rows(session)
+    assert [i for i, _ in before] == [0] and len(measured) < M - 1, "the kill must land mid-session"
+    frames_before = {p.name: p.stat().st_mtime_ns for p in (session / "raw").glob("sample_0000_e*.dng")}
+    assert frames_before
+
+    assert main(dark_args(short, plan, session, "--resume", "--speedup", "50")) == 0
+    assert "4 samples measured and 1 not measured on rig 'sim-rig'" in capsys.readouterr().out
+    assert not_measured_rows(session) == before   # not taken again: the same commit
+    assert {p.name: p.stat().st_mtime_ns for p in (session / "raw").glob("sample_0000_e*.dng")} == frames_before
+    with Journal.open(session / "session.sqlite") as journal:
+        assert [e["data"]["plan_index"] for e in journal.events() if e["kind"] is EventKind.NOT_MEASURED] == [0]
+        assert [r.plan_index for r in journal.samples()] == [1, 2, 3, 4]
+        runs = journal.runs()
+    assert [s.samples_done for s, _ in runs] == [0, 1 + len(measured)] and runs[1][1].status is RunStatus.FINISHED
+    for name in ("samples.csv", "brdf.binary"):   # what one uninterrupted run gives
+        assert (session / name).read_bytes() == (uninterrupted / name).read_bytes(), name
+    assert frames(session) == frames(uninterrupted)
+
+
+def test_a_session_with_no_sample_measured_is_a_one_line_error_and_a_resume_takes_none_again(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    # a minimum SNR no sample reaches with this ladder (and a bracket that runs to its longest exposure)
+    hopeless = short_ladder_rig(rig, tmp_path / "hopeless.yaml", min_snr=1000.0, target_snr=10000.0)
+    session = tmp_path / "s"
+    for extra in ((), ("--resume",)):
+        assert main(dark_args(hopeless, plan, session, "--speedup", "50", *extra)) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and (
+            f"{session / 'session.sqlite'}: 0 of 5 samples measured, 5 not measured (below-detection-limit: samples "
+            f"0 1 2 3 4): a reconstruction needs at least 1 measured sample(s)") in err
+        with Journal.open(session / "session.sqlite") as journal:
+            assert [r.plan_index for r in journal.not_measured()] == list(range(M)) and journal.samples() == []
+            assert len(journal.runs()) == 1   # the resume moved nothing
+    assert not (session / "report.json").exists()
+
+
+def test_a_target_error_capture_assesses_the_measured_samples_of_each_batch_only(setup, dark, tmp_path):
+    folder, rig, plan, model = setup
+    short, _ = dark
+    batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
+    session = tmp_path / "s"
+    outcome = capture(short, batched, session, material=DARK_MATERIAL, speedup=50, progress=False,
+                      target_error=1e-12, confidence=0.8)
+    with Journal.open(session / "session.sqlite") as journal:
+        dark_indices = [r.plan_index for r in journal.not_measured()]
+        assessed = [e["data"] for e in journal.events() if e["kind"] is EventKind.BATCH]
+    assert len(dark_indices) == 1
+    target = outcome.report["target_error"]
+    assert [b["samples"] for b in assessed] == [2, 4, 5]
+    assert [b["not_measured"] for b in assessed] == [sum(i < end for i in dark_indices) for end in (2, 4, 5)]
+    assert [b["predicted_error"] for b in target["batches"]] == [b["predicted_error"] for b in assessed]
+    assert (target["samples_used"], target["not_measured"], target["stopped"]) == (4, 1, "plan used up")

@@ -287,3 +287,26 @@ def test_samples_out_of_the_model_keep_the_capture_measuring_while_the_plan_allo
     decisions = [(s.samples, s.decision, s.out_of_model) for s in script.steps if isinstance(s, Assess)]
     assert decisions == [(1, "continue", ("z2",)), (2, "continue", ("z2",)), (3, "plan used up", ("z2",))]
     assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2]
+
+
+def test_a_target_session_leaves_a_sample_journaled_not_measured_out_of_the_capture_and_the_assessments(frames):
+    """Sample 0 journaled as not measured (too dark): nothing of it is taken again, batch 1 (only
+    sample 0) has no measured sample and is not assessed, batch 2 is assessed on sample 1 alone; the
+    report's replay from the journal (capture.target.history) makes the same decisions."""
+    import dataclasses
+
+    from goniofrost.capture.steps import Assess
+    from goniofrost.capture.target import finished, history
+
+    spec = target_spec({1: 0.01})
+    script = Script(frames)
+    drive(session_steps(spec, done={0}, calibration=RECORD, not_measured=[0]), script)
+    assert all(getattr(s, "index", None) != 0 for s in script.steps)
+    [assessed] = [s for s in script.steps if isinstance(s, Assess)]
+    assert assessed == dataclasses.replace(assess_step(1, 2, 0.01, "target reached"), not_measured=1)
+    records = [s.record for s in script.steps if isinstance(s, Commit)]
+    assert [r.plan_index for r in records] == [1]
+    replay = history(spec.assess, spec.batch_ends, spec.target, records, not_measured=[0])
+    assert replay == [dataclasses.asdict(assessed)]
+    assert finished(spec.assess, spec.batch_ends, spec.target, records, not_measured=[0])
+    assert not finished(spec.assess, spec.batch_ends, spec.target, [], not_measured=[0])

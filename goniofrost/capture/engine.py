@@ -3,8 +3,10 @@
 ``SessionEngine.run`` drives the steps of ``goniofrost.capture.session_steps`` through the
 ``PlanRunner`` (which journals each step, owns the stop of the axes, the lamp, the device log and
 the run's ``RunStart``/``RunEnd``). On top of it the engine commits each sample in one transaction
-the moment it is measured, appends it to samples.csv, journals the calibration, lamp and homing
-events, times the parts of the session and shows a progress bar with the ETA, and
+the moment it is measured, appends it to samples.csv (a sample too dark to measure is committed
+as not measured instead, with a ``not_measured`` event, and the capture goes on), journals the
+calibration, lamp and homing events, times the parts of the session and shows a progress bar
+with the ETA, and
 
 * on SIGINT, SIGTERM or a stop request: stops every axis, switches the lamp off, records the
   event and the RunEnd (``stopped_by_operator``) and raises ``SessionInterrupted`` (the command
@@ -30,7 +32,7 @@ from dataclasses import dataclass, field
 
 from goniofrost.capture.contract import Hardware
 from goniofrost.capture.device_log import DeviceLog
-from goniofrost.capture.journal import Journal, SamplesCsv
+from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
@@ -55,6 +57,7 @@ class SessionStats:
     capture_s: float = 0.0
     captured: int = 0
     skipped: int = 0
+    not_measured: int = 0   # of ``captured``: committed as not measured (too dark) in this run
     started_clock: float = 0.0
     ended_clock: float = 0.0
     wall_s: float = 0.0
@@ -105,7 +108,8 @@ class SessionEngine(PlanRunner):
         reuse = self._reused_calibration() if calibration is None else None
         self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
         plan = session_steps(self.spec, done, calibration=calibration,
-                             measured={r.plan_index: r.rgb for r in records}, records=records, reuse=reuse)
+                             measured={r.plan_index: r.rgb for r in records}, records=records, reuse=reuse,
+                             not_measured=[r.plan_index for r in self.journal.not_measured()])
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
         self.execute_plan(plan)
         self.stats.ended_clock, self.stats.wall_s = self.hw.clock.now(), time.monotonic() - wall0
@@ -125,7 +129,8 @@ class SessionEngine(PlanRunner):
         """finished, target_reached or plan_used_up, from the last batch's decision."""
         last, n = (self.stats.batches[-1] if self.stats.batches else None), len(self.spec.samples)
         if last is None:
-            return RunStatus.FINISHED, "all samples captured"
+            dark = len(self.journal.not_measured())
+            return RunStatus.FINISHED, "all samples captured" + (f" ({dark} not measured: too dark)" if dark else "")
         from goniofrost.capture.target import statement
 
         if last["decision"] == PLAN_USED_UP:
@@ -276,16 +281,32 @@ class SessionEngine(PlanRunner):
 
     def _commit(self, step: Commit, _result) -> dict:
         record = dataclasses.replace(step.record, committed_utc=time.time())
+        if isinstance(record, NotMeasuredRecord):
+            return self._commit_not_measured(record)
         summary = self.rehearsal.with_state({"snr": record.snr, "status": record.status})
         # one durable transaction with its step and state (within _execute's critical section)
         self.journal.commit_sample(record, step=(self._row, summary))
         self.csv.append(record)
+        self._counted(record)
+        return summary
+
+    def _commit_not_measured(self, record: NotMeasuredRecord) -> dict:
+        """Journal a sample too dark to measure and its ``not_measured`` event (no samples.csv line: it
+        has no value)."""
+        summary = self.rehearsal.with_state({"snr": record.best_snr, "status": str(record.reason)})
+        # the record, its step and its event in one durable transaction
+        self.journal.commit_not_measured(record, step=(self._row, summary), message=not_measured_text(record))
+        self.stats.not_measured += 1
+        self._counted(record)
+        return summary
+
+    def _counted(self, record) -> None:
         self.stats.captured += 1
         self.stats.capture_s += record.capture_s
-        self.stats.per_sample.append({"index": record.plan_index, "snr": record.snr})
+        if isinstance(record, SampleRecord):
+            self.stats.per_sample.append({"index": record.plan_index, "snr": record.snr})
         if self._bar is not None:
             self._bar.update(1)
-        return summary
 
     @contextmanager
     def _progress(self, initial: int):
@@ -308,6 +329,13 @@ RERUN = "the same command with --resume"  # what a stopped capture tells the use
 PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, white reference",
                   "white_reference": "white reference re-measured with the kept dark frames and flat field",
                   "samples": "sample capture started"}
+
+
+def not_measured_text(record: NotMeasuredRecord) -> str:
+    """The journal event's words for a sample not measured (readers use its data: the record)."""
+    upper = "/".join(f"{v:.3g}" for v in record.upper_limit)
+    return (f"sample {record.plan_index} not measured ({record.reason}): SNR {record.best_snr:.1f} below the minimum "
+            f"{record.min_snr:g} with exposures up to {record.longest_exposure_s:g} s; BRDF below {upper} 1/sr (R/G/B)")
 
 
 def _exposed(_step: Expose, frame) -> dict:

@@ -7,9 +7,13 @@ survives SIGKILL and power loss) holds
   the simulated material, the format version, and its ``label`` (a ``SessionLabel``: operator,
   sample id, notes, the rig's lab section);
 * ``calibration``: the calibration record (JSON), at most one row;
-* ``samples``: one row per captured plan sample, keyed by its plan index (so a sample can
+* ``samples``: one row per measured plan sample, keyed by its plan index (so a sample can
   never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
   written in ONE transaction after the sample is measured;
+* ``not_measured``: one row per plan sample the rig could not measure (a ``NotMeasuredRecord``:
+  its reason, e.g. below the detection limit, the SNR reached per channel, the longest exposure,
+  the upper limit of its BRDF per channel, its frames), keyed by its plan index too: the sample is
+  done (a resume does not take it again) but has no value (a plan index is in one table at most);
 * ``events``: what happened to the devices and the session (homing, faults, interruptions), each
   of a kind of ``goniofrost.capture.records.EventKind``;
 * ``runs``: one row per run of the engine: its ``RunStart`` when it begins and its ``RunEnd``
@@ -33,6 +37,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from calib.measurement import NotMeasuredReason
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus, SessionLabel
@@ -50,6 +55,15 @@ CREATE TABLE IF NOT EXISTS samples (
     theta_h_deg REAL NOT NULL, theta_d_deg REAL NOT NULL, phi_d_deg REAL NOT NULL,
     r REAL NOT NULL, g REAL NOT NULL, b REAL NOT NULL,
     sigma_r REAL NOT NULL, sigma_g REAL NOT NULL, sigma_b REAL NOT NULL, snr REAL NOT NULL,
+    joints TEXT NOT NULL, exposures_s TEXT NOT NULL, frames_taken INTEGER NOT NULL,
+    frames_skipped INTEGER NOT NULL, raw_paths TEXT NOT NULL, lamp_relative REAL NOT NULL,
+    move_s REAL NOT NULL, capture_s REAL NOT NULL, started_utc REAL NOT NULL,
+    committed_utc REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS not_measured (
+    plan_index INTEGER PRIMARY KEY, cell INTEGER NOT NULL, reason TEXT NOT NULL,
+    theta_h_deg REAL NOT NULL, theta_d_deg REAL NOT NULL, phi_d_deg REAL NOT NULL,
+    snr_r REAL NOT NULL, snr_g REAL NOT NULL, snr_b REAL NOT NULL, min_snr REAL NOT NULL,
+    longest_exposure_s REAL NOT NULL, upper_r REAL NOT NULL, upper_g REAL NOT NULL, upper_b REAL NOT NULL,
     joints TEXT NOT NULL, exposures_s TEXT NOT NULL, frames_taken INTEGER NOT NULL,
     frames_skipped INTEGER NOT NULL, raw_paths TEXT NOT NULL, lamp_relative REAL NOT NULL,
     move_s REAL NOT NULL, capture_s REAL NOT NULL, started_utc REAL NOT NULL,
@@ -100,6 +114,48 @@ class SampleRecord:
     started_utc: float = 0.0
     committed_utc: float = 0.0
     status: str = "ok"
+
+
+@dataclass(frozen=True)
+class NotMeasuredRecord:
+    """One plan sample the rig could not measure, as journaled (``calib.NotMeasured`` at its pose).
+
+    ``reason`` a ``calib.NotMeasuredReason`` (a value this version does not know stays a str);
+    ``snr`` (3,) the SNR reached per channel; ``min_snr`` the rig's minimum; ``longest_exposure_s``
+    the longest exposure taken (the ladder's longest); ``upper_limit`` (3,) the BRDF in 1/sr each
+    channel is below; the other fields as in SampleRecord.
+    """
+
+    plan_index: int
+    cell: int
+    theta_h_deg: float
+    theta_d_deg: float
+    phi_d_deg: float
+    reason: NotMeasuredReason
+    snr: tuple[float, float, float]
+    min_snr: float
+    longest_exposure_s: float
+    upper_limit: tuple[float, float, float]
+    joints: dict = field(default_factory=dict)
+    exposures_s: tuple = ()
+    frames_taken: int = 0
+    frames_skipped: int = 0
+    raw_paths: tuple = ()
+    lamp_relative: float = 1.0
+    move_s: float = 0.0
+    capture_s: float = 0.0
+    started_utc: float = 0.0
+    committed_utc: float = 0.0
+
+    @property
+    def best_snr(self) -> float:
+        """The highest SNR reached over the channels."""
+        return max(self.snr)
+
+    def to_dict(self) -> dict:
+        """JSON-safe form (report.json, events): the reason as its value."""
+        return {**asdict(self), "reason": str(self.reason), "snr": list(self.snr), "upper_limit": list(self.upper_limit),
+                "exposures_s": list(self.exposures_s), "raw_paths": list(self.raw_paths)}
 
 
 class Journal:
@@ -191,9 +247,21 @@ class Journal:
         names = [c[0] for c in cursor.description]
         return [_record_from_row(dict(zip(names, row))) for row in cursor]
 
+    def not_measured(self) -> list[NotMeasuredRecord]:
+        """Every plan sample committed as not measured, in plan order (a read-only view of a journal
+        from before the table: [])."""
+        try:
+            cursor = self._db.execute("SELECT * FROM not_measured ORDER BY plan_index")
+        except sqlite3.OperationalError:
+            return []
+        names = [c[0] for c in cursor.description]
+        return [_not_measured_from_row(dict(zip(names, row))) for row in cursor]
+
     def done_indices(self) -> set[int]:
-        """Plan indices of the samples already committed."""
-        return {row[0] for row in self._db.execute("SELECT plan_index FROM samples")}
+        """Plan indices of the samples already committed: measured or not measured (both are done:
+        a resume takes neither again)."""
+        done = {row[0] for row in self._db.execute("SELECT plan_index FROM samples")}
+        return done | {r.plan_index for r in self.not_measured()}
 
     def events(self) -> list[dict]:
         """Every event in order: dicts with t_utc, kind (an EventKind; a kind this version does not
@@ -257,22 +325,36 @@ class Journal:
     def commit_sample(self, record: SampleRecord, step: tuple[int, dict] | None = None) -> None:
         """Store one measured sample in ONE durable transaction; a plan index twice is refused.
         ``step`` (row, result): the step that commits it ends done in the same transaction."""
-        row = _row_from_record(record)
+        self._commit_row("samples", "not_measured", _row_from_record(record), step)
+
+    def commit_not_measured(self, record: NotMeasuredRecord, step: tuple[int, dict] | None = None,
+                            message: str | None = None) -> None:
+        """Store one plan sample the rig could not measure, as ``commit_sample`` stores a measured
+        one (one durable transaction; a plan index already journaled, either way, is refused);
+        ``message``: also a ``not_measured`` event with these words and the record as its data, in
+        the same transaction."""
+        event = None if message is None else (EventKind.NOT_MEASURED, message, record.to_dict())
+        self._commit_row("not_measured", "samples", _row_from_not_measured(record), step, event)
+
+    def _commit_row(self, table: str, other: str, row: dict, step, event=None) -> None:
+        index = row["plan_index"]
         try:
             with self._transaction() as db:
-                db.execute(f"INSERT INTO samples ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
+                if db.execute(f"SELECT 1 FROM {other} WHERE plan_index = ?", (index,)).fetchone():
+                    raise sqlite3.IntegrityError(f"plan sample {index} is in {other}")
+                db.execute(f"INSERT INTO {table} ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                            tuple(row.values()))
                 _end_step(db, step)
+                if event is not None:
+                    _insert_event(db, *event)
         except sqlite3.IntegrityError:
-            raise JournalError(f"{self.path}: plan sample {record.plan_index} is already in the journal") from None
+            raise JournalError(f"{self.path}: plan sample {index} is already in the journal") from None
 
     def add_event(self, kind: EventKind, message: str, axis: str | None = None, data: dict | None = None) -> None:
         """Record a device or session event (durably: a fault must outlive the process); ``message``
         is for people, ``data`` for readers."""
-        kind = EventKind(kind)  # an unknown kind is refused here, not found missing by a reader
         with self._transaction() as db:
-            db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
-                       (time.time(), kind.value, axis, message, json.dumps(data or {}, default=str)))
+            _insert_event(db, kind, message, data, axis)
 
     def start_run(self, program: str, samples_planned: int, samples_done: int) -> RunStart:
         """Record that a run of ``program`` begins (durably); return its RunStart."""
@@ -345,6 +427,13 @@ def connect_read_only(path: Path) -> sqlite3.Connection:
     query = "mode=ro" if live_writer else "mode=ro&immutable=1"
     return sqlite3.connect(f"{path.as_uri()}?{query}", uri=True, isolation_level=None, timeout=2.0,
                            check_same_thread=False)
+
+
+def _insert_event(db: sqlite3.Connection, kind: EventKind, message: str, data: dict | None, axis: str | None = None):
+    """Within a transaction: add an event (an unknown kind is refused here, not found missing by a reader)."""
+    kind = EventKind(kind)
+    db.execute("INSERT INTO events (t_utc, kind, axis, message, data) VALUES (?, ?, ?, ?, ?)",
+               (time.time(), kind.value, axis, message, json.dumps(data or {}, default=str)))
 
 
 def _end_step(db: sqlite3.Connection, step: tuple[int, dict | None] | None, status: str = "done") -> None:
@@ -456,6 +545,32 @@ def _record_from_row(row: dict) -> SampleRecord:
     values["exposures_s"] = tuple(json.loads(row["exposures_s"]))
     values["raw_paths"] = tuple(json.loads(row["raw_paths"]))
     return SampleRecord(**values)
+
+
+def _row_from_not_measured(record: NotMeasuredRecord) -> dict:
+    row = asdict(record)
+    row["reason"] = str(record.reason)
+    for i, channel in enumerate("rgb"):
+        row[f"snr_{channel}"] = float(record.snr[i])
+        row[f"upper_{channel}"] = float(record.upper_limit[i])
+    del row["snr"], row["upper_limit"]
+    for name in _JSON_FIELDS:
+        row[name] = json.dumps(row[name])
+    return row
+
+
+def _not_measured_from_row(row: dict) -> NotMeasuredRecord:
+    values = {f.name: row[f.name] for f in fields(NotMeasuredRecord) if f.name in row}
+    try:
+        values["reason"] = NotMeasuredReason(row["reason"])
+    except ValueError:   # a reason a later version wrote: kept as its value
+        pass
+    values["snr"] = (row["snr_r"], row["snr_g"], row["snr_b"])
+    values["upper_limit"] = (row["upper_r"], row["upper_g"], row["upper_b"])
+    values["joints"] = json.loads(row["joints"])
+    values["exposures_s"] = tuple(json.loads(row["exposures_s"]))
+    values["raw_paths"] = tuple(json.loads(row["raw_paths"]))
+    return NotMeasuredRecord(**values)
 
 
 class SamplesCsv:

@@ -29,6 +29,7 @@ class EventKind(str, enum.Enum):
     SAMPLES = "samples"          # the sample phase started
     ALIGNMENT = "alignment"      # the alignment phase started
     BATCH = "batch"              # a batch assessed against the target error (data: Assess fields)
+    NOT_MEASURED = "not_measured"  # a sample too dark to measure, journaled without a value (data: NotMeasuredRecord)
     FAULT = "fault"              # a device failed (the run ends FAULT)
     ERROR = "error"              # a measurement, camera or output error (the run ends REFUSED or FAULT)
     INTERRUPTED = "interrupted"  # SIGINT/SIGTERM or a stop request (the run ends STOPPED_BY_OPERATOR)
@@ -109,7 +110,7 @@ class RunEnd:
 
     ``status``: a RunStatus; ``reason``: words for people (the terminal's message after a stop);
     ``samples_planned``: the plan's samples; ``samples_captured``: journaled by the end of the run
-    (all runs); ``batches``: batches assessed in this run (a target-error capture; 0 otherwise);
+    (all runs; measured or journaled as not measured: both are done); ``batches``: batches assessed in this run (a target-error capture; 0 otherwise);
     ``started_utc``/``ended_utc``: Unix times of the run. After a stop: ``detail`` the device's or
     library's message, ``axis`` the axis at fault, ``plan_index`` the plan sample under way,
     ``stops`` how each axis took the stop, ``lamp_off`` whether the lamp confirmed it is off (None:

@@ -9,6 +9,13 @@ come from the journal, so a resumed session reports every sample's motion and ca
 only the last run's. With a target error the report holds every batch's predicted error and
 decision and why the capture stopped (replayed from the journaled samples: the same decisions
 the session made).
+
+Samples the rig could not measure (too dark even at the ladder's longest exposure: the journal's
+``NotMeasuredRecord``) have no value: the reconstruction, its predicted error and the target-error
+assessments use the measured samples only, and report.json (``not_measured``), summary.txt and
+brdf.json say how many and which were left out and why, with the upper limit of their BRDF. With
+fewer than MIN_MEASURED_SAMPLES measured samples there is nothing to reconstruct:
+``TooFewSamplesError``.
 """
 from __future__ import annotations
 
@@ -22,9 +29,37 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.core.errors import GoniofrostError
 from goniofrost.brdf.merl_file import valid_to_full
 
 GRAZING_DEG = 75.0  # samples whose theta_i or theta_o exceeds this are reported apart as grazing
+# the posterior needs one measured sample (not a sentinel: those only check it) to say anything
+MIN_MEASURED_SAMPLES = 1
+
+
+class TooFewSamplesError(GoniofrostError):
+    """Too few samples of a session were measured to reconstruct its BRDF (the others were not
+    measured: too dark). ``measured``: the usable measured samples; ``needed``: the minimum;
+    ``not_measured``: the journal's NotMeasuredRecords; ``plan_samples``: the plan's count."""
+
+    def __init__(self, journal_path, measured: int, needed: int, not_measured: list, plan_samples: int) -> None:
+        self.measured, self.needed, self.not_measured, self.plan_samples = measured, needed, not_measured, plan_samples
+        why = "; ".join(f"{r.reason}: samples {' '.join(str(d.plan_index) for d in not_measured if d.reason == r.reason)}"
+                        for r in {d.reason: d for d in not_measured}.values())
+        super().__init__(
+            f"{journal_path}: {measured} of {plan_samples} samples measured, {len(not_measured)} not measured ({why}): "
+            f"a reconstruction needs at least {needed} measured sample(s); the samples were too dark for the rig's "
+            f"longest exposure: add longer exposures to camera.exposures_s in the rig file (or brighten the lamp) "
+            f"and capture again in a new --session")
+
+
+def check_enough_measured(inputs, records, not_measured, journal_path) -> None:
+    """TooFewSamplesError when fewer than MIN_MEASURED_SAMPLES measured samples (sentinels not
+    counted) are left to reconstruct from."""
+    sentinel = getattr(inputs, "sentinel", None)
+    usable = sum(1 for r in records if sentinel is None or not sentinel[r.plan_index])
+    if usable < MIN_MEASURED_SAMPLES:
+        raise TooFewSamplesError(journal_path, usable, MIN_MEASURED_SAMPLES, list(not_measured), len(inputs.samples))
 
 
 def reconstruct_session(inputs, records):
@@ -38,17 +73,19 @@ def reconstruct_session(inputs, records):
     return reconstruct_bayes(inputs.model, inputs.positions[order], values, sigmas=sigmas)
 
 
-def build_report(inputs, records, stats, session_dir: Path, material: str | None, runs) -> dict:
-    """The report.json content (see module doc); ``runs``: the journal's (RunStart, RunEnd) pairs."""
+def build_report(inputs, records, stats, session_dir: Path, material: str | None, runs, not_measured=()) -> dict:
+    """The report.json content (see module doc); ``runs``: the journal's (RunStart, RunEnd) pairs;
+    ``not_measured``: the journal's NotMeasuredRecords (their motion and capture time count)."""
     snr = np.array([r.snr for r in records], dtype=np.float64)
-    motion = float(sum(r.move_s for r in records))
-    capture = float(sum(r.capture_s for r in records))
+    motion = float(sum(r.move_s for r in (*records, *not_measured)))
+    capture = float(sum(r.capture_s for r in (*records, *not_measured)))
     return {
         "session": str(session_dir), "rig": inputs.rig.name, "simulated": bool(inputs.rig.simulated),
         "rig_file": str(inputs.rig.source), "plan": str(inputs.plan_path),
         "model": {"path": str(inputs.model_path), "hash": inputs.model.content_hash},
         "grid": inputs.model.grid.as_dict(), "material": material,
-        "samples": len(records), "captured_this_run": stats.captured, "already_done": stats.skipped,
+        "samples": len(records), "plan_samples": len(inputs.samples), "not_measured": not_measured_section(not_measured),
+        "captured_this_run": stats.captured, "already_done": stats.skipped,
         "runs": len(runs), "last_run": _last_run(runs),
         "times_s": {"motion": motion, "capture": capture, "calibration_wall_this_run": stats.calibration_s,
                     "motion_and_capture": motion + capture, "session_clock_this_run": stats.ended_clock - stats.started_clock,
@@ -63,6 +100,20 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
                        for r in records],
         "outputs": {"brdf": "brdf.binary", "samples": "samples.csv", "journal": "session.sqlite"},
     }
+
+
+def not_measured_section(not_measured) -> dict:
+    """report.json's ``not_measured``: how many plan samples were not measured, which, why, and the
+    upper limit of their BRDF (1/sr per channel); none of them is in the reconstruction."""
+    reasons: dict = {}
+    for d in not_measured:
+        reasons[str(d.reason)] = reasons.get(str(d.reason), 0) + 1
+    return {"count": len(not_measured), "indices": [d.plan_index for d in not_measured], "reasons": reasons,
+            "samples": [{"index": d.plan_index, "cell": d.cell, "theta_h_deg": d.theta_h_deg,
+                         "theta_d_deg": d.theta_d_deg, "phi_d_deg": d.phi_d_deg, "reason": str(d.reason),
+                         "snr": list(d.snr), "min_snr": d.min_snr, "longest_exposure_s": d.longest_exposure_s,
+                         "upper_limit": list(d.upper_limit), "move_s": d.move_s, "capture_s": d.capture_s}
+                        for d in not_measured]}
 
 
 def _last_run(runs) -> dict | None:
@@ -84,10 +135,11 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     from goniofrost.capture.engine import SessionStats
     from goniofrost.frost.outputs import write_bayes_outputs
 
-    records = journal.samples()
+    records, dark = journal.samples(), journal.not_measured()
+    check_enough_measured(inputs, records, dark, journal.path)
     session_dir = Path(session_dir)
-    stats = stats or SessionStats(skipped=len(records))  # None: nothing was left to capture
-    rec = reconstruct_session(inputs, records)
+    stats = stats or SessionStats(skipped=len(records) + len(dark))  # None: nothing was left to capture
+    rec = reconstruct_session(inputs, records)   # the measured samples only
     grid = inputs.model.grid
     estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
     if material:
@@ -99,21 +151,22 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
         earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
         write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
         runs = journal.runs()
-        report = build_report(inputs, records, stats, session_dir, material, runs)
+        report = build_report(inputs, records, stats, session_dir, material, runs, dark)
         report["label"] = journal.label().to_dict()
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
-                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples}
+                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
+                                "samples_used": len(records), "not_measured_left_out": len(dark)}
         report["prediction"] |= extrapolation_section(inputs, records)
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)
         report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
         if spec is not None and spec.target is not None:
-            report["target_error"] = target_section(spec, records)
+            report["target_error"] = target_section(spec, records, dark)
         if material:
             report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
         report["rendering_snr_db"] = preview.result()
     report["outputs"]["preview"] = "preview.png"
-    extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, records, runs))
+    extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, [*records, *dark], runs))
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
     write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
@@ -151,8 +204,9 @@ def extend_record(path: Path, earlier: dict, measurement: dict) -> None:
 
 def measurement_section(inputs, report: dict, records, runs) -> dict:
     """What brdf.json says of the measurement: what was measured, by whom, when (Unix times: the
-    first run's start, the last sample's commit), on which rig (its lab section), with which
-    alignment and model, its predicted error and the goniofrost version that made it."""
+    first run's start, the last sample's commit, ``records`` measured or not), on which rig (its lab
+    section), with which alignment and model, how many samples it used and how many were not
+    measured, its predicted error and the goniofrost version that made it."""
     label = report["label"]
     return {"sample_id": label["sample_id"], "material": report["material"], "operator": label["operator"],
             "notes": label["notes"], "lab": label["lab"], "lens": label["lens"], "lamp": label["lamp"],
@@ -162,6 +216,7 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
                     "kinematic_hash": inputs.rig.kinematic_hash},
             "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
             "model": report["model"], "samples": report["samples"],
+            "samples_not_measured": report["not_measured"]["count"],
             "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
             "last_run": report["last_run"], "goniofrost_version": _version()}
 
@@ -190,12 +245,13 @@ def scene_prediction(inputs, records) -> dict:
             "scene's use of every cell (PLAN.json usage)"}
 
 
-def target_section(spec, records) -> dict:
-    """The target-error part of report.json: every batch's predicted error and decision, and why
-    the capture stopped ("target reached", "plan used up", or "not finished" if interrupted)."""
+def target_section(spec, records, not_measured=()) -> dict:
+    """The target-error part of report.json: every batch's predicted error and decision (of its
+    measured samples only), and why the capture stopped ("target reached", "plan used up", or "not
+    finished" if interrupted)."""
     from goniofrost.capture.target import CONTINUE, history, statement
 
-    batches = history(spec.assess, spec.batch_ends, spec.target, records)
+    batches = history(spec.assess, spec.batch_ends, spec.target, records, [d.plan_index for d in not_measured])
     for batch in batches:
         batch["out_of_model"] = list(batch["out_of_model"])
     stopped = batches[-1]["decision"] if batches and batches[-1]["decision"] != CONTINUE else "not finished"
@@ -205,7 +261,8 @@ def target_section(spec, records) -> dict:
     scope = getattr(spec.assess, "scope", SCOPE_BRDF)
     return {"target": spec.target, "error": NAMES[scope], "scope": scope, "confidence": spec.confidence,
             "plan_samples": len(spec.samples),
-            "samples_used": len(records), "batch_ends": list(spec.batch_ends), "batches": batches,
+            "samples_used": len(records), "not_measured": len(not_measured), "batch_ends": list(spec.batch_ends),
+            "batches": batches,
             "stopped": stopped, "statement": statement(last) if last else "no batch was completed",
             "bound": None if last is None else last["bound"],
             "median_estimate": None if last is None else last["predicted_error"],
@@ -322,7 +379,9 @@ def summary_text(report: dict) -> str:
     label = report.get("label") or {}
     who = ", ".join(f"{k.replace('_', ' ')} {label[k]}" for k in ("sample_id", "operator") if label.get(k))
     lines = [
-        f"session {report['session']}: {report['samples']} samples on rig {report['rig']!r}"
+        f"session {report['session']}: {report['samples']} samples"
+        + (f" measured and {report['not_measured']['count']} not measured" if report['not_measured']['count'] else "")
+        + f" on rig {report['rig']!r}"
         f" ({report['captured_this_run']} this run, {report['already_done']} from before; {report['runs']} run(s))"
         + (f"; {who}" if who else ""),
         f"motion {t['motion']:.1f} s + capture {t['capture']:.1f} s = {t['motion_and_capture']:.1f} s"
@@ -359,6 +418,15 @@ def summary_text(report: dict) -> str:
         lines.append(f"{len(mixed)} sample(s) had a region of interest that took in the card around the patch "
                      f"(flag roi-mixed: {' '.join(map(str, mixed))}): their values are not to be trusted; the rig may be "
                      f"misaligned")
+    dark = report["not_measured"]
+    if dark["count"]:
+        lines.append(f"{dark['count']} sample(s) NOT MEASURED, left out of the reconstruction and its predicted error, "
+                     f"which use the {report['samples']} measured samples only:")
+        lines += [f"  sample {d['index']}: {d['reason']}: SNR {max(d['snr']):.1f} below the minimum {d['min_snr']:g} with "
+                  f"exposures up to {d['longest_exposure_s']:g} s; BRDF below "
+                  f"{'/'.join(format(v, '.3g') for v in d['upper_limit'])} 1/sr (R/G/B)" for d in dark["samples"]]
+        lines.append("  to measure them: add longer exposures to camera.exposures_s in the rig file (or brighten the "
+                     "lamp) and capture them in a new session")
     limited = report.get("detection_limit", [])
     if limited:
         lines.append(f"{len(limited)} sample(s) have a channel at its detection limit (flag detection-limit: "

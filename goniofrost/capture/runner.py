@@ -217,11 +217,12 @@ def csv_batches(spec) -> tuple:
 
 
 def session_finished(spec, journal) -> bool:
-    """True when nothing is left to capture: every plan sample journaled, or (with a target
-    error) the journaled batches already stopped the session."""
+    """True when nothing is left to capture: every plan sample journaled (measured or not
+    measured), or (with a target error) the journaled batches already stopped the session."""
     if spec.target is not None:
         from goniofrost.capture.target import finished
-        return finished(spec.assess, spec.batch_ends, spec.target, journal.samples())
+        return finished(spec.assess, spec.batch_ends, spec.target, journal.samples(),
+                        [r.plan_index for r in journal.not_measured()])
     return len(journal.done_indices()) >= len(spec.samples)
 
 

@@ -1,7 +1,7 @@
 """A sample's measurement as steps: one Expose per exposure the adaptive bracket asks for.
 
 ``sample_steps`` yields the bracket's frames at the pose just reached and returns the calibrated
-``calib.SampleMeasurement``; ``bracket_steps`` is the loop it shares with the white reference:
+``calib.SampleMeasurement`` (or a ``calib.NotMeasured`` record: too dark for the ladder); ``bracket_steps`` is the loop it shares with the white reference:
 expose, hand the frame to the bracket rule (``calib.Bracket.add``), expose what it asks next.
 """
 from __future__ import annotations
@@ -18,7 +18,8 @@ RAW_DIR = "raw"
 
 def sample_steps(settings: dict, record, pose, index: int, expected=None, folder: str = RAW_DIR,
                  arm_side: float = 1.0):
-    """Yield the frames of plan sample ``index``; return its SampleMeasurement.
+    """Yield the frames of plan sample ``index``; return its SampleMeasurement, or a NotMeasured
+    record when no channel reaches ``min_snr`` even with the ladder's longest exposure.
 
     ``settings``: the validated camera section; ``record``: the CalibrationRecord; ``pose``:
     (w_i, w_o), each (3,), actually reached; ``expected``: (3,) BRDF in 1/sr the sample probably

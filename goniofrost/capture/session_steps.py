@@ -3,15 +3,17 @@
 ``session_steps`` yields: home, lamp on; unless a calibration is kept, the move to the white
 reference pose and the calibration (``calibration_steps``: dark frames, flat field, white
 reference, each frame a step); then per remaining sample: move, its bracket of exposures
-(``sample_steps``), commit; finally lamp off. Each Move's result (the joints reached) gives the
-pose the next steps use, and the Commit carries the whole sample record, so nothing passes
-through the engine between steps. Samples already in the journal are skipped, so a resumed
-session never repeats one.
+(``sample_steps``), commit (a measured sample's record, or the record of a sample too dark to
+measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off. Each Move's result
+(the joints reached) gives the pose the next steps use, and the Commit carries the whole sample record, so nothing passes
+through the engine between steps. Samples already in the journal, measured or not, are
+skipped, so a resumed session never repeats one.
 
 With a target error (``SessionSpec.target``) the samples are taken batch by batch (the plan's
 ``batch_ends``) and after each batch an ``Assess`` step carries the error bound of the
 samples so far and the decision (``goniofrost.capture.target``): the plan stops as soon as the
-target is reached. Batches already journaled are assessed again first (no device is touched for
+target is reached; an assessment uses the batch's measured samples only (a batch without any
+is not assessed). Batches already journaled are assessed again first (no device is touched for
 that), so a resumed session makes the same decisions; one that had stopped yields no device step.
 """
 from __future__ import annotations
@@ -21,8 +23,9 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from calib import NotMeasured
 from goniofrost.capture.calibration_steps import calibration_steps, white_check_steps
-from goniofrost.capture.journal import SampleRecord
+from goniofrost.capture.journal import NotMeasuredRecord, SampleRecord
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, Reached
 
@@ -77,11 +80,12 @@ class SessionSpec:
 
 
 def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
-                  measured: Mapping[int, Sequence[float]] | None = None, records=(), reuse=None):
+                  measured: Mapping[int, Sequence[float]] | None = None, records=(), reuse=None,
+                  not_measured: Iterable[int] = ()):
     """Yield the steps of a capture session (send each step's result back).
 
-    ``done``: plan indices already journaled; ``calibration``: a journaled CalibrationRecord to keep
-    (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
+    ``done``: plan indices already journaled (measured or not); ``calibration``: a journaled
+    CalibrationRecord to keep (a resumed session), or None to calibrate; ``measured``: {plan index: (3,) BRDF} of journaled
     samples. Each sample's bracket starts from what the plan sample before it measured (in this
     run or, resumed, in the journal), so a resumed session takes the frames one run would have.
     ``records``: the journaled SampleRecords (with a target error: its assessments need their
@@ -89,9 +93,11 @@ def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
     CalibrationRecord of another session (a queue's sample before) whose darks and flat field are
     kept, when no ``calibration`` is: only the white reference is measured again
     (``white_check_steps``), and everything when it drifted past ``spec.drift_limit``.
+    ``not_measured``: plan indices journaled as not measured (with a target error: their batches
+    are complete without a value for them).
     """
     if spec.target is not None:
-        yield from _target_session(spec, calibration, records, measured, reuse)
+        yield from _target_session(spec, calibration, records, measured, reuse, set(not_measured))
         return
     todo = remaining(len(spec.samples), done)
     if not todo:
@@ -118,16 +124,23 @@ def _start(spec: SessionSpec, calibration, reuse=None):
     return calibration
 
 
-def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict | None = None):
+def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict | None = None,
+             skipped: set | None = None):
     """Move, measure and commit each plan sample of ``todo``; their BRDFs go into ``measured``
     ({plan index: (3,)}; the one before a sample picks its bracket's first exposure) and their
-    records into ``records``."""
+    records into ``records``. A sample too dark to measure is committed as not measured (its index
+    into ``skipped``) and the capture goes on: the next bracket starts as the first does."""
     for index in todo:
         reached = yield Move(index, joint_targets(spec.samples[index]["joints"], spec.axes))
         previous = measured.get(index - 1)  # its BRDF picks this bracket's first exposure
         expected = None if previous is None else np.maximum(previous, 1e-6)
         m = yield from sample_steps(spec.camera, calibration, spec.pose_of(reached.joints), index, expected,
                                     arm_side=spec.arm_side)
+        if isinstance(m, NotMeasured):
+            if skipped is not None:
+                skipped.add(index)
+            yield Commit(not_measured_record(spec, index, reached, m))
+            continue
         measured[index] = np.asarray(m.rgb, dtype=np.float64)
         record = sample_record(spec, index, reached, m)
         if records is not None:
@@ -135,22 +148,25 @@ def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict
         yield Commit(record)
 
 
-def _target_session(spec: SessionSpec, calibration, records, measured, reuse=None):
+def _target_session(spec: SessionSpec, calibration, records, measured, reuse=None, skipped: set | None = None):
     """Batch by batch until the error is at most the target with the session's confidence (see
     module doc)."""
     from goniofrost.capture.target import CONTINUE, assessment
 
-    by_index = {r.plan_index: r for r in records}
+    by_index, skipped = {r.plan_index: r for r in records}, set(skipped or ())
     measured = _as_arrays(measured) | {i: np.asarray(r.rgb, dtype=np.float64) for i, r in by_index.items()}
     started, n, done = False, len(spec.samples), []
     for batch, end in enumerate(spec.batch_ends):
-        todo = [i for i in range(end) if i not in by_index]
+        todo = [i for i in range(end) if i not in by_index and i not in skipped]
         if todo:
             if not started:
                 calibration = yield from _start(spec, calibration, reuse)
                 started = True
-            yield from _capture(spec, calibration, todo, measured, by_index)
-        result = assessment(spec.assess, batch, end, n, spec.target, [by_index[i] for i in range(end)], done)
+            yield from _capture(spec, calibration, todo, measured, by_index, skipped)
+        batch_records = [by_index[i] for i in range(end) if i in by_index]
+        if not batch_records:
+            continue   # nothing measured yet: nothing to assess
+        result = assessment(spec.assess, batch, end, n, spec.target, batch_records, end - len(batch_records), done)
         done.append(result)
         yield Assess(**result)
         if result["decision"] != CONTINUE:
@@ -186,6 +202,20 @@ def sample_record(spec: SessionSpec, index: int, reached: Reached, m) -> SampleR
         frames_skipped=int(m.frames_skipped), raw_paths=tuple(str(p) for p in m.raw_paths),
         lamp_relative=float(m.lamp_relative), move_s=float(reached.seconds), capture_s=float(m.clock_seconds),
         started_utc=float(reached.started_utc), status=",".join(m.flags) or "ok")
+
+
+def not_measured_record(spec: SessionSpec, index: int, reached: Reached, m: NotMeasured) -> NotMeasuredRecord:
+    """The journal record of plan sample ``index`` found too dark to measure (``m``, a
+    calib.NotMeasured) at ``reached``; ``committed_utc`` is left for the engine to stamp."""
+    sample = spec.samples[index]
+    return NotMeasuredRecord(
+        plan_index=index, cell=int(spec.cells[index]), theta_h_deg=float(sample["theta_h_deg"]),
+        theta_d_deg=float(sample["theta_d_deg"]), phi_d_deg=float(sample["phi_d_deg"]), reason=m.reason,
+        snr=_triple(m.snr), min_snr=float(m.min_snr), longest_exposure_s=float(m.longest_exposure_s),
+        upper_limit=_triple(m.upper_limit), joints=dict(reached.joints), exposures_s=tuple(map(float, m.exposures_s)),
+        frames_taken=int(m.frames_taken), frames_skipped=int(m.frames_skipped),
+        raw_paths=tuple(str(p) for p in m.raw_paths), lamp_relative=float(m.lamp_relative),
+        move_s=float(reached.seconds), capture_s=float(m.clock_seconds), started_utc=float(reached.started_utc))
 
 
 def _triple(values) -> tuple[float, float, float]:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable, Generator
 
 from calib.record import CalibrationRecord
-from goniofrost.capture.journal import SampleRecord
+from goniofrost.capture.journal import NotMeasuredRecord, SampleRecord
 
 
 @dataclass(frozen=True)
@@ -107,6 +107,7 @@ class Assess:
     confidence: float = 0.95
     out_of_model: tuple[str, ...] = ()
     scope: str = "brdf"
+    not_measured: int = 0   # of the ``samples``, those without a value (left out of the assessment)
 
 
 @dataclass(frozen=True)
@@ -123,10 +124,11 @@ class WhiteCheck:
 
 @dataclass(frozen=True)
 class Commit:
-    """Journal one sample (one transaction; the engine stamps ``committed_utc``) and append it to
-    samples.csv."""
+    """Journal one sample (one transaction; the engine stamps ``committed_utc``): a measured one
+    (SampleRecord), also appended to samples.csv, or one the rig could not measure
+    (NotMeasuredRecord: journaled with its reason, no value)."""
 
-    record: SampleRecord
+    record: SampleRecord | NotMeasuredRecord
 
     @property
     def index(self) -> int:

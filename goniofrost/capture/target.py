@@ -61,19 +61,20 @@ def make_assessor(model, positions: np.ndarray, confidence: float = DEFAULT_CONF
 
 
 def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: float, records,
-               earlier: Sequence[dict] = ()) -> dict:
-    """The assessment after batch ``batch`` (0-based) ending at ``end`` samples: the fields of an
-    ``Assess`` step (batch, samples, predicted_error = the median estimate, target, decision =
-    CONTINUE or a stopping reason, bound = the upper bound or None, confidence, out_of_model,
-    scope = the error assessed: the assessor's, "brdf" for a plain callable). ``earlier``: the
-    session's assessments before this one: once its sentinels flagged the material, it stays
-    out of the model ("sentinel_earlier"; see ``sticky``)."""
+               not_measured: int = 0, earlier: Sequence[dict] = ()) -> dict:
+    """The assessment after batch ``batch`` (0-based) ending at ``end`` samples, of the measured
+    ``records`` among them (``not_measured`` of the ``end`` have no value and are left out): the
+    fields of an ``Assess`` step (batch, samples, predicted_error = the median estimate, target,
+    decision = CONTINUE or a stopping reason, bound = the upper bound or None, confidence,
+    out_of_model, scope = the error assessed: the assessor's, "brdf" for a plain callable,
+    not_measured). ``earlier``: the session's assessments before this one: once its sentinels
+    flagged the material, it stays out of the model ("sentinel_earlier"; see ``sticky``)."""
     bound = sticky(assess(records), earlier)
     decision = stop_reason(bound, target, end, n_samples) or CONTINUE
     return {"batch": batch, "samples": end, "predicted_error": float(bound.median), "target": target,
             "decision": decision, "bound": float(bound.upper) if math.isfinite(bound.upper) else None,
             "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model),
-            "scope": getattr(assess, "scope", SCOPE_BRDF)}
+            "scope": getattr(assess, "scope", SCOPE_BRDF), "not_measured": int(not_measured)}
 
 
 def sticky(bound: ErrorBound, earlier: Sequence[dict]) -> ErrorBound:
@@ -107,24 +108,31 @@ def statement(assessed: dict) -> str:
     return sentence(bound_of(assessed), float(assessed["target"]), NAMES[assessed.get("scope", SCOPE_BRDF)])
 
 
-def history(assess: Callable, batch_ends: Sequence[int], target: float, records) -> list[dict]:
-    """The assessments of every batch whose samples are all in ``records``, in order, up to the
-    first that stops (the decisions a session made, replayed from its journal)."""
-    by_index = {r.plan_index: r for r in records}
+def history(assess: Callable, batch_ends: Sequence[int], target: float, records, not_measured=()) -> list[dict]:
+    """The assessments of every batch whose samples are all journaled (measured, in ``records``,
+    or not measured, plan indices ``not_measured``), in order, up to the first that stops (the
+    decisions a session made, replayed from its journal); a batch without a measured sample is
+    not assessed, as the session did not assess it."""
+    by_index, skipped = {r.plan_index: r for r in records}, set(not_measured)
     n, out = int(batch_ends[-1]), []
     for batch, end in enumerate(batch_ends):
-        if any(i not in by_index for i in range(end)):
+        if any(i not in by_index and i not in skipped for i in range(end)):
             break
-        out.append(assessment(assess, batch, end, n, target, [by_index[i] for i in range(end)], out))
+        measured = [by_index[i] for i in range(end) if i in by_index]
+        if not measured:
+            continue
+        out.append(assessment(assess, batch, end, n, target, measured, end - len(measured), out))
         if out[-1]["decision"] != CONTINUE:
             break
     return out
 
 
-def finished(assess: Callable, batch_ends: Sequence[int], target: float, records) -> bool:
-    """True when the journaled samples already made the session stop (nothing left to capture)."""
-    done = history(assess, batch_ends, target, records)
-    return bool(done) and done[-1]["decision"] != CONTINUE
+def finished(assess: Callable, batch_ends: Sequence[int], target: float, records, not_measured=()) -> bool:
+    """True when the journaled samples already made the session stop, or every plan sample is
+    journaled (nothing left to capture)."""
+    done = history(assess, batch_ends, target, records, not_measured)
+    everything = len(records) + len(set(not_measured)) >= int(batch_ends[-1])
+    return everything or (bool(done) and done[-1]["decision"] != CONTINUE)
 
 
 def batch_of(batch_ends: Sequence[int], plan_index: int) -> int:

@@ -27,8 +27,10 @@ STATES = ("finished", "target reached", "plan used up", "interrupted", "faulted"
 class SessionEntry:
     """One session of the catalogue. Times are Unix seconds (``started_utc``: the first run's
     start; ``duration_s``: the runs' time added up, a run under way until now, a killed one
-    until its last sample); ``state`` one of STATES; ``predicted_error`` the log-relative MSE
-    of the reconstruction (or the last batch), None before one."""
+    until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
+    ``not_measured`` those journaled as not measured (too dark; done, without a value);
+    ``predicted_error`` the log-relative MSE of the reconstruction (or the last batch), None
+    before one."""
 
     name: str
     path: str
@@ -44,6 +46,7 @@ class SessionEntry:
     samples_planned: int
     predicted_error: float | None
     duration_s: float
+    not_measured: int = 0
 
     def as_json(self) -> dict:
         out = asdict(self)
@@ -65,7 +68,7 @@ def read_entry(session_dir: Path) -> SessionEntry:
     """The catalogue entry of the session in ``session_dir`` (read-only)."""
     view = read_session(session_dir)
     label, state = view.label or {}, session_state(view)
-    last_commit = max((d.committed_utc for d in view.done), default=None)
+    last_commit = max((d.committed_utc for d in (*view.done, *view.not_measured)), default=None)
     duration = 0.0
     for k, (start, end) in enumerate(view.run_spans):
         if end is None:  # under way (now), or killed: until its last sample, if it took one after it started
@@ -76,7 +79,7 @@ def read_entry(session_dir: Path) -> SessionEntry:
                         operator=label.get("operator"), sample_id=label.get("sample_id"), material=view.material,
                         notes=tuple(label.get("notes") or ()), lab=label.get("lab"), rig=view.rig_name, state=state,
                         samples=len(view.done), samples_planned=len(view.plan),
-                        predicted_error=view.predicted_error, duration_s=duration)
+                        predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured))
 
 
 def session_folders(root: Path) -> list[Path]:
@@ -123,9 +126,15 @@ COLUMNS = ("session", "started (UTC)", "operator", "sample", "state", "samples",
 def table_rows(entries) -> list[tuple[str, ...]]:
     """The text cells of each entry, in COLUMNS order."""
     return [(e.name, "-" if e.started_utc is None else iso_minutes(e.started_utc), e.operator or "-",
-             e.sample_id or "-", e.state, f"{e.samples}/{e.samples_planned}",
+             e.sample_id or "-", e.state, samples_text(e),
              "-" if e.predicted_error is None else f"{e.predicted_error:.4g}", duration_text(e.duration_s))
             for e in entries]
+
+
+def samples_text(entry: SessionEntry) -> str:
+    """'38/40', or '38/40 (2 not measured)' when some plan samples were too dark to measure."""
+    text = f"{entry.samples}/{entry.samples_planned}"
+    return text + (f" ({entry.not_measured} not measured)" if entry.not_measured else "")
 
 
 def table_text(entries) -> str:

@@ -66,6 +66,31 @@ class DoneSample:
 
 
 @dataclass(frozen=True)
+class NotMeasuredSample:
+    """One plan sample journaled as not measured (too dark): its ``reason`` (the value of a
+    ``calib.NotMeasuredReason``), the SNR reached per channel and the rig's minimum, the longest
+    exposure (s), the upper limit of its BRDF per channel (1/sr), rig seconds moving and
+    capturing, Unix times of the start of its move and of its commit, its RAW frames."""
+
+    plan_index: int
+    reason: str
+    snr: tuple
+    min_snr: float
+    longest_exposure_s: float
+    upper_limit: tuple
+    exposures_s: tuple
+    move_s: float
+    capture_s: float
+    started_utc: float
+    committed_utc: float
+    raw_paths: tuple
+
+    @property
+    def best_snr(self) -> float:
+        return max(self.snr)
+
+
+@dataclass(frozen=True)
 class Stop:
     """Why the last run ended early: ``status`` its RunStatus (fault, refused, stopped_by_operator),
     ``message`` the terminal's words (what went wrong and what to do next), ``detail`` the device's
@@ -84,7 +109,8 @@ class SessionView:
     """Everything the monitor knows about a session folder at one moment (see module doc).
 
     ``journal_found`` is False before the capture created its journal (``note`` says why);
-    ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
+    ``done`` the measured samples (DoneSample), ``not_measured`` the samples journaled as not
+    measured (NotMeasuredSample): both are done; ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
     last run (a resume starts a new run); ``run_end`` how it ended (None while it runs or when its
     process was killed); ``stop`` the same when it ended early; ``white_rates`` the calibration's
     white signal per channel (None before it); ``step`` the
@@ -115,6 +141,7 @@ class SessionView:
     model_hash: str = ""
     plan: tuple = ()
     done: tuple = ()
+    not_measured: tuple = ()
     events: tuple = ()
     run_started_utc: float | None = None
     run_end: RunEnd | None = None
@@ -146,7 +173,7 @@ def read_session(session_dir) -> SessionView:
     if not path.is_file():
         return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
     try:
-        meta, records, events, calibration, steps, runs, label = _read_journal(path)
+        meta, records, dark, events, calibration, steps, runs, label = _read_journal(path)
     except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
         return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
     report = _read_report(session_dir / REPORT_FILE)
@@ -157,7 +184,7 @@ def read_session(session_dir) -> SessionView:
         material=meta.get("material"), model_path=str(meta.get("model_path", "")),
         model_hash=str(meta.get("model_hash", "")), plan_doc=meta.get("plan") or {},
         plan_file=str(meta.get("plan_file", "")), plan=_plan_samples(meta.get("plan") or {}),
-        done=tuple(_done_sample(r) for r in records),
+        done=tuple(_done_sample(r) for r in records), not_measured=tuple(_not_measured_sample(r) for r in dark),
         events=tuple({k: e[k] for k in ("t_utc", "kind", "axis", "message")} for e in events),
         run_started_utc=None if start is None else start.started_utc, run_end=end,
         stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
@@ -169,7 +196,8 @@ def read_session(session_dir) -> SessionView:
 
 
 def _read_journal(path: Path):
-    """(meta, sample records, events, calibration, recent steps, runs, label) at one moment."""
+    """(meta, sample records, not-measured records, events, calibration, recent steps, runs, label)
+    at one moment."""
     wal = path.with_name(path.name + "-wal")
     if wal.exists() and flock_held(path.with_name(LOCK_FILE)) is not True:
         return _read_journal_copy(path, wal)
@@ -178,7 +206,7 @@ def _read_journal(path: Path):
 
 def _read_journal_at(path: Path):
     with Journal.open_read_only(path) as journal, journal.snapshot():
-        return (journal.meta(), journal.samples(), journal.events(), journal.calibration(),
+        return (journal.meta(), journal.samples(), journal.not_measured(), journal.events(), journal.calibration(),
                 journal.recent_steps(), journal.runs(), journal.label())
 
 
@@ -235,6 +263,12 @@ def _done_sample(r) -> DoneSample:
                       dict(r.joints),
                       float(r.move_s), float(r.capture_s), float(r.started_utc), float(r.committed_utc),
                       tuple(r.raw_paths))
+
+
+def _not_measured_sample(r) -> NotMeasuredSample:
+    return NotMeasuredSample(r.plan_index, str(r.reason), tuple(r.snr), float(r.min_snr), float(r.longest_exposure_s),
+                             tuple(r.upper_limit), tuple(r.exposures_s), float(r.move_s), float(r.capture_s),
+                             float(r.started_utc), float(r.committed_utc), tuple(r.raw_paths))
 
 
 def _stop(end: RunEnd | None) -> Stop | None:

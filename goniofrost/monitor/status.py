@@ -49,10 +49,11 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
     ``planner.rig.Rig`` for the pose drawings (None: no drawings).
     """
     done = {d.plan_index: d for d in view.done}
+    dark = {d.plan_index: d for d in view.not_measured}   # done too, without a value
     total = len(view.plan)
-    state, hint = _state(view, now_utc, attached, ended_message, done, total)
-    pending = [s.index for s in view.plan if s.index not in done]
-    failed = view.stop.plan_index if view.stop and view.stop.plan_index not in done else None
+    state, hint = _state(view, now_utc, attached, ended_message, done | dark, total)
+    pending = [s.index for s in view.plan if s.index not in done and s.index not in dark]
+    failed = view.stop.plan_index if view.stop and view.stop.plan_index not in (done | dark) else None
     next_index = pending[0] if pending else None  # after a stop: the sample a resume starts with
     eta = eta_seconds(view, done) if state in ("running", "waiting") else None
     latest = max(view.done, key=lambda d: d.committed_utc) if view.done else None
@@ -61,10 +62,11 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "material": view.material, "journal_found": view.journal_found,
         "label": view.label, "label_text": label_text(view.label),
         "state": state, "hint": hint, "attached": attached,
-        "done": len(done), "total": total, "count_text": f"{len(done)} of {total} samples" if total else "no plan yet",
+        "done": len(done) + len(dark), "total": total, "count_text": count_text(len(done), len(dark), total),
+        "not_measured": [_not_measured(d) for d in view.not_measured],
         "eta_s": eta, "eta_text": eta_text(eta, state), "eta_from_utc": latest.committed_utc if latest else None,
         "last_event": _last_event(view),
-        "samples": _sample_columns(view, done, next_index, failed),
+        "samples": _sample_columns(view, done, next_index, failed, dark),
         "latest": None if latest is None else _latest(latest),
         "poses": _poses(view, rig, latest, next_index),
         "stop": None if view.stop is None else {
@@ -82,7 +84,20 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
     }
 
 
+def count_text(measured: int, not_measured: int, total: int) -> str:
+    """'5 of 40 samples' ('5 of 40 samples (1 not measured)' when some of them were too dark)."""
+    if not total:
+        return "no plan yet"
+    return f"{measured + not_measured} of {total} samples" + (f" ({not_measured} not measured)" if not_measured else "")
+
+
+def _not_measured(d) -> dict:
+    return {"plan_index": d.plan_index, "reason": d.reason, "snr": [_finite(v) for v in d.snr], "min_snr": d.min_snr,
+            "longest_exposure_s": d.longest_exposure_s, "upper_limit": [_finite(v) for v in d.upper_limit]}
+
+
 def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, str]:
+    """(state, a one-line hint); ``done``: the plan samples journaled, measured or not."""
     """(state, a one-line hint) as the module doc defines them."""
     if ended_message:
         return "failed", ended_message
@@ -129,7 +144,7 @@ def step_text(step: dict | None) -> str:
 
 def last_activity_utc(view) -> float:
     """Unix time of the latest event or sample commit (0 if none)."""
-    times = [e["t_utc"] for e in view.events] + [d.committed_utc for d in view.done]
+    times = [e["t_utc"] for e in view.events] + [d.committed_utc for d in (*view.done, *view.not_measured)]
     return max(times, default=0.0)
 
 
@@ -149,7 +164,7 @@ def eta_seconds(view, done: dict) -> float | None:
         return None
     k, c = wall_model([d.move_s for d in this_run], [d.capture_s for d in this_run],
                       [d.committed_utc - d.started_utc for d in this_run])
-    left = [s for s in view.plan if s.index not in done]
+    left = [s for s in view.plan if s.index not in done and all(d.plan_index != s.index for d in view.not_measured)]
     return k * sum(s.planned_move_s for s in left) + c * len(left)
 
 
@@ -202,11 +217,19 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _sample_columns(view, done: dict, next_index, failed) -> dict:
-    """Per plan sample (capture order): status done|next|pending|failed, angles, SNR, exposure."""
+def _sample_columns(view, done: dict, next_index, failed, dark: dict | None = None) -> dict:
+    """Per plan sample (capture order): status done|not-measured|next|pending|failed, angles, SNR,
+    exposure, flags (a sample not measured: its reason)."""
     status, snr, exposure, flags = [], [], [], []
     for s in view.plan:
         d = done.get(s.index)
+        if d is None and dark and s.index in dark:
+            n = dark[s.index]
+            status.append("not-measured")
+            snr.append(_finite(n.best_snr))
+            exposure.append(_finite(sum(n.exposures_s)))
+            flags.append(n.reason)
+            continue
         status.append("done" if d else "failed" if s.index == failed else "next" if s.index == next_index
                       else "pending")
         snr.append(None if d is None else _finite(d.snr))

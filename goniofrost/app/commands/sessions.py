@@ -1,7 +1,8 @@
 """``goniofrost sessions``: the catalogue of a folder of sessions, one line each."""
 from __future__ import annotations
 
-HELP = ("list the sessions under ROOT: name, started, operator, sample, state, samples, predicted error, "
+HELP = ("list the sessions under ROOT: name, started, operator, sample, state, samples (measured/planned, and how "
+        "many were not measured: too dark), predicted error, "
         "duration (read-only)")
 
 
