@@ -311,6 +311,28 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert (tmp_path / "retro-sphere.png").is_file()
 
 
+def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
+    """--test-set builtin: every 3rd sorted built-in name from the first (25 of 74), the model trained
+    on all 151 shared materials (datasets the built-in library is not part of); the default set
+    stays the 22 shared materials held out of a model of the other 129."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    if not (module["SHARED"] / "nbrdf_merl.npz").is_file():
+        pytest.skip("the shared materials are not on this machine")
+    from goniofrost.bench.data import material_names
+
+    specs, test_specs, _, training, test, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "builtin"]))
+    builtin = sorted(n for _, n in material_names(["builtin"]))
+    assert test_specs == ["builtin"] and "builtin" not in specs and all(s.startswith("nbrdf:") for s in specs)
+    assert test == builtin[0::3] and len(test) == 25 and test[:2] == ["aluminium", "black-metallic-paint"]
+    assert training == sorted(n for _, n in material_names(specs)) and len(training) == 151
+    specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
+    assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
+    assert not set(test2) & set(training2)
+
+
 def test_the_tabulated_bsdf_looks_up_the_cell_of_each_direction_pair():
     from goniofrost.brdf.mitsuba_tabulated import full_table, lookup
     from goniofrost.core.grid import half_diff_to_dirs
