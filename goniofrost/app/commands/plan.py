@@ -82,12 +82,15 @@ def run(args) -> int:
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
     # A scene's calibration depends on the design measured, whose sensitivity power depends on the
     # number of samples (usage_design.sensitivity_power): fitted for each power the selection asks for.
+    # (A uniform map is the plain design whatever the power: one calibration.)
     scenes: dict = {}
 
     def scene_for(power):
-        if power not in scenes:
-            scenes[power] = _scene_error(model, usage, power)
-        return scenes[power]
+        from goniofrost.frost.usage_design import is_uniform
+        key = None if is_uniform(usage) else power
+        if key not in scenes:
+            scenes[key] = _scene_error(model, usage, power)
+        return scenes[key]
 
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
