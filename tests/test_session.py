@@ -654,6 +654,7 @@ def scene_plan(folder: Path, rig, plan, ends, model) -> Path:
     from goniofrost.capture.plan_file import write_plan
     from goniofrost.frost.scene_error import scene_error
     from goniofrost.frost.usage_calibration import calibrate_scene
+    from goniofrost.frost.usage_design import sensitivity_power
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 20, 1.0, 0.0)
@@ -661,7 +662,9 @@ def scene_plan(folder: Path, rig, plan, ends, model) -> Path:
     doc = json.loads(batched_plan(folder, rig, plan, ends).read_text())
     doc["usage"] = {"file": "retro.npy", "hash": "retro-20deg", "cells_used": int((usage > 0).sum()),
                     "predicted_errors": "usage-weighted",
-                    "error": scene_error(model, usage, calibrate_scene(model, usage), "retro-20deg").to_plan()}
+                    "sensitivity_power": sensitivity_power(len(doc["samples"])),
+                    "error": scene_error(model, usage, calibrate_scene(model, usage, sensitivity_power(len(doc["samples"]))),
+                                         "retro-20deg").to_plan()}
     out = folder / "scene-plan.json"
     write_plan(out, doc)
     return out

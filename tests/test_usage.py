@@ -157,23 +157,27 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
 
 
 def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_use_alone(model):
-    """The default design is the mapped-error design of u g^0.5 (``design_usage``), while its
-    predicted errors stay those of u: the same as the prediction from trace(M_u Sigma) of its picks."""
+    """The default design of m samples is the mapped-error design of u g^p with p the power for m
+    (``sensitivity_power``; 1 at 12 samples), while its predicted errors stay those of u: the same
+    as the prediction from trace(M_u Sigma) of its picks."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import cell_noise, prior_variance
     from goniofrost.frost.prediction import calibration_of, predict_typical
-    from goniofrost.frost.usage_design import SENSITIVITY_POWER, design_usage, scene_matrix
+    from goniofrost.frost.usage_design import design_usage, scene_matrix, sensitivity_power
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
     usage /= usage.sum()
-    weights = design_usage(model, usage)
+    assert sensitivity_power(12) == 1.0
+    weights = design_usage(model, usage, 1.0)
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
-    np.testing.assert_allclose(weights, usage * g ** 0.5 / np.sum(usage * g ** 0.5), rtol=1e-12)
-    assert SENSITIVITY_POWER == 0.5 and design_usage(model, usage, 0.0) is not weights
+    np.testing.assert_allclose(weights, usage * g / np.sum(usage * g), rtol=1e-12)
+    np.testing.assert_allclose(design_usage(model, usage, 0.25), usage * g ** 0.25 / np.sum(usage * g ** 0.25),
+                               rtol=1e-12)
+    assert design_usage(model, usage, 0.0) is usage
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
-    assert np.array_equal(design_usage(model, uniform), uniform)  # no scene: the plain design's weights
+    assert np.array_equal(design_usage(model, uniform, 1.0), uniform)  # no scene: the plain design's weights
 
     aware = select_bayes(model, 12, usage=usage)
     assert aware.positions.tolist() == select_bayes(model, 12, usage=weights, sensitivity_power=0).positions.tolist()
@@ -187,26 +191,75 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     np.testing.assert_allclose(aware.residuals, expected, rtol=1e-4)
 
 
-def test_the_hedge_mixes_the_plain_design_with_the_scene_and_zero_is_the_plain_design(model):
-    """design_usage's hedge a: (1 - a) / n + a (the scene's weights); a = 0 picks as the plain
-    design (the shortcut and the rotated basis alike) and still predicts the scene's error."""
-    from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import design_usage
+def test_the_sensitivity_power_is_1_up_to_14_samples_and_a_quarter_above():
+    """The powers chosen on the 129 validation materials (p = 1 at m = 10, 0.25 at 20 and 40), each
+    m taking the power of the nearest of them on a log scale (boundary sqrt(10 * 20) = 14.1)."""
+    from goniofrost.frost.usage_design import FEW_SAMPLES, sensitivity_power
 
-    _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
-    usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
-    usage /= usage.sum()
-    mixed = design_usage(model, usage, 0.5, 0.7)
-    np.testing.assert_allclose(mixed, 0.3 / usage.size + 0.7 * design_usage(model, usage, 0.5, 1.0), rtol=1e-12)
-    assert mixed.sum() == pytest.approx(1.0)
-    plain = select_bayes(model, 12)
-    shortcut = select_bayes(model, 12, usage=usage, hedge=0.0)
-    rotated = select_bayes(model, 12, usage=usage, hedge=0.0, uniform_is_plain=False)
-    assert shortcut.positions.tolist() == plain.positions.tolist() == rotated.positions.tolist()
-    np.testing.assert_allclose(shortcut.residuals, rotated.residuals, rtol=1e-4)
-    assert not np.allclose(shortcut.residuals, plain.residuals, rtol=1e-2)  # the scene's error, not the whole BRDF's
-    hedged = select_bayes(model, 12, usage=usage, hedge=0.7).positions.tolist()
-    assert hedged != plain.positions.tolist()
+    assert FEW_SAMPLES == int(np.sqrt(10 * 20))
+    assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
+    assert [sensitivity_power(m) for m in (15, 20, 24, 40, 60, 1000)] == [0.25] * 6
+    with pytest.raises(ValueError, match="positive integer"):
+        sensitivity_power(0)
+
+
+def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
+    """select_bayes without a power (what plan --usage does) equals the design of the power for m:
+    p = 1 at 14 samples, 0.25 at 15 (which differ, so the boundary is where the rule puts it)."""
+    from goniofrost.frost.bayes_selection import select_bayes
+
+    usage = retro_map()
+    few, many = select_bayes(model, 14, usage=usage), select_bayes(model, 15, usage=usage)
+    assert few.positions.tolist() == select_bayes(model, 14, usage=usage, sensitivity_power=1.0).positions.tolist()
+    assert many.positions.tolist() == select_bayes(model, 15, usage=usage, sensitivity_power=0.25).positions.tolist()
+    assert few.positions.tolist() != many.positions[:14].tolist()
+
+
+def test_an_error_target_ends_on_the_design_of_its_own_length(model):
+    """plan --max-error --usage: the design of p = 1 up to 14 picks; when it does not reach the
+    target there, the design of p = 0.25 with more than 14. Either way the plan is the --samples n
+    plan of its length n, and the design of n - 1 samples (its own power) does not reach it. The
+    predicted errors use the scene's calibration of each power's design, as plan does."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_calibration import calibrate_scene
+
+    usage = retro_map()
+    calibrations = {p: calibrate_scene(model, usage, p) for p in (1.0, 0.25)}
+
+    def select(m=None, max_error=None):
+        return select_bayes(model, m, max_error=max_error, usage=usage, calibration=calibrations.get)
+
+    few, many = select(14).residuals, select_bayes(model, 40, usage=usage, sensitivity_power=0.25,
+                                                   calibration=calibrations[0.25]).residuals
+    reached, beyond = min(few[:8]) * 1.0001, min(few) * 0.99  # in 8 picks of p = 1; not in 14
+    assert beyond > many.min()  # the design of p = 0.25 does reach it
+    for target, longer in ((reached, False), (beyond, True)):
+        chosen = select(max_error=target)
+        n = chosen.positions.size
+        assert (n > 14) is longer
+        same = select(n)
+        assert chosen.positions.tolist() == same.positions.tolist()
+        np.testing.assert_allclose(chosen.residuals, same.residuals, rtol=1e-12)
+        assert chosen.residuals[-1] <= target < select(n - 1).residuals[-1]
+
+
+def test_plan_with_an_error_target_and_a_usage_map_records_the_power_of_its_length(model, model_dir, tmp_path):
+    """plan --max-error --usage: a target the design of p = 1 reaches within 14 samples gives a plan
+    of p = 1, one it does not a longer plan of p = 0.25 (PLAN.json usage.sensitivity_power), each
+    meeting the target by the scene's calibration of its own design."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_calibration import calibrate_scene
+
+    usage, path = retro_map(), tmp_path / "retro.npy"
+    np.save(path, usage.astype(np.float32))
+    few = select_bayes(model, 14, usage=usage, calibration=calibrate_scene(model, usage, 1.0)).residuals
+    for target, power in ((min(few[:8]) * 1.0001, 1.0), (min(few) * 0.99, 0.25)):
+        out = tmp_path / f"plan-{power}.json"
+        assert main(["plan", "--model", str(model_dir), "--max-error", f"{target:.9g}", "--usage", str(path),
+                     "--out", str(out)]) == 0
+        doc = json.loads(out.read_text())
+        assert doc["usage"]["sensitivity_power"] == power and (len(doc["samples"]) > 14) is (power == 0.25)
+        assert doc["predicted_errors"][-1] <= target
 
 
 @pytest.mark.parametrize("array, message", [
@@ -256,6 +309,28 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()
+
+
+def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
+    """--test-set builtin: every 3rd sorted built-in name from the first (25 of 74), the model trained
+    on all 151 shared materials (datasets the built-in library is not part of); the default set
+    stays the 22 shared materials held out of a model of the other 129."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    if not (module["SHARED"] / "nbrdf_merl.npz").is_file():
+        pytest.skip("the shared materials are not on this machine")
+    from goniofrost.bench.data import material_names
+
+    specs, test_specs, _, training, test, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "builtin"]))
+    builtin = sorted(n for _, n in material_names(["builtin"]))
+    assert test_specs == ["builtin"] and "builtin" not in specs and all(s.startswith("nbrdf:") for s in specs)
+    assert test == builtin[0::3] and len(test) == 25 and test[:2] == ["aluminium", "black-metallic-paint"]
+    assert training == sorted(n for _, n in material_names(specs)) and len(training) == 151
+    specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
+    assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
+    assert not set(test2) & set(training2)
 
 
 def test_the_tabulated_bsdf_looks_up_the_cell_of_each_direction_pair():
@@ -327,7 +402,7 @@ def test_a_uniform_usage_map_predicts_and_bounds_the_error_as_the_whole_brdf(mod
     from goniofrost.frost.usage_calibration import calibrate_scene
 
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
-    fitted, plain = calibrate_scene(model, uniform), calibration_of(model)
+    fitted, plain = calibrate_scene(model, uniform, 1.0), calibration_of(model)
     # (to the rounding of the noise stored in float32 and of the Gram's two routes)
     np.testing.assert_allclose(fitted["coefficients"], plain["coefficients"], rtol=1e-3, atol=1e-6)
     np.testing.assert_allclose(fitted["bound"]["scores"], plain["bound"]["scores"], rtol=1e-3, atol=1e-6)
@@ -353,6 +428,7 @@ def test_plan_with_a_usage_map_carries_the_error_in_the_scenes_use(model, model_
     np.save(path, retro_map().astype(np.float32))
     assert main(["plan", "--model", str(model_dir), "--samples", "20", "--usage", str(path), "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
+    assert doc["usage"]["sensitivity_power"] == 0.25  # the power for 20 samples
     scene = from_plan(doc, model)
     assert scene.matrix.shape == (model.n_components,) * 2 and scene.calibration["bound"]["scores"]
     assert scene.calibration["coefficients"] != model.noise["calibration"]["coefficients"]

@@ -25,7 +25,8 @@ from goniofrost.frost.posterior import cell_noise, design_scale, error_trace, pr
 from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
-from goniofrost.frost.usage_design import HEDGE, SENSITIVITY_POWER, design_usage, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost import usage_design
+from goniofrost.frost.usage_design import HEDGE, design_usage, is_uniform, scene_matrix, scene_prior
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
@@ -175,7 +176,7 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
-                 calibration: dict | None = None, sensitivity_power: float = SENSITIVITY_POWER,
+                 calibration=None, sensitivity_power: float | None = None,
                  hedge: float = HEDGE) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
@@ -185,22 +186,70 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     threads: threads sharing each pass (default: the cores this process may use).
     usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
     design then minimises the expected error of what the scene sees, each cell's use weighted by
-    the image's sensitivity to it (``usage_design.design_usage``, g^sensitivity_power; 0: u alone)
-    and mixed with the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0
-    the plain design), and the predicted errors are of the mapped error the scene sees (weighted
-    by u alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
+    the image's sensitivity to it (``usage_design.design_usage``, g^p; 0: u alone) and mixed with
+    the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0 the plain
+    design), and the predicted errors are of the mapped error the scene sees (weighted by u
+    alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
     change of basis; False computes it the long way, for tests).
+    sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
+    of samples, ``usage_design.sensitivity_power(m)``. With max_error and p None the design of
+    POWER_FEW runs up to FEW_SAMPLES picks; when it does not reach the target there, the design of
+    POWER_MANY runs from the start until it does with more than FEW_SAMPLES picks. Either way the
+    result of n picks is the n-sample design (the power for n), and the (n - 1)-sample design
+    does not reach the target (max_error's floor is checked on the longer design's calibration).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
-    ``usage_calibration``, for the usage-weighted error).
+    ``usage_calibration``, for the usage-weighted error), or a function of the power p returning
+    it (a scene's calibration depends on the design measured; None from it: the model's).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick.
     """
     start = time.perf_counter()
-    n = model.grid.n_valid
-    rows = _candidate_rows(candidates, n)
-    calibration, noise = calibration or calibration_of(model), cell_noise(model)
-    limit = _check(m, max_error, rows.size, calibration, noise)
-    if usage is not None and not (uniform_is_plain and is_uniform(usage)):
-        weights = design_usage(model, usage, sensitivity_power, hedge)
+    rows = _candidate_rows(candidates, model.grid.n_valid)
+    noise = cell_noise(model)
+    scene = usage is not None and not (uniform_is_plain and is_uniform(usage))
+    # the error no sample removes, as the predicted errors count it (the scene's: weighted by u)
+    floor = float(np.dot(usage, noise)) if scene else float(noise.mean())
+
+    def calibration_for(power):
+        chosen = calibration(power) if callable(calibration) else calibration
+        return chosen or calibration_of(model)
+
+    if not scene or sensitivity_power is not None or max_error is None:
+        power = sensitivity_power
+        if scene and power is None:
+            _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
+            power = usage_design.sensitivity_power(m)
+        calib = calibration_for(power)
+        limit = _check(m, max_error, rows.size, calib, floor)
+        picked, predicted = _design(model, rows, noise, limit, max_error, usage if scene else None, power, hedge,
+                                    calib, threads, uniform_is_plain=uniform_is_plain)
+    else:  # an error target and the power of the design's own length: two phases (docstring)
+        # the floor ("however many samples") is the longer design's, checked before it runs
+        limit = _check(None, max_error, rows.size, None, floor)
+        calib = calibration_for(usage_design.POWER_FEW)
+        picked, predicted = _design(model, rows, noise, min(limit, usage_design.FEW_SAMPLES), max_error, usage,
+                                    usage_design.POWER_FEW, hedge, calib, threads, uniform_is_plain=uniform_is_plain)
+        if predicted[-1] > max_error and limit > usage_design.FEW_SAMPLES:
+            calib = calibration_for(usage_design.POWER_MANY)
+            limit = _check(None, max_error, rows.size, calib, floor)
+            picked, predicted = _design(model, rows, noise, limit, max_error, usage, usage_design.POWER_MANY, hedge,
+                                        calib, threads, min_picks=usage_design.FEW_SAMPLES + 1,
+                                        uniform_is_plain=uniform_is_plain)
+    if max_error is not None and predicted[-1] > max_error:
+        raise SelectionError(f"max_error: {max_error:g} not reached with {picked.rows.size} samples (predicted "
+                             f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
+    return Selection(positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
+                     residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
+                     y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds)
+
+
+def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
+            min_picks: int = 1, uniform_is_plain: bool = True) -> tuple[GreedyDesign, np.ndarray]:
+    """One greedy design of at most ``limit`` picks among ``rows`` and its predicted errors
+    (float64 (picks,)); usage None: the plain design, else the scene's of power p and hedge (see
+    select_bayes, also for ``uniform_is_plain``); with max_error it stops at the first pick, of at
+    least ``min_picks``, whose predicted error is <= max_error."""
+    if usage is not None:
+        weights = design_usage(model, usage, power, hedge)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2
@@ -218,20 +267,13 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     stop = None
     if max_error is not None:
         def stop(row):
-            return tracker.add(row) <= max_error
+            return tracker.add(row) <= max_error and len(tracker.history) >= min_picks
     design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
                            rows=rows, stop=stop, threads=threads)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
-    predicted = np.array(tracker.history)
-    picks = np.arange(1, design.rows.size + 1)
-    if max_error is not None and predicted[-1] > max_error:
-        raise SelectionError(f"max_error: {max_error:g} not reached with {picks[-1]} samples (predicted "
-                             f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
-    return Selection(positions=design.rows, cells=model.grid.valid_cells[design.rows],
-                     residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
-                     y_form="", k=model.n_components, selector="bayes", pick_seconds=design.pick_seconds)
+    return design, np.array(tracker.history)
 
 
 class _PredictedError:
@@ -271,8 +313,10 @@ def _candidate_rows(candidates, n: int) -> np.ndarray:
     return np.flatnonzero(mask).astype(np.int64)
 
 
-def _check(m, max_error, n_candidates: int, calibration: dict, noise: np.ndarray) -> int:
-    """Validate the options; return the largest number of picks."""
+def _check(m, max_error, n_candidates: int, calibration: dict, noise_total: float) -> int:
+    """Validate the options; return the largest number of picks. noise_total: the design error's
+    part no sample removes (the mean sigma_c^2; for a scene sum_c u_c sigma_c^2, what its
+    calibration was fitted on); calibration None: max_error's floor is not checked."""
     if (m is None) == (max_error is None):
         raise SelectionError("selection: give exactly one of m (--samples) and max_error (--max-error)")
     if m is not None:
@@ -284,7 +328,9 @@ def _check(m, max_error, n_candidates: int, calibration: dict, noise: np.ndarray
         return int(m)
     if not (isinstance(max_error, (int, float)) and np.isfinite(max_error) and max_error > 0):
         raise SelectionError(f"max_error: expected a number > 0, found {max_error!r}")
-    floor = float(predict_typical(calibration, float(noise.mean()), calibration["m_range"][1]))
+    if calibration is None:
+        return min(n_candidates, MAX_PICKS)
+    floor = float(predict_typical(calibration, noise_total, calibration["m_range"][1]))
     if max_error <= floor:
         raise SelectionError(
             f"max_error: {max_error:g} is out of reach: the model's own representation error alone "

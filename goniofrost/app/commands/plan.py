@@ -83,8 +83,26 @@ def run(args) -> int:
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
-    scene = None if usage is None else _scene_error(model, usage)
-    selection = _select(model, args, mask, usage, scene)
+    # A scene's calibration depends on the design measured, whose sensitivity power depends on the
+    # number of samples (usage_design.sensitivity_power): fitted for each power the selection asks for.
+    # (A uniform map is the plain design whatever the power: one calibration.)
+    scenes: dict = {}
+
+    def scene_for(power):
+        from goniofrost.frost.usage_design import is_uniform
+        key = None if is_uniform(usage) else power
+        if key not in scenes:
+            scenes[key] = _scene_error(model, usage, power)
+        return scenes[key]
+
+    selection = _select(model, args, mask, usage, scene_for)
+    scene = None
+    if usage is not None:
+        from goniofrost.frost.usage_design import sensitivity_power
+        power = sensitivity_power(selection.m)
+        scene = scene_for(power)
+        print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
+              f"(the power for {selection.m} samples)")
     doc = plan_document(args.model, model, selection)
     if args.sentinels is not False and args.selector == "bayes" and usage is None:
         from goniofrost.capture.plan_file import with_sentinels
@@ -94,7 +112,7 @@ def run(args) -> int:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
         doc["usage"] = {"file": str(args.usage), "hash": scene.usage_hash, "cells_used": int((usage > 0).sum()),
-                        "predicted_errors": "usage-weighted", "error": scene.to_plan()}
+                        "sensitivity_power": power, "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
@@ -107,9 +125,10 @@ def run(args) -> int:
     return 0
 
 
-def _scene_error(model, usage):
+def _scene_error(model, usage, power):
     """The plan's SceneError: the usage-weighted error and its calibration on the model's training
-    materials (mapped again; without them the plan has no calibrated bound, and says why)."""
+    materials at the design of sensitivity power ``power`` (mapped again; without them the plan
+    has no calibrated bound, and says why)."""
     import hashlib
 
     from goniofrost.frost.scene_error import scene_error
@@ -118,18 +137,20 @@ def _scene_error(model, usage):
 
     digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
     try:
-        calibration, unavailable = calibrate_scene(model, usage, progress=True), None
+        calibration, unavailable = calibrate_scene(model, usage, power, progress=True), None
     except TrainingError as exc:
         calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
         print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
     return scene_error(model, usage, calibration, digest, unavailable)
 
 
-def _select(model, args, mask, usage=None, scene=None):
+def _select(model, args, mask, usage=None, scene_for=None):
+    """The selection; ``scene_for(power)``: the scene's SceneError for a design of that sensitivity
+    power (with ``usage``), whose calibration the predicted errors use."""
     if args.selector == "bayes":
         from goniofrost.frost.bayes_selection import select_bayes
         return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage,
-                            calibration=None if scene is None else scene.calibration)
+                            calibration=None if usage is None else (lambda power: scene_for(power).calibration))
     from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
     return select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
