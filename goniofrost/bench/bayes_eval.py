@@ -147,8 +147,9 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     out_at, ever_out = np.zeros(n_mat, dtype=np.int64), np.zeros(n_mat, dtype=np.int64)
     ever_sentinel = np.zeros(n_mat, dtype=np.int64)
     posts = {}
-    cells = np.zeros(0, dtype=np.int64) if not sentinels else \
-        sentinel.calibrated_cells(model) if sentinel_cells is None else np.asarray(sentinel_cells, dtype=np.int64)
+    cells = np.zeros(0, dtype=np.int64)
+    if sentinels:
+        cells = sentinel.calibrated_cells(model) if sentinel_cells is None else np.asarray(sentinel_cells, np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post

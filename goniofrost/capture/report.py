@@ -44,13 +44,21 @@ class TooFewSamplesError(GoniofrostError):
 
     def __init__(self, journal_path, measured: int, needed: int, not_measured: list, plan_samples: int) -> None:
         self.measured, self.needed, self.not_measured, self.plan_samples = measured, needed, not_measured, plan_samples
-        why = "; ".join(f"{r.reason}: samples {' '.join(str(d.plan_index) for d in not_measured if d.reason == r.reason)}"
-                        for r in {d.reason: d for d in not_measured}.values())
+        why = "; ".join(f"{reason}: samples {' '.join(map(str, indices))}"
+                        for reason, indices in by_reason(not_measured).items())
         super().__init__(
             f"{journal_path}: {measured} of {plan_samples} samples measured, {len(not_measured)} not measured ({why}): "
             f"a reconstruction needs at least {needed} measured sample(s); the samples were too dark for the rig's "
             f"longest exposure: add longer exposures to camera.exposures_s in the rig file (or brighten the lamp) "
             f"and capture again in a new --session")
+
+
+def by_reason(not_measured) -> dict:
+    """{reason (its value): [plan indices]} of NotMeasuredRecords, reasons in order of first sight."""
+    grouped: dict = {}
+    for d in not_measured:
+        grouped.setdefault(str(d.reason), []).append(d.plan_index)
+    return grouped
 
 
 def check_enough_measured(inputs, records, not_measured, journal_path) -> None:
@@ -105,9 +113,7 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
 def not_measured_section(not_measured) -> dict:
     """report.json's ``not_measured``: how many plan samples were not measured, which, why, and the
     upper limit of their BRDF (1/sr per channel); none of them is in the reconstruction."""
-    reasons: dict = {}
-    for d in not_measured:
-        reasons[str(d.reason)] = reasons.get(str(d.reason), 0) + 1
+    reasons = {reason: len(indices) for reason, indices in by_reason(not_measured).items()}
     return {"count": len(not_measured), "indices": [d.plan_index for d in not_measured], "reasons": reasons,
             "samples": [{"index": d.plan_index, "cell": d.cell, "theta_h_deg": d.theta_h_deg,
                          "theta_d_deg": d.theta_d_deg, "phi_d_deg": d.phi_d_deg, "reason": str(d.reason),

@@ -50,10 +50,10 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
     """
     done = {d.plan_index: d for d in view.done}
     dark = {d.plan_index: d for d in view.not_measured}   # done too, without a value
-    total = len(view.plan)
-    state, hint = _state(view, now_utc, attached, ended_message, done | dark, total)
-    pending = [s.index for s in view.plan if s.index not in done and s.index not in dark]
-    failed = view.stop.plan_index if view.stop and view.stop.plan_index not in (done | dark) else None
+    journaled, total = done | dark, len(view.plan)
+    state, hint = _state(view, now_utc, attached, ended_message, journaled, total)
+    pending = [s.index for s in view.plan if s.index not in journaled]
+    failed = view.stop.plan_index if view.stop and view.stop.plan_index not in journaled else None
     next_index = pending[0] if pending else None  # after a stop: the sample a resume starts with
     eta = eta_seconds(view, done) if state in ("running", "waiting") else None
     latest = max(view.done, key=lambda d: d.committed_utc) if view.done else None
