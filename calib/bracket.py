@@ -62,7 +62,10 @@ class Bracket:
     the markers alone). Learned as frames are added: ``frames`` (ladder index -> BracketFrame),
     ``paths``, ``mask_`` (H, W) bool patch, ``channels_`` (H, W) Bayer channel per pixel,
     ``roi_source_`` ("markers" | "prediction") and ``marker_offset_px_`` (read markers' largest
-    distance from the prediction; None if none was read).
+    distance from the prediction; None if none was read). ``record_saturation``: when even the
+    shortest exposure saturates patch pixels, end the bracket and count them in ``saturated_pixels_``
+    (a plan sample: recorded as not measured, the capture goes on) instead of raising
+    SaturationError (a reference, which the session cannot do without).
     """
 
     ladder: list
@@ -79,6 +82,8 @@ class Bracket:
     roi_source_: str = ""
     marker_offset_px_: float | None = None
     fallback_: np.ndarray | None = None
+    record_saturation: bool = False
+    saturated_pixels_: int = 0
 
     def add(self, i: int, raw, lamp_relative: float, path: Path, exposure_s: float | None = None) -> int | None:
         """Add the frame of ladder exposure ``i`` (``raw``: a drivers.rawfile.RawImage; lamp level
@@ -154,6 +159,9 @@ class Bracket:
         lo, hi = min(self.frames), max(self.frames)
         _, covered = merge(list(self.frames.values()), self.record.flat, self.mask_)
         if not covered.all():
+            if lo == 0 and self.record_saturation:
+                self.saturated_pixels_ = int((~covered).sum())
+                return None
             if lo == 0:
                 raise SaturationError(f"{self.what}: {int((~covered).sum())} of {covered.size} sample pixels "
                                       f"saturate even at the shortest exposure {self.ladder[0]} s")
@@ -183,6 +191,16 @@ class Bracket:
 
     def _stats(self) -> tuple[np.ndarray, np.ndarray]:
         rates, _ = merge(list(self.frames.values()), self.record.flat, self.mask_)
+        mean, se, _ = channel_stats(rates, self.channels_[self.mask_])
+        return mean, se
+
+    def clipped_stats(self) -> tuple[np.ndarray, np.ndarray]:
+        """The patch's mean rate and its standard error, each (3,), from the shortest exposure taken
+        with its saturated pixels at their clipped values: a mean no higher than the true one."""
+        frame = self.frames[min(self.frames)]
+        clipped = BracketFrame(frame.linear, np.zeros_like(frame.saturated), frame.exposure_s, frame.dark,
+                               frame.lamp_relative)
+        rates, _ = merge([clipped], self.record.flat, self.mask_)
         mean, se, _ = channel_stats(rates, self.channels_[self.mask_])
         return mean, se
 

@@ -25,7 +25,7 @@ _CAMERA_KEYS = {
     "kind": Key(lambda v: v in CAMERA_KINDS, f"one of {list(CAMERA_KINDS)}"),
     "exposures_s": Key(_ladder_ok, "a non-empty list of exposures > 0 s, shortest first, strictly increasing"),
     "target_snr": Key(lambda v: _num(v) and v > 0, "a number > 0"),
-    "min_snr": Key(lambda v: _num(v) and v > 0, "a number > 0 (below it a sample is an error)", 10.0),
+    "min_snr": Key(lambda v: _num(v) and v > 0, "a number > 0 (a channel below it is at its detection limit; a sample with every channel below it is not measured)", 10.0),
     "saturation": Key(lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1] (fraction of the white level)", 0.95),
     "dark_frames": Key(lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),
     "flat_frames": Key(lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1", 2),

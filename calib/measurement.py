@@ -4,10 +4,11 @@ Pure: the bracket's frames, the calibration record and the camera settings in, a
 ``SampleMeasurement`` out. BRDF[c] = patch rate[c] / (scale[c] cos theta_i); the relative
 uncertainty combines the patch's standard error, the white reference's and the photodiode's.
 
-Error policy: sample pixels saturated even at the shortest exposure -> SaturationError (raised by
-the bracket); every channel below ``min_snr`` even with the ladder's longest exposure -> not an
-error but a ``NotMeasured`` record (reason ``below-detection-limit``: the SNR reached, the longest
-exposure and an upper limit of the BRDF per channel; a session records it and goes on); some channels below ``min_snr`` but not all -> those channels are measurements
+Error policy: sample pixels saturated even at the shortest exposure -> not an error but a
+``NotMeasured`` record (reason ``saturated``: a lower limit of the BRDF per channel, from the
+clipped pixels; a session records it and goes on); every channel below ``min_snr`` even with the
+ladder's longest exposure -> a ``NotMeasured`` record too (reason ``below-detection-limit``: the SNR
+reached, the longest exposure and an upper limit of the BRDF per channel); some channels below ``min_snr`` but not all -> those channels are measurements
 at their detection limit (value >= 0 with its sigma, flag ``"detection-limit"``); any channel
 between ``min_snr`` and ``target_snr`` -> the flag ``"low-snr"``; read
 markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
@@ -68,13 +69,15 @@ class NotMeasuredReason(str, enum.Enum):
     """Why a sample has no measured value (``NotMeasured.reason``; journals store the value)."""
 
     BELOW_DETECTION_LIMIT = "below-detection-limit"   # no channel reached min_snr at the ladder's longest exposure
+    SATURATED = "saturated"                           # patch pixels saturated at the ladder's shortest exposure
 
     def __str__(self) -> str:
         return self.value
 
 
-# The upper limit of a channel not measured: its patch mean (>= 0) plus this many standard errors,
-# a one-sided bound at about 99.9 % for Gaussian noise ("darker than X" is information).
+# The limits of a channel not measured: its patch mean (>= 0) plus (too dark) or minus (saturated,
+# from the clipped pixels) this many standard errors, a one-sided bound at about 99.9 % for
+# Gaussian noise ("darker than X" and "brighter than Y" are information).
 UPPER_LIMIT_SIGMAS = 3.0
 
 
@@ -84,8 +87,10 @@ class NotMeasured:
 
     ``reason`` a NotMeasuredReason; ``snr`` (3,) the patch mean's SNR reached per channel (0 where
     none could be computed); ``min_snr`` the rig's minimum; ``longest_exposure_s`` the longest
-    exposure taken (the ladder's longest); ``upper_limit`` (3,) BRDF in 1/sr the channel is below
-    (patch mean + UPPER_LIMIT_SIGMAS standard errors); the frames as in SampleMeasurement.
+    exposure taken (the ladder's longest when too dark); ``lower_limit``, ``upper_limit`` (3,) BRDF
+    in 1/sr the channel lies between: too dark, 0 and the patch mean + UPPER_LIMIT_SIGMAS standard
+    errors; saturated, the clipped patch mean - UPPER_LIMIT_SIGMAS standard errors (>= 0) and
+    infinity; the frames as in SampleMeasurement.
     """
 
     sample_id: int
@@ -94,6 +99,7 @@ class NotMeasured:
     min_snr: float
     longest_exposure_s: float
     upper_limit: np.ndarray
+    lower_limit: np.ndarray
     exposures_s: list
     frames_taken: int
     frames_skipped: int
@@ -109,9 +115,25 @@ class NotMeasured:
 
     def text(self) -> str:
         """One line for people (readers use the fields)."""
-        return (f"sample {self.sample_id}: not measured ({self.reason}): SNR {self.best_snr:.1f} below the minimum "
-                f"{self.min_snr:g} with exposures up to {self.longest_exposure_s:g} s (the longest of "
-                f"camera.exposures_s); BRDF below {_triple_text(self.upper_limit)} 1/sr (R, G, B)")
+        return (f"sample {self.sample_id}: not measured ({self.reason}): "
+                f"{why_not_measured(self.reason, self.snr, self.min_snr, self.exposures_s, self.lower_limit, self.upper_limit)}")
+
+
+def why_not_measured(reason, snr, min_snr: float, exposures_s, lower_limit, upper_limit) -> str:
+    """Why a sample was not measured and the bounds of its BRDF, in words (the one phrase the record,
+    the journal's event and the session summary share); the arguments are a NotMeasured's fields."""
+    if str(reason) == NotMeasuredReason.SATURATED.value:
+        return (f"patch pixels saturate even at the shortest exposure {min(exposures_s):g} s; BRDF above "
+                f"{_triple_text(lower_limit)} 1/sr (R/G/B)")
+    return (f"SNR {max(snr):.1f} below the minimum {min_snr:g} with exposures up to {max(exposures_s):g} s; "
+            f"BRDF below {_triple_text(upper_limit)} 1/sr (R/G/B)")
+
+
+def remedy(reason) -> str:
+    """What an operator can change to measure a sample not measured for ``reason``."""
+    if str(reason) == NotMeasuredReason.SATURATED.value:
+        return "add shorter exposures to camera.exposures_s in the rig file (or dim the lamp)"
+    return "add longer exposures to camera.exposures_s in the rig file (or brighten the lamp)"
 
 
 def _triple_text(values) -> str:
@@ -156,9 +178,9 @@ def sample_measurement(sample_id: int, bracket: Bracket, w_i: np.ndarray, captur
     rel_sys = np.sqrt((rec.scale_sigma / rec.scale) ** 2 + settings["photodiode_rel_sigma"] ** 2)
     sigma = np.sqrt((se * to_brdf) ** 2 + (rgb * rel_sys) ** 2)
     snr = mean / se
-    dark = _too_dark(sample_id, snr, mean, se, to_brdf, bracket)
-    if dark is not None:
-        return NotMeasured(**dark, capture_seconds=capture_seconds, clock_seconds=clock_seconds)
+    missing = _saturated(sample_id, snr, to_brdf, bracket) or _too_dark(sample_id, snr, mean, se, to_brdf, bracket)
+    if missing is not None:
+        return NotMeasured(**missing, **_frames(bracket), capture_seconds=capture_seconds, clock_seconds=clock_seconds)
     flags = _snr_flags(snr, bracket) + _marker_flags(bracket)
     taken = len(bracket.frames)
     return SampleMeasurement(sample_id, rgb, sigma, snr, bracket.exposures_s, taken,
@@ -216,11 +238,28 @@ def _too_dark(sample_id: int, snr: np.ndarray, mean: np.ndarray, se: np.ndarray,
     longest = bracket.ladder[max(bracket.frames)]
     if bracket.ladder_exhausted:
         upper = (np.maximum(np.nan_to_num(mean, nan=0.0), 0.0) + UPPER_LIMIT_SIGMAS * se) * to_brdf
-        taken = len(bracket.frames)
         return {"sample_id": sample_id, "reason": NotMeasuredReason.BELOW_DETECTION_LIMIT, "snr": snr,
                 "min_snr": minimum, "longest_exposure_s": float(longest), "upper_limit": upper,
-                "exposures_s": bracket.exposures_s, "frames_taken": taken,
-                "frames_skipped": len(bracket.ladder) - taken, "raw_paths": list(bracket.paths),
-                "lamp_relative": bracket.lamp_relative}
+                "lower_limit": np.zeros(3)}
     raise CalibrationError(f"{bracket.what}: SNR {best:.1f} below the minimum {minimum:g} at {longest} s, and a longer "
                            f"exposure would saturate the patch: its pixels scatter far beyond their noise")
+
+
+def _saturated(sample_id: int, snr: np.ndarray, to_brdf: np.ndarray, bracket: Bracket) -> dict | None:
+    """None unless patch pixels saturated even at the ladder's shortest exposure; then the fields
+    of a NotMeasured record with the lower limit of the BRDF from the clipped pixels."""
+    if not bracket.saturated_pixels_:
+        return None
+    clipped, se = bracket.clipped_stats()
+    lower = np.maximum(np.nan_to_num(clipped - UPPER_LIMIT_SIGMAS * se, nan=0.0), 0.0) * to_brdf
+    return {"sample_id": sample_id, "reason": NotMeasuredReason.SATURATED,
+            "snr": np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0), "min_snr": float(bracket.settings["min_snr"]),
+            "longest_exposure_s": float(max(bracket.exposures_s)), "upper_limit": np.full(3, np.inf),
+            "lower_limit": lower}
+
+
+def _frames(bracket: Bracket) -> dict:
+    """The NotMeasured fields that say which frames were taken."""
+    taken = len(bracket.frames)
+    return {"exposures_s": bracket.exposures_s, "frames_taken": taken, "frames_skipped": len(bracket.ladder) - taken,
+            "raw_paths": list(bracket.paths), "lamp_relative": bracket.lamp_relative}

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from calib import (CalibrationError, CalibrationRecord, MarkerError, NotMeasured, NotMeasuredReason, PatchTooSmallError,
-                   SaturationError, WrongTargetError, validate_camera_section)
+                   WrongTargetError, validate_camera_section)
 from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.capture.calibration_steps import calibration_steps
@@ -199,13 +199,23 @@ def test_bright_specular_peak_steps_down_then_starts_from_the_last_sample(rig, c
         np.testing.assert_allclose(m.rgb, truth, rtol=0.02)
 
 
-def test_saturated_scene_is_a_saturation_error(rig, calibrated, spec, tmp_path):
+def test_saturated_scene_is_not_measured_with_a_lower_limit_below_the_truth(rig, calibrated, spec, tmp_path):
     params = {**rig["sim"]["camera"], "signal_e_s": 2.0e9}   # 10^4 x too bright a lamp
     bench = CameraBench(spec("gold-metallic-paint2"), params, rig["camera"], seed=0)
     bench.lamp.on()
     w_i, w_o = bench.set_angles(20.0, 20.0, 180.0)
-    with pytest.raises(SaturationError, match=r"sample 4: \d+ of \d+ sample pixels saturate even at the shortest exposure 1.5625e-05 s"):
-        _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
+    # the rig cannot measure it, which is a typed record (not an error): the shortest exposure was
+    # taken, and the clipped pixels give a lower limit of the BRDF (below the
+    # truth where the shortest exposure saturates it)
+    bright = _calibrator(rig, calibrated, bench).measure(w_i, w_o, tmp_path, 4)
+    assert isinstance(bright, NotMeasured) and bright.reason is NotMeasuredReason.SATURATED
+    assert min(bright.exposures_s) == rig["camera"]["exposures_s"][0] == 1.5625e-05
+    truth = bench.camera.ground_truth(w_i, w_o) * 1e4   # the calibration's lamp was 10^4 x dimmer
+    assert np.all(bright.lower_limit > 0) and np.all(bright.lower_limit < truth)
+    # the clipped pixels say 1.3 to 2.3 % of the truth here (saturated at about 1/50 of their level)
+    assert np.all(np.isinf(bright.upper_limit)) and np.all(bright.lower_limit > truth / 100)
+    assert bright.text() == (f"sample 4: not measured (saturated): patch pixels saturate even at the shortest exposure "
+                             f"1.5625e-05 s; BRDF above {'/'.join(format(v, '.3g') for v in bright.lower_limit)} 1/sr (R/G/B)")
 
 
 def test_dark_scene_is_not_measured_or_flagged(rig, calibrated, spec, tmp_path):

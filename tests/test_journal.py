@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import csv
+import json
+import math
 import sqlite3
+from contextlib import closing
 
 import pytest
 
@@ -71,6 +74,41 @@ def test_a_sample_not_measured_round_trips_exactly_is_done_and_has_no_value(tmp_
     with Journal.open_read_only(path) as journal:   # what the monitor reads
         assert journal.not_measured() == [not_measured(1)]
     assert not_measured(1).to_dict()["reason"] == "below-detection-limit"
+
+
+def saturated(i: int) -> NotMeasuredRecord:
+    return NotMeasuredRecord(**{**not_measured(i).__dict__, "reason": NotMeasuredReason.SATURATED,
+                                "upper_limit": (math.inf,) * 3, "lower_limit": (12.5, 1 / 3, 7e-2)})
+
+
+def test_a_saturated_sample_round_trips_with_its_lower_limit_and_no_upper_one(tmp_path):
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_not_measured(saturated(5))
+    with Journal.open(path) as journal:
+        assert journal.not_measured() == [saturated(5)] and journal.not_measured()[0].reason is NotMeasuredReason.SATURATED
+    data = saturated(5).to_dict()   # JSON without Infinity: no upper limit is None
+    assert (data["upper_limit"], data["lower_limit"]) == ([None] * 3, [12.5, 1 / 3, 7e-2])
+    assert json.loads(json.dumps(data, allow_nan=False)) == data
+    assert saturated(5).why() == "patch pixels saturate even at the shortest exposure 0.032 s; BRDF above 12.5/0.333/0.07 1/sr (R/G/B)"
+    assert not_measured(1).why() == "SNR 3.2 below the minimum 10 with exposures up to 0.128 s; BRDF below 0.000333/0.00025/1e-17 1/sr (R/G/B)"
+
+
+def test_a_journal_from_before_the_lower_limits_gains_them_as_zero(tmp_path):
+    """A journal written before saturated samples were recorded: its not-measured samples (too
+    dark) read back with a lower limit 0, read-only too, and a resume can add saturated ones."""
+    path = tmp_path / "session.sqlite"
+    with Journal.create(path, META) as journal:
+        journal.commit_not_measured(not_measured(1))
+    with closing(sqlite3.connect(path)) as db:
+        for channel in "rgb":
+            db.execute(f"ALTER TABLE not_measured DROP COLUMN lower_{channel}")
+        db.commit()
+    with Journal.open_read_only(path) as journal:
+        assert journal.not_measured() == [not_measured(1)]
+    with Journal.open(path) as journal:
+        journal.commit_not_measured(saturated(2))
+        assert journal.not_measured() == [not_measured(1), saturated(2)]
 
 
 def test_a_plan_sample_is_either_measured_or_not_measured_never_both(tmp_path):

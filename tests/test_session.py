@@ -984,6 +984,43 @@ def test_a_run_killed_after_a_sample_not_measured_resumes_without_taking_it_agai
     assert frames(session) == frames(uninterrupted)
 
 
+BRIGHT_MATERIAL = "builtin:chrome"   # plan samples 1 and 3 sit on its highlight
+BRIGHT_LADDER = [0.008, 0.032, 0.128]  # without the module rig's 0.002 s: they saturate even at 0.008 s
+
+
+def test_samples_saturated_at_the_shortest_exposure_are_journaled_not_measured_and_the_capture_finishes(setup, tmp_path,
+                                                                                                        capsys):
+    from calib import NotMeasuredReason
+    from goniofrost.datasets import material_brdf
+    from planner.kinematics import forward
+    from planner.rig import load_rig
+
+    folder, rig, plan, _ = setup
+    raw = yaml.safe_load(rig.read_text())
+    raw["camera"].update(exposures_s=BRIGHT_LADDER)
+    (bright_rig := tmp_path / "no-short-exposure.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    session = tmp_path / "s"
+    assert main(["capture", "--rig", str(bright_rig), "--plan", str(plan), "--session", str(session),
+                 "--material", BRIGHT_MATERIAL, "--no-progress", "--speedup", "50"]) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        records, missing, runs = journal.samples(), journal.not_measured(), journal.runs()
+    assert [r.plan_index for r in records] == [0, 2, 4] and [d.plan_index for d in missing] == [1, 3]
+    [(_start, end)] = runs
+    assert end.status is RunStatus.FINISHED and end.reason == "all samples captured (not measured: saturated 2)"
+    truth = material_brdf(BRIGHT_MATERIAL)[1]
+    for d in missing:   # down to the shortest exposure, and a lower limit below the truth
+        assert d.reason is NotMeasuredReason.SATURATED and min(d.exposures_s) == BRIGHT_LADDER[0]
+        assert np.all(np.isinf(d.upper_limit))
+        assert np.all(0 < np.array(d.lower_limit)) and np.all(np.array(d.lower_limit) < truth(*forward(load_rig(bright_rig), d.joints)))
+    report = json.loads((session / "report.json").read_text())
+    assert report["not_measured"]["reasons"] == {"saturated": 2} and report["prediction"]["samples_used"] == 3
+    assert [d["upper_limit"] for d in report["not_measured"]["samples"]] == [[None] * 3] * 2
+    summary = (session / "summary.txt").read_text()
+    assert ("  to measure the saturated ones: add shorter exposures to camera.exposures_s in the rig file (or dim the "
+            "lamp) and capture them in a new session") in summary
+    assert f"  sample 1: saturated: {missing[0].why()}" in summary
+
+
 def test_a_session_with_no_sample_measured_is_a_one_line_error_and_a_resume_takes_none_again(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     # a minimum SNR no sample reaches with this ladder (and a bracket that runs to its longest exposure)

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import CalibrationRecord, SaturationError, validate_camera_section
+from calib import Bracket, CalibrationRecord, NotMeasured, NotMeasuredReason, SaturationError, validate_camera_section
+from calib.holder import SAMPLE_MARKER_IDS
+from calib.roi import expected_view
 from drivers.rawfile import read_raw
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.session_steps import SessionSpec, remaining, session_steps
@@ -204,10 +206,19 @@ def test_frames_without_markers_search_the_nearest_exposures_then_the_patch_is_f
     assert m.exposures_s == [0.008, 0.032, 0.128]
 
 
-def test_saturated_at_the_shortest_exposure_is_an_error(frames):
-    with pytest.raises(SaturationError, match=r"sample 7: \d+ of \d+ sample pixels saturate even at the "
+def test_a_sample_saturated_at_the_shortest_exposure_is_not_measured_but_a_white_reference_is_an_error(frames):
+    # a sample: recorded as not measured after the shortest exposure, with a lower limit of its BRDF
+    asked, m = bracket_of([frames["bright", 0.128]], expected=np.full(3, 1e3))
+    assert asked == [(0.002, "raw/sample_0007_e0.dng")]
+    assert isinstance(m, NotMeasured) and m.reason is NotMeasuredReason.SATURATED and m.exposures_s == [0.002]
+    assert np.all(np.isinf(m.upper_limit)) and np.all(m.lower_limit > 0)
+    # a reference's bracket (the white reference's, the holder cards' snapshots: Bracket's default)
+    # raises instead: the session cannot go on without it
+    bracket = Bracket(LADDER, CAMERA, RECORD, SAMPLE_MARKER_IDS, "white reference",
+                      view=expected_view(CAMERA, pose_of(WHITE), SAMPLE_MARKER_IDS, 1.0))
+    with pytest.raises(SaturationError, match=r"white reference: \d+ of \d+ sample pixels saturate even at the "
                                               r"shortest exposure 0.002 s"):
-        bracket_of([frames["bright", 0.128]], expected=np.full(3, 1e3))
+        bracket.add(0, frames["bright", 0.128], 1.0, Path("white_e0.dng"))
 
 
 # ----- a capture with a target error: batches, assessments, stop -------------------------------

@@ -3,7 +3,7 @@
 ``SessionEngine.run`` drives the steps of ``goniofrost.capture.session_steps`` through the
 ``PlanRunner`` (which journals each step, owns the stop of the axes, the lamp, the device log and
 the run's ``RunStart``/``RunEnd``). On top of it the engine commits each sample in one transaction
-the moment it is measured, appends it to samples.csv (a sample too dark to measure is committed
+the moment it is measured, appends it to samples.csv (a sample too dark or too bright to measure is committed
 as not measured instead, with a ``not_measured`` event, and the capture goes on), journals the
 calibration, lamp and homing events, times the parts of the session and shows a progress bar
 with the ETA, and
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 from goniofrost.capture.contract import Hardware
 from goniofrost.capture.device_log import DeviceLog
-from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv
+from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv, by_reason
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
@@ -57,7 +57,7 @@ class SessionStats:
     capture_s: float = 0.0
     captured: int = 0
     skipped: int = 0
-    not_measured: int = 0   # of ``captured``: committed as not measured (too dark) in this run
+    not_measured: int = 0   # of ``captured``: committed as not measured (too dark or saturated) in this run
     started_clock: float = 0.0
     ended_clock: float = 0.0
     wall_s: float = 0.0
@@ -129,8 +129,9 @@ class SessionEngine(PlanRunner):
         """finished, target_reached or plan_used_up, from the last batch's decision."""
         last, n = (self.stats.batches[-1] if self.stats.batches else None), len(self.spec.samples)
         if last is None:
-            dark = len(self.journal.not_measured())
-            return RunStatus.FINISHED, "all samples captured" + (f" ({dark} not measured: too dark)" if dark else "")
+            missing = by_reason(self.journal.not_measured())
+            why = ", ".join(f"{reason} {len(indices)}" for reason, indices in missing.items())
+            return RunStatus.FINISHED, "all samples captured" + (f" (not measured: {why})" if missing else "")
         from goniofrost.capture.target import statement
 
         if last["decision"] == PLAN_USED_UP:
@@ -291,7 +292,7 @@ class SessionEngine(PlanRunner):
         return summary
 
     def _commit_not_measured(self, record: NotMeasuredRecord) -> dict:
-        """Journal a sample too dark to measure and its ``not_measured`` event (no samples.csv line: it
+        """Journal a sample too dark or too bright to measure and its ``not_measured`` event (no samples.csv line: it
         has no value)."""
         summary = self.rehearsal.with_state({"snr": record.best_snr, "status": str(record.reason)})
         # the record, its step and its event in one durable transaction
@@ -333,9 +334,7 @@ PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, 
 
 def not_measured_text(record: NotMeasuredRecord) -> str:
     """The journal event's words for a sample not measured (readers use its data: the record)."""
-    upper = "/".join(f"{v:.3g}" for v in record.upper_limit)
-    return (f"sample {record.plan_index} not measured ({record.reason}): SNR {record.best_snr:.1f} below the minimum "
-            f"{record.min_snr:g} with exposures up to {record.longest_exposure_s:g} s; BRDF below {upper} 1/sr (R/G/B)")
+    return f"sample {record.plan_index} not measured ({record.reason}): {record.why()}"
 
 
 def _exposed(_step: Expose, frame) -> dict:

@@ -30,6 +30,7 @@ per sample, and rewritten from the journal on resume so that a torn last line ca
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import time
@@ -37,7 +38,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-from calib.measurement import NotMeasuredReason
+from calib.measurement import NotMeasuredReason, why_not_measured
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus, SessionLabel
@@ -64,6 +65,7 @@ CREATE TABLE IF NOT EXISTS not_measured (
     theta_h_deg REAL NOT NULL, theta_d_deg REAL NOT NULL, phi_d_deg REAL NOT NULL,
     snr_r REAL NOT NULL, snr_g REAL NOT NULL, snr_b REAL NOT NULL, min_snr REAL NOT NULL,
     longest_exposure_s REAL NOT NULL, upper_r REAL NOT NULL, upper_g REAL NOT NULL, upper_b REAL NOT NULL,
+    lower_r REAL NOT NULL DEFAULT 0, lower_g REAL NOT NULL DEFAULT 0, lower_b REAL NOT NULL DEFAULT 0,
     joints TEXT NOT NULL, exposures_s TEXT NOT NULL, frames_taken INTEGER NOT NULL,
     frames_skipped INTEGER NOT NULL, raw_paths TEXT NOT NULL, lamp_relative REAL NOT NULL,
     move_s REAL NOT NULL, capture_s REAL NOT NULL, started_utc REAL NOT NULL,
@@ -122,8 +124,9 @@ class NotMeasuredRecord:
 
     ``reason`` a ``calib.NotMeasuredReason`` (a value this version does not know stays a str);
     ``snr`` (3,) the SNR reached per channel; ``min_snr`` the rig's minimum; ``longest_exposure_s``
-    the longest exposure taken (the ladder's longest); ``upper_limit`` (3,) the BRDF in 1/sr each
-    channel is below; the other fields as in SampleRecord.
+    the longest exposure taken; ``lower_limit``, ``upper_limit`` (3,) the BRDF in 1/sr each channel
+    lies between (too dark: 0 and an upper limit; saturated: a lower limit and infinity, None in
+    ``to_dict``); the other fields as in SampleRecord.
     """
 
     plan_index: int
@@ -136,6 +139,7 @@ class NotMeasuredRecord:
     min_snr: float
     longest_exposure_s: float
     upper_limit: tuple[float, float, float]
+    lower_limit: tuple[float, float, float] = (0.0, 0.0, 0.0)
     joints: dict = field(default_factory=dict)
     exposures_s: tuple = ()
     frames_taken: int = 0
@@ -154,8 +158,23 @@ class NotMeasuredRecord:
 
     def to_dict(self) -> dict:
         """JSON-safe form (report.json, events): the reason as its value."""
-        return {**asdict(self), "reason": str(self.reason), "snr": list(self.snr), "upper_limit": list(self.upper_limit),
-                "exposures_s": list(self.exposures_s), "raw_paths": list(self.raw_paths)}
+        return {**asdict(self), "reason": str(self.reason), "snr": list(self.snr),
+                "upper_limit": [v if math.isfinite(v) else None for v in self.upper_limit],
+                "lower_limit": list(self.lower_limit), "exposures_s": list(self.exposures_s),
+                "raw_paths": list(self.raw_paths)}
+
+    def why(self) -> str:
+        """Why it was not measured and the bounds of its BRDF, in words (readers use the fields)."""
+        return why_not_measured(self.reason, self.snr, self.min_snr, self.exposures_s or (self.longest_exposure_s,),
+                                self.lower_limit, self.upper_limit)
+
+
+def by_reason(not_measured) -> dict:
+    """{reason (its value): [plan indices]} of NotMeasuredRecords, reasons in order of first sight."""
+    grouped: dict = {}
+    for d in not_measured:
+        grouped.setdefault(str(d.reason), []).append(d.plan_index)
+    return grouped
 
 
 class Journal:
@@ -515,12 +534,22 @@ def _connect(path: Path) -> sqlite3.Connection:
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
         db.executescript(_SCHEMA)
+        _add_lower_limits(db)
     except sqlite3.DatabaseError as exc:
         if db is not None:
             db.close()  # not left open on a file the caller may remove
         disk = _disk_error(exc, path) if isinstance(exc, sqlite3.OperationalError) else None
         raise disk or JournalError(f"{path}: not a usable session journal ({exc})") from None
     return db
+
+
+def _add_lower_limits(db: sqlite3.Connection) -> None:
+    """A journal written before saturated samples were recorded has no lower limits: add them
+    (0: its not-measured samples are all too dark, whose lower limit is 0)."""
+    columns = {row[1] for row in db.execute("PRAGMA table_info(not_measured)")}
+    for channel in "rgb":
+        if f"lower_{channel}" not in columns:
+            db.execute(f"ALTER TABLE not_measured ADD COLUMN lower_{channel} REAL NOT NULL DEFAULT 0")
 
 
 _JSON_FIELDS = ("joints", "exposures_s", "raw_paths")
@@ -553,7 +582,8 @@ def _row_from_not_measured(record: NotMeasuredRecord) -> dict:
     for i, channel in enumerate("rgb"):
         row[f"snr_{channel}"] = float(record.snr[i])
         row[f"upper_{channel}"] = float(record.upper_limit[i])
-    del row["snr"], row["upper_limit"]
+        row[f"lower_{channel}"] = float(record.lower_limit[i])
+    del row["snr"], row["upper_limit"], row["lower_limit"]
     for name in _JSON_FIELDS:
         row[name] = json.dumps(row[name])
     return row
@@ -567,6 +597,8 @@ def _not_measured_from_row(row: dict) -> NotMeasuredRecord:
         pass
     values["snr"] = (row["snr_r"], row["snr_g"], row["snr_b"])
     values["upper_limit"] = (row["upper_r"], row["upper_g"], row["upper_b"])
+    # a read-only view of a journal from before the lower limits: too dark only, so 0
+    values["lower_limit"] = tuple(row.get(f"lower_{channel}", 0.0) for channel in "rgb")
     values["joints"] = json.loads(row["joints"])
     values["exposures_s"] = tuple(json.loads(row["exposures_s"]))
     values["raw_paths"] = tuple(json.loads(row["raw_paths"]))

@@ -29,7 +29,7 @@ class EventKind(str, enum.Enum):
     SAMPLES = "samples"          # the sample phase started
     ALIGNMENT = "alignment"      # the alignment phase started
     BATCH = "batch"              # a batch assessed against the target error (data: Assess fields)
-    NOT_MEASURED = "not_measured"  # a sample too dark to measure, journaled without a value (data: NotMeasuredRecord)
+    NOT_MEASURED = "not_measured"  # a sample too dark or bright to measure, journaled without a value (data: NotMeasuredRecord)
     FAULT = "fault"              # a device failed (the run ends FAULT)
     ERROR = "error"              # a measurement, camera or output error (the run ends REFUSED or FAULT)
     INTERRUPTED = "interrupted"  # SIGINT/SIGTERM or a stop request (the run ends STOPPED_BY_OPERATOR)

@@ -10,10 +10,11 @@ only the last run's. With a target error the report holds every batch's predicte
 decision and why the capture stopped (replayed from the journaled samples: the same decisions
 the session made).
 
-Samples the rig could not measure (too dark even at the ladder's longest exposure: the journal's
-``NotMeasuredRecord``) have no value: the reconstruction, its predicted error and the target-error
-assessments use the measured samples only, and report.json (``not_measured``), summary.txt and
-brdf.json say how many and which were left out and why, with the upper limit of their BRDF. With
+Samples the rig could not measure (too dark even at the ladder's longest exposure, or saturated
+even at its shortest: the journal's ``NotMeasuredRecord``) have no value: the reconstruction, its
+predicted error and the target-error assessments use the measured samples only, and report.json
+(``not_measured``), summary.txt and brdf.json say how many and which were left out and why, with
+the limits of their BRDF. With
 fewer than MIN_MEASURED_SAMPLES measured samples there is nothing to reconstruct:
 ``TooFewSamplesError``.
 """
@@ -28,7 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.measurement import remedy
 from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.capture.journal import by_reason
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.brdf.merl_file import valid_to_full
 
@@ -39,26 +42,18 @@ MIN_MEASURED_SAMPLES = 1
 
 class TooFewSamplesError(GoniofrostError):
     """Too few samples of a session were measured to reconstruct its BRDF (the others were not
-    measured: too dark). ``measured``: the usable measured samples; ``needed``: the minimum;
+    measured: too dark or saturated). ``measured``: the usable measured samples; ``needed``: the minimum;
     ``not_measured``: the journal's NotMeasuredRecords; ``plan_samples``: the plan's count."""
 
     def __init__(self, journal_path, measured: int, needed: int, not_measured: list, plan_samples: int) -> None:
         self.measured, self.needed, self.not_measured, self.plan_samples = measured, needed, not_measured, plan_samples
-        why = "; ".join(f"{reason}: samples {' '.join(map(str, indices))}"
-                        for reason, indices in by_reason(not_measured).items())
+        grouped = by_reason(not_measured)
+        why = "; ".join(f"{reason}: samples {' '.join(map(str, indices))}" for reason, indices in grouped.items())
+        fixes = "; ".join(f"{reason}: {remedy(reason)}" for reason in grouped)
         super().__init__(
             f"{journal_path}: {measured} of {plan_samples} samples measured, {len(not_measured)} not measured ({why}): "
-            f"a reconstruction needs at least {needed} measured sample(s); the samples were too dark for the rig's "
-            f"longest exposure: add longer exposures to camera.exposures_s in the rig file (or brighten the lamp) "
-            f"and capture again in a new --session")
-
-
-def by_reason(not_measured) -> dict:
-    """{reason (its value): [plan indices]} of NotMeasuredRecords, reasons in order of first sight."""
-    grouped: dict = {}
-    for d in not_measured:
-        grouped.setdefault(str(d.reason), []).append(d.plan_index)
-    return grouped
+            f"a reconstruction needs at least {needed} measured sample(s); to measure them ({fixes}) capture "
+            f"again in a new --session")
 
 
 def check_enough_measured(inputs, records, not_measured, journal_path) -> None:
@@ -112,13 +107,15 @@ def build_report(inputs, records, stats, session_dir: Path, material: str | None
 
 def not_measured_section(not_measured) -> dict:
     """report.json's ``not_measured``: how many plan samples were not measured, which, why, and the
-    upper limit of their BRDF (1/sr per channel); none of them is in the reconstruction."""
+    limits of their BRDF (1/sr per channel; an upper limit of None: none); none of them is in the
+    reconstruction."""
     reasons = {reason: len(indices) for reason, indices in by_reason(not_measured).items()}
     return {"count": len(not_measured), "indices": [d.plan_index for d in not_measured], "reasons": reasons,
             "samples": [{"index": d.plan_index, "cell": d.cell, "theta_h_deg": d.theta_h_deg,
                          "theta_d_deg": d.theta_d_deg, "phi_d_deg": d.phi_d_deg, "reason": str(d.reason),
                          "snr": list(d.snr), "min_snr": d.min_snr, "longest_exposure_s": d.longest_exposure_s,
-                         "upper_limit": list(d.upper_limit), "move_s": d.move_s, "capture_s": d.capture_s}
+                         "upper_limit": d.to_dict()["upper_limit"], "lower_limit": list(d.lower_limit),
+                         "why": d.why(), "move_s": d.move_s, "capture_s": d.capture_s}
                         for d in not_measured]}
 
 
@@ -428,11 +425,9 @@ def summary_text(report: dict) -> str:
     if dark["count"]:
         lines.append(f"{dark['count']} sample(s) NOT MEASURED, left out of the reconstruction and its predicted error, "
                      f"which use the {report['samples']} measured samples only:")
-        lines += [f"  sample {d['index']}: {d['reason']}: SNR {max(d['snr']):.1f} below the minimum {d['min_snr']:g} with "
-                  f"exposures up to {d['longest_exposure_s']:g} s; BRDF below "
-                  f"{'/'.join(format(v, '.3g') for v in d['upper_limit'])} 1/sr (R/G/B)" for d in dark["samples"]]
-        lines.append("  to measure them: add longer exposures to camera.exposures_s in the rig file (or brighten the "
-                     "lamp) and capture them in a new session")
+        lines += [f"  sample {d['index']}: {d['reason']}: {d['why']}" for d in dark["samples"]]
+        lines += [f"  to measure the {reason} ones: {remedy(reason)} and capture them in a new session"
+                  for reason in dark["reasons"]]
     limited = report.get("detection_limit", [])
     if limited:
         lines.append(f"{len(limited)} sample(s) have a channel at its detection limit (flag detection-limit: "

@@ -1,7 +1,7 @@
 """A sample's measurement as steps: one Expose per exposure the adaptive bracket asks for.
 
 ``sample_steps`` yields the bracket's frames at the pose just reached and returns the calibrated
-``calib.SampleMeasurement`` (or a ``calib.NotMeasured`` record: too dark for the ladder); ``bracket_steps`` is the loop it shares with the white reference:
+``calib.SampleMeasurement`` (or a ``calib.NotMeasured`` record: too dark or too bright for the ladder); ``bracket_steps`` is the loop it shares with the white reference:
 expose, hand the frame to the bracket rule (``calib.Bracket.add``), expose what it asks next.
 """
 from __future__ import annotations
@@ -19,7 +19,8 @@ RAW_DIR = "raw"
 def sample_steps(settings: dict, record, pose, index: int, expected=None, folder: str = RAW_DIR,
                  arm_side: float = 1.0):
     """Yield the frames of plan sample ``index``; return its SampleMeasurement, or a NotMeasured
-    record when no channel reaches ``min_snr`` even with the ladder's longest exposure.
+    record when no channel reaches ``min_snr`` even with the ladder's longest exposure or patch
+    pixels saturate even at its shortest.
 
     ``settings``: the validated camera section; ``record``: the CalibrationRecord; ``pose``:
     (w_i, w_o), each (3,), actually reached; ``expected``: (3,) BRDF in 1/sr the sample probably
@@ -31,7 +32,7 @@ def sample_steps(settings: dict, record, pose, index: int, expected=None, folder
     check_record(record, ladder)
     w_i = light_direction(pose[0], index)
     bracket = Bracket(ladder, settings, record, SAMPLE_MARKER_IDS, f"sample {index}",
-                      view=expected_view(settings, pose, SAMPLE_MARKER_IDS, arm_side))
+                      view=expected_view(settings, pose, SAMPLE_MARKER_IDS, arm_side), record_saturation=True)
     first = start_index(ladder, settings, record, expected, w_i)
     seconds, wall_s = yield from bracket_steps(bracket, first, folder, f"sample_{index:04d}", index)
     return sample_measurement(index, bracket, w_i, capture_seconds=wall_s, clock_seconds=seconds)

@@ -3,7 +3,7 @@
 ``session_steps`` yields: home, lamp on; unless a calibration is kept, the move to the white
 reference pose and the calibration (``calibration_steps``: dark frames, flat field, white
 reference, each frame a step); then per remaining sample: move, its bracket of exposures
-(``sample_steps``), commit (a measured sample's record, or the record of a sample too dark to
+(``sample_steps``), commit (a measured sample's record, or the record of a sample too dark or bright to
 measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off. Each Move's result
 (the joints reached) gives the pose the next steps use, and the Commit carries the whole sample record, so nothing passes
 through the engine between steps. Samples already in the journal, measured or not, are
@@ -128,7 +128,7 @@ def _capture(spec: SessionSpec, calibration, todo, measured: dict, records: dict
              skipped: set | None = None):
     """Move, measure and commit each plan sample of ``todo``; their BRDFs go into ``measured``
     ({plan index: (3,)}; the one before a sample picks its bracket's first exposure) and their
-    records into ``records``. A sample too dark to measure is committed as not measured (its index
+    records into ``records``. A sample too dark or too bright to measure is committed as not measured (its index
     into ``skipped``) and the capture goes on: the next bracket starts as the first does."""
     for index in todo:
         reached = yield Move(index, joint_targets(spec.samples[index]["joints"], spec.axes))
@@ -205,14 +205,14 @@ def sample_record(spec: SessionSpec, index: int, reached: Reached, m) -> SampleR
 
 
 def not_measured_record(spec: SessionSpec, index: int, reached: Reached, m: NotMeasured) -> NotMeasuredRecord:
-    """The journal record of plan sample ``index`` found too dark to measure (``m``, a
+    """The journal record of plan sample ``index`` found too dark or too bright to measure (``m``, a
     calib.NotMeasured) at ``reached``; ``committed_utc`` is left for the engine to stamp."""
     sample = spec.samples[index]
     return NotMeasuredRecord(
         plan_index=index, cell=int(spec.cells[index]), theta_h_deg=float(sample["theta_h_deg"]),
         theta_d_deg=float(sample["theta_d_deg"]), phi_d_deg=float(sample["phi_d_deg"]), reason=m.reason,
         snr=_triple(m.snr), min_snr=float(m.min_snr), longest_exposure_s=float(m.longest_exposure_s),
-        upper_limit=_triple(m.upper_limit), joints=dict(reached.joints), exposures_s=tuple(map(float, m.exposures_s)),
+        upper_limit=_triple(m.upper_limit), lower_limit=_triple(m.lower_limit), joints=dict(reached.joints), exposures_s=tuple(map(float, m.exposures_s)),
         frames_taken=int(m.frames_taken), frames_skipped=int(m.frames_skipped),
         raw_paths=tuple(str(p) for p in m.raw_paths), lamp_relative=float(m.lamp_relative),
         move_s=float(reached.seconds), capture_s=float(m.clock_seconds), started_utc=float(reached.started_utc))

@@ -67,9 +67,9 @@ class DoneSample:
 
 @dataclass(frozen=True)
 class NotMeasuredSample:
-    """One plan sample journaled as not measured (too dark): its ``reason`` (the value of a
-    ``calib.NotMeasuredReason``), the SNR reached per channel and the rig's minimum, the longest
-    exposure (s), the upper limit of its BRDF per channel (1/sr), rig seconds moving and
+    """One plan sample journaled as not measured (too dark or saturated): its ``reason`` (the value
+    of a ``calib.NotMeasuredReason``), the SNR reached per channel and the rig's minimum, the longest
+    exposure (s), the upper and lower limits of its BRDF per channel (1/sr), rig seconds moving and
     capturing, Unix times of the start of its move and of its commit, its RAW frames."""
 
     plan_index: int
@@ -78,6 +78,7 @@ class NotMeasuredSample:
     min_snr: float
     longest_exposure_s: float
     upper_limit: tuple
+    lower_limit: tuple
     exposures_s: tuple
     move_s: float
     capture_s: float
@@ -267,7 +268,7 @@ def _done_sample(r) -> DoneSample:
 
 def _not_measured_sample(r) -> NotMeasuredSample:
     return NotMeasuredSample(r.plan_index, str(r.reason), tuple(r.snr), float(r.min_snr), float(r.longest_exposure_s),
-                             tuple(r.upper_limit), tuple(r.exposures_s), float(r.move_s), float(r.capture_s),
+                             tuple(r.upper_limit), tuple(r.lower_limit), tuple(r.exposures_s), float(r.move_s), float(r.capture_s),
                              float(r.started_utc), float(r.committed_utc), tuple(r.raw_paths))
 
 

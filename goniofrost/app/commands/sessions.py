@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 HELP = ("list the sessions under ROOT: name, started, operator, sample, state, samples (measured/planned, and how "
-        "many were not measured: too dark), predicted error, "
+        "many were not measured: too dark or saturated), predicted error, "
         "duration (read-only)")
 
 
