@@ -23,6 +23,8 @@ import yaml
 from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus, SessionLabel
+from goniofrost.monitor.session_view import read_session
+from goniofrost.monitor.status import page_state
 from test_session import batched_plan, journal_rows, small_plan, write_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -177,6 +179,41 @@ def test_a_fault_in_a_queue_says_to_run_the_queue_again_which_has_no_resume_opti
     err = capsys.readouterr().err
     assert "device fault at plan sample" in err and err.endswith("Fix the cause, then run the same queue command\n")
     assert "--resume" not in err  # `goniofrost queue --resume` is refused by the parser
+
+
+def test_a_sample_the_rig_measures_none_of_does_not_stop_the_queue_and_lists_as_nothing_measured(setup, tmp_path,
+                                                                                                   capsys):
+    """Black velvet is too dark for a ladder of short exposures at every pose: its session has
+    nothing to reconstruct (running it again would not change that), so the queue says so, goes on
+    to the next sample and exits 2; the same command again takes it without moving the rig."""
+    folder, rig, plan, _ = setup
+    doc = yaml.safe_load(rig.read_text())
+    doc["camera"].update(exposures_s=[0.0005, 0.001, 0.002, 0.004], min_snr=60.0)
+    short = tmp_path / "short-ladder.yaml"
+    short.write_text(yaml.safe_dump(doc, sort_keys=False))
+    queue = write_queue(tmp_path / "queue.yaml", short, plan)
+    queue_doc = yaml.safe_load(queue.read_text())
+    queue_doc["samples"][0]["material"] = "builtin:black-velvet"
+    queue.write_text(yaml.safe_dump(queue_doc, sort_keys=False))
+    root = tmp_path / "sessions"
+    for run in range(2):
+        capsys.readouterr()
+        assert main(["queue", str(queue), "--yes", "--no-progress", "--speedup", "50"]) == 2
+        out, err = capsys.readouterr()
+        assert (f"queue 1/2: S-001: NOTHING MEASURED: {root / 'S-001' / 'session.sqlite'}: 0 of {M} samples measured, "
+                f"{M} not measured (below-detection-limit: samples 0 1 2 3)") in out
+        assert err.endswith("goniofrost queue: nothing measured for S-001: the rig's exposures cannot measure these "
+                            "samples (see their lines above); the others are done\n")
+        assert ("2 samples, 1 measured this run, 0 from before" if run == 0 else
+                "2 samples, 0 measured this run, 1 from before") + ", 1 with nothing measured (S-001: see above)" in out
+        with Journal.open(root / "S-001" / "session.sqlite") as journal:
+            assert len(journal.runs()) == 1 and journal.samples() == []   # the second queue run moved nothing
+    entries = {e["sample_id"]: e for e in sessions_json(root, capsys)}
+    assert (entries["S-001"]["state"], entries["S-001"]["samples"], entries["S-001"]["not_measured"]) == (
+        "nothing measured", 0, M)
+    assert (entries["S-002"]["state"], entries["S-002"]["samples"]) == ("finished", M - 1)   # its sample 0 too dark
+    page = page_state(read_session(root / "S-001"), time.time())
+    assert page["state"] == "nothing measured" and "there is no BRDF to reconstruct" in page["hint"]
 
 
 # ----- the label of a capture, the catalogue ------------------------------------------------------

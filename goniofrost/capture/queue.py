@@ -23,12 +23,15 @@ from goniofrost.capture.runner import JOURNAL_FILE
 REPORT_FILE = "report.json"
 
 
+NOTHING_MEASURED = "nothing measured"   # a QueueItem's action: the rig measured none of the sample's plan
 RERUN_QUEUE = "the same queue command"  # it resumes the session under way: a queue has no --resume
 
 
 @dataclass(frozen=True)
 class QueueItem:
-    """What the queue did with one sample: ``action`` "measured" or "skipped" (measured before)."""
+    """What the queue did with one sample: ``action`` "measured", "skipped" (measured before) or
+    "nothing measured" (every plan sample too dark or saturated for the rig: no result; ``summary``
+    says which and what to change; the queue goes on with the next sample)."""
 
     sample_id: str
     session_dir: Path
@@ -82,10 +85,14 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
 
     ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
     ``--yes``). A fault or an interruption propagates (the capture's own exception and message);
-    the sessions already completed stay, and the same call resumes.
+    the sessions already completed stay, and the same call resumes. A sample the rig could measure
+    none of (``TooFewSamplesError``: a property of the sample and the rig's exposures, which running
+    again will not change) does not stop the queue: its item says so and the next sample follows;
+    the same call takes it again without moving the rig (its journal has every sample done).
     """
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
+    from goniofrost.capture.report import TooFewSamplesError
     from goniofrost.capture.runner import capture
 
     inputs = load_inputs(queue.rig, queue.plan, queue.alignment)
@@ -105,11 +112,16 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         reuse = calibration_of(previous) if previous is not None else None
         out(f"queue {position}: measuring {sample.sample_id} into {session}"
             + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
-        outcome = capture(queue.rig, queue.plan, session, material=sample.material,
-                          resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
-                          label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
-                          progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
-        out(outcome.summary.rstrip("\n"))
-        items.append(QueueItem(sample.sample_id, session, "measured", outcome.summary))
-        previous = session
+        try:
+            outcome = capture(queue.rig, queue.plan, session, material=sample.material,
+                              resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
+                              label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
+                              progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
+        except TooFewSamplesError as exc:
+            out(f"queue {position}: {sample.sample_id}: NOTHING MEASURED: {exc}; the queue goes on")
+            items.append(QueueItem(sample.sample_id, session, NOTHING_MEASURED, str(exc)))
+        else:
+            out(outcome.summary.rstrip("\n"))
+            items.append(QueueItem(sample.sample_id, session, "measured", outcome.summary))
+        previous = session   # its calibration serves the next sample either way
     return items

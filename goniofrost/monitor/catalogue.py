@@ -20,7 +20,8 @@ from goniofrost.monitor.session_view import journal_path, read_session
 STATE_OF_STATUS = {RunStatus.FINISHED: "finished", RunStatus.TARGET_REACHED: "target reached",
                    RunStatus.PLAN_USED_UP: "plan used up", RunStatus.STOPPED_BY_OPERATOR: "interrupted",
                    RunStatus.FAULT: "faulted", RunStatus.REFUSED: "faulted"}
-STATES = ("finished", "target reached", "plan used up", "interrupted", "faulted", "running", "not started")
+STATES = ("finished", "target reached", "plan used up", "nothing measured", "interrupted", "faulted", "running",
+          "not started")
 
 
 @dataclass(frozen=True)
@@ -28,7 +29,7 @@ class SessionEntry:
     """One session of the catalogue. Times are Unix seconds (``started_utc``: the first run's
     start; ``duration_s``: the runs' time added up, a run under way until now, a killed one
     until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
-    ``not_measured`` those journaled as not measured (too dark; done, without a value);
+    ``not_measured`` those journaled as not measured (too dark or saturated; done, without a value);
     ``predicted_error`` the log-relative MSE of the reconstruction (or the last batch), None
     before one."""
 
@@ -56,12 +57,21 @@ class SessionEntry:
 
 
 def session_state(view) -> str:
-    """The state of a session (a SessionView) from its last run's RunEnd and the session lock."""
+    """The state of a session (a SessionView) from its last run's RunEnd and the session lock;
+    "nothing measured" when its runs completed with every plan sample journaled as not measured
+    (too dark or saturated: there is no result, and running it again will not make one)."""
     if view.run_end is not None:
+        if view.run_end.status.completed and nothing_measured(view):
+            return "nothing measured"
         return STATE_OF_STATUS[view.run_end.status]
     if view.capture_alive:
         return "running"
     return "interrupted" if view.run_spans else "not started"
+
+
+def nothing_measured(view) -> bool:
+    """Whether a session journaled some plan samples as not measured and measured none."""
+    return bool(view.not_measured) and not view.done
 
 
 def read_entry(session_dir: Path) -> SessionEntry:
@@ -132,7 +142,7 @@ def table_rows(entries) -> list[tuple[str, ...]]:
 
 
 def samples_text(entry: SessionEntry) -> str:
-    """'38/40', or '38/40 (2 not measured)' when some plan samples were too dark to measure."""
+    """'38/40', or '38/40 (2 not measured)' when some plan samples could not be measured."""
     text = f"{entry.samples}/{entry.samples_planned}"
     return text + (f" ({entry.not_measured} not measured)" if entry.not_measured else "")
 

@@ -11,6 +11,8 @@ The state of the session, from the journal's events of its last run:
   which would know better): the capture may have been killed;
 * ``reconstructing``: the run completed (its RunEnd says finished, target_reached or plan_used_up,
   or every sample is journaled), report.json not written yet;
+* ``nothing measured``: the run completed with every plan sample journaled as not measured (too
+  dark or saturated for the rig's exposures): no reconstruction, no report;
 * ``finished``: the run completed and the report is written; ``run_end`` says why it stopped
   (a target-error capture stops early: "target reached");
 * ``faulted`` / ``interrupted``: the last run's RunEnd says fault or refused / stopped_by_operator
@@ -85,7 +87,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
 
 
 def count_text(measured: int, not_measured: int, total: int) -> str:
-    """'5 of 40 samples' ('5 of 40 samples (1 not measured)' when some of them were too dark)."""
+    """'5 of 40 samples' ('5 of 40 samples (1 not measured)' when some of them could not be measured)."""
     if not total:
         return "no plan yet"
     return f"{measured + not_measured} of {total} samples" + (f" ({not_measured} not measured)" if not_measured else "")
@@ -93,12 +95,13 @@ def count_text(measured: int, not_measured: int, total: int) -> str:
 
 def _not_measured(d) -> dict:
     return {"plan_index": d.plan_index, "reason": d.reason, "snr": [_finite(v) for v in d.snr], "min_snr": d.min_snr,
-            "longest_exposure_s": d.longest_exposure_s, "upper_limit": [_finite(v) for v in d.upper_limit]}
+            "longest_exposure_s": d.longest_exposure_s, "upper_limit": [_finite(v) for v in d.upper_limit],
+            "lower_limit": [_finite(v) for v in d.lower_limit]}
 
 
 def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, str]:
-    """(state, a one-line hint); ``done``: the plan samples journaled, measured or not."""
-    """(state, a one-line hint) as the module doc defines them."""
+    """(state, a one-line hint) as the module doc defines them; ``done``: the plan samples
+    journaled, measured or not."""
     if ended_message:
         return "failed", ended_message
     if not view.journal_found:
@@ -108,6 +111,10 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
         return what, f"{what} with {len(done)} of {total} samples safe in the journal: what happened and what to do below"
     end = view.run_end
     complete = (end is not None and end.status.completed) or (bool(total) and len(done) >= total)
+    if complete and view.not_measured and not view.done:
+        reasons = sorted({str(d.reason) for d in view.not_measured})
+        return "nothing measured", (f"every sample journaled is not measured ({', '.join(reasons)}): there is no BRDF to "
+                                    f"reconstruct; the summary of `goniofrost capture` says what to change in the rig file")
     if complete and view.report is not None:
         why = end.reason if end is not None else f"all {total} samples captured"
         return "finished", f"finished: {why}; results written to {view.session_dir}"

@@ -20,7 +20,7 @@ def run(args) -> int:
     import sys
 
     from goniofrost.capture.engine import SessionInterrupted
-    from goniofrost.capture.queue import ask_to_mount, run_queue
+    from goniofrost.capture.queue import NOTHING_MEASURED, ask_to_mount, run_queue
     from goniofrost.capture.queue_file import read_queue
 
     queue = read_queue(args.queue)
@@ -35,6 +35,13 @@ def run(args) -> int:
               f"same command to continue the queue", file=sys.stderr)
         return 130
     measured = sum(item.action == "measured" for item in items)
-    print(f"queue {queue.path.name}: {len(items)} samples, {measured} measured this run, "
-          f"{len(items) - measured} from before; sessions in {queue.root} (goniofrost sessions {queue.root})")
+    empty = [item.sample_id for item in items if item.action == NOTHING_MEASURED]
+    before = len(items) - measured - len(empty)
+    print(f"queue {queue.path.name}: {len(items)} samples, {measured} measured this run, {before} from before"
+          + (f", {len(empty)} with nothing measured ({' '.join(empty)}: see above)" if empty else "")
+          + f"; sessions in {queue.root} (goniofrost sessions {queue.root})")
+    if empty:
+        print(f"goniofrost queue: nothing measured for {' '.join(empty)}: the rig's exposures cannot measure "
+              f"these samples (see their lines above); the others are done", file=sys.stderr)
+        return 2
     return 0

@@ -340,7 +340,7 @@ function connect() {
     $("connection").classList.remove("lost");
   });
   source.onerror = () => {
-    const ended = page.state && ["finished", "faulted", "interrupted", "failed", "stopped"].includes(page.state.state);
+    const ended = page.state && ["finished", "nothing measured", "faulted", "interrupted", "failed", "stopped"].includes(page.state.state);
     $("connection").textContent = ended
       ? "the monitor stopped serving (the capture process ended); review with: goniofrost monitor " + page.state.session
       : "connection lost; retrying…";
