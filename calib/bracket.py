@@ -132,7 +132,7 @@ class Bracket:
         try:
             self.mask_, self.roi_source_, self.marker_offset_px_ = locate_patch(
                 self.frames[i].linear, self.ids, s["roi_margin"], self.what, self.view,
-                s["marker_tolerance_px"], self.channels_, s["min_roi_pixels"])
+                s["marker_tolerance_px"], self.channels_, s["min_roi_pixels"], whole_frame=markers_exposed(self.frames[i]))
         except (WrongTargetError, MisalignedError, PatchTooSmallError):
             raise            # another exposure will not change the card, the rig or the view
         except MarkerError as exc:

@@ -93,7 +93,8 @@ def expected_view(settings: dict, pose, expected_ids, arm_side: float = 1.0,
 
 def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, view: PredictedView | None = None,
                  tolerance_px: float = 20.0, channels: np.ndarray | None = None,
-                 min_pixels: int = MIN_ROI_PIXELS_PER_CHANNEL, layout: HolderLayout = DEFAULT_LAYOUT):
+                 min_pixels: int = MIN_ROI_PIXELS_PER_CHANNEL, layout: HolderLayout = DEFAULT_LAYOUT,
+                 whole_frame: bool = True):
     """The region of interest of a frame: ``(mask (H, W) bool, source, offset_px)``.
 
     ``source`` is ``"markers"`` (homography of the markers read) or ``"prediction"``;
@@ -102,7 +103,10 @@ def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, vie
     every colour channel must keep ``min_pixels`` pixels. Raises WrongTargetError when another
     card's markers are read, MisalignedError when the markers lie more than ``tolerance_px``
     from the prediction, MarkerError when the region is too small (or, without a prediction,
-    when fewer than MIN_MARKERS expected markers are read).
+    when fewer than MIN_MARKERS expected markers are read). ``whole_frame`` False: when the box
+    around the predicted markers holds too few, do not search the rest of the frame (a frame too dark
+    or too bright to read markers, where failing in the box says nothing of where they are: the
+    bracket tries another exposure, whose search does; the whole frame costs about 6 x the box).
     """
     if view is None:
         mask = find_patch(linear, expected_ids, margin, what, layout)
@@ -110,7 +114,8 @@ def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, vie
     wanted = [i for i in expected_ids if i in view.readable]
     scales = (1, UPSAMPLE) if view.thinnest_readable_px() < UPSAMPLE_BELOW_PX else (1,)
     box = search_box(view, wanted, tolerance_px + SEARCH_MARGIN_PX)
-    found, others = ({}, set()) if not wanted else read_markers(linear, expected_ids, scales, len(wanted), box)
+    found, others = ({}, set()) if not wanted else read_markers(linear, expected_ids, scales, len(wanted), box,
+                                                                whole_frame)
     if len(found) < MIN_MARKERS and len(others) >= MIN_MARKERS:
         raise _missing(found, others, expected_ids, what)
     offset = marker_offset_px(found, view)
@@ -277,7 +282,8 @@ def _candidates(views: GrayViews, scales=(1, UPSAMPLE), box=None):
             yield scale, (g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC))
 
 
-def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None, box=None):
+def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at: int | None = None, box=None,
+                 whole_frame: bool = True):
     """Marker corners read in a frame: ``(found, others)``, found = id -> (4, 2) pixel corners of
     the expected ids (OpenCV convention: pixel centres at integers), others = ids of the other
     holder card seen (any other id is a misread of a thin, foreshortened marker and is ignored). Stops once ``stop_at`` (default: all expected) markers are read.
@@ -285,13 +291,14 @@ def read_markers(linear: np.ndarray, expected_ids, scales=(1, UPSAMPLE), stop_at
     ``box`` (x0, y0, x1, y1) frame pixels (``search_box``: where the prediction puts the markers)
     is searched first: a thin marker needs the 2x views, and a crop of them costs a fraction of
     the frame's. When it holds fewer than MIN_MARKERS markers the whole frame is searched as
-    without a box, so markers far from the prediction (a misaligned rig) are still read.
+    without a box, so markers far from the prediction (a misaligned rig) are still read (unless
+    ``whole_frame`` is False: then what the box holds).
     """
     stop_at = len(expected_ids) if stop_at is None else stop_at
     views = gray_views(linear)
     if box is not None:
         found, others = _read_markers(views, expected_ids, scales, stop_at, box)
-        if len(found) >= MIN_MARKERS:
+        if len(found) >= MIN_MARKERS or not whole_frame:
             return found, others
     return _read_markers(views, expected_ids, scales, stop_at, None)
 
