@@ -158,6 +158,8 @@ def test_markers_outside_the_search_box_are_still_read(rig, model, tmp_path):
     away = (0, 0, 16, 16) if x0 >= 16 or y0 >= 16 else (x1 - 16, y1 - 16, x1, y1)   # a box holding no marker
     found, _ = read_markers(raw.linear, SAMPLE_MARKER_IDS, (1,), box=away)
     assert sorted(found) == sorted(read_markers(raw.linear, SAMPLE_MARKER_IDS, (1,))[0]) and len(found) >= 2
+    # a frame the bracket found too dark or too bright for markers: only the box (none in it)
+    assert read_markers(raw.linear, SAMPLE_MARKER_IDS, (1,), box=away, whole_frame=False) == ({}, set())
 
 
 def test_markers_far_from_the_prediction_mean_a_misaligned_rig(rig, model, tmp_path):
