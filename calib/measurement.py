@@ -78,7 +78,7 @@ class NotMeasuredReason(str, enum.Enum):
 # The limits of a channel not measured: its patch mean (>= 0) plus (too dark) or minus (saturated,
 # from the clipped pixels) this many standard errors, a one-sided bound at about 99.9 % for
 # Gaussian noise ("darker than X" and "brighter than Y" are information).
-UPPER_LIMIT_SIGMAS = 3.0
+LIMIT_SIGMAS = 3.0
 
 
 @dataclass
@@ -88,8 +88,8 @@ class NotMeasured:
     ``reason`` a NotMeasuredReason; ``snr`` (3,) the patch mean's SNR reached per channel (0 where
     none could be computed); ``min_snr`` the rig's minimum; ``longest_exposure_s`` the longest
     exposure taken (the ladder's longest when too dark); ``lower_limit``, ``upper_limit`` (3,) BRDF
-    in 1/sr the channel lies between: too dark, 0 and the patch mean + UPPER_LIMIT_SIGMAS standard
-    errors; saturated, the clipped patch mean - UPPER_LIMIT_SIGMAS standard errors (>= 0) and
+    in 1/sr the channel lies between: too dark, 0 and the patch mean + LIMIT_SIGMAS standard
+    errors; saturated, the clipped patch mean - LIMIT_SIGMAS standard errors (>= 0) and
     infinity; the frames as in SampleMeasurement.
     """
 
@@ -237,7 +237,7 @@ def _too_dark(sample_id: int, snr: np.ndarray, mean: np.ndarray, se: np.ndarray,
     _mixed(float(np.min(snr)), bracket)
     longest = bracket.ladder[max(bracket.frames)]
     if bracket.ladder_exhausted:
-        upper = (np.maximum(np.nan_to_num(mean, nan=0.0), 0.0) + UPPER_LIMIT_SIGMAS * se) * to_brdf
+        upper = (np.maximum(np.nan_to_num(mean, nan=0.0), 0.0) + LIMIT_SIGMAS * se) * to_brdf
         return {"sample_id": sample_id, "reason": NotMeasuredReason.BELOW_DETECTION_LIMIT, "snr": snr,
                 "min_snr": minimum, "longest_exposure_s": float(longest), "upper_limit": upper,
                 "lower_limit": np.zeros(3)}
@@ -251,7 +251,7 @@ def _saturated(sample_id: int, snr: np.ndarray, to_brdf: np.ndarray, bracket: Br
     if not bracket.saturated_pixels_:
         return None
     clipped, se = bracket.clipped_stats()
-    lower = np.maximum(np.nan_to_num(clipped - UPPER_LIMIT_SIGMAS * se, nan=0.0), 0.0) * to_brdf
+    lower = np.maximum(np.nan_to_num(clipped - LIMIT_SIGMAS * se, nan=0.0), 0.0) * to_brdf
     return {"sample_id": sample_id, "reason": NotMeasuredReason.SATURATED,
             "snr": np.nan_to_num(np.asarray(snr, dtype=float), nan=0.0), "min_snr": float(bracket.settings["min_snr"]),
             "longest_exposure_s": float(max(bracket.exposures_s)), "upper_limit": np.full(3, np.inf),
