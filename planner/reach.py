@@ -51,8 +51,7 @@ class ReachMap:
 def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True, progress: bool = False) -> ReachMap:
     """Reachability of every valid cell of ``grid`` on ``rig`` (computed once, then read from disk;
     ``progress``: a bar on stderr while computing)."""
-    key = content_key(_CACHE_VERSION, rig_key(rig), grid.as_dict())
-    path = cache_path("reach", key, ".npy")
+    path = _cache_file(rig, grid)
     reason = _read_cached(path, grid.n_valid) if use_cache else None
     if reason is None:
         reason = compute_reasons(rig, grid, progress=progress)
@@ -86,6 +85,15 @@ def rig_key(rig: Rig) -> list:
     alignment = None if rig.alignment is None else rig.alignment.hash
     view = None if rig.view is None else rig.view.as_dict()
     return [rig.kinematic_hash, alignment, view]
+
+
+def is_cached(rig: Rig, grid: MerlGrid) -> bool:
+    """Whether ``reachability(rig, grid)`` will read its map from disk instead of computing it."""
+    return _read_cached(_cache_file(rig, grid), grid.n_valid) is not None
+
+
+def _cache_file(rig: Rig, grid: MerlGrid):
+    return cache_path("reach", content_key(_CACHE_VERSION, rig_key(rig), grid.as_dict()), ".npy")
 
 
 def _read_cached(path, n_valid: int) -> np.ndarray | None:

@@ -11,7 +11,7 @@ import yaml
 
 from goniofrost.capture.rig_file import load_checked_rig
 from goniofrost.core.grid import MerlGrid
-from planner.reach import compute_reasons, reachability
+from planner.reach import compute_reasons, is_cached, reachability
 
 SIM = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
 GRID = MerlGrid(16, 16, 32)
@@ -50,7 +50,8 @@ def test_the_map_is_cached_per_rig_and_a_changed_rig_recomputes(tmp_path):
     np.testing.assert_array_equal(again.reason, first.reason)
     np.testing.assert_array_equal(same.reason, first.reason)
     lens = _rig(tmp_path, "d", longer_lens)
+    assert is_cached(_rig(tmp_path, "e"), GRID) and not is_cached(lens, GRID)
     changed = reachability(lens, GRID)                                  # another camera: a new entry
-    assert len(_entries() - before) == 2
+    assert len(_entries() - before) == 2 and is_cached(lens, GRID)
     np.testing.assert_array_equal(changed.reason, compute_reasons(lens, GRID))
     assert not np.array_equal(changed.reason, first.reason)

@@ -61,6 +61,9 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     out, grid = Path(out), grid or FULL_GRID
     rig_path = Path(rig_path) if rig_path else default_rig_path()
     check_replaceable(out / "session")  # before minutes of training, not after
+    from goniofrost.datasets import open_dataset
+
+    open_dataset("builtin").resolve(material)  # an unknown name fails here, with suggestions
     stages, clock = {}, time.perf_counter()
 
     def lap(name: str) -> None:
@@ -71,10 +74,19 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     # The rig's reachability map (cached on disk after the first run) comes first: the model's
     # sentinel check is calibrated at cells this rig can measure (as ``train --rig``), so the plan
     # measures its sentinels exactly there. A bad rig file fails here, before the training.
-    from goniofrost.capture.rig_file import load_checked_rig
-    from planner.reach import reachability
+    from concurrent.futures import ThreadPoolExecutor
 
-    reach = reachability(load_checked_rig(rig_path), grid)
+    from goniofrost.capture.rig_file import load_checked_rig
+    from planner.reach import is_cached, reachability
+
+    rig = load_checked_rig(rig_path)
+    with ThreadPoolExecutor(1, thread_name_prefix="demo-tabulate") as pool:
+        # A first run: the training materials are tabulated (what training reads first, and needs
+        # no reach map) on another core while the map is computed (numpy frees the GIL)
+        tabulating = None if is_cached(rig, grid) else pool.submit(tabulate_training_set, material, grid)
+        reach = reachability(rig, grid)
+        if tabulating is not None:
+            tabulating.result()
     lap("reach")
     model, model_path = train_without(material, grid, progress, reach.mask)
     lap("train")
@@ -96,6 +108,14 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
                                          "total_s": sum(stages.values())}}
     write_text_atomic(out / "report.json", json.dumps(report, indent=1))
     return DemoResult(out, report, stages)
+
+
+def tabulate_training_set(material: str, grid) -> None:
+    """Tabulate (into the tabulation cache) the built-in library without ``material``: the
+    materials ``train_without`` trains on."""
+    from goniofrost.datasets.tabulate import collect_materials, tabulated_material_files
+
+    tabulated_material_files(collect_materials(["builtin"], None, [material]), grid, progress=False)
 
 
 def train_without(material: str, grid, progress: bool, sentinel_candidates=None):
