@@ -108,6 +108,17 @@ def setting(args):
     return specs, test_specs, grid, training, test, ms, spp, uspp
 
 
+def collected(specs, names: list[str]) -> list:
+    """The materials of ``specs`` named ``names``, in the order of ``names``. collect_materials
+    returns the datasets' own order (MERL before RGL, the built-in library's), not the sorted
+    names the benchmark labels its rows with: without the reordering every row's name is another
+    material's (the medians and paired ratios are the same, the labels and pictures' names not)."""
+    from goniofrost.datasets.tabulate import collect_materials
+
+    by_name = {m.name: m for m in collect_materials(specs, only=names)}
+    return [by_name[n] for n in names]
+
+
 def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(relative MSE, PSNR in dB against the truth's peak) of two (H, W, 3) renders."""
     err = float(np.mean((image - truth) ** 2))
@@ -198,7 +209,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
     """The candidates' direct-render rows on every training material, each held out of a model
     trained on the others of ``training`` in ``folds`` inner folds (fold f: training[f::folds]);
     the test materials never enter. Each fold's rows are written to out/validation-fF.json."""
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.training import train
 
     rows = []
@@ -208,7 +219,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
         designs = scene_designs(inner, usage, max(ms))
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
-        fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collect_materials(specs, only=held), grid), held,
+        fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
                                    ms, direct, usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
         (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "rows": fold_rows}))
         rows += fold_rows
@@ -219,7 +230,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
 def main(argv=None) -> int:
     from goniofrost.brdf.mitsuba_tabulated import TabulatedScene
     from goniofrost.brdf.mitsuba_usage import record_usage
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
 
@@ -255,7 +266,7 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    truths = tabulate_materials(collect_materials(test_specs, only=test), grid)
+    truths = tabulate_materials(collected(test_specs, test), grid)
     with tempfile.TemporaryDirectory() as tmp:
         exported = (progress_only(t0, len(test)) if args.no_export else
                     export_renders(model, designs, "aware", scenes, ms, grid, spp, Path(tmp), t0, len(test)))

@@ -311,6 +311,16 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert (tmp_path / "retro-sphere.png").is_file()
 
 
+def test_the_scene_benchmarks_materials_come_in_the_order_of_their_names():
+    """Each row's name is its material's: the benchmark tabulates the materials in the order of the
+    names it labels the rows with, not the dataset's own order."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    names = ["red-plastic", "aluminium", "gold"]  # the built-in library has gold before aluminium
+    assert [m.name for m in module["collected"](["builtin"], names)] == names
+
+
 def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
     """--test-set builtin: every 3rd sorted built-in name from the first (25 of 74), the model trained
     on all 151 shared materials (datasets the built-in library is not part of); the default set
