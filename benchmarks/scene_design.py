@@ -14,6 +14,8 @@ builtin`` (issue 29, fixed before its first run): every 3rd of the sorted names 
 analytic library starting at the first (25 of its 74 materials; seven share a name with a shared
 MERL material, e.g. ``aluminium``, but are analytic GGX and Lambert lobes, not fits of those
 measurements); the model is trained on all 151 shared materials, none of them a test material.
+``--test-set builtin1``: the same from the second name (names[1::3], 25 materials; issue 29's second
+fresh set, fixed before its first run).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -30,6 +32,7 @@ defaults for m samples, as ``plan --usage`` picks them: the sensitivity power fo
         --spp 32 --no-export --validation-only --out DIR          # the choice
     ... --spp 32 --no-export --test-only --fewer --out DIR         # the test run, once
     ... --spp 32 --no-export --test-only --fewer --test-set builtin --out DIR   # issue 29's fresh test set
+    ... --spp 32 --no-export --test-only --fewer --test-set builtin1 --out DIR  # its second fresh set
 
 Prints the tables; writes validation.json and validation-fF.json (every validation row), results.json
 (every test row) and, per scene, a picture of the truth and both reconstructions at the middle m
@@ -50,6 +53,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 SHARED = REPO.parent / "shared" / "data"
 SCENES = ("retro-sphere", "grazing-plane", "top-light")
+# The built-in test sets: --test-set NAME takes every 3rd of the built-in library's sorted names
+# (74) from this offset. "builtin" (offset 0, 25 materials) was issue 29's first fresh set;
+# "builtin1" (offset 1, 25 materials) its second, fixed before its first run.
+BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1}
 
 
 def parse(argv=None):
@@ -68,9 +75,10 @@ def parse(argv=None):
                    help="also the scene-aware design at 0.6 m (the goal's fewer-samples branch)")
     p.add_argument("--no-export", action="store_true",
                    help="direct renders only (the export-based figure is the slow part: RGL tensors of every reconstruction)")
-    p.add_argument("--test-set", choices=("shared", "builtin"), default="shared",
+    p.add_argument("--test-set", choices=("shared",) + tuple(BUILTIN_OFFSETS), default="shared",
                    help="shared: 22 of the 151 shared materials, the model trained on the other 129; builtin: 25 of "
-                        "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones")
+                        "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
+                        "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials)")
     p.add_argument("--smallest", action="store_true",
                    help="the built-in library on a 30 x 30 x 60 grid, 1 test material, m = 4, 4 spp (a test runs it)")
     return p.parse_args(argv)
@@ -92,12 +100,23 @@ def setting(args):
         names = sorted(n for _, n in material_names(specs))
         test = names[3::7]
     test_specs, training = specs, [n for n in names if n not in test]
-    if args.test_set == "builtin" and not args.smallest:
+    if args.test_set in BUILTIN_OFFSETS and not args.smallest:
         test_specs, training = ["builtin"], names
-        test = sorted(n for _, n in material_names(test_specs))[0::3]
+        test = sorted(n for _, n in material_names(test_specs))[BUILTIN_OFFSETS[args.test_set]::3]
     if args.materials is not None:
         test = test[:args.materials]
     return specs, test_specs, grid, training, test, ms, spp, uspp
+
+
+def collected(specs, names: list[str]) -> list:
+    """The materials of ``specs`` named ``names``, in the order of ``names``. collect_materials
+    returns the datasets' own order (MERL before RGL, the built-in library's), not the sorted
+    names the benchmark labels its rows with: without the reordering every row's name is another
+    material's (the medians and paired ratios are the same, the labels and pictures' names not)."""
+    from goniofrost.datasets.tabulate import collect_materials
+
+    by_name = {m.name: m for m in collect_materials(specs, only=names)}
+    return [by_name[n] for n in names]
 
 
 def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -190,7 +209,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
     """The candidates' direct-render rows on every training material, each held out of a model
     trained on the others of ``training`` in ``folds`` inner folds (fold f: training[f::folds]);
     the test materials never enter. Each fold's rows are written to out/validation-fF.json."""
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.training import train
 
     rows = []
@@ -200,7 +219,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
         designs = scene_designs(inner, usage, max(ms))
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
-        fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collect_materials(specs, only=held), grid), held,
+        fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
                                    ms, direct, usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
         (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "rows": fold_rows}))
         rows += fold_rows
@@ -211,7 +230,7 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
 def main(argv=None) -> int:
     from goniofrost.brdf.mitsuba_tabulated import TabulatedScene
     from goniofrost.brdf.mitsuba_usage import record_usage
-    from goniofrost.datasets.tabulate import collect_materials, tabulate_materials
+    from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
 
@@ -247,7 +266,7 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    truths = tabulate_materials(collect_materials(test_specs, only=test), grid)
+    truths = tabulate_materials(collected(test_specs, test), grid)
     with tempfile.TemporaryDirectory() as tmp:
         exported = (progress_only(t0, len(test)) if args.no_export else
                     export_renders(model, designs, "aware", scenes, ms, grid, spp, Path(tmp), t0, len(test)))

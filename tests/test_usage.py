@@ -311,6 +311,16 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert (tmp_path / "retro-sphere.png").is_file()
 
 
+def test_the_scene_benchmarks_materials_come_in_the_order_of_their_names():
+    """Each row's name is its material's: the benchmark tabulates the materials in the order of the
+    names it labels the rows with, not the dataset's own order."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    names = ["red-plastic", "aluminium", "gold"]  # the built-in library has gold before aluminium
+    assert [m.name for m in module["collected"](["builtin"], names)] == names
+
+
 def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
     """--test-set builtin: every 3rd sorted built-in name from the first (25 of 74), the model trained
     on all 151 shared materials (datasets the built-in library is not part of); the default set
@@ -328,6 +338,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
     assert test_specs == ["builtin"] and "builtin" not in specs and all(s.startswith("nbrdf:") for s in specs)
     assert test == builtin[0::3] and len(test) == 25 and test[:2] == ["aluminium", "black-metallic-paint"]
     assert training == sorted(n for _, n in material_names(specs)) and len(training) == 151
+    # --test-set builtin1: the second fresh set, from the second name, disjoint from the first
+    specs1, test_specs1, _, training1, test1, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "builtin1"]))
+    assert test1 == builtin[1::3] and len(test1) == 25 and not set(test1) & set(test)
+    assert test_specs1 == ["builtin"] and specs1 == specs and training1 == training
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
