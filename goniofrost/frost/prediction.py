@@ -36,10 +36,14 @@ from __future__ import annotations
 
 import numpy as np
 
+# The material's coordinates on the model's first COORDINATES atoms (``material_coordinates``).
+COORDINATES = 6
 FEATURES = ("1", "log design error", "log z2", "log energy", "log m", "level", "level^2", "log spread",
-            "log z2^2", "log energy^2", "log z2 log energy")
+            "log z2^2", "log energy^2", "log z2 log energy") + tuple(f"coordinate {k + 1}" for k in range(COORDINATES))
 # The features of calibrations fitted before level and spread existed.
 BASIC_FEATURES = 5
+# The features of calibrations fitted before the coordinates existed.
+SAMPLE_FEATURES = 11
 UNCALIBRATED = {"coefficients": [0.0, 1.0, 1.0, 0.0, 0.0], "m_range": [1, 10**9],
                 "typical_log_z2": 0.0, "typical_log_energy": 0.0}
 
@@ -50,12 +54,14 @@ def calibration_of(model) -> dict:
     return stored if stored else UNCALIBRATED
 
 
-def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None, feature_range=None) -> np.ndarray:
+def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None, feature_range=None,
+                   coordinates=None) -> np.ndarray:
     """float64 (..., 11) features of FEATURES (arguments broadcast), or (..., 5) of the first
-    five when level and spread are None. feature_range: [lows, highs] of (log z2, log energy,
-    level, log spread) that the 11 features are computed within (clamped: the quadratic terms
-    must not extrapolate beyond the materials they were fitted on; samples that far are out of
-    the model anyway), None: no clamping."""
+    five when level and spread are None, or (..., 17) with ``coordinates`` (..., COORDINATES)
+    (``material_coordinates``). feature_range: [lows, highs] of (log z2, log energy, level, log
+    spread[, the coordinates]) that the features are computed within (clamped: the quadratic
+    terms must not extrapolate beyond the materials they were fitted on; samples that far are
+    out of the model anyway), None: no clamping."""
     lo, hi = m_range
     parts = list(np.broadcast_arrays(np.log(design_error), np.log(z2), np.log(energy),
                                      np.log(np.clip(m, lo, hi)).astype(np.float64)))
@@ -67,24 +73,37 @@ def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None
         parts[1], parts[2] = log_z2, log_energy
         parts += [level, level ** 2, log_spread, log_z2 ** 2, log_energy ** 2, log_z2 * log_energy]
         parts = list(np.broadcast_arrays(*parts))
-    return np.stack([np.ones_like(parts[0])] + list(parts), axis=-1)
+    x = np.stack([np.ones_like(parts[0])] + list(parts), axis=-1)
+    if level is None or coordinates is None:
+        return x
+    c = np.asarray(coordinates, dtype=np.float64)
+    if feature_range is not None and len(feature_range[0]) > 4:
+        c = np.clip(c, feature_range[0][4:], feature_range[1][4:])
+    return np.concatenate([x, np.broadcast_to(c, x.shape[:-1] + c.shape[-1:])], axis=-1)
 
 
-def feature_range_of(z2, energy, level, spread) -> list[list[float]]:
-    """[lows, highs] of (log z2, log energy, level, log spread) over records (``feature_matrix``)."""
+def feature_range_of(z2, energy, level, spread, coordinates=None) -> list[list[float]]:
+    """[lows, highs] of (log z2, log energy, level, log spread[, the coordinates (records,
+    COORDINATES)]) over records (``feature_matrix``)."""
     raw = np.stack([np.log(z2), np.log(energy), np.asarray(level, np.float64), np.log(spread)])
+    if coordinates is not None:
+        raw = np.concatenate([raw, np.asarray(coordinates, np.float64).T])
     return [raw.min(axis=1).tolist(), raw.max(axis=1).tolist()]
 
 
-def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None) -> np.ndarray:
+def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None, coordinates=None) -> np.ndarray:
     """Predicted log-relative MSE (float64, broadcast shape of the arguments). level and spread
-    (``sample_level``) are needed by a calibration of more than BASIC_FEATURES coefficients."""
+    (``sample_level``) are needed by a calibration of more than BASIC_FEATURES coefficients, the
+    coordinates (..., COORDINATES) (``material_coordinates``) by one of more than SAMPLE_FEATURES."""
     beta = np.asarray(calibration["coefficients"], dtype=np.float64)
     if beta.size > BASIC_FEATURES and level is None:
         raise ValueError("predict: this calibration needs the samples' level and spread")
+    if beta.size > SAMPLE_FEATURES and coordinates is None:
+        raise ValueError("predict: this calibration needs the material's coordinates")
     full = beta.size > BASIC_FEATURES
     x = feature_matrix(design_error, z2, energy, m, calibration["m_range"],
-                       level if full else None, spread if full else None, calibration.get("feature_range"))
+                       level if full else None, spread if full else None, calibration.get("feature_range"),
+                       coordinates if beta.size > SAMPLE_FEATURES else None)
     return np.exp(x @ beta)
 
 
@@ -93,7 +112,8 @@ def predict_typical(calibration: dict, design_error, m) -> np.ndarray:
     means, level at its mean); what a design can promise before any sample is measured."""
     return predict(calibration, design_error, np.exp(calibration["typical_log_z2"]),
                    np.exp(calibration["typical_log_energy"]), m, calibration.get("typical_level", 0.0),
-                   np.exp(calibration.get("typical_log_spread", 0.0)))
+                   np.exp(calibration.get("typical_log_spread", 0.0)),
+                   np.asarray(calibration.get("typical_coordinates", np.zeros(COORDINATES))))
 
 
 def material_features(post, columns, t: int) -> tuple[float, float, float]:
@@ -102,6 +122,15 @@ def material_features(post, columns, t: int) -> tuple[float, float, float]:
     z2 = float(np.mean(post.loo_residuals[:, cols] ** 2 / post.loo_variance[:, cols]))
     energy = float(np.mean(post.coefficients[:, cols] ** 2) * t)
     return float(np.mean(post.design_error[cols])), max(z2, 1e-12), max(energy, 1e-12)
+
+
+def material_coordinates(coefficients, columns, t: int) -> np.ndarray:
+    """float64 (COORDINATES,): the material's posterior coefficients (K, c) on the first
+    COORDINATES atoms times sqrt(t), averaged over its ``columns`` (channels); zeros for atoms a
+    model of fewer than COORDINATES lacks. A typical training material's are of order 1 (the
+    prior variance is 1 / t): which kind of material it is, well determined by a few samples."""
+    values = np.asarray(coefficients, dtype=np.float64)[:COORDINATES, np.asarray(columns)].mean(axis=1) * np.sqrt(t)
+    return np.pad(values, (0, COORDINATES - values.size))
 
 
 def prequential_score(one_step, columns) -> float:
