@@ -406,7 +406,7 @@ def test_trained_model_carries_the_noise_model(model):
     # the feature set is the one whose cross-fitted median estimates were within x2 more often
     # (the five basic ones on a tie): on these few synthetic materials, the five
     scores = cal["fit"]["cross_fitted_within_factor_2"]
-    assert set(scores) == {str(prediction.BASIC_FEATURES), str(len(prediction.FEATURES))}
+    assert set(scores) == {str(prediction.BASIC_FEATURES), str(prediction.SAMPLE_FEATURES), str(len(prediction.FEATURES))}
     chosen = max(sorted(scores, key=int), key=lambda n: scores[n])
     assert len(cal["coefficients"]) == int(chosen) == prediction.BASIC_FEATURES
     assert model.noise["kind"] == "cells" and model.noise["folds"] == 10
