@@ -250,7 +250,7 @@ def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
     level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
     beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1])
     x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread)
-    assert x.shape == (n, len(prediction.FEATURES))
+    assert x.shape == (n, prediction.SAMPLE_FEATURES)
     records = CvRecords(np.arange(n) % 10, np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread)
     cal = fit_calibration(records)
     np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
@@ -272,6 +272,57 @@ def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
     # level and spread of one material: over its sampled cells and its channels only
     b = np.array([[1.0, 2.0, 3.0, 100.0], [3.0, 4.0, 5.0, -100.0]])
     assert prediction.sample_level(b, [0, 1, 2]) == (3.0, pytest.approx(np.var([1, 2, 3, 3, 4, 5])))
+
+
+def test_calibration_fit_recovers_a_known_law_in_the_coordinates():
+    from goniofrost.frost.calibration import CvRecords, fit_calibration, model_atoms
+
+    rng = np.random.default_rng(5)
+    n = 600
+    m = rng.choice([5, 10, 20, 40, 60], n)
+    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
+    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    coords = rng.normal(0, 1, (n, prediction.COORDINATES))
+    beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1, 0.3, -0.2, 0.1, 0.0, 0.15, -0.05])
+    x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread, coordinates=coords)
+    assert x.shape == (n, len(prediction.FEATURES)) == (n, 17)
+    records = CvRecords(np.arange(n) % 10, np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread,
+                        coordinates=coords)
+    cal = fit_calibration(records)  # the law holds exactly: the 17 are chosen and recovered
+    np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
+    np.testing.assert_allclose(cal["typical_coordinates"], coords.mean(axis=0))
+    np.testing.assert_allclose(prediction.predict(cal, design, z2, energy, m, level, spread, coords), np.exp(x @ beta),
+                               rtol=1e-9)
+    lo, hi = cal["feature_range"]  # clamped to the records' range like the others
+    assert lo[4] == pytest.approx(coords[:, 0].min()) and hi[4] == pytest.approx(coords[:, 0].max())
+    far = np.array([hi[4] + 10.0, 0, 0, 0, 0, 0])
+    edge = np.array([hi[4], 0, 0, 0, 0, 0])
+    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, 0.0, 1.0, far) == pytest.approx(
+        prediction.predict(cal, 0.05, 1.0, 1.0, 20, 0.0, 1.0, edge), rel=1e-12)
+    with pytest.raises(ValueError, match=r"^predict: this calibration needs the material's coordinates$"):
+        prediction.predict(cal, design, z2, energy, m, level, spread)
+    # an 11-feature calibration ignores them
+    eleven = {"coefficients": beta[:11].tolist(), "m_range": [5, 60]}
+    np.testing.assert_allclose(prediction.predict(eleven, design, z2, energy, m, level, spread, coords),
+                               np.exp(x[:, :11] @ beta[:11]), rtol=1e-12)
+    # the coordinates: the first 6 coefficients times sqrt(t), averaged over the channels, zeros beyond K
+    coefficients = np.arange(12.0).reshape(4, 3)
+    np.testing.assert_allclose(prediction.material_coordinates(coefficients, [0, 1, 2], 4),
+                               [2.0, 8.0, 14.0, 20.0, 0.0, 0.0])
+    # model_atoms maps a training column's weights (e_j) to its own coefficients on the atoms (V's row j)
+    mapped = rng.normal(0, 1, (200, 12))
+    mapped -= mapped.mean(axis=1, keepdims=True)
+    gram = mapped.T @ mapped
+    evals, evecs = np.linalg.eigh(gram)
+    order = np.argsort(evals)[::-1][:8]
+    svals, vt = np.sqrt(evals[order]), evecs[:, order].T
+    atoms = model_atoms(gram, vt, svals)
+    assert atoms.shape == (prediction.COORDINATES, 12)
+    np.testing.assert_allclose(atoms @ np.eye(12)[3], vt[:6, 3], atol=1e-10)
+    # and any column in the atoms' span to its coefficients: D c with D = X V
+    c = rng.normal(0, 1, 8)
+    y = vt.T @ c  # X y = X V c = D c
+    np.testing.assert_allclose(atoms @ y, c[:6], atol=1e-10)
 
 
 def test_calibration_fit_recovers_a_known_law():
@@ -355,7 +406,7 @@ def test_trained_model_carries_the_noise_model(model):
     # the feature set is the one whose cross-fitted median estimates were within x2 more often
     # (the five basic ones on a tie): on these few synthetic materials, the five
     scores = cal["fit"]["cross_fitted_within_factor_2"]
-    assert set(scores) == {str(prediction.BASIC_FEATURES), str(len(prediction.FEATURES))}
+    assert set(scores) == {str(prediction.BASIC_FEATURES), str(prediction.SAMPLE_FEATURES), str(len(prediction.FEATURES))}
     chosen = max(sorted(scores, key=int), key=lambda n: scores[n])
     assert len(cal["coefficients"]) == int(chosen) == prediction.BASIC_FEATURES
     assert model.noise["kind"] == "cells" and model.noise["folds"] == 10

@@ -34,14 +34,16 @@ def _fit(model, positions, truth):
 
 
 def _features(model, post, b, n_mat: int) -> np.ndarray:
-    """float64 (n_mat, 5): (design error, z2, energy, level, spread) of every material."""
+    """float64 (n_mat, 5 + COORDINATES): (design error, z2, energy, level, spread, the
+    coordinates) of every material."""
     cols = [[3 * i, 3 * i + 1, 3 * i + 2] for i in range(n_mat)]
     return np.array([prediction.material_features(post, c, model.n_signals) + prediction.sample_level(b, c)
-                     for c in cols])
+                     + tuple(prediction.material_coordinates(post.coefficients, c, model.n_signals)) for c in cols])
 
 
 def _predict(calibration, feats: np.ndarray, m: int) -> np.ndarray:
-    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4])
+    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4],
+                              feats[:, 5:])
 
 
 def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:

@@ -31,9 +31,9 @@ from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_designs
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
-from goniofrost.frost.prediction import (BASIC_FEATURES, FEATURES, feature_matrix, feature_range_of,
-                                         material_features, predict, prequential_score,
-                                         sample_level)
+from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
+                                         feature_matrix, feature_range_of, material_coordinates, material_features, predict,
+                                         prequential_score, sample_level)
 from goniofrost.frost.sentinel import check_error
 
 # Sample counts simulated (the range of m the calibration is fitted on).
@@ -57,7 +57,9 @@ class CvRecords:
     first ``prediction.BASIC_FEATURES`` features), prequential (``prediction.prequential_score``
     of the first m samples in design order; None: records without it, e.g. a scene's), sentinel
     (``sentinel.check_error``: the mean squared error at the sentinel cells, never fitted, of the
-    posterior of the first m samples; None: records without sentinels)."""
+    posterior of the first m samples; None: records without sentinels), coordinates (records,
+    COORDINATES) (``prediction.material_coordinates`` on the trained model's atoms; None: records
+    without them)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -70,23 +72,29 @@ class CvRecords:
     spread: np.ndarray | None = None
     prequential: np.ndarray | None = None
     sentinel: np.ndarray | None = None
+    coordinates: np.ndarray | None = None
 
     def features(self, m_range, n_features: int | None = None, feature_range=None) -> np.ndarray:
         """float64 (records, n_features): ``prediction.feature_matrix`` of every record (all of
-        them when n_features is None; the first BASIC_FEATURES need no level and spread)."""
+        them when n_features is None; the first BASIC_FEATURES need no level and spread, the
+        first SAMPLE_FEATURES no coordinates)."""
         full = self.level is not None and (n_features is None or n_features > BASIC_FEATURES)
+        coordinates = self.coordinates if n_features is None or n_features > SAMPLE_FEATURES else None
         x = feature_matrix(self.design_error, self.z2, self.energy, self.m, m_range,
-                           self.level if full else None, self.spread if full else None, feature_range)
+                           self.level if full else None, self.spread if full else None, feature_range,
+                           coordinates if full else None)
         return x if n_features is None else x[:, :n_features]
 
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
-             design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None) -> dict:
+             design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None,
+             atoms=None) -> dict:
     """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
 
     mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
     sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
-    records without ``sentinel``.
+    records without ``sentinel``; atoms: float64 (COORDINATES, t) ``model_atoms`` of the trained
+    model (records with the coordinates), None: records without them.
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
     n = mapped.shape[0]
@@ -99,25 +107,37 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
                                  max(m_values))
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
-                _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels)
+                _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels,
+                                      atoms)
         del d_f
     unchecked = sentinels is None or not len(sentinels)
-    return {key: CvRecords(**{k: None if k == "sentinel" and unchecked else np.asarray(v) for k, v in acc.items()})
+    absent = {"sentinel"} if unchecked else set()
+    absent |= {"coordinates"} if atoms is None else set()
+    return {key: CvRecords(**{k: None if k in absent else np.asarray(v) for k, v in acc.items()})
             for key, acc in out.items()}
+
+
+def model_atoms(gram: np.ndarray, vt: np.ndarray, singular_values: np.ndarray, count: int = COORDINATES) -> np.ndarray:
+    """float64 (count, t): A with A @ y the coefficients on the trained model's first ``count``
+    atoms (D = X V, D^T D = S^2) of the mapped BRDF X @ y (t weights over the training columns,
+    X centred): V_k^T X^T X y / S_k^2. What an inner fold's reconstruction (the fold's training
+    mean plus D_f s) is on the atoms the model will give a capture's coefficients on."""
+    k = min(count, vt.shape[0])
+    return (np.asarray(vt[:k], dtype=np.float64) @ gram) / (np.asarray(singular_values[:k], dtype=np.float64) ** 2)[:, None]
 
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
                         design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
-                        sentinels=None):
+                        sentinels=None, atoms=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale (``sentinels``: see ``simulate``). Returns ((design scale, recon scale),
+    design scale (``sentinels``, ``atoms``: see ``simulate``). Returns ((design scale, recon scale),
     {pair: CvRecords of the choice folds}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress, sentinels=sentinels)
+                      progress=progress, sentinels=sentinels, atoms=atoms)
     chosen = choose_scales(choice)
     rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress, sentinels=sentinels)[chosen] if tail else None
+                    progress=progress, sentinels=sentinels, atoms=atoms)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 
@@ -136,14 +156,19 @@ def _prior(fold: InnerFold) -> np.ndarray:
 
 
 def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values, acc: dict,
-                          sentinels=None) -> None:
+                          sentinels=None, atoms=None) -> None:
     """Append the records of the fold's held-out materials measured at the first m ``rows``
-    (with their error at the ``sentinels``; NaN without)."""
+    (with their error at the ``sentinels``, NaN without; their coordinates on ``atoms``
+    (``model_atoms``), NaN without)."""
     checked = sentinels is not None and len(sentinels) > 0
     sentinel_b = np.asarray(mapped[sentinels], dtype=np.float64) @ fold.centring if checked else None
     sentinel_rows = np.asarray(d_f[sentinels], dtype=np.float64) if checked else None
     n = mapped.shape[0]
     s2 = fold.singular_values ** 2
+    if atoms is not None:  # the reconstruction fold mean + D_f s on the model's atoms: offset + on_fold @ s
+        train_mean = np.zeros(atoms.shape[1])
+        train_mean[fold.train] = 1.0 / fold.train.size
+        on_fold, offset = atoms @ fold.projector, atoms @ train_mean
     # Every sample's prediction from the ones before it, in design order (one sequential pass):
     # the prequential score at m is a held-out measure the fit at m never saw.
     ordered = rows[:max(m_values)]
@@ -157,12 +182,14 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         post = posterior.fit(d_f[cells], noise[cells], _prior(fold), b, s2, float(noise.sum()), n)
         miss = fold.singular_values[:, None] * (fold.true_coefficients - post.coefficients)
         column_error = (fold.residual_norms + np.sum(miss ** 2, axis=0)) / n
+        on_atoms = on_fold @ post.coefficients + offset[:, None] if atoms is not None else None
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
             check = check_error(sentinel_rows, post.coefficients, sentinel_b, columns) if checked else np.nan
             values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
-                      + (prequential_score(one_step[:m], columns), check))
+                      + (prequential_score(one_step[:m], columns), check,
+                         material_coordinates(on_atoms, columns, atoms.shape[1]) if atoms is not None else np.nan))
             for key, value in zip(acc, values, strict=True):
                 acc[key].append(value)
 
@@ -201,15 +228,15 @@ def _progress(items, progress: bool):
 def fit_calibration(records: CvRecords) -> dict:
     """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record.
 
-    The feature set (the BASIC_FEATURES, or all of FEATURES when the records carry the samples'
-    level and spread) is the one whose cross-fitted residuals (``confidence.cross_fitted_residuals``:
+    The feature set (the BASIC_FEATURES; the SAMPLE_FEATURES when the records carry the samples'
+    level and spread; all of FEATURES when they also carry the coordinates) is the one whose cross-fitted residuals (``confidence.cross_fitted_residuals``:
     each inner fold predicted by a fit without it) put more held-out materials within a factor 2
     of the truth, averaged over the looks m >= FIRST_LOOK (the fewer on a tie): eleven
     coefficients on a few training materials predict worse than five, and which is better is
     measured on the training materials only.
 
     Returns the calibration dict stored in the model (coefficients, m_range, the typical log
-    z2, log energy, level and log spread, the range of the features, the error bound's
+    z2, log energy, level, log spread and coordinates, the range of the features, the error bound's
     calibration ``confidence.fit_bound``) with ``fit`` statistics: the residual standard
     deviation in log units, the cross-fitted fractions the choice was made on, and per m the
     Spearman correlation of predicted and actual error and the fraction of materials predicted
@@ -219,8 +246,10 @@ def fit_calibration(records: CvRecords) -> dict:
 
     m_range = [int(records.m.min()), int(records.m.max())]
     feature_range = None if records.level is None else feature_range_of(records.z2, records.energy,
-                                                                         records.level, records.spread)
-    sets = [BASIC_FEATURES] + ([len(FEATURES)] if records.level is not None else [])
+                                                                         records.level, records.spread,
+                                                                         records.coordinates)
+    sets = [BASIC_FEATURES] + ([SAMPLE_FEATURES] if records.level is not None else [])
+    sets += [len(FEATURES)] if records.level is not None and records.coordinates is not None else []
     scores = {n: choice_score(records, cross_fitted_residuals(records, m_range, n, feature_range)) for n in sets}
     n_features = max(sets, key=lambda n: (scores[n], -n))
     x = records.features(m_range, n_features, feature_range)
@@ -233,6 +262,10 @@ def fit_calibration(records: CvRecords) -> dict:
         calibration |= {"typical_level": float(np.mean(records.level)),
                         "typical_log_spread": float(np.mean(np.log(records.spread))),
                         "feature_range": feature_range}
+    if n_features > SAMPLE_FEATURES:
+        calibration["typical_coordinates"] = np.mean(records.coordinates, axis=0).tolist()
+    elif n_features > BASIC_FEATURES:  # an 11-feature calibration stores no coordinates' range
+        calibration["feature_range"] = [v[:4] for v in feature_range]
     calibration["bound"] = fit_bound(records, m_range, n_features, feature_range)
     calibration["fit"] = {"residual_sd_log": float(np.std(y - x @ beta)), "records": int(y.size),
                           "cross_fitted_within_factor_2": {str(n): scores[n] for n in sets},
@@ -245,7 +278,7 @@ def prediction_quality(records: CvRecords, calibration: dict) -> dict:
     from scipy.stats import spearmanr
 
     predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m,
-                        records.level, records.spread)
+                        records.level, records.spread, records.coordinates)
     out = {}
     for m in np.unique(records.m):
         sel = records.m == m

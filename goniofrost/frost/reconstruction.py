@@ -181,7 +181,8 @@ def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
     if np.any(noise_extra > 0):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
     fitted = _calibration(model, scene) or prediction.UNCALIBRATED
-    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread))
+    coordinates = prediction.material_coordinates(post.coefficients, [0, 1, 2], model.n_signals)
+    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread, coordinates))
     extra = max(design - clean, 0.0)
     return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread)
 

@@ -80,7 +80,8 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     svals, vt = _eigen_components(gram, k_max)
     variance, noise_meta = None, {}
     if noise and len(names) >= MIN_NOISE_MATERIALS:
-        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates)
+        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
+                                           calibration_atoms(gram, vt, svals))
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     dictionary = _project(mapped, vt)
@@ -90,11 +91,19 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
                       noise=noise_meta, info=info or {})
 
 
+def calibration_atoms(gram: np.ndarray, vt: np.ndarray, svals: np.ndarray) -> np.ndarray:
+    """``calibration.model_atoms`` of the model being trained: the inner folds' reconstructions
+    on its first atoms (the predicted error's coordinates features)."""
+    from goniofrost.frost import calibration
+    return calibration.model_atoms(gram, vt, svals)
+
+
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
-                progress: bool = False, sentinel_candidates=None) -> tuple[np.ndarray, dict]:
+                progress: bool = False, sentinel_candidates=None, atoms=None) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration
-    (the sentinel check's at ``sentinel.cells`` among ``sentinel_candidates``, bool (n,) or None)."""
+    (the sentinel check's at ``sentinel.cells`` among ``sentinel_candidates``, bool (n,) or None;
+    the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them)."""
     from goniofrost.frost import calibration, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
@@ -103,7 +112,7 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
-                                                                                     sentinels=sentinels)
+                                                                                     sentinels=sentinels, atoms=atoms)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
@@ -262,8 +271,9 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     ids = [m.dataset.content_id(m.name) for m in materials]
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
+    # v5: the calibration may use the material's coordinates on the first atoms (prediction.py)
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
-    key = disk_cache.content_key("frost-model-v4", ids, [m.label for m in materials],
+    key = disk_cache.content_key("frost-model-v5", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():
