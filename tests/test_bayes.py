@@ -240,14 +240,20 @@ def test_predicted_error_is_specific_to_the_material(model, scalar_model, tables
     assert b.predicted_error == pytest.approx(b.design_error * b.z2)
 
 
+def synthetic_records(rng, n: int) -> tuple:
+    """(m, design error, z2, energy, level, spread), each (n,), of n made-up held-out records."""
+    m = rng.choice([5, 10, 20, 40, 60], n)
+    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
+    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    return m, design, z2, energy, level, spread
+
+
 def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
     from goniofrost.frost.calibration import CvRecords, fit_calibration
 
     rng = np.random.default_rng(3)
     n = 600
-    m = rng.choice([5, 10, 20, 40, 60], n)
-    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
-    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    m, design, z2, energy, level, spread = synthetic_records(rng, n)
     beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1])
     x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread)
     assert x.shape == (n, prediction.SAMPLE_FEATURES)
@@ -279,9 +285,7 @@ def test_calibration_fit_recovers_a_known_law_in_the_coordinates():
 
     rng = np.random.default_rng(5)
     n = 600
-    m = rng.choice([5, 10, 20, 40, 60], n)
-    design, z2, energy = rng.uniform(0.01, 0.1, n), np.exp(rng.normal(0, 1, n)), np.exp(rng.normal(0, 0.5, n))
-    level, spread = rng.normal(0, 1, n), np.exp(rng.normal(0, 0.5, n))
+    m, design, z2, energy, level, spread = synthetic_records(rng, n)
     coords = rng.normal(0, 1, (n, prediction.COORDINATES))
     beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1, 0.3, -0.2, 0.1, 0.0, 0.15, -0.05])
     x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread, coordinates=coords)
