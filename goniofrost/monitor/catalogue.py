@@ -61,17 +61,12 @@ def session_state(view) -> str:
     "nothing measured" when its runs completed with every plan sample journaled as not measured
     (too dark or saturated: there is no result, and running it again will not make one)."""
     if view.run_end is not None:
-        if view.run_end.status.completed and nothing_measured(view):
+        if view.run_end.status.completed and view.nothing_measured:
             return "nothing measured"
         return STATE_OF_STATUS[view.run_end.status]
     if view.capture_alive:
         return "running"
     return "interrupted" if view.run_spans else "not started"
-
-
-def nothing_measured(view) -> bool:
-    """Whether a session journaled some plan samples as not measured and measured none."""
-    return bool(view.not_measured) and not view.done
 
 
 def read_entry(session_dir: Path) -> SessionEntry:

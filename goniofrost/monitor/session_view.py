@@ -161,6 +161,12 @@ class SessionView:
     first_started_utc: float | None = None
     run_spans: tuple = ()
 
+    @property
+    def nothing_measured(self) -> bool:
+        """Whether plan samples were journaled as not measured and none was measured (too dark or
+        saturated for the rig's exposures: nothing to reconstruct)."""
+        return bool(self.not_measured) and not self.done
+
 
 def journal_path(session_dir) -> Path:
     return Path(session_dir) / JOURNAL_FILE

@@ -111,7 +111,7 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
         return what, f"{what} with {len(done)} of {total} samples safe in the journal: what happened and what to do below"
     end = view.run_end
     complete = (end is not None and end.status.completed) or (bool(total) and len(done) >= total)
-    if complete and view.not_measured and not view.done:
+    if complete and view.nothing_measured:
         reasons = sorted({str(d.reason) for d in view.not_measured})
         return "nothing measured", (f"every sample journaled is not measured ({', '.join(reasons)}): there is no BRDF to "
                                     f"reconstruct; the summary of `goniofrost capture` says what to change in the rig file")
