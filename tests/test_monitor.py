@@ -53,6 +53,23 @@ def view(**kw) -> SessionView:
     return SessionView(**{**base, **kw})
 
 
+def test_a_session_whose_only_measured_samples_are_sentinels_has_nothing_measured():
+    """Sentinels only check a reconstruction: with every design sample not measured there is
+    nothing to reconstruct (the capture's TooFewSamplesError), whatever the sentinels gave."""
+    from goniofrost.monitor.session_view import NotMeasuredSample
+
+    dark = tuple(NotMeasuredSample(i, "saturated", (0.0,) * 3, 10.0, 0.004, (np.inf,) * 3, (1.0,) * 3, (0.004,),
+                                   1.0, 0.1, 1000.0, 1001.0, ()) for i in (0, 1, 3))
+    plan_doc = {"samples": [{}, {}, {"sentinel": True}, {}]}
+    end = RunEnd(run=1, status=RunStatus.FINISHED, reason="all samples captured", samples_planned=4, samples_captured=4,
+                 batches=0, started_utc=1000.0, ended_utc=1002.0)
+    sentinel_only = view(done=(done_sample(2, 2, 1, 1001.0, 1.5),), not_measured=dark, plan_doc=plan_doc, run_end=end)
+    assert sentinel_only.nothing_measured
+    assert page_state(sentinel_only, now_utc=1010.0)["state"] == "nothing measured"
+    design_measured = view(done=(done_sample(2, 2, 1, 1001.0, 1.5),), not_measured=dark, plan_doc={"samples": [{}] * 4})
+    assert not design_measured.nothing_measured and not view(done=(), not_measured=()).nothing_measured
+
+
 def test_before_three_samples_the_eta_scales_planned_moves_and_capture_time_by_the_wall_per_rig_second():
     # rig seconds of the two done samples: 2 + 1 and 4 + 3 = 10, their wall time 1.5 + 3.5 = 5 (ratio 0.5);
     # left: samples 2 and 3, planned moves 6 and 8, each with the median capture time 2 s -> 18 rig s

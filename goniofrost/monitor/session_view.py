@@ -163,9 +163,12 @@ class SessionView:
 
     @property
     def nothing_measured(self) -> bool:
-        """Whether plan samples were journaled as not measured and none was measured (too dark or
-        saturated for the rig's exposures: nothing to reconstruct)."""
-        return bool(self.not_measured) and not self.done
+        """Whether plan samples were journaled as not measured and none but sentinels (which only
+        check a reconstruction) was measured: too dark or saturated for the rig's exposures, nothing
+        to reconstruct (the capture's TooFewSamplesError)."""
+        entries = self.plan_doc.get("samples") or []
+        sentinel = {i for i, entry in enumerate(entries) if isinstance(entry, dict) and entry.get("sentinel")}
+        return bool(self.not_measured) and all(d.plan_index in sentinel for d in self.done)
 
 
 def journal_path(session_dir) -> Path:
