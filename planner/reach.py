@@ -88,8 +88,9 @@ def rig_key(rig: Rig) -> list:
 
 
 def is_cached(rig: Rig, grid: MerlGrid) -> bool:
-    """Whether ``reachability(rig, grid)`` will read its map from disk instead of computing it."""
-    return _read_cached(_cache_file(rig, grid), grid.n_valid) is not None
+    """Whether ``reachability(rig, grid)`` has a map on disk to read (without reading it: a stale
+    entry it would compute again says True)."""
+    return _cache_file(rig, grid).is_file()
 
 
 def _cache_file(rig: Rig, grid: MerlGrid):

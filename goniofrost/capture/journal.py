@@ -159,7 +159,7 @@ class NotMeasuredRecord:
     def to_dict(self) -> dict:
         """JSON-safe form (report.json, events): the reason as its value."""
         return {**asdict(self), "reason": str(self.reason), "snr": list(self.snr),
-                "upper_limit": [v if math.isfinite(v) else None for v in self.upper_limit],
+                "upper_limit": json_limits(self.upper_limit),
                 "lower_limit": list(self.lower_limit), "exposures_s": list(self.exposures_s),
                 "raw_paths": list(self.raw_paths)}
 
@@ -167,6 +167,11 @@ class NotMeasuredRecord:
         """Why it was not measured and the bounds of its BRDF, in words (readers use the fields)."""
         return why_not_measured(self.reason, self.snr, self.min_snr, self.exposures_s or (self.longest_exposure_s,),
                                 self.lower_limit, self.upper_limit)
+
+
+def json_limits(values) -> list:
+    """A limit triple for JSON: an infinite limit (none) as None."""
+    return [v if math.isfinite(v) else None for v in values]
 
 
 def by_reason(not_measured) -> dict:

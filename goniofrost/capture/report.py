@@ -31,7 +31,7 @@ import numpy as np
 
 from calib.measurement import remedy
 from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.capture.journal import by_reason
+from goniofrost.capture.journal import by_reason, json_limits
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.brdf.merl_file import valid_to_full
 
@@ -114,7 +114,7 @@ def not_measured_section(not_measured) -> dict:
             "samples": [{"index": d.plan_index, "cell": d.cell, "theta_h_deg": d.theta_h_deg,
                          "theta_d_deg": d.theta_d_deg, "phi_d_deg": d.phi_d_deg, "reason": str(d.reason),
                          "snr": list(d.snr), "min_snr": d.min_snr, "longest_exposure_s": d.longest_exposure_s,
-                         "upper_limit": d.to_dict()["upper_limit"], "lower_limit": list(d.lower_limit),
+                         "upper_limit": json_limits(d.upper_limit), "lower_limit": list(d.lower_limit),
                          "why": d.why(), "move_s": d.move_s, "capture_s": d.capture_s}
                         for d in not_measured]}
 
