@@ -111,11 +111,12 @@ class DynamixelAxis(Axis):
                   check_alert: bool = True, reply_data: int = 0) -> bytes:
         """Send one instruction; return the parameters of its status packet or raise typed errors.
 
-        ``reply_data``: parameter bytes the status will carry (sizes the SDK's reply timeout).
+        ``reply_data``: parameter bytes the status will carry (sizes the SDK's reply timeout, and
+        tells this instruction's status from a late one of an earlier instruction: ``_exchange``).
         """
         request = build_instruction(self.dxl_id, instruction, params)
         try:
-            frame, status = self._exchange(what, request, MIN_STATUS + reply_data)
+            frame, status = self._exchange(what, request, reply_data)
         except PORT_ERRORS as exc:
             raise DeviceError(self.name, what, None, f"serial port {self.port_path} failed: {exc}") from exc
         code = status.error & ~ALERT_BIT
@@ -125,10 +126,16 @@ class DynamixelAxis(Axis):
             self._raise_fault(what, frame)
         return status.params
 
-    def _exchange(self, what: str, request: bytes, reply_size: int) -> tuple[bytes, Packet]:
-        """Write ``request``, then read until this servo's status frame arrives or the reply
-        timeout ends. Other frames (an adapter's echo, another servo's status) are skipped, as
-        the SDK skips them."""
+    def _exchange(self, what: str, request: bytes, reply_data: int) -> tuple[bytes, Packet]:
+        """Write ``request``, then read until this servo's status frame of ``reply_data``
+        parameter bytes arrives or the reply timeout ends. Other frames (an adapter's echo, another
+        servo's status) are skipped, as the SDK skips them, and so is a clean status of another
+        size: a status carries no instruction, so one that arrives after ``clearPort`` with the
+        wrong size is the late answer to an earlier instruction whose reply timed out (a WRITE's
+        empty status taken as a PING's read as model number 0). A status with an error code is
+        taken whatever its size (a refusal may carry no data); a late status of the same size
+        cannot be told apart (a retried read asks the same question)."""
+        reply_size = MIN_STATUS + reply_data
         port = self._port
         port.clearPort()  # a late status must not answer this instruction
         port.writePort(request)
@@ -139,7 +146,8 @@ class DynamixelAxis(Axis):
             frame = find_frame(buf)
             if frame is not None:
                 status = self._parse_status(what, frame)
-                if status.instruction == STATUS and status.dxl_id == self.dxl_id:
+                if status.instruction == STATUS and status.dxl_id == self.dxl_id and (
+                        len(status.params) == reply_data or status.error & ~ALERT_BIT):
                     return frame, status
             elif port.isPacketTimeout():
                 if buf:

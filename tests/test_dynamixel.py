@@ -187,6 +187,31 @@ def test_driver_stuffs_a_goal_whose_bytes_hold_a_header():
     line.finish()
 
 
+def test_a_late_status_of_an_earlier_instruction_does_not_answer_the_next_on_exact_bytes():
+    """A read times out; its status comes late, after the retried handshake's PING went out. A
+    status names no instruction: taken as the PING's, the 1 data byte would be model number 3 (a
+    WRITE's empty status: 0), refused as the wrong model, and not retried. Sizes tell them apart."""
+    line = ScriptedTransport([
+        (_req(Instruction.PING), _ok(H("FC 03 2E"))),
+        (_read("operating_mode"), b""),                                     # its status is late...
+        (_req(Instruction.PING), _ok(b"\x03") + _ok(H("FC 03 2E"))),        # ...behind the next PING
+        (_read("operating_mode"), _ok() + _ok(b"\x04")),                    # a WRITE's late status
+    ] + CONNECT_SCRIPT[4:])
+    axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    assert axis.model_number == 1020
+    axis.close()
+    line.finish()
+
+
+def test_a_refusal_is_taken_whatever_its_size_on_exact_bytes():
+    line = ScriptedTransport([(_req(Instruction.PING), _ok(err=ErrorCode.DATA_LIMIT))])
+    axis = DynamixelAxis(_yaw_config(retries=0), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    with pytest.raises(ExceptionReply, match="data limit"):
+        axis.connect(line)
+    line.finish()
+
+
 def test_wrong_model_number_is_refused():
     line = ScriptedTransport([(_req(Instruction.PING), _ok(H("06 04 26")))])  # 1030 = XM430-W210
     axis = DynamixelAxis(_yaw_config(), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
