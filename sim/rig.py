@@ -16,6 +16,13 @@ from .clock import SimClock
 from .config import check_fault_axes, validate_sim_section
 from .lamp_model import LampModel
 
+# A twin answers from a thread of this process: on a busy computer (a test suite beside other
+# work, a laptop rehearsing) its reply can take longer than a real bus's 100 ms, the Dynamixel
+# driver's default, kept for real servos (measured: the full suite at load 5 to 9 failed 1 to 5
+# tests per run on "no status packet" at 100 ms; at 300 ms it passed). A rig file's own
+# reply_timeout_ms wins.
+TWIN_REPLY_TIMEOUT_MS = {"dynamixel": 300.0}
+
 
 def _dynamixel(clock, axis: AxisSpec, section, lamp_model, lamp_section):
     from .dynamixel_servo import SimulatedDynamixel
@@ -174,6 +181,8 @@ class SimulatedRig:
                 section["port"] = entry["endpoint"]
             if section["protocol"] == "modbus-rtu":
                 section["parity"] = "N"  # Linux ptys refuse parity; the simulated drive serves 8N1
+            if section["protocol"] in TWIN_REPLY_TIMEOUT_MS:
+                section.setdefault("reply_timeout_ms", TWIN_REPLY_TIMEOUT_MS[section["protocol"]])
             drivers[name] = section
         return self.rig.with_drivers(drivers)
 

@@ -55,9 +55,20 @@ def test_endpoints_and_resolved_sections(raw_rig):
         arm = resolved.axes["camera_arm"].driver
         assert (arm["host"], arm["port"]) == (host, int(port))
         assert resolved.axes["sample_yaw"].driver["port"] == ep["sample_yaw"]["endpoint"]
+        # the twin answers from a thread of this process: 300 ms, not a real bus's 100 ms
+        assert resolved.axes["sample_yaw"].driver["reply_timeout_ms"] == 300.0
         assert rig.rig.axes["sample_yaw"].driver["port"] == "sim"  # the rig given is untouched
         assert type(resolved) is type(rig.rig) and resolved.geometry == rig.rig.geometry
         assert rig.true_joints_deg() == {"camera_arm": 90.0, "sample_yaw": 0.0, "sample_tilt": 0.0}
+
+
+def test_a_rig_file_s_own_reply_timeout_wins_over_the_twin_s_default(raw_rig):
+    import copy
+
+    raw = copy.deepcopy(raw_rig)
+    raw["axes"]["sample_yaw"]["driver"]["reply_timeout_ms"] = 150
+    with SimulatedRig(checked(raw), speedup=50) as rig:
+        assert rig.resolved_rig().axes["sample_yaw"].driver["reply_timeout_ms"] == 150
 
 
 def test_three_axes_move_at_once(raw_rig):
