@@ -80,3 +80,25 @@ def test_a_material_unlike_the_prior_mean_moves_the_continuation(model):
     assert rest.tolist() != aware[6:].tolist()
     with pytest.raises(ValueError, match="picks so far"):
         continue_design(model, usage, aware, model.to_log(truth[aware], aware), m)
+
+
+def test_the_benchmarks_sequential_designs_start_from_the_shipped_design(model):
+    """benchmarks/scene_design.py's sequential designs: "half" is the shipped m-sample design's first
+    m // 2 picks and then the continuation at the posterior mean; a chain re-plans at every stage."""
+    import runpy
+    from pathlib import Path
+
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.sequential_design import continue_design
+
+    module = runpy.run_path(str(Path(__file__).resolve().parents[1] / "benchmarks" / "scene_design.py"),
+                            run_name="scene_design")
+    usage, truth = retro_map(), material("chrome")
+    shipped = select_bayes(model, 12, usage=usage).positions
+    half = module["sequential_picks"](model, usage, truth, (6, 12))
+    rest = continue_design(model, usage, shipped[:6], model.to_log(truth[shipped[:6]], shipped[:6]), 12).rows
+    assert half.tolist() == shipped[:6].tolist() + rest.tolist()
+    chain = module["sequential_picks"](model, usage, truth, (4, 8, 12))
+    assert chain[:4].tolist() == select_bayes(model, 8, usage=usage).positions[:4].tolist() and len(set(chain)) == 12
+    designs = module["sequential_designs"](model, {"retro": usage}, truth, [8, 12], ["seq half"], {})
+    assert designs[12][("retro", "seq half")].tolist() == half.tolist() and len(designs[8][("retro", "seq half")]) == 8
