@@ -79,8 +79,8 @@ def parse(argv=None):
                    help="shared: 22 of the 151 shared materials, the model trained on the other 129; builtin: 25 of "
                         "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
                         "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials)")
-    p.add_argument("--sequential", choices=tuple(SEQUENTIAL), default=None,
-                   help="also this sequential design (issue 29 round 5: re-planned at the material's posterior "
+    p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
+                   help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
     p.add_argument("--smallest", action="store_true",
                    help="the built-in library on a 30 x 30 x 60 grid, 1 test material, m = 4, 4 spp (a test runs it)")
@@ -319,7 +319,7 @@ def main(argv=None) -> int:
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
     if args.sequential:
         def own(truth):
-            return sequential_designs(model, usage, truth, sorted(ms + fewer), [args.sequential], shipped)
+            return sequential_designs(model, usage, truth, sorted(ms + fewer), args.sequential, shipped)
     with tempfile.TemporaryDirectory() as tmp:
         exported = (progress_only(t0, len(test)) if args.no_export else
                     export_renders(model, designs, "aware", scenes, ms, grid, spp, Path(tmp), t0, len(test)))
@@ -331,9 +331,9 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
-    if args.sequential:  # the sequential design beside the shipped one (the export columns: not rendered)
-        print(table(rows, ms, args.sequential, "aware"))
-        print(goal_table(rows, ms, args.sequential))
+    for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)
+        print(table(rows, ms, name, "aware"))
+        print(goal_table(rows, ms, name))
     save_pictures(pictures, args.out, "aware")
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0

@@ -320,7 +320,7 @@ def test_the_scene_design_benchmark_renders_a_sequential_design_beside_the_shipp
     assert module["main"](["--smallest", "--test-only", "--no-export", "--fewer", "--sequential", "seq half",
                            "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
-    assert doc["sequential"] == "seq half"
+    assert doc["sequential"] == ["seq half"]
     assert {(r["design"], r["m"]) for r in doc["rows"]} >= {("seq half", 4), ("seq half", 2), ("aware", 4)}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
 
