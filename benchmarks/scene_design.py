@@ -15,7 +15,8 @@ analytic library starting at the first (25 of its 74 materials; seven share a na
 MERL material, e.g. ``aluminium``, but are analytic GGX and Lambert lobes, not fits of those
 measurements); the model is trained on all 151 shared materials, none of them a test material.
 ``--test-set builtin1``: the same from the second name (names[1::3], 25 materials; issue 29's second
-fresh set, fixed before its first run).
+fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
+fixed before its first run, issue 29 round 5).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -33,6 +34,8 @@ defaults for m samples, as ``plan --usage`` picks them: the sensitivity power fo
     ... --spp 32 --no-export --test-only --fewer --out DIR         # the test run, once
     ... --spp 32 --no-export --test-only --fewer --test-set builtin --out DIR   # issue 29's fresh test set
     ... --spp 32 --no-export --test-only --fewer --test-set builtin1 --out DIR  # its second fresh set
+    ... --spp 32 --no-export --test-only --fewer --test-set builtin2 \
+        --sequential "seq 5-10-20-40" "seq 4-6-8-10-20-40" --out DIR              # its third, round 5
 
 Prints the tables; writes validation.json and validation-fF.json (every validation row), results.json
 (every test row) and, per scene, a picture of the truth and both reconstructions at the middle m
@@ -55,8 +58,9 @@ SHARED = REPO.parent / "shared" / "data"
 SCENES = ("retro-sphere", "grazing-plane", "top-light")
 # The built-in test sets: --test-set NAME takes every 3rd of the built-in library's sorted names
 # (74) from this offset. "builtin" (offset 0, 25 materials) was issue 29's first fresh set;
-# "builtin1" (offset 1, 25 materials) its second, fixed before its first run.
-BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1}
+# "builtin1" (offset 1, 25 materials) its second, fixed before its first run; "builtin2" (offset 2,
+# 24 materials) its third, fixed before its first run (round 5, the sequential design).
+BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 
 
 def parse(argv=None):
@@ -78,7 +82,8 @@ def parse(argv=None):
     p.add_argument("--test-set", choices=("shared",) + tuple(BUILTIN_OFFSETS), default="shared",
                    help="shared: 22 of the 151 shared materials, the model trained on the other 129; builtin: 25 of "
                         "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
-                        "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials)")
+                        "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
+                        "names[2::3] (the third, 24 materials)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")

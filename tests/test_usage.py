@@ -357,6 +357,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "builtin1"]))
     assert test1 == builtin[1::3] and len(test1) == 25 and not set(test1) & set(test)
     assert test_specs1 == ["builtin"] and specs1 == specs and training1 == training
+    # --test-set builtin2: the third, from the third name, disjoint from both
+    _, test_specs3, _, training3, test3, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "builtin2"]))
+    assert test3 == builtin[2::3] and len(test3) == 24 and not set(test3) & (set(test) | set(test1))
+    assert test_specs3 == ["builtin"] and training3 == training
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
