@@ -15,7 +15,8 @@ analytic library starting at the first (25 of its 74 materials; seven share a na
 MERL material, e.g. ``aluminium``, but are analytic GGX and Lambert lobes, not fits of those
 measurements); the model is trained on all 151 shared materials, none of them a test material.
 ``--test-set builtin1``: the same from the second name (names[1::3], 25 materials; issue 29's second
-fresh set, fixed before its first run).
+fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
+fixed before its first run, issue 29 round 5).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -33,6 +34,8 @@ defaults for m samples, as ``plan --usage`` picks them: the sensitivity power fo
     ... --spp 32 --no-export --test-only --fewer --out DIR         # the test run, once
     ... --spp 32 --no-export --test-only --fewer --test-set builtin --out DIR   # issue 29's fresh test set
     ... --spp 32 --no-export --test-only --fewer --test-set builtin1 --out DIR  # its second fresh set
+    ... --spp 32 --no-export --test-only --fewer --test-set builtin2 \
+        --sequential "seq 5-10-20-40" "seq 4-6-8-10-20-40" --out DIR              # its third, round 5
 
 Prints the tables; writes validation.json and validation-fF.json (every validation row), results.json
 (every test row) and, per scene, a picture of the truth and both reconstructions at the middle m
@@ -55,8 +58,9 @@ SHARED = REPO.parent / "shared" / "data"
 SCENES = ("retro-sphere", "grazing-plane", "top-light")
 # The built-in test sets: --test-set NAME takes every 3rd of the built-in library's sorted names
 # (74) from this offset. "builtin" (offset 0, 25 materials) was issue 29's first fresh set;
-# "builtin1" (offset 1, 25 materials) its second, fixed before its first run.
-BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1}
+# "builtin1" (offset 1, 25 materials) its second, fixed before its first run; "builtin2" (offset 2,
+# 24 materials) its third, fixed before its first run (round 5, the sequential design).
+BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 
 
 def parse(argv=None):
@@ -78,7 +82,11 @@ def parse(argv=None):
     p.add_argument("--test-set", choices=("shared",) + tuple(BUILTIN_OFFSETS), default="shared",
                    help="shared: 22 of the 151 shared materials, the model trained on the other 129; builtin: 25 of "
                         "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
-                        "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials)")
+                        "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
+                        "names[2::3] (the third, 24 materials)")
+    p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
+                   help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
+                        "mean; per material, direct renders only)")
     p.add_argument("--smallest", action="store_true",
                    help="the built-in library on a 30 x 30 x 60 grid, 1 test material, m = 4, 4 spp (a test runs it)")
     return p.parse_args(argv)
@@ -148,12 +156,57 @@ def scene_designs(model, usage: dict, m_max: int, candidates=CANDIDATES) -> dict
     return designs
 
 
-def direct_rows(model, designs, truths, names, ms, direct, usage, grid, spp, extra=None, metrics=True):
+# The sequential scene-aware designs (issue 29, round 5; ``frost.sequential_design``): name ->
+# (stages, power). The first stages[0] picks are the shipped design's of stages[1] samples; at each
+# later stage end the design re-plans from the picks so far, with g at this material's posterior
+# mean (the benchmark "measures" the material exactly), to that many picks. "half": per m, m // 2
+# then m; the others are nested (one chain to 40, read at every m). power None: the power for the
+# stage's end (``usage_design.sensitivity_power``).
+SEQUENTIAL = {"seq half": ("half", None), "seq 5-10-20-40": ((5, 10, 20, 40), None),
+              "seq 5-10-20-40 p1": ((5, 10, 20, 40), 1.0), "seq 4-6-8-10-20-40": ((4, 6, 8, 10, 20, 40), None)}
+
+
+def sequential_picks(model, usage: np.ndarray, truth: np.ndarray, stages, power=None, shipped=None) -> np.ndarray:
+    """The rows of a sequential design (SEQUENTIAL) of stages[-1] picks on the material ``truth``
+    (n_valid, 3); ``shipped``: an optional {m: rows} cache of the shipped designs (the same for
+    every material)."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.sequential_design import continue_design
+
+    shipped = {} if shipped is None else shipped
+    if stages[1] not in shipped:
+        shipped[stages[1]] = select_bayes(model, stages[1], usage=usage).positions
+    picked = shipped[stages[1]][:stages[0]]
+    for end in stages[1:]:
+        more = continue_design(model, usage, picked, model.to_log(truth[picked], picked), end, power).rows
+        picked = np.concatenate([picked, more])
+    return picked
+
+
+def sequential_designs(model, usage: dict, truth: np.ndarray, ms, names, shipped: dict) -> dict:
+    """{m: {(scene, name): rows}} of the SEQUENTIAL designs ``names`` on one material, every m of ms;
+    ``shipped``: {scene: {m: rows}} caches of the shipped designs."""
+    out = {m: {} for m in ms}
+    for s, u in usage.items():
+        for name in names:
+            stages, power = SEQUENTIAL[name]
+            if stages == "half":
+                for m in ms:
+                    out[m][(s, name)] = sequential_picks(model, u, truth, (m // 2, m), power, shipped.setdefault(s, {}))
+            else:
+                chain = sequential_picks(model, u, truth, stages, power, shipped.setdefault(s, {}))
+                for m in ms:
+                    out[m][(s, name)] = chain[:m]
+    return out
+
+
+def direct_rows(model, designs, truths, names, ms, direct, usage, grid, spp, extra=None, metrics=True, own=None):
     """Rows of the direct renders (``mitsuba_tabulated``: the same paths for every BRDF) of every
     material, scene, m and design; ``designs``: {key: rows} (every m) or {m: {key: rows}} (the
     designs evaluated at m); ``extra(k, name, truth)`` may add rows of its own (export renders)
     and is called once per material; ``usage``: {scene: map}; ``metrics``: also the whole-BRDF and
-    seen errors (two passes over the grid per reconstruction). Returns (rows, pictures of the first material)."""
+    seen errors (two passes over the grid per reconstruction); ``own(truth)``: optional designs of
+    this material alone, {m: {key: rows}} (the sequential ones). Returns (rows, pictures of the first material)."""
     from goniofrost.frost.metrics import log_relative_mse
     from goniofrost.frost.reconstruction import reconstruct_bayes
 
@@ -162,8 +215,9 @@ def direct_rows(model, designs, truths, names, ms, direct, usage, grid, spp, ext
     for k, name in enumerate(names):
         truth = np.asarray(truths[k], dtype=np.float64)
         reference = {s: scene.render(grid, truth, spp) for s, scene in direct.items()}
+        mine = own(truth) if own is not None else {}
         for m in ms:
-            for key, picked in (designs[m] if m in designs else designs).items():
+            for key, picked in {**(designs[m] if m in designs else designs), **mine.get(m, {})}.items():
                 rec = reconstruct_bayes(model, picked[:m], truth[picked[:m]], with_std=False).brdf
                 if metrics:
                     diff = (np.log(weight * truth + model.eps) - np.log(weight * np.maximum(rec, 0) + model.eps)) ** 2
@@ -267,17 +321,24 @@ def main(argv=None) -> int:
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
     truths = tabulate_materials(collected(test_specs, test), grid)
+    own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
+    if args.sequential:
+        def own(truth):
+            return sequential_designs(model, usage, truth, sorted(ms + fewer), args.sequential, shipped)
     with tempfile.TemporaryDirectory() as tmp:
         exported = (progress_only(t0, len(test)) if args.no_export else
                     export_renders(model, designs, "aware", scenes, ms, grid, spp, Path(tmp), t0, len(test)))
         rows, pictures = direct_rows(model, designs, truths, test, sorted(ms + fewer), direct, usage, grid, spp,
-                                     extra=exported)
+                                     extra=exported, own=own)
     (args.out / "results.json").write_text(json.dumps({
-        "test_set": args.test_set, "test": test, "spp": spp, "usage_spp": uspp, "m": ms, "fewer": fewer, "grid": grid.as_dict(), "rows": rows},
+        "test_set": args.test_set, "sequential": args.sequential, "test": test, "spp": spp, "usage_spp": uspp, "m": ms, "fewer": fewer, "grid": grid.as_dict(), "rows": rows},
         indent=1))
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
+    for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)
+        print(table(rows, ms, name, "aware"))
+        print(goal_table(rows, ms, name))
     save_pictures(pictures, args.out, "aware")
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0

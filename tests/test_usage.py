@@ -311,6 +311,20 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert (tmp_path / "retro-sphere.png").is_file()
 
 
+def test_the_scene_design_benchmark_renders_a_sequential_design_beside_the_shipped_one(tmp_path):
+    """--sequential NAME (issue 29 round 5): per test material, the design re-planned at its posterior
+    mean, rendered beside the shipped one; "seq half" starts from the shipped design's first half."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    assert module["main"](["--smallest", "--test-only", "--no-export", "--fewer", "--sequential", "seq half",
+                           "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "results.json").read_text())
+    assert doc["sequential"] == ["seq half"]
+    assert {(r["design"], r["m"]) for r in doc["rows"]} >= {("seq half", 4), ("seq half", 2), ("aware", 4)}
+    assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
+
+
 def test_the_scene_benchmarks_materials_come_in_the_order_of_their_names():
     """Each row's name is its material's: the benchmark tabulates the materials in the order of the
     names it labels the rows with, not the dataset's own order."""
@@ -343,6 +357,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "builtin1"]))
     assert test1 == builtin[1::3] and len(test1) == 25 and not set(test1) & set(test)
     assert test_specs1 == ["builtin"] and specs1 == specs and training1 == training
+    # --test-set builtin2: the third, from the third name, disjoint from both
+    _, test_specs3, _, training3, test3, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "builtin2"]))
+    assert test3 == builtin[2::3] and len(test3) == 24 and not set(test3) & (set(test) | set(test1))
+    assert test_specs3 == ["builtin"] and training3 == training
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)

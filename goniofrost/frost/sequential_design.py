@@ -1,0 +1,83 @@
+"""The sequential scene-aware design: re-plan the remaining picks at this material's posterior.
+
+The scene-aware design (``usage_design``) weighs each cell by u g^p, g the image's sensitivity to
+the mapped value at the PRIOR mean: a fixed design cannot know that the material in the rig has a
+sharp highlight the prior mean lacks (BENCHMARKS.md, issue 29 round 4). Once some samples are
+measured, their posterior mean L_hat = mu + D s_hat (``posterior.fit``, the reconstruction's noise)
+says more: ``continue_design`` takes g at L_hat (averaged over the channels in the mapped domain)
+and continues the greedy design from the picks so far under the weights u g_post^p.
+
+Continuing the greedy design: after l picks the coefficients' covariance (under the noise the
+design assumes) is Sigma_l; with Sigma_l = C C^T and C^T M C = Q Lambda Q^T (M = D^T diag(w) D, w
+the new weights) the coefficients z = Q^T C^-1 s have the prior N(0, I), the dictionary becomes
+D C Q and the remaining error is trace(Lambda Sigma_z): the plain greedy design's form
+(``usage_design`` does the same from the prior, C = diag(sqrt(prior_var))). The greedy scores are
+invariant under the change of basis, so with the weights of the one-stage design the
+continuation picks what the one-stage design picks next (the tests check it).
+"""
+from __future__ import annotations
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from goniofrost.frost.bayes_selection import GreedyDesign, greedy_design
+from goniofrost.frost.posterior import cell_noise, design_scale, fit, prior_variance
+from goniofrost.frost.usage_design import CHUNK_ROWS, is_uniform, linear_usage, scene_matrix, sensitivity_power
+
+
+def posterior_mean(model, picked, mapped) -> np.ndarray:
+    """The posterior mean of the mapped BRDF, L_hat = mu + D s_hat, float64 (n_valid, c), from
+    samples at rows ``picked`` (int (l,)) with mapped values ``mapped`` ((l, c) or (l,),
+    ``model.to_log`` of the measured values: mu not subtracted), under the model's cell noise."""
+    picked = np.asarray(picked, dtype=np.int64)
+    mu = np.asarray(model.mean, dtype=np.float64)
+    b = np.asarray(mapped, dtype=np.float64).reshape(picked.size, -1) - mu[picked, None]
+    noise = cell_noise(model)
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    post = fit(model.dictionary[picked], noise[picked], prior_variance(model), b, s2, float(noise.sum()), noise.size)
+    out = np.empty((mu.size, b.shape[1]))
+    coef = post.coefficients.astype(np.float32)
+    with threadpool_limits(limits=1, user_api="blas"):  # measured: BLAS threads only slow these passes
+        for lo in range(0, mu.size, CHUNK_ROWS):
+            out[lo:lo + CHUNK_ROWS] = np.asarray(model.dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ coef
+    return out + mu[:, None]
+
+
+def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: float | None = None,
+                    threads: int | None = None) -> GreedyDesign:
+    """The next m - l picks of the scene's design after the l cells ``picked`` (int (l,), rows of
+    the model) were measured with mapped values ``mapped`` ((l, c), ``model.to_log``).
+
+    The weights are u g^p with g at this material's posterior mean (module doc; ``usage`` (n_valid,)
+    sum 1; a uniform map is the plain design's continuation, no g); ``power`` p defaults to
+    ``usage_design.sensitivity_power(m)``. The picked cells are not picked again. Returns the
+    continuation's GreedyDesign (its ``rows``: the m - l new rows in pick order).
+    """
+    picked = np.asarray(picked, dtype=np.int64)
+    n = model.grid.n_valid
+    if not 0 < picked.size < m:
+        raise ValueError(f"continue_design: expected 0 < {picked.size} picks so far < m = {m}")
+    usage = np.asarray(usage, dtype=np.float64)
+    power = sensitivity_power(m) if power is None else power
+    if is_uniform(usage) or power == 0:
+        weights = usage
+    else:
+        level = posterior_mean(model, picked, mapped).mean(axis=1)
+        weights = linear_usage(usage, level, model.reference, model.weight, model.eps, power)
+    noise = cell_noise(model) * design_scale(model)  # what the design assumes (bayes_selection)
+    d = np.asarray(model.dictionary[picked], dtype=np.float64)
+    precision = d.T @ (d / noise[picked, None])
+    precision[np.diag_indices_from(precision)] += 1.0 / prior_variance(model)
+    covariance = np.linalg.inv(precision)
+    chol = np.linalg.cholesky(0.5 * (covariance + covariance.T))  # Sigma_l = C C^T
+    rotated = np.empty(model.dictionary.shape, dtype=np.float32)
+    with threadpool_limits(limits=1, user_api="blas"):  # 1.5 s -> 0.1 s for the scene matrix at load 5
+        lam, q = np.linalg.eigh(chol.T @ scene_matrix(model.dictionary, weights) @ chol)
+        rotation = (chol @ q).astype(np.float32)
+        for lo in range(0, n, CHUNK_ROWS):
+            rotated[lo:lo + CHUNK_ROWS] = np.asarray(model.dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
+    open_ = np.ones(n, dtype=bool)
+    open_[picked] = False
+    rows = np.flatnonzero(open_)
+    return greedy_design(rotated, np.clip(lam, 0.0, None), np.ones(lam.size), noise, m - picked.size, rows=rows,
+                         threads=threads)
