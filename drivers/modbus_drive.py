@@ -23,8 +23,8 @@ from .errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, Exce
 from .modbus_map import (
     InputBit, OutputBit, RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
 )
-from .modbus_protocol import (EXCEPTION_BIT, FrameError, check_rtu_frame, check_tcp_frame,
-                              describe_exception, with_crc)
+from .modbus_protocol import (EXCEPTION_BIT, MBAP_LENGTH, FrameError, check_rtu_frame,
+                              check_tcp_frame, describe_exception, with_crc)
 from .transport import PORT_ERRORS
 
 REPLY_TIMEOUT_S = 0.3
@@ -51,6 +51,8 @@ class TransportClient(ModbusBaseSyncClient):
         super().__init__(framer, 0, params, trace_packet, None, None)
         transport.timeout = float(timeout_s)
         self.transport = transport
+        self._tcp = framer != FramerType.RTU
+        self._pending = b""  # TCP: bytes after the first MBAP frame recv() handed over
 
     def connect(self) -> bool:
         return self.transport is not None
@@ -67,6 +69,7 @@ class TransportClient(ModbusBaseSyncClient):
     def send(self, request: bytes, addr: tuple | None = None) -> int:
         if self.transport is None:
             raise ConnectionException("transport closed")
+        self._pending = b""
         self.transport.reset_input_buffer()  # drops a late reply already here; one still on its
         # way is told apart by pymodbus (TCP transaction id) or ModbusLink (RTU: resync, function, size)
         self.transport.write(request)
@@ -74,12 +77,22 @@ class TransportClient(ModbusBaseSyncClient):
 
     def recv(self, size: int | None) -> bytes:
         """What has arrived: waits up to the timeout for a first byte (b"" on silence: pymodbus
-        then calls it a timeout), then takes what is waiting; the framer asks again for the rest."""
+        then calls it a timeout), then takes what is waiting; the framer asks again for the rest.
+
+        TCP: at most one MBAP frame at a time (the rest waits for the next call). pymodbus 3.12
+        skips a frame of another transaction id (a late reply) but decodes its buffer from the
+        start again for the next frame, so the awaited reply arriving behind a late one in the
+        same read would be thrown away with it (a spurious timeout)."""
         if self.transport is None:
             raise ConnectionException("transport closed")
-        data = self.transport.read(1 if size is None else size)
+        data, self._pending = self._pending, b""
+        if not data:
+            data = self.transport.read(1 if size is None else size)
         if data and size is None and self.transport.in_waiting:
             data += self.transport.read(self.transport.in_waiting)
+        if self._tcp and len(data) >= MBAP_LENGTH.stop:
+            end = MBAP_LENGTH.stop + int.from_bytes(data[MBAP_LENGTH], "big")
+            data, self._pending = data[:end], data[end:]
         return data
 
 

@@ -640,3 +640,19 @@ def test_rtu_a_stop_goes_out_even_when_the_resync_gets_no_echo_on_exact_bytes():
         axis.stop()
     axis.close()
     line.finish()
+
+
+def test_tcp_a_late_reply_of_an_earlier_transaction_is_skipped_and_the_next_one_taken_on_exact_bytes():
+    # the late reply (transaction 2) and the awaited one (3) arrive together: pymodbus skips the
+    # first by its transaction id; the second must not be thrown away with it
+    server = ScriptedTransport(CONNECT_TCP + [
+        (_tcp(2, 6, "03 00 7E 00 02"), b""),                                      # is_moving: late ...
+        (_tcp(3, 6, "03 01 20 00 02"), _read_reply(2, MOVING) + _read_reply(3, "00 00 0B B8")),
+    ])
+    axis = _scripted_axis()
+    axis.connect(server)
+    with pytest.raises(DeviceTimeout):
+        axis.is_moving()
+    assert axis.position() == pytest.approx(30.0)  # 3000 steps; never the status word (81.92)
+    axis.close()
+    server.finish()
