@@ -42,6 +42,7 @@ REBOOT_SETTLE_S = 0.5  # the servo is silent for a moment after REBOOT
 DEFAULT_REPLY_TIMEOUT_MS = 100.0
 MODEL_NUMBER = CONTROL_TABLE["model_number"]
 PING_REPLY_SIZE = 3  # a PING status carries model number L, H and the firmware version
+OWED_KEPT = 16  # statuses still awaited per size, at most
 
 
 POLL_TIMEOUT_S = 0.001  # the transport's read timeout: the SDK polls; waiting 1 ms frees the CPU
@@ -99,6 +100,8 @@ class DynamixelAxis(Axis):
         self.firmware_version: int | None = None
         self._transport = None
         self._port: _Port | None = None
+        # status size -> the instructions whose status never came: it may still arrive (``_exchange``)
+        self._owed: dict[int, list[bytes]] = {}
 
     @classmethod
     def from_section(cls, config: AxisConfig, section: Mapping) -> "DynamixelAxis":
@@ -133,8 +136,48 @@ class DynamixelAxis(Axis):
         size: a status carries no instruction, so one that arrives after ``clearPort`` with the
         wrong size is the late answer to an earlier instruction whose reply timed out (a WRITE's
         empty status taken as a PING's read as model number 0). A status with an error code is
-        taken whatever its size (a refusal may carry no data); a late status of the same size
-        cannot be told apart (a retried read asks the same question)."""
+        taken whatever its size (a refusal may carry no data).
+
+        A late status of the same size cannot be told apart by its size: harmless when this
+        instruction is the one that lost it (a retried read asks the same question), wrong for
+        another one (a late Moving = 1 read as Hardware Error Status: a false fault). So while
+        another instruction of this size owes a status, ``_resync`` goes first. Should that fail,
+        the instruction still goes out (a stop must reach the servo) and the resync's error is raised."""
+        if any(owed != request for owed in self._owed.get(reply_data, ())):
+            try:
+                self._resync(what)
+            except DeviceError:
+                try:
+                    self._exchange_once(what, request, reply_data)
+                except DeviceError:
+                    pass
+                raise
+        return self._exchange_once(what, request, reply_data)
+
+    def _resync(self, what: str) -> None:
+        """READ from address 0 a length no instruction owes a status of (5 bytes and up): the first
+        clean status of that size is this READ's, and the servo answers in order, so every late
+        status came before it (skipped by size) and nothing is owed any more."""
+        length = next(n for n in range(5, 64) if not self._owed.get(n))
+        request = build_instruction(self.dxl_id, Instruction.READ,
+                                    bytes([0, 0]) + length.to_bytes(2, "little"))
+        self._exchange_once(f"{what}: resync (READ addr 0, {length} bytes)", request, length, strict=True)
+        self._owed.clear()
+
+    def _exchange_once(self, what: str, request: bytes, reply_data: int,
+                       strict: bool = False) -> tuple[bytes, Packet]:
+        """One instruction and its status (``_exchange``); ``strict``: a status of another size
+        is never taken, not even a refusal. Keeps ``_owed``: an instruction without a clean
+        status of its own owes one; a late status skipped by its size pays one of that size."""
+        try:
+            return self._read_status(what, request, reply_data, strict)
+        except (DeviceTimeout, ProtocolError, ChecksumError):
+            owed = self._owed.setdefault(reply_data, [])
+            owed.append(request)
+            del owed[:-OWED_KEPT]  # a long silence: the oldest are long lost, not late
+            raise
+
+    def _read_status(self, what: str, request: bytes, reply_data: int, strict: bool) -> tuple[bytes, Packet]:
         reply_size = MIN_STATUS + reply_data
         port = self._port
         port.clearPort()  # a late status must not answer this instruction
@@ -146,9 +189,11 @@ class DynamixelAxis(Axis):
             frame = find_frame(buf)
             if frame is not None:
                 status = self._parse_status(what, frame)
-                if status.instruction == STATUS and status.dxl_id == self.dxl_id and (
-                        len(status.params) == reply_data or status.error & ~ALERT_BIT):
-                    return frame, status
+                if status.instruction == STATUS and status.dxl_id == self.dxl_id:
+                    if len(status.params) == reply_data or (status.error & ~ALERT_BIT and not strict):
+                        return frame, status
+                    if self._owed.get(len(status.params)):  # the late status of one of them
+                        self._owed[len(status.params)].pop(0)
             elif port.isPacketTimeout():
                 if buf:
                     raise ProtocolError(self.name, what, bytes(buf), "incomplete status packet")

@@ -23,10 +23,16 @@ from .errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, Exce
 from .modbus_map import (
     InputBit, OutputBit, RegisterMap, direct_data_registers, from_registers, resolve_map, to_registers,
 )
-from .modbus_protocol import FrameError, check_rtu_frame, check_tcp_frame, describe_exception
+from .modbus_protocol import (EXCEPTION_BIT, MBAP_LENGTH, FrameError, check_rtu_frame,
+                              check_tcp_frame, describe_exception, with_crc)
 from .transport import PORT_ERRORS
 
 REPLY_TIMEOUT_S = 0.3
+DIAGNOSTICS = 0x08          # function 08, sub-function 0000 "return query data": the drive echoes it
+RESYNC_MAX_BYTES = 4096     # a line that streams more than this before the echo is not in sync
+# what each client method sends: its function code (a reply of another function answers another request)
+FUNCTION_OF = {"read_coils": 1, "read_holding_registers": 3, "read_input_registers": 4, "write_coil": 5,
+               "write_registers": 16, "read_device_information": 43}
 
 
 class TransportClient(ModbusBaseSyncClient):
@@ -45,6 +51,8 @@ class TransportClient(ModbusBaseSyncClient):
         super().__init__(framer, 0, params, trace_packet, None, None)
         transport.timeout = float(timeout_s)
         self.transport = transport
+        self._tcp = framer != FramerType.RTU
+        self._pending = b""  # TCP: bytes after the first MBAP frame recv() handed over
 
     def connect(self) -> bool:
         return self.transport is not None
@@ -61,18 +69,30 @@ class TransportClient(ModbusBaseSyncClient):
     def send(self, request: bytes, addr: tuple | None = None) -> int:
         if self.transport is None:
             raise ConnectionException("transport closed")
-        self.transport.reset_input_buffer()  # a late reply must not answer this request
+        self._pending = b""
+        self.transport.reset_input_buffer()  # drops a late reply already here; one still on its
+        # way is told apart by pymodbus (TCP transaction id) or ModbusLink (RTU: resync, function, size)
         self.transport.write(request)
         return len(request)
 
     def recv(self, size: int | None) -> bytes:
         """What has arrived: waits up to the timeout for a first byte (b"" on silence: pymodbus
-        then calls it a timeout), then takes what is waiting; the framer asks again for the rest."""
+        then calls it a timeout), then takes what is waiting; the framer asks again for the rest.
+
+        TCP: at most one MBAP frame at a time (the rest waits for the next call). pymodbus 3.12
+        skips a frame of another transaction id (a late reply) but decodes its buffer from the
+        start again for the next frame, so the awaited reply arriving behind a late one in the
+        same read would be thrown away with it (a spurious timeout)."""
         if self.transport is None:
             raise ConnectionException("transport closed")
-        data = self.transport.read(1 if size is None else size)
+        data, self._pending = self._pending, b""
+        if not data:
+            data = self.transport.read(1 if size is None else size)
         if data and size is None and self.transport.in_waiting:
             data += self.transport.read(self.transport.in_waiting)
+        if self._tcp and len(data) >= MBAP_LENGTH.stop:
+            end = MBAP_LENGTH.stop + int.from_bytes(data[MBAP_LENGTH], "big")
+            data, self._pending = data[:end], data[end:]
         return data
 
 
@@ -88,6 +108,8 @@ class ModbusLink:
         self.timeout_s = float(timeout_s)
         self.client: TransportClient | None = None
         self._last_rx = b""
+        self._in_doubt = False  # RTU: a request went unanswered, its reply may still be on the way
+        self._echo_token = 0
 
     def open(self, transport) -> None:
         """Take the transport the rig layer opened (the link owns it from now on)."""
@@ -113,19 +135,93 @@ class ModbusLink:
         return data
 
     def call(self, text: str, method: str, *args, **kwargs):
-        """Run one client request; return the response or raise the matching DeviceError."""
+        """Run one client request; return the response or raise the matching DeviceError.
+
+        A late reply must not answer a later request. Modbus TCP replies carry the request's
+        transaction id (pymodbus skips others). An RTU reply carries only unit, function and data
+        (a read's reply not even its address), so a late reply of the same shape is
+        indistinguishable: after a request that went unanswered (or answered by a reply of
+        another request) the link resyncs first (``_resync``). A reply of another function or
+        size is a ProtocolError (retried like a damaged reply), never a value.
+        """
         if self.client is None:
             raise DeviceTimeout(self.name, text, None, "not connected")
-        try:
-            response = getattr(self.client, method)(*args, device_id=self.device_id, **kwargs)
-        except (ConnectionException, *PORT_ERRORS) as exc:  # OSError: the port vanished (EIO)
-            raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
-        except ModbusException as exc:
-            raise self._classify_silence(text, exc) from exc
+        if self.rtu and self._in_doubt:
+            try:
+                self._resync(text)
+            except DeviceError as exc:  # the request still goes out (a stop must reach the drive),
+                try:                    # but no reply can be trusted: the resync's error is raised
+                    self._request(text, method, *args, **kwargs)
+                except DeviceError:
+                    pass
+                raise exc
+        response = self._request(text, method, *args, **kwargs)
+        mismatch = self._mismatch(method, args, kwargs, response)
+        if mismatch:
+            self._in_doubt = True
+            raise ProtocolError(self.name, text, self._last_rx or None,
+                                f"a reply to another request (late?): {mismatch}")
         if isinstance(response, ExceptionResponse) or response.isError():
             code = getattr(response, "exception_code", None)
             raise ExceptionReply(self.name, text, self._last_rx or None, describe_exception(code), code=code)
         return response
+
+    def _request(self, text: str, method: str, *args, **kwargs):
+        """One pymodbus request: its response, or the driver error of a reply not accepted."""
+        try:
+            return getattr(self.client, method)(*args, device_id=self.device_id, **kwargs)
+        except (ConnectionException, *PORT_ERRORS) as exc:  # OSError: the port vanished (EIO)
+            self._in_doubt = True
+            raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
+        except ModbusException as exc:
+            self._in_doubt = True
+            raise self._classify_silence(text, exc) from exc
+
+    @staticmethod
+    def _mismatch(method: str, args: tuple, kwargs: dict, response) -> str | None:
+        """Why ``response`` cannot be the reply to this request (None when it can): another
+        function, another number of registers or bits, another written address or value."""
+        function = FUNCTION_OF.get(method)
+        got = getattr(response, "function_code", None)
+        if function is None or got == function | EXCEPTION_BIT:
+            return None
+        if got != function:
+            return f"function {got}, expected {function}"
+        count = kwargs.get("count", 1)
+        if function in (3, 4) and len(response.registers) != count:
+            return f"{len(response.registers)} registers, expected {count}"
+        if function == 1 and len(response.bits) != 8 * -(-count // 8):
+            return f"{len(response.bits)} bits, expected {count}"
+        if function == 16 and (response.address, response.count) != (args[0], len(args[1])):
+            return f"write echo {response.count} at 0x{response.address:04X}, expected {len(args[1])} at 0x{args[0]:04X}"
+        if function == 5 and (response.address, response.bits[:1]) != (args[0], [bool(args[1])]):
+            return f"coil echo {response.bits[:1]} at {response.address}, expected {bool(args[1])} at {args[0]}"
+        return None
+
+    def _resync(self, text: str) -> None:
+        """RTU only: send a diagnostics echo (08 / 0000) with a fresh token and skip every byte
+        until its echo (or the drive's exception 0x88: it lacks function 08) comes back. The drive
+        answers in order, so every late reply of an earlier request came before: the line is clean.
+        No echo within the reply timeout raises like an unanswered request (the caller retries)."""
+        transport = self.client.transport
+        self._echo_token = self._echo_token % 0xFFFF + 1
+        echo = with_crc(bytes([self.device_id, DIAGNOSTICS, 0, 0]) + self._echo_token.to_bytes(2, "big"))
+        refusal = bytes([self.device_id, DIAGNOSTICS | EXCEPTION_BIT])
+        what = f"{text}: resync (diagnostics echo)"
+        buf = bytearray()
+        try:
+            transport.reset_input_buffer()
+            transport.write(echo)
+            while echo not in buf and not any(with_crc(buf[i:i + 3]) == buf[i:i + 5]
+                                               for i in range(len(buf)) if buf[i:i + 2] == refusal):
+                chunk = transport.read(1)
+                if not chunk or len(buf) > RESYNC_MAX_BYTES:
+                    self._last_rx = bytes(buf)
+                    raise self._classify_silence(what, ModbusException("no echo before the line went quiet"))
+                buf += chunk + (transport.read(transport.in_waiting) if transport.in_waiting else b"")
+        except PORT_ERRORS as exc:
+            raise DeviceTimeout(self.name, what, None, f"connection lost: {exc}") from exc
+        self._in_doubt = False
 
     def _classify_silence(self, text: str, exc: Exception) -> DeviceError:
         """No accepted reply: was it silence, a bad CRC (RTU) or a malformed frame (TCP)?"""

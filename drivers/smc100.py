@@ -46,6 +46,7 @@ class SMC100Axis(Axis):
         self._latched_causes: list[str] = []  # TS error bits clear when read: keep them for _read_fault
         self._last_ts: TellState | None = None
         self.soft_limits_units: tuple[float, float] | None = None
+        self._te_owed = False  # a TE went unanswered: its reply may still come (``_tell_error``)
 
     @classmethod
     def from_section(cls, config: AxisConfig, section: Mapping) -> "SMC100Axis":
@@ -78,9 +79,12 @@ class SMC100Axis(Axis):
             raise DeviceTimeout(self.name, text, raw or None,
                                 f"no complete reply within {self.reply_timeout_s:g} s")
         try:
-            return parse_reply(raw, self.address, cmd)
+            value = parse_reply(raw, self.address, cmd)
         except ValueError as exc:
             raise ProtocolError(self.name, text, raw, str(exc)) from exc
+        if cmd is not Cmd.TELL_ERROR:
+            self._te_owed = False  # replies come in order: a late TE reply came before this one
+        return value
 
     def _command(self, cmd: Cmd, value=None) -> None:
         """Send a set command, then read TE: any letter but '@' raises ExceptionReply."""
@@ -96,8 +100,40 @@ class SMC100Axis(Axis):
     def _tell_error(self) -> str:
         """Read TE once. TE clears the letter it reports, so a TE whose reply was lost is not asked
         again (it would answer '@' for a refused command): the timeout goes up, where a move is
-        read back with TH (``_move_taken``) and a repeatable set command (VA, AC, MM) sent again."""
-        return self._query(Cmd.TELL_ERROR)
+        read back with TH (``_move_taken``) and a repeatable set command (VA, AC, MM) sent again.
+
+        Every TE reply looks alike (``1TE@``) whichever command it reports on: a late reply of a TE
+        that timed out would answer the next TE (a refused SR taken as accepted because SL's late
+        '@' came first). So after such a TE, the next one is preceded by a TP whose reply is
+        awaited with late lines skipped (``_resync``): the controller answers in order."""
+        if self._te_owed:
+            self._resync()
+        try:
+            letter = self._query(Cmd.TELL_ERROR)
+        except DeviceError:
+            self._te_owed = True
+            raise
+        return letter
+
+    def _resync(self) -> None:
+        """Send TP and read lines until its reply, skipping the late ones before it; then no
+        earlier reply is still on its way. No TP reply: DeviceTimeout (the caller may retry)."""
+        text = self._send(Cmd.TELL_POSITION)
+        while True:
+            try:
+                raw = self._serial.read_until(TERMINATOR)
+            except PORT_ERRORS as exc:
+                raise DeviceTimeout(self.name, text, None, f"connection lost: {exc}") from exc
+            if not raw.endswith(TERMINATOR):
+                raise DeviceTimeout(self.name, f"{text} (resync after a lost TE reply)", raw or None,
+                                    f"no complete reply within {self.reply_timeout_s:g} s")
+            try:
+                parse_reply(raw, self.address, Cmd.TELL_POSITION)
+            except ValueError:
+                log.info("%s: skipped a late reply %r before the TE", self.name, raw)
+                continue
+            self._te_owed = False
+            return
 
     def _tell_state(self) -> TellState:
         """Read and decode TS; latch its error bits (reading TS clears them on the controller)."""

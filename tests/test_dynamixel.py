@@ -445,3 +445,27 @@ def test_identity_pings_and_reads_the_model_number_on_exact_bytes():
 def test_the_twin_identifies_itself(servo, axis):
     assert axis.identity() == {"protocol": "dynamixel", "id": 1, "model_number": 1020, "model": "XM430-W350",
                                "firmware_version": 46, "model_number_register": 1020, "firmware_register": 46}
+
+
+# ----- a late status of the same size: another question of the same size after a lost status ------
+def test_a_late_status_of_the_same_size_does_not_answer_another_read_on_exact_bytes():
+    """READ Moving (1 byte) times out and its retry takes the late status (the same question): the
+    retry's own status is now on its way. Taken as the next READ's, Hardware Error Status would
+    read 1, a false input-voltage fault. A READ of a size nothing owes (5 bytes from address 0)
+    goes first; every status before its own is late and skipped (the servo answers in order)."""
+    line = ScriptedTransport(CONNECT_SCRIPT + [
+        (_read("present_position"), _ok(bytes(4))),
+        (_read("moving"), b""),                                             # late ...
+        (_read("moving"), _ok(b"\x01")),                                    # ... taken by the retry
+        (_req(Instruction.READ, H("00 00 05 00")),                          # resync: addr 0, 5 bytes
+         _ok(b"\x01") + _ok(H("FC 03 00 00 00"))),                          # the retry's late status first
+        (_read("hardware_error_status"), _ok(b"\x00")),                     # no fault
+        (_read("present_temperature"), _ok(b"\x24")),                       # 36 deg C
+    ])
+    axis = DynamixelAxis(_yaw_config(retries=1), "scripted", 1, 57600, "XM430-W350", CPD, reply_timeout_ms=200)
+    axis.connect(line)
+    status = axis.status()
+    assert status.moving and status.fault is None
+    assert status.details["temperature_c"] == 36
+    axis.close()
+    line.finish()

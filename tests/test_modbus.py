@@ -514,7 +514,8 @@ def test_the_twin_identifies_itself_to_the_driver_and_the_official_client(drive)
 
 def test_rtu_lamp_asks_a_lost_read_again_and_logs_the_retry(caplog):
     read_coil, coil_off = RTU_LAMP[0]
-    line = ScriptedTransport([(read_coil, b""), (read_coil, coil_off)])  # one reply lost, then answered
+    echo = H("11 08 00 00 00 01 23 5B")  # the resync after an unanswered request (diagnostics echo)
+    line = ScriptedTransport([(read_coil, b""), (echo, echo), (read_coil, coil_off)])  # one reply lost, then answered
     lamp = Lamp.from_section({"protocol": "modbus-rtu", "port": "scripted", "device_id": 0x11, "parity": "N",
                               "coil": 0xAC, "photodiode_register": 0x0008})
     with caplog.at_level(logging.INFO, logger="drivers.lamp"):
@@ -523,3 +524,135 @@ def test_rtu_lamp_asks_a_lost_read_again_and_logs_the_retry(caplog):
         "lamp: read coil 172: retry 1 of 2 after lamp: read coil 172: no reply within 0.3 s"]
     lamp.close()
     line.finish()
+
+
+# ----- a late reply to an earlier request (RTU carries no transaction id) ----------------------
+# Under load a drive's reply can come after the driver gave up on it and sent the next request.
+# An RTU read reply names neither register nor request: "01 03 04 ..." of the output status is
+# byte for byte a possible feedback position. After a request that went unanswered the link first
+# sends a diagnostics echo (08 / 0000, return query data, a fresh 2-byte token) and skips every
+# frame before the echo: the drive answers in order, so once the echo is back nothing earlier is
+# still on its way.
+RTU_STATUS = H("01 03 00 7E 00 02 A4 13")       # read the output status (0x007E, 2 registers)
+RTU_POSITION = H("01 03 01 20 00 02 C4 3D")     # read the feedback position (0x0120, 2 registers)
+RTU_IDLE = H("01 03 04 00 00 40 20 CA 2B")
+RTU_MOVING = H("01 03 04 00 00 20 00 E3 F3")    # 0x2000 = 8192: as a position, 81.92 deg
+RTU_ECHO_1 = H("01 08 00 00 00 01 21 CB")       # echo request = its reply
+RTU_ECHO_2 = H("01 08 00 00 00 02 61 CA")
+RTU_MOVE = H("01 10 00 58 00 10 20" "0000 0000 0000 0001" "0000 0BB8 0000 0BB8"
+             "0000 1770 0000 1770" "0000 03E8 0000 0001" "5A 8A")  # the direct data of START_MOVE_TCP
+RTU_MOVE_REPLY = H("01 10 00 58 00 10 40 16")
+RTU_LATE = [(RTU_STATUS, RTU_IDLE), (RTU_POSITION, RTU_MOVING), (RTU_ECHO_1, RTU_ECHO_1),
+            (RTU_ECHO_2, RTU_ECHO_2), (RTU_MOVE, RTU_MOVE_REPLY), (H("01 88 01 87 C0"), b""),
+            (H("01 01 00 00 00 01 FD CA"), H("01 01 01 01 90 48")),
+            (H("01 04 02 00 00 01 30 72"), H("01 04 02 C3 50 E9 FC"))]
+
+
+@pytest.mark.parametrize("script", [RTU_LATE], ids=["late"])
+def test_rtu_frames_of_the_late_reply_scripts_carry_valid_crcs(script):
+    for frame in (f for pair in script for f in pair if f):
+        assert FramerRTU.compute_CRC(frame[:-2]).to_bytes(2, "big") == frame[-2:]
+
+
+def _rtu_axis(retries: int = 0) -> ModbusAxis:
+    cfg = AxisConfig("camera_arm", (-90.0, 90.0), 30.0, 60.0, tolerance_deg=0.02, retries=retries)
+    return ModbusAxis(cfg, rtu=True, timeout_s=0.3)
+
+
+def test_rtu_a_late_status_reply_does_not_answer_the_next_position_read_on_exact_bytes():
+    line = ScriptedTransport([
+        (RTU_STATUS, RTU_IDLE),                # connect
+        (RTU_STATUS, b""),                     # is_moving: the reply is late ...
+        (RTU_ECHO_1, RTU_MOVING + RTU_ECHO_1),  # ... and comes after the next request: skipped
+        (RTU_POSITION, H("01 03 04 00 00 0B B8 FD 71")),  # 3000 steps
+    ])
+    axis = _rtu_axis()
+    axis.connect(line)
+    with pytest.raises(DeviceTimeout):
+        axis.is_moving()
+    assert axis.position() == pytest.approx(30.0)  # not 81.92: the status word read as a position
+    axis.close()
+    line.finish()
+
+
+def test_rtu_a_late_move_reply_does_not_answer_the_read_back_on_exact_bytes():
+    line = ScriptedTransport([
+        (RTU_STATUS, RTU_IDLE),                                # connect
+        (RTU_POSITION, H("01 03 04 FF FF FC 18 BB 1D")),       # -1000 steps = -10 deg
+        (RTU_MOVE, b""),                                       # the move's reply is late ...
+        (RTU_ECHO_1, RTU_MOVE_REPLY + RTU_ECHO_1),             # ... skipped before the echo
+        (RTU_STATUS, RTU_MOVING),                              # read back: moving, the drive took it
+    ])
+    axis = _rtu_axis()
+    axis.connect(line)
+    axis.move_to(30.0)  # taken: not sent again, no stop
+    axis.close()
+    line.finish()
+
+
+def test_rtu_a_reply_of_another_request_is_a_protocol_error_then_the_link_resyncs_on_exact_bytes():
+    # a write's echo where a read's reply should be (not preceded by a timeout this link saw):
+    # pymodbus hands the write response to the read; the link must not return its empty registers
+    line = ScriptedTransport([
+        (RTU_STATUS, RTU_IDLE),                 # connect
+        (RTU_POSITION, RTU_MOVE_REPLY),         # not the answer: a ProtocolError, retried ...
+        (RTU_ECHO_1, RTU_ECHO_1),               # ... after the echo
+        (RTU_POSITION, H("01 03 04 00 00 0B B8 FD 71")),
+    ])
+    axis = _rtu_axis(retries=1)
+    axis.connect(line)
+    assert axis.position() == pytest.approx(30.0)
+    axis.close()
+    line.finish()
+
+
+def test_rtu_lamp_on_the_axis_link_takes_no_late_status_as_its_photodiode_on_exact_bytes():
+    line = ScriptedTransport([
+        (RTU_STATUS, RTU_IDLE),                               # the axis connects
+        (H("01 01 00 00 00 01 FD CA"), H("01 01 01 01 90 48")),  # the lamp connects: coil 0 on
+        (RTU_STATUS, b""),                                    # is_moving: the reply is late
+        (RTU_ECHO_1, RTU_MOVING + RTU_ECHO_1),                # ... skipped before the echo
+        (H("01 04 02 00 00 01 30 72"), H("01 04 02 C3 50 E9 FC")),  # photodiode 50000 counts
+    ])
+    axis = _rtu_axis()
+    axis.connect(line)
+    lamp = Lamp.from_section({"device": "camera_arm"}, {"camera_arm": axis})
+    lamp.connect()
+    with pytest.raises(DeviceTimeout):
+        axis.is_moving()
+    assert lamp.photodiode() == 1.0
+    axis.close()
+    line.finish()
+
+
+def test_rtu_a_stop_goes_out_even_when_the_resync_gets_no_echo_on_exact_bytes():
+    line = ScriptedTransport([
+        (RTU_STATUS, RTU_IDLE),                                      # connect
+        (RTU_STATUS, b""),                                           # is_moving: no reply
+        (RTU_ECHO_1, b""),                                           # the resync: no echo either ...
+        (H("01 10 00 7C 00 02 04 00 00 00 20 F5 06"), b""),          # ... STOP still reaches the drive
+    ])
+    axis = _rtu_axis()
+    axis.connect(line)
+    with pytest.raises(DeviceTimeout):
+        axis.is_moving()
+    with pytest.raises(DeviceTimeout, match="resync"):  # no reply can be trusted: the stop is not confirmed
+        axis.stop()
+    axis.close()
+    line.finish()
+
+
+def test_tcp_a_late_reply_of_an_earlier_transaction_is_skipped_and_the_next_one_taken_on_exact_bytes():
+    # the late reply (transaction 2) and the awaited one (3) arrive together: pymodbus skips the
+    # first by its transaction id; the second must not be thrown away with it
+    server = ScriptedTransport(CONNECT_TCP + [
+        (_tcp(2, 6, "03 00 7E 00 02"), b""),                                      # is_moving: late ...
+        (_tcp(3, 6, "03 01 20 00 02"), _read_reply(2, MOVING) + _read_reply(3, "00 00 0B B8")),
+    ])
+    axis = _scripted_axis()
+    axis.connect(server)
+    with pytest.raises(DeviceTimeout):
+        axis.is_moving()
+    assert axis.position() == pytest.approx(30.0)  # 3000 steps; never the status word (81.92)
+    axis.close()
+    server.finish()

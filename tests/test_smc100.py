@@ -396,3 +396,22 @@ def test_lost_te_after_or_is_read_back_with_ts_on_exact_bytes():
     assert axis.home().wait() == 0.0
     axis.close()
     line.finish()
+
+
+# ----- a late TE reply: every TE reply looks alike, whichever command it reports on ----------------
+def test_a_late_te_reply_does_not_answer_the_te_of_the_next_set_command_on_exact_bytes():
+    line = ScriptedTransport(CONNECT_SMC + [
+        (b"1SL-40\r\n", b""), (b"1TE\r\n", b""),             # SL's TE reply is late ...
+        (b"1SL-40\r\n", b""),                                # ... SL again (a repeatable set command)
+        (b"1TP\r\n", b"1TE@\r\n1TP0\r\n"),                   # TP first: the late 1TE@ is skipped
+        (b"1TE\r\n", b"1TE@\r\n"),                           # SL accepted
+        (b"1SR40\r\n", b""), (b"1TE\r\n", b"1TEC\r\n"),      # SR refused: C, not SL's late '@'
+    ])
+    cfg = AxisConfig("sample_tilt", (-80.0, 80.0), 20.0, 40.0, retries=1)
+    axis = SMC100Axis(cfg, "scripted", address=1, reply_timeout_s=0.5)
+    axis.connect(line)
+    with pytest.raises(ExceptionReply, match="1SR40") as err:
+        axis.set_soft_limits(-40.0, 40.0)
+    assert err.value.code == "C"
+    axis.close()
+    line.finish()
