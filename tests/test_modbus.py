@@ -656,3 +656,17 @@ def test_tcp_a_late_reply_of_an_earlier_transaction_is_skipped_and_the_next_one_
     assert axis.position() == pytest.approx(30.0)  # 3000 steps; never the status word (81.92)
     axis.close()
     server.finish()
+
+
+@pytest.mark.parametrize("drive", [("rtu", 40.0)], indirect=True)
+def test_rtu_a_lost_reply_resyncs_with_the_twin_s_own_diagnostics_echo(drive):
+    """The scripted exchanges above play the echo from the manual's bytes; here pymodbus's server
+    (the twin) answers it: after a lost reply the link sends 08/0000 and reads the position right."""
+    ax = make_axis(drive)
+    drive.inject_fault("miss_reply")
+    assert ax.position() == pytest.approx(90.0, abs=0.01)  # lost, asked again after the resync
+    echoes = [r for r in drive.requests if len(r) > 1 and r[1] == 0x08]
+    assert len(echoes) == 1 and echoes[0][2:4] == b"\x00\x00"  # sub-function 0000: return query data
+    assert ax.position() == pytest.approx(90.0, abs=0.01)       # in sync again: no second echo
+    assert len([r for r in drive.requests if len(r) > 1 and r[1] == 0x08]) == 1
+    ax.close()
