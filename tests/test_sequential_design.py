@@ -102,3 +102,21 @@ def test_the_benchmarks_sequential_designs_start_from_the_shipped_design(model):
     assert chain[:4].tolist() == select_bayes(model, 8, usage=usage).positions[:4].tolist() and len(set(chain)) == 12
     designs = module["sequential_designs"](model, {"retro": usage}, truth, [8, 12], ["seq half"], {})
     assert designs[12][("retro", "seq half")].tolist() == half.tolist() and len(designs[8][("retro", "seq half")]) == 8
+
+
+def test_a_continuation_keeps_to_the_candidates_it_is_given(model):
+    """A rig reaches only some cells (``select_bayes(candidates=)``): the re-planned picks too. The
+    mask here shuts exactly the cells the unmasked continuation would take."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.sequential_design import continue_design
+
+    usage, m, truth = retro_map(), 12, material("chrome")
+    first = select_bayes(model, m, usage=usage).positions[:6]
+    mapped = model.to_log(truth[first], first)
+    free = continue_design(model, usage, first, mapped, m).rows
+    reach = np.ones(GRID.n_valid, dtype=bool)
+    reach[free] = False
+    rest = continue_design(model, usage, first, mapped, m, candidates=reach).rows
+    assert rest.size == 6 and reach[rest].all() and not set(rest.tolist()) & set(first.tolist())
+    with pytest.raises(ValueError, match="bool mask of the"):
+        continue_design(model, usage, first, mapped, m, candidates=reach[:10])

@@ -44,14 +44,16 @@ def posterior_mean(model, picked, mapped) -> np.ndarray:
 
 
 def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: float | None = None,
-                    threads: int | None = None) -> GreedyDesign:
+                    threads: int | None = None, candidates: np.ndarray | None = None) -> GreedyDesign:
     """The next m - l picks of the scene's design after the l cells ``picked`` (int (l,), rows of
     the model) were measured with mapped values ``mapped`` ((l, c), ``model.to_log``).
 
     The weights are u g^p with g at this material's posterior mean (module doc; ``usage`` (n_valid,)
     sum 1; a uniform map is the plain design's continuation, no g); ``power`` p defaults to
-    ``usage_design.sensitivity_power(m)``. The picked cells are not picked again. Returns the
-    continuation's GreedyDesign (its ``rows``: the m - l new rows in pick order).
+    ``usage_design.sensitivity_power(m)``. The picked cells are not picked again; ``candidates``:
+    bool (n_valid,), the cells allowed (a rig's reachable ones, as ``select_bayes`` takes them;
+    default all). Returns the continuation's GreedyDesign (its ``rows``: the m - l new rows in
+    pick order).
     """
     picked = np.asarray(picked, dtype=np.int64)
     n = model.grid.n_valid
@@ -76,7 +78,9 @@ def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: flo
         rotation = (chol @ q).astype(np.float32)
         for lo in range(0, n, CHUNK_ROWS):
             rotated[lo:lo + CHUNK_ROWS] = np.asarray(model.dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
-    open_ = np.ones(n, dtype=bool)
+    open_ = np.ones(n, dtype=bool) if candidates is None else np.array(candidates, dtype=bool)
+    if open_.shape != (n,):
+        raise ValueError(f"continue_design: candidates must be a bool mask of the {n} valid cells, found shape {open_.shape}")
     open_[picked] = False
     rows = np.flatnonzero(open_)
     return greedy_design(rotated, np.clip(lam, 0.0, None), np.ones(lam.size), noise, m - picked.size, rows=rows,
