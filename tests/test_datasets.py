@@ -125,6 +125,43 @@ def test_builtin_conserves_energy(theta_i_deg):
     assert a.min() > 0.0
 
 
+# ----- seeded random analytic materials (builtin-random:SEED:COUNT) -----------------------------
+RANDOM = open_dataset("builtin-random:3:40")  # 40 draws: every family (checked below)
+
+
+def test_random_materials_are_seeded_nested_and_none_of_the_library():
+    from goniofrost.datasets.builtin import FAMILIES, LIBRARY, random_library
+
+    first = random_library(3, 40)
+    assert first == random_library(3, 40) and list(random_library(3, 7).items()) == list(first.items())[:7]
+    assert random_library(4, 40) != first
+    assert {n.split("-", 2)[2] for n in first} == set(FAMILIES)
+    assert not set(first.values()) & set(LIBRARY.values()) and not set(first) & set(LIBRARY)
+    assert RANDOM.names() == list(first) and RANDOM.spec == "builtin-random:3:40"
+    dataset, name = parse_material_spec("builtin-random:3:40:r3-002-" + RANDOM.names()[1].split("-", 2)[2])
+    assert name == RANDOM.names()[1] and dataset.content_id(name) == RANDOM.content_id(name)
+
+
+def test_random_materials_are_finite_reciprocal_and_conserve_energy():
+    names = RANDOM.names()
+    table = RANDOM.tabulate(names, SMALL)
+    assert np.all(np.isfinite(table)) and np.all(table >= 0) and np.all(table.max(axis=1) > 0)
+    w_i, w_o = random_pairs(300, seed=1)
+    np.testing.assert_allclose(RANDOM._evaluate_many(names, *dirs_to_half_diff(w_i, w_o)),
+                               RANDOM._evaluate_many(names, *dirs_to_half_diff(w_o, w_i)), rtol=1e-9, atol=1e-12)
+    for theta_i_deg in (0, 70, 85):
+        a = albedo(RANDOM, names, np.radians(theta_i_deg))
+        assert 0.0 < a.min() and a.max() <= 1.0, f"{names[int(np.argmax(a.max(axis=1)))]} at {theta_i_deg} deg"
+
+
+@pytest.mark.parametrize("spec", ["builtin-random", "builtin-random:3", "builtin-random:x:5", "builtin-random:3:0",
+                                  "builtin-random:-1:5", "builtin-random:3:1001"])
+def test_a_bad_random_spec_says_what_it_expects(spec):
+    with pytest.raises(DatasetError, match=r"expected builtin-random:SEED:COUNT, SEED an integer >= 0 and COUNT an "
+                                           r"integer 1-1000, e\.g\. builtin-random:1:24"):
+        open_dataset(spec)
+
+
 # ----- MERL folders ----------------------------------------------------------------------------
 @pytest.fixture()
 def merl_dir(tmp_path):
@@ -175,6 +212,7 @@ class CountingBuiltin(BuiltinDataset):
     """The built-in library, counting how many materials it really tabulates."""
 
     def __init__(self) -> None:
+        super().__init__()
         self.computed: list[str] = []
 
     def tabulate(self, names=None, grid=SMALL, cells=None):

@@ -1,7 +1,8 @@
 """Material datasets behind one interface: ``open_dataset(SPEC)``.
 
 SPEC is ``builtin`` (the analytic library shipped with goniofrost), ``nbrdf:PATH.npz``
-(Neural-BRDF networks) or ``merl:DIR`` (a folder of MERL .binary files). Several specs can be
+(Neural-BRDF networks), ``merl:DIR`` (a folder of MERL .binary files) or
+``builtin-random:SEED:COUNT`` (seeded analytic materials of the built-in families). Several specs can be
 combined with ``open_datasets``. ``SPEC:NAME`` names one material (``parse_material_spec``).
 The SPECs are read by ``specs``, the tables made and cached by ``tabulate``.
 """

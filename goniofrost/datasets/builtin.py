@@ -189,6 +189,53 @@ LIBRARY: dict[str, MaterialSpec] = {
     "lunar-dust": _retro((0.12, 0.11, 0.10), (0.10, 0.09, 0.08), 0.60),
 }
 
+# Seeded random materials (dataset spec ``builtin-random:SEED:COUNT``, ``random_library``): a
+# renewable supply of materials no benchmark has seen, for test sets fixed before their first run
+# (each built-in test set of issue 29 was spent once run). Each is drawn from one of the library's
+# families, its parameters within that family's spread in LIBRARY above: of a kind the library
+# holds, none of its materials.
+FAMILIES = ("diffuse", "plastic", "metal", "coated", "metallic-paint", "fabric", "retro")
+# Mixed into the seed so that builtin-random:SEED draws differ from other seeded streams.
+RANDOM_SALT = 0x6F6E696F
+
+
+def random_library(seed: int, count: int) -> dict[str, MaterialSpec]:
+    """``count`` materials drawn with ``seed`` (the same seed: the same materials; the first k of a
+    larger count are the k-material library), named ``r{seed}-{index:03d}-{family}``."""
+    rng = np.random.default_rng([RANDOM_SALT, int(seed)])
+    out = {}
+    for index in range(1, int(count) + 1):
+        family = FAMILIES[int(rng.integers(len(FAMILIES)))]
+        out[f"r{seed}-{index:03d}-{family}"] = _draw(family, rng)
+    return out
+
+
+def _colour(rng, lo: float, hi: float) -> tuple:
+    return tuple(round(float(v), 4) for v in rng.uniform(lo, hi, 3))
+
+
+def _log_uniform(rng, lo: float, hi: float) -> float:
+    return round(float(np.exp(rng.uniform(np.log(lo), np.log(hi)))), 4)
+
+
+def _draw(family: str, rng) -> MaterialSpec:
+    """One material of ``family``: colours uniform per channel, roughnesses log-uniform, within the
+    family's range in LIBRARY."""
+    if family == "diffuse":
+        return _diffuse(_colour(rng, 0.02, 0.85))
+    if family == "plastic":
+        return _plastic(_colour(rng, 0.02, 0.80), _log_uniform(rng, 0.03, 0.50))
+    if family == "metal":
+        return _metal(sorted(METALS)[int(rng.integers(len(METALS)))], _log_uniform(rng, 0.012, 0.35))
+    if family == "coated":
+        return _coated(_colour(rng, 0.01, 0.85), _log_uniform(rng, 0.015, 0.05))
+    if family == "metallic-paint":
+        return _metallic_paint(_colour(rng, 0.08, 0.80))
+    if family == "fabric":
+        rho, sheen, alpha = _colour(rng, 0.01, 0.75), _colour(rng, 0.10, 0.90), round(float(rng.uniform(0.25, 0.9)), 4)
+        return _fabric(rho, sheen, alpha, _log_uniform(rng, 0.15, 0.35) if rng.random() < 0.3 else None)
+    return _retro(_colour(rng, 0.10, 0.60), _colour(rng, 0.05, 0.60), round(float(rng.uniform(0.15, 0.60)), 4))
+
 
 class CompiledMaterial:
     """A material's lookup tables (Fresnel and albedo), ready to evaluate on a Geometry."""
@@ -254,21 +301,24 @@ def _albedo(lobe, axis: str) -> np.ndarray:
 
 
 @lru_cache(maxsize=None)
-def compiled(name: str) -> CompiledMaterial:
-    """The compiled built-in material ``name`` (computed once per process)."""
-    return CompiledMaterial(LIBRARY[name])
+def compiled_spec(spec: MaterialSpec) -> CompiledMaterial:
+    """The compiled material of ``spec`` (computed once per process and spec)."""
+    return CompiledMaterial(spec)
 
 
 class BuiltinDataset(Dataset):
-    """The analytic library: ``names()`` lists LIBRARY; evaluation is exact at any angles."""
+    """The analytic library: ``names()`` lists LIBRARY (or ``library``, e.g. ``random_library``'s,
+    under ``spec``); evaluation is exact at any angles."""
 
-    spec = "builtin"
+    def __init__(self, library: dict[str, MaterialSpec] | None = None, spec: str = "builtin") -> None:
+        self.library = LIBRARY if library is None else dict(library)
+        self.spec = spec
 
     def names(self) -> list[str]:
-        return list(LIBRARY)
+        return list(self.library)
 
     def content_id(self, name: str) -> str:
-        params = json.dumps(asdict(LIBRARY[self.resolve(name)]), sort_keys=True)
+        params = json.dumps(asdict(self.library[self.resolve(name)]), sort_keys=True)
         digest = hashlib.sha256(params.encode()).hexdigest()[:16]
         return f"{LIBRARY_VERSION}:{name}:{digest}"
 
@@ -280,7 +330,7 @@ class BuiltinDataset(Dataset):
         """float32 (len(names), n_cells, 3): blocks of cells on one thread per core."""
         names = self.names() if names is None else [self.resolve(n) for n in names]
         for name in names:
-            compiled(name)  # albedo tables once, before the threads
+            compiled_spec(self.library[name])  # albedo tables once, before the threads
         cells = grid.valid_cells if cells is None else np.asarray(cells, dtype=np.int64)
         return tabulate_blocks(self._evaluate_many, names, grid, cells, BLOCK_CELLS)
 
@@ -288,5 +338,5 @@ class BuiltinDataset(Dataset):
         """(len(names), *shape, 3): the geometry is computed once for all materials."""
         shape = np.broadcast_shapes(*(np.shape(a) for a in (theta_h, theta_d, phi_d)))
         geo = Geometry.from_angles(theta_h, theta_d, phi_d)
-        materials = [compiled(self.resolve(n)) for n in names]
+        materials = [compiled_spec(self.library[self.resolve(n)]) for n in names]
         return np.stack([m.evaluate(geo) for m in materials]).reshape(len(names), *shape, 3)

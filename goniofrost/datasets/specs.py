@@ -1,4 +1,5 @@
-"""Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``),
+"""Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``,
+``builtin-random:SEED:COUNT``),
 ``parse_material_spec(SPEC:NAME)`` and ``material_brdf(SPEC:NAME)`` (a BRDF function for the
 simulated camera). The package ``goniofrost.datasets`` re-exports them.
 """
@@ -21,11 +22,28 @@ def open_dataset(spec: str) -> Dataset:
     if sep and kind == "merl" and arg:
         from goniofrost.datasets.merl_dir import MerlDirDataset
         return MerlDirDataset(arg)
+    if kind == RANDOM:
+        return _random_dataset(spec, arg)
     close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl"], n=1, cutoff=0.5)
     hint = f"; did you mean {close[0] if close[0] == 'builtin' else close[0] + ':' + (arg or 'PATH')}?" if close else ""
     raise DatasetError(
-        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz' or 'merl:DIR'{hint}"
+        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz', 'merl:DIR' or '{RANDOM}:SEED:COUNT'{hint}"
     )
+
+
+RANDOM = "builtin-random"
+MAX_RANDOM = 1000  # materials of one builtin-random spec
+
+
+def _random_dataset(spec: str, arg: str) -> Dataset:
+    """``builtin-random:SEED:COUNT``: COUNT seeded analytic materials (``builtin.random_library``)."""
+    from goniofrost.datasets.builtin import BuiltinDataset, random_library
+
+    seed, sep, count = arg.partition(":")
+    if not (sep and seed.isdigit() and count.isdigit() and 1 <= int(count) <= MAX_RANDOM):
+        raise DatasetError(f"dataset spec {spec!r}: expected {RANDOM}:SEED:COUNT, SEED an integer >= 0 and "
+                           f"COUNT an integer 1-{MAX_RANDOM}, e.g. {RANDOM}:1:24")
+    return BuiltinDataset(random_library(int(seed), int(count)), spec=f"{RANDOM}:{int(seed)}:{int(count)}")
 
 
 def parse_material_spec(text: str) -> tuple[Dataset, str]:

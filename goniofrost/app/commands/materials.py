@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "List the materials of a dataset (builtin, nbrdf:PATH.npz, merl:DIR), one name per line."
+HELP = "List the materials of a dataset (builtin, nbrdf:PATH.npz, merl:DIR, builtin-random:SEED:COUNT), one name per line."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", required=True, metavar="SPEC",
-                        help="builtin, nbrdf:PATH.npz (Neural-BRDF networks) or merl:DIR (MERL .binary files)")
+                        help="builtin, nbrdf:PATH.npz (Neural-BRDF networks), merl:DIR (MERL .binary files) or "
+                             "builtin-random:SEED:COUNT (seeded analytic materials of the built-in families)")
 
 
 def run(args: argparse.Namespace) -> int:
