@@ -16,7 +16,8 @@ MERL material, e.g. ``aluminium``, but are analytic GGX and Lambert lobes, not f
 measurements); the model is trained on all 151 shared materials, none of them a test material.
 ``--test-set builtin1``: the same from the second name (names[1::3], 25 materials; issue 29's second
 fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
-fixed before its first run, issue 29 round 5).
+fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded analytic materials
+of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run.
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -61,6 +62,10 @@ SCENES = ("retro-sphere", "grazing-plane", "top-light")
 # "builtin1" (offset 1, 25 materials) its second, fixed before its first run; "builtin2" (offset 2,
 # 24 materials) its third, fixed before its first run (round 5, the sequential design).
 BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
+# Fresh analytic test sets drawn by seed (``builtin-random:SEED:COUNT``, the built-in families'
+# parameter ranges, none a library material): the built-in offsets above are spent. "fresh1" was
+# fixed on 2 December 2026 (stop 36) before any run; the model is trained on all 151 shared materials.
+FRESH_SETS = {"fresh1": "builtin-random:1:24"}
 
 
 def parse(argv=None):
@@ -79,11 +84,12 @@ def parse(argv=None):
                    help="also the scene-aware design at 0.6 m (the goal's fewer-samples branch)")
     p.add_argument("--no-export", action="store_true",
                    help="direct renders only (the export-based figure is the slow part: RGL tensors of every reconstruction)")
-    p.add_argument("--test-set", choices=("shared",) + tuple(BUILTIN_OFFSETS), default="shared",
+    p.add_argument("--test-set", choices=("shared",) + tuple(BUILTIN_OFFSETS) + tuple(FRESH_SETS), default="shared",
                    help="shared: 22 of the 151 shared materials, the model trained on the other 129; builtin: 25 of "
                         "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
                         "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
-                        "names[2::3] (the third, 24 materials)")
+                        "names[2::3] (the third, 24 materials); fresh1: 24 seeded analytic materials of the built-in "
+                        "families, none a library material (builtin-random:1:24, never run before stop 36)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -111,6 +117,9 @@ def setting(args):
     if args.test_set in BUILTIN_OFFSETS and not args.smallest:
         test_specs, training = ["builtin"], names
         test = sorted(n for _, n in material_names(test_specs))[BUILTIN_OFFSETS[args.test_set]::3]
+    if args.test_set in FRESH_SETS and not args.smallest:
+        test_specs, training = [FRESH_SETS[args.test_set]], names
+        test = sorted(n for _, n in material_names(test_specs))
     if args.materials is not None:
         test = test[:args.materials]
     return specs, test_specs, grid, training, test, ms, spp, uspp

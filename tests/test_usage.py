@@ -362,6 +362,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "builtin2"]))
     assert test3 == builtin[2::3] and len(test3) == 24 and not set(test3) & (set(test) | set(test1))
     assert test_specs3 == ["builtin"] and training3 == training
+    # --test-set fresh1: 24 seeded analytic materials, none of the library's (so none of the three above)
+    _, test_specs4, _, training4, test4, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "fresh1"]))
+    assert test_specs4 == ["builtin-random:1:24"] and training4 == training and len(test4) == 24
+    assert test4 == sorted(n for _, n in material_names(test_specs4)) and not set(test4) & set(builtin)
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
