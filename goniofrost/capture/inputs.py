@@ -43,7 +43,9 @@ class SessionInputs:
     @property
     def sentinel(self) -> np.ndarray | None:
         """bool (n,): the plan's sentinel samples (``plan --sentinels``), None for a plan without."""
-        flags = np.array([bool(s.get("sentinel", False)) for s in self.samples])
+        from goniofrost.capture.plan_file import sentinel_flags
+
+        flags = np.array(sentinel_flags(self.samples), dtype=bool)
         return flags if flags.any() else None
 
 

@@ -70,6 +70,12 @@ def add_sentinels(doc: dict, grid, positions) -> dict:
                   "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])}
 
 
+def sentinel_flags(samples) -> list[bool]:
+    """Per entry of a plan's ``samples``, whether it is a sentinel (``add_sentinels``); an entry
+    that is not a mapping (a plan being written, read by the monitor) is not one."""
+    return [isinstance(entry, dict) and bool(entry.get("sentinel", False)) for entry in samples]
+
+
 def with_sentinels(doc: dict, model, design, candidates=None, asked: bool = False) -> tuple[dict, str]:
     """(the Bayesian plan ``doc`` with the model's sentinel samples, a line saying which or why
     none): as many as the model calibrated, among the ``candidates`` (bool (n_valid,), default

@@ -166,9 +166,10 @@ class SessionView:
         """Whether plan samples were journaled as not measured and none but sentinels (which only
         check a reconstruction) was measured: too dark or saturated for the rig's exposures, nothing
         to reconstruct (the capture's TooFewSamplesError)."""
-        entries = self.plan_doc.get("samples") or []
-        sentinel = {i for i, entry in enumerate(entries) if isinstance(entry, dict) and entry.get("sentinel")}
-        return bool(self.not_measured) and all(d.plan_index in sentinel for d in self.done)
+        from goniofrost.capture.plan_file import sentinel_flags  # here: plan_file's imports (numba) cost 0.4 s
+
+        flags = sentinel_flags(self.plan_doc.get("samples") or [])
+        return bool(self.not_measured) and all(d.plan_index < len(flags) and flags[d.plan_index] for d in self.done)
 
 
 def journal_path(session_dir) -> Path:
