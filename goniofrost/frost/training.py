@@ -80,8 +80,10 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     svals, vt = _eigen_components(gram, k_max)
     variance, noise_meta = None, {}
     if noise and len(names) >= MIN_NOISE_MATERIALS:
+        from goniofrost.frost.calibration import model_atoms  # the inner folds' coordinates on this model's atoms
+
         variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
-                                           calibration_atoms(gram, vt, svals))
+                                           model_atoms(gram, vt, svals))
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     dictionary = _project(mapped, vt)
@@ -89,13 +91,6 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
                       singular_values=svals, coefficients=vt, mean=mean,
                       reference=reference, weight=weight, noise_variance=variance,
                       noise=noise_meta, info=info or {})
-
-
-def calibration_atoms(gram: np.ndarray, vt: np.ndarray, svals: np.ndarray) -> np.ndarray:
-    """``calibration.model_atoms`` of the model being trained: the inner folds' reconstructions
-    on its first atoms (the predicted error's coordinates features)."""
-    from goniofrost.frost import calibration
-    return calibration.model_atoms(gram, vt, svals)
 
 
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
