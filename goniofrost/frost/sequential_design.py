@@ -22,7 +22,8 @@ from threadpoolctl import threadpool_limits
 
 from goniofrost.frost.bayes_selection import GreedyDesign, greedy_design
 from goniofrost.frost.posterior import cell_noise, design_scale, fit, prior_variance
-from goniofrost.frost.usage_design import CHUNK_ROWS, is_uniform, linear_usage, scene_matrix, sensitivity_power
+from goniofrost.frost.reconstruction import reconstruct_mapped
+from goniofrost.frost.usage_design import is_uniform, linear_usage, rotate, scene_matrix, sensitivity_power
 
 
 def posterior_mean(model, picked, mapped) -> np.ndarray:
@@ -35,12 +36,7 @@ def posterior_mean(model, picked, mapped) -> np.ndarray:
     noise = cell_noise(model)
     s2 = np.asarray(model.singular_values, np.float64) ** 2
     post = fit(model.dictionary[picked], noise[picked], prior_variance(model), b, s2, float(noise.sum()), noise.size)
-    out = np.empty((mu.size, b.shape[1]))
-    coef = post.coefficients.astype(np.float32)
-    with threadpool_limits(limits=1, user_api="blas"):  # measured: BLAS threads only slow these passes
-        for lo in range(0, mu.size, CHUNK_ROWS):
-            out[lo:lo + CHUNK_ROWS] = np.asarray(model.dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ coef
-    return out + mu[:, None]
+    return reconstruct_mapped(model, post)
 
 
 def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: float | None = None,
@@ -72,12 +68,9 @@ def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: flo
     precision[np.diag_indices_from(precision)] += 1.0 / prior_variance(model)
     covariance = np.linalg.inv(precision)
     chol = np.linalg.cholesky(0.5 * (covariance + covariance.T))  # Sigma_l = C C^T
-    rotated = np.empty(model.dictionary.shape, dtype=np.float32)
     with threadpool_limits(limits=1, user_api="blas"):  # 1.5 s -> 0.1 s for the scene matrix at load 5
         lam, q = np.linalg.eigh(chol.T @ scene_matrix(model.dictionary, weights) @ chol)
-        rotation = (chol @ q).astype(np.float32)
-        for lo in range(0, n, CHUNK_ROWS):
-            rotated[lo:lo + CHUNK_ROWS] = np.asarray(model.dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
+        rotated = rotate(model.dictionary, chol @ q)
     open_ = np.ones(n, dtype=bool) if candidates is None else np.array(candidates, dtype=bool)
     if open_.shape != (n,):
         raise ValueError(f"continue_design: candidates must be a bool mask of the {n} valid cells, found shape {open_.shape}")

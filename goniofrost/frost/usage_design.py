@@ -101,11 +101,17 @@ def scene_prior(dictionary, usage: np.ndarray, prior_var: np.ndarray) -> ScenePr
     w = np.sqrt(np.asarray(prior_var, dtype=np.float64))
     lam, q = np.linalg.eigh(w[:, None] * scene_matrix(dictionary, usage) * w[None, :])
     lam = np.clip(lam, 0.0, None)  # M is positive semi-definite; rounding can leave -1e-18
-    rotation = (w[:, None] * q).astype(np.float32)  # W Q
+    return ScenePrior(rotate(dictionary, w[:, None] * q), lam, np.ones(lam.size), usage)  # D W Q
+
+
+def rotate(dictionary, rotation: np.ndarray) -> np.ndarray:
+    """float32 (n, K): ``dictionary`` (n, K) times the (K, K) ``rotation`` (taken in float32), in
+    chunks of CHUNK_ROWS rows (a memory-mapped D is read once)."""
+    rotation = np.asarray(rotation).astype(np.float32)
     rotated = np.empty(dictionary.shape, dtype=np.float32)
     for lo in range(0, dictionary.shape[0], CHUNK_ROWS):
         rotated[lo:lo + CHUNK_ROWS] = np.asarray(dictionary[lo:lo + CHUNK_ROWS], dtype=np.float32) @ rotation
-    return ScenePrior(rotated, lam, np.ones(lam.size), usage)
+    return rotated
 
 
 def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: float = 2.0) -> np.ndarray:
