@@ -99,7 +99,7 @@ def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, vie
 
     ``source`` is ``"markers"`` (homography of the markers read) or ``"prediction"``;
     ``offset_px`` is the largest distance between a read marker corner and its predicted place
-    (None when no marker was used). ``channels`` (H, W) Bayer channel of each pixel: with it,
+    (None when no marker was used: none read, or a misread set). ``channels`` (H, W) Bayer channel of each pixel: with it,
     every colour channel must keep ``min_pixels`` pixels. Raises WrongTargetError when another
     card's markers are read, MisalignedError when the markers lie more than ``tolerance_px``
     from the prediction, MarkerError when the region is too small (or, without a prediction,
@@ -118,24 +118,34 @@ def locate_patch(linear: np.ndarray, expected_ids, margin: float, what: str, vie
                                                                 whole_frame)
     if len(found) < MIN_MARKERS and len(others) >= MIN_MARKERS:
         raise _missing(found, others, expected_ids, what)
+    if len(found) >= MIN_MARKERS:
+        try:
+            mask = _patch_mask(found, expected_ids, view.shape, margin, what, layout)
+        except MarkerError as exc:
+            # a misread marker set: the prediction is the better region, and its corners say
+            # nothing of where the markers are (at grazing views a corner can be off by 5 px
+            # on an aligned rig: no offset, no markers-off flag, no misalignment)
+            log.info("%s", exc)
+            found = {}
+        else:
+            offset = _aligned_offset(found, view, tolerance_px, what)
+            return _checked(mask, channels, min_pixels, what), "markers", offset
+    elif wanted:
+        log.info("%s: markers %s predicted readable, %s read: the region comes from the camera model",
+                 what, wanted, sorted(found))
+    offset = _aligned_offset(found, view, tolerance_px, what)
+    return _checked(polygon_mask(view.patch, view.shape), channels, min_pixels, what), "prediction", offset
+
+
+def _aligned_offset(found: dict, view: PredictedView, tolerance_px: float, what: str) -> float | None:
+    """``marker_offset_px``; MisalignedError when it exceeds ``tolerance_px``."""
     offset = marker_offset_px(found, view)
     if offset is not None and offset > tolerance_px:
         raise MisalignedError(
             f"{what}: the holder markers lie {offset:.1f} px from where the camera model puts them "
             f"(tolerance {tolerance_px:g} px): the rig looks misaligned (run goniofrost align, or check "
             f"the camera's intrinsics and mount in the rig file)")
-    if len(found) >= MIN_MARKERS:
-        try:
-            mask = _patch_mask(found, expected_ids, view.shape, margin, what, layout)
-            return _checked(mask, channels, min_pixels, what), "markers", offset
-        except PatchTooSmallError:
-            raise
-        except MarkerError as exc:   # a misread marker set: the prediction is the better region
-            log.info("%s", exc)
-    elif wanted:
-        log.info("%s: markers %s predicted readable, %s read: the region comes from the camera model",
-                 what, wanted, sorted(found))
-    return _checked(polygon_mask(view.patch, view.shape), channels, min_pixels, what), "prediction", offset
+    return offset
 
 
 def marker_offset_px(found: dict, view: PredictedView) -> float | None:
