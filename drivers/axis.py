@@ -200,6 +200,12 @@ class Axis(ABC):
         self._require_connected("read position")
         return self._call(self._read_position)
 
+    def referenced(self) -> bool:
+        """False when the device refuses moves until it is homed (an SMC100 after power-up, a
+        disable or a failed home: NOT REFERENCED); True for devices that need no reference. A read."""
+        self._require_connected("read the reference state")
+        return bool(self._call(self._read_referenced))
+
     def is_moving(self) -> bool:
         """True while the device reports motion."""
         self._require_connected("read moving")
@@ -392,6 +398,10 @@ class Axis(ABC):
         confirm a stop, when the device may well be in a fault state. Drivers whose
         ``_read_moving`` raises on a fault override this."""
         return not self._read_moving(), self._read_position()
+
+    def _read_referenced(self) -> bool:
+        """Whether the device accepts moves without a home first; by default it does."""
+        return True
 
     def _command_home(self) -> None:
         """Start homing; the default moves to ``config.home_deg`` (devices with a home search override)."""

@@ -222,6 +222,10 @@ class SMC100Axis(Axis):
         """A TS state outside the motion states is at rest (a stage error state included)."""
         return self._tell_state().state not in MOTION_STATES, self._read_position()
 
+    def _read_referenced(self) -> bool:
+        """TS: a stage in a NOT REFERENCED state refuses PA with TE 'H' until OR has run."""
+        return self._tell_state().state not in NOT_REFERENCED_STATES
+
     def _command_home(self) -> None:
         """Reference the stage (OR, ends at 0 units) if needed, then go to ``home_deg``. Reads are
         retried; a lost reply to OR is read back with TS (HOMING or READY: the search started),

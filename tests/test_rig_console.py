@@ -158,13 +158,20 @@ def test_move_beyond_a_limit_sends_no_byte_and_exits_2(tmp_path, capsys, target,
             os.read(master, 1)  # nothing was written to the port
 
 
-def test_move_before_homing_is_refused_by_the_stage_and_every_axis_is_stopped(twins, capsys):
+def test_move_before_homing_is_refused_before_any_axis_moves(twins, capsys):
+    """The SMC100 refuses moves until it is referenced: the console reads that (TS) before it moves
+    anything, so the arm and the yaw do not start a move the stage then refuses mid-way."""
     path, _ = twins
-    assert main(["rig", "move", "--rig", str(path), "sample_tilt=-5.5"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "device fault during Move: sample_tilt: 1PA-5.5: refused: H = command not allowed in NOT REFERENCED state" in err
-    assert "the lamp is off" in err
-    assert "Stopped camera_arm at 90.00 deg, sample_yaw at 0.00 deg, sample_tilt at 0.00 deg" in err
+    before = status(path, capsys)
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=30", "sample_yaw=10", "sample_tilt=-5.5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"goniofrost rig: error: sample_tilt: not homed, and the device refuses moves until it is: run "
+                   f"goniofrost rig home --rig {path} first; nothing was moved"]
+    after = status(path, capsys)
+    assert after["axes"] == before["axes"]
+    assert {a["axis"]: a["position_deg"] for a in after["axes"]} == {"camera_arm": 90.0, "sample_yaw": 0.0,
+                                                                     "sample_tilt": 0.0}
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=30", "sample_yaw=10"]) == 0  # axes that need no home
 
 
 def test_home_asks_unless_yes_and_homes(homed, capsys, monkeypatch):
@@ -286,10 +293,10 @@ def test_snap_refuses_a_bad_option_before_it_connects(tmp_path, monkeypatch, cap
 
 
 def test_a_move_of_a_stage_that_is_not_homed_says_to_home_it(capsys):
-    # the SMC100 refuses a move until it is referenced; each command on a simulated rig file starts
-    # fresh devices, so a move alone meets an unhomed stage and the message says what to do
+    # each command on a simulated rig file starts fresh devices, so a move alone meets an unhomed
+    # stage and the message says what to do
     assert main(["rig", "move", "--rig", str(SIM_RIG), "sample_tilt=10"]) == 2
     err = capsys.readouterr().err
-    assert "sample_tilt: 1PA10: refused: H = command not allowed in NOT REFERENCED state" in err
-    assert ("Home sample_tilt first (goniofrost rig home; on a simulated rig file every command starts its devices "
-            "afresh: rehearse with the twins of goniofrost sim --write-rig).") in err
+    assert err == (f"goniofrost rig: error: sample_tilt: not homed, and the device refuses moves until it is: run "
+                   f"goniofrost rig home --rig {SIM_RIG} first (on a simulated rig file every command starts its "
+                   "devices afresh: rehearse with the twins of goniofrost sim --write-rig); nothing was moved\n")

@@ -415,3 +415,16 @@ def test_a_late_te_reply_does_not_answer_the_te_of_the_next_set_command_on_exact
     assert err.value.code == "C"
     axis.close()
     line.finish()
+
+
+def test_referenced_reads_ts_on_exact_bytes():
+    """NOT REFERENCED from reset (0A) before OR, READY from HOMING (32) after it (the manual's TS
+    states): the console reads this before it moves any axis."""
+    line = ScriptedTransport(CONNECT_SMC + [(b"1TS\r\n", b"1TS00000A\r\n")] + HOME_SMC
+                             + [(b"1TS\r\n", b"1TS000032\r\n")])
+    axis = _scripted_smc(line)
+    assert axis.referenced() is False
+    assert axis.home().wait() == 0.0
+    assert axis.referenced() is True
+    axis.close()
+    line.finish()

@@ -112,13 +112,15 @@ def _status_text(readings, lamp, as_json: bool) -> str:
 
 # ----- move, home, lamp ----------------------------------------------------------------------------
 def run_move(args) -> int:
-    from goniofrost.capture.console import check_targets, connected_rig, move_plan, parse_targets, run_plan
+    from goniofrost.capture.console import (check_referenced, check_targets, connected_rig, move_plan, parse_targets,
+                                            run_plan)
 
     rig = _load(args)
     requested = parse_targets(args.targets, rig)
     if not args.by:
         check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
     with connected_rig(rig, enable=True, program="rig move") as hardware:
+        check_referenced(rig, hardware.axes, requested)
         targets = requested
         if args.by:
             targets = {name: hardware.axes[name].position() + by for name, by in requested.items()}

@@ -67,6 +67,18 @@ def check_targets(rig, targets: Mapping[str, float]) -> None:
                                f"nothing was moved")
 
 
+def check_referenced(rig, axes: Mapping, names: Iterable[str]) -> None:
+    """Refuse a move of an axis whose device refuses moves until it is homed (``Axis.referenced``):
+    ConsoleError naming every such axis of ``names``, read before any axis moves, so the others do
+    not start a move the stage would then refuse mid-way."""
+    unreferenced = [name for name in names if not axes[name].referenced()]
+    if unreferenced:
+        fresh = (" (on a simulated rig file every command starts its devices afresh: rehearse with the twins "
+                 "of goniofrost sim --write-rig)") if rig.simulated else ""
+        raise ConsoleError(f"{', '.join(unreferenced)}: not homed, and the device refuses moves until it is: "
+                           f"run goniofrost rig home --rig {rig.source} first{fresh}; nothing was moved")
+
+
 # ----- the plans ------------------------------------------------------------------------------
 def move_plan(rig, targets: Mapping[str, float]):
     """Move the named axes together (in the rig's joint order) to ``targets`` (degrees)."""
