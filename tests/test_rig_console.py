@@ -300,3 +300,9 @@ def test_a_move_of_a_stage_that_is_not_homed_says_to_home_it(capsys):
     assert err == (f"goniofrost rig: error: sample_tilt: not homed, and the device refuses moves until it is: run "
                    f"goniofrost rig home --rig {SIM_RIG} first (on a simulated rig file every command starts its "
                    "devices afresh: rehearse with the twins of goniofrost sim --write-rig); nothing was moved\n")
+
+def test_snap_that_would_move_an_unhomed_stage_is_refused_before_it_moves_and_writes_no_picture(tmp_path, capsys):
+    out = tmp_path / "snap.png"
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "sample_tilt=5", "--out", str(out)]) == 2
+    assert "sample_tilt: not homed, and the device refuses moves until it is" in capsys.readouterr().err
+    assert not out.exists()

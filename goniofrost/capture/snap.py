@@ -69,7 +69,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
          move_to: dict | None = None) -> SnapResult:
     """Connect the rig, take the snap at the current pose (after moving to ``move_to``, {axis: deg},
     when given), write the PNG ``out``; return the findings."""
-    from goniofrost.capture.console import check_targets, move_plan
+    from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.plan_runner import PlanRunner
@@ -88,6 +88,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
         move = None
         if move_to:
             check_targets(rig, move_to)
+            check_referenced(rig, hardware.axes, move_to)  # before the other axes start
             move = next(move_plan(rig, move_to))
         frames = PlanRunner(hardware, folder, program="rig snap").execute_plan(snap_plan(judge, exposure_s, move=move))
     return judge.result(frames, out)
