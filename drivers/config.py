@@ -133,3 +133,16 @@ def check_lamp_against_rig(rig) -> None:
     """``check_lamp_host`` on a loaded rig (a rig-file check across sections)."""
     check_lamp_host((rig.lamp or {}).get("driver", {}), {n: a.driver for n, a in rig.axes.items()}, rig.source)
 
+
+
+def command_step_deg(section: Mapping) -> float:
+    """Degrees between two positions a validated ``driver`` section's device can be commanded to:
+    the drivers send round(deg x steps) (Modbus ``steps_per_deg``, Dynamixel ``counts_per_deg``:
+    0.087890625 deg for 4096 counts a turn); 0 for the SMC100, whose PA takes six decimals of its
+    units (finer than any cell). What the planner puts the joint targets on (``planner.steps``)."""
+    protocol = section["protocol"]
+    if protocol == "dynamixel":
+        return 1.0 / float(section["counts_per_deg"])
+    if protocol in ("modbus-tcp", "modbus-rtu"):
+        return 1.0 / float(section["steps_per_deg"])
+    return 0.0

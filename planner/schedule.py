@@ -31,6 +31,7 @@ from .kinematics import BRANCHES, Reason, forward
 from .motion import path_time
 from .order import Tour, fixed_order_tour, plan_tour
 from .rig import Rig
+from .steps import on_steps
 
 # Joint targets must reproduce their cell's theta_i, theta_o and angle(w_i, w_o) this closely (deg).
 REPRODUCE_TOL_DEG = 0.01
@@ -40,22 +41,26 @@ class UnreachableSampleError(GoniofrostError, ValueError):
     """A plan sample that no pose of the rig can measure (names the sample and the reason)."""
 
 
-def schedule_plan(plan_doc: Mapping, rig: Rig, *, reciprocity: bool = True, restarts: int = 8) -> dict:
-    """A copy of ``plan_doc`` with joints, capture order and motion times for ``rig`` (see module doc)."""
-    return _schedule(plan_doc, rig, [len(plan_doc["samples"])], reciprocity, restarts)
+def schedule_plan(plan_doc: Mapping, rig: Rig, *, reciprocity: bool = True, restarts: int = 8,
+                  steps=None) -> dict:
+    """A copy of ``plan_doc`` with joints, capture order and motion times for ``rig`` (see module
+    doc). ``steps``: (3,) deg between the positions each axis (in ``rig.joint_names`` order) can be
+    commanded to (``drivers.config.command_step_deg``; 0: any): the joints are then put on those
+    lattices as close to their cells as they allow (``planner.steps``); None: the IK joints."""
+    return _schedule(plan_doc, rig, [len(plan_doc["samples"])], reciprocity, restarts, steps)
 
 
 def schedule_batches(plan_doc: Mapping, rig: Rig, batch_ends, *, reciprocity: bool = True,
-                     restarts: int = 8) -> dict:
+                     restarts: int = 8, steps=None) -> dict:
     """``schedule_plan`` batch by batch (see module doc); ``batch_ends`` increasing, the last = n."""
     ends = [int(e) for e in batch_ends]
     n = len(plan_doc["samples"])
     if not ends or ends[-1] != n or any(b <= a for a, b in zip([0] + ends[:-1], ends)):
         raise ValueError(f"batch_ends: expected increasing sample counts ending at {n}, found {ends}")
-    return _schedule(plan_doc, rig, ends, reciprocity, restarts) | {"batch_ends": ends}
+    return _schedule(plan_doc, rig, ends, reciprocity, restarts, steps) | {"batch_ends": ends}
 
 
-def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, restarts: int) -> dict:
+def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, restarts: int, steps=None) -> dict:
     """Order each batch [e_{k-1}, e_k) of selection indices for least motion, each starting where
     the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
@@ -73,10 +78,16 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     baseline = fixed_order_tour(rig, poses, valid, rig.home, np.arange(len(samples)))
     chosen = poses[tour.order, tour.choice]
     check_reproduction(rig, chosen, w_i[tour.order], w_o[tour.order], tour.choice >= 2)
+    if steps is not None and all("cell" in s for s in samples):
+        grid = MerlGrid(**plan_doc["grid"]) if "grid" in plan_doc else MerlGrid()
+        cells = np.array([cell_indices(samples[i]) for i in tour.order], dtype=np.float64)
+        chosen = on_steps(rig, grid, chosen, cells, steps)
     out = {key: copy.deepcopy(value) for key, value in plan_doc.items() if key != "samples"}
     out["samples"] = _capture_samples(rig, samples, tour, chosen)
     moves = _move_times(rig, chosen)
     out["rig"] = {"name": rig.name, "file": rig.source, "kinematic_hash": rig.kinematic_hash}
+    if steps is not None:
+        out["rig"]["command_steps_deg"] = [float(v) for v in steps]
     out["alignment"] = None if rig.alignment is None else rig.alignment.record()
     out["planned_motion_s"] = float(moves.sum())
     out["return_home_s"] = float(moves[-1])

@@ -192,14 +192,16 @@ def test_plan_command_with_an_alignment_records_it_and_refuses_a_bad_one(small_m
     assert f"rig sim-rig (aligned: {aligned})" in capsys.readouterr().out
     doc = read_plan(out)
     assert doc["alignment"]["offsets_deg"] == {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}
-    # the joints are commands: reading + offset reproduces every sample's cell
+    # the joints are commands: reading + offset reproduces every sample's cell (to the command
+    # lattices: each joint within planner.steps.SPAN_DEG + half a step of an aligned IK pose)
+    from goniofrost.capture.inputs import check_consistency, plan_cells
+    from goniofrost.core.errors import ConfigError
     from goniofrost.capture.rig_file import load_checked_rig
-    from planner.kinematics import joints_array
-    from planner.schedule import check_reproduction
-    rig = load_checked_rig(rig_file, aligned)
-    joints = np.array([joints_array(rig, s["joints"]) for s in doc["samples"]])
-    w_i, w_o = np.array([s["w_i"] for s in doc["samples"]]), np.array([s["w_o"] for s in doc["samples"]])
-    check_reproduction(rig, joints, w_i, w_o, np.array([s["light_camera_swapped"] for s in doc["samples"]]))
+    from goniofrost.frost.model import FrostModel
+    rig, grid = load_checked_rig(rig_file, aligned), FrostModel.load(small_model).grid
+    check_consistency(doc, out, grid, rig, plan_cells(doc, out, grid))
+    with pytest.raises(ConfigError, match=r"samples\[\d\].joints: expected joints within"):
+        check_consistency(doc, out, grid, load_checked_rig(rig_file), plan_cells(doc, out, grid))  # not aligned
     out.unlink()
     assert main(base + ["--alignment", str(aligned)]) == 2
     assert "command line: --alignment: expected --rig RIG.yaml as well (an alignment belongs to a rig)" in \

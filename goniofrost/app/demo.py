@@ -143,7 +143,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from planner.schedule import schedule_batches, schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.capture.rig_file import command_steps, load_checked_rig
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
@@ -158,7 +158,9 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
         from goniofrost.capture.plan_file import with_sentinels
 
         doc, _ = with_sentinels(doc, model, selection.positions, candidates)
-    doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
+    steps = command_steps(rig)
+    doc = (schedule_batches(doc, rig, doc["batch_ends"], steps=steps) if "batch_ends" in doc
+           else schedule_plan(doc, rig, steps=steps))
     write_plan(out_path, doc)
     return Path(out_path)
 

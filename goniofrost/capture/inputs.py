@@ -194,7 +194,7 @@ def check_consistency(plan: dict, plan_path, grid, rig, cells: np.ndarray) -> No
         _check_numbers(plan_path, samples, key, want, ANGLE_TOLERANCE_DEG, "deg")
     for key, want in (("w_i", w_i), ("w_o", w_o)):
         _check_numbers(plan_path, samples, key, want, np.radians(ANGLE_TOLERANCE_DEG), "")
-    _check_kinematics(plan_path, samples, rig, w_i, w_o)
+    _check_kinematics(plan_path, plan, samples, rig, w_i, w_o)
 
 
 def _zenith_deg(w: np.ndarray) -> np.ndarray:
@@ -216,11 +216,26 @@ def _check_numbers(plan_path, samples, key: str, want: np.ndarray, tolerance: fl
                               f"{shown}{' ' + unit if unit else ''} (the value of its cell {sample.get('cell')})", found)
 
 
-def _check_kinematics(plan_path, samples, rig, w_i: np.ndarray, w_o: np.ndarray) -> None:
-    """The joints of each sample must put light and camera at the cell's directions."""
+def _lattice_steps(plan: dict) -> list | None:
+    """The plan's ``rig.command_steps_deg`` (``planner.steps``: its joints on the axes' command
+    lattices), None when it has none."""
+    steps = plan["rig"].get("command_steps_deg") if isinstance(plan.get("rig"), dict) else None
+    ok = isinstance(steps, list) and all(isinstance(v, (int, float)) and 0 <= v < 1 for v in steps)
+    return steps if ok else None
+
+
+def _check_kinematics(plan_path, plan, samples, rig, w_i: np.ndarray, w_o: np.ndarray) -> None:
+    """The joints of each sample must put light and camera at the cell's directions; joints put
+    on the axes' command lattices (``_lattice_steps``) must lie within ``planner.steps.SPAN_DEG``
+    (+ half the axis's step) of one of the cell's IK poses, as ``planner.steps.on_steps`` leaves
+    them."""
     from planner.kinematics import forward
 
     joints = np.array([[s["joints"][name] for name in rig.joint_names] for s in samples], dtype=np.float64)
+    steps = _lattice_steps(plan)
+    if steps is not None:
+        _check_lattice_joints(plan_path, samples, rig, joints, w_i, w_o, steps)
+        return
     light, camera = forward(rig, joints)
     swapped = np.array([bool(s.get("light_camera_swapped", False)) for s in samples])
     light, camera = np.where(swapped[:, None], camera, light), np.where(swapped[:, None], light, camera)
@@ -232,6 +247,25 @@ def _check_kinematics(plan_path, samples, rig, w_i: np.ndarray, w_o: np.ndarray)
                           f"joints whose forward kinematics give theta_i, theta_o, angle(w_i, w_o) = "
                           f"{np.round(want[i], 4).tolist()} deg (its cell {samples[i].get('cell')})",
                           f"{samples[i]['joints']} -> {np.round(found[i], 4).tolist()} deg")
+
+
+def _check_lattice_joints(plan_path, samples, rig, joints, w_i, w_o, steps) -> None:
+    """Each sample's joints within SPAN_DEG + half a step (per axis) of the nearer of its cell's
+    two IK poses (light and camera exchanged where ``light_camera_swapped``)."""
+    from planner.kinematics import inverse
+    from planner.steps import SPAN_DEG
+
+    swapped = np.array([bool(s.get("light_camera_swapped", False)) for s in samples])
+    light, camera = np.where(swapped[:, None], w_o, w_i), np.where(swapped[:, None], w_i, w_o)
+    poses = inverse(rig, light, camera).joints                          # (n, 2, 3): both branches
+    gap = np.abs(joints[:, None, :] - poses)
+    gap[..., 1] = np.minimum(gap[..., 1], 360.0 - gap[..., 1])      # the yaw turns all the way round
+    allowed = SPAN_DEG + np.asarray(steps, dtype=np.float64) / 2.0 + ANGLE_TOLERANCE_DEG
+    near = np.all(gap <= allowed, axis=-1).any(axis=1)
+    for i in np.flatnonzero(~near):
+        raise ConfigError(plan_path, f"samples[{i}].joints",
+                          f"joints within {np.round(allowed, 3).tolist()} deg of a pose of its cell "
+                          f"{samples[i].get('cell')} (the plan's rig.command_steps_deg lattices)", samples[i]["joints"])
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

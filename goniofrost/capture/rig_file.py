@@ -86,3 +86,12 @@ def measurability(rig: Rig) -> Measurability | None:
                          patch_mm=tuple(map(tuple, DEFAULT_LAYOUT.patch_polygon(0.0))),
                          min_pixels=int(camera["min_roi_pixels"]),
                          beam_radius_mm=None if beam is None else beam / 2.0, max_incidence_deg=incidence)
+
+
+def command_steps(rig) -> list[float]:
+    """Degrees between the positions each axis of ``rig`` (``joint_names`` order) can be commanded
+    to, from its driver section (``drivers.config.command_step_deg``): what ``plan`` puts the joint
+    targets on (``planner.steps``)."""
+    from drivers.config import command_step_deg
+
+    return [command_step_deg(rig.axes[name].driver) for name in rig.joint_names]

@@ -115,9 +115,13 @@ def run(args) -> int:
                         "sensitivity_power": power, "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
+
+        from goniofrost.capture.rig_file import command_steps
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
         # each batch is ordered for motion on its own.
-        doc = schedule_batches(doc, rig, doc["batch_ends"]) if "batch_ends" in doc else schedule_plan(doc, rig)
+        steps = command_steps(rig)
+        doc = (schedule_batches(doc, rig, doc["batch_ends"], steps=steps) if "batch_ends" in doc
+               else schedule_plan(doc, rig, steps=steps))
         print(format_table(doc))
     write_plan(args.out, doc)
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""

@@ -1,0 +1,95 @@
+"""Joint targets on the axes' command lattices, as close to their cells as the lattices allow.
+
+A device goes to round(target x steps per degree) (``drivers.config.command_step_deg``): a
+Dynamixel servo's counts are 0.088 deg apart, so the direction measured lies up to 0.044 deg from
+the cell's. On the MERL grid theta_h's index is sqrt(theta_h / 90 deg) x 90: near theta_h = 0 that
+is two cells, and a specular peak is read in another cell than the one it is fitted to (40 % off
+the cell's value on gold-metallic-paint2 at the simulated rig's cell (0, 86, 0)). Three joints fix
+three angles, so the IK joints rounded onto the lattices miss; with the coarse axis on a lattice
+position the others can put the miss where the grid is coarse (theta_d, or phi_d, which near
+theta_h = 0 changes nothing: the BRDF is isotropic).
+
+``on_steps`` searches, for every sample at once, the joints on the lattices that bring the
+measured direction closest to the cell in the grid's index space: squared index differences of
+theta_h and theta_d, and of phi_d weighted by sin(theta_h) of the cell, phi_d taken with its
+symmetries (phi_d + 180 by reciprocity, -phi_d by isotropy, as the inverse kinematics' branches
+use them). A grid search around the IK joints, zoomed LEVELS times (vectorised; no optimiser loop
+per sample); the plain rounding is a candidate too, so no sample ends farther than it did.
+"""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from goniofrost.core.grid import HALF_PI, MerlGrid, dirs_to_half_diff
+
+from .candidates import measurable_reason
+from .kinematics import Reason, forward, pose_reason
+from .rig import Rig
+
+# The search: within SPAN_DEG of the IK joints on every axis (a Dynamixel count is 0.088 deg:
+# both neighbours and a move of the others to match; a wider box let a coarse grid trade tenths
+# of a degree of theta_i for a slightly closer node), POINTS values per axis and level, each
+# level's span a ZOOM-th of the last (never below the axis's step: a lattice axis keeps its
+# neighbours). Every joint ends within SPAN_DEG (+ half its step) of the IK's.
+SPAN_DEG = 0.1
+POINTS = 7
+ZOOM = 3.0
+LEVELS = 7
+
+
+def on_lattice(joints: np.ndarray, steps) -> np.ndarray:
+    """``joints`` (..., 3) deg rounded as the devices round them: round(q / step) x step (a step
+    of 0: the value itself)."""
+    steps = np.asarray(steps, dtype=np.float64)
+    q = np.asarray(joints, dtype=np.float64)
+    safe = np.where(steps > 0, steps, 1.0)
+    return np.where(steps > 0, np.round(q / safe) * safe, q)
+
+
+def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """float64 (...): the squared index-space distance (module doc) between the directions of
+    commanded ``joints`` (..., 3) and the grid nodes ``cells`` (..., 3) (i_th, i_td, i_pd)."""
+    theta_h, theta_d, phi_d = dirs_to_half_diff(*forward(rig, joints))
+    cells = np.asarray(cells, dtype=np.float64)
+    x_th = np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * grid.n_th
+    x_td = theta_d / HALF_PI * grid.n_td
+    x_pd = np.mod(phi_d, np.pi) / np.pi * grid.n_pd
+    period = grid.n_pd
+    d_pd = np.minimum(_wrapped(x_pd - cells[..., 2], period), _wrapped(-x_pd - cells[..., 2], period))
+    weight = np.sin((cells[..., 0] / grid.n_th) ** 2 * HALF_PI)
+    return (x_th - cells[..., 0]) ** 2 + (x_td - cells[..., 1]) ** 2 + (weight * d_pd) ** 2
+
+
+def _wrapped(d: np.ndarray, period: float) -> np.ndarray:
+    return np.abs(np.mod(d + period / 2.0, period) - period / 2.0)
+
+
+def on_steps(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, steps) -> np.ndarray:
+    """Commanded joints (n, 3) deg on the lattices of ``steps`` (3,) deg (``on_lattice``) closest
+    to their cells (n, 3) in the grid's index space (module doc), among the joints the rig can
+    use (limits, the arm's separation); a sample whose camera could not measure at its best joints
+    (the patch at the edge of what ``planner.view`` allows) keeps its plain rounding."""
+    q0 = np.asarray(joints, dtype=np.float64).reshape(-1, 3)
+    cells = np.asarray(cells, dtype=np.float64).reshape(-1, 3)
+    steps = np.asarray(steps, dtype=np.float64)
+    plain = on_lattice(q0, steps)
+    best, best_miss = plain, cell_miss(rig, grid, plain, cells)
+    centre, span = q0, np.full(3, SPAN_DEG)
+    offsets = np.array(list(itertools.product(np.linspace(-1.0, 1.0, POINTS), repeat=3)))  # (P, 3)
+    for _ in range(LEVELS):
+        box = np.clip(centre[:, None, :] + offsets[None] * span, q0[:, None, :] - SPAN_DEG, q0[:, None, :] + SPAN_DEG)
+        trial = on_lattice(box, steps)                                                  # (n, P, 3)
+        miss = cell_miss(rig, grid, trial, np.broadcast_to(cells[:, None, :], trial.shape))
+        miss[pose_reason(rig, trial) != Reason.OK] = np.inf  # e.g. past the arm's limit: not a pose
+        pick = np.argmin(miss, axis=1)
+        level_best = trial[np.arange(len(q0)), pick]
+        better = miss[np.arange(len(q0)), pick] < best_miss
+        best = np.where(better[:, None], level_best, best)
+        best_miss = np.where(better, miss[np.arange(len(q0)), pick], best_miss)
+        centre = best
+        span = np.maximum(span / ZOOM, steps)
+    # the camera's check costs ~30 us a pose: on the result only (the moved joints rarely change it)
+    usable = measurable_reason(rig, best) == Reason.OK
+    return np.where(usable[:, None], best, plain)
