@@ -15,6 +15,10 @@ Only poses the camera can measure are used (``planner.candidates``).
 batches (a capture that may stop after any batch): the samples of each batch (selection indices
 [0, e_1), [e_1, e_2), ...) are ordered for least motion on their own, each batch starting where
 the previous one ended, and the document gains ``batch_ends`` (cumulative sample counts).
+
+With ``steps`` (the degrees between the positions each axis can be commanded to) the joints are
+put on those lattices as close to their cells as they allow (``planner.steps``) and the document's
+``rig`` gains ``command_steps_deg``.
 """
 from __future__ import annotations
 
