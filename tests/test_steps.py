@@ -67,3 +67,26 @@ def test_the_scheduled_plan_records_its_steps_and_puts_its_joints_on_them():
     assert np.allclose(joints, on_lattice(joints, SIM_STEPS), rtol=0, atol=1e-9)
     assert np.all(cell_miss(RIG, GRID, joints, cells) <= cell_miss(RIG, GRID, on_lattice(
         np.array([[s["joints"][n] for n in RIG.joint_names] for s in plain["samples"]]), SIM_STEPS), cells))
+
+
+def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path, monkeypatch):
+    """``benchmarks/command_steps.py --smallest``: 9 samples, 2 built-in materials. The joints on
+    the lattices never end farther from their cells than the rounded ones, and each error is the
+    reconstruction's from the material's values at the directions reached (exact at the cells:
+    the ratio 1 is what no positioning error can beat)."""
+    import importlib.util
+    import json
+
+    monkeypatch.setenv("GONIOFROST_CACHE", str(tmp_path / "cache"))
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "command_steps.py"
+    spec = importlib.util.spec_from_file_location("command_steps", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--smallest", "--repeats", "1", "--out", str(tmp_path / "steps.json")]) == 0
+    result = json.loads((tmp_path / "steps.json").read_text())
+    miss = {k: np.array(v) for k, v in result["miss"].items()}
+    assert np.all(miss["on_steps"] <= miss["rounded"]) and miss["rounded"].max() > 0.1
+    assert [r["material"] for r in result["rows"]] == ["gold", "red-plastic"]
+    for row in result["rows"]:
+        assert all(0 < row[k] < 1 for k in ("rounded", "on_steps", "exact"))
+    assert result["summary"]["materials"] == 2 and result["samples"] == 9

@@ -1,0 +1,149 @@
+"""Joint targets on the axes' command lattices (``planner.steps``) against the IK joints as the
+devices round them: the reconstruction error of samples taken where the rig really points.
+
+A Dynamixel servo goes to whole counts (0.088 deg), a Modbus drive to whole steps: a plan's IK
+joints are rounded by the devices, and the direction measured differs from the cell's. The plan
+is scheduled twice on the same selection and tour: without command steps (the devices round the
+IK joints, ``on_lattice``) and with them (``on_steps``). Per test material, the posterior mean
+(``reconstruct_bayes``) from the material's exact values at the directions forward(joints)
+reaches, assigned to the plan's cells, is compared with the same from the cells' own values
+("exact": what no positioning error can beat): log-relative MSE over the whole grid.
+
+Model: the built-in library without red-plastic (the demo's model, cached); test materials: every
+material of ``--data`` (default ../shared/data: 100 MERL and 51 RGL, none of them in training).
+Plan: the Bayesian design of ``--samples`` (default 40) among the cells the rig reaches, with the
+sentinels, on ``--rig`` (default config/rigs/sim.yaml). The time of ``on_steps`` is the median
+of ``--repeats``.
+
+    .venv/bin/python benchmarks/command_steps.py --out /tmp/steps.json
+    .venv/bin/python benchmarks/command_steps.py --smallest --out /tmp/steps-small.json   # a test runs it
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+SHARED = REPO.parent / "shared" / "data"
+
+
+def parse(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--rig", type=Path, default=REPO / "config" / "rigs" / "sim.yaml")
+    p.add_argument("--data", type=Path, default=SHARED)
+    p.add_argument("--samples", type=int, default=40)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--smallest", action="store_true", help="30 x 30 x 60 grid, 6 samples, 2 built-in test materials")
+    return p.parse_args(argv)
+
+
+def test_specs(args) -> list[str]:
+    from goniofrost.datasets import open_dataset
+
+    if args.smallest:
+        return ["builtin:gold", "builtin:red-plastic"]
+    specs = [f"nbrdf:{args.data / name}" for name in ("nbrdf_merl.npz", "nbrdf_rgl.npz")]
+    return [f"{spec}:{name}" for spec in specs for name in open_dataset(spec).names()]
+
+
+def scheduled_joints(rig, model, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """(IK joints, cells (n, 3), positions (n,)) of the plan in capture order, and the steps."""
+    from goniofrost.capture.plan_file import plan_document, with_sentinels
+    from goniofrost.capture.rig_file import command_steps
+    from goniofrost.frost.bayes_selection import select_bayes
+    from planner.reach import reachability
+    from planner.schedule import schedule_batches
+
+    reach = reachability(rig, model.grid).mask
+    selection = select_bayes(model, m, candidates=reach)
+    doc, _ = with_sentinels(plan_document("model", model, selection), model, selection.positions, reach)
+    plain = schedule_batches(doc, rig, doc["batch_ends"])
+    joints = np.array([[s["joints"][n] for n in rig.joint_names] for s in plain["samples"]])
+    cells = np.array([s["cell"] for s in plain["samples"]])
+    positions = model.grid.valid_position(model.grid.flat_index(*cells.T))
+    return joints, cells, positions, command_steps(rig)
+
+
+def errors(model, spec: str, positions, directions: dict) -> dict:
+    """{name: log-relative MSE} of the reconstruction from ``spec``'s values at each name's
+    (w_i, w_o) (each (n, 3)), and "exact" from its values at the cells."""
+    from goniofrost.datasets import material_brdf, parse_material_spec
+    from goniofrost.frost.metrics import log_relative_mse
+    from goniofrost.frost.reconstruction import reconstruct_bayes
+
+    dataset, name = parse_material_spec(spec)
+    truth = dataset.tabulate([name], model.grid)[0].astype(np.float64)
+    brdf = material_brdf(spec)[1]
+    values = {key: np.asarray(brdf(*w), dtype=np.float64).reshape(-1, 3) for key, w in directions.items()}
+    values["exact"] = truth[positions]
+    return {key: float(log_relative_mse(model, truth, reconstruct_bayes(model, positions, v, with_std=False).brdf))
+            for key, v in values.items()}
+
+
+def main(argv=None) -> int:
+    from goniofrost.app.demo import train_without
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.core.grid import FULL_GRID, MerlGrid
+    from planner.kinematics import forward
+    from planner.steps import cell_miss, on_lattice, on_steps
+
+    args = parse(argv)
+    grid = MerlGrid(30, 30, 60) if args.smallest else FULL_GRID
+    m = 6 if args.smallest else args.samples
+    t0 = time.perf_counter()
+    rig = load_checked_rig(args.rig)
+    model, _ = train_without("red-plastic", grid, False)
+    ik, cells, positions, steps = scheduled_joints(rig, model, m)
+    times = []
+    for _ in range(args.repeats):
+        start = time.perf_counter()
+        stepped = on_steps(rig, grid, ik, cells, steps)
+        times.append(time.perf_counter() - start)
+    rounded = on_lattice(ik, steps)
+    miss = {"rounded": np.sqrt(cell_miss(rig, grid, rounded, cells)), "on_steps": np.sqrt(cell_miss(rig, grid, stepped, cells))}
+    print(f"{len(ik)} samples on {rig.name}, steps {steps} deg; on_steps {statistics.median(times) * 1e3:.1f} ms "
+          f"(median of {args.repeats}); index-space miss median / max: rounded {np.median(miss['rounded']):.3f} / "
+          f"{miss['rounded'].max():.3f}, on_steps {np.median(miss['on_steps']):.3f} / {miss['on_steps'].max():.3f}",
+          flush=True)
+    directions = {"rounded": forward(rig, rounded), "on_steps": forward(rig, stepped)}
+    rows = []
+    specs = test_specs(args)
+    for k, spec in enumerate(specs):
+        rows.append({"material": spec.rsplit(":", 1)[-1], "spec": spec, **errors(model, spec, positions, directions)})
+        if (k + 1) % 25 == 0:
+            print(f"  {k + 1}/{len(specs)} materials ({time.perf_counter() - t0:.0f} s)", flush=True)
+    summary = summarise(rows)
+    print(json.dumps(summary, indent=1))
+    args.out.write_text(json.dumps({"rig": str(args.rig), "samples": len(ik), "steps_deg": steps,
+                                    "on_steps_s": times, "miss": {k: v.tolist() for k, v in miss.items()},
+                                    "summary": summary, "rows": rows}, indent=1))
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Medians over the materials of each error and of its ratio to exact; how many on_steps improved."""
+    out = {"materials": len(rows)}
+    for key in ("rounded", "on_steps", "exact"):
+        out[f"median_{key}"] = float(np.median([r[key] for r in rows]))
+    for key in ("rounded", "on_steps"):
+        ratio = np.array([r[key] / r["exact"] for r in rows])
+        out[f"{key}_over_exact"] = {"median": float(np.median(ratio)), "p90": float(np.percentile(ratio, 90)),
+                                    "max": float(ratio.max())}
+    change = np.array([r["on_steps"] / r["rounded"] for r in rows])
+    out["on_steps_over_rounded"] = {"median": float(np.median(change)), "min": float(change.min()),
+                                    "max": float(change.max()), "better": int((change < 1).sum()),
+                                    "worse_by_over_1pct": int((change > 1.01).sum())}
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())
