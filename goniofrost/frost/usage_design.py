@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from goniofrost.frost.posterior import prior_variance
+
 # Rows of D handled at once (float64 copies of 64k x 60 = 31 MB).
 CHUNK_ROWS = 1 << 16
 # The exponent p of the sensitivity g in the design's weights u g^p (module doc): 0 weighs the mapped
@@ -61,6 +63,21 @@ def sensitivity_power(m: int) -> float:
     if not isinstance(m, (int, np.integer)) or m < 1:
         raise ValueError(f"sensitivity_power: m must be a positive integer, found {m!r}")
     return POWER_FEW if m <= FEW_SAMPLES else POWER_MANY
+
+
+# The prior spread t of the design's weights u g^p exp(t p^2 v / 2) (``linear_usage``): 0 weighs g at
+# the prior mean, 1 the prior's expected g^p (issue 29 round 7). Per m as the power: SPREAD_FEW up
+# to FEW_SAMPLES samples, SPREAD_MANY above.
+SPREAD_FEW = 0.0
+SPREAD_MANY = 0.0
+
+
+def prior_spread(m: int) -> float:
+    """The prior spread t of the design's weights for a design of m samples (``select_bayes``'s
+    default): SPREAD_FEW for m <= FEW_SAMPLES, SPREAD_MANY above."""
+    if not isinstance(m, (int, np.integer)) or m < 1:
+        raise ValueError(f"prior_spread: m must be a positive integer, found {m!r}")
+    return SPREAD_FEW if m <= FEW_SAMPLES else SPREAD_MANY
 
 
 @dataclass(frozen=True)
@@ -114,7 +131,8 @@ def rotate(dictionary, rotation: np.ndarray) -> np.ndarray:
     return rotated
 
 
-def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: float = 2.0) -> np.ndarray:
+def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: float = 2.0,
+                 variance=None, spread: float = 0.0) -> np.ndarray:
     """The usage map for the error of the BRDF itself rather than of its mapped (log) values.
 
     The design's objective is the error of the mapped values L = log((w x + eps) / (r + eps));
@@ -122,23 +140,56 @@ def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: 
     is an error dx_c = g_c dL_c with g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Weighting each
     cell by u_c g_c^2 makes trace(M Sigma) the expected squared error of x the scene sees.
     Arguments: usage (n,) sum 1; the model's mean, reference, weight (n,) and eps; ``power``: the
-    exponent of g (2: the linear error; ``sensitivity_power(m)``: what the design weighs). Returns
-    float64 (n,), sum 1.
+    exponent of g (2: the linear error; ``sensitivity_power(m)``: what the design weighs).
+    ``variance`` (n,) v_c, the prior variance of L_c (``prior_cell_variance``), and ``spread`` t:
+    the weights u g^p exp(t p^2 v / 2); t = 1 is u E[g^p] under the prior (L_c ~ N(mu_c, v_c), g
+    log-normal), t = 0 (the default) g at the prior mean, computed as before. Returns float64
+    (n,), sum 1.
     """
     mu = np.asarray(mean, dtype=np.float64)
     g = np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
-    out = np.asarray(usage, dtype=np.float64) * g ** power
+    if spread == 0:
+        out = np.asarray(usage, dtype=np.float64) * g ** power
+        return out / out.sum()
+    if variance is None:
+        raise ValueError("linear_usage: a prior spread needs the cells' prior variance")
+    # in logs, shifted by the largest used cell's: exp(p^2 v / 2) can span many decades
+    usage = np.asarray(usage, dtype=np.float64)
+    used = usage > 0
+    log_w = np.full(usage.shape, -np.inf)
+    log_w[used] = (np.log(usage[used]) + power * np.log(g[used])
+                   + spread * power * power * np.asarray(variance, np.float64)[used] / 2)
+    out = np.exp(log_w - log_w[used].max())
     return out / out.sum()
 
 
-def design_usage(model, usage: np.ndarray, power: float, hedge: float = HEDGE) -> np.ndarray:
+def prior_cell_variance(dictionary, prior_var: np.ndarray) -> np.ndarray:
+    """float64 (n,): v_c = sum_k D_ck^2 prior_var_k, the prior variance of the mapped value of every
+    cell (L = mu + D s, s ~ N(0, diag(prior_var))), in chunks of CHUNK_ROWS rows."""
+    prior_var = np.asarray(prior_var, dtype=np.float64)
+    out = np.empty(dictionary.shape[0])
+    for lo in range(0, dictionary.shape[0], CHUNK_ROWS):
+        d = np.asarray(dictionary[lo:lo + CHUNK_ROWS], dtype=np.float64)
+        out[lo:lo + CHUNK_ROWS] = (d * d) @ prior_var
+    return out
+
+
+def design_usage(model, usage: np.ndarray, power: float, hedge: float = HEDGE, spread: float = 0.0) -> np.ndarray:
     """The weights the scene-aware design minimises the mapped error under (module doc): float64
-    (n,) (1 - hedge) / n + hedge u g^power / sum, sum 1: the plain design's weight (every cell
-    alike) and the scene's, mixed. ``usage`` itself when it is uniform (the plain design) or when
-    power is 0 and hedge 1; hedge 0 is the uniform map (the plain design).
-    ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g."""
+    (n,) (1 - hedge) / n + hedge u g^power exp(spread power^2 v / 2) / sum, sum 1: the plain
+    design's weight (every cell alike) and the scene's, mixed (``linear_usage``; spread t = 0: g at
+    the prior mean, 1: the prior's expected g^p). ``usage`` itself when it is uniform (the plain
+    design) or when power is 0 and hedge 1; hedge 0 is the uniform map (the plain design).
+    ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g, its
+    dictionary and prior variances v."""
     usage = np.asarray(usage, dtype=np.float64)
     if is_uniform(usage) or (power == 0 and hedge == 1):
         return usage
-    scene = usage if power == 0 else linear_usage(usage, model.mean, model.reference, model.weight, model.eps, power)
+    if power == 0:
+        scene = usage
+    else:
+        variance = None
+        if spread != 0:
+            variance = prior_cell_variance(model.dictionary, prior_variance(model))
+        scene = linear_usage(usage, model.mean, model.reference, model.weight, model.eps, power, variance, spread)
     return scene if hedge == 1 else (1.0 - hedge) / usage.size + hedge * scene
