@@ -481,3 +481,48 @@ def test_plan_with_a_usage_map_carries_the_error_in_the_scenes_use(model, model_
         from_plan(doc, model, out)
     assert str(refused.value) == (f"{out}: usage.error.matrix: expected {model.n_components} x {model.n_components} "
                                   f"finite numbers (the model's components), found 'shape (1, 1)'")
+
+
+def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model):
+    """Issue 29 round 7: spread t weighs u g^p exp(t p^2 v / 2), v_c = sum_k D_ck^2 prior_var_k the
+    prior variance of cell c's mapped value. t = 0 is the design at the prior mean, exactly; t = 1
+    is u E[g^p] under the prior (a Monte-Carlo estimate over prior draws agrees); a uniform map
+    stays the plain design; select_bayes's prior_spread designs under these weights."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import prior_variance
+    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread
+
+    g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
+        / np.asarray(model.weight, np.float64)
+    rng = np.random.default_rng(7)
+    cells = rng.choice(GRID.n_valid, 60, replace=False)
+    usage = np.zeros(GRID.n_valid)
+    usage[cells] = rng.uniform(0.5, 1.5, cells.size)
+    usage /= usage.sum()
+    for p in (0.25, 1.0):
+        assert np.array_equal(design_usage(model, usage, p, spread=0.0), design_usage(model, usage, p))
+        assert np.array_equal(design_usage(model, usage, p, spread=0.0), usage * g ** p / np.sum(usage * g ** p))
+    # t = 1: the expectation over L = mu + D s, s ~ N(0, diag(prior_var)), by Monte Carlo
+    p, draws = 0.5, 200_000
+    d = np.asarray(model.dictionary[cells], np.float64)
+    s = rng.standard_normal((draws, d.shape[1])) * np.sqrt(prior_variance(model))
+    expected = usage[cells] * g[cells] ** p * np.mean(np.exp(p * s @ d.T), axis=0)
+    v = prior_cell_variance(model.dictionary, prior_variance(model))
+    assert v[cells].max() > 1.0  # the spread matters on these cells
+    weights = design_usage(model, usage, p, spread=1.0)
+    assert np.all(weights[usage == 0] == 0)
+    np.testing.assert_allclose(weights[cells], expected / expected.sum(), rtol=0.03)
+    np.testing.assert_allclose(design_usage(model, usage, p, spread=0.5), usage * g ** p * np.exp(p * p * v / 4)
+                               / np.sum(usage * g ** p * np.exp(p * p * v / 4)), rtol=1e-10)
+    # a uniform map is the plain design whatever the spread
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0), uniform)
+    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
+        select_bayes(model, 8).positions.tolist()
+    # the design of spread t is the mapped-error design of its weights; the default spread is 0
+    assert [prior_spread(m) for m in (1, 10, 14, 15, 40)] == [0.0] * 5
+    assert select_bayes(model, 12, usage=usage).positions.tolist() == \
+        select_bayes(model, 12, usage=usage, prior_spread=0.0).positions.tolist()
+    spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
+    assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
+                                           sensitivity_power=0).positions.tolist()
