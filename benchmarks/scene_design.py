@@ -22,10 +22,11 @@ of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 bef
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
 
-The scene-aware design's candidates (``CANDIDATES``: the sensitivity power and the hedge of
-``usage_design.design_usage``) are compared first on validation materials only: every training
-material held out once in ``--folds`` inner folds, each fold's model trained on the others; the
-rule ``choose_rule`` picks per m. The test run then compares the shipped design (``select_bayes``'s
+The scene-aware design's candidates (``CANDIDATES``: the sensitivity power, the hedge and the prior
+spread of ``usage_design.design_usage``) are compared first on validation materials only: every
+training material held out once in ``--folds`` inner folds, each fold's model trained on the others
+(``--only-folds``: some of them, a subset fixed before any result); the rule ``choose_rule`` picks
+per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m,
 ``usage_design.sensitivity_power``) with the blind one and with the earlier u g^0.5 design, and with
 ``--fewer`` also the shipped design at 0.6 m (the goal's fewer-samples branch).
@@ -159,6 +160,9 @@ CANDIDATES = {"shipped": (None, 1.0, 0.0), "prior p-by-m": (None, 1.0, 1.0), "pr
               "prior p0.25": (0.25, 1.0, 1.0)}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0)}
+# The key of the shipped design before round 7 (p by m, g at the prior mean: prior spread 0), which the
+# test run renders beside the shipped one when the default spread is not 0 at some m.
+BEFORE = "t0 (before)"
 
 
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
@@ -322,6 +326,7 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
+    from goniofrost.frost.usage_design import prior_spread
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -352,6 +357,12 @@ def main(argv=None) -> int:
     designs = scene_designs(model, usage, ms, BESIDE)
     for m in ms:
         designs[m].update({(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()})
+    # the shipped design before round 7 (g at the prior mean, t = 0) beside it when the default spread differs
+    before = any(prior_spread(m) != 0 for m in ms)
+    if before:
+        for m in ms:
+            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, prior_spread=0.0).positions
+                               for s, u in usage.items()})
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
@@ -371,6 +382,9 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
+    if before:  # the shipped design against the one before round 7 (export columns: not rendered)
+        print(table(rows, ms, "aware", BEFORE))
+        print(goal_table(rows, ms, BEFORE))
     for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)
         print(table(rows, ms, name, "aware"))
         print(goal_table(rows, ms, name))
