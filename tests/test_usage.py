@@ -191,16 +191,22 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     np.testing.assert_allclose(aware.residuals, expected, rtol=1e-4)
 
 
-def test_the_sensitivity_power_is_1_up_to_14_samples_and_a_quarter_above():
-    """The powers chosen on the 129 validation materials (p = 1 at m = 10, 0.25 at 20 and 40), each
-    m taking the power of the nearest of them on a log scale (boundary sqrt(10 * 20) = 14.1)."""
-    from goniofrost.frost.usage_design import FEW_SAMPLES, sensitivity_power
+def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
+    """The choices on the 129 validation materials (round 7: p = 1, t = 0 at m = 10; p = 0.25, t = 1
+    at 20; p = 0.5, t = 1 at 40), each m taking the choice of the nearest of them on a log scale
+    (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3)."""
+    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, prior_spread, sensitivity_power,
+                                               spread_of_power)
 
-    assert FEW_SAMPLES == int(np.sqrt(10 * 20))
+    assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
     assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
-    assert [sensitivity_power(m) for m in (15, 20, 24, 40, 60, 1000)] == [0.25] * 6
-    with pytest.raises(ValueError, match="positive integer"):
-        sensitivity_power(0)
+    assert [sensitivity_power(m) for m in (15, 20, 24, 28)] == [0.25] * 4
+    assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
+    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [0.0] * 3 + [1.0] * 6
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [0.0, 1.0, 1.0, 0.0]
+    for rule in (sensitivity_power, prior_spread):
+        with pytest.raises(ValueError, match="positive integer"):
+            rule(0)
 
 
 def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
@@ -367,6 +373,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh1"]))
     assert test_specs4 == ["builtin-random:1:24"] and training4 == training and len(test4) == 24
     assert test4 == sorted(n for _, n in material_names(test_specs4)) and not set(test4) & set(builtin)
+    # --test-set fresh2 (round 7): the next seed, none of fresh1's
+    _, test_specs5, _, training5, test5, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "fresh2"]))
+    assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
+    assert not set(test5) & (set(test4) | set(builtin))
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
@@ -519,10 +530,12 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0), uniform)
     assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
         select_bayes(model, 8).positions.tolist()
-    # the design of spread t is the mapped-error design of its weights; the default spread is 0
-    assert [prior_spread(m) for m in (1, 10, 14, 15, 40)] == [0.0] * 5
+    # the design of spread t is the mapped-error design of its weights; the default is the spread for m
+    assert prior_spread(12) == 0.0 and prior_spread(20) == 1.0
     assert select_bayes(model, 12, usage=usage).positions.tolist() == \
         select_bayes(model, 12, usage=usage, prior_spread=0.0).positions.tolist()
+    assert select_bayes(model, 20, usage=usage).positions.tolist() == \
+        select_bayes(model, 20, usage=usage, sensitivity_power=0.25, prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
     assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
                                            sensitivity_power=0).positions.tolist()

@@ -31,20 +31,33 @@ from goniofrost.frost.posterior import prior_variance
 
 # Rows of D handled at once (float64 copies of 64k x 60 = 31 MB).
 CHUNK_ROWS = 1 << 16
-# The exponent p of the sensitivity g in the design's weights u g^p (module doc): 0 weighs the mapped
-# error the scene sees, 2 its first-order image error. Where the numbers come from: on the 129
-# training materials of benchmarks/scene_design.py, each held out once in 4 inner folds (the test
-# materials never entered), p = 0.25, 0.5 and 1 were compared at m = 10, 20 and 40 by the benchmark's
-# rule (per m, the lowest worst-scene ratio of the scene-aware design's median rendered-image error to
-# the scene-blind design's): p = 1 at m = 10 (worst scene 0.52 of blind against 0.56 and 0.67),
-# p = 0.25 at m = 20 (0.62 against 0.70 and 0.78) and at m = 40 (0.60 against 0.72 and 0.88).
-# Between the measured m each m takes the power of the nearest measured m on a log scale (the m
-# were doubled: 10, 20, 40), so the boundary is sqrt(10 * 20) = 14.1: p = 1 for m <= 14 samples,
-# 0.25 for m >= 15 (beyond 40 the power of 40). Issue 29 adopted this in place of one p = 0.5 at
-# every m (which had won among 0 to 2 on 11 validation materials, the geometric mean over scenes and m).
+# The exponent p of the sensitivity g in the design's weights u g^p exp(t p^2 v / 2) (module doc) and
+# the prior spread t, per number of samples m (BANDS). p: 0 weighs the mapped error the scene sees,
+# 2 its first-order image error; t: 0 weighs g at the prior mean, 1 the prior's expected g^p
+# (``linear_usage``). Where the numbers come from: on the 129 training materials of
+# benchmarks/scene_design.py, each held out once in 4 inner folds (the test materials never
+# entered), candidates were compared at m = 10, 20 and 40 by the benchmark's rule (per m, the lowest
+# worst-scene ratio of the scene-aware design's median rendered-image error to the scene-blind
+# design's). Round 3 (t = 0): p = 1 at m = 10 (worst scene 0.52 of blind against 0.56 and 0.67 for
+# p = 0.5 and 0.25), p = 0.25 at m = 20 (0.62 against 0.70 and 0.78) and at m = 40 (0.60 against 0.72
+# and 0.88). Round 7 (BENCHMARKS.md "Issue 29, round 7"; the shipped p by m with t = 0, p by m with
+# t = 1, p = 0.5 and p = 0.25 with t = 1): t = 0, p = 1 at m = 10 (0.52 against 2.02, 0.55, 0.74);
+# p = 0.25 with t = 1 at m = 20 (0.557 against the shipped 0.625 and 0.76 for p = 0.5); p = 0.5 with
+# t = 1 at m = 40 (0.597 against 0.599 and the shipped 0.601: a near tie, the rule taken as it is).
+# Between the measured m each m takes the choice of the nearest measured m on a log scale (the m
+# were doubled: 10, 20, 40), so the boundaries are sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3:
+# m <= 14, 15 to 28, >= 29 (beyond 40 the choice of 40). Issue 29 adopted p by m in place of one
+# p = 0.5 at every m (which had won among 0 to 2 on 11 validation materials).
 FEW_SAMPLES = 14
+MANY_SAMPLES = 28
 POWER_FEW = 1.0
 POWER_MANY = 0.25
+POWER_MOST = 0.5
+SPREAD_FEW = 0.0
+SPREAD_MANY = 1.0
+SPREAD_MOST = 1.0
+# (the last m of the band or None, p, t), in increasing m
+BANDS = ((FEW_SAMPLES, POWER_FEW, SPREAD_FEW), (MANY_SAMPLES, POWER_MANY, SPREAD_MANY), (None, POWER_MOST, SPREAD_MOST))
 # The power of the earlier rule, one for every m (the benchmark compares against it).
 SENSITIVITY_POWER = 0.5
 # The scene's share a of the design's weights (1 - a) / n + a u g^p / sum (``design_usage``): 1 the
@@ -54,30 +67,32 @@ SENSITIVITY_POWER = 0.5
 HEDGE = 1.0
 
 
-def sensitivity_power(m: int) -> float:
-    """The power p of the design's weights u g^p for a design of m samples (``plan --samples m
-    --usage``): POWER_FEW = 1 for m <= FEW_SAMPLES = 14, POWER_MANY = 0.25 above (where the
-    numbers come from: the comment at FEW_SAMPLES). A design stopped by an error target instead
-    (``plan --max-error``) has the power of the number of samples it ends with
-    (``bayes_selection.select_bayes``)."""
+def band(m: int) -> tuple:
+    """(last m of the band or None, p, t) of BANDS for a design of m samples."""
     if not isinstance(m, (int, np.integer)) or m < 1:
         raise ValueError(f"sensitivity_power: m must be a positive integer, found {m!r}")
-    return POWER_FEW if m <= FEW_SAMPLES else POWER_MANY
+    return next(b for b in BANDS if b[0] is None or m <= b[0])
 
 
-# The prior spread t of the design's weights u g^p exp(t p^2 v / 2) (``linear_usage``): 0 weighs g at
-# the prior mean, 1 the prior's expected g^p (issue 29 round 7). Per m as the power: SPREAD_FEW up
-# to FEW_SAMPLES samples, SPREAD_MANY above.
-SPREAD_FEW = 0.0
-SPREAD_MANY = 0.0
+def sensitivity_power(m: int) -> float:
+    """The power p of the design's weights u g^p for a design of m samples (``plan --samples m
+    --usage``): POWER_FEW = 1 for m <= FEW_SAMPLES = 14, POWER_MANY = 0.25 up to MANY_SAMPLES = 28,
+    POWER_MOST = 0.5 above (where the numbers come from: the comment at FEW_SAMPLES). A design
+    stopped by an error target instead (``plan --max-error``) has the power of the number of
+    samples it ends with (``bayes_selection.select_bayes``)."""
+    return band(m)[1]
 
 
 def prior_spread(m: int) -> float:
     """The prior spread t of the design's weights for a design of m samples (``select_bayes``'s
-    default): SPREAD_FEW for m <= FEW_SAMPLES, SPREAD_MANY above."""
-    if not isinstance(m, (int, np.integer)) or m < 1:
-        raise ValueError(f"prior_spread: m must be a positive integer, found {m!r}")
-    return SPREAD_FEW if m <= FEW_SAMPLES else SPREAD_MANY
+    default): SPREAD_FEW = 0 for m <= FEW_SAMPLES, 1 above (the comment at FEW_SAMPLES)."""
+    return band(m)[2]
+
+
+def spread_of_power(power: float) -> float:
+    """The prior spread of the band whose power is ``power`` (BANDS; 0 when none is): what a
+    design of that power uses by default (``usage_calibration.calibrate_scene``)."""
+    return next((t for _, p, t in BANDS if p == power), 0.0)
 
 
 @dataclass(frozen=True)
