@@ -169,6 +169,12 @@ BESIDE = {"g^0.5": (0.5, 1.0, 0.0)}
 BEFORE = "t0 (before)"
 
 
+def before_power(m: int) -> float:
+    """The power of the shipped design before round 7: 1 up to 14 samples, 0.25 above (with prior
+    spread 0). Not ``usage_design.sensitivity_power``, which round 7 changed from 29 samples."""
+    return 1.0 if m <= 14 else 0.25
+
+
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     """{m: {"blind": rows, (scene, name): rows}} for every m of ``ms``: the plain design, and per
     scene the design of every candidate (p, a, t) of ``candidates`` (see CANDIDATES); the designs
@@ -365,8 +371,8 @@ def main(argv=None) -> int:
     before = any(prior_spread(m) != 0 for m in ms)
     if before:
         for m in ms:
-            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, prior_spread=0.0).positions
-                               for s, u in usage.items()})
+            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, sensitivity_power=before_power(m),
+                                                         prior_spread=0.0).positions for s, u in usage.items()})
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
