@@ -14,10 +14,14 @@ What the design weighs (``design_usage``): the error the plan predicts and repor
 (log) error the scene sees, weighted by u. A render, though, is linear in the BRDF, so the image's
 error at a cell is the mapped error times the cell's sensitivity g_c = d rho / d L; weighting by
 u g^2 (the first-order image error, at the prior mean) spends every sample on the prior mean's few
-brightest cells, and u alone on cells too dark to show. The design weighs u g^p with a power that
-depends on the number of samples (``sensitivity_power``): p = 1 up to FEW_SAMPLES samples, 0.25
-above (the powers chosen on validation materials, BENCHMARKS.md "Skip what the scene does not
-need"); a uniform map stays the plain design (no scene: the whole BRDF alike).
+brightest cells, and u alone on cells too dark to show. The design weighs u g^p exp(t p^2 v / 2)
+with a power p and a prior spread t that depend on the number of samples (``BANDS``,
+``sensitivity_power``, ``prior_spread``): v_c is the prior variance of cell c's mapped value, so
+t = 1 weighs E[g^p] under the prior (g is log-normal there) and t = 0 g at the prior mean. p = 1,
+t = 0 up to FEW_SAMPLES = 14 samples; p = 0.25, t = 1 up to MANY_SAMPLES = 28; p = 0.5, t = 1
+above (chosen on validation materials, BENCHMARKS.md "Skip what the scene does not need", issue
+29 rounds 3 and 7; the comment at FEW_SAMPLES). A uniform map stays the plain design (no scene:
+the whole BRDF alike).
 ``design_usage`` can also mix in the plain design's weight, (1 - a) / n + a u g^p / sum, a hedge
 against a misspecified posterior at few samples; HEDGE = 1 (not mixed) won on validation.
 """
@@ -43,7 +47,10 @@ CHUNK_ROWS = 1 << 16
 # and 0.88). Round 7 (BENCHMARKS.md "Issue 29, round 7"; the shipped p by m with t = 0, p by m with
 # t = 1, p = 0.5 and p = 0.25 with t = 1): t = 0, p = 1 at m = 10 (0.52 against 2.02, 0.55, 0.74);
 # p = 0.25 with t = 1 at m = 20 (0.557 against the shipped 0.625 and 0.76 for p = 0.5); p = 0.5 with
-# t = 1 at m = 40 (0.597 against 0.599 and the shipped 0.601: a near tie, the rule taken as it is).
+# t = 1 at m = 40 (0.597 against 0.599 and the shipped 0.601: a near tie, the rule taken as it is;
+# folds 0-1 and 2-3 alone chose differently at m = 20 and 40). At p = 1 the spread halved the top
+# light's error on its specular materials but wrecked the grazing plane (2.02 of blind), so m = 10
+# keeps t = 0. On the fresh test set after (fresh2) the bands met 6 of 9 cells, as t = 0 would have.
 # Between the measured m each m takes the choice of the nearest measured m on a log scale (the m
 # were doubled: 10, 20, 40), so the boundaries are sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3:
 # m <= 14, 15 to 28, >= 29 (beyond 40 the choice of 40). Issue 29 adopted p by m in place of one
