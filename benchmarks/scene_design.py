@@ -17,15 +17,17 @@ measurements); the model is trained on all 151 shared materials, none of them a 
 ``--test-set builtin1``: the same from the second name (names[1::3], 25 materials; issue 29's second
 fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
 fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded analytic materials
-of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run.
+of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run;
+``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
 
-The scene-aware design's candidates (``CANDIDATES``: the sensitivity power and the hedge of
-``usage_design.design_usage``) are compared first on validation materials only: every training
-material held out once in ``--folds`` inner folds, each fold's model trained on the others; the
-rule ``choose_rule`` picks per m. The test run then compares the shipped design (``select_bayes``'s
+The scene-aware design's candidates (``CANDIDATES``: the sensitivity power, the hedge and the prior
+spread of ``usage_design.design_usage``) are compared first on validation materials only: every
+training material held out once in ``--folds`` inner folds, each fold's model trained on the others
+(``--only-folds``: some of them, a subset fixed before any result); the rule ``choose_rule`` picks
+per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m,
 ``usage_design.sensitivity_power``) with the blind one and with the earlier u g^0.5 design, and with
 ``--fewer`` also the shipped design at 0.6 m (the goal's fewer-samples branch).
@@ -65,7 +67,9 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # Fresh analytic test sets drawn by seed (``builtin-random:SEED:COUNT``, the built-in families'
 # parameter ranges, none a library material): the built-in offsets above are spent. "fresh1" was
 # fixed on 2 December 2026 (stop 36) before any run; the model is trained on all 151 shared materials.
-FRESH_SETS = {"fresh1": "builtin-random:1:24"}
+# "fresh2" was fixed on 2 December 2026 (issue 29 round 7, branch h/29p) before any run, after the
+# validation chose the prior spread.
+FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24"}
 
 
 def parse(argv=None):
@@ -78,6 +82,9 @@ def parse(argv=None):
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
     p.add_argument("--folds", type=int, default=4,
                    help="inner folds of the training materials choosing the design (every one is held out once)")
+    p.add_argument("--only-folds", type=int, nargs="+", default=None,
+                   help="validate on these inner folds only (of --folds; each fold's model is the same as in the "
+                        "full run): a subset fixed before any result, for time")
     p.add_argument("--validation-only", action="store_true", help="stop after choosing the design on validation")
     p.add_argument("--test-only", action="store_true", help="the test materials only (the design already chosen)")
     p.add_argument("--fewer", action="store_true",
@@ -89,7 +96,8 @@ def parse(argv=None):
                         "the 74 built-in analytic materials (names[0::3]), the model trained on all 151 shared ones; "
                         "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
                         "names[2::3] (the third, 24 materials); fresh1: 24 seeded analytic materials of the built-in "
-                        "families, none a library material (builtin-random:1:24, never run before stop 36)")
+                        "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
+                        "builtin-random:2:24 (issue 29 round 7, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -145,23 +153,46 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 # The candidate designs, chosen among on the validation materials before the test materials are
-# looked at: name -> (p, a), the design's weights (1 - a) / n + a u g^p / sum
+# looked at: name -> (p, a, t), the design's weights (1 - a) / n + a u g^p exp(t p^2 v / 2) / sum
 # (``usage_design.design_usage``): each cell's use u weighted by the image's sensitivity g to its
-# mapped value to the power p, mixed with the plain design's weight (the whole BRDF alike) with
-# the scene's share a. "g^0.5" (p 0.5, a 1) was the rule before the hedge.
-CANDIDATES = {"g^0.5": (0.5, 1.0), "g^0.5 a0.9": (0.5, 0.9), "g^0.5 a0.7": (0.5, 0.7), "g^0.5 a0.5": (0.5, 0.5),
-              "g^0.5 a0.3": (0.5, 0.3), "g^1 a0.7": (1.0, 0.7)}
+# mapped value to the power p, with t = 1 its expectation under the prior (v: the prior variance of
+# the cell's mapped value), mixed with the plain design's weight (the whole BRDF alike) with the
+# scene's share a. p None: the power for m (``usage_design.sensitivity_power``, a design per m).
+# Round 7 (issue 29): the shipped design against the prior's expected sensitivity; the hedge
+# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in that round's section of BENCHMARKS.md.
+CANDIDATES = {"shipped": (None, 1.0, 0.0), "prior p-by-m": (None, 1.0, 1.0), "prior p0.5": (0.5, 1.0, 1.0),
+              "prior p0.25": (0.25, 1.0, 1.0)}
+# The earlier u g^0.5 design the test run renders beside the shipped one.
+BESIDE = {"g^0.5": (0.5, 1.0, 0.0)}
+# The key of the shipped design before round 7 (p by m, g at the prior mean: prior spread 0), which the
+# test run renders beside the shipped one when the default spread is not 0 at some m.
+BEFORE = "t0 (before)"
 
 
-def scene_designs(model, usage: dict, m_max: int, candidates=CANDIDATES) -> dict:
-    """{"blind": rows, (scene, name): rows} of nested designs of m_max picks: the plain design, and
-    per scene the design of every candidate (p, a) of ``candidates`` (see CANDIDATES)."""
+def before_power(m: int) -> float:
+    """The power of the shipped design before round 7: 1 up to 14 samples, 0.25 above (with prior
+    spread 0). Not ``usage_design.sensitivity_power``, which round 7 changed from 29 samples."""
+    return 1.0 if m <= 14 else 0.25
+
+
+def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
+    """{m: {"blind": rows, (scene, name): rows}} for every m of ``ms``: the plain design, and per
+    scene the design of every candidate (p, a, t) of ``candidates`` (see CANDIDATES); the designs
+    of a fixed p are nested (one of max(ms) picks, read at every m), p None is designed per m."""
     from goniofrost.frost.bayes_selection import select_bayes
 
-    designs = {"blind": select_bayes(model, m_max).positions}
+    m_max = max(ms)
+    blind = select_bayes(model, m_max).positions
+    designs = {m: {"blind": blind} for m in ms}
     for s, u in usage.items():
-        for name, (p, a) in candidates.items():
-            designs[(s, name)] = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a).positions
+        for name, (p, a, t) in candidates.items():
+            if p is None:
+                for m in ms:
+                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t).positions
+            else:
+                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t).positions
+                for m in ms:
+                    designs[m][(s, name)] = rows
     return designs
 
 
@@ -225,23 +256,30 @@ def direct_rows(model, designs, truths, names, ms, direct, usage, grid, spp, ext
         truth = np.asarray(truths[k], dtype=np.float64)
         reference = {s: scene.render(grid, truth, spp) for s, scene in direct.items()}
         mine = own(truth) if own is not None else {}
+        done = {}  # (scene, picked cells) -> the row's numbers: designs that pick the same cells render once
         for m in ms:
             for key, picked in {**(designs[m] if m in designs else designs), **mine.get(m, {})}.items():
-                rec = reconstruct_bayes(model, picked[:m], truth[picked[:m]], with_std=False).brdf
-                if metrics:
-                    diff = (np.log(weight * truth + model.eps) - np.log(weight * np.maximum(rec, 0) + model.eps)) ** 2
-                for s, scene in direct.items():
-                    if key != "blind" and key[0] != s:
-                        continue
-                    image = scene.render(grid, rec, spp)
-                    rel, psnr = image_errors(image, reference[s])
-                    rows.append({"material": name, "scene": s, "m": m, "design": "blind" if key == "blind" else key[1],
-                                 "render": "direct", "image_rel_mse": rel, "psnr_db": psnr})
+                cells = np.asarray(picked[:m]).tobytes()
+                scenes = [s for s in direct if key == "blind" or key[0] == s]
+                rec = None
+                if any((s, cells) not in done for s in scenes):
+                    rec = reconstruct_bayes(model, picked[:m], truth[picked[:m]], with_std=False).brdf
                     if metrics:
-                        rows[-1].update(brdf_log_mse=log_relative_mse(model, truth, rec),
-                                        seen_log_mse=float(usage[s] @ diff.mean(1)))
+                        diff = (np.log(weight * truth + model.eps) - np.log(weight * np.maximum(rec, 0) + model.eps)) ** 2
+                for s in scenes:
+                    if (s, cells) not in done:
+                        image = direct[s].render(grid, rec, spp)
+                        rel, psnr = image_errors(image, reference[s])
+                        done[(s, cells)] = {"image_rel_mse": rel, "psnr_db": psnr}
+                        if metrics:
+                            done[(s, cells)].update(brdf_log_mse=log_relative_mse(model, truth, rec),
+                                                    seen_log_mse=float(usage[s] @ diff.mean(1)))
+                        if k == 0 and m == ms[len(ms) // 2]:
+                            done[(s, cells)]["image"] = image
+                    rows.append({"material": name, "scene": s, "m": m, "design": "blind" if key == "blind" else key[1],
+                                 "render": "direct", **{f: v for f, v in done[(s, cells)].items() if f != "image"}})
                     if k == 0 and m == ms[len(ms) // 2]:
-                        pictures[(s, rows[-1]["design"])] = image
+                        pictures[(s, rows[-1]["design"])] = done[(s, cells)]["image"]
                         pictures[(s, "truth")] = reference[s]
         if extra is not None:
             rows.extend(extra(k, name, truth))
@@ -268,18 +306,20 @@ def choose_rule(rows: list[dict], ms: list[int]) -> tuple[dict, dict]:
     return {m: min(CANDIDATES, key=lambda w: score[(m, w)]) for m in ms}, score
 
 
-def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, spp, t0, out: Path) -> list[dict]:
+def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, spp, t0, out: Path,
+               only=None) -> list[dict]:
     """The candidates' direct-render rows on every training material, each held out of a model
     trained on the others of ``training`` in ``folds`` inner folds (fold f: training[f::folds]);
-    the test materials never enter. Each fold's rows are written to out/validation-fF.json."""
+    the test materials never enter. ``only``: these folds alone (default all). Each fold's rows
+    are written to out/validation-fF.json."""
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.training import train
 
     rows = []
-    for f in range(folds):
+    for f in (range(folds) if only is None else only):
         held = training[f::folds]
         inner = train(specs, only=[n for n in training if n not in held], grid=grid, cache=True)
-        designs = scene_designs(inner, usage, max(ms))
+        designs = scene_designs(inner, usage, ms)
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
@@ -296,6 +336,7 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
+    from goniofrost.frost.usage_design import prior_spread
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -307,7 +348,7 @@ def main(argv=None) -> int:
     # 1. the rule, chosen on training materials only (inner folds)
     if not args.test_only:
         v_rows = validation(specs, grid, training, 2 if args.smallest else args.folds, usage, direct, ms, spp, t0,
-                            args.out)
+                            args.out, args.only_folds)
         choice, scores = choose_rule(v_rows, ms)
         print(f"chosen on {len({r['material'] for r in v_rows})} validation materials: {choice} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -323,9 +364,15 @@ def main(argv=None) -> int:
     model = train(specs, only=training, grid=grid, cache=True)
     print(f"model: {len(training)} training materials, K = {model.n_components} ({time.perf_counter() - t0:.0f} s); "
           f"{len(test)} test materials ({args.test_set}): {', '.join(test)}", flush=True)
-    nested = scene_designs(model, usage, max(ms), {"g^0.5": CANDIDATES["g^0.5"]})
-    designs = {m: {**nested, **{(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}}
-               for m in ms}
+    designs = scene_designs(model, usage, ms, BESIDE)
+    for m in ms:
+        designs[m].update({(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()})
+    # the shipped design before round 7 (g at the prior mean, t = 0) beside it when the default spread differs
+    before = any(prior_spread(m) != 0 for m in ms)
+    if before:
+        for m in ms:
+            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, sensitivity_power=before_power(m),
+                                                         prior_spread=0.0).positions for s, u in usage.items()})
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
@@ -345,6 +392,9 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
+    if before:  # the shipped design against the one before round 7 (export columns: not rendered)
+        print(table(rows, ms, "aware", BEFORE))
+        print(goal_table(rows, ms, BEFORE))
     for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)
         print(table(rows, ms, name, "aware"))
         print(goal_table(rows, ms, name))

@@ -55,12 +55,13 @@ def test_with_a_uniform_map_it_is_the_plain_designs_continuation(model, l):
 @pytest.mark.parametrize("m", [12, 20])
 def test_at_the_prior_mean_it_is_the_one_stage_scene_design(model, m):
     """Samples equal to the prior mean leave the posterior mean there: g is the one-stage design's,
-    and so are the picks (the power for m, 1 at 12 and 0.25 at 20)."""
+    and so are the picks (the power for m, 1 at 12 and 0.25 at 20; the continuation weighs g at the
+    posterior mean itself, so the one-stage design of prior spread 0)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.sequential_design import continue_design
 
     usage = retro_map()
-    aware = select_bayes(model, m, usage=usage).positions
+    aware = select_bayes(model, m, usage=usage, prior_spread=0.0).positions
     first = aware[:m // 2]
     mapped = np.repeat(np.asarray(model.mean, np.float64)[first, None], 3, axis=1)
     assert continue_design(model, usage, first, mapped, m).rows.tolist() == aware[m // 2:].tolist()

@@ -191,16 +191,22 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     np.testing.assert_allclose(aware.residuals, expected, rtol=1e-4)
 
 
-def test_the_sensitivity_power_is_1_up_to_14_samples_and_a_quarter_above():
-    """The powers chosen on the 129 validation materials (p = 1 at m = 10, 0.25 at 20 and 40), each
-    m taking the power of the nearest of them on a log scale (boundary sqrt(10 * 20) = 14.1)."""
-    from goniofrost.frost.usage_design import FEW_SAMPLES, sensitivity_power
+def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
+    """The choices on the 129 validation materials (round 7: p = 1, t = 0 at m = 10; p = 0.25, t = 1
+    at 20; p = 0.5, t = 1 at 40), each m taking the choice of the nearest of them on a log scale
+    (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3)."""
+    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, prior_spread, sensitivity_power,
+                                               spread_of_power)
 
-    assert FEW_SAMPLES == int(np.sqrt(10 * 20))
+    assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
     assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
-    assert [sensitivity_power(m) for m in (15, 20, 24, 40, 60, 1000)] == [0.25] * 6
-    with pytest.raises(ValueError, match="positive integer"):
-        sensitivity_power(0)
+    assert [sensitivity_power(m) for m in (15, 20, 24, 28)] == [0.25] * 4
+    assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
+    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [0.0] * 3 + [1.0] * 6
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [0.0, 1.0, 1.0, 0.0]
+    for rule in (sensitivity_power, prior_spread):
+        with pytest.raises(ValueError, match="positive integer"):
+            rule(0)
 
 
 def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
@@ -367,6 +373,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh1"]))
     assert test_specs4 == ["builtin-random:1:24"] and training4 == training and len(test4) == 24
     assert test4 == sorted(n for _, n in material_names(test_specs4)) and not set(test4) & set(builtin)
+    # --test-set fresh2 (round 7): the next seed, none of fresh1's
+    _, test_specs5, _, training5, test5, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "fresh2"]))
+    assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
+    assert not set(test5) & (set(test4) | set(builtin))
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
@@ -481,3 +492,50 @@ def test_plan_with_a_usage_map_carries_the_error_in_the_scenes_use(model, model_
         from_plan(doc, model, out)
     assert str(refused.value) == (f"{out}: usage.error.matrix: expected {model.n_components} x {model.n_components} "
                                   f"finite numbers (the model's components), found 'shape (1, 1)'")
+
+
+def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model):
+    """Issue 29 round 7: spread t weighs u g^p exp(t p^2 v / 2), v_c = sum_k D_ck^2 prior_var_k the
+    prior variance of cell c's mapped value. t = 0 is the design at the prior mean, exactly; t = 1
+    is u E[g^p] under the prior (a Monte-Carlo estimate over prior draws agrees); a uniform map
+    stays the plain design; select_bayes's prior_spread designs under these weights."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import prior_variance
+    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread
+
+    g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
+        / np.asarray(model.weight, np.float64)
+    rng = np.random.default_rng(7)
+    cells = rng.choice(GRID.n_valid, 60, replace=False)
+    usage = np.zeros(GRID.n_valid)
+    usage[cells] = rng.uniform(0.5, 1.5, cells.size)
+    usage /= usage.sum()
+    for p in (0.25, 1.0):
+        assert np.array_equal(design_usage(model, usage, p, spread=0.0), design_usage(model, usage, p))
+        assert np.array_equal(design_usage(model, usage, p, spread=0.0), usage * g ** p / np.sum(usage * g ** p))
+    # t = 1: the expectation over L = mu + D s, s ~ N(0, diag(prior_var)), by Monte Carlo
+    p, draws = 0.5, 200_000
+    d = np.asarray(model.dictionary[cells], np.float64)
+    s = rng.standard_normal((draws, d.shape[1])) * np.sqrt(prior_variance(model))
+    expected = usage[cells] * g[cells] ** p * np.mean(np.exp(p * s @ d.T), axis=0)
+    v = prior_cell_variance(model.dictionary, prior_variance(model))
+    assert v[cells].max() > 1.0  # the spread matters on these cells
+    weights = design_usage(model, usage, p, spread=1.0)
+    assert np.all(weights[usage == 0] == 0)
+    np.testing.assert_allclose(weights[cells], expected / expected.sum(), rtol=0.03)
+    np.testing.assert_allclose(design_usage(model, usage, p, spread=0.5), usage * g ** p * np.exp(p * p * v / 4)
+                               / np.sum(usage * g ** p * np.exp(p * p * v / 4)), rtol=1e-10)
+    # a uniform map is the plain design whatever the spread
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0), uniform)
+    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
+        select_bayes(model, 8).positions.tolist()
+    # the design of spread t is the mapped-error design of its weights; the default is the spread for m
+    assert prior_spread(12) == 0.0 and prior_spread(20) == 1.0
+    assert select_bayes(model, 12, usage=usage).positions.tolist() == \
+        select_bayes(model, 12, usage=usage, prior_spread=0.0).positions.tolist()
+    assert select_bayes(model, 20, usage=usage).positions.tolist() == \
+        select_bayes(model, 20, usage=usage, sensitivity_power=0.25, prior_spread=1.0).positions.tolist()
+    spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
+    assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
+                                           sensitivity_power=0).positions.tolist()

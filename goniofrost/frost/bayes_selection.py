@@ -177,7 +177,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
                  calibration=None, sensitivity_power: float | None = None,
-                 hedge: float = HEDGE) -> Selection:
+                 hedge: float = HEDGE, prior_spread: float | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -194,9 +194,14 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
     of samples, ``usage_design.sensitivity_power(m)``. With max_error and p None the design of
     POWER_FEW runs up to FEW_SAMPLES picks; when it does not reach the target there, the design of
-    POWER_MANY runs from the start until it does with more than FEW_SAMPLES picks. Either way the
+    the next band (``usage_design.BANDS``: POWER_MANY up to MANY_SAMPLES, then POWER_MOST) runs from
+    the start until it does with more picks than the band before allows. Either way the
     result of n picks is the n-sample design (the power for n), and the (n - 1)-sample design
     does not reach the target (max_error's floor is checked on the longer design's calibration).
+    prior_spread: t of the design's weights u g^p exp(t p^2 v / 2) (``usage_design.linear_usage``:
+    0 g at the prior mean, 1 the prior's expected g^p); None (the default): the spread for the
+    number of samples, ``usage_design.prior_spread(m)`` (with max_error and p None, the spread of
+    each phase's band; with max_error and p given, 0).
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the power p returning
     it (a scene's calibration depends on the design measured; None from it: the model's).
@@ -221,19 +226,22 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         calib = calibration_for(power)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted = _design(model, rows, noise, limit, max_error, usage if scene else None, power, hedge,
-                                    calib, threads, uniform_is_plain=uniform_is_plain)
-    else:  # an error target and the power of the design's own length: two phases (docstring)
+                                    calib, threads, uniform_is_plain=uniform_is_plain,
+                                    spread=_spread(prior_spread, m, scene))
+    else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
-        limit = _check(None, max_error, rows.size, None, floor)
-        calib = calibration_for(usage_design.POWER_FEW)
-        picked, predicted = _design(model, rows, noise, min(limit, usage_design.FEW_SAMPLES), max_error, usage,
-                                    usage_design.POWER_FEW, hedge, calib, threads, uniform_is_plain=uniform_is_plain)
-        if predicted[-1] > max_error and limit > usage_design.FEW_SAMPLES:
-            calib = calibration_for(usage_design.POWER_MANY)
-            limit = _check(None, max_error, rows.size, calib, floor)
-            picked, predicted = _design(model, rows, noise, limit, max_error, usage, usage_design.POWER_MANY, hedge,
-                                        calib, threads, min_picks=usage_design.FEW_SAMPLES + 1,
-                                        uniform_is_plain=uniform_is_plain)
+        limit, start_m = _check(None, max_error, rows.size, None, floor), 0
+        for i, (last, power, spread) in enumerate(usage_design.BANDS):
+            calib = calibration_for(power)
+            if i:
+                limit = _check(None, max_error, rows.size, calib, floor)
+            end = limit if last is None else min(limit, last)
+            picked, predicted = _design(model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
+                                        min_picks=start_m + 1, uniform_is_plain=uniform_is_plain,
+                                        spread=spread if prior_spread is None else prior_spread)
+            if predicted[-1] <= max_error or last is None or limit <= last:
+                break
+            start_m = last
     if max_error is not None and predicted[-1] > max_error:
         raise SelectionError(f"max_error: {max_error:g} not reached with {picked.rows.size} samples (predicted "
                              f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
@@ -242,14 +250,24 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds)
 
 
+def _spread(spread, m, scene: bool) -> float:
+    """The prior spread t of a scene design of m samples: ``spread`` when given, else the default for
+    m (``usage_design.prior_spread``; 0 when m is None); 0 without a scene."""
+    if not scene:
+        return 0.0
+    if spread is not None:
+        return float(spread)
+    return 0.0 if m is None else usage_design.prior_spread(m)
+
+
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
-            min_picks: int = 1, uniform_is_plain: bool = True) -> tuple[GreedyDesign, np.ndarray]:
+            min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0) -> tuple[GreedyDesign, np.ndarray]:
     """One greedy design of at most ``limit`` picks among ``rows`` and its predicted errors
     (float64 (picks,)); usage None: the plain design, else the scene's of power p and hedge (see
     select_bayes, also for ``uniform_is_plain``); with max_error it stops at the first pick, of at
     least ``min_picks``, whose predicted error is <= max_error."""
     if usage is not None:
-        weights = design_usage(model, usage, power, hedge)
+        weights = design_usage(model, usage, power, hedge, spread)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2

@@ -24,18 +24,19 @@ from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
 from goniofrost.frost.prediction import material_features, sample_level
-from goniofrost.frost.usage_design import HEDGE, design_usage, is_uniform, scene_prior
+from goniofrost.frost.usage_design import HEDGE, design_usage, is_uniform, scene_prior, spread_of_power
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
 CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress: bool = False,
-                    hedge: float = HEDGE) -> dict:
+                    hedge: float = HEDGE, prior_spread: float | None = None) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
     weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
-    every fold; a plan of m samples uses ``usage_design.sensitivity_power(m)``). TrainingError when
+    every fold; a plan of m samples uses ``usage_design.sensitivity_power(m)``; ``prior_spread``
+    None: the spread of that power's band, ``usage_design.spread_of_power``). TrainingError when
     the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
@@ -44,7 +45,9 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
     recon = posterior.cell_noise(model)
     usage = np.asarray(usage, np.float64)
     records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
-                             design_weights=design_usage(model, usage, sensitivity_power, hedge))
+                             design_weights=design_usage(model, usage, sensitivity_power, hedge,
+                                                         spread_of_power(sensitivity_power) if prior_spread is None
+                                                         else prior_spread))
     return fit_calibration(records)
 
 
