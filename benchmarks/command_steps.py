@@ -9,13 +9,17 @@ IK joints, ``on_lattice``) and with them (``on_steps``). Per test material, the 
 reaches, assigned to the plan's cells, is compared with the same from the cells' own values
 ("exact": what no positioning error can beat): log-relative MSE over the whole grid.
 
-Model: the built-in library without red-plastic (the demo's model, cached); test materials: every
-material of ``--data`` (default ../shared/data: 100 MERL and 51 RGL, none of them in training).
-Plan: the Bayesian design of ``--samples`` (default 40) among the cells the rig reaches, with the
-sentinels, on ``--rig`` (default config/rigs/sim.yaml). The time of ``on_steps`` is the median
-of ``--repeats``.
+Models and test materials (``--setting``): ``split`` (the default): the 151 materials of
+``--data`` (../shared/data: 100 MERL and 51 RGL, sorted by name) in ``--folds`` folds (fold k:
+names[k::folds]), each fold's materials tested on a model trained on the others, so every
+material is tested once on a model that never saw it; ``builtin``: the built-in library without
+red-plastic (the demo's model) tested on all 151 (a model that fits measured materials poorly:
+there the samples' exact cell values are no better than nearby ones). Plan: per model, the
+Bayesian design of ``--samples`` (default 40) among the cells the rig reaches, with the sentinels,
+on ``--rig`` (default config/rigs/sim.yaml). The time of ``on_steps`` is the median of ``--repeats``.
 
     .venv/bin/python benchmarks/command_steps.py --out /tmp/steps.json
+    .venv/bin/python benchmarks/command_steps.py --setting builtin --out /tmp/steps-builtin.json
     .venv/bin/python benchmarks/command_steps.py --smallest --out /tmp/steps-small.json   # a test runs it
 """
 from __future__ import annotations
@@ -41,17 +45,35 @@ def parse(argv=None):
     p.add_argument("--data", type=Path, default=SHARED)
     p.add_argument("--samples", type=int, default=40)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--setting", choices=("split", "builtin"), default="split")
+    p.add_argument("--folds", type=int, default=7)
     p.add_argument("--smallest", action="store_true", help="30 x 30 x 60 grid, 6 samples, 2 built-in test materials")
     return p.parse_args(argv)
 
 
-def test_specs(args) -> list[str]:
-    from goniofrost.datasets import open_dataset
+def settings(args, grid):
+    """[(model, test material specs)]: one per fold of the split, or the built-in model's."""
+    from goniofrost.app.demo import train_without
+    from goniofrost.bench.data import material_names
+    from goniofrost.frost.training import train
 
-    if args.smallest:
-        return ["builtin:gold", "builtin:red-plastic"]
-    specs = [f"nbrdf:{args.data / name}" for name in ("nbrdf_merl.npz", "nbrdf_rgl.npz")]
-    return [f"{spec}:{name}" for spec in specs for name in open_dataset(spec).names()]
+    if args.smallest or args.setting == "builtin":
+        tests = (["builtin:gold", "builtin:red-plastic"] if args.smallest else
+                 [f"{spec}:{name}" for spec, name in material_names(_shared(args))])
+        return [(lambda: train_without("red-plastic", grid, False)[0], tests)]
+    pairs = sorted(material_names(_shared(args)), key=lambda p: p[1])
+    names = [n for _, n in pairs]
+    out = []
+    for k in range(args.folds):
+        held = names[k::args.folds]
+        out.append((lambda held=held: train(_shared(args), only=[n for n in names if n not in held], grid=grid,
+                                            cache=True),
+                    [f"{spec}:{name}" for spec, name in pairs if name in held]))
+    return out
+
+
+def _shared(args) -> list[str]:
+    return [f"nbrdf:{args.data / name}" for name in ("nbrdf_merl.npz", "nbrdf_rgl.npz")]
 
 
 def scheduled_joints(rig, model, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
@@ -89,44 +111,52 @@ def errors(model, spec: str, positions, directions: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    from goniofrost.app.demo import train_without
     from goniofrost.capture.rig_file import load_checked_rig
     from goniofrost.core.grid import FULL_GRID, MerlGrid
-    from planner.kinematics import forward
-    from planner.steps import cell_miss, on_lattice, on_steps
 
     args = parse(argv)
     grid = MerlGrid(30, 30, 60) if args.smallest else FULL_GRID
     m = 6 if args.smallest else args.samples
     t0 = time.perf_counter()
     rig = load_checked_rig(args.rig)
-    model, _ = train_without("red-plastic", grid, False)
-    ik, cells, positions, steps = scheduled_joints(rig, model, m)
-    times = []
-    for _ in range(args.repeats):
-        start = time.perf_counter()
-        stepped = on_steps(rig, grid, ik, cells, steps)
-        times.append(time.perf_counter() - start)
-    rounded = on_lattice(ik, steps)
-    miss = {"rounded": np.sqrt(cell_miss(rig, grid, rounded, cells)), "on_steps": np.sqrt(cell_miss(rig, grid, stepped, cells))}
-    print(f"{len(ik)} samples on {rig.name}, steps {steps} deg; on_steps {statistics.median(times) * 1e3:.1f} ms "
-          f"(median of {args.repeats}); index-space miss median / max: rounded {np.median(miss['rounded']):.3f} / "
-          f"{miss['rounded'].max():.3f}, on_steps {np.median(miss['on_steps']):.3f} / {miss['on_steps'].max():.3f}",
-          flush=True)
-    directions = {"rounded": forward(rig, rounded), "on_steps": forward(rig, stepped)}
-    rows = []
-    specs = test_specs(args)
-    for k, spec in enumerate(specs):
-        rows.append({"material": spec.rsplit(":", 1)[-1], "spec": spec, **errors(model, spec, positions, directions)})
-        if (k + 1) % 25 == 0:
-            print(f"  {k + 1}/{len(specs)} materials ({time.perf_counter() - t0:.0f} s)", flush=True)
+    rows, folds = [], []
+    for k, (model_of, specs) in enumerate(settings(args, grid)):
+        model = model_of()
+        fold, fold_rows = one_model(rig, model, m, specs, args.repeats)
+        folds.append(fold)
+        rows += fold_rows
+        print(f"model {k + 1}: {fold['samples']} samples, {len(specs)} test materials; on_steps "
+              f"{statistics.median(fold['on_steps_s']) * 1e3:.1f} ms (median of {args.repeats}); index-space miss "
+              f"median / max: rounded {np.median(fold['miss']['rounded']):.3f} / {max(fold['miss']['rounded']):.3f}, "
+              f"on_steps {np.median(fold['miss']['on_steps']):.3f} / {max(fold['miss']['on_steps']):.3f} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
     summary = summarise(rows)
     print(json.dumps(summary, indent=1))
-    args.out.write_text(json.dumps({"rig": str(args.rig), "samples": len(ik), "steps_deg": steps,
-                                    "on_steps_s": times, "miss": {k: v.tolist() for k, v in miss.items()},
-                                    "summary": summary, "rows": rows}, indent=1))
+    args.out.write_text(json.dumps({"rig": str(args.rig), "setting": "smallest" if args.smallest else args.setting,
+                                    "steps_deg": folds[0]["steps_deg"], "samples": folds[0]["samples"],
+                                    "models": folds, "summary": summary, "rows": rows}, indent=1))
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0
+
+
+def one_model(rig, model, m: int, specs: list[str], repeats: int) -> tuple[dict, list[dict]]:
+    """The plan of ``model`` on ``rig``, its joints both ways, and every test material's errors."""
+    from planner.kinematics import forward
+    from planner.steps import cell_miss, on_lattice, on_steps
+
+    ik, cells, positions, steps = scheduled_joints(rig, model, m)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        stepped = on_steps(rig, model.grid, ik, cells, steps)
+        times.append(time.perf_counter() - start)
+    rounded = on_lattice(ik, steps)
+    miss = {"rounded": np.sqrt(cell_miss(rig, model.grid, rounded, cells)).tolist(),
+            "on_steps": np.sqrt(cell_miss(rig, model.grid, stepped, cells)).tolist()}
+    directions = {"rounded": forward(rig, rounded), "on_steps": forward(rig, stepped)}
+    rows = [{"material": spec.rsplit(":", 1)[-1], "spec": spec, **errors(model, spec, positions, directions)}
+            for spec in specs]
+    return {"samples": len(ik), "steps_deg": steps, "on_steps_s": times, "miss": miss}, rows
 
 
 def summarise(rows: list[dict]) -> dict:

@@ -84,7 +84,7 @@ def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path,
     spec.loader.exec_module(bench)
     assert bench.main(["--smallest", "--repeats", "1", "--out", str(tmp_path / "steps.json")]) == 0
     result = json.loads((tmp_path / "steps.json").read_text())
-    miss = {k: np.array(v) for k, v in result["miss"].items()}
+    miss = {k: np.array(v) for k, v in result["models"][0]["miss"].items()}
     assert np.all(miss["on_steps"] <= miss["rounded"]) and miss["rounded"].max() > 0.1
     assert [r["material"] for r in result["rows"]] == ["gold", "red-plastic"]
     for row in result["rows"]:
