@@ -34,8 +34,9 @@ SLOW = {
     "monitor": ["overhead", "--repeats", "1", "--samples", "2"],
     "session": ["--repeats", "1", "--samples", "3"],
     # also run in the default suite by the tests of their own features (test_usage, test_spectral_export,
-    # test_confidence), at these settings
+    # test_confidence, test_steps), at these settings
     "camera_kinds": ["--smallest", "--out", "out"],
+    "command_steps": ["--smallest", "--repeats", "1", "--out", "steps.json"],
     "scene_design": ["--smallest", "--scenes", "retro-sphere", "--out", "out"],
     "spectral_export": ["--smallest"],
     "spectral_sphere": ["--size", "16", "--spp", "4", "--out", "sphere.png"],
