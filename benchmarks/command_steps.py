@@ -2,9 +2,11 @@
 devices round them: the reconstruction error of samples taken where the rig really points.
 
 A Dynamixel servo goes to whole counts (0.088 deg), a Modbus drive to whole steps: a plan's IK
-joints are rounded by the devices, and the direction measured differs from the cell's. The plan
-is scheduled twice on the same selection and tour: without command steps (the devices round the
-IK joints, ``on_lattice``) and with them (``on_steps``). Per test material, the posterior mean
+joints are rounded by the devices, and the direction measured differs from the cell's. On the same
+selection and tour the joints are: the IK joints as the devices round them (``rounded``:
+``on_lattice``), on the lattices closest to the cells in the grid's index space (``index``:
+``on_steps``'s default metric), and what ``plan`` does (``on_steps``: each axis's miss weighed by
+the model's expected change there, ``frost.cell_sensitivity``). Per test material, the posterior mean
 (``reconstruct_bayes``) from the material's exact values at the directions forward(joints)
 reaches, assigned to the plan's cells, is compared with the same from the cells' own values
 ("exact": what no positioning error can beat): log-relative MSE over the whole grid.
@@ -95,7 +97,7 @@ def scheduled_joints(rig, model, m: int) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def errors(model, spec: str, positions, directions: dict) -> dict:
-    """{name: log-relative MSE} of the reconstruction from ``spec``'s values at each name's
+    """{name: log-relative MSE} of the reconstruction from ``spec``'s values at each key's
     (w_i, w_o) (each (n, 3)), and "exact" from its values at the cells."""
     from goniofrost.datasets import material_brdf, parse_material_spec
     from goniofrost.frost.metrics import log_relative_mse
@@ -141,6 +143,7 @@ def main(argv=None) -> int:
 
 def one_model(rig, model, m: int, specs: list[str], repeats: int) -> tuple[dict, list[dict]]:
     """The plan of ``model`` on ``rig``, its joints both ways, and every test material's errors."""
+    from goniofrost.frost.cell_sensitivity import axis_weights
     from planner.kinematics import forward
     from planner.steps import cell_miss, on_lattice, on_steps
 
@@ -148,30 +151,33 @@ def one_model(rig, model, m: int, specs: list[str], repeats: int) -> tuple[dict,
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
-        stepped = on_steps(rig, model.grid, ik, cells, steps)
+        stepped = on_steps(rig, model.grid, ik, cells, steps, axis_weights(model, cells))
         times.append(time.perf_counter() - start)
-    rounded = on_lattice(ik, steps)
-    miss = {"rounded": np.sqrt(cell_miss(rig, model.grid, rounded, cells)).tolist(),
-            "on_steps": np.sqrt(cell_miss(rig, model.grid, stepped, cells)).tolist()}
-    directions = {"rounded": forward(rig, rounded), "on_steps": forward(rig, stepped)}
+    rounded, index = on_lattice(ik, steps), on_steps(rig, model.grid, ik, cells, steps)
+    miss = {key: np.sqrt(cell_miss(rig, model.grid, q, cells)).tolist()
+            for key, q in (("rounded", rounded), ("index", index), ("on_steps", stepped))}
+    directions = {key: forward(rig, q) for key, q in (("rounded", rounded), ("index", index), ("on_steps", stepped))}
     rows = [{"material": spec.rsplit(":", 1)[-1], "spec": spec, **errors(model, spec, positions, directions)}
             for spec in specs]
     return {"samples": len(ik), "steps_deg": steps, "on_steps_s": times, "miss": miss}, rows
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Medians over the materials of each error and of its ratio to exact; how many on_steps improved."""
+    """Medians and means over the materials of each error, of its ratio to exact and of the lattice
+    joints' errors to the rounded ones' (how many improved)."""
     out = {"materials": len(rows)}
-    for key in ("rounded", "on_steps", "exact"):
+    for key in ("rounded", "index", "on_steps", "exact"):
         out[f"median_{key}"] = float(np.median([r[key] for r in rows]))
-    for key in ("rounded", "on_steps"):
+        out[f"mean_{key}"] = float(np.mean([r[key] for r in rows]))
+    for key in ("rounded", "index", "on_steps"):
         ratio = np.array([r[key] / r["exact"] for r in rows])
         out[f"{key}_over_exact"] = {"median": float(np.median(ratio)), "p90": float(np.percentile(ratio, 90)),
                                     "max": float(ratio.max())}
-    change = np.array([r["on_steps"] / r["rounded"] for r in rows])
-    out["on_steps_over_rounded"] = {"median": float(np.median(change)), "min": float(change.min()),
-                                    "max": float(change.max()), "better": int((change < 1).sum()),
-                                    "worse_by_over_1pct": int((change > 1.01).sum())}
+    for key in ("index", "on_steps"):
+        change = np.array([r[key] / r["rounded"] for r in rows])
+        out[f"{key}_over_rounded"] = {"median": float(np.median(change)), "min": float(change.min()),
+                                      "max": float(change.max()), "better": int((change < 1).sum()),
+                                      "worse_by_over_1pct": int((change > 1.01).sum())}
     return out
 
 

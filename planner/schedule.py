@@ -46,25 +46,29 @@ class UnreachableSampleError(GoniofrostError, ValueError):
 
 
 def schedule_plan(plan_doc: Mapping, rig: Rig, *, reciprocity: bool = True, restarts: int = 8,
-                  steps=None) -> dict:
+                  steps=None, axis_weights=None) -> dict:
     """A copy of ``plan_doc`` with joints, capture order and motion times for ``rig`` (see module
     doc). ``steps``: (3,) deg between the positions each axis (in ``rig.joint_names`` order) can be
     commanded to (``drivers.config.command_step_deg``; 0: any): the joints are then put on those
-    lattices as close to their cells as they allow (``planner.steps``); None: the IK joints."""
-    return _schedule(plan_doc, rig, [len(plan_doc["samples"])], reciprocity, restarts, steps)
+    lattices as close to their cells as they allow (``planner.steps``), each grid axis's miss
+    weighted by ``axis_weights`` (n, 3) of the samples in the document's order (e.g.
+    ``goniofrost.frost.cell_sensitivity.axis_weights``; None: ``planner.steps``'s default); steps
+    None: the IK joints."""
+    return _schedule(plan_doc, rig, [len(plan_doc["samples"])], reciprocity, restarts, steps, axis_weights)
 
 
 def schedule_batches(plan_doc: Mapping, rig: Rig, batch_ends, *, reciprocity: bool = True,
-                     restarts: int = 8, steps=None) -> dict:
+                     restarts: int = 8, steps=None, axis_weights=None) -> dict:
     """``schedule_plan`` batch by batch (see module doc); ``batch_ends`` increasing, the last = n."""
     ends = [int(e) for e in batch_ends]
     n = len(plan_doc["samples"])
     if not ends or ends[-1] != n or any(b <= a for a, b in zip([0] + ends[:-1], ends)):
         raise ValueError(f"batch_ends: expected increasing sample counts ending at {n}, found {ends}")
-    return _schedule(plan_doc, rig, ends, reciprocity, restarts, steps) | {"batch_ends": ends}
+    return _schedule(plan_doc, rig, ends, reciprocity, restarts, steps, axis_weights) | {"batch_ends": ends}
 
 
-def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, restarts: int, steps=None) -> dict:
+def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, restarts: int, steps=None,
+              axis_weights=None) -> dict:
     """Order each batch [e_{k-1}, e_k) of selection indices for least motion, each starting where
     the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
@@ -85,7 +89,8 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     if steps is not None and all("cell" in s for s in samples):
         grid = MerlGrid(**plan_doc["grid"]) if "grid" in plan_doc else MerlGrid()
         cells = np.array([cell_indices(samples[i]) for i in tour.order], dtype=np.float64)
-        chosen = on_steps(rig, grid, chosen, cells, steps)
+        weights = None if axis_weights is None else np.asarray(axis_weights, dtype=np.float64)[tour.order]
+        chosen = on_steps(rig, grid, chosen, cells, steps, weights)
     out = {key: copy.deepcopy(value) for key, value in plan_doc.items() if key != "samples"}
     out["samples"] = _capture_samples(rig, samples, tour, chosen)
     moves = _move_times(rig, chosen)

@@ -48,9 +48,11 @@ def on_lattice(joints: np.ndarray, steps) -> np.ndarray:
     return np.where(steps > 0, np.round(q / safe) * safe, q)
 
 
-def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray) -> np.ndarray:
+def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, weights=None) -> np.ndarray:
     """float64 (...): the squared index-space distance (module doc) between the directions of
-    commanded ``joints`` (..., 3) and the grid nodes ``cells`` (..., 3) (i_th, i_td, i_pd)."""
+    commanded ``joints`` (..., 3) and the grid nodes ``cells`` (..., 3) (i_th, i_td, i_pd);
+    ``weights`` (..., 3): each axis's squared index difference times this instead (default 1, 1
+    and sin(theta_h of the cell))."""
     theta_h, theta_d, phi_d = dirs_to_half_diff(*forward(rig, joints))
     cells = np.asarray(cells, dtype=np.float64)
     x_th = np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * grid.n_th
@@ -58,15 +60,18 @@ def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray) -
     x_pd = np.mod(phi_d, np.pi) / np.pi * grid.n_pd
     period = grid.n_pd
     d_pd = np.minimum(_wrapped(x_pd - cells[..., 2], period), _wrapped(-x_pd - cells[..., 2], period))
-    weight = np.sin((cells[..., 0] / grid.n_th) ** 2 * HALF_PI)
-    return (x_th - cells[..., 0]) ** 2 + (x_td - cells[..., 1]) ** 2 + (weight * d_pd) ** 2
+    if weights is None:
+        weight = np.sin((cells[..., 0] / grid.n_th) ** 2 * HALF_PI)
+        return (x_th - cells[..., 0]) ** 2 + (x_td - cells[..., 1]) ** 2 + (weight * d_pd) ** 2
+    w = np.asarray(weights, dtype=np.float64)
+    return w[..., 0] * (x_th - cells[..., 0]) ** 2 + w[..., 1] * (x_td - cells[..., 1]) ** 2 + w[..., 2] * d_pd ** 2
 
 
 def _wrapped(d: np.ndarray, period: float) -> np.ndarray:
     return np.abs(np.mod(d + period / 2.0, period) - period / 2.0)
 
 
-def on_steps(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, steps) -> np.ndarray:
+def on_steps(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, steps, weights=None) -> np.ndarray:
     """Commanded joints (n, 3) deg on the lattices of ``steps`` (3,) deg (``on_lattice``) closest
     to their cells (n, 3) in the grid's index space (module doc), among the joints the rig can
     use (limits, the arm's separation); a sample whose camera could not measure at its best joints
@@ -75,13 +80,15 @@ def on_steps(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, st
     cells = np.asarray(cells, dtype=np.float64).reshape(-1, 3)
     steps = np.asarray(steps, dtype=np.float64)
     plain = on_lattice(q0, steps)
-    best, best_miss = plain, cell_miss(rig, grid, plain, cells)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1, 3)
+    best, best_miss = plain, cell_miss(rig, grid, plain, cells, w)
     centre, span = q0, np.full(3, SPAN_DEG)
     offsets = np.array(list(itertools.product(np.linspace(-1.0, 1.0, POINTS), repeat=3)))  # (P, 3)
     for _ in range(LEVELS):
         box = np.clip(centre[:, None, :] + offsets[None] * span, q0[:, None, :] - SPAN_DEG, q0[:, None, :] + SPAN_DEG)
         trial = on_lattice(box, steps)                                                  # (n, P, 3)
-        miss = cell_miss(rig, grid, trial, np.broadcast_to(cells[:, None, :], trial.shape))
+        miss = cell_miss(rig, grid, trial, np.broadcast_to(cells[:, None, :], trial.shape),
+                         None if w is None else np.broadcast_to(w[:, None, :], trial.shape))
         miss[pose_reason(rig, trial) != Reason.OK] = np.inf  # e.g. past the arm's limit: not a pose
         pick = np.argmin(miss, axis=1)
         level_best = trial[np.arange(len(q0)), pick]

@@ -71,7 +71,7 @@ def test_the_scheduled_plan_records_its_steps_and_puts_its_joints_on_them():
 
 def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path, monkeypatch):
     """``benchmarks/command_steps.py --smallest``: 9 samples, 2 built-in materials. The joints on
-    the lattices never end farther from their cells than the rounded ones, and each error is the
+    the lattices by the index metric never end farther from their cells than the rounded ones, and each error is the
     reconstruction's from the material's values at the directions reached (exact at the cells:
     the ratio 1 is what no positioning error can beat)."""
     import importlib.util
@@ -85,8 +85,41 @@ def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path,
     assert bench.main(["--smallest", "--repeats", "1", "--out", str(tmp_path / "steps.json")]) == 0
     result = json.loads((tmp_path / "steps.json").read_text())
     miss = {k: np.array(v) for k, v in result["models"][0]["miss"].items()}
-    assert np.all(miss["on_steps"] <= miss["rounded"]) and miss["rounded"].max() > 0.1
+    # the index metric's joints never farther in it than rounding (plan's weigh each axis by the model)
+    assert np.all(miss["index"] <= miss["rounded"]) and miss["rounded"].max() > 0.1
     assert [r["material"] for r in result["rows"]] == ["gold", "red-plastic"]
     for row in result["rows"]:
-        assert all(0 < row[k] < 1 for k in ("rounded", "on_steps", "exact"))
+        assert all(0 < row[k] < 1 for k in ("rounded", "index", "on_steps", "exact"))
     assert result["summary"]["materials"] == 2 and result["samples"] == 9
+
+
+def test_axis_weights_are_the_prior_expected_squared_change_to_the_neighbours():
+    """On a small built-in model: each axis's weight is the mean over the cell's valid neighbours
+    one index away of (mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2 prior_k (phi_d wraps round); an
+    invalid cell is refused."""
+    import pytest
+
+    from goniofrost.frost.cell_sensitivity import axis_weights
+    from goniofrost.frost.posterior import prior_variance
+    from goniofrost.frost.training import train
+
+    small = MerlGrid(30, 30, 60)
+    model = train(["builtin"], grid=small, cache=True)
+    prior, mean, d = prior_variance(model), np.asarray(model.mean, float), np.asarray(model.dictionary, float)
+
+    def change(a, b):
+        pa, pb = (int(small.valid_position(small.flat_index(*c))) for c in (a, b))
+        return (mean[pa] - mean[pb]) ** 2 + np.sum((d[pa] - d[pb]) ** 2 * prior)
+
+    cells = [(0, 20, 0), (12, 5, 59)]
+    got = axis_weights(model, cells)
+    want = [[change((0, 20, 0), (1, 20, 0)),                                    # theta_h: no index -1
+             (change((0, 20, 0), (0, 19, 0)) + change((0, 20, 0), (0, 21, 0))) / 2,
+             (change((0, 20, 0), (0, 20, 59)) + change((0, 20, 0), (0, 20, 1))) / 2],   # phi_d wraps
+            [(change((12, 5, 59), (11, 5, 59)) + change((12, 5, 59), (13, 5, 59))) / 2,
+             (change((12, 5, 59), (12, 4, 59)) + change((12, 5, 59), (12, 6, 59))) / 2,
+             (change((12, 5, 59), (12, 5, 58)) + change((12, 5, 59), (12, 5, 0))) / 2]]
+    assert np.allclose(got, want, rtol=1e-12, atol=0)
+    invalid = next(c for c in [(29, 29, k) for k in range(60)] if small.valid_position(small.flat_index(*c)) < 0)
+    with pytest.raises(ValueError, match=rf"axis_weights: cell \[29, 29, {invalid[2]}\] is not a valid cell"):
+        axis_weights(model, [invalid])

@@ -144,6 +144,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
 
     from goniofrost.capture.plan_file import plan_document, write_plan
     from goniofrost.capture.rig_file import command_steps, load_checked_rig
+    from goniofrost.frost.cell_sensitivity import axis_weights
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
@@ -158,9 +159,12 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
         from goniofrost.capture.plan_file import with_sentinels
 
         doc, _ = with_sentinels(doc, model, selection.positions, candidates)
-    steps = command_steps(rig)
-    doc = (schedule_batches(doc, rig, doc["batch_ends"], steps=steps) if "batch_ends" in doc
-           else schedule_plan(doc, rig, steps=steps))
+    # the joints on the axes' command lattices, each axis's miss weighed by what the model
+    # expects it to cost at the sample's cell (planner.steps, frost.cell_sensitivity)
+    lattice = {"steps": command_steps(rig),
+               "axis_weights": axis_weights(model, [s["cell"] for s in doc["samples"]])}
+    doc = (schedule_batches(doc, rig, doc["batch_ends"], **lattice) if "batch_ends" in doc
+           else schedule_plan(doc, rig, **lattice))
     write_plan(out_path, doc)
     return Path(out_path)
 

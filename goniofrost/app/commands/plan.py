@@ -118,11 +118,15 @@ def run(args) -> int:
         from planner.schedule import format_table, schedule_batches, schedule_plan
 
         from goniofrost.capture.rig_file import command_steps
+        from goniofrost.frost.cell_sensitivity import axis_weights
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
         # each batch is ordered for motion on its own.
-        steps = command_steps(rig)
-        doc = (schedule_batches(doc, rig, doc["batch_ends"], steps=steps) if "batch_ends" in doc
-               else schedule_plan(doc, rig, steps=steps))
+        # the joints on the axes' command lattices, each axis's miss weighed by what the model
+        # expects it to cost at the sample's cell (planner.steps, frost.cell_sensitivity)
+        lattice = {"steps": command_steps(rig),
+                   "axis_weights": axis_weights(model, [s["cell"] for s in doc["samples"]])}
+        doc = (schedule_batches(doc, rig, doc["batch_ends"], **lattice) if "batch_ends" in doc
+               else schedule_plan(doc, rig, **lattice))
         print(format_table(doc))
     write_plan(args.out, doc)
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""

@@ -1,0 +1,48 @@
+"""How much a model expects a cell's mapped value to change when the direction measured is off.
+
+A rig measures a sample a little off its cell (``planner.steps``: the axes' command lattices).
+What that costs depends on the material near the cell, which the model describes by its prior:
+with L_c = mu_c + d_c^T s and s ~ N(0, diag(prior_var)), the expected squared difference between
+the mapped values of cells c and n is (mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2 prior_var_k. Per
+axis of the grid (theta_h, theta_d, phi_d) its mean over the cell's valid neighbours one index
+away (phi_d wraps round) weighs that axis's squared index miss: near theta_h = 0 the peaks of
+the training materials make theta_h dear, at grazing theta_d their sheens make theta_d dear,
+and phi_d is cheap where the materials do not vary with it (theta_h = 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from goniofrost.frost.posterior import prior_variance
+
+
+def axis_weights(model, cells) -> np.ndarray:
+    """float64 (n, 3): the expected squared change of the mapped value per index step along
+    theta_h, theta_d and phi_d (module doc) at ``cells`` (n, 3) (i_th, i_td, i_pd) of the
+    model's grid; 0 for an axis with no valid neighbour."""
+    grid = model.grid
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    prior = prior_variance(model)
+    mean = np.asarray(model.mean, dtype=np.float64)
+    here = grid.valid_position(grid.flat_index(*cells.T))
+    if np.any(here < 0):
+        raise ValueError(f"axis_weights: cell {cells[np.argmax(here < 0)].tolist()} is not a valid cell of the "
+                         f"model's {grid.shape} grid")
+    d_here = np.asarray(model.dictionary[here], dtype=np.float64)                     # (n, K)
+    weights = np.zeros(cells.shape)
+    sizes = np.array([grid.n_th, grid.n_td, grid.n_pd])
+    for axis in range(3):
+        total, count = np.zeros(len(cells)), np.zeros(len(cells))
+        for step in (-1, 1):
+            other = cells.copy()
+            other[:, axis] += step
+            if axis == 2:
+                other[:, 2] %= grid.n_pd
+            inside = (other[:, axis] >= 0) & (other[:, axis] < sizes[axis])
+            there = np.where(inside, grid.valid_position(grid.flat_index(*np.clip(other, 0, sizes - 1).T)), -1)
+            ok = there >= 0
+            d_there = np.asarray(model.dictionary[there[ok]], dtype=np.float64)
+            total[ok] += (mean[here[ok]] - mean[there[ok]]) ** 2 + ((d_here[ok] - d_there) ** 2) @ prior
+            count[ok] += 1
+        weights[:, axis] = np.where(count > 0, total / np.maximum(count, 1), 0.0)
+    return weights
