@@ -265,3 +265,22 @@ def test_collect_materials_labels_clashes_and_filters(merl_dir):
         collect_materials(specs, exclude=["chrom"])
     with pytest.raises(DatasetError, match="no materials left"):
         collect_materials(["builtin"], exclude=NAMES)
+
+
+def test_a_simulated_material_is_reciprocal_and_the_table_at_its_cells(rgl_npz):
+    """material_brdf folds phi_d into [0, pi) as the grid's cells do: RGL acrylic_felt_white's
+    network gives 0.00028 1/sr at the cell (16, 86, 179) and 26.5 at its reciprocal (phi_d -1 deg);
+    the simulated material now gives the table's value both ways."""
+    from goniofrost.core.grid import FULL_GRID
+    from goniofrost.datasets import material_brdf, parse_material_spec
+
+    spec = f"nbrdf:{rgl_npz}:acrylic_felt_white_rgb"
+    brdf = material_brdf(spec)[1]
+    dataset, name = parse_material_spec(spec)
+    cells = np.array([[16, 86, 179], [0, 86, 0], [40, 30, 100]])
+    flat = FULL_GRID.flat_index(*cells.T)
+    table = dataset.tabulate([name], FULL_GRID, cells=flat)[0].astype(np.float64)
+    w_i, w_o = FULL_GRID.cell_directions(flat)
+    forward_, reverse = np.asarray(brdf(w_i, w_o)), np.asarray(brdf(w_o, w_i))
+    assert np.allclose(forward_, table, rtol=1e-6, atol=0) and np.allclose(reverse, table, rtol=1e-6, atol=0)
+    assert table[0, 0] < 1e-3 < 20.0 < dataset.evaluate(name, *np.radians([2.8444, 86.0, -1.0]))[0]

@@ -123,3 +123,4 @@ def test_axis_weights_are_the_prior_expected_squared_change_to_the_neighbours():
     invalid = next(c for c in [(29, 29, k) for k in range(60)] if small.valid_position(small.flat_index(*c)) < 0)
     with pytest.raises(ValueError, match=rf"axis_weights: cell \[29, 29, {invalid[2]}\] is not a valid cell"):
         axis_weights(model, [invalid])
+

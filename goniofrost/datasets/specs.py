@@ -68,6 +68,12 @@ def material_brdf(text: str):
 
     def brdf(w_i, w_o):
         th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
-        return np.asarray(dataset.evaluate(name, th, td, pd), dtype=np.float64)
+        # phi_d folded into [0, pi) as the grid's cells hold it (MerlGrid.angle_cells): the
+        # material is reciprocal by construction, and at a cell's directions it is the table's
+        # value whichever of light and camera plays w_i. The small networks of the shared data
+        # are not reciprocal at grazing: RGL acrylic_felt_white at (2.8, 86, 179) deg gives
+        # 0.00028 1/sr, at its reciprocal (phi_d -1 deg) 26.5, and a rig measuring with light
+        # and camera swapped read a value 95 000 x the table's.
+        return np.asarray(dataset.evaluate(name, th, td, np.mod(pd, np.pi)), dtype=np.float64)
 
     return f"{dataset.spec}:{name}", brdf
