@@ -218,9 +218,10 @@ def _check_numbers(plan_path, samples, key: str, want: np.ndarray, tolerance: fl
 
 def _lattice_steps(plan: dict) -> list | None:
     """The plan's ``rig.command_steps_deg`` (``planner.steps``: its joints on the axes' command
-    lattices), None when it has none."""
+    lattices), None when it has none (or a malformed one: the joints then meet the IK's angles)."""
     steps = plan["rig"].get("command_steps_deg") if isinstance(plan.get("rig"), dict) else None
-    ok = isinstance(steps, list) and all(isinstance(v, (int, float)) and 0 <= v < 1 for v in steps)
+    ok = (isinstance(steps, list) and len(steps) == 3  # one per joint: arm, yaw, tilt
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 1 for v in steps))
     return steps if ok else None
 
 
