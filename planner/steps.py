@@ -10,11 +10,14 @@ position the others can put the miss where the grid is coarse (theta_d, or phi_d
 theta_h = 0 changes nothing: the BRDF is isotropic).
 
 ``on_steps`` searches, for every sample at once, the joints on the lattices that bring the
-measured direction closest to the cell in the grid's index space: squared index differences of
-theta_h and theta_d, and of phi_d weighted by sin(theta_h) of the cell, phi_d taken with its
-symmetries (phi_d + 180 by reciprocity, -phi_d by isotropy, as the inverse kinematics' branches
-use them). A grid search around the IK joints, zoomed LEVELS times (vectorised; no optimiser loop
-per sample); the plain rounding is a candidate too, so no sample ends farther than it did.
+measured direction closest to the cell in the grid's index space: a weighted sum of the squared
+index differences of theta_h, theta_d and phi_d, phi_d taken with its symmetries (phi_d + 180 by
+reciprocity, -phi_d by isotropy, as the inverse kinematics' branches use them). ``plan`` weighs
+each axis by what the model expects a step there to change (``goniofrost.frost.cell_sensitivity``:
+the unweighted metric put the miss into theta_d at grazing, where diffuse RGL materials change
+fast); without weights they are 1, 1 and sin(theta_h) of the cell. A grid search around the IK
+joints, zoomed LEVELS times (vectorised; no optimiser loop per sample); the plain rounding is a
+candidate too, so no sample ends farther than it did by the metric used.
 """
 from __future__ import annotations
 
