@@ -56,11 +56,8 @@ def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, w
     commanded ``joints`` (..., 3) and the grid nodes ``cells`` (..., 3) (i_th, i_td, i_pd);
     ``weights`` (..., 3): each axis's squared index difference times this instead (default 1, 1
     and sin(theta_h of the cell))."""
-    theta_h, theta_d, phi_d = dirs_to_half_diff(*forward(rig, joints))
+    x_th, x_td, x_pd = grid.fractional_indices(*dirs_to_half_diff(*forward(rig, joints)))
     cells = np.asarray(cells, dtype=np.float64)
-    x_th = np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * grid.n_th
-    x_td = theta_d / HALF_PI * grid.n_td
-    x_pd = np.mod(phi_d, np.pi) / np.pi * grid.n_pd
     period = grid.n_pd
     d_pd = np.minimum(_wrapped(x_pd - cells[..., 2], period), _wrapped(-x_pd - cells[..., 2], period))
     if weights is None:

@@ -89,16 +89,21 @@ class MerlGrid:
         ``phi_d`` is folded into [0, pi) first (phi_d and phi_d + pi are the same cell for an
         isotropic, reciprocal BRDF); indices are clamped into range.
         """
-        theta_h, theta_d, phi_d = (np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))
-        x_th = np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * self.n_th
-        x_td = theta_d / HALF_PI * self.n_td
-        x_pd = np.mod(phi_d, np.pi) / np.pi * self.n_pd
+        x_th, x_td, x_pd = self.fractional_indices(theta_h, theta_d, phi_d)
         x_pd = np.where(x_pd >= self.n_pd - EDGE_TOLERANCE, 0.0, x_pd)  # fold 2*pi-ish back to 0
         return (
             _edge_floor(x_th, self.n_th),
             _edge_floor(x_td, self.n_td),
             _edge_floor(x_pd, self.n_pd),
         )
+
+    def fractional_indices(self, theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x_th, x_td, x_pd) float64: the grid's continuous indices of angles in radians (cell i
+        spans [i, i + 1), its lower edge at i): x_th = sqrt(theta_h / 90 deg) n_th, x_td = theta_d /
+        90 deg n_td, x_pd = (phi_d mod pi) / pi n_pd (phi_d and phi_d + pi are the same cell)."""
+        theta_h, theta_d, phi_d = (np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d))
+        return (np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * self.n_th, theta_d / HALF_PI * self.n_td,
+                np.mod(phi_d, np.pi) / np.pi * self.n_pd)
 
     def angles_to_flat(self, theta_h, theta_d, phi_d) -> np.ndarray:
         """Flat index of the cells containing angles in radians."""
