@@ -24,22 +24,24 @@ def axis_weights(model, cells) -> np.ndarray:
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
     prior = prior_variance(model)
     mean = np.asarray(model.mean, dtype=np.float64)
-    here = grid.valid_position(grid.flat_index(*cells.T))
+    sizes = np.array([grid.n_th, grid.n_td, grid.n_pd])
+    # the cell and its six neighbours (axis, -1 / +1), rows of one valid_position call (each call
+    # builds a lookup of the whole grid)
+    shifted = np.repeat(cells[None], 7, axis=0)                                        # (7, n, 3)
+    for j, (axis, step) in enumerate((a, s) for a in range(3) for s in (-1, 1)):
+        shifted[1 + j, :, axis] += step
+    shifted[..., 2] %= grid.n_pd                                                       # phi_d wraps round
+    inside = np.all((shifted >= 0) & (shifted < sizes), axis=-1)
+    positions = np.where(inside, grid.valid_position(grid.flat_index(*np.clip(shifted, 0, sizes - 1).T).T), -1)
+    here = positions[0]
     if np.any(here < 0):
         raise ValueError(f"axis_weights: cell {cells[np.argmax(here < 0)].tolist()} is not a valid cell of the "
                          f"model's {grid.shape} grid")
     d_here = np.asarray(model.dictionary[here], dtype=np.float64)                     # (n, K)
     weights = np.zeros(cells.shape)
-    sizes = np.array([grid.n_th, grid.n_td, grid.n_pd])
     for axis in range(3):
         total, count = np.zeros(len(cells)), np.zeros(len(cells))
-        for step in (-1, 1):
-            other = cells.copy()
-            other[:, axis] += step
-            if axis == 2:
-                other[:, 2] %= grid.n_pd
-            inside = (other[:, axis] >= 0) & (other[:, axis] < sizes[axis])
-            there = np.where(inside, grid.valid_position(grid.flat_index(*np.clip(other, 0, sizes - 1).T)), -1)
+        for there in positions[1 + 2 * axis:3 + 2 * axis]:
             ok = there >= 0
             d_there = np.asarray(model.dictionary[there[ok]], dtype=np.float64)
             total[ok] += (mean[here[ok]] - mean[there[ok]]) ** 2 + ((d_here[ok] - d_there) ** 2) @ prior
