@@ -77,7 +77,7 @@ HEDGE = 1.0
 def band(m: int) -> tuple:
     """(last m of the band or None, p, t) of BANDS for a design of m samples."""
     if not isinstance(m, (int, np.integer)) or m < 1:
-        raise ValueError(f"sensitivity_power: m must be a positive integer, found {m!r}")
+        raise ValueError(f"usage_design: the number of samples m must be a positive integer, found {m!r}")
     return next(b for b in BANDS if b[0] is None or m <= b[0])
 
 
