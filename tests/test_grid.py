@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from goniofrost.core.grid import FULL_GRID, MerlGrid, dirs_to_half_diff, half_diff_to_dirs
@@ -125,6 +125,7 @@ def test_directions_round_trip_to_the_same_cell(name, data):
 
 @settings(max_examples=100, deadline=None)
 @given(th=st.floats(0, np.pi / 2 - 1e-3), td=st.floats(0, np.pi / 2 - 1e-3), pd=st.floats(-np.pi, np.pi))
+@example(th=1.56640625, td=5.96e-08, pd=0.0)  # grazing, theta_d ~ 0: td comes back 1.9e-9 off (arccos near 1)
 def test_angles_to_directions_and_back_give_the_same_directions(th, td, pd):
     w_i, w_o = half_diff_to_dirs(th, td, pd)
     th2, td2, pd2 = dirs_to_half_diff(w_i, w_o)
@@ -133,7 +134,8 @@ def test_angles_to_directions_and_back_give_the_same_directions(th, td, pd):
     # is degenerate): cos theta_i, cos theta_o and the angle between them fix a pair.
     v_i, v_o = half_diff_to_dirs(th2, td2, pd2)
     invariants = lambda a, b: np.array([a[2], b[2], a @ b])  # noqa: E731
-    np.testing.assert_allclose(invariants(v_i, v_o), invariants(w_i, w_o), atol=1e-9)
+    # to the angles' own tolerance: an angle 1e-7 off moves a cosine by up to 1e-7 (at grazing)
+    np.testing.assert_allclose(invariants(v_i, v_o), invariants(w_i, w_o), atol=1e-7)
 
 
 @settings(max_examples=100, deadline=None)
