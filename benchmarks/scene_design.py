@@ -153,17 +153,21 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 # The candidate designs, chosen among on the validation materials before the test materials are
-# looked at: name -> (p, a, t), the design's weights (1 - a) / n + a u g^p exp(t p^2 v / 2) / sum
+# looked at: name -> (p, a, t, F), the design's weights (1 - a) / n + a u g^p exp(t p^2 v / 2) / sum
 # (``usage_design.design_usage``): each cell's use u weighted by the image's sensitivity g to its
 # mapped value to the power p, with t = 1 its expectation under the prior (v: the prior variance of
 # the cell's mapped value), mixed with the plain design's weight (the whole BRDF alike) with the
 # scene's share a. p None: the power for m (``usage_design.sensitivity_power``, a design per m).
-# Round 7 (issue 29): the shipped design against the prior's expected sensitivity; the hedge
-# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in that round's section of BENCHMARKS.md.
-CANDIDATES = {"shipped": (None, 1.0, 0.0), "prior p-by-m": (None, 1.0, 1.0), "prior p0.5": (0.5, 1.0, 1.0),
-              "prior p0.25": (0.25, 1.0, 1.0)}
+# F: a floor on the weights' effective cells 1 / sum w^2 (``usage_design.floor_spread``; 0: none):
+# t is then the most the spread may be, and each scene's t the largest in [0, t] keeping F.
+# Round 8 (issue 29): the shipped design against the floor at p = 1 (validated at m <= 14 only; F
+# fixed before any result from round 7's effective cells, BENCHMARKS.md "Issue 29, round 8"). The
+# candidates of round 7 ("prior p-by-m", "prior p0.5", "prior p0.25": t = 1, no floor) and the hedge
+# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in those rounds' sections of BENCHMARKS.md.
+CANDIDATES = {"shipped": (None, 1.0, 0.0, 0.0), "floor 1500": (1.0, 1.0, 1.0, 1500.0),
+              "floor 3000": (1.0, 1.0, 1.0, 3000.0), "floor 6000": (1.0, 1.0, 1.0, 6000.0)}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
-BESIDE = {"g^0.5": (0.5, 1.0, 0.0)}
+BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
 # The key of the shipped design before round 7 (p by m, g at the prior mean: prior spread 0), which the
 # test run renders beside the shipped one when the default spread is not 0 at some m.
 BEFORE = "t0 (before)"
@@ -177,7 +181,7 @@ def before_power(m: int) -> float:
 
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     """{m: {"blind": rows, (scene, name): rows}} for every m of ``ms``: the plain design, and per
-    scene the design of every candidate (p, a, t) of ``candidates`` (see CANDIDATES); the designs
+    scene the design of every candidate (p, a, t, F) of ``candidates`` (see CANDIDATES); the designs
     of a fixed p are nested (one of max(ms) picks, read at every m), p None is designed per m."""
     from goniofrost.frost.bayes_selection import select_bayes
 
@@ -185,15 +189,32 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     blind = select_bayes(model, m_max).positions
     designs = {m: {"blind": blind} for m in ms}
     for s, u in usage.items():
-        for name, (p, a, t) in candidates.items():
+        for name, (p, a, t, f) in candidates.items():
             if p is None:
                 for m in ms:
-                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t).positions
+                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t,
+                                                         spread_floor=f).positions
             else:
-                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t).positions
+                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t,
+                                    spread_floor=f).positions
                 for m in ms:
                     designs[m][(s, name)] = rows
     return designs
+
+
+def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict:
+    """{scene: {name: [t, effective cells]}}: the prior spread each candidate's design of m samples
+    uses for each scene (its floor's, ``usage_design.design_spread``) and its weights' effective
+    cells 1 / sum w^2 (``usage_design.effective_cells``); p None: the power for m."""
+    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, sensitivity_power
+
+    out = {}
+    for s, u in usage.items():
+        out[s] = {}
+        for name, (p, a, t, f) in candidates.items():
+            p = sensitivity_power(m) if p is None else p
+            out[s][name] = [design_spread(model, u, p, t, f), effective_cells(design_usage(model, u, p, a, t, f))]
+    return out
 
 
 # The sequential scene-aware designs (issue 29, round 5; ``frost.sequential_design``): name ->
@@ -320,11 +341,14 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
         held = training[f::folds]
         inner = train(specs, only=[n for n in training if n not in held], grid=grid, cache=True)
         designs = scene_designs(inner, usage, ms)
+        spreads = candidate_spreads(inner, usage, max(ms))
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
-              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+              f"({time.perf_counter() - t0:.0f} s); at m = {max(ms)} each scene's (t, effective cells): "
+              + "; ".join(f"{s} " + ", ".join(f"{w} ({t:.2f}, {n:,.0f})" for w, (t, n) in d.items())
+                          for s, d in spreads.items()), flush=True)
         fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
                                    ms, direct, usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
-        (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "rows": fold_rows}))
+        (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "spreads": spreads, "rows": fold_rows}))
         rows += fold_rows
         del inner
     return rows
