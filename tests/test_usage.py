@@ -539,3 +539,74 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
     assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
                                            sensitivity_power=0).positions.tolist()
+
+
+def test_a_floor_on_the_effective_cells_picks_each_scenes_spread():
+    """Issue 29 round 8: usage_design.floor_spread, the largest t in [0, t_max] whose weights
+    exp(log_base + t excess) keep F effective cells (1 / sum w^2): the floor holds at the t it
+    returns, t is within the tolerance of the largest such t, t_max when the floor does not bind,
+    0 when even t = 0 is below it; a bad floor is refused in one line."""
+    from goniofrost.frost.usage_design import SPREAD_TOLERANCE, effective_cells, floor_spread
+
+    rng = np.random.default_rng(3)
+    log_base, excess = rng.normal(size=40_000), rng.uniform(0.0, 6.0, 40_000)  # excess: p^2 v / 2 at p = 1
+
+    def cells(t):
+        return effective_cells(np.exp(log_base + t * excess))
+
+    at_zero, at_max = cells(0.0), cells(1.0)
+    assert at_max < 0.5 * at_zero  # the spread concentrates these weights
+    assert effective_cells(np.ones(10)) == pytest.approx(10) and effective_cells(np.eye(1, 10)[0]) == pytest.approx(1)
+    for floor in np.linspace(at_max * 1.01, at_zero * 0.99, 7):
+        t = floor_spread(log_base, excess, 1.0, floor)
+        assert 0 < t < 1 and cells(t) >= floor  # the floor holds ...
+        assert cells(t + SPREAD_TOLERANCE) < floor  # ... at (within the tolerance) the largest t that keeps it
+    assert floor_spread(log_base, excess, 1.0, at_max * 0.99) == 1.0  # not binding: t_max
+    assert floor_spread(log_base, excess, 0.7, 0.0) == 0.7  # no floor
+    assert floor_spread(log_base, excess, 1.0, at_zero * 1.01) == 0.0  # below it already at t = 0
+    for bad in (-1.0, float("nan"), float("inf"), "3000", True, None):
+        with pytest.raises(ValueError) as refused:
+            floor_spread(log_base, excess, 1.0, bad)
+        assert str(refused.value) == ("usage_design: the floor on the design's effective cells must be a finite "
+                                      f"number >= 0, found {bad!r}")
+    with pytest.raises(ValueError, match="largest prior spread must be a finite number >= 0, found -1"):
+        floor_spread(log_base, excess, -1.0, 10.0)
+
+
+def test_the_floor_sets_the_spread_of_a_scene_design(model):
+    """design_usage(..., spread=t_max, floor=F) is the spread design of the t design_spread reports
+    (u g^p exp(t p^2 v / 2)), its weights keep F effective cells; no floor is the spread as it is;
+    a floor that allows no spread gives the weights at the prior mean to the bit; a uniform map
+    stays the plain design; select_bayes's spread_floor designs under these weights and refuses a
+    bad floor in one line."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import prior_variance
+    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, prior_cell_variance
+
+    usage = retro_map()
+    g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
+        / np.asarray(model.weight, np.float64)
+    v = prior_cell_variance(model.dictionary, prior_variance(model))
+    at_zero = effective_cells(design_usage(model, usage, 1.0))
+    at_max = effective_cells(design_usage(model, usage, 1.0, spread=1.0))
+    assert at_max < at_zero
+    floor = 0.5 * (at_zero + at_max)
+    t = design_spread(model, usage, 1.0, spread=1.0, floor=floor)
+    weights = design_usage(model, usage, 1.0, spread=1.0, floor=floor)
+    assert 0 < t < 1 and effective_cells(weights) >= floor
+    np.testing.assert_allclose(weights, usage * g * np.exp(t * v / 2) / np.sum(usage * g * np.exp(t * v / 2)),
+                               rtol=1e-10)
+    assert np.array_equal(design_usage(model, usage, 1.0, spread=1.0, floor=0.0),
+                          design_usage(model, usage, 1.0, spread=1.0))
+    assert design_spread(model, usage, 1.0, spread=1.0) == 1.0
+    assert design_spread(model, usage, 1.0, spread=1.0, floor=at_zero * 2) == 0.0
+    assert np.array_equal(design_usage(model, usage, 1.0, spread=1.0, floor=at_zero * 2), design_usage(model, usage, 1.0))
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0, floor=floor), uniform)
+    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0, spread_floor=floor).positions.tolist() == \
+        select_bayes(model, 8).positions.tolist()
+    floored = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
+    assert floored.positions.tolist() == select_bayes(model, 10, usage=weights, sensitivity_power=0).positions.tolist()
+    with pytest.raises(ValueError, match=r"^usage_design: the floor on the design's effective cells must be a finite "
+                                         r"number >= 0, found -5\.0$"):
+        select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)
