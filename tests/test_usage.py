@@ -610,3 +610,29 @@ def test_the_floor_sets_the_spread_of_a_scene_design(model):
     with pytest.raises(ValueError, match=r"^usage_design: the floor on the design's effective cells must be a finite "
                                          r"number >= 0, found -5\.0$"):
         select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)
+
+
+def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir, tmp_path, monkeypatch):
+    """With a floor F in the band (usage_design.BANDS), plan --usage designs with the largest t up
+    to the band's that keeps F effective cells for this scene and records that t
+    (usage.prior_spread) and F (usage.spread_floor); its cells are select_bayes's with them. (The
+    band is patched: on this small grid the shipped floor, in cells of the full grid, would not
+    leave a spread.)"""
+    from goniofrost.brdf.usage import load_usage
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+
+    path = tmp_path / "retro.npy"
+    np.save(path, retro_map().astype(np.float32))
+    usage = load_usage(str(path), GRID.n_valid)
+    cells_at = [usage_design.effective_cells(usage_design.design_usage(model, usage, 1.0, spread=t)) for t in (0.0, 1.0)]
+    floor = round(0.5 * sum(cells_at))
+    monkeypatch.setattr(usage_design, "BANDS", ((14, 1.0, 1.0, float(floor)),) + usage_design.BANDS[1:])
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(model_dir), "--samples", "10", "--usage", str(path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    t = usage_design.design_spread(model, usage, 1.0, spread=1.0, floor=floor)
+    assert 0 < t < 1 and doc["usage"]["prior_spread"] == t and doc["usage"]["spread_floor"] == floor
+    chosen = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
+    assert [s["cell"] for s in doc["samples"]] == np.stack(model.grid.unravel(chosen.cells), axis=1).tolist()
+    assert chosen.positions.tolist() != select_bayes(model, 10, usage=usage, prior_spread=0.0).positions.tolist()
