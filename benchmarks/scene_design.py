@@ -168,11 +168,19 @@ CANDIDATES = {"shipped": (None, 1.0, 0.0, 0.0), "floor 1500": (1.0, 1.0, 1.0, 15
               "floor 3000": (1.0, 1.0, 1.0, 3000.0), "floor 6000": (1.0, 1.0, 1.0, 6000.0)}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design without its floor on the effective cells (``usage_design.BANDS``'
-# p and t as they are: round 7's design), which the test run renders beside the shipped one (at m
-# and at 0.6 m) when the default floor is not 0 at some m. (Round 7's "t0 (before)", the design
-# before round 7 with its powers and t = 0, is in that round's section of BENCHMARKS.md.)
-BEFORE = "no floor (before)"
+# The key of the shipped design before round 8 (round 7's: t = 0 up to FEW_SAMPLES, no floor; the
+# bands above as they are), which the test run renders beside the shipped one (at m and at 0.6 m)
+# when the default floor is not 0 at some m. (Round 7's "t0 (before)", the design before round 7,
+# is in that round's section of BENCHMARKS.md.)
+BEFORE = "before (round 7)"
+
+
+def before_spread(m: int) -> float:
+    """The prior spread of the shipped design before round 8 for m samples (no floor): 0 up to
+    ``usage_design.FEW_SAMPLES``, the band's above (round 8 changed m <= 14 only)."""
+    from goniofrost.frost.usage_design import FEW_SAMPLES, prior_spread
+
+    return 0.0 if m <= FEW_SAMPLES else prior_spread(m)
 
 
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
@@ -390,11 +398,11 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design without its floor (round 7's) beside it, at m and 0.6 m, when a default floor is not 0
+    # the shipped design before round 8 beside it, at m and 0.6 m, when a default floor is not 0
     before = any(spread_floor(m) != 0 for m in ms + fewer)
     if before:
         for m in ms + fewer:
-            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, spread_floor=0.0).positions
+            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, prior_spread=before_spread(m)).positions
                                for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
@@ -412,7 +420,7 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
-    if before:  # the shipped design against the one without its floor (export columns: not rendered)
+    if before:  # the shipped design against the one before round 8 (export columns: not rendered)
         print(table(rows, ms, "aware", BEFORE))
         print(goal_table(rows, ms, BEFORE))
     for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)

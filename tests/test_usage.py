@@ -192,19 +192,22 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
 
 
 def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
-    """The choices on the 129 validation materials (round 7: p = 1, t = 0 at m = 10; p = 0.25, t = 1
-    at 20; p = 0.5, t = 1 at 40), each m taking the choice of the nearest of them on a log scale
-    (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3)."""
-    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, prior_spread, sensitivity_power,
-                                               spread_of_power)
+    """The choices on the 129 validation materials (round 7: p = 0.25, t = 1 at 20; p = 0.5, t = 1
+    at 40; round 8: p = 1 at m = 10 with t up to 1 and a floor of 3,000 effective cells), each m
+    taking the choice of the nearest of them on a log scale (boundaries sqrt(10 * 20) = 14.1 and
+    sqrt(20 * 40) = 28.3). (Round 7 changed t at m = 10 from 0, round 8 added the floor.)"""
+    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, floor_of_power, prior_spread,
+                                               sensitivity_power, spread_floor, spread_of_power)
 
     assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
     assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
     assert [sensitivity_power(m) for m in (15, 20, 24, 28)] == [0.25] * 4
     assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
-    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [0.0] * 3 + [1.0] * 6
-    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [0.0, 1.0, 1.0, 0.0]
-    for rule in (sensitivity_power, prior_spread):
+    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [1.0] * 9
+    assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [3000.0] * 3 + [0.0] * 6
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [1.0, 1.0, 1.0, 0.0]
+    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [3000.0, 0.0, 0.0, 0.0]
+    for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
 
@@ -309,9 +312,11 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert set(val["choice"]) == {"4"} and set(val["choice"].values()) <= set(module["CANDIDATES"])
     assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
     assert not {r["material"] for r in val["rows"]} & set(doc["test"])  # the validation never sees a test material
-    # the test renders: the shipped rule ("aware"), the rule before the hedge, the blind design
+    # the test renders: the shipped rule ("aware"), the rule before the hedge, the shipped rule before
+    # round 8 (a floor is set at m = 4: rendered beside it), the blind design
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
-        ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), ("blind", "export"), ("aware", "export")}
+        ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), (module["BEFORE"], "direct"),
+        ("blind", "export"), ("aware", "export")}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()
@@ -498,10 +503,11 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     """Issue 29 round 7: spread t weighs u g^p exp(t p^2 v / 2), v_c = sum_k D_ck^2 prior_var_k the
     prior variance of cell c's mapped value. t = 0 is the design at the prior mean, exactly; t = 1
     is u E[g^p] under the prior (a Monte-Carlo estimate over prior draws agrees); a uniform map
-    stays the plain design; select_bayes's prior_spread designs under these weights."""
+    stays the plain design; select_bayes's prior_spread designs under these weights, and its default
+    is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread
+    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, spread_floor
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -531,9 +537,9 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
-    assert prior_spread(12) == 0.0 and prior_spread(20) == 1.0
+    assert prior_spread(12) == 1.0 and spread_floor(12) == 3000.0 and prior_spread(20) == 1.0
     assert select_bayes(model, 12, usage=usage).positions.tolist() == \
-        select_bayes(model, 12, usage=usage, prior_spread=0.0).positions.tolist()
+        select_bayes(model, 12, usage=usage, prior_spread=1.0, spread_floor=3000.0).positions.tolist()
     assert select_bayes(model, 20, usage=usage).positions.tolist() == \
         select_bayes(model, 20, usage=usage, sensitivity_power=0.25, prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
