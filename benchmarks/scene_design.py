@@ -18,7 +18,8 @@ measurements); the model is trained on all 151 shared materials, none of them a 
 fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
 fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded analytic materials
 of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run;
-``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run).
+``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run);
+``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -68,8 +69,9 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # parameter ranges, none a library material): the built-in offsets above are spent. "fresh1" was
 # fixed on 2 December 2026 (stop 36) before any run; the model is trained on all 151 shared materials.
 # "fresh2" was fixed on 2 December 2026 (issue 29 round 7, branch h/29p) before any run, after the
-# validation chose the prior spread.
-FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24"}
+# validation chose the prior spread. "fresh3" was fixed on 3 December 2026 (issue 29 round 8, branch
+# h/29r8) before any run, after the validation chose the floor on the effective cells.
+FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24"}
 
 
 def parse(argv=None):
@@ -97,7 +99,8 @@ def parse(argv=None):
                         "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
                         "names[2::3] (the third, 24 materials); fresh1: 24 seeded analytic materials of the built-in "
                         "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
-                        "builtin-random:2:24 (issue 29 round 7, never run before it)")
+                        "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
+                        "(issue 29 round 8, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
