@@ -164,7 +164,9 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # F: a floor on the weights' effective cells 1 / sum w^2 (``usage_design.floor_spread``; 0: none):
 # t is then the most the spread may be, and each scene's t the largest in [0, t] keeping F.
 # Round 8 (issue 29): the shipped design against the floor at p = 1 (validated at m <= 14 only; F
-# fixed before any result from round 7's effective cells, BENCHMARKS.md "Issue 29, round 8"). The
+# fixed before any result from round 7's effective cells, BENCHMARKS.md "Issue 29, round 8").
+# "shipped" is the design shipped before round 8 (t = 0 at m <= 14), kept under the name it was
+# validated with; F = 3,000 won and is now usage_design's default up to 14 samples. The
 # candidates of round 7 ("prior p-by-m", "prior p0.5", "prior p0.25": t = 1, no floor) and the hedge
 # candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in those rounds' sections of BENCHMARKS.md.
 CANDIDATES = {"shipped": (None, 1.0, 0.0, 0.0), "floor 1500": (1.0, 1.0, 1.0, 1500.0),
