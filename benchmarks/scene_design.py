@@ -18,7 +18,8 @@ measurements); the model is trained on all 151 shared materials, none of them a 
 fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24 materials; the third,
 fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded analytic materials
 of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run;
-``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run).
+``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run);
+``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -68,8 +69,9 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # parameter ranges, none a library material): the built-in offsets above are spent. "fresh1" was
 # fixed on 2 December 2026 (stop 36) before any run; the model is trained on all 151 shared materials.
 # "fresh2" was fixed on 2 December 2026 (issue 29 round 7, branch h/29p) before any run, after the
-# validation chose the prior spread.
-FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24"}
+# validation chose the prior spread. "fresh3" was fixed on 3 December 2026 (issue 29 round 8, branch
+# h/29r8) before any run, after the validation chose the floor on the effective cells.
+FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24"}
 
 
 def parse(argv=None):
@@ -97,7 +99,8 @@ def parse(argv=None):
                         "builtin1: the same with names[1::3] (issue 29's second fresh set, 25 materials); builtin2: "
                         "names[2::3] (the third, 24 materials); fresh1: 24 seeded analytic materials of the built-in "
                         "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
-                        "builtin-random:2:24 (issue 29 round 7, never run before it)")
+                        "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
+                        "(issue 29 round 8, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -153,31 +156,41 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 # The candidate designs, chosen among on the validation materials before the test materials are
-# looked at: name -> (p, a, t), the design's weights (1 - a) / n + a u g^p exp(t p^2 v / 2) / sum
+# looked at: name -> (p, a, t, F), the design's weights (1 - a) / n + a u g^p exp(t p^2 v / 2) / sum
 # (``usage_design.design_usage``): each cell's use u weighted by the image's sensitivity g to its
 # mapped value to the power p, with t = 1 its expectation under the prior (v: the prior variance of
 # the cell's mapped value), mixed with the plain design's weight (the whole BRDF alike) with the
 # scene's share a. p None: the power for m (``usage_design.sensitivity_power``, a design per m).
-# Round 7 (issue 29): the shipped design against the prior's expected sensitivity; the hedge
-# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in that round's section of BENCHMARKS.md.
-CANDIDATES = {"shipped": (None, 1.0, 0.0), "prior p-by-m": (None, 1.0, 1.0), "prior p0.5": (0.5, 1.0, 1.0),
-              "prior p0.25": (0.25, 1.0, 1.0)}
+# F: a floor on the weights' effective cells 1 / sum w^2 (``usage_design.floor_spread``; 0: none):
+# t is then the most the spread may be, and each scene's t the largest in [0, t] keeping F.
+# Round 8 (issue 29): the shipped design against the floor at p = 1 (validated at m <= 14 only; F
+# fixed before any result from round 7's effective cells, BENCHMARKS.md "Issue 29, round 8").
+# "shipped" is the design shipped before round 8 (t = 0 at m <= 14), kept under the name it was
+# validated with; F = 3,000 won and is now usage_design's default up to 14 samples. The
+# candidates of round 7 ("prior p-by-m", "prior p0.5", "prior p0.25": t = 1, no floor) and the hedge
+# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in those rounds' sections of BENCHMARKS.md.
+CANDIDATES = {"shipped": (None, 1.0, 0.0, 0.0), "floor 1500": (1.0, 1.0, 1.0, 1500.0),
+              "floor 3000": (1.0, 1.0, 1.0, 3000.0), "floor 6000": (1.0, 1.0, 1.0, 6000.0)}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
-BESIDE = {"g^0.5": (0.5, 1.0, 0.0)}
-# The key of the shipped design before round 7 (p by m, g at the prior mean: prior spread 0), which the
-# test run renders beside the shipped one when the default spread is not 0 at some m.
-BEFORE = "t0 (before)"
+BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
+# The key of the shipped design before round 8 (round 7's: t = 0 up to FEW_SAMPLES, no floor; the
+# bands above as they are), which the test run renders beside the shipped one (at m and at 0.6 m)
+# when the default floor is not 0 at some m. (Round 7's "t0 (before)", the design before round 7,
+# is in that round's section of BENCHMARKS.md.)
+BEFORE = "before (round 7)"
 
 
-def before_power(m: int) -> float:
-    """The power of the shipped design before round 7: 1 up to 14 samples, 0.25 above (with prior
-    spread 0). Not ``usage_design.sensitivity_power``, which round 7 changed from 29 samples."""
-    return 1.0 if m <= 14 else 0.25
+def before_spread(m: int) -> float:
+    """The prior spread of the shipped design before round 8 for m samples (no floor): 0 up to
+    ``usage_design.FEW_SAMPLES``, the band's above (round 8 changed m <= 14 only)."""
+    from goniofrost.frost.usage_design import FEW_SAMPLES, prior_spread
+
+    return 0.0 if m <= FEW_SAMPLES else prior_spread(m)
 
 
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     """{m: {"blind": rows, (scene, name): rows}} for every m of ``ms``: the plain design, and per
-    scene the design of every candidate (p, a, t) of ``candidates`` (see CANDIDATES); the designs
+    scene the design of every candidate (p, a, t, F) of ``candidates`` (see CANDIDATES); the designs
     of a fixed p are nested (one of max(ms) picks, read at every m), p None is designed per m."""
     from goniofrost.frost.bayes_selection import select_bayes
 
@@ -185,15 +198,32 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     blind = select_bayes(model, m_max).positions
     designs = {m: {"blind": blind} for m in ms}
     for s, u in usage.items():
-        for name, (p, a, t) in candidates.items():
+        for name, (p, a, t, f) in candidates.items():
             if p is None:
                 for m in ms:
-                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t).positions
+                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t,
+                                                         spread_floor=f).positions
             else:
-                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t).positions
+                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t,
+                                    spread_floor=f).positions
                 for m in ms:
                     designs[m][(s, name)] = rows
     return designs
+
+
+def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict:
+    """{scene: {name: [t, effective cells]}}: the prior spread each candidate's design of m samples
+    uses for each scene (its floor's, ``usage_design.design_spread``) and its weights' effective
+    cells 1 / sum w^2 (``usage_design.effective_cells``); p None: the power for m."""
+    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, sensitivity_power
+
+    out = {}
+    for s, u in usage.items():
+        out[s] = {}
+        for name, (p, a, t, f) in candidates.items():
+            p = sensitivity_power(m) if p is None else p
+            out[s][name] = [design_spread(model, u, p, t, f), effective_cells(design_usage(model, u, p, a, t, f))]
+    return out
 
 
 # The sequential scene-aware designs (issue 29, round 5; ``frost.sequential_design``): name ->
@@ -320,11 +350,14 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
         held = training[f::folds]
         inner = train(specs, only=[n for n in training if n not in held], grid=grid, cache=True)
         designs = scene_designs(inner, usage, ms)
+        spreads = candidate_spreads(inner, usage, max(ms))
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
-              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+              f"({time.perf_counter() - t0:.0f} s); at m = {max(ms)} each scene's (t, effective cells): "
+              + "; ".join(f"{s} " + ", ".join(f"{w} ({t:.2f}, {n:,.0f})" for w, (t, n) in d.items())
+                          for s, d in spreads.items()), flush=True)
         fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
                                    ms, direct, usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
-        (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "rows": fold_rows}))
+        (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "spreads": spreads, "rows": fold_rows}))
         rows += fold_rows
         del inner
     return rows
@@ -336,7 +369,7 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
-    from goniofrost.frost.usage_design import prior_spread
+    from goniofrost.frost.usage_design import spread_floor
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -367,15 +400,15 @@ def main(argv=None) -> int:
     designs = scene_designs(model, usage, ms, BESIDE)
     for m in ms:
         designs[m].update({(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()})
-    # the shipped design before round 7 (g at the prior mean, t = 0) beside it when the default spread differs
-    before = any(prior_spread(m) != 0 for m in ms)
-    if before:
-        for m in ms:
-            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, sensitivity_power=before_power(m),
-                                                         prior_spread=0.0).positions for s, u in usage.items()})
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
+    # the shipped design before round 8 beside it, at m and 0.6 m, when a default floor is not 0
+    before = any(spread_floor(m) != 0 for m in ms + fewer)
+    if before:
+        for m in ms + fewer:
+            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, prior_spread=before_spread(m)).positions
+                               for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
     if args.sequential:
@@ -392,7 +425,7 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
-    if before:  # the shipped design against the one before round 7 (export columns: not rendered)
+    if before:  # the shipped design against the one before round 8 (export columns: not rendered)
         print(table(rows, ms, "aware", BEFORE))
         print(goal_table(rows, ms, BEFORE))
     for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)

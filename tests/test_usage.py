@@ -192,19 +192,22 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
 
 
 def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
-    """The choices on the 129 validation materials (round 7: p = 1, t = 0 at m = 10; p = 0.25, t = 1
-    at 20; p = 0.5, t = 1 at 40), each m taking the choice of the nearest of them on a log scale
-    (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3)."""
-    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, prior_spread, sensitivity_power,
-                                               spread_of_power)
+    """The choices on the 129 validation materials (round 7: p = 0.25, t = 1 at 20; p = 0.5, t = 1
+    at 40; round 8: p = 1 at m = 10 with t up to 1 and a floor of 3,000 effective cells), each m
+    taking the choice of the nearest of them on a log scale (boundaries sqrt(10 * 20) = 14.1 and
+    sqrt(20 * 40) = 28.3). (Round 7 changed t at m = 10 from 0, round 8 added the floor.)"""
+    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, floor_of_power, prior_spread,
+                                               sensitivity_power, spread_floor, spread_of_power)
 
     assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
     assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
     assert [sensitivity_power(m) for m in (15, 20, 24, 28)] == [0.25] * 4
     assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
-    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [0.0] * 3 + [1.0] * 6
-    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [0.0, 1.0, 1.0, 0.0]
-    for rule in (sensitivity_power, prior_spread):
+    assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [1.0] * 9
+    assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [3000.0] * 3 + [0.0] * 6
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [1.0, 1.0, 1.0, 0.0]
+    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [3000.0, 0.0, 0.0, 0.0]
+    for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
 
@@ -309,9 +312,11 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert set(val["choice"]) == {"4"} and set(val["choice"].values()) <= set(module["CANDIDATES"])
     assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
     assert not {r["material"] for r in val["rows"]} & set(doc["test"])  # the validation never sees a test material
-    # the test renders: the shipped rule ("aware"), the rule before the hedge, the blind design
+    # the test renders: the shipped rule ("aware"), the rule before the hedge, the shipped rule before
+    # round 8 (a floor is set at m = 4: rendered beside it), the blind design
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
-        ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), ("blind", "export"), ("aware", "export")}
+        ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), (module["BEFORE"], "direct"),
+        ("blind", "export"), ("aware", "export")}
     assert all(np.isfinite(r["image_rel_mse"]) for r in doc["rows"])
     assert all(r["seen_log_mse"] >= 0 for r in doc["rows"] if r["render"] == "direct")
     assert (tmp_path / "retro-sphere.png").is_file()
@@ -498,10 +503,11 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     """Issue 29 round 7: spread t weighs u g^p exp(t p^2 v / 2), v_c = sum_k D_ck^2 prior_var_k the
     prior variance of cell c's mapped value. t = 0 is the design at the prior mean, exactly; t = 1
     is u E[g^p] under the prior (a Monte-Carlo estimate over prior draws agrees); a uniform map
-    stays the plain design; select_bayes's prior_spread designs under these weights."""
+    stays the plain design; select_bayes's prior_spread designs under these weights, and its default
+    is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread
+    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, spread_floor
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -531,11 +537,108 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
-    assert prior_spread(12) == 0.0 and prior_spread(20) == 1.0
+    assert prior_spread(12) == 1.0 and spread_floor(12) == 3000.0 and prior_spread(20) == 1.0
     assert select_bayes(model, 12, usage=usage).positions.tolist() == \
-        select_bayes(model, 12, usage=usage, prior_spread=0.0).positions.tolist()
+        select_bayes(model, 12, usage=usage, prior_spread=1.0, spread_floor=3000.0).positions.tolist()
     assert select_bayes(model, 20, usage=usage).positions.tolist() == \
         select_bayes(model, 20, usage=usage, sensitivity_power=0.25, prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
     assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
                                            sensitivity_power=0).positions.tolist()
+
+
+def test_a_floor_on_the_effective_cells_picks_each_scenes_spread():
+    """Issue 29 round 8: usage_design.floor_spread, the largest t in [0, t_max] whose weights
+    exp(log_base + t excess) keep F effective cells (1 / sum w^2): the floor holds at the t it
+    returns, t is within the tolerance of the largest such t, t_max when the floor does not bind,
+    0 when even t = 0 is below it; a bad floor is refused in one line."""
+    from goniofrost.frost.usage_design import SPREAD_TOLERANCE, effective_cells, floor_spread
+
+    rng = np.random.default_rng(3)
+    log_base, excess = rng.normal(size=40_000), rng.uniform(0.0, 6.0, 40_000)  # excess: p^2 v / 2 at p = 1
+
+    def cells(t):
+        return effective_cells(np.exp(log_base + t * excess))
+
+    at_zero, at_max = cells(0.0), cells(1.0)
+    assert at_max < 0.5 * at_zero  # the spread concentrates these weights
+    assert effective_cells(np.ones(10)) == pytest.approx(10) and effective_cells(np.eye(1, 10)[0]) == pytest.approx(1)
+    for floor in np.linspace(at_max * 1.01, at_zero * 0.99, 7):
+        t = floor_spread(log_base, excess, 1.0, floor)
+        assert 0 < t < 1 and cells(t) >= floor  # the floor holds ...
+        assert cells(t + SPREAD_TOLERANCE) < floor  # ... at (within the tolerance) the largest t that keeps it
+    assert floor_spread(log_base, excess, 1.0, at_max * 0.99) == 1.0  # not binding: t_max
+    assert floor_spread(log_base, excess, 0.7, 0.0) == 0.7  # no floor
+    assert floor_spread(log_base, excess, 1.0, at_zero * 1.01) == 0.0  # below it already at t = 0
+    for bad in (-1.0, float("nan"), float("inf"), "3000", True, None):
+        with pytest.raises(ValueError) as refused:
+            floor_spread(log_base, excess, 1.0, bad)
+        assert str(refused.value) == ("usage_design: the floor on the design's effective cells must be a finite "
+                                      f"number >= 0, found {bad!r}")
+    with pytest.raises(ValueError, match="largest prior spread must be a finite number >= 0, found -1"):
+        floor_spread(log_base, excess, -1.0, 10.0)
+
+
+def test_the_floor_sets_the_spread_of_a_scene_design(model):
+    """design_usage(..., spread=t_max, floor=F) is the spread design of the t design_spread reports
+    (u g^p exp(t p^2 v / 2)), its weights keep F effective cells; no floor is the spread as it is;
+    a floor that allows no spread gives the weights at the prior mean to the bit; a uniform map
+    stays the plain design; select_bayes's spread_floor designs under these weights and refuses a
+    bad floor in one line."""
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.posterior import prior_variance
+    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, prior_cell_variance
+
+    usage = retro_map()
+    g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
+        / np.asarray(model.weight, np.float64)
+    v = prior_cell_variance(model.dictionary, prior_variance(model))
+    at_zero = effective_cells(design_usage(model, usage, 1.0))
+    at_max = effective_cells(design_usage(model, usage, 1.0, spread=1.0))
+    assert at_max < at_zero
+    floor = 0.5 * (at_zero + at_max)
+    t = design_spread(model, usage, 1.0, spread=1.0, floor=floor)
+    weights = design_usage(model, usage, 1.0, spread=1.0, floor=floor)
+    assert 0 < t < 1 and effective_cells(weights) >= floor
+    np.testing.assert_allclose(weights, usage * g * np.exp(t * v / 2) / np.sum(usage * g * np.exp(t * v / 2)),
+                               rtol=1e-10)
+    assert np.array_equal(design_usage(model, usage, 1.0, spread=1.0, floor=0.0),
+                          design_usage(model, usage, 1.0, spread=1.0))
+    assert design_spread(model, usage, 1.0, spread=1.0) == 1.0
+    assert design_spread(model, usage, 1.0, spread=1.0, floor=at_zero * 2) == 0.0
+    assert np.array_equal(design_usage(model, usage, 1.0, spread=1.0, floor=at_zero * 2), design_usage(model, usage, 1.0))
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0, floor=floor), uniform)
+    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0, spread_floor=floor).positions.tolist() == \
+        select_bayes(model, 8).positions.tolist()
+    floored = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
+    assert floored.positions.tolist() == select_bayes(model, 10, usage=weights, sensitivity_power=0).positions.tolist()
+    with pytest.raises(ValueError, match=r"^usage_design: the floor on the design's effective cells must be a finite "
+                                         r"number >= 0, found -5\.0$"):
+        select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)
+
+
+def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir, tmp_path, monkeypatch):
+    """With a floor F in the band (usage_design.BANDS), plan --usage designs with the largest t up
+    to the band's that keeps F effective cells for this scene and records that t
+    (usage.prior_spread) and F (usage.spread_floor); its cells are select_bayes's with them. (The
+    band is patched: on this small grid the shipped floor, in cells of the full grid, would not
+    leave a spread.)"""
+    from goniofrost.brdf.usage import load_usage
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+
+    path = tmp_path / "retro.npy"
+    np.save(path, retro_map().astype(np.float32))
+    usage = load_usage(str(path), GRID.n_valid)
+    cells_at = [usage_design.effective_cells(usage_design.design_usage(model, usage, 1.0, spread=t)) for t in (0.0, 1.0)]
+    floor = round(0.5 * sum(cells_at))
+    monkeypatch.setattr(usage_design, "BANDS", ((14, 1.0, 1.0, float(floor)),) + usage_design.BANDS[1:])
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(model_dir), "--samples", "10", "--usage", str(path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    t = usage_design.design_spread(model, usage, 1.0, spread=1.0, floor=floor)
+    assert 0 < t < 1 and doc["usage"]["prior_spread"] == t and doc["usage"]["spread_floor"] == floor
+    chosen = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
+    assert [s["cell"] for s in doc["samples"]] == np.stack(model.grid.unravel(chosen.cells), axis=1).tolist()
+    assert chosen.positions.tolist() != select_bayes(model, 10, usage=usage, prior_spread=0.0).positions.tolist()

@@ -177,7 +177,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
                  calibration=None, sensitivity_power: float | None = None,
-                 hedge: float = HEDGE, prior_spread: float | None = None) -> Selection:
+                 hedge: float = HEDGE, prior_spread: float | None = None,
+                 spread_floor: float | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -202,6 +203,10 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     0 g at the prior mean, 1 the prior's expected g^p); None (the default): the spread for the
     number of samples, ``usage_design.prior_spread(m)`` (with max_error and p None, the spread of
     each phase's band; with max_error and p given, 0).
+    spread_floor: F, a floor on the effective cells 1 / sum w^2 of the design's weights (cells;
+    ``usage_design.floor_spread``): the spread is then the largest t in [0, prior_spread] that
+    keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band when
+    prior_spread is None too (``usage_design.spread_floor(m)``, each phase's with max_error), else 0.
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the power p returning
     it (a scene's calibration depends on the design measured; None from it: the model's).
@@ -227,18 +232,20 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted = _design(model, rows, noise, limit, max_error, usage if scene else None, power, hedge,
                                     calib, threads, uniform_is_plain=uniform_is_plain,
-                                    spread=_spread(prior_spread, m, scene))
+                                    spread=_spread(prior_spread, m, scene),
+                                    floor=_floor(spread_floor, prior_spread, m, scene))
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
-        for i, (last, power, spread) in enumerate(usage_design.BANDS):
+        for i, (last, power, spread, cells_floor) in enumerate(usage_design.BANDS):
             calib = calibration_for(power)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
             picked, predicted = _design(model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
                                         min_picks=start_m + 1, uniform_is_plain=uniform_is_plain,
-                                        spread=spread if prior_spread is None else prior_spread)
+                                        spread=spread if prior_spread is None else prior_spread,
+                                        floor=_floor(spread_floor, prior_spread, None, True, cells_floor))
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
@@ -260,14 +267,29 @@ def _spread(spread, m, scene: bool) -> float:
     return 0.0 if m is None else usage_design.prior_spread(m)
 
 
+def _floor(floor, spread, m, scene: bool, band_floor: float | None = None) -> float:
+    """The floor F on the effective cells of a scene design of m samples (select_bayes's
+    spread_floor): ``floor`` when given, else the band's (``band_floor``, or that of m,
+    ``usage_design.spread_floor``) when the spread is the band's too (``spread`` None), else 0;
+    0 without a scene or without m."""
+    if floor is not None:
+        return usage_design.check_floor(floor)
+    if not scene or spread is not None:
+        return 0.0
+    if band_floor is not None:
+        return band_floor
+    return 0.0 if m is None else usage_design.spread_floor(m)
+
+
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
-            min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0) -> tuple[GreedyDesign, np.ndarray]:
+            min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
+            floor: float = 0.0) -> tuple[GreedyDesign, np.ndarray]:
     """One greedy design of at most ``limit`` picks among ``rows`` and its predicted errors
     (float64 (picks,)); usage None: the plain design, else the scene's of power p and hedge (see
     select_bayes, also for ``uniform_is_plain``); with max_error it stops at the first pick, of at
     least ``min_picks``, whose predicted error is <= max_error."""
     if usage is not None:
-        weights = design_usage(model, usage, power, hedge, spread)
+        weights = design_usage(model, usage, power, hedge, spread, floor)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2

@@ -24,20 +24,21 @@ from goniofrost.frost import calibration, posterior
 from goniofrost.frost.bayes_selection import greedy_design
 from goniofrost.frost.calibration import CvRecords, M_VALUES, fit_calibration
 from goniofrost.frost.prediction import material_features, sample_level
-from goniofrost.frost.usage_design import HEDGE, design_usage, is_uniform, scene_prior, spread_of_power
+from goniofrost.frost.usage_design import HEDGE, design_usage, floor_of_power, is_uniform, scene_prior, spread_of_power
 
 # Rows of X per chunk of the weighted Gram (a float64 copy of 16k x 393 = 50 MB).
 CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress: bool = False,
-                    hedge: float = HEDGE, prior_spread: float | None = None) -> dict:
+                    hedge: float = HEDGE, prior_spread: float | None = None, spread_floor: float | None = None) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
     weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
     every fold; a plan of m samples uses ``usage_design.sensitivity_power(m)``; ``prior_spread``
-    None: the spread of that power's band, ``usage_design.spread_of_power``). TrainingError when
-    the model's training data cannot be opened again."""
+    None: the spread of that power's band, ``usage_design.spread_of_power``; ``spread_floor`` None:
+    the floor on the effective cells of that band, ``usage_design.floor_of_power``, when the spread
+    is the band's too, else 0). TrainingError when the model's training data cannot be opened again."""
     from goniofrost.frost import noise, training
 
     mapped, gram = training.remap(model, progress=progress)
@@ -46,9 +47,16 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
     usage = np.asarray(usage, np.float64)
     records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
                              design_weights=design_usage(model, usage, sensitivity_power, hedge,
-                                                         spread_of_power(sensitivity_power) if prior_spread is None
-                                                         else prior_spread))
+                                                         *_band_spread(sensitivity_power, prior_spread, spread_floor)))
     return fit_calibration(records)
+
+
+def _band_spread(power: float, spread, floor) -> tuple[float, float]:
+    """(t, F) of ``calibrate_scene``'s design: each given one, else its power's band's (the floor
+    the band's only when the spread is too; else 0, no floor)."""
+    if floor is None:
+        floor = floor_of_power(power) if spread is None else 0.0
+    return (spread_of_power(power) if spread is None else spread), floor
 
 
 def weighted_gram(mapped: np.ndarray, usage: np.ndarray) -> np.ndarray:

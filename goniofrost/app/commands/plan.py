@@ -98,12 +98,17 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import prior_spread, sensitivity_power
-        power, spread = sensitivity_power(selection.m), prior_spread(selection.m)
+        from goniofrost.frost.usage_design import design_spread, prior_spread, sensitivity_power, spread_floor
+        # the spread this scene's design used: the band's, or with a floor on the weights' effective
+        # cells the largest up to it that keeps the floor (usage_design.floor_spread)
+        power, floor = sensitivity_power(selection.m), spread_floor(selection.m)
+        spread = design_spread(model, usage, power, prior_spread(selection.m), floor)
         scene = scene_for(power)
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
-              + ("at the prior mean" if spread == 0 else "averaged over the prior")
-              + f" (the power for {selection.m} samples)")
+              + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
+              + f" (the power for {selection.m} samples"
+              + (f"; t the largest up to {prior_spread(selection.m):g} keeping {floor:g} effective cells)" if floor
+                 else ")"))
     doc = plan_document(args.model, model, selection)
     if args.sentinels is not False and args.selector == "bayes" and usage is None:
         from goniofrost.capture.plan_file import with_sentinels
@@ -113,7 +118,8 @@ def run(args) -> int:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
         doc["usage"] = {"file": str(args.usage), "hash": scene.usage_hash, "cells_used": int((usage > 0).sum()),
-                        "sensitivity_power": power, "prior_spread": spread, "predicted_errors": "usage-weighted", "error": scene.to_plan()}
+                        "sensitivity_power": power, "prior_spread": spread, "spread_floor": floor,
+                        "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
 
