@@ -19,7 +19,8 @@ fresh set, fixed before its first run). ``--test-set builtin2``: names[2::3] (24
 fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded analytic materials
 of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run;
 ``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run);
-``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run).
+``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run); ``--test-set
+fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run).
 
     .venv/bin/python benchmarks/scene_design.py --out /tmp/scene-bench            # full size
     .venv/bin/python benchmarks/scene_design.py --smallest --out /tmp/scene-small  # what the test runs
@@ -70,8 +71,11 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # fixed on 2 December 2026 (stop 36) before any run; the model is trained on all 151 shared materials.
 # "fresh2" was fixed on 2 December 2026 (issue 29 round 7, branch h/29p) before any run, after the
 # validation chose the prior spread. "fresh3" was fixed on 3 December 2026 (issue 29 round 8, branch
-# h/29r8) before any run, after the validation chose the floor on the effective cells.
-FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24"}
+# h/29r8) before any run, after the validation chose the floor on the effective cells. "fresh4" was
+# fixed on 3 December 2026 (stop 38), before any run, after fresh3 met the goal in 9 of 9 cells: one
+# more set, the seed next in line, to confirm the design on materials it has not seen (no choice on it).
+FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
+              "fresh4": "builtin-random:4:24"}
 
 
 def parse(argv=None):
@@ -100,7 +104,8 @@ def parse(argv=None):
                         "names[2::3] (the third, 24 materials); fresh1: 24 seeded analytic materials of the built-in "
                         "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
                         "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
-                        "(issue 29 round 8, never run before it)")
+                        "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
+                        "run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
