@@ -29,6 +29,7 @@ import numpy as np
 
 from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_designs
+from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
@@ -194,8 +195,7 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         column_error = (fold.residual_norms + np.sum(miss ** 2, axis=0)) / n
         on_atoms = on_fold @ post.coefficients + offset[:, None] if atoms is not None else None
         if pool is not None:  # (P, materials): the squared error, channel mean, as sentinel.check_error's
-            pool_error = ((pool_b - pool_rows @ post.coefficients) ** 2).reshape(pool.size, -1, 3).mean(axis=2)
-            pool_error = pool_error.astype(np.float32)
+            pool_error = pool_errors(pool_b, pool_rows, post.coefficients)
             pool_error[in_design] = np.nan
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)

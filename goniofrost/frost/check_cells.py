@@ -54,6 +54,15 @@ def pool(grid: MerlGrid, candidates=None, count: int = POOL) -> np.ndarray:
     return np.sort(where[picks]).astype(np.int64)
 
 
+def pool_errors(b: np.ndarray, rows: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """float32 (P, materials): the squared error, channel mean, of the posterior ``coefficients``
+    (K, 3 materials) at the pool cells (rows (P, K) their dictionary rows, b (P, 3 materials) their
+    centred mapped values): per cell what ``sentinel.check_error`` averages over its cells (so the
+    mean over chosen cells is the check error of a capture measuring them, before its floor)."""
+    miss = np.asarray(b, np.float64) - np.asarray(rows, np.float64) @ np.asarray(coefficients, np.float64)
+    return (miss ** 2).reshape(miss.shape[0], -1, 3).mean(axis=2).astype(np.float32)
+
+
 def allowed(records, pool_cells: np.ndarray, sentinels) -> np.ndarray:
     """bool (P,): the pool cells no inner design sampled (finite in every record) and no sentinel."""
     return np.isfinite(records.pool_error).all(axis=0) & ~np.isin(pool_cells, np.asarray(sentinels, np.int64))
