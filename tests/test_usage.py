@@ -613,6 +613,10 @@ def test_the_floor_sets_the_spread_of_a_scene_design(model):
         select_bayes(model, 8).positions.tolist()
     floored = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
     assert floored.positions.tolist() == select_bayes(model, 10, usage=weights, sensitivity_power=0).positions.tolist()
+    # the selection reports the spread its weights used (what plan records), as design_spread computes it
+    assert floored.prior_spread == t
+    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0, spread_floor=floor).prior_spread == 0.0
+    assert select_bayes(model, 8).prior_spread is None
     with pytest.raises(ValueError, match=r"^usage_design: the floor on the design's effective cells must be a finite "
                                          r"number >= 0, found -5\.0$"):
         select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)

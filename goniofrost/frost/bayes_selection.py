@@ -26,7 +26,7 @@ from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
 from goniofrost.frost import usage_design
-from goniofrost.frost.usage_design import HEDGE, design_usage, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import HEDGE, design_weights, is_uniform, scene_matrix, scene_prior
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
@@ -210,7 +210,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the power p returning
     it (a scene's calibration depends on the design measured; None from it: the model's).
-    Returns a Selection whose ``residuals`` are the predicted errors after each pick.
+    Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
+    ``prior_spread`` is the spread the scene's weights used (0 for a uniform map: the plain design
+    has none; None without a map).
     """
     start = time.perf_counter()
     rows = _candidate_rows(candidates, model.grid.n_valid)
@@ -230,10 +232,10 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             power = usage_design.sensitivity_power(m)
         calib = calibration_for(power)
         limit = _check(m, max_error, rows.size, calib, floor)
-        picked, predicted = _design(model, rows, noise, limit, max_error, usage if scene else None, power, hedge,
-                                    calib, threads, uniform_is_plain=uniform_is_plain,
-                                    spread=_spread(prior_spread, m, scene),
-                                    floor=_floor(spread_floor, prior_spread, m, scene))
+        picked, predicted, used_spread = _design(
+            model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
+            uniform_is_plain=uniform_is_plain, spread=_spread(prior_spread, m, scene),
+            floor=_floor(spread_floor, prior_spread, m, scene))
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
@@ -242,10 +244,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
-            picked, predicted = _design(model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
-                                        min_picks=start_m + 1, uniform_is_plain=uniform_is_plain,
-                                        spread=spread if prior_spread is None else prior_spread,
-                                        floor=_floor(spread_floor, prior_spread, None, True, cells_floor))
+            picked, predicted, used_spread = _design(
+                model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
+                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain,
+                spread=spread if prior_spread is None else prior_spread,
+                floor=_floor(spread_floor, prior_spread, None, True, cells_floor))
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
@@ -254,7 +257,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                              f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
     return Selection(positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
-                     y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds)
+                     y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
+                     prior_spread=used_spread if scene else (None if usage is None else 0.0))
 
 
 def _spread(spread, m, scene: bool) -> float:
@@ -283,13 +287,14 @@ def _floor(floor, spread, m, scene: bool, band_floor: float | None = None) -> fl
 
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
             min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
-            floor: float = 0.0) -> tuple[GreedyDesign, np.ndarray]:
-    """One greedy design of at most ``limit`` picks among ``rows`` and its predicted errors
-    (float64 (picks,)); usage None: the plain design, else the scene's of power p and hedge (see
-    select_bayes, also for ``uniform_is_plain``); with max_error it stops at the first pick, of at
+            floor: float = 0.0) -> tuple[GreedyDesign, np.ndarray, float | None]:
+    """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
+    (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
+    plain design, else the scene's of power p and hedge (see select_bayes, also for
+    ``uniform_is_plain``); with max_error it stops at the first pick, of at
     least ``min_picks``, whose predicted error is <= max_error."""
     if usage is not None:
-        weights = design_usage(model, usage, power, hedge, spread, floor)
+        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2
@@ -304,6 +309,7 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
         dictionary, prior_var = model.dictionary, prior_variance(model)
         s2 = np.asarray(model.singular_values, np.float64) ** 2
         tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise)
+        used_spread = None
     stop = None
     if max_error is not None:
         def stop(row):
@@ -313,7 +319,7 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
-    return design, np.array(tracker.history)
+    return design, np.array(tracker.history), used_spread
 
 
 class _PredictedError:

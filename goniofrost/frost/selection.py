@@ -67,6 +67,8 @@ class Selection:
     seconds: wall time of the selection (s). y_form: "all" or "firstm" (FROST; "" for bayes).
     k: atoms used. selector: "frost" (SOMP) or "bayes" (A-optimal design).
     pick_seconds: float64 (m,) wall time from the start to each pick (bayes), else None.
+    prior_spread: the prior spread t a scene-aware design's weights were made with (its last phase's
+        with max_error; ``usage_design.design_weights``), else None.
     """
 
     positions: np.ndarray
@@ -77,6 +79,7 @@ class Selection:
     k: int
     selector: str = "frost"
     pick_seconds: np.ndarray | None = None
+    prior_spread: float | None = None
 
     @property
     def m(self) -> int:

@@ -308,17 +308,18 @@ def design_usage(model, usage: np.ndarray, power: float, hedge: float = HEDGE, s
     scene weights keep F effective cells, per scene (``floor_spread``; ``design_spread`` says which).
     ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g, its
     dictionary and prior variances v."""
-    return _design_weights(model, usage, power, hedge, spread, floor)[0]
+    return design_weights(model, usage, power, hedge, spread, floor)[0]
 
 
 def design_spread(model, usage: np.ndarray, power: float, spread: float = 0.0, floor: float = 0.0) -> float:
     """The prior spread t ``design_usage`` uses for ``usage`` with these arguments: ``spread`` itself
     without a floor, ``floor_spread``'s with one; 0 for a uniform map or power 0 (no spread)."""
-    return _design_weights(model, usage, power, 1.0, spread, floor)[1]
+    return design_weights(model, usage, power, 1.0, spread, floor)[1]
 
 
-def _design_weights(model, usage, power, hedge, spread, floor) -> tuple[np.ndarray, float]:
-    """(``design_usage``'s weights, the spread t they were made with)."""
+def design_weights(model, usage, power, hedge, spread, floor) -> tuple[np.ndarray, float]:
+    """(``design_usage``'s weights, the spread t they were made with): what a design needs, and
+    what its plan records, from one computation of the weights."""
     floor = check_floor(floor)
     usage = np.asarray(usage, dtype=np.float64)
     if is_uniform(usage) or (power == 0 and hedge == 1):

@@ -98,11 +98,10 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import design_spread, prior_spread, sensitivity_power, spread_floor
-        # the spread this scene's design used: the band's, or with a floor on the weights' effective
-        # cells the largest up to it that keeps the floor (usage_design.floor_spread)
-        power, floor = sensitivity_power(selection.m), spread_floor(selection.m)
-        spread = design_spread(model, usage, power, prior_spread(selection.m), floor)
+        from goniofrost.frost.usage_design import prior_spread, sensitivity_power, spread_floor
+        # the spread this scene's design used (the selection's own, not computed again): the band's,
+        # or with a floor on the weights' effective cells the largest up to it that keeps the floor
+        power, floor, spread = sensitivity_power(selection.m), spread_floor(selection.m), selection.prior_spread
         scene = scene_for(power)
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
