@@ -131,10 +131,35 @@ def test_the_checked_calibration_is_used_when_the_check_cells_were_measured_and_
     centre = confidence._at_m(checked["bound"], "center", design.size)
     assert bound.median == pytest.approx(float(predicted * np.exp(centre)) + extra, rel=1e-12)
     assert bound.median != plain.median and bound.out_of_model == only_sentinels.out_of_model
+    # the bound: the larger of the checked calibration's and the unchecked one's (the sentinels' run)
+    q = confidence.conformal_quantile(checked["bound"]["scores"], 0.95)
+    scale = confidence._at_m(checked["bound"], "scale", design.size)
+    checked_upper = float(predicted * np.exp(centre + q * scale)) + extra
+    assert bound.upper == pytest.approx(max(checked_upper, only_sentinels.upper), rel=1e-12)
     # check cells without the sentinels, or only some of them: the unchecked calibration
     partial = np.concatenate([design, sentinels, checks[:2]])
     flags = np.arange(partial.size) >= design.size
     assert error_bound(model, partial, table[partial], confidence=0.95, sentinel=flags).median == plain.median
+
+
+def test_with_the_check_cells_the_bound_is_the_larger_of_the_two_calibrations_and_the_median_the_checked():
+    """Known values: unchecked bound centre 0, scale 1; checked centre log 2, scale 0.5; scores give
+    the same quantile q to both; a point prediction of 1 (unchecked) and 1 (checked)."""
+    scores = list(np.linspace(0.0, 2.0, 100))  # 100 held-out scores: the 0.95 quantile is their 96th
+    q = confidence.conformal_quantile(scores, 0.95)
+    plain = {"m": [10, 60], "center": [0.0, 0.0], "scale": [1.0, 1.0], "scores": scores,
+             "log_z2_max": [9.0, 9.0], "log_energy_max": [9.0, 9.0]}
+    checked = {**plain, "center": [np.log(2.0)] * 2, "scale": [0.5, 0.5]}
+    calibration = {"bound": plain, "checked": {"bound": checked}}
+    out = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=1.0)
+    assert float(out["median"]) == pytest.approx(2.0)  # the checked median
+    # unchecked upper exp(q), checked 2 exp(q / 2): the larger
+    assert float(out["upper"]) == pytest.approx(max(np.exp(q), 2 * np.exp(q / 2)))
+    low = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=0.01)
+    assert float(low["upper"]) == pytest.approx(np.exp(q))  # the checked bound lower: the unchecked one
+    assert float(low["median"]) == pytest.approx(0.02)
+    alone = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95)  # no checks measured
+    assert (float(alone["median"]), float(alone["upper"])) == pytest.approx((1.0, np.exp(q)))
 
 
 def test_the_simulated_capture_counts_the_check_cells_and_uses_the_checked_bound(trained):

@@ -256,9 +256,12 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
     the sentinel cells (``sentinel.check_error``), None: not checked (never out of the model by it;
     ``sentinel_excess`` at ``sentinel.SENTINEL_CONFIDENCE`` otherwise); checked_predicted: the
     checked calibration's point prediction (``check_cells``: the sentinels' and the check cells'
-    errors among its features), None: not measured. With it the median and the bound are the
-    checked calibration's (its bound on nested residuals); the out-of-model flags stay the
-    unchecked ones (the sentinels' against ``predicted``)."""
+    errors among its features), None: not measured. With it the median is the checked
+    calibration's and the bound the larger of the two calibrations' (each calibrated on its own
+    held-out residuals, the checked one's nested: the larger covers whenever either does; the
+    checked bound alone under-covered MERL materials on a model trained on RGL, 78 to 89 % at
+    m = 15 to 25); the out-of-model flags stay the unchecked ones (the sentinels' against
+    ``predicted``)."""
     bound = calibration.get("bound")
     predicted = np.asarray(predicted, dtype=np.float64)
     checked = calibration.get("checked") if checked_predicted is not None else None
@@ -266,17 +269,26 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
         inf = np.full(np.broadcast(predicted, m).shape, np.inf)
         return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0,
                 "out_of_model_sentinel": inf == 0}
-    used, point = (checked["bound"], np.asarray(checked_predicted, np.float64)) if checked else (bound, predicted)
-    c, s = _at_m(used, "center", m), _at_m(used, "scale", m)
-    q = conformal_quantile(used["scores"], confidence)
+    median, upper = _median_upper(bound, predicted, m, confidence, extra)
+    if checked:
+        median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra)
+        upper = np.maximum(upper, checked_upper)
     margin = math.log(OUT_OF_MODEL_FACTOR)
-    with np.errstate(over="ignore"):
-        upper = point * np.exp(c + q * s) + extra
-    return {"median": point * np.exp(c) + extra, "upper": upper,
+    return {"median": median, "upper": upper,
             "out_of_model_z2": np.log(z2) > _at_m(bound, "log_z2_max", m) + margin,
             "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin,
             "out_of_model_sentinel": np.zeros(np.shape(upper), bool) if check is None else
             sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool)}
+
+
+def _median_upper(bound: dict, predicted, m, confidence: float, extra) -> tuple[np.ndarray, np.ndarray]:
+    """(median estimate, upper bound) of one calibration's ``bound`` for its point prediction."""
+    predicted = np.asarray(predicted, dtype=np.float64)
+    c, s = _at_m(bound, "center", m), _at_m(bound, "scale", m)
+    q = conformal_quantile(bound["scores"], confidence)
+    with np.errstate(over="ignore"):
+        upper = predicted * np.exp(c + q * s) + extra
+    return predicted * np.exp(c) + extra, upper
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
