@@ -530,7 +530,9 @@ def test_plan_bayes_and_reconstruct_with_uncertainty_commands(model, tables, tmp
     # by default the plan adds the model's sentinels after the design's first batch (here all 12)
     assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "12", "--out", str(plan)]) == 0
     with_sentinels = read_plan(plan)
-    assert (with_sentinels["m"], with_sentinels["sentinels"], with_sentinels["batch_ends"]) == (15, 3, [15])
+    # and its 3 check cells (frost.check_cells) with them
+    assert (with_sentinels["m"], with_sentinels["sentinels"], with_sentinels["checks"], with_sentinels["batch_ends"]) \
+        == (18, 3, 3, [18])
     assert with_sentinels["samples"][:12] == doc["samples"]
     assert all(s["sentinel"] for s in with_sentinels["samples"][12:])
     truth = tables[4].astype(np.float64)

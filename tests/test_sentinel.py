@@ -140,7 +140,8 @@ def test_a_trained_model_calibrates_its_sentinels():
     doc = {"m": 3, "batch_ends": [3], "samples": [{}] * 3, "selector": "bayes"}
     from goniofrost.capture.plan_file import with_sentinels
     assert with_sentinels(doc, rig_model, design, allowed)[1] == \
-        "sentinels: 3 samples with the first batch, the model's calibrated cells"
+        "sentinels: 3 samples with the first batch, the model's calibrated cells; check cells: 3 samples with the " \
+        "first batch (never fitted: their error sharpens the bound)"
     assert "the check is an approximation" in with_sentinels(doc, model, design, allowed)[1]
 
 
@@ -165,7 +166,8 @@ def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_
     plain = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9)
     np.testing.assert_array_equal(plain["upper"][:2], plain["upper"][2:])  # the same samples, the same bound
     np.testing.assert_array_equal(out["ever_sentinel"], [0, 0, 1, 1])
-    np.testing.assert_array_equal(out["samples"], [18, 18, 23, 23])  # 15 + 3; the flagged ones measure on
+    # 15 + 3 sentinels + 3 check cells; the flagged ones measure on
+    np.testing.assert_array_equal(out["samples"], [21, 21, 26, 26])
     np.testing.assert_array_equal(out["reached"], [1, 1, 0, 0])
     np.testing.assert_array_equal(plain["samples"], [15, 15, 15, 15])  # without the check all four stop
 
@@ -237,29 +239,36 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "17",
                  "--rig", str(rig), "--sentinels", "--out", str(plan)]) == 0
     out = capsys.readouterr().out
-    assert "sentinels: 3 samples with the first batch" in out and f"{plan}: m = 17 samples + 3 sentinels" in out
+    assert "sentinels: 3 samples with the first batch" in out and \
+        f"{plan}: m = 17 samples + 3 sentinels + 3 check cells" in out
     doc = json.loads(plan.read_text())
-    assert (doc["m"], doc["sentinels"], doc["batch_ends"]) == (20, 3, [18, 20])
+    assert (doc["m"], doc["sentinels"], doc["checks"], doc["batch_ends"]) == (23, 3, 3, [21, 23])
     flags = [bool(s.get("sentinel")) for s in doc["samples"]]
-    assert sum(flags[:18]) == 3 and not any(flags[18:])
+    assert sum(flags[:21]) == 6 and not any(flags[21:])
     # 6 training materials: the bound exists at 0.8, the sentinel check (at 0.95) cannot flag
     assert main(capture_args(rig, plan, session, "--speedup", "50", "--target-error", "10000",
                              "--confidence", "0.8")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         records, events = journal.samples(), journal.events()
-    assert len(records) == 18
+    assert len(records) == 21
     [batch] = [e for e in events if e["kind"] == "batch"]
-    assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 18
+    assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 21
+    # the bound: the design's samples' posterior, with the sentinels' and the check cells' errors as
+    # the checked calibration's features (frost.check_cells), not the design's samples' alone
+    def cells_of(rs):
+        return SESSION_GRID.valid_position(np.array([SESSION_GRID.flat_index(*doc["samples"][r.plan_index]["cell"])
+                                                     for r in rs]))
     design = [r for r in records if not flags[r.plan_index]]
-    positions = SESSION_GRID.valid_position(np.array([SESSION_GRID.flat_index(*doc["samples"][r.plan_index]["cell"])
-                                                      for r in design]))
-    alone = error_bound(model, positions, np.array([r.rgb for r in design]), np.array([r.sigma for r in design]), 0.8)
-    assert batch["data"]["bound"] == pytest.approx(alone.upper, rel=1e-12)
+    alone = error_bound(model, cells_of(design), np.array([r.rgb for r in design]), np.array([r.sigma for r in design]),
+                        0.8)
+    checked = error_bound(model, cells_of(records), np.array([r.rgb for r in records]),
+                          np.array([r.sigma for r in records]), 0.8, sentinel=np.array([flags[r.plan_index] for r in records]))
+    assert batch["data"]["bound"] == pytest.approx(checked.upper, rel=1e-12) and checked.upper != alone.upper
     report = json.loads((session / "report.json").read_text())
-    assert report["target_error"]["samples_used"] == 18 and not report["target_error"]["extrapolation"]
+    assert report["target_error"]["samples_used"] == 21 and not report["target_error"]["extrapolation"]
     assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
     with Journal.open(session / "session.sqlite") as journal:
-        assert len(journal.events()) == len(events) and len(journal.samples()) == 18
+        assert len(journal.events()) == len(events) and len(journal.samples()) == 21
 
 
 def test_a_plan_gets_sentinels_by_default_only_from_a_model_whose_check_can_flag(tmp_path, capsys):

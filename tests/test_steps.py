@@ -70,7 +70,7 @@ def test_the_scheduled_plan_records_its_steps_and_puts_its_joints_on_them():
 
 
 def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path, monkeypatch):
-    """``benchmarks/command_steps.py --smallest``: 9 samples, 2 built-in materials. The joints on
+    """``benchmarks/command_steps.py --smallest``: 12 samples, 2 built-in materials. The joints on
     the lattices by the index metric never end farther from their cells than the rounded ones, and each error is the
     reconstruction's from the material's values at the directions reached (exact at the cells:
     the ratio 1 is what no positioning error can beat)."""
@@ -90,7 +90,7 @@ def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path,
     assert [r["material"] for r in result["rows"]] == ["gold", "red-plastic"]
     for row in result["rows"]:
         assert all(0 < row[k] < 1 for k in ("rounded", "index", "on_steps", "exact"))
-    assert result["summary"]["materials"] == 2 and result["samples"] == 9
+    assert result["summary"]["materials"] == 2 and result["samples"] == 12  # 6 + 3 sentinels + 3 check cells
 
 
 def test_axis_weights_are_the_prior_expected_squared_change_to_the_neighbours():

@@ -41,7 +41,7 @@ def warm_kernels() -> dict:
     import numpy as np
 
     start = time.perf_counter()
-    from goniofrost.frost import bayes_kernels, somp_kernels  # noqa: F401  (signatures: compiled at import)
+    from goniofrost.frost import bayes_kernels, check_cells, somp_kernels  # noqa: F401  (signatures: compiled at import)
     seconds["frost kernels"] = time.perf_counter() - start
 
     start = time.perf_counter()

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from goniofrost.frost import confidence, posterior, prediction, sentinel, stopping
+from goniofrost.frost import check_cells, confidence, posterior, prediction, sentinel, stopping
 
 Z50, Z90 = 0.6744897501960817, 1.6448536269514722  # two-sided normal quantiles
 DEFAULT_CONFIDENCE = 0.95  # of the simulated captures (capture --confidence's default)
@@ -52,12 +52,20 @@ def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarr
     return _predict(prediction.calibration_of(model), feats, m), feats[:, 0]
 
 
-def _bounds(model, feats: np.ndarray, m: int, level: float, check=None) -> dict:
+def _bounds(model, feats: np.ndarray, m: int, level: float, check=None, check_cells_error=None) -> dict:
     """``confidence.error_bounds`` of every material from its ``_features`` (exact samples:
-    nothing extra); check: float64 (n_mat,) the sentinels' error (``_checks``), None: unchecked."""
+    nothing extra); check: float64 (n_mat,) the sentinels' error (``_checks``), None: unchecked;
+    check_cells_error: float64 (n_mat,) the error at the model's check cells (``_checks`` there;
+    with ``check``: the checked calibration's median and bound, ``check_cells``), None: not measured."""
     calibration = prediction.calibration_of(model)
     predicted = _predict(calibration, feats, m)
-    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check)
+    checked = prediction.checked_of(model)
+    checked_predicted = None
+    if checked and check is not None and check_cells_error is not None:
+        checked_predicted = prediction.predict(checked, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
+                                               feats[:, 4], feats[:, 5:], np.column_stack([check, check_cells_error]))
+    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check,
+                                   checked_predicted=checked_predicted)
 
 
 def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -94,7 +102,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                level: float = DEFAULT_CONFIDENCE) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
-    at ``level``), "out_of_model" (1 if the samples are unlike every training material by z2 or
+    at ``level``: the checked calibration's when the model has check cells, ``check_cells``;
+    "median_unchecked" and "upper_unchecked" without them), "out_of_model" (1 if the samples are unlike every training material by z2 or
     energy), "sentinel" (1 if the model's sentinel cells flag them, ``confidence.sentinel_excess``),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
     materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
@@ -105,9 +114,11 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     n_mat = truth.shape[0]
     post, noise, samples = _fit(model, positions, truth)
     feats = _features(model, post, samples, n_mat)
-    cells = sentinel.calibrated_cells(model)
+    cells, checking = sentinel.calibrated_cells(model), check_cells.cells_of(model)
     check = _checks(model, post, truth, cells) if cells.size else None
-    b = _bounds(model, feats, np.unique(positions).size, level, check)
+    at_checks = _checks(model, post, truth, checking) if checking.size and check is not None else None
+    b = _bounds(model, feats, np.unique(positions).size, level, check, at_checks)
+    plain = _bounds(model, feats, np.unique(positions).size, level, check) if at_checks is not None else b
     estimate = np.asarray(model.dictionary) @ post.coefficients.astype(np.float32)
     estimate = estimate.astype(np.float64) + np.asarray(model.mean, np.float64)[:, None]
     distance = confidence.feature_distance(prediction.calibration_of(model), feats[:, 1], feats[:, 2], feats[:, 3],
@@ -116,6 +127,7 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                                             posterior.prior_variance(model), samples)
     scores = np.array([prediction.prequential_score(one_step, [3 * i, 3 * i + 1, 3 * i + 2]) for i in range(n_mat)])
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
+            "median_unchecked": plain["median"], "upper_unchecked": plain["upper"],
             "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
             "sentinel": b["out_of_model_sentinel"].astype(np.float64),
             "feature_distance": distance,
@@ -125,14 +137,17 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
 
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
                     target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False,
-                    sentinel_cells: np.ndarray | None = None) -> dict:
+                    sentinel_cells: np.ndarray | None = None, check_cells_measured: np.ndarray | None = None) -> dict:
     """Simulated ``capture --target-error target --confidence confidence_level``: every test
     material measured in batches along the nested design ``order`` (positions, length m_max)
     until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
     sentinels: measure the model's sentinel cells (``sentinel.py``) with the first batch and
-    check them at every look (out of the model beyond their calibrated range); they count in
+    check them at every look (out of the model beyond their calibrated range), and the model's
+    check cells (``check_cells``; the checked calibration's median and bound); they count in
     "samples". sentinel_cells: int64 (s,) positions measured instead of the calibrated ones (as
-    ``plan --rig`` places them when the rig cannot reach those: the check is then approximate).
+    ``plan --rig`` places them when the rig cannot reach those: the check is then approximate);
+    check_cells_measured: int64 (k,) the check cells measured, None: the model's when
+    ``sentinels`` (empty: none, the unchecked calibration).
 
     Returns float64/int64 (n_mat,) arrays "samples" (with the sentinels), "mse" (true error at the stop),
     "pred_mse" (median estimate at the stop), "upper" (the bound at the stop), "reached" (1 if
@@ -152,11 +167,16 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     cells = np.zeros(0, dtype=np.int64)
     if sentinels:
         cells = sentinel.calibrated_cells(model) if sentinel_cells is None else np.asarray(sentinel_cells, np.int64)
+    checking = np.zeros(0, dtype=np.int64)
+    if sentinels and cells.size:
+        checking = check_cells.cells_of(model) if check_cells_measured is None else \
+            np.asarray(check_cells_measured, np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post
         b = _bounds(model, _features(model, post, samples, n_mat), end, confidence_level,
-                    _checks(model, post, truth, cells) if cells.size else None)
+                    _checks(model, post, truth, cells) if cells.size else None,
+                    _checks(model, post, truth, checking) if checking.size else None)
         out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"]
         for i in np.flatnonzero(stop_at < 0):
             flags = ("sentinel",) if b["out_of_model_sentinel"][i] else ("z2",) if out[i] else ()
@@ -176,6 +196,6 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         coef = posts[end].coefficients[:, cols].astype(np.float32)
         estimate = np.asarray(model.dictionary) @ coef + np.asarray(model.mean, np.float32)[:, None]
         mse[mats] = batch_log_errors(model, estimate.astype(np.float64), truth_log[mats])
-    return {"samples": stop_at + cells.size, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
+    return {"samples": stop_at + cells.size + checking.size, "mse": mse, "pred_mse": median_at, "upper": upper_at, "reached": reached,
             "out_of_model": out_at, "ever_out": ever_out, "ever_sentinel": ever_sentinel,
             "seconds": time.perf_counter() - start}

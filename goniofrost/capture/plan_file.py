@@ -7,6 +7,7 @@ Layout (DESIGN.md "Command line")::
      "predicted_errors": [float, ...]                   (bayes: after each pick)
      "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
      "sentinels": int                                   (bayes: how many samples are sentinels; with_sentinels)
+     "checks": int                                      (bayes: how many of the "sentinel" samples are check cells)
      "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
@@ -57,17 +58,25 @@ def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
     return doc | {"samples": sample_entries(model.grid, selection.cells)}
 
 
-def add_sentinels(doc: dict, grid, positions) -> dict:
+def add_sentinels(doc: dict, grid, positions, checks=None) -> dict:
     """A Bayesian plan with sentinel samples (``frost.sentinel``) at the valid-cell ``positions``
-    (int64 (s,)): their entries, marked ``"sentinel": true``, right after the first batch's and
-    measured with it; ``m`` and every ``batch_ends`` grow by s and ``sentinels`` = s. The capture
-    checks them against the design's samples and never fits them into the bound."""
+    (int64 (s,)) and check samples (``frost.check_cells``) at ``checks`` (int64 (k,), None: none):
+    their entries, marked ``"sentinel": true`` (the checks also ``"check": true``), right after
+    the first batch's and measured with it; ``m`` and every ``batch_ends`` grow by s + k,
+    ``sentinels`` = s and ``checks`` = k (when k > 0). The capture checks them against the
+    design's samples and never fits them into the bound (the checks' error is a feature of the
+    checked calibration's median and bound)."""
     positions = np.asarray(positions, dtype=np.int64)
+    checks = np.zeros(0, dtype=np.int64) if checks is None else np.asarray(checks, dtype=np.int64)
     first = int(doc["batch_ends"][0])
-    extra = [entry | {"sentinel": True} for entry in sample_entries(grid, np.asarray(grid.valid_cells)[positions])]
-    return doc | {"m": int(doc["m"]) + positions.size, "sentinels": int(positions.size),
-                  "batch_ends": [int(e) + positions.size for e in doc["batch_ends"]],
-                  "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])}
+    cells = np.asarray(grid.valid_cells)
+    extra = [entry | {"sentinel": True} for entry in sample_entries(grid, cells[positions])]
+    extra += [entry | {"sentinel": True, "check": True} for entry in sample_entries(grid, cells[checks])]
+    added = positions.size + checks.size
+    return doc | {"m": int(doc["m"]) + added, "sentinels": int(positions.size),
+                  "batch_ends": [int(e) + added for e in doc["batch_ends"]],
+                  "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])} \
+        | ({"checks": int(checks.size)} if checks.size else {})
 
 
 def sentinel_flags(samples) -> list[bool]:
@@ -114,7 +123,24 @@ def with_sentinels(doc: dict, model, design, candidates=None, asked: bool = Fals
         "not the model's calibrated cells (the design samples some, or the rig or --max-angle excludes them): " \
         "the check is an approximation"
     never = f" (the model's {len(scores)} held-out training materials are too few: it never flags)" if mute else ""
-    return add_sentinels(doc, model.grid, cells), f"sentinels: {cells.size} samples with the first batch, {where}{never}"
+    checks, said = _check_cells(model, allowed & ~np.isin(np.arange(model.grid.n_valid), cells))
+    return add_sentinels(doc, model.grid, cells, checks), \
+        f"sentinels: {cells.size} samples with the first batch, {where}{never}; {said}"
+
+
+def _check_cells(model, allowed) -> tuple[np.ndarray, str]:
+    """(the model's check cells (``frost.check_cells``) when every one is ``allowed`` (bool
+    (n_valid,): a candidate outside the design and the sentinels), else none; a line saying
+    which or why none)."""
+    from goniofrost.frost import check_cells
+
+    cells = check_cells.cells_of(model)
+    if cells.size == 0:
+        return cells, "check cells: none (the model has none: train it again with this version)"
+    if not np.all(allowed[cells]):
+        return np.zeros(0, dtype=np.int64), ("check cells: none (the design samples one, or the rig or --max-angle "
+                                             "excludes one: the bound is the one without them)")
+    return cells, f"check cells: {cells.size} samples with the first batch (never fitted: their error sharpens the bound)"
 
 
 def sample_entries(grid, cells) -> list[dict]:

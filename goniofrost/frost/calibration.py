@@ -29,6 +29,7 @@ import numpy as np
 
 from goniofrost.frost import posterior
 from goniofrost.frost.bayes_selection import greedy_designs
+from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
@@ -59,7 +60,9 @@ class CvRecords:
     (``sentinel.check_error``: the mean squared error at the sentinel cells, never fitted, of the
     posterior of the first m samples; None: records without sentinels), coordinates (records,
     COORDINATES) (``prediction.material_coordinates`` on the trained model's atoms; None: records
-    without them)."""
+    without them), pool_error (records, P) float32 (``check_cells``: the squared error, channel
+    mean, of the same posterior at every cell of the candidate pool; NaN at the cells of the
+    record's fold's design; None: records without a pool)."""
 
     fold: np.ndarray
     material: np.ndarray
@@ -73,6 +76,7 @@ class CvRecords:
     prequential: np.ndarray | None = None
     sentinel: np.ndarray | None = None
     coordinates: np.ndarray | None = None
+    pool_error: np.ndarray | None = None
 
     def features(self, m_range, n_features: int | None = None, feature_range=None) -> np.ndarray:
         """float64 (records, n_features): ``prediction.feature_matrix`` of every record (all of
@@ -88,13 +92,14 @@ class CvRecords:
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
              design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None,
-             atoms=None) -> dict:
+             atoms=None, pool=None) -> dict:
     """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
 
     mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
     sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
     records without ``sentinel``; atoms: float64 (COORDINATES, t) ``model_atoms`` of the trained
-    model (records with the coordinates), None: records without them.
+    model (records with the coordinates), None: records without them; pool: int64 (P,) the
+    check cells' candidates (``check_cells.pool``): records with ``pool_error``, None: without.
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
     n = mapped.shape[0]
@@ -108,11 +113,12 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
                 _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels,
-                                      atoms)
+                                      atoms, pool)
         del d_f
     unchecked = sentinels is None or not len(sentinels)
     absent = {"sentinel"} if unchecked else set()
     absent |= {"coordinates"} if atoms is None else set()
+    absent |= {"pool_error"} if pool is None else set()
     return {key: CvRecords(**{k: None if k in absent else np.asarray(v) for k, v in acc.items()})
             for key, acc in out.items()}
 
@@ -128,16 +134,16 @@ def model_atoms(gram: np.ndarray, vt: np.ndarray, singular_values: np.ndarray, c
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
                         design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
-                        sentinels=None, atoms=None):
+                        sentinels=None, atoms=None, pool=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
     design scale (``sentinels``, ``atoms``: see ``simulate``). Returns ((design scale, recon scale),
-    {pair: CvRecords of the choice folds}, CvRecords of every fold with the chosen pair)."""
+    {pair: CvRecords of the choice folds; ``pool``: see ``simulate``}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress, sentinels=sentinels, atoms=atoms)
+                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool)
     chosen = choose_scales(choice)
     rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress, sentinels=sentinels, atoms=atoms)[chosen] if tail else None
+                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 
@@ -156,10 +162,10 @@ def _prior(fold: InnerFold) -> np.ndarray:
 
 
 def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values, acc: dict,
-                          sentinels=None, atoms=None) -> None:
+                          sentinels=None, atoms=None, pool=None) -> None:
     """Append the records of the fold's held-out materials measured at the first m ``rows``
     (with their error at the ``sentinels``, NaN without; their coordinates on ``atoms``
-    (``model_atoms``), NaN without)."""
+    (``model_atoms``), NaN without; their errors at the ``pool`` cells, NaN without)."""
     checked = sentinels is not None and len(sentinels) > 0
     sentinel_b = np.asarray(mapped[sentinels], dtype=np.float64) @ fold.centring if checked else None
     sentinel_rows = np.asarray(d_f[sentinels], dtype=np.float64) if checked else None
@@ -172,6 +178,11 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
     # Every sample's prediction from the ones before it, in design order (one sequential pass):
     # the prequential score at m is a held-out measure the fit at m never saw.
     ordered = rows[:max(m_values)]
+    if pool is not None:  # the pool's mapped values and dictionary rows; the design's own cells masked
+        pool = np.asarray(pool, dtype=np.int64)
+        pool_b = np.asarray(mapped[pool], dtype=np.float64) @ fold.centring
+        pool_rows = np.asarray(d_f[pool], dtype=np.float64)
+        in_design = np.isin(pool, ordered)
     one_step = posterior.prequential_errors(d_f[ordered], noise[ordered], _prior(fold),
                                             np.asarray(mapped[ordered], dtype=np.float64) @ fold.centring)
     for m in m_values:
@@ -183,13 +194,17 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         miss = fold.singular_values[:, None] * (fold.true_coefficients - post.coefficients)
         column_error = (fold.residual_norms + np.sum(miss ** 2, axis=0)) / n
         on_atoms = on_fold @ post.coefficients + offset[:, None] if atoms is not None else None
+        if pool is not None:  # (P, materials): the squared error, channel mean, as sentinel.check_error's
+            pool_error = pool_errors(pool_b, pool_rows, post.coefficients)
+            pool_error[in_design] = np.nan
         for j in range(0, fold.held.size, 3):
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
             check = check_error(sentinel_rows, post.coefficients, sentinel_b, columns) if checked else np.nan
             values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
                       + (prequential_score(one_step[:m], columns), check,
-                         material_coordinates(on_atoms, columns, atoms.shape[1]) if atoms is not None else np.nan))
+                         material_coordinates(on_atoms, columns, atoms.shape[1]) if atoms is not None else np.nan,
+                         pool_error[:, j // 3] if pool is not None else np.nan))
             for key, value in zip(acc, values, strict=True):
                 acc[key].append(value)
 
@@ -225,7 +240,7 @@ def _progress(items, progress: bool):
     return progress_bar(items, desc="noise cross-validation", unit="fold", leave=False)
 
 
-def fit_calibration(records: CvRecords) -> dict:
+def fit_calibration(records: CvRecords, pool=None, sentinels=None) -> dict:
     """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record.
 
     The feature set (the BASIC_FEATURES; the SAMPLE_FEATURES when the records carry the samples'
@@ -240,7 +255,9 @@ def fit_calibration(records: CvRecords) -> dict:
     calibration ``confidence.fit_bound``) with ``fit`` statistics: the residual standard
     deviation in log units, the cross-fitted fractions the choice was made on, and per m the
     Spearman correlation of predicted and actual error and the fraction of materials predicted
-    within a factor 2 (in-sample for the calibration).
+    within a factor 2 (in-sample for the calibration). With the records' ``pool_error`` at the
+    ``pool`` cells (int64 (P,)) and ``sentinels`` (their cells), also "checked":
+    ``check_cells.fit_checked`` (for captures that measured the sentinels and the check cells).
     """
     from goniofrost.frost.confidence import choice_score, cross_fitted_residuals
 
@@ -270,6 +287,12 @@ def fit_calibration(records: CvRecords) -> dict:
     calibration["fit"] = {"residual_sd_log": float(np.std(y - x @ beta)), "records": int(y.size),
                           "cross_fitted_within_factor_2": {str(n): scores[n] for n in sets},
                           "per_m": prediction_quality(records, calibration)}
+    if pool is not None and sentinels is not None and len(sentinels):
+        from goniofrost.frost.check_cells import fit_checked
+
+        checked = fit_checked(records, np.asarray(pool, np.int64), sentinels, calibration)
+        if checked is not None:
+            calibration["checked"] = checked
     return calibration
 
 

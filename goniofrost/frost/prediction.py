@@ -56,6 +56,10 @@ FEATURES = ("1", "log design error", "log z2", "log energy", "log m", "level", "
 BASIC_FEATURES = 5
 # The features of calibrations fitted before the coordinates existed.
 SAMPLE_FEATURES = 11
+# The checked calibration's two more (``check_cells``): log of the sentinels' error and of the
+# check cells' (``sentinel.check_error``), measured with the first batch and never fitted.
+CHECK_FEATURES = ("log sentinel error", "log check error")
+CHECKED_FEATURES = len(FEATURES) + len(CHECK_FEATURES)
 UNCALIBRATED = {"coefficients": [0.0, 1.0, 1.0, 0.0, 0.0], "m_range": [1, 10**9],
                 "typical_log_z2": 0.0, "typical_log_energy": 0.0}
 
@@ -67,13 +71,22 @@ def calibration_of(model) -> dict:
 
 
 def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None, feature_range=None,
-                   coordinates=None) -> np.ndarray:
+                   coordinates=None, checks=None) -> np.ndarray:
     """float64 (..., 11) features of FEATURES (arguments broadcast), or (..., 5) of the first
     five when level and spread are None, or (..., 17) with ``coordinates`` (..., COORDINATES)
     (``material_coordinates``). feature_range: [lows, highs] of (log z2, log energy, level, log
     spread[, the coordinates]) that the features are computed within (clamped: the quadratic
     terms must not extrapolate beyond the materials they were fitted on; samples that far are
-    out of the model anyway), None: no clamping."""
+    out of the model anyway), None: no clamping. checks: (..., 2) the sentinels' and the check
+    cells' errors (``CHECK_FEATURES``; with the coordinates): (..., CHECKED_FEATURES), their logs
+    clamped like the others when feature_range has them."""
+    if checks is not None:
+        base = feature_matrix(design_error, z2, energy, m, m_range, level, spread, feature_range, coordinates)
+        logs = np.log(np.maximum(np.asarray(checks, dtype=np.float64), 1e-12))
+        at = 4 + COORDINATES
+        if feature_range is not None and len(feature_range[0]) > at:
+            logs = np.clip(logs, feature_range[0][at:at + 2], feature_range[1][at:at + 2])
+        return np.concatenate([base, np.broadcast_to(logs, base.shape[:-1] + logs.shape[-1:])], axis=-1)
     lo, hi = m_range
     parts = list(np.broadcast_arrays(np.log(design_error), np.log(z2), np.log(energy),
                                      np.log(np.clip(m, lo, hi)).astype(np.float64)))
@@ -90,7 +103,7 @@ def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None
         return x
     c = np.asarray(coordinates, dtype=np.float64)
     if feature_range is not None and len(feature_range[0]) > 4:
-        c = np.clip(c, feature_range[0][4:], feature_range[1][4:])
+        c = np.clip(c, feature_range[0][4:4 + COORDINATES], feature_range[1][4:4 + COORDINATES])
     return np.concatenate([x, np.broadcast_to(c, x.shape[:-1] + c.shape[-1:])], axis=-1)
 
 
@@ -103,20 +116,32 @@ def feature_range_of(z2, energy, level, spread, coordinates=None) -> list[list[f
     return [raw.min(axis=1).tolist(), raw.max(axis=1).tolist()]
 
 
-def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None, coordinates=None) -> np.ndarray:
+def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None, coordinates=None,
+            checks=None) -> np.ndarray:
     """Predicted log-relative MSE (float64, broadcast shape of the arguments). level and spread
     (``sample_level``) are needed by a calibration of more than BASIC_FEATURES coefficients, the
-    coordinates (..., COORDINATES) (``material_coordinates``) by one of more than SAMPLE_FEATURES."""
+    coordinates (..., COORDINATES) (``material_coordinates``) by one of more than SAMPLE_FEATURES,
+    the checks (..., 2) (the sentinels' and the check cells' error) by the checked calibration
+    (CHECKED_FEATURES, ``checked_of``)."""
     beta = np.asarray(calibration["coefficients"], dtype=np.float64)
     if beta.size > BASIC_FEATURES and level is None:
         raise ValueError("predict: this calibration needs the samples' level and spread")
     if beta.size > SAMPLE_FEATURES and coordinates is None:
         raise ValueError("predict: this calibration needs the material's coordinates")
+    if beta.size > len(FEATURES) and checks is None:
+        raise ValueError("predict: this calibration needs the sentinels' and the check cells' error")
     full = beta.size > BASIC_FEATURES
     x = feature_matrix(design_error, z2, energy, m, calibration["m_range"],
                        level if full else None, spread if full else None, calibration.get("feature_range"),
-                       coordinates if beta.size > SAMPLE_FEATURES else None)
+                       coordinates if beta.size > SAMPLE_FEATURES else None,
+                       checks if beta.size > len(FEATURES) else None)
     return np.exp(x @ beta)
+
+
+def checked_of(model) -> dict | None:
+    """The model's checked calibration (``check_cells``: 19 features, the bound on nested
+    residuals, the check ``cells``), None for a model without one."""
+    return calibration_of(model).get("checked") or None
 
 
 def predict_typical(calibration: dict, design_error, m) -> np.ndarray:

@@ -94,7 +94,7 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     """
     from goniofrost.frost import posterior
 
-    unique, noise, cell_noise, post, (predicted, design, z2, energy, _, level, spread) = _posterior(
+    unique, noise, cell_noise, post, (predicted, design, z2, energy, _, level, spread, *_) = _posterior(
         model, positions, values, sigmas)
     mu = np.asarray(model.mean, dtype=np.float64)
     if with_std:
@@ -125,19 +125,33 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     ``scene``: bound the error of the scene's use instead, with its own calibration.
     ``sentinel``: bool (l,), the samples that are sentinels (``frost.sentinel``): the bound is of
     the other samples, and the sentinels' error against their posterior is checked (out of the
-    model, "sentinel", beyond its calibrated range)."""
+    model, "sentinel", beyond its calibrated range). Those of them at the model's check cells
+    (``check_cells``: the plan marks them too) are the check samples: when they cover every
+    check cell beside the sentinels, the median and the bound are the checked calibration's."""
+    from goniofrost.frost import check_cells, prediction
     from goniofrost.frost.confidence import error_bound as bound_of
     from goniofrost.frost.sentinel import measured_check_errors
 
     checked = sentinel is not None and bool(np.any(sentinel))
     if checked:
         flags, positions, values = np.asarray(sentinel, bool), np.asarray(positions), np.asarray(values, np.float64)
-        checks = (positions[flags], values[flags])
+        geometric, checks = check_cells.measured(model, positions, flags) if scene is None else (flags, flags & False)
+        complete = check_cells.complete(model, positions, checks) and bool(np.any(geometric))
+        sentinels = (positions[geometric], values[geometric])
+        checking = (positions[checks], values[checks])
         positions, values = positions[~flags], values[~flags]
         sigmas = None if sigmas is None else np.asarray(sigmas)[~flags]
-    unique, _, _, post, (predicted, _, z2, energy, extra, _, _) = _posterior(model, positions, values, sigmas, scene)
-    check = float(measured_check_errors(model, *checks, post.coefficients)[0]) if checked else None
-    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check)
+    unique, _, _, post, (predicted, _, z2, energy, extra, level, spread, clean, coordinates) = _posterior(
+        model, positions, values, sigmas, scene)
+    check = float(measured_check_errors(model, *sentinels, post.coefficients)[0]) if checked and sentinels[0].size \
+        else None
+    checked_predicted = None
+    if checked and complete:
+        errors = [check, float(measured_check_errors(model, *checking, post.coefficients)[0])]
+        checked_predicted = float(prediction.predict(prediction.checked_of(model), clean, z2, energy, unique.size,
+                                                     level, spread, coordinates, errors))
+    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check,
+                    checked_predicted)
 
 
 def _calibration(model: FrostModel, scene) -> dict:
@@ -153,7 +167,8 @@ def _calibration(model: FrostModel, scene) -> dict:
 def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
     """Checked samples -> (distinct positions, their noise (u, 3), every cell's noise (n,), the
     Posterior, (predicted error, design error, z2, energy, the part of the predicted error the
-    samples' own variance adds, level, spread)).
+    samples' own variance adds, level, spread, the design error without that variance, the
+    material's coordinates)).
 
     The calibration was fitted on noise-free samples, so the samples' own variance enters the
     prediction as what the model says it costs: the design error with it minus the design error
@@ -184,7 +199,8 @@ def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
     coordinates = prediction.material_coordinates(post.coefficients, [0, 1, 2], model.n_signals)
     predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread, coordinates))
     extra = max(design - clean, 0.0)
-    return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread)
+    return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread, clean,
+                                             coordinates)
 
 
 def reconstruct_mapped(model: FrostModel, post) -> np.ndarray:

@@ -99,15 +99,18 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration
     (the sentinel check's at ``sentinel.cells`` among ``sentinel_candidates``, bool (n,) or None;
     the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them)."""
-    from goniofrost.frost import calibration, noise, sentinel
+    from goniofrost.frost import calibration, check_cells, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
     learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
     sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
+    # the check cells' candidates: among the sentinels' (a rig's cells), outside the sentinels
+    pool = check_cells.pool(grid, sentinel_candidates) if sentinels.size and atoms is not None else None
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
-                                                                                     sentinels=sentinels, atoms=atoms)
+                                                                                     sentinels=sentinels, atoms=atoms,
+                                                                                     pool=pool)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
@@ -117,7 +120,7 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
             "choice_mean_errors": [{"design_scale": a, "recon_scale": b, "by_m": calibration.mean_errors(rec)}
                                    for (a, b), rec in choice.items()],
             "cv_mean_errors": calibration.mean_errors(records),
-            "calibration": calibration.fit_calibration(records)}
+            "calibration": calibration.fit_calibration(records, pool, sentinels)}
     if "sentinel" in meta["calibration"]["bound"]:
         meta["calibration"]["bound"]["sentinel"]["cells"] = sentinels.tolist()
     # As model.json will hold it (string keys, lists): the content hash is the same before and
@@ -267,8 +270,9 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
     # v5: the calibration may use the material's coordinates on the first atoms (prediction.py)
+    # v6: the calibration holds the check cells and the checked calibration (check_cells.py)
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
-    key = disk_cache.content_key("frost-model-v5", ids, [m.label for m in materials],
+    key = disk_cache.content_key("frost-model-v6", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     if folder is not None and (folder / "model.json").is_file():

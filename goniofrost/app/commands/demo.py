@@ -90,10 +90,14 @@ def run(args) -> int:
 
 
 def _planned(plan_path) -> str:
-    """How many samples the demo's plan holds: "43 planned (40 + 3 sentinels)" or "40 planned"."""
+    """How many samples the demo's plan holds: "46 planned (40 + 3 sentinels + 3 check cells)",
+    "43 planned (40 + 3 sentinels)" or "40 planned"."""
     import json
     from pathlib import Path
 
     doc = json.loads(Path(plan_path).read_text())
-    sentinels = int(doc.get("sentinels", 0))
-    return f"{doc['m']} planned ({doc['m'] - sentinels} + {sentinels} sentinels)" if sentinels else f"{doc['m']} planned"
+    sentinels, checks = int(doc.get("sentinels", 0)), int(doc.get("checks", 0))
+    if not sentinels:
+        return f"{doc['m']} planned"
+    return f"{doc['m']} planned ({doc['m'] - sentinels - checks} + {sentinels} sentinels" \
+        + (f" + {checks} check cells)" if checks else ")")

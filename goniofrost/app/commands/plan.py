@@ -135,6 +135,7 @@ def run(args) -> int:
         print(format_table(doc))
     write_plan(args.out, doc)
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""
+    extra += f" + {doc['checks']} check cells" if doc.get("checks") else ""
     print(f"{args.out}: m = {selection.m} samples{extra}{_outcome(args, selection)}, selection {selection.seconds:.3f} s")
     return 0
 
