@@ -646,3 +646,25 @@ def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir,
     chosen = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
     assert [s["cell"] for s in doc["samples"]] == np.stack(model.grid.unravel(chosen.cells), axis=1).tolist()
     assert chosen.positions.tolist() != select_bayes(model, 10, usage=usage, prior_spread=0.0).positions.tolist()
+
+
+def test_the_scene_design_benchmark_can_choose_on_seeded_materials_no_test_set_uses(tmp_path):
+    """--validation-set seeded (issue 29 round 9): the candidates are compared on seeded analytic
+    materials (seeds 101 and 102) with one model of all the training specs' materials; no seed of
+    a test set (fresh1 to fresh4, and 5, the next in line) is among them."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    seeds = {int(spec.split(":")[1]) for spec in module["SEEDED_VALIDATION"]}
+    assert not seeds & ({int(spec.split(":")[1]) for spec in module["FRESH_SETS"].values()} | {5})
+    assert module["main"](["--smallest", "--validation-only", "--validation-set", "seeded", "--scenes",
+                           "retro-sphere", "--out", str(tmp_path)]) == 0
+    val = json.loads((tmp_path / "validation.json").read_text())
+    seeded = json.loads((tmp_path / "validation-seeded.json").read_text())
+    assert seeded["held"] == ["r101-001-metallic-paint", "r102-001-fabric"]
+    assert {r["material"] for r in val["rows"]} == set(seeded["held"])
+    assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
+    # a power per scene is one of its tuple's
+    for name, (p, *_) in module["CANDIDATES"].items():
+        if isinstance(p, tuple):
+            assert seeded["spreads"]["retro-sphere"][name][0] in p
