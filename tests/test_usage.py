@@ -205,8 +205,8 @@ def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
     assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
     assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [1.0] * 9
     assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [3000.0] * 3 + [0.0] * 6
-    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [1.0, 1.0, 1.0, 0.0]
-    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [3000.0, 0.0, 0.0, 0.0]
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [1.0, 1.0, 1.0, 1.0, 0.0]
+    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [3000.0, 0.0, 0.0, 0.0, 0.0]
     for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
@@ -668,3 +668,29 @@ def test_the_scene_design_benchmark_can_choose_on_seeded_materials_no_test_set_u
     for name, (p, *_) in module["CANDIDATES"].items():
         if isinstance(p, tuple):
             assert seeded["spreads"]["retro-sphere"][name][0] in p
+
+
+def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effective_cells(model, monkeypatch):
+    """Issue 29 round 9: above MANY_SAMPLES a scene's power is the largest of 0.5, 0.75 and 1 whose
+    weights (t = 1) keep 4,000 effective cells, 0.5 when none larger does; below, the band's p
+    alone. select_bayes's default design is the design of that power and reports it."""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_usage, effective_cells, scene_power
+
+    assert usage_design.POWERS_MOST == (0.5, 0.75, 1.0) and usage_design.POWER_FLOOR_MOST == 4000.0
+    usage = retro_map()
+    cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
+    assert cells[1.0] < cells[0.75] < cells[0.5]  # the larger the power, the fewer cells
+    kept = [p for p in (0.75, 1.0) if cells[p] >= 4000.0]
+    assert scene_power(model, usage, 40) == (max(kept) if kept else 0.5)
+    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [1.0, 1.0, 0.25, 0.25]
+    uniform = np.full(model.grid.n_valid, 1.0 / model.grid.n_valid)
+    assert scene_power(model, uniform, 40) == 0.5
+    for floor, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
+        monkeypatch.setitem(usage_design.BAND_POWERS, None, (usage_design.POWERS_MOST, floor))
+        assert scene_power(model, usage, 29) == power
+        chosen = select_bayes(model, 30, usage=usage)
+        assert chosen.sensitivity_power == power
+        assert chosen.positions.tolist() == select_bayes(model, 30, usage=usage, sensitivity_power=power).positions.tolist()
+    assert select_bayes(model, 30).sensitivity_power is None
