@@ -20,7 +20,8 @@ fixed before its first run, issue 29 round 5). ``--test-set fresh1``: 24 seeded 
 of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 before any run;
 ``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run);
 ``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run); ``--test-set
-fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run).
+fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run);
+``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run).
 ``--validation-set seeded`` (issue 29 round 9) chooses instead on 48 seeded analytic materials of the
 built-in families (``SEEDED_VALIDATION``: seeds 101 and 102, never a test set) with one model trained
 on all 151 shared materials, as the fresh test runs have it: the test sets' distribution, which the
@@ -34,9 +35,10 @@ spread of ``usage_design.design_usage``) are compared first on validation materi
 training material held out once in ``--folds`` inner folds, each fold's model trained on the others
 (``--only-folds``: some of them, a subset fixed before any result); the rule ``choose_rule`` picks
 per m. The test run then compares the shipped design (``select_bayes``'s
-defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m,
-``usage_design.sensitivity_power``) with the blind one and with the earlier u g^0.5 design, and with
-``--fewer`` also the shipped design at 0.6 m (the goal's fewer-samples branch).
+defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
+``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
+design shipped before round 9 (the band's power for every scene, ``BEFORE``), and with ``--fewer``
+also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
         --spp 32 --no-export --validation-only --out DIR          # the choice
@@ -79,8 +81,10 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # h/29r8) before any run, after the validation chose the floor on the effective cells. "fresh4" was
 # fixed on 3 December 2026 (stop 38), before any run, after fresh3 met the goal in 9 of 9 cells: one
 # more set, the seed next in line, to confirm the design on materials it has not seen (no choice on it).
+# "fresh5" was fixed on 3 December 2026 (issue 29 round 9, branch h/29r9) before any run, after the
+# seeded validation (SEEDED_VALIDATION) chose a power per scene from 29 samples.
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
-              "fresh4": "builtin-random:4:24"}
+              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
 # seeds are 1 to 4 and the next in line, 5); candidates may be chosen on these.
@@ -120,7 +124,7 @@ def parse(argv=None):
                         "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
                         "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
                         "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
-                        "run before it)")
+                        "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -204,19 +208,11 @@ CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 4000": ((0.5, 0.75, 1
               "hedge 0.7": (None, 0.7, None, None)}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 8 (round 7's: t = 0 up to FEW_SAMPLES, no floor; the
-# bands above as they are), which the test run renders beside the shipped one (at m and at 0.6 m)
-# when the default floor is not 0 at some m. (Round 7's "t0 (before)", the design before round 7,
-# is in that round's section of BENCHMARKS.md.)
-BEFORE = "before (round 7)"
-
-
-def before_spread(m: int) -> float:
-    """The prior spread of the shipped design before round 8 for m samples (no floor): 0 up to
-    ``usage_design.FEW_SAMPLES``, the band's above (round 8 changed m <= 14 only)."""
-    from goniofrost.frost.usage_design import FEW_SAMPLES, prior_spread
-
-    return 0.0 if m <= FEW_SAMPLES else prior_spread(m)
+# The key of the shipped design before round 9 (round 8's: the band's power for every scene,
+# ``usage_design.sensitivity_power``; the same design up to MANY_SAMPLES), which the test run renders
+# beside the shipped one (at m and at 0.6 m). (Round 8's "before (round 7)", t = 0 up to 14 samples,
+# and round 7's "t0 (before)" are in those rounds' sections of BENCHMARKS.md.)
+BEFORE = "before (round 8)"
 
 
 def scene_power(model, usage: np.ndarray, powers, hedge: float, spread: float, floor: float) -> float:
@@ -443,7 +439,7 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
-    from goniofrost.frost.usage_design import spread_floor
+    from goniofrost.frost.usage_design import MANY_SAMPLES, sensitivity_power
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -480,12 +476,12 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 8 beside it, at m and 0.6 m, when a default floor is not 0
-    before = any(spread_floor(m) != 0 for m in ms + fewer)
-    if before:
-        for m in ms + fewer:
-            designs[m].update({(s, BEFORE): select_bayes(model, m, usage=u, prior_spread=before_spread(m)).positions
-                               for s, u in usage.items()})
+    # the shipped design before round 9 beside it, at m and 0.6 m: the band's power for every scene
+    # (the same design up to MANY_SAMPLES: rendered once)
+    for m in ms + fewer:
+        designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if m <= MANY_SAMPLES else
+                           select_bayes(model, m, usage=u, sensitivity_power=sensitivity_power(m)).positions
+                           for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
     if args.sequential:
@@ -502,9 +498,9 @@ def main(argv=None) -> int:
     print(table(rows, ms, "aware", "g^0.5"))
     print(goal_table(rows, ms, "aware"))
     print(goal_lines(rows, ms, "aware"))
-    if before:  # the shipped design against the one before round 8 (export columns: not rendered)
-        print(table(rows, ms, "aware", BEFORE))
-        print(goal_table(rows, ms, BEFORE))
+    # the shipped design against the one before round 9 (export columns: not rendered)
+    print(table(rows, ms, "aware", BEFORE))
+    print(goal_table(rows, ms, BEFORE))
     for name in args.sequential:  # each sequential design beside the shipped one (export columns: not rendered)
         print(table(rows, ms, name, "aware"))
         print(goal_table(rows, ms, name))

@@ -313,7 +313,7 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
     assert not {r["material"] for r in val["rows"]} & set(doc["test"])  # the validation never sees a test material
     # the test renders: the shipped rule ("aware"), the rule before the hedge, the shipped rule before
-    # round 8 (a floor is set at m = 4: rendered beside it), the blind design
+    # round 9 (the band's power for every scene; at m = 4 the same design), the blind design
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
         ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), (module["BEFORE"], "direct"),
         ("blind", "export"), ("aware", "export")}
@@ -383,6 +383,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
+    # --test-set fresh5 (round 9): seed 5, none of the seeded validation's (seeds 101 and 102)
+    _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "fresh5"]))
+    assert test_specs6 == ["builtin-random:5:24"] and training6 == training and len(test6) == 24
+    assert test_specs6[0] not in module["SEEDED_VALIDATION"]
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
