@@ -699,3 +699,16 @@ def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effecti
         assert chosen.sensitivity_power == power
         assert chosen.positions.tolist() == select_bayes(model, 30, usage=usage, sensitivity_power=power).positions.tolist()
     assert select_bayes(model, 30).sensitivity_power is None
+
+
+def test_plan_from_29_samples_records_the_scenes_own_power(model, model_dir, tmp_path, capsys):
+    """plan --samples 30 --usage: the power the design used (usage_design.scene_power, one of 0.5,
+    0.75, 1) is the one PLAN.json records and the plan says how it was chosen."""
+    from goniofrost.frost.usage_design import scene_power
+
+    path, out = tmp_path / "retro.npy", tmp_path / "plan.json"
+    np.save(path, retro_map().astype(np.float32))
+    assert main(["plan", "--model", str(model_dir), "--samples", "30", "--usage", str(path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["usage"]["sensitivity_power"] == scene_power(model, retro_map(), 30)
+    assert "the largest of 0.5, 0.75, 1 keeping 4000 effective cells, for 30 samples" in capsys.readouterr().out
