@@ -205,8 +205,8 @@ def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
     assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
     assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [1.0] * 9
     assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [3000.0] * 3 + [0.0] * 6
-    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [1.0, 1.0, 1.0, 0.0]
-    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 2.0)] == [3000.0, 0.0, 0.0, 0.0]
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [1.0, 1.0, 1.0, 1.0, 0.0]
+    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [3000.0, 0.0, 0.0, 0.0, 0.0]
     for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
@@ -313,7 +313,7 @@ def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
     assert not {r["material"] for r in val["rows"]} & set(doc["test"])  # the validation never sees a test material
     # the test renders: the shipped rule ("aware"), the rule before the hedge, the shipped rule before
-    # round 8 (a floor is set at m = 4: rendered beside it), the blind design
+    # round 9 (the band's power for every scene; at m = 4 the same design), the blind design
     assert {(r["design"], r["render"]) for r in doc["rows"]} == {
         ("blind", "direct"), ("aware", "direct"), ("g^0.5", "direct"), (module["BEFORE"], "direct"),
         ("blind", "export"), ("aware", "export")}
@@ -383,6 +383,11 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
+    # --test-set fresh5 (round 9): seed 5, none of the seeded validation's (seeds 101 and 102)
+    _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
+        ["--out", "unused", "--test-set", "fresh5"]))
+    assert test_specs6 == ["builtin-random:5:24"] and training6 == training and len(test6) == 24
+    assert test_specs6[0] not in module["SEEDED_VALIDATION"]
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
@@ -646,3 +651,64 @@ def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir,
     chosen = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
     assert [s["cell"] for s in doc["samples"]] == np.stack(model.grid.unravel(chosen.cells), axis=1).tolist()
     assert chosen.positions.tolist() != select_bayes(model, 10, usage=usage, prior_spread=0.0).positions.tolist()
+
+
+def test_the_scene_design_benchmark_can_choose_on_seeded_materials_no_test_set_uses(tmp_path):
+    """--validation-set seeded (issue 29 round 9): the candidates are compared on seeded analytic
+    materials (seeds 101 and 102) with one model of all the training specs' materials; no seed of
+    a test set (fresh1 to fresh4, and 5, the next in line) is among them."""
+    import runpy
+
+    module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
+    seeds = {int(spec.split(":")[1]) for spec in module["SEEDED_VALIDATION"]}
+    assert not seeds & ({int(spec.split(":")[1]) for spec in module["FRESH_SETS"].values()} | {5})
+    assert module["main"](["--smallest", "--validation-only", "--validation-set", "seeded", "--scenes",
+                           "retro-sphere", "--out", str(tmp_path)]) == 0
+    val = json.loads((tmp_path / "validation.json").read_text())
+    seeded = json.loads((tmp_path / "validation-seeded.json").read_text())
+    assert seeded["held"] == ["r101-001-metallic-paint", "r102-001-fabric"]
+    assert {r["material"] for r in val["rows"]} == set(seeded["held"])
+    assert {r["design"] for r in val["rows"]} == {"blind", *module["CANDIDATES"]}
+    # a power per scene is one of its tuple's
+    for name, (p, *_) in module["CANDIDATES"].items():
+        if isinstance(p, tuple):
+            assert seeded["spreads"]["retro-sphere"][name][0] in p
+
+
+def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effective_cells(model, monkeypatch):
+    """Issue 29 round 9: above MANY_SAMPLES a scene's power is the largest of 0.5, 0.75 and 1 whose
+    weights (t = 1) keep 4,000 effective cells, 0.5 when none larger does; below, the band's p
+    alone. select_bayes's default design is the design of that power and reports it."""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_usage, effective_cells, scene_power
+
+    assert usage_design.POWERS_MOST == (0.5, 0.75, 1.0) and usage_design.POWER_FLOOR_MOST == 4000.0
+    usage = retro_map()
+    cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
+    assert cells[1.0] < cells[0.75] < cells[0.5]  # the larger the power, the fewer cells
+    kept = [p for p in (0.75, 1.0) if cells[p] >= 4000.0]
+    assert scene_power(model, usage, 40) == (max(kept) if kept else 0.5)
+    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [1.0, 1.0, 0.25, 0.25]
+    uniform = np.full(model.grid.n_valid, 1.0 / model.grid.n_valid)
+    assert scene_power(model, uniform, 40) == 0.5
+    for floor, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
+        monkeypatch.setitem(usage_design.BAND_POWERS, None, (usage_design.POWERS_MOST, floor))
+        assert scene_power(model, usage, 29) == power
+        chosen = select_bayes(model, 30, usage=usage)
+        assert chosen.sensitivity_power == power
+        assert chosen.positions.tolist() == select_bayes(model, 30, usage=usage, sensitivity_power=power).positions.tolist()
+    assert select_bayes(model, 30).sensitivity_power is None
+
+
+def test_plan_from_29_samples_records_the_scenes_own_power(model, model_dir, tmp_path, capsys):
+    """plan --samples 30 --usage: the power the design used (usage_design.scene_power, one of 0.5,
+    0.75, 1) is the one PLAN.json records and the plan says how it was chosen."""
+    from goniofrost.frost.usage_design import scene_power
+
+    path, out = tmp_path / "retro.npy", tmp_path / "plan.json"
+    np.save(path, retro_map().astype(np.float32))
+    assert main(["plan", "--model", str(model_dir), "--samples", "30", "--usage", str(path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["usage"]["sensitivity_power"] == scene_power(model, retro_map(), 30)
+    assert "the largest of 0.5, 0.75, 1 keeping 4000 effective cells, for 30 samples" in capsys.readouterr().out

@@ -193,9 +193,12 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
     change of basis; False computes it the long way, for tests).
     sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
-    of samples, ``usage_design.sensitivity_power(m)``. With max_error and p None the design of
+    of samples and the scene, ``usage_design.scene_power(model, usage, m)`` (the band's,
+    ``usage_design.sensitivity_power(m)``, or above MANY_SAMPLES the largest of the band's powers
+    whose weights keep its count of effective cells). With max_error and p None the design of
     POWER_FEW runs up to FEW_SAMPLES picks; when it does not reach the target there, the design of
-    the next band (``usage_design.BANDS``: POWER_MANY up to MANY_SAMPLES, then POWER_MOST) runs from
+    the next band (``usage_design.BANDS``: POWER_MANY up to MANY_SAMPLES, then the scene's power of
+    the last band) runs from
     the start until it does with more picks than the band before allows. Either way the
     result of n picks is the n-sample design (the power for n), and the (n - 1)-sample design
     does not reach the target (max_error's floor is checked on the longer design's calibration).
@@ -212,7 +215,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     it (a scene's calibration depends on the design measured; None from it: the model's).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
     ``prior_spread`` is the spread the scene's weights used (0 for a uniform map: the plain design
-    has none; None without a map).
+    has none; None without a map) and ``sensitivity_power`` their power (None without a map).
     """
     start = time.perf_counter()
     rows = _candidate_rows(candidates, model.grid.n_valid)
@@ -229,7 +232,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         power = sensitivity_power
         if scene and power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
-            power = usage_design.sensitivity_power(m)
+            power = usage_design.scene_power(model, usage, m)
         calib = calibration_for(power)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
@@ -239,7 +242,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
-        for i, (last, power, spread, cells_floor) in enumerate(usage_design.BANDS):
+        for i, (last, _, spread, cells_floor) in enumerate(usage_design.BANDS):
+            power = usage_design.scene_power(model, usage, start_m + 1)  # the band's, or the scene's in it
             calib = calibration_for(power)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
@@ -258,7 +262,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     return Selection(positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
-                     prior_spread=used_spread if scene else (None if usage is None else 0.0))
+                     prior_spread=used_spread if scene else (None if usage is None else 0.0),
+                     sensitivity_power=power if scene else None)
 
 
 def _spread(spread, m, scene: bool) -> float:

@@ -69,6 +69,8 @@ class Selection:
     pick_seconds: float64 (m,) wall time from the start to each pick (bayes), else None.
     prior_spread: the prior spread t a scene-aware design's weights were made with (its last phase's
         with max_error; ``usage_design.design_weights``), else None.
+    sensitivity_power: the power p a scene-aware design's weights used (its last phase's with
+        max_error; ``usage_design.scene_power`` unless given), else None.
     """
 
     positions: np.ndarray
@@ -80,6 +82,7 @@ class Selection:
     selector: str = "frost"
     pick_seconds: np.ndarray | None = None
     prior_spread: float | None = None
+    sensitivity_power: float | None = None
 
     @property
     def m(self) -> int:

@@ -98,14 +98,18 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import prior_spread, sensitivity_power, spread_floor
-        # the spread this scene's design used (the selection's own, not computed again): the band's,
-        # or with a floor on the weights' effective cells the largest up to it that keeps the floor
-        power, floor, spread = sensitivity_power(selection.m), spread_floor(selection.m), selection.prior_spread
+        from goniofrost.frost.usage_design import BAND_POWERS, band, prior_spread, sensitivity_power, spread_floor
+        # the power and spread this scene's design used (the selection's own, not computed again):
+        # the band's, or the scene's of the band's powers; with a floor on the weights' effective
+        # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
+        power, floor, spread = selection.sensitivity_power, spread_floor(selection.m), selection.prior_spread
+        power = sensitivity_power(selection.m) if power is None else power
         scene = scene_for(power)
+        powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
-              + f" (the power for {selection.m} samples"
+              + (f" (the largest of {', '.join(f'{p:g}' for p in powers)} keeping {cells:g} effective cells, for "
+                 f"{selection.m} samples" if len(powers) > 1 else f" (the power for {selection.m} samples")
               + (f"; t the largest up to {prior_spread(selection.m):g} keeping {floor:g} effective cells)" if floor
                  else ")"))
     doc = plan_document(args.model, model, selection)
