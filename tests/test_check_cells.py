@@ -63,6 +63,30 @@ def test_the_greedy_choice_finds_the_cell_that_carries_the_missing_error():
         check_cells.choose(x, y, fold, m, errors, allowed, np.ones(n, bool), 3)
 
 
+def test_the_objective_matches_a_direct_cross_fit_and_a_column_in_the_span_of_the_features_adds_nothing():
+    """The per-fold-sums objective against the plain computation (least squares without each fold,
+    its records' residual variance per m, averaged); a candidate equal to a feature's column (in the
+    span of x) gets the features' own variance, without a warning."""
+    import warnings
+
+    rng = np.random.default_rng(1)
+    n = 200
+    m, fold = np.tile([15, 20], n // 2), np.arange(n) % 5
+    x = np.column_stack([np.ones(n), rng.normal(size=n)])
+    y = x @ [0.2, 0.7] + rng.normal(size=n)
+    z = np.column_stack([rng.normal(size=n), x[:, 1]])   # column 1: exactly a feature
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        objective = check_cells._objective(x, y, fold, z, m, [15, 20])
+    for c, columns in ((0, [x, z[:, :1]]), (1, [x])):
+        a, residual = np.column_stack(columns), np.empty(n)
+        for f in range(5):
+            beta, *_ = np.linalg.lstsq(a[fold != f], y[fold != f], rcond=None)
+            residual[fold == f] = y[fold == f] - a[fold == f] @ beta
+        expected = np.mean([residual[m == v].var() for v in (15, 20)])
+        assert objective[c] == pytest.approx(expected, rel=1e-9)
+
+
 @pytest.fixture(scope="module")
 def trained():
     from test_frost import synthetic_tables

@@ -142,8 +142,10 @@ def _objective(x, y, fold, z, m, looks) -> np.ndarray:
         xtz_train = xtz.sum(axis=0) - xtz[i]
         gamma = (a @ a.T) @ xtz_train  # pinv(x^T x) x^T z of the fold's training records
         cross = (yz.sum(axis=0) - yz[i]) - beta_y @ xtz_train
-        norm = (zz.sum(axis=0) - zz[i]) - np.einsum("fc,fc->c", gamma, xtz_train)
-        slope = cross / np.maximum(norm, 1e-300)
+        total = zz.sum(axis=0) - zz[i]
+        norm = total - np.einsum("fc,fc->c", gamma, xtz_train)
+        # a candidate (nearly) in the span of x adds nothing: its slope is rounding noise over noise
+        slope = np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 1e-9 * total)
         rows = held & looked
         residual[at[rows]] = (y[rows] - x[rows] @ beta_y)[:, None] - (z[rows] - x[rows] @ gamma) * slope
     return np.mean([residual[m[looked] == v].var(axis=0) for v in looks], axis=0)
