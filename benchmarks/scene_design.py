@@ -397,15 +397,20 @@ def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, 
         designs = scene_designs(inner, usage, ms)
         spreads = candidate_spreads(inner, usage, max(ms))
         print(f"fold {f + 1}/{folds}: {len(held)} validation materials, model of {len(training) - len(held)} "
-              f"({time.perf_counter() - t0:.0f} s); at m = {max(ms)} each scene's (p, t, effective cells): "
-              + "; ".join(f"{s} " + ", ".join(f"{w} ({p:.2f}, {t:.2f}, {n:,.0f})" for w, (p, t, n) in d.items())
-                          for s, d in spreads.items()), flush=True)
+              f"({time.perf_counter() - t0:.0f} s); {spreads_line(spreads, max(ms))}", flush=True)
         fold_rows, _ = direct_rows(inner, designs, tabulate_materials(collected(specs, held), grid), held,
                                    ms, direct, usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
         (out / f"validation-f{f}.json").write_text(json.dumps({"held": held, "spreads": spreads, "rows": fold_rows}))
         rows += fold_rows
         del inner
     return rows
+
+
+def spreads_line(spreads: dict, m: int) -> str:
+    """The progress line's part on each scene's candidates: {scene: {candidate: (p, t, effective cells)}}."""
+    return (f"at m = {m} each scene's (p, t, effective cells): "
+            + "; ".join(f"{s} " + ", ".join(f"{w} ({p:.2f}, {t:.2f}, {n:,.0f})" for w, (p, t, n) in d.items())
+                        for s, d in spreads.items()))
 
 
 def seeded_validation(specs, grid, usage, direct, ms, spp, t0, out: Path, smallest=False) -> list[dict]:
@@ -423,9 +428,7 @@ def seeded_validation(specs, grid, usage, direct, ms, spp, t0, out: Path, smalle
     designs = scene_designs(model, usage, ms)
     spreads = candidate_spreads(model, usage, max(ms))
     print(f"seeded validation: {len(held)} materials ({', '.join(seeded)}), model of {len(names)} "
-          f"({time.perf_counter() - t0:.0f} s); at m = {max(ms)} each scene's (p, t, effective cells): "
-          + "; ".join(f"{s} " + ", ".join(f"{w} ({p:.2f}, {t:.2f}, {n:,.0f})" for w, (p, t, n) in d.items())
-                      for s, d in spreads.items()), flush=True)
+          f"({time.perf_counter() - t0:.0f} s); {spreads_line(spreads, max(ms))}", flush=True)
     rows, _ = direct_rows(model, designs, tabulate_materials(collected(seeded, held), grid), held, ms, direct,
                           usage, grid, spp, extra=progress_only(t0, len(held)), metrics=False)
     (out / "validation-seeded.json").write_text(json.dumps({"held": held, "sets": seeded, "spreads": spreads,

@@ -72,3 +72,20 @@ def mounted(tmp_path):
     yield mount
     for point in points:
         subprocess.run(["umount", str(point)], check=True)
+
+
+@pytest.fixture(scope="session")
+def small_trained():
+    """(a model of 40 synthetic materials on a 10 x 10 x 20 grid, its 15-sample Bayesian design):
+    trained once per test process for the sentinel and check-cell tests (the training is most of
+    their time)."""
+    import numpy as np
+    from test_frost import synthetic_tables
+
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    grid = MerlGrid(10, 10, 20)
+    model = fit_model(synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30)
+    return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)

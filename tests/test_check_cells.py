@@ -88,13 +88,8 @@ def test_the_objective_matches_a_direct_cross_fit_and_a_column_in_the_span_of_th
 
 
 @pytest.fixture(scope="module")
-def trained():
-    from test_frost import synthetic_tables
-    from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
-
-    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
-    return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+def trained(small_trained):
+    return small_trained
 
 
 def test_a_trained_model_chooses_valid_check_cells_outside_the_sentinels_and_the_inner_designs(trained):

@@ -187,13 +187,8 @@ def test_a_plan_with_sentinels_measures_them_with_the_first_batch():
 
 
 @pytest.fixture(scope="module")
-def trained():
-    from test_frost import synthetic_tables
-    from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
-
-    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
-    return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+def trained(small_trained):
+    return small_trained
 
 
 def test_a_captures_bound_leaves_its_sentinels_out_and_checks_them(trained):
