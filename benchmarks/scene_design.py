@@ -21,7 +21,8 @@ of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 bef
 ``--test-set fresh2``: ``builtin-random:2:24``, the same (round 7, fixed before its first run);
 ``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run); ``--test-set
 fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run);
-``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run).
+``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run); ``--test-set
+fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run).
 ``--validation-set seeded`` (issue 29 round 9) chooses instead on 48 seeded analytic materials of the
 built-in families (``SEEDED_VALIDATION``: seeds 101 and 102, never a test set) with one model trained
 on all 151 shared materials, as the fresh test runs have it: the test sets' distribution, which the
@@ -37,7 +38,7 @@ training material held out once in ``--folds`` inner folds, each fold's model tr
 per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
-design shipped before round 9 (the band's power for every scene, ``BEFORE``), and with ``--fewer``
+design shipped before round 10 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
@@ -83,11 +84,13 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # more set, the seed next in line, to confirm the design on materials it has not seen (no choice on it).
 # "fresh5" was fixed on 3 December 2026 (issue 29 round 9, branch h/29r9) before any run, after the
 # seeded validation (SEEDED_VALIDATION) chose a power per scene from 29 samples.
+# "fresh6" was fixed on 3 December 2026 (issue 29 round 10, branch h/29r10) before any run, after the
+# seeded validation chose a floor of 6,000 up to 14 samples and the power per scene from 15.
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
-              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24"}
+              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
-# seeds are 1 to 4 and the next in line, 5); candidates may be chosen on these.
+# seeds are 1 to 6); candidates may be chosen on these.
 SEEDED_VALIDATION = ("builtin-random:101:24", "builtin-random:102:24")
 
 
@@ -124,7 +127,8 @@ def parse(argv=None):
                         "families, none a library material (builtin-random:1:24, never run before stop 36); fresh2: "
                         "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
                         "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
-                        "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it)")
+                        "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it); fresh6: "
+                        "builtin-random:6:24 (issue 29 round 10, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -203,16 +207,29 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # materials, 4,000 gives the retro sphere 0.75, the grazing plane 0.5 and the top light 1; 8,000 the
 # top light 0.75), round 8's p = 1 with the floor (F = 3,000) and the shipped bands hedged (a = 0.7).
 # Round 8's candidates ("floor 1500" ... "floor 6000" at m <= 14) are in its section.
-CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 4000": ((0.5, 0.75, 1.0), 1.0, 1.0, 4000.0),
-              "p-cells 8000": ((0.5, 0.75, 1.0), 1.0, 1.0, 8000.0), "p1 floor 3000": (1.0, 1.0, 1.0, 3000.0),
-              "hedge 0.7": (None, 0.7, None, None)}
+# Round 9's table is in its section ("p-cells 8000", "p1 floor 3000", "hedge 0.7" besides these two).
+# Round 10 (issue 29, ``--validation-set seeded``, ``--m 6 10 20``; fixed before any result in
+# /work/scratch29r10/DECISION.txt): the band up to 14 samples chosen at m = 10 among the shipped p = 1
+# with the floor 3,000 and three designs aimed at the grazing plane (fresh5's miss at m = 10): a power
+# per scene with 3,000 cells (on the 151-material model only the grazing plane changes, to 0.75),
+# with 4,000 (round 9's rule: retro sphere 0.75, grazing plane 0.5, top light 1) and p = 1 with a
+# floor of 6,000; the band 15-28 chosen at m = 20 between the shipped p = 0.25 and the power per
+# scene with 4,000 cells (CHOOSE_AMONG); m = 6 is reported only.
+CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 3000": ((0.5, 0.75, 1.0), 1.0, 1.0, 3000.0),
+              "p-cells 4000": ((0.5, 0.75, 1.0), 1.0, 1.0, 4000.0), "floor 6000": (1.0, 1.0, 1.0, 6000.0)}
+# Per m, the candidates ``choose_rule`` chooses among (the band's own; an m not here chooses among
+# every candidate, and the round's section says which m decide).
+CHOOSE_AMONG = {10: ("shipped", "p-cells 3000", "p-cells 4000", "floor 6000"), 20: ("shipped", "p-cells 4000")}
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 9 (round 8's: the band's power for every scene,
-# ``usage_design.sensitivity_power``; the same design up to MANY_SAMPLES), which the test run renders
-# beside the shipped one (at m and at 0.6 m). (Round 8's "before (round 7)", t = 0 up to 14 samples,
-# and round 7's "t0 (before)" are in those rounds' sections of BENCHMARKS.md.)
-BEFORE = "before (round 8)"
+# The key of the shipped design before round 10 (round 9's), which the test run renders beside the
+# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 3,000 effective
+# cells; 15 to 28 p = 0.25, t = 1 for every scene (BEFORE_BANDS: the last m of the band, (p, t, F));
+# from 29 the scene's power, the same design as shipped (rendered once). (Round 9's "before (round
+# 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections of
+# BENCHMARKS.md.)
+BEFORE = "before (round 9)"
+BEFORE_BANDS = ((14, (1.0, 1.0, 3000.0)), (28, (0.25, 1.0, 0.0)))
 
 
 def scene_power(model, usage: np.ndarray, powers, hedge: float, spread: float, floor: float) -> float:
@@ -370,15 +387,15 @@ def medians(rows: list[dict], key="image_rel_mse") -> dict:
 
 
 def choose_rule(rows: list[dict], ms: list[int]) -> tuple[dict, dict]:
-    """Per m, the candidate (of CANDIDATES) whose worst scene is best: the lowest over candidates
-    of the highest over scenes of its median direct-render image error / the blind design's (the
+    """Per m, the candidate (of CHOOSE_AMONG[m], else CANDIDATES) whose worst scene is best: the lowest
+    over them of the highest over scenes of its median direct-render image error / the blind design's (the
     goal's measure, per cell); ties to the earlier candidate. Fixed before the test run and
     applied to the validation rows only. Returns ({m: name}, {(m, name): worst ratio})."""
     med = medians(rows)
     scenes = sorted({s for s, _, _, _ in med})
     score = {(m, w): max(med[(s, m, w, "direct")] / med[(s, m, "blind", "direct")] for s in scenes)
              for m in ms for w in CANDIDATES}
-    return {m: min(CANDIDATES, key=lambda w: score[(m, w)]) for m in ms}, score
+    return {m: min(CHOOSE_AMONG.get(m, CANDIDATES), key=lambda w: score[(m, w)]) for m in ms}, score
 
 
 def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, spp, t0, out: Path,
@@ -442,7 +459,6 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
-    from goniofrost.frost.usage_design import MANY_SAMPLES, sensitivity_power
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -479,11 +495,13 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 9 beside it, at m and 0.6 m: the band's power for every scene
-    # (the same design up to MANY_SAMPLES: rendered once)
+    # the shipped design before round 10 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
+    # from 29 samples: rendered once)
     for m in ms + fewer:
-        designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if m <= MANY_SAMPLES else
-                           select_bayes(model, m, usage=u, sensitivity_power=sensitivity_power(m)).positions
+        before = next((d for last, d in BEFORE_BANDS if m <= last), None)
+        designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if before is None else
+                           select_bayes(model, m, usage=u, sensitivity_power=before[0], prior_spread=before[1],
+                                        spread_floor=before[2]).positions
                            for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}

@@ -192,21 +192,21 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
 
 
 def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
-    """The choices on the 129 validation materials (round 7: p = 0.25, t = 1 at 20; p = 0.5, t = 1
-    at 40; round 8: p = 1 at m = 10 with t up to 1 and a floor of 3,000 effective cells), each m
-    taking the choice of the nearest of them on a log scale (boundaries sqrt(10 * 20) = 14.1 and
-    sqrt(20 * 40) = 28.3). (Round 7 changed t at m = 10 from 0, round 8 added the floor.)"""
+    """The choices on validation materials (round 7: t = 1; round 8: p = 1 at m = 10 with t up to 1
+    and a floor on the effective cells; round 10, on the seeded ones: the floor 6,000 at m = 10 and
+    from 15 samples the last band's powers, 0.5 the least), each m taking the choice of the nearest
+    of them on a log scale (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3). p = 0.25 (the
+    band 15-28 before round 10) is no band's now."""
     from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, floor_of_power, prior_spread,
                                                sensitivity_power, spread_floor, spread_of_power)
 
     assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
     assert [sensitivity_power(m) for m in (1, 6, 10, 12, 14)] == [1.0] * 5
-    assert [sensitivity_power(m) for m in (15, 20, 24, 28)] == [0.25] * 4
-    assert [sensitivity_power(m) for m in (29, 40, 60, 1000)] == [0.5] * 4
+    assert [sensitivity_power(m) for m in (15, 20, 24, 28, 29, 40, 60, 1000)] == [0.5] * 8
     assert [prior_spread(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [1.0] * 9
-    assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [3000.0] * 3 + [0.0] * 6
-    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [1.0, 1.0, 1.0, 1.0, 0.0]
-    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [3000.0, 0.0, 0.0, 0.0, 0.0]
+    assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [6000.0] * 3 + [0.0] * 6
+    assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [1.0, 0.0, 1.0, 1.0, 0.0]
+    assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [6000.0, 0.0, 0.0, 0.0, 0.0]
     for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
@@ -214,34 +214,46 @@ def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
 
 def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
     """select_bayes without a power (what plan --usage does) equals the design of the power for m:
-    p = 1 at 14 samples, 0.25 at 15 (which differ, so the boundary is where the rule puts it)."""
+    p = 1 at 14 samples, the scene's power at 15 (which differ, so the boundary is where the rule
+    puts it)."""
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import scene_power
 
     usage = retro_map()
     few, many = select_bayes(model, 14, usage=usage), select_bayes(model, 15, usage=usage)
     assert few.positions.tolist() == select_bayes(model, 14, usage=usage, sensitivity_power=1.0).positions.tolist()
-    assert many.positions.tolist() == select_bayes(model, 15, usage=usage, sensitivity_power=0.25).positions.tolist()
+    assert many.positions.tolist() == select_bayes(model, 15, usage=usage,
+                                                   sensitivity_power=scene_power(model, usage, 15)).positions.tolist()
     assert few.positions.tolist() != many.positions[:14].tolist()
 
 
 def test_an_error_target_ends_on_the_design_of_its_own_length(model):
-    """plan --max-error --usage: the design of p = 1 up to 14 picks; when it does not reach the
-    target there, the design of p = 0.25 with more than 14. Either way the plan is the --samples n
-    plan of its length n, and the design of n - 1 samples (its own power) does not reach it. The
-    predicted errors use the scene's calibration of each power's design, as plan does."""
+    """plan --max-error --usage: the design of p = 1 (t up to 1, the floor) up to 14 picks; when it
+    does not reach the target there, the design of the scene's power from 15 (t = 1, no floor) with
+    more than 14. Either way the plan is the --samples n plan of its length n, and the design of
+    n - 1 samples (its own power) does not reach it. The predicted errors use the scene's
+    calibration of each design (p, t, F), as plan does."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_calibration import calibrate_scene
+    from goniofrost.frost.usage_design import FLOOR_FEW, scene_power
 
     usage = retro_map()
-    calibrations = {p: calibrate_scene(model, usage, p) for p in (1.0, 0.25)}
+    later = (scene_power(model, usage, 15), 1.0, 0.0)
+    calibrations = {design: calibrate_scene(model, usage, design[0], prior_spread=design[1], spread_floor=design[2])
+                    for design in ((1.0, 1.0, FLOOR_FEW), later)}
+    asked = set()
+
+    def calibration(*design):
+        asked.add(design)
+        return calibrations[design]
 
     def select(m=None, max_error=None):
-        return select_bayes(model, m, max_error=max_error, usage=usage, calibration=calibrations.get)
+        return select_bayes(model, m, max_error=max_error, usage=usage, calibration=calibration)
 
-    few, many = select(14).residuals, select_bayes(model, 40, usage=usage, sensitivity_power=0.25,
-                                                   calibration=calibrations[0.25]).residuals
+    few, many = select(14).residuals, select_bayes(model, 40, usage=usage, sensitivity_power=later[0],
+                                                   calibration=calibrations[later]).residuals
     reached, beyond = min(few[:8]) * 1.0001, min(few) * 0.99  # in 8 picks of p = 1; not in 14
-    assert beyond > many.min()  # the design of p = 0.25 does reach it
+    assert beyond > many.min()  # the design of the later band does reach it
     for target, longer in ((reached, False), (beyond, True)):
         chosen = select(max_error=target)
         n = chosen.positions.size
@@ -250,24 +262,27 @@ def test_an_error_target_ends_on_the_design_of_its_own_length(model):
         assert chosen.positions.tolist() == same.positions.tolist()
         np.testing.assert_allclose(chosen.residuals, same.residuals, rtol=1e-12)
         assert chosen.residuals[-1] <= target < select(n - 1).residuals[-1]
+    assert asked == set(calibrations)  # each band's design asked for its own calibration
 
 
 def test_plan_with_an_error_target_and_a_usage_map_records_the_power_of_its_length(model, model_dir, tmp_path):
     """plan --max-error --usage: a target the design of p = 1 reaches within 14 samples gives a plan
-    of p = 1, one it does not a longer plan of p = 0.25 (PLAN.json usage.sensitivity_power), each
-    meeting the target by the scene's calibration of its own design."""
+    of p = 1, one it does not a longer plan of the scene's power from 15 samples (PLAN.json
+    usage.sensitivity_power), each meeting the target by the scene's calibration of its own design."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_calibration import calibrate_scene
+    from goniofrost.frost.usage_design import scene_power
 
     usage, path = retro_map(), tmp_path / "retro.npy"
     np.save(path, usage.astype(np.float32))
     few = select_bayes(model, 14, usage=usage, calibration=calibrate_scene(model, usage, 1.0)).residuals
-    for target, power in ((min(few[:8]) * 1.0001, 1.0), (min(few) * 0.99, 0.25)):
+    for target, power, longer in ((min(few[:8]) * 1.0001, 1.0, False),
+                                  (min(few) * 0.99, scene_power(model, usage, 15), True)):
         out = tmp_path / f"plan-{power}.json"
         assert main(["plan", "--model", str(model_dir), "--max-error", f"{target:.9g}", "--usage", str(path),
                      "--out", str(out)]) == 0
         doc = json.loads(out.read_text())
-        assert doc["usage"]["sensitivity_power"] == power and (len(doc["samples"]) > 14) is (power == 0.25)
+        assert doc["usage"]["sensitivity_power"] == power and (len(doc["samples"]) > 14) is longer
         assert doc["predicted_errors"][-1] <= target
 
 
@@ -383,11 +398,13 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
-    # --test-set fresh5 (round 9): seed 5, none of the seeded validation's (seeds 101 and 102)
-    _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
-        ["--out", "unused", "--test-set", "fresh5"]))
-    assert test_specs6 == ["builtin-random:5:24"] and training6 == training and len(test6) == 24
-    assert test_specs6[0] not in module["SEEDED_VALIDATION"]
+    # --test-set fresh5 (round 9) and fresh6 (round 10): seeds 5 and 6, none of the seeded validation's
+    # (seeds 101 and 102)
+    for seed in (5, 6):
+        _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
+            ["--out", "unused", "--test-set", f"fresh{seed}"]))
+        assert test_specs6 == [f"builtin-random:{seed}:24"] and training6 == training and len(test6) == 24
+        assert test_specs6[0] not in module["SEEDED_VALIDATION"]
     specs2, test_specs2, _, training2, test2, *_ = module["setting"](module["parse"](["--out", "unused"]))
     assert specs2 == test_specs2 == specs and len(test2) == 22 and len(training2) == 129
     assert not set(test2) & set(training2)
@@ -483,12 +500,13 @@ def test_plan_with_a_usage_map_carries_the_error_in_the_scenes_use(model, model_
     from goniofrost.frost.posterior import cell_noise, prior_variance
     from goniofrost.frost.prediction import predict_typical
     from goniofrost.frost.scene_error import from_plan
+    from goniofrost.frost.usage_design import scene_power
 
     path, out = tmp_path / "retro.npy", tmp_path / "plan.json"
     np.save(path, retro_map().astype(np.float32))
     assert main(["plan", "--model", str(model_dir), "--samples", "20", "--usage", str(path), "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert doc["usage"]["sensitivity_power"] == 0.25  # the power for 20 samples
+    assert doc["usage"]["sensitivity_power"] == scene_power(model, retro_map(), 20)  # the scene's power for 20
     scene = from_plan(doc, model)
     assert scene.matrix.shape == (model.n_components,) * 2 and scene.calibration["bound"]["scores"]
     assert scene.calibration["coefficients"] != model.noise["calibration"]["coefficients"]
@@ -512,7 +530,7 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, spread_floor
+    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, scene_power, spread_floor
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -542,11 +560,11 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
-    assert prior_spread(12) == 1.0 and spread_floor(12) == 3000.0 and prior_spread(20) == 1.0
+    assert prior_spread(12) == 1.0 and spread_floor(12) == 6000.0 and prior_spread(20) == 1.0
     assert select_bayes(model, 12, usage=usage).positions.tolist() == \
-        select_bayes(model, 12, usage=usage, prior_spread=1.0, spread_floor=3000.0).positions.tolist()
-    assert select_bayes(model, 20, usage=usage).positions.tolist() == \
-        select_bayes(model, 20, usage=usage, sensitivity_power=0.25, prior_spread=1.0).positions.tolist()
+        select_bayes(model, 12, usage=usage, prior_spread=1.0, spread_floor=6000.0).positions.tolist()
+    assert select_bayes(model, 20, usage=usage).positions.tolist() == select_bayes(
+        model, 20, usage=usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
     assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
                                            sensitivity_power=0).positions.tolist()
@@ -689,7 +707,8 @@ def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effecti
     assert cells[1.0] < cells[0.75] < cells[0.5]  # the larger the power, the fewer cells
     kept = [p for p in (0.75, 1.0) if cells[p] >= 4000.0]
     assert scene_power(model, usage, 40) == (max(kept) if kept else 0.5)
-    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [1.0, 1.0, 0.25, 0.25]
+    # below, the first band's p alone; from 15 (round 10) the same powers as from 29
+    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [1.0, 1.0] + [scene_power(model, usage, 40)] * 2
     uniform = np.full(model.grid.n_valid, 1.0 / model.grid.n_valid)
     assert scene_power(model, uniform, 40) == 0.5
     for floor, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):

@@ -194,11 +194,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     change of basis; False computes it the long way, for tests).
     sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
     of samples and the scene, ``usage_design.scene_power(model, usage, m)`` (the band's,
-    ``usage_design.sensitivity_power(m)``, or above MANY_SAMPLES the largest of the band's powers
+    ``usage_design.sensitivity_power(m)``, or above FEW_SAMPLES the largest of the band's powers
     whose weights keep its count of effective cells). With max_error and p None the design of
     POWER_FEW runs up to FEW_SAMPLES picks; when it does not reach the target there, the design of
-    the next band (``usage_design.BANDS``: POWER_MANY up to MANY_SAMPLES, then the scene's power of
-    the last band) runs from
+    the next band (``usage_design.BANDS``: the scene's power of the band up to MANY_SAMPLES, then
+    of the last band, the same since issue 29 round 10) runs from
     the start until it does with more picks than the band before allows. Either way the
     result of n picks is the n-sample design (the power for n), and the (n - 1)-sample design
     does not reach the target (max_error's floor is checked on the longer design's calibration).
@@ -211,8 +211,10 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band when
     prior_spread is None too (``usage_design.spread_floor(m)``, each phase's with max_error), else 0.
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
-    ``usage_calibration``, for the usage-weighted error), or a function of the power p returning
-    it (a scene's calibration depends on the design measured; None from it: the model's).
+    ``usage_calibration``, for the usage-weighted error), or a function of the design's power p,
+    largest spread t and floor F (cells) returning it (a scene's calibration depends on the design
+    measured, and p = 1 is a design of t up to 1 with a floor up to FEW_SAMPLES and of t = 1 without
+    one above; None from it: the model's).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
     ``prior_spread`` is the spread the scene's weights used (0 for a uniform map: the plain design
     has none; None without a map) and ``sensitivity_power`` their power (None without a map).
@@ -224,8 +226,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     # the error no sample removes, as the predicted errors count it (the scene's: weighted by u)
     floor = float(np.dot(usage, noise)) if scene else float(noise.mean())
 
-    def calibration_for(power):
-        chosen = calibration(power) if callable(calibration) else calibration
+    def calibration_for(power, spread, cells_floor):
+        chosen = calibration(power, spread, cells_floor) if callable(calibration) else calibration
         return chosen or calibration_of(model)
 
     if not scene or sensitivity_power is not None or max_error is None:
@@ -233,26 +235,26 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         if scene and power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
             power = usage_design.scene_power(model, usage, m)
-        calib = calibration_for(power)
+        spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene)
+        calib = calibration_for(power, spread, cells_floor)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
             model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
-            uniform_is_plain=uniform_is_plain, spread=_spread(prior_spread, m, scene),
-            floor=_floor(spread_floor, prior_spread, m, scene))
+            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
-        for i, (last, _, spread, cells_floor) in enumerate(usage_design.BANDS):
+        for i, (last, _, band_spread, band_floor) in enumerate(usage_design.BANDS):
             power = usage_design.scene_power(model, usage, start_m + 1)  # the band's, or the scene's in it
-            calib = calibration_for(power)
+            spread = band_spread if prior_spread is None else prior_spread
+            cells_floor = _floor(spread_floor, prior_spread, None, True, band_floor)
+            calib = calibration_for(power, spread, cells_floor)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
             picked, predicted, used_spread = _design(
                 model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
-                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain,
-                spread=spread if prior_spread is None else prior_spread,
-                floor=_floor(spread_floor, prior_spread, None, True, cells_floor))
+                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor)
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last

@@ -83,16 +83,16 @@ def run(args) -> int:
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
-    # A scene's calibration depends on the design measured, whose sensitivity power depends on the
-    # number of samples (usage_design.sensitivity_power): fitted for each power the selection asks for.
-    # (A uniform map is the plain design whatever the power: one calibration.)
+    # A scene's calibration depends on the design measured, whose sensitivity power, prior spread
+    # and floor depend on the number of samples (usage_design.BANDS): fitted for each design (p, t, F)
+    # the selection asks for. (A uniform map is the plain design whatever the power: one calibration.)
     scenes: dict = {}
 
-    def scene_for(power):
+    def scene_for(power, spread, floor):
         from goniofrost.frost.usage_design import is_uniform
-        key = None if is_uniform(usage) else power
+        key = None if is_uniform(usage) else (power, spread, floor)
         if key not in scenes:
-            scenes[key] = _scene_error(model, usage, power)
+            scenes[key] = _scene_error(model, usage, power, spread, floor)
         return scenes[key]
 
     selection = _select(model, args, mask, usage, scene_for)
@@ -104,7 +104,7 @@ def run(args) -> int:
         # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
         power, floor, spread = selection.sensitivity_power, spread_floor(selection.m), selection.prior_spread
         power = sensitivity_power(selection.m) if power is None else power
-        scene = scene_for(power)
+        scene = scene_for(power, prior_spread(selection.m), floor)
         powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
@@ -144,10 +144,11 @@ def run(args) -> int:
     return 0
 
 
-def _scene_error(model, usage, power):
+def _scene_error(model, usage, power, spread, floor):
     """The plan's SceneError: the usage-weighted error and its calibration on the model's training
-    materials at the design of sensitivity power ``power`` (mapped again; without them the plan
-    has no calibrated bound, and says why)."""
+    materials at the design of sensitivity power ``power``, largest prior spread ``spread`` and
+    floor ``floor`` on its effective cells (mapped again; without them the plan has no calibrated
+    bound, and says why)."""
     import hashlib
 
     from goniofrost.frost.scene_error import scene_error
@@ -156,7 +157,8 @@ def _scene_error(model, usage, power):
 
     digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
     try:
-        calibration, unavailable = calibrate_scene(model, usage, power, progress=True), None
+        calibration, unavailable = calibrate_scene(model, usage, power, progress=True, prior_spread=spread,
+                                                   spread_floor=floor), None
     except TrainingError as exc:
         calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
         print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
@@ -164,12 +166,13 @@ def _scene_error(model, usage, power):
 
 
 def _select(model, args, mask, usage=None, scene_for=None):
-    """The selection; ``scene_for(power)``: the scene's SceneError for a design of that sensitivity
-    power (with ``usage``), whose calibration the predicted errors use."""
+    """The selection; ``scene_for(power, spread, floor)``: the scene's SceneError for a design of that
+    sensitivity power, largest prior spread and floor (with ``usage``), whose calibration the
+    predicted errors use."""
     if args.selector == "bayes":
         from goniofrost.frost.bayes_selection import select_bayes
         return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage,
-                            calibration=None if usage is None else (lambda power: scene_for(power).calibration))
+                            calibration=None if usage is None else (lambda *design: scene_for(*design).calibration))
     from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
     return select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
