@@ -105,7 +105,11 @@ def choose(x: np.ndarray, y: np.ndarray, fold: np.ndarray, m: np.ndarray, pool_e
     variance of ``y`` = log(actual) per m, averaged over the looks m >= FIRST_LOOK. Every
     candidate at once (Frisch-Waugh: the candidate column against the residual of the fit on
     ``x``). Deterministic: ties to the lowest column."""
-    m_rows = m[rows]
+    # the records sorted by fold (stable): each fold's records are a slice, read without a copy
+    # (the objective does not depend on the records' order)
+    rows = np.flatnonzero(rows)
+    rows = rows[np.argsort(fold[rows], kind="stable")]
+    x_rows, y_rows, fold_rows, m_rows = x[rows], y[rows], fold[rows], m[rows]
     looks = [v for v in np.unique(m_rows) if v >= FIRST_LOOK] or list(np.unique(m_rows))
     columns = np.flatnonzero(allowed_columns)
     errors = np.asarray(pool_error[rows][:, columns], np.float64)
@@ -113,7 +117,7 @@ def choose(x: np.ndarray, y: np.ndarray, fold: np.ndarray, m: np.ndarray, pool_e
     total = np.zeros(errors.shape[0])
     for _ in range(min(count, columns.size)):
         z = np.log(np.maximum((total[:, None] + errors) / (len(chosen) + 1), 1e-12))
-        objective = _objective(x[rows], y[rows], fold[rows], z, m_rows, looks)
+        objective = _objective(x_rows, y_rows, fold_rows, z, m_rows, looks)
         objective[np.isin(columns, chosen)] = np.inf
         best = int(np.argmin(objective))
         chosen.append(int(columns[best]))
@@ -130,9 +134,11 @@ def _objective(x, y, fold, z, m, looks) -> np.ndarray:
     (the training's choice of the check cells took 12 s of the demo's 61 s that way)."""
     z = z - z.mean(axis=0)  # the intercept is among x's columns: no fit changes, no sum cancels
     held_of = [fold == f for f in np.unique(fold)]
-    xtz = np.stack([x[h].T @ z[h] for h in held_of])  # (folds, features, candidates)
-    zz = np.stack([np.einsum("ic,ic->c", z[h], z[h]) for h in held_of])
-    yz = np.stack([y[h] @ z[h] for h in held_of])
+    # each fold's records: a slice when they are contiguous (``choose`` sorts them), else a mask
+    parts = [_span(h) for h in held_of]
+    xtz = np.stack([x[h].T @ z[h] for h in parts])  # (folds, features, candidates)
+    zz = np.stack([np.einsum("ic,ic->c", z[h], z[h]) for h in parts])
+    yz = np.stack([y[h] @ z[h] for h in parts])
     looked = np.isin(m, looks)  # the residuals are only read at the looks
     residual = np.empty((int(looked.sum()), z.shape[1]))
     at = np.cumsum(looked) - 1
@@ -149,6 +155,13 @@ def _objective(x, y, fold, z, m, looks) -> np.ndarray:
         rows = held & looked
         residual[at[rows]] = (y[rows] - x[rows] @ beta_y)[:, None] - (z[rows] - x[rows] @ gamma) * slope
     return np.mean([residual[m[looked] == v].var(axis=0) for v in looks], axis=0)
+
+
+def _span(mask: np.ndarray):
+    """slice(first, last + 1) when the True entries of ``mask`` are contiguous, else the mask."""
+    where = np.flatnonzero(mask)
+    contiguous = where.size and where[-1] - where[0] + 1 == where.size
+    return slice(int(where[0]), int(where[-1]) + 1) if contiguous else mask
 
 
 def _cross_fit(x, y, fold) -> np.ndarray:
