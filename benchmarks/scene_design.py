@@ -234,11 +234,11 @@ BEFORE_BANDS = ((14, (1.0, 1.0, 3000.0)), (28, (0.25, 1.0, 0.0)))
 
 def scene_power(model, usage: np.ndarray, powers, hedge: float, spread: float, floor: float) -> float:
     """The largest power of ``powers`` whose design weights for ``usage`` (at ``spread``, no floor on
-    it) keep at least ``floor`` effective cells; the smallest when none does (CANDIDATES)."""
-    from goniofrost.frost.usage_design import design_usage, effective_cells
+    it) keep at least ``floor`` effective cells; the smallest when none does (CANDIDATES; the
+    product's rule, ``usage_design.largest_power``)."""
+    from goniofrost.frost.usage_design import largest_power
 
-    keep = [p for p in powers if effective_cells(design_usage(model, usage, p, hedge, spread)) >= floor]
-    return max(keep) if keep else min(powers)
+    return largest_power(model, usage, powers, floor, spread, 0.0, hedge)
 
 
 def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:

@@ -226,6 +226,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     # the error no sample removes, as the predicted errors count it (the scene's: weighted by u)
     floor = float(np.dot(usage, noise)) if scene else float(noise.mean())
 
+    # the cells' prior variance, computed once if a scene's weights (or its power choice) need it
+    variance = usage_design.cell_variance_of(model)
+
     def calibration_for(power, spread, cells_floor):
         chosen = calibration(power, spread, cells_floor) if callable(calibration) else calibration
         return chosen or calibration_of(model)
@@ -234,18 +237,18 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         power = sensitivity_power
         if scene and power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
-            power = usage_design.scene_power(model, usage, m)
+            power = usage_design.scene_power(model, usage, m, variance)
         spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene)
         calib = calibration_for(power, spread, cells_floor)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
             model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
-            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor)
+            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
         for i, (last, _, band_spread, band_floor) in enumerate(usage_design.BANDS):
-            power = usage_design.scene_power(model, usage, start_m + 1)  # the band's, or the scene's in it
+            power = usage_design.scene_power(model, usage, start_m + 1, variance)  # the band's, or the scene's in it
             spread = band_spread if prior_spread is None else prior_spread
             cells_floor = _floor(spread_floor, prior_spread, None, True, band_floor)
             calib = calibration_for(power, spread, cells_floor)
@@ -254,7 +257,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             end = limit if last is None else min(limit, last)
             picked, predicted, used_spread = _design(
                 model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
-                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor)
+                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor,
+                variance=variance)
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
@@ -294,14 +298,15 @@ def _floor(floor, spread, m, scene: bool, band_floor: float | None = None) -> fl
 
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
             min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
-            floor: float = 0.0) -> tuple[GreedyDesign, np.ndarray, float | None]:
+            floor: float = 0.0, variance=None) -> tuple[GreedyDesign, np.ndarray, float | None]:
     """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
     (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
     plain design, else the scene's of power p and hedge (see select_bayes, also for
     ``uniform_is_plain``); with max_error it stops at the first pick, of at
-    least ``min_picks``, whose predicted error is <= max_error."""
+    least ``min_picks``, whose predicted error is <= max_error; ``variance``: the cells' prior
+    variance, shared (``usage_design.design_weights``)."""
     if usage is not None:
-        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor)
+        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2

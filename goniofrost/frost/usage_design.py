@@ -32,6 +32,7 @@ against a misspecified posterior at few samples; HEDGE = 1 (not mixed) won on va
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,26 +144,41 @@ def sensitivity_power(m: int) -> float:
     return band(m)[1]
 
 
-def scene_power(model, usage: np.ndarray, m: int) -> float:
+def scene_power(model, usage: np.ndarray, m: int, variance=None) -> float:
     """The power p a scene design of m samples uses for ``usage`` (what ``select_bayes`` does
     without one): the band's (``sensitivity_power``), or in a band with a set of powers
     (BAND_POWERS: from FEW_SAMPLES + 1) the largest whose scene weights u g^p exp(t p^2 v / 2) at
-    the band's t and floor keep the band's count of effective cells (``effective_cells``), the
+    the band's t and floor keep the band's count of effective cells (``largest_power``), the
     band's p when no larger one does; the band's p for a uniform map (the plain design). Costs a
-    pass over the dictionary (the cells' prior variance) and one set of weights per power tried."""
+    pass over the dictionary (the cells' prior variance; ``variance``: see ``design_weights``) and
+    one set of weights per power tried."""
     last, power, spread, floor = band(m)
     powers, cells = BAND_POWERS[last]
+    return largest_power(model, usage, [power, *(p for p in powers if p > power)], cells, spread, floor,
+                         variance=variance)
+
+
+def largest_power(model, usage: np.ndarray, powers, cells: float, spread: float = 0.0, floor: float = 0.0,
+                  hedge: float = 1.0, variance=None) -> float:
+    """The largest of ``powers`` whose design weights for ``usage`` (``design_weights`` at
+    ``hedge``, ``spread`` and ``floor``) keep at least ``cells`` effective cells 1 / sum w^2; the
+    smallest when none larger does, or for a uniform map (``variance``: see ``design_weights``)."""
     usage = np.asarray(usage, dtype=np.float64)
-    larger = sorted((p for p in powers if p > power), reverse=True)
-    if not larger or is_uniform(usage):
-        return power
-    variance = prior_cell_variance(model.dictionary, prior_variance(model)) if spread != 0 else None
-    for p in larger:
-        weights, _ = scene_weights(usage, model.mean, model.reference, model.weight, model.eps, p, variance,
-                                   spread, floor)
-        if effective_cells(weights) >= cells:
+    ordered = sorted(powers, reverse=True)
+    if is_uniform(usage):
+        return ordered[-1]
+    variance = variance or cell_variance_of(model)  # one pass over D for every power tried
+    for p in ordered[:-1]:
+        if effective_cells(design_weights(model, usage, p, hedge, spread, floor, variance)[0]) >= cells:
             return p
-    return power
+    return ordered[-1]
+
+
+def cell_variance_of(model):
+    """A function returning the model's cells' prior variance (``prior_cell_variance``: a pass over
+    the dictionary), computed at its first call and kept: the weights of one selection's designs
+    and of its power choice share that pass."""
+    return functools.cache(lambda: prior_cell_variance(model.dictionary, prior_variance(model)))
 
 
 def prior_spread(m: int) -> float:
@@ -179,6 +195,12 @@ def spread_floor(m: int) -> float:
     return band(m)[3]
 
 
+def _band_of_power(power: float) -> tuple:
+    """(t, F) of the first band whose power, or one of whose powers (BAND_POWERS), is ``power``;
+    (0, 0) when none is."""
+    return next(((t, f) for last, p, t, f in BANDS if power == p or power in BAND_POWERS[last][0]), (0.0, 0.0))
+
+
 def spread_of_power(power: float) -> float:
     """The prior spread of the first band whose power, or one of whose powers (BAND_POWERS), is
     ``power`` (BANDS; 0 when none is): what a design of that power uses by default
@@ -186,14 +208,14 @@ def spread_of_power(power: float) -> float:
     F = 6,000) and one of the later bands' (t = 1, no floor), whose weights differ where t = 1 keeps
     from POWER_FLOOR_MOST to FLOOR_FEW effective cells: a plan passes the spread and floor of the
     band its design used (``bayes_selection.select_bayes``'s calibration of (p, t, F))."""
-    return next((t for last, p, t, _ in BANDS if power == p or power in BAND_POWERS[last][0]), 0.0)
+    return _band_of_power(power)[0]
 
 
 def floor_of_power(power: float) -> float:
     """The floor F on the effective cells of the first band whose power, or one of whose powers,
     is ``power`` (BANDS, BAND_POWERS; 0 when none is): what a design of that power uses by default
     (``usage_calibration.calibrate_scene``; ``spread_of_power`` for p = 1)."""
-    return next((f for last, p, _, f in BANDS if power == p or power in BAND_POWERS[last][0]), 0.0)
+    return _band_of_power(power)[1]
 
 
 def check_floor(floor) -> float:
@@ -376,9 +398,11 @@ def design_spread(model, usage: np.ndarray, power: float, spread: float = 0.0, f
     return design_weights(model, usage, power, 1.0, spread, floor)[1]
 
 
-def design_weights(model, usage, power, hedge, spread, floor) -> tuple[np.ndarray, float]:
+def design_weights(model, usage, power, hedge, spread, floor, variance=None) -> tuple[np.ndarray, float]:
     """(``design_usage``'s weights, the spread t they were made with): what a design needs, and
-    what its plan records, from one computation of the weights."""
+    what its plan records, from one computation of the weights. variance: a function returning
+    the cells' prior variance (``cell_variance_of``, shared by several weights of one model),
+    None: computed here when the spread needs it."""
     floor = check_floor(floor)
     usage = np.asarray(usage, dtype=np.float64)
     if is_uniform(usage) or (power == 0 and hedge == 1):
@@ -386,9 +410,7 @@ def design_weights(model, usage, power, hedge, spread, floor) -> tuple[np.ndarra
     if power == 0:
         scene, spread = usage, 0.0
     else:
-        variance = None
-        if spread != 0:
-            variance = prior_cell_variance(model.dictionary, prior_variance(model))
-        scene, spread = scene_weights(usage, model.mean, model.reference, model.weight, model.eps, power, variance,
+        v = (variance or cell_variance_of(model))() if spread != 0 else None
+        scene, spread = scene_weights(usage, model.mean, model.reference, model.weight, model.eps, power, v,
                                       spread, floor)
     return (scene if hedge == 1 else (1.0 - hedge) / usage.size + hedge * scene), spread
