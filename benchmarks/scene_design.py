@@ -269,22 +269,25 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
 
 def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict:
     """{scene: {name: [p, t, effective cells]}}: the power and prior spread each candidate's design of
-    m samples uses for each scene (the floor's t, ``usage_design.design_spread``; a tuple's p,
+    m samples uses for each scene (the floor's t, ``usage_design.design_weights``; a tuple's p,
     ``scene_power``) and its weights' effective cells 1 / sum w^2 (``usage_design.effective_cells``);
-    p, t or F None: the band's for m."""
-    from goniofrost.frost.usage_design import (design_spread, design_usage, effective_cells, prior_spread,
-                                               sensitivity_power, spread_floor)
+    p None: the shipped rule's power for the scene (``usage_design.scene_power``); t or F None: the
+    band's for m."""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.usage_design import design_weights, effective_cells, prior_spread, spread_floor
 
     out = {}
     for s, u in usage.items():
         out[s] = {}
         for name, (p, a, t, f) in candidates.items():
-            if p is None:
-                p, t, f = sensitivity_power(m), prior_spread(m) if t is None else t, spread_floor(m) if f is None else f
+            if p is None:  # the shipped rule's power for this scene (the band's, or the scene's of the band's)
+                p, t, f = (usage_design.scene_power(model, u, m), prior_spread(m) if t is None else t,
+                           spread_floor(m) if f is None else f)
             elif isinstance(p, tuple):
                 p, f = scene_power(model, u, p, a, t, f), 0.0
             t, f = prior_spread(m) if t is None else t, 0.0 if f is None else f
-            out[s][name] = [p, design_spread(model, u, p, t, f), effective_cells(design_usage(model, u, p, a, t, f))]
+            weights, used = design_weights(model, u, p, a, t, f)
+            out[s][name] = [p, used, effective_cells(weights)]
     return out
 
 
