@@ -93,34 +93,35 @@ def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path,
     assert result["summary"]["materials"] == 2 and result["samples"] == 12  # 6 + 3 sentinels + 3 check cells
 
 
-def test_axis_weights_are_the_prior_expected_squared_change_to_the_neighbours():
-    """On a small built-in model: each axis's weight is the mean over the cell's valid neighbours
-    one index away of (mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2 prior_k (phi_d wraps round); an
-    invalid cell is refused."""
+def test_axis_weights_are_the_prior_expected_squared_change_to_the_neighbours(small_trained):
+    """On a small model (the session's 10 x 10 x 20 one: any trained model will do, and training
+    the built-in library for this alone took most of this file's time): each axis's weight is the
+    mean over the cell's valid neighbours one index away of (mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2
+    prior_k (phi_d wraps round); an invalid cell is refused."""
     import pytest
 
     from goniofrost.frost.cell_sensitivity import axis_weights
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.training import train
 
-    small = MerlGrid(30, 30, 60)
-    model = train(["builtin"], grid=small, cache=True)
+    model, _ = small_trained
+    small = model.grid
     prior, mean, d = prior_variance(model), np.asarray(model.mean, float), np.asarray(model.dictionary, float)
 
     def change(a, b):
         pa, pb = (int(small.valid_position(small.flat_index(*c))) for c in (a, b))
+        assert pa >= 0 and pb >= 0, (a, b)  # every neighbour named below is a valid cell
         return (mean[pa] - mean[pb]) ** 2 + np.sum((d[pa] - d[pb]) ** 2 * prior)
 
-    cells = [(0, 20, 0), (12, 5, 59)]
+    cells = [(0, 6, 0), (4, 2, 19)]
     got = axis_weights(model, cells)
-    want = [[change((0, 20, 0), (1, 20, 0)),                                    # theta_h: no index -1
-             (change((0, 20, 0), (0, 19, 0)) + change((0, 20, 0), (0, 21, 0))) / 2,
-             (change((0, 20, 0), (0, 20, 59)) + change((0, 20, 0), (0, 20, 1))) / 2],   # phi_d wraps
-            [(change((12, 5, 59), (11, 5, 59)) + change((12, 5, 59), (13, 5, 59))) / 2,
-             (change((12, 5, 59), (12, 4, 59)) + change((12, 5, 59), (12, 6, 59))) / 2,
-             (change((12, 5, 59), (12, 5, 58)) + change((12, 5, 59), (12, 5, 0))) / 2]]
+    want = [[change((0, 6, 0), (1, 6, 0)),                                      # theta_h: no index -1
+             (change((0, 6, 0), (0, 5, 0)) + change((0, 6, 0), (0, 7, 0))) / 2,
+             (change((0, 6, 0), (0, 6, 19)) + change((0, 6, 0), (0, 6, 1))) / 2],     # phi_d wraps
+            [(change((4, 2, 19), (3, 2, 19)) + change((4, 2, 19), (5, 2, 19))) / 2,
+             (change((4, 2, 19), (4, 1, 19)) + change((4, 2, 19), (4, 3, 19))) / 2,
+             (change((4, 2, 19), (4, 2, 18)) + change((4, 2, 19), (4, 2, 0))) / 2]]
     assert np.allclose(got, want, rtol=1e-12, atol=0)
-    invalid = next(c for c in [(29, 29, k) for k in range(60)] if small.valid_position(small.flat_index(*c)) < 0)
-    with pytest.raises(ValueError, match=rf"axis_weights: cell \[29, 29, {invalid[2]}\] is not a valid cell"):
+    invalid = next(c for c in [(9, 9, k) for k in range(20)] if small.valid_position(small.flat_index(*c)) < 0)
+    with pytest.raises(ValueError, match=rf"axis_weights: cell \[9, 9, {invalid[2]}\] is not a valid cell"):
         axis_weights(model, [invalid])
 
