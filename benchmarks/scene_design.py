@@ -303,8 +303,8 @@ def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict
         out[s] = {}
         for name, (p, a, t, f) in candidates.items():
             if p is None:  # the shipped rule's power for this scene (the band's, or the scene's of the band's)
-                p, t, f = (usage_design.scene_power(model, u, m), prior_spread(m) if t is None else t,
-                           spread_floor(m) if f is None else f)
+                p = usage_design.scene_power(model, u, m)
+                t, f = prior_spread(m) if t is None else t, spread_floor(m, p) if f is None else f
             elif isinstance(p, tuple):
                 p, f = candidate_power(model, u, p, a, t, f)
             t, f = prior_spread(m) if t is None else t, 0.0 if f is None else f
