@@ -22,7 +22,8 @@ of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 bef
 ``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run); ``--test-set
 fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run);
 ``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run); ``--test-set
-fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run).
+fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run); ``--test-set fresh7``:
+``builtin-random:7:24`` (round 11, fixed before its first run).
 ``--validation-set seeded`` (issue 29 round 9) chooses instead on 48 seeded analytic materials of the
 built-in families (``SEEDED_VALIDATION``: seeds 101 and 102, never a test set) with one model trained
 on all 151 shared materials, as the fresh test runs have it: the test sets' distribution, which the
@@ -38,7 +39,7 @@ training material held out once in ``--folds`` inner folds, each fold's model tr
 per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
-design shipped before round 10 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
+design shipped before round 11 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
@@ -86,11 +87,14 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # seeded validation (SEEDED_VALIDATION) chose a power per scene from 29 samples.
 # "fresh6" was fixed on 3 December 2026 (issue 29 round 10, branch h/29r10) before any run, after the
 # seeded validation chose a floor of 6,000 up to 14 samples and the power per scene from 15.
+# "fresh7" was fixed on 3 December 2026 (issue 29 round 11, branch h/29r11) before any run, after the
+# seeded validation chose a power per scene with 3,300 cells up to 14 samples (p = 1 keeping the floor).
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
-              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24"}
+              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24",
+              "fresh7": "builtin-random:7:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
-# seeds are 1 to 6); candidates may be chosen on these.
+# seeds are 1 to 7); candidates may be chosen on these.
 SEEDED_VALIDATION = ("builtin-random:101:24", "builtin-random:102:24")
 
 
@@ -128,7 +132,8 @@ def parse(argv=None):
                         "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
                         "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
                         "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it); fresh6: "
-                        "builtin-random:6:24 (issue 29 round 10, never run before it)")
+                        "builtin-random:6:24 (issue 29 round 10, never run before it); fresh7: builtin-random:7:24 (issue 29 round 11, "
+                        "never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -234,14 +239,14 @@ CHOOSE_AMONG = {10: ("shipped", "p-cells 3300 + floor")}
 FAMILY_MIN = 4
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 10 (round 9's), which the test run renders beside the
-# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 3,000 effective
-# cells; 15 to 28 p = 0.25, t = 1 for every scene (BEFORE_BANDS: the last m of the band, (p, t, F));
-# from 29 the scene's power, the same design as shipped (rendered once). (Round 9's "before (round
-# 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections of
-# BENCHMARKS.md.)
-BEFORE = "before (round 9)"
-BEFORE_BANDS = ((14, (1.0, 1.0, 3000.0)), (28, (0.25, 1.0, 0.0)))
+# The key of the shipped design before round 11 (round 10's), which the test run renders beside the
+# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 6,000 effective
+# cells for every scene (BEFORE_BANDS: the last m of the band, (p, t, F)); from 15 the scene's power,
+# the same design as shipped (rendered once). (Round 10's "before (round 9)", round 9's "before
+# (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
+# of BENCHMARKS.md.)
+BEFORE = "before (round 10)"
+BEFORE_BANDS = ((14, (1.0, 1.0, 6000.0)),)
 
 
 def candidate_power(model, usage: np.ndarray, powers, hedge: float, spread: float, cells) -> tuple[float, float]:
@@ -564,7 +569,7 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 10 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
+    # the shipped design before round 11 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
     # from 29 samples: rendered once)
     for m in ms + fewer:
         before = next((d for last, d in BEFORE_BANDS if m <= last), None)
