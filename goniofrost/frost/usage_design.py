@@ -26,8 +26,8 @@ t = 0 is below F). Every band takes a power per scene (``scene_power``): the lar
 FEW_SAMPLES = 14 samples, 4,000 from 15. Up to 14 samples a scene of p = 1 takes t up to 1 with
 the floor F = 6,000 cells, one of p = 0.5 or 0.75 t = 1 without a floor; from 15 samples t = 1
 (chosen on validation materials, BENCHMARKS.md "Skip what the scene does not need", issue 29
-rounds 3, 7, 8, 9, 10 and 11; the comments at FEW_SAMPLES, POWERS_MOST and POWERS_FEW). A uniform map stays the plain design (no scene: the whole
-BRDF alike).
+rounds 3, 7, 8, 9, 10 and 11; the comments at FEW_SAMPLES, POWERS_MOST and POWERS_FEW). A uniform
+map stays the plain design (no scene: the whole BRDF alike).
 ``design_usage`` can also mix in the plain design's weight, (1 - a) / n + a u g^p / sum, a hedge
 against a misspecified posterior at few samples; HEDGE = 1 (not mixed) won on validation.
 """
@@ -118,8 +118,8 @@ BANDS = ((FEW_SAMPLES, POWER_FEW, SPREAD_FEW, FLOOR_FEW), (MANY_SAMPLES, POWER_M
 # grid's cells (the full MERL grid here), as FLOOR_FEW's.
 POWERS_MOST = (0.5, 0.75, 1.0)
 POWER_FLOOR_MOST = 4000.0
-# Each band's powers (by its last m): the band's p alone, or a set and the effective cells its
-# largest power must keep (``scene_power``).
+# Each band's powers (by its last m): a set and the effective cells a power above the set's smallest
+# must keep (``scene_power``).
 # (Round 10: the band 15-28 takes the last band's powers, the same design as from 29 samples.)
 # A power per scene up to FEW_SAMPLES too (issue 29 round 11, BENCHMARKS.md "Issue 29, round 11"):
 # each scene's p is the largest of POWERS_FEW whose weights at t = 1 without a floor keep
