@@ -22,7 +22,8 @@ of the built-in families (``builtin-random:1:24``), fixed on 2 December 2026 bef
 ``--test-set fresh3``: ``builtin-random:3:24`` (round 8, fixed before its first run); ``--test-set
 fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed before its first run);
 ``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run); ``--test-set
-fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run).
+fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run); ``--test-set fresh7``:
+``builtin-random:7:24`` (round 11, fixed before its first run).
 ``--validation-set seeded`` (issue 29 round 9) chooses instead on 48 seeded analytic materials of the
 built-in families (``SEEDED_VALIDATION``: seeds 101 and 102, never a test set) with one model trained
 on all 151 shared materials, as the fresh test runs have it: the test sets' distribution, which the
@@ -38,7 +39,7 @@ training material held out once in ``--folds`` inner folds, each fold's model tr
 per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
-design shipped before round 10 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
+design shipped before round 11 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
@@ -86,11 +87,14 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # seeded validation (SEEDED_VALIDATION) chose a power per scene from 29 samples.
 # "fresh6" was fixed on 3 December 2026 (issue 29 round 10, branch h/29r10) before any run, after the
 # seeded validation chose a floor of 6,000 up to 14 samples and the power per scene from 15.
+# "fresh7" was fixed on 3 December 2026 (issue 29 round 11, branch h/29r11) before any run, after the
+# seeded validation chose a power per scene with 3,300 cells up to 14 samples (p = 1 keeping the floor).
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
-              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24"}
+              "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24",
+              "fresh7": "builtin-random:7:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
-# seeds are 1 to 6); candidates may be chosen on these.
+# seeds are 1 to 7); candidates may be chosen on these.
 SEEDED_VALIDATION = ("builtin-random:101:24", "builtin-random:102:24")
 
 
@@ -128,7 +132,8 @@ def parse(argv=None):
                         "builtin-random:2:24 (issue 29 round 7, never run before it); fresh3: builtin-random:3:24 "
                         "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
                         "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it); fresh6: "
-                        "builtin-random:6:24 (issue 29 round 10, never run before it)")
+                        "builtin-random:6:24 (issue 29 round 10, never run before it); fresh7: builtin-random:7:24 (issue 29 round 11, "
+                        "never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")
@@ -215,21 +220,43 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # with 4,000 (round 9's rule: retro sphere 0.75, grazing plane 0.5, top light 1) and p = 1 with a
 # floor of 6,000; the band 15-28 chosen at m = 20 between the shipped p = 0.25 and the power per
 # scene with 4,000 cells (CHOOSE_AMONG); m = 6 is reported only.
-CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 3000": ((0.5, 0.75, 1.0), 1.0, 1.0, 3000.0),
-              "p-cells 4000": ((0.5, 0.75, 1.0), 1.0, 1.0, 4000.0), "floor 6000": (1.0, 1.0, 1.0, 6000.0)}
+# Round 10's candidates ("p-cells 3000", "p-cells 4000", "floor 6000") are in its section.
+# Round 11 (issue 29, ``--validation-set seeded``, ``--m 6 10``; fixed before any result in
+# /work/scratch29r11/DECISION.txt): the band up to 14 samples chosen at m = 10 between the shipped
+# design (p = 1, t up to 1, F = 6,000) and a power per scene with 3,300 cells whose p = 1 scenes keep
+# the shipped floor: F a pair (cells, floor), the power chosen at t = 1 without a floor by the first,
+# the second the floor on t when the scene's power is the tuple's largest (the floor belongs to p = 1).
+# On the 151-material model 3,300 lies between the grazing plane's 3,063 cells at p = 0.75 and the
+# retro sphere's 3,553 at p = 1: the grazing plane takes p = 0.5 (t = 1), the retro sphere and top
+# light p = 1 with the floor (the shipped design there). m = 6 is reported only.
+CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 3300 + floor": ((0.5, 0.75, 1.0), 1.0, 1.0, (3300.0, 6000.0))}
 # Per m, the candidates ``choose_rule`` chooses among (the band's own; an m not here chooses among
 # every candidate, and the round's section says which m decide).
-CHOOSE_AMONG = {10: ("shipped", "p-cells 3000", "p-cells 4000", "floor 6000"), 20: ("shipped", "p-cells 4000")}
+CHOOSE_AMONG = {10: ("shipped", "p-cells 3300 + floor")}
+# Round 11's rule (``choose_rule``): a candidate with a (scene, family) median ratio to blind above 1,
+# over the families with at least FAMILY_MIN validation materials, is discarded when another
+# candidate has none (the worst-scene median hid the grazing plane's fabrics at 8.9x blind in round 10).
+FAMILY_MIN = 4
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 10 (round 9's), which the test run renders beside the
-# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 3,000 effective
-# cells; 15 to 28 p = 0.25, t = 1 for every scene (BEFORE_BANDS: the last m of the band, (p, t, F));
-# from 29 the scene's power, the same design as shipped (rendered once). (Round 9's "before (round
-# 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections of
-# BENCHMARKS.md.)
-BEFORE = "before (round 9)"
-BEFORE_BANDS = ((14, (1.0, 1.0, 3000.0)), (28, (0.25, 1.0, 0.0)))
+# The key of the shipped design before round 11 (round 10's), which the test run renders beside the
+# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 6,000 effective
+# cells for every scene (BEFORE_BANDS: the last m of the band, (p, t, F)); from 15 the scene's power,
+# the same design as shipped (rendered once). (Round 10's "before (round 9)", round 9's "before
+# (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
+# of BENCHMARKS.md.)
+BEFORE = "before (round 10)"
+BEFORE_BANDS = ((14, (1.0, 1.0, 6000.0)),)
+
+
+def candidate_power(model, usage: np.ndarray, powers, hedge: float, spread: float, cells) -> tuple[float, float]:
+    """(p, F) of a candidate with a power per scene (a tuple p of CANDIDATES): p the largest of
+    ``powers`` whose weights at ``spread`` (no floor) keep ``cells`` effective cells (``scene_power``);
+    ``cells`` a pair (cells, floor): F the floor when p is the largest of ``powers``, else 0; a number:
+    F = 0 (no floor on t)."""
+    cells, floor = cells if isinstance(cells, tuple) else (cells, 0.0)
+    p = scene_power(model, usage, powers, hedge, spread, cells)
+    return p, (floor if p == max(powers) else 0.0)
 
 
 def scene_power(model, usage: np.ndarray, powers, hedge: float, spread: float, floor: float) -> float:
@@ -254,7 +281,7 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     for s, u in usage.items():
         for name, (p, a, t, f) in candidates.items():
             if isinstance(p, tuple):
-                p, f = scene_power(model, u, p, a, t, f), 0.0
+                p, f = candidate_power(model, u, p, a, t, f)
             if p is None:
                 for m in ms:
                     designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t,
@@ -281,10 +308,10 @@ def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict
         out[s] = {}
         for name, (p, a, t, f) in candidates.items():
             if p is None:  # the shipped rule's power for this scene (the band's, or the scene's of the band's)
-                p, t, f = (usage_design.scene_power(model, u, m), prior_spread(m) if t is None else t,
-                           spread_floor(m) if f is None else f)
+                p = usage_design.scene_power(model, u, m)
+                t, f = prior_spread(m) if t is None else t, spread_floor(m, p) if f is None else f
             elif isinstance(p, tuple):
-                p, f = scene_power(model, u, p, a, t, f), 0.0
+                p, f = candidate_power(model, u, p, a, t, f)
             t, f = prior_spread(m) if t is None else t, 0.0 if f is None else f
             weights, used = design_weights(model, u, p, a, t, f)
             out[s][name] = [p, used, effective_cells(weights)]
@@ -392,13 +419,56 @@ def medians(rows: list[dict], key="image_rel_mse") -> dict:
 def choose_rule(rows: list[dict], ms: list[int]) -> tuple[dict, dict]:
     """Per m, the candidate (of CHOOSE_AMONG[m], else CANDIDATES) whose worst scene is best: the lowest
     over them of the highest over scenes of its median direct-render image error / the blind design's (the
-    goal's measure, per cell); ties to the earlier candidate. Fixed before the test run and
-    applied to the validation rows only. Returns ({m: name}, {(m, name): worst ratio})."""
+    goal's measure, per cell); ties to the earlier candidate. Before that (round 11) a candidate with
+    a (scene, family) median ratio above 1 (``family_ratios``, families of FAMILY_MIN materials or
+    more) is left out when another candidate has none. Fixed before the test run and applied to the
+    validation rows only. Returns ({m: name}, {(m, name): worst ratio})."""
     med = medians(rows)
     scenes = sorted({s for s, _, _, _ in med})
     score = {(m, w): max(med[(s, m, w, "direct")] / med[(s, m, "blind", "direct")] for s in scenes)
              for m in ms for w in CANDIDATES}
-    return {m: min(CHOOSE_AMONG.get(m, CANDIDATES), key=lambda w: score[(m, w)]) for m in ms}, score
+    choice = {}
+    for m in ms:
+        among = CHOOSE_AMONG.get(m, tuple(CANDIDATES))
+        clean = [w for w in among if max(family_ratios(rows, m, w).values(), default=0.0) <= 1.0]
+        choice[m] = min(clean or among, key=lambda w: score[(m, w)])
+    return choice, score
+
+
+def family(name: str) -> str | None:
+    """The built-in family of a seeded analytic material (``r{seed}-{index}-{family}``), else None."""
+    parts = name.split("-", 2)
+    return parts[2] if len(parts) == 3 and parts[0][:1] == "r" and parts[1].isdigit() else None
+
+
+def family_ratios(rows: list[dict], m: int, design: str, least: int = FAMILY_MIN) -> dict:
+    """{(scene, family): median over the family's materials of the design's direct-render image
+    error / the blind design's at m}, for the families with at least ``least`` materials."""
+    by: dict = {}
+    for r in rows:
+        if r["m"] == m and r["render"] == "direct" and r["design"] in ("blind", design) and family(r["material"]):
+            by.setdefault((r["scene"], family(r["material"]), r["material"]), {})[r["design"]] = r["image_rel_mse"]
+    groups: dict = {}
+    for (s, fam, _), v in by.items():
+        if len(v) == 2:
+            groups.setdefault((s, fam), []).append(v[design] / v["blind"])
+    return {k: float(np.median(v)) for k, v in groups.items() if len(v) >= least}
+
+
+def family_table(rows: list[dict], ms: list[int]) -> str:
+    """Per scene, m and family (of any size, its count beside it): each candidate's median ratio to blind."""
+    lines = ["| scene | m | family (n) | " + " | ".join(CANDIDATES) + " |", "|---|---|---|" + "---|" * len(CANDIDATES)]
+    for m in ms:
+        ratios = {w: family_ratios(rows, m, w, least=1) for w in CANDIDATES}
+        counts: dict = {}
+        for r in rows:
+            if r["m"] == m and r["design"] == "blind" and r["render"] == "direct" and family(r["material"]):
+                counts[(r["scene"], family(r["material"]))] = counts.get((r["scene"], family(r["material"])), 0) + 1
+        for s in SCENES:
+            for fam in sorted({f for (s2, f) in counts if s2 == s}):
+                lines.append(f"| {s} | {m} | {fam} ({counts[(s, fam)]}) | "
+                             + " | ".join(f"{ratios[w].get((s, fam), float('nan')):.2f}" for w in CANDIDATES) + " |")
+    return "\n".join(lines)
 
 
 def validation(specs, grid, training: list[str], folds: int, usage, direct, ms, spp, t0, out: Path,
@@ -481,6 +551,7 @@ def main(argv=None) -> int:
         print(f"chosen on {len({r['material'] for r in v_rows})} validation materials: {choice} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         print(validation_table(v_rows, ms))
+        print(family_table(v_rows, ms))
         (args.out / "validation.json").write_text(json.dumps(
             {"choice": {str(m): c for m, c in choice.items()},
              "scores": {f"{m} {w}": v for (m, w), v in scores.items()}, "rows": v_rows}, indent=1))
@@ -498,7 +569,7 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 10 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
+    # the shipped design before round 11 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
     # from 29 samples: rendered once)
     for m in ms + fewer:
         before = next((d for last, d in BEFORE_BANDS if m <= last), None)

@@ -24,6 +24,17 @@ def model():
                  k_max=15, cache=True)
 
 
+@pytest.fixture
+def p1_up_to_14(monkeypatch):
+    """Every scene's power 1 up to 14 samples (the first band's count of effective cells patched to
+    0): the tests of the p = 1 design with its floor and of the phases of an error target. On this
+    grid (42k valid cells) the shipped 3,300 cells, counted on the full grid's 1.1 million, leave a
+    small map p = 0.5 (issue 29 round 11)."""
+    from goniofrost.frost import usage_design
+
+    monkeypatch.setitem(usage_design.BAND_POWERS, usage_design.FEW_SAMPLES, (usage_design.POWERS_FEW, 0.0))
+
+
 @pytest.fixture(scope="module")
 def model_dir(model):
     from goniofrost.core.cache import cache_path
@@ -156,7 +167,7 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
     assert ratios[4] < 0.8 and max(ratios.values()) <= 1.0, ratios
 
 
-def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_use_alone(model):
+def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_use_alone(model, p1_up_to_14):
     """The default design of m samples is the mapped-error design of u g^p with p the power for m
     (``sensitivity_power``; 1 at 12 samples), while its predicted errors stay those of u: the same
     as the prediction from trace(M_u Sigma) of its picks."""
@@ -197,7 +208,7 @@ def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
     from 15 samples the last band's powers, 0.5 the least), each m taking the choice of the nearest
     of them on a log scale (boundaries sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3). p = 0.25 (the
     band 15-28 before round 10) is no band's now."""
-    from goniofrost.frost.usage_design import (FEW_SAMPLES, MANY_SAMPLES, floor_of_power, prior_spread,
+    from goniofrost.frost.usage_design import (BAND_POWERS, FEW_SAMPLES, MANY_SAMPLES, floor_of_power, prior_spread,
                                                sensitivity_power, spread_floor, spread_of_power)
 
     assert FEW_SAMPLES == int(np.sqrt(10 * 20)) and MANY_SAMPLES == int(np.sqrt(20 * 40))
@@ -207,12 +218,16 @@ def test_the_sensitivity_power_and_prior_spread_follow_the_number_of_samples():
     assert [spread_floor(m) for m in (1, 10, 14, 15, 20, 28, 29, 40, 1000)] == [6000.0] * 3 + [0.0] * 6
     assert [spread_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [1.0, 0.0, 1.0, 1.0, 0.0]
     assert [floor_of_power(p) for p in (1.0, 0.25, 0.5, 0.75, 2.0)] == [6000.0, 0.0, 0.0, 0.0, 0.0]
+    # round 11: up to 14 samples a power per scene of 0.5, 0.75, 1 keeping 3,300 cells; the floor is p = 1's
+    assert BAND_POWERS[FEW_SAMPLES] == ((0.5, 0.75, 1.0), 3300.0)
+    assert [spread_floor(10, p) for p in (1.0, 0.75, 0.5)] == [6000.0, 0.0, 0.0]
+    assert [spread_floor(20, p) for p in (1.0, 0.75, 0.5)] == [0.0] * 3
     for rule in (sensitivity_power, prior_spread, spread_floor):
         with pytest.raises(ValueError, match="positive integer"):
             rule(0)
 
 
-def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
+def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model, p1_up_to_14):
     """select_bayes without a power (what plan --usage does) equals the design of the power for m:
     p = 1 at 14 samples, the scene's power at 15 (which differ, so the boundary is where the rule
     puts it)."""
@@ -227,7 +242,7 @@ def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model):
     assert few.positions.tolist() != many.positions[:14].tolist()
 
 
-def test_an_error_target_ends_on_the_design_of_its_own_length(model):
+def test_an_error_target_ends_on_the_design_of_its_own_length(model, p1_up_to_14):
     """plan --max-error --usage: the design of p = 1 (t up to 1, the floor) up to 14 picks; when it
     does not reach the target there, the design of the scene's power from 15 (t = 1, no floor) with
     more than 14. Either way the plan is the --samples n plan of its length n, and the design of
@@ -265,7 +280,8 @@ def test_an_error_target_ends_on_the_design_of_its_own_length(model):
     assert asked == set(calibrations)  # each band's design asked for its own calibration
 
 
-def test_plan_with_an_error_target_and_a_usage_map_records_the_power_of_its_length(model, model_dir, tmp_path):
+def test_plan_with_an_error_target_and_a_usage_map_records_the_power_of_its_length(model, model_dir, tmp_path,
+                                                                                     p1_up_to_14):
     """plan --max-error --usage: a target the design of p = 1 reaches within 14 samples gives a plan
     of p = 1, one it does not a longer plan of the scene's power from 15 samples (PLAN.json
     usage.sensitivity_power), each meeting the target by the scene's calibration of its own design."""
@@ -398,9 +414,9 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
-    # --test-set fresh5 (round 9) and fresh6 (round 10): seeds 5 and 6, none of the seeded validation's
-    # (seeds 101 and 102)
-    for seed in (5, 6):
+    # --test-set fresh5 (round 9), fresh6 (round 10) and fresh7 (round 11): seeds 5 to 7, none of the
+    # seeded validation's (seeds 101 and 102)
+    for seed in (5, 6, 7):
         _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
             ["--out", "unused", "--test-set", f"fresh{seed}"]))
         assert test_specs6 == [f"builtin-random:{seed}:24"] and training6 == training and len(test6) == 24
@@ -561,8 +577,10 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
     assert prior_spread(12) == 1.0 and spread_floor(12) == 6000.0 and prior_spread(20) == 1.0
-    assert select_bayes(model, 12, usage=usage).positions.tolist() == \
-        select_bayes(model, 12, usage=usage, prior_spread=1.0, spread_floor=6000.0).positions.tolist()
+    power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor)
+    assert select_bayes(model, 12, usage=usage).positions.tolist() == select_bayes(
+        model, 12, usage=usage, sensitivity_power=power, prior_spread=1.0,
+        spread_floor=spread_floor(12, power)).positions.tolist()
     assert select_bayes(model, 20, usage=usage).positions.tolist() == select_bayes(
         model, 20, usage=usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
@@ -645,7 +663,7 @@ def test_the_floor_sets_the_spread_of_a_scene_design(model):
         select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)
 
 
-def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir, tmp_path, monkeypatch):
+def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir, tmp_path, monkeypatch, p1_up_to_14):
     """With a floor F in the band (usage_design.BANDS), plan --usage designs with the largest t up
     to the band's that keeps F effective cells for this scene and records that t
     (usage.prior_spread) and F (usage.spread_floor); its cells are select_bayes's with them. (The
@@ -707,8 +725,9 @@ def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effecti
     assert cells[1.0] < cells[0.75] < cells[0.5]  # the larger the power, the fewer cells
     kept = [p for p in (0.75, 1.0) if cells[p] >= 4000.0]
     assert scene_power(model, usage, 40) == (max(kept) if kept else 0.5)
-    # below, the first band's p alone; from 15 (round 10) the same powers as from 29
-    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [1.0, 1.0] + [scene_power(model, usage, 40)] * 2
+    # up to 14 (round 11) the same powers keeping 3,300 cells; from 15 (round 10) the same as from 29
+    few = max([p for p in (0.75, 1.0) if cells[p] >= 3300.0], default=0.5)
+    assert [scene_power(model, usage, m) for m in (10, 14, 20, 28)] == [few] * 2 + [scene_power(model, usage, 40)] * 2
     uniform = np.full(model.grid.n_valid, 1.0 / model.grid.n_valid)
     assert scene_power(model, uniform, 40) == 0.5
     for floor, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
@@ -731,3 +750,49 @@ def test_plan_from_29_samples_records_the_scenes_own_power(model, model_dir, tmp
     doc = json.loads(out.read_text())
     assert doc["usage"]["sensitivity_power"] == scene_power(model, retro_map(), 30)
     assert "the largest of 0.5, 0.75, 1 keeping 4000 effective cells, for 30 samples" in capsys.readouterr().out
+
+
+def test_up_to_14_samples_each_scene_takes_the_largest_power_keeping_3300_cells_and_p1_the_floor(model, monkeypatch):
+    """Issue 29 round 11: up to 14 samples a scene's power is the largest of 0.5, 0.75 and 1 whose
+    weights at t = 1 without a floor keep POWER_CELLS_FEW effective cells, 0.5 when none larger
+    does; a scene of p = 1 takes t up to 1 with the floor FLOOR_FEW, one of a smaller power t = 1
+    without a floor. select_bayes's default is that design and reports its power and spread. (The
+    counts are patched to this grid's scale: the shipped ones are of the full grid.)"""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, scene_power
+
+    usage = retro_map()
+    cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
+    at_zero = effective_cells(design_usage(model, usage, 1.0))
+    floor = 0.5 * (cells[1.0] + at_zero)  # binds p = 1 at t = 1, not at t = 0
+    monkeypatch.setattr(usage_design, "BANDS", ((14, 1.0, 1.0, floor),) + usage_design.BANDS[1:])
+    for count, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
+        monkeypatch.setitem(usage_design.BAND_POWERS, 14, (usage_design.POWERS_FEW, count))
+        assert scene_power(model, usage, 10) == power
+        chosen = select_bayes(model, 10, usage=usage)
+        t = design_spread(model, usage, 1.0, spread=1.0, floor=floor) if power == 1.0 else 1.0
+        assert chosen.sensitivity_power == power and chosen.prior_spread == t
+        assert (0 < t < 1) is (power == 1.0)  # the floor binds p = 1 only
+        assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=power, prior_spread=1.0,
+                                                         spread_floor=floor if power == 1.0 else 0.0).positions.tolist()
+
+
+def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
+    """Issue 29 round 11, per shipped scene (usage maps recorded on this 30 x 30 x 60 grid): the
+    design of 10 samples takes the largest of 0.5, 0.75, 1 whose weights at t = 1 keep 3,300
+    effective cells, t = 1 without a floor below p = 1; the counts, of the full grid's cells, leave
+    every scene of this small grid 0.5 (the full-grid model of 151 materials gives the grazing plane
+    0.5 and the retro sphere and top light 1, BENCHMARKS.md "Issue 29, round 11")."""
+    from goniofrost.brdf.mitsuba_usage import record_usage
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import POWER_CELLS_FEW, design_usage, effective_cells
+
+    for scene in ("retro-sphere", "grazing-plane", "top-light"):
+        usage, _ = record_usage(SCENES / f"{scene}.xml", "sample", spp=2, grid=GRID)
+        cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
+        power = max([p for p in (0.75, 1.0) if cells[p] >= POWER_CELLS_FEW], default=0.5)
+        chosen = select_bayes(model, 10, usage=usage)
+        assert power == 0.5 and chosen.sensitivity_power == power and chosen.prior_spread == 1.0, scene
+        assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
+                                                         spread_floor=0.0).positions.tolist()

@@ -193,10 +193,10 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
     change of basis; False computes it the long way, for tests).
     sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
-    of samples and the scene, ``usage_design.scene_power(model, usage, m)`` (the band's,
-    ``usage_design.sensitivity_power(m)``, or above FEW_SAMPLES the largest of the band's powers
-    whose weights keep its count of effective cells). With max_error and p None the design of
-    POWER_FEW runs up to FEW_SAMPLES picks; when it does not reach the target there, the design of
+    of samples and the scene, ``usage_design.scene_power(model, usage, m)`` (the largest of the
+    band's powers whose weights keep its count of effective cells). With max_error and p None the
+    design of the scene's power of the first band runs up to FEW_SAMPLES picks; when it does not
+    reach the target there, the design of
     the next band (``usage_design.BANDS``: the scene's power of the band up to MANY_SAMPLES, then
     of the last band, the same since issue 29 round 10) runs from
     the start until it does with more picks than the band before allows. Either way the
@@ -208,8 +208,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     each phase's band; with max_error and p given, 0).
     spread_floor: F, a floor on the effective cells 1 / sum w^2 of the design's weights (cells;
     ``usage_design.floor_spread``): the spread is then the largest t in [0, prior_spread] that
-    keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band when
-    prior_spread is None too (``usage_design.spread_floor(m)``, each phase's with max_error), else 0.
+    keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band for the
+    design's power when prior_spread is None too (``usage_design.spread_floor(m, p)``: up to
+    FEW_SAMPLES the floor of p = 1 only; each phase's with max_error), else 0.
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the design's power p,
     largest spread t and floor F (cells) returning it (a scene's calibration depends on the design
@@ -238,7 +239,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         if scene and power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
             power = usage_design.scene_power(model, usage, m, variance)
-        spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene)
+        spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
         calib = calibration_for(power, spread, cells_floor)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
@@ -247,10 +248,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
-        for i, (last, _, band_spread, band_floor) in enumerate(usage_design.BANDS):
-            power = usage_design.scene_power(model, usage, start_m + 1, variance)  # the band's, or the scene's in it
+        for i, (last, _, band_spread, _) in enumerate(usage_design.BANDS):
+            power = usage_design.scene_power(model, usage, start_m + 1, variance)  # the scene's of the band's
             spread = band_spread if prior_spread is None else prior_spread
-            cells_floor = _floor(spread_floor, prior_spread, None, True, band_floor)
+            cells_floor = _floor(spread_floor, prior_spread, None, True, power,
+                                 usage_design.spread_floor(start_m + 1, power))
             calib = calibration_for(power, spread, cells_floor)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
@@ -282,18 +284,18 @@ def _spread(spread, m, scene: bool) -> float:
     return 0.0 if m is None else usage_design.prior_spread(m)
 
 
-def _floor(floor, spread, m, scene: bool, band_floor: float | None = None) -> float:
-    """The floor F on the effective cells of a scene design of m samples (select_bayes's
-    spread_floor): ``floor`` when given, else the band's (``band_floor``, or that of m,
-    ``usage_design.spread_floor``) when the spread is the band's too (``spread`` None), else 0;
-    0 without a scene or without m."""
+def _floor(floor, spread, m, scene: bool, power: float | None = None, band_floor: float | None = None) -> float:
+    """The floor F on the effective cells of a scene design of m samples at ``power`` (select_bayes's
+    spread_floor): ``floor`` when given, else the band's for that power (``band_floor``, or that of
+    m, ``usage_design.spread_floor``: up to 14 samples p = 1's only) when the spread is the band's
+    too (``spread`` None), else 0; 0 without a scene or without m."""
     if floor is not None:
         return usage_design.check_floor(floor)
     if not scene or spread is not None:
         return 0.0
     if band_floor is not None:
         return band_floor
-    return 0.0 if m is None else usage_design.spread_floor(m)
+    return 0.0 if m is None else usage_design.spread_floor(m, power)
 
 
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,

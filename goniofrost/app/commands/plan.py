@@ -102,8 +102,9 @@ def run(args) -> int:
         # the power and spread this scene's design used (the selection's own, not computed again):
         # the band's, or the scene's of the band's powers; with a floor on the weights' effective
         # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
-        power, floor, spread = selection.sensitivity_power, spread_floor(selection.m), selection.prior_spread
+        power, spread = selection.sensitivity_power, selection.prior_spread
         power = sensitivity_power(selection.m) if power is None else power
+        floor = spread_floor(selection.m, power)  # the band's floor belongs to its own power
         scene = scene_for(power, prior_spread(selection.m), floor)
         powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
