@@ -70,7 +70,7 @@ def test_the_scheduled_plan_records_its_steps_and_puts_its_joints_on_them():
 
 
 def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path, monkeypatch):
-    """``benchmarks/command_steps.py --smallest``: 12 samples, 2 built-in materials. The joints on
+    """``benchmarks/command_steps.py --smallest``: 12 samples, 2 built-in materials, a model of 25. The joints on
     the lattices by the index metric never end farther from their cells than the rounded ones, and each error is the
     reconstruction's from the material's values at the directions reached (exact at the cells:
     the ratio 1 is what no positioning error can beat)."""
@@ -86,7 +86,9 @@ def test_the_benchmark_at_its_smallest_compares_both_with_exact_values(tmp_path,
     result = json.loads((tmp_path / "steps.json").read_text())
     miss = {k: np.array(v) for k, v in result["models"][0]["miss"].items()}
     # the index metric's joints never farther in it than rounding (plan's weigh each axis by the model)
-    assert np.all(miss["index"] <= miss["rounded"]) and miss["rounded"].max() > 0.1
+    # (and rounding misses visibly: the comparison is not of two exact answers)
+    assert np.all(miss["index"] <= miss["rounded"]) and np.any(miss["index"] < miss["rounded"])
+    assert miss["rounded"].max() > 0.1
     assert [r["material"] for r in result["rows"]] == ["gold", "red-plastic"]
     for row in result["rows"]:
         assert all(0 < row[k] < 1 for k in ("rounded", "index", "on_steps", "exact"))
