@@ -54,7 +54,7 @@ def parse(argv=None):
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--setting", choices=("split", "builtin"), default="split")
     p.add_argument("--folds", type=int, default=7)
-    p.add_argument("--smallest", action="store_true", help="30 x 30 x 60 grid, 6 samples, 2 built-in test materials")
+    p.add_argument("--smallest", action="store_true", help="30 x 30 x 60 grid, a model of every third built-in material, 6 samples, 2 built-in test materials")
     return p.parse_args(argv)
 
 
