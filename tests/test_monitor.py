@@ -351,8 +351,10 @@ def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
     import sys
     import urllib.request
 
-    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(finished), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # -X faulthandler: should it outlive Ctrl-C, SIGABRT prints every thread's stack (it did once in a
+    # loaded suite run on 3 December, with no stack to read; 150 runs of this sequence alone never did)
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "goniofrost", "monitor", str(finished),
+                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
         url = re.fullmatch(rf"goniofrost monitor: (http://127\.0\.0\.1:\d+/) shows {re.escape(str(finished))} "
@@ -361,6 +363,11 @@ def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
         assert state["state"] == "finished" and state["count_text"] == f"{M} of {M} samples"
         assert b"<title>goniofrost monitor</title>" in urllib.request.urlopen(url, timeout=10).read()
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0  # a bound, not a wait: on a loaded machine 10 s was seen to pass
+        try:  # communicate, not wait: it drains both pipes, so a chatty child cannot block on a full one
+            _, err = proc.communicate(timeout=60)  # a bound, not a wait: on a loaded machine 10 s was seen to pass
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)
+            pytest.fail(f"goniofrost monitor outlived Ctrl-C by 60 s; its threads:\n{proc.communicate()[1][-8000:]}")
+        assert proc.returncode == 0, err
     finally:
         proc.kill()
