@@ -140,6 +140,16 @@ POWERS_FEW = (0.5, 0.75, 1.0)
 POWER_CELLS_FEW = 3300.0
 BAND_POWERS = {FEW_SAMPLES: (POWERS_FEW, POWER_CELLS_FEW), MANY_SAMPLES: (POWERS_MOST, POWER_FLOOR_MOST),
                None: (POWERS_MOST, POWER_FLOOR_MOST)}
+# A mix of two designs up to FEW_SAMPLES (issue 29 round 12, BENCHMARKS.md "Issue 29, round 12"): a
+# scene whose power (``scene_power``) is below the band's own p = 1 may weigh
+# w = a w(MIX_DESIGN) + (1 - a) w(its p, t = 1, no floor), each part summing to 1
+# (``mixed_weights``), so that its samples go both to the specular cells the p = 1 design finds
+# and to the broad region of the smaller power. MIX_FEW is the share a of the p = 1 design
+# (0: no mix, round 11's design); a scene of p = 1 is never mixed (``design_mix``).
+MIX_FEW = 0.0
+# The design mixed in: (p, largest t, F) of the band up to FEW_SAMPLES for its own power.
+MIX_DESIGN = (POWER_FEW, SPREAD_FEW, FLOOR_FEW)
+BAND_MIX = {FEW_SAMPLES: MIX_FEW, MANY_SAMPLES: 0.0, None: 0.0}
 # The bisection's tolerance on t in ``floor_spread`` (t is within this of the largest t keeping the floor).
 SPREAD_TOLERANCE = 0.01
 # The power of the earlier rule, one for every m (the benchmark compares against it).
@@ -222,6 +232,24 @@ def spread_floor(m: int, power: float | None = None) -> float:
     the band (BAND_POWERS; up to FEW_SAMPLES the floor binds p = 1 only)."""
     _, own, _, floor = band(m)
     return floor if power is None or power == own else 0.0
+
+
+def design_mix(m: int, power: float, share: float | None = None) -> float:
+    """The share a of MIX_DESIGN in a scene design of m samples at ``power`` (``mixed_weights``):
+    ``share`` (None: the band's, BAND_MIX) when ``power`` is not the band's own p, 0 when it is (a
+    scene of the band's own power keeps its design)."""
+    last, own, _, _ = band(m)
+    share = BAND_MIX[last] if share is None else float(share)
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"usage_design: the share of the mixed-in design must be in [0, 1], found {share!r}")
+    return 0.0 if power == own else share
+
+
+def design_key(power: float, spread: float, floor: float, mix: float = 0.0) -> tuple:
+    """The key of a scene design's calibration (and of its weights): (p, largest t, F), with the
+    share a of MIX_DESIGN appended when the design is mixed (a > 0; ``mixed_weights``), so a mixed
+    design never shares an unmixed one's calibration."""
+    return (power, spread, floor) + ((mix,) if mix else ())
 
 
 def _band_of_power(power: float) -> tuple:
@@ -409,7 +437,7 @@ def prior_cell_variance(dictionary, prior_var: np.ndarray) -> np.ndarray:
 
 
 def design_usage(model, usage: np.ndarray, power: float, hedge: float = HEDGE, spread: float = 0.0,
-                 floor: float = 0.0) -> np.ndarray:
+                 floor: float = 0.0, mix: float = 0.0) -> np.ndarray:
     """The weights the scene-aware design minimises the mapped error under (module doc): float64
     (n,) (1 - hedge) / n + hedge u g^power exp(spread power^2 v / 2) / sum, sum 1: the plain
     design's weight (every cell alike) and the scene's, mixed (``linear_usage``; spread t = 0: g at
@@ -418,8 +446,9 @@ def design_usage(model, usage: np.ndarray, power: float, hedge: float = HEDGE, s
     ``floor`` F (cells; 0, the default: none): the spread is the largest t in [0, spread] whose
     scene weights keep F effective cells, per scene (``floor_spread``; ``design_spread`` says which).
     ``usage``: (n_valid,) sum 1; ``model``: its mean, reference, weight and eps give g, its
-    dictionary and prior variances v."""
-    return design_weights(model, usage, power, hedge, spread, floor)[0]
+    dictionary and prior variances v. ``mix`` a > 0: mixed with MIX_DESIGN's weights
+    (``mixed_weights``)."""
+    return design_weights(model, usage, power, hedge, spread, floor, mix=mix)[0]
 
 
 def design_spread(model, usage: np.ndarray, power: float, spread: float = 0.0, floor: float = 0.0) -> float:
@@ -428,15 +457,19 @@ def design_spread(model, usage: np.ndarray, power: float, spread: float = 0.0, f
     return design_weights(model, usage, power, 1.0, spread, floor)[1]
 
 
-def design_weights(model, usage, power, hedge, spread, floor, variance=None) -> tuple[np.ndarray, float]:
+def design_weights(model, usage, power, hedge, spread, floor, variance=None,
+                   mix: float = 0.0) -> tuple[np.ndarray, float]:
     """(``design_usage``'s weights, the spread t they were made with): what a design needs, and
     what its plan records, from one computation of the weights. variance: a function returning
     the cells' prior variance (``cell_variance_of``, shared by several weights of one model),
-    None: computed here when the spread needs it."""
+    None: computed here when the spread needs it. ``mix`` a > 0: the weights mixed with
+    MIX_DESIGN's (``mixed_weights``; the t returned is the scene's own power's)."""
     floor = check_floor(floor)
     usage = np.asarray(usage, dtype=np.float64)
     if is_uniform(usage) or (power == 0 and hedge == 1):
         return usage, 0.0
+    if mix:
+        return mixed_weights(model, usage, power, hedge, spread, floor, mix, variance)
     if power == 0:
         scene, spread = usage, 0.0
     else:
@@ -444,3 +477,16 @@ def design_weights(model, usage, power, hedge, spread, floor, variance=None) -> 
         scene, spread = scene_weights(usage, model.mean, model.reference, model.weight, model.eps, power, v,
                                       spread, floor)
     return (scene if hedge == 1 else (1.0 - hedge) / usage.size + hedge * scene), spread
+
+
+def mixed_weights(model, usage, power, hedge, spread, floor, mix, variance=None) -> tuple[np.ndarray, float]:
+    """(weights float64 (n,) sum 1, the t of the scene's own part): a w(MIX_DESIGN) + (1 - a) w(power,
+    spread, floor), each part ``design_weights``'s (at ``hedge``) normalised to sum 1, a = ``mix`` in
+    [0, 1] (issue 29 round 12, the comment at MIX_FEW)."""
+    if not 0.0 <= mix <= 1.0:
+        raise ValueError(f"usage_design: the share of the mixed-in design must be in [0, 1], found {mix!r}")
+    variance = variance or cell_variance_of(model)  # one pass over D for both parts
+    p1, t1, f1 = MIX_DESIGN
+    mixed_in = design_weights(model, usage, p1, hedge, t1, f1, variance)[0]
+    own, used = design_weights(model, usage, power, hedge, spread, floor, variance)
+    return mix * mixed_in / mixed_in.sum() + (1.0 - mix) * own / own.sum(), used
