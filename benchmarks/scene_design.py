@@ -39,7 +39,7 @@ training material held out once in ``--folds`` inner folds, each fold's model tr
 per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
-design shipped before round 11 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
+design shipped before round 12 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
@@ -89,9 +89,11 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # seeded validation chose a floor of 6,000 up to 14 samples and the power per scene from 15.
 # "fresh7" was fixed on 3 December 2026 (issue 29 round 11, branch h/29r11) before any run, after the
 # seeded validation chose a power per scene with 3,300 cells up to 14 samples (p = 1 keeping the floor).
+# "fresh8" was fixed on 3 December 2026 (issue 29 round 12, branch h/29r12) before any run, after the
+# seeded validation chose the mix of the p = 1 floor design into a scene of p < 1 up to 14 samples.
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
               "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24",
-              "fresh7": "builtin-random:7:24"}
+              "fresh7": "builtin-random:7:24", "fresh8": "builtin-random:8:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
 # seeds are 1 to 7); candidates may be chosen on these.
@@ -252,14 +254,15 @@ FAMILY_MIN = 4
 TIE_TOLERANCE = 0.005
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 11 (round 10's), which the test run renders beside the
-# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 6,000 effective
-# cells for every scene (BEFORE_BANDS: the last m of the band, (p, t, F)); from 15 the scene's power,
-# the same design as shipped (rendered once). (Round 10's "before (round 9)", round 9's "before
+# The key of the shipped design before round 12 (round 11's), which the test run renders beside the
+# shipped one (at m and at 0.6 m): up to 14 samples select_bayes's default without the mix (a power
+# per scene, p = 1 with the floor of 6,000 effective cells, p < 1 t = 1 unmixed; BEFORE_BANDS: the
+# last m of the band, select_bayes's keyword arguments); from 15 the same design as shipped
+# (rendered once). (Round 11's "before (round 10)", round 10's "before (round 9)", round 9's "before
 # (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
 # of BENCHMARKS.md.)
-BEFORE = "before (round 10)"
-BEFORE_BANDS = ((14, (1.0, 1.0, 6000.0)),)
+BEFORE = "before (round 11)"
+BEFORE_BANDS = ((14, {"mix": 0.0}),)
 
 
 def candidate_power(model, usage: np.ndarray, powers, hedge: float, spread: float, cells) -> tuple[float, float]:
@@ -601,13 +604,12 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 11 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
+    # the shipped design before round 12 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
     # from 29 samples: rendered once)
     for m in ms + fewer:
         before = next((d for last, d in BEFORE_BANDS if m <= last), None)
         designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if before is None else
-                           select_bayes(model, m, usage=u, sensitivity_power=before[0], prior_spread=before[1],
-                                        spread_floor=before[2]).positions
+                           select_bayes(model, m, usage=u, **before).positions
                            for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}
