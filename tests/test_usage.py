@@ -546,7 +546,8 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, scene_power, spread_floor
+    from goniofrost.frost.usage_design import (design_mix, design_usage, prior_cell_variance, prior_spread, scene_power,
+                                               spread_floor)
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -577,10 +578,10 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
     assert prior_spread(12) == 1.0 and spread_floor(12) == 6000.0 and prior_spread(20) == 1.0
-    power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor)
+    power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor; mixed, round 12)
     assert select_bayes(model, 12, usage=usage).positions.tolist() == select_bayes(
         model, 12, usage=usage, sensitivity_power=power, prior_spread=1.0,
-        spread_floor=spread_floor(12, power)).positions.tolist()
+        spread_floor=spread_floor(12, power), mix=design_mix(12, power)).positions.tolist()
     assert select_bayes(model, 20, usage=usage).positions.tolist() == select_bayes(
         model, 20, usage=usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
