@@ -39,7 +39,7 @@ training material held out once in ``--folds`` inner folds, each fold's model tr
 per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
-design shipped before round 11 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
+design shipped before round 12 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch).
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
@@ -89,9 +89,11 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # seeded validation chose a floor of 6,000 up to 14 samples and the power per scene from 15.
 # "fresh7" was fixed on 3 December 2026 (issue 29 round 11, branch h/29r11) before any run, after the
 # seeded validation chose a power per scene with 3,300 cells up to 14 samples (p = 1 keeping the floor).
+# "fresh8" was fixed on 3 December 2026 (issue 29 round 12, branch h/29r12) before any run, after the
+# seeded validation chose the mix of the p = 1 floor design into a scene of p < 1 up to 14 samples.
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
               "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24",
-              "fresh7": "builtin-random:7:24"}
+              "fresh7": "builtin-random:7:24", "fresh8": "builtin-random:8:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
 # seeds are 1 to 7); candidates may be chosen on these.
@@ -229,24 +231,38 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # On the 151-material model 3,300 lies between the grazing plane's 3,063 cells at p = 0.75 and the
 # retro sphere's 3,553 at p = 1: the grazing plane takes p = 0.5 (t = 1), the retro sphere and top
 # light p = 1 with the floor (the shipped design there). m = 6 is reported only.
-CANDIDATES = {"shipped": (None, 1.0, None, None), "p-cells 3300 + floor": ((0.5, 0.75, 1.0), 1.0, 1.0, (3300.0, 6000.0))}
+# Round 11's candidate "p-cells 3300 + floor" (won; now select_bayes's default) is in its section.
+# Round 12 (issue 29, ``--validation-set seeded``, ``--m 6 10``; fixed before any result in
+# /work/scratch29r12/DECISION.txt): the band up to 14 samples chosen at m = 10 between the shipped
+# design of round 11 without a mix ("shipped") and "mix 1 + p": a scene whose power (round 11's rule)
+# is below 1 weighs 0.5 w(p = 1, t up to 1, F = 6,000) + 0.5 w(its p, t = 1), each part summing to 1
+# (``usage_design.mixed_weights``; CANDIDATE_MIX: select_bayes's mix share, 0 none), scenes of p = 1
+# unchanged. On the 151-material model only the grazing plane (p = 0.5) differs. m = 6 is reported only.
+CANDIDATES = {"shipped": (None, 1.0, None, None), "mix 1 + p": (None, 1.0, None, None)}
+# The share of usage_design.MIX_DESIGN's weights select_bayes mixes into each candidate's design
+# (its ``mix``; a candidate not here: the default, BAND_MIX).
+CANDIDATE_MIX = {"shipped": 0.0, "mix 1 + p": 0.5}
 # Per m, the candidates ``choose_rule`` chooses among (the band's own; an m not here chooses among
 # every candidate, and the round's section says which m decide).
-CHOOSE_AMONG = {10: ("shipped", "p-cells 3300 + floor")}
+CHOOSE_AMONG = {10: ("shipped", "mix 1 + p")}
 # Round 11's rule (``choose_rule``): a candidate with a (scene, family) median ratio to blind above 1,
 # over the families with at least FAMILY_MIN validation materials, is discarded when another
 # candidate has none (the worst-scene median hid the grazing plane's fabrics at 8.9x blind in round 10).
 FAMILY_MIN = 4
+# Round 12's step (b) (``choose_rule``, ``worse_scenes``): the scenes' median ratios sorted from worst
+# down, compared in turn; two within TIE_TOLERANCE (relative, of the larger) tie and the next decides.
+TIE_TOLERANCE = 0.005
 # The earlier u g^0.5 design the test run renders beside the shipped one.
 BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
-# The key of the shipped design before round 11 (round 10's), which the test run renders beside the
-# shipped one (at m and at 0.6 m): up to 14 samples p = 1, t up to 1 with a floor of 6,000 effective
-# cells for every scene (BEFORE_BANDS: the last m of the band, (p, t, F)); from 15 the scene's power,
-# the same design as shipped (rendered once). (Round 10's "before (round 9)", round 9's "before
+# The key of the shipped design before round 12 (round 11's), which the test run renders beside the
+# shipped one (at m and at 0.6 m): up to 14 samples select_bayes's default without the mix (a power
+# per scene, p = 1 with the floor of 6,000 effective cells, p < 1 t = 1 unmixed; BEFORE_BANDS: the
+# last m of the band, select_bayes's keyword arguments); from 15 the same design as shipped
+# (rendered once). (Round 11's "before (round 10)", round 10's "before (round 9)", round 9's "before
 # (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
 # of BENCHMARKS.md.)
-BEFORE = "before (round 10)"
-BEFORE_BANDS = ((14, (1.0, 1.0, 6000.0)),)
+BEFORE = "before (round 11)"
+BEFORE_BANDS = ((14, {"mix": 0.0}),)
 
 
 def candidate_power(model, usage: np.ndarray, powers, hedge: float, spread: float, cells) -> tuple[float, float]:
@@ -285,7 +301,7 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
             if p is None:
                 for m in ms:
                     designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t,
-                                                         spread_floor=f).positions
+                                                         spread_floor=f, mix=CANDIDATE_MIX.get(name)).positions
             else:
                 rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t,
                                     spread_floor=f).positions
@@ -301,19 +317,21 @@ def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict
     p None: the shipped rule's power for the scene (``usage_design.scene_power``); t or F None: the
     band's for m."""
     from goniofrost.frost import usage_design
-    from goniofrost.frost.usage_design import design_weights, effective_cells, prior_spread, spread_floor
+    from goniofrost.frost.usage_design import design_mix, design_weights, effective_cells, prior_spread, spread_floor
 
     out = {}
     for s, u in usage.items():
         out[s] = {}
         for name, (p, a, t, f) in candidates.items():
+            mix = 0.0
             if p is None:  # the shipped rule's power for this scene (the band's, or the scene's of the band's)
                 p = usage_design.scene_power(model, u, m)
+                mix = design_mix(m, p, CANDIDATE_MIX.get(name)) if t is None and f is None else 0.0
                 t, f = prior_spread(m) if t is None else t, spread_floor(m, p) if f is None else f
             elif isinstance(p, tuple):
                 p, f = candidate_power(model, u, p, a, t, f)
             t, f = prior_spread(m) if t is None else t, 0.0 if f is None else f
-            weights, used = design_weights(model, u, p, a, t, f)
+            weights, used = design_weights(model, u, p, a, t, f, mix=mix)
             out[s][name] = [p, used, effective_cells(weights)]
     return out
 
@@ -416,23 +434,40 @@ def medians(rows: list[dict], key="image_rel_mse") -> dict:
     return {g: float(np.median(v)) for g, v in groups.items()}
 
 
-def choose_rule(rows: list[dict], ms: list[int]) -> tuple[dict, dict]:
-    """Per m, the candidate (of CHOOSE_AMONG[m], else CANDIDATES) whose worst scene is best: the lowest
-    over them of the highest over scenes of its median direct-render image error / the blind design's (the
-    goal's measure, per cell); ties to the earlier candidate. Before that (round 11) a candidate with
-    a (scene, family) median ratio above 1 (``family_ratios``, families of FAMILY_MIN materials or
-    more) is left out when another candidate has none. Fixed before the test run and applied to the
-    validation rows only. Returns ({m: name}, {(m, name): worst ratio})."""
+def choose_rule(rows: list[dict], ms: list[int], extra: dict | None = None) -> tuple[dict, dict]:
+    """Per m, the candidate (of CHOOSE_AMONG[m], else CANDIDATES) whose scenes are best: (round 11) a
+    candidate with a (scene, family) median ratio above 1 (``family_ratios``, families of FAMILY_MIN
+    materials or more) is left out when another candidate has none; then (round 12) each candidate's
+    per-scene ratios of its median direct-render image error to the blind design's (the goal's
+    measure, per cell), sorted from worst down, compared worst first, ties within TIE_TOLERANCE
+    broken by the next worst (``worse_scenes``); full ties to the earlier candidate. ``extra``:
+    {(m, name): [ratios]} of scenes not rendered in ``rows`` (the same design for every candidate,
+    from an earlier run). Fixed before the test run and applied to the validation rows only.
+    Returns ({m: name}, {(m, name): the worst ratio})."""
     med = medians(rows)
     scenes = sorted({s for s, _, _, _ in med})
-    score = {(m, w): max(med[(s, m, w, "direct")] / med[(s, m, "blind", "direct")] for s in scenes)
-             for m in ms for w in CANDIDATES}
+    ratios = {(m, w): sorted([med[(s, m, w, "direct")] / med[(s, m, "blind", "direct")] for s in scenes]
+                             + list((extra or {}).get((m, w), [])), reverse=True)
+              for m in ms for w in CANDIDATES}
     choice = {}
     for m in ms:
         among = CHOOSE_AMONG.get(m, tuple(CANDIDATES))
-        clean = [w for w in among if max(family_ratios(rows, m, w).values(), default=0.0) <= 1.0]
-        choice[m] = min(clean or among, key=lambda w: score[(m, w)])
-    return choice, score
+        clean = [w for w in among if max(family_ratios(rows, m, w).values(), default=0.0) <= 1.0] or list(among)
+        best = clean[0]
+        for w in clean[1:]:
+            if worse_scenes(ratios[(m, best)], ratios[(m, w)]):
+                best = w
+        choice[m] = best
+    return choice, {k: v[0] for k, v in ratios.items()}
+
+
+def worse_scenes(a: list[float], b: list[float], tolerance: float = TIE_TOLERANCE) -> bool:
+    """True when scene ratios ``a`` (sorted from worst down) are worse than ``b``: at the first place
+    where the two differ by more than ``tolerance`` of the larger, a's is the larger; False on a tie."""
+    for x, y in zip(a, b):
+        if abs(x - y) > tolerance * max(x, y):
+            return x > y
+    return False
 
 
 def family(name: str) -> str | None:
@@ -569,13 +604,12 @@ def main(argv=None) -> int:
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
     designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
                     for m in fewer})
-    # the shipped design before round 11 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
+    # the shipped design before round 12 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
     # from 29 samples: rendered once)
     for m in ms + fewer:
         before = next((d for last, d in BEFORE_BANDS if m <= last), None)
         designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if before is None else
-                           select_bayes(model, m, usage=u, sensitivity_power=before[0], prior_spread=before[1],
-                                        spread_floor=before[2]).positions
+                           select_bayes(model, m, usage=u, **before).positions
                            for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}

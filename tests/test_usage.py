@@ -414,9 +414,9 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
-    # --test-set fresh5 (round 9), fresh6 (round 10) and fresh7 (round 11): seeds 5 to 7, none of the
-    # seeded validation's (seeds 101 and 102)
-    for seed in (5, 6, 7):
+    # --test-set fresh5 (round 9), fresh6 (round 10), fresh7 (round 11) and fresh8 (round 12): seeds 5
+    # to 8, none of the seeded validation's (seeds 101 and 102)
+    for seed in (5, 6, 7, 8):
         _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
             ["--out", "unused", "--test-set", f"fresh{seed}"]))
         assert test_specs6 == [f"builtin-random:{seed}:24"] and training6 == training and len(test6) == 24
@@ -546,7 +546,8 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_usage, prior_cell_variance, prior_spread, scene_power, spread_floor
+    from goniofrost.frost.usage_design import (design_mix, design_usage, prior_cell_variance, prior_spread, scene_power,
+                                               spread_floor)
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -577,10 +578,10 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
     assert prior_spread(12) == 1.0 and spread_floor(12) == 6000.0 and prior_spread(20) == 1.0
-    power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor)
+    power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor; mixed, round 12)
     assert select_bayes(model, 12, usage=usage).positions.tolist() == select_bayes(
         model, 12, usage=usage, sensitivity_power=power, prior_spread=1.0,
-        spread_floor=spread_floor(12, power)).positions.tolist()
+        spread_floor=spread_floor(12, power), mix=design_mix(12, power)).positions.tolist()
     assert select_bayes(model, 20, usage=usage).positions.tolist() == select_bayes(
         model, 20, usage=usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0).positions.tolist()
     spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
@@ -756,8 +757,9 @@ def test_up_to_14_samples_each_scene_takes_the_largest_power_keeping_3300_cells_
     """Issue 29 round 11: up to 14 samples a scene's power is the largest of 0.5, 0.75 and 1 whose
     weights at t = 1 without a floor keep POWER_CELLS_FEW effective cells, 0.5 when none larger
     does; a scene of p = 1 takes t up to 1 with the floor FLOOR_FEW, one of a smaller power t = 1
-    without a floor. select_bayes's default is that design and reports its power and spread. (The
-    counts are patched to this grid's scale: the shipped ones are of the full grid.)"""
+    without a floor (mixed with the p = 1 floor design since round 12). select_bayes's default is
+    that design and reports its power and spread. (The counts are patched to this grid's scale: the
+    shipped ones are of the full grid.)"""
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, scene_power
@@ -775,7 +777,8 @@ def test_up_to_14_samples_each_scene_takes_the_largest_power_keeping_3300_cells_
         assert chosen.sensitivity_power == power and chosen.prior_spread == t
         assert (0 < t < 1) is (power == 1.0)  # the floor binds p = 1 only
         assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=power, prior_spread=1.0,
-                                                         spread_floor=floor if power == 1.0 else 0.0).positions.tolist()
+                                                         spread_floor=floor if power == 1.0 else 0.0,
+                                                         mix=0.5 if power < 1 else 0.0).positions.tolist()
 
 
 def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
@@ -783,7 +786,8 @@ def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
     design of 10 samples takes the largest of 0.5, 0.75, 1 whose weights at t = 1 keep 3,300
     effective cells, t = 1 without a floor below p = 1; the counts, of the full grid's cells, leave
     every scene of this small grid 0.5 (the full-grid model of 151 materials gives the grazing plane
-    0.5 and the retro sphere and top light 1, BENCHMARKS.md "Issue 29, round 11")."""
+    0.5 and the retro sphere and top light 1, BENCHMARKS.md "Issue 29, round 11"); since round 12 a
+    scene of p = 0.5 is mixed half and half with the p = 1 floor design."""
     from goniofrost.brdf.mitsuba_usage import record_usage
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_design import POWER_CELLS_FEW, design_usage, effective_cells
@@ -795,4 +799,45 @@ def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
         chosen = select_bayes(model, 10, usage=usage)
         assert power == 0.5 and chosen.sensitivity_power == power and chosen.prior_spread == 1.0, scene
         assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
-                                                         spread_floor=0.0).positions.tolist()
+                                                         spread_floor=0.0, mix=0.5).positions.tolist()
+
+
+def test_the_mixed_weights_are_the_average_of_the_two_designs_weights(model):
+    """Issue 29 round 12: a mixed design weighs a w(p = 1, t up to 1, F = FLOOR_FEW) + (1 - a) w(p, t),
+    each part summing to 1: the weights sum to 1 and, at a = 0.5, are the average of the two
+    designs' weights; its calibration key is not the unmixed design's."""
+    from goniofrost.frost.usage_design import FLOOR_FEW, MIX_DESIGN, design_key, design_usage, mixed_weights
+
+    usage = retro_map()
+    assert MIX_DESIGN == (1.0, 1.0, FLOOR_FEW)
+    floor_design = design_usage(model, usage, 1.0, 1.0, 1.0, FLOOR_FEW)
+    own = design_usage(model, usage, 0.5, 1.0, 1.0)
+    mixed, t = mixed_weights(model, usage, 0.5, 1.0, 1.0, 0.0, 0.5)
+    assert t == 1.0 and mixed.sum() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(mixed, 0.5 * floor_design + 0.5 * own, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(design_usage(model, usage, 0.5, 1.0, 1.0, mix=0.5), mixed)
+    assert design_key(0.5, 1.0, 0.0, 0.5) != design_key(0.5, 1.0, 0.0) == (0.5, 1.0, 0.0)
+
+
+def test_the_default_design_of_10_samples_is_mixed_exactly_when_the_scenes_power_is_below_1(model, monkeypatch):
+    """Issue 29 round 12: up to 14 samples select_bayes's default design of a scene whose power is
+    below 1 is the mix (share MIX_FEW = 0.5 of the p = 1 floor design), a scene of p = 1 keeps the
+    floor design unmixed, and from 15 samples nothing is mixed. (The counts are patched to this
+    grid's scale, as in the test of round 11.)"""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_mix, design_usage, effective_cells, scene_power
+
+    assert usage_design.MIX_FEW == 0.5 and design_mix(10, 0.5) == 0.5 and design_mix(10, 1.0) == 0.0
+    assert design_mix(20, 0.75) == design_mix(40, 1.0) == 0.0
+    usage = retro_map()
+    cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.75, 1.0)}
+    for count, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
+        monkeypatch.setitem(usage_design.BAND_POWERS, 14, (usage_design.POWERS_FEW, count))
+        assert scene_power(model, usage, 10) == power
+        chosen = select_bayes(model, 10, usage=usage).positions.tolist()
+        floor = usage_design.FLOOR_FEW if power == 1.0 else 0.0
+        explicit = dict(sensitivity_power=power, prior_spread=1.0, spread_floor=floor)
+        assert chosen == select_bayes(model, 10, usage=usage, mix=0.5 if power < 1 else 0.0, **explicit).positions.tolist()
+        if power < 1:  # the mix is a different design here
+            assert chosen != select_bayes(model, 10, usage=usage, **explicit).positions.tolist()

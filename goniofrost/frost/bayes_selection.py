@@ -178,7 +178,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
                  calibration=None, sensitivity_power: float | None = None,
                  hedge: float = HEDGE, prior_spread: float | None = None,
-                 spread_floor: float | None = None) -> Selection:
+                 spread_floor: float | None = None, mix: float | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -211,9 +211,14 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band for the
     design's power when prior_spread is None too (``usage_design.spread_floor(m, p)``: up to
     FEW_SAMPLES the floor of p = 1 only; each phase's with max_error), else 0.
+    mix: the share a of ``usage_design.MIX_DESIGN``'s weights mixed into a scene design whose power
+    is not its band's own (``usage_design.mixed_weights``, ``design_mix``; 0 for the band's own
+    power); None (the default): the band's share (``usage_design.BAND_MIX``) when the power, spread
+    and floor are the defaults too, else 0.
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the design's power p,
-    largest spread t and floor F (cells) returning it (a scene's calibration depends on the design
+    largest spread t and floor F (cells), and its mix share a when a > 0
+    (``usage_design.design_key``), returning it (a scene's calibration depends on the design
     measured, and p = 1 is a design of t up to 1 with a floor up to FEW_SAMPLES and of t = 1 without
     one above; None from it: the model's).
     Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
@@ -230,21 +235,24 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     # the cells' prior variance, computed once if a scene's weights (or its power choice) need it
     variance = usage_design.cell_variance_of(model)
 
-    def calibration_for(power, spread, cells_floor):
-        chosen = calibration(power, spread, cells_floor) if callable(calibration) else calibration
+    def calibration_for(power, spread, cells_floor, share=0.0):
+        key = usage_design.design_key(power, spread, cells_floor, share)
+        chosen = calibration(*key) if callable(calibration) else calibration
         return chosen or calibration_of(model)
 
+    defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
     if not scene or sensitivity_power is not None or max_error is None:
         power = sensitivity_power
         if scene and power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
             power = usage_design.scene_power(model, usage, m, variance)
         spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
-        calib = calibration_for(power, spread, cells_floor)
+        share = _mix(mix, defaults, m, scene, power)
+        calib = calibration_for(power, spread, cells_floor, share)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
             model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
-            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance)
+            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
@@ -253,14 +261,15 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             spread = band_spread if prior_spread is None else prior_spread
             cells_floor = _floor(spread_floor, prior_spread, None, True, power,
                                  usage_design.spread_floor(start_m + 1, power))
-            calib = calibration_for(power, spread, cells_floor)
+            share = _mix(mix, defaults, start_m + 1, True, power)
+            calib = calibration_for(power, spread, cells_floor, share)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
             picked, predicted, used_spread = _design(
                 model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
                 min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor,
-                variance=variance)
+                variance=variance, mix=share)
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
@@ -298,17 +307,27 @@ def _floor(floor, spread, m, scene: bool, power: float | None = None, band_floor
     return 0.0 if m is None else usage_design.spread_floor(m, power)
 
 
+def _mix(mix, defaults: bool, m, scene: bool, power) -> float:
+    """The share a of MIX_DESIGN in a scene design of m samples at ``power`` (select_bayes's mix):
+    ``mix`` when given, else the band's when the design is the default one (``defaults``), for a
+    power other than the band's own (``usage_design.design_mix``); 0 without a scene or m."""
+    if not scene or m is None or (mix is None and not defaults):
+        return 0.0
+    return usage_design.design_mix(m, power, mix)
+
+
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
             min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
-            floor: float = 0.0, variance=None) -> tuple[GreedyDesign, np.ndarray, float | None]:
+            floor: float = 0.0, variance=None, mix: float = 0.0) -> tuple[GreedyDesign, np.ndarray, float | None]:
     """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
     (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
     plain design, else the scene's of power p and hedge (see select_bayes, also for
     ``uniform_is_plain``); with max_error it stops at the first pick, of at
     least ``min_picks``, whose predicted error is <= max_error; ``variance``: the cells' prior
-    variance, shared (``usage_design.design_weights``)."""
+    variance, shared (``usage_design.design_weights``); ``mix``: the share of MIX_DESIGN's weights
+    (``usage_design.mixed_weights``; 0 none)."""
     if usage is not None:
-        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance)
+        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance, mix)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2

@@ -31,14 +31,17 @@ CHUNK_ROWS = 1 << 14
 
 
 def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress: bool = False,
-                    hedge: float = HEDGE, prior_spread: float | None = None, spread_floor: float | None = None) -> dict:
+                    hedge: float = HEDGE, prior_spread: float | None = None, spread_floor: float | None = None,
+                    mix: float = 0.0) -> dict:
     """The calibration (the model's format, ``calibration.fit_calibration``) of the usage-weighted
     error of ``usage`` (n_valid,) sum 1, measured at the design ``select_bayes`` picks for it (its
     weights ``usage_design.design_usage`` of sensitivity_power and hedge, with the model's g on
     every fold; a plan of m samples uses ``usage_design.sensitivity_power(m)``; ``prior_spread``
     None: the spread of that power's band, ``usage_design.spread_of_power``; ``spread_floor`` None:
     the floor on the effective cells of that band, ``usage_design.floor_of_power``, when the spread
-    is the band's too, else 0). TrainingError when the model's training data cannot be opened again."""
+    is the band's too, else 0; ``mix``: the share of ``usage_design.MIX_DESIGN``'s weights mixed in,
+    ``usage_design.mixed_weights``, 0 none). TrainingError when the model's training data cannot be
+    opened again."""
     from goniofrost.frost import noise, training
 
     mapped, gram = training.remap(model, progress=progress)
@@ -47,7 +50,8 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
     usage = np.asarray(usage, np.float64)
     records = simulate_scene(mapped, folds, usage, posterior.design_scale(model) * recon, recon, progress=progress,
                              design_weights=design_usage(model, usage, sensitivity_power, hedge,
-                                                         *_band_spread(sensitivity_power, prior_spread, spread_floor)))
+                                                         *_band_spread(sensitivity_power, prior_spread, spread_floor),
+                                                         mix=mix))
     return fit_calibration(records)
 
 

@@ -84,35 +84,40 @@ def run(args) -> int:
         print(f"rig {rig.name}{aligned}: {int(reach.mask.sum())} of {reach.mask.size} valid cells reachable "
               f"({100 * reach.fraction:.1f} %); unreachable: {why or 'none'}")
     # A scene's calibration depends on the design measured, whose sensitivity power, prior spread
-    # and floor depend on the number of samples (usage_design.BANDS): fitted for each design (p, t, F)
-    # the selection asks for. (A uniform map is the plain design whatever the power: one calibration.)
+    # and floor depend on the number of samples (usage_design.BANDS): fitted for each design (p, t, F,
+    # and the mix share when mixed: usage_design.design_key) the selection asks for. (A uniform map
+    # is the plain design whatever the power: one calibration.)
     scenes: dict = {}
 
-    def scene_for(power, spread, floor):
-        from goniofrost.frost.usage_design import is_uniform
-        key = None if is_uniform(usage) else (power, spread, floor)
+    def scene_for(power, spread, floor, mix=0.0):
+        from goniofrost.frost.usage_design import design_key, is_uniform
+        key = None if is_uniform(usage) else design_key(power, spread, floor, mix)
         if key not in scenes:
-            scenes[key] = _scene_error(model, usage, power, spread, floor)
+            scenes[key] = _scene_error(model, usage, power, spread, floor, mix)
         return scenes[key]
 
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import BAND_POWERS, band, prior_spread, sensitivity_power, spread_floor
+        from goniofrost.frost.usage_design import (BAND_POWERS, MIX_DESIGN, band, design_mix, is_uniform, prior_spread,
+                                                   sensitivity_power, spread_floor)
         # the power and spread this scene's design used (the selection's own, not computed again):
         # the band's, or the scene's of the band's powers; with a floor on the weights' effective
         # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
         power, spread = selection.sensitivity_power, selection.prior_spread
         power = sensitivity_power(selection.m) if power is None else power
         floor = spread_floor(selection.m, power)  # the band's floor belongs to its own power
-        scene = scene_for(power, prior_spread(selection.m), floor)
+        mix = 0.0 if is_uniform(usage) else design_mix(selection.m, power)  # as select_bayes's default
+        scene = scene_for(power, prior_spread(selection.m), floor, mix)
         powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
               + (f" (the largest of {', '.join(f'{p:g}' for p in powers)} keeping {cells:g} effective cells, for "
                  f"{selection.m} samples" if len(powers) > 1 else f" (the power for {selection.m} samples")
               + (f"; t the largest up to {prior_spread(selection.m):g} keeping {floor:g} effective cells)" if floor
-                 else ")"))
+                 else ")")
+              + (f", mixed {1 - mix:g} / {mix:g} with the weights of p = {MIX_DESIGN[0]:g} (t up to "
+                 f"{MIX_DESIGN[1]:g}, {MIX_DESIGN[2]:g} effective cells)" if mix else ""))
     doc = plan_document(args.model, model, selection)
     if args.sentinels is not False and args.selector == "bayes" and usage is None:
         from goniofrost.capture.plan_file import with_sentinels
@@ -122,7 +127,7 @@ def run(args) -> int:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
         doc["usage"] = {"file": str(args.usage), "hash": scene.usage_hash, "cells_used": int((usage > 0).sum()),
-                        "sensitivity_power": power, "prior_spread": spread, "spread_floor": floor,
+                        "sensitivity_power": power, "prior_spread": spread, "spread_floor": floor, "mix": mix,
                         "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
@@ -145,11 +150,11 @@ def run(args) -> int:
     return 0
 
 
-def _scene_error(model, usage, power, spread, floor):
+def _scene_error(model, usage, power, spread, floor, mix=0.0):
     """The plan's SceneError: the usage-weighted error and its calibration on the model's training
-    materials at the design of sensitivity power ``power``, largest prior spread ``spread`` and
-    floor ``floor`` on its effective cells (mapped again; without them the plan has no calibrated
-    bound, and says why)."""
+    materials at the design of sensitivity power ``power``, largest prior spread ``spread``,
+    floor ``floor`` on its effective cells and share ``mix`` of the mixed-in design (mapped again;
+    without them the plan has no calibrated bound, and says why)."""
     import hashlib
 
     from goniofrost.frost.scene_error import scene_error
@@ -159,7 +164,7 @@ def _scene_error(model, usage, power, spread, floor):
     digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
     try:
         calibration, unavailable = calibrate_scene(model, usage, power, progress=True, prior_spread=spread,
-                                                   spread_floor=floor), None
+                                                   spread_floor=floor, mix=mix), None
     except TrainingError as exc:
         calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
         print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
@@ -167,7 +172,7 @@ def _scene_error(model, usage, power, spread, floor):
 
 
 def _select(model, args, mask, usage=None, scene_for=None):
-    """The selection; ``scene_for(power, spread, floor)``: the scene's SceneError for a design of that
+    """The selection; ``scene_for(power, spread, floor[, mix])``: the scene's SceneError for a design of that
     sensitivity power, largest prior spread and floor (with ``usage``), whose calibration the
     predicted errors use."""
     if args.selector == "bayes":
