@@ -178,7 +178,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  usage: np.ndarray | None = None, uniform_is_plain: bool = True,
                  calibration=None, sensitivity_power: float | None = None,
                  hedge: float = HEDGE, prior_spread: float | None = None,
-                 spread_floor: float | None = None, mix: float | None = None) -> Selection:
+                 spread_floor: float | None = None, mix: float | None = None,
+                 mix_spread: float | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -215,6 +216,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     is not its band's own (``usage_design.mixed_weights``, ``design_mix``; 0 for the band's own
     power); None (the default): the band's share (``usage_design.BAND_MIX``) when the power, spread
     and floor are the defaults too, else 0.
+    mix_spread: the prior spread t of a mixed design's own part (a > 0) when prior_spread is None;
+    None (the default): the band's (``usage_design.mix_spread``). Ignored when a = 0.
     calibration: the predicted-error calibration to use (default the model's; a scene's own,
     ``usage_calibration``, for the usage-weighted error), or a function of the design's power p,
     largest spread t and floor F (cells), and its mix share a when a > 0
@@ -248,6 +251,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             power = usage_design.scene_power(model, usage, m, variance)
         spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
         share = _mix(mix, defaults, m, scene, power)
+        spread = _own_spread(spread, prior_spread, mix_spread, share, m)
         calib = calibration_for(power, spread, cells_floor, share)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
@@ -262,6 +266,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             cells_floor = _floor(spread_floor, prior_spread, None, True, power,
                                  usage_design.spread_floor(start_m + 1, power))
             share = _mix(mix, defaults, start_m + 1, True, power)
+            spread = _own_spread(spread, prior_spread, mix_spread, share, start_m + 1)
             calib = calibration_for(power, spread, cells_floor, share)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
@@ -314,6 +319,15 @@ def _mix(mix, defaults: bool, m, scene: bool, power) -> float:
     if not scene or m is None or (mix is None and not defaults):
         return 0.0
     return usage_design.design_mix(m, power, mix)
+
+
+def _own_spread(spread: float, prior_spread, mix_spread, share: float, m) -> float:
+    """The spread t of a scene design's own part: ``spread`` unless the design is mixed (``share``
+    > 0) and prior_spread was not given, then ``mix_spread`` or the band's for m
+    (``usage_design.mix_spread``)."""
+    if not share or prior_spread is not None:
+        return spread
+    return usage_design.mix_spread(m) if mix_spread is None else float(mix_spread)
 
 
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,

@@ -156,6 +156,12 @@ MIX_FEW = 0.5
 # The design mixed in: (p, largest t, F) of the band up to FEW_SAMPLES for its own power.
 MIX_DESIGN = (POWER_FEW, SPREAD_FEW, FLOOR_FEW)
 BAND_MIX = {FEW_SAMPLES: MIX_FEW, MANY_SAMPLES: 0.0, None: 0.0}
+# The prior spread t of a mixed design's own part (its p < 1; ``mixed_weights``) up to FEW_SAMPLES:
+# 1 (round 12: the prior's expected g^p); issue 29 round 13 compares t = 0 (g at the prior mean) on
+# validation (BENCHMARKS.md "Issue 29, round 13"). The key of a mixed design's calibration
+# (``design_key``) holds this t, so designs of different own t never share a calibration.
+MIX_SPREAD_FEW = 1.0
+BAND_MIX_SPREAD = {FEW_SAMPLES: MIX_SPREAD_FEW, MANY_SAMPLES: SPREAD_MANY, None: SPREAD_MOST}
 # The bisection's tolerance on t in ``floor_spread`` (t is within this of the largest t keeping the floor).
 SPREAD_TOLERANCE = 0.01
 # The power of the earlier rule, one for every m (the benchmark compares against it).
@@ -249,6 +255,12 @@ def design_mix(m: int, power: float, share: float | None = None) -> float:
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"usage_design: the share of the mixed-in design must be in [0, 1], found {share!r}")
     return 0.0 if power == own else share
+
+
+def mix_spread(m: int) -> float:
+    """The prior spread t of the own part of a mixed scene design of m samples (BAND_MIX_SPREAD;
+    ``select_bayes``'s default when its design is mixed, ``design_mix`` > 0)."""
+    return BAND_MIX_SPREAD[band(m)[0]]
 
 
 def design_key(power: float, spread: float, floor: float, mix: float = 0.0) -> tuple:

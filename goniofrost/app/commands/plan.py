@@ -99,8 +99,8 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import (BAND_POWERS, MIX_DESIGN, band, design_mix, is_uniform, prior_spread,
-                                                   sensitivity_power, spread_floor)
+        from goniofrost.frost.usage_design import (BAND_POWERS, MIX_DESIGN, band, design_mix, is_uniform, mix_spread,
+                                                   prior_spread, sensitivity_power, spread_floor)
         # the power and spread this scene's design used (the selection's own, not computed again):
         # the band's, or the scene's of the band's powers; with a floor on the weights' effective
         # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
@@ -108,7 +108,7 @@ def run(args) -> int:
         power = sensitivity_power(selection.m) if power is None else power
         floor = spread_floor(selection.m, power)  # the band's floor belongs to its own power
         mix = 0.0 if is_uniform(usage) else design_mix(selection.m, power)  # as select_bayes's default
-        scene = scene_for(power, prior_spread(selection.m), floor, mix)
+        scene = scene_for(power, mix_spread(selection.m) if mix else prior_spread(selection.m), floor, mix)
         powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
