@@ -246,7 +246,8 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # the prior mean; CANDIDATE_MIX_SPREAD: select_bayes's mix_spread). The candidate was suggested by a
 # test set (fresh8's run, where the u g^0.5 design at t = 0 reached -85 % at the grazing plane at
 # m = 10), so it is chosen on validation only and tested on a new set. Scenes of p = 1 unchanged: on
-# the 151-material model only the grazing plane (p = 0.5) differs. m = 6 is reported only.
+# the 151-material model only the grazing plane (p = 0.5) differs. m = 6 is reported only. "shipped"
+# won at step (a) (the candidate's grazing-plane fabrics 1.26 of blind); nothing changed.
 CANDIDATES = {"shipped": (None, 1.0, None, None), "mix 1 + p@t0": (None, 1.0, None, None)}
 # The share of usage_design.MIX_DESIGN's weights select_bayes mixes into each candidate's design
 # (its ``mix``; a candidate not here: the default, BAND_MIX).

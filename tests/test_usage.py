@@ -841,3 +841,31 @@ def test_the_default_design_of_10_samples_is_mixed_exactly_when_the_scenes_power
         assert chosen == select_bayes(model, 10, usage=usage, mix=0.5 if power < 1 else 0.0, **explicit).positions.tolist()
         if power < 1:  # the mix is a different design here
             assert chosen != select_bayes(model, 10, usage=usage, **explicit).positions.tolist()
+
+
+def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model):
+    """Issue 29 round 13: the own part of a mixed design (p < 1) takes the band's MIX_SPREAD_FEW = 1
+    by default (round 12's design) or select_bayes's ``mix_spread``; the calibration is asked for
+    with that t in its key, so the designs of own t = 0 and t = 1 never share one."""
+    from goniofrost.frost import usage_design
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import design_key, mix_spread, mixed_weights
+
+    assert usage_design.MIX_SPREAD_FEW == 1.0 and mix_spread(10) == 1.0
+    assert design_key(0.5, 0.0, 0.0, 0.5) != design_key(0.5, 1.0, 0.0, 0.5)
+    usage = retro_map()
+    asked = []
+
+    def calibration(*key):
+        asked.append(key)
+        return None  # the model's
+
+    explicit = dict(sensitivity_power=0.5, spread_floor=0.0, mix=0.5, calibration=calibration)
+    at_one = select_bayes(model, 10, usage=usage, **explicit)
+    at_zero = select_bayes(model, 10, usage=usage, mix_spread=0.0, **explicit)
+    assert asked == [(0.5, 1.0, 0.0, 0.5), (0.5, 0.0, 0.0, 0.5)]
+    assert at_one.prior_spread == 1.0 and at_zero.prior_spread == 0.0
+    assert at_one.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
+                                                     spread_floor=0.0, mix=0.5).positions.tolist()
+    assert not np.array_equal(mixed_weights(model, usage, 0.5, 1.0, 0.0, 0.0, 0.5)[0],
+                              mixed_weights(model, usage, 0.5, 1.0, 1.0, 0.0, 0.5)[0])
