@@ -164,15 +164,6 @@ def _span(mask: np.ndarray):
     return slice(int(where[0]), int(where[-1]) + 1) if contiguous else mask
 
 
-def _cross_fit(x, y, fold) -> np.ndarray:
-    out = np.empty_like(y)
-    for f in np.unique(fold):
-        held = fold == f
-        beta, *_ = np.linalg.lstsq(x[~held], y[~held], rcond=None)
-        out[held] = y[held] - x[held] @ beta
-    return out
-
-
 def fit_checked(records, pool_cells: np.ndarray, sentinels, base: dict, count: int = CHECKS) -> dict | None:
     """The checked calibration (JSON-ready) from the inner cross-validation's records with their
     sentinel and pool errors: the check ``cells`` (valid-cell positions, chosen on every record),
@@ -181,7 +172,7 @@ def fit_checked(records, pool_cells: np.ndarray, sentinels, base: dict, count: i
     residuals: each inner fold's records with cells chosen on the other folds' records,
     predicted by a fit without that fold. None when the records lack the sentinels, the
     coordinates or the pool, or no candidate is left."""
-    from goniofrost.frost.confidence import choice_score, fit_bound
+    from goniofrost.frost.confidence import choice_score, cross_fit, fit_bound
     from goniofrost.frost.prediction import feature_range_of
 
     if records.pool_error is None or records.sentinel is None or records.coordinates is None or records.level is None:
@@ -211,7 +202,7 @@ def fit_checked(records, pool_cells: np.ndarray, sentinels, base: dict, count: i
             "cells": [int(pool_cells[c]) for c in columns], "bound": bound,
             "fit": {"records": int(y.size), "pool": int(pool_cells.size), "candidates": int(ok.sum()),
                     "nested_within_factor_2": choice_score(records, nested),
-                    "cross_fitted_within_factor_2": choice_score(records, _cross_fit(x, y, records.fold)),
+                    "cross_fitted_within_factor_2": choice_score(records, cross_fit(x, y, records.fold)),
                     "unchecked_within_factor_2": base.get("fit", {}).get("cross_fitted_within_factor_2")}}
 
 
@@ -234,23 +225,15 @@ def measured(model, positions, flags) -> tuple[np.ndarray, np.ndarray]:
     """Of a capture's not-fitted samples (``flags``, bool (l,): the plan's sentinels and check
     cells), (bool (l,) the sentinels, bool (l,) the check cells): a flagged sample at one of the
     model's check cells is a check, the others sentinels."""
-    from goniofrost.frost.prediction import checked_of
-
     flags = np.asarray(flags, dtype=bool)
-    checked = checked_of(model)
-    cells = np.asarray(checked["cells"] if checked else [], dtype=np.int64)
-    checks = flags & np.isin(np.asarray(positions, np.int64), cells)
+    checks = flags & np.isin(np.asarray(positions, np.int64), cells_of(model))
     return flags & ~checks, checks
 
 
 def complete(model, positions, checks) -> bool:
     """Whether the check samples (bool (l,)) cover every check cell of the model."""
-    from goniofrost.frost.prediction import checked_of
-
-    checked = checked_of(model)
-    if not checked:
-        return False
-    return set(int(p) for p in np.asarray(positions, np.int64)[np.asarray(checks, bool)]) >= set(checked["cells"])
+    cells = cells_of(model)
+    return bool(cells.size) and set(np.asarray(positions, np.int64)[np.asarray(checks, bool)].tolist()) >= set(cells.tolist())
 
 
 def cells_of(model) -> np.ndarray:

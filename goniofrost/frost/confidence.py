@@ -93,10 +93,15 @@ def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None
     n_features features, all when None) refitted without the record's inner fold (CvRecords of
     ``calibration.py``)."""
     x = records.features(m_range, n_features, feature_range)
-    y = np.log(np.maximum(records.actual, 1e-12))
+    return cross_fit(x, np.log(np.maximum(records.actual, 1e-12)), records.fold)
+
+
+def cross_fit(x: np.ndarray, y: np.ndarray, fold: np.ndarray) -> np.ndarray:
+    """float64 (records,): y - x beta, each fold's records with the least-squares beta fitted
+    without that fold (x (records, f), y and fold (records,))."""
     out = np.empty_like(y)
-    for fold in np.unique(records.fold):
-        held = records.fold == fold
+    for f in np.unique(fold):
+        held = fold == f
         beta, *_ = np.linalg.lstsq(x[~held], y[~held], rcond=None)
         out[held] = y[held] - x[held] @ beta
     return out
