@@ -254,10 +254,17 @@ def design_mix(m: int, power: float, share: float | None = None) -> float:
     ``share`` (None: the band's, BAND_MIX) when ``power`` is not the band's own p, 0 when it is (a
     scene of the band's own power keeps its design)."""
     last, own, _, _ = band(m)
-    share = BAND_MIX[last] if share is None else float(share)
+    share = BAND_MIX[last] if share is None else check_share(share)
+    return 0.0 if power == own else share
+
+
+def check_share(share) -> float:
+    """``share`` as a float when it is a share of the mixed-in design (in [0, 1]), else ValueError in
+    one line."""
+    share = float(share)
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"usage_design: the share of the mixed-in design must be in [0, 1], found {share!r}")
-    return 0.0 if power == own else share
+    return share
 
 
 def mix_spread(m: int) -> float:
@@ -504,8 +511,7 @@ def mixed_weights(model, usage, power, hedge, spread, floor, mix, variance=None)
     """(weights float64 (n,) sum 1, the t of the scene's own part): a w(MIX_DESIGN) + (1 - a) w(power,
     spread, floor), each part ``design_weights``'s (at ``hedge``) normalised to sum 1, a = ``mix`` in
     [0, 1] (issue 29 round 12, the comment at MIX_FEW)."""
-    if not 0.0 <= mix <= 1.0:
-        raise ValueError(f"usage_design: the share of the mixed-in design must be in [0, 1], found {mix!r}")
+    mix = check_share(mix)
     variance = variance or cell_variance_of(model)  # one pass over D for both parts
     p1, t1, f1 = MIX_DESIGN
     mixed_in = design_weights(model, usage, p1, hedge, t1, f1, variance)[0]
