@@ -123,7 +123,9 @@ def with_sentinels(doc: dict, model, design, candidates=None, asked: bool = Fals
         "not the model's calibrated cells (the design samples some, or the rig or --max-angle excludes them): " \
         "the check is an approximation"
     never = f" (the model's {len(scores)} held-out training materials are too few: it never flags)" if mute else ""
-    checks, said = _check_cells(model, allowed & ~np.isin(np.arange(model.grid.n_valid), cells))
+    outside = allowed.copy()  # the check cells' candidates: outside the design and the sentinels
+    outside[cells] = False
+    checks, said = _check_cells(model, outside)
     return add_sentinels(doc, model.grid, cells, checks), \
         f"sentinels: {cells.size} samples with the first batch, {where}{never}; {said}"
 
