@@ -24,7 +24,8 @@ fresh4``: ``builtin-random:4:24`` (a confirmation of round 8's design, fixed bef
 ``--test-set fresh5``: ``builtin-random:5:24`` (round 9, fixed before its first run); ``--test-set
 fresh6``: ``builtin-random:6:24`` (round 10, fixed before its first run); ``--test-set fresh7``:
 ``builtin-random:7:24`` (round 11, fixed before its first run); ``--test-set fresh8``:
-``builtin-random:8:24`` (round 12, fixed before its first run).
+``builtin-random:8:24`` (round 12, fixed before its first run); ``--test-set fresh9``:
+``builtin-random:9:24`` (a confirmation of round 12's design, fixed before its first run).
 ``--validation-set seeded`` (issue 29 round 9) chooses instead on 48 seeded analytic materials of the
 built-in families (``SEEDED_VALIDATION``: seeds 101 and 102, never a test set) with one model trained
 on all 151 shared materials, as the fresh test runs have it: the test sets' distribution, which the
@@ -92,12 +93,15 @@ BUILTIN_OFFSETS = {"builtin": 0, "builtin1": 1, "builtin2": 2}
 # seeded validation chose a power per scene with 3,300 cells up to 14 samples (p = 1 keeping the floor).
 # "fresh8" was fixed on 3 December 2026 (issue 29 round 12, branch h/29r12) before any run, after the
 # seeded validation chose the mix of the p = 1 floor design into a scene of p < 1 up to 14 samples.
+# "fresh9" was fixed on 3 December 2026 (the session after stop 40) before any run: a confirmation of
+# round 12's design, unchanged, on the seed next in line (no choice on it).
 FRESH_SETS = {"fresh1": "builtin-random:1:24", "fresh2": "builtin-random:2:24", "fresh3": "builtin-random:3:24",
               "fresh4": "builtin-random:4:24", "fresh5": "builtin-random:5:24", "fresh6": "builtin-random:6:24",
-              "fresh7": "builtin-random:7:24", "fresh8": "builtin-random:8:24"}
+              "fresh7": "builtin-random:7:24", "fresh8": "builtin-random:8:24",
+              "fresh9": "builtin-random:9:24"}
 # The seeded validation set (``--validation-set seeded``, issue 29 round 9): seeded analytic materials
 # of the built-in families, like the fresh test sets, with seeds no test set uses (the test sets'
-# seeds are 1 to 8); candidates may be chosen on these.
+# seeds are 1 to 9); candidates may be chosen on these.
 SEEDED_VALIDATION = ("builtin-random:101:24", "builtin-random:102:24")
 
 
@@ -136,7 +140,8 @@ def parse(argv=None):
                         "(issue 29 round 8, never run before it); fresh4: builtin-random:4:24 (round 8's confirmation, never "
                         "run before it); fresh5: builtin-random:5:24 (issue 29 round 9, never run before it); fresh6: "
                         "builtin-random:6:24 (issue 29 round 10, never run before it); fresh7: builtin-random:7:24 (issue 29 round 11, "
-                        "never run before it); fresh8: builtin-random:8:24 (issue 29 round 12, never run before it)")
+                        "never run before it); fresh8: builtin-random:8:24 (issue 29 round 12, never run before it); fresh9: "
+                        "builtin-random:9:24 (round 12's confirmation, never run before it)")
     p.add_argument("--sequential", choices=tuple(SEQUENTIAL), nargs="+", default=[],
                    help="also these sequential designs (issue 29 round 5: re-planned at the material's posterior "
                         "mean; per material, direct renders only)")

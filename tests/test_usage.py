@@ -414,9 +414,9 @@ def test_the_scene_benchmarks_builtin_test_set_is_fixed_and_never_trained_on():
         ["--out", "unused", "--test-set", "fresh2"]))
     assert test_specs5 == ["builtin-random:2:24"] and training5 == training and len(test5) == 24
     assert not set(test5) & (set(test4) | set(builtin))
-    # --test-set fresh5 (round 9), fresh6 (round 10), fresh7 (round 11) and fresh8 (round 12): seeds 5
-    # to 8, none of the seeded validation's (seeds 101 and 102)
-    for seed in (5, 6, 7, 8):
+    # --test-set fresh5 (round 9), fresh6 (round 10), fresh7 (round 11), fresh8 (round 12) and fresh9
+    # (round 12's confirmation): seeds 5 to 9, none of the seeded validation's (seeds 101 and 102)
+    for seed in (5, 6, 7, 8, 9):
         _, test_specs6, _, training6, test6, *_ = module["setting"](module["parse"](
             ["--out", "unused", "--test-set", f"fresh{seed}"]))
         assert test_specs6 == [f"builtin-random:{seed}:24"] and training6 == training and len(test6) == 24
