@@ -132,6 +132,9 @@ class Axis(ABC):
         self.name = config.name
         self._connected = False
         self._enabled = False
+        # A stop whose every attempt went unanswered (reply timeouts), nothing heard since: the
+        # next stop is sent once, not retried (``_send_stop``).
+        self._stop_unanswered = False
 
     # ----- public contract -------------------------------------------------------------------
     def connect(self, transport) -> None:
@@ -214,7 +217,7 @@ class Axis(ABC):
     def stop(self) -> None:
         """Command the axis to stop (decelerate); returns without waiting."""
         self._require_connected("stop")
-        self._call(self._command_stop)
+        self._send_stop()
 
     def confirm_stopped(self, timeout_s: float | None = None) -> float:
         """Wait until the device reports the axis at rest; return its position in degrees.
@@ -332,9 +335,26 @@ class Axis(ABC):
         if not self._connected:
             return
         try:
-            self._call(self._command_stop)
+            self._send_stop()
         except Exception as exc:  # noqa: BLE001 - the caller re-raises the original error
             log.warning("%s: stop after error in %s failed: %s", self.name, context, exc)
+
+    def _send_stop(self) -> None:
+        """The stop command, retried like any repeatable command; but once only while an earlier
+        stop of this axis went unanswered (every attempt a reply timeout) and nothing has been
+        heard from the device since. Each stop still goes out: the device may hear it without
+        being heard. A pulled cable otherwise cost every layer that stops on the way out (the
+        failed move, the engine's fault stop, its exit stop) its retries: 40 reply timeouts, 12 s
+        at 300 ms, before one Dynamixel's stop report; now 24."""
+        try:
+            if self._stop_unanswered:
+                self._command_stop()
+                self._stop_unanswered = False
+            else:
+                self._call(self._command_stop)
+        except DeviceTimeout:
+            self._stop_unanswered = True
+            raise
 
     def _call(self, hook: Callable, *args):
         """Call a hook that is safe to repeat (a read, a stop, a set-point that repeats harmlessly),
@@ -342,7 +362,9 @@ class Axis(ABC):
         logged (the device log of a session)."""
         for attempt in range(self.config.retries + 1):
             try:
-                return hook(*args)
+                result = hook(*args)
+                self._stop_unanswered = False  # the device answered
+                return result
             except TRANSIENT_ERRORS as exc:
                 if attempt == self.config.retries or not getattr(exc, "transient", True):
                     raise

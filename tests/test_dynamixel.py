@@ -350,6 +350,34 @@ def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
     assert (Instruction.WRITE, write_params(T["torque_enable"], 0)[:2]) in sent  # the stop went out
 
 
+@pytest.mark.parametrize("servo", [2.0], indirect=True)
+def test_a_stop_after_an_unanswered_stop_is_sent_once_until_the_servo_is_heard_again(servo, axis):
+    """A pulled cable: the failed move's own stop is retried (3 attempts), a later stop (the
+    engine's, then its exit's) goes out once, as each attempt's frames show; once the servo answers
+    again, a stop is retried as before."""
+    dev, _ = servo
+    status = _start_then_fault(dev, axis, "disconnect")
+    with pytest.raises(DeviceTimeout):
+        status.wait()
+    torque_off = (Instruction.WRITE, write_params(T["torque_enable"], 0)[:2])
+    stops = lambda: sum((p.instruction, p.params[:2]) == torque_off for p in dev.ignored)  # noqa: E731
+    assert stops() == 3  # the move's stop: goal := present unreadable, torque off, 3 attempts
+    heard = len(dev.ignored)
+    with pytest.raises(DeviceTimeout):
+        axis.stop()
+    assert stops() == 4  # once
+    # one attempt's frames, besides any resync (a READ from address 0): goal := present is tried
+    # (the READ of present position goes unanswered), then the torque-off WRITE
+    attempt = [(p.instruction, p.params[:2]) for p in dev.ignored[heard:] if p.params[:2] != bytes(2)]
+    assert attempt == [(Instruction.READ, T["present_position"].addr.to_bytes(2, "little")), torque_off]
+    dev.inject_fault("clear")
+    assert -180.0 < axis.position() < 180.0  # heard again (the unplugged servo kept going: a number)
+    dev.inject_fault("disconnect")
+    with pytest.raises(DeviceTimeout):
+        axis.stop()
+    assert stops() == 7  # retried again: 3 attempts
+
+
 def test_reboot_after_fault_clears_the_hardware_error(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
