@@ -13,7 +13,6 @@ from goniofrost.frost import confidence, stopping
 from goniofrost.frost.calibration import CvRecords, fit_calibration
 from goniofrost.frost.prediction import predict
 from goniofrost.frost.reconstruction import error_bound
-from goniofrost.frost.training import fit_model
 
 from test_frost import synthetic_tables
 
@@ -107,9 +106,9 @@ def test_the_conformal_quantile_and_what_too_few_materials_support():
 
 
 @pytest.fixture(scope="module")
-def model():
-    tables = synthetic_tables(GRID, 40, seed=3)
-    return fit_model(tables, [f"mat{i}" for i in range(40)], GRID, k_max=30)
+def model(small_trained):
+    """The model of 40 synthetic materials (seed 3) on GRID, trained once per test process."""
+    return small_trained[0]
 
 
 def test_a_trained_model_holds_its_bound_and_flags_a_material_unlike_its_training_set(model):

@@ -121,11 +121,11 @@ def test_a_capture_flagged_by_its_sentinels_never_stops_on_the_bound():
                                                        "an extrapolation")
 
 
-def test_a_trained_model_calibrates_its_sentinels():
+def test_a_trained_model_calibrates_its_sentinels(small_trained):
     from test_frost import synthetic_tables
     from goniofrost.frost.training import fit_model
 
-    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    model = small_trained[0]  # 40 synthetic materials (seed 3) on GRID
     spread = model.noise["calibration"]["bound"]["sentinel"]
     assert spread["cells"] == sentinel.cells(GRID).tolist() and len(spread["scores"]) == 40
     assert len(spread["center"]) == len(model.noise["calibration"]["bound"]["m"])
@@ -145,16 +145,14 @@ def test_a_trained_model_calibrates_its_sentinels():
     assert "the check is an approximation" in with_sentinels(doc, model, design, allowed)[1]
 
 
-def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_by_its_sentinels():
+def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_by_its_sentinels(small_trained):
     """End to end on a trained model: the same material with its BRDF x 20 in the sentinels'
     region (the design's cells left as they were) gives the design's samples, and so the bound,
     to the bit; only the sentinels see it, and the simulated capture measures on."""
     from test_frost import synthetic_tables
     from goniofrost.bench import bayes_eval
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
-
-    model = fit_model(synthetic_tables(GRID, 40, seed=3), [f"mat{i}" for i in range(40)], GRID, k_max=30)
+    model = small_trained[0]  # 40 synthetic materials (seed 3) on GRID
     order = np.asarray(select_bayes(model, 20).positions, dtype=np.int64)
     like = synthetic_tables(GRID, 2, seed=11).astype(np.float64)
     hidden = sentinel.region(GRID)
