@@ -75,6 +75,20 @@ def mounted(tmp_path):
 
 
 @pytest.fixture(scope="session")
+def synthetic24():
+    """A model of 24 synthetic materials (test_frost's synthetic_tables, seed 1) on a 10 x 10 x 20
+    grid, K <= 30, with its noise model: trained once per test process for the training, selection
+    and Bayesian tests."""
+    from test_frost import synthetic_tables
+
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.training import fit_model
+
+    grid = MerlGrid(10, 10, 20)
+    return fit_model(synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30)
+
+
+@pytest.fixture(scope="session")
 def small_trained():
     """(a model of 40 synthetic materials on a 10 x 10 x 20 grid, its 15-sample Bayesian design):
     trained once per test process for the sentinel and check-cell tests (the training is most of

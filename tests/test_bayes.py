@@ -14,7 +14,7 @@ from goniofrost.frost.bayes_selection import greedy_design, greedy_designs, sele
 from goniofrost.frost.model import FrostModel, ModelError
 from goniofrost.frost.reconstruction import reconstruct, reconstruct_bayes
 from goniofrost.frost.selection import SelectionError
-from goniofrost.frost.training import _map_and_gram, fit_model
+from goniofrost.frost.training import _map_and_gram
 from goniofrost.core.grid import cosine_weight
 
 from test_frost import synthetic_tables
@@ -28,8 +28,9 @@ def tables() -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def model(tables) -> FrostModel:
-    return fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=30)
+def model(synthetic24) -> FrostModel:
+    assert synthetic24.grid == GRID  # the session's model of these tables
+    return synthetic24
 
 
 @pytest.fixture(scope="module")

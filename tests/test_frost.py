@@ -39,9 +39,9 @@ def synthetic_tables(grid: MerlGrid, materials: int, seed: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def model() -> FrostModel:
-    tables = synthetic_tables(GRID, 24, seed=1)
-    return fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=30)
+def model(synthetic24) -> FrostModel:
+    assert synthetic24.grid == GRID
+    return synthetic24
 
 
 def test_duplicated_training_materials_add_no_directions():
