@@ -349,12 +349,15 @@ class Axis(ABC):
         try:
             if self._stop_unanswered:
                 self._command_stop()
-                self._stop_unanswered = False
             else:
                 self._call(self._command_stop)
         except DeviceTimeout:
             self._stop_unanswered = True
             raise
+        except TRANSIENT_ERRORS:  # a damaged reply: the device was heard
+            self._stop_unanswered = False
+            raise
+        self._stop_unanswered = False
 
     def _call(self, hook: Callable, *args):
         """Call a hook that is safe to repeat (a read, a stop, a set-point that repeats harmlessly),

@@ -378,6 +378,27 @@ def test_a_stop_after_an_unanswered_stop_is_sent_once_until_the_servo_is_heard_a
     assert stops() == 7  # retried again: 3 attempts
 
 
+@pytest.mark.parametrize("servo", [2.0], indirect=True)
+def test_a_damaged_reply_to_a_stop_counts_as_heard(servo, axis):
+    """A stop sent once (an earlier one unanswered) that gets a damaged reply: the servo was heard,
+    so the next unanswered stop is retried again."""
+    dev, _ = servo
+    dev.inject_fault("disconnect")
+    with pytest.raises(DeviceTimeout):
+        axis.stop()  # unanswered: 3 attempts
+    dev.inject_fault("clear")
+    dev.inject_fault("bad_checksum")
+    with pytest.raises(ChecksumError):
+        axis.stop()  # sent once, answered with a bad CRC
+    dev.inject_fault("clear")
+    dev.inject_fault("disconnect")
+    before = len(dev.ignored)
+    with pytest.raises(DeviceTimeout):
+        axis.stop()
+    torque_off = (Instruction.WRITE, write_params(T["torque_enable"], 0)[:2])
+    assert sum((p.instruction, p.params[:2]) == torque_off for p in dev.ignored[before:]) == 3  # retried
+
+
 def test_reboot_after_fault_clears_the_hardware_error(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
