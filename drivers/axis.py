@@ -344,8 +344,8 @@ class Axis(ABC):
         stop of this axis went unanswered (every attempt a reply timeout) and nothing has been
         heard from the device since. Each stop still goes out: the device may hear it without
         being heard. A pulled cable otherwise cost every layer that stops on the way out (the
-        failed move, the engine's fault stop, its exit stop) its retries: 40 reply timeouts, 12 s
-        at 300 ms, before one Dynamixel's stop report; now 24."""
+        failed move, the engine's fault stop, the stop on releasing the rig) its retries: 40 reply
+        timeouts, 12 s at 300 ms, before one Dynamixel's stop report; now 24."""
         try:
             if self._stop_unanswered:
                 self._command_stop()
