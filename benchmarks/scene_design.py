@@ -320,43 +320,46 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
         for name, (p, a, t, f) in candidates.items():
             if isinstance(p, tuple):
                 p, f = candidate_power(model, u, p, a, t, f)
+            options = candidate_options(name, p, a, t, f)
             if p is None:
                 for m in ms:
-                    designs[m][(s, name)] = select_bayes(model, m, usage=u, hedge=a, prior_spread=t,
-                                                         spread_floor=f, mix=CANDIDATE_MIX.get(name),
-                                                         mix_spread=CANDIDATE_MIX_SPREAD.get(name)).positions
+                    designs[m][(s, name)] = select_bayes(model, m, usage=u, **options).positions
             else:
-                rows = select_bayes(model, m_max, usage=u, sensitivity_power=p, hedge=a, prior_spread=t,
-                                    spread_floor=f).positions
+                rows = select_bayes(model, m_max, usage=u, **options).positions
                 for m in ms:
                     designs[m][(s, name)] = rows
     return designs
+
+
+def candidate_options(name: str, p, a: float, t, f) -> dict:
+    """select_bayes's keyword arguments for the candidate ``name`` (CANDIDATES: hedge a, spread t and
+    floor F, None the defaults) with its power p resolved (a number, or None for the shipped rule's,
+    which alone takes the candidate's mix, CANDIDATE_MIX and CANDIDATE_MIX_SPREAD)."""
+    if p is None:
+        return {"hedge": a, "prior_spread": t, "spread_floor": f, "mix": CANDIDATE_MIX.get(name),
+                "mix_spread": CANDIDATE_MIX_SPREAD.get(name)}
+    return {"hedge": a, "prior_spread": t, "spread_floor": f, "sensitivity_power": p}
 
 
 def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict:
     """{scene: {name: [p, t, effective cells]}}: the power and prior spread each candidate's design of
     m samples uses for each scene (the floor's t, ``usage_design.design_weights``; a tuple's p,
     ``scene_power``) and its weights' effective cells 1 / sum w^2 (``usage_design.effective_cells``);
-    p None: the shipped rule's power for the scene (``usage_design.scene_power``); t or F None: the
-    band's for m."""
-    from goniofrost.frost import usage_design
-    from goniofrost.frost.usage_design import design_mix, design_weights, effective_cells, prior_spread, spread_floor
+    the rest as ``scene_designs`` asks select_bayes for it (``bayes_selection.design_options``: p None
+    the shipped rule's power for the scene, t or F None the defaults for m)."""
+    from goniofrost.frost.bayes_selection import design_options
+    from goniofrost.frost.usage_design import design_weights, effective_cells
 
     out = {}
     for s, u in usage.items():
         out[s] = {}
         for name, (p, a, t, f) in candidates.items():
-            mix = 0.0
-            if p is None:  # the shipped rule's power for this scene (the band's, or the scene's of the band's)
-                p = usage_design.scene_power(model, u, m)
-                mix = design_mix(m, p, CANDIDATE_MIX.get(name)) if t is None and f is None else 0.0
-                own = CANDIDATE_MIX_SPREAD.get(name, usage_design.mix_spread(m))
-                t = (own if mix else prior_spread(m)) if t is None else t
-                f = spread_floor(m, p) if f is None else f
-            elif isinstance(p, tuple):
+            if isinstance(p, tuple):
                 p, f = candidate_power(model, u, p, a, t, f)
-            t, f = prior_spread(m) if t is None else t, 0.0 if f is None else f
-            weights, used = design_weights(model, u, p, a, t, f, mix=mix)
+            options = candidate_options(name, p, a, t, f)
+            hedge = options.pop("hedge")
+            p, t, f, mix = design_options(model, u, m, **options)
+            weights, used = design_weights(model, u, p, hedge, t, f, mix=mix)
             out[s][name] = [p, used, effective_cells(weights)]
     return out
 

@@ -848,7 +848,7 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
     by default (round 12's design) or select_bayes's ``mix_spread``; the calibration is asked for
     with that t in its key, so the designs of own t = 0 and t = 1 never share one."""
     from goniofrost.frost import usage_design
-    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.bayes_selection import design_options, select_bayes
     from goniofrost.frost.usage_design import design_key, mix_spread, mixed_weights
 
     assert usage_design.MIX_SPREAD_FEW == 1.0 and mix_spread(10) == 1.0
@@ -864,6 +864,9 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
     at_one = select_bayes(model, 10, usage=usage, **explicit)
     at_zero = select_bayes(model, 10, usage=usage, mix_spread=0.0, **explicit)
     assert asked == [(0.5, 1.0, 0.0, 0.5), (0.5, 0.0, 0.0, 0.5)]
+    assert [at_one.design_key, at_zero.design_key] == asked  # what plan records and calibrates
+    assert design_options(model, usage, 10, mix_spread=0.0, **{k: v for k, v in explicit.items()
+                                                               if k != "calibration"}) == asked[1]
     assert at_one.prior_spread == 1.0 and at_zero.prior_spread == 0.0
     assert at_one.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
                                                      spread_floor=0.0, mix=0.5).positions.tolist()

@@ -245,13 +245,11 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
 
     defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
     if not scene or sensitivity_power is not None or max_error is None:
-        power = sensitivity_power
-        if scene and power is None:
+        if scene and sensitivity_power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
-            power = usage_design.scene_power(model, usage, m, variance)
-        spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
-        share = _mix(mix, defaults, m, scene, power)
-        spread = _own_spread(spread, prior_spread, mix_spread, share, m)
+        power, spread, cells_floor, share = design_options(
+            model, usage, m, sensitivity_power=sensitivity_power, prior_spread=prior_spread,
+            spread_floor=spread_floor, mix=mix, mix_spread=mix_spread, variance=variance, scene=scene)
         calib = calibration_for(power, spread, cells_floor, share)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread = _design(
@@ -285,7 +283,24 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
                      prior_spread=used_spread if scene else (None if usage is None else 0.0),
-                     sensitivity_power=power if scene else None)
+                     sensitivity_power=power if scene else None,
+                     design_key=usage_design.design_key(power, spread, cells_floor, share) if scene else None)
+
+
+def design_options(model, usage, m, *, sensitivity_power=None, prior_spread=None, spread_floor=None, mix=None,
+                   mix_spread=None, variance=None, scene: bool = True) -> tuple[float | None, float, float, float]:
+    """(p, largest t, F, a) of the design of m samples ``select_bayes`` makes for ``usage`` with these
+    options (each None its default, as select_bayes's docstring says), without making it: the
+    power (``usage_design.scene_power`` unless given), the prior spread, the floor on the effective
+    cells and the share of MIX_DESIGN mixed in. ``scene`` False: no scene (p as given, t = 0, F
+    only checked, a = 0). ``variance``: see ``usage_design.design_weights``."""
+    power = sensitivity_power
+    if scene and power is None:
+        power = usage_design.scene_power(model, usage, m, variance)
+    defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
+    spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
+    share = _mix(mix, defaults, m, scene, power)
+    return power, _own_spread(spread, prior_spread, mix_spread, share, m), cells_floor, share
 
 
 def _spread(spread, m, scene: bool) -> float:

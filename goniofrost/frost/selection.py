@@ -71,6 +71,9 @@ class Selection:
         with max_error; ``usage_design.design_weights``), else None.
     sensitivity_power: the power p a scene-aware design's weights used (its last phase's with
         max_error; ``usage_design.scene_power`` unless given), else None.
+    design_key: the key (p, largest t, F[, a]; ``usage_design.design_key``) of a scene-aware
+        design's weights and of the calibration its predicted errors used (its last phase's with
+        max_error), else None.
     """
 
     positions: np.ndarray
@@ -83,6 +86,7 @@ class Selection:
     pick_seconds: np.ndarray | None = None
     prior_spread: float | None = None
     sensitivity_power: float | None = None
+    design_key: tuple | None = None
 
     @property
     def m(self) -> int:

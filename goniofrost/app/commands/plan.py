@@ -99,16 +99,18 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     scene = None
     if usage is not None:
-        from goniofrost.frost.usage_design import (BAND_POWERS, MIX_DESIGN, band, design_mix, is_uniform, mix_spread,
-                                                   prior_spread, sensitivity_power, spread_floor)
-        # the power and spread this scene's design used (the selection's own, not computed again):
-        # the band's, or the scene's of the band's powers; with a floor on the weights' effective
-        # cells the largest t up to the band's that keeps the floor (a uniform map: the band's power)
-        power, spread = selection.sensitivity_power, selection.prior_spread
-        power = sensitivity_power(selection.m) if power is None else power
-        floor = spread_floor(selection.m, power)  # the band's floor belongs to its own power
-        mix = 0.0 if is_uniform(usage) else design_mix(selection.m, power)  # as select_bayes's default
-        scene = scene_for(power, mix_spread(selection.m) if mix else prior_spread(selection.m), floor, mix)
+        from goniofrost.frost.usage_design import (BAND_POWERS, MIX_DESIGN, band, design_key, prior_spread,
+                                                   sensitivity_power, spread_floor)
+        # the design this scene's selection made and whose calibration it used (the selection's own
+        # key, not computed again: p, largest t, F and the mix share; a uniform map, the plain
+        # design, records the band's power and floor), and the t its weights used (with a floor on
+        # their effective cells the largest t up to the band's that keeps the floor)
+        key, spread = selection.design_key, selection.prior_spread
+        if key is None:
+            power = sensitivity_power(selection.m)
+            key = design_key(power, prior_spread(selection.m), spread_floor(selection.m, power))
+        power, _, floor, mix = key + (0.0,) * (4 - len(key))
+        scene = scene_for(*key)
         powers, cells = BAND_POWERS[band(selection.m)[0]]
         print(f"scene-aware design: each cell's use weighted by the image's sensitivity^{power:g} "
               + ("at the prior mean" if spread == 0 else f"averaged over the prior (spread t = {spread:.3g})")
