@@ -1,0 +1,50 @@
+"""Bad input on the command line: one line naming what was wrong, exit 2, nothing written and
+no axis moved, before any long work (the audit of every command against that rule).
+
+Each case is refused before the work it guards: the tests run in well under a second each.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.app.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
+
+
+def _refused(capsys, argv) -> str:
+    """Run ``goniofrost ARGV``; assert exit 2 and one line on stderr; return that line."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as done:  # argparse's own checks
+        code = done.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def _tree(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+# ----- usage errors (argparse) are one line too -------------------------------------------------
+@pytest.mark.parametrize("argv, words", [
+    (["plan", "--model", "m", "--samples", "5", "--max-error", "0.1", "--out", "p.json"],
+     "argument --max-error: not allowed with argument --samples"),
+    (["train", "--dataset", "builtin", "--components", "abc", "--out", "m"], "invalid int value: 'abc'"),
+    (["rig", "lamp", "--rig", "r.yaml", "dim"], "invalid choice: 'dim'"),
+    (["rig", "move", "--rig", "r.yaml"], "the following arguments are required: AXIS=DEG"),
+    (["preview", "x.binary", "--out", "p.png", "--renderer", "nosuch"], "invalid choice: 'nosuch'"),
+])
+def test_a_usage_error_is_one_line_naming_the_option_and_help(argv, words, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    line = _refused(capsys, argv)
+    assert words in line and line.endswith("--help)") and line.startswith("goniofrost")
+    assert _tree(tmp_path) == []
