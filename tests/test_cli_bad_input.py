@@ -48,3 +48,26 @@ def test_a_usage_error_is_one_line_naming_the_option_and_help(argv, words, tmp_p
     line = _refused(capsys, argv)
     assert words in line and line.endswith("--help)") and line.startswith("goniofrost")
     assert _tree(tmp_path) == []
+
+
+# ----- shared small inputs ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def binary(tmp_path_factory) -> Path:
+    """A MERL .binary of a 10 x 10 x 20 grid (48 kB)."""
+    from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.core.grid import MerlGrid
+
+    grid = MerlGrid(10, 10, 20)
+    path = tmp_path_factory.mktemp("inputs") / "x.binary"
+    write_merl(path, valid_to_full(np.full((grid.n_valid, 3), 0.2), grid), grid)
+    return path
+
+
+# ----- preview and compare: a sphere too large to draw ------------------------------------------
+@pytest.mark.parametrize("command", ["preview", "compare"])
+def test_a_sphere_larger_than_2048_pixels_is_refused_before_drawing(command, binary, tmp_path, capsys):
+    """--size 100000 asked numpy for 75 GB and ended in a MemoryError traceback (exit 1)."""
+    inputs = [binary] if command == "preview" else [binary, binary]
+    line = _refused(capsys, [command, *inputs, "--size", "100000", "--out", tmp_path / "p.png"])
+    assert line == f"goniofrost {command}: error: --size: expected at most 2048 pixels, found 100000"
+    assert _tree(tmp_path) == []
