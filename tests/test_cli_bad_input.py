@@ -71,3 +71,16 @@ def test_a_sphere_larger_than_2048_pixels_is_refused_before_drawing(command, bin
     line = _refused(capsys, [command, *inputs, "--size", "100000", "--out", tmp_path / "p.png"])
     assert line == f"goniofrost {command}: error: --size: expected at most 2048 pixels, found 100000"
     assert _tree(tmp_path) == []
+
+
+# ----- export: options that would make a file of many GB -------------------------------------------
+@pytest.mark.parametrize("options, words", [
+    (["--theta-i", "100000"], "--theta-i 100000, --sample 128: the file would hold 19.7 GB of values"),
+    (["--sample", "100000"], "--theta-i 48, --sample 100000: the file would hold 5760.0 GB of values"),
+    (["--format", "rgl-spectral", "--wavelengths", "100000"], "--wavelengths 100000: the file would hold 314.6 GB"),
+])
+def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words, binary, tmp_path, capsys):
+    """--theta-i 100000 ran for a minute, then the kernel killed it for memory (exit 137)."""
+    line = _refused(capsys, ["export", binary, *options, "--out", tmp_path / "e.bsdf"])
+    assert words in line and "expected at most 1 GB" in line
+    assert _tree(tmp_path) == []
