@@ -84,3 +84,46 @@ def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words,
     line = _refused(capsys, ["export", binary, *options, "--out", tmp_path / "e.bsdf"])
     assert words in line and "expected at most 1 GB" in line
     assert _tree(tmp_path) == []
+
+
+# ----- align and sim: an output that cannot be written is refused before any device starts -------
+def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys, monkeypatch):
+    """align --out DIR moved the axes through its 30 poses (30 s) and only then failed to write."""
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    (tmp_path / "alignment.json").mkdir()
+    line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "alignment.json"])
+    assert line == f"goniofrost align: error: {tmp_path / 'alignment.json'}: cannot write: it is a directory; give a file name"
+    assert _tree(tmp_path) == ["alignment.json"]
+
+
+def test_align_refuses_frames_below_a_file_before_any_axis_moves(binary, tmp_path, capsys, monkeypatch):
+    """align --frames FILE moved the axes and then failed with "FILE/align.sqlite: Not a directory"."""
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "a.json", "--frames", binary])
+    assert line == f"goniofrost align: error: {binary}: cannot write: a part of the path is a file, not a directory"
+    assert _tree(tmp_path) == []
+
+
+def test_sim_refuses_a_directory_as_write_rig_before_starting_the_devices(tmp_path, capsys, monkeypatch):
+    """sim --write-rig DIR started the simulated devices and the camera service, then failed to write."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    (tmp_path / "lab.yaml").mkdir()
+    line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--write-rig", tmp_path / "lab.yaml"])
+    assert line == f"goniofrost sim: error: {tmp_path / 'lab.yaml'}: cannot write: it is a directory; give a file name"
+    assert _tree(tmp_path) == ["lab.yaml"]
+
+
+def test_sim_refuses_material_without_write_rig(capsys, monkeypatch):
+    """--material only sets what the camera of --write-rig's rig file sees: without it, it was ignored."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--material", "builtin:gold"])
+    assert line.startswith("goniofrost sim: error: command line: --material: expected --write-rig OUT.yaml as well")
+    assert line.endswith("found 'builtin:gold'")

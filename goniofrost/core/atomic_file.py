@@ -68,6 +68,16 @@ def check_output_dir(path) -> None:
             raise OSError(code, os.strerror(code), str(existing))
 
 
+def check_output_file(path) -> None:
+    """Raise ``OutputError`` now if the file ``path`` could not be written later: a directory in
+    its place, or a folder that could not be created or written (``check_output_dir``). Creates
+    nothing: for commands that write their file after moving axes or minutes of work."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(path, REASONS[errno.EISDIR])
+    check_output_dir(path.parent)
+
+
 def write_bytes_atomic(path, payload: bytes) -> None:
     """Replace ``path`` with ``payload`` atomically (parent folders are created).
 
