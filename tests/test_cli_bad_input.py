@@ -127,3 +127,31 @@ def test_sim_refuses_material_without_write_rig(capsys, monkeypatch):
     line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--material", "builtin:gold"])
     assert line.startswith("goniofrost sim: error: command line: --material: expected --write-rig OUT.yaml as well")
     assert line.endswith("found 'builtin:gold'")
+
+
+# ----- demo: options used minutes later are checked before the training -----------------------------
+@pytest.mark.parametrize("options, words", [
+    (["--target-error", "0.01", "--confidence", "1.5"],
+     "command line: --confidence: expected a probability between 0 and 1 (e.g. 0.95), found 1.5"),
+    (["--speedup", "0"], "command line: --speedup: expected a simulated clock speed-up > 0, found 0.0"),
+    (["--speedup", "nan"], "command line: --speedup: expected a simulated clock speed-up > 0, found nan"),
+    (["--samples", "0"], "command line: --samples: expected an integer in [1, 1000], found 0"),
+])
+def test_demo_refuses_a_bad_option_before_any_work(options, words, tmp_path, capsys, monkeypatch):
+    """--confidence 1.5 and --speedup 0 were refused after training and planning, with plan.json
+    (and a session) already written into --out."""
+    import goniofrost.app.demo as demo
+
+    monkeypatch.setattr(demo, "run_demo", lambda *a, **k: pytest.fail("the demo ran"))
+    line = _refused(capsys, ["demo", "--out", tmp_path / "d", *options])
+    assert line == f"goniofrost demo: error: {words}"
+    assert _tree(tmp_path) == []
+
+
+def test_demo_refuses_an_out_below_a_file_before_any_work(binary, capsys, monkeypatch):
+    """demo --out FILE trained the model (a minute from an empty cache) before failing."""
+    import goniofrost.app.demo as demo
+
+    monkeypatch.setattr(demo, "run_demo", lambda *a, **k: pytest.fail("the demo ran"))
+    line = _refused(capsys, ["demo", "--out", binary])
+    assert line == f"goniofrost demo: error: {binary}: cannot write: a part of the path is a file, not a directory"
