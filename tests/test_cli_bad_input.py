@@ -155,3 +155,21 @@ def test_demo_refuses_an_out_below_a_file_before_any_work(binary, capsys, monkey
     monkeypatch.setattr(demo, "run_demo", lambda *a, **k: pytest.fail("the demo ran"))
     line = _refused(capsys, ["demo", "--out", binary])
     assert line == f"goniofrost demo: error: {binary}: cannot write: a part of the path is a file, not a directory"
+
+
+# ----- capture --dry-run: options that a dry run would ignore ---------------------------------------
+@pytest.mark.parametrize("options, found", [
+    (["--session", "s1"], "--session"),
+    (["--target-error", "0.05", "--seed", "0"], "--target-error --seed"),
+    (["--material", "builtin:gold", "--bsdf"], "--material --bsdf"),
+])
+def test_capture_dry_run_refuses_options_it_would_ignore(options, found, tmp_path, capsys, monkeypatch):
+    """capture --dry-run --session s1 moved the rig and said nothing of the session it did not write."""
+    import goniofrost.app.rig_console as console
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(console, "run_dry_run", lambda *a, **k: pytest.fail("the dry run ran"))
+    line = _refused(capsys, ["capture", "--rig", SIM_RIG, "--plan", "plan.json", "--dry-run", *options])
+    assert line.startswith("goniofrost capture: error: command line: --dry-run: expected only --rig, --plan, ")
+    assert line.endswith(f"found {found!r}")
+    assert _tree(tmp_path) == []
