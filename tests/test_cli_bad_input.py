@@ -173,3 +173,32 @@ def test_capture_dry_run_refuses_options_it_would_ignore(options, found, tmp_pat
     assert line.startswith("goniofrost capture: error: command line: --dry-run: expected only --rig, --plan, ")
     assert line.endswith(f"found {found!r}")
     assert _tree(tmp_path) == []
+
+
+# ----- train and bench: numbers checked before the tabulation ----------------------------------------
+def test_train_refuses_non_positive_components_before_tabulating(tmp_path, capsys, monkeypatch):
+    """train --components -3 tabulated the built-in library (20 s) before the training refused it."""
+    import goniofrost.frost.training as training
+
+    monkeypatch.setattr(training, "train", lambda *a, **k: pytest.fail("the training ran"))
+    line = _refused(capsys, ["train", "--dataset", "builtin", "--components", "-3", "--out", tmp_path / "m"])
+    assert line == ("goniofrost train: error: command line: --components: expected a positive integer "
+                    "(the components kept), found -3")
+    assert _tree(tmp_path) == []
+
+
+@pytest.mark.parametrize("options, option, value", [
+    (["--jobs", "0"], "--jobs", 0),
+    (["--jobs", "-2"], "--jobs", -2),
+    (["--stress", "--stress-m", "0"], "--stress-m", 0),
+])
+def test_bench_refuses_non_positive_jobs_and_stress_m_before_any_work(options, option, value, tmp_path, capsys,
+                                                                        monkeypatch):
+    """--jobs 0 ran the folds with one worker silently; --stress-m 0 tabulated 151 materials first."""
+    import goniofrost.bench.runner as runner
+
+    monkeypatch.setattr(runner, "run_benchmark", lambda *a, **k: pytest.fail("the benchmark ran"))
+    monkeypatch.setattr(runner, "run_stress", lambda *a, **k: pytest.fail("the stress cases ran"))
+    line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--quick", *options])
+    assert line == f"goniofrost bench: error: command line: {option}: expected a positive integer, found {value}"
+    assert _tree(tmp_path) == []
