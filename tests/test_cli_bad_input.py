@@ -202,3 +202,50 @@ def test_bench_refuses_non_positive_jobs_and_stress_m_before_any_work(options, o
     line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--quick", *options])
     assert line == f"goniofrost bench: error: command line: {option}: expected a positive integer, found {value}"
     assert _tree(tmp_path) == []
+
+
+# ----- a damaged model.json -------------------------------------------------------------------------
+GOOD_META = {"format": "goniofrost-frost-model", "version": 2, "grid": {"n_th": 10, "n_td": 10, "n_pd": 20},
+             "names": ["m0", "m1"], "eps": 0.001, "content_hash": "0" * 64, "info": {}, "noise": {}}
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("grid", "abc", 'grid: expected {"n_th": int, "n_td": int, "n_pd": int} (positive), found \'abc\''),
+    ("grid", {"n_th": 10, "n_td": -1, "n_pd": 20}, "grid: expected"),
+    ("names", "m0", "names: expected a list of material names, found 'm0'"),
+    ("eps", "small", "eps: expected a finite number >= 0, found 'small'"),
+    ("noise", [1], "noise: expected a JSON object, found [1]"),
+])
+@pytest.mark.parametrize("command", ["plan", "reconstruct"])
+def test_a_model_json_field_of_the_wrong_type_is_named(command, field, value, words, tmp_path, capsys):
+    """model.json with "grid": "abc" ended in a TypeError traceback (exit 1) in plan and reconstruct."""
+    import json
+
+    from goniofrost.frost.model import FORMAT
+
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.json").write_text(json.dumps(GOOD_META | {"format": FORMAT, field: value}))
+    (tmp_path / "s.csv").write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n")
+    before = _tree(tmp_path)
+    argv = {"plan": ["plan", "--model", model, "--samples", "3", "--out", tmp_path / "p.json"],
+            "reconstruct": ["reconstruct", "--model", model, "--samples", tmp_path / "s.csv",
+                            "--out", tmp_path / "r.binary"]}[command]
+    line = _refused(capsys, argv)
+    assert line.startswith(f"goniofrost {command}: error: {model / 'model.json'}: {words}")
+    assert _tree(tmp_path) == before
+
+
+# ----- reconstruct: an --out that is the samples file ------------------------------------------------
+@pytest.mark.parametrize("out", ["s.csv", "s.binary"])
+def test_reconstruct_refuses_an_out_that_would_overwrite_its_samples(out, tmp_path, capsys, monkeypatch):
+    """reconstruct --samples s.csv --out s.csv replaced the samples with the BRDF (exit 0); with
+    --samples s.json --out s.binary the record OUT.json would replace them."""
+    monkeypatch.chdir(tmp_path)
+    samples = "s.csv" if out == "s.csv" else "s.json"
+    text = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n"
+    Path(samples).write_text(text)
+    line = _refused(capsys, ["reconstruct", "--model", "model", "--samples", samples, "--out", out])
+    assert line == (f"goniofrost reconstruct: error: --out {out}: would overwrite the --samples file {samples}; "
+                    f"expected another name such as brdf.binary")
+    assert _tree(tmp_path) == [samples] and Path(samples).read_text() == text
