@@ -249,3 +249,39 @@ def test_reconstruct_refuses_an_out_that_would_overwrite_its_samples(out, tmp_pa
     assert line == (f"goniofrost reconstruct: error: --out {out}: would overwrite the --samples file {samples}; "
                     f"expected another name such as brdf.binary")
     assert _tree(tmp_path) == [samples] and Path(samples).read_text() == text
+
+
+# ----- an output that is one of the command's inputs -------------------------------------------------
+def test_plan_refuses_an_out_inside_its_model(tmp_path, capsys):
+    """plan --out MODEL/model.json replaced the model's metadata with the plan (exit 0): the model was lost."""
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.json").write_text("{}")
+    line = _refused(capsys, ["plan", "--model", model, "--samples", "3", "--out", model / "model.json"])
+    assert line == (f"goniofrost plan: error: {model / 'model.json'}: cannot write: --out would overwrite the input "
+                    f"--model {model}; give another name")
+    assert (model / "model.json").read_text() == "{}"
+
+
+def test_sim_refuses_a_write_rig_that_is_its_rig(tmp_path, capsys, monkeypatch):
+    """sim --rig lab.yaml --write-rig lab.yaml replaced the rig file with the generated one."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    rig = tmp_path / "lab.yaml"
+    rig.write_text(SIM_RIG.read_text())
+    line = _refused(capsys, ["sim", "--rig", rig, "--write-rig", rig])
+    assert line == (f"goniofrost sim: error: {rig}: cannot write: --write-rig would overwrite the input --rig {rig}; "
+                    f"give another name")
+    assert rig.read_text() == SIM_RIG.read_text() and _tree(tmp_path) == ["lab.yaml"]
+
+
+def test_align_refuses_an_out_that_is_its_rig(tmp_path, capsys, monkeypatch):
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    rig = tmp_path / "lab.yaml"
+    rig.write_text(SIM_RIG.read_text())
+    line = _refused(capsys, ["align", "--rig", rig, "--out", rig])
+    assert line.endswith(f"cannot write: --out would overwrite the input --rig {rig}; give another name")
+    assert rig.read_text() == SIM_RIG.read_text()
