@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"incident elevations tabulated (default {DEFAULT_OPTIONS.theta_i})")
     parser.add_argument("--sample", type=int, default=DEFAULT_OPTIONS.sample, metavar="N",
                         help=f"rgb/spectra and luminance nodes per side of each incident slice (default "
-                             f"{DEFAULT_OPTIONS.sample}; the file grows with N^2)")
+                             f"{DEFAULT_OPTIONS.sample}; the file grows with N^2; at most 1 GB of values in all)")
     lo, hi = WAVELENGTH_RANGE_NM
     parser.add_argument("--wavelengths", type=int, default=None, metavar="N",
                         help=f"spectral formats: wavelengths from {lo:g} to {hi:g} nm (default {DEFAULT_WAVELENGTHS}; "
