@@ -16,9 +16,18 @@ COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "align", "ca
             "bench", "preview", "compare", "demo", "export", "monitor", "usage", "rig", "queue", "sessions"]
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors are one line, like every other error of the command
+    line (argparse prints the whole usage block first); exit status 2 as before. Sub-parsers
+    inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with one sub-parser per available command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="goniofrost",
         description="Measure a BRDF from a few optimal light/view pairs (FROST-BRDF) on a real or simulated gonioreflectometer.",
     )

@@ -43,7 +43,7 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.rig_file import load_checked_rig
     from goniofrost.capture.runner import check_sim_options
-    from goniofrost.core.atomic_file import write_text_atomic
+    from goniofrost.core.atomic_file import check_not_an_input, check_output_dir, check_output_file, write_text_atomic
     from planner.alignment import fit_alignment
 
     # offsets are measured from the axes' readings: an alignment the rig file names is set aside
@@ -55,6 +55,10 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     out_path = Path(out_path)
     if not out_path.parent.is_dir():
         raise ConfigError("command line", "--out", "a file in an existing folder", str(out_path))
+    check_not_an_input(out_path, {"--rig": rig_path})
+    check_output_file(out_path)  # before any axis moves, not after the 30 poses
+    if frames is not None:
+        check_output_dir(frames)
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)

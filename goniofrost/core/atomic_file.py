@@ -68,6 +68,28 @@ def check_output_dir(path) -> None:
             raise OSError(code, os.strerror(code), str(existing))
 
 
+def check_output_file(path) -> None:
+    """Raise ``OutputError`` now if the file ``path`` could not be written later: a directory in
+    its place, or a folder that could not be created or written (``check_output_dir``). Creates
+    nothing: for commands that write their file after moving axes or minutes of work."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(path, REASONS[errno.EISDIR])
+    check_output_dir(path.parent)
+
+
+def check_not_an_input(out, inputs: dict, option: str = "--out") -> None:
+    """Raise ``OutputError`` now if the output ``out`` is one of the ``inputs`` (option -> path, a
+    file or a folder such as a model) or lies inside one: writing it would destroy what was read."""
+    out = Path(out).resolve()
+    for name, path in inputs.items():
+        if path is None:
+            continue
+        path = Path(path).resolve()
+        if out == path or path in out.parents:
+            raise OutputError(out, f"{option} would overwrite the input {name} {path}; give another name")
+
+
 def write_bytes_atomic(path, payload: bytes) -> None:
     """Replace ``path`` with ``payload`` atomically (parent folders are created).
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -230,6 +231,19 @@ def _read_meta(path: Path) -> dict:
     missing = [k for k in ("grid", "names", "eps", "content_hash") if k not in meta]
     if missing:
         raise ModelError(f"{file}: missing fields {missing}")
+    # a hand-edited or damaged model.json: each field's type, named, instead of a TypeError deep in load
+    grid, names = meta["grid"], meta["names"]
+    if not (isinstance(grid, dict) and set(grid) == {"n_th", "n_td", "n_pd"}
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in grid.values())):
+        raise ModelError(f"{file}: grid: expected {{\"n_th\": int, \"n_td\": int, \"n_pd\": int}} (positive), "
+                         f"found {grid!r}")
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+        raise ModelError(f"{file}: names: expected a list of material names, found {names!r}")
+    if not (isinstance(meta["eps"], (int, float)) and not isinstance(meta["eps"], bool) and 0 <= meta["eps"] < math.inf):
+        raise ModelError(f"{file}: eps: expected a finite number >= 0, found {meta['eps']!r}")
+    for key in ("info", "noise"):
+        if meta.get(key) is not None and not isinstance(meta[key], dict):
+            raise ModelError(f"{file}: {key}: expected a JSON object, found {meta[key]!r}")
     meta.setdefault("version", 1)
     if meta["version"] not in READABLE_VERSIONS:
         raise ModelError(f"{file}: version: expected one of {list(READABLE_VERSIONS)}, found {meta['version']!r} "

@@ -53,7 +53,12 @@ def run(args) -> int:
     from goniofrost.bench.runner import run_benchmark, run_stress
     from goniofrost.core.atomic_file import check_output_dir
 
+    from goniofrost.core.errors import ConfigError
+
     config = build_config(args)
+    for option, value in (("--jobs", args.jobs), ("--stress-m", args.stress_m)):
+        if value < 1:  # --jobs 0 ran with one worker silently; --stress-m 0 failed after the tabulation
+            raise ConfigError("command line", option, "a positive integer", value)
     check_output_dir(args.out)   # a bad --out fails now, not after an hour of folds
     if args.stress:
         paths = run_stress(config, args.out, command(config, args), m=args.stress_m, progress=not args.no_progress)

@@ -52,6 +52,17 @@ def run(args) -> int:
 
     if args.dry_run:
         from goniofrost.app.rig_console import run_dry_run
+        from goniofrost.core.errors import ConfigError
+
+        given = [flag for flag, value in (
+            ("--session", args.session), ("--material", args.material), ("--resume", args.resume),
+            ("--operator", args.operator), ("--sample-id", args.sample_id), ("--note", args.note),
+            ("--target-error", args.target_error), ("--confidence", args.confidence), ("--seed", args.seed),
+            ("--bsdf", args.bsdf), ("--bsdf-format", args.bsdf_format), ("--monitor", args.monitor))
+            if value is not None and value is not False and value != []]
+        if given:  # a dry run moves the axes only and writes nothing: these would change nothing, silently
+            raise ConfigError("command line", "--dry-run", "only --rig, --plan, --alignment, --speedup and "
+                              "--no-progress (a dry run moves the axes and writes nothing)", " ".join(given))
         from goniofrost.capture.signals import SessionInterrupted
 
         try:

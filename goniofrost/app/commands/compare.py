@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="two or more session folders or MERL .binary files, keyed A, B, C, ... in this order")
     parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
     parser.add_argument("--json", action="store_true", help="print the numbers as JSON instead of lines")
-    parser.add_argument("--size", type=int, default=128, help="sphere diameter in pixels (default 128)")
+    parser.add_argument("--size", type=int, default=128, help="sphere diameter in pixels, 16 to 2048 (default 128)")
 
 
 def resolve(path_text: str):
@@ -50,7 +50,7 @@ def resolve(path_text: str):
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from goniofrost.app.png_out import check_png_name
+    from goniofrost.app.png_out import check_png_name, check_sphere_size
     from goniofrost.brdf.compare import KEYS, compare_files, write_png
     from goniofrost.core.errors import GoniofrostError
 
@@ -59,8 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if len(args.inputs) > len(KEYS):
         raise GoniofrostError(f"inputs: expected at most {len(KEYS)}, found {len(args.inputs)}")
     check_png_name(args.out)
-    if args.size < 16:
-        raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
+    check_sphere_size(args.size)
     resolved = [resolve(text) for text in args.inputs]
     comparison = compare_files([p for p, _ in resolved], [label for _, label in resolved], size=args.size)
     write_png(args.out, comparison, title="goniofrost compare")

@@ -5,7 +5,7 @@ BSDF loads in its RGB variants (``goniofrost.brdf.mitsuba_export``); ``rgl-spect
 ``pbrt``) the spectral one, with ``spectra`` and ``wavelengths`` instead of ``rgb``, that pbrt-v4's
 ``measured`` material and Mitsuba 3's spectral variants load (``goniofrost.brdf.rgl_spectral``).
 Nothing is written when the input is refused (truncated or oversized file, NaN or inf stored, no
-valid value, a bad option).
+valid value, a bad option, options that would make a file of more than 1 GB of values).
 """
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import argparse
 HELP = ("export a MERL .binary to the RGL tensor format (.bsdf): RGB for Mitsuba 3, spectral for pbrt-v4 and "
         "Mitsuba 3's spectral variants")
 FORMATS = ["mitsuba", "rgl-spectral", "pbrt"]
+MAX_TABLE_BYTES = 1_000_000_000  # 10 times the default spectral file; exporting takes a few times this in memory
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"incident elevations tabulated (default {DEFAULT_OPTIONS.theta_i})")
     parser.add_argument("--sample", type=int, default=DEFAULT_OPTIONS.sample, metavar="N",
                         help=f"rgb/spectra and luminance nodes per side of each incident slice (default "
-                             f"{DEFAULT_OPTIONS.sample}; the file grows with N^2)")
+                             f"{DEFAULT_OPTIONS.sample}; the file grows with N^2; at most 1 GB of values in all)")
     lo, hi = WAVELENGTH_RANGE_NM
     parser.add_argument("--wavelengths", type=int, default=None, metavar="N",
                         help=f"spectral formats: wavelengths from {lo:g} to {hi:g} nm (default {DEFAULT_WAVELENGTHS}; "
@@ -56,6 +57,15 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample), ("--wavelengths", wavelengths)):
         if value < 2:
             raise GoniofrostError(f"{flag}: expected an integer >= 2, found {value}")
+    channels = 3 if KINDS[args.format] == "rgb" else wavelengths
+    size = 4 * args.theta_i * channels * args.sample ** 2  # the float32 rgb or spectra table, most of the file
+    if size > MAX_TABLE_BYTES:  # --theta-i 100000 ran a minute, then the kernel killed it for memory
+        raise GoniofrostError(
+            f"--theta-i {args.theta_i}, --sample {args.sample}"
+            + ("" if channels == 3 else f", --wavelengths {wavelengths}")
+            + f": the file would hold {size / 1e9:.1f} GB of values; expected at most {MAX_TABLE_BYTES / 1e9:g} GB "
+              f"(the defaults write {4 * DEFAULT_OPTIONS.theta_i * 3 * DEFAULT_OPTIONS.sample ** 2 / 1e6:.0f} MB "
+              f"in RGB)")
     options = replace(DEFAULT_OPTIONS, theta_i=args.theta_i, sample=args.sample)
     start = time.perf_counter()
     fields = export_file(source, out, args.format, options, wavelengths)

@@ -59,6 +59,9 @@ def run(args) -> int:
     if args.max_angle is not None and not 0 < args.max_angle <= 90:  # 0 left one direction, nan none
         from goniofrost.core.errors import ConfigError
         raise ConfigError("command line", "--max-angle", "degrees in (0, 90]", args.max_angle)
+    from goniofrost.core.atomic_file import check_not_an_input
+    check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
+                                  "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
     model = FrostModel.load(args.model)
     usage = None
     if args.usage is not None:

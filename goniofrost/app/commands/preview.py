@@ -11,7 +11,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--std", metavar="FILE.std.binary",
                         help="predictive standard deviation from goniofrost reconstruct: adds an uncertainty "
                              "panel (and, with --reference, the actual log error beside it)")
-    parser.add_argument("--size", type=int, default=192, help="sphere diameter in pixels (default 192)")
+    parser.add_argument("--size", type=int, default=192, help="sphere diameter in pixels, 16 to 2048 (default 192)")
     parser.add_argument("--renderer", choices=["goniofrost", "mitsuba"], default="goniofrost",
                         help="goniofrost: MERL cell lookup per pixel (default); mitsuba: export each file "
                              "(goniofrost export) and render it with Mitsuba 3's 'measured' BSDF (needs mitsuba)")
@@ -21,12 +21,11 @@ def run(args) -> int:
     from pathlib import Path
 
     from goniofrost.core.errors import GoniofrostError
-    from goniofrost.app.png_out import check_png_name
+    from goniofrost.app.png_out import check_png_name, check_sphere_size
     from goniofrost.brdf.preview import make_preview, write_png
 
     check_png_name(args.out)
-    if args.size < 16:
-        raise GoniofrostError(f"--size: expected at least 16 pixels, found {args.size}")
+    check_sphere_size(args.size)
     if args.renderer == "mitsuba":
         if args.std is not None:
             raise GoniofrostError("--std: the uncertainty panel is drawn by the goniofrost renderer; "

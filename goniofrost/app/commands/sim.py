@@ -24,7 +24,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--write-rig", metavar="OUT.yaml", default=None,
                         help="also write a rig file (simulated: false) whose drivers and camera are the running "
                              "twins, to rehearse a capture or the console exactly as on a real rig")
-    parser.add_argument("--material", default=DEFAULT_MATERIAL,
+    parser.add_argument("--material", default=None,
                         help=f"what the simulated camera sees with --write-rig (default {DEFAULT_MATERIAL})")
 
 
@@ -43,11 +43,15 @@ def run(args) -> int:
         raise ConfigError("command line", "--speedup", "a number > 0", args.speedup)
     rig = load_checked_rig(args.rig)
     seed = args.seed if args.seed is not None else int((rig.sim or {}).get("seed", 0))
+    if args.material is not None and args.write_rig is None:  # it would change nothing, silently
+        raise ConfigError("command line", "--material", "--write-rig OUT.yaml as well (the material is what the "
+                          "simulated camera of that rig file sees)", args.material)
     if args.write_rig is not None:
-        from goniofrost.core.atomic_file import check_output_dir
+        from goniofrost.core.atomic_file import check_not_an_input, check_output_file
         from goniofrost.datasets import material_brdf
-        check_output_dir(args.write_rig)
-        material = material_brdf(args.material)  # a bad name fails before anything starts
+        check_not_an_input(args.write_rig, {"--rig": args.rig}, "--write-rig")  # it replaced the rig file
+        check_output_file(args.write_rig)
+        material = material_brdf(args.material or DEFAULT_MATERIAL)  # a bad name fails before anything starts
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

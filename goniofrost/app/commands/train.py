@@ -24,6 +24,9 @@ def run(args) -> int:
     from goniofrost.frost.model import check_model_destination
     from goniofrost.frost.training import train
 
+    if args.components < 1:  # checked by the training too, but only after the tabulation (a minute)
+        from goniofrost.core.errors import ConfigError
+        raise ConfigError("command line", "--components", "a positive integer (the components kept)", args.components)
     check_model_destination(args.out)  # before training, not after it
     candidates = _rig_cells(args)
     model = train(args.dataset, only=args.only, exclude=args.exclude, k_max=args.components,

@@ -1,0 +1,287 @@
+"""Bad input on the command line: one line naming what was wrong, exit 2, nothing written and
+no axis moved, before any long work (the audit of every command against that rule).
+
+Each case is refused before the work it guards: the tests run in well under a second each.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniofrost.app.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
+
+
+def _refused(capsys, argv) -> str:
+    """Run ``goniofrost ARGV``; assert exit 2 and one line on stderr; return that line."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as done:  # argparse's own checks
+        code = done.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def _tree(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+# ----- usage errors (argparse) are one line too -------------------------------------------------
+@pytest.mark.parametrize("argv, words", [
+    (["plan", "--model", "m", "--samples", "5", "--max-error", "0.1", "--out", "p.json"],
+     "argument --max-error: not allowed with argument --samples"),
+    (["train", "--dataset", "builtin", "--components", "abc", "--out", "m"], "invalid int value: 'abc'"),
+    (["rig", "lamp", "--rig", "r.yaml", "dim"], "invalid choice: 'dim'"),
+    (["rig", "move", "--rig", "r.yaml"], "the following arguments are required: AXIS=DEG"),
+    (["preview", "x.binary", "--out", "p.png", "--renderer", "nosuch"], "invalid choice: 'nosuch'"),
+])
+def test_a_usage_error_is_one_line_naming_the_option_and_help(argv, words, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    line = _refused(capsys, argv)
+    assert words in line and line.endswith("--help)") and line.startswith("goniofrost")
+    assert _tree(tmp_path) == []
+
+
+# ----- shared small inputs ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def binary(tmp_path_factory) -> Path:
+    """A MERL .binary of a 10 x 10 x 20 grid (48 kB)."""
+    from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.core.grid import MerlGrid
+
+    grid = MerlGrid(10, 10, 20)
+    path = tmp_path_factory.mktemp("inputs") / "x.binary"
+    write_merl(path, valid_to_full(np.full((grid.n_valid, 3), 0.2), grid), grid)
+    return path
+
+
+# ----- preview and compare: a sphere too large to draw ------------------------------------------
+@pytest.mark.parametrize("command", ["preview", "compare"])
+def test_a_sphere_larger_than_2048_pixels_is_refused_before_drawing(command, binary, tmp_path, capsys):
+    """--size 100000 asked numpy for 75 GB and ended in a MemoryError traceback (exit 1)."""
+    inputs = [binary] if command == "preview" else [binary, binary]
+    line = _refused(capsys, [command, *inputs, "--size", "100000", "--out", tmp_path / "p.png"])
+    assert line == f"goniofrost {command}: error: --size: expected at most 2048 pixels, found 100000"
+    assert _tree(tmp_path) == []
+
+
+# ----- export: options that would make a file of many GB -------------------------------------------
+@pytest.mark.parametrize("options, words", [
+    (["--theta-i", "100000"], "--theta-i 100000, --sample 128: the file would hold 19.7 GB of values"),
+    (["--sample", "100000"], "--theta-i 48, --sample 100000: the file would hold 5760.0 GB of values"),
+    (["--format", "rgl-spectral", "--wavelengths", "100000"], "--wavelengths 100000: the file would hold 314.6 GB"),
+])
+def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words, binary, tmp_path, capsys):
+    """--theta-i 100000 ran for a minute, then the kernel killed it for memory (exit 137)."""
+    line = _refused(capsys, ["export", binary, *options, "--out", tmp_path / "e.bsdf"])
+    assert words in line and "expected at most 1 GB" in line
+    assert _tree(tmp_path) == []
+
+
+# ----- align and sim: an output that cannot be written is refused before any device starts -------
+def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys, monkeypatch):
+    """align --out DIR moved the axes through its 30 poses (30 s) and only then failed to write."""
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    (tmp_path / "alignment.json").mkdir()
+    line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "alignment.json"])
+    assert line == f"goniofrost align: error: {tmp_path / 'alignment.json'}: cannot write: it is a directory; give a file name"
+    assert _tree(tmp_path) == ["alignment.json"]
+
+
+def test_align_refuses_frames_below_a_file_before_any_axis_moves(binary, tmp_path, capsys, monkeypatch):
+    """align --frames FILE moved the axes and then failed with "FILE/align.sqlite: Not a directory"."""
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "a.json", "--frames", binary])
+    assert line == f"goniofrost align: error: {binary}: cannot write: a part of the path is a file, not a directory"
+    assert _tree(tmp_path) == []
+
+
+def test_sim_refuses_a_directory_as_write_rig_before_starting_the_devices(tmp_path, capsys, monkeypatch):
+    """sim --write-rig DIR started the simulated devices and the camera service, then failed to write."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    (tmp_path / "lab.yaml").mkdir()
+    line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--write-rig", tmp_path / "lab.yaml"])
+    assert line == f"goniofrost sim: error: {tmp_path / 'lab.yaml'}: cannot write: it is a directory; give a file name"
+    assert _tree(tmp_path) == ["lab.yaml"]
+
+
+def test_sim_refuses_material_without_write_rig(capsys, monkeypatch):
+    """--material only sets what the camera of --write-rig's rig file sees: without it, it was ignored."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--material", "builtin:gold"])
+    assert line.startswith("goniofrost sim: error: command line: --material: expected --write-rig OUT.yaml as well")
+    assert line.endswith("found 'builtin:gold'")
+
+
+# ----- demo: options used minutes later are checked before the training -----------------------------
+@pytest.mark.parametrize("options, words", [
+    (["--target-error", "0.01", "--confidence", "1.5"],
+     "command line: --confidence: expected a probability between 0 and 1 (e.g. 0.95), found 1.5"),
+    (["--speedup", "0"], "command line: --speedup: expected a simulated clock speed-up > 0, found 0.0"),
+    (["--speedup", "nan"], "command line: --speedup: expected a simulated clock speed-up > 0, found nan"),
+    (["--samples", "0"], "command line: --samples: expected an integer in [1, 1000], found 0"),
+])
+def test_demo_refuses_a_bad_option_before_any_work(options, words, tmp_path, capsys, monkeypatch):
+    """--confidence 1.5 and --speedup 0 were refused after training and planning, with plan.json
+    (and a session) already written into --out."""
+    import goniofrost.app.demo as demo
+
+    monkeypatch.setattr(demo, "run_demo", lambda *a, **k: pytest.fail("the demo ran"))
+    line = _refused(capsys, ["demo", "--out", tmp_path / "d", *options])
+    assert line == f"goniofrost demo: error: {words}"
+    assert _tree(tmp_path) == []
+
+
+def test_demo_refuses_an_out_below_a_file_before_any_work(binary, capsys, monkeypatch):
+    """demo --out FILE trained the model (a minute from an empty cache) before failing."""
+    import goniofrost.app.demo as demo
+
+    monkeypatch.setattr(demo, "run_demo", lambda *a, **k: pytest.fail("the demo ran"))
+    line = _refused(capsys, ["demo", "--out", binary])
+    assert line == f"goniofrost demo: error: {binary}: cannot write: a part of the path is a file, not a directory"
+
+
+# ----- capture --dry-run: options that a dry run would ignore ---------------------------------------
+@pytest.mark.parametrize("options, found", [
+    (["--session", "s1"], "--session"),
+    (["--target-error", "0.05", "--seed", "0"], "--target-error --seed"),
+    (["--material", "builtin:gold", "--bsdf"], "--material --bsdf"),
+])
+def test_capture_dry_run_refuses_options_it_would_ignore(options, found, tmp_path, capsys, monkeypatch):
+    """capture --dry-run --session s1 moved the rig and said nothing of the session it did not write."""
+    import goniofrost.app.rig_console as console
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(console, "run_dry_run", lambda *a, **k: pytest.fail("the dry run ran"))
+    line = _refused(capsys, ["capture", "--rig", SIM_RIG, "--plan", "plan.json", "--dry-run", *options])
+    assert line.startswith("goniofrost capture: error: command line: --dry-run: expected only --rig, --plan, ")
+    assert line.endswith(f"found {found!r}")
+    assert _tree(tmp_path) == []
+
+
+# ----- train and bench: numbers checked before the tabulation ----------------------------------------
+def test_train_refuses_non_positive_components_before_tabulating(tmp_path, capsys, monkeypatch):
+    """train --components -3 tabulated the built-in library (20 s) before the training refused it."""
+    import goniofrost.frost.training as training
+
+    monkeypatch.setattr(training, "train", lambda *a, **k: pytest.fail("the training ran"))
+    line = _refused(capsys, ["train", "--dataset", "builtin", "--components", "-3", "--out", tmp_path / "m"])
+    assert line == ("goniofrost train: error: command line: --components: expected a positive integer "
+                    "(the components kept), found -3")
+    assert _tree(tmp_path) == []
+
+
+@pytest.mark.parametrize("options, option, value", [
+    (["--jobs", "0"], "--jobs", 0),
+    (["--jobs", "-2"], "--jobs", -2),
+    (["--stress", "--stress-m", "0"], "--stress-m", 0),
+])
+def test_bench_refuses_non_positive_jobs_and_stress_m_before_any_work(options, option, value, tmp_path, capsys,
+                                                                        monkeypatch):
+    """--jobs 0 ran the folds with one worker silently; --stress-m 0 tabulated 151 materials first."""
+    import goniofrost.bench.runner as runner
+
+    monkeypatch.setattr(runner, "run_benchmark", lambda *a, **k: pytest.fail("the benchmark ran"))
+    monkeypatch.setattr(runner, "run_stress", lambda *a, **k: pytest.fail("the stress cases ran"))
+    line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--quick", *options])
+    assert line == f"goniofrost bench: error: command line: {option}: expected a positive integer, found {value}"
+    assert _tree(tmp_path) == []
+
+
+# ----- a damaged model.json -------------------------------------------------------------------------
+GOOD_META = {"format": "goniofrost-frost-model", "version": 2, "grid": {"n_th": 10, "n_td": 10, "n_pd": 20},
+             "names": ["m0", "m1"], "eps": 0.001, "content_hash": "0" * 64, "info": {}, "noise": {}}
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("grid", "abc", 'grid: expected {"n_th": int, "n_td": int, "n_pd": int} (positive), found \'abc\''),
+    ("grid", {"n_th": 10, "n_td": -1, "n_pd": 20}, "grid: expected"),
+    ("names", "m0", "names: expected a list of material names, found 'm0'"),
+    ("eps", "small", "eps: expected a finite number >= 0, found 'small'"),
+    ("noise", [1], "noise: expected a JSON object, found [1]"),
+])
+@pytest.mark.parametrize("command", ["plan", "reconstruct"])
+def test_a_model_json_field_of_the_wrong_type_is_named(command, field, value, words, tmp_path, capsys):
+    """model.json with "grid": "abc" ended in a TypeError traceback (exit 1) in plan and reconstruct."""
+    import json
+
+    from goniofrost.frost.model import FORMAT
+
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.json").write_text(json.dumps(GOOD_META | {"format": FORMAT, field: value}))
+    (tmp_path / "s.csv").write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n")
+    before = _tree(tmp_path)
+    argv = {"plan": ["plan", "--model", model, "--samples", "3", "--out", tmp_path / "p.json"],
+            "reconstruct": ["reconstruct", "--model", model, "--samples", tmp_path / "s.csv",
+                            "--out", tmp_path / "r.binary"]}[command]
+    line = _refused(capsys, argv)
+    assert line.startswith(f"goniofrost {command}: error: {model / 'model.json'}: {words}")
+    assert _tree(tmp_path) == before
+
+
+# ----- reconstruct: an --out that is the samples file ------------------------------------------------
+@pytest.mark.parametrize("out", ["s.csv", "s.binary"])
+def test_reconstruct_refuses_an_out_that_would_overwrite_its_samples(out, tmp_path, capsys, monkeypatch):
+    """reconstruct --samples s.csv --out s.csv replaced the samples with the BRDF (exit 0); with
+    --samples s.json --out s.binary the record OUT.json would replace them."""
+    monkeypatch.chdir(tmp_path)
+    samples = "s.csv" if out == "s.csv" else "s.json"
+    text = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n"
+    Path(samples).write_text(text)
+    line = _refused(capsys, ["reconstruct", "--model", "model", "--samples", samples, "--out", out])
+    assert line == (f"goniofrost reconstruct: error: --out {out}: would overwrite the --samples file {samples}; "
+                    f"expected another name such as brdf.binary")
+    assert _tree(tmp_path) == [samples] and Path(samples).read_text() == text
+
+
+# ----- an output that is one of the command's inputs -------------------------------------------------
+def test_plan_refuses_an_out_inside_its_model(tmp_path, capsys):
+    """plan --out MODEL/model.json replaced the model's metadata with the plan (exit 0): the model was lost."""
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.json").write_text("{}")
+    line = _refused(capsys, ["plan", "--model", model, "--samples", "3", "--out", model / "model.json"])
+    assert line == (f"goniofrost plan: error: {model / 'model.json'}: cannot write: --out would overwrite the input "
+                    f"--model {model}; give another name")
+    assert (model / "model.json").read_text() == "{}"
+
+
+def test_sim_refuses_a_write_rig_that_is_its_rig(tmp_path, capsys, monkeypatch):
+    """sim --rig lab.yaml --write-rig lab.yaml replaced the rig file with the generated one."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    rig = tmp_path / "lab.yaml"
+    rig.write_text(SIM_RIG.read_text())
+    line = _refused(capsys, ["sim", "--rig", rig, "--write-rig", rig])
+    assert line == (f"goniofrost sim: error: {rig}: cannot write: --write-rig would overwrite the input --rig {rig}; "
+                    f"give another name")
+    assert rig.read_text() == SIM_RIG.read_text() and _tree(tmp_path) == ["lab.yaml"]
+
+
+def test_align_refuses_an_out_that_is_its_rig(tmp_path, capsys, monkeypatch):
+    import goniofrost.capture.hardware as hardware
+
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
+    rig = tmp_path / "lab.yaml"
+    rig.write_text(SIM_RIG.read_text())
+    line = _refused(capsys, ["align", "--rig", rig, "--out", rig])
+    assert line.endswith(f"cannot write: --out would overwrite the input --rig {rig}; give another name")
+    assert rig.read_text() == SIM_RIG.read_text()
