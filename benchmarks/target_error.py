@@ -25,8 +25,8 @@ Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``built
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
 RGL) and ``rgl-merl`` (the other way round).
 
-Full size (not run yet: estimated 45 to 60 min on a quiet 2-core machine from the full-grid training
-time of 78 s per fold, peak RSS about 4 GB; one process, settings in turn)::
+Full size (run once, 3 December 2026, docs/BENCHMARKS.md: split 32 min, the three others 39 min,
+on a loaded 2-core machine; peak RSS 14.6 GB with the other three settings; one process, settings in turn)::
 
     .venv/bin/python benchmarks/target_error.py --grid 90,90,180 --folds 10 --out /tmp/target-full
 
