@@ -2,6 +2,7 @@
 file systems mounted for a test (read-only, full)."""
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import uuid
@@ -74,10 +75,26 @@ def mounted(tmp_path):
         subprocess.run(["umount", str(point)], check=True)
 
 
+def trained_once(tmp_path_factory, name: str, fit):
+    """The model ``fit()`` returns, trained once per test run: the first pytest-xdist worker to ask
+    trains and saves it beside the workers' folders, the others load it (every worker used to
+    train the same model, 5-7 s of CPU each). Without xdist, fit() itself."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return fit()
+    from goniofrost.frost.model import FrostModel
+
+    folder = tmp_path_factory.getbasetemp().parent / name
+    with open(folder.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (folder / "model.json").is_file():
+            fit().save(folder)
+    return FrostModel.load(folder, mmap=False)
+
+
 @pytest.fixture(scope="session")
-def synthetic24():
+def synthetic24(tmp_path_factory):
     """A model of 24 synthetic materials (test_frost's synthetic_tables, seed 1) on a 10 x 10 x 20
-    grid, K <= 30, with its noise model: trained once per test process for the training, selection
+    grid, K <= 30, with its noise model: trained once per test run for the training, selection
     and Bayesian tests."""
     from test_frost import synthetic_tables
 
@@ -85,13 +102,14 @@ def synthetic24():
     from goniofrost.frost.training import fit_model
 
     grid = MerlGrid(10, 10, 20)
-    return fit_model(synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30)
+    return trained_once(tmp_path_factory, "synthetic24", lambda: fit_model(
+        synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30))
 
 
 @pytest.fixture(scope="session")
-def small_trained():
+def small_trained(tmp_path_factory):
     """(a model of 40 synthetic materials on a 10 x 10 x 20 grid, its 15-sample Bayesian design):
-    trained once per test process for the sentinel and check-cell tests (the training is most of
+    trained once per test run for the sentinel and check-cell tests (the training is most of
     their time)."""
     import numpy as np
     from test_frost import synthetic_tables
@@ -101,5 +119,6 @@ def small_trained():
     from goniofrost.frost.training import fit_model
 
     grid = MerlGrid(10, 10, 20)
-    model = fit_model(synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30)
+    model = trained_once(tmp_path_factory, "small_trained", lambda: fit_model(
+        synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30))
     return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
