@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import shutil
 import subprocess
 import uuid
 from pathlib import Path
@@ -75,20 +76,27 @@ def mounted(tmp_path):
         subprocess.run(["umount", str(point)], check=True)
 
 
-def trained_once(tmp_path_factory, name: str, fit):
-    """The model ``fit()`` returns, trained once per test run: the first pytest-xdist worker to ask
-    trains and saves it beside the workers' folders, the others load it (every worker used to
-    train the same model, 5-7 s of CPU each). Without xdist, fit() itself."""
-    if "PYTEST_XDIST_WORKER" not in os.environ:
-        return fit()
-    from goniofrost.frost.model import FrostModel
-
-    folder = tmp_path_factory.getbasetemp().parent / name
+def made_once(tmp_path_factory, name: str, make) -> Path:
+    """The folder ``make(folder)`` fills, made once per test run: the first pytest-xdist worker to
+    ask makes it beside the workers' folders, the others wait for it and use it (every worker
+    used to make the same thing, a training of 5-7 s of CPU)."""
+    root = tmp_path_factory.getbasetemp()
+    folder = (root.parent if "PYTEST_XDIST_WORKER" in os.environ else root) / name
     with open(folder.with_suffix(".lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        if not (folder / "model.json").is_file():
-            fit().save(folder)
-    return FrostModel.load(folder, mmap=False)
+        if not folder.is_dir():
+            part = folder.with_suffix(".part")
+            shutil.rmtree(part, ignore_errors=True)
+            make(part)
+            part.rename(folder)
+    return folder
+
+
+def trained_once(tmp_path_factory, name: str, fit):
+    """The model ``fit()`` returns, trained once per test run (``made_once``)."""
+    from goniofrost.frost.model import FrostModel
+
+    return FrostModel.load(made_once(tmp_path_factory, name, lambda folder: fit().save(folder)), mmap=False)
 
 
 @pytest.fixture(scope="session")
