@@ -19,14 +19,14 @@ TRAIN = ("from goniofrost.core.grid import MerlGrid; from goniofrost.frost.train
 
 
 @pytest.fixture(scope="session")
-def trained_cache(tmp_path_factory) -> Path:
+def trained_cache() -> Path:
     """A cache holding that model, trained once per test run: each command's run starts from a
     copy of it (every run trained the same model, 5-8 s of its 6-10 s of CPU)."""
     def train(folder):
         subprocess.run([sys.executable, "-c", TRAIN], env=ENV | {"GONIOFROST_CACHE": str(folder)}, check=True,
                        timeout=600)
 
-    return made_once(tmp_path_factory, "frost-speed-cache", train)
+    return made_once("frost-speed-cache", train)
 
 
 def smallest_run(command: str, trained_cache: Path, cache: Path) -> str:

@@ -25,6 +25,8 @@ from goniofrost.core.grid import FULL_GRID, MerlGrid
 from goniofrost.datasets import open_dataset
 from goniofrost.datasets.tabulate import tabulate_cached
 
+from conftest import train_once
+
 mi.set_variant("scalar_rgb")
 
 SMALL = MerlGrid(30, 30, 60)
@@ -377,7 +379,6 @@ def capture_small_session(tmp_path, *flags) -> Path:
 
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
 
     repo = Path(__file__).resolve().parents[1]
     rig = yaml.safe_load((repo / "config" / "rigs" / "sim.yaml").read_text())
@@ -385,8 +386,8 @@ def capture_small_session(tmp_path, *flags) -> Path:
     rig["camera"]["intrinsics"].update(image_size_px=[192, 144], focal_px=[1900.0, 1900.0],   # a small sensor
                                        principal_point_px=[95.5, 71.5])
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
-    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=SMALL, k_max=12,
-                  cache=True)
+    model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
+                       grid=SMALL, k_max=12)
     plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 4, tmp_path / "rig.yaml",
                        tmp_path / "plan.json")
     session = tmp_path / "s"

@@ -108,7 +108,7 @@ def test_without_reciprocity_the_light_always_plays_w_i():
 
 
 @pytest.fixture(scope="module")
-def small_model(tmp_path_factory):
+def small_model():
     """A FROST model of 12 smooth random materials on the small grid, with its noise model (5-6 s of
     CPU): trained once per test run, its folder shared by the workers (read-only)."""
     from goniofrost.frost.training import fit_model
@@ -122,7 +122,7 @@ def small_model(tmp_path_factory):
                            for _ in range(12)]).astype(np.float32)
         fit_model(tables, [f"m{i}" for i in range(12)], GRID, k_max=30).save(folder)
 
-    return made_once(tmp_path_factory, "schedule-model", train)
+    return made_once("schedule-model", train)
 
 
 def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, capsys):

@@ -224,10 +224,9 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     from goniofrost.capture.journal import Journal
     from goniofrost.core.cache import cache_path
     from goniofrost.frost.reconstruction import error_bound
-    from test_session import GRID as SESSION_GRID, TRAINING, capture_args, write_rig
-    from goniofrost.frost.training import train
+    from test_session import GRID as SESSION_GRID, capture_args, session_model, write_rig
 
-    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    model = session_model()
     rig, plan, session = write_rig(tmp_path / "rig.yaml"), tmp_path / "plan.json", tmp_path / "s"
     assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "17",
                  "--rig", str(rig), "--sentinels", "--out", str(plan)]) == 0
@@ -267,10 +266,9 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
 def test_a_plan_gets_sentinels_by_default_only_from_a_model_whose_check_can_flag(tmp_path, capsys):
     from goniofrost.app.cli import main
     from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-    from test_session import GRID as SESSION_GRID, TRAINING
+    from test_session import session_model
 
-    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    model = session_model()
     folder, plan = str(cache_path("models", model.info["cache_key"], "")), tmp_path / "plan.json"
     assert main(["plan", "--model", folder, "--samples", "17", "--out", str(plan)]) == 0
     out = capsys.readouterr().out
@@ -305,9 +303,9 @@ def test_a_model_without_the_sentinel_calibration_plans_none_unless_asked(traine
 
 def test_training_among_a_rigs_cells_is_cached_apart_and_records_them():
     from goniofrost.frost.training import train
-    from test_session import GRID as SESSION_GRID, TRAINING
+    from test_session import GRID as SESSION_GRID, TRAINING, session_model
 
-    whole = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    whole = session_model()
     allowed = np.ones(SESSION_GRID.n_valid, bool)
     allowed[sentinel.calibrated_cells(whole)] = False  # a rig that cannot reach the whole grid's sentinels
     rig = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True, sentinel_candidates=allowed)

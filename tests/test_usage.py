@@ -10,6 +10,8 @@ import pytest
 from goniofrost.app.cli import main
 from goniofrost.core.grid import FULL_GRID, MerlGrid
 
+from conftest import train_once
+
 REPO = Path(__file__).resolve().parents[1]
 SCENES = REPO / "config" / "scenes"
 GRID = MerlGrid(30, 30, 60)
@@ -18,10 +20,10 @@ pytest.importorskip("mitsuba")
 
 @pytest.fixture(scope="module")
 def model():
-    from goniofrost.frost.training import train
-
-    return train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt", "red-plastic"], grid=GRID,
-                 k_max=15, cache=True)
+    """Five built-in materials on GRID, k <= 15: trained once per test run (test_usage's and
+    test_sequential_design's)."""
+    return train_once("five-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt",
+                                                            "red-plastic"], grid=GRID, k_max=15)
 
 
 @pytest.fixture
