@@ -36,6 +36,14 @@ MAX_THETA = np.radians(75.0)
 INCIDENT_DEG = (0.0, 30.0, 60.0, 75.0)
 
 
+@pytest.fixture(autouse=True)
+def scalar_rgb():
+    """Mitsuba in the scalar RGB variant this module's own ``mi`` calls assume: a test of another
+    module run before in the same process may have left another one (the scene tests' TabulatedScene
+    sets llvm_ad_rgb, where mi.Point2f of float64 values fails)."""
+    mi.set_variant("scalar_rgb")
+
+
 def builtin_table(name: str, grid: MerlGrid) -> np.ndarray:
     """A built-in material as a (grid.size, 3) table in 1/sr, NaN on invalid cells."""
     values = tabulate_cached(open_dataset("builtin"), [name], grid, progress=False)[0]
