@@ -155,3 +155,30 @@ def small_trained():
     model = trained_once("small_trained", lambda: fit_model(
         synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30))
     return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+
+
+@pytest.fixture(scope="session")
+def full_grid_exports():
+    """name -> goniofrost's RGL tensor export (.bsdf, default options, ``builtin:NAME`` its source) of
+    the built-in terracotta, red-plastic and gold on the full grid: made once per test run for the
+    full-grid checks of test_mitsuba_export and test_spectral_export (each built the same fields,
+    2-3 s of CPU a material)."""
+    import numpy as np
+
+    from goniofrost.brdf.merl_file import valid_to_full
+    from goniofrost.brdf.mitsuba_export import export_mitsuba
+    from goniofrost.core.grid import FULL_GRID
+    from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.tabulate import tabulate_cached
+
+    names = ("terracotta", "red-plastic", "gold")
+
+    def export(folder):
+        folder.mkdir()
+        for name in names:
+            values = tabulate_cached(open_dataset("builtin"), [name], FULL_GRID, progress=False)[0]
+            export_mitsuba(folder / f"{name}.bsdf", valid_to_full(values.astype(np.float64), FULL_GRID), FULL_GRID,
+                           source=f"builtin:{name}")
+
+    folder = made_once("full-grid-exports", export)
+    return {name: folder / f"{name}.bsdf" for name in names}

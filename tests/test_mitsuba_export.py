@@ -65,16 +65,11 @@ def cap_directions(rng, n: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    """kind -> (prepared table, .bsdf path) of the three materials, full grid, default options."""
-    folder = tmp_path_factory.mktemp("bsdf")
-    result = {}
-    for kind, name in MATERIALS.items():
-        table = builtin_table(name, FULL_GRID)
-        path = folder / f"{name}.bsdf"
-        me.export_mitsuba(path, table, FULL_GRID, source=f"builtin:{name}")
-        result[kind] = (me.prepared_table(table, FULL_GRID), path)
-    return result
+def exported(full_grid_exports):
+    """kind -> (prepared table, .bsdf path) of the three materials, full grid, default options (the
+    files: conftest's full_grid_exports, export_mitsuba's of each material)."""
+    return {kind: (me.prepared_table(builtin_table(name, FULL_GRID), FULL_GRID), full_grid_exports[name])
+            for kind, name in MATERIALS.items()}
 
 
 @pytest.fixture(scope="module")
