@@ -2,7 +2,9 @@
 file systems mounted for a test (read-only, full)."""
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
 import subprocess
 import uuid
 from pathlib import Path
@@ -18,13 +20,18 @@ settings.load_profile("goniofrost")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("GONIOFROST_SHARED_DATA", REPO.parent / "shared" / "data"))
+# The test run's folder, the same for all its pytest-xdist workers (set by _private_cache): made_once's.
+RUN_FOLDER = None
 
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache(tmp_path_factory):
-    """Every test run uses its own cache folder, never the user's, and its own rig-lock folder
+    """Every test process uses its own cache folder, never the user's, and its own rig-lock folder
     (module-scoped fixtures run captures before any per-test folder exists: a test run must never
     take, or ask to stop, a rig lock of another program on this computer)."""
+    global RUN_FOLDER
+    root = tmp_path_factory.getbasetemp()
+    RUN_FOLDER = root.parent if "PYTEST_XDIST_WORKER" in os.environ else root
     os.environ["GONIOFROST_CACHE"] = str(tmp_path_factory.mktemp("cache"))
     os.environ["GONIOFROST_LOCK_DIR"] = str(tmp_path_factory.mktemp("session-locks"))
     yield
@@ -74,10 +81,53 @@ def mounted(tmp_path):
         subprocess.run(["umount", str(point)], check=True)
 
 
+def made_once(name: str, make) -> Path:
+    """The folder ``make(folder)`` fills, made once per test run: the first pytest-xdist worker to
+    ask makes it in the run's folder, the others wait for it and use it (every worker used to
+    make the same thing, mostly a training of 2-8 s of CPU)."""
+    folder = RUN_FOLDER / name
+    with open(folder.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not folder.is_dir():
+            part = folder.with_suffix(".part")
+            shutil.rmtree(part, ignore_errors=True)
+            make(part)
+            part.rename(folder)
+    return folder
+
+
+def trained_once(name: str, fit):
+    """The model ``fit()`` returns, trained once per test run (``made_once``)."""
+    from goniofrost.frost.model import FrostModel
+
+    return FrostModel.load(made_once(name, lambda folder: fit().save(folder)), mmap=False)
+
+
+def train_once(name: str, *args, **kwargs):
+    """goniofrost's ``train(*args, cache=True, **kwargs)`` in this process's cache, the model trained
+    once per test run (``made_once``: in a cache of its own) and copied into this cache: the
+    fixtures of many modules train the same small models, which every worker trained."""
+    from goniofrost.frost.training import train
+
+    own = os.environ["GONIOFROST_CACHE"]
+
+    def make(folder):
+        os.environ["GONIOFROST_CACHE"] = str(folder)
+        try:
+            train(*args, cache=True, **kwargs)
+        finally:
+            os.environ["GONIOFROST_CACHE"] = own
+
+    for entry in (made_once(name, make) / "models").iterdir():
+        if not (Path(own) / "models" / entry.name).exists():  # never over a model this process has open
+            shutil.copytree(entry, Path(own) / "models" / entry.name)
+    return train(*args, cache=True, **kwargs)
+
+
 @pytest.fixture(scope="session")
 def synthetic24():
     """A model of 24 synthetic materials (test_frost's synthetic_tables, seed 1) on a 10 x 10 x 20
-    grid, K <= 30, with its noise model: trained once per test process for the training, selection
+    grid, K <= 30, with its noise model: trained once per test run for the training, selection
     and Bayesian tests."""
     from test_frost import synthetic_tables
 
@@ -85,13 +135,14 @@ def synthetic24():
     from goniofrost.frost.training import fit_model
 
     grid = MerlGrid(10, 10, 20)
-    return fit_model(synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30)
+    return trained_once("synthetic24", lambda: fit_model(
+        synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30))
 
 
 @pytest.fixture(scope="session")
 def small_trained():
     """(a model of 40 synthetic materials on a 10 x 10 x 20 grid, its 15-sample Bayesian design):
-    trained once per test process for the sentinel and check-cell tests (the training is most of
+    trained once per test run for the sentinel and check-cell tests (the training is most of
     their time)."""
     import numpy as np
     from test_frost import synthetic_tables
@@ -101,5 +152,33 @@ def small_trained():
     from goniofrost.frost.training import fit_model
 
     grid = MerlGrid(10, 10, 20)
-    model = fit_model(synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30)
+    model = trained_once("small_trained", lambda: fit_model(
+        synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30))
     return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
+
+
+@pytest.fixture(scope="session")
+def full_grid_exports():
+    """name -> goniofrost's RGL tensor export (.bsdf, default options, ``builtin:NAME`` its source) of
+    the built-in terracotta, red-plastic and gold on the full grid: made once per test run for the
+    full-grid checks of test_mitsuba_export and test_spectral_export (each built the same fields,
+    2-3 s of CPU a material)."""
+    import numpy as np
+
+    from goniofrost.brdf.merl_file import valid_to_full
+    from goniofrost.brdf.mitsuba_export import export_mitsuba
+    from goniofrost.core.grid import FULL_GRID
+    from goniofrost.datasets import open_dataset
+    from goniofrost.datasets.tabulate import tabulate_cached
+
+    names = ("terracotta", "red-plastic", "gold")
+
+    def export(folder):
+        folder.mkdir()
+        for name in names:
+            values = tabulate_cached(open_dataset("builtin"), [name], FULL_GRID, progress=False)[0]
+            export_mitsuba(folder / f"{name}.bsdf", valid_to_full(values.astype(np.float64), FULL_GRID), FULL_GRID,
+                           source=f"builtin:{name}")
+
+    folder = made_once("full-grid-exports", export)
+    return {name: folder / f"{name}.bsdf" for name in names}

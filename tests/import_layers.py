@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 PROJECT = "goniofrost"
@@ -44,19 +45,28 @@ def module_name(root: Path, path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def import_statements(root: Path, path: Path):
+def import_statements(root: Path, path: Path) -> tuple:
     """Each import of the module at ``path`` (functions' too) as (target, names, from_module):
-    ``import a.b`` is ("a.b", None, True); ``from T import x, y`` is (T, ["x", "y"], True) with
-    relative imports resolved; ``from . import x`` is (the package, ["x"], False)."""
+    ``import a.b`` is ("a.b", None, True); ``from T import x, y`` is (T, ("x", "y"), True) with
+    relative imports resolved; ``from . import x`` is (the package, ("x",), False)."""
     name = module_name(root, path)
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    return _import_statements(tuple(package), path.read_text(), str(path))
+
+
+@lru_cache(maxsize=None)
+def _import_statements(package: tuple, text: str, filename: str) -> tuple:
+    """import_statements of a module's text, parsed once per process: a check reads every module
+    three times (the package graph twice, the module graph once)."""
+    found = []
+    for node in ast.walk(ast.parse(text, filename=filename)):
         if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield alias.name, None, True
+            found += [(alias.name, None, True) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = package[: len(package) - node.level + 1] if node.level else []
-            yield ".".join(base + ([node.module] if node.module else [])), [a.name for a in node.names], bool(node.module)
+            base = list(package[: len(package) - node.level + 1]) if node.level else []
+            found.append((".".join(base + ([node.module] if node.module else [])), tuple(a.name for a in node.names),
+                          bool(node.module)))
+    return tuple(found)
 
 
 def imports_of(root: Path, path: Path) -> set[str]:

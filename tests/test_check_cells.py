@@ -220,10 +220,9 @@ def test_a_plan_measures_the_check_cells_with_the_sentinels_and_without_them_non
 def test_plan_no_sentinels_has_no_check_cells(tmp_path, capsys):
     from goniofrost.app.cli import main
     from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
-    from test_session import GRID as SESSION_GRID, TRAINING
+    from test_session import session_model
 
-    model = train(["builtin"], only=TRAINING, grid=SESSION_GRID, k_max=18, cache=True)
+    model = session_model()
     folder, plan = str(cache_path("models", model.info["cache_key"], "")), tmp_path / "plan.json"
     assert main(["plan", "--model", folder, "--samples", "17", "--no-sentinels", "--out", str(plan)]) == 0
     doc = json.loads(plan.read_text())

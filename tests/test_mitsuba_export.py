@@ -25,6 +25,8 @@ from goniofrost.core.grid import FULL_GRID, MerlGrid
 from goniofrost.datasets import open_dataset
 from goniofrost.datasets.tabulate import tabulate_cached
 
+from conftest import train_once
+
 mi.set_variant("scalar_rgb")
 
 SMALL = MerlGrid(30, 30, 60)
@@ -32,6 +34,14 @@ SMALL_OPTIONS = me.ExportOptions(theta_i=6, ndf=31, vndf_theta=31, vndf_phi=16, 
 MATERIALS = {"diffuse": "terracotta", "glossy": "red-plastic", "metallic": "gold"}
 MAX_THETA = np.radians(75.0)
 INCIDENT_DEG = (0.0, 30.0, 60.0, 75.0)
+
+
+@pytest.fixture(autouse=True)
+def scalar_rgb():
+    """Mitsuba in the scalar RGB variant this module's own ``mi`` calls assume: a test of another
+    module run before in the same process may have left another one (the scene tests' TabulatedScene
+    sets llvm_ad_rgb, where mi.Point2f of float64 values fails)."""
+    mi.set_variant("scalar_rgb")
 
 
 def builtin_table(name: str, grid: MerlGrid) -> np.ndarray:
@@ -55,16 +65,11 @@ def cap_directions(rng, n: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    """kind -> (prepared table, .bsdf path) of the three materials, full grid, default options."""
-    folder = tmp_path_factory.mktemp("bsdf")
-    result = {}
-    for kind, name in MATERIALS.items():
-        table = builtin_table(name, FULL_GRID)
-        path = folder / f"{name}.bsdf"
-        me.export_mitsuba(path, table, FULL_GRID, source=f"builtin:{name}")
-        result[kind] = (me.prepared_table(table, FULL_GRID), path)
-    return result
+def exported(full_grid_exports):
+    """kind -> (prepared table, .bsdf path) of the three materials, full grid, default options (the
+    files: conftest's full_grid_exports, export_mitsuba's of each material)."""
+    return {kind: (me.prepared_table(builtin_table(name, FULL_GRID), FULL_GRID), full_grid_exports[name])
+            for kind, name in MATERIALS.items()}
 
 
 @pytest.fixture(scope="module")
@@ -377,7 +382,6 @@ def capture_small_session(tmp_path, *flags) -> Path:
 
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.core.cache import cache_path
-    from goniofrost.frost.training import train
 
     repo = Path(__file__).resolve().parents[1]
     rig = yaml.safe_load((repo / "config" / "rigs" / "sim.yaml").read_text())
@@ -385,8 +389,8 @@ def capture_small_session(tmp_path, *flags) -> Path:
     rig["camera"]["intrinsics"].update(image_size_px=[192, 144], focal_px=[1900.0, 1900.0],   # a small sensor
                                        principal_point_px=[95.5, 71.5])
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
-    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=SMALL, k_max=12,
-                  cache=True)
+    model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
+                       grid=SMALL, k_max=12)
     plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 4, tmp_path / "rig.yaml",
                        tmp_path / "plan.json")
     session = tmp_path / "s"

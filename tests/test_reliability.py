@@ -13,7 +13,7 @@ import pytest
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.runner import capture
 
-from test_session import GRID, TRAINING, write_rig
+from test_session import GRID, session_model, write_rig
 
 REPO = Path(__file__).resolve().parents[1]
 RGL = REPO.parent / "shared" / "data" / "nbrdf_rgl.npz"
@@ -22,8 +22,7 @@ BLUE_SILK = f"nbrdf:{RGL}:vch_silk_blue_rgb"
 
 @pytest.fixture(scope="module")
 def model():
-    from goniofrost.frost.training import train
-    return train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    return session_model()
 
 
 def coloured_plan(folder: Path, model, material: str, n_other: int = 2) -> tuple[Path, Path, int]:

@@ -12,6 +12,8 @@ import yaml
 
 from goniofrost.app.cli import main
 
+from conftest import train_once
+
 REPO = Path(__file__).resolve().parents[1]
 SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
 TEMPLATE = REPO / "config" / "rigs" / "template.yaml"
@@ -249,11 +251,10 @@ def small_plan(tmp_path_factory):
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.core.grid import MerlGrid
-    from goniofrost.frost.training import train
 
     folder = tmp_path_factory.mktemp("dry")
-    model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=MerlGrid(30, 30, 60),
-                  k_max=12, cache=True)
+    model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
+                       grid=MerlGrid(30, 30, 60), k_max=12)
     plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 5, SIM_RIG, folder / "plan.json")
     return SIM_RIG, plan
 

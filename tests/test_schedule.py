@@ -17,6 +17,8 @@ from planner.rig import load_rig
 from planner.schedule import (UnreachableSampleError, candidate_poses, format_table, pair_angles,
                               schedule_plan)
 
+from conftest import made_once
+
 RIG = load_rig(Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml")
 GRID = MerlGrid(30, 30, 60)
 
@@ -106,18 +108,21 @@ def test_without_reciprocity_the_light_always_plays_w_i():
 
 
 @pytest.fixture(scope="module")
-def small_model(tmp_path_factory):
-    """A FROST model of 12 smooth random materials on the small grid (fit in well under a second)."""
+def small_model():
+    """A FROST model of 12 smooth random materials on the small grid, with its noise model (5-6 s of
+    CPU): trained once per test run, its folder shared by the workers (read-only)."""
     from goniofrost.frost.training import fit_model
-    rng = np.random.default_rng(0)
-    w_i, w_o = GRID.cell_directions(GRID.valid_cells)
-    h = w_i + w_o
-    cos_h = h[:, 2] / np.linalg.norm(h, axis=1)
-    tables = np.stack([(rng.uniform(0.05, 0.3, 3) + rng.uniform(0, 50) * cos_h[:, None] ** rng.uniform(5, 200))
-                       for _ in range(12)]).astype(np.float32)
-    folder = tmp_path_factory.mktemp("model") / "model"
-    fit_model(tables, [f"m{i}" for i in range(12)], GRID, k_max=30).save(folder)
-    return folder
+
+    def train(folder):
+        rng = np.random.default_rng(0)
+        w_i, w_o = GRID.cell_directions(GRID.valid_cells)
+        h = w_i + w_o
+        cos_h = h[:, 2] / np.linalg.norm(h, axis=1)
+        tables = np.stack([(rng.uniform(0.05, 0.3, 3) + rng.uniform(0, 50) * cos_h[:, None] ** rng.uniform(5, 200))
+                           for _ in range(12)]).astype(np.float32)
+        fit_model(tables, [f"m{i}" for i in range(12)], GRID, k_max=30).save(folder)
+
+    return made_once("schedule-model", train)
 
 
 def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, capsys):

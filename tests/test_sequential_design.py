@@ -6,15 +6,17 @@ import pytest
 
 from goniofrost.core.grid import MerlGrid
 
+from conftest import train_once
+
 GRID = MerlGrid(30, 30, 60)
 
 
 @pytest.fixture(scope="module")
 def model():
-    from goniofrost.frost.training import train
-
-    return train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt", "red-plastic"], grid=GRID,
-                 k_max=15, cache=True)
+    """Five built-in materials on GRID, k <= 15: trained once per test run (test_usage's and
+    test_sequential_design's)."""
+    return train_once("five-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt",
+                                                            "red-plastic"], grid=GRID, k_max=15)
 
 
 def retro_map() -> np.ndarray:

@@ -30,6 +30,8 @@ from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus
 from goniofrost.brdf.merl_file import read_merl
 
+from conftest import train_once
+
 REPO = Path(__file__).resolve().parents[1]
 GRID = MerlGrid(30, 30, 60)
 TRAINING = ["white-diffuse", "blue-plastic", "gold", "white-ceramic", "blue-car-paint", "green-felt"]
@@ -49,15 +51,20 @@ def write_rig(path: Path, **camera_arm) -> Path:
     return path
 
 
+def session_model():
+    """The small model (TRAINING on GRID, k <= 18) in this process's cache, trained once per test run
+    (``train_once``): the session tests' and many other modules'."""
+    return train_once("session-model", ["builtin"], only=TRAINING, grid=GRID, k_max=18)
+
+
 def small_plan(rig: Path, m: int, out: Path, **plan_options):
-    """(plan file ``out``, model): the small model (TRAINING on GRID, cached) and its m-sample
-    plan on ``rig`` (Bayesian unless ``plan_options`` of ``plan_on_rig`` say otherwise), the
-    setting the session tests share."""
+    """(plan file ``out``, model): the small model (``session_model``) and its m-sample plan on
+    ``rig`` (Bayesian unless ``plan_options`` of ``plan_on_rig`` say otherwise), the setting the
+    session tests share."""
     from goniofrost.core.cache import cache_path
     from goniofrost.app.demo import plan_on_rig
-    from goniofrost.frost.training import train
 
-    model = train(["builtin"], only=TRAINING, grid=GRID, k_max=18, cache=True)
+    model = session_model()
     return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), m, rig, out, **plan_options), model
 
 

@@ -21,7 +21,7 @@ from goniofrost.brdf.mitsuba_probe import eval_pairs, eval_pairs_spectral, eval_
     spectral_to_rgb_weights
 from goniofrost.brdf.mitsuba_render import SPECTRAL_VARIANT
 from goniofrost.brdf.rgl_tensor import read_tensor_file, write_tensor_file
-from goniofrost.core.grid import FULL_GRID, MerlGrid
+from goniofrost.core.grid import MerlGrid
 from goniofrost.datasets import open_dataset
 from goniofrost.datasets.tabulate import tabulate_cached
 
@@ -60,15 +60,15 @@ def node_spectra(fields: dict) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    """name -> (RGB fields, RGB .bsdf, spectral fields, spectral .bsdf): full grid, default options."""
+def exported(tmp_path_factory, full_grid_exports):
+    """name -> (RGB fields, RGB .bsdf, spectral fields, spectral .bsdf): full grid, default options
+    (the RGB files: conftest's full_grid_exports, read back; the spectral ones made of their fields)."""
     folder, result = tmp_path_factory.mktemp("spectral"), {}
     for name in MATERIALS:
-        rgb_fields = me.build_fields(builtin_table(name, FULL_GRID), FULL_GRID)
+        rgb_fields = read_tensor_file(full_grid_exports[name])
         spectral = rs.spectral_fields(rgb_fields)
-        write_tensor_file(folder / f"{name}.bsdf", rgb_fields)
         write_tensor_file(folder / f"{name}-spectral.bsdf", spectral)
-        result[name] = (rgb_fields, folder / f"{name}.bsdf", spectral, folder / f"{name}-spectral.bsdf")
+        result[name] = (rgb_fields, full_grid_exports[name], spectral, folder / f"{name}-spectral.bsdf")
     return result
 
 

@@ -10,6 +10,8 @@ import pytest
 from goniofrost.app.cli import main
 from goniofrost.core.grid import FULL_GRID, MerlGrid
 
+from conftest import train_once
+
 REPO = Path(__file__).resolve().parents[1]
 SCENES = REPO / "config" / "scenes"
 GRID = MerlGrid(30, 30, 60)
@@ -18,10 +20,10 @@ pytest.importorskip("mitsuba")
 
 @pytest.fixture(scope="module")
 def model():
-    from goniofrost.frost.training import train
-
-    return train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt", "red-plastic"], grid=GRID,
-                 k_max=15, cache=True)
+    """Five built-in materials on GRID, k <= 15: trained once per test run (test_usage's and
+    test_sequential_design's)."""
+    return train_once("five-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt",
+                                                            "red-plastic"], grid=GRID, k_max=15)
 
 
 @pytest.fixture
@@ -332,12 +334,22 @@ def test_a_usage_file_that_is_not_npy_and_usage_with_frost_are_refused(model_dir
     assert not out.exists()
 
 
+def scene_test_model(module, argv: list[str]) -> None:
+    """Put the model the scene benchmark's test run trains with ``argv`` (of the training materials
+    of its setting) in this process's cache, trained once per test run (``train_once``): the two
+    tests below that make a test run trained the same model, 5-6 s of their CPU, when they ran
+    in two workers."""
+    specs, _, grid, training, *_ = module["setting"](module["parse"](argv))
+    train_once("scene-test-model", specs, only=training, grid=grid)
+
+
 def test_the_scene_design_benchmark_runs_at_its_smallest_setting(tmp_path):
     import runpy
-    import sys
 
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
-    assert module["main"](["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
+    argv = ["--smallest", "--scenes", "retro-sphere", "--out", str(tmp_path)]
+    scene_test_model(module, argv)
+    assert module["main"](argv) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
     val = json.loads((tmp_path / "validation.json").read_text())
     assert set(val["choice"]) == {"4"} and set(val["choice"].values()) <= set(module["CANDIDATES"])
@@ -359,8 +371,10 @@ def test_the_scene_design_benchmark_renders_a_sequential_design_beside_the_shipp
     import runpy
 
     module = runpy.run_path(str(REPO / "benchmarks" / "scene_design.py"), run_name="scene_design")
-    assert module["main"](["--smallest", "--test-only", "--no-export", "--fewer", "--sequential", "seq half",
-                           "--scenes", "retro-sphere", "--out", str(tmp_path)]) == 0
+    argv = ["--smallest", "--test-only", "--no-export", "--fewer", "--sequential", "seq half", "--scenes",
+            "retro-sphere", "--out", str(tmp_path)]
+    scene_test_model(module, argv)
+    assert module["main"](argv) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
     assert doc["sequential"] == ["seq half"]
     assert {(r["design"], r["m"]) for r in doc["rows"]} >= {("seq half", 4), ("seq half", 2), ("aware", 4)}
