@@ -14,6 +14,7 @@ from goniofrost.frost.calibration import CvRecords, fit_calibration
 from goniofrost.frost.prediction import predict
 from goniofrost.frost.reconstruction import error_bound
 
+from conftest import trained_once
 from test_frost import synthetic_tables
 
 GRID = MerlGrid(10, 10, 20)
@@ -147,7 +148,26 @@ def test_the_report_flags_an_out_of_model_reconstruction_as_an_extrapolation(mod
     assert "leave-one-out residuals" in flagged["out_of_model_features"]
 
 
-def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
+@pytest.fixture
+def fit_once(monkeypatch):
+    """goniofrost's fit_model made once per test run for each set of inputs (``trained_once``, keyed
+    by a hash of them): the benchmark's plain and rig runs below both fit the same model of the
+    builtin fold's 64 materials first (7-9 s of CPU)."""
+    import hashlib
+    import pickle
+
+    from goniofrost.frost import training
+
+    fit = training.fit_model
+
+    def once(tables, names, *args, **options):
+        key = hashlib.sha256(np.ascontiguousarray(tables).tobytes() + pickle.dumps((list(names), args, options)))
+        return trained_once(f"fit-{key.hexdigest()[:16]}", lambda: fit(tables, names, *args, **options))
+
+    monkeypatch.setattr(training, "fit_model", once)
+
+
+def test_the_benchmark_runs_at_its_smallest_setting(tmp_path, fit_once):
     """benchmarks/target_error.py on one builtin fold of a small grid: every target's row, the
     per-m rows, and what it promised held for the materials it stopped on."""
     import importlib.util
@@ -181,7 +201,7 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path):
     assert all(np.isfinite(r["feature_distance"]) for r in doc["results"]["builtin"][0]["per_m"])
 
 
-def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp_path):
+def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp_path, fit_once):
     """target_error.py --rig: the design and the sentinels among the rig's cells, three variants;
     the rig-calibrated model's sentinels are the cells the plan measures."""
     import importlib.util

@@ -353,8 +353,18 @@ def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
 
     # -X faulthandler: should it outlive Ctrl-C, SIGABRT prints every thread's stack (it did once in a
     # loaded suite run on 3 December, with no stack to read; 150 runs of this sequence alone never did)
-    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "goniofrost", "monitor", str(finished),
-                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # A suite started in the background of a non-interactive shell (``./dev test &``) ignores SIGINT, and
+    # a Python started with SIGINT ignored keeps it ignored: the command starts with the default, as from
+    # a terminal (it outlived Ctrl-C in every such run, its main thread sleeping in the loop).
+    ignored = signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "goniofrost", "monitor", str(finished),
+                                 "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        if ignored:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         line = proc.stdout.readline()
         url = re.fullmatch(rf"goniofrost monitor: (http://127\.0\.0\.1:\d+/) shows {re.escape(str(finished))} "
