@@ -184,8 +184,7 @@ def check_target(inputs, target_error, confidence: float = DEFAULT_CONFIDENCE) -
         return
     if not (isinstance(target_error, (int, float)) and 0 < target_error < float("inf")):
         raise ConfigError("command line", "--target-error", "a log-relative MSE > 0 (e.g. 0.05)", target_error)
-    if not (isinstance(confidence, (int, float)) and 0 < confidence < 1):
-        raise ConfigError("command line", "--confidence", "a probability between 0 and 1 (e.g. 0.95)", confidence)
+    check_confidence(confidence)
     ends, n = inputs.plan.get("batch_ends"), len(inputs.samples)
     if not isinstance(ends, list) or not ends:
         raise ConfigError(inputs.plan_path, "batch_ends", "the batches of a Bayesian plan "
@@ -247,8 +246,20 @@ def check_sim_options(rig, seed, speedup) -> None:
         if value is not None and not rig.simulated:
             raise ConfigError("command line", option, f"no {option} for the real rig {rig.name!r} ({rig.source})",
                               value)
-    if speedup is not None and not (speedup > 0 and speedup < float("inf")):
+    if speedup is not None:
+        check_speedup(speedup)
+
+
+def check_speedup(speedup) -> None:
+    """ConfigError unless the simulated clock's speed-up is a finite number > 0."""
+    if not (speedup > 0 and speedup < float("inf")):
         raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", speedup)
+
+
+def check_confidence(confidence) -> None:
+    """ConfigError unless --confidence is a probability strictly between 0 and 1."""
+    if not (isinstance(confidence, (int, float)) and 0 < confidence < 1):
+        raise ConfigError("command line", "--confidence", "a probability between 0 and 1 (e.g. 0.95)", confidence)
 
 
 def sim_seed(rig, seed: int | None) -> int | None:

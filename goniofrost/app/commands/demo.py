@@ -49,13 +49,12 @@ def run(args) -> int:
                           args.target_error)
     # the rest of the options are used minutes later (after training and planning): check them now,
     # so that a bad one writes nothing
+    from goniofrost.capture.runner import check_confidence, check_speedup
     from goniofrost.core.atomic_file import check_output_dir
     from goniofrost.frost.bayes_selection import MAX_PICKS
 
-    if not 0 < args.confidence < 1:
-        raise ConfigError("command line", "--confidence", "a probability between 0 and 1 (e.g. 0.95)", args.confidence)
-    if not 0 < args.speedup < float("inf"):
-        raise ConfigError("command line", "--speedup", "a simulated clock speed-up > 0", args.speedup)
+    check_confidence(args.confidence)
+    check_speedup(args.speedup)
     if not 1 <= args.samples <= MAX_PICKS:
         raise ConfigError("command line", "--samples", f"an integer in [1, {MAX_PICKS}]", args.samples)
     check_output_dir(args.out)
