@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "Write a dataset material as a MERL .binary file (full 90x90x180 grid)."
+HELP = "write a dataset material as a MERL .binary file (full 90x90x180 grid)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

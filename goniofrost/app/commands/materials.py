@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "List the materials of a dataset (builtin, nbrdf:PATH.npz, merl:DIR, builtin-random:SEED:COUNT), one name per line."
+HELP = "list the materials of a dataset (builtin, nbrdf:PATH.npz, merl:DIR, builtin-random:SEED:COUNT), one name per line"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
