@@ -122,6 +122,16 @@ def test_move_then_status_shows_the_new_position(homed, capsys):
     assert axes["camera_arm"]["position_deg"] == pytest.approx(110.0, abs=0.02)
 
 
+def test_a_move_to_where_an_axis_already_is_says_so_and_moves_the_others(homed, capsys):
+    path, simulation = homed
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=120"]) == 0
+    capsys.readouterr()
+    assert main(["rig", "move", "--rig", str(path), "camera_arm=120", "sample_tilt=-5.5"]) == 0
+    said = capsys.readouterr().err.splitlines()
+    assert said[:2] == ["camera_arm already at 120.000 deg", "moving sample_tilt to -5.500 deg"]
+    assert simulation.true_joints_deg()["sample_tilt"] == pytest.approx(-5.5, abs=0.01)
+
+
 def test_status_reports_aligned_positions_with_the_rig_alignment(twins, tmp_path, capsys):
     path, _ = twins
     alignment = tmp_path / "alignment.json"

@@ -125,8 +125,11 @@ def run_move(args) -> int:
         if args.by:
             targets = {name: hardware.axes[name].position() + by for name, by in requested.items()}
             check_targets(rig, targets)
-        for name, deg in targets.items():
-            _say(f"moving {name} to {deg:.3f} deg")
+        for name, deg in targets.items():  # the driver sends nothing to an axis within its tolerance
+            axis = hardware.axes[name]
+            here = axis.position()
+            _say(f"{name} already at {here:.3f} deg" if abs(here - deg) <= axis.config.tolerance_deg
+                 else f"moving {name} to {deg:.3f} deg")
         reached = run_plan(hardware, move_plan(rig, targets), "rig move")
     _say("reached " + ", ".join(f"{n} {d:.3f} deg" for n, d in reached.joints.items()))
     return 0
