@@ -59,6 +59,10 @@ DATA = REPO.parent / "shared" / "data"
 MERL, RGL = f"nbrdf:{DATA / 'nbrdf_merl.npz'}", f"nbrdf:{DATA / 'nbrdf_rgl.npz'}"
 SETTINGS = ("split", "builtin", "merl-rgl", "rgl-merl")
 TARGETS = (0.01, 0.02, 0.05)
+# Test materials simulated at once: their float64 values, log map and reconstructions are
+# (materials, cells, 3) arrays each, so all 100 MERL materials of rgl-merl at the full grid held
+# 7.5 GB between calls and peaked at 13.7 GB (docs/BENCHMARKS.md, "Issue 28 at the full grid").
+CHUNK = 20
 
 
 def folds_of(setting: str, grid: MerlGrid, folds: int):
@@ -94,10 +98,8 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     variants = [(False, model, False, None)]
     if sentinel.calibrated_cells(model).size:
         variants.append((True, model, True, None))
-    truth = np.asarray(test, dtype=np.float64)
-    return {"stops": stop_rows(variants, order, truth, model.to_log(truth), test_names, targets, confidence),
-            "per_m": per_m_rows(model, order, truth, test_names, m_max, confidence),
-            "calibration_materials": len(model.noise["calibration"]["bound"]["scores"])}
+    stops, per_m = evaluate(variants, model, order, test, test_names, targets, confidence, m_max)
+    return {"stops": stops, "per_m": per_m, "calibration_materials": len(model.noise["calibration"]["bound"]["scores"])}
 
 
 def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, mask) -> dict:
@@ -117,13 +119,29 @@ def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, 
     # where plan --rig puts them (the same cells for both models: only the calibration differs)
     placed = sentinel.cells(grid, sentinel.calibrated_cells(model).size, mask & ~np.isin(np.arange(grid.n_valid), order))
     variants = [("no", model, False, None), ("approx", model, True, placed), ("rig", rig_model, True, placed)]
-    truth = np.asarray(test, dtype=np.float64)
-    return {"stops": stop_rows(variants, order, truth, model.to_log(truth), test_names, targets, confidence),
-            "per_m": per_m_rows(rig_model, order, truth, test_names, m_max, confidence),
+    stops, per_m = evaluate(variants, rig_model, order, test, test_names, targets, confidence, m_max)
+    return {"stops": stops, "per_m": per_m,
             "calibration_materials": len(rig_model.noise["calibration"]["bound"]["scores"]),
             "sentinel_cells": {"whole_grid": sentinel.calibrated_cells(model).tolist(),
                                "rig_calibrated": sentinel.calibrated_cells(rig_model).tolist(),
                                "placed": placed.tolist()}}
+
+
+def evaluate(variants, per_m_model, order, test, test_names, targets, confidence, m_max) -> tuple[list, list]:
+    """(stop rows, per-m rows) of the test materials (``test``: (materials, cells, 3) tables, read
+    here a chunk of CHUNK at a time), in the order of one call on all of them: every material is
+    simulated on its own, so a chunk's rows are the whole set's. The per-m rows use
+    ``per_m_model`` (the sentinel calibration it reports on; the map is every variant's)."""
+    stops, per_m = [], []
+    for lo in range(0, len(test_names), CHUNK):
+        names = test_names[lo:lo + CHUNK]
+        truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
+        stops += stop_rows(variants, order, truth, per_m_model.to_log(truth), names, targets, confidence)
+        per_m += per_m_rows(per_m_model, order, truth, names, m_max, confidence)
+    labels = [label for label, *_ in variants]  # stable sorts: the chunks are in the materials' order
+    stops.sort(key=lambda r: (targets.index(r["target"]), labels.index(r["sentinels"])))
+    per_m.sort(key=lambda r: r["m"])
+    return stops, per_m
 
 
 def stop_rows(variants, order, truth, truth_log, test_names, targets, confidence) -> list[dict]:
