@@ -86,6 +86,51 @@ def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words,
     assert _tree(tmp_path) == []
 
 
+# ----- preview, export, compare: a MERL file with holes -------------------------------------------
+def _damaged(binary: Path, folder: Path, kind: str) -> Path:
+    """A copy of ``binary`` (10 x 10 x 20) with holes at the valid cells (2, 3, 4) and (5, 1, 0) and
+    at the cell below the horizon (9, 9, 19): stored NaN and inf ("nan"), or -1 ("missing", the
+    mark goniofrost writes only below the horizon)."""
+    from goniofrost.core.grid import MerlGrid
+
+    grid = MerlGrid(10, 10, 20)
+    first, second, below = (2 * 10 + 3) * 20 + 4, (5 * 10 + 1) * 20, grid.size - 1
+    assert grid.valid_mask[first] and grid.valid_mask[second] and not grid.valid_mask[below]
+    stored = np.fromfile(binary, "<f8", offset=12).reshape(3, grid.size)
+    stored[1, first] = np.nan if kind == "nan" else -1.0
+    stored[:, second] = np.inf if kind == "nan" else -1.0
+    stored[0, below] = np.nan if kind == "nan" else -1.0
+    path = folder / f"{kind}.binary"
+    path.write_bytes(binary.read_bytes()[:12] + stored.tobytes())
+    return path
+
+
+HOLES = {"nan": "3 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (2, 3, 4); expected finite values "
+                "(-1 marks a missing value)",
+         "missing": "2 valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (2, 3, 4); "
+                    "expected a BRDF value >= 0 at every cell above the horizon"}
+
+
+@pytest.mark.parametrize("kind", ["nan", "missing"])
+@pytest.mark.parametrize("command", ["preview", "preview --reference", "preview --std", "export mitsuba",
+                                     "export rgl-spectral", "compare"])
+def test_a_merl_file_with_holes_is_refused_alike_by_preview_export_and_compare(command, kind, binary, tmp_path,
+                                                                                capsys):
+    """NaN was three policies: preview refused it ("N valid cells hold NaN or infinite values"),
+    export refused stored NaN but exported missing valid cells as 0, compare drew them black and
+    left them out of the log-relative MSE. Now one check (merl_file.read_merl_complete)."""
+    damaged = _damaged(binary, tmp_path, kind)
+    argv = {"preview": ["preview", damaged, "--out", tmp_path / "p.png"],
+            "preview --reference": ["preview", binary, "--reference", damaged, "--out", tmp_path / "p.png"],
+            "preview --std": ["preview", binary, "--std", damaged, "--out", tmp_path / "p.png"],
+            "export mitsuba": ["export", damaged, "--format", "mitsuba", "--out", tmp_path / "e.bsdf"],
+            "export rgl-spectral": ["export", damaged, "--format", "rgl-spectral", "--out", tmp_path / "e.bsdf"],
+            "compare": ["compare", binary, damaged, "--out", tmp_path / "c.png"]}[command]
+    line = _refused(capsys, argv)
+    assert line == f"goniofrost {command.split()[0]}: error: {damaged}: {HOLES[kind]}"
+    assert _tree(tmp_path) == [damaged.name]
+
+
 # ----- align and sim: an output that cannot be written is refused before any device starts -------
 def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys, monkeypatch):
     """align --out DIR moved the axes through its 30 poses (30 s) and only then failed to write."""
