@@ -249,6 +249,46 @@ def test_bench_refuses_non_positive_jobs_and_stress_m_before_any_work(options, o
     assert _tree(tmp_path) == []
 
 
+def _dead_port() -> int:
+    """A loopback port nobody listens on (bound to be given one, then closed)."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_bench_refuses_an_unreachable_dask_scheduler_at_once(tmp_path, capsys, monkeypatch):
+    """--dask ADDRESS with no scheduler there tabulated the materials first, then waited out
+    dask's 30 s connect timeout."""
+    import time
+
+    import goniofrost.bench.runner as runner
+
+    pytest.importorskip("distributed")
+    monkeypatch.setattr(runner, "tables_path", lambda *a, **k: pytest.fail("the materials were tabulated"))
+    address = f"tcp://127.0.0.1:{_dead_port()}"
+    started = time.monotonic()
+    line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--quick", "--dask", address])
+    assert line == f"goniofrost bench: error: --dask {address}: cannot connect to a Dask scheduler there " \
+                   f"(Connection refused)"
+    assert time.monotonic() - started < 10   # a refused connect is not retried for 30 s
+    assert _tree(tmp_path) == []
+
+
+def test_run_folds_refuses_an_unreachable_dask_scheduler_before_handing_it_to_dask(monkeypatch):
+    import distributed
+
+    from goniofrost.bench.config import BenchConfig, BenchError
+    from goniofrost.bench.executors import run_folds
+
+    monkeypatch.setattr(distributed, "Client", lambda *a, **k: pytest.fail("dask was asked to connect"))
+    address = f"127.0.0.1:{_dead_port()}"
+    with pytest.raises(BenchError) as refused:
+        run_folds(BenchConfig(("builtin",), folds=1), "tables.npy", ["m"], dask_address=address, progress=False)
+    assert str(refused.value) == f"--dask {address}: cannot connect to a Dask scheduler there (Connection refused)"
+
+
 # ----- a damaged model.json -------------------------------------------------------------------------
 GOOD_META = {"format": "goniofrost-frost-model", "version": 2, "grid": {"n_th": 10, "n_td": 10, "n_pd": 20},
              "names": ["m0", "m1"], "eps": 0.001, "content_hash": "0" * 64, "info": {}, "noise": {}}
