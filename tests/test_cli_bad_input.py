@@ -153,6 +153,25 @@ def test_align_refuses_frames_below_a_file_before_any_axis_moves(binary, tmp_pat
     assert _tree(tmp_path) == []
 
 
+def test_align_takes_an_out_in_a_folder_it_will_make_as_every_command_does(tmp_path, monkeypatch):
+    """align kept its own parent-folder check ("expected a file in an existing folder") beside the
+    shared one; now atomic_file.check_output_file alone: a folder that can be made is made, at
+    the end, as plan, preview or export make theirs."""
+    import goniofrost.capture.hardware as hardware
+    from goniofrost.capture.align import align
+
+    class Started(Exception):
+        pass
+
+    def start(*args, **kwargs):
+        raise Started
+
+    monkeypatch.setattr(hardware, "open_hardware", start)
+    with pytest.raises(Started):   # past every check: the rig is started
+        align(SIM_RIG, tmp_path / "new" / "alignment.json", progress=False)
+    assert _tree(tmp_path) == []   # and nothing made before the run
+
+
 def test_sim_refuses_a_directory_as_write_rig_before_starting_the_devices(tmp_path, capsys, monkeypatch):
     """sim --write-rig DIR started the simulated devices and the camera service, then failed to write."""
     import sim.rig
@@ -322,18 +341,26 @@ def test_a_model_json_field_of_the_wrong_type_is_named(command, field, value, wo
 
 
 # ----- reconstruct: an --out that is the samples file ------------------------------------------------
-@pytest.mark.parametrize("out", ["s.csv", "s.binary"])
-def test_reconstruct_refuses_an_out_that_would_overwrite_its_samples(out, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("out, samples, clash, option", [
+    ("s.csv", "s.csv", "s.csv", "--samples s.csv"),
+    ("s.binary", "s.json", "s.json", "--samples s.json"),     # its record OUT.json
+    ("model/brdf.binary", "s.csv", "model/brdf.binary", "--model model"),
+])
+def test_reconstruct_refuses_an_out_that_would_overwrite_an_input(out, samples, clash, option, tmp_path, capsys,
+                                                                    monkeypatch):
     """reconstruct --samples s.csv --out s.csv replaced the samples with the BRDF (exit 0); with
-    --samples s.json --out s.binary the record OUT.json would replace them."""
+    --samples s.json --out s.binary the record OUT.json would replace them. The check is the
+    bottom layer's (atomic_file.check_not_an_input), which also keeps --out out of the model."""
     monkeypatch.chdir(tmp_path)
-    samples = "s.csv" if out == "s.csv" else "s.json"
     text = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n"
     Path(samples).write_text(text)
+    Path("model").mkdir()
     line = _refused(capsys, ["reconstruct", "--model", "model", "--samples", samples, "--out", out])
-    assert line == (f"goniofrost reconstruct: error: --out {out}: would overwrite the --samples file {samples}; "
-                    f"expected another name such as brdf.binary")
-    assert _tree(tmp_path) == [samples] and Path(samples).read_text() == text
+    name, path = option.split()
+    here = tmp_path.resolve()
+    assert line == (f"goniofrost reconstruct: error: {here / clash}: cannot write: --out would overwrite the input "
+                    f"{name} {here / path}; give another name")
+    assert _tree(tmp_path) == sorted(["model", samples]) and Path(samples).read_text() == text
 
 
 # ----- an output that is one of the command's inputs -------------------------------------------------
