@@ -81,12 +81,12 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             elif lock.created:
                 lock.path.unlink(missing_ok=True)
             raise
-        lock.claim()
-        from goniofrost.core.atomic_file import remove_stale_temporaries
-        for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
-            log.info("removed %s, left by an interrupted write", name)
         fresh = not journal.done_indices() and not journal.steps()
         try:
+            lock.claim()   # accepted: now this run may change the folder
+            from goniofrost.core.atomic_file import remove_stale_temporaries
+            for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
+                log.info("removed %s, left by an interrupted write", name)
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if not session_finished(spec, journal):

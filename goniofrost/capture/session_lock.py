@@ -32,8 +32,9 @@ class HeldLock:
 
     def claim(self) -> None:
         """Record this process as the holder (what a second capture's refusal names)."""
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+        with output_errors(self.path):
+            os.ftruncate(self.fd, 0)
+            os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
 
 
 @contextmanager
