@@ -141,8 +141,10 @@ def test_align_refuses_bad_input_before_anything_moves(tmp_path, capsys):
     assert main(["align", "--rig", str(tmp_path / "nocam.yaml"), "--out", str(out)]) == 2
     assert (f"{tmp_path / 'nocam.yaml'}: camera: expected a camera section with the camera model (intrinsics, mount), "
             f"found 'nothing'") in capsys.readouterr().err
-    assert main(["align", "--rig", str(RIG_FILE), "--out", str(tmp_path / "missing" / "a.json")]) == 2
-    assert "command line: --out: expected a file in an existing folder" in capsys.readouterr().err
+    (tmp_path / "a-file").write_text("keep me")   # the bottom layer's check: atomic_file.check_output_file
+    assert main(["align", "--rig", str(RIG_FILE), "--out", str(tmp_path / "a-file" / "a.json")]) == 2
+    assert capsys.readouterr().err == (f"goniofrost align: error: {tmp_path / 'a-file'}: cannot write: a part of the "
+                                       f"path is a file, not a directory\n")
     assert main(["align", "--rig", str(RIG_FILE), "--out", str(out), "--speedup", "-1"]) == 2
     assert "command line: --speedup: expected a simulated clock speed-up > 0, found -1.0" in capsys.readouterr().err
     assert not out.exists()

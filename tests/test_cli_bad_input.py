@@ -86,6 +86,51 @@ def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words,
     assert _tree(tmp_path) == []
 
 
+# ----- preview, export, compare: a MERL file with holes -------------------------------------------
+def _damaged(binary: Path, folder: Path, kind: str) -> Path:
+    """A copy of ``binary`` (10 x 10 x 20) with holes at the valid cells (2, 3, 4) and (5, 1, 0) and
+    at the cell below the horizon (9, 9, 19): stored NaN and inf ("nan"), or -1 ("missing", the
+    mark goniofrost writes only below the horizon)."""
+    from goniofrost.core.grid import MerlGrid
+
+    grid = MerlGrid(10, 10, 20)
+    first, second, below = (2 * 10 + 3) * 20 + 4, (5 * 10 + 1) * 20, grid.size - 1
+    assert grid.valid_mask[first] and grid.valid_mask[second] and not grid.valid_mask[below]
+    stored = np.fromfile(binary, "<f8", offset=12).reshape(3, grid.size)
+    stored[1, first] = np.nan if kind == "nan" else -1.0
+    stored[:, second] = np.inf if kind == "nan" else -1.0
+    stored[0, below] = np.nan if kind == "nan" else -1.0
+    path = folder / f"{kind}.binary"
+    path.write_bytes(binary.read_bytes()[:12] + stored.tobytes())
+    return path
+
+
+HOLES = {"nan": "3 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (2, 3, 4); expected finite values "
+                "(-1 marks a missing value)",
+         "missing": "2 valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (2, 3, 4); "
+                    "expected a BRDF value >= 0 at every cell above the horizon"}
+
+
+@pytest.mark.parametrize("kind", ["nan", "missing"])
+@pytest.mark.parametrize("command", ["preview", "preview --reference", "preview --std", "export mitsuba",
+                                     "export rgl-spectral", "compare"])
+def test_a_merl_file_with_holes_is_refused_alike_by_preview_export_and_compare(command, kind, binary, tmp_path,
+                                                                                capsys):
+    """NaN was three policies: preview refused it ("N valid cells hold NaN or infinite values"),
+    export refused stored NaN but exported missing valid cells as 0, compare drew them black and
+    left them out of the log-relative MSE. Now one check (merl_file.read_merl_complete)."""
+    damaged = _damaged(binary, tmp_path, kind)
+    argv = {"preview": ["preview", damaged, "--out", tmp_path / "p.png"],
+            "preview --reference": ["preview", binary, "--reference", damaged, "--out", tmp_path / "p.png"],
+            "preview --std": ["preview", binary, "--std", damaged, "--out", tmp_path / "p.png"],
+            "export mitsuba": ["export", damaged, "--format", "mitsuba", "--out", tmp_path / "e.bsdf"],
+            "export rgl-spectral": ["export", damaged, "--format", "rgl-spectral", "--out", tmp_path / "e.bsdf"],
+            "compare": ["compare", binary, damaged, "--out", tmp_path / "c.png"]}[command]
+    line = _refused(capsys, argv)
+    assert line == f"goniofrost {command.split()[0]}: error: {damaged}: {HOLES[kind]}"
+    assert _tree(tmp_path) == [damaged.name]
+
+
 # ----- align and sim: an output that cannot be written is refused before any device starts -------
 def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys, monkeypatch):
     """align --out DIR moved the axes through its 30 poses (30 s) and only then failed to write."""
@@ -106,6 +151,25 @@ def test_align_refuses_frames_below_a_file_before_any_axis_moves(binary, tmp_pat
     line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "a.json", "--frames", binary])
     assert line == f"goniofrost align: error: {binary}: cannot write: a part of the path is a file, not a directory"
     assert _tree(tmp_path) == []
+
+
+def test_align_takes_an_out_in_a_folder_it_will_make_as_every_command_does(tmp_path, monkeypatch):
+    """align kept its own parent-folder check ("expected a file in an existing folder") beside the
+    shared one; now atomic_file.check_output_file alone: a folder that can be made is made, at
+    the end, as plan, preview or export make theirs."""
+    import goniofrost.capture.hardware as hardware
+    from goniofrost.capture.align import align
+
+    class Started(Exception):
+        pass
+
+    def start(*args, **kwargs):
+        raise Started
+
+    monkeypatch.setattr(hardware, "open_hardware", start)
+    with pytest.raises(Started):   # past every check: the rig is started
+        align(SIM_RIG, tmp_path / "new" / "alignment.json", progress=False)
+    assert _tree(tmp_path) == []   # and nothing made before the run
 
 
 def test_sim_refuses_a_directory_as_write_rig_before_starting_the_devices(tmp_path, capsys, monkeypatch):
@@ -204,6 +268,46 @@ def test_bench_refuses_non_positive_jobs_and_stress_m_before_any_work(options, o
     assert _tree(tmp_path) == []
 
 
+def _dead_port() -> int:
+    """A loopback port nobody listens on (bound to be given one, then closed)."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_bench_refuses_an_unreachable_dask_scheduler_at_once(tmp_path, capsys, monkeypatch):
+    """--dask ADDRESS with no scheduler there tabulated the materials first, then waited out
+    dask's 30 s connect timeout."""
+    import time
+
+    import goniofrost.bench.runner as runner
+
+    pytest.importorskip("distributed")
+    monkeypatch.setattr(runner, "tables_path", lambda *a, **k: pytest.fail("the materials were tabulated"))
+    address = f"tcp://127.0.0.1:{_dead_port()}"
+    started = time.monotonic()
+    line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--quick", "--dask", address])
+    assert line == f"goniofrost bench: error: --dask {address}: cannot connect to a Dask scheduler there " \
+                   f"(Connection refused)"
+    assert time.monotonic() - started < 10   # a refused connect is not retried for 30 s
+    assert _tree(tmp_path) == []
+
+
+def test_run_folds_refuses_an_unreachable_dask_scheduler_before_handing_it_to_dask(monkeypatch):
+    import distributed
+
+    from goniofrost.bench.config import BenchConfig, BenchError
+    from goniofrost.bench.executors import run_folds
+
+    monkeypatch.setattr(distributed, "Client", lambda *a, **k: pytest.fail("dask was asked to connect"))
+    address = f"127.0.0.1:{_dead_port()}"
+    with pytest.raises(BenchError) as refused:
+        run_folds(BenchConfig(("builtin",), folds=1), "tables.npy", ["m"], dask_address=address, progress=False)
+    assert str(refused.value) == f"--dask {address}: cannot connect to a Dask scheduler there (Connection refused)"
+
+
 # ----- a damaged model.json -------------------------------------------------------------------------
 GOOD_META = {"format": "goniofrost-frost-model", "version": 2, "grid": {"n_th": 10, "n_td": 10, "n_pd": 20},
              "names": ["m0", "m1"], "eps": 0.001, "content_hash": "0" * 64, "info": {}, "noise": {}}
@@ -237,18 +341,26 @@ def test_a_model_json_field_of_the_wrong_type_is_named(command, field, value, wo
 
 
 # ----- reconstruct: an --out that is the samples file ------------------------------------------------
-@pytest.mark.parametrize("out", ["s.csv", "s.binary"])
-def test_reconstruct_refuses_an_out_that_would_overwrite_its_samples(out, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("out, samples, clash, option", [
+    ("s.csv", "s.csv", "s.csv", "--samples s.csv"),
+    ("s.binary", "s.json", "s.json", "--samples s.json"),     # its record OUT.json
+    ("model/brdf.binary", "s.csv", "model/brdf.binary", "--model model"),
+])
+def test_reconstruct_refuses_an_out_that_would_overwrite_an_input(out, samples, clash, option, tmp_path, capsys,
+                                                                    monkeypatch):
     """reconstruct --samples s.csv --out s.csv replaced the samples with the BRDF (exit 0); with
-    --samples s.json --out s.binary the record OUT.json would replace them."""
+    --samples s.json --out s.binary the record OUT.json would replace them. The check is the
+    bottom layer's (atomic_file.check_not_an_input), which also keeps --out out of the model."""
     monkeypatch.chdir(tmp_path)
-    samples = "s.csv" if out == "s.csv" else "s.json"
     text = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n"
     Path(samples).write_text(text)
+    Path("model").mkdir()
     line = _refused(capsys, ["reconstruct", "--model", "model", "--samples", samples, "--out", out])
-    assert line == (f"goniofrost reconstruct: error: --out {out}: would overwrite the --samples file {samples}; "
-                    f"expected another name such as brdf.binary")
-    assert _tree(tmp_path) == [samples] and Path(samples).read_text() == text
+    name, path = option.split()
+    here = tmp_path.resolve()
+    assert line == (f"goniofrost reconstruct: error: {here / clash}: cannot write: --out would overwrite the input "
+                    f"{name} {here / path}; give another name")
+    assert _tree(tmp_path) == sorted(["model", samples]) and Path(samples).read_text() == text
 
 
 # ----- an output that is one of the command's inputs -------------------------------------------------

@@ -321,13 +321,17 @@ def stored(path) -> np.ndarray:
     (lambda p: p.write_bytes(p.read_bytes()[:-8]), "truncated MERL file: 1296004 bytes, expected 1296012 bytes"),
     (lambda p: p.write_bytes(p.read_bytes() + bytes(8)), "oversized MERL file: 1296020 bytes, expected 1296012 bytes"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.full(3 * SMALL.size, -1.0).tobytes()),
+     f"{SMALL.n_valid} valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (0, 0, 0); "
+     "expected a BRDF value >= 0 at every cell above the horizon"),
+    (lambda p: p.write_bytes(p.read_bytes()[:12] + np.zeros(3 * SMALL.size).tobytes()),
      "no valid value: every valid cell is missing or zero"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.where(np.arange(3 * SMALL.size) == 40000, np.nan,
                                                             stored(p)).tobytes()),
-     "1 stored values are NaN or inf (first: cell 40000, channel R); expected finite values, -1 for missing"),
+     "1 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (22, 6, 40); expected finite values (-1 marks a missing "
+     "value)"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.where(np.arange(3 * SMALL.size) == SMALL.size + 7, np.inf,
                                                             stored(p)).tobytes()),
-     "1 stored values are NaN or inf (first: cell 7, channel G)"),
+     "1 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (0, 0, 7)"),
 ])
 def test_bad_binary_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, damage, message):
     source = tmp_path / "m.binary"
@@ -367,8 +371,10 @@ def test_bad_options_exit_2(tmp_path, capsys, monkeypatch, args, message):
 
 def test_export_reads_back_what_read_merl_reads(tmp_path):
     # the checked reader changes nothing about the values (negative stored values are missing)
+    from goniofrost.brdf.merl_file import read_merl_complete
+
     small_binary(tmp_path / "m.binary")
-    brdf, grid = me.read_merl_checked(tmp_path / "m.binary")
+    brdf, grid = read_merl_complete(tmp_path / "m.binary")
     assert grid == SMALL
     np.testing.assert_array_equal(np.isnan(brdf), np.isnan(read_merl(tmp_path / "m.binary")))
     np.testing.assert_array_equal(np.nan_to_num(brdf), np.nan_to_num(read_merl(tmp_path / "m.binary")))

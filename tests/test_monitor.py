@@ -8,6 +8,7 @@ import json
 import socket
 import sqlite3
 import time
+import urllib.request
 from pathlib import Path
 
 import cv2
@@ -182,6 +183,81 @@ def test_a_missing_or_half_created_journal_reads_as_waiting(tmp_path):
     sqlite3.connect(tmp_path / "session.sqlite").close()  # created, no table yet
     got = read_session(tmp_path)
     assert got.journal_found is False and "not readable yet" in got.note
+
+
+def damaged_sessions(root: Path) -> dict:
+    """Under ``root``: a good session ("a-good", one sample, finished) and three damaged journals
+    written by the same script: garbage over the whole file ("b-garbage"), over all but its 100-byte
+    header ("c-malformed"), and a meta record that is not JSON ("d-record"). Name -> journal path."""
+    from journal_script import ScriptedSession
+
+    paths = {}
+    for name in ("a-good", "b-garbage", "c-malformed", "d-record"):
+        (root / name).mkdir(parents=True)
+        script = ScriptedSession(root / name, 2)
+        script.start_run()
+        script.calibrate()
+        script.capture(0)
+        script.end_run(RunStatus.FINISHED, "finished")
+        script.close()
+        paths[name] = root / name / "session.sqlite"
+    data = paths["b-garbage"].read_bytes()
+    paths["b-garbage"].write_bytes(b"\x5a" * len(data))
+    data = paths["c-malformed"].read_bytes()
+    paths["c-malformed"].write_bytes(data[:100] + b"\x5a" * (len(data) - 100))
+    with sqlite3.connect(paths["d-record"]) as db:
+        db.execute("UPDATE meta SET value = '{' WHERE key = 'plan'")
+    db.close()
+    return paths
+
+
+DAMAGE = {"b-garbage": "file is not a database", "c-malformed": "database disk image is malformed",
+          "d-record": "a record does not decode: JSONDecodeError: Expecting property name enclosed in double "
+                      "quotes: line 1 column 2 (char 1)"}
+
+
+def test_a_damaged_journal_is_listed_unreadable_with_its_error_and_the_other_sessions_still_are(tmp_path, capsys):
+    """A corrupt journal was listed as "not started" (its SQLite error swallowed), and a record that
+    did not decode ended `goniofrost sessions` in a traceback."""
+    paths = damaged_sessions(tmp_path)
+    before = folder_state(tmp_path)
+    assert main(["sessions", str(tmp_path)]) == 0
+    out, err = capsys.readouterr()
+    lines = out.splitlines()
+    assert err == "" and len(lines) == 8
+    assert lines[1].split()[0] == "a-good" and lines[1].split()[5:7] == ["finished", "1/2"]
+    assert [line.split() for line in lines[2:5]] == [
+        [name, "-", "-", "-", "unreadable", "0/0", "-", "0:00:00"] for name in ("b-garbage", "c-malformed", "d-record")]
+    assert lines[5:] == [f"{name}: unreadable journal: {paths[name]}: {why}" for name, why in DAMAGE.items()]
+    assert main(["sessions", str(tmp_path), "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [(e["name"], e["state"], e["problem"]) for e in listed] == [("a-good", "finished", None)] + [
+        (name, "unreadable", f"{paths[name]}: {why}") for name, why in DAMAGE.items()]
+    for name, why in DAMAGE.items():   # the session's own page says so too
+        view = read_session(tmp_path / name)
+        assert (view.journal_found, view.unreadable) == (False, f"{paths[name]}: {why}")
+        assert page_state(view, time.time())["state"] == "unreadable"
+        assert page_state(view, time.time())["hint"] == (
+            f"the session journal cannot be read ({paths[name]}: {why}): it is damaged or not a journal; the files "
+            f"beside it are untouched")
+    with MonitorServer(tmp_path, port=0, catalogue=True) as server:
+        page = urllib.request.urlopen(server.url).read().decode()
+        assert '<a href="/s/b-garbage/">b-garbage</a>' in page and page.count("<td>unreadable</td>") == 3
+        state = json.loads(urllib.request.urlopen(server.url + "s/c-malformed/api/state").read())
+        assert state["state"] == "unreadable" and state["count_text"] == "no plan yet"
+    assert folder_state(tmp_path) == before   # read-only, damaged or not
+
+
+def test_a_damaged_read_of_a_journal_a_capture_holds_is_not_readable_yet(tmp_path):
+    """While a capture holds the session, a read can race its writes (an immutable read and a
+    checkpoint): that is "not readable yet", read again, never "unreadable"."""
+    from goniofrost.capture.session_lock import session_lock
+
+    paths = damaged_sessions(tmp_path)
+    with session_lock(tmp_path / "b-garbage"):
+        view = read_session(tmp_path / "b-garbage")
+    assert (view.unreadable, view.note) == ("", f"{paths['b-garbage']}: not readable yet (file is not a database)")
+    assert page_state(view, time.time())["state"] == "waiting"
 
 
 def test_a_capture_killed_mid_session_reads_as_stopped_and_its_steps_as_they_happened(tmp_path):

@@ -5,6 +5,7 @@ CI; where mounting is not allowed those two cases are skipped, the others still 
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,32 @@ def test_the_commands_write_where_they_should(inputs, tmp_path, capsys):
     for name in COMMANDS:
         out = _named(name, tmp_path / f"{name}.out")
         assert _run(capsys, _command(name, inputs, out))[0] == 0 and out.is_file()
+
+
+@pytest.mark.parametrize("name", (*COMMANDS, "compare"))
+def test_an_existing_out_is_replaced_by_a_rename(inputs, tmp_path, capsys, name):
+    """What the README promises: an existing --out is replaced atomically (a temporary file beside
+    it, renamed over it). A reader that opened the old file still reads all of it (a write in
+    place would truncate it), the path holds the new file, and no temporary file is left."""
+    out = _named("preview" if name == "compare" else name, tmp_path / f"{name}.out")
+    argv = (["compare", str(inputs / "x.binary"), str(inputs / "x.binary"), "--size", "32", "--out", str(out)]
+            if name == "compare" else _command(name, inputs, out))
+    sides = (".std.binary", ".json") if name == "reconstruct" else ()   # OUT.std.binary and OUT.json beside OUT
+    outs = [out] + [out.with_name(out.name + side) for side in sides]
+    old = b"the old file " * 1000
+    readers = []
+    for path in outs:
+        path.write_bytes(old)
+        readers.append(open(path, "rb"))
+    try:
+        assert _run(capsys, argv)[0] == 0
+        for path, reader in zip(outs, readers):
+            assert reader.read() == old                      # the old file, untouched
+            assert path.read_bytes() != old and os.fstat(reader.fileno()).st_ino != path.stat().st_ino
+    finally:
+        for reader in readers:
+            reader.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outs)
 
 
 @pytest.mark.parametrize("name", COMMANDS)

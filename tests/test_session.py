@@ -552,6 +552,44 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
     assert not (tmp_path / "nothing").exists()  # refused: not even the folder and its lock are left
 
 
+def _state(folder: Path) -> dict:
+    """name -> (bytes, mtime_ns) of every file in ``folder``, and the folder's own mtime_ns."""
+    files = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())}
+    return {"files": files, "folder": folder.stat().st_mtime_ns}
+
+
+@pytest.mark.parametrize("lock, extra, words", [
+    (True, (), "a session journal already exists with 1 of"),
+    (False, (), "a session journal already exists with 1 of"),
+    (True, ("--resume", "--seed", "7"), "meta.sim_seed: this session was started with another simulated noise seed"),
+])
+def test_a_refused_existing_session_is_left_untouched(setup, tmp_path, capsys, lock, extra, words):
+    """The refusal rewrote session.lock with its own PID and removed the temporaries a killed run
+    left: a refused command must change nothing. A lock file absent stays absent (the lock is
+    taken on it before the journal can be read, so only the folder's mtime shows it was there)."""
+    from goniofrost.capture.journal import SampleRecord
+    from goniofrost.capture.runner import open_journal, session_meta, sim_seed
+    from goniofrost.capture.inputs import load_inputs
+
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    inputs = load_inputs(rig, plan)
+    meta = session_meta(inputs, MATERIAL, seed=sim_seed(inputs.rig, None))
+    with open_journal(session, meta, resume=False) as journal:
+        journal.commit_sample(SampleRecord(0, 1, 0.0, 0.0, 0.0, (1.0, 1.0, 1.0), (0.1, 0.1, 0.1), 10.0))
+    if lock:
+        (session / "session.lock").write_text("12345\n")   # the PID of the run that made it
+    (session / ".brdf.binary.abcd1234").write_bytes(b"half")   # a temporary a killed run left
+    for path in (*session.iterdir(), session):   # in the past: a touch would show in mtime_ns
+        os.utime(path, ns=(1_000_000_000, 1_000_000_000))
+    before = _state(session)
+    err = run_refused(capture_args(rig, plan, session, *extra), capsys)
+    assert words in err and err.count("\n") == 1
+    after = _state(session)
+    assert after["files"] == before["files"]
+    assert after["folder"] == before["folder"] or not lock
+
+
 def test_a_journal_without_samples_of_another_session_says_what_to_type(setup, tmp_path, capsys):
     from goniofrost.capture.runner import open_journal, session_meta
     from goniofrost.capture.inputs import load_inputs

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import queue
+import socket
 import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -94,13 +95,42 @@ class _blas_threads:
                 os.environ[k] = v
 
 
-def _run_dask(config, path, names, todo, address, bar, finished) -> None:
+# A TCP connect to a scheduler that is up answers within this (refused at once when nothing
+# listens); dask's Client instead retries a refused connect until its timeout (30 s by default).
+PROBE_TIMEOUT_S = 2.0
+# dask's handshake with a port that answered (Client's ``timeout``: the initial connection)
+CONNECT_TIMEOUT_S = 10
+
+
+def check_dask_address(address: str) -> None:
+    """Raise BenchError now, naming ``address``, unless dask.distributed is installed and a TCP
+    connect to the scheduler's host and port succeeds within PROBE_TIMEOUT_S (schemes without a
+    host and port, such as ucx://, are left to dask). For the command line to call before the
+    tabulation, and ``_run_dask`` before handing the address to dask."""
     try:
-        from distributed import Client, as_completed
+        from distributed.comm.addressing import get_address_host_port, parse_address
     except ImportError as exc:
         raise BenchError("--dask needs dask.distributed: pip install 'goniofrost[dask]'") from exc
     try:
-        client = Client(address, timeout=30)
+        if parse_address(address)[0] not in ("tcp", "tls"):
+            return
+        host, port = get_address_host_port(address)
+    except ValueError as exc:
+        raise BenchError(f"--dask {address}: expected a scheduler address such as tcp://HOST:8786 ({exc})") from None
+    try:
+        socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as exc:
+        timed_out = isinstance(exc, TimeoutError)
+        reason = f"no answer within {PROBE_TIMEOUT_S:g} s" if timed_out else (exc.strerror or str(exc))
+        raise BenchError(f"--dask {address}: cannot connect to a Dask scheduler there ({reason})") from None
+
+
+def _run_dask(config, path, names, todo, address, bar, finished) -> None:
+    check_dask_address(address)
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError) as exc:
         raise BenchError(f"--dask {address}: cannot connect to a Dask scheduler there ({exc})") from exc
     with client:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import preview
-from goniofrost.brdf.merl_file import _read_header, read_merl
+from goniofrost.brdf.merl_file import read_merl_complete
 from goniofrost.core.atomic_file import write_bytes_atomic
 from goniofrost.core.grid import MerlGrid
 
@@ -109,10 +109,7 @@ def compare_tables(tables, labels, paths=None, lights=preview.DEFAULT_LIGHTS, si
 
 def compare_files(paths, labels=None, lights=preview.DEFAULT_LIGHTS, size: int = 128) -> Comparison:
     """Compare MERL .binary files (each on its own grid); ``labels`` default to the file names."""
-    tables = []
-    for path in paths:
-        grid = _read_header(Path(path))
-        tables.append((read_merl(path, grid), grid))
+    tables = [read_merl_complete(path) for path in paths]   # every input checked before any rendering
     return compare_tables(tables, labels or [Path(p).name for p in paths], paths, lights, size)
 
 

@@ -38,7 +38,44 @@ def read_merl(path, grid: MerlGrid | None = None) -> np.ndarray:
     The grid is taken from the header; when ``grid`` is given the header must match it.
     Raises MerlFileError naming the file, what was found and what was expected.
     """
+    return _in_memory(_read_stored(Path(path), grid)[0])
+
+
+def read_merl_complete(path) -> tuple[np.ndarray, MerlGrid]:
+    """``read_merl`` (on the file's own grid) of a BRDF to render, export or compare: (brdf, grid).
+
+    Every cell above the horizon must hold a value: MerlFileError naming the file, the number of
+    cells and the first one's (i_th, i_td, i_pd) for stored NaN or inf (anywhere: goniofrost never
+    writes them, missing is -1), and for missing values (negative) on valid cells, which
+    goniofrost's reconstructions never write either (they are -1 only below the horizon). One
+    policy for ``preview``, ``export`` and ``compare``: a hole would otherwise draw as black,
+    export as 0, or drop out of an error, each passing for a measured value.
+    """
     path = Path(path)
+    stored, grid = _read_stored(path, None)
+    _refuse_cells(path, grid, ~np.isfinite(stored).all(axis=0), "cells hold NaN or inf",
+                  "expected finite values (-1 marks a missing value)")
+    _refuse_cells(path, grid, (stored < 0).any(axis=0) & grid.valid_mask, "valid cells have no value (negative "
+                  "in the file)", "expected a BRDF value >= 0 at every cell above the horizon")
+    return _in_memory(stored), grid
+
+
+def _in_memory(stored: np.ndarray) -> np.ndarray:
+    """The BRDF (n_cells, 3) in 1/sr of stored values (3, n_cells); negative -> NaN (missing)."""
+    brdf = stored.T * RGB_SCALE
+    brdf[stored.T < 0] = np.nan
+    return brdf
+
+
+def _refuse_cells(path: Path, grid: MerlGrid, bad: np.ndarray, what: str, expected: str) -> None:
+    """MerlFileError if any of the (grid.size,) mask ``bad`` is set: the count and the first cell."""
+    if bad.any():
+        first = tuple(int(v) for v in grid.unravel(int(np.flatnonzero(bad)[0])))
+        raise MerlFileError(f"{path}: {int(bad.sum())} {what}, first at (i_th, i_td, i_pd) = {first}; {expected}")
+
+
+def _read_stored(path: Path, grid: MerlGrid | None) -> tuple[np.ndarray, MerlGrid]:
+    """(the stored values (3, grid.size) as in the file, the file's grid), header and size checked."""
     file_grid = _read_header(path)
     if grid is not None and file_grid != grid:
         raise MerlFileError(
@@ -51,10 +88,7 @@ def read_merl(path, grid: MerlGrid | None = None) -> np.ndarray:
             f"{path}: {kind} MERL file: {size} bytes, expected {want} bytes for a "
             f"{file_grid.shape} grid (12-byte header + 3 x {file_grid.size} float64)"
         )
-    stored = np.fromfile(path, dtype="<f8", offset=HEADER_BYTES).reshape(3, file_grid.size)
-    brdf = stored.T * RGB_SCALE
-    brdf[stored.T < 0] = np.nan
-    return brdf
+    return np.fromfile(path, dtype="<f8", offset=HEADER_BYTES).reshape(3, file_grid.size), file_grid
 
 
 def _read_header(path: Path) -> MerlGrid:

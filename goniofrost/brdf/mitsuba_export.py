@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import marginal2d
-from goniofrost.brdf.merl_file import HEADER_BYTES, MerlFileError, _read_header, read_merl
+from goniofrost.brdf.merl_file import read_merl_complete
 from goniofrost.brdf.rgl_tensor import write_tensor_file
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
@@ -363,24 +363,9 @@ def export_mitsuba(path, brdf, grid: MerlGrid, options: ExportOptions = DEFAULT_
     return fields
 
 
-def read_merl_checked(path) -> tuple[np.ndarray, MerlGrid]:
-    """Read a MERL .binary for export: size and header checked, stored NaN or inf refused."""
-    path = Path(path)
-    brdf = read_merl(path)                                         # header and size checked
-    grid = _read_header(path)
-    stored = np.fromfile(path, dtype="<f8", offset=HEADER_BYTES)   # read_merl turns NaN into "missing"
-    bad = ~np.isfinite(stored)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        channel, cell = divmod(first, grid.size)
-        raise MerlFileError(f"{path}: {int(bad.sum())} stored values are NaN or inf (first: cell {cell}, "
-                            f"channel {'RGB'[channel]}); expected finite values, -1 for missing")
-    return brdf, grid
-
-
 def export_binary_file(binary, out, options: ExportOptions = DEFAULT_OPTIONS) -> dict:
     """Export a MERL .binary file to an RGL tensor file ``out``; nothing is written on error."""
-    brdf, grid = read_merl_checked(binary)
+    brdf, grid = read_merl_complete(binary)
     return export_mitsuba(out, brdf, grid, options, source=str(binary))
 
 

@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
 from goniofrost.core.atomic_file import write_bytes_atomic
-from goniofrost.brdf.merl_file import MerlFileError, _read_header, read_merl
+from goniofrost.brdf.merl_file import MerlFileError, read_merl_complete
 
 GAMMA = 2.0
 ERROR_GAIN = 10.0  # the paper multiplies error images by 10
@@ -178,25 +177,17 @@ def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size
 
     The std file (OUT.std.binary of ``reconstruct``) must be on the estimate's grid.
     """
-    grid = _read_header(Path(estimate_path))  # the file's own grid: a small-grid file renders as well
-    estimate = finite_table(read_merl(estimate_path, grid), grid, estimate_path)
-    reference = None if reference_path is None else finite_table(
-        read_merl(reference_path, ref_grid := _read_header(Path(reference_path))), ref_grid, reference_path)
-    std = None if std_path is None else finite_table(read_merl(std_path, grid), grid, std_path)
-    if reference is not None and reference.shape != estimate.shape:
-        return _preview(render_set(estimate, grid, lights, size),
-                        render_set(reference, _read_header(Path(reference_path)), lights, size), lights)
+    estimate, grid = read_merl_complete(estimate_path)  # the file's own grid: a small-grid file renders as well
+    reference, ref_grid = (None, None) if reference_path is None else read_merl_complete(reference_path)
+    std = None
+    if std_path is not None:
+        std, std_grid = read_merl_complete(std_path)
+        if std_grid != grid:
+            raise MerlFileError(f"{std_path}: header gives resolutions {std_grid.shape}, expected {grid.shape} "
+                                f"(the grid of {estimate_path})")
+    if reference is not None and ref_grid != grid:
+        return _preview(render_set(estimate, grid, lights, size), render_set(reference, ref_grid, lights, size), lights)
     return preview_of(estimate, grid, reference, lights, size, std=std)
-
-
-def finite_table(table: np.ndarray, grid: MerlGrid, path) -> np.ndarray:
-    """``table`` if every valid cell is finite; MerlFileError naming the file and the count (a
-    NaN would draw as black and pass for a measured value)."""
-    bad = ~np.isfinite(np.asarray(table)[grid.valid_mask])
-    if bad.any():
-        cells = int(bad.any(axis=-1).sum()) if bad.ndim > 1 else int(bad.sum())
-        raise MerlFileError(f"{path}: {cells} valid cells hold NaN or infinite values; expected finite BRDF values")
-    return table
 
 
 def preview_of(estimate: np.ndarray, grid: MerlGrid, reference: np.ndarray | None = None,

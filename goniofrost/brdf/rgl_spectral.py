@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import srgb_spectra
-from goniofrost.brdf.mitsuba_export import (DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields, export_mitsuba,
-                                            read_merl_checked)
+from goniofrost.brdf.merl_file import read_merl_complete
+from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields, export_mitsuba
 from goniofrost.brdf.rgl_tensor import write_tensor_file
 from goniofrost.core.grid import MerlGrid
 
@@ -97,7 +97,7 @@ def export_file(binary, out, format: str = "mitsuba", options: ExportOptions = D
         raise ExportError(f"format: expected one of {', '.join(FORMATS)}, found {format!r}")
     if FORMATS[format] == "spectral":
         wavelength_nodes(n_wavelengths)
-    brdf, grid = read_merl_checked(binary)
+    brdf, grid = read_merl_complete(binary)
     if FORMATS[format] == "rgb":
         return export_mitsuba(out, brdf, grid, options, source=str(binary))
     return export_spectral(out, brdf, grid, options, n_wavelengths, source=str(binary))

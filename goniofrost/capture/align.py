@@ -53,8 +53,6 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
                           "nothing" if not rig.camera else "a camera section without intrinsics")
     check_sim_options(rig, seed, speedup)
     out_path = Path(out_path)
-    if not out_path.parent.is_dir():
-        raise ConfigError("command line", "--out", "a file in an existing folder", str(out_path))
     check_not_an_input(out_path, {"--rig": rig_path})
     check_output_file(out_path)  # before any axis moves, not after the 30 poses
     if frames is not None:

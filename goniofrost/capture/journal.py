@@ -213,13 +213,18 @@ class Journal:
         return journal
 
     @classmethod
-    def open(cls, path) -> "Journal":
-        """Open an existing journal to continue it."""
+    def open(cls, path, read_only: bool = False) -> "Journal":
+        """Open an existing journal to continue it; ``read_only``: to check it first without
+        writing or creating any file (``connect_read_only``; no other process may be writing it)."""
         path = Path(path)
         if not path.is_file():
             raise JournalError(f"{path}: no session journal to resume (expected a file made by goniofrost capture)")
-        journal = cls(path, _connect(path))
-        version = journal.meta().get("format_version")
+        journal = cls(path, connect_read_only(path) if read_only else _connect(path))
+        try:
+            version = journal.meta().get("format_version")
+        except sqlite3.DatabaseError as exc:   # a read-only connection reads the file only now
+            journal.close()
+            raise JournalError(f"{path}: not a usable session journal ({exc})") from None
         if version != FORMAT_VERSION:
             journal.close()
             raise JournalError(f"{path}: meta.format_version: expected {FORMAT_VERSION}, found {version!r}")

@@ -72,18 +72,21 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     if drift_limit is not None:
         spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
     existed = check_session_folder(session_dir)
-    with session_lock(session_dir):
-        from goniofrost.core.atomic_file import remove_stale_temporaries
-        for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
-            log.info("removed %s, left by an interrupted write", name)
+    with session_lock(session_dir) as lock:
         try:
             journal = open_journal(session_dir, meta, resume)
-        except GoniofrostError:
+        except GoniofrostError:   # refused: the folder is left as it was
             if not existed:  # made for this run (--resume of nothing): only its lock is in it
                 remove_refused_session(session_dir, existed)
+            elif lock.created:
+                lock.path.unlink(missing_ok=True)
             raise
         fresh = not journal.done_indices() and not journal.steps()
         try:
+            lock.claim()   # accepted: now this run may change the folder
+            from goniofrost.core.atomic_file import remove_stale_temporaries
+            for name in remove_stale_temporaries(session_dir):   # of a run killed while writing its results
+                log.info("removed %s, left by an interrupted write", name)
             done = journal.done_indices()
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if not session_finished(spec, journal):
@@ -300,7 +303,8 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
 
     Without ``resume``, an existing journal that holds no sample yet (a run that failed before its
     first sample) is continued when it was started for the same session, so that the same command
-    works again; one that holds samples needs ``--resume``.
+    works again; one that holds samples needs ``--resume``. An existing journal is checked through
+    a read-only connection first: a refused run writes nothing, not even SQLite's side files.
     """
     path = session_dir / JOURNAL_FILE
     if path.exists() and not path.is_file():
@@ -308,12 +312,13 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
                           "another --session")
     if not resume and not path.exists():
         return Journal.create(path, meta)
-    journal = Journal.open(path)
-    try:
+    with Journal.open(path, read_only=True) as journal:
         if not resume:
             _check_nothing_captured(journal, meta)
         _check_same_session(journal, meta, resume)
         label = _check_same_label(journal, meta)
+    journal = Journal.open(path)
+    try:
         if label != journal.label():  # new notes: the only change a resume may bring
             journal.set_label(label)
     except BaseException:

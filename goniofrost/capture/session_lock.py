@@ -9,6 +9,7 @@ from __future__ import annotations
 import fcntl
 import os
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from goniofrost.core.atomic_file import output_errors
@@ -21,10 +22,27 @@ class SessionInUseError(GoniofrostError):
     """Another process holds the session's lock."""
 
 
+@dataclass
+class HeldLock:
+    """The held lock of a session: ``claim`` writes this process's PID once the run is accepted."""
+
+    path: Path
+    fd: int
+    created: bool   # this run made the file: a refused run removes it
+
+    def claim(self) -> None:
+        """Record this process as the holder (what a second capture's refusal names)."""
+        with output_errors(self.path):
+            os.ftruncate(self.fd, 0)
+            os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+
+
 @contextmanager
 def session_lock(session_dir: Path):
-    """Create ``session_dir`` if needed and hold its lock until the block ends.
+    """Create ``session_dir`` if needed and hold its lock until the block ends; yield a HeldLock.
 
+    The lock file is not written until ``claim``: a run refused under the lock (an existing
+    session without --resume) must leave the session's files as they were.
     Raises ``SessionInUseError`` at once (no waiting) when another process holds it, and
     ``OutputError`` when the folder cannot be made (a file in the way, read-only, ...).
     """
@@ -32,14 +50,20 @@ def session_lock(session_dir: Path):
     path = session_dir / LOCK_FILE
     with output_errors(session_dir):
         session_dir.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd, created = _open(path)
     try:
         _acquire(fd, session_dir)
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        yield path
+        yield HeldLock(path, fd, created)
     finally:
         os.close(fd)   # releases the lock
+
+
+def _open(path: Path) -> tuple[int, bool]:
+    """(descriptor, whether this call created the file) of the lock file ``path``."""
+    try:
+        return os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+    except FileExistsError:
+        return os.open(path, os.O_RDWR), False
 
 
 def _acquire(fd: int, session_dir: Path) -> None:

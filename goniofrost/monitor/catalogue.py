@@ -21,7 +21,7 @@ STATE_OF_STATUS = {RunStatus.FINISHED: "finished", RunStatus.TARGET_REACHED: "ta
                    RunStatus.PLAN_USED_UP: "plan used up", RunStatus.STOPPED_BY_OPERATOR: "interrupted",
                    RunStatus.FAULT: "faulted", RunStatus.REFUSED: "faulted"}
 STATES = ("finished", "target reached", "plan used up", "nothing measured", "interrupted", "faulted", "running",
-          "not started")
+          "not started", "unreadable")
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ class SessionEntry:
     until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
     ``not_measured`` those journaled as not measured (too dark or saturated; done, without a value);
     ``predicted_error`` the log-relative MSE of the reconstruction (or the last batch), None
-    before one."""
+    before one; ``problem`` why a session is "unreadable" (its journal's path and the error)."""
 
     name: str
     path: str
@@ -48,6 +48,7 @@ class SessionEntry:
     predicted_error: float | None
     duration_s: float
     not_measured: int = 0
+    problem: str | None = None
 
     def as_json(self) -> dict:
         out = asdict(self)
@@ -59,7 +60,10 @@ class SessionEntry:
 def session_state(view) -> str:
     """The state of a session (a SessionView) from its last run's RunEnd and the session lock;
     "nothing measured" when its runs completed with every plan sample journaled as not measured
-    (too dark or saturated: there is no result, and running it again will not make one)."""
+    (too dark or saturated: there is no result, and running it again will not make one);
+    "unreadable" when its journal is damaged (``view.unreadable``)."""
+    if view.unreadable:
+        return "unreadable"
     if view.run_end is not None:
         if view.run_end.status.completed and view.nothing_measured:
             return "nothing measured"
@@ -84,7 +88,8 @@ def read_entry(session_dir: Path) -> SessionEntry:
                         operator=label.get("operator"), sample_id=label.get("sample_id"), material=view.material,
                         notes=tuple(label.get("notes") or ()), lab=label.get("lab"), rig=view.rig_name, state=state,
                         samples=len(view.done), samples_planned=len(view.plan),
-                        predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured))
+                        predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured),
+                        problem=view.unreadable or None)
 
 
 def session_folders(root: Path) -> list[Path]:
@@ -143,10 +148,12 @@ def samples_text(entry: SessionEntry) -> str:
 
 
 def table_text(entries) -> str:
-    """One line per session under a header, columns aligned."""
+    """One line per session under a header, columns aligned; then one line per unreadable session
+    saying why."""
     rows = [COLUMNS, *table_rows(entries)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(COLUMNS))]
-    return "".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() + "\n" for r in rows)
+    table = "".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() + "\n" for r in rows)
+    return table + "".join(f"{e.name}: unreadable journal: {e.problem}\n" for e in entries if e.problem)
 
 
 def duration_text(seconds: float) -> str:

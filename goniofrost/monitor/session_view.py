@@ -109,7 +109,9 @@ class Stop:
 class SessionView:
     """Everything the monitor knows about a session folder at one moment (see module doc).
 
-    ``journal_found`` is False before the capture created its journal (``note`` says why);
+    ``journal_found`` is False before the capture created its journal (``note`` says why), and
+    when the journal is damaged (``unreadable``: its path and the error, e.g. "file is not a
+    database"; empty otherwise);
     ``done`` the measured samples (DoneSample), ``not_measured`` the samples journaled as not
     measured (NotMeasuredSample): both are done; ``events`` are dicts (t_utc, kind, axis, message); ``run_started_utc`` is the start of the
     last run (a resume starts a new run); ``run_end`` how it ended (None while it runs or when its
@@ -132,6 +134,7 @@ class SessionView:
     session_dir: Path
     journal_found: bool = False
     note: str = ""
+    unreadable: str = ""
     plan_key: str = ""
     plan_doc: dict = field(default_factory=dict)
     plan_file: str = ""
@@ -185,8 +188,8 @@ def read_session(session_dir) -> SessionView:
         return SessionView(session_dir, note=f"no {JOURNAL_FILE} in {session_dir} yet", files=files)
     try:
         meta, records, dark, events, calibration, steps, runs, label = _read_journal(path)
-    except sqlite3.Error as exc:  # being created (no table yet) or a checkpoint raced an immutable read
-        return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
+    except (sqlite3.Error, ValueError, TypeError, KeyError) as exc:   # a damaged file can fail anywhere
+        return _unreadable_view(session_dir, path, exc, files)
     report = _read_report(session_dir / REPORT_FILE)
     start, end = runs[-1] if runs else (None, None)
     return SessionView(
@@ -204,6 +207,23 @@ def read_session(session_dir) -> SessionView:
         predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files,
         label=label.to_dict(), first_started_utc=runs[0][0].started_utc if runs else None,
         run_spans=tuple((s.started_utc, None if e is None else e.ended_utc) for s, e in runs))
+
+
+# SQLite primary result codes of a file that is not (or no longer) a database
+_DAMAGED = {11: "SQLITE_CORRUPT", 26: "SQLITE_NOTADB"}
+
+
+def _unreadable_view(session_dir: Path, path: Path, exc: Exception, files: tuple) -> SessionView:
+    """The view of a journal that could not be read. Damaged (a corrupt or foreign file, a record
+    that does not decode) with no capture holding the session: ``unreadable``, for good. Being
+    created (no table yet), or read while a capture writes it (an immutable read can race a
+    checkpoint): "not readable yet", read again next time."""
+    sqlite = isinstance(exc, sqlite3.Error)
+    damaged = (getattr(exc, "sqlite_errorcode", 0) & 0xFF) in _DAMAGED if sqlite else True
+    if not damaged or flock_held(session_dir / LOCK_FILE) is True:
+        return SessionView(session_dir, note=f"{path}: not readable yet ({exc})", files=files)
+    what = f"{exc}" if sqlite else f"a record does not decode: {type(exc).__name__}: {exc}"
+    return SessionView(session_dir, unreadable=f"{path}: {what}", note=f"{path}: unreadable ({what})", files=files)
 
 
 def _read_journal(path: Path):

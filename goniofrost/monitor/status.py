@@ -3,6 +3,8 @@
 The state of the session, from the journal's events of its last run:
 
 * ``waiting``: no journal yet (the capture is still checking its inputs, or has not started);
+* ``unreadable``: the journal is damaged (SQLite cannot read it, or a record does not decode) and
+  no capture holds the session;
 * ``running``: the last run started and neither ended nor stopped;
 * ``stopped``: running by the journal, but no process holds the session's lock: the capture
   ended without journaling why (killed, or the computer stopped);
@@ -104,6 +106,9 @@ def _state(view, now_utc, attached, ended_message, done, total) -> tuple[str, st
     journaled, measured or not."""
     if ended_message:
         return "failed", ended_message
+    if view.unreadable:
+        return "unreadable", (f"the session journal cannot be read ({view.unreadable}): it is damaged or not a "
+                              f"journal; the files beside it are untouched")
     if not view.journal_found:
         return "waiting", f"waiting for the capture to start ({view.note})"
     if view.stop is not None:

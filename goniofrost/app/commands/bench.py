@@ -60,6 +60,9 @@ def run(args) -> int:
         if value < 1:  # --jobs 0 ran with one worker silently; --stress-m 0 failed after the tabulation
             raise ConfigError("command line", option, "a positive integer", value)
     check_output_dir(args.out)   # a bad --out fails now, not after an hour of folds
+    if args.dask and not args.stress:   # an unreachable scheduler too, not after the tabulation
+        from goniofrost.bench.executors import check_dask_address
+        check_dask_address(args.dask)
     if args.stress:
         paths = run_stress(config, args.out, command(config, args), m=args.stress_m, progress=not args.no_progress)
     else:

@@ -4,8 +4,9 @@
 BSDF loads in its RGB variants (``goniofrost.brdf.mitsuba_export``); ``rgl-spectral`` (alias
 ``pbrt``) the spectral one, with ``spectra`` and ``wavelengths`` instead of ``rgb``, that pbrt-v4's
 ``measured`` material and Mitsuba 3's spectral variants load (``goniofrost.brdf.rgl_spectral``).
-Nothing is written when the input is refused (truncated or oversized file, NaN or inf stored, no
-valid value, a bad option, options that would make a file of more than 1 GB of values).
+Nothing is written when the input is refused (truncated or oversized file, NaN or inf stored, a
+missing value on a valid cell: ``merl_file.read_merl_complete``, as preview and compare; no valid
+value, a bad option, options that would make a file of more than 1 GB of values).
 """
 from __future__ import annotations
 

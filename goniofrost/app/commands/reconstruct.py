@@ -35,20 +35,16 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
+    from goniofrost.core.atomic_file import check_not_an_input
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
+    from goniofrost.frost.outputs import bayes_output_paths
     from goniofrost.frost.reconstruction import ETA, reconstruct
     from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
 
-    from pathlib import Path
-
-    from goniofrost.frost.outputs import bayes_output_paths
-
-    outputs = [Path(args.out)] + (list(bayes_output_paths(args.out)) if args.estimator == "bayes" else [])
+    outputs = [args.out] + (list(bayes_output_paths(args.out)) if args.estimator == "bayes" else [])
     for out in outputs:  # reconstruct --out s.csv overwrote the samples it read with the BRDF
-        if out.resolve() == Path(args.samples).resolve():
-            raise GoniofrostError(f"--out {args.out}: would overwrite the --samples file {args.samples}; expected "
-                                  f"another name such as brdf.binary")
+        check_not_an_input(out, {"--samples": args.samples, "--model": args.model})
     model = FrostModel.load(args.model)
     cells, values, extra = read_samples_csv(args.samples, model.grid)
     positions = model.grid.valid_position(cells)
