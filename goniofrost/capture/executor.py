@@ -2,7 +2,8 @@
 
 ``StepExecutor(hardware, folder)(step)`` executes one step (home, move, lamp, target, expose,
 save the calibration arrays) and returns its result (see ``goniofrost.capture.steps``);
-``stop_axes`` is the one stop path for all axes, used by the engine on any failure and by the
+``stop_axes`` is the one stop path for all axes, used by the engine on any failure and, through
+``release_stop`` (only what is not confirmed stopped yet: one stop per axis per exit), by the
 hardware wiring on release. The engine adds the journal on top; a camera bench (tests,
 benchmarks) uses the executor alone.
 """
@@ -52,6 +53,25 @@ def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | 
         stops.append(AxisStop(name, False, under_way=name in moving_to, moving_to=moving_to.get(name),
                               error=errors[name]))
     return stops
+
+
+def release_stop(axes: Mapping[str, Axis], lamp=None) -> list[AxisStop]:
+    """On leaving a rig: stop and confirm (``stop_axes``) every axis not confirmed at rest since
+    its last motion command, and switch the lamp off unless it is confirmed off; never raise.
+
+    After a fault the engine's stop has already confirmed the axes it could and switched the lamp
+    off: each axis is stopped once per exit, and an axis (or the lamp) whose stop failed is tried
+    again here. On a normal exit nothing has stopped the axes: every one is stopped here. Reads
+    ``confirmed_at_rest_deg`` and ``confirmed_off`` of the drivers (``drivers.axis``, ``drivers.lamp``).
+    """
+    rested = {name: axis.confirmed_at_rest_deg for name, axis in axes.items()}
+    stopped = {s.axis: s for s in stop_axes({name: a for name, a in axes.items() if rested[name] is None})}
+    if lamp is not None and not lamp.confirmed_off:
+        try:
+            lamp.off()
+        except Exception as exc:  # noqa: BLE001 - on the way out; the lamp driver logged its retries
+            log.warning("switching the lamp off failed: %s", exc)
+    return [stopped.get(name) or AxisStop(name, True, position_deg=rested[name]) for name in axes]
 
 
 def stop_text(stops: list[AxisStop]) -> str:
