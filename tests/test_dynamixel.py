@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import pytest
+from conftest import TWIN_REPLY_TIMEOUT_MS
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from drivers.rig_devices import open_transport
 from scripted import ScriptedTransport
@@ -236,11 +237,16 @@ def pty_line(entry):
     return open_transport("sample_yaw", {"protocol": "dynamixel", "port": entry["endpoint"], "baud": 57600})
 
 
+FAULT_SPEEDUP = 2.0  # the fault tests' servo: they expect reply timeouts, promptly (100 ms)
+
+
 @pytest.fixture
 def axis(servo):
+    """The driver on the servo; a loaded host's patience (conftest) unless the test injects faults."""
     dev, entry = servo
+    timeout_ms = 100 if dev.clock.speedup == FAULT_SPEEDUP else TWIN_REPLY_TIMEOUT_MS
     ax = DynamixelAxis(_yaw_config(stall_s=0.3), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
-                       reply_timeout_ms=100)
+                       reply_timeout_ms=timeout_ms)
     ax.connect(pty_line(entry))
     ax.enable()
     yield ax
@@ -320,7 +326,7 @@ def _assert_stopped(dev):
     assert abs(dev.true_position_deg() - 170.0) > 1.0  # stopped on the way, not arrived
 
 
-@pytest.mark.parametrize("servo", [2.0], indirect=True)
+@pytest.mark.parametrize("servo", [FAULT_SPEEDUP], indirect=True)
 @pytest.mark.parametrize("kind, error", [("no_reply", DeviceTimeout), ("bad_checksum", ChecksumError),
                                          ("drop_byte", ProtocolError), ("alarm", DeviceFault),
                                          ("stall", DeviceFault)])
@@ -339,7 +345,7 @@ def test_injected_fault_raises_and_stops_the_servo(servo, axis, kind, error):
         assert not dev.torque_on
 
 
-@pytest.mark.parametrize("servo", [2.0], indirect=True)
+@pytest.mark.parametrize("servo", [FAULT_SPEEDUP], indirect=True)
 def test_stall_injected_while_idle_stalls_the_next_move(servo, axis):
     dev, _ = servo
     dev.inject_fault("stall")  # nothing moves yet
@@ -350,7 +356,7 @@ def test_stall_injected_while_idle_stalls_the_next_move(servo, axis):
     _assert_stopped(dev)
 
 
-@pytest.mark.parametrize("servo", [2.0], indirect=True)
+@pytest.mark.parametrize("servo", [FAULT_SPEEDUP], indirect=True)
 def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
     dev, _ = servo
     status = _start_then_fault(dev, axis, "disconnect")
@@ -360,7 +366,7 @@ def test_disconnect_raises_timeout_and_the_stop_was_sent(servo, axis):
     assert _seen(lambda: sum((p.instruction, p.params[:2]) == torque_off for p in dev.ignored), 1) >= 1  # sent
 
 
-@pytest.mark.parametrize("servo", [2.0], indirect=True)
+@pytest.mark.parametrize("servo", [FAULT_SPEEDUP], indirect=True)
 def test_a_stop_after_an_unanswered_stop_is_sent_once_until_the_servo_is_heard_again(servo, axis):
     """A pulled cable: the failed move's own stop is retried (3 attempts), a later stop (the
     engine's, then its exit's) goes out once, as each attempt's frames show; once the servo answers
@@ -421,7 +427,7 @@ def test_one_attempt_on_a_silent_servo_costs_one_reply_timeout(servo, retries):
     ax.close()
 
 
-@pytest.mark.parametrize("servo", [2.0], indirect=True)
+@pytest.mark.parametrize("servo", [FAULT_SPEEDUP], indirect=True)
 def test_a_damaged_reply_to_a_stop_counts_as_heard(servo, axis):
     """A stop sent once (an earlier one unanswered) that gets a damaged reply: the servo was heard,
     so the next unanswered stop is retried again."""
@@ -445,7 +451,7 @@ def test_a_damaged_reply_to_a_stop_counts_as_heard(servo, axis):
 def test_reboot_after_fault_clears_the_hardware_error(servo):
     dev, entry = servo
     ax = DynamixelAxis(_yaw_config(), entry["endpoint"], 1, 57600, "XM430-W350", CPD,
-                       reboot_after_fault=True, reply_timeout_ms=100)
+                       reboot_after_fault=True, reply_timeout_ms=TWIN_REPLY_TIMEOUT_MS)
     ax.connect(pty_line(entry))
     ax.enable()
     dev.inject_fault("alarm")
