@@ -35,7 +35,6 @@ class Lamp:
         self.coil, self.photodiode_register = int(coil), int(photodiode_register)
         self.full_scale = float(full_scale)
         self._connected = False
-        self._off = False  # ``confirmed_off``
 
     @classmethod
     def from_section(cls, section: Mapping, axes: Mapping | None = None) -> "Lamp":
@@ -64,7 +63,7 @@ class Lamp:
             raise NotConnectedError(self.name, "connect (no connection: its axis first, or its own port)")
         self._connected = True
         try:
-            self._off = not self.is_on()
+            self.is_on()
         except BaseException:
             self.close()  # its own connection is closed; a shared one stays with its axis
             raise
@@ -90,23 +89,15 @@ class Lamp:
                     raise
                 log.info("%s: %s: retry %d of %d after %s", self.name, text, attempt + 1, self.retries, exc)
 
-    @property
-    def confirmed_off(self) -> bool:
-        """The lamp reported off (read at connect, or an ``off`` answered) and nothing switched it
-        on since: the rig's release switches it off only otherwise."""
-        return self._connected and self._off
-
     def on(self) -> None:
         """Switch the lamp on (coil = 1)."""
         self._require("on")
-        self._off = False  # from the command on, it may be on
         self._call(f"write coil {self.coil} on", "write_coil", self.coil, True)
 
     def off(self) -> None:
         """Switch the lamp off (coil = 0)."""
         self._require("off")
         self._call(f"write coil {self.coil} off", "write_coil", self.coil, False)
-        self._off = True
 
     def is_on(self) -> bool:
         """The coil state as the device reports it."""

@@ -175,15 +175,14 @@ class _Drilled(PlanRunner):
             self.hw.simulation.arm_faults(step.index)
 
 
-def _run(rig_spec, folder, lamp_off: bool = True):
-    """Home, lamp on, one plan sample's move, lamp off (``lamp_off``) on the simulated rig; (stop
-    commands per twin, lamp on after the release, the run's end)."""
+def _run(rig_spec, folder):
+    """Home, lamp on, one plan sample's move, lamp off on the simulated rig; (stop commands per
+    twin, lamp on after the release, the run's end)."""
     def plan():
         yield Home(tuple(TARGETS))
         yield LampOn()
         yield Move(0, (("camera_arm", 60.0), ("sample_yaw", 0.0), ("sample_tilt", 20.0)))  # the servo stays home
-        if lamp_off:
-            yield LampOff()
+        yield LampOff()
 
     with open_hardware(rig_spec, speedup=20) as hardware:
         twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
@@ -200,8 +199,6 @@ def test_every_axis_is_stopped_once_on_a_normal_exit_and_on_a_fault_exit(tmp_pat
     # a normal exit: the release stops every axis
     stops, lamp_on, end = _run(drill_rig(), tmp_path / "a")
     assert end.status is RunStatus.FINISHED and stops == {name: 1 for name in TARGETS} and lamp_on is False
-    # a plan that ends with the lamp on: the release switches it off (it was left on)
-    assert _run(drill_rig(), tmp_path / "a2", lamp_off=False)[1] is False
     # a fault exit: the engine stops every axis (the alarmed drive also stopped itself at the alarm);
     # the release finds each confirmed at rest, and stops none again
     stops, lamp_on, end = _run(drill_rig(("camera_arm", "alarm", 0)), tmp_path / "b")

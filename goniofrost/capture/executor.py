@@ -55,22 +55,18 @@ def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | 
     return stops
 
 
-def release_stop(axes: Mapping[str, Axis], lamp=None) -> list[AxisStop]:
+def release_stop(axes: Mapping[str, Axis]) -> list[AxisStop]:
     """On leaving a rig: stop and confirm (``stop_axes``) every axis not confirmed at rest since
-    its last motion command, and switch the lamp off unless it is confirmed off; never raise.
+    its last motion command; never raise.
 
-    After a fault the engine's stop has already confirmed the axes it could and switched the lamp
-    off: each axis is stopped once per exit, and an axis (or the lamp) whose stop failed is tried
-    again here. On a normal exit nothing has stopped the axes: every one is stopped here. Reads
-    ``confirmed_at_rest_deg`` and ``confirmed_off`` of the drivers (``drivers.axis``, ``drivers.lamp``).
+    After a fault the engine's stop has already confirmed the axes it could: each axis is stopped
+    once per exit, and one whose stop failed is tried again here. On a normal exit nothing has
+    stopped the axes: every one is stopped here. Reads the drivers' ``confirmed_at_rest_deg``
+    (``drivers.axis``). The lamp is the engine's (its plans end with it off, a fault switches it
+    off); a console command may leave it on on purpose (``rig lamp on``).
     """
     rested = {name: axis.confirmed_at_rest_deg for name, axis in axes.items()}
     stopped = {s.axis: s for s in stop_axes({name: a for name, a in axes.items() if rested[name] is None})}
-    if lamp is not None and not lamp.confirmed_off:
-        try:
-            lamp.off()
-        except Exception as exc:  # noqa: BLE001 - on the way out; the lamp driver logged its retries
-            log.warning("switching the lamp off failed: %s", exc)
     return [stopped.get(name) or AxisStop(name, True, position_deg=rested[name]) for name in axes]
 
 

@@ -9,9 +9,8 @@ axes' true positions. A real rig's camera comes from ``open_camera``. The rig's 
 (``goniofrost.capture.rig_lock``: one program drives a rig at a time) is held from before the
 first device is connected until every connection is closed. On leaving, every axis not yet
 confirmed stopped is told to stop (through the engine's one stop path, which confirms each; its
-findings are logged to the session's device log), the lamp switched off unless confirmed off, and
-every connection closed, whatever happened: after a fault, whose stop the engine confirmed, each
-axis is stopped once.
+findings are logged to the session's device log) and every connection closed, whatever
+happened: after a fault, whose stop the engine confirmed, each axis is stopped once.
 """
 from __future__ import annotations
 
@@ -162,16 +161,15 @@ def _real(rig, *, material, seed, speedup):
 
 @contextmanager
 def _connected(devices):
-    """connect_all, then on any exit stop every axis not yet confirmed stopped and switch the lamp
-    off unless confirmed off (``release_stop``: what it could not confirm is logged) and close
-    every connection."""
+    """connect_all, then on any exit stop every axis not yet confirmed stopped (``release_stop``:
+    what it could not confirm is logged) and close every connection."""
     from goniofrost.capture.executor import release_stop
 
     devices.connect_all()
     try:
         yield devices
     finally:
-        for action in (lambda: release_stop(devices.axes, devices.lamp), devices.close_all):
+        for action in (lambda: release_stop(devices.axes), devices.close_all):
             try:
                 action()
             except Exception as exc:  # noqa: BLE001 - keep closing; the session's own error matters more
