@@ -135,6 +135,7 @@ class Axis(ABC):
         # A stop whose every attempt went unanswered (reply timeouts), nothing heard since: the
         # next stop is sent once, not retried (``_send_stop``).
         self._stop_unanswered = False
+        self._rest_deg: float | None = None  # ``confirmed_at_rest_deg``
 
     # ----- public contract -------------------------------------------------------------------
     def connect(self, transport) -> None:
@@ -170,6 +171,13 @@ class Axis(ABC):
     def connected(self) -> bool:
         return self._connected
 
+    @property
+    def confirmed_at_rest_deg(self) -> float | None:
+        """Where ``confirm_stopped`` last found the axis at rest (degrees), while no command that
+        can move it (a move, a home) has gone out since and the connection stayed open; else None.
+        The rig's release stops only the axes without one: one stop per axis per exit."""
+        return self._rest_deg if self._connected else None
+
     def move_to(self, deg: float) -> MoveStatus:
         """Start a move to ``deg`` (within the limits) and return a MoveStatus to wait on.
 
@@ -191,6 +199,7 @@ class Axis(ABC):
         except DeviceError:
             start = float("nan")  # some devices cannot report a position before homing
         lo, hi = self.config.limits_deg
+        self._rest_deg = None  # from the command on, it may move
         try:  # a home search is not repeated: a lost reply fails the home (nothing to read back)
             self._command_home()
         except BaseException:
@@ -232,6 +241,7 @@ class Axis(ABC):
         while True:
             at_rest, pos = self._call(self._read_at_rest)
             if at_rest:
+                self._rest_deg = pos
                 return pos
             if time.monotonic() > t_end:
                 raise DeviceTimeout(self.name, "stop", pos, f"still reports motion {timeout_s:.1f} s after the stop")
@@ -273,6 +283,7 @@ class Axis(ABC):
 
     def _start(self, start: float, target: float) -> MoveStatus:
         """Send the move command; on failure stop and re-raise."""
+        self._rest_deg = None  # from the command on, it may move
         try:
             self._send_move(target)
         except BaseException:

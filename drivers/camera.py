@@ -136,24 +136,32 @@ class FolderCamera(Camera):
 
     ``trigger(exposure_s)`` starts an exposure (e.g. a gphoto2 or serial-remote call, supplied by
     the caller); the newest new file with a suffix in ``suffixes`` that appears in ``folder``
-    within ``timeout_s`` is taken. Its own exposure (EXIF ExposureTime, ``drivers.rawfile.
-    raw_exposure_s``) is read back: a file without one, whose exposure differs from the one asked
+    and is complete within ``timeout_s`` is taken. Tethering software writes a file
+    progressively, so a file is complete only once it is not a dot-file or a partial name
+    (``*.part``, ``*.tmp``), its size and modification time are the same at two polls ``poll_s``
+    apart, and, for a TIFF-based RAW (DNG, NEF, CR2, ARW, ...), all the image data its header
+    points to is in the file (``drivers.hot_folder``); the timeout's error names a file that came
+    but never was complete. Its own exposure (EXIF ExposureTime, ``drivers.rawfile.raw_exposure_s``)
+    is read back: a file without one, whose exposure differs from the one asked
     for by more than ``exposure_tolerance`` (relative), or with the same content as a frame taken
     before (not new) is refused, naming the file and both values, and left where it is. A good
     file is moved to the requested path, and its own exposure is the frame's. ``ask(message,
     why=...)`` is called when the calibration needs a different target in front of the lens,
     ``why`` saying what that target is (``TARGET_EXPLAINED``) (default: an OperatorPrompt on the
-    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``).
+    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``). ``clock()`` and
+    ``sleep(seconds)`` time the polls (default: the wall clock; a test drives the polls with its own).
     """
 
     def __init__(self, folder, trigger: Callable[[float], None], timeout_s: float = 30.0,
                  suffixes=(".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf"),
                  ask: Callable[..., None] | None = None, poll_s: float = 0.05,
-                 operator_timeout_s: float = OPERATOR_TIMEOUT_S, exposure_tolerance: float = 0.05) -> None:
+                 operator_timeout_s: float = OPERATOR_TIMEOUT_S, exposure_tolerance: float = 0.05,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
         self.folder, self.trigger, self.timeout_s = Path(folder), trigger, float(timeout_s)
         self.suffixes = tuple(s.lower() for s in suffixes)
         self.ask = ask or OperatorPrompt(operator_timeout_s)
         self.poll_s = poll_s
+        self.clock, self.sleep = clock, sleep
         self.exposure_tolerance = float(exposure_tolerance)
         self._taken: dict[str, Path] = {}   # content hash -> the frame it became
 
@@ -169,20 +177,19 @@ class FolderCamera(Camera):
             self.ask(f"put the {target!r} target in front of the camera", why=TARGET_EXPLAINED[target])
         super().set_target(target)
 
-    def _raw_files(self) -> set[Path]:
-        return {p for p in self.folder.iterdir() if p.suffix.lower() in self.suffixes}
-
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
-        before = self._raw_files()
+        from drivers.hot_folder import HotFolder
+
+        watch = HotFolder(self.folder, self.suffixes)  # what is there before the trigger is not this frame
         self.trigger(exposure_s)
-        deadline = time.monotonic() + self.timeout_s
-        while time.monotonic() < deadline:
-            new = self._raw_files() - before
-            if new:
-                return self._take(max(new, key=lambda p: p.stat().st_mtime), float(exposure_s), Path(path))
-            time.sleep(self.poll_s)
-        raise CameraError(f"folder camera: no new RAW file in {self.folder} within "
-                          f"{self.timeout_s} s of a {exposure_s} s exposure")
+        deadline = self.clock() + self.timeout_s
+        while True:
+            src = watch.poll()
+            if src is not None:
+                return self._take(src, float(exposure_s), Path(path))
+            if self.clock() >= deadline:
+                raise CameraError(_no_frame(watch, self.timeout_s, exposure_s))
+            self.sleep(self.poll_s)
 
     def _take(self, src: Path, asked_s: float, path: Path) -> RawFrame:
         """Check ``src`` (its exposure, that it is new) and move it to ``path``'s name."""
@@ -205,3 +212,12 @@ class FolderCamera(Camera):
         src.replace(dest)
         self._taken[digest] = dest
         return RawFrame(dest, actual_s, {"source": str(src), "requested_exposure_s": asked_s})
+
+
+def _no_frame(watch, timeout_s: float, exposure_s: float) -> str:
+    """The timeout's message; it names the new files that came but never were complete."""
+    head = f"within {timeout_s} s of a {exposure_s} s exposure"
+    if not watch.pending():
+        return f"folder camera: no new RAW file in {watch.folder} {head}"
+    names = [f"{p.name} ({watch.incomplete.get(p, 'still being written')})" for p in watch.pending()]
+    return f"folder camera: no complete new RAW file in {watch.folder} {head}: {', '.join(names)}"

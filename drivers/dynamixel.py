@@ -12,7 +12,8 @@ series one, and the configured model if given), switch to extended position mode
 off first) and load the profile velocity and acceleration. Every status packet is checked: the
 Alert bit leads to a read of Hardware Error Status (70) and a DeviceFault with readable causes
 (and, with ``reboot_after_fault``, a REBOOT); ERR codes 1-7 raise ExceptionReply. No status within
-the reply timeout is a DeviceTimeout, part of one a ProtocolError, a bad CRC a ChecksumError.
+the reply timeout is a DeviceTimeout, part of one a ProtocolError, a bad CRC a ChecksumError; an
+attempt waits at most one reply timeout (``reply_timeouts`` counts them).
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ DEFAULT_REPLY_TIMEOUT_MS = 100.0
 MODEL_NUMBER = CONTROL_TABLE["model_number"]
 PING_REPLY_SIZE = 3  # a PING status carries model number L, H and the firmware version
 OWED_KEPT = 16  # statuses still awaited per size, at most
+RESYNC_LENGTHS = range(5, 64)  # READ lengths of a resync: no register is longer than 4 bytes
 
 
 POLL_TIMEOUT_S = 0.001  # the transport's read timeout: the SDK polls; waiting 1 ms frees the CPU
@@ -102,6 +104,7 @@ class DynamixelAxis(Axis):
         self._port: _Port | None = None
         # status size -> the instructions whose status never came: it may still arrive (``_exchange``)
         self._owed: dict[int, list[bytes]] = {}
+        self.reply_timeouts = 0  # status waits that ran out the reply timeout (diagnostics, tests)
 
     @classmethod
     def from_section(cls, config: AxisConfig, section: Mapping) -> "DynamixelAxis":
@@ -142,10 +145,16 @@ class DynamixelAxis(Axis):
         instruction is the one that lost it (a retried read asks the same question), wrong for
         another one (a late Moving = 1 read as Hardware Error Status: a false fault). So while
         another instruction of this size owes a status, ``_resync`` goes first. Should that fail,
-        the instruction still goes out (a stop must reach the servo) and the resync's error is raised."""
+        the instruction still goes out (a stop must reach the servo) and the resync's error is
+        raised; after a resync that heard nothing the instruction is only posted (``_post``): waiting
+        for its status too made one attempt on a silent servo cost two reply timeouts (four for a
+        stop: goal := present, then torque off), where the project's rule is one per attempt."""
         if any(owed != request for owed in self._owed.get(reply_data, ())):
             try:
                 self._resync(what)
+            except DeviceTimeout:
+                self._post(request, reply_data)
+                raise
             except DeviceError:
                 try:
                     self._exchange_once(what, request, reply_data)
@@ -154,11 +163,28 @@ class DynamixelAxis(Axis):
                 raise
         return self._exchange_once(what, request, reply_data)
 
+    def _post(self, request: bytes, reply_data: int) -> None:
+        """Write ``request`` without waiting for its status, which it then owes (a late one is
+        skipped by its size or resynced past, ``_exchange``)."""
+        self._port.clearPort()
+        self._port.writePort(request)
+        self._owe(request, reply_data)
+
+    def _owe(self, request: bytes, reply_data: int) -> None:
+        owed = self._owed.setdefault(reply_data, [])
+        owed.append(request)
+        del owed[:-OWED_KEPT]  # a long silence: the oldest are long lost, not late
+
     def _resync(self, what: str) -> None:
         """READ from address 0 a length no instruction owes a status of (5 bytes and up): the first
         clean status of that size is this READ's, and the servo answers in order, so every late
         status came before it (skipped by size) and nothing is owed any more."""
-        length = next(n for n in range(5, 64) if not self._owed.get(n))
+        free = [n for n in RESYNC_LENGTHS if not self._owed.get(n)]
+        if not free:  # every length owed by an unanswered resync: a long silence, those are long lost, not late
+            for n in RESYNC_LENGTHS:
+                self._owed.pop(n, None)
+            free = list(RESYNC_LENGTHS)
+        length = free[0]
         request = build_instruction(self.dxl_id, Instruction.READ,
                                     bytes([0, 0]) + length.to_bytes(2, "little"))
         self._exchange_once(f"{what}: resync (READ addr 0, {length} bytes)", request, length, strict=True)
@@ -172,9 +198,7 @@ class DynamixelAxis(Axis):
         try:
             return self._read_status(what, request, reply_data, strict)
         except (DeviceTimeout, ProtocolError, ChecksumError):
-            owed = self._owed.setdefault(reply_data, [])
-            owed.append(request)
-            del owed[:-OWED_KEPT]  # a long silence: the oldest are long lost, not late
+            self._owe(request, reply_data)
             raise
 
     def _read_status(self, what: str, request: bytes, reply_data: int, strict: bool) -> tuple[bytes, Packet]:
@@ -195,6 +219,7 @@ class DynamixelAxis(Axis):
                     if self._owed.get(len(status.params)):  # the late status of one of them
                         self._owed[len(status.params)].pop(0)
             elif port.isPacketTimeout():
+                self.reply_timeouts += 1
                 if buf:
                     raise ProtocolError(self.name, what, bytes(buf), "incomplete status packet")
                 raise DeviceTimeout(self.name, what, None, "no status packet within the reply timeout")
@@ -228,6 +253,14 @@ class DynamixelAxis(Axis):
     def _write(self, reg: Reg, value: int, check_alert: bool = True) -> None:
         self._transact(f"WRITE {self._name_of(reg)} (addr {reg.addr}) = {value}",
                        Instruction.WRITE, write_params(reg, value), check_alert)
+
+    def _post_write(self, reg: Reg, value: int) -> None:
+        """WRITE ``value`` to ``reg`` without waiting for its status (``_post``)."""
+        try:
+            self._post(build_instruction(self.dxl_id, Instruction.WRITE, write_params(reg, value)), 0)
+        except PORT_ERRORS as exc:
+            raise DeviceError(self.name, f"WRITE {self._name_of(reg)}", None,
+                              f"serial port {self.port_path} failed: {exc}") from exc
 
     @staticmethod
     def _name_of(reg: Reg) -> str:
@@ -309,11 +342,18 @@ class DynamixelAxis(Axis):
     def _command_stop(self) -> None:
         """Hold where the horn is (Goal := Present); if that cannot be read, torque off.
 
-        No Alert check here: a servo in a hardware-error state must still be told to stop.
+        No Alert check here: a servo in a hardware-error state must still be told to stop. When
+        nothing was heard (a reply timeout), torque off is posted, not waited for: the servo may
+        hear without being heard, and the attempt has already cost its one reply timeout.
         """
         try:
             here = self._read(T["present_position"], check_alert=False)
             self._write(T["goal_position"], here, check_alert=False)
+        except DeviceTimeout as exc:
+            log.warning("%s: stop by goal := present unanswered (%s); torque off sent unanswered", self.name, exc)
+            self._enabled = False
+            self._post_write(T["torque_enable"], 0)
+            raise
         except DeviceError as exc:
             log.warning("%s: stop by goal := present failed (%s); switching torque off", self.name, exc)
             self._enabled = False

@@ -9,6 +9,7 @@ same spec with those endpoints in its driver sections, ready for
 from __future__ import annotations
 
 import copy
+import os
 
 from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
@@ -22,6 +23,10 @@ from .lamp_model import LampModel
 # tests per run on "no status packet" at 100 ms; at 300 ms it passed). A rig file's own
 # reply_timeout_ms wins.
 TWIN_REPLY_TIMEOUT_MS = {"dynamixel": 300.0}
+# A host slower still (a test suite at load 8-11 on 2 cores) sets this to give every twin's driver
+# that reply timeout (ms), whatever its protocol. An axis with a fault drill keeps the timeout it
+# would have without it: a drilled silence must time out as promptly as a real device's would.
+SLOW_HOST_ENV = "GONIOFROST_TWIN_REPLY_TIMEOUT_MS"
 
 
 def _dynamixel(clock, axis: AxisSpec, section, lamp_model, lamp_section):
@@ -181,10 +186,20 @@ class SimulatedRig:
                 section["port"] = entry["endpoint"]
             if section["protocol"] == "modbus-rtu":
                 section["parity"] = "N"  # Linux ptys refuse parity; the simulated drive serves 8N1
-            if section["protocol"] in TWIN_REPLY_TIMEOUT_MS:
-                section.setdefault("reply_timeout_ms", TWIN_REPLY_TIMEOUT_MS[section["protocol"]])
+            section.setdefault("reply_timeout_ms", self._twin_reply_timeout_ms(name, section["protocol"]))
+            if section["reply_timeout_ms"] is None:
+                del section["reply_timeout_ms"]  # the driver's own default
             drivers[name] = section
         return self.rig.with_drivers(drivers)
+
+    def _twin_reply_timeout_ms(self, name: str, protocol: str) -> float | None:
+        """The reply timeout (ms) a driver of this twin gets unless the rig file gives one (None:
+        the driver's default): ``SLOW_HOST_ENV``'s when set and the axis has no fault drill, else
+        ``TWIN_REPLY_TIMEOUT_MS``'s."""
+        slow = os.environ.get(SLOW_HOST_ENV)
+        if slow and not any(fault["axis"] == name for fault in self.faults):
+            return float(slow)
+        return TWIN_REPLY_TIMEOUT_MS.get(protocol)
 
     def __enter__(self) -> "SimulatedRig":
         self.start()

@@ -44,6 +44,24 @@ def _private_rig_locks(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("GONIOFROST_LOCK_DIR", str(tmp_path_factory.mktemp("locks")))
 
 
+# The reply timeout (ms) of every driver talking to a simulated twin in a test (sim.rig.SLOW_HOST_ENV):
+# a twin answers from a thread of the test's own process, which at load 8-11 on 2 cores can miss a
+# real bus's 100-300 ms (reply timeouts seen in the dynamixel, rig console, monitor, session, sentinel
+# and pylon tests). It cannot hide a defect: a twin answers in well under a millisecond when the
+# host is quiet, so a longer wait only ever passes a reply that did come, and an axis with a fault
+# drill keeps its product timeout, so the tests of drilled silence get their timeouts as promptly as
+# before. Real hardware keeps the drivers' defaults (nothing reads this outside sim.rig).
+TWIN_REPLY_TIMEOUT_MS = 3000
+
+
+@pytest.fixture(autouse=True)
+def _patient_twins(monkeypatch):
+    """Every test's simulated twins (and those of the commands it runs) get TWIN_REPLY_TIMEOUT_MS."""
+    from sim.rig import SLOW_HOST_ENV
+
+    monkeypatch.setenv(SLOW_HOST_ENV, str(TWIN_REPLY_TIMEOUT_MS))
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """../shared/data (or $GONIOFROST_SHARED_DATA); tests that need it skip without it."""

@@ -11,7 +11,11 @@ import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.rig_devices import axis_from_spec, connect_axis
+from goniofrost.capture.hardware import open_hardware
+from goniofrost.capture.plan_runner import PlanRunner, SessionFault
+from goniofrost.capture.records import RunStatus
 from goniofrost.capture.rig_file import section_validators
+from goniofrost.capture.steps import Home, LampOff, LampOn, Move
 from goniofrost.core.errors import ConfigError
 from planner.rig import rig_from_mapping
 from sim.faults import FAULT_KINDS
@@ -142,3 +146,66 @@ def test_confirm_stopped_reads_past_an_alarm_and_does_not_confirm_a_motor_that_s
             assert axis.confirm_stopped() == pytest.approx(device.true_position_deg(), abs=0.1)
         finally:
             axis.close()
+
+
+# ----- one stop per axis per exit: the engine's stop on a fault, the rig's release on any exit ------
+def _stop_commands(twins: dict) -> dict[str, int]:
+    """The stop commands each twin received: the drive's STOP input bit set, the SMC100's ST, the
+    servo's Goal Position writes after its home's (``_run`` leaves it at home: its move sends
+    nothing, so every later write is a stop, goal := present)."""
+    from drivers.dxl_protocol import CONTROL_TABLE, Instruction
+    from drivers.modbus_map import InputBit, from_registers
+
+    drive = twins["camera_arm"]
+    stop_bit = 1 << drive.map.input_bits[InputBit.STOP]
+    goal = CONTROL_TABLE["goal_position"].addr.to_bytes(2, "little")
+    goal_writes = sum(p.instruction == Instruction.WRITE and p.params[:2] == goal for p in twins["sample_yaw"].received)
+    return {"camera_arm": sum(address == drive.map.input_command and
+                              from_registers(values[:2], drive.word_order, signed=False) & stop_bit != 0
+                              for address, values in drive.writes),
+            "sample_yaw": goal_writes - 1,
+            "sample_tilt": sum(line.strip().upper().endswith(b"ST") for line in twins["sample_tilt"].received)}
+
+
+class _Drilled(PlanRunner):
+    """Arms the rig's drills before each plan sample, as a capture does."""
+
+    def before_step(self, step) -> None:
+        if isinstance(step, Move) and step.index is not None:
+            self.hw.simulation.arm_faults(step.index)
+
+
+def _run(rig_spec, folder):
+    """Home, lamp on, one plan sample's move, lamp off on the simulated rig; (stop commands per
+    twin, lamp on after the release, the run's end)."""
+    def plan():
+        yield Home(tuple(TARGETS))
+        yield LampOn()
+        yield Move(0, (("camera_arm", 60.0), ("sample_yaw", 0.0), ("sample_tilt", 20.0)))  # the servo stays home
+        yield LampOff()
+
+    with open_hardware(rig_spec, speedup=20) as hardware:
+        twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
+        lamp = hardware.simulation.lamp_model
+        runner = _Drilled(hardware, folder)
+        try:
+            runner.execute_plan(plan())
+        except SessionFault:
+            pass
+    return _stop_commands(twins), lamp.is_on, runner.run_end
+
+
+def test_every_axis_is_stopped_once_on_a_normal_exit_and_on_a_fault_exit(tmp_path):
+    # a normal exit: the release stops every axis
+    stops, lamp_on, end = _run(drill_rig(), tmp_path / "a")
+    assert end.status is RunStatus.FINISHED and stops == {name: 1 for name in TARGETS} and lamp_on is False
+    # a fault exit: the engine stops every axis (the alarmed drive also stopped itself at the alarm);
+    # the release finds each confirmed at rest, and stops none again
+    stops, lamp_on, end = _run(drill_rig(("camera_arm", "alarm", 0)), tmp_path / "b")
+    assert end.status is RunStatus.FAULT and [s.confirmed for s in end.stops] == [True] * 3
+    assert stops == {"camera_arm": 2, "sample_yaw": 1, "sample_tilt": 1} and lamp_on is False
+    # a stop that could not be confirmed (the stage no longer answers): the release tries it again
+    stops, lamp_on, end = _run(drill_rig(("sample_tilt", "no_reply", 0)), tmp_path / "c")
+    assert [(s.axis, s.confirmed) for s in end.stops] == [("camera_arm", True), ("sample_yaw", True),
+                                                           ("sample_tilt", False)]
+    assert stops == {"camera_arm": 1, "sample_yaw": 1, "sample_tilt": 3} and lamp_on is False

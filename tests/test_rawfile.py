@@ -1,12 +1,11 @@
 """RAW files: DNG written with tifffile read back exactly through rawpy; bad files named."""
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
 
 from drivers.camera import CameraError, FolderCamera
+from drivers.hot_folder import HotFolder
 from drivers.rawfile import RawFileError, read_raw
 from sim.dng import write_dng
 
@@ -68,26 +67,97 @@ def test_write_dng_refuses_bad_mosaic_and_writes_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_folder_camera_collects_the_new_file(tmp_path):
-    src = write_dng(tmp_path / "src.dng", _mosaic(), BLACK, WHITE, {"exposure_s": 0.01})
+class PollClock:
+    """The folder camera's clock and sleep: each sleep between two polls advances the clock and
+    runs the next of ``between`` (what the tethering software does meanwhile); nothing waits."""
+
+    def __init__(self, *between):
+        self.t, self.between, self.sleeps = 0.0, list(between), 0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+        self.sleeps += 1
+        if self.between:
+            self.between.pop(0)()
+
+
+def test_folder_camera_collects_a_file_only_once_it_is_complete(tmp_path):
+    """The camera's software writes the file in place in two halves, pausing between them for
+    longer than a poll: the half file is not collected, the whole one is, byte for byte."""
+    data = write_dng(tmp_path / "src.dng", _mosaic(), BLACK, WHITE, {"exposure_s": 0.01}).read_bytes()
     hot = tmp_path / "hot"
     hot.mkdir()
-    (hot / "old.dng").write_bytes(src.read_bytes())   # already there: not this exposure's file
+    (hot / "old.dng").write_bytes(data)   # already there: not this exposure's file
+    new = hot / "IMG_0001.dng"
 
-    def trigger(exposure_s):
-        threading.Timer(0.05, lambda: (hot / "IMG_0001.dng").write_bytes(src.read_bytes())).start()
+    def rest():
+        with open(new, "ab") as fh:
+            fh.write(data[len(data) // 2:])
 
-    cam = FolderCamera(hot, trigger, timeout_s=5.0, poll_s=0.01)
+    clock = PollClock(lambda: None, rest)  # after poll 1 nothing; after poll 2 (the half stood still) the rest
+    cam = FolderCamera(hot, lambda t: new.write_bytes(data[:len(data) // 2]), timeout_s=5.0, poll_s=0.01,
+                       clock=clock, sleep=clock.sleep)
     cam.connect()
     frame = cam.capture(0.01, tmp_path / "sample_0001.dng")
+    # poll 1: the half, new; 2: unchanged but incomplete; 3: grown; 4: unchanged and whole: taken
+    assert clock.sleeps == 3
     assert frame.path == tmp_path / "sample_0001.dng" and frame.exposure_s == 0.01
-    assert np.array_equal(read_raw(frame.path).linear, read_raw(src).linear)
+    assert frame.path.read_bytes() == data
     assert sorted(p.name for p in hot.iterdir()) == ["old.dng"]
 
 
+def test_the_hot_folder_takes_a_file_unchanged_over_two_polls_and_whole(tmp_path):
+    data = write_dng(tmp_path / "src.dng", _mosaic(), BLACK, WHITE, {"exposure_s": 0.01}).read_bytes()
+    hot = tmp_path / "hot"
+    hot.mkdir()
+    watch = HotFolder(hot, (".dng", ".cr3"))
+    new = hot / "IMG_0001.DNG"
+    new.write_bytes(data[:len(data) // 2])
+    (hot / "IMG_0002.dng.part").write_bytes(data)   # a partial name, a dot-file: never looked at
+    (hot / ".IMG_0003.dng").write_bytes(data)
+    assert watch.poll() is None and watch.pending() == [new]       # new: not yet unchanged over two polls
+    assert watch.poll() is None                                     # unchanged, but its data is cut
+    assert watch.incomplete == {new: f"its image data ends at byte {len(data)}, the file has {len(data) // 2}"}
+    with open(new, "ab") as fh:
+        fh.write(data[len(data) // 2:])
+    assert watch.poll() is None                                     # it grew since the last poll
+    assert watch.poll() == new and watch.incomplete == {}
+    # a format that is not TIFF-based (CR3: ISO media) is taken on rule 2 alone
+    other = hot / "IMG_0004.cr3"
+    other.write_bytes(b"\x00\x00\x00\x18ftypcrx " + bytes(100))
+    assert watch.poll() == new and watch.poll() == other  # the newest complete one
+
+
+def test_the_hot_folder_never_takes_an_empty_file_or_a_tiff_without_its_directory(tmp_path):
+    data = write_dng(tmp_path / "src.dng", _mosaic(), BLACK, WHITE, {"exposure_s": 0.01}).read_bytes()
+    watch = HotFolder(tmp_path, (".nef",))
+    empty, header = tmp_path / "a.nef", tmp_path / "b.nef"
+    empty.write_bytes(b"")
+    header.write_bytes(data[:6])   # the TIFF header, its first directory's offset cut
+    assert [watch.poll(), watch.poll()] == [None, None]
+    assert list(watch.incomplete) == [header] and watch.incomplete[header].startswith(
+        "its TIFF structure does not parse yet")
+
+
 def test_folder_camera_times_out_clearly(tmp_path):
-    cam = FolderCamera(tmp_path, lambda t: None, timeout_s=0.1, poll_s=0.01)
-    with pytest.raises(CameraError, match=r"no new RAW file in .* within 0.1 s of a 0.5 s exposure"):
+    clock = PollClock()
+    cam = FolderCamera(tmp_path, lambda t: None, timeout_s=1.0, poll_s=0.25, clock=clock, sleep=clock.sleep)
+    with pytest.raises(CameraError, match=rf"^folder camera: no new RAW file in {tmp_path} within 1.0 s of a "
+                                          rf"0.5 s exposure$"):
         cam.capture(0.5, tmp_path / "x.dng")
+    assert clock.sleeps == 4  # polls at 0, 0.25, 0.5, 0.75 and 1 s (binary-exact steps)
+    # a file that came but never was whole is named, with why
+    data = write_dng(tmp_path / "src.dng", _mosaic(), BLACK, WHITE, {"exposure_s": 0.5}).read_bytes()
+    cut = tmp_path / "IMG_0009.dng"
+    cam = FolderCamera(tmp_path, lambda t: cut.write_bytes(data[:1000]), timeout_s=1.0, poll_s=0.25,
+                       clock=clock, sleep=clock.sleep)
+    with pytest.raises(CameraError, match=rf"^folder camera: no complete new RAW file in {tmp_path} within 1.0 s "
+                                          rf"of a 0.5 s exposure: IMG_0009.dng \(its image data ends at byte "
+                                          rf"{len(data)}, the file has 1000\)$"):
+        cam.capture(0.5, tmp_path / "x.dng")
+    assert cut.read_bytes() == data[:1000]   # left where it is
     with pytest.raises(CameraError, match="is not a directory"):
         FolderCamera(tmp_path / "missing", lambda t: None).connect()

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import TWIN_REPLY_TIMEOUT_MS
 import serial
 import yaml
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
@@ -55,11 +56,33 @@ def test_endpoints_and_resolved_sections(raw_rig):
         arm = resolved.axes["camera_arm"].driver
         assert (arm["host"], arm["port"]) == (host, int(port))
         assert resolved.axes["sample_yaw"].driver["port"] == ep["sample_yaw"]["endpoint"]
-        # the twin answers from a thread of this process: 300 ms, not a real bus's 100 ms
-        assert resolved.axes["sample_yaw"].driver["reply_timeout_ms"] == 300.0
+        # the tests' slow host (conftest): every twin's driver waits TWIN_REPLY_TIMEOUT_MS
+        assert {name: a.driver["reply_timeout_ms"] for name, a in resolved.axes.items()} == \
+            {name: TWIN_REPLY_TIMEOUT_MS for name in ("camera_arm", "sample_yaw", "sample_tilt")}
         assert rig.rig.axes["sample_yaw"].driver["port"] == "sim"  # the rig given is untouched
         assert type(resolved) is type(rig.rig) and resolved.geometry == rig.rig.geometry
         assert rig.true_joints_deg() == {"camera_arm": 90.0, "sample_yaw": 0.0, "sample_tilt": 0.0}
+
+
+def test_twins_reply_timeouts_without_the_slow_host_setting_and_with_a_drill(raw_rig, monkeypatch):
+    """Without the slow-host setting a Dynamixel twin's driver waits 300 ms (it answers from a thread
+    of this process, not a real bus's 100 ms), the others their drivers' defaults; with it, an axis
+    with a fault drill keeps that timeout, so its drilled silence times out as promptly."""
+    import copy
+
+    from sim.rig import SLOW_HOST_ENV
+
+    monkeypatch.delenv(SLOW_HOST_ENV)
+    with SimulatedRig(checked(raw_rig), speedup=50) as rig:
+        assert {name: a.driver.get("reply_timeout_ms") for name, a in rig.resolved_rig().axes.items()} == \
+            {"camera_arm": None, "sample_yaw": 300.0, "sample_tilt": None}
+    monkeypatch.setenv(SLOW_HOST_ENV, "2500")
+    raw = copy.deepcopy(raw_rig)
+    raw.setdefault("sim", {})["faults"] = [{"axis": "sample_yaw", "kind": "no_reply", "at_sample": 3},
+                                           {"axis": "camera_arm", "kind": "stall", "at_sample": 1}]
+    with SimulatedRig(checked(raw), speedup=50) as rig:
+        assert {name: a.driver.get("reply_timeout_ms") for name, a in rig.resolved_rig().axes.items()} == \
+            {"camera_arm": None, "sample_yaw": 300.0, "sample_tilt": 2500.0}
 
 
 def test_a_rig_file_s_own_reply_timeout_wins_over_the_twin_s_default(raw_rig):

@@ -125,12 +125,13 @@ class ConsoleHardware:
 @contextmanager
 def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None):
     """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
-    of ``rig``; on exit stop and confirm every axis (the one stop path), close, release the lock.
+    of ``rig``; on exit stop and confirm every axis not yet confirmed stopped (``release_stop``),
+    close, release the lock.
     A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
     session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
     from drivers.rig_devices import RigDevices
     from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.executor import stop_axes
+    from goniofrost.capture.executor import release_stop
     from goniofrost.capture.hardware import WallClock
     from goniofrost.capture.rig_lock import rig_lock
 
@@ -143,7 +144,7 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
             yield ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
         finally:
             try:
-                stop_axes(devices.axes)
+                release_stop(devices.axes)
             finally:
                 devices.close_all()
 

@@ -2,7 +2,8 @@
 
 ``StepExecutor(hardware, folder)(step)`` executes one step (home, move, lamp, target, expose,
 save the calibration arrays) and returns its result (see ``goniofrost.capture.steps``);
-``stop_axes`` is the one stop path for all axes, used by the engine on any failure and by the
+``stop_axes`` is the one stop path for all axes, used by the engine on any failure and, through
+``release_stop`` (only what is not confirmed stopped yet: one stop per axis per exit), by the
 hardware wiring on release. The engine adds the journal on top; a camera bench (tests,
 benchmarks) uses the executor alone.
 """
@@ -52,6 +53,21 @@ def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | 
         stops.append(AxisStop(name, False, under_way=name in moving_to, moving_to=moving_to.get(name),
                               error=errors[name]))
     return stops
+
+
+def release_stop(axes: Mapping[str, Axis]) -> list[AxisStop]:
+    """On leaving a rig: stop and confirm (``stop_axes``) every axis not confirmed at rest since
+    its last motion command; never raise.
+
+    After a fault the engine's stop has already confirmed the axes it could: each axis is stopped
+    once per exit, and one whose stop failed is tried again here. On a normal exit nothing has
+    stopped the axes: every one is stopped here. Reads the drivers' ``confirmed_at_rest_deg``
+    (``drivers.axis``). The lamp is the engine's (its plans end with it off, a fault switches it
+    off); a console command may leave it on on purpose (``rig lamp on``).
+    """
+    rested = {name: axis.confirmed_at_rest_deg for name, axis in axes.items()}
+    stopped = {s.axis: s for s in stop_axes({name: a for name, a in axes.items() if rested[name] is None})}
+    return [stopped.get(name) or AxisStop(name, True, position_deg=rested[name]) for name in axes]
 
 
 def stop_text(stops: list[AxisStop]) -> str:

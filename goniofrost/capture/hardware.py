@@ -7,9 +7,10 @@ protocols over pseudo-terminals and loopback TCP, and the real drivers connect t
 to hardware. The simulated camera sees the pose through forward kinematics of the simulated
 axes' true positions. A real rig's camera comes from ``open_camera``. The rig's lock
 (``goniofrost.capture.rig_lock``: one program drives a rig at a time) is held from before the
-first device is connected until every connection is closed. On leaving, every axis is
-told to stop (through the engine's one stop path, which confirms each; its findings are logged to
-the session's device log) and every connection closed, whatever happened.
+first device is connected until every connection is closed. On leaving, every axis not yet
+confirmed stopped is told to stop (through the engine's one stop path, which confirms each; its
+findings are logged to the session's device log) and every connection closed, whatever
+happened: after a fault, whose stop the engine confirmed, each axis is stopped once.
 """
 from __future__ import annotations
 
@@ -160,15 +161,15 @@ def _real(rig, *, material, seed, speedup):
 
 @contextmanager
 def _connected(devices):
-    """connect_all, then on any exit stop every axis (the engine's one stop path; what it could not
-    confirm is logged) and close every connection."""
-    from goniofrost.capture.executor import stop_axes
+    """connect_all, then on any exit stop every axis not yet confirmed stopped (``release_stop``:
+    what it could not confirm is logged) and close every connection."""
+    from goniofrost.capture.executor import release_stop
 
     devices.connect_all()
     try:
         yield devices
     finally:
-        for action in (lambda: stop_axes(devices.axes), devices.close_all):
+        for action in (lambda: release_stop(devices.axes), devices.close_all):
             try:
                 action()
             except Exception as exc:  # noqa: BLE001 - keep closing; the session's own error matters more
