@@ -105,9 +105,9 @@ def _damaged(binary: Path, folder: Path, kind: str) -> Path:
     return path
 
 
-HOLES = {"nan": "3 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (2, 3, 4); expected finite values "
+HOLES = {"nan": "cells holding NaN or inf: 3, first at (i_th, i_td, i_pd) = (2, 3, 4); expected finite values "
                 "(-1 marks a missing value)",
-         "missing": "2 valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (2, 3, 4); "
+         "missing": "valid cells without a value (negative in the file): 2, first at (i_th, i_td, i_pd) = (2, 3, 4); "
                     "expected a BRDF value >= 0 at every cell above the horizon"}
 
 

@@ -193,7 +193,7 @@ def test_merl_dir_missing_valid_cells_are_an_error(merl_dir):
     write_merl(folder / "holey.binary", full, SMALL)
     i = tuple(int(v) for v in SMALL.unravel(SMALL.valid_cells[7]))
     with pytest.raises(DatasetError, match=re.escape(
-            f"holey.binary: 2 valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = {i}")):
+            f"holey.binary: valid cells without a value (negative in the file): 2, first at (i_th, i_td, i_pd) = {i}")):
         open_dataset(f"merl:{folder}").tabulate(["holey"], SMALL)
 
 

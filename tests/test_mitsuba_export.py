@@ -321,17 +321,17 @@ def stored(path) -> np.ndarray:
     (lambda p: p.write_bytes(p.read_bytes()[:-8]), "truncated MERL file: 1296004 bytes, expected 1296012 bytes"),
     (lambda p: p.write_bytes(p.read_bytes() + bytes(8)), "oversized MERL file: 1296020 bytes, expected 1296012 bytes"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.full(3 * SMALL.size, -1.0).tobytes()),
-     f"{SMALL.n_valid} valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (0, 0, 0); "
+     f"valid cells without a value (negative in the file): {SMALL.n_valid}, first at (i_th, i_td, i_pd) = (0, 0, 0); "
      "expected a BRDF value >= 0 at every cell above the horizon"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.zeros(3 * SMALL.size).tobytes()),
      "no valid value: every valid cell is missing or zero"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.where(np.arange(3 * SMALL.size) == 40000, np.nan,
                                                             stored(p)).tobytes()),
-     "1 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (22, 6, 40); expected finite values (-1 marks a missing "
+     "cells holding NaN or inf: 1, first at (i_th, i_td, i_pd) = (22, 6, 40); expected finite values (-1 marks a missing "
      "value)"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.where(np.arange(3 * SMALL.size) == SMALL.size + 7, np.inf,
                                                             stored(p)).tobytes()),
-     "1 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (0, 0, 7)"),
+     "cells holding NaN or inf: 1, first at (i_th, i_td, i_pd) = (0, 0, 7)"),
 ])
 def test_bad_binary_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, damage, message):
     source = tmp_path / "m.binary"

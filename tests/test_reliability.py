@@ -348,8 +348,8 @@ def test_a_preview_of_a_binary_with_nan_cells_is_refused(tmp_path, capsys):
     path = tmp_path / "holes.binary"
     write_merl(path, table, GRID)
     code, err = run_cli(capsys, "preview", path, "--out", tmp_path / "p.png")
-    assert code == 2 and err == (f"goniofrost preview: error: {path}: 5 valid cells have no value (negative in the "
-                                 f"file), first at (i_th, i_td, i_pd) = (0, 0, 0); expected a BRDF value >= 0 at every "
+    assert code == 2 and err == (f"goniofrost preview: error: {path}: valid cells without a value (negative in the "
+                                 f"file): 5, first at (i_th, i_td, i_pd) = (0, 0, 0); expected a BRDF value >= 0 at every "
                                  f"cell above the horizon")
     assert not (tmp_path / "p.png").exists()
 

@@ -231,11 +231,11 @@ def test_export_command_writes_the_spectral_file_and_pbrt_is_its_alias(tmp_path,
 @pytest.mark.parametrize("damage, message", [
     (lambda p: p.write_bytes(p.read_bytes()[:-8]), "truncated MERL file: 1296004 bytes, expected 1296012 bytes"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.full(3 * SMALL.size, -1.0).tobytes()),
-     f"{SMALL.n_valid} valid cells have no value (negative in the file), first at (i_th, i_td, i_pd) = (0, 0, 0); "
+     f"valid cells without a value (negative in the file): {SMALL.n_valid}, first at (i_th, i_td, i_pd) = (0, 0, 0); "
      "expected a BRDF value >= 0 at every cell above the horizon"),
     (lambda p: p.write_bytes(p.read_bytes()[:12] + np.where(np.arange(3 * SMALL.size) == 40000, np.nan,
                                                             np.fromfile(p, "<f8", offset=12)).tobytes()),
-     "1 cells hold NaN or inf, first at (i_th, i_td, i_pd) = (22, 6, 40); expected finite values (-1 marks a missing "
+     "cells holding NaN or inf: 1, first at (i_th, i_td, i_pd) = (22, 6, 40); expected finite values (-1 marks a missing "
      "value)"),
 ])
 def test_bad_binary_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, fmt, damage, message):

@@ -53,9 +53,9 @@ def read_merl_complete(path) -> tuple[np.ndarray, MerlGrid]:
     """
     path = Path(path)
     stored, grid = _read_stored(path, None)
-    _refuse_cells(path, grid, ~np.isfinite(stored).all(axis=0), "cells hold NaN or inf",
+    _refuse_cells(path, grid, ~np.isfinite(stored).all(axis=0), "cells holding NaN or inf",
                   "expected finite values (-1 marks a missing value)")
-    _refuse_cells(path, grid, (stored < 0).any(axis=0) & grid.valid_mask, "valid cells have no value (negative "
+    _refuse_cells(path, grid, (stored < 0).any(axis=0) & grid.valid_mask, "valid cells without a value (negative "
                   "in the file)", "expected a BRDF value >= 0 at every cell above the horizon")
     return _in_memory(stored), grid
 
@@ -71,7 +71,7 @@ def _refuse_cells(path: Path, grid: MerlGrid, bad: np.ndarray, what: str, expect
     """MerlFileError if any of the (grid.size,) mask ``bad`` is set: the count and the first cell."""
     if bad.any():
         first = tuple(int(v) for v in grid.unravel(int(np.flatnonzero(bad)[0])))
-        raise MerlFileError(f"{path}: {int(bad.sum())} {what}, first at (i_th, i_td, i_pd) = {first}; {expected}")
+        raise MerlFileError(f"{path}: {what}: {int(bad.sum())}, first at (i_th, i_td, i_pd) = {first}; {expected}")
 
 
 def _read_stored(path: Path, grid: MerlGrid | None) -> tuple[np.ndarray, MerlGrid]:

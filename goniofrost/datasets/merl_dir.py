@@ -103,7 +103,7 @@ class MerlDirDataset(Dataset):
         if bad.any():
             first = tuple(int(v) for v in grid.unravel(np.asarray(flat)[bad].flat[0]))
             raise DatasetError(
-                f"{self._paths()[name]}: {int(bad.sum())} valid cells have no value (negative in the "
-                f"file), first at (i_th, i_td, i_pd) = {first}; material {name!r} must cover every "
+                f"{self._paths()[name]}: valid cells without a value (negative in the file): "
+                f"{int(bad.sum())}, first at (i_th, i_td, i_pd) = {first}; material {name!r} must cover every "
                 "valid cell to be tabulated or evaluated")
         return np.where(missing[..., None], 0.0, values)
