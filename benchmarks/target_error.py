@@ -26,7 +26,9 @@ analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, 
 RGL) and ``rgl-merl`` (the other way round).
 
 Full size (run once, 3 December 2026, docs/BENCHMARKS.md: split 32 min, the three others 39 min,
-on a loaded 2-core machine; peak RSS 14.6 GB with the other three settings; one process, settings in turn)::
+on a loaded 2-core machine; peak RSS 14.6 GB with the other three settings; one process, settings in turn;
+since the test materials are simulated CHUNK at a time, rgl-merl, the largest test set, peaks at 4.8 GB
+instead of 13.7 GB, with the same summary)::
 
     .venv/bin/python benchmarks/target_error.py --grid 90,90,180 --folds 10 --out /tmp/target-full
 
