@@ -227,6 +227,20 @@ def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp
     assert cells["placed"] == cells["rig_calibrated"] and mask[cells["placed"]].all()
     assert not mask[cells["whole_grid"]].all()  # the whole grid's sentinels are beyond this rig
     assert "| builtin | 0.05 | rig | 10 |" in (tmp_path / "target_error.md").read_text()
+    # the test materials simulated 3 at a time: the same rows in the same order, the same summary;
+    # the floats within float32 products blocked differently (the reconstruction's float32 values
+    # differ by ~6e-8, a log error of ~0.02 rms by ~3e-6 of itself)
+    bench.CHUNK = 3
+    assert bench.main(["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20",
+                       "--rig", str(rig), "--out", str(tmp_path / "chunks")]) == 0
+    chunked = json.loads((tmp_path / "chunks" / "target_error.json").read_text())
+    assert chunked["summary"] == doc["summary"]
+    for part in ("stops", "per_m"):
+        whole, parts = doc["results"]["builtin"][0][part], chunked["results"]["builtin"][0][part]
+        assert [(r["material"], r.get("target"), r.get("sentinels"), r.get("m")) for r in parts] == [
+            (r["material"], r.get("target"), r.get("sentinels"), r.get("m")) for r in whole]
+        for a, b in zip(whole, parts):
+            assert {k: v if isinstance(v, str) else pytest.approx(v, rel=1e-5, nan_ok=True) for k, v in a.items()} == b
 
 
 def test_the_prequential_errors_are_the_batch_posteriors_predictions_of_each_next_sample():
