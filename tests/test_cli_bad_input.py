@@ -277,6 +277,20 @@ def _dead_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.mark.parametrize("options, found", [(["--dask", "tcp://127.0.0.1:1"], "--dask"),
+                                            (["--resume"], "--resume"),
+                                            (["--resume", "--dask", "tcp://127.0.0.1:1"], "--dask --resume")])
+def test_bench_stress_refuses_the_options_it_would_ignore(options, found, tmp_path, capsys, monkeypatch):
+    """bench --stress --dask ADDRESS ran the stress cases here and said nothing of the scheduler."""
+    import goniofrost.bench.runner as runner
+
+    monkeypatch.setattr(runner, "run_stress", lambda *a, **k: pytest.fail("the stress cases ran"))
+    line = _refused(capsys, ["bench", "--out", tmp_path / "b", "--stress", *options])
+    assert line == ("goniofrost bench: error: command line: --stress: expected no --dask or --resume (the stress "
+                    f"cases run in this process, in one pass), found {found!r}")
+    assert not (tmp_path / "b").exists()
+
+
 def test_bench_refuses_an_unreachable_dask_scheduler_at_once(tmp_path, capsys, monkeypatch):
     """--dask ADDRESS with no scheduler there tabulated the materials first, then waited out
     dask's 30 s connect timeout."""

@@ -59,8 +59,12 @@ def run(args) -> int:
     for option, value in (("--jobs", args.jobs), ("--stress-m", args.stress_m)):
         if value < 1:  # --jobs 0 ran with one worker silently; --stress-m 0 failed after the tabulation
             raise ConfigError("command line", option, "a positive integer", value)
+    given = [option for option, value in (("--dask", args.dask), ("--resume", args.resume)) if value]
+    if args.stress and given:  # the stress cases run here, in one pass: these would change nothing, silently
+        raise ConfigError("command line", "--stress", "no --dask or --resume (the stress cases run in this "
+                          "process, in one pass)", " ".join(given))
     check_output_dir(args.out)   # a bad --out fails now, not after an hour of folds
-    if args.dask and not args.stress:   # an unreachable scheduler too, not after the tabulation
+    if args.dask:   # an unreachable scheduler too, not after the tabulation
         from goniofrost.bench.executors import check_dask_address
         check_dask_address(args.dask)
     if args.stress:
