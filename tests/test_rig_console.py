@@ -317,3 +317,15 @@ def test_snap_that_would_move_an_unhomed_stage_is_refused_before_it_moves_and_wr
     assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "sample_tilt=5", "--out", str(out)]) == 2
     assert "sample_tilt: not homed, and the device refuses moves until it is" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_console_reads_a_rig_file_without_importing_numba():
+    """`rig stop` from another terminal should start at once: reading the rig file (its camera's
+    Measurability) imported numba through planner.view, 0.4 s of every console command's start."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from goniofrost.capture.rig_file import load_checked_rig; "
+            f"load_checked_rig({str(SIM_RIG)!r}); print(sorted(m for m in ('numba', 'scipy') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"

@@ -25,10 +25,10 @@ def test_the_kernels_are_cached_on_disk_after_warming():
     seconds = warm_kernels()
     assert set(seconds) == {"byte-compiled modules", "frost kernels", "planner.view"}
     from goniofrost.frost import bayes_kernels, check_cells, somp_kernels
-    from planner import view
+    from planner import view_kernels
 
     kernels = (bayes_kernels.init_forms, bayes_kernels.update_forms, check_cells._farthest_points, somp_kernels.pack_atoms,
-               somp_kernels.block_scores, somp_kernels.rank1_step, view._roi_counts)
+               somp_kernels.block_scores, somp_kernels.rank1_step, view_kernels.roi_counts)
     for kernel in kernels:   # numba's on-disk index of the kernel's compiled versions, and one at least
         index = Path(kernel._cache._cache_file._index_path)
         assert index.is_file() and kernel.signatures, index
