@@ -336,6 +336,28 @@ def test_a_second_capture_of_a_running_session_is_refused_at_once(setup, tmp_pat
     assert [i for i, _ in journal_rows(session)] == list(range(M)) and journal_rows(session)[:len(rows)] == rows
 
 
+def test_a_refusal_names_the_process_holding_the_lock_not_the_pid_left_in_its_file(setup, tmp_path, capsys):
+    """A run writes its PID into session.lock only once accepted (a refused run leaves the file as
+    it was), so while a holder checks its inputs the file still names an earlier run: the refusal
+    takes the holder from the kernel's lock table."""
+    import fcntl
+
+    folder, rig, plan, _ = setup
+    session = tmp_path / "s"
+    session.mkdir()
+    (session / "session.lock").write_text("999999\n")   # the PID of a run long gone
+    fd = os.open(session / "session.lock", os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)   # a holder that has not claimed the session yet: this process
+        err = run_refused(capture_args(rig, plan, session), capsys)
+    finally:
+        os.close(fd)
+    assert err == f"goniofrost capture: error: session {session} is in use by process {os.getpid()}; wait " \
+                  "for it to finish or stop it (Ctrl-C) before starting another capture on it\n"
+    assert (session / "session.lock").read_text() == "999999\n" and sorted(p.name for p in session.iterdir()) == [
+        "session.lock"]
+
+
 def test_a_session_that_is_a_file_is_a_one_line_error(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     (tmp_path / "s").write_text("not a folder")

@@ -70,7 +70,11 @@ def _acquire(fd: int, session_dir: Path) -> None:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        # The kernel's word first: the file names the holder only once it claimed the session
+        # (``HeldLock.claim``); before that it still holds the previous run's PID.
+        holders = flock_holders(session_dir / LOCK_FILE)
+        holder = (str(holders[0]) if holders else None) or os.pread(fd, 32, 0).decode(errors="replace").strip() \
+            or "unknown"
         raise SessionInUseError(f"session {session_dir} is in use by process {holder}; wait for it to finish "
                                 f"or stop it (Ctrl-C) before starting another capture on it") from None
 
@@ -80,10 +84,19 @@ def flock_held(lock) -> bool | None:
     from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
     could refuse a program that starts at that moment). None where that cannot be told (no lock
     file; no /proc/locks: not Linux)."""
+    holders = flock_holders(lock)
+    return None if holders is None else bool(holders)
+
+
+def flock_holders(lock) -> list[int] | None:
+    """The PIDs /proc/locks gives for the flocks on the file ``lock`` (empty: none held); None where
+    that cannot be told (no lock file; no /proc/locks: not Linux)."""
     try:
         st = os.stat(lock)
         table = Path("/proc/locks").read_text()
     except OSError:
         return None
     device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    return any(line.split()[1:2] == ["FLOCK"] and device in line.split() for line in table.splitlines())
+    # "1: FLOCK  ADVISORY  WRITE 10327 fe:00:9978325 0 EOF": kind, mode, access, PID, device:inode
+    rows = [line.split() for line in table.splitlines()]
+    return [int(row[4]) for row in rows if row[1:2] == ["FLOCK"] and device in row and row[4].isdigit()]
