@@ -50,6 +50,33 @@ def test_a_usage_error_is_one_line_naming_the_option_and_help(argv, words, tmp_p
     assert _tree(tmp_path) == []
 
 
+
+@pytest.mark.parametrize("argv, line", [
+    # the top parser reported these as "goniofrost: error: unrecognized arguments: --sesion s (see goniofrost --help)"
+    (["capture", "--rig", "r.yaml", "--plan", "p.json", "--sesion", "s"],
+     "goniofrost capture: error: unrecognized option --sesion; did you mean --session? (see goniofrost capture --help)"),
+    (["rig", "check", "--rig", "r.yaml", "--ofline"],
+     "goniofrost rig check: error: unrecognized option --ofline; did you mean --offline? (see goniofrost rig check --help)"),
+    (["preview", "a.binary", "b.binary", "--out", "p.png"],
+     "goniofrost preview: error: unrecognized arguments: b.binary (see goniofrost preview --help)"),
+    # argparse named the required option the typo was meant to be, not the typo
+    (["plan", "--model", "m", "--sampels", "20", "--out", "p.json"],
+     "goniofrost plan: error: unrecognized option --sampels; did you mean --samples? (see goniofrost plan --help)"),
+    (["materials", "--xyz"], "goniofrost materials: error: unrecognized option --xyz (see goniofrost materials --help)"),
+])
+def test_a_mistyped_option_is_the_commands_own_error_naming_the_nearest_option(argv, line, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, argv) == line
+    assert _tree(tmp_path) == []
+
+
+def test_an_option_abbreviated_unambiguously_is_still_read(tmp_path, capsys, monkeypatch):
+    """argparse's prefixes stay as they were: --sampl is --samples (the plan goes on to read the model)."""
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, ["plan", "--model", "m", "--sampl", "5", "--out", "p.json"]) == (
+        "goniofrost plan: error: m: not a goniofrost model (expected a directory with model.json)")
+
+
 # ----- shared small inputs ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
