@@ -77,6 +77,24 @@ def test_an_option_abbreviated_unambiguously_is_still_read(tmp_path, capsys, mon
         "goniofrost plan: error: m: not a goniofrost model (expected a directory with model.json)")
 
 
+
+@pytest.mark.parametrize("rig, speedup, line", [
+    # a ValueError traceback from the simulated clock (exit 1) after the rig lock was taken
+    (SIM_RIG, "0", "goniofrost capture: error: command line: --speedup: expected a simulated clock speed-up > 0, "
+                   "found 0.0"),
+    (SIM_RIG, "-1", "goniofrost capture: error: command line: --speedup: expected a simulated clock speed-up > 0, "
+                    "found -1.0"),
+    # silently ignored: a real rig has no simulated clock
+    (REPO / "config" / "rigs" / "template.yaml", "10",
+     f"goniofrost capture: error: command line: --speedup: expected no --speedup for the real rig "
+     f"'my-gonioreflectometer' ({REPO / 'config' / 'rigs' / 'template.yaml'}), found 10.0"),
+])
+def test_a_dry_run_checks_its_speedup_as_a_capture_does(rig, speedup, line, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, ["capture", "--rig", rig, "--plan", "p.json", "--dry-run", "--speedup", speedup]) == line
+    assert _tree(tmp_path) == []
+
+
 # ----- shared small inputs ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
