@@ -95,6 +95,26 @@ def test_a_dry_run_checks_its_speedup_as_a_capture_does(rig, speedup, line, tmp_
     assert _tree(tmp_path) == []
 
 
+
+@pytest.mark.parametrize("argv", [
+    ["capture", "--rig", SIM_RIG, "--plan", "p.json", "--session", "s", "--material", "builtin:gold"],
+    ["align", "--rig", SIM_RIG, "--out", "a.json"],
+    ["queue", "q.yaml", "--yes"],
+    ["demo", "--out", "d"],
+    ["sim", "--rig", SIM_RIG],
+    ["bench", "--out", "b"],
+])
+def test_a_negative_seed_is_a_usage_error_before_anything_is_written(argv, tmp_path, capsys, monkeypatch):
+    """numpy refused it with a ValueError traceback (exit 1), after capture had made its session
+    folder and journal and demo its plan.json and session."""
+    monkeypatch.chdir(tmp_path)
+    command = " ".join(argv[:1])
+    assert _refused(capsys, [*argv, "--seed", "-1"]) == (
+        f"goniofrost {command}: error: argument --seed: expected an integer >= 0, found '-1' "
+        f"(see goniofrost {command} --help)")
+    assert _tree(tmp_path) == []
+
+
 # ----- shared small inputs ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
