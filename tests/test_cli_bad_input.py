@@ -50,6 +50,71 @@ def test_a_usage_error_is_one_line_naming_the_option_and_help(argv, words, tmp_p
     assert _tree(tmp_path) == []
 
 
+
+@pytest.mark.parametrize("argv, line", [
+    # the top parser reported these as "goniofrost: error: unrecognized arguments: --sesion s (see goniofrost --help)"
+    (["capture", "--rig", "r.yaml", "--plan", "p.json", "--sesion", "s"],
+     "goniofrost capture: error: unrecognized option --sesion; did you mean --session? (see goniofrost capture --help)"),
+    (["rig", "check", "--rig", "r.yaml", "--ofline"],
+     "goniofrost rig check: error: unrecognized option --ofline; did you mean --offline? (see goniofrost rig check --help)"),
+    (["preview", "a.binary", "b.binary", "--out", "p.png"],
+     "goniofrost preview: error: unrecognized arguments: b.binary (see goniofrost preview --help)"),
+    # argparse named the required option the typo was meant to be, not the typo
+    (["plan", "--model", "m", "--sampels", "20", "--out", "p.json"],
+     "goniofrost plan: error: unrecognized option --sampels; did you mean --samples? (see goniofrost plan --help)"),
+    (["materials", "--xyz"], "goniofrost materials: error: unrecognized option --xyz (see goniofrost materials --help)"),
+])
+def test_a_mistyped_option_is_the_commands_own_error_naming_the_nearest_option(argv, line, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, argv) == line
+    assert _tree(tmp_path) == []
+
+
+def test_an_option_abbreviated_unambiguously_is_still_read(tmp_path, capsys, monkeypatch):
+    """argparse's prefixes stay as they were: --sampl is --samples (the plan goes on to read the model)."""
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, ["plan", "--model", "m", "--sampl", "5", "--out", "p.json"]) == (
+        "goniofrost plan: error: m: not a goniofrost model (expected a directory with model.json)")
+
+
+
+@pytest.mark.parametrize("rig, speedup, line", [
+    # a ValueError traceback from the simulated clock (exit 1) after the rig lock was taken
+    (SIM_RIG, "0", "goniofrost capture: error: command line: --speedup: expected a simulated clock speed-up > 0, "
+                   "found 0.0"),
+    (SIM_RIG, "-1", "goniofrost capture: error: command line: --speedup: expected a simulated clock speed-up > 0, "
+                    "found -1.0"),
+    # silently ignored: a real rig has no simulated clock
+    (REPO / "config" / "rigs" / "template.yaml", "10",
+     f"goniofrost capture: error: command line: --speedup: expected no --speedup for the real rig "
+     f"'my-gonioreflectometer' ({REPO / 'config' / 'rigs' / 'template.yaml'}), found 10.0"),
+])
+def test_a_dry_run_checks_its_speedup_as_a_capture_does(rig, speedup, line, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, ["capture", "--rig", rig, "--plan", "p.json", "--dry-run", "--speedup", speedup]) == line
+    assert _tree(tmp_path) == []
+
+
+
+@pytest.mark.parametrize("argv", [
+    ["capture", "--rig", SIM_RIG, "--plan", "p.json", "--session", "s", "--material", "builtin:gold"],
+    ["align", "--rig", SIM_RIG, "--out", "a.json"],
+    ["queue", "q.yaml", "--yes"],
+    ["demo", "--out", "d"],
+    ["sim", "--rig", SIM_RIG],
+    ["bench", "--out", "b"],
+])
+def test_a_negative_seed_is_a_usage_error_before_anything_is_written(argv, tmp_path, capsys, monkeypatch):
+    """numpy refused it with a ValueError traceback (exit 1), after capture had made its session
+    folder and journal and demo its plan.json and session."""
+    monkeypatch.chdir(tmp_path)
+    command = " ".join(argv[:1])
+    assert _refused(capsys, [*argv, "--seed", "-1"]) == (
+        f"goniofrost {command}: error: argument --seed: expected an integer >= 0, found '-1' "
+        f"(see goniofrost {command} --help)")
+    assert _tree(tmp_path) == []
+
+
 # ----- shared small inputs ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:

@@ -119,6 +119,36 @@ def test_train_from_dataset_uses_cache(merl_npz, tmp_path):
         train([spec], only=["no-such-material"], grid=GRID)
 
 
+
+def test_a_model_opens_its_datasets_again_from_any_working_folder(merl_npz, tmp_path, monkeypatch):
+    """plan --usage maps a model's training materials again (``training.remap``): a relative
+    ``nbrdf:PATH`` given to train is read from the folder train ran in. The README's ``train
+    --dataset nbrdf:../shared/data/...`` planned from any other folder warned "the model's training
+    materials cannot be opened again" and wrote a plan that capture --target-error refuses."""
+    from goniofrost.frost.training import remap
+
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "m.npz").symlink_to(merl_npz)
+    for folder in ("lab", "lab/deeper", "elsewhere"):
+        (tmp_path / folder).mkdir()
+    only = ["white-diffuse-bball", "gold-metallic-paint2", "blue-acrylic"]
+    monkeypatch.chdir(tmp_path / "lab")
+    model = train(["nbrdf:../data/m.npz"], only=only, grid=GRID, k_max=5)
+    assert model.info["datasets"] == ["nbrdf:../data/m.npz"]
+    expected = remap(model)
+    model.save(tmp_path / "lab" / "model")
+    # the same model from the cache, named from another folder: its info is this call's
+    monkeypatch.chdir(tmp_path / "lab" / "deeper")
+    again = train(["nbrdf:../../data/m.npz"], only=only, grid=GRID, k_max=5)
+    assert again.content_hash == model.content_hash
+    assert again.info["datasets"] == ["nbrdf:../../data/m.npz"]
+    monkeypatch.chdir(tmp_path / "elsewhere")  # where ../data/m.npz is not
+    for trained in (FrostModel.load(tmp_path / "lab" / "model"), again):
+        mapped, gram = remap(trained)
+        np.testing.assert_array_equal(mapped, expected[0])
+        np.testing.assert_array_equal(gram, expected[1])
+
+
 # ----- model file ----------------------------------------------------------------------------
 def test_model_round_trip_memory_mapped(model, tmp_path):
     model.save(tmp_path / "m")

@@ -387,7 +387,13 @@ def test_a_frame_has_its_region_of_interest_outlined_around_the_sample_patch(fin
 
 def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_port(tmp_path, capsys):
     assert main(["monitor", str(tmp_path / "nope")]) == 2
-    assert f"SESSION_DIR: expected a session folder (goniofrost capture --session DIR), found '{tmp_path / 'nope'}'" in capsys.readouterr().err
+    # the README's `goniofrost monitor SESSION_DIR|ROOT`: the usage line and the error name both
+    assert capsys.readouterr().err == (
+        "goniofrost monitor: error: command line: SESSION_DIR|ROOT: expected a session folder (goniofrost capture "
+        f"--session DIR) or a folder of session folders (a queue's root), found '{tmp_path / 'nope'}'\n")
+    from goniofrost.app.cli import build_parser
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["monitor"]
+    assert "SESSION_DIR|ROOT" in sub.format_usage()
     assert main(["monitor", str(tmp_path), "--port", "70000"]) == 2
     assert "--port: expected a TCP port 0..65535 (0 picks a free one), found 70000" in capsys.readouterr().err
     with socket.socket() as taken:

@@ -163,6 +163,10 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert report["rendering_snr_db"] == pytest.approx(preview_of(brdf, GRID, true_brdf, std=std).snr_db, abs=1e-9)
     assert f"{report['rendering_snr_db']:.2f} dB" in out
     assert (session / "summary.txt").read_text() in out
+    # the closing line names every file the capture wrote (it left out brdf.json and summary.txt)
+    written = ["brdf.binary", "brdf.std.binary", "brdf.json", "samples.csv", "preview.png", "report.json", "summary.txt"]
+    assert out.splitlines()[-1] == f"wrote {', '.join(written)} in {session}"
+    assert all((session / name).is_file() for name in written)
 
     # resuming a finished session moves nothing and rewrites the same results, samples.csv from the
     # journal (a kill between the last commit and its CSV line)

@@ -7,6 +7,7 @@ Errors derived from GoniofrostError are printed as one line and exit with status
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import sys
 
@@ -23,6 +24,32 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        """A command's unknown option or extra argument is that command's error (``goniofrost capture:
+        ... (see goniofrost capture --help)``, the nearest option named), not the top parser's
+        ``goniofrost: error: unrecognized arguments``; and a mistyped option is named before argparse
+        reports the required option it was meant to be (``--sampels 20``: not "one of the arguments
+        --samples --max-error is required")."""
+        leaf = not any(isinstance(a, argparse._SubParsersAction) for a in self._actions)
+        if leaf and args is not None:
+            self._refuse_unknown_options(list(args))
+        namespace, extras = super().parse_known_args(args, namespace)
+        if leaf and extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
+    def _refuse_unknown_options(self, args: list[str]) -> None:
+        known = [s for action in self._actions for s in action.option_strings if s.startswith("--")]
+        for arg in args:
+            if arg == "--":
+                return
+            name = arg.split("=", 1)[0]
+            # an unambiguous or ambiguous prefix (allow_abbrev) is argparse's to read or refuse
+            if not name.startswith("--") or any(s.startswith(name) for s in known):
+                continue
+            close = difflib.get_close_matches(name, known, n=1)
+            self.error(f"unrecognized option {name}" + (f"; did you mean {close[0]}?" if close else ""))
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -222,8 +222,10 @@ def run_dry_run(args) -> int:
     from goniofrost.capture.console import connected_rig, dry_run
     from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
     from goniofrost.capture.plan_file import read_plan
+    from goniofrost.capture.runner import check_sim_options
 
     rig = _load(args)
+    check_sim_options(rig, None, args.speedup)  # as a capture's: a speed-up > 0, and only on a simulated rig
     plan = read_plan(args.plan)
     for check in (check_rig, check_alignment, check_joints):  # before anything is connected
         check(plan, args.plan, rig)

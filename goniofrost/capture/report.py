@@ -444,6 +444,7 @@ def summary_text(report: dict) -> str:
                      f" {100 * truth['sample_relative_error_median_at_measured_directions']:.2f} % at the directions measured;"
                      f" beyond {graz['beyond_deg']:g} deg ({graz['samples']} samples):"
                      f" {_pct(graz['sample_relative_error_median'])}, {_pct(graz['sample_relative_error_median_at_measured_directions'])}")
-    lines.append(f"wrote {report['outputs']['brdf']}, {report['outputs']['std']}, {report['outputs']['samples']}, "
-                 f"preview.png, report.json in {report['session']}")
+    outputs = report["outputs"]
+    written = [outputs[key] for key in ("brdf", "std", "record", "samples", "preview") if key in outputs]
+    lines.append(f"wrote {', '.join(written)}, report.json, summary.txt in {report['session']}")
     return "\n".join(lines) + "\n"

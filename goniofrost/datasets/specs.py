@@ -35,6 +35,18 @@ RANDOM = "builtin-random"
 MAX_RANDOM = 1000  # materials of one builtin-random spec
 
 
+def spec_read_from(spec: str, folder: str) -> str:
+    """SPEC with a relative PATH of ``nbrdf:PATH`` or ``merl:DIR`` read from ``folder`` (joined to it);
+    every other spec as it is. A model records the folder its datasets' relative paths were given in
+    (``train``), so they open again from any working folder."""
+    import os
+
+    kind, sep, arg = spec.partition(":")
+    if sep and kind in ("nbrdf", "merl") and arg and not os.path.isabs(arg):
+        return f"{kind}:{os.path.join(folder, arg)}"
+    return spec
+
+
 def _random_dataset(spec: str, arg: str) -> Dataset:
     """``builtin-random:SEED:COUNT``: COUNT seeded analytic materials (``builtin.random_library``)."""
     from goniofrost.datasets.builtin import BuiltinDataset, random_library

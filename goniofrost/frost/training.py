@@ -21,6 +21,7 @@ the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 
 from __future__ import annotations
 
 import json
+import os
 from typing import Sequence
 
 import numpy as np
@@ -275,9 +276,14 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     key = disk_cache.content_key("frost-model-v6", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
+    # the datasets as given and the folder their relative paths are read from (``remap``), this
+    # call's even when the model comes from the cache (the info is not part of the model's hash)
+    named = {"datasets": list(dataset_specs), "datasets_from": os.getcwd()}
     if folder is not None and (folder / "model.json").is_file():
-        return FrostModel.load(folder)
-    info = {"datasets": list(dataset_specs), "cache_key": key}
+        model = FrostModel.load(folder)
+        model.info = {**(model.info or {}), **named}
+        return model
+    info = {**named, "cache_key": key}
     if sentinel_candidates is not None:
         info["sentinel_candidates"] = {"cells": int(np.count_nonzero(sentinel_candidates)), "sha256": among[0]}
     # The tables are read from the tabulation cache in row chunks: at full size 151 materials
@@ -306,16 +312,22 @@ def remap(model: FrostModel, progress: bool = False) -> tuple[np.ndarray, np.nda
     TrainingError when the model does not name its datasets, they cannot be opened, or they no
     longer hold its training materials (the mean map differs from the model's).
     """
+    from goniofrost.datasets.specs import spec_read_from
     from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulated_material_files
 
     specs = (model.info or {}).get("datasets")
     if not specs:
         raise TrainingError("the model does not name the datasets it was trained on (train it with goniofrost train)")
+    # relative paths are read from the folder the training named them in (a model trained before
+    # that was recorded: from this one); a label SPEC:NAME (a name two datasets share) follows its spec
+    origin = (model.info or {}).get("datasets_from")
+    opened = [spec_read_from(spec, origin) if origin else spec for spec in specs]
+    names = [next((o + n[len(s):] for s, o in zip(specs, opened) if n.startswith(s + ":")), n) for n in model.names]
     try:
-        materials = collect_materials(list(specs), only=list(model.names))
+        materials = collect_materials(opened, only=names)
     except GoniofrostError as exc:
         raise TrainingError(f"the model's training materials cannot be opened again: {exc}") from None
-    if [m.label for m in materials] != list(model.names):
+    if [m.label for m in materials] != names:
         raise TrainingError(f"the datasets {list(specs)} no longer hold the model's {len(model.names)} training "
                             f"materials in its order")
     tables = TabulatedFiles(tabulated_material_files(materials, model.grid, progress=progress))

@@ -5,6 +5,8 @@ HELP = "measure the axes' zero offsets from marker poses and the white tile (wri
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.arg_types import seed
+
     parser.description = (
         "Image the white reference card at poses spread over every axis (about 30: yaw -30..55 deg, tilt "
         "-35..35 deg, two arm angles each), read its markers (camera pose by solvePnP) and the white tile's "
@@ -15,7 +17,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file with the camera model")
     parser.add_argument("--out", required=True, metavar="ALIGNMENT.json", help="alignment file to write")
     parser.add_argument("--frames", metavar="DIR", help="keep the frames in DIR (default: not kept)")
-    parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
+    parser.add_argument("--seed", type=seed, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -14,6 +14,8 @@ DEFAULT_DATASETS = [f"nbrdf:{SHARED_DATA / 'nbrdf_merl.npz'}", f"nbrdf:{SHARED_D
 
 def add_arguments(parser) -> None:
     """Options of ``goniofrost bench`` (defaults: the paper's 10 folds of 131 / 20 materials)."""
+    from goniofrost.app.arg_types import seed
+
     parser.add_argument("--out", required=True, type=Path, help="output folder (results.json, results.csv, PNG plots)")
     parser.add_argument("--dataset", action="append", metavar="SPEC",
                         help="dataset spec, repeatable (default: the MERL and RGL networks in ../shared/data)")
@@ -36,7 +38,7 @@ def add_arguments(parser) -> None:
                         help="cap on descent iterations after each addition (default 100; --quick 10)")
     parser.add_argument("--random-trials", type=int, default=1, help="random selections per fold and m (default 1)")
     parser.add_argument("--eta", type=float, default=40.0, help="ridge parameter of the reconstruction (default 40)")
-    parser.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="the one seed of the run (default 0)")
     parser.add_argument("--grid", type=_grid, default=None, metavar="NTH,NTD,NPD",
                         help="grid resolution (default 90,90,180, the MERL grid; --quick 45,45,90)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),

@@ -5,6 +5,8 @@ HELP = "capture a plan's samples on a rig (journaled, resumable), then reconstru
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.arg_types import seed
+
     from goniofrost.app.monitoring import add_server_options
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (simulated: true starts its own devices)")
@@ -29,7 +31,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--confidence", type=float, default=None, metavar="P",
                         help="with --target-error: the probability that the error is at most E when the capture "
                              "stops (default 0.95)")
-    parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
+    parser.add_argument("--seed", type=seed, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
     parser.add_argument("--bsdf", action="store_true",

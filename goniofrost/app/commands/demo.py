@@ -9,6 +9,8 @@ HELP = ("train on the built-in library, plan up to 40 samples (Bayesian design),
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.arg_types import seed
+
     from goniofrost.app.demo import (DEFAULT_CONFIDENCE, DEFAULT_MATERIAL, DEFAULT_SAMPLES, DEFAULT_SPEEDUP,
                                      DEFAULT_TARGET_ERROR)
     from goniofrost.app.monitoring import add_server_options
@@ -25,7 +27,7 @@ def add_arguments(parser) -> None:
                              "BRDF; 0 captures the whole plan)")
     parser.add_argument("--confidence", type=float, default=DEFAULT_CONFIDENCE, metavar="P",
                         help=f"with --target-error: how sure the stop must be (default {DEFAULT_CONFIDENCE:g})")
-    parser.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="sensor noise seed (default 0)")
     parser.add_argument("--speedup", type=float, default=DEFAULT_SPEEDUP,
                         help=f"simulated clock speed-up (default {DEFAULT_SPEEDUP:g})")
     parser.add_argument("--bsdf", action="store_true",

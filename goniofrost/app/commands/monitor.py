@@ -9,7 +9,7 @@ HELP = ("serve a read-only web page of a capture session: state, N of M samples,
 def add_arguments(parser) -> None:
     from goniofrost.app.monitoring import add_server_options
 
-    parser.add_argument("session", metavar="SESSION_DIR",
+    parser.add_argument("session", metavar="SESSION_DIR|ROOT",
                         help="session folder of goniofrost capture --session (it may still be running, "
                              "or not have started yet), or a folder of session folders (a queue's root)")
     add_server_options(parser, with_flag=False)
@@ -24,8 +24,8 @@ def run(args) -> int:
     from goniofrost.monitor.server import MonitorServer
 
     if not Path(args.session).is_dir():
-        raise ConfigError("command line", "SESSION_DIR", "a session folder (goniofrost capture --session DIR)",
-                          args.session)
+        raise ConfigError("command line", "SESSION_DIR|ROOT", "a session folder (goniofrost capture --session DIR) "
+                          "or a folder of session folders (a queue's root)", args.session)
     from goniofrost.monitor.catalogue import is_catalogue
 
     check_port(args.port)

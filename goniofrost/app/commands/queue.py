@@ -6,11 +6,13 @@ HELP = ("measure the samples of QUEUE.yaml one after another (one session each, 
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.arg_types import seed
+
     parser.add_argument("queue", metavar="QUEUE.yaml", help="rig, plan, root, operator and the samples "
                                                             "(paths relative to the queue file)")
     parser.add_argument("--yes", action="store_true",
                         help="do not ask to mount each sample (a rig with a sample changer, or the simulated rig)")
-    parser.add_argument("--seed", type=int, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
+    parser.add_argument("--seed", type=seed, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

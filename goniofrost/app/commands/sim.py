@@ -17,10 +17,12 @@ DEFAULT_MATERIAL = "builtin:white-diffuse"  # what the simulated camera sees thr
 
 
 def add_arguments(parser) -> None:
+    from goniofrost.app.arg_types import seed
+
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (its devices are simulated)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated seconds per real second (default: the rig's sim.clock_speedup)")
-    parser.add_argument("--seed", type=int, default=None, help="seed of the simulation (default: the rig's sim.seed)")
+    parser.add_argument("--seed", type=seed, default=None, help="seed of the simulation (default: the rig's sim.seed)")
     parser.add_argument("--write-rig", metavar="OUT.yaml", default=None,
                         help="also write a rig file (simulated: false) whose drivers and camera are the running "
                              "twins, to rehearse a capture or the console exactly as on a real rig")
