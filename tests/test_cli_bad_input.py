@@ -476,3 +476,15 @@ def test_align_refuses_an_out_that_is_its_rig(tmp_path, capsys, monkeypatch):
     line = _refused(capsys, ["align", "--rig", rig, "--out", rig])
     assert line.endswith(f"cannot write: --out would overwrite the input --rig {rig}; give another name")
     assert rig.read_text() == SIM_RIG.read_text()
+
+
+def test_usage_refuses_an_out_that_is_not_npy_before_it_renders(tmp_path, capsys, monkeypatch):
+    """usage --out usage.png wrote the weights' NumPy bytes under a picture's name, after the render."""
+    import goniofrost.brdf.mitsuba_usage as mitsuba_usage
+
+    monkeypatch.setattr(mitsuba_usage, "record_usage", lambda *a, **k: pytest.fail("the scene was rendered"))
+    line = _refused(capsys, ["usage", "--scene", tmp_path / "scene.xml", "--object", "sample",
+                             "--out", tmp_path / "usage.png"])
+    assert line == ("goniofrost usage: error: command line: --out: expected a file name ending in .npy (the weights "
+                    f"are a NumPy array), found {str(tmp_path / 'usage.png')!r}")
+    assert list(tmp_path.iterdir()) == []

@@ -22,6 +22,9 @@ def run(args) -> int:
 
     if args.spp is not None and args.spp < 1:
         raise ConfigError("command line", "--spp", "a whole number >= 1", args.spp)
+    if not str(args.out).lower().endswith(".npy"):  # usage.png held NumPy bytes under a picture's name
+        raise ConfigError("command line", "--out", "a file name ending in .npy (the weights are a NumPy array)",
+                          args.out)
     check_output_dir(Path(args.out).parent)
     tty = sys.stderr.isatty()
 
