@@ -488,3 +488,12 @@ def test_usage_refuses_an_out_that_is_not_npy_before_it_renders(tmp_path, capsys
     assert line == ("goniofrost usage: error: command line: --out: expected a file name ending in .npy (the weights "
                     f"are a NumPy array), found {str(tmp_path / 'usage.png')!r}")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("samples", ["0", "-3"])
+def test_plan_refuses_a_non_positive_sample_count_naming_the_option(samples, tmp_path, capsys):
+    """plan --samples 0 said 'samples m: expected an integer in [1, 60]', after loading the model."""
+    line = _refused(capsys, ["plan", "--model", tmp_path / "no-model", "--samples", samples,
+                             "--out", tmp_path / "plan.json"])
+    assert line == f"goniofrost plan: error: command line: --samples: expected a positive integer, found {samples}"
+    assert list(tmp_path.iterdir()) == []

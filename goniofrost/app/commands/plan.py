@@ -56,9 +56,11 @@ def run(args) -> int:
         raise GoniofrostError("--sentinels applies to --selector bayes without --usage (the whole BRDF's bound)")
     if args.usage is not None and args.selector != "bayes":
         raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
+    from goniofrost.core.errors import ConfigError
     if args.max_angle is not None and not 0 < args.max_angle <= 90:  # 0 left one direction, nan none
-        from goniofrost.core.errors import ConfigError
         raise ConfigError("command line", "--max-angle", "degrees in (0, 90]", args.max_angle)
+    if args.samples is not None and args.samples < 1:  # the selection's own error said "samples m"
+        raise ConfigError("command line", "--samples", "a positive integer", args.samples)
     from goniofrost.core.atomic_file import check_not_an_input
     check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
                                   "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
