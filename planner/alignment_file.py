@@ -15,6 +15,7 @@ from typing import Mapping
 
 from goniofrost.core.cache import content_key
 from goniofrost.core.config_check import Key, check_section, is_mapping, is_number, read_json_file
+from goniofrost.core.errors import ConfigError
 
 # An offset this large is not a zero error but a wrong axis, a wrong sign or a wrong file.
 MAX_OFFSET_DEG = 10.0
@@ -38,12 +39,19 @@ def alignment_hash(offsets_deg: Mapping[str, float]) -> str:
     return content_key("alignment-v1", {k: float(v) for k, v in sorted(offsets_deg.items())})[:16]
 
 
-def load_alignment(path, axis_names) -> Alignment:
+def load_alignment(path, axis_names, rig_name: str | None = None) -> Alignment:
     """Read ALIGNMENT.json; ConfigError (file, key, expected, found) unless it holds a finite offset
     within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other (other top-level keys,
-    such as the fit's diagnostics, are kept by the file and not read)."""
+    such as the fit's diagnostics, are kept by the file and not read), and, when it names the rig
+    it was measured on (``rig.name``, as ``goniofrost align`` writes it) and ``rig_name`` is given,
+    that rig is ``rig_name``: the offsets are one rig's assembly errors, and another rig's (its
+    axes named alike) were taken without a word."""
     path = Path(path)
     doc = read_json_file(path, "an ALIGNMENT.json file (goniofrost align --out FILE)")
+    measured_on = doc.get("rig", {}).get("name") if isinstance(doc, dict) and isinstance(doc.get("rig"), dict) else None
+    if rig_name is not None and measured_on is not None and measured_on != rig_name:
+        raise ConfigError(path, "rig.name", f"{rig_name!r}, the rig it is used on (an alignment is measured per rig: "
+                          "run goniofrost align on this one)", measured_on)
     offset = Key(lambda v: is_number(v) and abs(v) <= MAX_OFFSET_DEG,
                  f"a zero offset in degrees within +-{MAX_OFFSET_DEG:g}")
     table = {"offsets_deg": Key(is_mapping, "a mapping {axis name: degrees}",

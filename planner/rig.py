@@ -155,7 +155,8 @@ def rig_from_mapping(raw: Any, source: str,
     if "alignment" in top:
         written = Path(top["alignment"])
         joint_order = [next(a.name for a in axes.values() if a.role is role) for role in ROLE_ORDER]
-        alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order)
+        alignment = load_alignment(written if written.is_absolute() else Path(source).parent / written, joint_order,
+                                   top["name"])
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
                kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab)

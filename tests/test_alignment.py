@@ -10,6 +10,7 @@ import pytest
 
 from calib.holder import DEFAULT_LAYOUT, WHITE_MARKER_IDS
 from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.core.errors import ConfigError
 from planner.alignment import AlignmentError, Observation, alignment_poses, fit_alignment
 from planner.kinematics import arm_side, forward
 
@@ -128,6 +129,13 @@ def test_align_recovers_the_injected_misalignment_and_writes_the_file(tmp_path, 
     assert "camera_arm" in printed and "+- " in printed and "--alignment" in printed
     # what plan and capture read back: the offsets, with the rig's axis names
     assert load_alignment(out, ["camera_arm", "sample_yaw", "sample_tilt"]).offsets_deg == doc["offsets_deg"]
+    assert load_checked_rig(rig, alignment=out).alignment.offsets_deg == doc["offsets_deg"]   # its own rig
+    assert doc["rig"]["name"] == "sim-rig-misaligned"
+    # another rig with axes named alike (sim.yaml) refuses it: its zeros are another assembly's
+    with pytest.raises(ConfigError) as refused:
+        load_checked_rig(RIG_FILE, alignment=out)
+    assert str(refused.value) == (f"{out}: rig.name: expected 'sim-rig', the rig it is used on (an alignment is "
+                                  "measured per rig: run goniofrost align on this one), found 'sim-rig-misaligned'")
 
 
 def test_align_refuses_bad_input_before_anything_moves(tmp_path, capsys):

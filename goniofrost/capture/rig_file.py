@@ -67,7 +67,7 @@ def load_checked_rig(path: str | Path, alignment: str | Path | None = None) -> R
     for module_name, func_name in RIG_CHECKS:
         _function(module_name, func_name, "the rig file")(rig)
     if alignment is not None:
-        rig = dataclasses.replace(rig, alignment=load_alignment(alignment, list(rig.joint_names)))
+        rig = dataclasses.replace(rig, alignment=load_alignment(alignment, list(rig.joint_names), rig.name))
     return dataclasses.replace(rig, view=measurability(rig))
 
 
