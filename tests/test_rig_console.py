@@ -329,3 +329,13 @@ def test_the_console_reads_a_rig_file_without_importing_numba():
             f"load_checked_rig({str(SIM_RIG)!r}); print(sorted(m for m in ('numba', 'scipy') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
+
+
+def test_status_text_lines_up_its_columns_under_every_axis(twins, capsys):
+    path, _ = twins
+    capsys.readouterr()
+    assert main(["rig", "status", "--rig", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == ["camera_arm", "sample_yaw", "sample_tilt", "lamp"]
+    assert lines[0].endswith("limits [8, 172]     at rest, disabled")
+    assert len({line.index("at rest") for line in lines[:3]}) == 1   # [-180, 180] is the widest

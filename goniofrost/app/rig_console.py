@@ -100,11 +100,12 @@ def _status_text(readings, lamp, as_json: bool) -> str:
     if as_json:
         return json.dumps({"axes": [r.as_dict() for r in readings], "lamp": lamp})
     lines = []
-    for r in readings:
+    limits = [f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]" for r in readings]
+    width = max(map(len, limits), default=0)  # the state column lines up under every axis's
+    for r, span in zip(readings, limits):
         state = f"ALARM {r.alarm}" if r.alarm else ("moving" if r.moving else "at rest")
         lines.append(f"{r.axis:<14} {r.position_deg:10.3f} deg (aligned {r.aligned_deg:10.3f})  "
-                     f"limits [{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]  {state}, "
-                     f"{'enabled' if r.enabled else 'disabled'}")
+                     f"limits {span:<{width}}  {state}, {'enabled' if r.enabled else 'disabled'}")
     if lamp is not None:
         lines.append(f"{'lamp':<14} {'on' if lamp['on'] else 'off'}, photodiode {lamp['photodiode']:.4f} of nominal")
     return "\n".join(lines)
