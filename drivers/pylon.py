@@ -50,13 +50,15 @@ class PylonCamera(Camera):
     the session may ask for, checked against the camera's range in ``connect``; ``image_size``:
     (width, height) px of the camera model; ``timeout_s``: seconds a frame may take beyond its
     exposure; ``device_class``: only cameras of this pylon device class (e.g. "BaslerCamEmu");
-    ``ask``: how the operator is asked to change the target (default: an OperatorPrompt).
+    ``ask``: how the operator is asked to change the target (default: an OperatorPrompt);
+    ``source``: the rig file the settings came from (named in the messages).
     """
 
     def __init__(self, serial: str | None, pixel_format: str, gain_db: float, ladder_s, image_size,
                  timeout_s: float = 30.0, *, device_class: str | None = None, image_source=None,
-                 ask: Callable[..., None] | None = None) -> None:
+                 ask: Callable[..., None] | None = None, source: str | None = None) -> None:
         self.serial, self.pixel_format, self.gain_db = serial, pixel_format, float(gain_db)
+        self.source = source  # the file the serial came from, for the messages (None: not named)
         self.ladder_s, self.image_size, self.timeout_s = list(ladder_s), tuple(image_size), float(timeout_s)
         self.device_class, self.image_source = device_class, image_source
         self.ask = ask or OperatorPrompt()
@@ -96,7 +98,8 @@ class PylonCamera(Camera):
         for info in found:
             if info.GetSerialNumber() == self.serial:
                 return factory.CreateDevice(info)
-        raise CameraError(f"pylon camera: no camera with serial {self.serial!r} (camera.serial){self._class_text()}; "
+        of = f" of {self.source}" if self.source else ""
+        raise CameraError(f"pylon camera: no camera with serial {self.serial!r} (camera.serial{of}){self._class_text()}; "
                           f"found {[i.GetSerialNumber() for i in found]}")
 
     def _set_up(self) -> None:

@@ -139,6 +139,19 @@ def test_a_ladder_outside_the_camera_s_range_is_refused_before_anything_moves(se
     assert not (tmp_path / "s").exists()  # refused before the first step: a refused run leaves nothing
 
 
+def test_a_wrong_serial_is_one_line_naming_the_rig_file_and_the_serials_found(setup, tmp_path, capsys):
+    folder, rig, plan = setup
+    raw = yaml.safe_load(rig.read_text())
+    raw["camera"]["serial"] = "40012345"
+    wrong = tmp_path / "rig.yaml"
+    wrong.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(capture_args(wrong, plan, tmp_path / "s")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(f"pylon camera: no camera with serial '40012345' (camera.serial of {wrong}) of device "
+                            "class BaslerCamEmu; found ['0815-0000']")
+    assert not (tmp_path / "s").exists()
+
+
 def pylon_version_of(raw: dict) -> dict:
     """A simulated rig's file with its camera made the emulated pylon camera (12 bits)."""
     raw["camera"].update(kind="pylon", pixel_format="BayerRG12", timeout_s=5.0)

@@ -219,7 +219,7 @@ def open_camera(rig, *, image_source=None, device_class: str | None = None):
         return PylonCamera(section["serial"], section["pixel_format"], section["gain_db"], section["exposures_s"],
                            section["intrinsics"]["image_size_px"], section["timeout_s"], device_class=device_class,
                            image_source=image_source,
-                           ask=OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput()))
+                           ask=OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput()), source=source)
     if section["kind"] != "rawfile":
         raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
                           f"simulated rig (sim.camera.SimCamera), not by open_camera")
