@@ -73,8 +73,7 @@ def _acquire(fd: int, session_dir: Path) -> None:
         # The kernel's word first: the file names the holder only once it claimed the session
         # (``HeldLock.claim``); before that it still holds the previous run's PID.
         holders = flock_holders(session_dir / LOCK_FILE)
-        holder = (str(holders[0]) if holders else None) or os.pread(fd, 32, 0).decode(errors="replace").strip() \
-            or "unknown"
+        holder = holders[0] if holders else os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
         raise SessionInUseError(f"session {session_dir} is in use by process {holder}; wait for it to finish "
                                 f"or stop it (Ctrl-C) before starting another capture on it") from None
 
@@ -88,9 +87,9 @@ def flock_held(lock) -> bool | None:
     return None if holders is None else bool(holders)
 
 
-def flock_holders(lock) -> list[int] | None:
-    """The PIDs /proc/locks gives for the flocks on the file ``lock`` (empty: none held); None where
-    that cannot be told (no lock file; no /proc/locks: not Linux)."""
+def flock_holders(lock) -> list[str] | None:
+    """The holders /proc/locks gives for the flocks on the file ``lock``, each as its PID column
+    reads (empty: none held); None where that cannot be told (no lock file; no /proc/locks: not Linux)."""
     try:
         st = os.stat(lock)
         table = Path("/proc/locks").read_text()
@@ -99,4 +98,4 @@ def flock_holders(lock) -> list[int] | None:
     device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
     # "1: FLOCK  ADVISORY  WRITE 10327 fe:00:9978325 0 EOF": kind, mode, access, PID, device:inode
     rows = [line.split() for line in table.splitlines()]
-    return [int(row[4]) for row in rows if row[1:2] == ["FLOCK"] and device in row and row[4].isdigit()]
+    return [row[4] for row in rows if row[1:2] == ["FLOCK"] and device in row]
