@@ -41,8 +41,9 @@ def read_merl(path, grid: MerlGrid | None = None) -> np.ndarray:
     return _in_memory(_read_stored(Path(path), grid)[0])
 
 
-def read_merl_complete(path) -> tuple[np.ndarray, MerlGrid]:
-    """``read_merl`` (on the file's own grid) of a BRDF to render, export or compare: (brdf, grid).
+def read_merl_complete(path, grid: MerlGrid | None = None) -> tuple[np.ndarray, MerlGrid]:
+    """``read_merl`` of a BRDF to render, export or compare: (brdf, grid), on the file's own grid
+    (``grid`` given: the header must match it, as ``read_merl``'s).
 
     Every cell above the horizon must hold a value: MerlFileError naming the file, the number of
     cells and the first one's (i_th, i_td, i_pd) for stored NaN or inf (anywhere: goniofrost never
@@ -52,7 +53,7 @@ def read_merl_complete(path) -> tuple[np.ndarray, MerlGrid]:
     export as 0, or drop out of an error, each passing for a measured value.
     """
     path = Path(path)
-    stored, grid = _read_stored(path, None)
+    stored, grid = _read_stored(path, grid)
     _refuse_cells(path, grid, ~np.isfinite(stored).all(axis=0), "cells holding NaN or inf",
                   "expected finite values (-1 marks a missing value)")
     _refuse_cells(path, grid, (stored < 0).any(axis=0) & grid.valid_mask, "valid cells without a value (negative "

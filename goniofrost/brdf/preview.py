@@ -26,7 +26,7 @@ import numpy as np
 
 from goniofrost.core.grid import MerlGrid, dirs_to_half_diff
 from goniofrost.core.atomic_file import write_bytes_atomic
-from goniofrost.brdf.merl_file import MerlFileError, read_merl_complete
+from goniofrost.brdf.merl_file import read_merl_complete
 
 GAMMA = 2.0
 ERROR_GAIN = 10.0  # the paper multiplies error images by 10
@@ -179,12 +179,7 @@ def make_preview(estimate_path, reference_path=None, lights=DEFAULT_LIGHTS, size
     """
     estimate, grid = read_merl_complete(estimate_path)  # the file's own grid: a small-grid file renders as well
     reference, ref_grid = (None, None) if reference_path is None else read_merl_complete(reference_path)
-    std = None
-    if std_path is not None:
-        std, std_grid = read_merl_complete(std_path)
-        if std_grid != grid:
-            raise MerlFileError(f"{std_path}: header gives resolutions {std_grid.shape}, expected {grid.shape} "
-                                f"(the grid of {estimate_path})")
+    std = None if std_path is None else read_merl_complete(std_path, grid)[0]
     if reference is not None and ref_grid != grid:
         return _preview(render_set(estimate, grid, lights, size), render_set(reference, ref_grid, lights, size), lights)
     return preview_of(estimate, grid, reference, lights, size, std=std)
