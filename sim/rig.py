@@ -186,9 +186,9 @@ class SimulatedRig:
                 section["port"] = entry["endpoint"]
             if section["protocol"] == "modbus-rtu":
                 section["parity"] = "N"  # Linux ptys refuse parity; the simulated drive serves 8N1
-            section.setdefault("reply_timeout_ms", self._twin_reply_timeout_ms(name, section["protocol"]))
-            if section["reply_timeout_ms"] is None:
-                del section["reply_timeout_ms"]  # the driver's own default
+            timeout_ms = self._twin_reply_timeout_ms(name, section["protocol"])
+            if timeout_ms is not None:  # None: the driver's own default
+                section.setdefault("reply_timeout_ms", timeout_ms)
             drivers[name] = section
         return self.rig.with_drivers(drivers)
 
