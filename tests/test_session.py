@@ -527,11 +527,13 @@ def test_a_sample_that_disagrees_with_itself_is_refused(setup, tmp_path, capsys,
     assert not (tmp_path / "s").exists()
 
 
-@pytest.mark.parametrize("turn_deg", [2.0, 0.11])
+@pytest.mark.parametrize("turn_deg", [2.0, 0.22])
 def test_joints_of_another_pose_are_refused(setup, tmp_path, capsys, turn_deg):
     """The plan's joints sit on the axes' command lattices (planner.steps), each within 0.1 deg
-    (+ half a step) of one of its cell's IK poses: 0.11 deg more tilt (a continuous axis) is
-    another pose."""
+    (+ half a step, + 0.001) of one of its cell's IK poses: 0.106 deg for the tilt, a continuous
+    axis on a 0.01 deg lattice. 0.22 deg more tilt is another pose wherever in that span the plan
+    put the joint (at least 0.114 deg from the pose; where it lands depends on the design's bits,
+    which depend on the CPU's BLAS kernels)."""
     folder, rig, plan, _ = setup
     assert json.loads(plan.read_text())["rig"]["command_steps_deg"] == [0.01, 0.087890625, 0.0]
 
