@@ -149,6 +149,28 @@ def test_a_model_opens_its_datasets_again_from_any_working_folder(merl_npz, tmp_
         np.testing.assert_array_equal(gram, expected[1])
 
 
+def test_a_model_of_builtin_or_absolute_datasets_is_the_same_file_from_any_folder(merl_npz, tmp_path, monkeypatch):
+    """Only a relative dataset path makes train record its working folder: a model of the
+    built-in library (the demo's) or of an absolute path is byte for byte the same file wherever
+    train ran, also when the cache holds it from a training that did record a folder."""
+    only = ["white-diffuse-bball", "gold-metallic-paint2", "blue-acrylic"]
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "m.npz").symlink_to(merl_npz)
+    files = {}
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        monkeypatch.chdir(tmp_path / folder)
+        relative = train(["nbrdf:../data/m.npz"], only=only, grid=GRID, k_max=5)
+        assert relative.info["datasets_from"] == str(tmp_path / folder)
+        for name, spec in (("builtin", "builtin"), ("absolute", f"nbrdf:{tmp_path / 'data' / 'm.npz'}")):
+            model = train([spec], only=None if spec == "builtin" else only, grid=GRID, k_max=5)
+            assert "datasets_from" not in model.info and model.info["datasets"] == [spec]
+            model.save(tmp_path / folder / name)
+            files.setdefault(name, []).append((tmp_path / folder / name / "model.json").read_bytes())
+    for name, (first, second) in files.items():
+        assert first == second, name
+
+
 # ----- model file ----------------------------------------------------------------------------
 def test_model_round_trip_memory_mapped(model, tmp_path):
     model.save(tmp_path / "m")

@@ -276,12 +276,11 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     key = disk_cache.content_key("frost-model-v6", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
-    # the datasets as given and the folder their relative paths are read from (``remap``), this
-    # call's even when the model comes from the cache (the info is not part of the model's hash)
-    named = {"datasets": list(dataset_specs), "datasets_from": os.getcwd()}
+    named = _datasets_named(dataset_specs)
     if folder is not None and (folder / "model.json").is_file():
         model = FrostModel.load(folder)
-        model.info = {**(model.info or {}), **named}
+        earlier = {k: v for k, v in (model.info or {}).items() if k not in ("datasets", "datasets_from")}
+        model.info = {**named, **earlier}  # the order of a fresh training's info
         return model
     info = {**named, "cache_key": key}
     if sentinel_candidates is not None:
@@ -295,6 +294,19 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
         return model
     model.save(folder)
     return FrostModel.load(folder)
+
+
+def _datasets_named(dataset_specs) -> dict:
+    """The model's record of its datasets: the specs as given, and the working folder only when
+    one of them holds a relative path (``remap`` reads it from there), so that a model of the
+    built-in library or of absolute paths is the same file from any folder. This call's even
+    when the model comes from the cache (the info is not part of the model's hash)."""
+    from goniofrost.datasets.specs import spec_read_from
+
+    named = {"datasets": list(dataset_specs)}
+    if any(spec_read_from(spec, os.sep) != spec for spec in dataset_specs):
+        named["datasets_from"] = os.getcwd()
+    return named
 
 
 def _mask_digest(mask) -> str:
