@@ -45,10 +45,15 @@ def start_index(ladder: list, settings: dict, record: CalibrationRecord, expecte
     return fits[-1] if fits else 0
 
 
+MAX_SATURATED_FRACTION = 0.25  # a frame more saturated than this is too bright to read
+MIN_BRIGHT_END = 0.02          # a frame whose 99th percentile is below this (of full scale) is too dark
+
+
 def markers_exposed(frame: BracketFrame) -> bool:
     """Whether a frame is exposed well enough to read markers: at most a quarter saturated, and
     its bright end (99th percentile) at least 2 % of full scale (far above the read noise)."""
-    return bool(np.mean(frame.saturated) <= 0.25 and np.percentile(frame.linear, 99) >= 0.02)
+    return bool(np.mean(frame.saturated) <= MAX_SATURATED_FRACTION
+                and np.percentile(frame.linear, 99) >= MIN_BRIGHT_END)
 
 
 @dataclass

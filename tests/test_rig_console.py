@@ -255,6 +255,34 @@ def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
     assert "the sample patch keeps only 0 pixels of channel R (need 24)" in doc["problem"]
 
 
+@pytest.mark.parametrize("exposure, why", [
+    ("4.096", "at --exposure 4.096 s 100.0 % of the region of interest is saturated (more than 25 %: its levels are "
+              "clipped); take a shorter --exposure, or leave it out for the capture's own bracket"),
+    ("0.000015625", "at --exposure 1.5625e-05 s the frame's 99th percentile is 0.0003 of full scale (below 0.02: too "
+                    "dark to read); take a longer --exposure, or leave it out for the capture's own bracket"),
+])
+def test_a_snap_at_an_exposure_that_shows_nothing_readable_says_so_and_exits_2(tmp_path, capsys, exposure, why):
+    """A chosen --exposure whose frame is mostly clipped (the white card at 4 s) or dark (at 16 us)
+    is the snap's finding, before what the unreadable frame made of the markers; the picture is
+    written; the levels reported are the clipped ones, as taken."""
+    out = tmp_path / "snap.png"
+    argv = ["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "--out", str(out), "--exposure", exposure]
+    assert main([*argv, "--json"]) == 2
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["problem"] == why and doc["exposures_s"] == [float(exposure)] and out.is_file()
+    if exposure == "4.096":
+        assert doc["roi_saturated_fraction"] == 1.0 and doc["levels_median"] == [1.0, 1.0, 1.0]
+    assert main(argv) == 2
+    assert f"problem: {why}" in capsys.readouterr().out.splitlines()
+
+
+def test_a_snap_at_an_exposure_that_reads_well_has_no_problem(tmp_path, capsys):
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "--out", str(tmp_path / "s.png"),
+                 "--exposure", "0.004", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["problem"] is None and doc["roi_saturated_fraction"] == 0.0 and min(doc["levels_median"]) > 0.01
+
+
 @pytest.fixture(scope="module")
 def small_plan(tmp_path_factory):
     """(rig file, plan file) of a 5-sample plan on the simulated rig (a small model, 30 x 30 x 60 grid)."""

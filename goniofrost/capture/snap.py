@@ -21,7 +21,9 @@ from goniofrost.capture.steps import Expose, LampOff, LampOn, SetTarget
 @dataclass
 class SnapResult:
     """What one snap found. Levels: linear sensor values (0 = black level, 1 = white level) inside
-    the region of interest, per channel (R, G, B), in the longest unsaturated frame."""
+    the region of interest, per channel (R, G, B), in the longest unsaturated frame. Saturated
+    fractions count the pixels a capture leaves out: the sensor's flag or a level at or above the
+    camera section's ``saturation``."""
 
     target: str
     pose_deg: dict
@@ -155,7 +157,11 @@ class _Judge:
                                            self.settings["marker_tolerance_px"], raw.channels, 1)
         except Exception as exc:  # noqa: BLE001 - reported, with the picture
             self.problem = self.problem or " ".join(str(exc).split())
-        pixels, med, p99, roi_sat = _roi_levels(raw, mask)
+        clipped = raw.saturated | (raw.linear >= self.settings["saturation"])  # as the capture counts them
+        pixels, med, p99 = _roi_levels(raw, mask)
+        saturated = [float(np.mean(clipped)), float(np.mean(clipped[mask])) if mask is not None else 0.0]
+        if self.bracket is None:  # one exposure the operator chose: its being unreadable is the first finding
+            self.problem = _exposure_problem(raw, exposures[0], *saturated) or self.problem
         snr = None
         if self.bracket is not None and self.bracket.mask_ is not None:
             mean, se = self.bracket._stats()
@@ -163,8 +169,8 @@ class _Judge:
         _write_png(raw, mask, found, out)
         return SnapResult(self.target, self.joints, exposures,
                           self.bracket.exposures_s if self.bracket is not None and self.problem is None else None,
-                          sorted(found), list(self.ids), source, pixels, med, p99, float(np.mean(raw.saturated)),
-                          roi_sat, snr, str(out), self.problem)
+                          sorted(found), list(self.ids), source, pixels, med, p99, *saturated,
+                          snr, str(out), self.problem)
 
 
 def _best_frame(frames: dict, saturation: float):
@@ -174,16 +180,35 @@ def _best_frame(frames: dict, saturation: float):
     return usable[-1] if usable else ordered[0]
 
 
+def _exposure_problem(raw, exposure_s: float, frame_saturated: float, roi_saturated: float) -> str | None:
+    """Why a frame of a chosen exposure is too bright or too dark to read (the bracket's own limits,
+    ``calib.bracket.markers_exposed``, on the frame and on the region of interest), or None."""
+    from calib.bracket import MAX_SATURATED_FRACTION, MIN_BRIGHT_END
+
+    worst, where = max((frame_saturated, "frame"), (roi_saturated, "region of interest"))
+    if worst > MAX_SATURATED_FRACTION:
+        return (f"at --exposure {exposure_s:g} s {100 * worst:.1f} % of the {where} is saturated (more than "
+                f"{100 * MAX_SATURATED_FRACTION:g} %: its levels are clipped); take a shorter --exposure, or leave "
+                f"it out for the capture's own bracket")
+    bright_end = float(np.percentile(raw.linear, 99))
+    if bright_end < MIN_BRIGHT_END:
+        return (f"at --exposure {exposure_s:g} s the frame's 99th percentile is {bright_end:.4f} of full scale "
+                f"(below {MIN_BRIGHT_END:g}: too dark to read); take a longer --exposure, or leave it out for the "
+                f"capture's own bracket")
+    return None
+
+
 def _roi_levels(raw, mask):
+    """The region's pixels, median and 99th percentile level per channel (R, G, B; None where empty)."""
     if mask is None:
-        return [0, 0, 0], [None] * 3, [None] * 3, 0.0
+        return [0, 0, 0], [None] * 3, [None] * 3
     pixels, med, p99 = [], [], []
     for c in range(3):
         v = raw.linear[mask & (raw.channels == c)]
         pixels.append(int(v.size))
         med.append(float(np.median(v)) if v.size else None)
         p99.append(float(np.percentile(v, 99)) if v.size else None)
-    return pixels, med, p99, float(np.mean(raw.saturated[mask]))
+    return pixels, med, p99
 
 
 def _write_png(raw, mask, found: dict, out: Path) -> None:

@@ -25,7 +25,9 @@ SUBCOMMANDS = {
     "stop": "stop the rig from any terminal: a program driving it is told to stop (its own report follows); "
             "otherwise connect, stop and confirm every axis and switch the lamp off",
     "snap": "take one frame (or the bracket the capture would take) at the current pose and report levels, "
-            "saturation, markers, region-of-interest pixels and SNR; writes a PNG with the region and markers",
+            "saturation, markers, region-of-interest pixels and SNR; writes a PNG with the region and markers; "
+            "exits 2 when it finds a problem: markers or region not found, a bracket that cannot expose the "
+            "card, or an --exposure whose frame or region is more than a quarter saturated or too dark to read",
 }
 
 
