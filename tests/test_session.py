@@ -146,6 +146,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
 
     report = json.loads((session / "report.json").read_text())
     assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert report["prediction"]["calibrated"] is True and "uncalibrated" not in (session / "summary.txt").read_text()
     assert "target_error" not in report
     assert report["samples"] == M and report["captured_this_run"] == M and report["runs"] == 1
     assert report["times_s"]["motion"] > 0 and report["times_s"]["capture"] > 0
@@ -784,7 +785,12 @@ def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_sce
     assert scene_section["predicted_log_relative_mse"] == pytest.approx(
         predicted_error(model, rows, values, sigmas, scene=scene))
     assert scene_section["calibrated"] and scene_section["usage_hash"] == "retro-20deg"
+    # the whole BRDF's prediction is calibrated on designs for the whole BRDF, not this one's
+    assert report["prediction"]["calibrated"] is False
+    assert json.loads((session / "brdf.json").read_text())["measurement"]["predicted_calibrated"] is False
     summary = (session / "summary.txt").read_text()
+    assert ("  uncalibrated: the plan's design is for a scene's use (its usage map); the whole BRDF's prediction is "
+            "calibrated on designs for the whole BRDF and can be far below the truth") in summary.splitlines()
     assert "target error in the scene's use 10000 at 80 % confidence: target reached after 2 of 5 samples" in out
     assert "predicted error in the scene's use (the plan's usage map): log-relative MSE" in summary
     # a resume rebuilds the report from the journal and the plan: still the scene's error

@@ -194,7 +194,7 @@ def _select(model, args, mask, usage=None, scene_for=None):
 def _outcome(args, selection) -> str:
     if selection.selector == "bayes":
         weighted = " weighted by the scene's use" if args.usage is not None else ""
-        return f", predicted error of a typical material {selection.residuals[-1]:.4f} (log-relative MSE{weighted})"
+        return f", predicted error of a typical material {selection.residuals[-1]:.4g} (log-relative MSE{weighted})"
     # With k = m atoms the residual after the m-th pick is 0 by construction; it only says
     # something for --max-error (k = all atoms).
     return f", residual {selection.residuals[-1]:.4f}" if args.max_error is not None else ""
