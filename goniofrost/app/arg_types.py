@@ -10,7 +10,7 @@ def seed(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        value = -1
-    if value < 0:
+        value = None
+    if value is None or value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, found {text!r}")
     return value

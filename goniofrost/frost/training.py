@@ -309,6 +309,15 @@ def _datasets_named(dataset_specs) -> dict:
     return named
 
 
+def _label_read_from(label: str, opened: dict) -> str:
+    """A training label as ``collect_materials`` labels it from the opened specs ({spec as given:
+    spec opened}): a plain NAME stays; SPEC:NAME (a name two datasets share) follows its spec."""
+    for given, spec in opened.items():
+        if label.startswith(given + ":"):
+            return spec + label[len(given):]
+    return label
+
+
 def _mask_digest(mask) -> str:
     """sha256 hex of a bool (n_valid,) cell mask (its packed bits): part of a model's cache key."""
     import hashlib
@@ -331,10 +340,10 @@ def remap(model: FrostModel, progress: bool = False) -> tuple[np.ndarray, np.nda
     if not specs:
         raise TrainingError("the model does not name the datasets it was trained on (train it with goniofrost train)")
     # relative paths are read from the folder the training named them in (a model trained before
-    # that was recorded: from this one); a label SPEC:NAME (a name two datasets share) follows its spec
+    # that was recorded, or of no relative path: from this one)
     origin = (model.info or {}).get("datasets_from")
     opened = [spec_read_from(spec, origin) if origin else spec for spec in specs]
-    names = [next((o + n[len(s):] for s, o in zip(specs, opened) if n.startswith(s + ":")), n) for n in model.names]
+    names = [_label_read_from(name, dict(zip(specs, opened))) for name in model.names]
     try:
         materials = collect_materials(opened, only=names)
     except GoniofrostError as exc:
