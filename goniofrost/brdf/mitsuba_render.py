@@ -31,12 +31,20 @@ class MitsubaMissingError(GoniofrostError, ImportError):
 
 
 def load_mitsuba(variant: str = VARIANT):
-    """The ``mitsuba`` module with ``variant`` set (RGB by default); a clear error when it is not installed."""
+    """The ``mitsuba`` module with ``variant`` set (RGB by default); a clear error when it is not
+    installed, or when a ``llvm_*`` variant finds no LLVM it can run on (``drjit_llvm``)."""
+    from goniofrost.brdf.drjit_llvm import name_newest_llvm
+
     try:
         import mitsuba as mi
     except ImportError:
         raise MitsubaMissingError("rendering with Mitsuba needs Mitsuba 3: pip install 'goniofrost[render]' "
                                   "(or pip install mitsuba)") from None
+    if variant.startswith("llvm_"):
+        try:
+            name_newest_llvm(variant)  # before the variant starts Dr.Jit's LLVM backend
+        except RuntimeError as exc:
+            raise MitsubaMissingError(str(exc)) from None
     mi.set_variant(variant)
     return mi
 
