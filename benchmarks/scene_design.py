@@ -42,9 +42,11 @@ per m. The test run then compares the shipped design (``select_bayes``'s
 defaults for m samples, as ``plan --usage`` picks them: the sensitivity power for m and the scene,
 ``usage_design.scene_power``) with the blind one, with the earlier u g^0.5 design and with the
 design shipped before round 12 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
-also the shipped design at 0.6 m (the goal's fewer-samples branch).
+also the shipped design at 0.6 m (the goal's fewer-samples branch). Its renders run on Mitsuba's
+LLVM variant, on the newest LLVM of the machine (``goniofrost.brdf.drjit_llvm``; the runs in
+docs/BENCHMARKS.md named LLVM 19 by hand with DRJIT_LIBLLVM_PATH before that).
 
-    DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM-19.so .venv/bin/python benchmarks/scene_design.py \
+    .venv/bin/python benchmarks/scene_design.py \
         --spp 32 --no-export --validation-only --out DIR          # the choice
     ... --spp 32 --no-export --validation-only --validation-set seeded --out DIR   # the choice, seeded materials
     ... --spp 32 --no-export --test-only --fewer --out DIR         # the test run, once
