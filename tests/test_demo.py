@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -83,4 +84,20 @@ def test_a_negative_target_error_is_refused_before_anything_runs(tmp_path, capsy
     assert main(["demo", "--out", str(tmp_path / "demo"), "--target-error", "-1", "--no-progress"]) == 2
     assert capsys.readouterr().err == ("goniofrost demo: error: command line: --target-error: expected a log-relative "
                                        "MSE >= 0 (0 captures the whole plan), found -1.0\n")
+    assert not (tmp_path / "demo").exists()
+
+
+def test_a_rig_another_program_drives_is_refused_before_the_training(tmp_path, monkeypatch, capsys):
+    """The demo trained for 45 s, then its capture found the simulated rig held by another
+    rehearsal; it refuses at once now, with the capture's own words, and writes nothing."""
+    from goniofrost.app import demo
+    from goniofrost.app.cli import main
+    from goniofrost.capture.rig_lock import rig_lock
+
+    monkeypatch.setattr(demo, "train_without", lambda *a, **k: pytest.fail("the demo trained"))
+    with rig_lock("sim-rig", "capture"):
+        assert main(["demo", "--out", str(tmp_path / "demo"), "--no-progress"]) == 2
+    assert capsys.readouterr().err == (
+        f"goniofrost demo: error: rig 'sim-rig' is in use by capture (process {os.getpid()}): one program drives a "
+        f"rig at a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
     assert not (tmp_path / "demo").exists()

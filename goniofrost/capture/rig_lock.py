@@ -122,6 +122,14 @@ def rig_holder(rig_name: str) -> RigHolder | None:
     return _read_holder(path)
 
 
+def check_free(rig_name: str) -> None:
+    """Raise ``RigInUseError`` naming the holder when another program holds rig ``rig_name`` now: a
+    program with minutes of work before it connects (the demo's training) asks first. Only a
+    courtesy: the lock itself is taken when the rig is connected."""
+    if _flock_held(lock_path(rig_name)):
+        raise RigInUseError(_in_use(rig_name, _read_holder(lock_path(rig_name))))
+
+
 def request_stop(rig_name: str) -> RigHolder | None:
     """Ask the program that holds rig ``rig_name`` to stop (module doc); return it, or None when no
     program holds the rig (then nothing was sent). Returns at once: the holder's own report (its
