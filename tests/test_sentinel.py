@@ -260,6 +260,11 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     assert batch["data"]["bound"] == pytest.approx(checked.upper, rel=1e-12) and checked.upper != alone.upper
     report = json.loads((session / "report.json").read_text())
     assert report["target_error"]["samples_used"] == 21 and not report["target_error"]["extrapolation"]
+    # the report's own statement is the last batch's, at the session's confidence
+    assert (report["prediction"]["bound"], report["prediction"]["median_estimate"], report["prediction"]["confidence"]) \
+        == (batch["data"]["bound"], batch["data"]["predicted_error"], 0.8)
+    assert (f"error of this reconstruction: log-relative MSE <= {checked.upper:.4g} with 80 % confidence (median "
+            f"estimate {checked.median:.4g}; point prediction ") in (session / "summary.txt").read_text()
     assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
     with Journal.open(session / "session.sqlite") as journal:
         assert len(journal.events()) == len(events) and len(journal.samples()) == 21

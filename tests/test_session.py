@@ -147,6 +147,15 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     report = json.loads((session / "report.json").read_text())
     assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
     assert report["prediction"]["calibrated"] is True and "uncalibrated" not in (session / "summary.txt").read_text()
+    # every capture states its calibrated bound, as a target-error capture's last batch would
+    from goniofrost.frost.reconstruction import error_bound
+    bound = error_bound(model, GRID.valid_position(cells), values, sample_sigmas("x", extra), 0.95)
+    assert bound.upper == np.inf  # this small model has no bound calibration at M samples
+    assert (report["prediction"]["median_estimate"], report["prediction"]["bound"]) == (bound.median, None)
+    assert report["ground_truth"]["median_estimate"] == bound.median
+    assert (f"error of this reconstruction: log-relative MSE, median estimate {bound.median:.4g} (no calibrated "
+            f"bound; point prediction {expected.predicted_error:.4g}; per-cell standard deviation in "
+            f"brdf.std.binary)") in (session / "summary.txt").read_text().splitlines()
     assert "target_error" not in report
     assert report["samples"] == M and report["captured_this_run"] == M and report["runs"] == 1
     assert report["times_s"]["motion"] > 0 and report["times_s"]["capture"] > 0

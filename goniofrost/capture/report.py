@@ -160,14 +160,16 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
                                 "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
                                 **whole_brdf_calibration(inputs)}
-        report["prediction"] |= extrapolation_section(inputs, records)
+        confidence = spec.confidence if spec is not None and spec.confidence is not None else None
+        report["prediction"] |= extrapolation_section(inputs, records) | bound_section(inputs, records, confidence)
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)
         report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
         if spec is not None and spec.target is not None:
             report["target_error"] = target_section(spec, records, dark)
         if material:
-            report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error)
+            report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error,
+                                                    report["prediction"].get("median_estimate"))
         report["rendering_snr_db"] = preview.result()
     report["outputs"]["preview"] = "preview.png"
     extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, [*records, *dark], runs))
@@ -235,6 +237,21 @@ def _version() -> str | None:
         return version("goniofrost")
     except PackageNotFoundError:
         return None
+
+
+def bound_section(inputs, records, confidence: float | None = None) -> dict:
+    """The calibrated statement of every capture, as a target-error capture's last batch makes it
+    (``target.Assessor``: the check samples used when the plan has them): the median estimate of
+    the whole BRDF's error and its bound at ``confidence`` (the session's; None: 95 %). Not for a
+    plan for a scene, whose design the whole BRDF's calibration is not of (``whole_brdf_calibration``)."""
+    from goniofrost.capture.target import DEFAULT_CONFIDENCE, make_assessor
+
+    if inputs.scene is not None:
+        return {}
+    confidence = DEFAULT_CONFIDENCE if confidence is None else confidence
+    bound = make_assessor(inputs.model, inputs.positions, confidence, None, inputs.sentinel)(records)
+    return {"median_estimate": float(bound.median), "confidence": confidence,
+            "bound": float(bound.upper) if np.isfinite(bound.upper) else None}
 
 
 def whole_brdf_calibration(inputs) -> dict:
@@ -320,7 +337,8 @@ def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, 
     return preview.snr_db
 
 
-def _truth_section(inputs, records, material: str, estimate: np.ndarray, predicted: float) -> dict:
+def _truth_section(inputs, records, material: str, estimate: np.ndarray, predicted: float,
+                   median: float | None) -> dict:
     from goniofrost.frost.metrics import log_relative_mse
     from goniofrost.frost.reconstruction import reconstruct_bayes
 
@@ -341,6 +359,7 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
                         for r in records], dtype=bool)
     return {"material": material, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
             "predicted_over_actual": predicted / error if error > 0 else None,
+            "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
             "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
             "sample_relative_error_median": float(np.nanmedian(rel)),
             "sample_relative_error_max": float(np.nanmax(rel)),
@@ -364,6 +383,14 @@ def truth_at_measured_directions(inputs, records, material: str) -> np.ndarray:
         w_i, w_o = forward(inputs.rig, record.joints)
         out[k] = brdf(w_i, w_o)
     return out
+
+
+def _estimates(truth: dict, prediction: dict) -> str:
+    """What the capture said of its error, for the line beside the actual one."""
+    if truth.get("median_estimate") is not None:
+        return f"median estimate {truth['median_estimate']:.4g}, point prediction {truth['predicted_log_relative_mse']:.4g}"
+    return f"predicted {truth['predicted_log_relative_mse']:.4g}" + ("" if prediction.get("calibrated", True)
+                                                                     else ", uncalibrated")
 
 
 def _median(values: np.ndarray) -> float | None:
@@ -415,8 +442,20 @@ def summary_text(report: dict) -> str:
                      f"{target['statement']}")
         lines.append("  bound (median estimate) after each batch: " + ", ".join(
             f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
-    lines.append(f"predicted error of this reconstruction: log-relative MSE {report['prediction']['predicted_log_relative_mse']:.4g}"
-                 f" (per-cell standard deviation in {report['outputs']['std']})")
+    prediction = report["prediction"]
+    if prediction.get("median_estimate") is not None:
+        said = f"point prediction {prediction['predicted_log_relative_mse']:.4g}; per-cell standard deviation in " \
+               f"{report['outputs']['std']}"
+        if prediction["bound"] is None:  # the model holds no bound calibration for this many samples
+            lines.append(f"error of this reconstruction: log-relative MSE, median estimate "
+                         f"{prediction['median_estimate']:.4g} (no calibrated bound; {said})")
+        else:
+            lines.append(f"error of this reconstruction: log-relative MSE <= {prediction['bound']:.4g} with "
+                         f"{100 * prediction['confidence']:g} % confidence (median estimate "
+                         f"{prediction['median_estimate']:.4g}; {said})")
+    else:
+        lines.append(f"predicted error of this reconstruction: log-relative MSE {prediction['predicted_log_relative_mse']:.4g}"
+                     f" (per-cell standard deviation in {report['outputs']['std']})")
     if not report["prediction"].get("calibrated", True):
         lines.append(f"  uncalibrated: {report['prediction']['uncalibrated_because']}")
     scene = report["prediction"].get("scene")
@@ -453,8 +492,7 @@ def summary_text(report: dict) -> str:
     if truth:
         lines.append(f"rendering SNR of the preview against the ground truth: {report['rendering_snr_db']:.2f} dB")
         lines.append(f"error against the ground truth {truth['material']}: log-relative MSE {truth['log_relative_mse']:.4g}"
-                     f" (predicted {truth['predicted_log_relative_mse']:.4g}"
-                     f"{'' if report['prediction'].get('calibrated', True) else ', uncalibrated'}; exact values at the same cells:"
+                     f" ({_estimates(truth, report['prediction'])}; exact values at the same cells:"
                      f" {truth['log_relative_mse_exact_samples']:.4g}, ratio {_fmt(truth['ratio_to_exact'], '.3f')})")
         graz = truth["grazing"]
         lines.append(f"median sample error {100 * truth['sample_relative_error_median']:.2f} % against the cells' values,"

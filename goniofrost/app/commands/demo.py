@@ -89,8 +89,8 @@ def run(args) -> int:
     print(f"  motion {times['motion']:.1f} s + capture {times['capture']:.1f} s (simulated rig); "
           f"median sample SNR {report['snr']['median']:.0f}")
     if truth:
-        print(f"  log-relative MSE against the ground truth {truth['log_relative_mse']:.4g}, predicted "
-              f"{truth['predicted_log_relative_mse']:.4g} (exact values at the same cells "
+        print(f"  log-relative MSE against the ground truth {truth['log_relative_mse']:.4g}, median estimate "
+              f"{truth['median_estimate']:.4g} (exact values at the same cells "
               f"{truth['log_relative_mse_exact_samples']:.4g}, ratio {truth['ratio_to_exact']:.3f}); "
               f"rendering SNR {report['demo']['rendering_snr_db']:.2f} dB")
     print(f"  wrote {out / 'session' / 'brdf.binary'} (MERL), {out / 'session' / 'brdf.std.binary'} (its per-cell "
