@@ -263,6 +263,9 @@ def test_a_capture_of_a_plan_with_sentinels_stops_on_the_designs_bound_and_a_res
     # the report's own statement is the last batch's, at the session's confidence
     assert (report["prediction"]["bound"], report["prediction"]["median_estimate"], report["prediction"]["confidence"]) \
         == (batch["data"]["bound"], batch["data"]["predicted_error"], 0.8)
+    measurement = json.loads((session / "brdf.json").read_text())["measurement"]
+    assert {key: measurement[key] for key in ("bound", "median_estimate", "confidence")} == \
+        {key: report["prediction"][key] for key in ("bound", "median_estimate", "confidence")}
     assert (f"error of this reconstruction: log-relative MSE <= {checked.upper:.4g} with 80 % confidence (median "
             f"estimate {checked.median:.4g}; point prediction ") in (session / "summary.txt").read_text()
     assert main(capture_args(rig, plan, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0

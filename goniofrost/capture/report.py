@@ -226,6 +226,8 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
             "samples_not_measured": report["not_measured"]["count"],
             "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
             "predicted_calibrated": report["prediction"]["calibrated"],
+            **{key: report["prediction"][key] for key in ("median_estimate", "bound", "confidence")
+               if key in report["prediction"]},
             "last_run": report["last_run"], "goniofrost_version": _version()}
 
 
