@@ -30,8 +30,8 @@ class SessionEntry:
     start; ``duration_s``: the runs' time added up, a run under way until now, a killed one
     until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
     ``not_measured`` those journaled as not measured (too dark or saturated; done, without a value);
-    ``predicted_error`` the log-relative MSE of the reconstruction (or the last batch), None
-    before one; ``problem`` why a session is "unreadable" (its journal's path and the error)."""
+    ``predicted_error`` the median estimate of the reconstruction's log-relative MSE (or of the
+    last batch's; ``session_view``), None before one; ``problem`` why a session is "unreadable" (its journal's path and the error)."""
 
     name: str
     path: str

@@ -336,13 +336,16 @@ def _white_rates(calibration: dict | None) -> tuple | None:
 def _predicted_error(events: list, report: dict | None) -> float | None:
     """The latest predicted reconstruction error the session records, else None.
 
-    Looked for: report.json's ``prediction.predicted_log_relative_mse`` (the final reconstruction),
-    else the ``predicted_error`` of the latest event that has one (a capture with a target error
-    journals one per batch, kind "batch").
+    Looked for: report.json's ``prediction.median_estimate`` (the final reconstruction's, the same
+    estimate as a batch's), else its ``prediction.predicted_log_relative_mse`` (a report from
+    before that, or of a plan for a scene), else the ``predicted_error`` (the median estimate) of
+    the latest event that has one (a capture with a target error journals one per batch, kind
+    "batch").
     """
-    value = ((report or {}).get("prediction") or {}).get("predicted_log_relative_mse")
-    if isinstance(value, (int, float)):
-        return float(value)
+    prediction = (report or {}).get("prediction") or {}
+    for key in ("median_estimate", "predicted_log_relative_mse"):
+        if isinstance(prediction.get(key), (int, float)):
+            return float(prediction[key])
     for e in reversed(events):
         value = (e.get("data") or {}).get("predicted_error")
         if isinstance(value, (int, float)):
