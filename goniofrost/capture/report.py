@@ -160,8 +160,8 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
                                 "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
                                 **whole_brdf_calibration(inputs)}
-        confidence = spec.confidence if spec is not None and spec.confidence is not None else None
-        report["prediction"] |= extrapolation_section(inputs, records) | bound_section(inputs, records, confidence)
+        report["prediction"] |= extrapolation_section(inputs, records) | \
+            bound_section(inputs, records, getattr(spec, "confidence", None))
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)
         report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
@@ -387,6 +387,26 @@ def truth_at_measured_directions(inputs, records, material: str) -> np.ndarray:
     return out
 
 
+def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
+    """The summary's statement of the reconstruction's error: the calibrated bound and median
+    estimate when the report has them (``bound_section``), else the point prediction, marked
+    when it is not calibrated for the plan's design."""
+    point = f"point prediction {prediction['predicted_log_relative_mse']:.4g}; per-cell standard deviation in {std_file}"
+    if prediction.get("median_estimate") is None:
+        lines = [f"predicted error of this reconstruction: log-relative MSE {prediction['predicted_log_relative_mse']:.4g}"
+                 f" (per-cell standard deviation in {std_file})"]
+    elif prediction["bound"] is None:  # the model holds no bound calibration for this many samples
+        lines = [f"error of this reconstruction: log-relative MSE, median estimate {prediction['median_estimate']:.4g}"
+                 f" (no calibrated bound; {point})"]
+    else:
+        lines = [f"error of this reconstruction: log-relative MSE <= {prediction['bound']:.4g} with "
+                 f"{100 * prediction['confidence']:g} % confidence (median estimate {prediction['median_estimate']:.4g}; "
+                 f"{point})"]
+    if not prediction.get("calibrated", True):
+        lines.append(f"  uncalibrated: {prediction['uncalibrated_because']}")
+    return lines
+
+
 def _estimates(truth: dict, prediction: dict) -> str:
     """What the capture said of its error, for the line beside the actual one."""
     if truth.get("median_estimate") is not None:
@@ -444,22 +464,7 @@ def summary_text(report: dict) -> str:
                      f"{target['statement']}")
         lines.append("  bound (median estimate) after each batch: " + ", ".join(
             f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
-    prediction = report["prediction"]
-    if prediction.get("median_estimate") is not None:
-        said = f"point prediction {prediction['predicted_log_relative_mse']:.4g}; per-cell standard deviation in " \
-               f"{report['outputs']['std']}"
-        if prediction["bound"] is None:  # the model holds no bound calibration for this many samples
-            lines.append(f"error of this reconstruction: log-relative MSE, median estimate "
-                         f"{prediction['median_estimate']:.4g} (no calibrated bound; {said})")
-        else:
-            lines.append(f"error of this reconstruction: log-relative MSE <= {prediction['bound']:.4g} with "
-                         f"{100 * prediction['confidence']:g} % confidence (median estimate "
-                         f"{prediction['median_estimate']:.4g}; {said})")
-    else:
-        lines.append(f"predicted error of this reconstruction: log-relative MSE {prediction['predicted_log_relative_mse']:.4g}"
-                     f" (per-cell standard deviation in {report['outputs']['std']})")
-    if not report["prediction"].get("calibrated", True):
-        lines.append(f"  uncalibrated: {report['prediction']['uncalibrated_because']}")
+    lines += _prediction_lines(report["prediction"], report["outputs"]["std"])
     scene = report["prediction"].get("scene")
     if scene:
         lines.append(f"predicted {scene['error']} (the plan's usage map): log-relative MSE "
