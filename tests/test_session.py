@@ -590,6 +590,31 @@ def test_an_existing_session_needs_resume_and_resume_needs_the_same_plan(setup, 
     assert not (tmp_path / "nothing").exists()  # refused: not even the folder and its lock are left
 
 
+def test_a_plan_made_again_resumes_its_session_and_an_older_journal_its_plan(setup, tmp_path):
+    """The same plan command run again writes the same samples with another selection time: the
+    session it started is its session (a script that plans and captures can be run again after a
+    crash); a journal that recorded the hash with the selection time still resumes its plan."""
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.runner import open_journal, plan_sha256, session_meta
+
+    folder, rig, plan, _ = setup
+    doc = json.loads(plan.read_text())
+    again = tmp_path / "plan.json"
+    again.write_text(json.dumps(doc | {"selection_seconds": doc["selection_seconds"] + 1.5}))
+    session = tmp_path / "s"
+    with open_journal(session, session_meta(load_inputs(rig, plan), MATERIAL), resume=False):
+        pass
+    with open_journal(session, session_meta(load_inputs(rig, again), MATERIAL), resume=True):
+        pass
+    older = tmp_path / "older"
+    meta = session_meta(load_inputs(rig, plan), MATERIAL)
+    assert meta["plan_sha256"] != plan_sha256(meta["plan"], with_run_record=True)
+    with open_journal(older, meta | {"plan_sha256": plan_sha256(meta["plan"], with_run_record=True)}, resume=False):
+        pass
+    with open_journal(older, meta, resume=True):
+        pass
+
+
 def _state(folder: Path) -> dict:
     """name -> (bytes, mtime_ns) of every file in ``folder``, and the folder's own mtime_ns."""
     files = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())}

@@ -287,9 +287,16 @@ def session_meta(inputs, material: str | None, target_error: float | None = None
     }}
 
 
-def plan_sha256(plan: dict) -> str:
-    """SHA-256 of the plan's canonical JSON (key order and whitespace do not matter)."""
-    return hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
+# What a plan records of the run that made it, not of what it measures: the same plan command run
+# again takes another time and writes the same plan (a resume after it must not be refused).
+PLAN_RUN_RECORD = ("selection_seconds",)
+
+
+def plan_sha256(plan: dict, with_run_record: bool = False) -> str:
+    """SHA-256 of the plan's canonical JSON (key order and whitespace do not matter), without its
+    PLAN_RUN_RECORD fields (with them: the identity journals recorded before they were left out)."""
+    kept = plan if with_run_record else {key: value for key, value in plan.items() if key not in PLAN_RUN_RECORD}
+    return hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
 
 
 RESUME_KEYS = (("plan_sha256", "plan"), ("kinematic_hash", "rig kinematics"),
@@ -339,6 +346,8 @@ def _check_same_session(journal: Journal, meta: dict, resume: bool) -> None:
     for key, what in RESUME_KEYS:
         if key in OPTIONAL_RESUME_KEYS and key not in stored:
             continue
+        if key == "plan_sha256" and stored.get(key) == plan_sha256(meta["plan"], with_run_record=True):
+            continue  # a journal started before the plan's identity left its selection time out
         if stored.get(key) != meta[key]:
             remedy = ("resume with the same --rig, --plan, --material, --seed, --target-error and --confidence, or "
                       "start a new --session"
