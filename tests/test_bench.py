@@ -196,3 +196,22 @@ def test_summary_markdown_time_ratios_keep_two_digits():
             for method, select_s in (("frost", 7.3), ("frost-firstm", 0.54), ("nielsen", 2.86))]
     line = [l for l in summary_markdown(rows).splitlines() if l.startswith("| 20 |") and l.endswith("x |")][-1]
     assert line.endswith("| 0.39x | 5.3x |")
+
+
+def test_bench_bars_are_drawn_on_a_terminal_only(config, tables, local_rows, tmp_path, capsys, monkeypatch):
+    """A bar redrawn with carriage returns is noise in a log (core.progress): bench's own bars (the
+    folds, the tabulation) asked for but with stderr not a terminal draw nothing."""
+    import sys
+
+    from goniofrost.bench.data import _tabulate_into
+    from goniofrost.datasets import open_dataset
+
+    names, path = tables
+    done = {f: [r for r in local_rows if r["fold"] == f] for f in range(config.folds)}
+    assert run_folds(config, path, names, progress=True, done=done) == local_rows
+    _tabulate_into(tmp_path / "t.npy", [("builtin", "gold")], {"builtin": open_dataset("builtin")},
+                   MerlGrid(4, 4, 8), progress=True)
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    run_folds(config, path, names, progress=True, done=done)
+    assert capsys.readouterr().err.startswith("\rbench: ")
