@@ -215,3 +215,18 @@ def test_bench_bars_are_drawn_on_a_terminal_only(config, tables, local_rows, tmp
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
     run_folds(config, path, names, progress=True, done=done)
     assert capsys.readouterr().err.startswith("\rbench: ")
+
+
+def test_resume_refuses_a_damaged_checkpoint_in_one_line(config, tmp_path, capsys):
+    """bench --resume on a fold checkpoint cut short: one line naming the file, exit 2, before the
+    tabulation and with nothing written (it was json's traceback, exit 1)."""
+    folds = tmp_path / "out" / "folds"
+    folds.mkdir(parents=True)
+    (folds / "fold-00.json").write_text('{\n "config": {\n  "datasets": [\n   "nbrd')
+    assert main(["bench", "--dataset", "nbrdf:/nonexistent.npz", "--grid", "12,12,24", "--folds", "1",
+                 "--jobs", "1", "--no-progress", "--resume", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"goniofrost bench: error: {folds / 'fold-00.json'}: expected a fold checkpoint of goniofrost "
+                   'bench ({"config", "fold", "rows"}), found JSONDecodeError: Unterminated string starting at: '
+                   "line 4 column 4 (char 34); delete it to run that fold again\n")
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == ["fold-00.json", "folds"]
