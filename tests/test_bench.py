@@ -230,3 +230,20 @@ def test_resume_refuses_a_damaged_checkpoint_in_one_line(config, tmp_path, capsy
                    'bench ({"config", "fold", "rows"}), found JSONDecodeError: Unterminated string starting at: '
                    "line 4 column 4 (char 34); delete it to run that fold again\n")
     assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == ["fold-00.json", "folds"]
+
+
+def test_the_box_plot_of_an_earlier_run_of_another_m_is_not_left_beside_this_runs(tmp_path):
+    """bench --out DIR again with other sample counts left the first run's box_m10.png beside
+    the new box_m15.png, passing for this run's figure."""
+    from goniofrost.bench.plots import write_plots
+
+    def rows(m):
+        return [dict(method="random", m=m, fold=0, trial=0, material=name, mse=mse, select_s=0.01, recon_s=0.01)
+                for name, mse in (("a", 0.5), ("b", 0.7))]
+
+    (tmp_path / "notes.png").write_bytes(b"")
+    write_plots(tmp_path, rows(10))
+    assert (tmp_path / "box_m10.png").is_file()
+    write_plots(tmp_path, rows(15))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box_m15.png", "frontier.png", "inverse_mse.png",
+                                                         "notes.png", "selection_time.png"]
