@@ -247,3 +247,17 @@ def test_the_box_plot_of_an_earlier_run_of_another_m_is_not_left_beside_this_run
     write_plots(tmp_path, rows(15))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["box_m15.png", "frontier.png", "inverse_mse.png",
                                                          "notes.png", "selection_time.png"]
+
+
+def test_the_summary_says_which_grid_its_times_are_of(config):
+    """summary.md set selection times of a 15 x 15 x 30 run beside the paper's Table II (the full
+    MERL grid) without saying either grid: the first line now says what the numbers are of."""
+    from goniofrost.bench.results import summary_markdown
+
+    rows = [dict(method="frost", m=4, fold=0, trial=0, material="a", mse=0.1, select_s=0.01, recon_s=0.01)]
+    assert summary_markdown(rows, config=config.as_dict()).splitlines()[0] == (
+        "Run: 2 folds of 10 training and 3 test materials on the 12 x 12 x 24 grid, 2,836 valid cells (the MERL "
+        "grid of the paper's times: 1,111,432).")
+    full = config.with_(grid=MerlGrid()).as_dict()
+    assert summary_markdown(rows, config=full).splitlines()[0] == (
+        "Run: 2 folds of 10 training and 3 test materials on the 90 x 90 x 180 grid, 1,111,432 valid cells.")

@@ -26,7 +26,7 @@ def run_benchmark(config: BenchConfig, out: Path, command: str, jobs: int = 1,
     rows = run_folds(config, path, names, jobs=jobs, dask_address=dask_address, progress=progress,
                      done=done, on_fold=lambda fold, fold_rows: write_checkpoint(out, config, fold, fold_rows))
     paths = write_results(out, rows, command, config.as_dict(), machine_info())
-    write_atomic(out / "summary.md", summary_markdown(rows))
+    write_atomic(out / "summary.md", summary_markdown(rows, config=config.as_dict()))
     return paths + [out / "summary.md"] + write_plots(out, rows)
 
 
