@@ -261,3 +261,18 @@ def test_the_summary_says_which_grid_its_times_are_of(config):
     full = config.with_(grid=MerlGrid()).as_dict()
     assert summary_markdown(rows, config=full).splitlines()[0] == (
         "Run: 2 folds of 10 training and 3 test materials on the 90 x 90 x 180 grid, 1,111,432 valid cells.")
+
+
+def test_resume_says_how_many_folds_it_takes_over_or_why_none(config, local_rows, tmp_path):
+    """bench --resume after an option changed ran every fold again without a word, as it does when
+    the checkpoints are of this run; now a line says which."""
+    from goniofrost.bench.runner import load_checkpoints, resume_line, write_checkpoint
+
+    folder = tmp_path / "folds"
+    assert resume_line(tmp_path, config, {}) == f"resume: no fold checkpoint of these options in {folder} (none there): every fold runs"
+    write_checkpoint(tmp_path, config, 0, [r for r in local_rows if r["fold"] == 0])
+    done = load_checkpoints(tmp_path, config)
+    assert resume_line(tmp_path, config, done) == f"resume: 1 of 2 folds from {folder}, 1 to run"
+    other = config.with_(m_values=(4, 8, 12))
+    assert resume_line(tmp_path, other, load_checkpoints(tmp_path, other)) == (
+        f"resume: no fold checkpoint of these options in {folder} (1 there, of other options): every fold runs")

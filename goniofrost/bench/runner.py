@@ -3,6 +3,7 @@ stress cases. Each tabulates the materials once (cached), runs, then writes its 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from goniofrost.bench.config import BenchConfig, BenchError
@@ -22,6 +23,8 @@ def run_benchmark(config: BenchConfig, out: Path, command: str, jobs: int = 1,
     """
     out = Path(out)
     done = load_checkpoints(out, config) if resume else {}  # a damaged checkpoint fails before the tabulation
+    if resume:
+        print(resume_line(out, config, done), file=sys.stderr)
     names, path = tables_path(config.datasets, config.grid, progress=progress)
     rows = run_folds(config, path, names, jobs=jobs, dask_address=dask_address, progress=progress,
                      done=done, on_fold=lambda fold, fold_rows: write_checkpoint(out, config, fold, fold_rows))
@@ -57,6 +60,17 @@ def load_checkpoints(out: Path, config: BenchConfig) -> dict:
             raise BenchError(f"{path}: expected a fold checkpoint of goniofrost bench ({{\"config\", \"fold\", "
                              f"\"rows\"}}), found {type(exc).__name__}: {exc}; delete it to run that fold again")
     return done
+
+
+def resume_line(out: Path, config: BenchConfig, done: dict) -> str:
+    """What --resume takes over: how many of the folds, or why none (checkpoints of other options
+    are not this run's: every fold runs again, which a researcher who changed an option must know)."""
+    folder = Path(out) / "folds"
+    found = len(list(folder.glob("fold-*.json")))
+    if done:
+        return f"resume: {len(done)} of {config.folds} folds from {folder}, {config.folds - len(done)} to run"
+    why = "none there" if not found else f"{found} there, of other options"
+    return f"resume: no fold checkpoint of these options in {folder} ({why}): every fold runs"
 
 
 def run_stress(config: BenchConfig, out: Path, command: str, m: int = 20, progress: bool = True) -> list[Path]:
