@@ -276,3 +276,15 @@ def test_resume_says_how_many_folds_it_takes_over_or_why_none(config, local_rows
     other = config.with_(m_values=(4, 8, 12))
     assert resume_line(tmp_path, other, load_checkpoints(tmp_path, other)) == (
         f"resume: no fold checkpoint of these options in {folder} (1 there, of other options): every fold runs")
+
+
+@pytest.mark.parametrize("grid, ms, found", [(MerlGrid(1, 1, 1), (1,), "1,1,1 with 1"),
+                                             (MerlGrid(2, 2, 4), (5, 20), "2,2,4 with 16")])
+def test_a_grid_too_small_for_the_sample_counts_is_refused_before_any_fold(config, grid, ms, found):
+    """--grid 1,1,1 ended in a worker's traceback (max() of an empty sequence, exit 1) and --grid
+    2,2,4 --m 5,20 in 'candidates: 16 allowed cells', both after a fold had trained."""
+    need = max(max(ms), 5)
+    with pytest.raises(BenchError) as refused:
+        config.with_(grid=grid, m_values=ms)
+    assert str(refused.value) == (f"benchmark option grid: expected at least {need} valid cells (the largest m, and "
+                                  f"the 5 of training's smallest design), found {found!r}")
