@@ -288,3 +288,19 @@ def test_a_grid_too_small_for_the_sample_counts_is_refused_before_any_fold(confi
         config.with_(grid=grid, m_values=ms)
     assert str(refused.value) == (f"benchmark option grid: expected at least {need} valid cells (the largest m, and "
                                   f"the 5 of training's smallest design), found {found!r}")
+
+
+def test_the_target_table_names_m_max_and_says_its_saving_is_of_the_mean_sample_count():
+    """Two captures of 15 and 60 samples of a plan of 60: the column headed "fewer than m_max"
+    read 37.5 % (1 - 37.5 / 60), the saving of the mean sample count, where half the captures
+    stopped early; m_max itself was named nowhere."""
+    from goniofrost.bench.bayes_report import markdown
+
+    rows = [dict(method="bayes-target", m=m, fold=0, trial=0, material=name, mse=0.04, select_s=0.01,
+                 recon_s=0.01, target=0.05) for name, m in (("a", 15), ("b", 60))]
+    lines = markdown(rows, {}, [20, 40, 60], {})
+    at = lines.index("| E | materials | mean samples | median samples | mean samples below m_max | true error <= E | "
+                     "true error > 1.5 E | mean true error |")
+    assert lines[at - 2] == ("Simulated capture --target-error E --confidence 0.95 (batches of 15 then 5, up to "
+                             "m_max = 60 samples):")
+    assert lines[at + 2] == "| 0.05 | 2 | 37.5 | 38 | 37.5 % | 100.0 % | 0.0 % | 0.0400 |"
