@@ -193,22 +193,23 @@ def test_predictive_std_mean_square_is_the_predicted_error(model, tables):
     truth = tables[5].astype(np.float64)
     pos = select_bayes(model, 15).positions
     rec = reconstruct_bayes(model, pos, truth[pos])
-    assert np.mean(rec.std ** 2) == pytest.approx(rec.predicted_error, rel=2e-4)
+    # what OUT.json says and what OUT.std.binary holds: the std is scaled to the predicted error
+    assert np.mean(rec.std ** 2) == pytest.approx(rec.predicted_error, rel=1e-6)
     assert rec.std.shape == (GRID.n_valid, 3) and np.all(rec.std > 0) and rec.samples == 15
-    # the variance pass gives d^T Sigma d exactly
-    post = posterior.fit(np.asarray(model.dictionary[pos]), posterior.cell_noise(model)[pos],
-                         posterior.prior_variance(model), np.zeros((15, 1)), model.singular_values ** 2,
-                         0.0, GRID.n_valid)
+
+
+def test_the_variance_pass_gives_every_cells_d_sigma_d_to_float32_rounding(model):
+    """d^T Sigma d at every cell, the well-measured ones too: the Woodbury form (used with fewer
+    samples than atoms) subtracted two float32 numbers far larger than their difference: 2e-4 off
+    at 82 of these 1670 cells, up to 5.4 times on the full grid (2092 cells clamped to 0)."""
     d = np.asarray(model.dictionary, np.float64)
-    exact = np.einsum("ij,jk,ik->i", d, post.covariances[0], d)
-    for m in (15, 40):  # fewer samples than atoms (Woodbury factor) and more (Cholesky factor)
+    for m in (5, 15, 40):  # fewer samples than atoms and more
         cells = select_bayes(model, m).positions
         post = posterior.fit(d[cells], posterior.cell_noise(model)[cells], posterior.prior_variance(model),
                              np.zeros((m, 1)), model.singular_values ** 2, 0.0, GRID.n_valid)
-        _, var, _ = posterior.mean_and_variance(model.dictionary, model.mean, post, d[cells],
-                                                posterior.prior_variance(model), posterior.cell_noise(model)[cells])
+        _, var, _ = posterior.mean_and_variance(model.dictionary, model.mean, post)
         exact = np.einsum("ij,jk,ik->i", d, post.covariances[0], d)
-        np.testing.assert_allclose(var[:, 0], exact, rtol=2e-3, atol=1e-5 * exact.max())
+        np.testing.assert_allclose(var[:, 0], exact, rtol=1e-4)
 
 
 def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):

@@ -196,3 +196,111 @@ def test_summary_markdown_time_ratios_keep_two_digits():
             for method, select_s in (("frost", 7.3), ("frost-firstm", 0.54), ("nielsen", 2.86))]
     line = [l for l in summary_markdown(rows).splitlines() if l.startswith("| 20 |") and l.endswith("x |")][-1]
     assert line.endswith("| 0.39x | 5.3x |")
+
+
+def test_bench_bars_are_drawn_on_a_terminal_only(config, tables, local_rows, tmp_path, capsys, monkeypatch):
+    """A bar redrawn with carriage returns is noise in a log (core.progress): bench's own bars (the
+    folds, the tabulation) asked for but with stderr not a terminal draw nothing."""
+    import sys
+
+    from goniofrost.bench.data import _tabulate_into
+    from goniofrost.datasets import open_dataset
+
+    names, path = tables
+    done = {f: [r for r in local_rows if r["fold"] == f] for f in range(config.folds)}
+    assert run_folds(config, path, names, progress=True, done=done) == local_rows
+    _tabulate_into(tmp_path / "t.npy", [("builtin", "gold")], {"builtin": open_dataset("builtin")},
+                   MerlGrid(4, 4, 8), progress=True)
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    run_folds(config, path, names, progress=True, done=done)
+    assert capsys.readouterr().err.startswith("\rbench: ")
+
+
+def test_resume_refuses_a_damaged_checkpoint_in_one_line(config, tmp_path, capsys):
+    """bench --resume on a fold checkpoint cut short: one line naming the file, exit 2, before the
+    tabulation and with nothing written (it was json's traceback, exit 1)."""
+    folds = tmp_path / "out" / "folds"
+    folds.mkdir(parents=True)
+    (folds / "fold-00.json").write_text('{\n "config": {\n  "datasets": [\n   "nbrd')
+    assert main(["bench", "--dataset", "nbrdf:/nonexistent.npz", "--grid", "12,12,24", "--folds", "1",
+                 "--jobs", "1", "--no-progress", "--resume", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"goniofrost bench: error: {folds / 'fold-00.json'}: expected a fold checkpoint of goniofrost "
+                   'bench ({"config", "fold", "rows"}), found JSONDecodeError: Unterminated string starting at: '
+                   "line 4 column 4 (char 34); delete it to run that fold again\n")
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == ["fold-00.json", "folds"]
+
+
+def test_the_box_plot_of_an_earlier_run_of_another_m_is_not_left_beside_this_runs(tmp_path):
+    """bench --out DIR again with other sample counts left the first run's box_m10.png beside
+    the new box_m15.png, passing for this run's figure."""
+    from goniofrost.bench.plots import write_plots
+
+    def rows(m):
+        return [dict(method="random", m=m, fold=0, trial=0, material=name, mse=mse, select_s=0.01, recon_s=0.01)
+                for name, mse in (("a", 0.5), ("b", 0.7))]
+
+    (tmp_path / "notes.png").write_bytes(b"")
+    write_plots(tmp_path, rows(10))
+    assert (tmp_path / "box_m10.png").is_file()
+    write_plots(tmp_path, rows(15))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box_m15.png", "frontier.png", "inverse_mse.png",
+                                                         "notes.png", "selection_time.png"]
+
+
+def test_the_summary_says_which_grid_its_times_are_of(config):
+    """summary.md set selection times of a 15 x 15 x 30 run beside the paper's Table II (the full
+    MERL grid) without saying either grid: the first line now says what the numbers are of."""
+    from goniofrost.bench.results import summary_markdown
+
+    rows = [dict(method="frost", m=4, fold=0, trial=0, material="a", mse=0.1, select_s=0.01, recon_s=0.01)]
+    assert summary_markdown(rows, config=config.as_dict()).splitlines()[0] == (
+        "Run: 2 folds of 10 training and 3 test materials on the 12 x 12 x 24 grid, 2,836 valid cells (the MERL "
+        "grid of the paper's times: 1,111,432).")
+    full = config.with_(grid=MerlGrid()).as_dict()
+    assert summary_markdown(rows, config=full).splitlines()[0] == (
+        "Run: 2 folds of 10 training and 3 test materials on the 90 x 90 x 180 grid, 1,111,432 valid cells.")
+
+
+def test_resume_says_how_many_folds_it_takes_over_or_why_none(config, local_rows, tmp_path):
+    """bench --resume after an option changed ran every fold again without a word, as it does when
+    the checkpoints are of this run; now a line says which."""
+    from goniofrost.bench.runner import load_checkpoints, resume_line, write_checkpoint
+
+    folder = tmp_path / "folds"
+    assert resume_line(tmp_path, config, {}) == f"resume: no fold checkpoint of these options in {folder} (none there): every fold runs"
+    write_checkpoint(tmp_path, config, 0, [r for r in local_rows if r["fold"] == 0])
+    done = load_checkpoints(tmp_path, config)
+    assert resume_line(tmp_path, config, done) == f"resume: 1 of 2 folds from {folder}, 1 to run"
+    other = config.with_(m_values=(4, 8, 12))
+    assert resume_line(tmp_path, other, load_checkpoints(tmp_path, other)) == (
+        f"resume: no fold checkpoint of these options in {folder} (1 there, of other options): every fold runs")
+
+
+@pytest.mark.parametrize("grid, ms, found", [(MerlGrid(1, 1, 1), (1,), "1,1,1 with 1"),
+                                             (MerlGrid(2, 2, 4), (5, 20), "2,2,4 with 16")])
+def test_a_grid_too_small_for_the_sample_counts_is_refused_before_any_fold(config, grid, ms, found):
+    """--grid 1,1,1 ended in a worker's traceback (max() of an empty sequence, exit 1) and --grid
+    2,2,4 --m 5,20 in 'candidates: 16 allowed cells', both after a fold had trained."""
+    need = max(max(ms), 5)
+    with pytest.raises(BenchError) as refused:
+        config.with_(grid=grid, m_values=ms)
+    assert str(refused.value) == (f"benchmark option grid: expected at least {need} valid cells (the largest m, and "
+                                  f"the 5 of training's smallest design), found {found!r}")
+
+
+def test_the_target_table_names_m_max_and_says_its_saving_is_of_the_mean_sample_count():
+    """Two captures of 15 and 60 samples of a plan of 60: the column headed "fewer than m_max"
+    read 37.5 % (1 - 37.5 / 60), the saving of the mean sample count, where half the captures
+    stopped early; m_max itself was named nowhere."""
+    from goniofrost.bench.bayes_report import markdown
+
+    rows = [dict(method="bayes-target", m=m, fold=0, trial=0, material=name, mse=0.04, select_s=0.01,
+                 recon_s=0.01, target=0.05) for name, m in (("a", 15), ("b", 60))]
+    lines = markdown(rows, {}, [20, 40, 60], {})
+    at = lines.index("| E | materials | mean samples | median samples | mean samples below m_max | true error <= E | "
+                     "true error > 1.5 E | mean true error |")
+    assert lines[at - 2] == ("Simulated capture --target-error E --confidence 0.95 (batches of 15 then 5, up to "
+                             "m_max = 60 samples):")
+    assert lines[at + 2] == "| 0.05 | 2 | 37.5 | 38 | 37.5 % | 100.0 % | 0.0 % | 0.0400 |"

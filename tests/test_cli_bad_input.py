@@ -356,6 +356,24 @@ def test_bench_stress_refuses_the_options_it_would_ignore(options, found, tmp_pa
     assert not (tmp_path / "b").exists()
 
 
+@pytest.mark.parametrize("options, line", [
+    (["--stress", "--methods", "frost"], "--stress: expected no --methods, --folds, --target-error or --nielsen-trials "
+     "(the stress cases run every method once, on fold 0, without a simulated capture), found '--methods'"),
+    (["--stress", "--folds", "3", "--target-error", "0.02"], "--stress: expected no --methods, --folds, --target-error "
+     "or --nielsen-trials (the stress cases run every method once, on fold 0, without a simulated capture), found "
+     "'--folds --target-error'"),
+    (["--methods", "frost,random", "--target-error", "0.02"], "--target-error: expected --methods with bayes (the "
+     "simulated capture --target-error runs the Bayesian design), found 'frost,random'")])
+def test_bench_refuses_options_the_run_would_ignore(options, line, tmp_path, capsys, monkeypatch):
+    """bench --stress --methods frost ran and listed all six methods in stress.md; --methods frost
+    --target-error 0.02 wrote no target row; neither said so."""
+    import goniofrost.bench.runner as runner
+
+    monkeypatch.setattr(runner, "tables_path", lambda *a, **k: pytest.fail("the materials were tabulated"))
+    assert _refused(capsys, ["bench", "--out", tmp_path / "b", *options]) == f"goniofrost bench: error: command line: {line}"
+    assert not (tmp_path / "b").exists()
+
+
 def test_bench_refuses_an_unreachable_dask_scheduler_at_once(tmp_path, capsys, monkeypatch):
     """--dask ADDRESS with no scheduler there tabulated the materials first, then waited out
     dask's 30 s connect timeout."""

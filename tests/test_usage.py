@@ -147,6 +147,33 @@ def test_plan_with_a_uniform_usage_map_equals_the_plain_design(model, model_dir,
     assert cells[0] == cells[1]
 
 
+def test_plan_times_the_selection_without_the_scenes_calibration(model_dir, tmp_path, capsys, monkeypatch):
+    """The scene's calibration on the training materials (a minute on the full grid) ran inside the
+    selection's clock: plan --usage printed "selection 57.513 s" where the plain plan's took 0.4 s.
+    On a fake clock that only the calibration advances (60 s), the selection's own time is 0."""
+    import time
+
+    from goniofrost.app.commands import plan
+
+    now = [1000.0]
+    real = plan._scene_error
+
+    def calibrating(*args, **kwargs):
+        now[0] += 60.0
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(time, "perf_counter", lambda: now[0])
+    monkeypatch.setattr(plan, "_scene_error", calibrating)
+    uniform, out = tmp_path / "uniform.npy", tmp_path / "scene.json"
+    np.save(uniform, np.full(GRID.n_valid, 1.0 / GRID.n_valid, dtype=np.float32))
+    assert main(["plan", "--model", str(model_dir), "--samples", "12", "--usage", str(uniform),
+                 "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert (doc["selection_seconds"], doc["usage"]["calibration_seconds"]) == (0.0, 60.0)
+    assert capsys.readouterr().out.splitlines()[-1].endswith(", selection 0.000 s (and 60.0 s calibrating the "
+                                                             "scene's error)")
+
+
 def test_the_rotated_basis_with_a_uniform_map_picks_as_the_plain_design(model):
     """The change of basis itself (not the shortcut) is exact: same picks, same predicted errors."""
     from goniofrost.frost.bayes_selection import select_bayes

@@ -84,8 +84,7 @@ def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.
     positions = np.asarray(positions, dtype=np.int64)
     post, noise, b = _fit(model, positions, truth)
     predicted, design = _predicted(model, post, b, n_mat, np.unique(positions).size)
-    estimate, variance, _ = posterior.mean_and_variance(model.dictionary, model.mean, post, model.dictionary[positions],
-                                                        posterior.prior_variance(model), noise[positions])
+    estimate, variance, _ = posterior.mean_and_variance(model.dictionary, model.mean, post)
     seconds = time.perf_counter() - start
     floor = np.log(model.eps) - np.log(np.asarray(model.reference, np.float64) + model.eps)
     base_var = variance[:, 0] + noise  # one noise group: every column shares Sigma

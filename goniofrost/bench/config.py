@@ -101,6 +101,14 @@ def _check(config: BenchConfig) -> None:
     ms = config.m_values
     if not ms or any(int(m) < 1 for m in ms) or list(ms) != sorted(set(ms)):
         bad("m_values", "distinct positive sample counts in increasing order", ms)
+    # every fold trains before it selects: a grid of fewer valid cells than the largest m (or than
+    # the smallest design of training's noise cross-validation) failed after that, in a worker
+    from goniofrost.frost.calibration import M_VALUES
+
+    need, grid = max(max(ms), min(M_VALUES)), config.grid
+    if grid.n_valid < need:
+        bad("grid", f"at least {need} valid cells (the largest m, and the {min(M_VALUES)} of training's smallest "
+                    f"design)", f"{grid.n_th},{grid.n_td},{grid.n_pd} with {grid.n_valid}")
     unknown = [m for m in config.methods if m not in METHODS]
     if unknown or not config.methods:
         bad("methods", f"a non-empty subset of {', '.join(METHODS)}", config.methods)

@@ -50,13 +50,13 @@ def tables_path(specs, grid: MerlGrid, progress: bool = True) -> tuple[list[str]
 
 
 def _tabulate_into(path: Path, pairs, datasets, grid: MerlGrid, progress: bool) -> None:
-    from tqdm import tqdm
+    from goniofrost.core.progress import progress_bar
 
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(len(pairs), grid.n_valid, 3))
     try:
-        with tqdm(total=len(pairs), desc="tabulating materials", unit="material",
-                  disable=not progress, leave=False) as bar:
+        with progress_bar(total=len(pairs), asked=progress, desc="tabulating materials", unit="material",
+                          leave=False) as bar:
             for start in range(0, len(pairs), MATERIALS_PER_CHUNK):
                 chunk = pairs[start:start + MATERIALS_PER_CHUNK]
                 for spec in dict.fromkeys(s for s, _ in chunk):

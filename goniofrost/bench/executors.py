@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import queue
 import socket
-import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 from goniofrost.bench.config import BenchConfig, BenchError
@@ -30,7 +29,7 @@ def run_folds(config: BenchConfig, path, names: list[str], jobs: int = 1,
     dask_address: the scheduler of an existing dask.distributed cluster (``tcp://host:port``);
         its workers must see the same file system path for the cached tables.
     """
-    from tqdm import tqdm
+    from goniofrost.core.progress import progress_bar
 
     results = dict(done or {})
     todo = [f for f in range(config.folds) if f not in results]
@@ -41,8 +40,8 @@ def run_folds(config: BenchConfig, path, names: list[str], jobs: int = 1,
             on_fold(fold, rows)
 
     total = len(todo) * designs_per_fold(config)
-    with tqdm(total=total, desc="bench", unit="design", file=sys.stderr,
-              disable=not progress, smoothing=0.05) as bar:
+    # the project's bar: drawn on a terminal only (carriage returns are noise in a log)
+    with progress_bar(total=total, asked=progress, desc="bench", unit="design", smoothing=0.05) as bar:
         if todo and dask_address:
             _run_dask(config, str(path), names, todo, dask_address, bar, finished)
         elif todo:

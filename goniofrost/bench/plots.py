@@ -29,11 +29,15 @@ def write_plots(out: Path, rows: list[dict], box_m: int = 40) -> list[Path]:
     rows = [r for r in rows if r["method"] != "bayes-target"]  # their m varies per material
     stats, methods = summary(rows), methods_in(rows)
     ms = sorted({r["m"] for r in rows})
+    box = out / f"box_m{_closest(ms, box_m)}.png"
+    for stale in out.glob("box_m*.png"):  # an earlier run's box plot of another m would pass for this run's
+        if stale != box:
+            stale.unlink()
     return [
         _save(out / "inverse_mse.png", _inverse_mse(stats, methods, ms)),
         _save(out / "selection_time.png", _selection_time(stats, methods, ms)),
         _save(out / "frontier.png", _frontier(stats, methods, ms)),
-        _save(out / f"box_m{_closest(ms, box_m)}.png", _boxes(rows, methods, _closest(ms, box_m))),
+        _save(box, _boxes(rows, methods, _closest(ms, box_m))),
     ]
 
 

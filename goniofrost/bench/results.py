@@ -169,8 +169,11 @@ def methods_in(rows: list[dict]) -> list[str]:
     return [m for m in METHODS if m in present]
 
 
-def summary_markdown(rows: list[dict], m_values=None) -> str:
-    """Markdown tables: mean log-relative MSE and median selection time per method and m."""
+def summary_markdown(rows: list[dict], m_values=None, config: dict | None = None) -> str:
+    """Markdown tables: mean log-relative MSE and median selection time per method and m.
+
+    config: the run's ``BenchConfig.as_dict()``: a first line says what the numbers are of (folds,
+    materials, the grid and its valid cells beside the MERL grid the paper's times are of)."""
     from goniofrost.bench.bayes_report import markdown as bayes_markdown
 
     stats = summary(rows)
@@ -182,7 +185,8 @@ def summary_markdown(rows: list[dict], m_values=None) -> str:
         if method == "nielsen":
             cols.append(("nielsen best trial", "best_trial_mse"))
     head = "| m | " + " | ".join(c for c, _ in cols) + " |"
-    lines = ["Mean log-relative MSE over folds (lower is better):", "", head, "|" + "---|" * (len(cols) + 1)]
+    lines = [] if config is None else [_run_line(config), ""]
+    lines += ["Mean log-relative MSE over folds (lower is better):", "", head, "|" + "---|" * (len(cols) + 1)]
     for m in ms:
         cells = [_fmt(stats.get((c if c in METHODS else "nielsen", m), {}).get(key)) for c, key in cols]
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
@@ -195,6 +199,20 @@ def summary_markdown(rows: list[dict], m_values=None) -> str:
         lines.append(f"| {m} | " + " | ".join(_fmt(s, 3) for s in sel) + f" | {ratios[0]} | {ratios[1]} |")
     lines += bayes_markdown(rows, stats, ms, PAPER_TABLE_II)
     return "\n".join(lines) + "\n"
+
+
+def _run_line(config: dict) -> str:
+    """What the tables are of: a reduced grid's selection times are not the paper's (its Table II
+    is of the full MERL grid; the time of a pass over the cells scales with their number)."""
+    from goniofrost.core.grid import FULL_GRID, MerlGrid
+
+    grid = MerlGrid(**config["grid"])
+    size = f"{grid.n_th} x {grid.n_td} x {grid.n_pd} grid, {grid.n_valid:,} valid cells"
+    if grid != FULL_GRID:
+        size += f" (the MERL grid of the paper's times: {FULL_GRID.n_valid:,})"
+    folds = f"{config['folds']} fold" + ("s" if config["folds"] != 1 else "")
+    return (f"Run: {folds} of {config['n_train']} training and {config['n_test']} test materials "
+            f"on the {size}.")
 
 
 def _ratio(stats, m, frost: str) -> str:

@@ -3,9 +3,10 @@ stress cases. Each tabulates the materials once (cached), runs, then writes its 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
-from goniofrost.bench.config import BenchConfig
+from goniofrost.bench.config import BenchConfig, BenchError
 from goniofrost.bench.data import tables_path
 from goniofrost.bench.executors import run_folds
 from goniofrost.bench.plots import write_plots
@@ -21,12 +22,14 @@ def run_benchmark(config: BenchConfig, out: Path, command: str, jobs: int = 1,
     only when every fold has finished and every number is finite.
     """
     out = Path(out)
+    done = load_checkpoints(out, config) if resume else {}  # a damaged checkpoint fails before the tabulation
+    if resume:
+        print(resume_line(out, config, done), file=sys.stderr)
     names, path = tables_path(config.datasets, config.grid, progress=progress)
-    done = load_checkpoints(out, config) if resume else {}
     rows = run_folds(config, path, names, jobs=jobs, dask_address=dask_address, progress=progress,
                      done=done, on_fold=lambda fold, fold_rows: write_checkpoint(out, config, fold, fold_rows))
     paths = write_results(out, rows, command, config.as_dict(), machine_info())
-    write_atomic(out / "summary.md", summary_markdown(rows))
+    write_atomic(out / "summary.md", summary_markdown(rows, config=config.as_dict()))
     return paths + [out / "summary.md"] + write_plots(out, rows)
 
 
@@ -41,14 +44,33 @@ def write_checkpoint(out: Path, config: BenchConfig, fold: int, rows: list[dict]
 
 
 def load_checkpoints(out: Path, config: BenchConfig) -> dict:
-    """{fold: rows} of the checkpoints in ``out/folds`` made with exactly this configuration."""
+    """{fold: rows} of the checkpoints in ``out/folds`` made with exactly this configuration.
+
+    A checkpoint that cannot be read (cut short, edited by hand) raises BenchError naming it and
+    what to do (it was a JSON traceback, exit 1)."""
     done = {}
+    wanted = json.loads(json_text(config.as_dict()))
     for path in sorted((Path(out) / "folds").glob("fold-*.json")):
-        payload = json.loads(path.read_text())
-        if payload.get("config") == json.loads(json_text(config.as_dict())) and payload["fold"] < config.folds:
-            check_rows(payload["rows"])
-            done[int(payload["fold"])] = payload["rows"]
+        try:
+            payload = json.loads(path.read_text())
+            if payload.get("config") == wanted and payload["fold"] < config.folds:
+                check_rows(payload["rows"])
+                done[int(payload["fold"])] = payload["rows"]
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:  # BenchError is a ValueError
+            raise BenchError(f"{path}: expected a fold checkpoint of goniofrost bench ({{\"config\", \"fold\", "
+                             f"\"rows\"}}), found {type(exc).__name__}: {exc}; delete it to run that fold again")
     return done
+
+
+def resume_line(out: Path, config: BenchConfig, done: dict) -> str:
+    """What --resume takes over: how many of the folds, or why none (checkpoints of other options
+    are not this run's: every fold runs again, which a researcher who changed an option must know)."""
+    folder = Path(out) / "folds"
+    found = len(list(folder.glob("fold-*.json")))
+    if done:
+        return f"resume: {len(done)} of {config.folds} folds from {folder}, {config.folds - len(done)} to run"
+    why = "none there" if not found else f"{found} there, of other options"
+    return f"resume: no fold checkpoint of these options in {folder} ({why}): every fold runs"
 
 
 def run_stress(config: BenchConfig, out: Path, command: str, m: int = 20, progress: bool = True) -> list[Path]:

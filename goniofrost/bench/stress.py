@@ -331,7 +331,7 @@ def case_condition(setup: StressSetup) -> list[dict]:
 
 def run_cases(config: BenchConfig, path, names: list[str], m: int = 20, progress: bool = True) -> list[dict]:
     """Run every stress case; returns the records (see ``record``)."""
-    from tqdm import tqdm
+    from goniofrost.core.progress import progress_bar
 
     setup = StressSetup(config, path, names)
     m = min(m, setup.model.n_components)
@@ -346,7 +346,7 @@ def run_cases(config: BenchConfig, path, names: list[str], m: int = 20, progress
              lambda: case_dynamic_range(setup, designs, m), lambda: case_grazing(setup, m),
              lambda: case_condition(setup)]
     records = []
-    for case in tqdm(cases, desc="stress", unit="case", disable=not progress):
+    for case in progress_bar(cases, asked=progress, desc="stress", unit="case"):
         records += case()
     return records
 

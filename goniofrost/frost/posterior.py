@@ -139,30 +139,25 @@ def _covariance(rows: np.ndarray, w: np.ndarray, prior_var: np.ndarray) -> np.nd
     return inv_chol.T @ inv_chol
 
 
-def mean_and_variance(dictionary, mean, post: Posterior, rows, prior_var, noise, columns=None):
+def mean_and_variance(dictionary, mean, post: Posterior, columns=None):
     """Posterior mean D s_hat + mu and d_c^T Sigma d_c over every row of ``dictionary``.
 
-    dictionary: float32 (n, K); mean: (n,) mu; rows: (l, K) the sampled rows, noise: (l,) or
-    (l, c) their sigma^2 and prior_var: (K,), as given to ``fit``. columns: the posterior's
-    columns to evaluate (default all c). Returns (estimate float64 (n, c), variance float64
+    dictionary: float32 (n, K); mean: (n,) mu; post: the Posterior of ``fit``. columns: the
+    posterior's columns to evaluate (default all c). Returns (estimate float64 (n, c), variance float64
     (n, u), used int64 (u,)): the mapped estimates (mu added) and d_c^T Sigma d_c for each
     covariance group ``used[j]`` of those columns.
 
-    One chunked pass over D, one BLAS product per chunk: D @ [s_hat | F_1 | F_2 ...]. With
-    fewer samples than atoms, Sigma = A - F F^T (Woodbury; A = diag(prior_var), F = A D_l^T
-    chol(N + D_l A D_l^T)^-T, K x l), so d^T Sigma d = d^T A d - ||F^T d||^2 costs l products per
-    cell instead of K; otherwise Sigma = L L^T and d^T Sigma d = ||L^T d||^2.
+    One chunked pass over D, one BLAS product per chunk: D @ [s_hat | L_1 | L_2 ...], Sigma = L L^T
+    (Cholesky), d^T Sigma d = ||L^T d||^2: a sum of squares, exact to float32 rounding. (The
+    Woodbury form d^T A d - ||F^T d||^2 with l < K samples cost l products per cell instead of K
+    but subtracted two float32 numbers up to 1e7 times their difference: on the full grid with 26
+    samples it was 46 % off at the 99th percentile cell, 5.4 times at the worst, 0 at 2092 cells,
+    and the std file's mean square 0.3 % below the predicted error it is scaled to; not faster.)
     """
     cols = np.arange(post.coefficients.shape[1]) if columns is None else np.asarray(columns)
     used = np.unique(post.group[cols])
-    rows = np.asarray(rows, dtype=np.float64)
-    noise = np.broadcast_to(np.asarray(noise, dtype=np.float64).reshape(rows.shape[0], -1),
-                            (rows.shape[0], post.coefficients.shape[1]))
-    woodbury = rows.shape[0] < rows.shape[1]
-    factors = [_factor(rows, noise[:, np.flatnonzero(post.group == g)[0]], prior_var, post.covariances[g], woodbury)
-               for g in used]
+    factors = [np.linalg.cholesky(post.covariances[g]) for g in used]
     right = np.concatenate([post.coefficients[:, cols]] + factors, axis=1).astype(np.float32)
-    prior32 = np.asarray(prior_var, dtype=np.float32)
     n, c, width = dictionary.shape[0], cols.size, factors[0].shape[1]
     estimate, variance = np.empty((n, c)), np.empty((n, used.size))
     mu = np.asarray(mean, dtype=np.float64)
@@ -172,23 +167,10 @@ def mean_and_variance(dictionary, mean, post: Posterior, rows, prior_var, noise,
             block = np.asarray(dictionary[start:stop], dtype=np.float32)
             prod = block @ right
             estimate[start:stop] = prod[:, :c] + mu[start:stop, None]
-            base = np.einsum("ij,ij,j->i", block, block, prior32) if woodbury else 0.0
             for gi in range(used.size):
                 part = prod[:, c + gi * width:c + (gi + 1) * width]
-                quad = np.einsum("ij,ij->i", part, part)
-                variance[start:stop, gi] = np.maximum(base - quad, 0.0) if woodbury else quad
+                variance[start:stop, gi] = np.einsum("ij,ij->i", part, part)
     return estimate, variance, used
-
-
-def _factor(rows, sig2, prior_var, covariance, woodbury: bool) -> np.ndarray:
-    """F (K x l) with Sigma = A - F F^T (woodbury), or L (K x K) with Sigma = L L^T."""
-    if not woodbury:
-        return np.linalg.cholesky(covariance)
-    a_rows = rows * prior_var  # (l, K) = D_l A
-    gram = rows @ a_rows.T
-    gram[np.diag_indices_from(gram)] += sig2
-    chol = np.linalg.cholesky(gram)
-    return np.linalg.solve(chol, a_rows).T
 
 
 def prequential_errors(rows: np.ndarray, noise: np.ndarray, prior_var: np.ndarray, b: np.ndarray) -> np.ndarray:

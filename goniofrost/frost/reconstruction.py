@@ -94,12 +94,11 @@ def reconstruct_bayes(model: FrostModel, positions, values, sigmas=None,
     """
     from goniofrost.frost import posterior
 
-    unique, noise, cell_noise, post, (predicted, design, z2, energy, _, level, spread, *_) = _posterior(
+    unique, _, cell_noise, post, (predicted, design, z2, energy, _, level, spread, *_) = _posterior(
         model, positions, values, sigmas)
     mu = np.asarray(model.mean, dtype=np.float64)
     if with_std:
-        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post, model.dictionary[unique],
-                                                             posterior.prior_variance(model), noise)
+        mapped, variance, used = posterior.mean_and_variance(model.dictionary, mu, post)
         per_channel = variance[:, np.searchsorted(used, post.group)]
         std = np.sqrt((per_channel + cell_noise[:, None]) * (predicted / design))
     else:

@@ -21,7 +21,8 @@ def add_arguments(parser) -> None:
                         help="dataset spec, repeatable (default: the MERL and RGL networks in ../shared/data)")
     parser.add_argument("--quick", action="store_true",
                         help="reduced run: 2 folds, m in {10, 20, 40}, 2 Nielsen trials (max 10 descent iterations), grid 45,45,90")
-    parser.add_argument("--stress", action="store_true", help="run the numerical stress cases instead (stress.json, stress.md)")
+    parser.add_argument("--stress", action="store_true",
+                        help="run the numerical stress cases instead: every method, on fold 0 (stress.json, stress.md)")
     parser.add_argument("--folds", type=int, help="cross-validation folds (default 10; --quick 2)")
     parser.add_argument("--train", type=int, default=131, help="training materials per fold (default 131)")
     parser.add_argument("--test", type=int, default=20, help="test materials per fold (default 20)")
@@ -65,6 +66,7 @@ def run(args) -> int:
     if args.stress and given:  # the stress cases run here, in one pass: these would change nothing, silently
         raise ConfigError("command line", "--stress", "no --dask or --resume (the stress cases run in this "
                           "process, in one pass)", " ".join(given))
+    _refuse_ignored(args)
     check_output_dir(args.out)   # a bad --out fails now, not after an hour of folds
     if args.dask:   # an unreachable scheduler too, not after the tabulation
         from goniofrost.bench.executors import check_dask_address
@@ -77,6 +79,26 @@ def run(args) -> int:
     for path in paths:
         print(path)
     return 0
+
+
+def _refuse_ignored(args) -> None:
+    """Raise ConfigError for options given that the run would ignore: --stress runs every method
+    (STRESS_METHODS) on fold 0 with no simulated capture, and the simulated capture's targets are
+    of the bayes method (bench --stress --methods frost listed six methods in stress.md; --methods
+    frost --target-error 0.02 wrote no target row, both without a word)."""
+    from goniofrost.core.errors import ConfigError
+
+    if args.stress:
+        given = [option for option, value in (("--methods", args.methods), ("--folds", args.folds),
+                                              ("--target-error", args.target_error),
+                                              ("--nielsen-trials", args.nielsen_trials)) if value is not None]
+        if given:
+            raise ConfigError("command line", "--stress", "no --methods, --folds, --target-error or --nielsen-trials "
+                              "(the stress cases run every method once, on fold 0, without a simulated capture)",
+                              " ".join(given))
+    elif args.target_error is not None and args.methods is not None and "bayes" not in args.methods:
+        raise ConfigError("command line", "--target-error", "--methods with bayes (the simulated capture "
+                          "--target-error runs the Bayesian design)", ",".join(args.methods))
 
 
 def build_config(args):
