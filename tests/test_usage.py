@@ -169,7 +169,7 @@ def test_plan_times_the_selection_without_the_scenes_calibration(model_dir, tmp_
     assert main(["plan", "--model", str(model_dir), "--samples", "12", "--usage", str(uniform),
                  "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert (doc["selection_seconds"], doc["usage"]["calibration_seconds"]) == (0.0, 60.0)
+    assert doc["selection_seconds"] == 0.0 and "calibration_seconds" not in doc["usage"]
     assert capsys.readouterr().out.splitlines()[-1].endswith(", selection 0.000 s (and 60.0 s calibrating the "
                                                              "scene's error)")
 

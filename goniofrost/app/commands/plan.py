@@ -109,7 +109,8 @@ def run(args) -> int:
     selection = _select(model, args, mask, usage, scene_for)
     # the selection asks for the scene's calibrations as it goes (its predicted errors use them):
     # their fit on the training materials (a minute) is not the selection's time, which a plan
-    # without --usage reports alone (0.4 s)
+    # without --usage reports alone (0.4 s); it is printed, not written: a plan made again is the
+    # same file but for selection_seconds
     selection.seconds -= calibrating[0]
     scene = None
     if usage is not None:
@@ -143,7 +144,6 @@ def run(args) -> int:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
         doc["usage"] = {"file": str(args.usage), "hash": scene.usage_hash, "cells_used": int((usage > 0).sum()),
-                        "calibration_seconds": round(calibrating[0], 6),
                         "sensitivity_power": power, "prior_spread": spread, "spread_floor": floor, "mix": mix,
                         "predicted_errors": "usage-weighted", "error": scene.to_plan()}
     if rig is not None:
