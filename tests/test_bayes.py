@@ -149,11 +149,11 @@ def test_max_error_stops_at_the_first_pick_below_the_target(model):
 
 @pytest.mark.parametrize("kwargs, message", [
     ({}, "give exactly one of m"),
-    ({"m": 0}, r"samples m: expected an integer in \[1, 1000\], found 0"),
-    ({"m": 100000}, r"samples m: expected an integer in \[1, 1000\], found 100000"),  # not minutes of picks
+    ({"m": 0}, r"samples m \(--samples\): expected an integer in \[1, 1000\], found 0"),
+    ({"m": 100000}, r"samples m \(--samples\): expected an integer in \[1, 1000\], found 100000"),  # not minutes of picks
     ({"m": 5, "max_error": 0.1}, "give exactly one of m"),
-    ({"max_error": -1.0}, "max_error: expected a number > 0, found -1.0"),
-    ({"max_error": 1e-9}, "max_error: 1e-09 is out of reach"),
+    ({"max_error": -1.0}, r"max_error \(--max-error\): expected a number > 0, found -1.0"),
+    ({"max_error": 1e-9}, r"max_error \(--max-error\): 1e-09 is out of reach"),
     ({"m": 5, "candidates": np.zeros(3, bool)}, r"candidates: expected a bool mask of shape"),
 ])
 def test_bad_bayes_selection_options(model, kwargs, message):

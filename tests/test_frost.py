@@ -301,7 +301,7 @@ def test_candidate_mask_max_angle(model):
     ({"max_error": 1.5}, r"expected a number in \(0, 1\)"),
     ({"m": 5, "y_form": "some"}, "y_form"),
     ({"m": 5, "candidates": np.ones(3, bool)}, "bool mask of shape"),
-    ({"m": 5, "k": 3}, "k: expected"),
+    ({"m": 5, "k": 3}, r"k \(--atoms\): expected"),
 ])
 def test_bad_selection_options(model, kwargs, message):
     with pytest.raises(SelectionError, match=message):

@@ -17,7 +17,9 @@ Samples are in selection order (the planner reorders them for motion; a Bayesian
 nested, so its first m samples are the best m, and it is measured in batches: ``batch_ends``
 (``frost.stopping.batch_ends``) are the cumulative sample counts after each batch, and the
 planner orders each batch on its own, so that ``capture --target-error`` can stop after any). ``predicted_errors[i]`` is the log-relative MSE
-a typical material is predicted to have after the first i + 1 samples (``prediction.py``).
+a typical material is predicted to have after the first i + 1 design samples (``prediction.py``;
+the sentinels and check cells added to the first batch are not counted: with them ``m`` exceeds
+the list's length by ``sentinels``).
 Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
 frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
 """

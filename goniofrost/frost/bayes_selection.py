@@ -277,7 +277,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                 break
             start_m = last
     if max_error is not None and predicted[-1] > max_error:
-        raise SelectionError(f"max_error: {max_error:g} not reached with {picked.rows.size} samples (predicted "
+        raise SelectionError(f"max_error (--max-error): {max_error:g} not reached with {picked.rows.size} samples (predicted "
                              f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
     return Selection(positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
@@ -430,17 +430,17 @@ def _check(m, max_error, n_candidates: int, calibration: dict, noise_total: floa
     if m is not None:
         if not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PICKS:
             # each pick reads the whole dictionary: 100000 picks ran for longer than 10 minutes
-            raise SelectionError(f"samples m: expected an integer in [1, {MAX_PICKS}], found {m!r}")
+            raise SelectionError(f"samples m (--samples): expected an integer in [1, {MAX_PICKS}], found {m!r}")
         if m > n_candidates:
             raise SelectionError(f"candidates: {n_candidates} allowed cells, fewer than the {m} samples asked for")
         return int(m)
     if not (isinstance(max_error, (int, float)) and np.isfinite(max_error) and max_error > 0):
-        raise SelectionError(f"max_error: expected a number > 0, found {max_error!r}")
+        raise SelectionError(f"max_error (--max-error): expected a number > 0, found {max_error!r}")
     if calibration is None:
         return min(n_candidates, MAX_PICKS)
     floor = float(predict_typical(calibration, noise_total, calibration["m_range"][1]))
     if max_error <= floor:
         raise SelectionError(
-            f"max_error: {max_error:g} is out of reach: the model's own representation error alone "
+            f"max_error (--max-error): {max_error:g} is out of reach: the model's own representation error alone "
             f"predicts {floor:.4g} however many samples are taken; ask for more than that")
     return min(n_candidates, MAX_PICKS)

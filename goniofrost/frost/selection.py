@@ -138,16 +138,16 @@ def _check_options(model, m, max_error, y_form, k) -> tuple[int, int]:
         raise SelectionError("selection: give exactly one of m (--samples) and max_error (--max-error)")
     if m is not None:
         if not isinstance(m, (int, np.integer)) or not 1 <= m <= n_atoms:
-            raise SelectionError(f"samples m: expected an integer in [1, {n_atoms}] (the model's components), found {m!r}")
+            raise SelectionError(f"samples m (--samples): expected an integer in [1, {n_atoms}] (the model's components), found {m!r}")
         k = m if k is None else k
         if not isinstance(k, (int, np.integer)) or not m <= k <= n_atoms:
-            raise SelectionError(f"k: expected an integer in [m={m}, {n_atoms}], found {k!r}")
+            raise SelectionError(f"k (--atoms): expected an integer in [m={m}, {n_atoms}], found {k!r}")
         return int(k), int(m)
     if not (isinstance(max_error, (int, float)) and 0.0 < max_error < 1.0):
-        raise SelectionError(f"max_error: expected a number in (0, 1), found {max_error!r}")
+        raise SelectionError(f"max_error (--max-error): expected a number in (0, 1), found {max_error!r}")
     k = n_atoms if k is None else k
     if not isinstance(k, (int, np.integer)) or not 1 <= k <= n_atoms:
-        raise SelectionError(f"k: expected an integer in [1, {n_atoms}], found {k!r}")
+        raise SelectionError(f"k (--atoms): expected an integer in [1, {n_atoms}], found {k!r}")
     return int(k), int(k)
 
 
