@@ -935,3 +935,28 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
                                                      spread_floor=0.0, mix=0.5).positions.tolist()
     assert not np.array_equal(mixed_weights(model, usage, 0.5, 1.0, 0.0, 0.0, 0.5)[0],
                               mixed_weights(model, usage, 0.5, 1.0, 1.0, 0.0, 0.5)[0])
+
+
+def test_the_scenes_calibration_is_fitted_once_and_read_back_with_the_same_numbers(model, monkeypatch):
+    """plan --usage fitted the scene's calibration on the training materials on every run (a minute
+    on the full grid); the cache keeps it under the model, the map and the design: the second call
+    maps nothing and returns what the first did (as JSON, what PLAN.json carries), and another map
+    or power is fitted anew."""
+    import json
+
+    from goniofrost.frost import training
+    from goniofrost.frost.usage_calibration import calibrate_scene, calibrate_scene_cached
+
+    usage = retro_map()
+    first = calibrate_scene_cached(model, usage, 1.0)
+    assert json.dumps(first) == json.dumps(calibrate_scene(model, usage, 1.0))
+    real = training.remap
+    monkeypatch.setattr(training, "remap", lambda *a, **k: pytest.fail("mapped again"))
+    assert calibrate_scene_cached(model, usage, 1.0) == first
+    monkeypatch.setattr(training, "remap", real)
+    uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
+    calls = []
+    monkeypatch.setattr(training, "remap", lambda *a, **k: calls.append(1) or real(*a, **k))
+    calibrate_scene_cached(model, uniform, 1.0)
+    calibrate_scene_cached(model, usage, 2.0)
+    assert len(calls) == 2

@@ -55,6 +55,35 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
     return fit_calibration(records)
 
 
+# The cached calibrations' version: bump it when calibrate_scene's result changes for the same inputs.
+CACHE_VERSION = "scene-calibration-v1"
+
+
+def calibrate_scene_cached(model, usage: np.ndarray, sensitivity_power: float, progress: bool = False,
+                           prior_spread: float | None = None, spread_floor: float | None = None,
+                           mix: float = 0.0) -> dict:
+    """``calibrate_scene`` (HEDGE), kept in the goniofrost cache under the model's content hash,
+    the usage map's bytes and the design's parameters: the same plan --usage again (a minute on
+    the full grid, the training materials mapped again) reads it back, also when the training
+    materials are no longer at hand. The entry is the JSON PLAN.json carries."""
+    import hashlib
+    import json
+
+    from goniofrost.core import cache as disk_cache
+    from goniofrost.core.atomic_file import write_text_atomic
+
+    digest = hashlib.sha256(np.ascontiguousarray(usage, dtype=np.float64).tobytes()).hexdigest()
+    key = disk_cache.content_key(CACHE_VERSION, model.content_hash, digest, sensitivity_power, HEDGE,
+                                 prior_spread, spread_floor, mix)
+    path = disk_cache.cache_path("scene-calibrations", key, ".json")
+    if path.is_file():
+        return json.loads(path.read_text())
+    fitted = calibrate_scene(model, usage, sensitivity_power, progress, HEDGE, prior_spread, spread_floor, mix)
+    text = json.dumps(fitted, allow_nan=False)
+    write_text_atomic(path, text)
+    return json.loads(text)  # what a later run reads: the same numbers, the same types
+
+
 def _band_spread(power: float, spread, floor) -> tuple[float, float]:
     """(t, F) of ``calibrate_scene``'s design: each given one, else its power's band's (the floor
     the band's only when the spread is too; else 0, no floor)."""

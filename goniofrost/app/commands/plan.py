@@ -178,12 +178,12 @@ def _scene_error(model, usage, power, spread, floor, mix=0.0):
 
     from goniofrost.frost.scene_error import scene_error
     from goniofrost.frost.training import TrainingError
-    from goniofrost.frost.usage_calibration import calibrate_scene
+    from goniofrost.frost.usage_calibration import calibrate_scene_cached
 
     digest = hashlib.sha256(usage.astype("float32").tobytes()).hexdigest()[:16]
     try:
-        calibration, unavailable = calibrate_scene(model, usage, power, progress=True, prior_spread=spread,
-                                                   spread_floor=floor, mix=mix), None
+        calibration, unavailable = calibrate_scene_cached(model, usage, power, progress=True, prior_spread=spread,
+                                                          spread_floor=floor, mix=mix), None
     except TrainingError as exc:
         calibration, unavailable = None, f"no calibration of the error in the scene's use: {exc}"
         print(f"warning: {unavailable}; capture --target-error cannot use this plan", file=sys.stderr)
