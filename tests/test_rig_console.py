@@ -331,6 +331,23 @@ def test_snap_refuses_a_bad_option_before_it_connects(tmp_path, monkeypatch, cap
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("option, message", [
+    (["--watch", "--interval", "nan", "--count", "1"], "--interval: expected a positive number of seconds, found nan"),
+    (["--watch", "--interval", "-1", "--count", "1"], "--interval: expected a positive number of seconds, found -1"),
+    (["--watch", "--count", "0"], "--count: expected a number of readings >= 1, found 0"),
+    (["--count", "2"], "--interval and --count apply to --watch only"),
+    (["--interval", "5"], "--interval and --count apply to --watch only"),
+])
+def test_status_refuses_a_bad_watch_option_before_it_connects(tmp_path, monkeypatch, capsys, option, message):
+    # --interval nan read once, then ended in time.sleep's ValueError traceback (exit 1); --count 0
+    # read once; either without --watch was ignored. Refused before the rig is opened: on the
+    # simulated rig a status that went ahead would start the twins.
+    monkeypatch.chdir(tmp_path)
+    assert main(["rig", "status", "--rig", str(SIM_RIG), *option]) == 2
+    assert capsys.readouterr() == ("", f"goniofrost rig: error: {message}\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_move_of_a_stage_that_is_not_homed_says_to_home_it(capsys):
     # each command on a simulated rig file starts fresh devices, so a move alone meets an unhomed
     # stage and the message says what to do
