@@ -348,6 +348,14 @@ def test_status_refuses_a_bad_watch_option_before_it_connects(tmp_path, monkeypa
     assert list(tmp_path.iterdir()) == []
 
 
+def test_home_refuses_an_axis_named_twice_before_it_asks_or_connects(tmp_path, monkeypatch, capsys):
+    # it asked, homed and said "homing sample_tilt, sample_tilt"; rig move refuses the same
+    monkeypatch.chdir(tmp_path)
+    assert main(["rig", "home", "--rig", str(SIM_RIG), "sample_tilt", "sample_tilt", "--yes"]) == 2
+    assert capsys.readouterr() == ("", "goniofrost rig: error: 'sample_tilt': axis sample_tilt is given twice\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_move_of_a_stage_that_is_not_homed_says_to_home_it(capsys):
     # each command on a simulated rig file starts fresh devices, so a move alone meets an unhomed
     # stage and the message says what to do

@@ -158,6 +158,9 @@ def run_home(args) -> int:
     unknown = [a for a in axes if a not in rig.axes]
     if unknown:
         raise ConsoleError(f"no axis {unknown[0]!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+    twice = next((a for k, a in enumerate(axes) if a in axes[:k]), None)
+    if twice is not None:  # as rig move refuses it; home read "homing sample_tilt, sample_tilt"
+        raise ConsoleError(f"{twice!r}: axis {twice} is given twice")
     if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
         raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
     with connected_rig(rig, enable=True, program="rig home") as hardware:
