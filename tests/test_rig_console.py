@@ -146,6 +146,8 @@ def test_status_reports_aligned_positions_with_the_rig_alignment(twins, tmp_path
 @pytest.mark.parametrize("target, message", [
     ("sample_tilt=85", "sample_tilt: target 85 deg is outside its limits [-80, 80] deg"),
     ("camera_arm=200", "camera_arm: target 200 deg is outside its limits [8, 172] deg"),
+    # it read "target -180 deg is outside its limits [-180, 180]"
+    ("sample_yaw=-180.00001", "sample_yaw: target -180.00001 deg is outside its limits [-180, 180] deg"),
     ("nosuch=1", "'nosuch=1': no axis 'nosuch'"),
     ("camera_arm=ten", "'camera_arm=ten': 'ten' is not a number of degrees"),
 ])
