@@ -146,6 +146,20 @@ def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in
     assert frame_files(second, "dark_") and frame_files(second, "flat_")
 
 
+def test_a_queue_whose_standard_input_ended_measures_nothing_without_an_answer(setup, tmp_path, capsys,
+                                                                               monkeypatch):
+    # the end of input was read as Enter: every sample was measured with whatever stood on the stage
+    folder, rig, plan, _ = setup
+    queue = write_queue(tmp_path / "queue.yaml", rig, plan)
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # < /dev/null, cron: no one to press Enter
+    assert main(["queue", str(queue), "--no-progress"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "goniofrost queue: error: queue 1/2: no one answered (standard input ended) to mount sample S-001: it was "
+        "not measured; run the queue where an operator can press Enter, or pass --yes (a sample changer, the "
+        "simulated rig)")
+    assert not (tmp_path / "sessions").exists()
+
+
 def test_a_bad_queue_file_is_one_line_and_nothing_is_made(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     queue = write_queue(tmp_path / "queue.yaml", rig, plan)
