@@ -314,3 +314,19 @@ def test_the_rig_files_lab_section_is_checked(setup, tmp_path, capsys):
     assert capsys.readouterr().err == (f"goniofrost capture: error: {bad}: lab.lense: expected one of the keys "
                                        f"lab, lens, lamp, found \"unknown key 'lense'\"\n")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_killed_runs_duration_ends_at_its_own_last_sample_not_the_resumed_runs(monkeypatch, tmp_path):
+    from types import SimpleNamespace
+
+    import goniofrost.monitor.catalogue as catalogue
+
+    # run 1 started at 1000, committed samples at 1004 and 1006, was killed; run 2 resumed at 1030,
+    # committed at 1035 and ended at 1040. It read (1035 - 1000) + (1040 - 1030) = 45 s.
+    done = [SimpleNamespace(committed_utc=t) for t in (1004.0, 1006.0, 1035.0)]
+    view = SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
+                           nothing_measured=False, done=done, not_measured=[], label={}, material=None,
+                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, first_started_utc=1000.0,
+                           run_spans=((1000.0, None), (1030.0, 1040.0)))
+    monkeypatch.setattr(catalogue, "read_session", lambda folder: view)
+    assert catalogue.read_entry(tmp_path).duration_s == 6.0 + 10.0
