@@ -592,3 +592,38 @@ def test_sigma_columns_are_all_or_none_and_numbers(model, tables, tmp_path):
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(ReconstructionError, match="data row 2: column sigma_b: expected a number, found 'abc'"):
         sample_sigmas(path, read_samples_csv(path, GRID)[2])
+
+
+def test_a_negative_sample_sigma_is_refused_as_a_standard_deviation_naming_its_column(model, tables, tmp_path,
+                                                                                      capsys):
+    from goniofrost.app.cli import main
+
+    model.save(tmp_path / "model")
+    lines = samples_csv(model, tables[0], np.arange(0, 300, 50), sigma=True).splitlines()
+    fields = lines[2].split(",")
+    lines[2] = ",".join(fields[:7] + ["-0.5"] + fields[8:])  # sigma_g of the second sample
+    (tmp_path / "s.csv").write_text("\n".join(lines) + "\n")
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(tmp_path / "o.binary")]) == 2
+    # it read "data row 2 sigma: negative value -0.5 in channel g; expected a finite BRDF >= 0 (1/sr)"
+    assert capsys.readouterr().err == (f"goniofrost reconstruct: error: {tmp_path / 's.csv'}: data row 2: negative "
+                                       f"value -0.5 in column sigma_g; expected a finite standard deviation >= 0 "
+                                       f"(1/sr)\n")
+    assert not list(tmp_path.glob("o*"))
+
+
+@pytest.mark.parametrize("in_the_way", ["o.std.binary", "o.json"])
+def test_reconstruct_refuses_a_folder_in_place_of_any_of_its_three_files_before_writing_one(
+        in_the_way, model, tables, tmp_path, capsys):
+    from goniofrost.app.cli import main
+
+    model.save(tmp_path / "model")
+    (tmp_path / "s.csv").write_text(samples_csv(model, tables[0], np.arange(0, 300, 50)))
+    out = tmp_path / "out"
+    (out / in_the_way).mkdir(parents=True)
+    assert main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out / "o.binary")]) == 2
+    assert capsys.readouterr().err == (f"goniofrost reconstruct: error: {out / in_the_way}: cannot write: it is a "
+                                       f"directory; give a file name\n")
+    # o.binary (and o.std.binary) used to be written before the folder was found
+    assert sorted(p.name for p in out.iterdir()) == [in_the_way]

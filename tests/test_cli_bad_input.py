@@ -151,6 +151,21 @@ def test_export_refuses_a_file_of_more_than_1_gb_before_any_work(options, words,
     assert _tree(tmp_path) == []
 
 
+@pytest.mark.parametrize("options, line", [
+    (["--theta-i", "100000"], "--theta-i 100000, --sample 128: the file would hold 19.7 GB of values; expected at "
+                              "most 1 GB (the defaults hold 9 MB of rgb values)"),
+    (["--format", "pbrt", "--wavelengths", "100000"], "--theta-i 48, --sample 128, --wavelengths 100000: the file "
+     "would hold 314.6 GB of values; expected at most 1 GB (the defaults hold 101 MB of spectra)"),
+])
+def test_export_compares_a_too_large_table_with_the_defaults_table_of_its_own_format(options, line, binary,
+                                                                                     tmp_path, capsys):
+    """It said "(the defaults write 9 MB in RGB)" for every format: the rgb table alone, beside a
+    default RGB file of 13.7 MB, and not the spectral table (101 MB) a spectral export is."""
+    assert _refused(capsys, ["export", binary, *options, "--out", tmp_path / "e.bsdf"]) == \
+        f"goniofrost export: error: {line}"
+    assert _tree(tmp_path) == []
+
+
 # ----- preview, export, compare: a MERL file with holes -------------------------------------------
 def _damaged(binary: Path, folder: Path, kind: str) -> Path:
     """A copy of ``binary`` (10 x 10 x 20) with holes at the valid cells (2, 3, 4) and (5, 1, 0) and

@@ -426,3 +426,14 @@ def test_a_short_plan_runs_on_the_engine_core_without_a_journal(table, tmp_path)
                                       "command again")
     assert runner.run_end.status is RunStatus.FAULT and runner.run_end.axis == "theta_o"
     assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False
+
+
+def test_a_queues_white_reference_re_measured_counts_as_calibration_time():
+    from goniofrost.capture.engine import SessionStats
+
+    # a queue's second sample re-measures only the white reference (phase "white_reference"): its
+    # summary read "this run: calibration 0.0 s"
+    assert SessionStats(phase_s={"white_reference": 0.25, "samples": 9.0}).calibration_s == 0.25
+    # the lamp drifted: the re-measured white reference and the full calibration after it
+    assert SessionStats(phase_s={"white_reference": 0.25, "calibration": 4.5}).calibration_s == 4.75
+    assert SessionStats(phase_s={"calibration": 4.5, "samples": 9.0}).calibration_s == 4.5

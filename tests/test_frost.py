@@ -414,6 +414,27 @@ def test_plan_and_reconstruct_commands(model, tmp_path):
     assert np.isnan(brdf[~GRID.valid_mask]).all() and np.all(brdf[GRID.valid_mask] >= 0)
 
 
+def test_a_plan_names_its_model_from_its_own_folder_so_a_capture_finds_it_from_any_folder(model, tmp_path,
+                                                                                          monkeypatch):
+    from pathlib import Path
+
+    from goniofrost.capture.inputs import resolve_model_path
+
+    model.save(tmp_path / "model")
+    monkeypatch.chdir(tmp_path)  # plan --model model --out sub/plan.json recorded "model": no model from sub/
+    assert main(["plan", "--model", "model", "--samples", "3", "--out", "sub/plan.json"]) == 0
+    doc = read_plan(tmp_path / "sub" / "plan.json")
+    assert doc["model"]["path"] == "../model"
+    monkeypatch.chdir(tmp_path / "sub")
+    assert resolve_model_path(doc, Path("plan.json")) == Path("../model")
+    doc["model"]["path"] = "gone"
+    with pytest.raises(ConfigError) as refused:
+        resolve_model_path(doc, tmp_path / "sub" / "plan.json")
+    assert str(refused.value) == (f"{tmp_path}/sub/plan.json: model.path: expected a model folder from goniofrost "
+                                  f"train ({tmp_path}/sub/gone beside the plan, or gone from the current folder), "
+                                  f"found 'gone'")
+
+
 def test_plan_max_error_command(model, tmp_path):
     model.save(tmp_path / "model")
     plan = tmp_path / "plan.json"

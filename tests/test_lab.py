@@ -148,6 +148,20 @@ def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in
     assert frame_files(second, "dark_") and frame_files(second, "flat_")
 
 
+def test_a_queue_whose_standard_input_ended_measures_nothing_without_an_answer(setup, tmp_path, capsys,
+                                                                               monkeypatch):
+    # the end of input was read as Enter: every sample was measured with whatever stood on the stage
+    folder, rig, plan, _ = setup
+    queue = write_queue(tmp_path / "queue.yaml", rig, plan)
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # < /dev/null, cron: no one to press Enter
+    assert main(["queue", str(queue), "--no-progress"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "goniofrost queue: error: queue 1/2: no one answered (standard input ended) to mount sample S-001: it was "
+        "not measured; run the queue where an operator can press Enter, or pass --yes (a sample changer, the "
+        "simulated rig)")
+    assert not (tmp_path / "sessions").exists()
+
+
 def test_a_bad_queue_file_is_one_line_and_nothing_is_made(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     queue = write_queue(tmp_path / "queue.yaml", rig, plan)
@@ -302,3 +316,19 @@ def test_the_rig_files_lab_section_is_checked(setup, tmp_path, capsys):
     assert capsys.readouterr().err == (f"goniofrost capture: error: {bad}: lab.lense: expected one of the keys "
                                        f"lab, lens, lamp, found \"unknown key 'lense'\"\n")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_killed_runs_duration_ends_at_its_own_last_sample_not_the_resumed_runs(monkeypatch, tmp_path):
+    from types import SimpleNamespace
+
+    import goniofrost.monitor.catalogue as catalogue
+
+    # run 1 started at 1000, committed samples at 1004 and 1006, was killed; run 2 resumed at 1030,
+    # committed at 1035 and ended at 1040. It read (1035 - 1000) + (1040 - 1030) = 45 s.
+    done = [SimpleNamespace(committed_utc=t) for t in (1004.0, 1006.0, 1035.0)]
+    view = SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
+                           nothing_measured=False, done=done, not_measured=[], label={}, material=None,
+                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, first_started_utc=1000.0,
+                           run_spans=((1000.0, None), (1030.0, 1040.0)))
+    monkeypatch.setattr(catalogue, "read_session", lambda folder: view)
+    assert catalogue.read_entry(tmp_path).duration_s == 6.0 + 10.0

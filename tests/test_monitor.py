@@ -404,6 +404,15 @@ def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_por
     assert f"monitor: cannot serve on 127.0.0.1:{port}" in capsys.readouterr().err
 
 
+def test_a_host_address_this_computer_does_not_have_says_to_pass_another_host(tmp_path, capsys):
+    # 192.0.2.1 (TEST-NET-1, RFC 5737) is no address of this computer: binding it is refused at
+    # once; the message said "pass another --port" for it
+    assert main(["monitor", str(tmp_path), "--host", "192.0.2.1", "--port", "0"]) == 2
+    assert capsys.readouterr().err == (
+        "goniofrost monitor: error: monitor: cannot serve on 192.0.2.1:0 (Cannot assign requested address); "
+        "pass another --host (an address of this computer, e.g. 127.0.0.1)\n")
+
+
 def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_show(finished):
     from goniofrost.brdf.preview import preview_of
     from goniofrost.capture.report import reconstruct_session

@@ -84,7 +84,8 @@ def device_table(reports) -> str:
 def run_status(args) -> int:
     from goniofrost.capture.console import connected_rig, read_status
 
-    rig = _load(args)
+    interval = _watch_interval(args)
+    rig = _load(args)  # the options first: a bad one connects nothing
     with connected_rig(rig, enable=False, program="rig status") as hardware:
         n = 0
         while True:
@@ -93,7 +94,20 @@ def run_status(args) -> int:
             n += 1
             if not args.watch or (args.count is not None and n >= args.count):
                 return 0
-            time.sleep(max(args.interval, 0.05))  # the operator's refresh rate, not a synchronisation
+            time.sleep(max(interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _watch_interval(args) -> float:
+    """The seconds between ``--watch`` readings (default 1), after checking ``--interval`` and
+    ``--count``: ``--interval nan`` read once and then ended in time.sleep's ValueError traceback,
+    ``--count 0`` still read once, and either without ``--watch`` changed nothing, silently."""
+    if not args.watch and (args.interval is not None or args.count is not None):
+        raise GoniofrostError("--interval and --count apply to --watch only")
+    if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
+        raise GoniofrostError(f"--interval: expected a positive number of seconds, found {args.interval:g}")
+    if args.count is not None and args.count < 1:
+        raise GoniofrostError(f"--count: expected a number of readings >= 1, found {args.count}")
+    return 1.0 if args.interval is None else args.interval
 
 
 def _status_text(readings, lamp, as_json: bool) -> str:
@@ -144,6 +158,9 @@ def run_home(args) -> int:
     unknown = [a for a in axes if a not in rig.axes]
     if unknown:
         raise ConsoleError(f"no axis {unknown[0]!r} in {rig.source} (axes: {', '.join(rig.axes)})")
+    twice = next((a for k, a in enumerate(axes) if a in axes[:k]), None)
+    if twice is not None:  # as rig move refuses it; home read "homing sample_tilt, sample_tilt"
+        raise ConsoleError(f"{twice!r}: axis {twice} is given twice")
     if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
         raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
     with connected_rig(rig, enable=True, program="rig home") as hardware:

@@ -55,14 +55,16 @@ def check_targets(rig, targets: Mapping[str, float]) -> None:
     for name, deg in targets.items():
         spec = rig.axes[name]
         lo, hi = spec.limits_deg
+        # the target to 10 digits: at 6 ("{:g}") sample_yaw=-180.00001 read "target -180 deg is
+        # outside its limits [-180, 180]"
         if not lo <= deg <= hi:
-            raise ConsoleError(f"{name}: target {deg:g} deg is outside its limits [{lo:g}, {hi:g}] deg "
+            raise ConsoleError(f"{name}: target {deg:.10g} deg is outside its limits [{lo:g}, {hi:g}] deg "
                                f"(axes.{name}.limits_deg of {rig.source}); nothing was moved")
         if spec.role is Role.SAMPLE_TILT and abs(deg) > rig.geometry.tilt_limit_deg:
-            raise ConsoleError(f"{name}: target {deg:g} deg is beyond the stage's tilt limit "
+            raise ConsoleError(f"{name}: target {deg:.10g} deg is beyond the stage's tilt limit "
                                f"+-{rig.geometry.tilt_limit_deg:g} deg (geometry.tilt_limit_deg); nothing was moved")
         if spec.role is Role.CAMERA_ARM and abs(deg) < rig.geometry.min_arm_separation_deg:
-            raise ConsoleError(f"{name}: target {deg:g} deg brings the camera closer to the lamp than "
+            raise ConsoleError(f"{name}: target {deg:.10g} deg brings the camera closer to the lamp than "
                                f"{rig.geometry.min_arm_separation_deg:g} deg (geometry.min_arm_separation_deg); "
                                f"nothing was moved")
 

@@ -50,8 +50,8 @@ log = logging.getLogger(__name__)
 @dataclass
 class SessionStats:
     """Times and counts of this run: motion and capture in session-clock seconds (simulated on a
-    simulated rig), the parts of the session (``phase_s``: "calibration", "samples") and the
-    whole run in real seconds."""
+    simulated rig), the parts of the session (``phase_s``: "calibration", "white_reference",
+    "samples") and the whole run in real seconds."""
 
     motion_s: float = 0.0
     capture_s: float = 0.0
@@ -67,8 +67,10 @@ class SessionStats:
 
     @property
     def calibration_s(self) -> float:
-        """Real seconds spent calibrating in this run."""
-        return self.phase_s.get("calibration", 0.0)
+        """Real seconds spent calibrating in this run: a queue's white reference re-measured with the
+        kept dark frames and flat field is calibration too (its own phase; the summary said
+        "calibration 0.0 s" for it), and a full calibration after it when the lamp drifted."""
+        return self.phase_s.get("calibration", 0.0) + self.phase_s.get("white_reference", 0.0)
 
 
 class SessionEngine(PlanRunner):

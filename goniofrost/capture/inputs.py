@@ -86,12 +86,16 @@ def check_drills(plan: dict, rig) -> None:
 
 
 def resolve_model_path(plan: dict, plan_path: Path) -> Path:
-    """The plan's model path: as written, else relative to the plan file's folder."""
+    """The plan's model folder: ``model.path`` relative to the plan file's folder (as ``plan``
+    writes it: ``plan_file.model_path_for_plan``), else relative to the current folder (plans
+    written before, which recorded the path as typed)."""
     written = Path(_field(plan, plan_path, "model", dict)["path"])
-    if written.is_absolute() or written.exists():
-        return written
-    beside = plan_path.parent / written
-    return beside if beside.exists() else written
+    beside = plan_path.parent / written  # the written path itself when it is absolute
+    for candidate in (beside, written):
+        if candidate.exists():
+            return candidate
+    raise ConfigError(plan_path, "model.path", f"a model folder from goniofrost train ({beside} beside the plan, "
+                      f"or {written} from the current folder)", str(written))
 
 
 def check_model(plan: dict, plan_path, model, model_path) -> None:

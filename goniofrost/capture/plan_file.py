@@ -40,6 +40,19 @@ SAMPLE_FIELDS = ("cell", "theta_h_deg", "theta_d_deg", "phi_d_deg", "theta_i_deg
 TOP_FIELDS = ("model", "m", "selection_seconds", "samples")
 
 
+def model_path_for_plan(model_path, plan_path) -> str:
+    """The model folder as PLAN.json at ``plan_path`` records it: relative to the plan's folder, or
+    absolute when given so. Why not as typed: a path relative to the folder ``plan`` ran in named
+    nothing to a capture run from the plan's folder or anywhere else (``plan --model model --out
+    sub/plan.json``, then ``capture --plan plan.json`` in ``sub``); ``capture.inputs.resolve_model_path``
+    reads it beside the plan."""
+    import os
+
+    if Path(model_path).is_absolute():
+        return str(model_path)
+    return os.path.relpath(os.path.abspath(model_path), os.path.abspath(Path(plan_path).parent))
+
+
 def plan_document(model_path, model: FrostModel, selection: Selection) -> dict:
     """The PLAN.json content (a JSON-ready dict) for a selection made with ``model``."""
     doc = {

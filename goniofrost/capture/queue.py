@@ -72,11 +72,18 @@ def calibration_of(session_dir: Path) -> dict | None:
 
 
 def ask_to_mount(sample: QueueSample, position: str) -> None:
-    """Ask the operator to mount ``sample`` (Enter goes on; Ctrl-C stops the queue, resumable)."""
+    """Ask the operator to mount ``sample`` (Enter goes on; Ctrl-C stops the queue, resumable).
+
+    The end of standard input is no answer (a queue started without a terminal, ``< /dev/null``,
+    from cron): GoniofrostError before this sample is measured. It was read as Enter, and every
+    sample of the queue was measured with whatever stood on the stage, under its sample id."""
     what = f" ({sample.material})" if sample.material else ""
     print(f"queue {position}: mount sample {sample.sample_id}{what} on the stage, then press Enter "
           f"(Ctrl-C stops the queue; the same command resumes it)", file=sys.stderr, flush=True)
-    sys.stdin.readline()
+    if not sys.stdin.readline():
+        raise GoniofrostError(f"queue {position}: no one answered (standard input ended) to mount sample "
+                              f"{sample.sample_id}: it was not measured; run the queue where an operator can press "
+                              f"Enter, or pass --yes (a sample changer, the simulated rig)")
 
 
 def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,

@@ -220,7 +220,8 @@ def _average_with_sigmas(model, positions, values, sigmas):
     sigmas = np.asarray(sigmas, dtype=np.float64)
     if sigmas.shape != values.shape:
         raise ReconstructionError(f"sigmas: expected shape {values.shape} like the values, found {sigmas.shape}")
-    check_values(sigmas, lambda i: f"sample {i} standard deviation")
+    check_values(sigmas, lambda i: f"sample {i} standard deviation",
+                 expected="a finite standard deviation >= 0 (1/sr)")
     _, var_sum = average_duplicates(positions, sigmas ** 2)
     counts = np.bincount(np.searchsorted(unique, positions), minlength=unique.size)[:, None]
     sigma_mean = np.sqrt(var_sum / counts)
@@ -284,11 +285,13 @@ def _check_samples(model: FrostModel, positions, values):
     return positions.astype(np.int64), values
 
 
-def check_values(values: np.ndarray, where) -> None:
-    """Refuse NaN, inf and negative BRDF values, naming the first offending sample."""
+def check_values(values: np.ndarray, where, columns=("channel r", "channel g", "channel b"),
+                 expected: str = "a finite BRDF >= 0 (1/sr)") -> None:
+    """Refuse NaN, inf and negative values (l, 3), naming the first offending sample (``where(i)``),
+    its column (``columns``: one name per column) and what a value must be (``expected``: the
+    samples' standard deviations are checked here too, and are no BRDF)."""
     for test, what in ((np.isnan, "NaN"), (np.isinf, "infinite"), (lambda v: v < 0, "negative")):
         bad = np.argwhere(test(values))
         if bad.size:
             i, c = bad[0]
-            raise ReconstructionError(
-                f"{where(i)}: {what} value {values[i, c]} in channel {'rgb'[c]}; expected a finite BRDF >= 0 (1/sr)")
+            raise ReconstructionError(f"{where(i)}: {what} value {values[i, c]} in {columns[c]}; expected {expected}")

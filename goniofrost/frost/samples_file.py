@@ -54,7 +54,8 @@ def sample_sigmas(path, extra: dict) -> np.ndarray | None:
                 out[i, j] = float(text)
             except ValueError:
                 raise ReconstructionError(f"{path}: data row {i + 1}: column {name}: expected a number, found {text!r}") from None
-    check_values(out, lambda i: f"{path}: data row {i + 1} sigma")
+    check_values(out, lambda i: f"{path}: data row {i + 1}", tuple(f"column {name}" for name in SIGMA_COLUMNS),
+                 "a finite standard deviation >= 0 (1/sr)")
     return out
 
 

@@ -77,12 +77,12 @@ def read_entry(session_dir: Path) -> SessionEntry:
     """The catalogue entry of the session in ``session_dir`` (read-only)."""
     view = read_session(session_dir)
     label, state = view.label or {}, session_state(view)
-    last_commit = max((d.committed_utc for d in (*view.done, *view.not_measured)), default=None)
+    commits = [d.committed_utc for d in (*view.done, *view.not_measured)]
     duration = 0.0
     for k, (start, end) in enumerate(view.run_spans):
-        if end is None:  # under way (now), or killed: until its last sample, if it took one after it started
+        if end is None:  # under way (now), or killed: until its own last sample, if it took one
             live = state == "running" and k == len(view.run_spans) - 1
-            end = time.time() if live else max(start, last_commit or start)
+            end = time.time() if live else _last_commit_of_run(commits, view.run_spans, k)
         duration += max(0.0, end - start)
     return SessionEntry(name=Path(session_dir).name, path=str(session_dir), started_utc=view.first_started_utc,
                         operator=label.get("operator"), sample_id=label.get("sample_id"), material=view.material,
@@ -90,6 +90,16 @@ def read_entry(session_dir: Path) -> SessionEntry:
                         samples=len(view.done), samples_planned=len(view.plan),
                         predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured),
                         problem=view.unreadable or None)
+
+
+def _last_commit_of_run(commits: list, spans: tuple, k: int) -> float:
+    """The last sample committed by run ``k`` of ``spans`` (its start when it committed none):
+    commits at or after its start and before the next run's. The session's last commit counted a
+    killed run until the end of the run that resumed it (a run killed before its first sample and
+    resumed at once made a 20 s session read 48 s)."""
+    start = spans[k][0]
+    until = spans[k + 1][0] if k + 1 < len(spans) else float("inf")
+    return max((t for t in commits if start <= t < until), default=start)
 
 
 def session_folders(root: Path) -> list[Path]:

@@ -37,6 +37,7 @@ no picture of their own; the last one does before the server stops.
 """
 from __future__ import annotations
 
+import errno
 import io
 import json
 import logging
@@ -203,6 +204,15 @@ class PictureCache:
         return made, data, info, error, 0.0
 
 
+def _bind_remedy(exc: OSError) -> str:
+    """What to change when the address cannot be bound: a name that does not resolve or an address
+    this computer does not have is the --host's problem (the message said to pass another --port
+    for --host 999.1.1.1), anything else (a port in use, a privileged port) the --port's."""
+    if isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL:
+        return "pass another --host (an address of this computer, e.g. 127.0.0.1)"
+    return "pass another --port (0 picks a free one)"
+
+
 class MonitorServer:
     """Serve the monitor page of ``session_dir`` on ``host:port`` (port 0: any free port).
 
@@ -225,7 +235,7 @@ class MonitorServer:
             self.httpd = _PooledServer((host, port), handler)
         except OSError as exc:
             raise MonitorError(f"monitor: cannot serve on {host}:{port} ({exc.strerror or exc}); "
-                               f"pass another --port (0 picks a free one)") from None
+                               f"{_bind_remedy(exc)}") from None
         self.host = host
         self.port = self.httpd.server_address[1]
         self._threads: list[threading.Thread] = []

@@ -46,7 +46,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from goniofrost.capture.plan_file import plan_document, write_plan
+    from goniofrost.capture.plan_file import model_path_for_plan, plan_document, write_plan
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
 
@@ -135,7 +135,7 @@ def run(args) -> int:
                  else ")")
               + (f", mixed {1 - mix:g} / {mix:g} with the weights of p = {MIX_DESIGN[0]:g} (t up to "
                  f"{MIX_DESIGN[1]:g}, {MIX_DESIGN[2]:g} effective cells)" if mix else ""))
-    doc = plan_document(args.model, model, selection)
+    doc = plan_document(model_path_for_plan(args.model, args.out), model, selection)
     if args.sentinels is not False and args.selector == "bayes" and usage is None:
         from goniofrost.capture.plan_file import with_sentinels
         doc, said = with_sentinels(doc, model, selection.positions, mask, asked=bool(args.sentinels))

@@ -34,9 +34,12 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    import errno
+    from pathlib import Path
+
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.core.atomic_file import check_not_an_input
-    from goniofrost.core.errors import GoniofrostError
+    from goniofrost.core.atomic_file import REASONS, check_not_an_input
+    from goniofrost.core.errors import GoniofrostError, OutputError
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.outputs import bayes_output_paths
     from goniofrost.frost.reconstruction import ETA, reconstruct
@@ -45,6 +48,11 @@ def run(args) -> int:
     outputs = [args.out] + (list(bayes_output_paths(args.out)) if args.estimator == "bayes" else [])
     for out in outputs:  # reconstruct --out s.csv overwrote the samples it read with the BRDF
         check_not_an_input(out, {"--samples": args.samples, "--model": args.model})
+        # a folder in the place of any of the three, before one is written: a folder named OUT.json
+        # was refused only after OUT and OUT.std.binary were written (exit 2, two of the three
+        # files); a folder the three share that cannot be written fails the first write
+        if Path(out).is_dir():
+            raise OutputError(out, REASONS[errno.EISDIR])
     model = FrostModel.load(args.model)
     cells, values, extra = read_samples_csv(args.samples, model.grid)
     positions = model.grid.valid_position(cells)

@@ -53,7 +53,8 @@ def _args_check(p) -> None:
 def _args_status(p) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON document (per reading with --watch)")
     p.add_argument("--watch", action="store_true", help="read again every --interval seconds until Ctrl-C")
-    p.add_argument("--interval", type=float, default=1.0, metavar="S", help="seconds between readings (--watch)")
+    p.add_argument("--interval", type=float, default=None, metavar="S",
+                   help="seconds between readings (--watch; default 1)")
     p.add_argument("--count", type=int, default=None, metavar="N", help="stop after N readings (--watch)")
 
 
