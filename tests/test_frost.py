@@ -344,6 +344,17 @@ def test_reconstruct_refuses_bad_values(model, values, message):
         reconstruct(model, [3], values)
 
 
+@pytest.mark.parametrize("options, message", [
+    ({"eta": -1.0}, "eta (--eta): expected a finite number >= 0, found -1.0"),
+    ({"n_atoms": 0}, "n_atoms (--atoms): expected an integer in [1, 30], found 0"),  # K = 30
+])
+def test_reconstruct_names_the_option_of_a_bad_parameter(model, options, message):
+    """reconstruct --eta -5 said 'eta: ...', --atoms 0 'n_atoms: ...': the parameter, not the option."""
+    with pytest.raises(ReconstructionError) as err:
+        reconstruct(model, [3, 9], [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], **options)
+    assert str(err.value) == message
+
+
 def test_reconstruct_refuses_a_diverging_fit(model):
     # 12 neighbouring cells (condition number ~2e3) alternating between 1e-9 and 1e4 1/sr,
     # fitted without a ridge term: the mapped estimate passes exp's range elsewhere.

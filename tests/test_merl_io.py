@@ -84,6 +84,16 @@ def test_wrong_header_is_refused(tmp_path, header):
     assert isinstance(err.value, GoniofrostError)
 
 
+def test_an_rgl_tensor_file_is_named_as_one(tmp_path):
+    """compare brdf.bsdf said 'wrong MERL header (1936614772, ...)': the tensor file's magic read as int32."""
+    path = tmp_path / "brdf.bsdf"
+    path.write_bytes(b"tensor_file\x00" + bytes(64))
+    with pytest.raises(MerlFileError) as err:
+        read_merl(path)
+    assert str(err.value) == (f"{path}: an RGL tensor file (the .bsdf of goniofrost export, Mitsuba's 'measured' "
+                              f"BSDF), not a MERL .binary: give the brdf.binary it was exported from")
+
+
 @pytest.mark.parametrize("delta, kind", [(-8, "truncated"), (-1, "truncated"), (8, "oversized"), (1, "oversized")])
 def test_truncated_or_oversized_file_names_both_sizes(tmp_path, delta, kind):
     path = tmp_path / "m.binary"

@@ -105,6 +105,9 @@ def _read_header(path: Path) -> MerlGrid:
             f"{HEADER_BYTES}-byte header of three int32 resolutions"
         )
     if np.any(header < 1) or np.any(header > 10_000):
+        if header.tobytes().startswith(b"tensor_file"[:HEADER_BYTES]):  # what goniofrost export writes
+            raise MerlFileError(f"{path}: an RGL tensor file (the .bsdf of goniofrost export, Mitsuba's "
+                                f"'measured' BSDF), not a MERL .binary: give the brdf.binary it was exported from")
         raise MerlFileError(
             f"{path}: wrong MERL header {tuple(int(v) for v in header)}, expected three positive "
             f"int32 resolutions such as (90, 90, 180)"

@@ -242,7 +242,7 @@ def reconstruct_log(model: FrostModel, positions, log_values, eta: float = ETA,
     b = np.asarray(log_values, dtype=np.float64)
     a = _atom_count(model, np.unique(positions).size, n_atoms)
     if not (np.isfinite(eta) and eta >= 0):
-        raise ReconstructionError(f"eta: expected a finite number >= 0, found {eta!r}")
+        raise ReconstructionError(f"eta (--eta): expected a finite number >= 0, found {eta!r}")
     mu = np.asarray(model.mean, dtype=np.float64)
     d_l = np.asarray(model.dictionary[positions, :a], dtype=np.float64)
     rhs = b - (mu[positions][:, None] if b.ndim == 2 else mu[positions])
@@ -258,7 +258,7 @@ def _atom_count(model: FrostModel, distinct: int, n_atoms) -> int:
     if n_atoms is None:
         return max(1, min(distinct, k))
     if not isinstance(n_atoms, (int, np.integer)) or not 1 <= n_atoms <= k:
-        raise ReconstructionError(f"n_atoms: expected an integer in [1, {k}], found {n_atoms!r}")
+        raise ReconstructionError(f"n_atoms (--atoms): expected an integer in [1, {k}], found {n_atoms!r}")
     return int(n_atoms)
 
 
