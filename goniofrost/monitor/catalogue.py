@@ -144,10 +144,12 @@ COLUMNS = ("session", "started (UTC)", "operator", "sample", "state", "samples",
 
 
 def table_rows(entries) -> list[tuple[str, ...]]:
-    """The text cells of each entry, in COLUMNS order."""
+    """The text cells of each entry, in COLUMNS order ("-" for what is not known: an unreadable
+    journal's samples and duration are not 0)."""
     return [(e.name, "-" if e.started_utc is None else iso_minutes(e.started_utc), e.operator or "-",
-             e.sample_id or "-", e.state, samples_text(e),
-             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}", duration_text(e.duration_s))
+             e.sample_id or "-", e.state, "-" if e.problem else samples_text(e),
+             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}",
+             "-" if e.problem else duration_text(e.duration_s))
             for e in entries]
 
 
