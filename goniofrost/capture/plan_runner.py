@@ -112,8 +112,9 @@ class PlanRunner:
         return "Fix the cause, then run the same command again"
 
     def continue_text(self) -> str:
-        """What to do after an operator's stop."""
-        return "Run the same command again"
+        """What to do after an operator's stop: an option, not an instruction (a stopped move was
+        stopped on purpose; running it again would start it again)."""
+        return "To carry on from here, run the same command again"
 
     # ----- the run ------------------------------------------------------------------------
     def execute_plan(self, plan):
