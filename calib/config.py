@@ -165,8 +165,17 @@ def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
 
     labels = out["shutter_speeds"]
     seconds = [shutter_seconds(x) for x in labels]
-    picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in out["exposures_s"]]
     ladder = out["exposures_s"]
+    # inside the camera's range the nearest speed is at most about half a stop away; a rung beyond
+    # its ends would silently become the end speed (1e-5 s taken as 1/4000: 25 times longer)
+    fast, slow = min(seconds), max(seconds)
+    outside = [t for t in ladder if not fast / math.sqrt(2) <= t <= slow * math.sqrt(2)]
+    if outside:
+        first, last = labels[seconds.index(fast)], labels[seconds.index(slow)]
+        raise ConfigError(source, f"{keypath}.exposures_s", f"rungs within half a stop of the range of "
+                          f"{keypath}.shutter_speeds, {first!r} to {last!r} ({fast:g} to {slow:g} s); outside it: "
+                          f"{outside}", ladder)
+    picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in ladder]
     for k, (a, b) in enumerate(zip(picked, picked[1:])):
         if seconds[b] <= seconds[a]:
             raise ConfigError(source, f"{keypath}.exposures_s", f"rungs on different shutter speeds of "

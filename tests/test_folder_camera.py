@@ -68,6 +68,18 @@ def test_two_rungs_on_one_shutter_speed_are_refused():
         validate_camera_section(section("/tmp", shutter_speeds=["1/4000", "bulb"]), "rig.yaml")
 
 
+def test_a_rung_beyond_the_camera_s_shutter_speeds_is_refused_not_clamped():
+    # 1e-5 s became 1/4000 (25 times longer: the specular peaks saturate) and 120 s became 30 s
+    with pytest.raises(ConfigError) as refused:
+        validate_camera_section(section("/tmp", exposures_s=[0.00001, 0.001, 0.004, 120]), "rig.yaml")
+    assert str(refused.value) == (
+        "rig.yaml: camera.exposures_s: expected rungs within half a stop of the range of camera.shutter_speeds, "
+        "'1/4000' to '30' (0.00025 to 30 s); outside it: [1e-05, 120.0], found [1e-05, 0.001, 0.004, 120.0]")
+    # up to half a stop beyond an end is the end speed, as within the range the nearest speed
+    ends = validate_camera_section(section("/tmp", exposures_s=[0.0002, 0.001, 40.0]), "rig.yaml")["exposures_s"]
+    assert ends == [0.00025, 0.001, 30.0]
+
+
 @pytest.mark.parametrize("kind, key, value, readers", [
     ("rawfile", "serial", "40012345", "pylon"),            # a DSLR rig copied from a pylon one
     ("rawfile", "gain_db", 12, "pylon"),
