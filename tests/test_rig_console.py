@@ -394,3 +394,26 @@ def test_status_text_lines_up_its_columns_under_every_axis(twins, capsys):
     assert [line.split()[0] for line in lines] == ["camera_arm", "sample_yaw", "sample_tilt", "lamp"]
     assert lines[0].endswith("limits [8, 172]     at rest, disabled")
     assert len({line.index("at rest") for line in lines[:3]}) == 1   # [-180, 180] is the widest
+
+
+def test_snap_on_a_real_rig_refuses_a_material_before_anything_moves(twins, tmp_path, capsys):
+    # --material was silently ignored on a real rig (the camera shows whatever is on the stage) and
+    # the snap moved and exposed; capture refuses it, and so does snap, before it connects
+    path, _ = twins
+    before = status(path, capsys)
+    out = tmp_path / "gold.png"
+    assert main(["rig", "snap", "--rig", str(path), "--material", "builtin:gold", "--move", "camera_arm=40",
+                 "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == ("goniofrost rig: error: command line: --material: expected no "
+                                               "material on a real rig (it measures the sample in front of it), "
+                                               "found 'builtin:gold'")
+    assert not out.exists() and status(path, capsys) == before
+
+
+def test_snap_help_names_the_material_a_simulated_stage_shows_by_default(capsys):
+    # the help said "(default: the white card only)" while the sample card showed red plastic
+    from goniofrost.capture.snap import DEFAULT_MATERIAL
+
+    with pytest.raises(SystemExit):
+        main(["rig", "snap", "--help"])
+    assert f"(default: {DEFAULT_MATERIAL})" in " ".join(capsys.readouterr().out.split())

@@ -17,6 +17,9 @@ import numpy as np
 
 from goniofrost.capture.steps import Expose, LampOff, LampOn, SetTarget
 
+# what a simulated rig's stage shows without --material (its sample card needs something on it)
+DEFAULT_MATERIAL = "builtin:red-plastic"
+
 
 @dataclass
 class SnapResult:
@@ -77,11 +80,16 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
     from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.core.atomic_file import output_errors
 
+    from goniofrost.core.errors import ConfigError
+
+    if material is not None and not rig.simulated:  # as capture: a real camera shows what is on the stage
+        raise ConfigError("command line", "--material",
+                          "no material on a real rig (it measures the sample in front of it)", material)
     out = Path(out)
     with output_errors(out):
         out.parent.mkdir(parents=True, exist_ok=True)
     if rig.simulated and material is None:
-        material = "builtin:red-plastic"  # the simulated stage needs something on it
+        material = DEFAULT_MATERIAL
     settings = rig.camera
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
             open_hardware(rig, material=material, program="rig snap") as hardware:

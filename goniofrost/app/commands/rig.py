@@ -86,7 +86,7 @@ def _args_snap(p) -> None:
     p.add_argument("--move", nargs="+", default=None, metavar="AXIS=DEG",
                    help="move these axes first (limits checked as for rig move), then snap")
     p.add_argument("--material", default=None, metavar="SPEC:NAME",
-                   help="simulated rig only: the material on the stage (default: the white card only)")
+                   help="simulated rig only: the material on the sample card (default: builtin:red-plastic)")
 
 
 def run(args) -> int:
