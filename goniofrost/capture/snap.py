@@ -74,6 +74,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
          move_to: dict | None = None) -> SnapResult:
     """Connect the rig, take the snap at the current pose (after moving to ``move_to``, {axis: deg},
     when given), write the PNG ``out``; return the findings."""
+    from calib.config import shutter_label, shutter_seconds
     from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
     from goniofrost.capture.hardware import open_hardware
@@ -91,6 +92,10 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
     if rig.simulated and material is None:
         material = DEFAULT_MATERIAL
     settings = rig.camera
+    if exposure_s is not None and settings.get("shutter_speeds"):
+        # the trigger sets the nearest of the camera's own speeds (as for the ladder's rungs); asking
+        # for the value given refused the camera's file as exposed other than asked (0.004 s for 0.003)
+        exposure_s = shutter_seconds(shutter_label(settings["shutter_speeds"], exposure_s))
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
             open_hardware(rig, material=material, program="rig snap") as hardware:
         joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}
