@@ -67,6 +67,27 @@ _CAMERA_KEYS = {
 }
 
 
+# Keys that only some kinds of camera read (the rest are read by every kind). Given to another
+# kind they would be accepted and silently ignored (a pylon serial on a DSLR rig, a trigger command
+# on the emulated camera), so they are refused. A simulated camera keeps the folder camera's
+# shutter_speeds (they move its ladder) and exposure_tolerance (`goniofrost sim --write-rig` turns
+# it into a folder camera); its folder and commands are the ones --write-rig writes.
+KIND_ONLY_KEYS = {
+    "serial": ("pylon",), "pixel_format": ("pylon",), "gain_db": ("pylon",),
+    "folder": ("rawfile",), "trigger_command": ("rawfile",), "target_command": ("rawfile",),
+    "shutter_speeds": ("rawfile", "sim"), "exposure_tolerance": ("rawfile", "sim"),
+}
+
+
+def _check_kind_keys(section, kind: str, source, keypath: str) -> None:
+    """ConfigError for the first key of ``section`` that a ``kind`` camera never reads, given a value
+    other than its default (a section validated before, defaults filled in, is validated again)."""
+    for key, kinds in KIND_ONLY_KEYS.items():
+        if section.get(key, _CAMERA_KEYS[key].default) != _CAMERA_KEYS[key].default and kind not in kinds:
+            raise ConfigError(source, f"{keypath}.{key}", f"no {key} for camera kind {kind!r} (only kind "
+                              f"{' or '.join(kinds)} reads it)", section[key])
+
+
 def _int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
@@ -108,6 +129,7 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     ``intrinsics`` and ``mount`` the camera model (module doc).
     """
     out = check_section(section, _CAMERA_KEYS, source, keypath)
+    _check_kind_keys(section, out["kind"], source, keypath)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
     out["intrinsics"] = _intrinsics(out["intrinsics"], source, f"{keypath}.intrinsics")
     out["mount"] = check_section(out["mount"], _MOUNT_KEYS, source, f"{keypath}.mount")
@@ -143,8 +165,17 @@ def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
 
     labels = out["shutter_speeds"]
     seconds = [shutter_seconds(x) for x in labels]
-    picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in out["exposures_s"]]
     ladder = out["exposures_s"]
+    # inside the camera's range the nearest speed is at most about half a stop away; a rung beyond
+    # its ends would silently become the end speed (1e-5 s taken as 1/4000: 25 times longer)
+    fast, slow = min(seconds), max(seconds)
+    outside = [t for t in ladder if not fast / math.sqrt(2) <= t <= slow * math.sqrt(2)]
+    if outside:
+        first, last = labels[seconds.index(fast)], labels[seconds.index(slow)]
+        raise ConfigError(source, f"{keypath}.exposures_s", f"rungs within half a stop of the range of "
+                          f"{keypath}.shutter_speeds, {first!r} to {last!r} ({fast:g} to {slow:g} s); outside it: "
+                          f"{outside}", ladder)
+    picked = [min(range(len(labels)), key=lambda k: abs(math.log(seconds[k] / t))) for t in ladder]
     for k, (a, b) in enumerate(zip(picked, picked[1:])):
         if seconds[b] <= seconds[a]:
             raise ConfigError(source, f"{keypath}.exposures_s", f"rungs on different shutter speeds of "

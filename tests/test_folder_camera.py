@@ -68,6 +68,38 @@ def test_two_rungs_on_one_shutter_speed_are_refused():
         validate_camera_section(section("/tmp", shutter_speeds=["1/4000", "bulb"]), "rig.yaml")
 
 
+def test_a_rung_beyond_the_camera_s_shutter_speeds_is_refused_not_clamped():
+    # 1e-5 s became 1/4000 (25 times longer: the specular peaks saturate) and 120 s became 30 s
+    with pytest.raises(ConfigError) as refused:
+        validate_camera_section(section("/tmp", exposures_s=[0.00001, 0.001, 0.004, 120]), "rig.yaml")
+    assert str(refused.value) == (
+        "rig.yaml: camera.exposures_s: expected rungs within half a stop of the range of camera.shutter_speeds, "
+        "'1/4000' to '30' (0.00025 to 30 s); outside it: [1e-05, 120.0], found [1e-05, 0.001, 0.004, 120.0]")
+    # up to half a stop beyond an end is the end speed, as within the range the nearest speed
+    ends = validate_camera_section(section("/tmp", exposures_s=[0.0002, 0.001, 40.0]), "rig.yaml")["exposures_s"]
+    assert ends == [0.00025, 0.001, 30.0]
+
+
+@pytest.mark.parametrize("kind, key, value, readers", [
+    ("rawfile", "serial", "40012345", "pylon"),            # a DSLR rig copied from a pylon one
+    ("rawfile", "gain_db", 12, "pylon"),
+    ("pylon", "target_command", "changer {target}", "rawfile"),  # pylon asks the operator
+    ("pylon", "exposure_tolerance", 0.2, "rawfile or sim"),
+    ("sim", "trigger_command", "gphoto2 {shutter}", "rawfile"),
+])
+def test_a_key_the_camera_kind_never_reads_is_refused_not_ignored(kind, key, value, readers):
+    given = {"kind": kind, "exposures_s": [0.001, 0.004], "target_snr": 50.0, **CAMERA_MODEL, key: value,
+             **({"folder": "/tmp"} if kind == "rawfile" else {})}
+    with pytest.raises(ConfigError) as refused:
+        validate_camera_section(given, "rig.yaml")
+    assert str(refused.value) == (f"rig.yaml: camera.{key}: expected no {key} for camera kind {kind!r} "
+                                  f"(only kind {readers} reads it), found {value!r}")
+    # a section checked before (every default filled in, serial None included) passes again
+    checked = validate_camera_section({**given, key: None} if key == "serial" else
+                                      {k: v for k, v in given.items() if k != key}, "rig.yaml")
+    assert validate_camera_section(checked, "rig.yaml") == checked
+
+
 def test_the_gphoto2_recipe_captures_into_the_folder_with_the_camera_s_label(gphoto2, tmp_path):
     assert RECIPE in (REPO / "README.md").read_text() and RECIPE in (REPO / "config/rigs/template.yaml").read_text()
     settings = validate_camera_section(section(gphoto2), "rig.yaml")

@@ -13,6 +13,7 @@ import yaml
 from goniofrost.app.cli import main
 
 from conftest import train_once
+from test_folder_camera import gphoto2  # noqa: F401 - the gphoto2 stand-in on PATH (a fixture)
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_RIG = REPO / "config" / "rigs" / "sim.yaml"
@@ -394,3 +395,42 @@ def test_status_text_lines_up_its_columns_under_every_axis(twins, capsys):
     assert [line.split()[0] for line in lines] == ["camera_arm", "sample_yaw", "sample_tilt", "lamp"]
     assert lines[0].endswith("limits [8, 172]     at rest, disabled")
     assert len({line.index("at rest") for line in lines[:3]}) == 1   # [-180, 180] is the widest
+
+
+def test_snap_on_a_real_rig_refuses_a_material_before_anything_moves(twins, tmp_path, capsys):
+    # --material was silently ignored on a real rig (the camera shows whatever is on the stage) and
+    # the snap moved and exposed; capture refuses it, and so does snap, before it connects
+    path, _ = twins
+    before = status(path, capsys)
+    out = tmp_path / "gold.png"
+    assert main(["rig", "snap", "--rig", str(path), "--material", "builtin:gold", "--move", "camera_arm=40",
+                 "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == ("goniofrost rig: error: command line: --material: expected no "
+                                               "material on a real rig (it measures the sample in front of it), "
+                                               "found 'builtin:gold'")
+    assert not out.exists() and status(path, capsys) == before
+
+
+def test_snap_help_names_the_material_a_simulated_stage_shows_by_default(capsys):
+    # the help said "(default: the white card only)" while the sample card showed red plastic
+    from goniofrost.capture.snap import DEFAULT_MATERIAL
+
+    with pytest.raises(SystemExit):
+        main(["rig", "snap", "--help"])
+    assert f"(default: {DEFAULT_MATERIAL})" in " ".join(capsys.readouterr().out.split())
+
+
+def test_snap_at_an_exposure_between_a_dslr_s_shutter_speeds_takes_the_nearest(twins, gphoto2, tmp_path, capsys):
+    # --exposure 0.003 on a camera with shutter_speeds: the trigger set the nearest speed (1/250) and
+    # the snap then refused the camera's own file ("exposed 0.004 s, asked for 0.003 s"), exit 2
+    from test_folder_camera import RECIPE, SPEEDS
+
+    path, _ = twins
+    raw = yaml.safe_load(path.read_text())
+    raw["camera"].update(folder=str(gphoto2), trigger_command=RECIPE, shutter_speeds=SPEEDS,
+                         target_command="true {target}", exposures_s=[0.001, 0.004, 0.016])
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    main(["rig", "snap", "--rig", str(path), "--exposure", "0.003", "--json", "--out", str(tmp_path / "d.png")])
+    captured = capsys.readouterr()
+    assert "asked for" not in captured.err
+    assert json.loads(captured.out)["exposures_s"] == [pytest.approx(1 / 250, rel=1e-6)]

@@ -80,3 +80,20 @@ def test_a_snap_of_the_sample_after_a_snap_of_the_white_card_shows_the_sample(se
     assert main([*snap, "--target", "sample", "--out", str(tmp_path / "sample.png")]) == 0
     found = json.loads(capsys.readouterr().out)
     assert found["problem"] is None and sorted(found["markers_found"]) == [0, 1, 2, 3], found
+
+
+def test_the_written_rig_of_the_pylon_rig_keeps_no_pylon_only_camera_key(tmp_path):
+    # sim-pylon.yaml's pixel_format and gain_db were copied into the written rawfile camera, which
+    # never reads them; a rawfile section now refuses them, so the written file must leave them out
+    from types import SimpleNamespace
+
+    from calib.config import validate_camera_section
+    from sim.rig_file import real_rig_document
+
+    source = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim-pylon.yaml"
+    service = SimpleNamespace(port=1, folder=tmp_path)
+    doc = real_rig_document(source, SimpleNamespace(axes={}, lamp_driver=None), service)
+    camera = doc["camera"]
+    assert camera["kind"] == "rawfile" and not {"pixel_format", "gain_db", "serial"} & set(camera)
+    assert camera["timeout_s"] == 5.0  # what a folder camera reads is kept
+    validate_camera_section(camera, "twins.yaml")

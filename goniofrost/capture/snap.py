@@ -17,6 +17,9 @@ import numpy as np
 
 from goniofrost.capture.steps import Expose, LampOff, LampOn, SetTarget
 
+# what a simulated rig's stage shows without --material (its sample card needs something on it)
+DEFAULT_MATERIAL = "builtin:red-plastic"
+
 
 @dataclass
 class SnapResult:
@@ -71,18 +74,28 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
          move_to: dict | None = None) -> SnapResult:
     """Connect the rig, take the snap at the current pose (after moving to ``move_to``, {axis: deg},
     when given), write the PNG ``out``; return the findings."""
+    from calib.config import shutter_label, shutter_seconds
     from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.core.atomic_file import output_errors
 
+    from goniofrost.core.errors import ConfigError
+
+    if material is not None and not rig.simulated:  # as capture: a real camera shows what is on the stage
+        raise ConfigError("command line", "--material",
+                          "no material on a real rig (it measures the sample in front of it)", material)
     out = Path(out)
     with output_errors(out):
         out.parent.mkdir(parents=True, exist_ok=True)
     if rig.simulated and material is None:
-        material = "builtin:red-plastic"  # the simulated stage needs something on it
+        material = DEFAULT_MATERIAL
     settings = rig.camera
+    if exposure_s is not None and settings.get("shutter_speeds"):
+        # the trigger sets the nearest of the camera's own speeds (as for the ladder's rungs); asking
+        # for the value given refused the camera's file as exposed other than asked (0.004 s for 0.003)
+        exposure_s = shutter_seconds(shutter_label(settings["shutter_speeds"], exposure_s))
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
             open_hardware(rig, material=material, program="rig snap") as hardware:
         joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}

@@ -80,13 +80,14 @@ def _args_snap(p) -> None:
     p.add_argument("--target", choices=["white", "sample"], default="white",
                    help="what is in front of the camera (default: the white reference card)")
     p.add_argument("--exposure", type=float, default=None, metavar="S",
-                   help="one frame of S seconds (default: the bracket the capture would take)")
+                   help="one frame of S seconds, on a camera with shutter_speeds the nearest of them "
+                        "(default: the bracket the capture would take)")
     p.add_argument("--out", required=True, metavar="FRAME.png", help="the picture, with the region and markers drawn")
     p.add_argument("--json", action="store_true", help="print the findings as JSON")
     p.add_argument("--move", nargs="+", default=None, metavar="AXIS=DEG",
                    help="move these axes first (limits checked as for rig move), then snap")
     p.add_argument("--material", default=None, metavar="SPEC:NAME",
-                   help="simulated rig only: the material on the stage (default: the white card only)")
+                   help="simulated rig only: the material on the sample card (default: builtin:red-plastic)")
 
 
 def run(args) -> int:
