@@ -259,10 +259,12 @@ def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("exposure, why", [
-    ("4.096", "at --exposure 4.096 s 100.0 % of the region of interest is saturated (more than 25 %: its levels are "
-              "clipped); take a shorter --exposure, or leave it out for the capture's own bracket"),
-    ("0.000015625", "at --exposure 1.5625e-05 s the frame's 99th percentile is 0.0003 of full scale (below 0.02: too "
-                    "dark to read); take a longer --exposure, or leave it out for the capture's own bracket"),
+    ("4.096", "the frame taken at 4.096 s (--exposure): 100.0 % of the region of interest is saturated (more "
+              "than 25 %: its levels are clipped); take a shorter --exposure, or leave it out for the capture's "
+              "own bracket"),
+    ("0.000015625", "the frame taken at 1.5625e-05 s (--exposure): its 99th percentile is 0.0003 of full scale "
+                    "(below 0.02: too dark to read); take a longer --exposure, or leave it out for the capture's "
+                    "own bracket"),
 ])
 def test_a_snap_at_an_exposure_that_shows_nothing_readable_says_so_and_exits_2(tmp_path, capsys, exposure, why):
     """A chosen --exposure whose frame is mostly clipped (the white card at 4 s) or dark (at 16 us)

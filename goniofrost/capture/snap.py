@@ -200,14 +200,14 @@ def _exposure_problem(raw, exposure_s: float, frame_saturated: float, roi_satura
 
     worst, where = max((frame_saturated, "frame"), (roi_saturated, "region of interest"))
     if worst > MAX_SATURATED_FRACTION:
-        return (f"at --exposure {exposure_s:g} s {100 * worst:.1f} % of the {where} is saturated (more than "
-                f"{100 * MAX_SATURATED_FRACTION:g} %: its levels are clipped); take a shorter --exposure, or leave "
-                f"it out for the capture's own bracket")
+        return (f"the frame taken at {exposure_s:g} s (--exposure): {100 * worst:.1f} % of the {where} is "
+                f"saturated (more than {100 * MAX_SATURATED_FRACTION:g} %: its levels are clipped); take a shorter "
+                f"--exposure, or leave it out for the capture's own bracket")
     bright_end = float(np.percentile(raw.linear, 99))
     if bright_end < MIN_BRIGHT_END:
-        return (f"at --exposure {exposure_s:g} s the frame's 99th percentile is {bright_end:.4f} of full scale "
-                f"(below {MIN_BRIGHT_END:g}: too dark to read); take a longer --exposure, or leave it out for the "
-                f"capture's own bracket")
+        return (f"the frame taken at {exposure_s:g} s (--exposure): its 99th percentile is {bright_end:.4f} of full "
+                f"scale (below {MIN_BRIGHT_END:g}: too dark to read); take a longer --exposure, or leave it out for "
+                f"the capture's own bracket")
     return None
 
 
