@@ -281,6 +281,14 @@ def test_a_snap_at_an_exposure_that_shows_nothing_readable_says_so_and_exits_2(t
     assert f"problem: {why}" in capsys.readouterr().out.splitlines()
 
 
+def test_a_snap_of_an_unknown_material_names_the_option_before_anything_moves(tmp_path, capsys):
+    out = tmp_path / "s.png"
+    assert main(["rig", "snap", "--rig", str(SIM_RIG), "--material", "builtin:nosuch", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == ("goniofrost rig: error: command line: --material: unknown material 'nosuch' in "
+                                       "dataset 'builtin'\n")
+    assert not out.exists()
+
+
 def test_a_snap_at_an_exposure_that_reads_well_has_no_problem(tmp_path, capsys):
     assert main(["rig", "snap", "--rig", str(SIM_RIG), "--move", "camera_arm=30", "--out", str(tmp_path / "s.png"),
                  "--exposure", "0.004", "--json"]) == 0

@@ -690,7 +690,8 @@ def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path
     err = run_refused(base, capsys)
     assert "command line: --material: expected SPEC:NAME of the material the simulated rig 'sim-rig' shows" in err
     err = run_refused(base + ["--material", "builtin:red-plastik"], capsys)
-    assert "unknown material 'red-plastik' in dataset 'builtin'; did you mean red-plastic" in err
+    assert err == ("goniofrost capture: error: command line: --material: unknown material 'red-plastik' in dataset "
+                   "'builtin'; did you mean red-plastic, grey-plastic, green-plastic?\n")
     err = run_refused(base + ["--material", MATERIAL, "--speedup", "0"], capsys)
     assert "command line: --speedup: expected a simulated clock speed-up > 0, found 0.0" in err
     assert not (tmp_path / "s").exists()

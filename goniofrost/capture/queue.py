@@ -47,7 +47,7 @@ def check_queue(queue: Queue, inputs, *, seed=None, speedup=None) -> None:
     check_sim_options(inputs.rig, seed, speedup)
     for i, sample in enumerate(queue.samples):
         try:
-            check_material(inputs.rig, sample.material)
+            check_material(inputs.rig, sample.material, option=None)
         except ConfigError as exc:
             raise ConfigError(queue.path, f"samples[{i}].material", exc.expected, sample.material) from None
         except GoniofrostError as exc:  # an unknown dataset or material name: its own words, under the queue's key

@@ -228,8 +228,9 @@ def session_finished(spec, journal) -> bool:
     return len(journal.done_indices()) >= len(spec.samples)
 
 
-def check_material(rig, material: str | None) -> str | None:
-    """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig."""
+def check_material(rig, material: str | None, option: str | None = "--material") -> str | None:
+    """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig. ``option``:
+    the command-line option an unknown name is reported under (None: the caller names its own key)."""
     if not rig.simulated:
         if material is not None:
             raise ConfigError("command line", "--material",
@@ -238,9 +239,8 @@ def check_material(rig, material: str | None) -> str | None:
     if material is None:
         raise ConfigError("command line", "--material", f"SPEC:NAME of the material the simulated rig {rig.name!r} shows "
                           "(e.g. builtin:NAME; see goniofrost materials --dataset builtin)", None)
-    from goniofrost.datasets import parse_material_spec
-    dataset, name = parse_material_spec(material)
-    return f"{dataset.spec}:{name}"
+    from goniofrost.datasets.specs import material_option
+    return material_option(material, option)
 
 
 def check_sim_options(rig, seed, speedup) -> None:

@@ -89,8 +89,9 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
     out = Path(out)
     with output_errors(out):
         out.parent.mkdir(parents=True, exist_ok=True)
-    if rig.simulated and material is None:
-        material = DEFAULT_MATERIAL
+    if rig.simulated:
+        from goniofrost.datasets.specs import material_option
+        material = material_option(material or DEFAULT_MATERIAL)  # an unknown one fails before anything moves
     settings = rig.camera
     if exposure_s is not None and settings.get("shutter_speeds"):
         # the trigger sets the nearest of the camera's own speeds (as for the ladder's rungs); asking

@@ -58,6 +58,22 @@ def _random_dataset(spec: str, arg: str) -> Dataset:
     return BuiltinDataset(random_library(int(seed), int(count)), spec=f"{RANDOM}:{int(seed)}:{int(count)}")
 
 
+def material_option(text: str, option: str | None = "--material") -> str:
+    """A SPEC:NAME resolved (``builtin:gold``), or DatasetError naming the command's ``option``
+    ("command line: --material: unknown material ..."; None: the error as it is, for a caller that
+    names its own file and key)."""
+    from goniofrost.datasets.base import UnknownMaterialError
+
+    try:
+        dataset, name = parse_material_spec(text)
+    except (DatasetError, UnknownMaterialError) as exc:  # the second is a KeyError, not a DatasetError
+        if option is None:
+            raise
+        kind = UnknownMaterialError if isinstance(exc, UnknownMaterialError) else DatasetError
+        raise kind(f"command line: {option}: {exc}") from None
+    return f"{dataset.spec}:{name}"
+
+
 def parse_material_spec(text: str) -> tuple[Dataset, str]:
     """Split ``SPEC:NAME`` (e.g. ``builtin:gold``, ``nbrdf:data/x.npz:chrome``) into an open
     dataset and a resolved material name."""
