@@ -28,3 +28,10 @@ def test_no_defined_relative_error_is_none():
     assert np.isnan(rel).all()
     assert report._median(rel) is None and report._max(rel) is None
     assert report._median(np.empty(0)) is None
+
+
+def test_a_small_or_negative_sample_snr_keeps_two_significant_digits():
+    # black-obsidian's capture listed "5:-0 6:-1 9:-1" for SNRs -0.0385, -0.652 and -0.527 (a
+    # channel at its detection limit, its patch mean below the dark level)
+    assert [report.snr_text(v) for v in (-0.038505922749167705, -0.652, 1.3, 9.4, 59.57, 3219.1)] == \
+        ["-0.039", "-0.65", "1.3", "9.4", "60", "3219"]

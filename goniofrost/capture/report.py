@@ -458,6 +458,13 @@ def ground_truth(material: str, grid) -> np.ndarray:
     return truth
 
 
+def snr_text(snr: float) -> str:
+    """A sample's SNR (its worst channel's, dimensionless) for the summary's list: whole numbers from 10
+    on, 2 significant digits below, where a channel at its detection limit sits (its patch mean can
+    fall below the dark level: -0.039 printed as "-0")."""
+    return f"{snr:.0f}" if abs(snr) >= 10 else f"{snr:.2g}"
+
+
 def summary_text(report: dict) -> str:
     """A short readable summary of a report (a few lines)."""
     t = report["times_s"]
@@ -474,7 +481,7 @@ def summary_text(report: dict) -> str:
         + (f"; planned motion {t['planned_motion']:.1f} s" if t.get("planned_motion") is not None else ""),
         f"this run: calibration {t['calibration_wall_this_run']:.1f} s, whole run {t['wall_this_run']:.1f} s (wall clock)",
         f"SNR per sample: min {report['snr']['min']:.1f}, median {report['snr']['median']:.1f}, max {report['snr']['max']:.1f}",
-        "  " + " ".join(f"{s['index']}:{s['snr']:.0f}" for s in report["per_sample"]),
+        "  " + " ".join(f"{s['index']}:{snr_text(s['snr'])}" for s in report["per_sample"]),
     ]
     target = report.get("target_error")
     if target:
