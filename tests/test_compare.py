@@ -53,6 +53,18 @@ def test_every_pair_both_ways_and_identical_inputs():
     json.dumps(doc, allow_nan=False)  # valid JSON: no infinities
 
 
+def test_a_black_reference_is_not_identical_renderings():
+    # an all-zero BRDF (a near-black channel taken to its limit) renders black: the SNR against it
+    # is -inf (no signal), and compare printed "identical renderings" for it against a lit one
+    black, red = np.where(builtin_table("red-plastic") >= 0, 0.0, -1.0), builtin_table("red-plastic")
+    result = compare.compare_tables([(black, SMALL), (red, SMALL)], ["black", "red"], size=16)
+    assert result.snr_db[0, 1] == -np.inf and result.snr_db[1, 0] == pytest.approx(0.0, abs=1e-12)
+    assert result.table()[0].startswith("A-B: rendering SNR -inf dB (B against A), 0.00 dB (A against B)")
+    pair = result.to_json()["pairs"][0]
+    assert pair["identical"] is False and pair["rendering_snr_db"] == {"b_against_a": None, "a_against_b": 0.0}
+    assert not result.identical(0, 1)
+
+
 def test_different_grids_render_but_have_no_log_difference():
     result = compare.compare_tables([(builtin_table("gold"), SMALL), (builtin_table("gold", OTHER), OTHER)],
                                     ["a", "b"], size=24)

@@ -11,7 +11,9 @@ orthographic sphere). For every pair (a, b) of the inputs:
   are on the same grid (None otherwise: no common cells).
 
 Inputs are keyed A, B, C, ... in the order given. Identical renderings have an infinite SNR,
-which JSON cannot hold: ``to_json`` writes null with ``"identical": true``.
+which JSON cannot hold: ``to_json`` writes null with ``"identical": true``. A reference that
+renders black (an all-zero BRDF) has no signal: the SNR against it is -inf (printed as such,
+null in JSON with ``"identical": false``), not a sign of identical renderings.
 """
 from __future__ import annotations
 
@@ -35,7 +37,8 @@ class Comparison:
     """Renderings and pairwise numbers of n inputs.
 
     ``images`` (n, n_lights, size, size, 3) HDR; ``snr_db`` (n, n): [i, j] the SNR of input j's
-    rendering against input i's as the reference (NaN on the diagonal, inf when identical);
+    rendering against input i's as the reference (NaN on the diagonal, +inf when identical, -inf
+    when input i renders black and j does not);
     ``log_mse`` (n, n) symmetric, NaN where the grids differ (0 on the diagonal).
     """
 
@@ -52,6 +55,10 @@ class Comparison:
         n = len(self.keys)
         return [(i, j) for i in range(n) for j in range(i + 1, n)]
 
+    def identical(self, i: int, j: int) -> bool:
+        """Whether inputs i and j render the same: +inf SNR only (-inf is a black reference)."""
+        return bool(self.snr_db[i, j] == np.inf)
+
     def to_json(self) -> dict:
         """The numbers as a JSON-ready document (no infinities: see the module docstring)."""
         def finite(value):
@@ -62,7 +69,7 @@ class Comparison:
             pairs.append({
                 "a": self.keys[i], "b": self.keys[j],
                 "rendering_snr_db": {"b_against_a": finite(self.snr_db[i, j]), "a_against_b": finite(self.snr_db[j, i])},
-                "identical": bool(np.isinf(self.snr_db[i, j])),
+                "identical": self.identical(i, j),
                 "log_relative_mse": finite(self.log_mse[i, j]),
             })
         return {"inputs": [{"key": k, "label": label, "path": p} for k, label, p in zip(self.keys, self.labels, self.paths)],
@@ -74,7 +81,7 @@ class Comparison:
         for i, j in self.pairs():
             a, b = self.keys[i], self.keys[j]
             log = "grids differ" if np.isnan(self.log_mse[i, j]) else f"{self.log_mse[i, j]:.4g}"
-            if np.isinf(self.snr_db[i, j]):
+            if self.identical(i, j):
                 lines.append(f"{a}-{b}: identical renderings; log-relative MSE {log}")
                 continue
             lines.append(f"{a}-{b}: rendering SNR {self.snr_db[i, j]:.2f} dB ({b} against {a}), "

@@ -353,9 +353,7 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
     error = float(log_relative_mse(model, truth, estimate[model.grid.valid_cells]))
     best = float(log_relative_mse(model, truth, exact))
     at_measured = truth_at_measured_directions(inputs, records, material)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.abs(measured - true_at) / true_at
-        rel_measured = np.abs(measured - at_measured) / at_measured
+    rel, rel_measured = relative_errors(measured, true_at), relative_errors(measured, at_measured)
     samples = inputs.plan["samples"]
     grazing = np.array([max(samples[r.plan_index]["theta_i_deg"], samples[r.plan_index]["theta_o_deg"]) > GRAZING_DEG
                         for r in records], dtype=bool)
@@ -363,9 +361,9 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
             "predicted_over_actual": predicted / error if error > 0 else None,
             "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
             "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
-            "sample_relative_error_median": float(np.nanmedian(rel)),
-            "sample_relative_error_max": float(np.nanmax(rel)),
-            "sample_relative_error_median_at_measured_directions": float(np.nanmedian(rel_measured)),
+            "sample_relative_error_median": _median(rel),
+            "sample_relative_error_max": _max(rel),
+            "sample_relative_error_median_at_measured_directions": _median(rel_measured),
             "grazing": {"beyond_deg": GRAZING_DEG, "samples": int(grazing.sum()),
                         "sample_relative_error_median": _median(rel[grazing]),
                         "sample_relative_error_median_at_measured_directions": _median(rel_measured[grazing])}}
@@ -415,8 +413,29 @@ def _estimates(truth: dict, prediction: dict) -> str:
                                                                      else ", uncalibrated")
 
 
+def relative_errors(measured: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """|measured - truth| / truth per sample and channel (n, 3); NaN where the truth is 0.
+
+    A measured material's channel can be exactly 0 (MERL black-obsidian's green and blue over a
+    quarter of its cells) where the rig reads a small positive value at its detection limit: a
+    relative error there is undefined, not infinite (report.json held ``Infinity``, which is not
+    JSON), so it is left out of the medians and the maximum.
+    """
+    measured, truth = np.asarray(measured, dtype=np.float64), np.asarray(truth, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(truth > 0, np.abs(measured - truth) / truth, np.nan)
+
+
 def _median(values: np.ndarray) -> float | None:
-    return float(np.nanmedian(values)) if values.size else None
+    """The median of the defined (non-NaN) values; None when there is none."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(np.nanmedian(values)) if (~np.isnan(values)).any() else None
+
+
+def _max(values: np.ndarray) -> float | None:
+    """The largest defined (non-NaN) value; None when there is none."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(np.nanmax(values)) if (~np.isnan(values)).any() else None
 
 
 def _pct(value) -> str:
@@ -439,6 +458,13 @@ def ground_truth(material: str, grid) -> np.ndarray:
     return truth
 
 
+def snr_text(snr: float) -> str:
+    """A sample's SNR (its worst channel's, dimensionless) for the summary's list: whole numbers from 10
+    on, 2 significant digits below, where a channel at its detection limit sits (its patch mean can
+    fall below the dark level: -0.039 printed as "-0")."""
+    return f"{snr:.0f}" if abs(snr) >= 10 else f"{snr:.2g}"
+
+
 def summary_text(report: dict) -> str:
     """A short readable summary of a report (a few lines)."""
     t = report["times_s"]
@@ -455,7 +481,7 @@ def summary_text(report: dict) -> str:
         + (f"; planned motion {t['planned_motion']:.1f} s" if t.get("planned_motion") is not None else ""),
         f"this run: calibration {t['calibration_wall_this_run']:.1f} s, whole run {t['wall_this_run']:.1f} s (wall clock)",
         f"SNR per sample: min {report['snr']['min']:.1f}, median {report['snr']['median']:.1f}, max {report['snr']['max']:.1f}",
-        "  " + " ".join(f"{s['index']}:{s['snr']:.0f}" for s in report["per_sample"]),
+        "  " + " ".join(f"{s['index']}:{snr_text(s['snr'])}" for s in report["per_sample"]),
     ]
     target = report.get("target_error")
     if target:
@@ -502,8 +528,8 @@ def summary_text(report: dict) -> str:
                      f" ({_estimates(truth, report['prediction'])}; exact values at the same cells:"
                      f" {truth['log_relative_mse_exact_samples']:.4g}, ratio {_fmt(truth['ratio_to_exact'], '.3f')})")
         graz = truth["grazing"]
-        lines.append(f"median sample error {100 * truth['sample_relative_error_median']:.2f} % against the cells' values,"
-                     f" {100 * truth['sample_relative_error_median_at_measured_directions']:.2f} % at the directions measured;"
+        lines.append(f"median sample error {_pct(truth['sample_relative_error_median'])} against the cells' values,"
+                     f" {_pct(truth['sample_relative_error_median_at_measured_directions'])} at the directions measured;"
                      f" beyond {graz['beyond_deg']:g} deg ({graz['samples']} samples):"
                      f" {_pct(graz['sample_relative_error_median'])}, {_pct(graz['sample_relative_error_median_at_measured_directions'])}")
     outputs = report["outputs"]
