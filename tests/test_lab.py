@@ -329,6 +329,24 @@ def test_a_killed_runs_duration_ends_at_its_own_last_sample_not_the_resumed_runs
     view = SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
                            nothing_measured=False, done=done, not_measured=[], label={}, material=None,
                            rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, first_started_utc=1000.0,
-                           run_spans=((1000.0, None), (1030.0, 1040.0)))
+                           run_spans=((1000.0, None), (1030.0, 1040.0)), report=None)
     monkeypatch.setattr(catalogue, "read_session", lambda folder: view)
     assert catalogue.read_entry(tmp_path).duration_s == 6.0 + 10.0
+
+
+def test_a_session_whose_report_flags_an_extrapolation_is_listed_so(monkeypatch, tmp_path):
+    """sessions listed black-obsidian's 0.5167 (actual 0.99) like any other estimate; its report
+    flagged the reconstruction as an extrapolation (samples unlike every training material)."""
+    from types import SimpleNamespace
+
+    import goniofrost.monitor.catalogue as catalogue
+
+    def view(flagged: bool):
+        return SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
+                               nothing_measured=False, done=[], not_measured=[], label={}, material=None,
+                               rig_name="sim-rig", plan=[{}], predicted_error=0.5167, first_started_utc=None,
+                               run_spans=(), report={"prediction": {"extrapolation": flagged}})
+    for flagged, cell in ((True, "0.5167 (extrapolation)"), (False, "0.5167")):
+        monkeypatch.setattr(catalogue, "read_session", lambda folder: view(flagged))
+        entry = catalogue.read_entry(tmp_path)
+        assert entry.extrapolation is flagged and catalogue.table_rows([entry])[0][6] == cell

@@ -31,7 +31,10 @@ class SessionEntry:
     until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
     ``not_measured`` those journaled as not measured (too dark or saturated; done, without a value);
     ``predicted_error`` the median estimate of the reconstruction's log-relative MSE (or of the
-    last batch's; ``session_view``), None before one; ``problem`` why a session is "unreadable" (its journal's path and the error)."""
+    last batch's; ``session_view``), None before one; ``extrapolation`` when its report flags the
+    reconstruction as an extrapolation (samples unlike every training material: the estimate is
+    not backed by the training set); ``problem`` why a session is "unreadable" (its journal's path
+    and the error)."""
 
     name: str
     path: str
@@ -49,6 +52,7 @@ class SessionEntry:
     duration_s: float
     not_measured: int = 0
     problem: str | None = None
+    extrapolation: bool = False
 
     def as_json(self) -> dict:
         out = asdict(self)
@@ -89,7 +93,8 @@ def read_entry(session_dir: Path) -> SessionEntry:
                         notes=tuple(label.get("notes") or ()), lab=label.get("lab"), rig=view.rig_name, state=state,
                         samples=len(view.done), samples_planned=len(view.plan),
                         predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured),
-                        problem=view.unreadable or None)
+                        problem=view.unreadable or None,
+                        extrapolation=bool(((view.report or {}).get("prediction") or {}).get("extrapolation")))
 
 
 def _last_commit_of_run(commits: list, spans: tuple, k: int) -> float:
@@ -148,7 +153,7 @@ def table_rows(entries) -> list[tuple[str, ...]]:
     journal's samples and duration are not 0)."""
     return [(e.name, "-" if e.started_utc is None else iso_minutes(e.started_utc), e.operator or "-",
              e.sample_id or "-", e.state, "-" if e.problem else samples_text(e),
-             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}",
+             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}" + (" (extrapolation)" if e.extrapolation else ""),
              "-" if e.problem else duration_text(e.duration_s))
             for e in entries]
 
