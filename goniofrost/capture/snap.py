@@ -258,7 +258,8 @@ def snap_text(result: SnapResult) -> str:
              f"saturated: {100 * result.saturated_fraction:.2f} % of the frame, "
              f"{100 * result.roi_saturated_fraction:.2f} % of the region"]
     if result.snr is not None:
-        lines.append(f"SNR R/G/B {triple(result.snr, '.1f')}")
+        lines.append(f"SNR R/G/B {triple(result.snr, '.1f')} (raw values, no dark frames subtracted: a patch near "
+                     f"the dark level reads higher here than in the capture)")
     if result.capture_exposures_s is not None:
         lines.append(f"the capture would take: {', '.join(f'{t:g} s' for t in result.capture_exposures_s)}")
     if result.problem:
