@@ -11,8 +11,7 @@ agrees with itself.
 
 So a few cells are chosen by geometry alone, spread over that region (``cells``: farthest-point
 sampling of the cells' (w_i, w_o) among the candidates with theta_d > 80 or theta_h > 70
-degrees, the distance between two pairs the least over turning one about the normal and
-exchanging its directions: what an isotropic, reciprocal BRDF, and a rig, tell apart), measured with the first batch and never fitted: at every look the posterior of the
+degrees), measured with the first batch and never fitted: at every look the posterior of the
 design's samples predicts them, and their mean squared mapped error (``check_error``) is compared
 with the median estimate of the whole error. The ratio is calibrated like the bound, on the
 held-out training materials of training's inner cross-validation (``confidence.fit_bound``);
@@ -34,8 +33,6 @@ THETA_D_MIN, THETA_H_MIN = 80.0, 70.0
 # The check flags a capture whose simultaneous sentinel score exceeds this conformal quantile
 # of the held-out training materials' (at most 5 % of materials like the training ones flagged).
 SENTINEL_CONFIDENCE = 0.95
-# Pairs closer than this (squared, unit directions: about 0.06 deg apart) are one pose of a rig.
-SAME_POSE = 1e-6
 
 
 def region(grid: MerlGrid) -> np.ndarray:
@@ -46,10 +43,10 @@ def region(grid: MerlGrid) -> np.ndarray:
 
 
 def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None = None) -> np.ndarray:
-    """int64 (count,) valid-cell positions: farthest-point sampling of the candidate cells
-    (bool (n_valid,), default all) in ``region`` by ``pair_distance``, starting at the one whose
-    (w_i, w_o) is farthest from their mean; fewer when the region holds fewer configurations, none
-    when it is empty. Deterministic (ties: the lowest position)."""
+    """int64 (count,) valid-cell positions: farthest-point sampling over the 6-vectors (w_i, w_o)
+    of the candidate cells (bool (n_valid,), default all) in ``region``, starting at the one
+    farthest from their mean; fewer when the region holds fewer, none when it is empty.
+    Deterministic (ties: the lowest position)."""
     mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
     where = np.flatnonzero(mask)
     if where.size == 0 or count < 1:
@@ -57,27 +54,11 @@ def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None 
     w_i, w_o = grid.cell_directions(grid.valid_cells[where])
     x = np.concatenate([w_i, w_o], axis=1)
     picks = [int(np.argmax(((x - x.mean(axis=0)) ** 2).sum(axis=1)))]
-    distance = pair_distance(w_i, w_o, picks[0])
-    while len(picks) < count and distance.max() > SAME_POSE:
+    distance = ((x - x[picks[0]]) ** 2).sum(axis=1)
+    while len(picks) < min(count, where.size):
         picks.append(int(np.argmax(distance)))
-        distance = np.minimum(distance, pair_distance(w_i, w_o, picks[-1]))
+        distance = np.minimum(distance, ((x - x[picks[-1]]) ** 2).sum(axis=1))
     return where[picks].astype(np.int64)
-
-
-def pair_distance(w_i: np.ndarray, w_o: np.ndarray, k: int) -> np.ndarray:
-    """(n,) squared distance of each direction pair (w_i[j], w_o[j]) (unit vectors, (n, 3) each) to
-    pair ``k``: the least |R a - w_i[k]|^2 + |R b - w_o[k]|^2 over turns R about the normal, of
-    (a, b) = the pair and its exchange. Pairs one turn or exchange apart (at theta_h = 0 every
-    phi_d; the full grid's sentinels were (0, 89, 0) and (0, 89, 179), one pose of the simulated
-    rig measured twice) are 0 apart. With the horizontal parts as complex numbers the best turn
-    leaves |a|^2 + |c|^2 + |b|^2 + |d|^2 - 2 |a conj(c) + b conj(d)|."""
-    h_i, h_o = w_i[:, 0] + 1j * w_i[:, 1], w_o[:, 0] + 1j * w_o[:, 1]
-    norms = np.abs(h_i) ** 2 + np.abs(h_o) ** 2 + abs(h_i[k]) ** 2 + abs(h_o[k]) ** 2
-
-    def turned(a, b, za, zb):
-        return (za - w_i[k, 2]) ** 2 + (zb - w_o[k, 2]) ** 2 + norms - 2 * np.abs(a * np.conj(h_i[k]) + b * np.conj(h_o[k]))
-    both = np.minimum(turned(h_i, h_o, w_i[:, 2], w_o[:, 2]), turned(h_o, h_i, w_o[:, 2], w_i[:, 2]))
-    return np.maximum(both, 0.0)  # rounding: a pair's distance to itself is 0, never below
 
 
 def check_error(rows: np.ndarray, coefficients: np.ndarray, b: np.ndarray, columns) -> float:
