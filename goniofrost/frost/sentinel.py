@@ -51,7 +51,7 @@ def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None 
     Two of the default three are one pose of a rig: (0, 89, 0) and (0, 89, 179) on the full grid
     (at theta_h = 0 every phi_d is one configuration), so the grazing mirror pose is measured
     twice. Measured, that repeat is what the check needs: a distance that makes them one point
-    picks a third pose instead, and trained on MERL the sentinels then flag 21 of the 51 RGL
+    picks a third pose instead, and trained on MERL the sentinels then flag 21 to 23 of the 51 RGL
     materials instead of 33 (docs/BENCHMARKS.md, "three sentinel poses instead of two")."""
     mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
     where = np.flatnonzero(mask)
