@@ -160,8 +160,8 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
                                 "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
                                 **whole_brdf_calibration(inputs)}
-        report["prediction"] |= extrapolation_section(inputs, records) | \
-            bound_section(inputs, records, getattr(spec, "confidence", None))
+        bound = session_bound(inputs, records, getattr(spec, "confidence", None))
+        report["prediction"] |= extrapolation_section(inputs, records, bound) | bound_section(inputs, bound)
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)
         report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
@@ -178,16 +178,25 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     return report
 
 
-def extrapolation_section(inputs, records) -> dict:
-    """Whether the samples are unlike every training material (``frost.confidence``): the
-    reconstruction is then an extrapolation the model's training does not back."""
-    from goniofrost.frost.confidence import FEATURE_NAMES
-    from goniofrost.frost.reconstruction import error_bound
+def session_bound(inputs, records, confidence: float | None = None):
+    """The whole BRDF's calibrated ErrorBound of the session's measured samples at ``confidence``
+    (the session's; None: 95 %), as a target-error capture's last batch makes it
+    (``target.Assessor``: the sentinels and check cells used when the plan has them). The report
+    computes it once: the extrapolation flags and the bound are two readings of it."""
+    from goniofrost.capture.target import DEFAULT_CONFIDENCE, make_assessor
 
-    order = np.array([r.plan_index for r in records], dtype=np.int64)
-    sentinel = getattr(inputs, "sentinel", None)
-    bound = error_bound(inputs.model, inputs.positions[order], np.array([r.rgb for r in records]),
-                        np.array([r.sigma for r in records]), sentinel=None if sentinel is None else sentinel[order])
+    confidence = DEFAULT_CONFIDENCE if confidence is None else confidence
+    return make_assessor(inputs.model, inputs.positions, confidence, None,
+                         getattr(inputs, "sentinel", None))(records)
+
+
+def extrapolation_section(inputs, records, bound=None) -> dict:
+    """Whether the samples are unlike every training material (``frost.confidence``): the
+    reconstruction is then an extrapolation the model's training does not back. ``bound``: the
+    session's ``session_bound`` (None: computed here; the flags do not depend on its confidence)."""
+    from goniofrost.frost.confidence import FEATURE_NAMES
+
+    bound = session_bound(inputs, records) if bound is None else bound
     return {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
             "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
 
@@ -241,18 +250,13 @@ def _version() -> str | None:
         return None
 
 
-def bound_section(inputs, records, confidence: float | None = None) -> dict:
-    """The calibrated statement of every capture, as a target-error capture's last batch makes it
-    (``target.Assessor``: the check samples used when the plan has them): the median estimate of
-    the whole BRDF's error and its bound at ``confidence`` (the session's; None: 95 %). Not for a
-    plan for a scene, whose design the whole BRDF's calibration is not of (``whole_brdf_calibration``)."""
-    from goniofrost.capture.target import DEFAULT_CONFIDENCE, make_assessor
-
+def bound_section(inputs, bound) -> dict:
+    """The calibrated statement of every capture from its ``session_bound``: the median estimate of
+    the whole BRDF's error and its bound at the session's confidence. Not for a plan for a scene,
+    whose design the whole BRDF's calibration is not of (``whole_brdf_calibration``)."""
     if inputs.scene is not None:
         return {}
-    confidence = DEFAULT_CONFIDENCE if confidence is None else confidence
-    bound = make_assessor(inputs.model, inputs.positions, confidence, None, inputs.sentinel)(records)
-    return {"median_estimate": float(bound.median), "confidence": confidence,
+    return {"median_estimate": float(bound.median), "confidence": float(bound.confidence),
             "bound": float(bound.upper) if np.isfinite(bound.upper) else None}
 
 
