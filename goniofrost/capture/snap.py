@@ -79,19 +79,17 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
 
     from goniofrost.capture.hardware import open_hardware
     from goniofrost.capture.plan_runner import PlanRunner
+    from goniofrost.capture.runner import check_material
     from goniofrost.core.atomic_file import output_errors
 
-    from goniofrost.core.errors import ConfigError
-
-    if material is not None and not rig.simulated:  # as capture: a real camera shows what is on the stage
-        raise ConfigError("command line", "--material",
-                          "no material on a real rig (it measures the sample in front of it)", material)
+    if rig.simulated and material is None:
+        material = DEFAULT_MATERIAL
+    # as capture: none on a real rig (it shows what is on the stage), a known one on a simulated
+    # rig, checked before anything is made or moved
+    material = check_material(rig, material)
     out = Path(out)
     with output_errors(out):
         out.parent.mkdir(parents=True, exist_ok=True)
-    if rig.simulated:
-        from goniofrost.datasets.specs import material_option
-        material = material_option(material or DEFAULT_MATERIAL)  # an unknown one fails before anything moves
     settings = rig.camera
     if exposure_s is not None and settings.get("shutter_speeds"):
         # the trigger sets the nearest of the camera's own speeds (as for the ladder's rungs); asking
