@@ -12,7 +12,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from goniofrost.core.errors import OutputError
+from goniofrost.core.errors import GoniofrostError, OutputError
 
 # errno -> what a user reads after "PATH: cannot write: "
 REASONS = {
@@ -76,6 +76,15 @@ def check_output_file(path) -> None:
     if path.is_dir():
         raise OutputError(path, REASONS[errno.EISDIR])
     check_output_dir(path.parent)
+
+
+def check_output_suffix(out, suffix: str, why: str, option: str = "--out") -> None:
+    """Raise ``GoniofrostError`` now unless the output name ``out`` ends in ``suffix`` (any case):
+    a command whose file format is fixed must not write it under a name that says another one
+    (``export --out brdf.txt`` held an RGL tensor, ``plan --out plan.yaml`` JSON). ``why``: the
+    format written, in the message's brackets."""
+    if not str(out).lower().endswith(suffix.lower()):
+        raise GoniofrostError(f"{option} {out}: expected a file name ending in {suffix} ({why})")
 
 
 def check_not_an_input(out, inputs: dict, option: str = "--out") -> None:
