@@ -68,13 +68,15 @@ def check_output_dir(path) -> None:
             raise OSError(code, os.strerror(code), str(existing))
 
 
-def check_output_file(path) -> None:
+def check_output_file(path, directory: str = REASONS[errno.EISDIR]) -> None:
     """Raise ``OutputError`` now if the file ``path`` could not be written later: a directory in
-    its place, or a folder that could not be created or written (``check_output_dir``). Creates
-    nothing: for commands that write their file after moving axes or minutes of work."""
+    its place (``directory``: the reason then; a file name the user did not choose, such as a
+    session's brdf.binary, needs other advice than "give a file name"), or a folder that could not
+    be created or written (``check_output_dir``). Creates nothing: for commands that write their
+    file after moving axes or minutes of work."""
     path = Path(path)
     if path.is_dir():
-        raise OutputError(path, REASONS[errno.EISDIR])
+        raise OutputError(path, directory)
     check_output_dir(path.parent)
 
 
