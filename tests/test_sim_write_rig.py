@@ -126,10 +126,12 @@ def test_the_camera_service_stops_its_thread_and_releases_its_port(tmp_path):
     service.stop()   # idempotent
 
 
-def test_sim_with_a_written_rig_stops_on_sigterm_and_releases_every_port(tmp_path):
-    """The whole command: ready line, SIGTERM, exit 0 with nothing but its serving line on stderr,
-    and the Modbus drive's port and the camera service's port released (the serial twins' ptys
-    are not checked after the exit: another process may be given the same /dev/pts number)."""
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
+def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_path, stop):
+    """The whole command: ready line, SIGTERM (or Ctrl-C's SIGINT), exit 0 with nothing but its
+    serving line on stderr, and the Modbus drive's port and the camera service's port released
+    (the serial twins' ptys are not checked after the exit: another process may be given the same
+    /dev/pts number)."""
     import re
 
     rig = write_rig(tmp_path / "rig.yaml")
@@ -143,7 +145,7 @@ def test_sim_with_a_written_rig_stops_on_sigterm_and_releases_every_port(tmp_pat
         camera_port = int(re.search(r"--port (\d+)", yaml.safe_load(out.read_text())["camera"]["trigger_command"])[1])
         modbus_port = int(endpoints["camera_arm"]["endpoint"].rsplit(":", 1)[1])
         assert not _refused(camera_port) and not _refused(modbus_port)
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(stop)
         _, err = proc.communicate(timeout=READY_S)   # a bound against a hang, not a measure of the stop
     finally:
         if proc.poll() is None:
