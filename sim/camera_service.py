@@ -15,6 +15,7 @@ It imports nothing heavy: it runs once per frame.
 from __future__ import annotations
 
 import argparse
+import select
 import socket
 import sys
 import threading
@@ -22,6 +23,7 @@ from pathlib import Path
 
 LOOPBACK = "127.0.0.1"
 CLIENT_TIMEOUT_S = 60.0  # the longest exposure of a ladder (16 s) at speed-up 1, with margin
+STOP_WAIT_S = 5.0  # how long stop() lets a request under way finish
 
 
 class CameraService:
@@ -32,31 +34,45 @@ class CameraService:
         self.camera, self.folder = camera, Path(folder)
         self._server = socket.create_server((LOOPBACK, 0))
         self.port = self._server.getsockname()[1]
+        # stop() writes a byte here to wake the serving thread: closing a listening socket does not
+        # wake a thread blocked in its accept() (Linux), which then kept the port open and stop()
+        # waited out its join timeout, 5 s of every `goniofrost sim --write-rig` stopping
+        self._wake_read, self._wake_write = socket.socketpair()
         self._count = 0
         self._lock = threading.Lock()  # one frame at a time, as one camera gives
         self._thread = threading.Thread(target=self._serve, name="sim-camera-service", daemon=True)
-        self._running = False
 
     def start(self) -> int:
         self.folder.mkdir(parents=True, exist_ok=True)
-        self._running = True
         self._thread.start()
         return self.port
 
     def stop(self) -> None:
-        self._running = False
-        self._server.close()
-        self._thread.join(timeout=5)
+        """Stop serving and release the port (idempotent). A request under way is given up to
+        STOP_WAIT_S to finish (a frame being rendered)."""
+        if self._wake_write.fileno() == -1:  # stopped before
+            return
+        self._wake_write.send(b"\0")
+        if self._thread.is_alive():
+            self._thread.join(timeout=STOP_WAIT_S)
+        for sock in (self._server, self._wake_read, self._wake_write):
+            sock.close()
 
     def _serve(self) -> None:
-        while self._running:
+        while True:
+            try:
+                ready, _, _ = select.select([self._server, self._wake_read], [], [])
+            except (OSError, ValueError):  # closed by a stop() that did not wait for the last request
+                return
+            if self._wake_read in ready:  # stop()
+                return
             try:
                 conn, _ = self._server.accept()
-            except OSError:  # closed by stop()
-                return
-            with conn:
-                line = conn.makefile("rb").readline().decode("ascii", "replace").strip()
-                conn.sendall((self.handle(line) + "\n").encode())
+                with conn:
+                    line = conn.makefile("rb").readline().decode("ascii", "replace").strip()
+                    conn.sendall((self.handle(line) + "\n").encode())
+            except OSError:  # the client went away (reset before accept, or before the answer)
+                continue
 
     def handle(self, line: str) -> str:
         """One request line -> its answer line."""

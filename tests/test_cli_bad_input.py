@@ -166,6 +166,49 @@ def test_export_compares_a_too_large_table_with_the_defaults_table_of_its_own_fo
     assert _tree(tmp_path) == []
 
 
+# ----- export, convert, plan: an --out whose name says another format ------------------------------
+def _no_work(monkeypatch) -> None:
+    """Fail the test if export builds its file, convert opens its dataset or plan reads its model."""
+    import goniofrost.brdf.rgl_spectral as rgl_spectral
+    import goniofrost.datasets as datasets
+    from goniofrost.frost.model import FrostModel
+
+    monkeypatch.setattr(rgl_spectral, "export_file", lambda *a, **k: pytest.fail("the file was exported"))
+    monkeypatch.setattr(datasets, "open_dataset", lambda *a, **k: pytest.fail("the dataset was opened"))
+    monkeypatch.setattr(FrostModel, "load", lambda *a, **k: pytest.fail("the model was read"))
+
+
+@pytest.mark.parametrize("command, out, expected", [
+    ("export", "brdf.txt", ".bsdf (every --format writes an RGL tensor file)"),
+    ("export --format pbrt", "brdf.binary", ".bsdf (every --format writes an RGL tensor file)"),
+    ("export --format rgl-spectral", "brdf.xml", ".bsdf (every --format writes an RGL tensor file)"),
+    ("convert", "gold.txt", ".binary (the file is written in MERL's .binary format)"),
+    ("convert", "gold.bsdf", ".binary (the file is written in MERL's .binary format)"),
+    ("plan", "plan.yaml", ".json (the plan is written as JSON)"),
+    ("plan", "plan", ".json (the plan is written as JSON)"),
+])
+def test_an_out_named_for_another_format_is_refused_before_any_work(command, out, expected, binary, tmp_path,
+                                                                     capsys, monkeypatch):
+    """export --out brdf.txt wrote an RGL tensor file under a text file's name (exit 0), convert
+    --out gold.txt a MERL file and plan --out plan.yaml JSON; the format of each is fixed (export's
+    by --format, always an RGL tensor), so a name that says another one is refused, as preview
+    refuses --out look.jpg (one check: atomic_file.check_output_suffix)."""
+    _no_work(monkeypatch)
+    name, *options = command.split()
+    argv = {"export": ["export", binary, *options],
+            "convert": ["convert", "--dataset", "builtin", "--material", "gold"],
+            "plan": ["plan", "--model", tmp_path / "model", "--samples", "5"]}[name]
+    line = _refused(capsys, [*argv, "--out", tmp_path / out])
+    assert line == f"goniofrost {name}: error: --out {tmp_path / out}: expected a file name ending in {expected}"
+    assert _tree(tmp_path) == []
+
+
+@pytest.mark.parametrize("out", ["brdf.BSDF", "e.bsdf"])
+def test_export_takes_a_bsdf_name_in_any_case(out, binary, tmp_path, capsys):
+    assert main(["export", str(binary), "--theta-i", "4", "--sample", "8", "--out", str(tmp_path / out)]) == 0
+    assert _tree(tmp_path) == [out]
+
+
 # ----- preview, export, compare: a MERL file with holes -------------------------------------------
 def _damaged(binary: Path, folder: Path, kind: str) -> Path:
     """A copy of ``binary`` (10 x 10 x 20) with holes at the valid cells (2, 3, 4) and (5, 1, 0) and
@@ -518,8 +561,8 @@ def test_usage_refuses_an_out_that_is_not_npy_before_it_renders(tmp_path, capsys
     monkeypatch.setattr(mitsuba_usage, "record_usage", lambda *a, **k: pytest.fail("the scene was rendered"))
     line = _refused(capsys, ["usage", "--scene", tmp_path / "scene.xml", "--object", "sample",
                              "--out", tmp_path / "usage.png"])
-    assert line == ("goniofrost usage: error: command line: --out: expected a file name ending in .npy (the weights "
-                    f"are a NumPy array), found {str(tmp_path / 'usage.png')!r}")
+    assert line == (f"goniofrost usage: error: --out {tmp_path / 'usage.png'}: expected a file name ending in .npy "
+                    "(the weights are a NumPy array)")   # the message of every --out suffix check
     assert list(tmp_path.iterdir()) == []
 
 

@@ -53,9 +53,14 @@ def _command(name: str, inputs: Path, out: Path) -> list[str]:
 COMMANDS = ("plan", "reconstruct", "preview", "export")
 
 
+# the suffix a command's --out must end in (reconstruct reads none: OUT.std.binary and OUT.json go beside it)
+SUFFIXES = {"preview": ".png", "plan": ".json", "export": ".bsdf"}
+
+
 def _named(name: str, path: Path) -> Path:
-    """``path`` as the command's --out: preview draws a picture, whose name must end in .png."""
-    return path.with_name(path.name + ".png") if name == "preview" else path
+    """``path`` as the command's --out, with the suffix of the file it writes (a picture .png, a
+    plan .json, an RGL tensor .bsdf)."""
+    return path.with_name(path.name + SUFFIXES.get(name, ""))
 
 
 def _run(capsys, argv) -> tuple[int, str]:
@@ -185,6 +190,7 @@ def _train(out: Path) -> list[str]:
 
 
 def _convert(out: Path) -> list[str]:
+    out = out if out.suffix == ".binary" else out.with_name(out.name + ".binary")   # the MERL file's suffix
     return ["convert", "--dataset", "builtin", "--material", "red-plastic", "--out", str(out)]
 
 
@@ -211,10 +217,12 @@ def test_train_refuses_an_existing_folder_that_is_no_model_and_convert_a_folder(
     code, err = _run(capsys, _train(tmp_path / "photos"))
     assert code == 2 and err == (f"goniofrost train: error: {tmp_path / 'photos'}: exists and is not a model "
                                  "directory; refusing to overwrite")
-    code, err = _run(capsys, _convert(tmp_path / "photos"))
-    assert code == 2 and err == (f"goniofrost convert: error: {tmp_path / 'photos'}: cannot write: it is a "
+    (tmp_path / "photos.binary").mkdir()
+    code, err = _run(capsys, _convert(tmp_path / "photos.binary"))
+    assert code == 2 and err == (f"goniofrost convert: error: {tmp_path / 'photos.binary'}: cannot write: it is a "
                                  "directory; give a file name such as red-plastic.binary")
     assert [p.name for p in (tmp_path / "photos").iterdir()] == ["keep.jpg"]
+    assert list((tmp_path / "photos.binary").iterdir()) == []
 
 
 def test_convert_on_a_full_disk_leaves_no_partial_file(mounted, capsys):

@@ -424,31 +424,56 @@ def test_a_full_disk_mid_session_is_one_line_and_the_session_resumes_once_there_
     assert [i for i, _ in journal_rows(session)] == list(range(M)) and sorted(csv_indices(session)) == list(range(M))
 
 
-@pytest.mark.parametrize("where, expected", [
-    ("session.sqlite/", "session.sqlite: cannot write: it is a directory, where the session journal goes: move it "
-                        "away or choose another --session\n"),
-    ("raw", "capture failed at plan sample 0 "),
-    ("samples.csv/", "samples.csv: cannot write: it is a directory; give a file name\n"),
-    ("brdf.binary/", "brdf.binary: cannot write: it is a directory; give a file name; every sample is safe in "),
+IN_THE_WAY = "cannot write: it is a directory, where the capture writes a file: move it away or choose another --session"
+
+
+@pytest.mark.parametrize("where, options, expected", [
+    ("session.sqlite/", (), "session.sqlite: cannot write: it is a directory, where the session journal goes: move "
+                            "it away or choose another --session"),
+    ("raw", (), "raw: cannot write: a part of the path is a file, not a directory"),
+    ("samples.csv/", (), f"samples.csv: {IN_THE_WAY}"),
+    ("brdf.binary/", (), f"brdf.binary: {IN_THE_WAY}"),
+    ("report.json/", (), f"report.json: {IN_THE_WAY}"),
+    ("brdf.bsdf/", ("--bsdf",), f"brdf.bsdf: {IN_THE_WAY}"),
+    ("brdf.bsdf/", ("--bsdf-format", "pbrt"), f"brdf.bsdf: {IN_THE_WAY}"),
 ])
-def test_an_output_path_of_the_session_in_the_way_is_one_line(setup, tmp_path, capsys, where, expected):
+def test_an_output_path_of_the_session_in_the_way_is_refused_before_the_rig_starts(setup, tmp_path, capsys,
+                                                                                    monkeypatch, where, options,
+                                                                                    expected):
+    """A folder named brdf.binary (or brdf.bsdf with --bsdf) was refused only at the end, after every
+    sample had been measured; a file named raw after the calibration had moved the axes. Now each
+    is one line before any device is connected, and the folder is left as it was."""
+    import goniofrost.capture.hardware as hardware
+
     folder, rig, plan, _ = setup
+    monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
     session = tmp_path / "s"
     session.mkdir()
     in_the_way = session / where.rstrip("/")
     in_the_way.mkdir() if where.endswith("/") else in_the_way.write_text("not a folder")
-    assert main(capture_args(rig, plan, session, "--speedup", "50")) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and expected in err, err
-    if where == "raw":
-        assert f"{session / 'raw'}/sample_0000_e" in err and ": cannot write: a part of the path is a file, not a " \
-               "directory. Stopped camera_arm at " in err and "; the lamp is off. 0 of 5 samples" in err
-    if where == "brdf.binary/":  # every sample was captured: once the path is free, --resume writes the results
-        assert err.endswith("then run the same command with --resume to write the results\n")
-        in_the_way.rmdir()
-        assert main(capture_args(rig, plan, session, "--resume")) == 0
-        assert f"(0 this run, {M} from before; 1 run(s))" in capsys.readouterr().out
-        assert read_merl(session / "brdf.binary", GRID).shape == (GRID.size, 3)
+    assert main(capture_args(rig, plan, session, "--speedup", "50", *options)) == 2
+    assert capsys.readouterr().err == f"goniofrost capture: error: {session / expected}\n"
+    assert [p.name for p in session.iterdir()] == [in_the_way.name]
+    assert not in_the_way.is_dir() or list(in_the_way.iterdir()) == []
+
+
+def test_a_folder_named_brdf_bsdf_is_in_the_way_only_of_a_capture_that_writes_it(setup, tmp_path, monkeypatch):
+    """Without --bsdf the capture writes no brdf.bsdf: a folder of that name is left alone, and the
+    capture goes on to start the rig (stopped there)."""
+    import goniofrost.capture.hardware as hardware
+
+    class Started(Exception):
+        pass
+
+    def start(*args, **kwargs):
+        raise Started
+
+    folder, rig, plan, _ = setup
+    monkeypatch.setattr(hardware, "open_hardware", start)
+    session = tmp_path / "s"
+    (session / "brdf.bsdf").mkdir(parents=True)
+    with pytest.raises(Started):
+        main(capture_args(rig, plan, session, "--speedup", "50"))
 
 
 # ----- files that do not belong together --------------------------------------------------------

@@ -97,3 +97,60 @@ def test_the_written_rig_of_the_pylon_rig_keeps_no_pylon_only_camera_key(tmp_pat
     assert camera["kind"] == "rawfile" and not {"pixel_format", "gain_db", "serial"} & set(camera)
     assert camera["timeout_s"] == 5.0  # what a folder camera reads is kept
     validate_camera_section(camera, "twins.yaml")
+
+
+# ----- stopping: SIGTERM ends the twins and the camera service at once, ports released -------------
+def _refused(port: int) -> bool:
+    """Whether a connection to 127.0.0.1:``port`` is refused (nothing listens there any more)."""
+    import socket
+
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=5).close()
+    except ConnectionRefusedError:
+        return True
+    return False
+
+
+def test_the_camera_service_stops_its_thread_and_releases_its_port(tmp_path):
+    """stop() closed the listening socket under the thread blocked in its accept(), which that does
+    not wake (Linux): the thread lived on, the port still took connections, and stop() returned
+    only when its 5 s join timed out (every `goniofrost sim --write-rig` took 5 s to stop)."""
+    from sim.camera_service import CameraService, request
+
+    service = CameraService(camera=None, folder=tmp_path / "frames")
+    service.start()
+    assert request(service.port, "hello", timeout_s=10).startswith("error unknown request")  # it serves
+    service.stop()
+    assert not service._thread.is_alive()
+    assert _refused(service.port)
+    service.stop()   # idempotent
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
+def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_path, stop):
+    """The whole command: ready line, SIGTERM (or Ctrl-C's SIGINT), exit 0 with nothing but its
+    serving line on stderr, and the Modbus drive's port and the camera service's port released
+    (the serial twins' ptys are not checked after the exit: another process may be given the same
+    /dev/pts number)."""
+    import re
+
+    rig = write_rig(tmp_path / "rig.yaml")
+    out = tmp_path / "twins.yaml"
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        assert ready, "goniofrost sim did not print its endpoints"
+        endpoints = json.loads(proc.stdout.readline())
+        camera_port = int(re.search(r"--port (\d+)", yaml.safe_load(out.read_text())["camera"]["trigger_command"])[1])
+        modbus_port = int(endpoints["camera_arm"]["endpoint"].rsplit(":", 1)[1])
+        assert not _refused(camera_port) and not _refused(modbus_port)
+        proc.send_signal(stop)
+        _, err = proc.communicate(timeout=READY_S)   # a bound against a hang, not a measure of the stop
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert err.splitlines() == [line for line in err.splitlines() if line.startswith("goniofrost sim: serving ")]
+    assert _refused(camera_port) and _refused(modbus_port)

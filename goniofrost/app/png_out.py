@@ -3,13 +3,13 @@ data, so a name with another suffix, ``look.jpg``, would hold PNG bytes under a 
 otherwise) and a sphere's ``--size``."""
 from __future__ import annotations
 
+from goniofrost.core.atomic_file import check_output_suffix
 from goniofrost.core.errors import GoniofrostError
 
 
 def check_png_name(out, option: str = "--out") -> None:
     """GoniofrostError (one line, exit 2) unless ``out`` ends in .png (any case)."""
-    if not str(out).lower().endswith(".png"):
-        raise GoniofrostError(f"{option} {out}: expected a file name ending in .png (the picture is written as PNG)")
+    check_output_suffix(out, ".png", "the picture is written as PNG", option)
 
 
 # A sphere of 100,000 pixels asked for 75 GB and ended in a MemoryError traceback; 2048 px (a few

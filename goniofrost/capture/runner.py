@@ -37,7 +37,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
             on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
             alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
-            inputs=None, progress_desc: str = "capture", rerun: str | None = None) -> CaptureOutcome:
+            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=()) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
@@ -52,7 +52,9 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     queue's sample before): only the white reference is measured again, and everything when its
     scale moved by more than ``drift_limit`` (relative). ``inputs``: already loaded inputs (a
     queue loads them once). ``rerun``: what the messages after a stop tell the user to type (a
-    queue: the queue command itself, which has no --resume; default ``engine.RERUN``).
+    queue: the queue command itself, which has no --resume; default ``engine.RERUN``). ``extra_files``:
+    the names of files the caller writes into the session folder after the capture (``capture
+    --bsdf``: brdf.bsdf), checked with the capture's own before anything moves (``check_session_outputs``).
     """
     from goniofrost.capture.engine import RERUN, SessionStats
     from goniofrost.capture.inputs import load_inputs
@@ -72,6 +74,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     if drift_limit is not None:
         spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
     existed = check_session_folder(session_dir)
+    check_session_outputs(session_dir, extra_files)
     with session_lock(session_dir) as lock:
         try:
             journal = open_journal(session_dir, meta, resume)
@@ -112,10 +115,31 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     return CaptureOutcome(report, summary_text(report), session_dir)
 
 
+# the files a capture writes into its session folder besides the journal (whose open refuses a
+# folder in its place itself) and the frames (in the folder sample_steps.RAW_DIR)
+SESSION_FILES = ("samples.csv", "brdf.binary", "brdf.std.binary", "brdf.json", "preview.png", "report.json",
+                 "summary.txt")
 # what a session folder holds besides its results (a folder holding anything else is not a session)
-SESSION_OWN = ("session.lock", JOURNAL_FILE, JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", "samples.csv", "raw",
-               "brdf.binary", "brdf.std.binary", "brdf.json", "brdf.bsdf", "preview.png", "report.json",
-               "summary.txt")
+SESSION_OWN = ("session.lock", JOURNAL_FILE, JOURNAL_FILE + "-wal", JOURNAL_FILE + "-shm", "raw", "brdf.bsdf",
+               *SESSION_FILES)
+
+
+def check_session_outputs(session_dir: Path, extra_files=()) -> None:
+    """OutputError now, before any device is connected, for anything in the way of what the
+    capture writes into ``session_dir``: a folder where one of its files goes (``extra_files``: the
+    names of those its caller writes there after it, ``capture --bsdf``'s brdf.bsdf), or a file
+    where its frames folder goes. A folder named brdf.binary or brdf.bsdf was found at the end,
+    after every sample had been measured. Creates nothing; a folder that does not exist yet holds
+    nothing in the way (the session lock makes it)."""
+    from goniofrost.capture.sample_steps import RAW_DIR
+    from goniofrost.core.atomic_file import check_output_dir, check_output_file
+
+    if not session_dir.is_dir():
+        return
+    for name in (*SESSION_FILES, *extra_files):
+        check_output_file(session_dir / name, "it is a directory, where the capture writes a file: move it away "
+                                              "or choose another --session")
+    check_output_dir(session_dir / RAW_DIR)
 
 
 def check_session_folder(session_dir: Path) -> bool:

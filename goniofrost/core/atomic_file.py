@@ -12,7 +12,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from goniofrost.core.errors import OutputError
+from goniofrost.core.errors import GoniofrostError, OutputError
 
 # errno -> what a user reads after "PATH: cannot write: "
 REASONS = {
@@ -68,14 +68,25 @@ def check_output_dir(path) -> None:
             raise OSError(code, os.strerror(code), str(existing))
 
 
-def check_output_file(path) -> None:
+def check_output_file(path, directory: str = REASONS[errno.EISDIR]) -> None:
     """Raise ``OutputError`` now if the file ``path`` could not be written later: a directory in
-    its place, or a folder that could not be created or written (``check_output_dir``). Creates
-    nothing: for commands that write their file after moving axes or minutes of work."""
+    its place (``directory``: the reason then; a file name the user did not choose, such as a
+    session's brdf.binary, needs other advice than "give a file name"), or a folder that could not
+    be created or written (``check_output_dir``). Creates nothing: for commands that write their
+    file after moving axes or minutes of work."""
     path = Path(path)
     if path.is_dir():
-        raise OutputError(path, REASONS[errno.EISDIR])
+        raise OutputError(path, directory)
     check_output_dir(path.parent)
+
+
+def check_output_suffix(out, suffix: str, why: str, option: str = "--out") -> None:
+    """Raise ``GoniofrostError`` now unless the output name ``out`` ends in ``suffix`` (any case):
+    a command whose file format is fixed must not write it under a name that says another one
+    (``export --out brdf.txt`` held an RGL tensor, ``plan --out plan.yaml`` JSON). ``why``: the
+    format written, in the message's brackets."""
+    if not str(out).lower().endswith(suffix.lower()):
+        raise GoniofrostError(f"{option} {out}: expected a file name ending in {suffix} ({why})")
 
 
 def check_not_an_input(out, inputs: dict, option: str = "--out") -> None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 HELP = "capture a plan's samples on a rig (journaled, resumable), then reconstruct and report"
+BSDF_FILE = "brdf.bsdf"  # --bsdf: what export_beside names the session's brdf.binary's export (checked first)
 
 
 def add_arguments(parser) -> None:
@@ -89,6 +90,7 @@ def run(args) -> int:
     from goniofrost.capture.lab import session_label
 
     inputs = load_inputs(args.rig, args.plan, args.alignment)
+    bsdf = bool(args.bsdf or args.bsdf_format)
     label = session_label(inputs.rig, args.operator, args.sample_id, args.note)
     confidence = DEFAULT_CONFIDENCE if args.confidence is None else args.confidence
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
@@ -97,7 +99,8 @@ def run(args) -> int:
             outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
                               seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
                               target_error=args.target_error, confidence=confidence,
-                              alignment=args.alignment, label=label, inputs=inputs)
+                              alignment=args.alignment, label=label, inputs=inputs,
+                              extra_files=(BSDF_FILE,) if bsdf else ())
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)
@@ -107,7 +110,7 @@ def run(args) -> int:
               f"run the same command with --resume", file=sys.stderr)
         return 130
     print(outcome.summary, end="")
-    if args.bsdf or args.bsdf_format:
+    if bsdf:
         from goniofrost.brdf.rgl_spectral import export_beside
 
         fmt = args.bsdf_format or "mitsuba"

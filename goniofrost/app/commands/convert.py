@@ -18,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--material", required=True, metavar="NAME",
                         help="material name, as listed by 'goniofrost materials'")
     parser.add_argument("--out", metavar="FILE.binary",
-                        help="output file (default: NAME.binary in the current folder)")
+                        help="output file, ending in .binary (default: NAME.binary in the current folder)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,11 +26,13 @@ def run(args: argparse.Namespace) -> int:
 
     from goniofrost.datasets import open_dataset
     from goniofrost.datasets.tabulate import tabulate_cached
-    from goniofrost.core.atomic_file import check_output_dir
+    from goniofrost.core.atomic_file import check_output_dir, check_output_suffix
     from goniofrost.core.errors import OutputError
     from goniofrost.core.grid import FULL_GRID
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
 
+    if args.out is not None:  # before the dataset is opened: --out gold.txt held a MERL file
+        check_output_suffix(args.out, ".binary", "the file is written in MERL's .binary format")
     dataset = open_dataset(args.dataset)
     name = dataset.resolve(args.material)
     out = Path(args.out) if args.out else Path(f"{name}.binary")

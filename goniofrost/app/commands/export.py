@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="mitsuba: the RGB file for Mitsuba 3's 'measured' BSDF (RGB variants; the default); "
                              "rgl-spectral, or its alias pbrt: the spectral file for pbrt-v4's 'measured' material "
                              "and Mitsuba 3's spectral variants")
-    parser.add_argument("--out", metavar="FILE.bsdf", help="output file (default: FILE.bsdf beside the input)")
+    parser.add_argument("--out", metavar="FILE.bsdf",
+                        help="output file, ending in .bsdf (default: FILE.bsdf beside the input)")
     parser.add_argument("--theta-i", type=int, default=DEFAULT_OPTIONS.theta_i, metavar="N",
                         help=f"incident elevations tabulated (default {DEFAULT_OPTIONS.theta_i})")
     parser.add_argument("--sample", type=int, default=DEFAULT_OPTIONS.sample, metavar="N",
@@ -46,12 +47,16 @@ def run(args: argparse.Namespace) -> int:
 
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
     from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, FORMATS as KINDS, export_file
+    from goniofrost.core.atomic_file import check_output_suffix
     from goniofrost.core.errors import GoniofrostError
 
     source = Path(args.binary)
     out = Path(args.out) if args.out else source.with_suffix(".bsdf")
     if out.resolve() == source.resolve():
         raise GoniofrostError(f"--out {out}: is the input file; expected another name such as {source.stem}.bsdf")
+    # --out brdf.txt held an RGL tensor under a name that says text; the format is the file's
+    # contents (RGB or spectral), never its name, so the name is checked and not read
+    check_output_suffix(out, ".bsdf", "every --format writes an RGL tensor file")
     if args.wavelengths is not None and KINDS[args.format] == "rgb":  # it would change nothing, silently
         raise GoniofrostError("--wavelengths: applies to the spectral formats only (--format rgl-spectral or pbrt)")
     wavelengths = DEFAULT_WAVELENGTHS if args.wavelengths is None else args.wavelengths

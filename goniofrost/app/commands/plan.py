@@ -42,7 +42,7 @@ def add_arguments(parser) -> None:
                              "(theta_d > 80 or theta_h > 70 deg), never fitted: capture --target-error checks the "
                              "design's reconstruction there and does not stop when they disagree (a material unlike "
                              "the training set); --no-sentinels: the design's samples only")
-    parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write")
+    parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write (a .json name)")
 
 
 def run(args) -> int:
@@ -61,7 +61,9 @@ def run(args) -> int:
         raise ConfigError("command line", "--max-angle", "degrees in (0, 90]", args.max_angle)
     if args.samples is not None and args.samples < 1:  # the selection's own error said "samples m"
         raise ConfigError("command line", "--samples", "a positive integer", args.samples)
-    from goniofrost.core.atomic_file import check_not_an_input
+    from goniofrost.core.atomic_file import check_not_an_input, check_output_suffix
+    # before the model is read: --out plan.yaml held JSON under a name that says YAML
+    check_output_suffix(args.out, ".json", "the plan is written as JSON")
     check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
                                   "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
     model = FrostModel.load(args.model)

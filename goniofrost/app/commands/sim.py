@@ -32,9 +32,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     import json
-    import signal
     import sys
-    import threading
     from contextlib import ExitStack
 
     from goniofrost.core.errors import ConfigError
@@ -54,19 +52,54 @@ def run(args) -> int:
         check_not_an_input(args.write_rig, {"--rig": args.rig}, "--write-rig")  # it replaced the rig file
         check_output_file(args.write_rig)
         material = material_brdf(args.material or DEFAULT_MATERIAL)  # a bad name fails before anything starts
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    with ExitStack() as stack:
+    with _stop_signals() as wait_for_stop, ExitStack() as stack:
         simulation = stack.enter_context(SimulatedRig(rig, speedup=args.speedup, seed=seed))
         if args.write_rig is not None:
             stack.enter_context(_served_rig_file(rig, simulation, material, seed, args.write_rig))
         print(json.dumps(simulation.endpoints), flush=True)
         print(f"goniofrost sim: serving the {len(rig.axes)} axes (and lamp) of {rig.name} "
               f"(speed-up {simulation.clock.speedup:g}); stop with Ctrl-C", file=sys.stderr, flush=True)
-        while not stop.wait(0.2):
-            pass
+        wait_for_stop()
     return 0
+
+
+def _stop_signals():
+    """A context yielding ``wait()``, which returns once SIGINT or SIGTERM has come (at once if one
+    came after entering: during start-up the devices are started, then stopped).
+
+    The signals' C-level handler writes their number to a pipe (``signal.set_wakeup_fd``) that
+    ``wait()`` reads: no polling (a wait of 0.2 s at a time kept the stop waiting up to that long),
+    and no lock taken in a Python signal handler (``Event.set()`` there deadlocks when the signal
+    interrupts the same thread inside ``Event.wait()``, which holds that lock). A second signal
+    while the devices stop is absorbed, so the stop is never cut short.
+    """
+    import os
+    import signal
+    from contextlib import contextmanager
+
+    wanted = (signal.SIGINT, signal.SIGTERM)
+
+    @contextmanager
+    def caught():
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)  # set_wakeup_fd's requirement
+        previous = {sig: signal.signal(sig, lambda *_: None) for sig in wanted}
+        before = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+
+        def wait() -> None:
+            while os.read(read_fd, 1)[0] not in wanted:  # any other signal with a handler writes too
+                pass
+
+        try:
+            yield wait
+        finally:
+            signal.set_wakeup_fd(before)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            os.close(read_fd)
+            os.close(write_fd)
+
+    return caught()
 
 
 def _served_rig_file(rig, simulation, material, seed: int, out_path):

@@ -17,14 +17,13 @@ def run(args) -> int:
 
     from goniofrost.brdf.mitsuba_usage import record_usage
     from goniofrost.brdf.usage import save_usage
-    from goniofrost.core.atomic_file import check_output_dir
+    from goniofrost.core.atomic_file import check_output_dir, check_output_suffix
     from goniofrost.core.errors import ConfigError
 
     if args.spp is not None and args.spp < 1:
         raise ConfigError("command line", "--spp", "a whole number >= 1", args.spp)
-    if not str(args.out).lower().endswith(".npy"):  # usage.png held NumPy bytes under a picture's name
-        raise ConfigError("command line", "--out", "a file name ending in .npy (the weights are a NumPy array)",
-                          args.out)
+    # usage.png held NumPy bytes under a picture's name
+    check_output_suffix(args.out, ".npy", "the weights are a NumPy array")
     check_output_dir(Path(args.out).parent)
     tty = sys.stderr.isatty()
 
