@@ -16,6 +16,7 @@ from goniofrost.brdf.merl_file import valid_to_full, write_merl
 from goniofrost.core.atomic_file import write_bytes_atomic
 from goniofrost.core.errors import OutputError
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.outputs import bayes_output_paths
 from goniofrost.frost.selection import select_cells
 from goniofrost.frost.training import fit_model
 
@@ -53,13 +54,13 @@ def _command(name: str, inputs: Path, out: Path) -> list[str]:
 COMMANDS = ("plan", "reconstruct", "preview", "export")
 
 
-# the suffix a command's --out must end in (reconstruct reads none: OUT.std.binary and OUT.json go beside it)
-SUFFIXES = {"preview": ".png", "plan": ".json", "export": ".bsdf"}
+# the suffix a command's --out must end in (reconstruct's OUT.std.binary and OUT.json go beside it)
+SUFFIXES = {"preview": ".png", "plan": ".json", "export": ".bsdf", "reconstruct": ".binary"}
 
 
 def _named(name: str, path: Path) -> Path:
     """``path`` as the command's --out, with the suffix of the file it writes (a picture .png, a
-    plan .json, an RGL tensor .bsdf)."""
+    plan .json, an RGL tensor .bsdf, a MERL .binary)."""
     return path.with_name(path.name + SUFFIXES.get(name, ""))
 
 
@@ -83,8 +84,7 @@ def test_an_existing_out_is_replaced_by_a_rename(inputs, tmp_path, capsys, name)
     out = _named("preview" if name == "compare" else name, tmp_path / f"{name}.out")
     argv = (["compare", str(inputs / "x.binary"), str(inputs / "x.binary"), "--size", "32", "--out", str(out)]
             if name == "compare" else _command(name, inputs, out))
-    sides = (".std.binary", ".json") if name == "reconstruct" else ()   # OUT.std.binary and OUT.json beside OUT
-    outs = [out] + [out.with_name(out.name + side) for side in sides]
+    outs = [out] + (list(bayes_output_paths(out)) if name == "reconstruct" else [])   # OUT.std.binary, OUT.json
     old = b"the old file " * 1000
     readers = []
     for path in outs:
