@@ -76,6 +76,13 @@ def test_the_commands_write_where_they_should(inputs, tmp_path, capsys):
         assert _run(capsys, _command(name, inputs, out))[0] == 0 and out.is_file()
 
 
+def test_reconstruct_takes_a_binary_name_in_any_case_and_puts_its_side_files_beside_it(inputs, tmp_path, capsys):
+    """--out is checked for .binary in any case (check_output_suffix); OUT.BINARY's side files were
+    OUT.BINARY.std.binary and OUT.BINARY.json, not OUT.std.binary and OUT.json as for OUT.binary."""
+    assert _run(capsys, _command("reconstruct", inputs, tmp_path / "o.BINARY"))[0] == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.BINARY", "o.json", "o.std.binary"]
+
+
 @pytest.mark.parametrize("name", (*COMMANDS, "compare"))
 def test_an_existing_out_is_replaced_by_a_rename(inputs, tmp_path, capsys, name):
     """What the README promises: an existing --out is replaced atomically (a temporary file beside
