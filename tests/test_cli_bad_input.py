@@ -212,6 +212,29 @@ def test_an_out_named_for_another_format_is_refused_before_any_work(command, out
     assert _tree(tmp_path) == []
 
 
+@pytest.mark.parametrize("in_the_way", ["a folder", "a file"])
+@pytest.mark.parametrize("command, out", [("export", "brdf.bsdf"), ("plan", "plan.json"), ("reconstruct", "brdf.binary")])
+def test_an_out_that_cannot_be_written_is_refused_before_any_work(command, out, in_the_way, binary, tmp_path, capsys,
+                                                                   monkeypatch):
+    """plan --out DIR.json and export --out DIR.bsdf (an existing folder) were refused only when the
+    file was written, after the selection or the export; an --out below a file, by these and by
+    reconstruct, likewise. One check, atomic_file.check_output_file, as align and sim use."""
+    _no_work(monkeypatch)
+    if in_the_way == "a folder":
+        (tmp_path / out).mkdir()
+        where, why = tmp_path / out, "it is a directory; give a file name"
+    else:
+        (tmp_path / "a-file").write_text("keep me")
+        out, where, why = f"a-file/{out}", tmp_path / "a-file", "a part of the path is a file, not a directory"
+    before = _tree(tmp_path)
+    argv = {"export": ["export", binary],
+            "plan": ["plan", "--model", tmp_path / "model", "--samples", "5"],
+            "reconstruct": ["reconstruct", "--model", tmp_path / "model", "--samples", tmp_path / "s.csv"]}[command]
+    line = _refused(capsys, [*argv, "--out", tmp_path / out])
+    assert line == f"goniofrost {command}: error: {where}: cannot write: {why}"
+    assert _tree(tmp_path) == before and (in_the_way == "a folder" or (tmp_path / "a-file").read_text() == "keep me")
+
+
 @pytest.mark.parametrize("out", ["brdf.BSDF", "e.bsdf"])
 def test_export_takes_a_bsdf_name_in_any_case(out, binary, tmp_path, capsys):
     assert main(["export", str(binary), "--theta-i", "4", "--sample", "8", "--out", str(tmp_path / out)]) == 0

@@ -36,12 +36,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import errno
-    from pathlib import Path
-
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.core.atomic_file import REASONS, check_not_an_input, check_output_suffix
-    from goniofrost.core.errors import GoniofrostError, OutputError
+    from goniofrost.core.atomic_file import check_not_an_input, check_output_file, check_output_suffix
+    from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.outputs import bayes_output_paths
     from goniofrost.frost.reconstruction import ETA, reconstruct
@@ -55,9 +52,8 @@ def run(args) -> int:
         check_not_an_input(out, {"--samples": args.samples, "--model": args.model})
         # a folder in the place of any of the three, before one is written: a folder named OUT.json
         # was refused only after OUT and OUT.std.binary were written (exit 2, two of the three
-        # files); a folder the three share that cannot be written fails the first write
-        if Path(out).is_dir():
-            raise OutputError(out, REASONS[errno.EISDIR])
+        # files); a folder the three share that cannot be written, after the reconstruction
+        check_output_file(out)
     model = FrostModel.load(args.model)
     cells, values, extra = read_samples_csv(args.samples, model.grid)
     positions = model.grid.valid_position(cells)
