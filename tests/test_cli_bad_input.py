@@ -178,29 +178,61 @@ def _no_work(monkeypatch) -> None:
     monkeypatch.setattr(FrostModel, "load", lambda *a, **k: pytest.fail("the model was read"))
 
 
+MERL_SUFFIX = ".binary (the file is written in MERL's .binary format)"
+
+
 @pytest.mark.parametrize("command, out, expected", [
     ("export", "brdf.txt", ".bsdf (every --format writes an RGL tensor file)"),
     ("export --format pbrt", "brdf.binary", ".bsdf (every --format writes an RGL tensor file)"),
     ("export --format rgl-spectral", "brdf.xml", ".bsdf (every --format writes an RGL tensor file)"),
-    ("convert", "gold.txt", ".binary (the file is written in MERL's .binary format)"),
-    ("convert", "gold.bsdf", ".binary (the file is written in MERL's .binary format)"),
+    ("convert", "gold.txt", MERL_SUFFIX),
+    ("convert", "gold.bsdf", MERL_SUFFIX),
     ("plan", "plan.yaml", ".json (the plan is written as JSON)"),
     ("plan", "plan", ".json (the plan is written as JSON)"),
+    ("reconstruct", "brdf.txt", MERL_SUFFIX),
+    ("reconstruct", "brdf", MERL_SUFFIX),
+    ("reconstruct --estimator ridge", "s.csv", MERL_SUFFIX),
 ])
 def test_an_out_named_for_another_format_is_refused_before_any_work(command, out, expected, binary, tmp_path,
                                                                      capsys, monkeypatch):
     """export --out brdf.txt wrote an RGL tensor file under a text file's name (exit 0), convert
-    --out gold.txt a MERL file and plan --out plan.yaml JSON; the format of each is fixed (export's
-    by --format, always an RGL tensor), so a name that says another one is refused, as preview
-    refuses --out look.jpg (one check: atomic_file.check_output_suffix)."""
+    --out gold.txt a MERL file, plan --out plan.yaml JSON and reconstruct --out brdf a MERL file
+    (brdf.std.binary and brdf.json beside it); the format of each is fixed (export's by --format,
+    always an RGL tensor), so a name that says another one is refused, as preview refuses --out
+    look.jpg (one check: atomic_file.check_output_suffix)."""
     _no_work(monkeypatch)
     name, *options = command.split()
     argv = {"export": ["export", binary, *options],
             "convert": ["convert", "--dataset", "builtin", "--material", "gold"],
-            "plan": ["plan", "--model", tmp_path / "model", "--samples", "5"]}[name]
+            "plan": ["plan", "--model", tmp_path / "model", "--samples", "5"],
+            "reconstruct": ["reconstruct", *options, "--model", tmp_path / "model", "--samples", tmp_path / "s.csv"]
+            }[name]
     line = _refused(capsys, [*argv, "--out", tmp_path / out])
     assert line == f"goniofrost {name}: error: --out {tmp_path / out}: expected a file name ending in {expected}"
     assert _tree(tmp_path) == []
+
+
+@pytest.mark.parametrize("in_the_way", ["a folder", "a file"])
+@pytest.mark.parametrize("command, out", [("export", "brdf.bsdf"), ("plan", "plan.json"), ("reconstruct", "brdf.binary")])
+def test_an_out_that_cannot_be_written_is_refused_before_any_work(command, out, in_the_way, binary, tmp_path, capsys,
+                                                                   monkeypatch):
+    """plan --out DIR.json and export --out DIR.bsdf (an existing folder) were refused only when the
+    file was written, after the selection or the export; an --out below a file, by these and by
+    reconstruct, likewise. One check, atomic_file.check_output_file, as align and sim use."""
+    _no_work(monkeypatch)
+    if in_the_way == "a folder":
+        (tmp_path / out).mkdir()
+        where, why = tmp_path / out, "it is a directory; give a file name"
+    else:
+        (tmp_path / "a-file").write_text("keep me")
+        out, where, why = f"a-file/{out}", tmp_path / "a-file", "a part of the path is a file, not a directory"
+    before = _tree(tmp_path)
+    argv = {"export": ["export", binary],
+            "plan": ["plan", "--model", tmp_path / "model", "--samples", "5"],
+            "reconstruct": ["reconstruct", "--model", tmp_path / "model", "--samples", tmp_path / "s.csv"]}[command]
+    line = _refused(capsys, [*argv, "--out", tmp_path / out])
+    assert line == f"goniofrost {command}: error: {where}: cannot write: {why}"
+    assert _tree(tmp_path) == before and (in_the_way == "a folder" or (tmp_path / "a-file").read_text() == "keep me")
 
 
 @pytest.mark.parametrize("out", ["brdf.BSDF", "e.bsdf"])
@@ -497,7 +529,7 @@ def test_a_model_json_field_of_the_wrong_type_is_named(command, field, value, wo
 
 # ----- reconstruct: an --out that is the samples file ------------------------------------------------
 @pytest.mark.parametrize("out, samples, clash, option", [
-    ("s.csv", "s.csv", "s.csv", "--samples s.csv"),
+    ("s.binary", "s.binary", "s.binary", "--samples s.binary"),   # (--out s.csv: refused by its suffix first)
     ("s.binary", "s.json", "s.json", "--samples s.json"),     # its record OUT.json
     ("model/brdf.binary", "s.csv", "model/brdf.binary", "--model model"),
 ])

@@ -101,3 +101,23 @@ def test_a_rig_another_program_drives_is_refused_before_the_training(tmp_path, m
         f"goniofrost demo: error: rig 'sim-rig' is in use by capture (process {os.getpid()}): one program drives a "
         f"rig at a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
     assert not (tmp_path / "demo").exists()
+
+
+@pytest.mark.parametrize("name", ["plan.json", "reference.binary", "preview.png", "report.json"])
+def test_a_folder_in_the_way_of_a_demo_file_is_refused_before_the_training(name, tmp_path, monkeypatch, capsys):
+    """A folder named report.json (or reference.binary, preview.png) in --out was found after the
+    training and the whole capture, plan.json after the training. (Nothing in a previous demo's
+    session folder is in the way: the demo replaces that folder whole, brdf.bsdf of --bsdf too.)"""
+    import planner.reach
+
+    from goniofrost.app import demo
+    from goniofrost.app.cli import main
+
+    monkeypatch.setattr(planner.reach, "is_cached", lambda *a, **k: True)   # nor the library tabulated beside it
+    monkeypatch.setattr(planner.reach, "reachability", lambda *a, **k: pytest.fail("the rig's reach was computed"))
+    monkeypatch.setattr(demo, "train_without", lambda *a, **k: pytest.fail("the demo trained"))
+    (tmp_path / name).mkdir()
+    assert main(["demo", "--out", str(tmp_path), "--bsdf", "--no-progress"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost demo: error: {tmp_path / name}: cannot write: it is a directory, "
+                                       f"where the demo writes a file: move it away or choose another --out\n")
+    assert [p.name for p in tmp_path.iterdir()] == [name] and not list((tmp_path / name).iterdir())

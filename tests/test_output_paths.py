@@ -16,6 +16,7 @@ from goniofrost.brdf.merl_file import valid_to_full, write_merl
 from goniofrost.core.atomic_file import write_bytes_atomic
 from goniofrost.core.errors import OutputError
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.outputs import bayes_output_paths
 from goniofrost.frost.selection import select_cells
 from goniofrost.frost.training import fit_model
 
@@ -51,15 +52,18 @@ def _command(name: str, inputs: Path, out: Path) -> list[str]:
 
 
 COMMANDS = ("plan", "reconstruct", "preview", "export")
+# those that check their --out before the work (atomic_file.check_output_file): a folder that cannot
+# be written is named itself, the file in the way or the read-only folder, as train and convert do
+CHECKED_FIRST = ("plan", "reconstruct", "export")
 
 
-# the suffix a command's --out must end in (reconstruct reads none: OUT.std.binary and OUT.json go beside it)
-SUFFIXES = {"preview": ".png", "plan": ".json", "export": ".bsdf"}
+# the suffix a command's --out must end in (reconstruct's OUT.std.binary and OUT.json go beside it)
+SUFFIXES = {"preview": ".png", "plan": ".json", "export": ".bsdf", "reconstruct": ".binary"}
 
 
 def _named(name: str, path: Path) -> Path:
     """``path`` as the command's --out, with the suffix of the file it writes (a picture .png, a
-    plan .json, an RGL tensor .bsdf)."""
+    plan .json, an RGL tensor .bsdf, a MERL .binary)."""
     return path.with_name(path.name + SUFFIXES.get(name, ""))
 
 
@@ -75,6 +79,13 @@ def test_the_commands_write_where_they_should(inputs, tmp_path, capsys):
         assert _run(capsys, _command(name, inputs, out))[0] == 0 and out.is_file()
 
 
+def test_reconstruct_takes_a_binary_name_in_any_case_and_puts_its_side_files_beside_it(inputs, tmp_path, capsys):
+    """--out is checked for .binary in any case (check_output_suffix); OUT.BINARY's side files were
+    OUT.BINARY.std.binary and OUT.BINARY.json, not OUT.std.binary and OUT.json as for OUT.binary."""
+    assert _run(capsys, _command("reconstruct", inputs, tmp_path / "o.BINARY"))[0] == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.BINARY", "o.json", "o.std.binary"]
+
+
 @pytest.mark.parametrize("name", (*COMMANDS, "compare"))
 def test_an_existing_out_is_replaced_by_a_rename(inputs, tmp_path, capsys, name):
     """What the README promises: an existing --out is replaced atomically (a temporary file beside
@@ -83,8 +94,7 @@ def test_an_existing_out_is_replaced_by_a_rename(inputs, tmp_path, capsys, name)
     out = _named("preview" if name == "compare" else name, tmp_path / f"{name}.out")
     argv = (["compare", str(inputs / "x.binary"), str(inputs / "x.binary"), "--size", "32", "--out", str(out)]
             if name == "compare" else _command(name, inputs, out))
-    sides = (".std.binary", ".json") if name == "reconstruct" else ()   # OUT.std.binary and OUT.json beside OUT
-    outs = [out] + [out.with_name(out.name + side) for side in sides]
+    outs = [out] + (list(bayes_output_paths(out)) if name == "reconstruct" else [])   # OUT.std.binary, OUT.json
     old = b"the old file " * 1000
     readers = []
     for path in outs:
@@ -115,7 +125,8 @@ def test_out_below_a_file(inputs, tmp_path, capsys, name):
     (tmp_path / "a-file").write_text("keep me")
     out = _named(name, tmp_path / "a-file" / "result")
     code, err = _run(capsys, _command(name, inputs, out))
-    assert code == 2 and err == (f"goniofrost {name}: error: {out}: cannot write: "
+    named = tmp_path / "a-file" if name in CHECKED_FIRST else out
+    assert code == 2 and err == (f"goniofrost {name}: error: {named}: cannot write: "
                                  "a part of the path is a file, not a directory")
     assert (tmp_path / "a-file").read_text() == "keep me"
 
@@ -125,7 +136,8 @@ def test_out_on_a_read_only_file_system(inputs, mounted, capsys, name):
     folder = mounted("ro,size=64k")
     out = _named(name, folder / "result")
     code, err = _run(capsys, _command(name, inputs, out))
-    assert code == 2 and err == f"goniofrost {name}: error: {out}: cannot write: the file system is read-only"
+    named = folder if name in CHECKED_FIRST else out
+    assert code == 2 and err == f"goniofrost {name}: error: {named}: cannot write: the file system is read-only"
     assert list(folder.iterdir()) == []
 
 

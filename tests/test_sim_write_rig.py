@@ -129,9 +129,11 @@ def test_the_camera_service_stops_its_thread_and_releases_its_port(tmp_path):
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
 def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_path, stop):
     """The whole command: ready line, SIGTERM (or Ctrl-C's SIGINT), exit 0 with nothing but its
-    serving line on stderr, and the Modbus drive's port and the camera service's port released
-    (the serial twins' ptys are not checked after the exit: another process may be given the same
-    /dev/pts number)."""
+    serving line and the removal of the rig file on stderr, the Modbus drive's port and the camera
+    service's port released (the serial twins' ptys are not checked after the exit: another process
+    may be given the same /dev/pts number), and the rig file gone with its empty frames folder: left
+    behind, it pointed at endpoints that no longer exist, and a later `rig status --rig twins.yaml`
+    failed with a refused connection that did not say why."""
     import re
 
     rig = write_rig(tmp_path / "rig.yaml")
@@ -152,5 +154,34 @@ def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_pa
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, err
-    assert err.splitlines() == [line for line in err.splitlines() if line.startswith("goniofrost sim: serving ")]
+    assert err.splitlines()[0].startswith("goniofrost sim: serving ")
+    assert err.splitlines()[1:] == [f"goniofrost sim: removed {out}: its twins have stopped, so its endpoints are gone"]
     assert _refused(camera_port) and _refused(modbus_port)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml"]   # nor twins.yaml.frames, empty
+
+
+def test_sim_leaves_a_rig_file_replaced_while_it_ran_and_keeps_the_frames_taken(tmp_path):
+    """The rig file is removed only if it is still the one this sim wrote (another `sim --write-rig`
+    of the same name may have replaced it: that one's twins still run); frames in the frames folder
+    are kept, and the stop says both."""
+    rig = write_rig(tmp_path / "rig.yaml")
+    out, frames = tmp_path / "twins.yaml", tmp_path / "twins.yaml.frames"
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        assert ready, "goniofrost sim did not print its endpoints"
+        proc.stdout.readline()
+        (tmp_path / "other.yaml").write_text("# another sim's twins\n")
+        os.replace(tmp_path / "other.yaml", out)
+        (frames / "frame_000000.dng").write_bytes(b"a frame")
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=READY_S)   # a bound against a hang, not a measure of the stop
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert err.splitlines()[1:] == [f"goniofrost sim: left {out}: it is not the file this sim wrote (replaced since); "
+                                    f"the frames in {frames} are kept"]
+    assert out.read_text() == "# another sim's twins\n" and [p.name for p in frames.iterdir()] == ["frame_000000.dng"]

@@ -26,6 +26,8 @@ DEFAULT_SAMPLES = 40  # the plan's m_max; the capture stops earlier once the tar
 DEFAULT_TARGET_ERROR = 0.005
 DEFAULT_CONFIDENCE = 0.95
 DEFAULT_SPEEDUP = 50.0  # simulated seconds per real second: motion and exposures of the demo rig
+# what the demo writes into its --out folder besides the session folder (which it replaces whole)
+DEMO_FILES = ("plan.json", "reference.binary", "preview.png", "report.json")
 
 
 def rms_relative_error(log_relative_mse: float) -> float:
@@ -61,6 +63,7 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     out, grid = Path(out), grid or FULL_GRID
     rig_path = Path(rig_path) if rig_path else default_rig_path()
     check_replaceable(out / "session")  # before minutes of training, not after
+    check_demo_outputs(out)
     from goniofrost.datasets import open_dataset
 
     open_dataset("builtin").resolve(material)  # an unknown name fails here, with suggestions
@@ -193,6 +196,17 @@ def check_replaceable(session_dir: Path) -> None:
     if session_dir.exists() and not (session_dir / JOURNAL_FILE).is_file():
         raise GoniofrostError(f"{session_dir}: exists but holds no {JOURNAL_FILE}, so it is not a previous demo "
                               f"session; refusing to delete it: choose another --out")
+
+
+def check_demo_outputs(out: Path) -> None:
+    """OutputError now, before the training, for a folder where one of DEMO_FILES goes (a folder
+    named report.json was found after the whole capture). Nothing in the session folder can be in
+    the way: ``capture_fresh`` replaces it whole, so its brdf.bsdf (``--bsdf``) is never checked."""
+    from goniofrost.core.atomic_file import check_output_file
+
+    for name in DEMO_FILES:
+        check_output_file(out / name, "it is a directory, where the demo writes a file: move it away or choose "
+                                      "another --out")
 
 
 def write_reference_and_preview(material: str, grid, out: Path) -> None:

@@ -13,9 +13,10 @@ from goniofrost.frost.reconstruction import BayesReconstruction, ReconstructionE
 
 
 def bayes_output_paths(out) -> tuple[Path, Path]:
-    """(OUT.std.binary, OUT.json) beside OUT (OUT's ``.binary`` suffix replaced, if it has one)."""
+    """(OUT.std.binary, OUT.json) beside OUT (OUT's ``.binary`` suffix, in any case, replaced: the
+    case ``check_output_suffix`` accepts)."""
     out = Path(out)
-    stem = out.with_suffix("") if out.suffix == ".binary" else out
+    stem = out.with_suffix("") if out.suffix.lower() == ".binary" else out
     return stem.with_name(stem.name + ".std.binary"), stem.with_name(stem.name + ".json")
 
 

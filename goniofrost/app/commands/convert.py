@@ -26,8 +26,7 @@ def run(args: argparse.Namespace) -> int:
 
     from goniofrost.datasets import open_dataset
     from goniofrost.datasets.tabulate import tabulate_cached
-    from goniofrost.core.atomic_file import check_output_dir, check_output_suffix
-    from goniofrost.core.errors import OutputError
+    from goniofrost.core.atomic_file import check_output_file, check_output_suffix
     from goniofrost.core.grid import FULL_GRID
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
 
@@ -36,9 +35,8 @@ def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dataset)
     name = dataset.resolve(args.material)
     out = Path(args.out) if args.out else Path(f"{name}.binary")
-    if out.is_dir():
-        raise OutputError(out, f"it is a directory; give a file name such as {name}.binary")
-    check_output_dir(out.parent)  # before tabulating the full grid, not after it
+    # before tabulating the full grid, not after it
+    check_output_file(out, f"it is a directory; give a file name such as {name}.binary")
     values = tabulate_cached(dataset, [name], FULL_GRID)[0]
     write_merl(out, valid_to_full(np.maximum(values, 0.0), FULL_GRID), FULL_GRID)
     print(f"wrote {out}: {name} from {dataset.spec}, {FULL_GRID.n_valid} valid cells")

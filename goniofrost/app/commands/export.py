@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
     from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, FORMATS as KINDS, export_file
-    from goniofrost.core.atomic_file import check_output_suffix
+    from goniofrost.core.atomic_file import check_output_file, check_output_suffix
     from goniofrost.core.errors import GoniofrostError
 
     source = Path(args.binary)
@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     # --out brdf.txt held an RGL tensor under a name that says text; the format is the file's
     # contents (RGB or spectral), never its name, so the name is checked and not read
     check_output_suffix(out, ".bsdf", "every --format writes an RGL tensor file")
+    check_output_file(out)  # a folder named brdf.bsdf was found only when the file was written, after the export
     if args.wavelengths is not None and KINDS[args.format] == "rgb":  # it would change nothing, silently
         raise GoniofrostError("--wavelengths: applies to the spectral formats only (--format rgl-spectral or pbrt)")
     wavelengths = DEFAULT_WAVELENGTHS if args.wavelengths is None else args.wavelengths

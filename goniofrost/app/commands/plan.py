@@ -61,9 +61,11 @@ def run(args) -> int:
         raise ConfigError("command line", "--max-angle", "degrees in (0, 90]", args.max_angle)
     if args.samples is not None and args.samples < 1:  # the selection's own error said "samples m"
         raise ConfigError("command line", "--samples", "a positive integer", args.samples)
-    from goniofrost.core.atomic_file import check_not_an_input, check_output_suffix
-    # before the model is read: --out plan.yaml held JSON under a name that says YAML
+    from goniofrost.core.atomic_file import check_not_an_input, check_output_file, check_output_suffix
+    # before the model is read: --out plan.yaml held JSON under a name that says YAML, and a folder
+    # named plan.json was found only when the plan was written, after the selection
     check_output_suffix(args.out, ".json", "the plan is written as JSON")
+    check_output_file(args.out)
     check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
                                   "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
     model = FrostModel.load(args.model)

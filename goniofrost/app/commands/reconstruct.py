@@ -30,29 +30,30 @@ def add_arguments(parser) -> None:
     parser.add_argument("--eta", type=float, default=None, help="ridge only: ridge weight (default 40, the published setting)")
     parser.add_argument("--atoms", type=int, metavar="A",
                         help="ridge only: atoms used (default min(distinct sampled cells, model components))")
-    parser.add_argument("--out", required=True, metavar="FILE.binary", help="MERL .binary to write")
+    parser.add_argument("--out", required=True, metavar="FILE.binary",
+                        help="MERL file to write, ending in .binary (with --estimator bayes, FILE.std.binary and "
+                             "FILE.json go beside it)")
 
 
 def run(args) -> int:
-    import errno
-    from pathlib import Path
-
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.core.atomic_file import REASONS, check_not_an_input
-    from goniofrost.core.errors import GoniofrostError, OutputError
+    from goniofrost.core.atomic_file import check_not_an_input, check_output_file, check_output_suffix
+    from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.outputs import bayes_output_paths
     from goniofrost.frost.reconstruction import ETA, reconstruct
     from goniofrost.frost.samples_file import read_samples_csv, sample_sigmas
 
+    # before the model is read: --out brdf.txt held a MERL file, and --out brdf wrote brdf,
+    # brdf.std.binary and brdf.json (the side files' names are OUT's with .binary replaced)
+    check_output_suffix(args.out, ".binary", "the file is written in MERL's .binary format")
     outputs = [args.out] + (list(bayes_output_paths(args.out)) if args.estimator == "bayes" else [])
     for out in outputs:  # reconstruct --out s.csv overwrote the samples it read with the BRDF
         check_not_an_input(out, {"--samples": args.samples, "--model": args.model})
         # a folder in the place of any of the three, before one is written: a folder named OUT.json
         # was refused only after OUT and OUT.std.binary were written (exit 2, two of the three
-        # files); a folder the three share that cannot be written fails the first write
-        if Path(out).is_dir():
-            raise OutputError(out, REASONS[errno.EISDIR])
+        # files); a folder the three share that cannot be written, after the reconstruction
+        check_output_file(out)
     model = FrostModel.load(args.model)
     cells, values, extra = read_samples_csv(args.samples, model.grid)
     positions = model.grid.valid_position(cells)

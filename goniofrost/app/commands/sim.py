@@ -8,7 +8,10 @@ With ``--write-rig OUT.yaml`` it also writes a rig file (``simulated: false``) w
 at the running twins (pty paths, loopback ports) and whose camera is a ``rawfile`` camera served
 by the simulation (``sim.camera_service``: hot folder ``OUT.frames/``, trigger and target commands),
 so that a capture, align or the console runs on it exactly as on a real rig. It is written before
-the JSON line, which therefore also says the rig file is ready.
+the JSON line, which therefore also says the rig file is ready, and removed when the twins stop
+(with its frames folder when empty), saying so on stderr: left behind, it pointed at endpoints that
+no longer exist, and a later ``rig status`` on it failed with a refused connection that did not say
+why. A file replaced since it was written (another ``sim --write-rig`` of the same name) is left.
 """
 from __future__ import annotations
 
@@ -25,7 +28,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=seed, default=None, help="seed of the simulation (default: the rig's sim.seed)")
     parser.add_argument("--write-rig", metavar="OUT.yaml", default=None,
                         help="also write a rig file (simulated: false) whose drivers and camera are the running "
-                             "twins, to rehearse a capture or the console exactly as on a real rig")
+                             "twins, to rehearse a capture or the console exactly as on a real rig; removed when "
+                             "the twins stop (Ctrl-C or SIGTERM), as its endpoints stop with them")
     parser.add_argument("--material", default=None,
                         help=f"what the simulated camera sees with --write-rig (default {DEFAULT_MATERIAL})")
 
@@ -108,6 +112,7 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
 
     @contextmanager
     def served():
+        import os
         from pathlib import Path
 
         import yaml
@@ -129,13 +134,46 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
         out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
         service = CameraService(camera, out.with_name(out.name + ".frames"))
         service.start()
+        written = None
         try:
             document = real_rig_document(rig.source, simulation.resolved_rig(), service)
-            write_text_atomic(out, f"# written by goniofrost sim --write-rig from {rig.source}: the running "
-                                   f"simulation's twins, as a real rig\n" + yaml.safe_dump(document, sort_keys=False))
+            write_text_atomic(out, f"# written by goniofrost sim --write-rig (process {os.getpid()}) from "
+                                   f"{rig.source}: the running simulation's twins, as a real rig; removed when they "
+                                   f"stop\n" + yaml.safe_dump(document, sort_keys=False))
+            written = _identity(out)
             yield out
         finally:
+            if written is not None:  # first, so that no new client reads endpoints about to go
+                _withdraw_rig_file(out, written, service.folder)
             service.stop()
             camera.close()
 
     return served()
+
+
+def _identity(path) -> tuple[int, int]:
+    """(device, inode) of ``path``: an atomic write of the same name (a rename over it) changes it."""
+    st = path.stat()
+    return st.st_dev, st.st_ino
+
+
+def _withdraw_rig_file(out, written, frames) -> None:
+    """Remove the rig file ``out`` if it is still the one written (identity ``written``), and the
+    frames folder ``frames`` if empty; say what was done on stderr (one line)."""
+    import sys
+
+    try:
+        mine = _identity(out) == written
+    except FileNotFoundError:  # removed by hand: nothing points at the twins any more
+        return
+    if mine:
+        out.unlink(missing_ok=True)
+        said = f"removed {out}: its twins have stopped, so its endpoints are gone"
+    else:
+        said = f"left {out}: it is not the file this sim wrote (replaced since)"
+    try:
+        frames.rmdir()
+    except OSError:  # frames taken (kept: they are the operator's), or already gone
+        if frames.is_dir():
+            said += f"; the frames in {frames} are kept"
+    print(f"goniofrost sim: {said}", file=sys.stderr, flush=True)
