@@ -202,7 +202,7 @@ def fit_checked(records, pool_cells: np.ndarray, sentinels, base: dict, count: i
             "cells": [int(pool_cells[c]) for c in columns], "bound": bound,
             "fit": {"records": int(y.size), "pool": int(pool_cells.size), "candidates": int(ok.sum()),
                     "nested_within_factor_2": choice_score(records, nested),
-                    "cross_fitted_within_factor_2": choice_score(records, cross_fit(x, y, records.fold)),
+                    "cross_fitted_within_factor_2": choice_score(records, cross_fit(x, y, records.fold, signed=())),
                     "unchecked_within_factor_2": base.get("fit", {}).get("cross_fitted_within_factor_2")}}
 
 
