@@ -93,8 +93,8 @@ def fit_coefficients(x: np.ndarray, y: np.ndarray, signed=None) -> np.ndarray:
     a positive log m can be real (the design error is over-optimistic where samples pile up), but
     along a design log E and log m move together and least squares splits the trend between them
     poorly; with log m's held at 0 the trend goes to log E's, and a design whose design error
-    flattens cannot make the prediction rise. A coefficient held at 0 says what the records say:
-    m does not change the error measurably.
+    flattens cannot make the prediction rise. A coefficient held at 0 is least squares' answer
+    under the sign: no trend in m rather than a rising one.
 
     The bound stays conformal: it is calibrated on cross-fitted residuals (``confidence.cross_fit``)
     whose every fold's fit is made by this same procedure without the fold's materials, so each
