@@ -353,6 +353,102 @@ def test_calibration_fit_recovers_a_known_law():
     assert cal["fit"]["per_m"]["20"]["within_factor_2"] == 1.0 and cal["m_range"] == [5, 60]
 
 
+def few_materials_records(seed: int):
+    """CvRecords like a 6-material model's (6 folds of one held-out material each, the m of
+    training): per fold a design error falling by 0.03 in log from m = 5 to 60 around a level of
+    its own (the representation error dominates), each material's log error its own large offset
+    plus a little noise, whatever m: least squares gives the design error and log m whatever
+    coefficients the chance between the folds gives."""
+    from goniofrost.frost.calibration import M_VALUES, CvRecords
+
+    rng = np.random.default_rng(seed)
+    m = np.tile(np.asarray(M_VALUES), 6)
+    fold = np.repeat(np.arange(6), len(M_VALUES))
+    log_design = 3.55 + 0.004 * rng.normal(size=6)[fold] - 0.012 * np.log(m)
+    log_actual = 3.0 * rng.normal(size=6)[fold] + 0.001 * rng.normal(size=m.size)
+    z2, energy = np.exp(0.3 * rng.normal(size=m.size)), np.exp(0.3 * rng.normal(size=m.size))
+    return CvRecords(fold, fold, m, np.exp(log_actual), np.exp(log_design), z2, energy)
+
+
+@pytest.mark.parametrize("seed, free_signs, fixed", [
+    (0, (-238.2, -2.949), [1]),      # the design error's the wrong way: held at 0
+    (2, (131.8, 1.490), [4]),        # log m's the wrong way: held at 0
+    (4, (-306.5, -3.650), [1, 4]),   # the design error's, and without it log m's: both at 0
+])
+def test_a_calibration_on_few_materials_never_predicts_more_error_for_more_samples(seed, free_signs, fixed):
+    """Where least squares gives the design error a negative or log m a positive coefficient
+    (a 6-material model's records), the calibration is the sign-constrained least squares (the
+    least squares of the other features, to the bit), a typical material's prediction along a
+    design does not rise with m, and the bound is calibrated on the residuals of the same
+    constrained fits, each inner fold's without it."""
+    from scipy.optimize import lsq_linear
+
+    from goniofrost.frost import confidence
+    from goniofrost.frost.calibration import fit_calibration
+
+    records = few_materials_records(seed)
+    x, y = records.features([5, 60], prediction.BASIC_FEATURES), np.log(records.actual)
+    free, *_ = np.linalg.lstsq(x, y, rcond=None)
+    assert free[[1, 4]] == pytest.approx(free_signs, rel=1e-3)  # least squares alone: a wrong sign
+    cal = fit_calibration(records)
+    beta = np.asarray(cal["coefficients"])
+    assert beta.size == prediction.BASIC_FEATURES and beta[1] >= 0 and beta[4] <= 0
+    keep = [j for j in range(prediction.BASIC_FEATURES) if j not in fixed]
+    assert beta[fixed].tolist() == [0.0] * len(fixed)
+    assert np.array_equal(beta[keep], np.linalg.lstsq(x[:, keep], y, rcond=None)[0])
+    bounds = ([-np.inf, 0.0, -np.inf, -np.inf, -np.inf], [np.inf, np.inf, np.inf, np.inf, 0.0])
+    np.testing.assert_allclose(beta, lsq_linear(x, y, bounds, method="bvls", tol=1e-14).x, rtol=1e-9, atol=1e-9)
+    design = np.exp(3.55 - 0.012 * np.log(np.arange(1, 61)))  # a design: its error falls with m
+    assert np.all(np.diff(prediction.predict_typical(cal, design, np.arange(1, 61))) <= 0)
+    # the bound's residuals: each fold predicted by the constrained fit without it
+    residuals = np.empty_like(y)
+    for f in range(6):
+        held = records.fold == f
+        beta_f = prediction.fit_coefficients(x[~held], y[~held])
+        assert beta_f[1] >= 0 and beta_f[4] <= 0
+        residuals[held] = y[held] - x[held] @ beta_f
+    np.testing.assert_array_equal(confidence.cross_fitted_residuals(records, [5, 60], 5), residuals)
+    assert cal["bound"]["center"] == [np.median(residuals[records.m == v]) for v in cal["bound"]["m"]]
+
+
+def test_a_model_of_four_materials_predicts_no_more_error_for_more_samples():
+    """The smallest training set with a calibration (4 built-in materials, test_rig_console's
+    model): least squares gave the design error -18.8, and the plan's predicted error of a typical
+    material rose from 0 at m = 1 to 0.134 at m = 12; held at 0 it falls (a little) all along."""
+    from conftest import train_once
+
+    model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
+                       grid=MerlGrid(30, 30, 60), k_max=12)
+    beta = prediction.calibration_of(model)["coefficients"]
+    assert beta[1] >= 0 and beta[4] <= 0
+    predicted = select_bayes(model, 60).residuals
+    assert np.all(np.diff(predicted) <= 0) and predicted[-1] < predicted[0]
+
+
+def test_a_calibration_whose_least_squares_has_the_right_signs_keeps_it_to_the_bit():
+    """On many materials least squares gives the design error a positive and log m a negative
+    coefficient, in the whole fit and without every inner fold: the calibration and its
+    cross-fitted residuals are np.linalg.lstsq's, unchanged."""
+    from goniofrost.frost import confidence
+    from goniofrost.frost.calibration import CvRecords, fit_calibration
+
+    rng = np.random.default_rng(2)
+    ms = np.array([5, 10, 15, 20, 30, 40, 60])
+    m, material = np.tile(ms, 100), np.repeat(np.arange(100), ms.size)
+    design = np.exp(rng.normal(-4, 0.3, m.size)) * 20 / m
+    z2, energy = np.exp(rng.normal(0, 0.5, m.size)), np.exp(rng.normal(0, 0.5, m.size))
+    x = prediction.feature_matrix(design, z2, energy, m, [5, 60])
+    y = x @ [0.3, 1.0, 0.5, 0.2, -0.3] + 0.3 * rng.normal(size=100)[material] + 0.2 * rng.normal(size=m.size)
+    records = CvRecords(material % 10, material, m, np.exp(y), design, z2, energy)
+    free, *_ = np.linalg.lstsq(x, y, rcond=None)
+    plain = confidence.cross_fit(x, y, records.fold, signed=())
+    for f in range(10):
+        beta_f, *_ = np.linalg.lstsq(x[records.fold != f], y[records.fold != f], rcond=None)
+        assert beta_f[1] > 0 and beta_f[4] < 0
+    assert fit_calibration(records)["coefficients"] == [float(b) for b in free]
+    np.testing.assert_array_equal(confidence.cross_fitted_residuals(records, [5, 60], 5), plain)
+
+
 # ----- noise cross-validation -------------------------------------------------------------------
 def test_inner_folds_from_the_gram_equal_explicit_pca(tables):
     names = [f"mat{i}" for i in range(24)]

@@ -33,7 +33,8 @@ from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
 from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
-                                         feature_matrix, feature_range_of, material_coordinates, material_features, predict,
+                                         feature_matrix, feature_range_of, fit_coefficients, material_coordinates,
+                                         material_features, predict,
                                          prequential_score, sample_level)
 from goniofrost.frost.sentinel import check_error
 
@@ -241,7 +242,8 @@ def _progress(items, progress: bool):
 
 
 def fit_calibration(records: CvRecords, pool=None, sentinels=None) -> dict:
-    """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record.
+    """Least-squares fit of ``prediction.FEATURES`` to log(actual) over every record, the design
+    error's and log m's coefficients held to their sign (``prediction.fit_coefficients``).
 
     The feature set (the BASIC_FEATURES; the SAMPLE_FEATURES when the records carry the samples'
     level and spread; all of FEATURES when they also carry the coordinates) is the one whose cross-fitted residuals (``confidence.cross_fitted_residuals``:
@@ -271,7 +273,7 @@ def fit_calibration(records: CvRecords, pool=None, sentinels=None) -> dict:
     n_features = max(sets, key=lambda n: (scores[n], -n))
     x = records.features(m_range, n_features, feature_range)
     y = np.log(np.maximum(records.actual, 1e-12))
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    beta = fit_coefficients(x, y)
     calibration = {"coefficients": [float(b) for b in beta], "m_range": m_range,
                    "typical_log_z2": float(np.mean(np.log(records.z2))),
                    "typical_log_energy": float(np.mean(np.log(records.energy)))}

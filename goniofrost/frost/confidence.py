@@ -56,6 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from goniofrost.frost.prediction import fit_coefficients
 from goniofrost.frost.sentinel import SENTINEL_CONFIDENCE
 
 
@@ -96,13 +97,16 @@ def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None
     return cross_fit(x, np.log(np.maximum(records.actual, 1e-12)), records.fold)
 
 
-def cross_fit(x: np.ndarray, y: np.ndarray, fold: np.ndarray) -> np.ndarray:
-    """float64 (records,): y - x beta, each fold's records with the least-squares beta fitted
-    without that fold (x (records, f), y and fold (records,))."""
+def cross_fit(x: np.ndarray, y: np.ndarray, fold: np.ndarray, signed=None) -> np.ndarray:
+    """float64 (records,): y - x beta, each fold's records with the beta fitted without that fold
+    (x (records, f), y and fold (records,)) as the calibration is: ``prediction.fit_coefficients``,
+    least squares with the coefficients of ``signed`` (None: ``prediction.SIGNED``) held to their
+    sign in every fold's fit (so the residuals the bound is calibrated on are those of the
+    procedure whose fit is used); () plain least squares."""
     out = np.empty_like(y)
     for f in np.unique(fold):
         held = fold == f
-        beta, *_ = np.linalg.lstsq(x[~held], y[~held], rcond=None)
+        beta = fit_coefficients(x[~held], y[~held], signed)
         out[held] = y[held] - x[held] @ beta
     return out
 

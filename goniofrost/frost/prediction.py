@@ -34,10 +34,11 @@ The predicted log-relative MSE of the whole reconstructed BRDF is
 
 m' = the number of sampled cells clamped into the range the coefficients were fitted on. The
 coefficients come from the model (fitted by least squares on held-out training materials,
-``calibration.py``); a calibration with 5 coefficients (models trained before level and spread)
-uses the first 5 features, one with 11 the first 11 (a model's inner folds choose among 5, 11
-and 17); a model without one uses b = (0, 1, 1, 0, 0), i.e. E * z2. The
-quadratic terms let the slope of z2 and energy bend: the held-out materials' log error is not
+``calibration.py``, the design error's coefficient held >= 0 and log m's <= 0 so that more
+samples never predict more error: ``fit_coefficients``); a calibration with 5 coefficients
+(models trained before level and spread) uses the first 5 features, one with 11 the first 11
+(a model's inner folds choose among 5, 11 and 17); a model without one uses
+b = (0, 1, 1, 0, 0), i.e. E * z2. The quadratic terms let the slope of z2 and energy bend: the held-out materials' log error is not
 linear in them (one fold: 84 / 88 / 92 % within a factor 2 at m = 15 / 20 / 25 with every
 term, 72 / 81 / 87 % with the first five; cross-fitted on the inner folds). The training
 materials' samples are exact, so measured samples with their own variance get the calibrated
@@ -45,6 +46,8 @@ prediction with E computed without that variance, plus the increase of E it caus
 model says the measurement noise costs; ``reconstruction._posterior``).
 """
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
@@ -62,6 +65,54 @@ CHECK_FEATURES = ("log sentinel error", "log check error")
 CHECKED_FEATURES = len(FEATURES) + len(CHECK_FEATURES)
 UNCALIBRATED = {"coefficients": [0.0, 1.0, 1.0, 0.0, 0.0], "m_range": [1, 10**9],
                 "typical_log_z2": 0.0, "typical_log_energy": 0.0}
+# (feature, sign) of the coefficients held to a sign (``fit_coefficients``): along any design the
+# design error falls and m' rises with every sample, so with these signs a typical material's
+# predicted error never rises with m (``predict_typical`` varies in nothing else).
+SIGNED = ((FEATURES.index("log design error"), 1.0), (FEATURES.index("log m"), -1.0))
+
+
+def fit_coefficients(x: np.ndarray, y: np.ndarray, signed=None) -> np.ndarray:
+    """Fit y (records,) on x (records, f >= BASIC_FEATURES, the columns of FEATURES in order) by
+    least squares with the coefficients of ``signed`` ((feature, sign) pairs; None: SIGNED) held
+    to their sign: float64 (f,).
+
+    Notes: when least squares gives every sign, its coefficients are returned as they are
+    (``np.linalg.lstsq``: to the bit what the calibration was before; the models trained on many
+    materials). Otherwise the exact sign-constrained least squares: its solution is the least
+    squares of the other features with some of the signed coefficients fixed at 0, so it is the
+    admissible fit of smallest residual among those with each nonempty subset of them fixed at 0
+    (fixing all is always admissible; the first on ties).
+
+    Why: on few training materials the design error hardly varies (6 built-in materials, full
+    grid: log E within 0.03 from m = 5 to 60 in every inner fold, the representation error
+    dominates), so its coefficient fits chance differences between the folds: -442 (intercept
+    +1585) made the typical prediction of a plan rise from 1.6 at m = 15 to 10.4 at m = 60, and
+    ``plan --max-error`` or a target-error capture wait for samples that can only make it worse.
+    Log m's does the same when positive (5 built-in materials, 30 x 30 x 60: +1.09 beside +34 on
+    log E, the prediction rose from 0.014 at m = 10 to 0.035 at m = 60). At a fixed design error
+    a positive log m can be real (the design error is over-optimistic where samples pile up), but
+    along a design log E and log m move together and least squares splits the trend between them
+    poorly; with log m's held at 0 the trend goes to log E's, and a design whose design error
+    flattens cannot make the prediction rise. A coefficient held at 0 is least squares' answer
+    under the sign: no trend in m rather than a rising one.
+
+    The bound stays conformal: it is calibrated on cross-fitted residuals (``confidence.cross_fit``)
+    whose every fold's fit is made by this same procedure without the fold's materials, so each
+    residual is that of the fit that is used, from a predictor that never saw its material."""
+    signed = SIGNED if signed is None else signed
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    if all(sign * beta[j] >= 0 for j, sign in signed):
+        return beta
+    best, best_rss = None, np.inf
+    for count in range(1, len(signed) + 1):
+        for fixed in itertools.combinations([j for j, _ in signed], count):
+            keep = [j for j in range(x.shape[1]) if j not in fixed]
+            trial = np.zeros(x.shape[1])
+            trial[keep] = np.linalg.lstsq(x[:, keep], y, rcond=None)[0]
+            rss = float(np.sum((y - x @ trial) ** 2))
+            if all(sign * trial[j] >= 0 for j, sign in signed) and rss < best_rss:
+                best, best_rss = trial, rss
+    return best
 
 
 def calibration_of(model) -> dict:
