@@ -449,6 +449,28 @@ def test_a_calibration_whose_least_squares_has_the_right_signs_keeps_it_to_the_b
     np.testing.assert_array_equal(confidence.cross_fitted_residuals(records, [5, 60], 5), plain)
 
 
+@pytest.mark.parametrize("materials, candidates", [(6, ["5"]), (12, ["5", "11"]), (18, ["5", "11", "17"])])
+def test_a_feature_set_is_a_candidate_only_with_more_held_out_materials_than_coefficients(materials, candidates):
+    """The calibration chooses among the feature sets (5, 11, 17 coefficients) only those with
+    fewer coefficients than held-out materials: more are fitted on the looks within each material,
+    not on the differences between materials (6 built-in materials chose all 17 by chance)."""
+    from goniofrost.frost.calibration import CvRecords, fit_calibration
+
+    rng = np.random.default_rng(materials)
+    ms = np.array([15, 20, 30, 40, 60])
+    m, material = np.tile(ms, materials), np.repeat(np.arange(materials), ms.size)
+    design = np.exp(rng.normal(-4, 0.3, m.size)) * 20 / m
+    z2, energy = np.exp(rng.normal(0, 0.5, m.size)), np.exp(rng.normal(0, 0.5, m.size))
+    level, spread = rng.normal(0, 1, m.size), np.exp(rng.normal(0, 0.5, m.size))
+    coordinates = rng.normal(0, 1, (m.size, prediction.COORDINATES))
+    actual = design * z2 * np.exp(0.3 * rng.normal(size=materials)[material])
+    records = CvRecords(material % 6, material, m, actual, design, z2, energy, level, spread,
+                        coordinates=coordinates)
+    cal = fit_calibration(records)
+    assert sorted(cal["fit"]["cross_fitted_within_factor_2"], key=int) == candidates
+    assert len(cal["coefficients"]) <= int(candidates[-1])
+
+
 # ----- noise cross-validation -------------------------------------------------------------------
 def test_inner_folds_from_the_gram_equal_explicit_pca(tables):
     names = [f"mat{i}" for i in range(24)]
