@@ -217,4 +217,7 @@ def write_reference_and_preview(material: str, grid, out: Path) -> None:
 
     truth = ground_truth(f"builtin:{material}", grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)
-    shutil.copyfile(out / "session" / "preview.png", out / "preview.png")
+    from goniofrost.core.atomic_file import write_bytes_atomic
+
+    # atomic as every other file the demo writes: a reader (or a failure) sees the old picture or the new
+    write_bytes_atomic(out / "preview.png", (out / "session" / "preview.png").read_bytes())
