@@ -119,7 +119,8 @@ def choice_score(records, residuals) -> float:
 
 def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=None) -> dict:
     """The bound's calibration (JSON-ready) from the inner cross-validation's records: per m the
-    residuals' median and spread and the largest log z2 / log energy, and every held-out
+    residuals' median and spread, the largest log z2 / log energy, the smallest and largest log
+    design error (the range of the designs the calibration saw), and every held-out
     material's simultaneous score, sorted. residuals: (records,) log(actual / predicted) to
     calibrate on (the checked calibration's nested ones, ``check_cells.fit_checked``), None:
     ``cross_fitted_residuals`` of the first n_features."""
@@ -131,7 +132,9 @@ def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=N
             "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
             "looks": [int(m) for m in looks], "scores": scores,
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
-            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]} \
+            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms],
+            "log_design_error_min": [float(np.log(records.design_error[records.m == m]).min()) for m in ms],
+            "log_design_error_max": [float(np.log(records.design_error[records.m == m]).max()) for m in ms]} \
         | _feature_spread(records, ms) | _prequential_spread(records, ms) | _sentinel_spread(records, r, ms, looks)
 
 

@@ -272,8 +272,10 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
     # v5: the calibration may use the material's coordinates on the first atoms (prediction.py)
     # v6: the calibration holds the check cells and the checked calibration (check_cells.py)
+    # v7: the bound records each m's range of the designs' log design error (confidence.design_range);
+    #     a model without it is not checked for designs unlike its calibration's
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
-    key = disk_cache.content_key("frost-model-v6", ids, [m.label for m in materials],
+    key = disk_cache.content_key("frost-model-v7", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     named = _datasets_named(dataset_specs)

@@ -56,7 +56,8 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
 
 
 # The cached calibrations' version: bump it when calibrate_scene's result changes for the same inputs.
-CACHE_VERSION = "scene-calibration-v1"
+# v2: the bound records its designs' range of log design error (confidence.design_range)
+CACHE_VERSION = "scene-calibration-v2"
 
 
 def calibrate_scene_cached(model, usage: np.ndarray, sensitivity_power: float, progress: bool = False,
