@@ -241,6 +241,8 @@ def capture_args(rig, plan, session, material="builtin:red-plastic", *extra) -> 
 def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample_is_refused(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     root = tmp_path / "day"
+    # the first batch (2 samples) is a design unlike every design the model's calibration saw (5
+    # samples and more): it goes on, and stops on the target after the second
     batched = batched_plan(tmp_path, rig, plan, [2, 4])
     assert main(capture_args(rig, batched, root / "a-target", "builtin:red-plastic", "--operator", "B. Operator",
                              "--sample-id", "T-7", "--note", "first coat", "--note", "dry", "--target-error",
@@ -254,7 +256,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
 
     listed = sessions_json(root, capsys)
     assert [(s["name"], s["state"], s["operator"], s["sample_id"], s["samples"]) for s in listed] == [
-        ("a-target", "target reached", "B. Operator", "T-7", 2), ("b-fault", "faulted", "A. Operator", "G-1", 1)]
+        ("a-target", "target reached", "B. Operator", "T-7", 4), ("b-fault", "faulted", "A. Operator", "G-1", 1)]
     assert listed[0]["notes"] == ["first coat", "dry"] and listed[0]["lab"] == LAB["lab"]
     assert [s["name"] for s in sessions_json(root, capsys, "--operator", "A. Operator")] == ["b-fault"]
     assert [s["name"] for s in sessions_json(root, capsys, "--sample", "T-7")] == ["a-target"]

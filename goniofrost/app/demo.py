@@ -164,6 +164,10 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
         from goniofrost.capture.plan_file import with_sentinels
 
         doc, _ = with_sentinels(doc, model, selection.positions, candidates)
+    if selector == "bayes":  # as plan's PLAN.json: is its predicted error an extrapolation? (the capture says why)
+        from goniofrost.capture.plan_file import with_design_check
+
+        doc, _ = with_design_check(doc, model, selection.positions)
     # the joints on the axes' command lattices, each axis's miss weighed by what the model
     # expects it to cost at the sample's cell (planner.steps, frost.cell_sensitivity)
     lattice = {"steps": command_steps(rig),

@@ -65,7 +65,7 @@ def _bounds(model, feats: np.ndarray, m: int, level: float, check=None, check_ce
         checked_predicted = prediction.predict(checked, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
                                                feats[:, 4], feats[:, 5:], np.column_stack([check, check_cells_error]))
     return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check,
-                                   checked_predicted=checked_predicted)
+                                   checked_predicted=checked_predicted, design_error=feats[:, 0])
 
 
 def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -102,8 +102,10 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
     at ``level``: the checked calibration's when the model has check cells, ``check_cells``;
-    "median_unchecked" and "upper_unchecked" without them), "out_of_model" (1 if the samples are unlike every training material by z2 or
-    energy), "sentinel" (1 if the model's sentinel cells flag them, ``confidence.sentinel_excess``),
+    "median_unchecked" and "upper_unchecked" without them), "out_of_model" (1 if the samples are
+    unlike every training material by z2 or energy, or the design unlike every design of the
+    calibration: ``confidence.design_outside``), "sentinel" (1 if the model's sentinel cells flag
+    them, ``confidence.sentinel_excess``),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
     materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
     order of ``positions``: > 1 beyond 95 % of them)."""
@@ -127,7 +129,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     scores = np.array([prediction.prequential_score(one_step, [3 * i, 3 * i + 1, 3 * i + 2]) for i in range(n_mat)])
     return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
             "median_unchecked": plain["median"], "upper_unchecked": plain["upper"],
-            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]).astype(np.float64),
+            "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]
+                             | b["out_of_model_design"]).astype(np.float64),
             "sentinel": b["out_of_model_sentinel"].astype(np.float64),
             "feature_distance": distance,
             "prequential": confidence.prequential_excess(prediction.calibration_of(model), scores,
@@ -176,7 +179,7 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
         b = _bounds(model, _features(model, post, samples, n_mat), end, confidence_level,
                     _checks(model, post, truth, cells) if cells.size else None,
                     _checks(model, post, truth, checking) if checking.size else None)
-        out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"]
+        out = b["out_of_model_z2"] | b["out_of_model_energy"] | b["out_of_model_sentinel"] | b["out_of_model_design"]
         for i in np.flatnonzero(stop_at < 0):
             flags = ("sentinel",) if b["out_of_model_sentinel"][i] else ("z2",) if out[i] else ()
             # a flag of the sentinels stays (capture.target.sticky)

@@ -8,6 +8,8 @@ Layout (DESIGN.md "Command line")::
      "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
      "sentinels": int                                   (bayes: how many samples are sentinels; with_sentinels)
      "checks": int                                      (bayes: how many of the "sentinel" samples are check cells)
+     "extrapolation": bool                              (bayes, whole BRDF: the predicted error at some batch end is
+                                                         an extrapolation; with_design_check)
      "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
      "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
                   "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
@@ -26,6 +28,7 @@ frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +95,42 @@ def add_sentinels(doc: dict, grid, positions, checks=None) -> dict:
                   "batch_ends": [int(e) + added for e in doc["batch_ends"]],
                   "samples": list(doc["samples"][:first]) + extra + list(doc["samples"][first:])} \
         | ({"checks": int(checks.size)} if checks.size else {})
+
+
+def with_design_check(doc: dict, model, positions) -> tuple[dict, str | None]:
+    """(the Bayesian plan ``doc`` with whether the whole BRDF's predicted error at each of its
+    batch ends is an extrapolation, a line saying why or None): the design's first m samples
+    (``positions``: the design's valid-cell positions, without sentinels and check cells) against
+    the designs the model's calibration was fitted on (``frost.confidence.design_outside``). Adds
+    ``extrapolation`` (bool: at some batch end) and, when it is, ``out_of_model`` ["design"],
+    ``out_of_model_batch_ends`` (those batch ends, as ``batch_ends``) and ``design`` (at the last
+    of them, as a report's: ``frost.confidence.extrapolation_fields``). A capture never stops on
+    the target at those batch ends. A model whose bound records no range of its designs (trained
+    before it was) is not checked: the plan unchanged and a line saying so (None for a model
+    without a bound: the capture says it has none)."""
+    from goniofrost.frost.confidence import (ErrorBound, describe_design, design_detail, design_range,
+                                             extrapolation_fields)
+    from goniofrost.frost.prediction import calibration_of
+    from goniofrost.frost.reconstruction import design_error
+
+    added = int(doc.get("sentinels", 0)) + int(doc.get("checks", 0))
+    positions, calibration = np.asarray(positions, dtype=np.int64), calibration_of(model)
+    if design_range(calibration, 1) is None:
+        return doc, (None if not calibration.get("bound") else "design check: none (the model records no range of "
+                     "its calibration's designs: train it again with this version to have designs unlike them flagged)")
+    details = [design_detail(calibration, design_error(model, positions[:end - added]), end - added)
+               for end in doc["batch_ends"]]
+    flagged = [end for end, detail in zip(doc["batch_ends"], details) if detail]
+    if not flagged:
+        return doc | {"extrapolation": False}, None
+    last = [detail for detail in details if detail][-1]
+    fields = extrapolation_fields(ErrorBound(math.nan, math.inf, math.nan, ("design",), design=last))
+    ends = ", ".join(map(str, flagged)) + " samples" + (
+        f" ({', '.join(str(e - added) for e in flagged)} of them the design's)" if added else "")
+    return doc | {"extrapolation": True, "out_of_model": fields["out_of_model"], "out_of_model_batch_ends": flagged,
+                  "design": fields["design"]}, \
+        (f"EXTRAPOLATION: {describe_design(last)}: the predicted error is not backed by the calibration, and "
+         f"capture --target-error does not stop on the target after {ends}")
 
 
 def sentinel_flags(samples) -> list[bool]:

@@ -191,14 +191,13 @@ def session_bound(inputs, records, confidence: float | None = None):
 
 
 def extrapolation_section(inputs, records, bound=None) -> dict:
-    """Whether the samples are unlike every training material (``frost.confidence``): the
-    reconstruction is then an extrapolation the model's training does not back. ``bound``: the
+    """Whether the samples are unlike every training material, or the design unlike every design
+    the calibration was fitted on: the reconstruction's predicted error is then an extrapolation
+    the model's training does not back (``frost.confidence.extrapolation_fields``). ``bound``: the
     session's ``session_bound`` (None: computed here; the flags do not depend on its confidence)."""
-    from goniofrost.frost.confidence import FEATURE_NAMES
+    from goniofrost.frost.confidence import extrapolation_fields
 
-    bound = session_bound(inputs, records) if bound is None else bound
-    return {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
-            "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
+    return extrapolation_fields(session_bound(inputs, records) if bound is None else bound)
 
 
 def read_earlier_record(path: Path) -> dict:
@@ -221,8 +220,8 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
     """What brdf.json says of the measurement: what was measured, by whom, when (Unix times: the
     first run's start, the last sample's commit, ``records`` measured or not), on which rig (its lab
     section), with which alignment and model, how many samples it used and how many were not
-    measured, its predicted error (and whether that is calibrated for the plan's design) and the
-    goniofrost version that made it."""
+    measured, its predicted error (whether that is calibrated for the plan's design, and whether it
+    is an extrapolation: ``extrapolation_section``) and the goniofrost version that made it."""
     label = report["label"]
     return {"sample_id": label["sample_id"], "material": report["material"], "operator": label["operator"],
             "notes": label["notes"], "lab": label["lab"], "lens": label["lens"], "lamp": label["lamp"],
@@ -235,6 +234,7 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
             "samples_not_measured": report["not_measured"]["count"],
             "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
             "predicted_calibrated": report["prediction"]["calibrated"],
+            "extrapolation": report["prediction"]["extrapolation"],
             **{key: report["prediction"][key] for key in ("median_estimate", "bound", "confidence")
                if key in report["prediction"]},
             "last_run": report["last_run"], "goniofrost_version": _version()}
@@ -471,6 +471,8 @@ def snr_text(snr: float) -> str:
 
 def summary_text(report: dict) -> str:
     """A short readable summary of a report (a few lines)."""
+    from goniofrost.frost.confidence import extrapolation_lines
+
     t = report["times_s"]
     label = report.get("label") or {}
     who = ", ".join(f"{k.replace('_', ' ')} {label[k]}" for k in ("sample_id", "operator") if label.get(k))
@@ -499,10 +501,7 @@ def summary_text(report: dict) -> str:
     if scene:
         lines.append(f"predicted {scene['error']} (the plan's usage map): log-relative MSE "
                      f"{scene['predicted_log_relative_mse']:.4g}" + ("" if scene["calibrated"] else " (uncalibrated)"))
-    if report["prediction"].get("extrapolation"):
-        lines.append("EXTRAPOLATION: the samples are unlike every material the model was trained on ("
-                     + " and ".join(report["prediction"]["out_of_model_features"]) + " beyond the training range): "
-                     "this reconstruction and its predicted error are not backed by the training set")
+    lines += extrapolation_lines(report["prediction"])
     off = report.get("markers_off", [])
     if off:
         lines.append(f"{len(off)} sample(s) saw the holder's markers away from where the camera model puts them "

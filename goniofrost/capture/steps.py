@@ -95,7 +95,9 @@ class Assess:
     bound at ``confidence`` (None when none can be given); out_of_model: the features beyond
     every held-out training material (``frost.confidence.FEATURE_NAMES``; () if none); scope:
     the error assessed (``frost.scene_error``: "brdf", the whole BRDF's; "scene", the error in the
-    scene's use of a plan made with a usage map).
+    scene's use of a plan made with a usage map); design: when "design" is out of the model, (m,
+    its log design error, the lowest and highest of the calibration's designs at m, the m they are
+    of: ``frost.confidence.design_detail``), else None.
     """
 
     batch: int
@@ -108,6 +110,7 @@ class Assess:
     out_of_model: tuple[str, ...] = ()
     scope: str = "brdf"
     not_measured: int = 0   # of the ``samples``, those without a value (left out of the assessment)
+    design: tuple | None = None
 
 
 @dataclass(frozen=True)

@@ -67,14 +67,16 @@ def assessment(assess: Callable, batch: int, end: int, n_samples: int, target: f
     fields of an ``Assess`` step (batch, samples, predicted_error = the median estimate, target,
     decision = CONTINUE or a stopping reason, bound = the upper bound or None, confidence,
     out_of_model, scope = the error assessed: the assessor's, "brdf" for a plain callable,
-    not_measured). ``earlier``: the session's assessments before this one: once its sentinels
-    flagged the material, it stays out of the model ("sentinel_earlier"; see ``sticky``)."""
+    not_measured, design = the ErrorBound's: why its design is out of the model, or None).
+    ``earlier``: the session's assessments before this one: once its sentinels flagged the
+    material, it stays out of the model ("sentinel_earlier"; see ``sticky``)."""
     bound = sticky(assess(records), earlier)
     decision = stop_reason(bound, target, end, n_samples) or CONTINUE
     return {"batch": batch, "samples": end, "predicted_error": float(bound.median), "target": target,
             "decision": decision, "bound": float(bound.upper) if math.isfinite(bound.upper) else None,
             "confidence": float(bound.confidence), "out_of_model": tuple(bound.out_of_model),
-            "scope": getattr(assess, "scope", SCOPE_BRDF), "not_measured": int(not_measured)}
+            "scope": getattr(assess, "scope", SCOPE_BRDF), "not_measured": int(not_measured),
+            "design": None if bound.design is None else tuple(bound.design)}
 
 
 def sticky(bound: ErrorBound, earlier: Sequence[dict]) -> ErrorBound:
@@ -94,9 +96,10 @@ def sticky(bound: ErrorBound, earlier: Sequence[dict]) -> ErrorBound:
 
 def bound_of(assessed: dict) -> ErrorBound:
     """The ErrorBound an assessment (a dict of ``assessment`` or an Assess step's fields) holds."""
-    upper = assessed.get("bound")
+    upper, design = assessed.get("bound"), assessed.get("design")
     return ErrorBound(float(assessed["predicted_error"]), math.inf if upper is None else float(upper),
-                      float(assessed["confidence"]), tuple(assessed.get("out_of_model") or ()))
+                      float(assessed["confidence"]), tuple(assessed.get("out_of_model") or ()),
+                      design=None if design is None else tuple(design))
 
 
 def statement(assessed: dict) -> str:

@@ -32,6 +32,21 @@ lies more than a factor OUT_OF_MODEL_FACTOR beyond that are unlike every trainin
 bound (calibrated on training materials) says nothing about them, and the capture must not stop
 on it (``stopping.stop_reason``).
 
+Out of the calibration's designs: the prediction's features also describe the design (its
+design error E at m samples), and the calibration saw only the designs of its inner folds, whose
+log E at each m lies within a narrow range (0.08 to 0.35 wide: 10 folds, full grid, builtin
+library). Samples of a design whose log E at m lies more than log OUT_OF_MODEL_FACTOR beyond the
+range recorded at that m (either side; interpolated in log m, clamped at the ends) are out of the
+model too ("design"): the calibration learnt log m where it could as well have learnt log E (the
+two move together in every design it saw: coefficient -4.05 on log m, 0.19 on log E), so a
+design that gains little from its samples gets the error of a good design of that many samples.
+Measured (full grid, builtin without gold): ``plan --max-angle 0.5`` (cells of one direction
+pair) has log E 0.17 at every m against -7.24 to -6.99 at m = 15, and its median estimate was
+1e-4 to 7e-4 against actual errors of 1.3 to 1.6; a plan within 70 degrees of the normal lies
+0.42 beyond the range at m = 15 and 0.8 to 3.4 beyond it from m = 20 (at m = 40 its bound was
+1.7 to 15 times below the actual error of 4 materials); the model's own plans lie at most 0.06
+beyond it, the simulated rig's at most 0.18.
+
 ``feature_distance`` measures how typical the samples' (log z2, log energy, level, log spread)
 are among the held-out training materials' (Mahalanobis, per m). The benchmark measures it and
 the rule does not use it: across databases (trained on MERL, tested on RGL) it fires on the
@@ -70,7 +85,8 @@ FIRST_LOOK = 15
 OUT_OF_MODEL_FACTOR = 2.0
 FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
                  "sentinel": "the sentinel samples' error",
-                 "sentinel_earlier": "the sentinel samples' error at an earlier batch"}
+                 "sentinel_earlier": "the sentinel samples' error at an earlier batch",
+                 "design": "log design error"}
 
 
 @dataclass(frozen=True)
@@ -80,6 +96,8 @@ class ErrorBound:
     median: the median estimate; upper: the bound at ``confidence`` (inf when none can be
     given; ``unavailable`` then says why); out_of_model: the features (keys of FEATURE_NAMES)
     beyond every held-out training material, () when the samples look like the training set.
+    design: ``design_detail`` (m, log design error, the lowest and highest of the calibration's
+    designs at m, the m they are of) when "design" is among them, else None.
     """
 
     median: float
@@ -87,6 +105,7 @@ class ErrorBound:
     confidence: float
     out_of_model: tuple[str, ...] = ()
     unavailable: str | None = None
+    design: tuple[int, float, float, float, int] | None = None
 
 
 def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None) -> np.ndarray:
@@ -123,7 +142,8 @@ def choice_score(records, residuals) -> float:
 
 def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=None) -> dict:
     """The bound's calibration (JSON-ready) from the inner cross-validation's records: per m the
-    residuals' median and spread and the largest log z2 / log energy, and every held-out
+    residuals' median and spread, the largest log z2 / log energy, the smallest and largest log
+    design error (the range of the designs the calibration saw), and every held-out
     material's simultaneous score, sorted. residuals: (records,) log(actual / predicted) to
     calibrate on (the checked calibration's nested ones, ``check_cells.fit_checked``), None:
     ``cross_fitted_residuals`` of the first n_features."""
@@ -135,7 +155,9 @@ def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=N
             "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
             "looks": [int(m) for m in looks], "scores": scores,
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
-            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms]} \
+            "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms],
+            "log_design_error_min": [float(np.log(records.design_error[records.m == m]).min()) for m in ms],
+            "log_design_error_max": [float(np.log(records.design_error[records.m == m]).max()) for m in ms]} \
         | _feature_spread(records, ms) | _prequential_spread(records, ms) | _sentinel_spread(records, r, ms, looks)
 
 
@@ -239,6 +261,84 @@ def feature_distance(calibration: dict, z2, energy, level, spread, m: int) -> np
     return np.einsum("...j,jk,...k->...", diff, inverse, diff) / bound["feature_d2_q95"][i]
 
 
+def design_range(calibration: dict, m) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lowest, highest) log design error of the calibration's designs at m samples (interpolated
+    in log m, clamped at the calibrated ends); None for a calibration that records none (no bound,
+    or trained before the range was recorded: its designs are not checked)."""
+    bound = calibration.get("bound") or {}
+    if "log_design_error_min" not in bound:
+        return None
+    return _at_m(bound, "log_design_error_min", m), _at_m(bound, "log_design_error_max", m)
+
+
+def design_outside(calibration: dict, design_error, m) -> np.ndarray:
+    """bool (broadcast shape): the log ``design_error`` (exact samples) at m samples more than
+    log OUT_OF_MODEL_FACTOR beyond the calibration's designs' range there (``design_range``):
+    its prediction is an extrapolation. All False when the calibration records no range."""
+    shape = np.broadcast(design_error, m).shape
+    span = design_range(calibration, m)
+    if span is None:
+        return np.zeros(shape, dtype=bool)
+    value, margin = np.log(np.asarray(design_error, dtype=np.float64)), math.log(OUT_OF_MODEL_FACTOR)
+    return np.broadcast_to((value > span[1] + margin) | (value < span[0] - margin), shape).copy()
+
+
+def design_detail(calibration: dict, design_error: float, m: int) -> tuple[int, float, float, float, int] | None:
+    """(m, log design error, lowest and highest of the calibration's designs at m, the m that
+    range is of: m clamped into the calibrated ones) when the design is outside them
+    (``design_outside``), else None."""
+    if not bool(design_outside(calibration, design_error, m)):
+        return None
+    low, high = design_range(calibration, m)
+    calibrated = calibration["bound"]["m"]
+    return int(m), float(np.log(design_error)), float(low), float(high), int(np.clip(m, calibrated[0], calibrated[-1]))
+
+
+def describe_design(design) -> str:
+    """The line that says why a design's prediction is an extrapolation, from its ``design_detail``;
+    without one (an Assess step journaled before it was recorded) the feature alone."""
+    if not design:
+        return "the design is unlike every design the model's calibration was fitted on (log design error beyond " \
+               "their range)"
+    m, value, low, high, at = design
+    where = "" if at == m else f" at {at} samples, the {'fewest' if at > m else 'most'} it saw"
+    return (f"the design is unlike every design the model's calibration was fitted on (log design error {value:.3g} "
+            f"at {int(m)} samples; {low:.3g} to {high:.3g} in training{where})")
+
+
+def extrapolation_fields(bound: ErrorBound) -> dict:
+    """What a report or record says of an ErrorBound's flags: {"extrapolation": bool,
+    "out_of_model": keys of FEATURE_NAMES, "out_of_model_features": their names} and, when the
+    design is out of the model, "design": {"samples", "log_design_error", "training": [lowest,
+    highest], "training_samples": the m that range is of}."""
+    fields = {"extrapolation": bool(bound.out_of_model), "out_of_model": list(bound.out_of_model),
+              "out_of_model_features": [FEATURE_NAMES[k] for k in bound.out_of_model]}
+    if bound.design is not None:
+        m, value, low, high, at = bound.design
+        fields["design"] = {"samples": int(m), "log_design_error": value, "training": [low, high],
+                            "training_samples": int(at)}
+    return fields
+
+
+def extrapolation_lines(fields: dict) -> list[str]:
+    """The EXTRAPOLATION lines of ``extrapolation_fields``: the design's (which feature, its
+    value, the training range) and the samples' (their features beyond the training range)."""
+    if not fields.get("extrapolation"):
+        return []
+    lines, flags = [], list(fields["out_of_model"])
+    if "design" in flags:
+        design = fields.get("design")
+        detail = design and (design["samples"], design["log_design_error"], *design["training"],
+                             design["training_samples"])
+        lines.append(f"EXTRAPOLATION: {describe_design(detail)}: its predicted error is not backed by the calibration")
+    features = [FEATURE_NAMES[k] for k in flags if k != "design"]
+    if features:
+        lines.append("EXTRAPOLATION: the samples are unlike every material the model was trained on ("
+                     + " and ".join(features) + " beyond the training range): "
+                     "this reconstruction and its predicted error are not backed by the training set")
+    return lines
+
+
 def conformal_quantile(scores, confidence: float) -> float:
     """The ceil((n + 1) c)-th smallest of n sorted scores; inf when that exceeds n."""
     k = math.ceil((len(scores) + 1) * confidence - 1e-9)
@@ -257,10 +357,12 @@ def _at_m(bound_calibration: dict, key: str, m) -> np.ndarray:
 
 
 def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float, extra=0.0, check=None,
-                 checked_predicted=None) -> dict:
+                 checked_predicted=None, design_error=None) -> dict:
     """Vectorised bounds: {"median", "upper", "out_of_model_z2", "out_of_model_energy",
-    "out_of_model_sentinel"} arrays (broadcast shape of the arguments). predicted: the calibrated
-    point prediction (exact samples); extra: the increase the samples' own variance causes, added
+    "out_of_model_sentinel", "out_of_model_design"} arrays (broadcast shape of the arguments);
+    design_error: the design error of exact samples (``prediction.material_features``), beyond
+    the calibration's designs at m: "design" (``design_outside``); None: not checked. predicted:
+    the calibrated point prediction (exact samples); extra: the increase the samples' own variance causes, added
     to both (what the model says it costs, ``reconstruction._posterior``); check: the error at
     the sentinel cells (``sentinel.check_error``), None: not checked (never out of the model by it;
     ``sentinel_excess`` at ``sentinel.SENTINEL_CONFIDENCE`` otherwise); checked_predicted: the
@@ -277,7 +379,7 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
     if not bound:
         inf = np.full(np.broadcast(predicted, m).shape, np.inf)
         return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0,
-                "out_of_model_sentinel": inf == 0}
+                "out_of_model_sentinel": inf == 0, "out_of_model_design": inf == 0}
     median, upper = _median_upper(bound, predicted, m, confidence, extra)
     if checked:
         median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra)
@@ -287,7 +389,9 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
             "out_of_model_z2": np.log(z2) > _at_m(bound, "log_z2_max", m) + margin,
             "out_of_model_energy": np.log(energy) > _at_m(bound, "log_energy_max", m) + margin,
             "out_of_model_sentinel": np.zeros(np.shape(upper), bool) if check is None else
-            sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool)}
+            sentinel_excess(calibration, check, predicted, m, SENTINEL_CONFIDENCE) & np.ones(np.shape(upper), bool),
+            "out_of_model_design": np.zeros(np.shape(upper), bool) if design_error is None else
+            design_outside(calibration, design_error, m) & np.ones(np.shape(upper), bool)}
 
 
 def _median_upper(bound: dict, predicted, m, confidence: float, extra) -> tuple[np.ndarray, np.ndarray]:
@@ -302,12 +406,14 @@ def _median_upper(bound: dict, predicted, m, confidence: float, extra) -> tuple[
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
                 confidence: float, extra: float = 0.0, check: float | None = None,
-                checked_predicted: float | None = None) -> ErrorBound:
+                checked_predicted: float | None = None, design_error: float | None = None) -> ErrorBound:
     """The ErrorBound of one reconstruction (see ``error_bounds``)."""
-    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra, check, checked_predicted)
+    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra, check, checked_predicted,
+                       design_error)
     flags = tuple(k for k in FEATURE_NAMES if bool(out.get(f"out_of_model_{k}", False)))  # one look's
+    design = design_detail(calibration, design_error, m) if "design" in flags else None
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
-                      unavailability(calibration, confidence))
+                      unavailability(calibration, confidence), design)
 
 
 def unavailability(calibration: dict, confidence: float) -> str | None:

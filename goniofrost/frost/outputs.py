@@ -20,11 +20,14 @@ def bayes_output_paths(out) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".std.binary"), stem.with_name(stem.name + ".json")
 
 
-def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, samples_source=None) -> tuple[Path, Path]:
+def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, samples_source=None,
+                        bound=None) -> tuple[Path, Path]:
     """Write OUT (the BRDF), OUT.std.binary (the predictive std, MERL layout) and OUT.json.
 
     See ``goniofrost/app/commands/reconstruct.py`` for the std file's format. Returns the paths
-    of the two side files. Nothing is written if any value is not finite.
+    of the two side files. Nothing is written if any value is not finite. ``bound``: the samples'
+    ``confidence.ErrorBound``, whose flags OUT.json records (``confidence.extrapolation_fields``);
+    None: none recorded (a capture's brdf.json records its session's in ``measurement``).
     """
     import json
 
@@ -34,7 +37,7 @@ def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, sample
     std_path, record_path = bayes_output_paths(out)
     if rec.std is None or not np.all(np.isfinite(rec.std)):
         raise ReconstructionError(f"{std_path}: the predictive standard deviation is missing or not finite")
-    record = reconstruction_record(model, rec, samples_source, Path(out).name, std_path.name)
+    record = reconstruction_record(model, rec, samples_source, Path(out).name, std_path.name, bound)
     text = json.dumps(record, indent=1, allow_nan=False)
     write_merl(out, valid_to_full(rec.brdf, model.grid), model.grid)
     write_merl(std_path, valid_to_full(rec.std, model.grid), model.grid)
@@ -43,8 +46,12 @@ def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, sample
 
 
 def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_source, brdf_name: str,
-                          std_name: str) -> dict:
-    """The OUT.json content: what was reconstructed, how, and its predicted error."""
+                          std_name: str, bound=None) -> dict:
+    """The OUT.json content: what was reconstructed, how, and its predicted error (with ``bound``,
+    a ``confidence.ErrorBound`` of the samples: whether that is an extrapolation, and why)."""
+    from goniofrost.frost.confidence import extrapolation_fields
+
+    flags = {} if bound is None else extrapolation_fields(bound)
     return {
         "brdf": brdf_name, "std": std_name,
         "std_meaning": "predictive standard deviation of ln(w x + eps) per cell and channel (MERL layout; "
@@ -55,5 +62,6 @@ def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_s
         "cells": rec.samples, "predicted_log_relative_mse": rec.predicted_error,
         "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy,
                      "level": rec.level, "spread": rec.spread},
+        **flags,
         "interval_90": "((w x + eps) * exp(+-1.645 std) - eps) / w",
     }

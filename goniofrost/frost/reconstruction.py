@@ -126,7 +126,9 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     the other samples, and the sentinels' error against their posterior is checked (out of the
     model, "sentinel", beyond its calibrated range). Those of them at the model's check cells
     (``check_cells``: the plan marks them too) are the check samples: when they cover every
-    check cell beside the sentinels, the median and the bound are the checked calibration's."""
+    check cell beside the sentinels, the median and the bound are the checked calibration's. A
+    design unlike every design the calibration was fitted on is out of the model too ("design":
+    ``confidence.design_outside``, on the design error of exact samples)."""
     from goniofrost.frost import check_cells, prediction
     from goniofrost.frost.confidence import error_bound as bound_of
     from goniofrost.frost.sentinel import measured_check_errors
@@ -150,7 +152,21 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
         checked_predicted = float(prediction.predict(prediction.checked_of(model), clean, z2, energy, unique.size,
                                                      level, spread, coordinates, errors))
     return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check,
-                    checked_predicted)
+                    checked_predicted, clean)
+
+
+def design_error(model: FrostModel, positions) -> float:
+    """The design error of exact samples at the distinct valid-cell ``positions`` (what the
+    calibration's prediction takes, ``prediction.py``): the same for every material, so a plan
+    knows it before any sample is measured."""
+    from goniofrost.frost import posterior
+
+    unique = np.unique(np.asarray(positions, dtype=np.int64))
+    cell_noise = posterior.cell_noise(model)
+    s2 = np.asarray(model.singular_values, dtype=np.float64) ** 2
+    post = posterior.fit(model.dictionary[unique], cell_noise[unique], posterior.prior_variance(model),
+                         np.zeros((unique.size, 1)), s2, float(cell_noise.sum()), model.grid.n_valid)
+    return float(post.design_error[0])
 
 
 def _calibration(model: FrostModel, scene) -> dict:

@@ -5,8 +5,9 @@ batches: the first FIRST_BATCH picks, then BATCH more at a time, up to the whole
 each batch the samples so far are reconstructed and the capture stops as soon as this
 material's error is at most the target with the stated confidence: the calibrated upper bound
 (``confidence.py``, from its own samples) at most the target, and the samples not unlike every
-training material (the bound was calibrated on training materials: out of the model it means
-nothing, so the capture measures on while the plan allows); or when the plan is used up.
+training material nor the design unlike every design the calibration saw (the bound was
+calibrated on training materials measured at those designs: out of the model it means nothing,
+so the capture measures on while the plan allows); or when the plan is used up.
 These functions hold no device and no file: the planner's batches, the capture's assessments
 (``capture.target``) and the benchmark's simulation use them.
 """
@@ -57,7 +58,9 @@ def why_not_reached(bound: ErrorBound, target: float, error: str = "error") -> s
     if bound.unavailable or not math.isfinite(bound.upper):
         return f"no bound at {100 * bound.confidence:g} % confidence: {bound.unavailable or 'none can be given'}"
     if bound.out_of_model:
-        from goniofrost.frost.confidence import FEATURE_NAMES
+        from goniofrost.frost.confidence import FEATURE_NAMES, describe_design
+        if "design" in bound.out_of_model:  # the design's, whatever its samples say
+            return f"{describe_design(bound.design)}: an extrapolation"
         what = " and ".join(FEATURE_NAMES[k] for k in bound.out_of_model)
         return f"the samples are unlike every training material ({what} beyond the training range): an extrapolation"
     if bound.upper > target:

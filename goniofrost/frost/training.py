@@ -272,9 +272,12 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
     # v5: the calibration may use the material's coordinates on the first atoms (prediction.py)
     # v6: the calibration holds the check cells and the checked calibration (check_cells.py)
+    # v7: not used (a reverted change, 3bed68d, cached models under it)
     # v8: the design error's and log m's coefficients held to their sign (prediction.fit_coefficients;
-    # models on few materials change); not v7, which a reverted change (3bed68d) cached models under
-    # v9: a feature set of the calibration needs more held-out materials than coefficients (6 to 17 materials change)
+    # models on few materials change)
+    # v9: a feature set of the calibration needs more held-out materials than coefficients (6 to 17 materials
+    # change); the bound records each m's range of the designs' log design error (confidence.design_range;
+    # a model without it is not checked for designs unlike its calibration's)
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
     key = disk_cache.content_key("frost-model-v9", ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)

@@ -56,7 +56,8 @@ def calibrate_scene(model, usage: np.ndarray, sensitivity_power: float, progress
 
 
 # The cached calibrations' version: bump it when calibrate_scene's result changes for the same inputs.
-# v2: the design error's and log m's coefficients held to their sign (prediction.fit_coefficients).
+# v2: the design error's and log m's coefficients held to their sign (prediction.fit_coefficients), and the
+# bound records its designs' range of log design error (confidence.design_range)
 CACHE_VERSION = "scene-calibration-v2"
 
 

@@ -28,7 +28,8 @@ def add_arguments(parser) -> None:
                         help="measure a Bayesian plan batch by batch in design order and stop as soon as this "
                              "material's log-relative MSE is at most E (e.g. 0.05) with the --confidence, from an "
                              "upper bound calibrated on held-out training materials; or when the plan is used up. "
-                             "Samples unlike every training material never stop it (an extrapolation)")
+                             "Samples unlike every training material, or a design unlike every design the "
+                             "calibration was fitted on, never stop it (an extrapolation)")
     parser.add_argument("--confidence", type=float, default=None, metavar="P",
                         help="with --target-error: the probability that the error is at most E when the capture "
                              "stops (default 0.95)")

@@ -144,6 +144,10 @@ def run(args) -> int:
         from goniofrost.capture.plan_file import with_sentinels
         doc, said = with_sentinels(doc, model, selection.positions, mask, asked=bool(args.sentinels))
         print(said)
+    design_said = None
+    if args.selector == "bayes" and usage is None:  # the whole BRDF's calibration: of its designs only
+        from goniofrost.capture.plan_file import with_design_check
+        doc, design_said = with_design_check(doc, model, selection.positions)
     if usage is not None:
         # the predicted errors are of what the scene sees (usage-weighted), not of the whole BRDF;
         # the capture judges its samples by the same error (usage.error: frost.scene_error)
@@ -168,8 +172,10 @@ def run(args) -> int:
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""
     extra += f" + {doc['checks']} check cells" if doc.get("checks") else ""
     calibrated = f" (and {calibrating[0]:.1f} s calibrating the scene's error)" if usage is not None else ""
-    print(f"{args.out}: m = {selection.m} samples{extra}{_outcome(args, selection)}, selection {selection.seconds:.3f} s"
-          f"{calibrated}")
+    print(f"{args.out}: m = {selection.m} samples{extra}{_outcome(args, selection, doc)}, selection "
+          f"{selection.seconds:.3f} s{calibrated}")
+    if design_said:
+        print(design_said)
     return 0
 
 
@@ -207,10 +213,14 @@ def _select(model, args, mask, usage=None, scene_for=None):
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
 
 
-def _outcome(args, selection) -> str:
+def _outcome(args, selection, doc) -> str:
     if selection.selector == "bayes":
         weighted = " weighted by the scene's use" if args.usage is not None else ""
-        return f", predicted error of a typical material {selection.residuals[-1]:.4g} (log-relative MSE{weighted})"
+        # the prediction stated is the whole plan's: flagged when its last batch end is
+        outside = "; an extrapolation" if doc.get("extrapolation") and \
+            doc["out_of_model_batch_ends"][-1] == doc["batch_ends"][-1] else ""
+        return (f", predicted error of a typical material {selection.residuals[-1]:.4g} (log-relative MSE{weighted}"
+                f"{outside})")
     # With k = m atoms the residual after the m-th pick is 0 by construction; it only says
     # something for --max-error (k = all atoms).
     return f", residual {selection.residuals[-1]:.4f}" if args.max_error is not None else ""

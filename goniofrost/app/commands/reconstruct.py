@@ -11,7 +11,10 @@ Default (``--estimator bayes``): the posterior mean over all model atoms. Beside
   per cell gives the whole predictive distribution (the 90 % interval of x is
   ((w x_hat + eps) exp(+-1.645 std) - eps) / w, not symmetric in 1/sr); and the file lines up cell
   by cell with OUT, opens with the same tools (``goniofrost preview OUT --std OUT.std.binary``).
-* ``OUT.json``: the predicted log-relative MSE of this reconstruction and how it was made.
+* ``OUT.json``: the predicted log-relative MSE of this reconstruction and how it was made, and
+  whether that prediction is an extrapolation (``extrapolation``, ``out_of_model``: samples unlike
+  every training material, or a design unlike every design the calibration was fitted on; then
+  also ``design``: its log design error and the training designs' range at that many samples).
 """
 from __future__ import annotations
 
@@ -64,12 +67,18 @@ def run(args) -> int:
         return 0
     if args.eta is not None or args.atoms is not None:
         raise GoniofrostError("--eta and --atoms apply to --estimator ridge only")
+    from goniofrost.frost.confidence import extrapolation_fields, extrapolation_lines
     from goniofrost.frost.outputs import write_bayes_outputs
-    from goniofrost.frost.reconstruction import reconstruct_bayes
+    from goniofrost.frost.reconstruction import error_bound, reconstruct_bayes
 
-    rec = reconstruct_bayes(model, positions, values, sigmas=sample_sigmas(args.samples, extra))
-    std_path, record_path = write_bayes_outputs(args.out, model, rec, args.samples)
+    sigmas = sample_sigmas(args.samples, extra)
+    rec = reconstruct_bayes(model, positions, values, sigmas=sigmas)
+    bound = error_bound(model, positions, values, sigmas)  # its flags: is the prediction an extrapolation?
+    std_path, record_path = write_bayes_outputs(args.out, model, rec, args.samples, bound)
     print(f"{args.out}: reconstructed from {cells.size} samples ({rec.samples} cells; Bayesian posterior mean)")
-    print(f"predicted error (log-relative MSE): {rec.predicted_error:.4g}; per-cell standard deviation in "
-          f"{std_path}; record in {record_path}")
+    print(f"predicted error (log-relative MSE): {rec.predicted_error:.4g}"
+          + (" (an extrapolation)" if bound.out_of_model else "")
+          + f"; per-cell standard deviation in {std_path}; record in {record_path}")
+    for line in extrapolation_lines(extrapolation_fields(bound)):
+        print(line)
     return 0

@@ -289,7 +289,9 @@ function assessmentText(a) {
   const error = a.scope === "scene" ? "error in the scene's use" : "error";  // a plan made for a scene
   const median = `median estimate ${a.predicted_error.toPrecision(3)}`;
   if (a.out_of_model.length) {
-    return `after ${a.samples} samples: unlike every training material (an extrapolation): ` +
+    const unlike = a.out_of_model.includes("design") ? "the design is unlike every design the calibration was fitted on"
+      : "unlike every training material";
+    return `after ${a.samples} samples: ${unlike} (an extrapolation): ` +
       (a.decision === "continue" ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
   }
   if (a.decision === "target reached") return `${error} <= ${a.target} with ${pct} confidence (${median})`;
