@@ -10,6 +10,7 @@ import select
 import signal
 import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -126,6 +127,23 @@ def test_the_camera_service_stops_its_thread_and_releases_its_port(tmp_path):
     service.stop()   # idempotent
 
 
+@contextmanager
+def sim_writing(tmp_path, out):
+    """`goniofrost sim --write-rig OUT` on a small rig in ``tmp_path``, started and ready: yields
+    (the process, its endpoints); killed on the way out if a test left it running."""
+    rig = write_rig(tmp_path / "rig.yaml")
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        assert ready, "goniofrost sim did not print its endpoints"
+        yield proc, json.loads(proc.stdout.readline())
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
 def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_path, stop):
     """The whole command: ready line, SIGTERM (or Ctrl-C's SIGINT), exit 0 with nothing but its
@@ -136,23 +154,13 @@ def test_sim_with_a_written_rig_stops_on_a_signal_and_releases_every_port(tmp_pa
     failed with a refused connection that did not say why."""
     import re
 
-    rig = write_rig(tmp_path / "rig.yaml")
     out = tmp_path / "twins.yaml"
-    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
-        assert ready, "goniofrost sim did not print its endpoints"
-        endpoints = json.loads(proc.stdout.readline())
+    with sim_writing(tmp_path, out) as (proc, endpoints):
         camera_port = int(re.search(r"--port (\d+)", yaml.safe_load(out.read_text())["camera"]["trigger_command"])[1])
         modbus_port = int(endpoints["camera_arm"]["endpoint"].rsplit(":", 1)[1])
         assert not _refused(camera_port) and not _refused(modbus_port)
         proc.send_signal(stop)
         _, err = proc.communicate(timeout=READY_S)   # a bound against a hang, not a measure of the stop
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     assert err.splitlines()[0].startswith("goniofrost sim: serving ")
     assert err.splitlines()[1:] == [f"goniofrost sim: removed {out}: its twins have stopped, so its endpoints are gone"]
@@ -164,23 +172,13 @@ def test_sim_leaves_a_rig_file_replaced_while_it_ran_and_keeps_the_frames_taken(
     """The rig file is removed only if it is still the one this sim wrote (another `sim --write-rig`
     of the same name may have replaced it: that one's twins still run); frames in the frames folder
     are kept, and the stop says both."""
-    rig = write_rig(tmp_path / "rig.yaml")
     out, frames = tmp_path / "twins.yaml", tmp_path / "twins.yaml.frames"
-    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "sim", "--rig", str(rig), "--write-rig", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
-        assert ready, "goniofrost sim did not print its endpoints"
-        proc.stdout.readline()
+    with sim_writing(tmp_path, out) as (proc, _):
         (tmp_path / "other.yaml").write_text("# another sim's twins\n")
         os.replace(tmp_path / "other.yaml", out)
         (frames / "frame_000000.dng").write_bytes(b"a frame")
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=READY_S)   # a bound against a hang, not a measure of the stop
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     assert err.splitlines()[1:] == [f"goniofrost sim: left {out}: it is not the file this sim wrote (replaced since); "
                                     f"the frames in {frames} are kept"]
