@@ -111,8 +111,9 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     # the check cells' candidates: among the sentinels' (a rig's cells), outside the sentinels
     pool = check_cells.pool(grid, sentinel_candidates) if sentinels.size and atoms is not None else None
     # A rig's designs pick among its cells only: designs over the whole grid reach cells the rig
-    # cannot, and a rig reaching within 70 deg of the normal was 0.8 to 3.4 (log) beyond their
-    # design range from m = 20, its bound 1.7 to 15 x below the actual error at m = 40.
+    # cannot, and a rig reaching within 70 deg of the normal lay 0.8 to 2.9 (log) beyond their
+    # design range from m = 20, its bound 3.6 to 17 x below the actual error at m = 40
+    # (docs/BENCHMARKS.md, "Designs among a rig's cells").
     rows = None if sentinel_candidates is None else np.flatnonzero(sentinel_candidates)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
