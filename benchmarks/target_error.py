@@ -97,9 +97,9 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
         return run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask)
     model = fit_model(np.asarray(train), train_names, grid, k_max=60)
     order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
-    variants = [(False, model, False, None)]
+    variants = [(False, model, False, None, order)]
     if sentinel.calibrated_cells(model).size:
-        variants.append((True, model, True, None))
+        variants.append((True, model, True, None, order))
     stops, per_m = evaluate(variants, model, order, test, test_names, targets, confidence, m_max)
     return {"stops": stops, "per_m": per_m, "calibration_materials": len(model.noise["calibration"]["bound"]["scores"])}
 
@@ -109,27 +109,32 @@ def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, 
     every target simulated three ways ("sentinels" of the rows): "no" (none), "approx" (the
     model's check calibrated at the whole grid's sentinels, measured at the cells ``plan --rig``
     puts in their place) and "rig" (a model trained with ``sentinel_candidates=mask``, as
-    ``train --rig``: measured where they were calibrated). The two models differ only in their
-    sentinel calibration; per-m rows from the second."""
+    ``train --rig``: its inner designs among the rig's cells too, so its own design, as ``plan
+    --rig`` makes it, and measured where they were calibrated). Per-m rows from the second."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import fit_model
 
     model = fit_model(np.asarray(train), train_names, grid, k_max=60)
     rig_model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
     order = np.asarray(select_bayes(model, m_max, candidates=mask).positions, dtype=np.int64)
-    assert np.array_equal(order, select_bayes(rig_model, m_max, candidates=mask).positions)
-    # where plan --rig puts them (the same cells for both models: only the calibration differs)
+    # the rig model's noise scales are chosen on designs among the rig's cells: its design may differ
+    rig_order = np.asarray(select_bayes(rig_model, m_max, candidates=mask).positions, dtype=np.int64)
+    # where plan --rig puts them: outside each design
     placed = sentinel.cells(grid, sentinel.calibrated_cells(model).size, mask & ~np.isin(np.arange(grid.n_valid), order))
-    variants = [("no", model, False, None), ("approx", model, True, placed), ("rig", rig_model, True, placed)]
-    stops, per_m = evaluate(variants, rig_model, order, test, test_names, targets, confidence, m_max)
+    rig_placed = sentinel.cells(grid, sentinel.calibrated_cells(model).size,
+                                mask & ~np.isin(np.arange(grid.n_valid), rig_order))
+    variants = [("no", model, False, None, order), ("approx", model, True, placed, order),
+                ("rig", rig_model, True, rig_placed, rig_order)]
+    stops, per_m = evaluate(variants, rig_model, rig_order, test, test_names, targets, confidence, m_max)
     return {"stops": stops, "per_m": per_m,
             "calibration_materials": len(rig_model.noise["calibration"]["bound"]["scores"]),
             "sentinel_cells": {"whole_grid": sentinel.calibrated_cells(model).tolist(),
                                "rig_calibrated": sentinel.calibrated_cells(rig_model).tolist(),
-                               "placed": placed.tolist()}}
+                               "placed": placed.tolist(), "rig_placed": rig_placed.tolist()},
+            "same_design": bool(np.array_equal(order, rig_order))}
 
 
-def evaluate(variants, per_m_model, order, test, test_names, targets, confidence, m_max) -> tuple[list, list]:
+def evaluate(variants, per_m_model, per_m_order, test, test_names, targets, confidence, m_max) -> tuple[list, list]:
     """(stop rows, per-m rows) of the test materials (``test``: (materials, cells, 3) tables, read
     here a chunk of CHUNK at a time), in the order of one call on all of them: every material is
     simulated on its own, so a chunk's rows are the whole set's. The per-m rows use
@@ -138,20 +143,20 @@ def evaluate(variants, per_m_model, order, test, test_names, targets, confidence
     for lo in range(0, len(test_names), CHUNK):
         names = test_names[lo:lo + CHUNK]
         truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
-        stops += stop_rows(variants, order, truth, per_m_model.to_log(truth), names, targets, confidence)
-        per_m += per_m_rows(per_m_model, order, truth, names, m_max, confidence)
+        stops += stop_rows(variants, truth, per_m_model.to_log(truth), names, targets, confidence)
+        per_m += per_m_rows(per_m_model, per_m_order, truth, names, m_max, confidence)
     labels = [label for label, *_ in variants]  # stable sorts: the chunks are in the materials' order
     stops.sort(key=lambda r: (targets.index(r["target"]), labels.index(r["sentinels"])))
     per_m.sort(key=lambda r: r["m"])
     return stops, per_m
 
 
-def stop_rows(variants, order, truth, truth_log, test_names, targets, confidence) -> list[dict]:
+def stop_rows(variants, truth, truth_log, test_names, targets, confidence) -> list[dict]:
     """Every test material's simulated capture at every target, per variant (label, model,
-    sentinels measured, their cells or None: the model's calibrated ones)."""
+    sentinels measured, their cells or None: the model's calibrated ones, the design's order)."""
     rows = []
     for target in targets:
-        for label, model, checked, cells in variants:
+        for label, model, checked, cells, order in variants:
             out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked,
                                              sentinel_cells=cells)
             rows += [{"material": name, "target": target, "sentinels": label, **{k: float(out[k][i]) for k in STOP_FIELDS}}

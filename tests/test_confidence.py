@@ -224,7 +224,7 @@ def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp
         (t, v) for t in (0.01, 0.02, 0.05) for v in ("approx", "no", "rig")]
     cells = doc["results"]["builtin"][0]["sentinel_cells"]
     mask = reachability(load_checked_rig(rig), MerlGrid(10, 10, 20)).mask
-    assert cells["placed"] == cells["rig_calibrated"] and mask[cells["placed"]].all()
+    assert cells["rig_placed"] == cells["rig_calibrated"] and mask[cells["rig_placed"]].all()
     assert not mask[cells["whole_grid"]].all()  # the whole grid's sentinels are beyond this rig
     assert "| builtin | 0.05 | rig | 10 |" in (tmp_path / "target_error.md").read_text()
     # the test materials simulated 3 at a time: the same rows in the same order, the same summary;

@@ -180,3 +180,35 @@ def test_plan_and_reconstruct_say_why_their_prediction_is_an_extrapolation(tmp_p
     assert out.splitlines()[2] == ("EXTRAPOLATION: " + LINE + said + ": its predicted error is not backed by the "
                                    "calibration")
     assert (record["extrapolation"], record["out_of_model"], record["design"]["samples"]) == (True, ["design"], 15)
+
+
+def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, monkeypatch):
+    """fit_model(sentinel_candidates=mask) (train --rig): every inner fold's design picks only the
+    rig's cells, so a rig reaching within 40 degrees of the normal, whose design lies beyond the
+    whole-grid model's designs, lies within its own model's; without a rig the designs pick among
+    every cell (rows=None: the arithmetic of models trained before, bit for bit)."""
+    from goniofrost.frost import calibration
+    from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.training import fit_model
+
+    calls, pick = [], calibration.greedy_designs
+
+    def recorded(*args, rows=None, **kwargs):
+        designs = pick(*args, rows=rows, **kwargs)
+        calls.append((rows, [d.rows for d in designs]))
+        return designs
+
+    monkeypatch.setattr(calibration, "greedy_designs", recorded)
+    allowed = candidate_mask_max_angle(model.grid, 40)
+    tables, names = synthetic_tables(model.grid, 40, seed=3), [f"mat{i}" for i in range(40)]
+    rig_model = fit_model(tables, names, model.grid, k_max=30, sentinel_candidates=allowed)
+    assert calls and all(np.array_equal(rows, np.flatnonzero(allowed)) for rows, _ in calls)
+    assert all(allowed[picked].all() for _, designs in calls for picked in designs)
+    # plan --rig's design of each model: the whole grid's lies beyond its calibration, the rig's within
+    whole = np.asarray(select_bayes(model, 20, candidates=allowed).positions, dtype=np.int64)
+    assert confidence.design_outside(model.noise["calibration"], design_error(model, whole), 20)
+    order = np.asarray(select_bayes(rig_model, 20, candidates=allowed).positions, dtype=np.int64)
+    assert not confidence.design_outside(rig_model.noise["calibration"], design_error(rig_model, order), 20)
+    calls.clear()
+    fit_model(synthetic_tables(model.grid, 20, seed=3), names[:20], model.grid, k_max=30)
+    assert calls and all(rows is None for rows, _ in calls)

@@ -93,24 +93,25 @@ class CvRecords:
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
              design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None,
-             atoms=None, pool=None) -> dict:
+             atoms=None, pool=None, rows=None) -> dict:
     """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
 
     mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
     sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
     records without ``sentinel``; atoms: float64 (COORDINATES, t) ``model_atoms`` of the trained
     model (records with the coordinates), None: records without them; pool: int64 (P,) the
-    check cells' candidates (``check_cells.pool``): records with ``pool_error``, None: without.
+    check cells' candidates (``check_cells.pool``): records with ``pool_error``, None: without;
+    rows: int64 the cells the designs pick among (a rig's measurable cells), None: every cell.
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
-    n = mapped.shape[0]
+    n = mapped.shape[0] if rows is None else len(rows)
     m_values = [m for m in m_values if m <= n]
     out = {(a, b): {key: [] for key in CvRecords.__dataclass_fields__} for a in design_scales for b in recon_scales}
     for f, fold in enumerate(_progress(folds, progress)):
         d_f = _fold_dictionary(mapped, fold.projector)
         # The designs of every design scale share each pass over D_f (one read per step for all).
         designs = greedy_designs(d_f, fold.singular_values ** 2, _prior(fold), [a * noise for a in design_scales],
-                                 max(m_values))
+                                 max(m_values), rows=rows)
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
                 _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels,
@@ -135,16 +136,16 @@ def model_atoms(gram: np.ndarray, vt: np.ndarray, singular_values: np.ndarray, c
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
                         design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
-                        sentinels=None, atoms=None, pool=None):
+                        sentinels=None, atoms=None, pool=None, rows=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale (``sentinels``, ``atoms``: see ``simulate``). Returns ((design scale, recon scale),
+    design scale (``sentinels``, ``atoms``, ``rows``: see ``simulate``). Returns ((design scale, recon scale),
     {pair: CvRecords of the choice folds; ``pool``: see ``simulate``}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool)
+                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows)
     chosen = choose_scales(choice)
     rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool)[chosen] if tail else None
+                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 

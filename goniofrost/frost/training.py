@@ -63,8 +63,10 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
     noise: learn the noise model and predicted-error calibration by inner cross-validation
         (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
-    sentinel_candidates: bool (n_valid,) the cells the sentinel check may be calibrated at (a
-        rig's measurable cells: ``plan --rig`` then places the sentinels exactly there), None: all.
+    sentinel_candidates: bool (n_valid,) a rig's measurable cells: the inner folds' designs pick
+        only among them (the calibration, its bound and its design range are then those of designs
+        the rig can make) and the sentinel check is calibrated there (``plan --rig`` then places the
+        sentinels exactly there), None: every cell.
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
     tables = tables if hasattr(tables, "rows") else np.asarray(tables)
@@ -98,8 +100,8 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
                 progress: bool = False, sentinel_candidates=None, atoms=None) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration
-    (the sentinel check's at ``sentinel.cells`` among ``sentinel_candidates``, bool (n,) or None;
-    the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them)."""
+    (the designs among ``sentinel_candidates``, bool (n,) or None: every cell, and the sentinel
+    check's at ``sentinel.cells`` among them; the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them)."""
     from goniofrost.frost import calibration, check_cells, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
@@ -108,10 +110,15 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
     # the check cells' candidates: among the sentinels' (a rig's cells), outside the sentinels
     pool = check_cells.pool(grid, sentinel_candidates) if sentinels.size and atoms is not None else None
+    # A rig's designs pick among its cells only: designs over the whole grid reach cells the rig
+    # cannot, and a rig reaching within 70 deg of the normal lay 0.8 to 2.9 (log) beyond their
+    # design range from m = 20, its bound 3.6 to 17 x below the actual error at m = 40
+    # (docs/BENCHMARKS.md, "Designs among a rig's cells").
+    rows = None if sentinel_candidates is None else np.flatnonzero(sentinel_candidates)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
                                                                                      sentinels=sentinels, atoms=atoms,
-                                                                                     pool=pool)
+                                                                                     pool=pool, rows=rows)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
@@ -259,8 +266,9 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     Tabulated values come from the tabulation cache (``datasets.tabulate``).
     cache: reuse a model trained before on exactly the same inputs (keyed by the materials'
         content ids, grid, k_max, eps and the code version) from the goniofrost cache.
-    sentinel_candidates: bool (n_valid,) where the sentinel check is calibrated (``fit_model``;
-        ``train --rig``: the rig's measurable cells), None: the whole grid.
+    sentinel_candidates: bool (n_valid,) the cells the inner designs pick among and the sentinel
+        check is calibrated at (``fit_model``; ``train --rig``: the rig's measurable cells), None:
+        the whole grid.
     Returns the model (memory-mapped from the cache when cache=True).
     """
     from goniofrost.core import cache as disk_cache
@@ -278,8 +286,11 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     # v9: a feature set of the calibration needs more held-out materials than coefficients (6 to 17 materials
     # change); the bound records each m's range of the designs' log design error (confidence.design_range;
     # a model without it is not checked for designs unlike its calibration's)
+    # v10: a rig's model (sentinel_candidates) simulates the inner designs among the rig's cells
+    # only; a model without a rig is unchanged and keeps v9
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
-    key = disk_cache.content_key("frost-model-v9", ids, [m.label for m in materials],
+    version = "frost-model-v9" if sentinel_candidates is None else "frost-model-v10"
+    key = disk_cache.content_key(version, ids, [m.label for m in materials],
                                  grid.as_dict(), int(k_max), EPS, *among)
     folder = disk_cache.cache_path("models", key, "") if cache else None
     named = _datasets_named(dataset_specs)

@@ -11,9 +11,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--exclude", action="append", metavar="NAME", help="leave this material out (repeatable)")
     parser.add_argument("--components", type=int, default=60, metavar="K", help="keep up to K components (default 60)")
     parser.add_argument("--rig", metavar="RIG.yaml",
-                        help="calibrate the sentinel check at cells this rig can reach and its camera measure (plan "
-                             "--rig with the same rig then measures the sentinels exactly where they were calibrated; "
-                             "without it they are calibrated at the whole grid's and a rig's plan approximates them)")
+                        help="calibrate on designs among the cells this rig can reach and its camera measure, and "
+                             "the sentinel check at them (plan --rig with the same rig then makes designs like the "
+                             "calibration's and measures the sentinels exactly where they were calibrated; without it "
+                             "both are the whole grid's and a rig's plan approximates them)")
     parser.add_argument("--alignment", metavar="ALIGNMENT.json",
                         help="with --rig: the axes' zero offsets from goniofrost align (as for plan)")
     parser.add_argument("--no-cache", action="store_true", help="retrain even if the same inputs were trained before")
@@ -52,5 +53,6 @@ def _rig_cells(args):
 
     rig = load_checked_rig(args.rig, args.alignment)
     reach = reachability(rig, FULL_GRID, progress=True)
-    print(f"rig {rig.name}: the sentinel check is calibrated among its {int(reach.mask.sum())} measurable cells")
+    print(f"rig {rig.name}: the designs and the sentinel check are calibrated among its {int(reach.mask.sum())} "
+          "measurable cells")
     return reach.mask
