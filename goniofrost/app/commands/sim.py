@@ -15,6 +15,8 @@ why. A file replaced since it was written (another ``sim --write-rig`` of the sa
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 HELP = "start the simulated devices of a rig, print their endpoints as one JSON line, serve until stopped"
 DEFAULT_MATERIAL = "builtin:white-diffuse"  # what the simulated camera sees through --write-rig's rig file
 
@@ -67,6 +69,7 @@ def run(args) -> int:
     return 0
 
 
+@contextmanager
 def _stop_signals():
     """A context yielding ``wait()``, which returns once SIGINT or SIGTERM has come (at once if one
     came after entering: during start-up the devices are started, then stopped).
@@ -79,76 +82,65 @@ def _stop_signals():
     """
     import os
     import signal
-    from contextlib import contextmanager
 
     wanted = (signal.SIGINT, signal.SIGTERM)
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)  # set_wakeup_fd's requirement
+    previous = {sig: signal.signal(sig, lambda *_: None) for sig in wanted}
+    before = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
 
-    @contextmanager
-    def caught():
-        read_fd, write_fd = os.pipe()
-        os.set_blocking(write_fd, False)  # set_wakeup_fd's requirement
-        previous = {sig: signal.signal(sig, lambda *_: None) for sig in wanted}
-        before = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    def wait() -> None:
+        while os.read(read_fd, 1)[0] not in wanted:  # any other signal with a handler writes too
+            pass
 
-        def wait() -> None:
-            while os.read(read_fd, 1)[0] not in wanted:  # any other signal with a handler writes too
-                pass
-
-        try:
-            yield wait
-        finally:
-            signal.set_wakeup_fd(before)
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            os.close(read_fd)
-            os.close(write_fd)
-
-    return caught()
+    try:
+        yield wait
+    finally:
+        signal.set_wakeup_fd(before)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        os.close(read_fd)
+        os.close(write_fd)
 
 
+@contextmanager
 def _served_rig_file(rig, simulation, material, seed: int, out_path):
     """Start the simulated camera's service and write the rig file; stop the service on exit."""
-    from contextlib import contextmanager
+    import os
+    from pathlib import Path
 
-    @contextmanager
-    def served():
-        import os
-        from pathlib import Path
+    import yaml
 
-        import yaml
+    from goniofrost.capture.hardware import simulated_pose
+    from goniofrost.core.atomic_file import write_text_atomic
+    from goniofrost.core.camera_model import CameraModel
+    from planner.kinematics import arm_side
+    from sim.camera import SimCamera
+    from sim.camera_service import CameraService
+    from sim.rig_file import real_rig_document
 
-        from goniofrost.capture.hardware import simulated_pose
-        from goniofrost.core.atomic_file import write_text_atomic
-        from goniofrost.core.camera_model import CameraModel
-        from planner.kinematics import arm_side
-        from sim.camera import SimCamera
-        from sim.camera_service import CameraService
-        from sim.rig_file import real_rig_document
-
-        pose = simulated_pose(rig)
-        name, brdf = material
-        camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model,
-                           simulation.clock, (rig.sim or {}).get("camera", {}), seed,
-                           model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
-        camera.connect()
-        out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
-        service = CameraService(camera, out.with_name(out.name + ".frames"))
-        service.start()
-        written = None
-        try:
-            document = real_rig_document(rig.source, simulation.resolved_rig(), service)
-            write_text_atomic(out, f"# written by goniofrost sim --write-rig (process {os.getpid()}) from "
-                                   f"{rig.source}: the running simulation's twins, as a real rig; removed when they "
-                                   f"stop\n" + yaml.safe_dump(document, sort_keys=False))
-            written = _identity(out)
-            yield out
-        finally:
-            if written is not None:  # first, so that no new client reads endpoints about to go
-                _withdraw_rig_file(out, written, service.folder)
-            service.stop()
-            camera.close()
-
-    return served()
+    pose = simulated_pose(rig)
+    name, brdf = material
+    camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model,
+                       simulation.clock, (rig.sim or {}).get("camera", {}), seed,
+                       model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
+    camera.connect()
+    out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
+    service = CameraService(camera, out.with_name(out.name + ".frames"))
+    service.start()
+    written = None
+    try:
+        document = real_rig_document(rig.source, simulation.resolved_rig(), service)
+        write_text_atomic(out, f"# written by goniofrost sim --write-rig (process {os.getpid()}) from "
+                               f"{rig.source}: the running simulation's twins, as a real rig; removed when they "
+                               f"stop\n" + yaml.safe_dump(document, sort_keys=False))
+        written = _identity(out)
+        yield out
+    finally:
+        if written is not None:  # first, so that no new client reads endpoints about to go
+            _withdraw_rig_file(out, written, service.folder)
+        service.stop()
+        camera.close()
 
 
 def _identity(path) -> tuple[int, int]:
