@@ -75,7 +75,7 @@ def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
 
     from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
     from goniofrost.capture.plan_file import sample_entries, write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle
 
     model, model_path = demo_model()
@@ -197,7 +197,7 @@ def screenshots(args) -> None:
         thread.join()
 
         from goniofrost.app.demo import default_rig_path
-        from goniofrost.capture.rig_file import load_checked_rig
+        from goniofrost.rig.file import load_checked_rig
         axis = load_checked_rig(default_rig_path()).joint_names[1]
         session = Path("demo-out/fault")
         thread, urls, _ = in_thread(plan=plan, session=session, speedup=args.speedup,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib.holder import DEFAULT_LAYOUT, WHITE_MARKER_IDS
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.errors import ConfigError
 from planner.alignment import AlignmentError, Observation, alignment_poses, fit_alignment
 from planner.kinematics import arm_side, forward

@@ -11,10 +11,10 @@ import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.rig_devices import axis_from_spec, connect_axis
-from goniofrost.capture.hardware import open_hardware
+from goniofrost.rig.hardware import open_hardware
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault
 from goniofrost.capture.records import RunStatus
-from goniofrost.capture.rig_file import section_validators
+from goniofrost.rig.file import section_validators
 from goniofrost.capture.steps import Home, LampOff, LampOn, Move
 from goniofrost.core.errors import ConfigError
 from planner.rig import rig_from_mapping

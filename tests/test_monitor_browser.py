@@ -232,7 +232,8 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
 
 
 def test_an_operators_stop_is_shown_interrupted_with_the_terminals_words(page, tmp_path):
-    from goniofrost.capture.records import AxisStop, RunEnd, RunStatus
+    from goniofrost.capture.records import RunEnd, RunStatus
+    from goniofrost.rig.stop import AxisStop
     from journal_script import ScriptedSession
 
     script = ScriptedSession(tmp_path, 3)

@@ -177,7 +177,7 @@ def test_rig_snap_takes_a_frame_and_a_bracket_with_any_camera_kind(setup, tmp_pa
     """The console's exposure check through the simulated camera and through pylon's emulation: the
     frame carries the exposure the camera took (pylon rounds 15.625 us to 16 us), the bracket finds
     the white card's markers."""
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.snap import snap
 
     folder, rig, plan = setup

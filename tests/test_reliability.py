@@ -33,7 +33,7 @@ def coloured_plan(folder: Path, model, material: str, n_other: int = 2) -> tuple
     from planner.schedule import schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.datasets import parse_material_spec
     from goniofrost.frost.selection import Selection

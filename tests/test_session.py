@@ -443,7 +443,7 @@ def test_an_output_path_of_the_session_in_the_way_is_refused_before_the_rig_star
     """A folder named brdf.binary (or brdf.bsdf with --bsdf) was refused only at the end, after every
     sample had been measured; a file named raw after the calibration had moved the axes. Now each
     is one line before any device is connected, and the folder is left as it was."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     folder, rig, plan, _ = setup
     monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
@@ -460,7 +460,7 @@ def test_an_output_path_of_the_session_in_the_way_is_refused_before_the_rig_star
 def test_a_folder_named_brdf_bsdf_is_in_the_way_only_of_a_capture_that_writes_it(setup, tmp_path, monkeypatch):
     """Without --bsdf the capture writes no brdf.bsdf: a folder of that name is left alone, and the
     capture goes on to start the rig (stopped there)."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     class Started(Exception):
         pass
@@ -726,7 +726,7 @@ def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path
 def batched_plan(folder: Path, rig, plan, ends) -> Path:
     """The module's plan scheduled again in the batches ``ends``."""
     from goniofrost.capture.plan_file import write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from planner.schedule import schedule_batches
 
     doc = json.loads(plan.read_text())

@@ -79,8 +79,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     # measures its sentinels exactly there. A bad rig file fails here, before the training.
     from concurrent.futures import ThreadPoolExecutor
 
-    from goniofrost.capture.rig_file import load_checked_rig
-    from goniofrost.capture.rig_lock import check_free
+    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.rig.lock import check_free
     from planner.reach import is_cached, reachability
 
     rig = load_checked_rig(rig_path)
@@ -148,7 +148,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from planner.schedule import schedule_batches, schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.capture.rig_file import command_steps, load_checked_rig
+    from goniofrost.rig.file import command_steps, load_checked_rig
     from goniofrost.frost.cell_sensitivity import axis_weights
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells

@@ -14,7 +14,7 @@ class RigProblems(GoniofrostError):
 
 
 def _load(args):
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
 
     return load_checked_rig(args.rig, args.alignment)
 
@@ -25,7 +25,7 @@ def _say(text: str) -> None:
 
 # ----- check -----------------------------------------------------------------------------------
 def run_check(args) -> int:
-    from goniofrost.capture.rig_check import RigCheckError, rig_file_problems
+    from goniofrost.rig.check import RigCheckError, rig_file_problems
 
     problems = rig_file_problems(args.rig, args.alignment)
     if problems:
@@ -51,7 +51,7 @@ def run_check(args) -> int:
 def _probe(rig):
     from drivers.rig_devices import RigDevices
     from goniofrost.capture.console import _device_sections
-    from goniofrost.capture.rig_check import probe_rig
+    from goniofrost.rig.check import probe_rig
 
     with _device_sections(rig) as (resolved, _simulation):
         devices = RigDevices.from_rig(resolved)
@@ -194,9 +194,10 @@ def run_lamp(args) -> int:
 # ----- stop -------------------------------------------------------------------------------------
 def run_stop(args) -> int:
     from goniofrost.capture.console import connected_rig
-    from goniofrost.capture.executor import StepExecutor, stop_text
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.rig.stop import stop_text
 
-    from goniofrost.capture.rig_lock import request_stop
+    from goniofrost.rig.lock import request_stop
 
     rig = _load(args)
     holder = request_stop(rig.name)

@@ -40,8 +40,8 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     ``frames``: keep the frames in this folder (default: a temporary folder, removed). ``seed`` and
     ``speedup`` as for ``goniofrost capture``; ``on_ready(hardware)`` once the devices are connected.
     """
-    from goniofrost.capture.hardware import open_hardware
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.hardware import open_hardware
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.runner import check_sim_options
     from goniofrost.core.atomic_file import check_not_an_input, check_output_dir, check_output_file, write_text_atomic
     from planner.alignment import fit_alignment

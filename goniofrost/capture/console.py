@@ -132,10 +132,10 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
     A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
     session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
     from drivers.rig_devices import RigDevices
-    from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.executor import release_stop
-    from goniofrost.capture.hardware import WallClock
-    from goniofrost.capture.rig_lock import rig_lock
+    from goniofrost.rig.device_log import DeviceLog
+    from goniofrost.rig.stop import release_stop
+    from goniofrost.rig.hardware import WallClock
+    from goniofrost.rig.lock import rig_lock
 
     with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
             _device_sections(rig, speedup) as (resolved, simulation):

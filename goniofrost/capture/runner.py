@@ -176,9 +176,9 @@ def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup
     """Connect the rig and capture what is left of the session ``spec``; return the run's
     SessionStats. From connecting to releasing, the devices' log goes to the journal, not the
     terminal."""
-    from goniofrost.capture.device_log import DeviceLog
+    from goniofrost.rig.device_log import DeviceLog
     from goniofrost.capture.engine import RERUN, SessionEngine
-    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.rig.hardware import open_hardware
 
     with DeviceLog.capture() as device_log:
         try:
@@ -196,7 +196,7 @@ def journal_device_log(journal, device_log) -> None:
     """Journal the device log's last records; on the way out of a failed session a journal that
     cannot take them (a full disk) must not hide the session's own error."""
     try:
-        device_log.journal_into(journal)
+        journal.add_device_log(device_log)
     except Exception as exc:  # noqa: BLE001
         log.error("could not journal the device log: %s", exc)
 

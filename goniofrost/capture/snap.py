@@ -77,7 +77,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
     from calib.config import shutter_label, shutter_seconds
     from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
-    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.rig.hardware import open_hardware
     from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.capture.runner import check_material
     from goniofrost.core.atomic_file import output_errors

@@ -42,7 +42,7 @@ def run(args) -> int:
     from contextlib import ExitStack
 
     from goniofrost.core.errors import ConfigError
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from sim.rig import SimulatedRig
 
     if args.speedup is not None and not args.speedup > 0:
@@ -111,7 +111,7 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
 
     import yaml
 
-    from goniofrost.capture.hardware import simulated_pose
+    from goniofrost.rig.hardware import simulated_pose
     from goniofrost.core.atomic_file import write_text_atomic
     from goniofrost.core.camera_model import CameraModel
     from planner.kinematics import arm_side

@@ -1,12 +1,12 @@
 """Connect the devices of a rig for a session: a simulated rig's own devices, or a real rig's.
 
 ``open_hardware(rig, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
-camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig marked
+camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). A rig marked
 ``simulated: true`` starts ``sim.rig.SimulatedRig`` in this process: its devices speak the real
 protocols over pseudo-terminals and loopback TCP, and the real drivers connect to them exactly as
 to hardware. The simulated camera sees the pose through forward kinematics of the simulated
 axes' true positions. A real rig's camera comes from ``open_camera``. The rig's lock
-(``goniofrost.capture.rig_lock``: one program drives a rig at a time) is held from before the
+(``goniofrost.rig.lock``: one program drives a rig at a time) is held from before the
 first device is connected until every connection is closed. On leaving, every axis not yet
 confirmed stopped is told to stop (through the engine's one stop path, which confirms each; its
 findings are logged to the session's device log) and every connection closed, whatever
@@ -33,7 +33,7 @@ class WallClock:
 
 @dataclass
 class RigHardware:
-    """What the session engine drives (``goniofrost.capture.contract.Hardware``).
+    """What the session engine drives (``goniofrost.rig.contract.Hardware``).
 
     ``simulation`` is the running ``SimulatedRig`` on a simulated rig (for fault injection and
     ground truth), else None.
@@ -45,7 +45,7 @@ class RigHardware:
     clock: object
     simulation: object = None
     extra: dict = field(default_factory=dict)
-    rig_lock: object = None   # the held goniofrost.capture.rig_lock.RigLock (its stop requests)
+    rig_lock: object = None   # the held goniofrost.rig.lock.RigLock (its stop requests)
 
     @property
     def simulated(self) -> bool:
@@ -62,7 +62,7 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
     ``on_ready(hardware)`` (optional) is called once everything is connected (tests use it to
     inject faults into the simulated devices).
     """
-    from goniofrost.capture.rig_lock import rig_lock
+    from goniofrost.rig.lock import rig_lock
 
     opener = _simulated if rig.simulated else _real
     with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
@@ -163,7 +163,7 @@ def _real(rig, *, material, seed, speedup):
 def _connected(devices):
     """connect_all, then on any exit stop every axis not yet confirmed stopped (``release_stop``:
     what it could not confirm is logged) and close every connection."""
-    from goniofrost.capture.executor import release_stop
+    from goniofrost.rig.stop import release_stop
 
     devices.connect_all()
     try:
