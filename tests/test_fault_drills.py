@@ -12,6 +12,7 @@ import yaml
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.rig_devices import axis_from_spec, connect_axis
 from goniofrost.rig.hardware import open_hardware
+from goniofrost.rig.simulated import simulated_devices
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault
 from goniofrost.capture.records import RunStatus
 from goniofrost.rig.file import section_validators
@@ -184,7 +185,7 @@ def _run(rig_spec, folder):
         yield Move(0, (("camera_arm", 60.0), ("sample_yaw", 0.0), ("sample_tilt", 20.0)))  # the servo stays home
         yield LampOff()
 
-    with open_hardware(rig_spec, speedup=20) as hardware:
+    with open_hardware(rig_spec, simulated_devices, speedup=20) as hardware:
         twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
         lamp = hardware.simulation.lamp_model
         runner = _Drilled(hardware, folder)

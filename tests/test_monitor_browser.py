@@ -18,6 +18,8 @@ import pytest
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal, SampleRecord
 from goniofrost.capture.runner import capture
+from goniofrost.datasets import shown_material
+from goniofrost.rig.simulated import rig_devices
 from goniofrost.monitor.server import MonitorServer
 from monitor_helpers import MATERIAL, drilled_rig, make_plan
 
@@ -112,7 +114,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         try:
             with monitored(session, "127.0.0.1", 0, "capture") as server:
                 urls.put(server.url)
-                capture(rig, plan_file, session, material=MATERIAL, speedup=10, progress=False, **kw)
+                capture(rig, plan_file, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=10,
+                        progress=False, **kw)
         except SessionFault as exc:
             outcome["fault"] = str(exc)
 

@@ -11,7 +11,7 @@ a ``PlanRunner``:
   between steps too) end the run ``STOPPED_BY_OPERATOR`` and raise ``SessionInterrupted``; a
   device error ends it ``FAULT``, a measurement or output error ``REFUSED``, each raising
   ``SessionFault`` with a one-line message. On every one of them every axis is stopped and
-  confirmed through the one stop path (``executor.stop_axes``), the lamp is switched off, and the
+  confirmed through the one stop path (``goniofrost.rig.stop.stop_axes``), the lamp is switched off, and the
   message and the journal say axis by axis what was confirmed;
 * the drivers' log goes to the journal (``DeviceLog``), off the terminal.
 
