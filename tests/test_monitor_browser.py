@@ -142,7 +142,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         page.goto(server.url)
         expect(page.locator("#state")).to_have_text("faulted")
         resume = threading.Thread(target=capture, args=(rig, plan_file, session),
-                                  kwargs={"material": MATERIAL, "speedup": 10, "progress": False, "resume": True})
+                                  kwargs={"material": shown_material(MATERIAL), "devices": rig_devices, "speedup": 10,
+                                          "progress": False, "resume": True})
         resume.start()
         expect(page.locator("#state")).to_have_text("finished", timeout=60_000)
         resume.join(timeout=60)
