@@ -36,10 +36,11 @@ def sample_errors(session: Path, rig: Path, plan: Path, material: str) -> dict:
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.journal import Journal
     from goniofrost.capture.report import truth_at_measured_directions
+    from goniofrost.datasets import shown_material
 
     with Journal.open(session / "session.sqlite") as journal:
         records = journal.samples()
-    truth = truth_at_measured_directions(load_inputs(rig, plan, None), records, material)
+    truth = truth_at_measured_directions(load_inputs(rig, plan, None), records, shown_material(material))
     rel = np.abs(np.array([r.rgb for r in records]) - truth) / truth
     return {"samples": len(records), "median_per_channel": np.median(rel, axis=0).round(5).tolist(),
             "max_per_channel": np.max(rel, axis=0).round(5).tolist()}
@@ -60,6 +61,8 @@ def smallest_plan(folder: Path, rig: Path) -> Path:
 
 def main(argv=None) -> int:
     from goniofrost.capture.runner import capture
+    from goniofrost.datasets import shown_material
+    from goniofrost.rig.simulated import rig_devices
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plan", type=Path, help="required unless --smallest")
@@ -78,7 +81,8 @@ def main(argv=None) -> int:
     for rig in rigs:
         session = args.out / rig.stem
         t0 = time.perf_counter()
-        outcome = capture(rig, args.plan, session, material=args.material, progress=False)
+        outcome = capture(rig, args.plan, session, material=shown_material(args.material), devices=rig_devices,
+                          progress=False)
         wall = time.perf_counter() - t0
         results.append({"rig": str(rig), "wall_s": round(wall, 1), "load_average": os.getloadavg(),
                         "log_relative_mse": outcome.report["ground_truth"]["log_relative_mse"],

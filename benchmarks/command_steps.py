@@ -92,7 +92,7 @@ def _shared(args) -> list[str]:
 def scheduled_joints(rig, model, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
     """(IK joints, cells (n, 3), positions (n,)) of the plan in capture order, and the steps."""
     from goniofrost.capture.plan_file import plan_document, with_sentinels
-    from goniofrost.capture.rig_file import command_steps
+    from goniofrost.rig.file import command_steps
     from goniofrost.frost.bayes_selection import select_bayes
     from planner.reach import reachability
     from planner.schedule import schedule_batches
@@ -124,7 +124,7 @@ def errors(model, spec: str, positions, directions: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.grid import FULL_GRID, MerlGrid
 
     args = parse(argv)

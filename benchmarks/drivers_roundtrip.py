@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.axis import trapezoid_time  # noqa: E402
-from goniofrost.capture.rig_file import load_checked_rig  # noqa: E402
+from goniofrost.rig.file import load_checked_rig  # noqa: E402
 from drivers.rig_devices import RigDevices  # noqa: E402
 from sim.clock import SimClock  # noqa: E402
 from sim.modbus_drive import SimulatedModbusDrive  # noqa: E402

@@ -75,7 +75,7 @@ def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
 
     from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
     from goniofrost.capture.plan_file import sample_entries, write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle
 
     model, model_path = demo_model()
@@ -108,14 +108,16 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.engine import SessionFault
     from goniofrost.capture.runner import capture
+    from goniofrost.datasets import shown_material
+    from goniofrost.rig.simulated import rig_devices
 
     t0, cpu0, browser0 = time.perf_counter(), time.process_time(), browser_cpu_s()
     with monitored(session, "127.0.0.1", 0, "capture") if monitor else nullcontext() as server:
         if urls is not None:
             urls.put(server.url)
         try:
-            capture(default_rig_path(), plan, session, material=f"builtin:{MATERIAL}", seed=0, speedup=speedup,
-                    progress=False, on_ready=on_ready)
+            capture(default_rig_path(), plan, session, material=shown_material(f"builtin:{MATERIAL}"), seed=0,
+                    speedup=speedup, progress=False, on_ready=on_ready, devices=rig_devices)
         except SessionFault as exc:
             print(f"  (expected) {exc}", flush=True)
     if cpu is not None:
@@ -197,7 +199,7 @@ def screenshots(args) -> None:
         thread.join()
 
         from goniofrost.app.demo import default_rig_path
-        from goniofrost.capture.rig_file import load_checked_rig
+        from goniofrost.rig.file import load_checked_rig
         axis = load_checked_rig(default_rig_path()).joint_names[1]
         session = Path("demo-out/fault")
         thread, urls, _ = in_thread(plan=plan, session=session, speedup=args.speedup,

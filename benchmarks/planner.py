@@ -32,7 +32,7 @@ from goniofrost.core.grid import FULL_GRID, MerlGrid  # noqa: E402
 from goniofrost.frost.metrics import log_relative_mse  # noqa: E402
 from goniofrost.capture.plan_file import plan_document  # noqa: E402
 from goniofrost.frost.reconstruction import reconstruct  # noqa: E402
-from goniofrost.capture.rig_file import load_checked_rig  # noqa: E402
+from goniofrost.rig.file import load_checked_rig  # noqa: E402
 from goniofrost.frost.selection import select_cells  # noqa: E402
 from goniofrost.frost.training import train  # noqa: E402
 from planner.kinematics import forward  # noqa: E402

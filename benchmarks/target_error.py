@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     rig_mask = None
     if args.rig is not None:
-        from goniofrost.capture.rig_file import load_checked_rig
+        from goniofrost.rig.file import load_checked_rig
         from planner.reach import reachability
 
         rig_mask = reachability(load_checked_rig(args.rig), grid).mask

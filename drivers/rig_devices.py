@@ -4,7 +4,7 @@
 each device's serial port or TCP connection (``open_transport``: the drivers never open one),
 hands it to the driver and enables every axis; ``close_all()`` releases every connection.
 Stopping is not done here: the one stop path for all axes (command each to stop, then confirm
-each at rest) is the engine's ``goniofrost.capture.executor.stop_axes``, which the rig wiring
+each at rest) is the rig's ``goniofrost.rig.stop.stop_axes``, which the rig wiring
 calls (``release_stop``: for the axes not yet confirmed stopped) before ``close_all``.
 """
 from __future__ import annotations

@@ -5,7 +5,7 @@ A rig file has ``name``, ``simulated``, ``geometry``, ``axes`` and optionally ``
 see ``config/rigs/template.yaml`` for every key, documented). This module owns the
 geometry and the motion keys of each axis; the ``driver`` sections (of each axis and of the lamp),
 ``camera`` and ``sim`` belong to other packages and are checked by validators plugged in through
-``section_validators`` (``goniofrost.capture.rig_file.load_checked_rig`` plugs in the real ones).
+``section_validators`` (``goniofrost.rig.file.load_checked_rig`` plugs in the real ones).
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ _TOP_KEYS = {
     "camera": Key(is_mapping, "a mapping", ABSENT),
     "sim": Key(is_mapping, "a mapping", ABSENT),
     "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
-    "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.capture.lab checks it)
+    "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.rig.lab checks it)
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -98,10 +98,10 @@ class Rig(RigSpec):
     raw: dict = field(compare=False, repr=False)
     # What the camera can measure (planner.view.Measurability; None: not checked) and the axes'
     # zero offsets (planner.alignment.Alignment; None: a perfectly built rig). Attached by
-    # goniofrost.capture.rig_file.load_checked_rig from the camera section and the alignment file.
+    # goniofrost.rig.file.load_checked_rig from the camera section and the alignment file.
     view: Any = field(default=None, compare=False, repr=False)
     alignment: Any = None
-    # the lab's metadata (lab, lens, lamp: checked by goniofrost.capture.lab), never kinematics
+    # the lab's metadata (lab, lens, lamp: checked by goniofrost.rig.lab), never kinematics
     lab: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:

@@ -1,7 +1,7 @@
 """The rig file's ``sim:`` section: every key the simulated rig reads, declared as data and checked.
 
 ``validate_sim_section(section, source, keypath)`` is the validator the rig loader
-(``goniofrost.capture.rig_file``) plugs in for ``sim``. An unknown key, a value of the wrong
+(``goniofrost.rig.file``) plugs in for ``sim``. An unknown key, a value of the wrong
 type or out of range is one ``ConfigError`` naming the file, the key path, what was expected and
 what was found. It returns the section with its defaults filled in, so that the simulated rig
 reads its defaults from here only.

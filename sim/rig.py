@@ -71,7 +71,7 @@ class SimulatedRig:
     ``seed``: seeds the lamp's wobble. Attributes: ``clock``, ``lamp_model``, ``endpoints`` (after start),
     ``sim`` (the rig's ``sim`` section, checked, defaults filled in), ``faults`` (the fault drills
     of ``sim.faults``; see ``arm_faults``). As a capture session's ``Hardware.simulation``
-    (``goniofrost.capture.contract.Simulation``) it arms the drills before each plan sample and
+    (``goniofrost.rig.contract.Simulation``) it arms the drills before each plan sample and
     journals and restores its state (``checkpoint``, ``restore``).
     """
 

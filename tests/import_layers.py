@@ -5,8 +5,11 @@ The layers, bottom to top (docs/ARCHITECTURE.md):
 - the lower packages ``planner``, ``drivers``, ``calib``, ``sim``: of goniofrost, only the core;
   among themselves only as ``LOWER_ALLOWED`` says (the twins in sim share the drivers' protocol
   modules, calib decodes frames with the drivers' RAW reader).
+- ``goniofrost.rig`` (rig file, devices real or simulated, lock, stop path): of goniofrost, only the
+  core; the lower packages as it likes. It sits below every other sub-package (``capture`` uses it).
 - goniofrost's sub-packages (``frost``, ``brdf``, ``datasets``, ``capture``, ``bench``...): anything
-  below them, and each other without a cycle.
+  below them, and each other without a cycle; but ``capture`` imports neither ``sim`` nor
+  ``goniofrost.datasets`` (``CAPTURE_NEVER``): its caller hands it the devices and the material.
 - no cycle between modules either, inside a package as between packages (``module_graph``).
 - ``goniofrost.app`` (command line, commands, demo): may import everything; nothing imports it
   but ``goniofrost/__main__.py``.
@@ -22,6 +25,9 @@ from pathlib import Path
 PROJECT = "goniofrost"
 CORE = "goniofrost.core"
 APP = "goniofrost.app"
+RIG = "goniofrost.rig"
+CAPTURE = "goniofrost.capture"
+CAPTURE_NEVER = ("sim", "goniofrost.datasets")
 LOWER = ("planner", "drivers", "calib", "sim")
 LOWER_ALLOWED = {"planner": set(), "drivers": set(), "calib": {"drivers"}, "sim": {"drivers", "calib", "planner"}}
 TOP_LEVEL_MODULES = {"__init__", "__main__"}
@@ -127,6 +133,10 @@ def _rule_broken(here: str, there: str) -> str | None:
         if there in LOWER and there not in LOWER_ALLOWED[here]:
             return f"{here} may import only {sorted(LOWER_ALLOWED[here]) or 'no other lower package'}"
         return None
+    if here == RIG and there.startswith(PROJECT) and there != CORE:
+        return f"{RIG} may import only {CORE} of goniofrost"
+    if here == CAPTURE and there in CAPTURE_NEVER:
+        return f"{CAPTURE} imports neither {' nor '.join(CAPTURE_NEVER)}: its caller hands it the devices and the material"
     if there == APP and here not in (PROJECT, f"{PROJECT}.__main__"):
         return f"nothing imports the application layer {APP}"
     if there == PROJECT:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib.holder import DEFAULT_LAYOUT, WHITE_MARKER_IDS
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.errors import ConfigError
 from planner.alignment import AlignmentError, Observation, alignment_poses, fit_alignment
 from planner.kinematics import arm_side, forward
@@ -160,6 +160,7 @@ def test_align_refuses_bad_input_before_anything_moves(tmp_path, capsys):
 
 def test_align_with_a_camera_unlike_its_model_fails_clearly_and_writes_nothing(tmp_path):
     from goniofrost.capture.align import align
+    from goniofrost.rig.simulated import rig_devices
     from goniofrost.core.camera_model import CameraModel
     from sim.camera import HolderRenderer
 
@@ -173,12 +174,13 @@ def test_align_with_a_camera_unlike_its_model_fails_clearly_and_writes_nothing(t
 
     with pytest.raises(AlignmentError, match=r"^align: the fitted offsets leave the marker corners \d+\.\d\d px RMS "
                                              r"from the model \(limit 1 px\): the camera model"):
-        align(rig, out, progress=False, on_ready=longer_lens)
+        align(rig, out, progress=False, on_ready=longer_lens, devices=rig_devices)
     assert not out.exists()
 
 
 def test_a_failed_align_stops_and_confirms_the_axes_switches_the_lamp_off_and_journals(tmp_path):
     from goniofrost.capture.align import align
+    from goniofrost.rig.simulated import rig_devices
     from goniofrost.capture.journal import Journal
     from goniofrost.capture.plan_runner import SessionFault
     from goniofrost.capture.records import EventKind, RunStatus
@@ -192,7 +194,7 @@ def test_a_failed_align_stops_and_confirms_the_axes_switches_the_lamp_off_and_jo
 
     frames.mkdir()
     with pytest.raises(SessionFault) as caught:
-        align(rig, out, progress=False, frames=frames, on_ready=alarm_on_the_arm)
+        align(rig, out, progress=False, frames=frames, on_ready=alarm_on_the_arm, devices=rig_devices)
     message = str(caught.value)
     assert message.startswith("device fault during Home: camera_arm")
     assert "Stopped camera_arm at " in message and "; the lamp is off. No alignment was written; the run is " \

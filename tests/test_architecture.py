@@ -21,6 +21,10 @@ def test_the_graph_is_the_documented_one():
     for lower in ("planner", "drivers", "calib", "sim"):
         assert {t for t in graph.get(lower, ()) if t.startswith("goniofrost")} <= {"goniofrost.core"}
     assert graph["goniofrost.app"] >= {"goniofrost.capture", "goniofrost.frost", "goniofrost.bench"}
+    # the rig sits below capture, and capture is handed the simulation rather than importing it
+    assert "goniofrost.rig" in graph["goniofrost.capture"]
+    assert {t for t in graph["goniofrost.rig"] if t.startswith("goniofrost")} == {"goniofrost.core"}
+    assert not graph["goniofrost.capture"] & {"sim", "goniofrost.datasets"}
 
 
 def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
@@ -30,7 +34,7 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     for package in ("goniofrost", "goniofrost/core", "goniofrost/app", "goniofrost/frost", "goniofrost/capture",
-                    "planner", "drivers", "calib", "sim"):
+                    "goniofrost/rig", "goniofrost/datasets", "planner", "drivers", "calib", "sim"):
         (tmp_path / package).mkdir(parents=True, exist_ok=True)
         (tmp_path / package / "__init__.py").touch()
     return tmp_path
@@ -40,7 +44,9 @@ CLEAN = {
     "goniofrost/core/errors.py": "import numpy\n",
     "goniofrost/frost/model.py": "from goniofrost.core.errors import X\nfrom . import helpers\n",
     "goniofrost/frost/helpers.py": "",
-    "goniofrost/capture/engine.py": "from ..frost.model import M\nimport planner.rig\n",
+    "goniofrost/capture/engine.py": "from ..frost.model import M\nimport planner.rig\nfrom goniofrost.rig import hardware\n",
+    "goniofrost/rig/hardware.py": "from goniofrost.core.errors import X\nimport drivers.axis\n",
+    "goniofrost/rig/simulated.py": "from .hardware import open_camera\nfrom sim.rig import SimulatedRig\n",
     "goniofrost/app/cli.py": "from goniofrost.capture import engine\n",
     "goniofrost/__main__.py": "from goniofrost.app.cli import main\n",
     "planner/rig.py": "from goniofrost.core.errors import ConfigError\n",
@@ -69,6 +75,14 @@ def test_a_clean_synthetic_tree_passes(tmp_path):
      "goniofrost.app", "nothing imports the application layer"),
     ("goniofrost/capture/rel.py", "from ..app.cli import main\n", "goniofrost.capture.rel",
      "goniofrost.app", "nothing imports the application layer"),
+    ("goniofrost/rig/stop.py", "from goniofrost.capture.records import R\n", "goniofrost.rig.stop",
+     "goniofrost.capture", "goniofrost.rig may import only goniofrost.core"),
+    ("goniofrost/rig/file.py", "def f():\n    from goniofrost.datasets import specs\n", "goniofrost.rig.file",
+     "goniofrost.datasets", "goniofrost.rig may import only goniofrost.core"),
+    ("goniofrost/capture/hw.py", "def f():\n    from sim.rig import SimulatedRig\n", "goniofrost.capture.hw",
+     "sim", "goniofrost.capture imports neither sim nor goniofrost.datasets"),
+    ("goniofrost/capture/truth.py", "from ..datasets import material_brdf\n", "goniofrost.capture.truth",
+     "goniofrost.datasets", "goniofrost.capture imports neither sim nor goniofrost.datasets"),
     ("goniofrost/flat.py", "", "goniofrost.flat", "-", "goniofrost/ holds sub-packages"),
 ])
 def test_each_rule_catches_its_violation(tmp_path, rel, text, module, imported, rule):
@@ -105,3 +119,16 @@ def test_a_package_that_re_exports_its_modules_is_no_cycle(tmp_path):
                             "goniofrost/frost/other.py": ""})
     assert violations(root) == []
     assert module_graph(root)["goniofrost.frost.helpers"] == {"goniofrost.frost.other"}
+
+
+def test_loading_a_rig_file_imports_nothing_of_capture():
+    # plan, train and sim load rig files: goniofrost.rig does it without the capture package (nor the
+    # datasets), in a fresh interpreter so that no other test's imports count
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom goniofrost.rig.file import load_checked_rig\n"
+            "load_checked_rig('config/rigs/sim.yaml')\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('goniofrost.capture', 'goniofrost.datasets'))))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert done.stdout == "[]\n", done.stdout + done.stderr

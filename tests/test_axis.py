@@ -295,7 +295,7 @@ def test_axis_config_from_a_typed_axis_spec():
 
 
 def test_the_one_stop_path_tries_every_axis_and_never_raises():
-    from goniofrost.capture.executor import stop_axes
+    from goniofrost.rig.stop import stop_axes
 
     axes = {n: make_axis() for n in ("a", "b", "c")}
     for ax in axes.values():

@@ -20,7 +20,7 @@ from drivers.camera import CameraError
 from drivers.rawfile import RawFileError
 from goniofrost.capture.calibration_steps import calibration_steps
 from goniofrost.capture.executor import BenchHardware, StepExecutor
-from goniofrost.capture.hardware import open_camera
+from goniofrost.rig.hardware import open_camera
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import drive
 from goniofrost.core.errors import ConfigError

@@ -289,7 +289,7 @@ def test_a_merl_file_with_holes_is_refused_alike_by_preview_export_and_compare(c
 # ----- align and sim: an output that cannot be written is refused before any device starts -------
 def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys, monkeypatch):
     """align --out DIR moved the axes through its 30 poses (30 s) and only then failed to write."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
     (tmp_path / "alignment.json").mkdir()
@@ -300,7 +300,7 @@ def test_align_refuses_a_directory_as_out_before_any_axis_moves(tmp_path, capsys
 
 def test_align_refuses_frames_below_a_file_before_any_axis_moves(binary, tmp_path, capsys, monkeypatch):
     """align --frames FILE moved the axes and then failed with "FILE/align.sqlite: Not a directory"."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
     line = _refused(capsys, ["align", "--rig", SIM_RIG, "--out", tmp_path / "a.json", "--frames", binary])
@@ -312,7 +312,7 @@ def test_align_takes_an_out_in_a_folder_it_will_make_as_every_command_does(tmp_p
     """align kept its own parent-folder check ("expected a file in an existing folder") beside the
     shared one; now atomic_file.check_output_file alone: a folder that can be made is made, at
     the end, as plan, preview or export make theirs."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
     from goniofrost.capture.align import align
 
     class Started(Exception):
@@ -576,7 +576,7 @@ def test_sim_refuses_a_write_rig_that_is_its_rig(tmp_path, capsys, monkeypatch):
 
 
 def test_align_refuses_an_out_that_is_its_rig(tmp_path, capsys, monkeypatch):
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
     rig = tmp_path / "lab.yaml"

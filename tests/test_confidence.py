@@ -208,7 +208,7 @@ def test_the_benchmark_on_a_rig_measures_its_sentinels_where_the_rig_reaches(tmp
     import json
     from pathlib import Path
 
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.grid import MerlGrid
     from planner.reach import reachability
 

@@ -92,7 +92,7 @@ def test_a_rig_another_program_drives_is_refused_before_the_training(tmp_path, m
     rehearsal; it refuses at once now, with the capture's own words, and writes nothing."""
     from goniofrost.app import demo
     from goniofrost.app.cli import main
-    from goniofrost.capture.rig_lock import rig_lock
+    from goniofrost.rig.lock import rig_lock
 
     monkeypatch.setattr(demo, "train_without", lambda *a, **k: pytest.fail("the demo trained"))
     with rig_lock("sim-rig", "capture"):

@@ -10,7 +10,7 @@ import yaml
 
 from drivers.config import validate_driver_section
 from drivers.rig_devices import axis_from_spec
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.errors import ConfigError
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"

@@ -13,11 +13,13 @@ import pytest
 from calib import validate_camera_section
 from drivers.camera import CameraError
 from drivers.errors import DeviceFault, DeviceTimeout
-from goniofrost.capture.contract import Axis, Camera, Clock, Hardware, Lamp
+from goniofrost.rig.contract import Axis, Camera, Clock, Hardware, Lamp
 from goniofrost.capture.engine import SessionEngine, SessionFault
-from goniofrost.capture.executor import BenchHardware, stop_axes
+from goniofrost.capture.executor import BenchHardware
+from goniofrost.rig.stop import stop_axes
 from goniofrost.capture.journal import Journal
-from goniofrost.capture.records import AxisStop, EventKind, RunStatus
+from goniofrost.capture.records import EventKind, RunStatus
+from goniofrost.rig.stop import AxisStop
 from goniofrost.capture.session_steps import SessionSpec
 from goniofrost.capture.signals import SessionInterrupted
 from sim.camera_bench import direction, rig_like
@@ -171,8 +173,8 @@ def run(hardware, session: Path):
 def test_the_fakes_and_the_real_drivers_satisfy_the_hardware_contract(table, tmp_path):
     from drivers.camera import FolderCamera
     from drivers.rig_devices import RigDevices
-    from goniofrost.capture.hardware import RigHardware, WallClock
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.hardware import RigHardware, WallClock
+    from goniofrost.rig.file import load_checked_rig
 
     devices = RigDevices.from_rig(load_checked_rig(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"))
     real = RigHardware(devices.axes, devices.lamp, FolderCamera(tmp_path, lambda t: None), WallClock())

@@ -11,10 +11,11 @@ import yaml
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.rig_devices import axis_from_spec, connect_axis
-from goniofrost.capture.hardware import open_hardware
+from goniofrost.rig.hardware import open_hardware
+from goniofrost.rig.simulated import simulated_devices
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault
 from goniofrost.capture.records import RunStatus
-from goniofrost.capture.rig_file import section_validators
+from goniofrost.rig.file import section_validators
 from goniofrost.capture.steps import Home, LampOff, LampOn, Move
 from goniofrost.core.errors import ConfigError
 from planner.rig import rig_from_mapping
@@ -184,7 +185,7 @@ def _run(rig_spec, folder):
         yield Move(0, (("camera_arm", 60.0), ("sample_yaw", 0.0), ("sample_tilt", 20.0)))  # the servo stays home
         yield LampOff()
 
-    with open_hardware(rig_spec, speedup=20) as hardware:
+    with open_hardware(rig_spec, simulated_devices, speedup=20) as hardware:
         twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
         lamp = hardware.simulation.lamp_model
         runner = _Drilled(hardware, folder)

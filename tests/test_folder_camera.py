@@ -17,7 +17,7 @@ from frame_script import CAMERA_MODEL
 from calib.config import shutter_seconds, validate_camera_section
 from drivers.camera import CameraError
 from drivers.rawfile import raw_exposure_s
-from goniofrost.capture.hardware import open_camera
+from goniofrost.rig.hardware import open_camera
 from goniofrost.core.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]

@@ -10,7 +10,7 @@ import yaml
 
 from calib.holder import SAMPLE_MARKER_IDS
 from calib.roi import polygon_mask, predict_view
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.grid import MerlGrid
 from planner.candidates import candidate_poses, measurable_reason
 from planner.kinematics import Reason, forward

@@ -19,6 +19,8 @@ from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal, SampleRecord
 from goniofrost.capture.records import RunEnd, RunStatus
 from goniofrost.capture.runner import capture
+from goniofrost.datasets import shown_material
+from goniofrost.rig.simulated import rig_devices
 from goniofrost.monitor.server import MonitorServer
 from goniofrost.monitor.session_view import DoneSample, PlanSample, SessionView, Stop, read_session
 from goniofrost.monitor.safe_path import UnsafePath, session_file
@@ -33,7 +35,8 @@ def finished(tmp_path_factory):
     """A finished 5-sample session on the simulated rig (read-only for the tests)."""
     folder = tmp_path_factory.mktemp("monitor")
     rig, plan = make_plan(folder, M)
-    capture(rig, plan, folder / "s", material=MATERIAL, speedup=50, progress=False)
+    capture(rig, plan, folder / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50,
+            progress=False)
     return folder / "s"
 
 

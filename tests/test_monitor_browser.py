@@ -18,6 +18,8 @@ import pytest
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal, SampleRecord
 from goniofrost.capture.runner import capture
+from goniofrost.datasets import shown_material
+from goniofrost.rig.simulated import rig_devices
 from goniofrost.monitor.server import MonitorServer
 from monitor_helpers import MATERIAL, drilled_rig, make_plan
 
@@ -112,7 +114,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         try:
             with monitored(session, "127.0.0.1", 0, "capture") as server:
                 urls.put(server.url)
-                capture(rig, plan_file, session, material=MATERIAL, speedup=10, progress=False, **kw)
+                capture(rig, plan_file, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=10,
+                        progress=False, **kw)
         except SessionFault as exc:
             outcome["fault"] = str(exc)
 
@@ -139,7 +142,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         page.goto(server.url)
         expect(page.locator("#state")).to_have_text("faulted")
         resume = threading.Thread(target=capture, args=(rig, plan_file, session),
-                                  kwargs={"material": MATERIAL, "speedup": 10, "progress": False, "resume": True})
+                                  kwargs={"material": shown_material(MATERIAL), "devices": rig_devices, "speedup": 10,
+                                          "progress": False, "resume": True})
         resume.start()
         expect(page.locator("#state")).to_have_text("finished", timeout=60_000)
         resume.join(timeout=60)
@@ -232,7 +236,8 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
 
 
 def test_an_operators_stop_is_shown_interrupted_with_the_terminals_words(page, tmp_path):
-    from goniofrost.capture.records import AxisStop, RunEnd, RunStatus
+    from goniofrost.capture.records import RunEnd, RunStatus
+    from goniofrost.rig.stop import AxisStop
     from journal_script import ScriptedSession
 
     script = ScriptedSession(tmp_path, 3)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers.camera import TARGET_EXPLAINED, FolderCamera, OperatorAbort, OperatorPrompt, OperatorTimeout
-from goniofrost.capture.hardware import open_camera
+from goniofrost.rig.hardware import open_camera
 
 from frame_script import CAMERA_MODEL
 
@@ -135,7 +135,7 @@ def test_a_prompt_during_a_capture_is_on_its_own_lines_not_inside_the_progress_b
 
     from tqdm import tqdm
 
-    from goniofrost.capture.hardware import BarSafeOutput
+    from goniofrost.rig.hardware import BarSafeOutput
 
     with tqdm(total=40, unit="sample", desc="capture", file=sys.stderr) as bar:
         bar.update(3)

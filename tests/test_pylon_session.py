@@ -23,6 +23,8 @@ from goniofrost.app.cli import main
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.runner import capture
+from goniofrost.datasets import shown_material
+from goniofrost.rig.simulated import rig_devices
 
 from test_session import MATERIAL, small_plan
 
@@ -93,7 +95,7 @@ def test_an_unplugged_camera_mid_session_is_one_line_then_resume_finishes(setup,
         hardware.extra["scene"].arm("unplug", calibration_frames + 4)
 
     with pytest.raises(SessionFault) as fault:
-        capture(rig, plan, session, material=MATERIAL, speedup=50, progress=False, on_ready=unplug_in_the_samples)
+        capture(rig, plan, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, on_ready=unplug_in_the_samples)
     message = str(fault.value)
     assert "\n" not in message
     assert "pylon camera 0815-0000: the camera was unplugged (device removed) during a" in message
@@ -121,7 +123,7 @@ def test_a_grab_timeout_mid_session_exits_2_with_one_line(setup, uninterrupted, 
 
     with pytest.raises(SessionFault, match=r"pylon camera 0815-0000: no frame within 0.5 s \(camera.timeout_s\) "
                                            r"beyond a [0-9.e-]+ s exposure"):
-        capture(short, plan, tmp_path / "s", material=MATERIAL, speedup=50, progress=False, on_ready=stall)
+        capture(short, plan, tmp_path / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, on_ready=stall)
     assert main(capture_args(short, plan, tmp_path / "s", "--resume")) == 0
     assert sorted(r.plan_index for r in samples(tmp_path / "s")) == list(range(M))
 
@@ -166,7 +168,7 @@ def test_align_recovers_the_misalignment_through_the_emulated_camera(tmp_path):
 
     rig = small_misaligned_rig(tmp_path / "rig.yaml")
     rig.write_text(yaml.safe_dump(pylon_version_of(yaml.safe_load(rig.read_text())), sort_keys=False))
-    doc = align(rig, tmp_path / "ALIGNMENT.json", progress=False)
+    doc = align(rig, tmp_path / "ALIGNMENT.json", progress=False, devices=rig_devices)
     found = np.array([doc["offsets_deg"][n] for n in ("camera_arm", "sample_yaw", "sample_tilt")])
     assert np.all(np.abs(found - BUILT_WRONG) < 0.05), found
     assert doc["images"]["used"] == doc["images"]["poses"]
@@ -177,7 +179,7 @@ def test_rig_snap_takes_a_frame_and_a_bracket_with_any_camera_kind(setup, tmp_pa
     """The console's exposure check through the simulated camera and through pylon's emulation: the
     frame carries the exposure the camera took (pylon rounds 15.625 us to 16 us), the bracket finds
     the white card's markers."""
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.snap import snap
 
     folder, rig, plan = setup
@@ -189,10 +191,10 @@ def test_rig_snap_takes_a_frame_and_a_bracket_with_any_camera_kind(setup, tmp_pa
     path = tmp_path / "rig.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
     one = snap(load_checked_rig(path), target="white", exposure_s=0.000015625, out=tmp_path / "one.png",
-               material=MATERIAL, move_to={"camera_arm": 30.0})
+               material=shown_material(MATERIAL), move_to={"camera_arm": 30.0}, devices=rig_devices)
     assert one.exposures_s == [pytest.approx(taken_s, abs=1e-12)] and (tmp_path / "one.png").is_file()
     bracket = snap(load_checked_rig(path), target="white", exposure_s=None, out=tmp_path / "bracket.png",
-                   material=MATERIAL, move_to={"camera_arm": 30.0})
+                   material=shown_material(MATERIAL), move_to={"camera_arm": 30.0}, devices=rig_devices)
     assert bracket.problem is None and bracket.markers_found == [4, 5, 6, 7], bracket
     assert bracket.capture_exposures_s and min(bracket.roi_pixels) > 0
 

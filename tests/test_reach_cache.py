@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.grid import MerlGrid
 from planner.reach import compute_reasons, is_cached, reachability
 

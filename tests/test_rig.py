@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from goniofrost.core.errors import ConfigError
-from goniofrost.capture.rig_file import load_checked_rig as load_full_rig
+from goniofrost.rig.file import load_checked_rig as load_full_rig
 from planner.rig import Role, load_rig
 
 REPO = Path(__file__).resolve().parents[1]

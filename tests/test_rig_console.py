@@ -37,7 +37,7 @@ def real_style_rig(resolved, folder: Path) -> dict:
 @pytest.fixture
 def twins(tmp_path):
     """(rig file path, running SimulatedRig) of twins that outlive each console command."""
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from sim.rig import SimulatedRig
 
     with SimulatedRig(load_checked_rig(SIM_RIG), speedup=50.0) as simulation:
@@ -391,7 +391,7 @@ def test_the_console_reads_a_rig_file_without_importing_numba():
     import subprocess
     import sys
 
-    code = ("import sys; from goniofrost.capture.rig_file import load_checked_rig; "
+    code = ("import sys; from goniofrost.rig.file import load_checked_rig; "
             f"load_checked_rig({str(SIM_RIG)!r}); print(sorted(m for m in ('numba', 'scipy') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"

@@ -1,4 +1,4 @@
-"""One program drives a rig at a time (goniofrost.capture.rig_lock): its holder is readable, a second
+"""One program drives a rig at a time (goniofrost.rig.lock): its holder is readable, a second
 program is refused naming it, and another process can ask it to stop: a capture on the simulated
 rig stops with its own per-axis report, and --resume completes it."""
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import RunStatus
-from goniofrost.capture.rig_lock import RigInUseError, request_stop, rig_holder, rig_lock
+from goniofrost.rig.lock import RigInUseError, request_stop, rig_holder, rig_lock
 from monitor_helpers import MATERIAL, journal_rows, make_plan
 
 REPO = Path(__file__).resolve().parents[1]

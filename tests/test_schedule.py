@@ -132,7 +132,7 @@ def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, ca
     rig_file = Path(RIG.source)
     assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     reach = reachability(load_checked_rig(rig_file), GRID)   # with the camera model: measurable cells only
     assert f"{int(reach.mask.sum())} of {GRID.n_valid} valid cells reachable" in printed
     assert f"PATCH_PIXELS {reach.counts()['PATCH_PIXELS']}" in printed and reach.counts()["PATCH_PIXELS"] > 0
@@ -201,7 +201,7 @@ def test_plan_command_with_an_alignment_records_it_and_refuses_a_bad_one(small_m
     # lattices: each joint within planner.steps.SPAN_DEG + half a step of an aligned IK pose)
     from goniofrost.capture.inputs import check_consistency, plan_cells
     from goniofrost.core.errors import ConfigError
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.model import FrostModel
     rig, grid = load_checked_rig(rig_file, aligned), FrostModel.load(small_model).grid
     check_consistency(doc, out, grid, rig, plan_cells(doc, out, grid))

@@ -24,6 +24,8 @@ import pytest
 import yaml
 
 from goniofrost.capture.runner import capture
+from goniofrost.datasets import shown_material
+from goniofrost.rig.simulated import rig_devices
 from goniofrost.app.cli import main
 from goniofrost.core.grid import MerlGrid
 from goniofrost.capture.journal import Journal
@@ -443,7 +445,7 @@ def test_an_output_path_of_the_session_in_the_way_is_refused_before_the_rig_star
     """A folder named brdf.binary (or brdf.bsdf with --bsdf) was refused only at the end, after every
     sample had been measured; a file named raw after the calibration had moved the axes. Now each
     is one line before any device is connected, and the folder is left as it was."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     folder, rig, plan, _ = setup
     monkeypatch.setattr(hardware, "open_hardware", lambda *a, **k: pytest.fail("the rig was started"))
@@ -460,7 +462,7 @@ def test_an_output_path_of_the_session_in_the_way_is_refused_before_the_rig_star
 def test_a_folder_named_brdf_bsdf_is_in_the_way_only_of_a_capture_that_writes_it(setup, tmp_path, monkeypatch):
     """Without --bsdf the capture writes no brdf.bsdf: a folder of that name is left alone, and the
     capture goes on to start the rig (stopped there)."""
-    import goniofrost.capture.hardware as hardware
+    import goniofrost.rig.hardware as hardware
 
     class Started(Exception):
         pass
@@ -726,7 +728,7 @@ def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path
 def batched_plan(folder: Path, rig, plan, ends) -> Path:
     """The module's plan scheduled again in the batches ``ends``."""
     from goniofrost.capture.plan_file import write_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from planner.schedule import schedule_batches
 
     doc = json.loads(plan.read_text())
@@ -874,7 +876,7 @@ def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(rig, batched, session, material=MATERIAL, speedup=50, progress=False, target_error=1e-12,
+    outcome = capture(rig, batched, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, target_error=1e-12,
                       confidence=0.8)
     target = outcome.report["target_error"]
     assert target["stopped"] == "plan used up" and target["samples_used"] == 5
@@ -999,7 +1001,7 @@ def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early
     folder, rig, plan, model = setup
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # bars are drawn on a terminal only
     batched = batched_plan(tmp_path, rig, plan, [4, 5])
-    capture(rig, batched, tmp_path / "s", material=MATERIAL, speedup=50, progress=True, target_error=10000.0,
+    capture(rig, batched, tmp_path / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=True, target_error=10000.0,
             confidence=0.8)  # the bound of this 6-material model after 4 samples: below 10000
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("capture: 100%") and "| 4/4 " in last, last  # not "4/5"
@@ -1196,7 +1198,7 @@ def test_a_target_error_capture_assesses_the_measured_samples_of_each_batch_only
     short, _ = dark
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(short, batched, session, material=DARK_MATERIAL, speedup=50, progress=False,
+    outcome = capture(short, batched, session, material=shown_material(DARK_MATERIAL), devices=rig_devices, speedup=50, progress=False,
                       target_error=1e-12, confidence=0.8)
     with Journal.open(session / "session.sqlite") as journal:
         dark_indices = [r.plan_index for r in journal.not_measured()]

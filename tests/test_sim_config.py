@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from goniofrost.app.cli import main
-from goniofrost.capture import rig_file
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig import file as rig_file
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.errors import ConfigError
 from sim.camera import _SIM_CAMERA_KEYS as SIM_CAMERA_KEYS
 from sim.config import SIM_KEYS, validate_sim_section

@@ -21,9 +21,9 @@ from sdk_retry import sdk_call
 from pymodbus.client import ModbusTcpClient
 
 from drivers.errors import DeviceFault
-from goniofrost.capture.executor import stop_axes
+from goniofrost.rig.stop import stop_axes
 from drivers.rig_devices import RigDevices
-from goniofrost.capture.rig_file import section_validators
+from goniofrost.rig.file import section_validators
 from planner.rig import rig_from_mapping
 from sim.rig import SimulatedRig
 

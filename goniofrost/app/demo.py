@@ -79,8 +79,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     # measures its sentinels exactly there. A bad rig file fails here, before the training.
     from concurrent.futures import ThreadPoolExecutor
 
-    from goniofrost.capture.rig_file import load_checked_rig
-    from goniofrost.capture.rig_lock import check_free
+    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.rig.lock import check_free
     from planner.reach import is_cached, reachability
 
     rig = load_checked_rig(rig_path)
@@ -97,10 +97,13 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     lap("train")
     plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.mask)
     lap("plan")
-    outcome = capture_fresh(rig_path, plan_path, out / "session", f"builtin:{material}", seed, speedup, progress,
+    from goniofrost.datasets import shown_material
+
+    shown = shown_material(f"builtin:{material}")  # the camera's, and the report's ground truth
+    outcome = capture_fresh(rig_path, plan_path, out / "session", shown, seed, speedup, progress,
                             target_error, confidence)
     lap("capture")
-    write_reference_and_preview(material, grid, out)
+    write_reference_and_preview(shown, grid, out)
     lap("reference")
     if bsdf:
         from goniofrost.brdf.mitsuba_export import export_beside
@@ -148,7 +151,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from planner.schedule import schedule_batches, schedule_plan
 
     from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.capture.rig_file import command_steps, load_checked_rig
+    from goniofrost.rig.file import command_steps, load_checked_rig
     from goniofrost.frost.cell_sensitivity import axis_weights
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
@@ -181,16 +184,19 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
 RERUN_DEMO = "the demo again"  # what a stopped demo says to type: it has no --resume and starts a new session
 
 
-def capture_fresh(rig_path, plan_path, session_dir: Path, material: str, seed: int, speedup: float, progress: bool,
+def capture_fresh(rig_path, plan_path, session_dir: Path, material, seed: int, speedup: float, progress: bool,
                   target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE):
-    """Capture into a fresh session folder (a previous demo session there is removed first)."""
+    """Capture into a fresh session folder (a previous demo session there is removed first), on the
+    simulated devices of the rig in ``rig_path`` showing ``material`` (``goniofrost.datasets.shown_material``)."""
     from goniofrost.capture.runner import capture
+    from goniofrost.rig.simulated import rig_devices
 
     check_replaceable(session_dir)
     if session_dir.exists():
         shutil.rmtree(session_dir)
     return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
-                   progress=progress, target_error=target_error, confidence=confidence, rerun=RERUN_DEMO)
+                   progress=progress, target_error=target_error, confidence=confidence, rerun=RERUN_DEMO,
+                   devices=rig_devices)
 
 
 def check_replaceable(session_dir: Path) -> None:
@@ -213,13 +219,14 @@ def check_demo_outputs(out: Path) -> None:
                                       "another --out")
 
 
-def write_reference_and_preview(material: str, grid, out: Path) -> None:
-    """Write the ground truth as reference.binary; the session's preview (already rendered
-    against the same truth) becomes out/preview.png."""
+def write_reference_and_preview(material, grid, out: Path) -> None:
+    """Write the ground truth (``material``: the ShownMaterial the capture was handed) as
+    reference.binary; the session's preview (already rendered against the same truth) becomes
+    out/preview.png."""
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
     from goniofrost.capture.report import ground_truth
 
-    truth = ground_truth(f"builtin:{material}", grid)  # the table the session report used
+    truth = ground_truth(material, grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)
     from goniofrost.core.atomic_file import write_bytes_atomic
 

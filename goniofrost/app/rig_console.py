@@ -14,9 +14,18 @@ class RigProblems(GoniofrostError):
 
 
 def _load(args):
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
 
     return load_checked_rig(args.rig, args.alignment)
+
+
+def _connected(rig, **options):
+    """``connected_rig`` on the rig's devices: a simulated rig file's twins are started for the
+    command (``goniofrost.rig.simulated.device_sections``)."""
+    from goniofrost.capture.console import connected_rig
+    from goniofrost.rig.simulated import device_sections
+
+    return connected_rig(rig, sections=device_sections, **options)
 
 
 def _say(text: str) -> None:
@@ -25,7 +34,7 @@ def _say(text: str) -> None:
 
 # ----- check -----------------------------------------------------------------------------------
 def run_check(args) -> int:
-    from goniofrost.capture.rig_check import RigCheckError, rig_file_problems
+    from goniofrost.rig.check import RigCheckError, rig_file_problems
 
     problems = rig_file_problems(args.rig, args.alignment)
     if problems:
@@ -50,10 +59,10 @@ def run_check(args) -> int:
 
 def _probe(rig):
     from drivers.rig_devices import RigDevices
-    from goniofrost.capture.console import _device_sections
-    from goniofrost.capture.rig_check import probe_rig
+    from goniofrost.rig.simulated import device_sections
+    from goniofrost.rig.check import probe_rig
 
-    with _device_sections(rig) as (resolved, _simulation):
+    with device_sections(rig) as (resolved, _simulation):
         devices = RigDevices.from_rig(resolved)
         return probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
 
@@ -82,11 +91,11 @@ def device_table(reports) -> str:
 
 # ----- status ----------------------------------------------------------------------------------
 def run_status(args) -> int:
-    from goniofrost.capture.console import connected_rig, read_status
+    from goniofrost.capture.console import read_status
 
     interval = _watch_interval(args)
     rig = _load(args)  # the options first: a bad one connects nothing
-    with connected_rig(rig, enable=False, program="rig status") as hardware:
+    with _connected(rig, enable=False, program="rig status") as hardware:
         n = 0
         while True:
             readings, lamp = read_status(rig, hardware)
@@ -127,14 +136,14 @@ def _status_text(readings, lamp, as_json: bool) -> str:
 
 # ----- move, home, lamp ----------------------------------------------------------------------------
 def run_move(args) -> int:
-    from goniofrost.capture.console import (check_referenced, check_targets, connected_rig, move_plan, parse_targets,
+    from goniofrost.capture.console import (check_referenced, check_targets, move_plan, parse_targets,
                                             run_plan)
 
     rig = _load(args)
     requested = parse_targets(args.targets, rig)
     if not args.by:
         check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
-    with connected_rig(rig, enable=True, program="rig move") as hardware:
+    with _connected(rig, enable=True, program="rig move") as hardware:
         check_referenced(rig, hardware.axes, requested)
         targets = requested
         if args.by:
@@ -151,7 +160,7 @@ def run_move(args) -> int:
 
 
 def run_home(args) -> int:
-    from goniofrost.capture.console import ConsoleError, connected_rig, home_plan, run_plan
+    from goniofrost.capture.console import ConsoleError, home_plan, run_plan
 
     rig = _load(args)
     axes = args.axes or list(rig.joint_names)
@@ -163,7 +172,7 @@ def run_home(args) -> int:
         raise ConsoleError(f"{twice!r}: axis {twice} is given twice")
     if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
         raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
-    with connected_rig(rig, enable=True, program="rig home") as hardware:
+    with _connected(rig, enable=True, program="rig home") as hardware:
         _say(f"homing {', '.join(axes)}")
         reached = run_plan(hardware, home_plan(axes), "rig home")
     _say("homed " + ", ".join(f"{n} at {d:.3f} deg" for n, d in reached.joints.items()))
@@ -179,13 +188,13 @@ def _confirm(question: str) -> bool:
 
 
 def run_lamp(args) -> int:
-    from goniofrost.capture.console import ConsoleError, connected_rig, lamp_plan, run_plan
+    from goniofrost.capture.console import ConsoleError, lamp_plan, run_plan
 
     rig = _load(args)
     if not rig.lamp.get("driver"):
         raise ConsoleError(f"{rig.source}: this rig has no lamp driver (lamp.driver)")
     on = args.state == "on"
-    with connected_rig(rig, enable=False, program="rig lamp") as hardware:
+    with _connected(rig, enable=False, program="rig lamp") as hardware:
         reading = run_plan(hardware, lamp_plan(on), "rig lamp")
     _say(f"lamp on, photodiode {reading:.4f} of nominal" if on else "lamp off")
     return 0
@@ -193,10 +202,10 @@ def run_lamp(args) -> int:
 
 # ----- stop -------------------------------------------------------------------------------------
 def run_stop(args) -> int:
-    from goniofrost.capture.console import connected_rig
-    from goniofrost.capture.executor import StepExecutor, stop_text
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.rig.stop import stop_text
 
-    from goniofrost.capture.rig_lock import request_stop
+    from goniofrost.rig.lock import request_stop
 
     rig = _load(args)
     holder = request_stop(rig.name)
@@ -204,7 +213,7 @@ def run_stop(args) -> int:
         _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
              f"switches the lamp off; its own report follows in its terminal and journal")
         return 0
-    with connected_rig(rig, enable=False, program="rig stop") as hardware:
+    with _connected(rig, enable=False, program="rig stop") as hardware:
         executor = StepExecutor(hardware, ".")
         stops = executor.stop()
         lamp_error = executor.switch_lamp_off() if hardware.lamp is not None else None
@@ -217,7 +226,9 @@ def run_stop(args) -> int:
 def run_snap(args) -> int:
     from goniofrost.capture.console import check_targets, parse_targets
     from goniofrost.app.png_out import check_png_name
-    from goniofrost.capture.snap import snap, snap_text
+    from goniofrost.capture.runner import check_material
+    from goniofrost.capture.snap import DEFAULT_MATERIAL, snap, snap_text
+    from goniofrost.rig.simulated import rig_devices
 
     check_png_name(args.out)
     if args.exposure is not None and not (math.isfinite(args.exposure) and args.exposure > 0):
@@ -226,8 +237,14 @@ def run_snap(args) -> int:
     move_to = parse_targets(args.move, rig) if args.move else None
     if move_to:
         check_targets(rig, move_to)
-    result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=args.material,
-                  move_to=move_to)  # open_hardware takes the rig lock
+    # as capture: none on a real rig (it shows what is on the stage), a known one on a simulated
+    # rig, checked before anything is made or moved
+    material = check_material(rig, args.material if args.material is not None or not rig.simulated else DEFAULT_MATERIAL)
+    if material is not None:
+        from goniofrost.datasets import shown_material
+        material = shown_material(material)
+    result = snap(rig, target=args.target, exposure_s=args.exposure, out=args.out, material=material,
+                  move_to=move_to, devices=rig_devices)  # open_hardware takes the rig lock
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     # as rig check: a check that found a problem (a capture could not measure here) exits 2, so
     # `rig snap ... && goniofrost capture ...` does not go on past it
@@ -237,7 +254,7 @@ def run_snap(args) -> int:
 # ----- capture --dry-run -----------------------------------------------------------------------------
 def run_dry_run(args) -> int:
     """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
-    from goniofrost.capture.console import connected_rig, dry_run
+    from goniofrost.capture.console import dry_run
     from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
     from goniofrost.capture.plan_file import read_plan
     from goniofrost.capture.runner import check_sim_options
@@ -256,7 +273,7 @@ def run_dry_run(args) -> int:
                 _say(f"move {len(done)}/{n} (sample {move.index}): planned {move.planned_s:.2f} s, "
                      f"measured {move.measured_s:.2f} s{'  DIFFERS' if move.differs else ''}")
 
-    with connected_rig(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
+    with _connected(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
         timed = dry_run(rig, plan, hardware, on_move=progress)
     print(dry_run_text(timed[1:]))
     return 0

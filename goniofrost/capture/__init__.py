@@ -1,1 +1,2 @@
-"""The capture session: checked inputs, plan steps, the engine and its hardware, journal, report, runner."""
+"""The capture session: checked inputs, plan steps, the engine, journal, report, runner; the rig it
+drives is ``goniofrost.rig``."""

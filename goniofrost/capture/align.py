@@ -34,14 +34,15 @@ FRAMES_PER_POSE = 2      # averaged: the tile's brightness is what sets the yaw 
 
 
 def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None = None, progress: bool = True,
-          frames: str | Path | None = None, on_ready=None) -> dict:
+          frames: str | Path | None = None, on_ready=None, devices=None) -> dict:
     """Measure the alignment of the rig in ``rig_path``; write and return ALIGNMENT.json's content.
 
     ``frames``: keep the frames in this folder (default: a temporary folder, removed). ``seed`` and
-    ``speedup`` as for ``goniofrost capture``; ``on_ready(hardware)`` once the devices are connected.
+    ``speedup`` as for ``goniofrost capture``; ``on_ready(hardware)`` once the devices are connected;
+    ``devices``: the opener of the rig's devices, the caller's (see ``goniofrost.capture.runner.capture``).
     """
-    from goniofrost.capture.hardware import open_hardware
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.hardware import open_hardware
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.runner import check_sim_options
     from goniofrost.core.atomic_file import check_not_an_input, check_output_dir, check_output_file, write_text_atomic
     from planner.alignment import fit_alignment
@@ -60,7 +61,7 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)
-        with open_hardware(rig, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
+        with open_hardware(rig, devices, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
                            program="align") as hardware:
             observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress,
                                                   journaled=frames is not None)

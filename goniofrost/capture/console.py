@@ -2,7 +2,7 @@
 
 Each command is a short plan of the session's own steps (``Home``, ``Move``, ``LampOn``,
 ``LampOff``) run on the connected devices by the engine core (``plan_runner.PlanRunner``, without
-a journal) and its one stop path (``executor.stop_axes``): on any failure, Ctrl-C or a stop
+a journal) and its one stop path (``goniofrost.rig.stop.stop_axes``): on any failure, Ctrl-C or a stop
 request every axis is stopped and confirmed, axis by axis, and the lamp switched off. Every
 command holds the rig lock while it is connected (``rig_lock``: one program drives a rig at a
 time). Targets are checked against the soft limits and the rig's geometry before anything is
@@ -125,20 +125,25 @@ class ConsoleHardware:
 
 
 @contextmanager
-def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None):
+def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None, sections=None):
     """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
     of ``rig``; on exit stop and confirm every axis not yet confirmed stopped (``release_stop``),
     close, release the lock.
-    A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
-    session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
-    from drivers.rig_devices import RigDevices
-    from goniofrost.capture.device_log import DeviceLog
-    from goniofrost.capture.executor import release_stop
-    from goniofrost.capture.hardware import WallClock
-    from goniofrost.capture.rig_lock import rig_lock
+    ``sections(rig, speedup)``: the caller's context manager yielding (the rig its devices are
+    connected by, the running simulation or None); None: the rig's own sections, real devices.
+    ``goniofrost.rig.simulated.device_sections`` starts a simulated rig's devices for the command
+    (at ``speedup``; its clock is the session clock): ``goniofrost sim --write-rig`` gives twins
+    that outlive one command."""
+    from contextlib import nullcontext
 
-    with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
-            _device_sections(rig, speedup) as (resolved, simulation):
+    from drivers.rig_devices import RigDevices
+    from goniofrost.rig.device_log import DeviceLog
+    from goniofrost.rig.hardware import WallClock
+    from goniofrost.rig.lock import rig_lock
+    from goniofrost.rig.stop import release_stop
+
+    opened = nullcontext((rig, None)) if sections is None else sections(rig, speedup)
+    with rig_lock(rig.name, program) as lock, DeviceLog.capture(), opened as (resolved, simulation):
         devices = RigDevices.from_rig(resolved)
         devices.connect_all(enable=enable)
         try:
@@ -149,19 +154,6 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
                 release_stop(devices.axes)
             finally:
                 devices.close_all()
-
-
-@contextmanager
-def _device_sections(rig, speedup: float | None = None):
-    """(the rig, None) for a real rig, or (the rig with its simulated devices' endpoints, the
-    SimulatedRig), started for the command."""
-    if not rig.simulated:
-        yield rig, None
-        return
-    from sim.rig import SimulatedRig
-
-    with SimulatedRig(rig, speedup=speedup) as simulation:
-        yield simulation.resolved_rig(), simulation
 
 
 # ----- the dry run -------------------------------------------------------------------------------

@@ -30,8 +30,8 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from goniofrost.capture.contract import Hardware
-from goniofrost.capture.device_log import DeviceLog
+from goniofrost.rig.contract import Hardware
+from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv, by_reason
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus

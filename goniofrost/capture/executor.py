@@ -1,11 +1,10 @@
-"""Carry out a plan's device steps on a Hardware, and stop every axis: the one place devices are called.
+"""Carry out a plan's device steps on a Hardware: the one place the capture calls devices.
 
 ``StepExecutor(hardware, folder)(step)`` executes one step (home, move, lamp, target, expose,
-save the calibration arrays) and returns its result (see ``goniofrost.capture.steps``);
-``stop_axes`` is the one stop path for all axes, used by the engine on any failure and, through
-``release_stop`` (only what is not confirmed stopped yet: one stop per axis per exit), by the
-hardware wiring on release. The engine adds the journal on top; a camera bench (tests,
-benchmarks) uses the executor alone.
+save the calibration arrays) and returns its result (see ``goniofrost.capture.steps``); its
+``stop`` goes through the rig's one stop path (``goniofrost.rig.stop.stop_axes``), used by the
+engine on any failure. The engine adds the journal on top; a camera bench (tests, benchmarks)
+uses the executor alone.
 """
 from __future__ import annotations
 
@@ -13,71 +12,14 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 from goniofrost.core.atomic_file import output_errors
-from goniofrost.capture.contract import Axis, Hardware
-from goniofrost.capture.records import AxisStop  # noqa: F401 - re-exported: the stop report's record
 from goniofrost.capture.steps import Expose, Frame, Home, LampOff, LampOn, Move, Reached, SaveCalibration, SetTarget
+from goniofrost.rig.contract import Hardware
+from goniofrost.rig.stop import AxisStop, stop_axes
 
 log = logging.getLogger(__name__)
 LAMP_OFF_ATTEMPTS = 2  # a reply lost once (a loaded host) must not leave the lamp reported on
-
-
-def stop_axes(axes: Mapping[str, Axis], moving_to: Mapping[str, float | None] | None = None) -> list[AxisStop]:
-    """Command every axis to stop, then confirm each one is at rest; never raise.
-
-    ``moving_to``: {axis: target degrees, or None when unknown} of the moves under way (they name
-    where an unconfirmed axis may still be going). Every axis is tried whatever the others do; an
-    axis that is not connected cannot be confirmed. Problems are also logged.
-    """
-    moving_to = moving_to or {}
-    errors = {}
-    for name, axis in axes.items():
-        try:
-            if not axis.connected:
-                raise ConnectionError("not connected")
-            axis.stop()
-        except Exception as exc:  # noqa: BLE001 - keep stopping the other axes
-            log.warning("stop %s failed: %s", name, exc)
-            errors[name] = str(exc)
-    stops = []
-    for name, axis in axes.items():
-        if name not in errors:  # a stop that could not be sent cannot be confirmed either
-            try:
-                stops.append(AxisStop(name, True, position_deg=float(axis.confirm_stopped())))
-                continue
-            except Exception as exc:  # noqa: BLE001
-                log.warning("confirming the stop of %s failed: %s", name, exc)
-                errors[name] = str(exc)
-        stops.append(AxisStop(name, False, under_way=name in moving_to, moving_to=moving_to.get(name),
-                              error=errors[name]))
-    return stops
-
-
-def release_stop(axes: Mapping[str, Axis]) -> list[AxisStop]:
-    """On leaving a rig: stop and confirm (``stop_axes``) every axis not confirmed at rest since
-    its last motion command; never raise.
-
-    After a fault the engine's stop has already confirmed the axes it could: each axis is stopped
-    once per exit, and one whose stop failed is tried again here. On a normal exit nothing has
-    stopped the axes: every one is stopped here. Reads the drivers' ``confirmed_at_rest_deg``
-    (``drivers.axis``). The lamp is the engine's (its plans end with it off, a fault switches it
-    off); a console command may leave it on on purpose (``rig lamp on``).
-    """
-    rested = {name: axis.confirmed_at_rest_deg for name, axis in axes.items()}
-    stopped = {s.axis: s for s in stop_axes({name: a for name, a in axes.items() if rested[name] is None})}
-    return [stopped.get(name) or AxisStop(name, True, position_deg=rested[name]) for name in axes]
-
-
-def stop_text(stops: list[AxisStop]) -> str:
-    """The stops in one sentence: the confirmed ones together, then each unconfirmed one."""
-    done = [s for s in stops if s.confirmed]
-    parts = []
-    if done:
-        parts.append("stopped " + ", ".join(f"{s.axis} at {s.position_deg:.2f} deg" for s in done))
-    parts += [s.text() for s in stops if not s.confirmed]
-    return "; ".join(parts) if parts else "no axis to stop"
 
 
 @dataclass

@@ -55,7 +55,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.scene_error import from_plan as scene_from_plan
     from goniofrost.capture.plan_file import check_unique_cells, read_plan
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
 
     rig = load_checked_rig(rig_path, alignment_path)
     plan_path = Path(plan_path)

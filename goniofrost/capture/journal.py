@@ -41,7 +41,8 @@ from pathlib import Path
 from calib.measurement import NotMeasuredReason, why_not_measured
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
-from goniofrost.capture.records import AxisStop, EventKind, RunEnd, RunStart, RunStatus, SessionLabel
+from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus, SessionLabel
+from goniofrost.rig.stop import AxisStop
 from goniofrost.frost import samples_file
 
 FORMAT_VERSION = 1
@@ -384,6 +385,12 @@ class Journal:
         is for people, ``data`` for readers."""
         with self._transaction() as db:
             _insert_event(db, kind, message, data, axis)
+
+    def add_device_log(self, device_log) -> None:
+        """Store the records ``device_log`` (``goniofrost.rig.device_log.DeviceLog``) collected since
+        the last call as ``device`` events."""
+        for record in device_log.drain():
+            self.add_event(EventKind.DEVICE, record.getMessage(), data={"logger": record.name, "level": record.levelname})
 
     def start_run(self, program: str, samples_planned: int, samples_done: int) -> RunStart:
         """Record that a run of ``program`` begins (durably); return its RunStart."""

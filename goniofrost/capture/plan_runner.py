@@ -7,11 +7,11 @@ a ``PlanRunner``:
 * each step is executed by the one ``StepExecutor`` and, when a journal is given, journaled as a
   ``steps`` row when it starts and when it ends (a short hand command may run without a journal);
 * the run is a ``RunStart`` and a ``RunEnd`` (``goniofrost.capture.records``) in the journal;
-* SIGINT, SIGTERM and a stop request of the rig lock (``goniofrost.capture.rig_lock``, checked
+* SIGINT, SIGTERM and a stop request of the rig lock (``goniofrost.rig.lock``, checked
   between steps too) end the run ``STOPPED_BY_OPERATOR`` and raise ``SessionInterrupted``; a
   device error ends it ``FAULT``, a measurement or output error ``REFUSED``, each raising
   ``SessionFault`` with a one-line message. On every one of them every axis is stopped and
-  confirmed through the one stop path (``executor.stop_axes``), the lamp is switched off, and the
+  confirmed through the one stop path (``goniofrost.rig.stop.stop_axes``), the lamp is switched off, and the
   message and the journal say axis by axis what was confirmed;
 * the drivers' log goes to the journal (``DeviceLog``), off the terminal.
 
@@ -28,8 +28,9 @@ from contextlib import contextmanager, nullcontext
 
 from goniofrost.core.atomic_file import reason_of
 from goniofrost.core.errors import GoniofrostError, OutputError
-from goniofrost.capture.device_log import DeviceLog
-from goniofrost.capture.executor import StepExecutor, stop_text
+from goniofrost.rig.device_log import DeviceLog
+from goniofrost.capture.executor import StepExecutor
+from goniofrost.rig.stop import stop_text
 from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus
 from goniofrost.capture.signals import Deferral, SessionInterrupted, signals_raise
 from goniofrost.capture.steps import step_detail
@@ -45,7 +46,7 @@ class SessionFault(GoniofrostError):
 
 
 class PlanRunner:
-    """Run plans on ``hardware`` (a ``goniofrost.capture.contract.Hardware``); files go under
+    """Run plans on ``hardware`` (a ``goniofrost.rig.contract.Hardware``); files go under
     ``folder``. ``journal``: a ``Journal`` or None (no journal: the run's records stay in
     ``run_start``/``run_end`` only); ``device_log``: the caller's (covering connect and release
     too), else the runner captures its own; ``program``: the name its runs are journaled under."""
@@ -276,7 +277,7 @@ class PlanRunner:
         if self.journal is None:
             return
         try:
-            self._device_log.journal_into(self.journal)
+            self.journal.add_device_log(self._device_log)
         except Exception as exc:  # noqa: BLE001 - only reached with quiet=True re-raising below
             if not quiet:
                 raise

@@ -39,19 +39,23 @@ class QueueItem:
     summary: str = ""
 
 
-def check_queue(queue: Queue, inputs, *, seed=None, speedup=None) -> None:
+def check_queue(queue: Queue, inputs, *, seed=None, speedup=None, materials=None) -> list:
     """Every sample's material and the simulation options, before anything moves (ConfigError
-    naming the queue file and the sample)."""
+    naming the queue file and the sample); return each sample's material resolved by
+    ``materials(SPEC:NAME, None)`` (``goniofrost.datasets.shown_material``; None on a real rig)."""
     from goniofrost.capture.runner import check_material, check_sim_options
 
     check_sim_options(inputs.rig, seed, speedup)
+    shown = []
     for i, sample in enumerate(queue.samples):
         try:
-            check_material(inputs.rig, sample.material, option=None)
+            check_material(inputs.rig, sample.material)
+            shown.append(None if sample.material is None else materials(sample.material, None))
         except ConfigError as exc:
             raise ConfigError(queue.path, f"samples[{i}].material", exc.expected, sample.material) from None
         except GoniofrostError as exc:  # an unknown dataset or material name: its own words, under the queue's key
             raise GoniofrostError(f"{queue.path}: samples[{i}].material: {exc}") from None
+    return shown
 
 
 def completed(session_dir: Path) -> bool:
@@ -87,8 +91,12 @@ def ask_to_mount(sample: QueueSample, position: str) -> None:
 
 
 def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,
-              seed=None, speedup=None, progress: bool = True, out=print) -> list[QueueItem]:
+              seed=None, speedup=None, progress: bool = True, out=print, devices=None,
+              materials=None) -> list[QueueItem]:
     """Measure every sample of ``queue`` not yet measured, in order; return what was done.
+
+    ``devices``: the opener of the rig's devices and ``materials(SPEC:NAME, option)`` the resolver
+    of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's.
 
     ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
     ``--yes``). A fault or an interruption propagates (the capture's own exception and message);
@@ -103,7 +111,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     from goniofrost.capture.runner import capture
 
     inputs = load_inputs(queue.rig, queue.plan, queue.alignment)
-    check_queue(queue, inputs, seed=seed, speedup=speedup)
+    shown = check_queue(queue, inputs, seed=seed, speedup=speedup, materials=materials)
     items, previous, n = [], None, len(queue.samples)
     for k, sample in enumerate(queue.samples, start=1):
         session, position = queue.session_dir(sample), f"{k}/{n}"
@@ -120,7 +128,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         out(f"queue {position}: measuring {sample.sample_id} into {session}"
             + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
         try:
-            outcome = capture(queue.rig, queue.plan, session, material=sample.material,
+            outcome = capture(queue.rig, queue.plan, session, material=shown[k - 1], devices=devices,
                               resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
                               label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
                               progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)

@@ -1,6 +1,7 @@
 """The typed records of a run: what the engine journals and every reader reads, field by field.
 
-This module is the bottom of ``goniofrost.capture`` (it imports nothing of the project): the
+This module is the bottom of ``goniofrost.capture`` (of the project it imports only the rig's
+``AxisStop``): the
 journal stores these records, the engine writes them, and the monitor, the report and any later
 reader (a session catalogue, the console) read their fields. No reader matches a sentence: the
 ``message`` of an event and the ``reason`` of a run end are words for people only.
@@ -10,13 +11,15 @@ reader (a session catalogue, the console) read their fields. No reader matches a
   (bluesky's run-stop document carries ``exit_status`` and ``reason``). A killed process records
   nothing: a run without a ``RunEnd`` whose process is gone (no lock held) was stopped from
   outside; readers infer that from the lock.
-* ``AxisStop``: how one axis took a stop.
+* ``AxisStop`` (``goniofrost.rig.stop``): how one axis took a stop, in a ``RunEnd``.
 * ``RunStart`` / ``RunEnd``: one row each per run in the journal's ``runs`` table.
 """
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+
+from goniofrost.rig.stop import AxisStop
 
 
 class EventKind(str, enum.Enum):
@@ -64,32 +67,6 @@ class RunStatus(str, enum.Enum):
     def completed(self) -> bool:
         """True when the run did all it set out to do (nothing to resume)."""
         return self in (RunStatus.FINISHED, RunStatus.TARGET_REACHED, RunStatus.PLAN_USED_UP)
-
-
-@dataclass(frozen=True)
-class AxisStop:
-    """How one axis took the stop: ``confirmed`` when the device reported it at rest (at
-    ``position_deg``); otherwise ``under_way`` tells whether a move was under way, ``moving_to``
-    its target when known (the axis may still be going there), and ``error`` why the stop was not
-    confirmed."""
-
-    axis: str
-    confirmed: bool
-    position_deg: float | None = None
-    under_way: bool = False
-    moving_to: float | None = None
-    error: str | None = None
-
-    def text(self) -> str:
-        """One clause for the operator, e.g. "sample_yaw did not confirm the stop: it may still be
-        moving towards 56.7 deg"."""
-        if self.confirmed:
-            return f"{self.axis} stopped at {self.position_deg:.2f} deg"
-        if self.under_way and self.moving_to is not None:
-            return f"{self.axis} did not confirm the stop: it may still be moving towards {self.moving_to:.1f} deg"
-        if self.under_way:
-            return f"{self.axis} did not confirm the stop: it may still be moving"
-        return f"{self.axis} did not confirm the stop (it was not moving as far as this session knows)"
 
 
 @dataclass(frozen=True)

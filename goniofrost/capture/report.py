@@ -132,9 +132,11 @@ def _planned_motion(plan: dict) -> float | None:
     return None if total is None else float(total) - float(plan.get("return_home_s", 0.0))
 
 
-def write_outputs(inputs, journal, stats, session_dir, material: str | None, spec=None) -> dict:
+def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None) -> dict:
     """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
-    summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any)."""
+    summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any);
+    ``material``: what a simulated rig showed (``spec``, ``brdf``, ``table``: see
+    ``goniofrost.datasets.ShownMaterial``), the ground truth the report compares against."""
     from goniofrost.capture.engine import SessionStats
     from goniofrost.frost.outputs import write_bayes_outputs
 
@@ -154,7 +156,7 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
         earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
         write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
         runs = journal.runs()
-        report = build_report(inputs, records, stats, session_dir, material, runs, dark)
+        report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
         report["label"] = journal.label().to_dict()
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                                 "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
@@ -329,7 +331,7 @@ def _import_renderer() -> None:
         pass
 
 
-def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None) -> float | None:
+def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=None) -> float | None:
     """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
     error on a simulated rig); return its rendering SNR in dB (None without a ground truth)."""
     from goniofrost.brdf.preview import preview_of, write_png
@@ -339,11 +341,11 @@ def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, 
 
     reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
     preview = preview_of(estimate, grid, reference, std=std)
-    write_png(path, preview, title="session estimate" + (f" vs {material}" if material else ""))
+    write_png(path, preview, title="session estimate" + (f" vs {material.spec}" if material else ""))
     return preview.snr_db
 
 
-def _truth_section(inputs, records, material: str, estimate: np.ndarray, predicted: float,
+def _truth_section(inputs, records, material, estimate: np.ndarray, predicted: float,
                    median: float | None) -> dict:
     from goniofrost.frost.metrics import log_relative_mse
     from goniofrost.frost.reconstruction import reconstruct_bayes
@@ -361,7 +363,7 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
     samples = inputs.plan["samples"]
     grazing = np.array([max(samples[r.plan_index]["theta_i_deg"], samples[r.plan_index]["theta_o_deg"]) > GRAZING_DEG
                         for r in records], dtype=bool)
-    return {"material": material, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
+    return {"material": material.spec, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
             "predicted_over_actual": predicted / error if error > 0 else None,
             "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
             "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
@@ -373,19 +375,18 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
                         "sample_relative_error_median_at_measured_directions": _median(rel_measured[grazing])}}
 
 
-def truth_at_measured_directions(inputs, records, material: str) -> np.ndarray:
+def truth_at_measured_directions(inputs, records, material) -> np.ndarray:
     """The material's BRDF (n, 3) at the directions each sample was measured at, as the session
     knows them (forward kinematics of the joints reached, with the session's alignment): what the
     calibration had to reproduce. The cell's own directions differ by the axes' positioning
-    resolution (e.g. 0.088 deg for the simulated yaw servo), which matters on sharp peaks."""
-    from goniofrost.datasets import material_brdf
+    resolution (e.g. 0.088 deg for the simulated yaw servo), which matters on sharp peaks.
+    ``material``: its ``brdf(w_i, w_o)`` (``goniofrost.datasets.ShownMaterial``)."""
     from planner.kinematics import forward
 
-    _, brdf = material_brdf(material)
     out = np.empty((len(records), 3))
     for k, record in enumerate(records):
         w_i, w_o = forward(inputs.rig, record.joints)
-        out[k] = brdf(w_i, w_o)
+        out[k] = material.brdf(w_i, w_o)
     return out
 
 
@@ -451,13 +452,11 @@ def _fmt(value, spec: str) -> str:
 
 
 @lru_cache(maxsize=2)
-def ground_truth(material: str, grid) -> np.ndarray:
+def ground_truth(material, grid) -> np.ndarray:
     """The material's BRDF on the grid's valid cells, float64 (n_valid, 3) in 1/sr (read-only;
-    kept for the demo's reference file and preview, which need the same table)."""
-    from goniofrost.datasets import parse_material_spec
-
-    dataset, name = parse_material_spec(material)
-    truth = dataset.tabulate([name], grid)[0].astype(np.float64)
+    kept for the demo's reference file and preview, which need the same table): its
+    ``table(grid)`` (``goniofrost.datasets.ShownMaterial``)."""
+    truth = np.asarray(material.table(grid), dtype=np.float64)
     truth.setflags(write=False)
     return truth
 

@@ -33,13 +33,18 @@ class CaptureOutcome:
     session_dir: Path
 
 
-def capture(rig_path, plan_path, session_dir, *, material: str | None = None, resume: bool = False,
+def capture(rig_path, plan_path, session_dir, *, material=None, resume: bool = False,
             seed: int | None = None, speedup: float | None = None, progress: bool = True,
             on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
             alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
-            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=()) -> CaptureOutcome:
+            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=(),
+            devices=None) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
+    ``devices``: the opener of the rig's devices (``goniofrost.rig.hardware.open_hardware``'s; None:
+    the real ones; ``goniofrost.rig.simulated.rig_devices`` for a simulated rig file), chosen by the
+    caller. ``material``: what a simulated rig shows, resolved by the caller (``spec``, ``brdf``,
+    ``table``: ``goniofrost.datasets.shown_material``); the report compares against it.
     ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
     ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests);
     ``target_error``: measure the plan batch by batch and stop once this material's log-relative
@@ -68,7 +73,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
     check_sim_options(inputs.rig, seed, speedup)
     check_target(inputs, target_error, confidence)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material, target_error, confidence, sim_seed(inputs.rig, seed)) | {
+    meta = session_meta(inputs, material and material.spec, target_error, confidence, sim_seed(inputs.rig, seed)) | {
         "label": (label or session_label(inputs.rig)).to_dict()}
     spec = SessionSpec.from_inputs(inputs, target_error, confidence)
     if drift_limit is not None:
@@ -95,7 +100,7 @@ def capture(rig_path, plan_path, session_dir, *, material: str | None = None, re
             if not session_finished(spec, journal):
                 preload_preview()
                 stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
-                                   speedup=speedup, progress=progress, on_ready=on_ready,
+                                   speedup=speedup, progress=progress, on_ready=on_ready, devices=devices,
                                    reuse_calibration=reuse_calibration, progress_desc=progress_desc, rerun=rerun)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
@@ -172,17 +177,17 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
 
 
 def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready,
-               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None):
-    """Connect the rig and capture what is left of the session ``spec``; return the run's
-    SessionStats. From connecting to releasing, the devices' log goes to the journal, not the
-    terminal."""
-    from goniofrost.capture.device_log import DeviceLog
+               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None, devices=None):
+    """Connect the rig (``devices``: the opener, see ``capture``) and capture what is left of the
+    session ``spec``; return the run's SessionStats. From connecting to releasing, the devices' log
+    goes to the journal, not the terminal."""
+    from goniofrost.rig.device_log import DeviceLog
     from goniofrost.capture.engine import RERUN, SessionEngine
-    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.rig.hardware import open_hardware
 
     with DeviceLog.capture() as device_log:
         try:
-            with open_hardware(rig, material=material, seed=seed, speedup=speedup,
+            with open_hardware(rig, devices, material=material, seed=seed, speedup=speedup,
                                on_ready=on_ready) as hardware:
                 engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
                 engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
@@ -196,7 +201,7 @@ def journal_device_log(journal, device_log) -> None:
     """Journal the device log's last records; on the way out of a failed session a journal that
     cannot take them (a full disk) must not hide the session's own error."""
     try:
-        device_log.journal_into(journal)
+        journal.add_device_log(device_log)
     except Exception as exc:  # noqa: BLE001
         log.error("could not journal the device log: %s", exc)
 
@@ -252,19 +257,19 @@ def session_finished(spec, journal) -> bool:
     return len(journal.done_indices()) >= len(spec.samples)
 
 
-def check_material(rig, material: str | None, option: str | None = "--material") -> str | None:
-    """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig. ``option``:
-    the command-line option an unknown name is reported under (None: the caller names its own key)."""
+def check_material(rig, material):
+    """The simulated camera's material as given (resolved by the caller: ``spec``, ``brdf``,
+    ``table``; or its ``SPEC:NAME`` before that), or None on a real rig; ConfigError for one on a
+    real rig or none on a simulated rig."""
     if not rig.simulated:
         if material is not None:
-            raise ConfigError("command line", "--material",
-                              "no material on a real rig (it measures the sample in front of it)", material)
+            raise ConfigError("command line", "--material", "no material on a real rig (it measures the sample "
+                              "in front of it)", getattr(material, "spec", material))
         return None
     if material is None:
         raise ConfigError("command line", "--material", f"SPEC:NAME of the material the simulated rig {rig.name!r} shows "
                           "(e.g. builtin:NAME; see goniofrost materials --dataset builtin)", None)
-    from goniofrost.datasets.specs import material_option
-    return material_option(material, option)
+    return material
 
 
 def check_sim_options(rig, seed, speedup) -> None:
@@ -299,7 +304,8 @@ def sim_seed(rig, seed: int | None) -> int | None:
 
 def session_meta(inputs, material: str | None, target_error: float | None = None,
                  confidence: float = DEFAULT_CONFIDENCE, seed: int | None = None) -> dict:
-    """What a journal records about its session (and what a resume must match)."""
+    """What a journal records about its session (and what a resume must match); ``material``: the
+    simulated material's ``SPEC:NAME``."""
     return {"sim_seed": seed, **{
         "plan": inputs.plan, "plan_file": str(inputs.plan_path), "plan_sha256": plan_sha256(inputs.plan),
         "rig_file": str(inputs.rig.source), "rig_text": Path(inputs.rig.source).read_text(),

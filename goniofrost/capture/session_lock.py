@@ -14,6 +14,7 @@ from pathlib import Path
 
 from goniofrost.core.atomic_file import output_errors
 from goniofrost.core.errors import GoniofrostError
+from goniofrost.rig.lock import flock_holders
 
 LOCK_FILE = "session.lock"
 
@@ -76,26 +77,3 @@ def _acquire(fd: int, session_dir: Path) -> None:
         holder = holders[0] if holders else os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
         raise SessionInUseError(f"session {session_dir} is in use by process {holder}; wait for it to finish "
                                 f"or stop it (Ctrl-C) before starting another capture on it") from None
-
-
-def flock_held(lock) -> bool | None:
-    """Whether some process holds the flock on the file ``lock`` (a session's or a rig's lock), read
-    from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
-    could refuse a program that starts at that moment). None where that cannot be told (no lock
-    file; no /proc/locks: not Linux)."""
-    holders = flock_holders(lock)
-    return None if holders is None else bool(holders)
-
-
-def flock_holders(lock) -> list[str] | None:
-    """The holders /proc/locks gives for the flocks on the file ``lock``, each as its PID column
-    reads (empty: none held); None where that cannot be told (no lock file; no /proc/locks: not Linux)."""
-    try:
-        st = os.stat(lock)
-        table = Path("/proc/locks").read_text()
-    except OSError:
-        return None
-    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    # "1: FLOCK  ADVISORY  WRITE 10327 fe:00:9978325 0 EOF": kind, mode, access, PID, device:inode
-    rows = [line.split() for line in table.splitlines()]
-    return [row[4] for row in rows if row[1:2] == ["FLOCK"] and device in row]

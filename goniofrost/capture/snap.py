@@ -70,20 +70,20 @@ def snap_plan(judge: "_Judge", exposure_s: float | None, folder: str = "snap", m
     return frames
 
 
-def snap(rig, *, target: str, exposure_s: float | None, out, material: str | None = None,
-         move_to: dict | None = None) -> SnapResult:
-    """Connect the rig, take the snap at the current pose (after moving to ``move_to``, {axis: deg},
-    when given), write the PNG ``out``; return the findings."""
+def snap(rig, *, target: str, exposure_s: float | None, out, material=None,
+         move_to: dict | None = None, devices=None) -> SnapResult:
+    """Connect the rig (``devices``: the opener, see ``goniofrost.capture.runner.capture``), take the
+    snap at the current pose (after moving to ``move_to``, {axis: deg}, when given), write the PNG
+    ``out``; return the findings. ``material``: what a simulated rig's stage shows, resolved by the
+    caller (``DEFAULT_MATERIAL`` when the operator names none)."""
     from calib.config import shutter_label, shutter_seconds
     from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
-    from goniofrost.capture.hardware import open_hardware
+    from goniofrost.rig.hardware import open_hardware
     from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.capture.runner import check_material
     from goniofrost.core.atomic_file import output_errors
 
-    if rig.simulated and material is None:
-        material = DEFAULT_MATERIAL
     # as capture: none on a real rig (it shows what is on the stage), a known one on a simulated
     # rig, checked before anything is made or moved
     material = check_material(rig, material)
@@ -96,7 +96,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material: str | Non
         # for the value given refused the camera's file as exposed other than asked (0.004 s for 0.003)
         exposure_s = shutter_seconds(shutter_label(settings["shutter_speeds"], exposure_s))
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
-            open_hardware(rig, material=material, program="rig snap") as hardware:
+            open_hardware(rig, devices, material=material, program="rig snap") as hardware:
         joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}
         judge = _Judge(rig, settings, target, joints)
         move = None

@@ -9,8 +9,9 @@ The SPECs are read by ``specs``, the tables made and cached by ``tabulate``.
 from __future__ import annotations
 
 from goniofrost.datasets.base import Dataset, DatasetError, UnknownMaterialError
-from goniofrost.datasets.specs import material_brdf, open_dataset, parse_material_spec
+from goniofrost.datasets.specs import ShownMaterial, material_brdf, open_dataset, parse_material_spec, shown_material
 from goniofrost.datasets.tabulate import Material, collect_materials, open_datasets, tabulate_cached, tabulate_materials
 
 __all__ = ["Dataset", "DatasetError", "UnknownMaterialError", "open_dataset", "parse_material_spec", "material_brdf",
+           "ShownMaterial", "shown_material",
            "Material", "collect_materials", "open_datasets", "tabulate_cached", "tabulate_materials"]

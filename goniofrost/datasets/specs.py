@@ -1,11 +1,15 @@
 """Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``,
 ``builtin-random:SEED:COUNT``),
-``parse_material_spec(SPEC:NAME)`` and ``material_brdf(SPEC:NAME)`` (a BRDF function for the
-simulated camera). The package ``goniofrost.datasets`` re-exports them.
+``parse_material_spec(SPEC:NAME)``, ``material_brdf(SPEC:NAME)`` (a BRDF function for the
+simulated camera) and ``shown_material(SPEC:NAME)`` (what a simulated rig shows and a capture's
+report compares against: handed to ``goniofrost.capture``, which reads no dataset itself). The
+package ``goniofrost.datasets`` re-exports them.
 """
 from __future__ import annotations
 
 import difflib
+from dataclasses import dataclass
+from typing import Callable
 
 from goniofrost.datasets.base import Dataset, DatasetError
 
@@ -88,11 +92,15 @@ def material_brdf(text: str):
     """``(name, brdf)`` of ``SPEC:NAME``: the resolved ``SPEC:NAME`` and a function
     ``brdf(w_i, w_o) -> (3,) float64`` RGB in 1/sr of unit directions (3,) in the sample frame
     (what ``sim.camera.SimCamera`` renders)."""
+    dataset, name = parse_material_spec(text)
+    return f"{dataset.spec}:{name}", _brdf(dataset, name)
+
+
+def _brdf(dataset: Dataset, name: str):
+    """``brdf(w_i, w_o)`` of the material ``name`` of ``dataset`` (see ``material_brdf``)."""
     import numpy as np
 
     from goniofrost.core.grid import dirs_to_half_diff
-
-    dataset, name = parse_material_spec(text)
 
     def brdf(w_i, w_o):
         th, td, pd = dirs_to_half_diff(np.asarray(w_i, float), np.asarray(w_o, float))
@@ -104,4 +112,29 @@ def material_brdf(text: str):
         # and camera swapped read a value 95 000 x the table's.
         return np.asarray(dataset.evaluate(name, th, td, np.mod(pd, np.pi)), dtype=np.float64)
 
-    return f"{dataset.spec}:{name}", brdf
+    return brdf
+
+
+@dataclass(frozen=True)
+class ShownMaterial:
+    """A material a simulated rig shows: ``spec`` its resolved ``SPEC:NAME``; ``brdf(w_i, w_o)``
+    RGB (3,) float64 in 1/sr of unit directions (3,) in the sample frame (``material_brdf``);
+    ``table(grid)`` its values on the grid's valid cells, float64 (n_valid, 3) in 1/sr."""
+
+    spec: str
+    brdf: Callable
+    table: Callable
+
+
+def shown_material(text: str, option: str | None = "--material") -> ShownMaterial:
+    """``SPEC:NAME`` resolved into a ShownMaterial; an unknown dataset or name fails as
+    ``material_option`` says (naming ``option``)."""
+    import numpy as np
+
+    spec = material_option(text, option)
+    dataset, name = parse_material_spec(spec)
+
+    def table(grid):
+        return dataset.tabulate([name], grid)[0].astype(np.float64)
+
+    return ShownMaterial(spec, _brdf(dataset, name), table)

@@ -24,7 +24,8 @@ from pathlib import Path
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import RunEnd, RunStatus
 from goniofrost.capture.runner import JOURNAL_FILE
-from goniofrost.capture.session_lock import LOCK_FILE, flock_held
+from goniofrost.capture.session_lock import LOCK_FILE
+from goniofrost.rig.lock import flock_held
 
 REPORT_FILE = "report.json"
 SUMMARY_FILE = "summary.txt"

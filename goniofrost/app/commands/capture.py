@@ -89,16 +89,22 @@ def run(args) -> int:
 
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
+    from goniofrost.capture.runner import check_material
+    from goniofrost.rig.simulated import rig_devices
 
     inputs = load_inputs(args.rig, args.plan, args.alignment)
     bsdf = bool(args.bsdf or args.bsdf_format)
     label = session_label(inputs.rig, args.operator, args.sample_id, args.note)
+    material = check_material(inputs.rig, args.material)  # none on a real rig, one on a simulated rig
+    if material is not None:
+        from goniofrost.datasets import shown_material
+        material = shown_material(material)
     confidence = DEFAULT_CONFIDENCE if args.confidence is None else args.confidence
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
-            outcome = capture(args.rig, args.plan, args.session, material=args.material, resume=args.resume,
-                              seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
+            outcome = capture(args.rig, args.plan, args.session, material=material, devices=rig_devices,
+                              resume=args.resume, seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
                               target_error=args.target_error, confidence=confidence,
                               alignment=args.alignment, label=label, inputs=inputs,
                               extra_files=(BSDF_FILE,) if bsdf else ())

@@ -83,7 +83,7 @@ def run(args) -> int:
         raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
                           args.alignment)
     if args.rig is not None:
-        from goniofrost.capture.rig_file import load_checked_rig
+        from goniofrost.rig.file import load_checked_rig
         from planner.reach import reachability
         rig = load_checked_rig(args.rig, args.alignment)
         reach = reachability(rig, model.grid, progress=True)
@@ -157,7 +157,7 @@ def run(args) -> int:
     if rig is not None:
         from planner.schedule import format_table, schedule_batches, schedule_plan
 
-        from goniofrost.capture.rig_file import command_steps
+        from goniofrost.rig.file import command_steps
         from goniofrost.frost.cell_sensitivity import axis_weights
         # A Bayesian plan is measured batch by batch (capture --target-error may stop after any):
         # each batch is ordered for motion on its own.

@@ -42,8 +42,8 @@ def run(args) -> int:
     from contextlib import ExitStack
 
     from goniofrost.core.errors import ConfigError
-    from goniofrost.capture.rig_file import load_checked_rig
-    from sim.rig import SimulatedRig
+    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.rig.simulated import twins
 
     if args.speedup is not None and not args.speedup > 0:
         raise ConfigError("command line", "--speedup", "a number > 0", args.speedup)
@@ -54,12 +54,12 @@ def run(args) -> int:
                           "simulated camera of that rig file sees)", args.material)
     if args.write_rig is not None:
         from goniofrost.core.atomic_file import check_not_an_input, check_output_file
-        from goniofrost.datasets import material_brdf
+        from goniofrost.datasets import shown_material
         check_not_an_input(args.write_rig, {"--rig": args.rig}, "--write-rig")  # it replaced the rig file
         check_output_file(args.write_rig)
-        material = material_brdf(args.material or DEFAULT_MATERIAL)  # a bad name fails before anything starts
+        material = shown_material(args.material or DEFAULT_MATERIAL, None)  # a bad name fails before anything starts
     with _stop_signals() as wait_for_stop, ExitStack() as stack:
-        simulation = stack.enter_context(SimulatedRig(rig, speedup=args.speedup, seed=seed))
+        simulation = stack.enter_context(twins(rig, speedup=args.speedup, seed=seed))
         if args.write_rig is not None:
             stack.enter_context(_served_rig_file(rig, simulation, material, seed, args.write_rig))
         print(json.dumps(simulation.endpoints), flush=True)
@@ -111,19 +111,12 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
 
     import yaml
 
-    from goniofrost.capture.hardware import simulated_pose
     from goniofrost.core.atomic_file import write_text_atomic
-    from goniofrost.core.camera_model import CameraModel
-    from planner.kinematics import arm_side
-    from sim.camera import SimCamera
+    from goniofrost.rig.simulated import simulated_camera
     from sim.camera_service import CameraService
     from sim.rig_file import real_rig_document
 
-    pose = simulated_pose(rig)
-    name, brdf = material
-    camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model,
-                       simulation.clock, (rig.sim or {}).get("camera", {}), seed,
-                       model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
+    camera = simulated_camera(rig, simulation, material, seed)
     camera.connect()
     out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
     service = CameraService(camera, out.with_name(out.name + ".frames"))

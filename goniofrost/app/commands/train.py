@@ -47,7 +47,7 @@ def _rig_cells(args):
             raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
                               args.alignment)
         return None
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.grid import FULL_GRID
     from planner.reach import reachability
 

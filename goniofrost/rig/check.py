@@ -58,7 +58,7 @@ def rig_file_problems(path: str | Path, alignment: str | Path | None = None) -> 
     top = raw
     _check_parts(top, source, problems)
     if not problems:  # the checks across sections need every part sound
-        from goniofrost.capture.rig_file import load_checked_rig
+        from goniofrost.rig.file import load_checked_rig
         _collect(problems, load_checked_rig, path, alignment)
     return problems
 
@@ -68,7 +68,7 @@ def _check_parts(top: Mapping, source: str, problems: list[Problem]) -> None:
     from planner import rig as R
 
     from goniofrost.core.config_check import check_section
-    from goniofrost.capture.rig_file import section_validators
+    from goniofrost.rig.file import section_validators
 
     validators = section_validators()
     _collect(problems, check_section, top, R.TOP_KEYS, source, "")
@@ -222,7 +222,7 @@ def probe_rig(rig, axes: Mapping, lamp=None, sections: Mapping | None = None) ->
     endpoints of a simulated rig's devices). The protocol libraries' log lines (pymodbus says
     "Connection refused" only there) are kept off the terminal and added to a silent device's error.
     """
-    from goniofrost.capture.device_log import DeviceLog
+    from goniofrost.rig.device_log import DeviceLog
 
     sections = sections or {}
     reports = []

@@ -1,7 +1,7 @@
 """One program drives a rig at a time: an exclusive lock per rig, beside the session lock.
 
 ``rig_lock(rig_name, program)`` holds an ``flock`` on ``LOCK_DIR/rig-NAME.lock`` from before the
-rig's devices are connected until after they are released (``goniofrost.capture.hardware``
+rig's devices are connected until after they are released (``goniofrost.rig.hardware``
 takes it for every program that connects a rig: capture, align, the console). The kernel releases
 it when the holder exits in any way (kill -9 included), so a stale lock cannot exist. The file
 holds the holder as JSON (``RigHolder``: PID, program, rig, start time); ``rig_holder(name)``
@@ -160,6 +160,28 @@ def _in_use(rig_name: str, holder: RigHolder | None) -> str:
 
 def _flock_held(path: Path) -> bool:
     """Whether some process holds the rig lock file's flock (False without the file)."""
-    from goniofrost.capture.session_lock import flock_held
-
     return bool(flock_held(path))
+
+
+def flock_held(lock) -> bool | None:
+    """Whether some process holds the flock on the file ``lock`` (a session's or a rig's lock), read
+    from /proc/locks without touching the lock itself (taking it, even shared and for an instant,
+    could refuse a program that starts at that moment). None where that cannot be told (no lock
+    file; no /proc/locks: not Linux)."""
+    holders = flock_holders(lock)
+    return None if holders is None else bool(holders)
+
+
+def flock_holders(lock) -> list[str] | None:
+    """The holders /proc/locks gives for the flocks on the file ``lock``, each as its PID column
+    reads (empty: none held); None where that cannot be told (no lock file; no /proc/locks: not Linux)."""
+    try:
+        st = os.stat(lock)
+        table = Path("/proc/locks").read_text()
+    except OSError:
+        return None
+    device = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    # "1: FLOCK  ADVISORY  WRITE 10327 fe:00:9978325 0 EOF": kind, mode, access, PID, device:inode
+    rows = [line.split() for line in table.splitlines()]
+    return [row[4] for row in rows if row[1:2] == ["FLOCK"] and device in row]
+

@@ -4,25 +4,24 @@ Drivers retry, fail to stop, and pymodbus (client and simulated server) logs err
 dumps of the last frames; Python would print all of it on the terminal (its last-resort handler)
 around the one-line error the command shows. While a session holds the devices, ``DeviceLog``
 collects those records instead (INFO and up, no propagation to other handlers) and
-``journal_into`` stores them in the session's journal as ``device`` events.
+the capture stores them in the session's journal as ``device`` events
+(``goniofrost.capture.journal.Journal.add_device_log``).
 """
 from __future__ import annotations
 
 import logging
 from contextlib import contextmanager
 
-from goniofrost.capture.records import EventKind
-
 
 class DeviceLog(logging.Handler):
     """Collect the device-side log records (INFO and up) from any thread; the engine journals them
     from its own thread (an SQLite connection belongs to the thread that made it)."""
 
-    # logger -> lowest level kept: the drivers, the simulated devices and the capture layer (the stop
-    # path, a journal write that failed on the way out) from INFO; the protocol libraries from
-    # WARNING (not "Server listening.")
-    LOGGERS = {"drivers": logging.INFO, "calib": logging.INFO, "sim": logging.INFO, "goniofrost.capture": logging.INFO,
-               "pymodbus": logging.WARNING, "dynamixel_sdk": logging.WARNING}
+    # logger -> lowest level kept: the drivers, the simulated devices, the rig (the stop path, the
+    # release) and the capture layer (a journal write that failed on the way out) from INFO; the
+    # protocol libraries from WARNING (not "Server listening.")
+    LOGGERS = {"drivers": logging.INFO, "calib": logging.INFO, "sim": logging.INFO, "goniofrost.rig": logging.INFO,
+               "goniofrost.capture": logging.INFO, "pymodbus": logging.WARNING, "dynamixel_sdk": logging.WARNING}
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)
@@ -34,11 +33,6 @@ class DeviceLog(logging.Handler):
     def drain(self) -> list:
         records, self._records = self._records, []
         return records
-
-    def journal_into(self, journal) -> None:
-        """Store the records collected since the last call as ``device`` events of ``journal``."""
-        for record in self.drain():
-            journal.add_event(EventKind.DEVICE, record.getMessage(), data={"logger": record.name, "level": record.levelname})
 
     @classmethod
     @contextmanager

@@ -1,16 +1,15 @@
-"""Connect the devices of a rig for a session: a simulated rig's own devices, or a real rig's.
+"""Connect the devices of a rig for a session: ``open_hardware(rig, devices)``.
 
-``open_hardware(rig, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
-camera, clock: the ``goniofrost.capture.contract.Hardware`` contract). A rig marked
-``simulated: true`` starts ``sim.rig.SimulatedRig`` in this process: its devices speak the real
-protocols over pseudo-terminals and loopback TCP, and the real drivers connect to them exactly as
-to hardware. The simulated camera sees the pose through forward kinematics of the simulated
-axes' true positions. A real rig's camera comes from ``open_camera``. The rig's lock
-(``goniofrost.capture.rig_lock``: one program drives a rig at a time) is held from before the
-first device is connected until every connection is closed. On leaving, every axis not yet
-confirmed stopped is told to stop (through the engine's one stop path, which confirms each; its
-findings are logged to the session's device log) and every connection closed, whatever
-happened: after a fault, whose stop the engine confirmed, each axis is stopped once.
+``open_hardware(rig, devices, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
+camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). Whoever calls it chooses the
+devices: ``real_devices`` (the default: the drivers connect to the rig's hardware, its camera from
+``open_camera``) or ``goniofrost.rig.simulated.simulated_devices`` (the simulated twins, which speak
+the real protocols; ``goniofrost.rig.simulated.rig_devices`` picks by the rig file's
+``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a rig at a time) is
+held from before the first device is connected until every connection is closed. On leaving, every
+axis not yet confirmed stopped is told to stop (through the one stop path, ``goniofrost.rig.stop``,
+which confirms each; its findings are logged to the session's device log) and every connection
+closed, whatever happened: after a fault, whose stop the engine confirmed, each axis is stopped once.
 """
 from __future__ import annotations
 
@@ -33,10 +32,10 @@ class WallClock:
 
 @dataclass
 class RigHardware:
-    """What the session engine drives (``goniofrost.capture.contract.Hardware``).
+    """What the session engine drives (``goniofrost.rig.contract.Hardware``).
 
-    ``simulation`` is the running ``SimulatedRig`` on a simulated rig (for fault injection and
-    ground truth), else None.
+    ``simulation`` is the running simulation on a simulated rig (``goniofrost.rig.contract.Simulation``:
+    fault drills, checkpoints), else None.
     """
 
     axes: dict
@@ -45,7 +44,7 @@ class RigHardware:
     clock: object
     simulation: object = None
     extra: dict = field(default_factory=dict)
-    rig_lock: object = None   # the held goniofrost.capture.rig_lock.RigLock (its stop requests)
+    rig_lock: object = None   # the held goniofrost.rig.lock.RigLock (its stop requests)
 
     @property
     def simulated(self) -> bool:
@@ -53,18 +52,20 @@ class RigHardware:
 
 
 @contextmanager
-def open_hardware(rig, *, material: str | None = None, seed: int | None = None, speedup: float | None = None,
+def open_hardware(rig, devices=None, *, material=None, seed: int | None = None, speedup: float | None = None,
                   on_ready=None, program: str = "capture"):
     """Take the rig's lock for ``program``, connect ``rig``'s devices and yield a RigHardware; stop
     and close everything on exit, then release the lock (``RigInUseError`` when another program
     holds it: nothing is connected).
 
-    ``on_ready(hardware)`` (optional) is called once everything is connected (tests use it to
-    inject faults into the simulated devices).
+    ``devices(rig, material=, seed=, speedup=)``: a context manager yielding the connected
+    RigHardware (None: ``real_devices``). ``material`` (what a simulated camera shows: ``.spec``,
+    ``.brdf``), ``seed`` and ``speedup`` are handed to it. ``on_ready(hardware)`` (optional) is
+    called once everything is connected (tests use it to inject faults into the simulated devices).
     """
-    from goniofrost.capture.rig_lock import rig_lock
+    from goniofrost.rig.lock import rig_lock
 
-    opener = _simulated if rig.simulated else _real
+    opener = real_devices if devices is None else devices
     with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
         hardware.rig_lock = lock
         if on_ready is not None:
@@ -73,84 +74,18 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
 
 
 @contextmanager
-def _simulated(rig, *, material, seed, speedup):
+def real_devices(rig, *, material=None, seed=None, speedup=None):
+    """The real devices of ``rig``, connected (``material``, ``seed``, ``speedup``: a simulated
+    rig's only, refused before this by the commands). A rig file marked ``simulated: true`` names
+    no real endpoints: GoniofrostError, nothing connected."""
     from drivers.rig_devices import RigDevices
-    from goniofrost.core.camera_model import CameraModel
-    from goniofrost.datasets import material_brdf
-    from planner.kinematics import arm_side
-    from sim.camera import SimCamera
-    from sim.rig import SimulatedRig
+    from goniofrost.core.errors import GoniofrostError
 
-    sim_section = rig.sim or {}
-    seed = int(sim_section.get("seed", 0) if seed is None else seed)
-    name, brdf = material_brdf(material) if material is not None else (None, None)
-    side = arm_side(rig)
-    pose = simulated_pose(rig)
-    with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
-        simulation.start()
-        devices = RigDevices.from_rig(simulation.resolved_rig())
-        with _connected(devices):
-            camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()),
-                               simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
-                               model=CameraModel.from_section(rig.camera), arm_side=side)
-            camera.connect()
-            with _emulated_pylon(rig, camera) as pylon_camera:
-                try:
-                    yield RigHardware(devices.axes, devices.lamp, pylon_camera or camera, simulation.clock,
-                                      simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
-                finally:
-                    camera.close()
-
-
-@contextmanager
-def _emulated_pylon(rig, sim_camera):
-    """On a simulated rig whose camera is ``kind: pylon``: the real pylon driver on pylon's emulated
-    camera, which serves the simulated camera's frames (``sim.pylon_scene``); else None."""
-    import os
-
-    if (rig.camera or {}).get("kind") != "pylon":
-        yield None
-        return
-    from goniofrost.core.errors import ConfigError
-    from sim.pylon_scene import EmulatedScene
-
-    bits = int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:])
-    if sim_camera.params["white_level"] > 2 ** bits - 1:  # the served mosaic would wrap around
-        raise ConfigError(rig.source, "sim.camera.white_level", f"at most {2 ** bits - 1} (the {bits}-bit "
-                          f"camera.pixel_format)", sim_camera.params["white_level"])
-    os.environ.setdefault("PYLON_CAMEMU", "1")  # read by pylon when it enumerates its devices
-    scene = EmulatedScene(sim_camera, bits)
-    try:
-        camera = open_camera(rig, image_source=scene, device_class="BaslerCamEmu")
-        camera.connect()
-        try:
-            yield camera
-        finally:
-            camera.close()
-    finally:
-        scene.close()
-
-
-def simulated_pose(rig):
-    """``pose(encoder_deg) -> (w_i, w_o)``: the light and view directions the simulated camera
-    really sees at the simulated axes' encoder positions (degrees by axis name): the rig as built,
-    with its ``sim.misalignment_deg`` and without whatever alignment the session believes in."""
-    import dataclasses
-
-    from planner.kinematics import forward
-    from sim.misalignment import physical_joints
-
-    built = dataclasses.replace(rig, alignment=None)
-    errors = dict((rig.sim or {}).get("misalignment_deg", {}))   # checked by sim.config with the rig
-    return lambda encoder_deg: forward(built, physical_joints(encoder_deg, errors))
-
-
-@contextmanager
-def _real(rig, *, material, seed, speedup):
-    from drivers.rig_devices import RigDevices
-
+    if rig.simulated:
+        raise GoniofrostError(f"{rig.source}: rig {rig.name!r} is simulated (simulated: true): its devices are "
+                              f"opened by goniofrost.rig.simulated, not as real devices")
     devices = RigDevices.from_rig(rig)
-    with _connected(devices):
+    with connected(devices):
         camera = open_camera(rig)
         camera.connect()
         try:
@@ -160,10 +95,10 @@ def _real(rig, *, material, seed, speedup):
 
 
 @contextmanager
-def _connected(devices):
+def connected(devices):
     """connect_all, then on any exit stop every axis not yet confirmed stopped (``release_stop``:
     what it could not confirm is logged) and close every connection."""
-    from goniofrost.capture.executor import release_stop
+    from goniofrost.rig.stop import release_stop
 
     devices.connect_all()
     try:
@@ -205,7 +140,8 @@ def open_camera(rig, *, image_source=None, device_class: str | None = None):
     the watched folder; without it the operator is asked to expose (and, always, to change the
     target), with ``operator_timeout_s`` to answer and ``abort`` as a way out. ``target_command``
     (``{target}``: sample, white, flat) changes the target in front of the lens; without it the
-    operator is asked. The simulated camera is built by the session from the ``sim`` section, not here.
+    operator is asked. The simulated camera is built from the ``sim`` section by
+    ``goniofrost.rig.simulated``, not here.
     """
     from calib.config import validate_camera_section
     from drivers.camera import CameraError, OperatorPrompt
@@ -222,7 +158,7 @@ def open_camera(rig, *, image_source=None, device_class: str | None = None):
                            ask=OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput()), source=source)
     if section["kind"] != "rawfile":
         raise CameraError(f"camera kind {section['kind']!r}: the simulated camera is built with the "
-                          f"simulated rig (sim.camera.SimCamera), not by open_camera")
+                          f"simulated rig (goniofrost.rig.simulated), not by open_camera")
     if section["folder"] is None:
         raise ConfigError(source, "camera.folder", "the folder the camera writes RAW files to (kind rawfile)", "nothing")
     prompt = OperatorPrompt(section["operator_timeout_s"], output=BarSafeOutput())

@@ -2,7 +2,7 @@
 
 ``Hardware`` bundles axes, a lamp, a camera and a clock (and, on a simulated rig, its
 ``Simulation``). The real and simulated rigs
-(``goniofrost.capture.hardware.RigHardware`` over ``drivers``) satisfy it, and so do the small
+(``goniofrost.rig.hardware.RigHardware`` over ``drivers``) satisfy it, and so do the small
 fakes of the engine tests; the engine never reaches past these members.
 """
 from __future__ import annotations

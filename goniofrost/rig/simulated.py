@@ -1,0 +1,125 @@
+"""The simulated devices of a rig: the one module that opens them.
+
+A rig file marked ``simulated: true`` is served by ``sim.rig.SimulatedRig`` in this process: its
+devices speak the real protocols over pseudo-terminals and loopback TCP, and the real drivers
+connect to them exactly as to hardware. The simulated camera (``sim.camera.SimCamera``) sees the
+pose through forward kinematics of the simulated axes' true positions (``simulated_pose``), and
+the material it is handed: an object with ``spec`` (its name, ``SPEC:NAME``) and ``brdf(w_i, w_o)``
+(RGB (3,) in 1/sr of unit directions (3,) in the sample frame), e.g.
+``goniofrost.datasets.shown_material``'s; the caller resolves it, this module reads no dataset.
+
+* ``simulated_devices``: the opener of ``goniofrost.rig.hardware.open_hardware`` for the twins.
+* ``rig_devices``: the usual choice, the twins for a ``simulated: true`` rig file, else the real devices.
+* ``device_sections``: the rig with its twins' endpoints (and the running simulation) for the console.
+* ``twins`` and ``simulated_camera``: the parts ``goniofrost sim`` serves.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+from goniofrost.rig.hardware import RigHardware, connected, open_camera, real_devices
+
+
+def rig_devices(rig, **options):
+    """``simulated_devices`` for a rig file marked ``simulated: true``, else ``real_devices``
+    (``options``: material, seed, speedup): the opener the commands hand to ``open_hardware``."""
+    return (simulated_devices if rig.simulated else real_devices)(rig, **options)
+
+
+def twins(rig, *, speedup: float | None = None, seed: int = 0):
+    """The rig's simulated devices (``sim.rig.SimulatedRig``), a context manager: started on
+    entering, stopped on leaving; ``resolved_rig()`` names their endpoints."""
+    from sim.rig import SimulatedRig
+
+    return SimulatedRig(rig, speedup=speedup, seed=seed)
+
+
+def simulated_camera(rig, simulation, material, seed: int):
+    """The simulated camera of ``rig`` on the running ``simulation``, showing ``material`` (``spec``,
+    ``brdf``; None: an empty stage), its noise from ``seed``; not connected yet."""
+    from goniofrost.core.camera_model import CameraModel
+    from planner.kinematics import arm_side
+    from sim.camera import SimCamera
+
+    pose = simulated_pose(rig)
+    name, brdf = (None, None) if material is None else (material.spec, material.brdf)
+    return SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model,
+                     simulation.clock, (rig.sim or {}).get("camera", {}), seed,
+                     model=CameraModel.from_section(rig.camera), arm_side=arm_side(rig))
+
+
+@contextmanager
+def simulated_devices(rig, *, material=None, seed: int | None = None, speedup: float | None = None):
+    """Start ``rig``'s twins, connect the real drivers to them and yield a RigHardware whose
+    ``simulation`` is the running SimulatedRig; ``seed`` (None: the rig's ``sim.seed``) and
+    ``speedup`` (None: its ``sim.clock_speedup``) of the simulation; ``material`` what the camera shows."""
+    from drivers.rig_devices import RigDevices
+
+    sim_section = rig.sim or {}
+    seed = int(sim_section.get("seed", 0) if seed is None else seed)
+    with twins(rig, speedup=speedup, seed=seed) as simulation:
+        simulation.start()
+        devices = RigDevices.from_rig(simulation.resolved_rig())
+        with connected(devices):
+            camera = simulated_camera(rig, simulation, material, seed)
+            camera.connect()
+            with _emulated_pylon(rig, camera) as pylon_camera:
+                try:
+                    yield RigHardware(devices.axes, devices.lamp, pylon_camera or camera, simulation.clock,
+                                      simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
+                finally:
+                    camera.close()
+
+
+@contextmanager
+def device_sections(rig, speedup: float | None = None):
+    """(the rig, None) for a real rig, or (the rig with its simulated devices' endpoints, the
+    SimulatedRig), started for the command (the console's devices, connected by the caller)."""
+    if not rig.simulated:
+        yield rig, None
+        return
+    with twins(rig, speedup=speedup) as simulation:
+        yield simulation.resolved_rig(), simulation
+
+
+@contextmanager
+def _emulated_pylon(rig, sim_camera):
+    """On a simulated rig whose camera is ``kind: pylon``: the real pylon driver on pylon's emulated
+    camera, which serves the simulated camera's frames (``sim.pylon_scene``); else None."""
+    import os
+
+    if (rig.camera or {}).get("kind") != "pylon":
+        yield None
+        return
+    from goniofrost.core.errors import ConfigError
+    from sim.pylon_scene import EmulatedScene
+
+    bits = int(str(rig.camera.get("pixel_format", "BayerRG12"))[-2:])
+    if sim_camera.params["white_level"] > 2 ** bits - 1:  # the served mosaic would wrap around
+        raise ConfigError(rig.source, "sim.camera.white_level", f"at most {2 ** bits - 1} (the {bits}-bit "
+                          f"camera.pixel_format)", sim_camera.params["white_level"])
+    os.environ.setdefault("PYLON_CAMEMU", "1")  # read by pylon when it enumerates its devices
+    scene = EmulatedScene(sim_camera, bits)
+    try:
+        camera = open_camera(rig, image_source=scene, device_class="BaslerCamEmu")
+        camera.connect()
+        try:
+            yield camera
+        finally:
+            camera.close()
+    finally:
+        scene.close()
+
+
+def simulated_pose(rig):
+    """``pose(encoder_deg) -> (w_i, w_o)``: the light and view directions the simulated camera
+    really sees at the simulated axes' encoder positions (degrees by axis name): the rig as built,
+    with its ``sim.misalignment_deg`` and without whatever alignment the session believes in."""
+    import dataclasses
+
+    from planner.kinematics import forward
+    from sim.misalignment import physical_joints
+
+    built = dataclasses.replace(rig, alignment=None)
+    errors = dict((rig.sim or {}).get("misalignment_deg", {}))   # checked by sim.config with the rig
+    return lambda encoder_deg: forward(built, physical_joints(encoder_deg, errors))
