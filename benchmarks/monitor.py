@@ -389,18 +389,25 @@ def load(args) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = load_root(Path(tmp), args.mb)
         size = (root / "plain" / "brdf.std.binary").stat().st_size
+        err = open(Path(tmp) / "stderr.txt", "w+")
         proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(root), "--port", "0"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+                                stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO)
         try:
             port = int(re.search(r":(\d+)/", proc.stdout.readline()).group(1))
             out = asyncio.run(load_run(args, port, proc.pid, size))
         finally:
             t0 = time.perf_counter()
-            proc.send_signal(2)
-            proc.wait(timeout=60)
-            out_stop = round(time.perf_counter() - t0, 2)
+            proc.send_signal(2)   # Ctrl-C
+            try:
+                proc.wait(timeout=60)
+                out_stop = round(time.perf_counter() - t0, 2)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out_stop = "still running 60 s after Ctrl-C (killed)"
+            err.seek(0)
+            stderr_lines = err.read().splitlines()
     out = {"idle": args.idle, "readers": args.readers, "rounds": args.rounds, "file_mb": args.mb, **out,
-           "ctrl_c_to_exit_s": out_stop}
+           "ctrl_c_to_exit_s": out_stop, "stderr_lines": len(stderr_lines), "stderr_last": stderr_lines[-3:]}
     print(json.dumps(out, indent=1))
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
@@ -428,6 +435,7 @@ async def load_run(args, port: int, pid: int, size: int) -> dict:
     t0 = time.perf_counter()
     state = await raw_get(port, "/s/plain/api/state")   # the first read of a session loads its modules
     state_ms = round(1000 * (time.perf_counter() - t0), 1)
+    loaded = proc_status(pid)
     counts, walls = {}, []
     for _ in range(args.rounds):
         t0 = time.perf_counter()
@@ -453,6 +461,7 @@ async def load_run(args, port: int, pid: int, size: int) -> dict:
             "downloads": counts, "round_wall_s": [round(w, 2) for w in walls],
             "round_wall_median_s": round(statistics.median(walls), 2),
             "rss_mb": {"start": start["VmRSS"] // 1024, "with_idle": with_idle["VmRSS"] // 1024,
+                       "after_first_state": loaded["VmRSS"] // 1024,
                        "peak": peak["VmHWM"] // 1024, "end": peak["VmRSS"] // 1024},
             "threads": {"start": start["Threads"], "peak": max(threads), "with_idle": with_idle["Threads"]},
             "traversal_statuses": sorted(set(traversal)), "traversal_leaked": leaked,
