@@ -28,7 +28,8 @@ red-plastic on the full MERL grid, trained once and cached), capturing builtin:r
   the CPU the monitor adds, as a share of the capture's wall time, bounds what it can cost.
 * ``load``: ``goniofrost monitor`` in its own process on a folder of sessions, one of them
   holding an MB-megabyte file: IDLE sockets that sent half a request line and then nothing are
-  held open throughout; READERS clients download the whole file at once, ROUNDS times (every
+  held open throughout; READERS clients connect, then all send their request at once and download
+  the whole file as fast as they can, ROUNDS times (every
   answer counted: 200 with every byte, 503, other); then traversal paths, a foreign Host, two
   Host headers, and session names with a space, a non-ASCII letter and a percent sign. Reports
   the server's peak resident memory (VmHWM) and threads, and the wall time of the downloads.
@@ -360,11 +361,14 @@ def proc_status(pid: int) -> dict:
     return {key: int(re.search(rf"{key}:\s+(\d+)", text).group(1)) for key in ("VmRSS", "VmHWM", "Threads")}
 
 
-async def raw_get(port: int, path: str, hosts=None, read=True) -> tuple[int, int, bytes]:
-    """(status, body bytes received, first 200 bytes) of one GET with the given Host headers."""
+async def raw_get(port: int, path: str, hosts=None, read=True, go=None) -> tuple[int, int, bytes]:
+    """(status, body bytes received, first 200 bytes) of one GET with the given Host headers,
+    sent once the event ``go`` is set (when given: every reader connected first)."""
     import asyncio
 
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    if go is not None:
+        await go.wait()
     hosts = [f"127.0.0.1:{port}"] if hosts is None else hosts
     head = f"GET {path} HTTP/1.1\r\n" + "".join(f"Host: {h}\r\n" for h in hosts) + "Connection: close\r\n\r\n"
     writer.write(head.encode())
@@ -438,9 +442,13 @@ async def load_run(args, port: int, pid: int, size: int) -> dict:
     loaded = proc_status(pid)
     counts, walls = {}, []
     for _ in range(args.rounds):
+        go = asyncio.Event()
+        readers = [asyncio.create_task(asyncio.wait_for(raw_get(port, "/s/plain/files/brdf.std.binary", go=go), 120))
+                   for _ in range(args.readers)]
+        await asyncio.sleep(0.5)   # every reader connected
         t0 = time.perf_counter()
-        got = await asyncio.gather(*(asyncio.wait_for(raw_get(port, "/s/plain/files/brdf.std.binary"), 120)
-                                     for _ in range(args.readers)), return_exceptions=True)
+        go.set()
+        got = await asyncio.gather(*readers, return_exceptions=True)
         walls.append(time.perf_counter() - t0)
         for g in got:
             key = type(g).__name__ if isinstance(g, BaseException) else (
