@@ -21,6 +21,7 @@ from goniofrost.monitor.hub import POLL_S, Sites
 from goniofrost.monitor.views import CatalogueViews, Limits, session_views, text
 
 MAX_WORKERS = 16           # threads reading sessions, making pictures and reading files (then they queue)
+PRUNE_S = 5.0              # how often idle worker threads are looked for
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
        "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
@@ -51,6 +52,7 @@ def monitor_lifespan(sites: Sites):
     @asynccontextmanager
     async def lifespan(app):
         anyio.to_thread.current_default_thread_limiter().total_tokens = MAX_WORKERS
+        await anyio.to_thread.run_sync(int)   # the one worker that always stays, there from the start
         async with anyio.create_task_group() as tasks:
             tasks.start_soon(poll, sites)
             yield
@@ -60,11 +62,17 @@ def monitor_lifespan(sites: Sites):
 
 async def poll(sites: Sites) -> None:
     """Re-read every session a page is open on, every POLL_S (its streams wake on a change)."""
+    handed_at = 0.0
     while True:
         await anyio.sleep(POLL_S)
         for site in sites.all():
             if site.hub.clients:
                 await anyio.to_thread.run_sync(site.hub.refresh_logged)
+        if anyio.current_time() - handed_at > PRUNE_S:
+            # anyio ends a worker thread idle for 10 s only when it hands out the next job: hand
+            # one now and then, so that after a burst the process returns to its usual threads
+            await anyio.to_thread.run_sync(int)
+            handed_at = anyio.current_time()
 
 
 def read_only(app):
