@@ -410,11 +410,38 @@ def load(args) -> None:
                 out_stop = "still running 60 s after Ctrl-C (killed)"
             err.seek(0)
             stderr_lines = err.read().splitlines()
+        closing = close_seconds(root)
     out = {"idle": args.idle, "readers": args.readers, "rounds": args.rounds, "file_mb": args.mb, **out,
-           "ctrl_c_to_exit_s": out_stop, "stderr_lines": len(stderr_lines), "stderr_last": stderr_lines[-3:]}
+           "ctrl_c_to_exit_s": out_stop, "stderr_lines": len(stderr_lines), "stderr_last": stderr_lines[-3:],
+           "close_s": closing}
     print(json.dumps(out, indent=1))
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+
+
+def close_seconds(root: Path) -> dict:
+    """Seconds ``MonitorServer.close()`` takes in this process (medians of 3), idle, and with an
+    open event stream and a download stalled after its first bytes (its client reads no more)."""
+    import http.client
+
+    from goniofrost.monitor.server import MonitorServer
+
+    def one(busy: bool) -> float:
+        server = MonitorServer(root, port=0, catalogue=True).start()
+        held = []
+        for path in ("/s/plain/api/events", "/s/plain/files/brdf.std.binary") if busy else ():
+            conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+            conn.request("GET", path)
+            answer = conn.getresponse()
+            answer.read1(100)
+            held.append(conn)
+        t0 = time.perf_counter()
+        server.close()
+        took = time.perf_counter() - t0
+        for conn in held:
+            conn.close()
+        return took
+    return {kind: round(statistics.median(one(kind == "busy") for _ in range(3)), 3) for kind in ("idle", "busy")}
 
 
 async def load_run(args, port: int, pid: int, size: int) -> dict:

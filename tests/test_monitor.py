@@ -543,3 +543,26 @@ def test_forty_concurrent_downloads_wait_their_turn_and_all_get_the_whole_file(t
         for t in threads:
             t.join(timeout=120)
     assert sorted(got) == [(200, 8 << 20)] * readers
+
+
+def test_another_app_mounts_the_read_only_views_beside_its_own_routes(finished):
+    """The shape the instrument server builds on: its own routes (a POST here) before the views,
+    one Host check for both, and the views still answer only GET and HEAD."""
+    from starlette.applications import Starlette
+    from starlette.middleware import Middleware
+    from starlette.responses import PlainTextResponse
+    from starlette.routing import Route
+
+    from goniofrost.monitor.app import Guard, monitor_lifespan, monitor_routes
+    from goniofrost.monitor.hub import Sites
+    from goniofrost.monitor.server import AppServer
+
+    sites = Sites(finished, catalogue=False)
+    routes = [Route("/api/ping", lambda request: PlainTextResponse("pong"), methods=["POST"]), *monitor_routes(sites)]
+    app = Starlette(routes=routes, middleware=[Middleware(Guard, host="127.0.0.1")], lifespan=monitor_lifespan(sites))
+    with AppServer(app, port=0) as server:
+        assert request(server, "POST", "/api/ping")[::2] == (200, b"pong")
+        assert request(server, "POST", "/files/report.json")[0] == 405
+        assert request(server, "POST", "/api/ping", host="attacker.example")[0] == 403
+        status, _, body = request(server, "GET", "/api/state")
+        assert status == 200 and json.loads(body)["state"] == "finished"

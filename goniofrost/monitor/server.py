@@ -1,9 +1,10 @@
 """Serve the monitor app (``monitor.app``) with uvicorn on a thread of its own.
 
-``MonitorServer`` binds the address itself (a taken port or a foreign address is a one-line
+``AppServer`` binds the address itself (a taken port or a foreign address is a one-line
 MonitorError, port 0 picks a free one, ``url`` is what to print), runs uvicorn's event loop on a
-daemon thread (it installs no signal handlers there: Ctrl-C stays the command's), and on
-``close`` pushes the final state to the open pages and stops within about SHUTDOWN_S.
+daemon thread (it installs no signal handlers there: Ctrl-C stays the command's) and stops within
+about SHUTDOWN_S; ``MonitorServer`` serves ``monitor_app`` with it and on ``close`` first pushes
+the final state to the open pages.
 
 Under load: one event loop holds every connection (no thread per socket); uvicorn's h11 protocol
 is extended (``_Protocol``) with the limits of the hand-written server it replaced: a connection
@@ -28,7 +29,7 @@ from goniofrost.monitor import DEFAULT_PORT
 from goniofrost.monitor.app import monitor_app
 
 FINAL_PUSH_S = 3.0         # on close, wait this long at most for pages to get the last state and pictures
-SHUTDOWN_S = 1             # then at most this long for answers under way (a long download is cut)
+SHUTDOWN_S = 0.25          # then at most this long for answers under way (a long download is cut)
 START_S = 30.0             # the server thread answers by then (importing the app on a loaded host)
 LISTEN_BACKLOG = 128       # connections the kernel queues before the event loop takes them
 MAX_WAITING = 512          # connections waiting for their request head
@@ -71,24 +72,17 @@ def listen(host: str, port: int) -> socket.socket:
                            f"{_bind_remedy(exc)}") from None
 
 
-class MonitorServer:
-    """Serve the monitor page of ``session_dir`` on ``host:port`` (port 0: any free port).
+class AppServer:
+    """Serve the ASGI ``app`` (one made by ``monitor.app``, or an app that mounts its routes) on
+    ``host:port`` (port 0: any free port) with uvicorn on a daemon thread. ``start()`` returns once
+    it answers; ``close()`` stops it. Raises MonitorError if the address cannot be bound."""
 
-    ``attached``: the server runs inside the capture's own process (it then knows the capture is
-    alive); ``catalogue``: ``session_dir`` is a folder of sessions. Start with ``start()``;
-    ``close(ended_message)`` pushes the final state to the open pages and stops. Raises
-    MonitorError if the address cannot be bound.
-    """
-
-    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False,
-                 catalogue: bool = False) -> None:
-        self.app = monitor_app(session_dir, catalogue=catalogue, attached=attached, host=host)
-        self.sites = self.app.state.sites
-        self.socket = listen(host, port)
+    def __init__(self, app, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
+        self.app, self.socket = app, listen(host, port)
         self.host, self.port = host, self.socket.getsockname()[1]
         protocol = type("Protocol", (_Protocol,), {"waiting": OrderedDict()})
         self.uvicorn = uvicorn.Server(uvicorn.Config(
-            self.app, http=protocol, lifespan="on", log_config=None, access_log=False, proxy_headers=False,
+            app, http=protocol, lifespan="on", log_config=None, access_log=False, proxy_headers=False,
             server_header=False, headers=[("server", "goniofrost-monitor")], backlog=LISTEN_BACKLOG,
             timeout_graceful_shutdown=SHUTDOWN_S, h11_max_incomplete_event_size=MAX_HEAD_BYTES))
         self._thread: threading.Thread | None = None
@@ -98,7 +92,7 @@ class MonitorServer:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '[::]') else host}:{self.port}/"
 
-    def start(self) -> "MonitorServer":
+    def start(self):
         """Serve on a daemon thread; return once it answers (MonitorError if it could not start)."""
         self._thread = threading.Thread(target=self.uvicorn.run, kwargs={"sockets": [self.socket]},
                                         name="monitor", daemon=True)
@@ -110,6 +104,34 @@ class MonitorServer:
                 raise MonitorError(f"monitor: the server on {self.url} did not start")
             time.sleep(0.01)
         return self
+
+    def close(self) -> None:
+        """Stop serving: answers under way get SHUTDOWN_S to end, then they are cut."""
+        self.uvicorn.should_exit = True
+        if self._thread is not None:
+            self._thread.join(timeout=SHUTDOWN_S + 5)
+        self.socket.close()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class MonitorServer(AppServer):
+    """Serve the monitor page of ``session_dir`` on ``host:port`` (port 0: any free port).
+
+    ``attached``: the server runs inside the capture's own process (it then knows the capture is
+    alive); ``catalogue``: ``session_dir`` is a folder of sessions. ``close(ended_message)``
+    pushes the final state to the open pages, then stops.
+    """
+
+    def __init__(self, session_dir, host: str = "127.0.0.1", port: int = DEFAULT_PORT, attached: bool = False,
+                 catalogue: bool = False) -> None:
+        app = monitor_app(session_dir, catalogue=catalogue, attached=attached, host=host)
+        self.sites = app.state.sites
+        super().__init__(app, host, port)
 
     def close(self, ended_message: str | None = None) -> None:
         """Push the final state (with ``ended_message`` when the capture failed outside the journal)
@@ -126,16 +148,7 @@ class MonitorServer:
         finally:
             for each in self.sites.all():
                 each.hub.close()   # the event streams send what they have and end
-            self.uvicorn.should_exit = True
-            if self._thread is not None:
-                self._thread.join(timeout=SHUTDOWN_S + 5)
-            self.socket.close()
-
-    def __enter__(self) -> "MonitorServer":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+            super().close()
 
 
 class _Protocol(H11Protocol):
