@@ -338,7 +338,8 @@ def test_the_server_serves_session_files_and_refuses_traversal_writes_and_foreig
         assert "default-src 'none'" in headers["Content-Security-Policy"]
         for path in ("/files/../secret.txt", "/files/..%2Fsecret.txt", "/files/%2e%2e%2fsecret.txt",
                      "/files//etc/passwd", "/files/%2Fetc%2Fpasswd", "/files/raw/..%2F..%2Fsecret.txt",
-                     "/static/../server.py", "/static/%2e%2e%2fserver.py", "/../secret.txt"):
+                     "/static/../server.py", "/static/%2e%2e%2fserver.py", "/../secret.txt",
+                     "/fil%65s/..%2Fsecret.txt"):
             status, _, body = request(server, "GET", path)
             assert status == 404 and b"outside the session" not in body and b"import" not in body, path
         for method in ("POST", "PUT", "DELETE", "PATCH"):

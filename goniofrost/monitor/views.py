@@ -163,7 +163,8 @@ def picture(got, wanted, what: str) -> Response:
 async def files(site, limits, request) -> Response:
     """A file of the session, named by the path as sent (percent-decoded once, by ``safe_path``)."""
     raw = request.scope.get("raw_path") or request.scope["path"].encode()
-    requested = raw[raw.index(b"/files/") + len(b"/files/"):].decode("latin-1")
+    start = raw.find(b"/files/")   # not found: the route's own name was percent-encoded
+    requested = raw[start + len(b"/files/"):].decode("latin-1") if start >= 0 else ""
     try:
         path = await anyio.to_thread.run_sync(session_file, site.hub.session_dir, requested)
     except UnsafePath as exc:
@@ -190,7 +191,7 @@ class FileStream(Response):
                 return await text(404, why)(scope, receive, send)
             async with source:
                 size = os.fstat(source.wrapped.fileno()).st_size
-                body = chunks(source) if scope["method"] != "HEAD" else empty()
+                body = chunks(source) if scope["method"] != "HEAD" else []
                 await StreamingResponse(body, headers={"Content-Length": str(size)}, media_type=self.kind)(
                     scope, receive, send)
 
@@ -198,11 +199,6 @@ class FileStream(Response):
 async def chunks(source):
     while chunk := await source.read(FILE_CHUNK):
         yield chunk
-
-
-async def empty():
-    return
-    yield  # noqa: unreachable - makes this an async generator
 
 
 def query_int(request, name: str) -> int:
