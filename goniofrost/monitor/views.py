@@ -34,7 +34,7 @@ from goniofrost.monitor.safe_path import UnsafePath, session_file, shown
 
 HEARTBEAT_S = 15.0         # an SSE comment keeps idle connections open through proxies
 MAX_EVENT_STREAMS = 32     # open pages at once (a coroutine each): the others' streams are answered 503
-MAX_TRANSFERS = 16         # /files/ answers streaming at once; more wait (memory: ~0.4 MB each)
+MAX_TRANSFERS = 64         # /files/ answers streaming at once; more wait (each holds <= ~0.6 MB, no thread)
 FILE_CHUNK = 256 * 1024
 STATIC = ("index.html", "monitor.js", "monitor.css")
 
