@@ -387,6 +387,7 @@ async def raw_get(port: int, path: str, hosts=None, read=True, go=None) -> tuple
 def load(args) -> None:
     import asyncio
     import re
+    import signal
     import subprocess
     from urllib.parse import quote
 
@@ -394,8 +395,11 @@ def load(args) -> None:
         root = load_root(Path(tmp), args.mb)
         size = (root / "plain" / "brdf.std.binary").stat().st_size
         err = open(Path(tmp) / "stderr.txt", "w+")
+        # SIGINT as from a terminal: a benchmark started in the background of a non-interactive shell
+        # ignores it, and so would the server it starts (Ctrl-C below would then never arrive)
         proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(root), "--port", "0"],
-                                stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO)
+                                stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             port = int(re.search(r":(\d+)/", proc.stdout.readline()).group(1))
             out = asyncio.run(load_run(args, port, proc.pid, size))
