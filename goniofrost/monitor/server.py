@@ -37,9 +37,9 @@ IDLE_TIMEOUT_S = 10.0      # a connection without a full request head by then is
 WRITE_TIMEOUT_S = 30.0     # a client that reads nothing for this long loses its connection
 MAX_HEAD_BYTES = 128 * 1024  # a request head longer than this is answered 400 by h11
 
-# uvicorn's own lines (start, stop, a malformed request) stay off the capture's terminal.
+# uvicorn's own lines (start, stop, a malformed request, an error in a view) stay off the
+# capture's terminal unless the program configures logging: no last-resort printing to stderr.
 logging.getLogger("uvicorn").addHandler(logging.NullHandler())
-logging.getLogger("uvicorn").setLevel(logging.CRITICAL)
 
 
 class MonitorError(GoniofrostError):
