@@ -6,6 +6,7 @@ Usage (from the repository root; needs Debian's chromium, as the browser tests d
     .venv/bin/python benchmarks/monitor.py screenshots [--out docs]
     .venv/bin/python benchmarks/monitor.py responsive [--samples 1000] [--speedup 200]
     .venv/bin/python benchmarks/monitor.py overhead [--repeats 5] [--samples 20]
+    .venv/bin/python benchmarks/monitor.py load [--idle 300] [--readers 40] [--rounds 5] [--mb 8] [--out FILE]
 
 Every run is a real capture on the packaged simulated rig (config/rigs/sim.yaml: the demo's rig,
 sensor and exposure ladder) of a plan for the demo's model (the built-in library without
@@ -25,6 +26,13 @@ red-plastic on the full MERL grid, trained once and cached), capturing builtin:r
   medians and their ratios to "off" (the issue's bar: below 1.05), and the CPU seconds of this
   process and of the browser (user + system): on a shared machine wall times are noisy, while
   the CPU the monitor adds, as a share of the capture's wall time, bounds what it can cost.
+* ``load``: ``goniofrost monitor`` in its own process on a folder of sessions, one of them
+  holding an MB-megabyte file: IDLE sockets that sent half a request line and then nothing are
+  held open throughout; READERS clients connect, then all send their request at once and download
+  the whole file as fast as they can, ROUNDS times (every
+  answer counted: 200 with every byte, 503, other); then traversal paths, a foreign Host, two
+  Host headers, and session names with a space, a non-ASCII letter and a percent sign. Reports
+  the server's peak resident memory (VmHWM) and threads, and the wall time of the downloads.
 """
 from __future__ import annotations
 
@@ -319,6 +327,188 @@ def overhead(args) -> None:
                      indent=1))
 
 
+# ----- load -------------------------------------------------------------------------------------
+LOAD_SESSIONS = ("plain", "with space", "café", "a%41")
+TRAVERSAL = ("/s/plain/files/../secret.txt", "/s/plain/files/..%2Fsecret.txt", "/s/plain/files/%2e%2e%2fsecret.txt",
+             "/s/plain/files//etc/passwd", "/s/plain/files/%2Fetc%2Fpasswd", "/s/plain/files/%252e%252e%252fsecret.txt",
+             "/s/..%2Fsecret.txt/", "/s/%2e%2e/files/secret.txt", "/static/../server.py", "/../secret.txt",
+             "/s/plain/files/" + "a/" * 3000)
+
+
+def load_root(folder: Path, mb: int) -> Path:
+    """A folder of four sessions (scripted journals, tests/journal_script.py) and a secret beside
+    it; the first session holds an ``mb``-megabyte brdf.std.binary (seeded bytes)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from journal_script import ScriptedSession
+
+    from goniofrost.capture.records import RunStatus
+
+    root = folder / "root"
+    for name in LOAD_SESSIONS:
+        script = ScriptedSession(root / name, 2)
+        script.start_run()
+        script.calibrate()
+        script.capture(0)
+        script.end_run(RunStatus.FINISHED, "finished")
+        script.close()
+    (root / "plain" / "brdf.std.binary").write_bytes(np.random.default_rng(0).bytes(mb << 20))
+    (folder / "secret.txt").write_text("outside the root")
+    return root
+
+
+def proc_status(pid: int) -> dict:
+    import re
+
+    text = Path(f"/proc/{pid}/status").read_text()
+    return {key: int(re.search(rf"{key}:\s+(\d+)", text).group(1)) for key in ("VmRSS", "VmHWM", "Threads")}
+
+
+async def raw_get(port: int, path: str, hosts=None, read=True, go=None) -> tuple[int, int, bytes]:
+    """(status, body bytes received, first 200 bytes) of one GET with the given Host headers,
+    sent once the event ``go`` is set (when given: every reader connected first)."""
+    import asyncio
+
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    if go is not None:
+        await go.wait()
+    hosts = [f"127.0.0.1:{port}"] if hosts is None else hosts
+    head = f"GET {path} HTTP/1.1\r\n" + "".join(f"Host: {h}\r\n" for h in hosts) + "Connection: close\r\n\r\n"
+    writer.write(head.encode())
+    await writer.drain()
+    status = int((await reader.readline()).split()[1])
+    while (await reader.readline()) not in (b"\r\n", b""):
+        pass
+    got, first = 0, b""
+    while read and (chunk := await reader.read(1 << 20)):
+        first = first or chunk[:200]
+        got += len(chunk)
+    writer.close()
+    return status, got, first
+
+
+def load(args) -> None:
+    import asyncio
+    import re
+    import signal
+    import subprocess
+    from urllib.parse import quote
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = load_root(Path(tmp), args.mb)
+        size = (root / "plain" / "brdf.std.binary").stat().st_size
+        err = open(Path(tmp) / "stderr.txt", "w+")
+        # SIGINT as from a terminal: a benchmark started in the background of a non-interactive shell
+        # ignores it, and so would the server it starts (Ctrl-C below would then never arrive)
+        proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "monitor", str(root), "--port", "0"],
+                                stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        try:
+            port = int(re.search(r":(\d+)/", proc.stdout.readline()).group(1))
+            out = asyncio.run(load_run(args, port, proc.pid, size))
+        finally:
+            t0 = time.perf_counter()
+            proc.send_signal(2)   # Ctrl-C
+            try:
+                proc.wait(timeout=60)
+                out_stop = round(time.perf_counter() - t0, 2)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out_stop = "still running 60 s after Ctrl-C (killed)"
+            err.seek(0)
+            stderr_lines = err.read().splitlines()
+        closing = close_seconds(root)
+    out = {"idle": args.idle, "readers": args.readers, "rounds": args.rounds, "file_mb": args.mb, **out,
+           "ctrl_c_to_exit_s": out_stop, "stderr_lines": len(stderr_lines), "stderr_last": stderr_lines[-3:],
+           "close_s": closing}
+    print(json.dumps(out, indent=1))
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+
+
+def close_seconds(root: Path) -> dict:
+    """Seconds ``MonitorServer.close()`` takes in this process (medians of 3), idle, and with an
+    open event stream and a download stalled after its first bytes (its client reads no more)."""
+    import http.client
+
+    from goniofrost.monitor.server import MonitorServer
+
+    def one(busy: bool) -> float:
+        server = MonitorServer(root, port=0, catalogue=True).start()
+        held = []
+        for path in ("/s/plain/api/events", "/s/plain/files/brdf.std.binary") if busy else ():
+            conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+            conn.request("GET", path)
+            answer = conn.getresponse()
+            answer.read1(100)
+            held.append(conn)
+        t0 = time.perf_counter()
+        server.close()
+        took = time.perf_counter() - t0
+        for conn in held:
+            conn.close()
+        return took
+    return {kind: round(statistics.median(one(kind == "busy") for _ in range(3)), 3) for kind in ("idle", "busy")}
+
+
+async def load_run(args, port: int, pid: int, size: int) -> dict:
+    import asyncio
+    from urllib.parse import quote
+
+    start = proc_status(pid)
+    threads, done = [start["Threads"]], asyncio.Event()
+
+    async def watch():
+        while not done.is_set():
+            threads.append(proc_status(pid)["Threads"])
+            await asyncio.sleep(0.02)
+    watcher = asyncio.create_task(watch())
+    held = []
+    for _ in range(args.idle):
+        _, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(b"GET /api/sta")
+        held.append(writer)
+    await asyncio.sleep(0.5)
+    with_idle = proc_status(pid)
+    t0 = time.perf_counter()
+    state = await raw_get(port, "/s/plain/api/state")   # the first read of a session loads its modules
+    state_ms = round(1000 * (time.perf_counter() - t0), 1)
+    loaded = proc_status(pid)
+    counts, walls = {}, []
+    for _ in range(args.rounds):
+        go = asyncio.Event()
+        readers = [asyncio.create_task(asyncio.wait_for(raw_get(port, "/s/plain/files/brdf.std.binary", go=go), 120))
+                   for _ in range(args.readers)]
+        await asyncio.sleep(0.5)   # every reader connected
+        t0 = time.perf_counter()
+        go.set()
+        got = await asyncio.gather(*readers, return_exceptions=True)
+        walls.append(time.perf_counter() - t0)
+        for g in got:
+            key = type(g).__name__ if isinstance(g, BaseException) else (
+                "200 whole" if g[0] == 200 and g[1] == size else str(g[0]))
+            counts[key] = counts.get(key, 0) + 1
+    traversal = [(await raw_get(port, p))[0] for p in TRAVERSAL]
+    leaked = [p for p in TRAVERSAL if b"outside the root" in (await raw_get(port, p))[2]]
+    foreign = (await raw_get(port, "/s/plain/api/state", hosts=["attacker.example:8765"]))[0]
+    two = (await raw_get(port, "/s/plain/api/state", hosts=[f"127.0.0.1:{port}", "attacker.example"]))[0]
+    names = {name: (await raw_get(port, f"/s/{quote(name)}/api/state"))[0] for name in LOAD_SESSIONS}
+    names["a%41 asked as /s/a%41/"] = (await raw_get(port, "/s/a%41/api/state"))[0]
+    peak = proc_status(pid)
+    for writer in held:
+        writer.close()
+    done.set()
+    await watcher
+    return {"state_with_idle_sockets": state[0], "state_ms_with_idle_sockets": state_ms,
+            "downloads": counts, "round_wall_s": [round(w, 2) for w in walls],
+            "round_wall_median_s": round(statistics.median(walls), 2),
+            "rss_mb": {"start": start["VmRSS"] // 1024, "with_idle": with_idle["VmRSS"] // 1024,
+                       "after_first_state": loaded["VmRSS"] // 1024,
+                       "peak": peak["VmHWM"] // 1024, "end": peak["VmRSS"] // 1024},
+            "threads": {"start": start["Threads"], "peak": max(threads), "with_idle": with_idle["Threads"]},
+            "traversal_statuses": sorted(set(traversal)), "traversal_leaked": leaked,
+            "foreign_host": foreign, "two_host_headers": two, "session_names": names}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -334,8 +524,14 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--samples", type=int, default=20)
     p.add_argument("--speedup", type=float, default=50.0)
+    p = sub.add_parser("load", help="idle sockets, concurrent downloads, traversal and Host checks")
+    p.add_argument("--idle", type=int, default=300)
+    p.add_argument("--readers", type=int, default=40)
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--mb", type=int, default=8)
+    p.add_argument("--out", help="write the results JSON here")
     args = parser.parse_args()
-    {"screenshots": screenshots, "responsive": responsive, "overhead": overhead}[args.what](args)
+    {"screenshots": screenshots, "responsive": responsive, "overhead": overhead, "load": load}[args.what](args)
 
 
 if __name__ == "__main__":

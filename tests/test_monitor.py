@@ -318,16 +318,17 @@ def test_files_inside_the_session_are_found_through_any_encoding(tree):
 
 
 # ----- the server on a real session ----------------------------------------------------------------
-def request(server, method: str, path: str, host: str | None = None) -> tuple[int, dict, bytes]:
-    """A raw HTTP request (the path is sent exactly as given, no client-side normalising)."""
-    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=10)
+def request(server, method: str, path: str, host: str | None = None, timeout: float = 10) -> tuple[int, dict, bytes]:
+    """A raw HTTP request (the path is sent exactly as given, no client-side normalising); the
+    headers are looked up without regard to case (uvicorn sends them in lower case)."""
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=timeout)
     conn.putrequest(method, path, skip_host=True)
     conn.putheader("Host", host or f"127.0.0.1:{server.port}")
     conn.endheaders()
     answer = conn.getresponse()
     body = answer.read()
     conn.close()
-    return answer.status, dict(answer.getheaders()), body
+    return answer.status, answer.headers, body
 
 
 def test_the_server_serves_session_files_and_refuses_traversal_writes_and_foreign_hosts(finished, tmp_path):
@@ -340,7 +341,8 @@ def test_the_server_serves_session_files_and_refuses_traversal_writes_and_foreig
         assert "default-src 'none'" in headers["Content-Security-Policy"]
         for path in ("/files/../secret.txt", "/files/..%2Fsecret.txt", "/files/%2e%2e%2fsecret.txt",
                      "/files//etc/passwd", "/files/%2Fetc%2Fpasswd", "/files/raw/..%2F..%2Fsecret.txt",
-                     "/static/../server.py", "/static/%2e%2e%2fserver.py", "/../secret.txt"):
+                     "/static/../server.py", "/static/%2e%2e%2fserver.py", "/../secret.txt",
+                     "/fil%65s/..%2Fsecret.txt"):
             status, _, body = request(server, "GET", path)
             assert status == 404 and b"outside the session" not in body and b"import" not in body, path
         for method in ("POST", "PUT", "DELETE", "PATCH"):
@@ -475,3 +477,97 @@ def test_the_monitor_command_serves_a_finished_session_until_ctrl_c(finished):
         assert proc.returncode == 0, err
     finally:
         proc.kill()
+
+
+# ----- the catalogue's session names, the Host header, concurrent downloads (issue 51: B4, B8) ----
+def scripted_sessions(root: Path, names) -> None:
+    """A finished one-sample session (a scripted journal) under ``root`` for each name."""
+    from journal_script import ScriptedSession
+
+    for name in names:
+        script = ScriptedSession(root / name, 2)
+        script.start_run()
+        script.calibrate()
+        script.capture(0)
+        script.end_run(RunStatus.FINISHED, "finished")
+        script.close()
+
+
+def test_session_names_with_a_space_a_non_ascii_letter_or_a_percent_sign_are_decoded_once(tmp_path):
+    """B4: /s/with%20space/ answered 404 (the name was not percent-decoded), and a folder named
+    a%41 was served at /s/a%41/ (as if %41 were part of the name) rather than at /s/a%2541/."""
+    scripted_sessions(tmp_path, ("with space", "café", "a%41", "plain"))
+    with MonitorServer(tmp_path, port=0, catalogue=True) as server:
+        page = request(server, "GET", "/")[2].decode()
+        for name, link in (("with space", "with%20space"), ("café", "caf%C3%A9"), ("a%41", "a%2541")):
+            assert f'<a href="/s/{link}/">{name}</a>' in page
+            status, _, body = request(server, "GET", f"/s/{link}/api/state")
+            assert status == 200 and json.loads(body)["count_text"] == "1 of 2 samples", (name, status, body)
+            status, _, body = request(server, "GET", f"/s/{link}/files/session.sqlite")
+            assert status == 200 and body == (tmp_path / name / "session.sqlite").read_bytes()
+        assert request(server, "GET", "/s/a%41/api/state")[:3:2] == (404, b"no such session: aA")
+        status, headers, _ = request(server, "GET", "/s/with%20space")
+        assert status == 301 and headers["Location"] == "/s/with%20space/"
+        for path in ("/s/..%2Fsecret/api/state", "/s/%2e%2e/api/state", "/s/plain%2F..%2Fplain/api/state",
+                     "/s/%ff/api/state", "/s/plain/files/..%2Fcaf%C3%A9%2Fsession.sqlite"):
+            assert request(server, "GET", path)[0] == 404, path
+
+
+def test_a_request_with_two_host_headers_is_refused(finished):
+    """B8: the monitor checked only the first Host header (a second, foreign one was answered)."""
+    with MonitorServer(finished, port=0) as server:
+        for hosts in ([f"127.0.0.1:{server.port}", "attacker.example"], [f"127.0.0.1:{server.port}"] * 2):
+            with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
+                head = "GET /api/state HTTP/1.1\r\n" + "".join(f"Host: {h}\r\n" for h in hosts) + "\r\n"
+                sock.sendall(head.encode())
+                answer = sock.makefile("rb").read()
+            assert answer.split(b"\r\n", 1)[0] == b"HTTP/1.1 400 Bad Request", (hosts, answer[:200])
+            assert b"count_text" not in answer
+
+
+def test_forty_concurrent_downloads_wait_their_turn_and_all_get_the_whole_file(tmp_path, monkeypatch):
+    """B8: with 40 readers at once, 80 of 200 downloads were answered 503 (4 transfers at a time):
+    beyond MAX_TRANSFERS (4 here, so that most of the 40 wait) they now queue, and every one gets
+    every byte."""
+    import threading
+
+    from goniofrost.monitor import views
+
+    monkeypatch.setattr(views, "MAX_TRANSFERS", 4)
+    (tmp_path / "big.bin").write_bytes(np.random.default_rng(0).bytes(8 << 20))
+    readers, start, got = 40, threading.Barrier(40, timeout=30), []
+
+    def read(server):
+        start.wait()   # every request sent at once
+        status, _, body = request(server, "GET", "/files/big.bin", timeout=60)
+        got.append((status, len(body)))
+    with MonitorServer(tmp_path, port=0) as server:
+        threads = [threading.Thread(target=read, args=(server,)) for _ in range(readers)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=120)
+    assert sorted(got) == [(200, 8 << 20)] * readers
+
+
+def test_another_app_mounts_the_read_only_views_beside_its_own_routes(finished):
+    """The shape the instrument server builds on: its own routes (a POST here) before the views,
+    one Host check for both, and the views still answer only GET and HEAD."""
+    from starlette.applications import Starlette
+    from starlette.middleware import Middleware
+    from starlette.responses import PlainTextResponse
+    from starlette.routing import Route
+
+    from goniofrost.monitor.app import Guard, monitor_lifespan, monitor_routes
+    from goniofrost.monitor.hub import Sites
+    from goniofrost.monitor.server import AppServer
+
+    sites = Sites(finished, catalogue=False)
+    routes = [Route("/api/ping", lambda request: PlainTextResponse("pong"), methods=["POST"]), *monitor_routes(sites)]
+    app = Starlette(routes=routes, middleware=[Middleware(Guard, host="127.0.0.1")], lifespan=monitor_lifespan(sites))
+    with AppServer(app, port=0) as server:
+        assert request(server, "POST", "/api/ping")[::2] == (200, b"pong")
+        assert request(server, "POST", "/files/report.json")[0] == 405
+        assert request(server, "POST", "/api/ping", host="attacker.example")[0] == 403
+        status, _, body = request(server, "GET", "/api/state")
+        assert status == 200 and json.loads(body)["state"] == "finished"

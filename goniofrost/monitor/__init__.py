@@ -4,9 +4,10 @@
 is the only module that knows how a session is stored; ``status`` turns that view into what the
 page shows (state, "N of M samples", ETA, poses, per-sample colours, the fault and what to do);
 ``images`` renders the latest frame with its region of interest and the reconstruction so far;
-``safe_path`` keeps every served path inside the session; ``server`` serves the page (package
-data in ``static/``) with server-sent events. ``goniofrost monitor`` and ``capture --monitor``
-(goniofrost.app) start it.
+``safe_path`` keeps every served path inside the session; ``hub`` holds each session's state
+and pictures, ``views`` the read-only routes (the page is package data in ``static/``; updates
+are server-sent events), ``app`` makes the Starlette app and ``server`` runs it on uvicorn.
+``goniofrost monitor`` and ``capture --monitor`` (goniofrost.app) start it.
 """
 
 # The monitor page's TCP port; here, not in server, so that building the command line's parser
