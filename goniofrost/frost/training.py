@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from typing import Sequence
 
 import numpy as np
@@ -187,8 +188,11 @@ def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
     """Map a (rows, t) float32 BRDF block in place to the centred X; return r and mu (rows,).
 
     float32 is enough for the element-wise map (the inputs are float32); the median is one
-    partition (two for an even t) instead of np.median's sort-and-copy.
+    partition (two for an even t) instead of np.median's sort-and-copy. A block with NaN (cells a
+    material has no data for: ``rgl:PATH``) goes through ``_map_block_unmeasured``.
     """
+    if np.isnan(block).any():
+        return _map_block_unmeasured(block, w, eps)
     block *= w[:, None]
     ref = _row_median(block)
     block += np.float32(eps)
@@ -196,6 +200,25 @@ def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
     block -= np.log(ref + np.float32(eps))[:, None]
     mu = block.mean(axis=1, dtype=np.float64)
     block -= mu.astype(np.float32)[:, None]
+    return ref, mu
+
+
+def _map_block_unmeasured(block: np.ndarray, w: np.ndarray, eps: float):
+    """``_map_block`` of a block holding NaN (not measured): r and mu of each row are the median
+    and mean of its measured entries, and an unmeasured entry is set to the row's mean (0 in X),
+    so it adds nothing to the Gram matrix nor to the atoms. A row nobody measured is all 0, r = 0.
+    """
+    missing = np.isnan(block)
+    block *= w[:, None]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: handled below
+        ref = np.nan_to_num(np.nanmedian(block, axis=1)).astype(np.float32)
+        block += np.float32(eps)
+        np.log(block, out=block)
+        block -= np.log(ref + np.float32(eps))[:, None]
+        mu = np.nan_to_num(np.nanmean(block, axis=1, dtype=np.float64))
+    block -= mu.astype(np.float32)[:, None]
+    block[missing] = 0.0
     return ref, mu
 
 
@@ -210,7 +233,8 @@ def _row_median(block: np.ndarray) -> np.ndarray:
 
 
 def _check_finite(block: np.ndarray, names: list[str], start: int) -> None:
-    bad = ~np.isfinite(block)
+    """Refuse inf; NaN is a cell the material has no data for (``_map_block_unmeasured``)."""
+    bad = np.isinf(block)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         value = block[row, col]
