@@ -295,3 +295,26 @@ def test_a_bad_file_is_refused_in_one_line_with_exit_2(folder, tmp_path, capsys,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err and str(bad) in err
     assert not out.exists()
+
+
+# ----- capture on the simulated rig and compare --------------------------------------------------
+def test_capture_on_the_simulated_rig_sees_an_rgl_file_and_compare_reads_it(folder, tmp_path, capsys):
+    from test_session import GRID, small_plan, write_rig
+
+    assert GRID == SMALL  # the session tests' model grid: the file's values on its cells are the truth
+    write_tensor_file(tmp_path / "red-plastic-50.bsdf", limited_fields(read_tensor_file(folder / "red-plastic.bsdf")))
+    rig = write_rig(tmp_path / "rig.yaml")
+    plan, _ = small_plan(rig, 5, tmp_path / "plan.json")
+    session = tmp_path / "s"
+    material = f"rgl:{tmp_path / 'red-plastic-50.bsdf'}:red-plastic-50"
+    assert main(["capture", "--rig", str(rig), "--plan", str(plan), "--session", str(session),
+                 "--material", material, "--no-progress", "--speedup", "50"]) == 0
+    assert f"error against the ground truth {material}" in capsys.readouterr().out
+    truth = json.loads((session / "report.json").read_text())["ground_truth"]
+    assert np.isfinite(truth["log_relative_mse"]) and np.isfinite(truth["log_relative_mse_exact_samples"])
+    # compare reads a tensor file as the BRDF it is (cells without data left out of its numbers)
+    assert main(["compare", str(session), str(tmp_path / "red-plastic-50.bsdf"), "--out", str(tmp_path / "c.png"),
+                 "--json"]) == 0
+    pair = json.loads(capsys.readouterr().out)["pairs"][0]
+    # on the session's grid, over the file's measured cells: the reconstruction's error against it
+    assert pair["log_relative_mse"] is not None and 0 < pair["log_relative_mse"] < 5
