@@ -146,7 +146,7 @@ class Material:
 def open_datasets(specs: Sequence[str]) -> list[Dataset]:
     """Open each dataset spec once (repeats are ignored), in order."""
     if not specs:
-        raise DatasetError("no dataset given: expected at least one of builtin, nbrdf:PATH.npz, merl:DIR")
+        raise DatasetError("no dataset given: expected at least one of builtin, nbrdf:PATH.npz, merl:DIR, rgl:PATH")
     return [open_dataset(spec) for spec in dict.fromkeys(specs)]
 
 

@@ -284,7 +284,7 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
           sentinel_candidates=None) -> FrostModel:
     """Train a FrostModel on the materials of one or more datasets.
 
-    dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``), combined in order.
+    dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``, ``rgl:PATH``), combined in order.
     only: keep only these materials; exclude: drop these (names, labels or SPEC:NAME; see
         ``datasets.tabulate.collect_materials``; a selector matching nothing is an error).
     Tabulated values come from the tabulation cache (``datasets.tabulate``).
