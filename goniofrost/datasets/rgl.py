@@ -92,18 +92,22 @@ class RglDataset(Dataset):
 
     def measured_mask(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
         """bool (...,): the cells whose incident elevation lies within the file's theta_i nodes."""
-        nodes = self.load(name).theta_i
         w_i, _ = half_diff_to_dirs(theta_h, theta_d, phi_d)
+        return self._inside(name, w_i)
+
+    def _inside(self, name: str, w_i: np.ndarray) -> np.ndarray:
+        nodes = self.load(name).theta_i
         theta_i = np.arccos(np.clip(w_i[..., 2], -1.0, 1.0))
         return (theta_i >= nodes[0] - ELEVATION_TOLERANCE) & (theta_i <= nodes[-1] + ELEVATION_TOLERANCE)
 
     def rendered(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
         """The plugin's BRDF (..., 3) in 1/sr everywhere, the clamped slices beyond the domain included."""
-        w_i, w_o = half_diff_to_dirs(theta_h, theta_d, phi_d)
+        return self._values(name, *half_diff_to_dirs(theta_h, theta_d, phi_d))
+
+    def _values(self, name: str, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
         values = brdf(self.load(name), w_i.reshape(-1, 3), w_o.reshape(-1, 3))
         return np.maximum(values, 0.0).reshape(*w_i.shape[:-1], 3)
 
     def evaluate(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
-        values = self.rendered(name, theta_h, theta_d, phi_d)
-        inside = self.measured_mask(name, theta_h, theta_d, phi_d)
-        return np.where(inside[..., None], values, np.nan)
+        w_i, w_o = half_diff_to_dirs(theta_h, theta_d, phi_d)
+        return np.where(self._inside(name, w_i)[..., None], self._values(name, w_i, w_o), np.nan)
