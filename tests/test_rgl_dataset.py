@@ -219,6 +219,30 @@ def test_training_leaves_unmeasured_cells_out_of_reference_mean_and_atoms(folder
     assert np.abs(mapped[missing]).max() < 1e-4 * np.abs(mapped[~missing]).max()
 
 
+def test_the_noise_cross_validation_leaves_unmeasured_cells_out(folder, tmp_path):
+    from goniofrost.core.grid import cosine_weight
+    from goniofrost.frost import noise
+    from goniofrost.frost.training import _map_and_gram
+
+    write_tensor_file(tmp_path / "gold-50.bsdf", limited_fields(read_tensor_file(folder / "gold.bsdf")))
+    names = ["gold-50", *MATERIALS[1:8]]
+    tables = np.concatenate([open_dataset(f"rgl:{tmp_path}").tabulate(None, TINY),
+                             open_dataset(f"rgl:{folder}").tabulate(list(MATERIALS[1:8]), TINY)])
+    missing = {}
+    mapped, _, _, gram = _map_and_gram(tables, names, cosine_weight(TINY).astype(np.float32), 0.001, False,
+                                       missing=missing)
+    assert list(missing) == [0] and np.array_equal(missing[0], np.isnan(tables[0, :, 0]))
+    folds = noise.inner_folds(gram, len(names), k=6, folds=4)
+    every = np.zeros(mapped.shape)
+    for f in folds:
+        every[:, f.held] = mapped.astype(np.float64) @ f.residual_map
+    scored = np.ones(mapped.shape, bool)
+    scored[missing[0], 0:3] = False
+    expected = np.sum(np.where(scored, every, 0.0) ** 2, axis=1) / scored.sum(axis=1)
+    np.testing.assert_allclose(noise.representation_variance(mapped, folds, missing), expected, rtol=1e-4)
+    assert not np.allclose(noise.representation_variance(mapped, folds)[missing[0]], expected[missing[0]], rtol=1e-4)
+
+
 def test_a_benchmark_fold_scores_only_measured_cells(folder, tmp_path):
     from goniofrost.bench.config import BenchConfig, fold_split
     from goniofrost.bench.evaluate import Design, evaluate_design, run_fold, sampled_truth
