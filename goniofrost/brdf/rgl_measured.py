@@ -159,10 +159,14 @@ def build_warp(data) -> Interpolant:
     _, h, w = data.shape
     cond = np.cumsum((0.5 / (w - 1)) * (data[..., :-1] + data[..., 1:]), axis=-1)
     marg = np.cumsum((0.5 / (h - 1)) * (cond[:, :-1, -1] + cond[:, 1:, -1]), axis=-1)
-    norm = (1.0 / marg[:, -1]).astype(np.float32).astype(np.float64)
-    as32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731 - one line, three uses
-    return Interpolant(as32(as32(data) * norm[:, None, None]), as32(as32(cond) * norm[:, None, None]),
-                       as32(as32(marg) * norm[:, None]))
+    norm = _float32(1.0 / marg[:, -1])
+    return Interpolant(_float32(_float32(data) * norm[:, None, None]), _float32(_float32(cond) * norm[:, None, None]),
+                       _float32(_float32(marg) * norm[:, None]))
+
+
+def _float32(values: np.ndarray) -> np.ndarray:
+    """float64 holding the float32 rounding of ``values`` (what Mitsuba stores)."""
+    return values.astype(np.float32).astype(np.float64)
 
 
 # ----- evaluating --------------------------------------------------------------------------------
@@ -254,7 +258,10 @@ def invert(warp: Interpolant, u: np.ndarray, slices, weights) -> np.ndarray:
     px = np.minimum(s[:, 0].astype(np.int64), w - 2)
     py = np.minimum(s[:, 1].astype(np.int64), h - 2)
     fx, fy = s[:, 0] - px, s[:, 1] - py
-    get = lambda table, *index: _lookup(table, slices, weights, *index)  # noqa: E731
+
+    def get(table: np.ndarray, *index) -> np.ndarray:
+        return _lookup(table, slices, weights, *index)
+
     v00, v10 = get(warp.data, py, px), get(warp.data, py, px + 1)
     v01, v11 = get(warp.data, py + 1, px), get(warp.data, py + 1, px + 1)
     c0, c1 = v00 + (v01 - v00) * fy, v10 + (v11 - v10) * fy
