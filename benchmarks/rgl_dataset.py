@@ -1,10 +1,13 @@
 """Time evaluating RGL tensor files on the full MERL grid (1,111,432 valid cells), no cache.
 
-    .venv/bin/python benchmarks/rgl_dataset.py DIR_OR_FILE [--repeats 3] [--out rgl_time.json]
+    .venv/bin/python benchmarks/rgl_dataset.py DIR_OR_FILE [--repeats 3] [--mitsuba 300] [--out rgl_time.json]
 
 For every ``.bsdf`` of ``rgl:DIR_OR_FILE``: the wall and CPU time of reading the file and
 tabulating it on the full grid (median of the repeats, the file read again each time), its kind
-and domain. Timings on a shared machine are noisy: the load average is printed with them.
+and domain. Timings on a shared machine are noisy: the load average is printed with them. With
+``--mitsuba N``: the median and 95th percentile of the relative difference between goniofrost's
+evaluation and Mitsuba 3's own ``eval`` at N random direction pairs within 75 deg of the normal
+(a spectral file integrated on Mitsuba's film, CIE 1931 x D65).
 """
 from __future__ import annotations
 
@@ -14,6 +17,9 @@ import os
 import statistics
 import time
 
+import numpy as np
+
+from goniofrost.brdf import rgl_measured
 from goniofrost.core.grid import FULL_GRID
 from goniofrost.datasets.rgl import RglDataset
 
@@ -31,15 +37,44 @@ def time_file(path, name: str, repeats: int) -> dict:
             "domain": RglDataset(path).domain(name)}
 
 
+def against_mitsuba(path, n: int, seed: int = 1) -> dict:
+    """Relative difference (median, 95th percentile) to Mitsuba's eval at n random pairs."""
+    from goniofrost.brdf.mitsuba_probe import eval_pairs, eval_pairs_spectral_rgb, load_bsdf
+    from goniofrost.brdf.mitsuba_render import SPECTRAL_VARIANT
+
+    rng = np.random.default_rng(seed)
+
+    def directions():
+        cos = rng.uniform(np.cos(np.radians(75.0)), 1.0, n)
+        phi, sin = rng.uniform(0.0, 2 * np.pi, n), np.sqrt(1.0 - cos ** 2)
+        return np.stack([sin * np.cos(phi), sin * np.sin(phi), cos], -1)
+
+    w_i, w_o = directions(), directions()
+    measured = rgl_measured.load_measured(path)
+    ours = rgl_measured.eval_cosine_weighted(measured, w_i, w_o)
+    if measured.kind == "rgb":
+        theirs = eval_pairs(load_bsdf(path), w_i, w_o)
+    else:
+        theirs = eval_pairs_spectral_rgb(load_bsdf(path, SPECTRAL_VARIANT), w_i, w_o, measured.wavelengths)
+    rel = np.abs(ours - theirs) / np.maximum(np.abs(theirs), 1e-6 * np.abs(theirs).max())
+    return {"pairs": n, "median": float(np.median(rel)), "p95": float(np.percentile(rel, 95))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("path")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--mitsuba", type=int, default=0, metavar="N", help="compare with Mitsuba's eval at N pairs")
     parser.add_argument("--out")
     args = parser.parse_args()
-    rows = [time_file(args.path, name, args.repeats) for name in RglDataset(args.path).names()]
+    dataset = RglDataset(args.path)
+    rows = [time_file(args.path, name, args.repeats) for name in dataset.names()]
     for row in rows:
-        print(f"{row['material']}: {row['wall_s']:.2f} s wall, {row['cpu_s']:.2f} s CPU ({row['domain']})")
+        if args.mitsuba:
+            row["mitsuba"] = against_mitsuba(dataset.file(row["material"]), args.mitsuba)
+        agree = (f"; against Mitsuba: median {row['mitsuba']['median']:.2g}, 95th percentile "
+                 f"{row['mitsuba']['p95']:.2g}") if args.mitsuba else ""
+        print(f"{row['material']}: {row['wall_s']:.2f} s wall, {row['cpu_s']:.2f} s CPU ({row['domain']}){agree}")
     summary = {"files": len(rows), "median_wall_s": statistics.median(r["wall_s"] for r in rows),
                "median_cpu_s": statistics.median(r["cpu_s"] for r in rows), "load_average": os.getloadavg(),
                "cores": os.cpu_count(), "rows": rows}

@@ -60,6 +60,10 @@ class RglDataset(Dataset):
     def names(self) -> list[str]:
         return list(self._paths())
 
+    def file(self, name: str) -> Path:
+        """The .bsdf file of a material."""
+        return self._paths()[self.resolve(name)]
+
     def content_id(self, name: str) -> str:
         path = self._paths()[self.resolve(name)]
         stat = path.stat()
