@@ -1,6 +1,7 @@
 """Time evaluating RGL tensor files on the full MERL grid (1,111,432 valid cells), no cache.
 
     .venv/bin/python benchmarks/rgl_dataset.py DIR_OR_FILE [--repeats 3] [--mitsuba 300] [--out rgl_time.json]
+    .venv/bin/python benchmarks/rgl_dataset.py --smallest   # one small export of built-in gold, written here
 
 For every ``.bsdf`` of ``rgl:DIR_OR_FILE``: the wall and CPU time of reading the file and
 tabulating it on the full grid (median of the repeats, the file read again each time), its kind
@@ -60,13 +61,36 @@ def against_mitsuba(path, n: int, seed: int = 1) -> dict:
     return {"pairs": n, "median": float(np.median(rel)), "p95": float(np.percentile(rel, 95))}
 
 
+def smallest_file() -> str:
+    """A small RGB export of built-in gold (12 x 12 x 24 grid, small tables) in ./smallest/."""
+    from pathlib import Path
+
+    from goniofrost.brdf import mitsuba_export
+    from goniofrost.brdf.merl_file import valid_to_full
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.datasets import open_dataset
+
+    grid, folder = MerlGrid(12, 12, 24), Path("smallest")
+    folder.mkdir(exist_ok=True)
+    values = open_dataset("builtin").tabulate(["gold"], grid)[0].astype(np.float64)
+    options = mitsuba_export.ExportOptions(theta_i=6, ndf=16, vndf_theta=16, vndf_phi=8, sample=8)
+    mitsuba_export.export_mitsuba(folder / "gold.bsdf", valid_to_full(values, grid), grid, options)
+    return str(folder / "gold.bsdf")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("path")
+    parser.add_argument("path", nargs="?", help="a .bsdf file or a folder of them")
+    parser.add_argument("--smallest", action="store_true", help="time one small export written here, 1 repeat, "
+                        "20 pairs against Mitsuba")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--mitsuba", type=int, default=0, metavar="N", help="compare with Mitsuba's eval at N pairs")
     parser.add_argument("--out")
     args = parser.parse_args()
+    if args.smallest:
+        args.path, args.repeats, args.mitsuba = smallest_file(), 1, 20
+    if args.path is None:
+        parser.error("give a .bsdf file or folder, or --smallest")
     dataset = RglDataset(args.path)
     rows = [time_file(args.path, name, args.repeats) for name in dataset.names()]
     for row in rows:

@@ -1,6 +1,7 @@
 """Compare two benchmark runs per material: RGL materials as fits (Neural-BRDF networks) and as files.
 
     .venv/bin/python benchmarks/rgl_fits_vs_files.py FITS_OUT FILES_OUT --files-dataset rgl:DIR [--out rgl.json]
+    .venv/bin/python benchmarks/rgl_fits_vs_files.py --smallest   # both runs made here, on a tiny grid
 
 FITS_OUT and FILES_OUT are ``goniofrost bench --out`` folders of two runs that differ only in how the
 RGL materials are given (``nbrdf:nbrdf_rgl.npz`` against ``rgl:DIR``), same counts, seed and folds,
@@ -50,13 +51,47 @@ def compare(fits: dict, files: dict, names: set[str]) -> list[dict]:
     return out
 
 
+SMALLEST_SPEC = "builtin-random:1:10"
+SMALLEST_BENCH = ["--grid", "12,12,24", "--folds", "1", "--train", "8", "--test", "2", "--m", "3,6",
+                  "--methods", "frost,uniform", "--jobs", "1", "--no-progress"]
+
+
+def smallest_runs() -> tuple[str, str, str]:
+    """(fits, files, files spec): 10 seeded analytic materials as they are and exported to .bsdf
+    files (small tables), each benchmarked on a 12 x 12 x 24 grid, in this folder."""
+    import subprocess
+    import sys
+
+    from goniofrost.brdf import mitsuba_export
+    from goniofrost.brdf.merl_file import valid_to_full
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.datasets import open_dataset
+
+    grid, folder = MerlGrid(12, 12, 24), Path("smallest-files")
+    folder.mkdir(exist_ok=True)
+    dataset = open_dataset(SMALLEST_SPEC)
+    options = mitsuba_export.ExportOptions(theta_i=6, ndf=16, vndf_theta=16, vndf_phi=8, sample=8)
+    for name in dataset.names():
+        values = dataset.tabulate([name], grid)[0].astype(np.float64)
+        mitsuba_export.export_mitsuba(folder / f"{name}.bsdf", valid_to_full(values, grid), grid, options)
+    for spec, out in ((SMALLEST_SPEC, "smallest-fits"), (f"rgl:{folder}", "smallest-bench-files")):
+        subprocess.run([sys.executable, "-m", "goniofrost", "bench", "--dataset", spec, *SMALLEST_BENCH,
+                        "--out", out], check=True, stdout=subprocess.DEVNULL)
+    return "smallest-fits", "smallest-bench-files", f"rgl:{folder}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("fits")
-    parser.add_argument("files")
-    parser.add_argument("--files-dataset", required=True, metavar="rgl:DIR", help="the RGL files' dataset spec")
+    parser.add_argument("fits", nargs="?", help="the bench --out folder of the fits")
+    parser.add_argument("files", nargs="?", help="the bench --out folder of the files")
+    parser.add_argument("--files-dataset", metavar="rgl:DIR", help="the RGL files' dataset spec")
+    parser.add_argument("--smallest", action="store_true", help="make both runs here on a tiny grid first")
     parser.add_argument("--out")
     args = parser.parse_args()
+    if args.smallest:
+        args.fits, args.files, args.files_dataset = smallest_runs()
+    if not (args.fits and args.files and args.files_dataset):
+        parser.error("give FITS_OUT FILES_OUT --files-dataset rgl:DIR, or --smallest")
     from goniofrost.datasets import open_dataset
 
     rgl = {key(name) for name in open_dataset(args.files_dataset).names()}

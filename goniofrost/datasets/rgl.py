@@ -42,6 +42,7 @@ class RglDataset(Dataset):
         self._files: dict[str, Path] | None = None
         self._recent: OrderedDict[str, MeasuredFile] = OrderedDict()
         self._digests: dict[tuple, str] = {}
+        self._full_grid_w_i: np.ndarray | None = None
 
     def _paths(self) -> dict[str, Path]:
         if self._files is None:
@@ -89,9 +90,10 @@ class RglDataset(Dataset):
     def domain(self, name: str) -> str:
         """One line: the file's kind and the incident elevations it measured, with the share of
         the full grid's valid cells inside them."""
-        measured = self.load(name)
-        inside = self.measured_mask(name, *FULL_GRID.flat_angles(FULL_GRID.valid_cells))
-        return (f"{measured.domain_text()}; {int(inside.sum())} of {FULL_GRID.n_valid} valid cells of the "
+        if self._full_grid_w_i is None:  # shared by every file's domain
+            self._full_grid_w_i = half_diff_to_dirs(*FULL_GRID.flat_angles(FULL_GRID.valid_cells))[0]
+        inside = self._inside(name, self._full_grid_w_i)
+        return (f"{self.load(name).domain_text()}; {int(inside.sum())} of {FULL_GRID.n_valid} valid cells of the "
                 f"full grid measured")
 
     def measured_mask(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
