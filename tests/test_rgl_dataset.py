@@ -129,6 +129,25 @@ def test_spectral_file_integrated_to_rgb_is_mitsubas_spectral_eval_on_its_film(f
     assert np.median(relative(ours, rgb)) <= 0.01
 
 
+def node_round_trip(folder, name: str, illuminant=None) -> np.ndarray:
+    """Relative difference at every node of an export's rgb table and its spectral file's
+    spectra integrated to RGB (32 wavelengths): what the evaluation does between them is linear."""
+    fields = read_tensor_file(folder / f"{name}.bsdf")
+    spectral = rs.spectral_fields(fields, 32)
+    weights = cie1931.spectrum_to_srgb_weights(spectral["wavelengths"], illuminant)
+    rgb = fields["rgb"].transpose(0, 1, 3, 4, 2).reshape(-1, 3).astype(np.float64)
+    back = spectral["spectra"].transpose(0, 1, 3, 4, 2).reshape(-1, 32).astype(np.float64) @ weights
+    bright = rgb.max(axis=1) > 1e-3 * rgb.max()
+    return (np.abs(back - rgb) / np.maximum(rgb, 1e-3 * rgb.max()))[bright]
+
+
+def test_d65_is_the_illuminant_spectral_exports_come_back_under(folder):
+    # decision 0300: under D65 the export's spectra come back to its RGB; under illuminant E they do not
+    for name in ("gold", "red-plastic", "blue-car-paint"):
+        assert np.median(node_round_trip(folder, name)) < 0.01
+        assert np.median(node_round_trip(folder, name, np.ones(cie1931.table().shape[0]))) > 0.05
+
+
 def test_the_shipped_colour_table_is_mitsubas():
     mi.set_variant(SPECTRAL_VARIANT)
     table = cie1931.table()

@@ -26,15 +26,17 @@ def table() -> np.ndarray:
     return np.load(TABLE_PATH).astype(np.float64)
 
 
-def spectrum_to_srgb_weights(wavelengths) -> np.ndarray:
+def spectrum_to_srgb_weights(wavelengths, illuminant=None) -> np.ndarray:
     """W (n_lambda, 3): linear sRGB = values @ W of a spectrum given at its nodes (nm, ascending).
 
     The spectrum is linear between the nodes and constant beyond them (how Mitsuba's ``measured``
     interpolates a file's spectra), integrated at 1 nm against x, y, z times D65 and normalised so
     that a spectrum of 1 everywhere has Y = 1 (a perfect white reflector is RGB (1, 1, 1)).
+    ``illuminant``: (471,) at the table's wavelengths instead of D65 (the decision record's comparison).
     """
     data = table()
     lam = np.asarray(wavelengths, dtype=np.float64)
-    weight = data[:, 1:4] * data[:, 4:5] / np.sum(data[:, 4] * data[:, 2])
+    light = data[:, 4] if illuminant is None else np.asarray(illuminant, dtype=np.float64)
+    weight = data[:, 1:4] * light[:, None] / np.sum(light * data[:, 2])
     hats = np.stack([np.interp(data[:, 0], lam, e) for e in np.eye(lam.size)])  # (n_lambda, 471)
     return hats @ weight @ XYZ_TO_SRGB.T
