@@ -297,7 +297,7 @@ def test_a_benchmark_fold_scores_only_measured_cells(folder, tmp_path):
     assert row["mse"] == pytest.approx(by_hand, rel=1e-9)
 
 
-def test_capture_bench_train_and_convert_accept_the_dataset(folder, tmp_path, capsys):
+def test_convert_materials_and_bench_accept_the_dataset(folder, tmp_path, capsys):
     spec = f"rgl:{folder}"
     out = tmp_path / "gold.binary"
     assert main(["convert", "--dataset", spec, "--material", "gold", "--out", str(out)]) == 0
