@@ -40,6 +40,8 @@ SLOW = {
     "scene_design": ["--smallest", "--scenes", "retro-sphere", "--out", "out"],
     "spectral_export": ["--smallest"],
     "spectral_sphere": ["--size", "16", "--spp", "4", "--out", "sphere.png"],
+    "rgl_dataset": ["--smallest"],
+    "rgl_fits_vs_files": ["--smallest"],
     "target_error": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
 }
 

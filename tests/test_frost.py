@@ -13,7 +13,7 @@ import pytest
 
 from goniofrost.app.cli import main
 from goniofrost.core.errors import ConfigError
-from goniofrost.core.grid import MerlGrid
+from goniofrost.core.grid import MerlGrid, cosine_weight
 from goniofrost.brdf.merl_file import read_merl
 from goniofrost.frost.metrics import log_relative_mse
 from goniofrost.frost.model import FrostModel, ModelError
@@ -94,12 +94,22 @@ def test_training_shapes_and_pca_identity(model):
     np.testing.assert_allclose(np.asarray(full.dictionary, np.float64) @ full.coefficients, x, atol=2e-4)
 
 
-@pytest.mark.parametrize("bad", [np.nan, np.inf])
+@pytest.mark.parametrize("bad", [np.inf, -np.inf])
 def test_non_finite_training_value_names_material_and_channel(bad):
     tables = synthetic_tables(GRID, 4, seed=2)
     tables[2, 17, 1] = bad
     with pytest.raises(TrainingError, match=r"material 'mat2' channel G .*position 17"):
         fit_model(tables, [f"mat{i}" for i in range(4)], GRID)
+
+
+def test_nan_in_training_is_a_cell_not_measured():
+    # NaN is a cell the material has no data for (rgl:PATH): left out of that row's reference and mean
+    tables = synthetic_tables(GRID, 4, seed=2)
+    tables[2, 17, :] = np.nan
+    model = fit_model(tables, [f"mat{i}" for i in range(4)], GRID, noise=False)
+    assert np.isfinite(np.asarray(model.dictionary)).all()
+    w = cosine_weight(GRID)[17]
+    np.testing.assert_allclose(model.reference[17], np.median(w * tables[[0, 1, 3], 17].ravel()), rtol=1e-5)
 
 
 def test_training_is_deterministic(model):

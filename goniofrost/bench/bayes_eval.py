@@ -92,7 +92,9 @@ def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.
     for i in range(n_mat):
         std = np.sqrt(base_var * (predicted[i] / design[i]))[:, None]
         miss = np.abs(np.maximum(estimate[:, 3 * i:3 * i + 3], floor[:, None]) - truth_log[i])
-        cover50[i], cover90[i] = np.mean(miss <= Z50 * std), np.mean(miss <= Z90 * std)
+        measured = ~np.isnan(miss)  # cells without data (rgl:PATH) are not scored
+        cover50[i] = np.mean((miss <= Z50 * std)[measured])
+        cover90[i] = np.mean((miss <= Z90 * std)[measured])
     return {"mse": batch_log_errors(model, estimate, truth_log), "pred_mse": predicted,
             "cover50": cover50, "cover90": cover90, "seconds": seconds}
 

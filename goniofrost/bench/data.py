@@ -64,7 +64,7 @@ def _tabulate_into(path: Path, pairs, datasets, grid: MerlGrid, progress: bool) 
                     names = [chunk[i][1] for i in idx]
                     out[[start + i for i in idx]] = datasets[spec].tabulate(names, grid)
                 bar.update(len(chunk))
-        _require_finite(out, pairs)
+        _require_finite(out, pairs, datasets)
         out.flush()
         del out
         os.replace(tmp, path)
@@ -73,10 +73,14 @@ def _tabulate_into(path: Path, pairs, datasets, grid: MerlGrid, progress: bool) 
             tmp.unlink()
 
 
-def _require_finite(tables: np.ndarray, pairs) -> None:
+def _require_finite(tables: np.ndarray, pairs, datasets) -> None:
+    """Refuse NaN or inf, but NaN of a dataset whose NaN means not measured (``rgl:PATH``)."""
     for i in range(tables.shape[0]):
-        if not np.all(np.isfinite(tables[i])):
-            spec, name = pairs[i]
+        spec, name = pairs[i]
+        if datasets[spec].unmeasured_is_nan:
+            if np.isinf(tables[i]).any():
+                raise BenchError(f"{spec}: material {name!r} tabulates to inf values")
+        elif not np.all(np.isfinite(tables[i])):
             raise BenchError(f"{spec}: material {name!r} tabulates to NaN or inf values")
 
 

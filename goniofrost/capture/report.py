@@ -355,7 +355,8 @@ def _truth_section(inputs, records, material, estimate: np.ndarray, predicted: f
     order = np.array([r.plan_index for r in records], dtype=np.int64)
     measured = np.array([r.rgb for r in records])
     true_at = truth[inputs.positions[order]]
-    exact = reconstruct_bayes(model, inputs.positions[order], true_at, with_std=False).brdf
+    known = ~np.isnan(true_at).any(axis=1)  # a cell the material has no data for (rgl:PATH) gives no exact sample
+    exact = reconstruct_bayes(model, inputs.positions[order][known], true_at[known], with_std=False).brdf
     error = float(log_relative_mse(model, truth, estimate[model.grid.valid_cells]))
     best = float(log_relative_mse(model, truth, exact))
     at_measured = truth_at_measured_directions(inputs, records, material)

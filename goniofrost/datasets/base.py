@@ -33,6 +33,9 @@ class Dataset(ABC):
     """
 
     spec: str
+    # True when ``evaluate`` and ``tabulate`` give NaN at cells the material has no data for (not
+    # measured: ``rgl:PATH``); training, benchmarks and the error metric then leave those cells out.
+    unmeasured_is_nan = False
 
     @abstractmethod
     def names(self) -> list[str]:
@@ -45,6 +48,15 @@ class Dataset(ABC):
     @abstractmethod
     def content_id(self, name: str) -> str:
         """A string that changes whenever the material's values could change (for caching)."""
+
+    def rendered(self, name: str, theta_h, theta_d, phi_d) -> np.ndarray:
+        """BRDF (..., 3) a renderer shows everywhere (the simulated camera's): ``evaluate`` unless
+        the dataset has cells without data, where it gives its renderer's value."""
+        return self.evaluate(name, theta_h, theta_d, phi_d)
+
+    def domain(self, name: str) -> str:
+        """One line saying which cells the material has data for."""
+        return "every valid cell"
 
     def resolve(self, name: str) -> str:
         """Return ``name`` if the dataset holds it; else raise UnknownMaterialError."""

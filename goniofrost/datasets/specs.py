@@ -1,5 +1,5 @@
 """Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``,
-``builtin-random:SEED:COUNT``),
+``rgl:PATH`` (RGL tensor files), ``builtin-random:SEED:COUNT``),
 ``parse_material_spec(SPEC:NAME)``, ``material_brdf(SPEC:NAME)`` (a BRDF function for the
 simulated camera) and ``shown_material(SPEC:NAME)`` (what a simulated rig shows and a capture's
 report compares against: handed to ``goniofrost.capture``, which reads no dataset itself). The
@@ -26,12 +26,16 @@ def open_dataset(spec: str) -> Dataset:
     if sep and kind == "merl" and arg:
         from goniofrost.datasets.merl_dir import MerlDirDataset
         return MerlDirDataset(arg)
+    if sep and kind == "rgl" and arg:
+        from goniofrost.datasets.rgl import RglDataset
+        return RglDataset(arg)
     if kind == RANDOM:
         return _random_dataset(spec, arg)
-    close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl"], n=1, cutoff=0.5)
+    close = difflib.get_close_matches(kind, ["builtin", "nbrdf", "merl", "rgl"], n=1, cutoff=0.5)
     hint = f"; did you mean {close[0] if close[0] == 'builtin' else close[0] + ':' + (arg or 'PATH')}?" if close else ""
     raise DatasetError(
-        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz', 'merl:DIR' or '{RANDOM}:SEED:COUNT'{hint}"
+        f"unknown dataset spec {spec!r}: expected 'builtin', 'nbrdf:PATH.npz', 'merl:DIR', 'rgl:PATH' or "
+        f"'{RANDOM}:SEED:COUNT'{hint}"
     )
 
 
@@ -40,13 +44,13 @@ MAX_RANDOM = 1000  # materials of one builtin-random spec
 
 
 def spec_read_from(spec: str, folder: str) -> str:
-    """SPEC with a relative PATH of ``nbrdf:PATH`` or ``merl:DIR`` read from ``folder`` (joined to it);
+    """SPEC with a relative PATH of ``nbrdf:PATH``, ``merl:DIR`` or ``rgl:PATH`` read from ``folder`` (joined to it);
     every other spec as it is. A model records the folder its datasets' relative paths were given in
     (``train``), so they open again from any working folder."""
     import os
 
     kind, sep, arg = spec.partition(":")
-    if sep and kind in ("nbrdf", "merl") and arg and not os.path.isabs(arg):
+    if sep and kind in ("nbrdf", "merl", "rgl") and arg and not os.path.isabs(arg):
         return f"{kind}:{os.path.join(folder, arg)}"
     return spec
 
@@ -110,7 +114,9 @@ def _brdf(dataset: Dataset, name: str):
         # are not reciprocal at grazing: RGL acrylic_felt_white at (2.8, 86, 179) deg gives
         # 0.00028 1/sr, at its reciprocal (phi_d -1 deg) 26.5, and a rig measuring with light
         # and camera swapped read a value 95 000 x the table's.
-        return np.asarray(dataset.evaluate(name, th, td, np.mod(pd, np.pi)), dtype=np.float64)
+        # ``rendered``: where a measurement has no data (rgl:PATH beyond its elevations) the camera
+        # sees what a renderer of the file shows.
+        return np.asarray(dataset.rendered(name, th, td, np.mod(pd, np.pi)), dtype=np.float64)
 
     return brdf
 

@@ -107,8 +107,9 @@ def _save(path: Path, values: np.ndarray) -> None:
 
 
 def _require_finite(dataset: Dataset, names: Sequence[str], values: np.ndarray) -> None:
+    """Refuse NaN or inf, but NaN of a dataset whose NaN means not measured (``unmeasured_is_nan``)."""
     for name, table in zip(names, values):
-        bad = ~np.isfinite(table)
+        bad = np.isinf(table) if dataset.unmeasured_is_nan else ~np.isfinite(table)
         if bad.any():
             raise DatasetError(f"{dataset.spec}: material {name!r} gives {int(bad.any(-1).sum())} "
                                "non-finite values on the grid")
@@ -145,7 +146,7 @@ class Material:
 def open_datasets(specs: Sequence[str]) -> list[Dataset]:
     """Open each dataset spec once (repeats are ignored), in order."""
     if not specs:
-        raise DatasetError("no dataset given: expected at least one of builtin, nbrdf:PATH.npz, merl:DIR")
+        raise DatasetError("no dataset given: expected at least one of builtin, nbrdf:PATH.npz, merl:DIR, rgl:PATH")
     return [open_dataset(spec) for spec in dict.fromkeys(specs)]
 
 

@@ -7,7 +7,8 @@ from goniofrost.frost.model import FrostModel
 
 
 def log_relative_mse(model: FrostModel, truth, estimate) -> float:
-    """Mean over valid cells and channels of (to_log(truth) - to_log(estimate))^2.
+    """Mean over valid cells and channels of (to_log(truth) - to_log(estimate))^2, over the cells
+    the truth has data for (NaN truth: not measured, left out; ``measured_mean``).
 
     truth, estimate: (n_valid, 3) BRDF in 1/sr (rows = ``model.grid.valid_cells``).
     Uses the model's mapping L = log((w x + eps) / (r + eps)); r and mu cancel, so this is
@@ -19,7 +20,17 @@ def log_relative_mse(model: FrostModel, truth, estimate) -> float:
         raise ValueError(f"log_relative_mse: expected two ({model.grid.n_valid}, 3) arrays, found {truth.shape} and {estimate.shape}")
     w = np.asarray(model.weight, dtype=np.float64)[:, None]
     diff = np.log(w * truth + model.eps) - np.log(w * np.maximum(estimate, 0.0) + model.eps)
-    return float(np.mean(diff**2))
+    return measured_mean(diff**2)
+
+
+def measured_mean(squared: np.ndarray) -> float:
+    """Mean of squared errors over the entries whose truth was measured: NaN (a cell the material
+    has no data for, ``rgl:PATH``) is left out; NaN when nothing was measured."""
+    squared = np.asarray(squared, dtype=np.float64)
+    measured = ~np.isnan(squared)
+    if measured.all():
+        return float(np.mean(squared))
+    return float(np.mean(squared[measured])) if measured.any() else float("nan")
 
 
 def batch_log_errors(model, estimate_log: np.ndarray, truth_log: np.ndarray) -> np.ndarray:
@@ -36,5 +47,5 @@ def batch_log_errors(model, estimate_log: np.ndarray, truth_log: np.ndarray) -> 
     out = np.empty(n_mat)
     for i in range(n_mat):
         est = np.maximum(estimate_log[:, 3 * i:3 * i + 3], floor[:, None])
-        out[i] = np.mean((est - truth_log[i]) ** 2)
+        out[i] = measured_mean((est - truth_log[i]) ** 2)  # NaN truth (not measured) left out
     return out

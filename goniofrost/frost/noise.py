@@ -104,10 +104,12 @@ def _fold(gram, train, held, k, t) -> InnerFold:
     return InnerFold(held, train, projector, s, centring, coef / s[:, None], np.maximum(norms, 0.0), residual_map)
 
 
-def representation_variance(mapped: np.ndarray, folds: list[InnerFold]) -> np.ndarray:
+def representation_variance(mapped: np.ndarray, folds: list[InnerFold], missing: dict | None = None) -> np.ndarray:
     """float64 (n,): every cell's mean squared held-out residual over all t training columns.
 
     mapped: the centred mapped training data X, float32 (n, t). One chunked pass over X.
+    missing: {material: bool (n,)} cells a material has no data for (``rgl:PATH``): its residual
+    there is left out of the cell's mean (a cell nobody measured gets 0).
     """
     n, t = mapped.shape
     m = np.zeros((t, t), dtype=np.float32)
@@ -116,7 +118,12 @@ def representation_variance(mapped: np.ndarray, folds: list[InnerFold]) -> np.nd
     out = np.empty(n)
     for start in range(0, n, CHUNK_ROWS):
         block = mapped[start:start + CHUNK_ROWS] @ m
-        out[start:start + CHUNK_ROWS] = np.einsum("ij,ij->i", block, block, dtype=np.float64) / t
+        count = np.full(block.shape[0], float(t))
+        for j, mask in (missing or {}).items():
+            rows = mask[start:start + CHUNK_ROWS]
+            block[rows, 3 * j:3 * j + 3] = 0.0
+            count -= 3.0 * rows
+        out[start:start + CHUNK_ROWS] = np.einsum("ij,ij->i", block, block, dtype=np.float64) / np.maximum(count, 1.0)
     return out
 
 

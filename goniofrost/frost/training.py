@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import json
 import os
+import threading
+import warnings
 from typing import Sequence
 
 import numpy as np
@@ -73,7 +75,8 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     names = [str(n) for n in names]
     _check_tables(tables, names, grid, k_max)
     weight = cosine_weight(grid).astype(np.float32)
-    mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress)
+    missing: dict[int, np.ndarray] = {}
+    mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress, missing=missing)
     # Our reference is the last one when the caller passed the tables without keeping them
     # (``train`` does): they are freed before the noise cross-validation needs its memory.
     del tables
@@ -86,7 +89,7 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
         from goniofrost.frost.calibration import model_atoms  # the inner folds' coordinates on this model's atoms
 
         variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
-                                           model_atoms(gram, vt, svals))
+                                           model_atoms(gram, vt, svals), missing=missing)
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     dictionary = _project(mapped, vt)
@@ -97,15 +100,18 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
 
 
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
-                progress: bool = False, sentinel_candidates=None, atoms=None) -> tuple[np.ndarray, dict]:
+                progress: bool = False, sentinel_candidates=None, atoms=None,
+                missing: dict | None = None) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration
     (the designs among ``sentinel_candidates``, bool (n,) or None: every cell, and the sentinel
-    check's at ``sentinel.cells`` among them; the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them)."""
+    check's at ``sentinel.cells`` among them; the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them).
+    ``missing``: {material: bool (n,)} its cells not measured, left out of sigma_c^2 (the simulated
+    captures of the calibration still score them, at the row's mean)."""
     from goniofrost.frost import calibration, check_cells, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
-    learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds), grid)
+    learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds, missing), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
     sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
     # the check cells' candidates: among the sentinels' (a rig's cells), outside the sentinels
@@ -147,8 +153,11 @@ def _check_tables(tables: np.ndarray, names: list[str], grid: MerlGrid, k_max: i
         raise TrainingError(f"training: --components must be a positive integer, found {k_max!r}")
 
 
-def _map_and_gram(tables, names, weight, eps, progress, threads=None):
+def _map_and_gram(tables, names, weight, eps, progress, threads=None, missing: dict | None = None):
     """One chunked pass: check finiteness, map, centre, accumulate X^T X in float64.
+
+    ``missing``: a dict filled with {material: bool (n,)}, the cells of each material with NaN
+    (not measured) that it has no data for (None: not collected).
 
     The mapping of the chunks runs on ``threads`` threads (element-wise numpy, no BLAS); the
     Gram is accumulated in chunk order on BLAS's threads as before, so it is the same to the bit.
@@ -158,11 +167,16 @@ def _map_and_gram(tables, names, weight, eps, progress, threads=None):
     mapped = np.empty((n, t), dtype=np.float32)
     reference = np.empty(n, dtype=np.float32)
     mean = np.empty(n, dtype=np.float32)
+    lock = threading.Lock()
 
     def chunk(start: int, stop: int) -> np.ndarray:
         rows = tables.rows(start, stop) if hasattr(tables, "rows") else tables[:, start:stop, :].transpose(1, 0, 2)
         block = np.array(rows.reshape(stop - start, t), dtype=np.float32)  # a private, row-contiguous copy
         _check_finite(block, names, start)
+        unmeasured = np.isnan(block).reshape(stop - start, m, 3).any(axis=2)
+        for j in np.flatnonzero(unmeasured.any(axis=0)) if missing is not None else ():
+            with lock:
+                missing.setdefault(int(j), np.zeros(n, dtype=bool))[start:stop] = unmeasured[:, j]
         reference[start:stop], mean[start:stop] = _map_block(block, weight[start:stop], eps)
         mapped[start:stop] = block
         return block.astype(np.float64)
@@ -187,8 +201,11 @@ def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
     """Map a (rows, t) float32 BRDF block in place to the centred X; return r and mu (rows,).
 
     float32 is enough for the element-wise map (the inputs are float32); the median is one
-    partition (two for an even t) instead of np.median's sort-and-copy.
+    partition (two for an even t) instead of np.median's sort-and-copy. A block with NaN (cells a
+    material has no data for: ``rgl:PATH``) goes through ``_map_block_unmeasured``.
     """
+    if np.isnan(block).any():
+        return _map_block_unmeasured(block, w, eps)
     block *= w[:, None]
     ref = _row_median(block)
     block += np.float32(eps)
@@ -196,6 +213,25 @@ def _map_block(block: np.ndarray, w: np.ndarray, eps: float):
     block -= np.log(ref + np.float32(eps))[:, None]
     mu = block.mean(axis=1, dtype=np.float64)
     block -= mu.astype(np.float32)[:, None]
+    return ref, mu
+
+
+def _map_block_unmeasured(block: np.ndarray, w: np.ndarray, eps: float):
+    """``_map_block`` of a block holding NaN (not measured): r and mu of each row are the median
+    and mean of its measured entries, and an unmeasured entry is set to the row's mean (0 in X),
+    so it adds nothing to the Gram matrix nor to the atoms. A row nobody measured is all 0, r = 0.
+    """
+    missing = np.isnan(block)
+    block *= w[:, None]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: handled below
+        ref = np.nan_to_num(np.nanmedian(block, axis=1)).astype(np.float32)
+        block += np.float32(eps)
+        np.log(block, out=block)
+        block -= np.log(ref + np.float32(eps))[:, None]
+        mu = np.nan_to_num(np.nanmean(block, axis=1, dtype=np.float64))
+    block -= mu.astype(np.float32)[:, None]
+    block[missing] = 0.0
     return ref, mu
 
 
@@ -210,7 +246,8 @@ def _row_median(block: np.ndarray) -> np.ndarray:
 
 
 def _check_finite(block: np.ndarray, names: list[str], start: int) -> None:
-    bad = ~np.isfinite(block)
+    """Refuse inf; NaN is a cell the material has no data for (``_map_block_unmeasured``)."""
+    bad = np.isinf(block)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         value = block[row, col]
@@ -260,7 +297,7 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
           sentinel_candidates=None) -> FrostModel:
     """Train a FrostModel on the materials of one or more datasets.
 
-    dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``), combined in order.
+    dataset_specs: SPEC strings (``builtin``, ``nbrdf:PATH``, ``merl:DIR``, ``rgl:PATH``), combined in order.
     only: keep only these materials; exclude: drop these (names, labels or SPEC:NAME; see
         ``datasets.tabulate.collect_materials``; a selector matching nothing is an error).
     Tabulated values come from the tabulation cache (``datasets.tabulate``).

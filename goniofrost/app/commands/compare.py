@@ -1,7 +1,9 @@
 """``goniofrost compare A B [C ...] --out compare.png [--json]``: BRDFs side by side, with the pairwise numbers.
 
-Each input is a session folder (its ``brdf.binary``, as its report.json names it) or a MERL
-.binary file. Writes the spheres of every input under the same lights (``goniofrost.brdf.compare``)
+Each input is a session folder (its ``brdf.binary``, as its report.json names it), a MERL
+.binary file or an RGL tensor file (``.bsdf``: evaluated as Mitsuba 3's ``measured`` plugin does,
+``rgl:PATH``, on the grid of the first .binary input, else the full grid; the cells it has no data
+for are missing, left out of the numbers and black on the spheres). Writes the spheres of every input under the same lights (``goniofrost.brdf.compare``)
 and prints the pairwise rendering SNR and log-relative MSE, or with ``--json`` the numbers as one
 JSON document. Nothing is written when an input is refused.
 """
@@ -9,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "render several BRDFs (session folders or .binary files) side by side; pairwise rendering SNR and log-relative MSE"
+HELP = "render several BRDFs (session folders, .binary or .bsdf files) side by side; pairwise rendering SNR and log-relative MSE"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="SESSION_OR_BINARY",
-                        help="two or more session folders or MERL .binary files, keyed A, B, C, ... in this order")
+                        help="two or more session folders, MERL .binary files or RGL tensor files (.bsdf), keyed A, B, "
+                             "C, ... in this order")
     parser.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
     parser.add_argument("--json", action="store_true", help="print the numbers as JSON instead of lines")
     parser.add_argument("--size", type=int, default=128, help="sphere diameter in pixels, 16 to 2048 (default 128)")
@@ -47,11 +50,31 @@ def resolve(path_text: str):
     return path, path.name
 
 
+def load_tables(paths) -> list:
+    """(brdf (grid.size, 3) in 1/sr, grid) of every input, each checked before any is rendered."""
+    import numpy as np
+
+    from goniofrost.brdf.merl_file import read_merl_complete, valid_to_full
+    from goniofrost.core.grid import FULL_GRID
+    from goniofrost.datasets.rgl import RglDataset
+
+    merl = {str(p): read_merl_complete(p) for p in paths if p.suffix != ".bsdf"}
+    grid = next(iter(merl.values()))[1] if merl else FULL_GRID
+    tables = []
+    for path in paths:
+        if str(path) in merl:
+            tables.append(merl[str(path)])
+            continue
+        values = RglDataset(path).tabulate(None, grid)[0].astype(np.float64)
+        tables.append((valid_to_full(values, grid), grid))
+    return tables
+
+
 def run(args: argparse.Namespace) -> int:
     import json
 
     from goniofrost.app.png_out import check_png_name, check_sphere_size
-    from goniofrost.brdf.compare import KEYS, compare_files, write_png
+    from goniofrost.brdf.compare import KEYS, compare_tables, write_png
     from goniofrost.core.errors import GoniofrostError
 
     if len(args.inputs) < 2:
@@ -61,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     check_png_name(args.out)
     check_sphere_size(args.size)
     resolved = [resolve(text) for text in args.inputs]
-    comparison = compare_files([p for p, _ in resolved], [label for _, label in resolved], size=args.size)
+    comparison = compare_tables(load_tables([p for p, _ in resolved]), [label for _, label in resolved],
+                                [p for p, _ in resolved], size=args.size)
     write_png(args.out, comparison, title="goniofrost compare")
     if args.json:
         print(json.dumps(comparison.to_json() | {"picture": str(args.out)}, indent=2))

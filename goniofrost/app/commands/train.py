@@ -6,7 +6,7 @@ HELP = "train a FROST model (log-relative map + PCA dictionary) on dataset mater
 
 def add_arguments(parser) -> None:
     parser.add_argument("--dataset", action="append", required=True, metavar="SPEC",
-                        help="builtin, nbrdf:PATH.npz or merl:DIR (repeatable; combined in order)")
+                        help="builtin, nbrdf:PATH.npz, merl:DIR or rgl:PATH (repeatable; combined in order)")
     parser.add_argument("--only", action="append", metavar="NAME", help="train on this material only (repeatable)")
     parser.add_argument("--exclude", action="append", metavar="NAME", help="leave this material out (repeatable)")
     parser.add_argument("--components", type=int, default=60, metavar="K", help="keep up to K components (default 60)")
