@@ -404,6 +404,31 @@ def test_reconstruct_command_bad_csv(model, tmp_path, capsys, text, message):
     assert re.search(message, capsys.readouterr().err)
 
 
+SESSION_HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,plan_index\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    # a header naming r twice: the second column was ignored
+    ("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,r\n10,10,10,0.1,0.2,0.3,0.4\n",
+     "line 1: column 'r' appears twice (columns 4 and 7); expected each column once"),
+    # a session's row duplicated: it weighed its cell twice and changed the result
+    (SESSION_HEADER + "10,10,10,0.1,0.2,0.3,0\n20,20,20,0.1,0.2,0.3,1\n10,10,10,0.1,0.2,0.3,0\n",
+     "line 4: plan_index 0 again (line 2); expected each plan sample once"),
+    (SESSION_HEADER + "10,10,10,0.1,0.2,0.3,0\n20,20,20,0.1,0.2,0.3,0\n",
+     "line 3: plan_index 0 again (line 2); expected each plan sample once"),
+    (HEADER + "10,10,10,0.1,0.2,0.3,x\n10,10,10,0.1,0.2,0.3,x\n",
+     "line 3: the same sample as line 2; expected each sample once"),
+])
+def test_a_repeated_column_or_sample_is_refused_naming_the_line(model, tmp_path, capsys, text, message):
+    model.save(tmp_path / "model")
+    (tmp_path / "s.csv").write_text(text)
+    out = tmp_path / "out.binary"
+    code = main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out)])
+    assert code == 2 and not out.exists()
+    assert capsys.readouterr().err == f"goniofrost reconstruct: error: {tmp_path / 's.csv'}: {message}\n"
+
+
 def test_plan_and_reconstruct_commands(model, tmp_path):
     model.save(tmp_path / "model")
     plan = tmp_path / "plan.json"
