@@ -73,7 +73,8 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
     w_i, w_o = sample_directions(plan_doc)
-    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity)  # (n, k): usable and measurable
+    # (n, k): usable, and measurable at the joints commanded (on the lattices of steps)
+    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity, steps=steps)
     _refuse_unreachable(samples, valid, reasons)
     order, choice, start = [], [], rig.home
     for a, b in zip([0] + ends[:-1], ends):
