@@ -983,6 +983,9 @@ def test_a_plan_scheduled_with_another_alignment_is_refused_before_anything_move
      "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found '0.1'"),
     ({"offsets_deg": {"camera_arm": 12.0, "sample_yaw": 0.0, "sample_tilt": 0.0}},
      "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found 12.0"),
+    ({"version": 99, "offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0, "sample_tilt": 0.0}},
+     "ALIGNMENT.json: version: expected 1 (the format this goniofrost reads: an ALIGNMENT.json of goniofrost align), "
+     "found 99"),
 ])
 def test_a_bad_alignment_file_is_refused_naming_the_key(setup, tmp_path, capsys, content, message):
     folder, rig, plan, _ = setup

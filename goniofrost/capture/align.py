@@ -26,8 +26,8 @@ import numpy as np
 from goniofrost.core.errors import ConfigError
 from goniofrost.capture.plan_runner import PlanRunner
 from goniofrost.capture.steps import Move
+from planner.alignment_file import VERSION as ALIGNMENT_VERSION
 
-ALIGNMENT_VERSION = 1
 EXPOSURE_LEVEL = 0.6     # the tile's disc at the brightest pose stays under this fraction of saturation
 DARK_FRAMES = 2
 FRAMES_PER_POSE = 2      # averaged: the tile's brightness is what sets the yaw and arm zeros' precision
@@ -227,7 +227,7 @@ def alignment_document(rig, fit, planned: int, exposure_s: float, disc_px: float
                     "that is off by more than its standard error; its azimuth is not identifiable (the arm and "
                     "yaw zeros are measured from it)"}
     return {
-        "version": ALIGNMENT_VERSION,
+        "version": ALIGNMENT_VERSION,  # what planner.alignment_file reads
         "rig": {"name": rig.name, "file": rig.source, "kinematic_hash": rig.kinematic_hash},
         "offsets_deg": {n: round(float(v), 4) for n, v in zip(names, fit.offsets_deg)},
         "stderr_deg": {n: round(float(v), 4) for n, v in zip(names, fit.stderr_deg)},
