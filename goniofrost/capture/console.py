@@ -128,13 +128,15 @@ class ConsoleHardware:
 def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None):
     """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
     of ``rig``; on exit stop and confirm every axis not yet confirmed stopped (``release_stop``),
-    close, release the lock.
+    close, release the lock. Stopped by a signal or ``rig stop`` outside a plan, it stops every
+    axis and switches the lamp off (``holder.stopped_safely``).
     A simulated rig's devices start here and end with the command (at ``speedup``; its clock is the
     session clock): ``goniofrost sim --write-rig`` gives twins that outlive one command."""
     from drivers.rig_devices import RigDevices
     from goniofrost.capture.device_log import DeviceLog
     from goniofrost.capture.executor import release_stop
     from goniofrost.capture.hardware import WallClock
+    from goniofrost.capture.holder import stopped_safely
     from goniofrost.capture.rig_lock import rig_lock
 
     with rig_lock(rig.name, program) as lock, DeviceLog.capture(), \
@@ -143,7 +145,9 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
         devices.connect_all(enable=enable)
         try:
             clock = simulation.clock if simulation is not None else WallClock()
-            yield ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
+            hardware = ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
+            with stopped_safely(hardware):  # rig stop's SIGTERM between plans: axes stopped, lamp off
+                yield hardware
         finally:
             try:
                 release_stop(devices.axes)

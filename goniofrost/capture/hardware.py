@@ -62,14 +62,16 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
     ``on_ready(hardware)`` (optional) is called once everything is connected (tests use it to
     inject faults into the simulated devices).
     """
+    from goniofrost.capture.holder import stopped_safely
     from goniofrost.capture.rig_lock import rig_lock
 
     opener = _simulated if rig.simulated else _real
     with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
         hardware.rig_lock = lock
-        if on_ready is not None:
-            on_ready(hardware)
-        yield hardware
+        with stopped_safely(hardware):  # a stop outside the plan's run: axes stopped, lamp off
+            if on_ready is not None:
+                on_ready(hardware)
+            yield hardware
 
 
 @contextmanager
