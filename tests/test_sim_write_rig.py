@@ -213,3 +213,27 @@ def status(rig, capsys) -> dict:
     capsys.readouterr()
     assert main(["rig", "status", "--rig", str(rig), "--json"]) == 0
     return json.loads(capsys.readouterr().out)
+
+
+def test_rig_stop_switches_the_lamp_off_itself_when_the_holder_cannot(served, capsys):
+    """A holder that dies of rig stop's SIGTERM without stopping anything (here a bare process
+    holding the rig's lock, as a program of another version or a hung one killed would): once it
+    has let go, rig stop connects, stops every axis and switches the lamp off itself, and says so."""
+    _, out, _ = served
+    assert main(["rig", "lamp", "on", "--rig", str(out)]) == 0
+    name = yaml.safe_load(out.read_text())["name"]
+    code = ("import sys, time; from goniofrost.capture.rig_lock import rig_lock\n"
+            f"with rig_lock({name!r}, 'bare holder'):\n    print('held', flush=True)\n    time.sleep(600)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline() == "held\n"
+        capsys.readouterr()
+        assert main(["rig", "stop", "--rig", str(out)]) == 0
+        assert proc.wait(timeout=30) == -signal.SIGTERM
+    finally:
+        proc.kill()
+    err = capsys.readouterr().err
+    assert err.startswith(f"asked bare holder (process {proc.pid}) to stop {name}: ") and err.count("\n") == 2, err
+    assert re.fullmatch(r"stopped camera_arm at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; "
+                        r"lamp off", err.splitlines()[1]), err
+    assert status(out, capsys)["lamp"]["on"] is False
