@@ -2,7 +2,7 @@
 measured it (the fit itself is ``planner.alignment``).
 
 ALIGNMENT.json holds at least ``"offsets_deg": {AXIS_NAME: degrees, ...}`` for every axis of the
-rig: an axis whose reading is q stands physically at q + offset (so on a simulated rig built wrong
+rig, and, when it gives one, ``"version": VERSION`` (a file of another format is refused): an axis whose reading is q stands physically at q + offset (so on a simulated rig built wrong
 on purpose, the offsets equal the injected ``sim.misalignment_deg``). The kinematics
 (``planner.kinematics``) add the offsets to the readings and take them off the targets. A plan
 records the alignment it was scheduled with (``record()``), and a capture refuses another one.
@@ -14,11 +14,12 @@ from pathlib import Path
 from typing import Mapping
 
 from goniofrost.core.cache import content_key
-from goniofrost.core.config_check import Key, check_section, is_mapping, is_number, read_json_file
+from goniofrost.core.config_check import ABSENT, Key, check_section, is_mapping, is_number, read_json_file
 from goniofrost.core.errors import ConfigError
 
 # An offset this large is not a zero error but a wrong axis, a wrong sign or a wrong file.
 MAX_OFFSET_DEG = 10.0
+VERSION = 1   # the ALIGNMENT.json format goniofrost align writes and this module reads
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,9 @@ def load_alignment(path, axis_names, rig_name: str | None = None) -> Alignment:
                           "run goniofrost align on this one)", measured_on)
     offset = Key(lambda v: is_number(v) and abs(v) <= MAX_OFFSET_DEG,
                  f"a zero offset in degrees within +-{MAX_OFFSET_DEG:g}")
-    table = {"offsets_deg": Key(is_mapping, "a mapping {axis name: degrees}",
+    table = {"version": Key(lambda v: v == VERSION and not isinstance(v, bool), f"{VERSION} (the format this "
+                            "goniofrost reads: an ALIGNMENT.json of goniofrost align)", ABSENT),
+             "offsets_deg": Key(is_mapping, "a mapping {axis name: degrees}",
                                 nested=lambda v, source, kp: check_section(v, {n: offset for n in axis_names},
                                                                            source, kp))}
     offsets = check_section(doc, table, path, "", open_keys=True)["offsets_deg"]

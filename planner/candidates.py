@@ -11,16 +11,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kinematics import Reason, arm_side, forward, inverse
+from .kinematics import Reason, arm_side, forward, inverse, on_lattice
 from .rig import Rig
 from .view import beam_covers, light_reaches, roi_pixels
 
 MEASURABILITY = (Reason.PATCH_PIXELS, Reason.LAMP_BEAM, Reason.LIGHT_GRAZING)
 
 
-def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True):
+def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True, steps=None):
     """Candidate poses (n, k, 3) deg (commanded), usable (n, k), reasons (n, k) uint8 of pairs
-    (n, 3): k = 2 branches (+2 with light and camera swapped)."""
+    (n, 3): k = 2 branches (+2 with light and camera swapped). ``steps`` (3,) deg: the axes'
+    command lattices (``kinematics.on_lattice``): the camera's reasons are judged at the joints
+    rounded onto them, the joints a plan commands (a light at 88.98 deg from the IK joints was at
+    89.004 deg from the joints commanded, past the lamp's 89: capture refused the rig's own plan)."""
     parts = [inverse(rig, w_i, w_o)]
     if reciprocity:
         parts.append(inverse(rig, w_o, w_i))
@@ -28,7 +31,7 @@ def candidate_poses(rig: Rig, w_i, w_o, *, reciprocity: bool = True):
     reason = np.concatenate([p.reason for p in parts], 1)
     ok = reason == Reason.OK
     if rig.view is not None and ok.any():
-        reason[ok] = measurable_reason(rig, joints[ok])
+        reason[ok] = measurable_reason(rig, joints[ok] if steps is None else on_lattice(joints[ok], steps))
     return joints, reason == Reason.OK, reason
 
 

@@ -96,6 +96,15 @@ def joints_array(rig: Rig, joints) -> np.ndarray:
     return np.asarray(joints, dtype=np.float64)
 
 
+def on_lattice(joints, steps) -> np.ndarray:
+    """``joints`` (..., 3) deg rounded as the devices round them: round(q / step) x step (a step
+    of 0: the value itself); ``steps`` (3,) deg, ``drivers.config.command_step_deg`` of each axis."""
+    steps = np.asarray(steps, dtype=np.float64)
+    q = np.asarray(joints, dtype=np.float64)
+    safe = np.where(steps > 0, steps, 1.0)
+    return np.where(steps > 0, np.round(q / safe) * safe, q)
+
+
 def stage_rotation(rig: Rig, psi_deg, tau_deg) -> np.ndarray:
     """World-from-sample rotation matrices M, shape (..., 3, 3), of stage poses in degrees."""
     yaw = np.radians(np.asarray(psi_deg, dtype=np.float64) + rig.geometry.light_azimuth_deg)

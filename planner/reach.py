@@ -48,13 +48,14 @@ class ReachMap:
         return float(self.mask.mean()) if self.mask.size else 0.0
 
 
-def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True, progress: bool = False) -> ReachMap:
+def reachability(rig: Rig, grid: MerlGrid, *, steps=None, use_cache: bool = True, progress: bool = False) -> ReachMap:
     """Reachability of every valid cell of ``grid`` on ``rig`` (computed once, then read from disk;
-    ``progress``: a bar on stderr while computing)."""
-    path = _cache_file(rig, grid)
+    ``progress``: a bar on stderr while computing); ``steps``: the axes' command lattices (deg,
+    ``candidate_poses``): what a plan scheduled with the same steps can measure."""
+    path = _cache_file(rig, grid, steps)
     reason = _read_cached(path, grid.n_valid) if use_cache else None
     if reason is None:
-        reason = compute_reasons(rig, grid, progress=progress)
+        reason = compute_reasons(rig, grid, steps=steps, progress=progress)
         if use_cache:
             _write_cached(path, reason)
     reason.setflags(write=False)
@@ -63,7 +64,7 @@ def reachability(rig: Rig, grid: MerlGrid, *, use_cache: bool = True, progress: 
     return ReachMap(mask=mask, reason=reason, rig_hash=rig.kinematic_hash, grid=grid)
 
 
-def compute_reasons(rig: Rig, grid: MerlGrid, *, progress: bool = False) -> np.ndarray:
+def compute_reasons(rig: Rig, grid: MerlGrid, *, steps=None, progress: bool = False) -> np.ndarray:
     """uint8 (n_valid,) Reason codes of the valid cells, computed in chunks (no cache).
 
     With a camera model the full grid takes a few seconds (four candidate poses per cell)."""
@@ -75,7 +76,7 @@ def compute_reasons(rig: Rig, grid: MerlGrid, *, progress: bool = False) -> np.n
     for start in progress_bar(starts, asked=progress and len(starts) >= 2, desc="reachability", unit="chunk",
                               leave=False):
         part = cells[start:start + CHUNK_CELLS]
-        _, _, reasons = candidate_poses(rig, *grid.cell_directions(part))
+        _, _, reasons = candidate_poses(rig, *grid.cell_directions(part), steps=steps)
         reason[start:start + part.size] = best_reason(reasons)
     return reason
 
@@ -87,14 +88,15 @@ def rig_key(rig: Rig) -> list:
     return [rig.kinematic_hash, alignment, view]
 
 
-def is_cached(rig: Rig, grid: MerlGrid) -> bool:
-    """Whether ``reachability(rig, grid)`` has a map on disk to read (without reading it: a stale
-    entry it would compute again says True)."""
-    return _cache_file(rig, grid).is_file()
+def is_cached(rig: Rig, grid: MerlGrid, steps=None) -> bool:
+    """Whether ``reachability(rig, grid, steps=steps)`` has a map on disk to read (without reading
+    it: a stale entry it would compute again says True)."""
+    return _cache_file(rig, grid, steps).is_file()
 
 
-def _cache_file(rig: Rig, grid: MerlGrid):
-    return cache_path("reach", content_key(_CACHE_VERSION, rig_key(rig), grid.as_dict()), ".npy")
+def _cache_file(rig: Rig, grid: MerlGrid, steps=None):
+    lattice = [] if steps is None else [[float(v) for v in steps]]
+    return cache_path("reach", content_key(_CACHE_VERSION, rig_key(rig), grid.as_dict(), *lattice), ".npy")
 
 
 def _read_cached(path, n_valid: int) -> np.ndarray | None:

@@ -30,7 +30,7 @@ import numpy as np
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid, half_diff_to_dirs
 
-from .candidates import best_reason, candidate_poses
+from .candidates import best_reason, candidate_poses, measurable_reason
 from .kinematics import BRANCHES, Reason, forward
 from .motion import path_time
 from .order import Tour, fixed_order_tour, plan_tour
@@ -73,7 +73,8 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
     the previous one ended (one batch: the whole plan from home)."""
     samples = list(plan_doc["samples"])
     w_i, w_o = sample_directions(plan_doc)
-    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity)  # (n, k): usable and measurable
+    # (n, k): usable, and measurable at the joints commanded (on the lattices of steps)
+    poses, valid, reasons = candidate_poses(rig, w_i, w_o, reciprocity=reciprocity, steps=steps)
     _refuse_unreachable(samples, valid, reasons)
     order, choice, start = [], [], rig.home
     for a, b in zip([0] + ends[:-1], ends):
@@ -91,6 +92,7 @@ def _schedule(plan_doc: Mapping, rig: Rig, ends: list[int], reciprocity: bool, r
         cells = np.array([cell_indices(samples[i]) for i in tour.order], dtype=np.float64)
         weights = None if axis_weights is None else np.asarray(axis_weights, dtype=np.float64)[tour.order]
         chosen = on_steps(rig, grid, chosen, cells, steps, weights)
+    _refuse_unmeasurable(rig, samples, tour.order, clip_to_limits(rig, chosen))
     out = {key: copy.deepcopy(value) for key, value in plan_doc.items() if key != "samples"}
     out["samples"] = _capture_samples(rig, samples, tour, chosen)
     moves = _move_times(rig, chosen)
@@ -156,6 +158,17 @@ def _refuse_unreachable(samples, valid: np.ndarray, reasons: np.ndarray) -> None
         why = Reason(int(best[s])).name
         raise UnreachableSampleError(
             f"plan sample {s} (cell {_cell_label(samples[s])}) cannot be reached on this rig: {why}")
+
+
+def _refuse_unmeasurable(rig: Rig, samples, order, commanded: np.ndarray) -> None:
+    """The plan's own promise, checked as the capture checks it (``capture.inputs``): every
+    sample measurable at the joints written (candidates judged on the command lattices make this
+    hold; a plan must never be one its capture refuses)."""
+    reason = measurable_reason(rig, commanded)
+    for pos in np.flatnonzero(reason != Reason.OK):
+        s = int(order[pos])
+        raise UnreachableSampleError(f"plan sample {s} (cell {_cell_label(samples[s])}) cannot be measured at the "
+                                     f"joints it would command: {Reason(int(reason[pos])).name}")
 
 
 def clip_to_limits(rig: Rig, joints: np.ndarray) -> np.ndarray:

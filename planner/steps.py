@@ -28,7 +28,7 @@ import numpy as np
 from goniofrost.core.grid import HALF_PI, MerlGrid, dirs_to_half_diff
 
 from .candidates import measurable_reason
-from .kinematics import Reason, forward, pose_reason
+from .kinematics import Reason, forward, on_lattice, pose_reason
 from .rig import Rig
 
 # The search: within SPAN_DEG of the IK joints on every axis (a Dynamixel count is 0.088 deg:
@@ -40,15 +40,6 @@ SPAN_DEG = 0.1
 POINTS = 7
 ZOOM = 3.0
 LEVELS = 7
-
-
-def on_lattice(joints: np.ndarray, steps) -> np.ndarray:
-    """``joints`` (..., 3) deg rounded as the devices round them: round(q / step) x step (a step
-    of 0: the value itself)."""
-    steps = np.asarray(steps, dtype=np.float64)
-    q = np.asarray(joints, dtype=np.float64)
-    safe = np.where(steps > 0, steps, 1.0)
-    return np.where(steps > 0, np.round(q / safe) * safe, q)
 
 
 def cell_miss(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, weights=None) -> np.ndarray:
@@ -75,7 +66,9 @@ def on_steps(rig: Rig, grid: MerlGrid, joints: np.ndarray, cells: np.ndarray, st
     """Commanded joints (n, 3) deg on the lattices of ``steps`` (3,) deg (``on_lattice``) closest
     to their cells (n, 3) in the grid's index space (module doc), among the joints the rig can
     use (limits, the arm's separation); a sample whose camera could not measure at its best joints
-    (the patch at the edge of what ``planner.view`` allows) keeps its plain rounding."""
+    (the patch at the edge of what ``planner.view`` allows) keeps its plain rounding, which
+    ``planner.candidates`` judged measurable when the pose was chosen (``candidate_poses``'s
+    ``steps``)."""
     q0 = np.asarray(joints, dtype=np.float64).reshape(-1, 3)
     cells = np.asarray(cells, dtype=np.float64).reshape(-1, 3)
     steps = np.asarray(steps, dtype=np.float64)

@@ -205,3 +205,72 @@ def test_a_failed_align_stops_and_confirms_the_axes_switches_the_lamp_off_and_jo
         (start, end), kinds = journal.last_run(), [e["kind"] for e in journal.events() if e["kind"] != EventKind.DEVICE]
     assert (start.program, end.status, end.reason, end.lamp_off) == ("align", RunStatus.FAULT, message, True)
     assert all(s.confirmed for s in end.stops) and kinds[-3:] == [EventKind.FAULT, EventKind.STOP, EventKind.LAMP]
+
+
+# ----- Ctrl-C and rig stop during align: one line, exit 130 (issue 51, B2) ----------------------------
+def _start_align(rig, out, frames):
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-m", "goniofrost", "align", "--rig", str(rig), "--out", str(out),
+                             "--frames", str(frames), "--no-progress", "--speedup", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=Path(__file__).resolve().parents[1])
+
+
+def _wait_for_moves(frames, proc, count: int = 2, timeout: float = 120.0) -> None:
+    """Poll align's journal until ``count`` Move steps are done (the run is under way)."""
+    import time
+
+    from goniofrost.capture.journal import Journal
+
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if proc.poll() is not None:
+            pytest.fail(f"align ended before its moves ({proc.returncode}): {proc.stderr.read()}")
+        try:
+            with Journal.open_read_only(frames / "align.sqlite") as journal:
+                done = [s for s in journal.steps() if s["kind"] == "Move" and s["status"] == "done"]
+        except Exception:  # noqa: BLE001 - not created yet
+            done = []
+        if len(done) >= count:
+            return
+        time.sleep(0.02)
+    proc.kill()
+    pytest.fail(f"no {count} moves within {timeout} s")
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "rig stop"])
+def test_a_stopped_align_says_so_in_one_line_and_exits_130(how, tmp_path, capsys):
+    """A stop during align ended in a 45-85-line traceback (exit 1), though the axes and the lamp
+    were handled: now one line, exit 130, as every other program."""
+    import os
+    import re
+    import signal
+
+    from goniofrost.app.cli import main
+    from goniofrost.capture.journal import Journal
+    from goniofrost.capture.records import RunStatus
+
+    rig, out, frames = small_misaligned_rig(tmp_path / "rig.yaml"), tmp_path / "ALIGNMENT.json", tmp_path / "frames"
+    frames.mkdir()
+    proc = _start_align(rig, out, frames)
+    try:
+        _wait_for_moves(frames, proc)
+        if how == "ctrl-c":
+            proc.send_signal(signal.SIGINT)
+        else:
+            assert main(["rig", "stop", "--rig", str(rig)]) == 0
+        assert proc.wait(timeout=60) == 130
+        err = proc.stderr.read()
+    finally:
+        proc.kill()
+    who = "SIGINT" if how == "ctrl-c" else f"a stop request from process {os.getpid()}"
+    assert re.fullmatch(rf"goniofrost align: interrupted by {who} (during \w+|at plan sample \d+)\. Stopped camera_arm "
+                        r"at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; the lamp is off\. "
+                        rf"No alignment was written; the run is journaled in {re.escape(str(frames))}/align\.sqlite\. "
+                        r"To carry on from here, run the same command again\n", err), err
+    with Journal.open(frames / "align.sqlite") as journal:
+        _start, end = journal.last_run()
+    assert end.status is RunStatus.STOPPED_BY_OPERATOR and end.lamp_off is True and all(s.confirmed for s in end.stops)
+    assert not out.exists()

@@ -338,6 +338,28 @@ def test_sim_refuses_a_directory_as_write_rig_before_starting_the_devices(tmp_pa
     assert _tree(tmp_path) == ["lab.yaml"]
 
 
+@pytest.mark.parametrize("name", ["lab.json", "lab", "lab.yaml.txt"])
+def test_sim_refuses_a_write_rig_not_named_yaml_before_starting_the_devices(name, tmp_path, capsys, monkeypatch):
+    """sim --write-rig x.json wrote YAML under a name that says JSON."""
+    import sim.rig
+
+    monkeypatch.setattr(sim.rig, "SimulatedRig", lambda *a, **k: pytest.fail("the devices were started"))
+    line = _refused(capsys, ["sim", "--rig", SIM_RIG, "--write-rig", tmp_path / name])
+    assert line == (f"goniofrost sim: error: --write-rig {tmp_path / name}: expected a file name ending in .yaml or "
+                    ".yml (a rig file is written as YAML)")
+    assert _tree(tmp_path) == []
+
+
+def test_reconstruct_refuses_an_out_in_a_folder_that_does_not_exist(tmp_path, capsys):
+    """reconstruct --out /nonexistent/dir/x.binary made /nonexistent/dir and exited 0."""
+    (tmp_path / "s.csv").write_text("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b\n1,2,3,0.1,0.2,0.3\n")
+    out = tmp_path / "nonexistent" / "dir" / "x.binary"
+    line = _refused(capsys, ["reconstruct", "--model", tmp_path / "model", "--samples", tmp_path / "s.csv",
+                             "--out", out])
+    assert line == f"goniofrost reconstruct: error: {out.parent}: cannot write: no such folder; create it first"
+    assert _tree(tmp_path) == ["s.csv"]
+
+
 def test_sim_refuses_material_without_write_rig(capsys, monkeypatch):
     """--material only sets what the camera of --write-rig's rig file sees: without it, it was ignored."""
     import sim.rig

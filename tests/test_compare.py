@@ -147,6 +147,19 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, in
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+@pytest.mark.parametrize("named", ["ABSOLUTE", "../outside.binary"])
+def test_a_report_naming_a_file_outside_its_session_is_refused(named, tmp_path, capsys, inputs):
+    """compare opened whatever path a session's report.json named."""
+    session, gold, _ = inputs
+    (session.parent / "outside.binary").write_bytes(gold.read_bytes())
+    name = str(session.parent / "outside.binary") if named == "ABSOLUTE" else named
+    (session / "report.json").write_text(json.dumps({"outputs": {"brdf": name}}))
+    assert main(["compare", str(session), str(gold), "--out", str(tmp_path / "c.png")]) == 2
+    assert capsys.readouterr().err == (f"goniofrost compare: error: {session / 'report.json'}: outputs.brdf: expected "
+                                       f"a file in the session folder {session}, found {name!r}\n")
+    assert not (tmp_path / "c.png").exists()
+
+
 def test_a_damaged_report_is_named(tmp_path, capsys, inputs):
     session, gold, _ = inputs
     (session / "report.json").write_text("{not json")

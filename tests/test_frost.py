@@ -193,6 +193,49 @@ def test_model_round_trip_memory_mapped(model, tmp_path):
     np.testing.assert_allclose(loaded.from_log(loaded.to_log(values)), values, rtol=1e-9)
 
 
+def _damaged(model, folder, name, index, value):
+    """``model`` saved in ``folder`` with element ``index`` of ``name``.npy set to ``value`` (in place)."""
+    model.save(folder)
+    array = np.load(folder / f"{name}.npy", mmap_mode="r+")
+    array[index] = value
+    array.flush()
+    return folder
+
+
+@pytest.mark.parametrize("name, index, value, words", [
+    ("mean", 17, np.nan, "element [17] is nan"),
+    ("dictionary", (5, 2), np.inf, "element [5, 2] is inf"),
+    ("weight", 3, -np.inf, "element [3] is -inf"),
+])
+def test_a_model_with_a_value_that_is_not_finite_is_refused_naming_the_file(model, tmp_path, capsys, name, index,
+                                                                            value, words):
+    """A NaN in mean.npy was read as a model: plan exited 0 with the good model's hash."""
+    folder = _damaged(model, tmp_path / "m", name, index, value)
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(folder), "--samples", "5", "--out", str(out)]) == 2 and not out.exists()
+    assert capsys.readouterr().err == (f"goniofrost plan: error: {folder / (name + '.npy')}: {words}; expected finite "
+                                       "numbers (a damaged model file: train the model again)\n")
+
+
+def test_a_model_whose_files_do_not_hash_to_its_content_hash_is_refused(model, tmp_path, capsys):
+    folder = _damaged(model, tmp_path / "m", "reference", 4, model.reference[4] * 2)
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(folder), "--samples", "5", "--out", str(out)]) == 2 and not out.exists()
+    found = FrostModel(**{**model.__dict__, "reference": np.load(folder / "reference.npy"), "content_hash": ""})
+    assert capsys.readouterr().err == (
+        f"goniofrost plan: error: {folder / 'model.json'}: content_hash: expected {found.content_hash[:16]}... (the "
+        f"hash of the model's files), found {model.content_hash[:16]}... (a file of the model was changed after "
+        "training: train the model again)\n")
+
+
+def test_the_hash_read_in_chunks_is_the_hash_of_the_whole_arrays(model, monkeypatch):
+    from goniofrost.frost import model as model_module
+
+    whole = model.compute_hash()
+    monkeypatch.setattr(model_module, "HASH_CHUNK_BYTES", 1000)  # many chunks, a last one short
+    assert model.compute_hash() == whole and model.dictionary.nbytes > 10 * 1000
+
+
 def test_model_load_refuses_non_model(tmp_path):
     with pytest.raises(ModelError, match="not a goniofrost model"):
         FrostModel.load(tmp_path)
@@ -412,6 +455,31 @@ def test_reconstruct_command_bad_csv(model, tmp_path, capsys, text, message):
                  "--out", str(out)])
     assert code == 2 and not out.exists()
     assert re.search(message, capsys.readouterr().err)
+
+
+SESSION_HEADER = "theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,plan_index\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    # a header naming r twice: the second column was ignored
+    ("theta_h_deg,theta_d_deg,phi_d_deg,r,g,b,r\n10,10,10,0.1,0.2,0.3,0.4\n",
+     "line 1: column 'r' appears twice (columns 4 and 7); expected each column once"),
+    # a session's row duplicated: it weighed its cell twice and changed the result
+    (SESSION_HEADER + "10,10,10,0.1,0.2,0.3,0\n20,20,20,0.1,0.2,0.3,1\n10,10,10,0.1,0.2,0.3,0\n",
+     "line 4: plan_index 0 again (line 2); expected each plan sample once"),
+    (SESSION_HEADER + "10,10,10,0.1,0.2,0.3,0\n20,20,20,0.1,0.2,0.3,0\n",
+     "line 3: plan_index 0 again (line 2); expected each plan sample once"),
+    (HEADER + "10,10,10,0.1,0.2,0.3,x\n10,10,10,0.1,0.2,0.3,x\n",
+     "line 3: the same sample as line 2; expected each sample once"),
+])
+def test_a_repeated_column_or_sample_is_refused_naming_the_line(model, tmp_path, capsys, text, message):
+    model.save(tmp_path / "model")
+    (tmp_path / "s.csv").write_text(text)
+    out = tmp_path / "out.binary"
+    code = main(["reconstruct", "--model", str(tmp_path / "model"), "--samples", str(tmp_path / "s.csv"),
+                 "--out", str(out)])
+    assert code == 2 and not out.exists()
+    assert capsys.readouterr().err == f"goniofrost reconstruct: error: {tmp_path / 's.csv'}: {message}\n"
 
 
 def test_plan_and_reconstruct_commands(model, tmp_path):

@@ -76,6 +76,16 @@ def test_check_names_all_four_problems_of_a_rig_file_in_one_run(tmp_path, capsys
         assert expected in err
 
 
+def test_check_lists_a_missing_geometry_once(tmp_path, capsys):
+    raw = yaml.safe_load(TEMPLATE.read_text())
+    del raw["geometry"]
+    path = tmp_path / "nogeo.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert main(["rig", "check", "--rig", str(path), "--offline"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost rig: error: {path}: 1 problem(s):\n"
+                                       f"  {path}: geometry: expected a mapping, found 'nothing'\n")
+
+
 def test_check_offline_of_the_template_is_clean_and_connects_to_nothing(capsys):
     # --offline: the template's drives sit on a lab network that this machine must never reach
     assert main(["rig", "check", "--rig", str(TEMPLATE), "--offline"]) == 0

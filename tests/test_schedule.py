@@ -132,8 +132,10 @@ def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, ca
     rig_file = Path(RIG.source)
     assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    from goniofrost.rig.file import load_checked_rig
-    reach = reachability(load_checked_rig(rig_file), GRID)   # with the camera model: measurable cells only
+    from goniofrost.rig.file import command_steps, load_checked_rig
+    rig = load_checked_rig(rig_file)
+    # with the camera model: cells measurable at the joints commanded (on the axes' lattices) only
+    reach = reachability(rig, GRID, steps=command_steps(rig))
     assert f"{int(reach.mask.sum())} of {GRID.n_valid} valid cells reachable" in printed
     assert f"PATCH_PIXELS {reach.counts()['PATCH_PIXELS']}" in printed and reach.counts()["PATCH_PIXELS"] > 0
     assert "selection order" in printed

@@ -515,6 +515,37 @@ def test_plan_of_another_rig_or_an_unscheduled_plan_is_refused(setup, tmp_path, 
     assert not (tmp_path / "s").exists()
 
 
+def test_a_plan_for_a_rig_of_another_name_or_with_its_name_edited_is_refused(setup, tmp_path, capsys):
+    """The same kinematics under another name (another rig built alike: its own alignment and
+    lock), or rig.name edited in the plan: both were accepted, though the README says refused."""
+    folder, rig, plan, _ = setup
+    other = yaml.safe_load(rig.read_text()) | {"name": "sim-rig-2"}
+    (tmp_path / "other.yaml").write_text(yaml.safe_dump(other, sort_keys=False))
+    err = run_refused(capture_args(tmp_path / "other.yaml", plan, tmp_path / "s"), capsys)
+    assert err == (f"goniofrost capture: error: {plan}: rig.name: expected 'sim-rig-2', the rig of "
+                   f"{tmp_path / 'other.yaml'} (a plan is scheduled per rig: goniofrost plan --rig "
+                   f"{tmp_path / 'other.yaml'}), found 'sim-rig'\n")
+    doc = json.loads(plan.read_text())
+    doc["rig"]["name"] = "edited"
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert err == (f"goniofrost capture: error: {tmp_path / 'plan.json'}: rig.name: expected 'sim-rig', the rig of "
+                   f"{rig} (a plan is scheduled per rig: goniofrost plan --rig {rig}), found 'edited'\n")
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_joint_target_for_an_axis_the_rig_lacks_is_refused(setup, tmp_path, capsys):
+    folder, rig, plan, _ = setup
+    doc = json.loads(plan.read_text())
+    doc["samples"][2]["joints"]["bogus_axis"] = 10.0
+    (tmp_path / "plan.json").write_text(json.dumps(doc))
+    err = run_refused(capture_args(rig, tmp_path / "plan.json", tmp_path / "s"), capsys)
+    assert err == (f"goniofrost capture: error: {tmp_path / 'plan.json'}: samples[2].joints.bogus_axis: expected one "
+                   "of the keys camera_arm, sample_yaw, sample_tilt (the axes of rig 'sim-rig'), found \"unknown key "
+                   "'bogus_axis'\"\n")
+    assert not (tmp_path / "s").exists()
+
+
 def test_a_joint_target_outside_the_limits_is_refused_before_anything_moves(setup, tmp_path, capsys):
     folder, rig, plan, _ = setup
     doc = json.loads(plan.read_text())
@@ -954,6 +985,9 @@ def test_a_plan_scheduled_with_another_alignment_is_refused_before_anything_move
      "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found '0.1'"),
     ({"offsets_deg": {"camera_arm": 12.0, "sample_yaw": 0.0, "sample_tilt": 0.0}},
      "ALIGNMENT.json: offsets_deg.camera_arm: expected a zero offset in degrees within +-10, found 12.0"),
+    ({"version": 99, "offsets_deg": {"camera_arm": 0.1, "sample_yaw": 0.0, "sample_tilt": 0.0}},
+     "ALIGNMENT.json: version: expected 1 (the format this goniofrost reads: an ALIGNMENT.json of goniofrost align), "
+     "found 99"),
 ])
 def test_a_bad_alignment_file_is_refused_naming_the_key(setup, tmp_path, capsys, content, message):
     folder, rig, plan, _ = setup

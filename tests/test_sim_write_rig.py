@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import signal
 import subprocess
@@ -183,3 +184,56 @@ def test_sim_leaves_a_rig_file_replaced_while_it_ran_and_keeps_the_frames_taken(
     assert err.splitlines()[1:] == [f"goniofrost sim: left {out}: it is not the file this sim wrote (replaced since); "
                                     f"the frames in {frames} are kept"]
     assert out.read_text() == "# another sim's twins\n" and [p.name for p in frames.iterdir()] == ["frame_000000.dng"]
+
+
+def test_rig_stop_during_status_watch_stops_the_axes_and_switches_the_lamp_off(served, capsys):
+    """`rig stop` during `rig status --watch` left the lamp on: the watcher died of its SIGTERM
+    (exit 143, no report). Now the watcher stops every axis, switches the lamp off and says what
+    each confirmed, as every holder of the rig does (issue 51, B3)."""
+    _, out, _ = served
+    assert main(["rig", "lamp", "on", "--rig", str(out)]) == 0
+    assert status(out, capsys)["lamp"]["on"] is True
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "rig", "status", "--rig", str(out), "--watch",
+                             "--interval", "0.1", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        assert ready and json.loads(proc.stdout.readline())["lamp"]["on"] is True  # it holds the rig, watching
+        assert main(["rig", "stop", "--rig", str(out)]) == 0
+        assert proc.wait(timeout=30) == 130
+        err = proc.stderr.read()
+    finally:
+        proc.kill()
+    assert re.fullmatch(rf"goniofrost rig status: interrupted by a stop request from process {os.getpid()}\. Stopped "
+                        r"camera_arm at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; the lamp "
+                        r"is off\.\n", err), err
+    assert status(out, capsys)["lamp"]["on"] is False
+
+
+def status(rig, capsys) -> dict:
+    capsys.readouterr()
+    assert main(["rig", "status", "--rig", str(rig), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_rig_stop_switches_the_lamp_off_itself_when_the_holder_cannot(served, capsys):
+    """A holder that dies of rig stop's SIGTERM without stopping anything (here a bare process
+    holding the rig's lock, as a program of another version or a hung one killed would): once it
+    has let go, rig stop connects, stops every axis and switches the lamp off itself, and says so."""
+    _, out, _ = served
+    assert main(["rig", "lamp", "on", "--rig", str(out)]) == 0
+    name = yaml.safe_load(out.read_text())["name"]
+    code = ("import sys, time; from goniofrost.rig.lock import rig_lock\n"
+            f"with rig_lock({name!r}, 'bare holder'):\n    print('held', flush=True)\n    time.sleep(600)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline() == "held\n"
+        capsys.readouterr()
+        assert main(["rig", "stop", "--rig", str(out)]) == 0
+        assert proc.wait(timeout=30) == -signal.SIGTERM
+    finally:
+        proc.kill()
+    err = capsys.readouterr().err
+    assert err.startswith(f"asked bare holder (process {proc.pid}) to stop {name}: ") and err.count("\n") == 2, err
+    assert re.fullmatch(r"stopped camera_arm at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; "
+                        r"lamp off", err.splitlines()[1]), err
+    assert status(out, capsys)["lamp"]["on"] is False

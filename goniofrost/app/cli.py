@@ -11,6 +11,7 @@ import difflib
 import importlib
 import sys
 
+from goniofrost.capture.signals import SessionInterrupted  # a small module: --help stays fast
 from goniofrost.core.errors import GoniofrostError
 
 COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "align", "capture", "sim",
@@ -87,6 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"goniofrost {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
+    except SessionInterrupted as exc:  # Ctrl-C or rig stop: the message says how each axis and the lamp took it
+        text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
+        print(f"goniofrost {args.command}: {text}", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print(f"goniofrost {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -79,17 +79,18 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     # measures its sentinels exactly there. A bad rig file fails here, before the training.
     from concurrent.futures import ThreadPoolExecutor
 
-    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.rig.file import command_steps, load_checked_rig
     from goniofrost.rig.lock import check_free
     from planner.reach import is_cached, reachability
 
     rig = load_checked_rig(rig_path)
+    steps = command_steps(rig)  # measurable at the joints the plan commands (planner.candidates)
     check_free(rig.name)  # a rig another program drives fails here, not after the training
     with ThreadPoolExecutor(1, thread_name_prefix="demo-tabulate") as pool:
         # A first run: the training materials are tabulated (what training reads first, and needs
         # no reach map) on another core while the map is computed (numpy frees the GIL)
-        tabulating = None if is_cached(rig, grid) else pool.submit(tabulate_training_set, material, grid)
-        reach = reachability(rig, grid)
+        tabulating = None if is_cached(rig, grid, steps) else pool.submit(tabulate_training_set, material, grid)
+        reach = reachability(rig, grid, steps=steps)
         if tabulating is not None:
             tabulating.result()
     lap("reach")
@@ -157,7 +158,7 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
 
     rig = load_checked_rig(rig_path, alignment)
-    candidates = reachability(rig, model.grid).mask if candidates is None else candidates
+    candidates = reachability(rig, model.grid, steps=command_steps(rig)).mask if candidates is None else candidates
     if max_angle is not None:
         candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
     select = select_bayes if selector == "bayes" else select_cells

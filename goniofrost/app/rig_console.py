@@ -212,7 +212,10 @@ def run_stop(args) -> int:
     if holder is not None:
         _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
              f"switches the lamp off; its own report follows in its terminal and journal")
-        return 0
+        if rig.simulated:  # the devices of a simulated rig file end with their holder
+            return 0
+        _wait_for_release(rig.name, holder)
+    # no holder, or one that let go: confirm it here (a holder killed by the SIGTERM left the lamp on)
     with _connected(rig, enable=False, program="rig stop") as hardware:
         executor = StepExecutor(hardware, ".")
         stops = executor.stop()
@@ -220,6 +223,22 @@ def run_stop(args) -> int:
     _say(stop_text(stops) + ("; lamp off" if hardware.lamp is not None and lamp_error is None
                              else f"; lamp NOT confirmed off: {lamp_error}" if lamp_error else ""))
     return 0 if all(s.confirmed for s in stops) and lamp_error is None else 2
+
+
+RELEASE_S = 30.0   # how long rig stop waits for the holder to let go of the rig (s)
+
+
+def _wait_for_release(rig_name: str, holder) -> None:
+    """Return once no program holds ``rig_name``; ConsoleError naming the holder after RELEASE_S."""
+    from goniofrost.capture.console import ConsoleError
+    from goniofrost.rig.lock import rig_holder
+
+    t_end = time.monotonic() + RELEASE_S
+    while rig_holder(rig_name) is not None:
+        if time.monotonic() > t_end:
+            raise ConsoleError(f"{holder.program} (process {holder.pid}) still holds {rig_name} {RELEASE_S:g} s after "
+                               "the stop request: it may hang; end it (kill PID), then run goniofrost rig stop again")
+        time.sleep(0.05)  # polls the lock's holder, a state: no synchronisation
 
 
 # ----- snap -------------------------------------------------------------------------------------

@@ -26,8 +26,8 @@ import numpy as np
 from goniofrost.core.errors import ConfigError
 from goniofrost.capture.plan_runner import PlanRunner
 from goniofrost.capture.steps import Move
+from planner.alignment_file import VERSION as ALIGNMENT_VERSION
 
-ALIGNMENT_VERSION = 1
 EXPOSURE_LEVEL = 0.6     # the tile's disc at the brightest pose stays under this fraction of saturation
 DARK_FRAMES = 2
 FRAMES_PER_POSE = 2      # averaged: the tile's brightness is what sets the yaw and arm zeros' precision
@@ -41,7 +41,7 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     ``speedup`` as for ``goniofrost capture``; ``on_ready(hardware)`` once the devices are connected;
     ``devices``: the opener of the rig's devices, the caller's (see ``goniofrost.capture.runner.capture``).
     """
-    from goniofrost.rig.hardware import open_hardware
+    from goniofrost.capture.holder import held_hardware
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.runner import check_sim_options
     from goniofrost.core.atomic_file import check_not_an_input, check_output_dir, check_output_file, write_text_atomic
@@ -61,7 +61,7 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)
-        with open_hardware(rig, devices, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
+        with held_hardware(rig, devices, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
                            program="align") as hardware:
             observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress,
                                                   journaled=frames is not None)
@@ -228,7 +228,7 @@ def alignment_document(rig, fit, planned: int, exposure_s: float, disc_px: float
                     "that is off by more than its standard error; its azimuth is not identifiable (the arm and "
                     "yaw zeros are measured from it)"}
     return {
-        "version": ALIGNMENT_VERSION,
+        "version": ALIGNMENT_VERSION,  # what planner.alignment_file reads
         "rig": {"name": rig.name, "file": rig.source, "kinematic_hash": rig.kinematic_hash},
         "offsets_deg": {n: round(float(v), 4) for n, v in zip(names, fit.offsets_deg)},
         "stderr_deg": {n: round(float(v), 4) for n, v in zip(names, fit.stderr_deg)},

@@ -128,7 +128,8 @@ class ConsoleHardware:
 def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = None, sections=None):
     """Take the rig lock for ``program``, connect every axis (enabled when ``enable``) and the lamp
     of ``rig``; on exit stop and confirm every axis not yet confirmed stopped (``release_stop``),
-    close, release the lock.
+    close, release the lock. Stopped by a signal or ``rig stop`` outside a plan, it stops every
+    axis and switches the lamp off (``holder.stopped_safely``).
     ``sections(rig, speedup)``: the caller's context manager yielding (the rig its devices are
     connected by, the running simulation or None); None: the rig's own sections, real devices.
     ``goniofrost.rig.simulated.device_sections`` starts a simulated rig's devices for the command
@@ -137,6 +138,7 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
     from contextlib import nullcontext
 
     from drivers.rig_devices import RigDevices
+    from goniofrost.capture.holder import stopped_safely
     from goniofrost.rig.device_log import DeviceLog
     from goniofrost.rig.hardware import WallClock
     from goniofrost.rig.lock import rig_lock
@@ -148,7 +150,9 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
         devices.connect_all(enable=enable)
         try:
             clock = simulation.clock if simulation is not None else WallClock()
-            yield ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
+            hardware = ConsoleHardware(devices.axes, devices.lamp, clock, rig_lock=lock)
+            with stopped_safely(hardware):  # rig stop's SIGTERM between plans: axes stopped, lamp off
+                yield hardware
         finally:
             try:
                 release_stop(devices.axes)

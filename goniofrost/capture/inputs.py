@@ -107,7 +107,7 @@ def check_model(plan: dict, plan_path, model, model_path) -> None:
 
 
 def check_rig(plan: dict, plan_path, rig) -> None:
-    """Refuse a plan scheduled for another rig (kinematic hashes differ) or not scheduled at all."""
+    """Refuse a plan scheduled for another rig (kinematic hashes or names differ) or not scheduled at all."""
     section = plan.get("rig")
     if not isinstance(section, dict) or "kinematic_hash" not in section:
         raise ConfigError(plan_path, "rig", "a plan scheduled for a rig (goniofrost plan --rig RIG.yaml)",
@@ -117,6 +117,9 @@ def check_rig(plan: dict, plan_path, rig) -> None:
                           f"{rig.kinematic_hash} of rig {rig.name!r} ({rig.source})",
                           f"{section['kinematic_hash']} (scheduled for rig {section.get('name')!r}, "
                           f"{section.get('file')})")
+    if section.get("name") != rig.name:  # same kinematics, another rig: its own alignment, its own lock
+        raise ConfigError(plan_path, "rig.name", f"{rig.name!r}, the rig of {rig.source} (a plan is scheduled per rig: "
+                          f"goniofrost plan --rig {rig.source})", section.get("name"))
 
 
 def check_alignment(plan: dict, plan_path, rig) -> None:
@@ -149,7 +152,8 @@ def check_measurable(plan: dict, plan_path, rig) -> None:
 
 
 def check_joints(plan: dict, plan_path, rig) -> None:
-    """Refuse any sample whose joint targets are missing, not finite or outside an axis's limits."""
+    """Refuse any sample whose joint targets are missing, not finite, outside an axis's limits or
+    for an axis the rig does not have."""
     samples = _field(plan, plan_path, "samples", list)
     if not samples:
         raise ConfigError(plan_path, "samples", "at least one sample", [])
@@ -157,6 +161,10 @@ def check_joints(plan: dict, plan_path, rig) -> None:
         joints = sample.get("joints") if isinstance(sample, dict) else None
         if not isinstance(joints, dict):
             raise ConfigError(plan_path, f"samples[{i}].joints", "joint targets {axis: degrees}", joints)
+        for name in joints:  # a target for an axis the rig lacks would be ignored, silently
+            if name not in rig.axes:
+                raise ConfigError(plan_path, f"samples[{i}].joints.{name}", f"one of the keys {', '.join(rig.axes)} "
+                                  f"(the axes of rig {rig.name!r})", f"unknown key {name!r}")
         for name, spec in rig.axes.items():
             _check_target(plan_path, f"samples[{i}].joints.{name}", joints.get(name), spec.limits_deg)
 

@@ -32,7 +32,7 @@ from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.executor import StepExecutor
 from goniofrost.rig.stop import stop_text
 from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus
-from goniofrost.capture.signals import Deferral, SessionInterrupted, signals_raise
+from goniofrost.capture.signals import Deferral, RunStopped, SessionInterrupted, signals_raise
 from goniofrost.capture.steps import step_detail
 
 __all__ = ["PlanRunner", "SessionFault", "SessionInterrupted"]
@@ -177,7 +177,7 @@ class PlanRunner:
             message = self._abort(EventKind.INTERRUPTED, RunStatus.STOPPED_BY_OPERATOR, f"{who}: run stopped", None,
                                   step, lambda: f"interrupted by {who}{self.where(step)}. "
                                                 f"{self.safe_text(self.continue_text())}")
-            raise SessionInterrupted(message) from exc
+            raise RunStopped(message) from exc
         except OSError as exc:  # a file the run writes (frames, samples.csv): one line, not a traceback
             where = exc.filename or self.folder
             error = OutputError(where, reason_of(exc, where))

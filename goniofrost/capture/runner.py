@@ -183,11 +183,11 @@ def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup
     goes to the journal, not the terminal."""
     from goniofrost.rig.device_log import DeviceLog
     from goniofrost.capture.engine import RERUN, SessionEngine
-    from goniofrost.rig.hardware import open_hardware
+    from goniofrost.capture.holder import held_hardware
 
     with DeviceLog.capture() as device_log:
         try:
-            with open_hardware(rig, devices, material=material, seed=seed, speedup=speedup,
+            with held_hardware(rig, devices, material=material, seed=seed, speedup=speedup,
                                on_ready=on_ready) as hardware:
                 engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
                 engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc

@@ -14,6 +14,11 @@ class SessionInterrupted(BaseException):
     """
 
 
+class RunStopped(SessionInterrupted):
+    """A stop that was carried out: every axis was told to stop and the lamp to switch off, and
+    the message says what each confirmed (``plan_runner``, ``holder``)."""
+
+
 class Deferral:
     """Signal state: raise at once, or hold the signal while a commit is in progress."""
 

@@ -80,13 +80,24 @@ def check_output_file(path, directory: str = REASONS[errno.EISDIR]) -> None:
     check_output_dir(path.parent)
 
 
-def check_output_suffix(out, suffix: str, why: str, option: str = "--out") -> None:
-    """Raise ``GoniofrostError`` now unless the output name ``out`` ends in ``suffix`` (any case):
-    a command whose file format is fixed must not write it under a name that says another one
-    (``export --out brdf.txt`` held an RGL tensor, ``plan --out plan.yaml`` JSON). ``why``: the
-    format written, in the message's brackets."""
-    if not str(out).lower().endswith(suffix.lower()):
-        raise GoniofrostError(f"{option} {out}: expected a file name ending in {suffix} ({why})")
+def check_output_suffix(out, suffix, why: str, option: str = "--out") -> None:
+    """Raise ``GoniofrostError`` now unless the output name ``out`` ends in ``suffix`` (any case; a
+    tuple: one of them): a command whose file format is fixed must not write it under a name that
+    says another one (``export --out brdf.txt`` held an RGL tensor, ``plan --out plan.yaml`` JSON).
+    ``why``: the format written, in the message's brackets."""
+    suffixes = (suffix,) if isinstance(suffix, str) else tuple(suffix)
+    if not str(out).lower().endswith(tuple(s.lower() for s in suffixes)):
+        raise GoniofrostError(f"{option} {out}: expected a file name ending in {' or '.join(suffixes)} ({why})")
+
+
+def check_output_folder_exists(out) -> None:
+    """Raise ``OutputError`` now unless the folder of the output file ``out`` exists: for a
+    command that should not make folders (``reconstruct --out /nonexistent/dir/x.binary`` made
+    /nonexistent/dir)."""
+    folder = Path(out).parent
+    if not folder.is_dir():
+        check_output_dir(folder)  # a file in the way says so first
+        raise OutputError(folder, "no such folder; create it first")
 
 
 def check_not_an_input(out, inputs: dict, option: str = "--out") -> None:

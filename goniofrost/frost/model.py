@@ -21,7 +21,8 @@ noise ``posterior.SCALAR_ETA / t`` per cell and an uncalibrated predicted error
 (``prediction.UNCALIBRATED``). A version-2 model without the file is read the same way.
 
 Rows follow ``grid.valid_cells`` (ascending flat index). ``FrostModel.load`` memory-maps
-the arrays, so opening a full-size model costs milliseconds and only touched pages are read.
+the arrays and reads each once, in chunks, to check that every value is finite and that the
+files hash to the content hash model.json records (format 2).
 
 The mapping (DESIGN.md, "Training"): ``L = log((w x + eps) / (r + eps))`` for a BRDF value
 ``x`` in 1/sr; the model approximates ``L - mu`` with the atoms in ``dictionary``.
@@ -50,6 +51,7 @@ WEIGHT_CONVENTION = "clip(cos(theta_i) * cos(theta_o), 0.01, 1)"
 ARRAYS = ("dictionary", "singular_values", "coefficients", "mean", "reference", "weight")
 OPTIONAL_ARRAYS = ("noise_variance",)
 META_FILE = "model.json"
+HASH_CHUNK_BYTES = 1 << 24   # 16 MB of an array at a time: the hash and the finiteness check share the pass
 
 
 class ModelError(GoniofrostError, ValueError):
@@ -158,13 +160,24 @@ class FrostModel:
 
     def compute_hash(self) -> str:
         """Hex BLAKE2b (32 bytes) over the metadata and every array's bytes."""
+        return self._digest()
+
+    def _digest(self, check=None) -> str:
+        """``compute_hash``, reading each array in row chunks of about HASH_CHUNK_BYTES;
+        ``check(name, start, chunk)`` is called on every chunk (``load``'s finiteness check: one
+        pass over a memory-mapped file, no copy of the whole array)."""
         h = hashlib.blake2b(digest_size=32)
         meta = {k: v for k, v in self.metadata().items() if k != "info"}
         h.update(json.dumps(meta, sort_keys=True).encode())
         for name in self._present_arrays():
-            arr = np.ascontiguousarray(getattr(self, name))
+            arr = getattr(self, name)
             h.update(f"{name}:{arr.dtype.str}:{arr.shape}".encode())
-            h.update(memoryview(arr).cast("B"))
+            rows = max(1, HASH_CHUNK_BYTES // max(1, arr.itemsize * int(np.prod(arr.shape[1:]))))
+            for start in range(0, len(arr), rows):
+                chunk = np.ascontiguousarray(arr[start:start + rows])
+                h.update(memoryview(chunk).cast("B"))
+                if check is not None:
+                    check(name, start, chunk)
         return h.hexdigest()
 
     def _present_arrays(self) -> tuple[str, ...]:
@@ -215,6 +228,7 @@ class FrostModel:
                     content_hash=str(meta["content_hash"]), info=meta.get("info", {}),
                     noise=meta.get("noise") or {}, **arrays)
         _check_shapes(path, model, meta)
+        _check_content(path, model, meta)
         return model
 
 
@@ -249,6 +263,23 @@ def _read_meta(path: Path) -> dict:
         raise ModelError(f"{file}: version: expected one of {list(READABLE_VERSIONS)}, found {meta['version']!r} "
                          "(a model written by a newer goniofrost)")
     return meta
+
+
+def _check_content(path: Path, model: FrostModel, meta: dict) -> None:
+    """Every array finite, and (format 2) the content hash model.json records that of the files:
+    a NaN in mean.npy was read as a model, planned with under the good model's hash."""
+    def finite(name, start, chunk):
+        bad = np.argwhere(~np.isfinite(chunk))
+        if bad.size:
+            index = (start + int(bad[0][0]),) + tuple(int(i) for i in bad[0][1:])
+            raise ModelError(f"{path / (name + '.npy')}: element {list(index)} is {chunk[tuple(bad[0])]!s}; expected "
+                             "finite numbers (a damaged model file: train the model again)")
+
+    found = model._digest(finite)
+    if meta["version"] >= 2 and found != model.content_hash:  # format 1 hashed other metadata
+        raise ModelError(f"{path / META_FILE}: content_hash: expected {found[:16]}... (the hash of the model's files), "
+                         f"found {model.content_hash[:16]}... (a file of the model was changed after training: "
+                         "train the model again)")
 
 
 def _check_shapes(path: Path, model: FrostModel, meta: dict) -> None:

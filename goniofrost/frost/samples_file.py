@@ -20,7 +20,8 @@ from goniofrost.frost.reconstruction import ReconstructionError, check_values
 
 CSV_COLUMNS = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "r", "g", "b")
 SIGMA_COLUMNS = ("sigma_r", "sigma_g", "sigma_b")
-SESSION_COLUMNS = CSV_COLUMNS + SIGMA_COLUMNS + ("snr", "plan_index")
+PLAN_INDEX = "plan_index"
+SESSION_COLUMNS = CSV_COLUMNS + SIGMA_COLUMNS + ("snr", PLAN_INDEX)
 BATCH_COLUMN = "batch"
 
 
@@ -116,13 +117,42 @@ def _read_csv_rows(path: Path):
     missing = [c for c in CSV_COLUMNS if c not in header]
     if missing:
         raise ReconstructionError(f"{path}: missing column(s) {missing}; expected header {','.join(CSV_COLUMNS)} (extra columns allowed), found {header}")
+    _check_unique_columns(path, table[0][0], header)
     rows = table[1:]
     if not rows:
         raise ReconstructionError(f"{path}: no samples after the header")
     for line, row in rows:
         if len(row) != len(header):
             raise ReconstructionError(f"{path}: line {line}: {len(row)} fields, expected {len(header)} as in the header")
+    _check_unique_rows(path, header, rows)
     return header, rows
+
+
+def _check_unique_columns(path: Path, line: int, header: list) -> None:
+    """Each column named once: a second ``r`` was ignored, silently."""
+    for col, name in enumerate(header):
+        if name in header[:col]:
+            raise ReconstructionError(f"{path}: line {line}: column {name!r} appears twice (columns "
+                                      f"{header.index(name) + 1} and {col + 1}); expected each column once")
+
+
+def _check_unique_rows(path: Path, header: list, rows: list) -> None:
+    """No sample twice: a repeated plan_index (a session measures each plan sample once), nor a
+    row repeated field for field (a copy: it weighed its cell twice in the fit)."""
+    col = header.index(PLAN_INDEX) if PLAN_INDEX in header else None
+    indices: dict = {}
+    copies: dict = {}
+    for line, row in rows:
+        fields = tuple(c.strip() for c in row)
+        if col is not None and fields[col] in indices:
+            raise ReconstructionError(f"{path}: line {line}: {PLAN_INDEX} {fields[col]} again (line "
+                                      f"{indices[fields[col]]}); expected each plan sample once")
+        if fields in copies:
+            raise ReconstructionError(f"{path}: line {line}: the same sample as line {copies[fields]}; "
+                                      f"expected each sample once")
+        if col is not None:
+            indices[fields[col]] = line
+        copies[fields] = line
 
 
 def _number(path, line, row, name, col) -> float:

@@ -40,7 +40,8 @@ def _collect(problems: list[Problem], check: Callable, *args):
     try:
         return check(*args)
     except ConfigError as exc:
-        problems.append(Problem(exc.keypath, str(exc)))
+        if all(p.keypath != exc.keypath for p in problems):  # one per key: a missing geometry was listed twice
+            problems.append(Problem(exc.keypath, str(exc)))
         return None
 
 

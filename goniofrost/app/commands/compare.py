@@ -41,6 +41,9 @@ def resolve(path_text: str):
                 raise GoniofrostError(f"{report}: expected a session report with outputs.brdf, found an unreadable "
                                       f"or different document") from None
         binary = path / name
+        if path.resolve() not in (path / name).resolve().parents:  # report.json named /etc/passwd or ../x
+            raise GoniofrostError(f"{report}: outputs.brdf: expected a file in the session folder {path}, "
+                                  f"found {name!r}")
         if not binary.is_file():
             raise GoniofrostError(f"{path}: no {name}: expected a finished session folder (its reconstruction "
                                   f"{binary}) or a MERL .binary file")

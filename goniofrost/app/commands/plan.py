@@ -83,10 +83,11 @@ def run(args) -> int:
         raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
                           args.alignment)
     if args.rig is not None:
-        from goniofrost.rig.file import load_checked_rig
+        from goniofrost.rig.file import command_steps, load_checked_rig
         from planner.reach import reachability
         rig = load_checked_rig(args.rig, args.alignment)
-        reach = reachability(rig, model.grid, progress=True)
+        # the cells measurable at the joints the plan commands (on the axes' lattices, as scheduled below)
+        reach = reachability(rig, model.grid, steps=command_steps(rig), progress=True)
         mask = reach.mask if mask is None else mask & reach.mask
         why = ", ".join(f"{k} {v}" for k, v in reach.counts().items() if k != "OK" and v)
         aligned = "" if rig.alignment is None else f" (aligned: {rig.alignment.source})"

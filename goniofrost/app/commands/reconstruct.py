@@ -40,7 +40,8 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.core.atomic_file import check_not_an_input, check_output_file, check_output_suffix
+    from goniofrost.core.atomic_file import (check_not_an_input, check_output_file, check_output_folder_exists,
+                                             check_output_suffix)
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.outputs import bayes_output_paths
@@ -50,6 +51,7 @@ def run(args) -> int:
     # before the model is read: --out brdf.txt held a MERL file, and --out brdf wrote brdf,
     # brdf.std.binary and brdf.json (the side files' names are OUT's with .binary replaced)
     check_output_suffix(args.out, ".binary", "the file is written in MERL's .binary format")
+    check_output_folder_exists(args.out)  # a mistyped folder was made, silently
     outputs = [args.out] + (list(bayes_output_paths(args.out)) if args.estimator == "bayes" else [])
     for out in outputs:  # reconstruct --out s.csv overwrote the samples it read with the BRDF
         check_not_an_input(out, {"--samples": args.samples, "--model": args.model})

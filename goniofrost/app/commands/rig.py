@@ -23,7 +23,8 @@ SUBCOMMANDS = {
     "home": "home the named axes (default: all); asks whether the rig is clear unless --yes",
     "lamp": "switch the lamp on or off",
     "stop": "stop the rig from any terminal: a program driving it is told to stop (its own report follows); "
-            "otherwise connect, stop and confirm every axis and switch the lamp off",
+            "once it lets go (on a real rig), or when none drives it, connect, stop and confirm every axis and "
+            "switch the lamp off",
     "snap": "take one frame (or the bracket the capture would take) at the current pose and report levels, "
             "saturation, markers, region-of-interest pixels and SNR; writes a PNG with the region and markers; "
             "exits 2 when it finds a problem: markers or region not found, a bracket that cannot expose the "

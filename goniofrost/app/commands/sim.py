@@ -53,8 +53,10 @@ def run(args) -> int:
         raise ConfigError("command line", "--material", "--write-rig OUT.yaml as well (the material is what the "
                           "simulated camera of that rig file sees)", args.material)
     if args.write_rig is not None:
-        from goniofrost.core.atomic_file import check_not_an_input, check_output_file
+        from goniofrost.core.atomic_file import check_not_an_input, check_output_file, check_output_suffix
         from goniofrost.datasets import shown_material
+        # a rig file is YAML: --write-rig x.json held YAML under a name that says JSON
+        check_output_suffix(args.write_rig, (".yaml", ".yml"), "a rig file is written as YAML", "--write-rig")
         check_not_an_input(args.write_rig, {"--rig": args.rig}, "--write-rig")  # it replaced the rig file
         check_output_file(args.write_rig)
         material = shown_material(args.material or DEFAULT_MATERIAL, None)  # a bad name fails before anything starts

@@ -47,12 +47,12 @@ def _rig_cells(args):
             raise ConfigError("command line", "--alignment", "--rig RIG.yaml as well (an alignment belongs to a rig)",
                               args.alignment)
         return None
-    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.rig.file import command_steps, load_checked_rig
     from goniofrost.core.grid import FULL_GRID
     from planner.reach import reachability
 
     rig = load_checked_rig(args.rig, args.alignment)
-    reach = reachability(rig, FULL_GRID, progress=True)
+    reach = reachability(rig, FULL_GRID, steps=command_steps(rig), progress=True)  # plan --rig's cells
     print(f"rig {rig.name}: the designs and the sentinel check are calibrated among its {int(reach.mask.sum())} "
           "measurable cells")
     return reach.mask
