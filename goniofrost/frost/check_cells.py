@@ -1,5 +1,5 @@
 """Check cells: a few cells chosen on the training materials where the model errs, measured with
-the first batch beside the sentinels and never fitted (issue 28, round 6 of docs/BENCHMARKS.md).
+the first batch beside the sentinels and never fitted (issue 28, round 6 of BENCHMARKS.md@8b3941b).
 
 Most of a held-out material's error is what no combination of the atoms represents, and nothing
 the design's samples carry shows it. The geometric sentinels (``sentinel.py``) look where the

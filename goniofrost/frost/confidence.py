@@ -50,7 +50,7 @@ beyond it, the simulated rig's at most 0.18.
 ``feature_distance`` measures how typical the samples' (log z2, log energy, level, log spread)
 are among the held-out training materials' (Mahalanobis, per m). The benchmark measures it and
 the rule does not use it: across databases (trained on MERL, tested on RGL) it fires on the
-materials the bound covers and not on those it misses (docs/BENCHMARKS.md, issue 28), whose
+materials the bound covers and not on those it misses (BENCHMARKS.md@8b3941b, issue 28), whose
 samples look like training materials while their error sits where the design does not sample.
 ``prequential_excess`` does the same for a genuinely held-out statistic: each sample predicted
 from the ones measured before it (``posterior.prequential_errors``). Measured the same way, it
@@ -62,7 +62,7 @@ leaves empty (``sentinel.py``), never fitted, against the predicted error, calib
 held-out training materials like the bound (simultaneous over the looks). Given a capture's
 sentinel error (``error_bounds(check=)``), beyond the SENTINEL_CONFIDENCE quantile the samples
 are out of the model ("sentinel"). Trained on MERL it flags 15 of the 16 RGL captures that
-stopped at 0.05 (9 of them wrongly) and 3 to 5.5 % of the split's (docs/BENCHMARKS.md, issue 28).
+stopped at 0.05 (9 of them wrongly) and 3 to 5.5 % of the split's (BENCHMARKS.md@8b3941b, issue 28).
 """
 from __future__ import annotations
 
@@ -219,7 +219,7 @@ def prequential_excess(calibration: dict, score, m) -> np.ndarray:
     materials' at m (interpolated in log m; > 1: worse predicted than 95 % of them; NaN when
     the model has no such record). A diagnostic the benchmark measures; the rule does not use it
     (across databases it fires on the materials the bound covers, not on those it misses:
-    docs/BENCHMARKS.md, issue 28)."""
+    BENCHMARKS.md@8b3941b, issue 28)."""
     bound = calibration.get("bound") or {}
     if "log_prequential_q95" not in bound:
         return np.full(np.broadcast(score, m).shape, np.nan)

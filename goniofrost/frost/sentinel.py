@@ -5,7 +5,7 @@ ones. A material from another population can look like a training material at ev
 the design samples and err elsewhere: trained on MERL, the diffuse RGL materials (felts,
 papers, spectralon) the bound missed had 48 % of their error at theta_d > 80 degrees and 28 %
 at theta_h > 70 degrees (4 % of the cells each), where the first 30 design cells never go, and
-no statistic of the design's samples told them apart (docs/BENCHMARKS.md, issue 28). The A-optimal
+no statistic of the design's samples told them apart (BENCHMARKS.md@8b3941b, issue 28). The A-optimal
 design cannot be asked where to look: its variance is small exactly where the training set
 agrees with itself.
 
@@ -52,7 +52,7 @@ def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None 
     (at theta_h = 0 every phi_d is one configuration), so the grazing mirror pose is measured
     twice. Measured, that repeat is what the check needs: a distance that makes them one point
     picks a third pose instead, and trained on MERL the sentinels then flag 21 to 23 of the 51 RGL
-    materials instead of 33 (docs/BENCHMARKS.md, "three sentinel poses instead of two")."""
+    materials instead of 33 (BENCHMARKS.md@8b3941b, "three sentinel poses instead of two")."""
     mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
     where = np.flatnonzero(mask)
     if where.size == 0 or count < 1:
