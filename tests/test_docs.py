@@ -44,26 +44,45 @@ def test_the_site_builds_with_warnings_as_errors(built_site):
         assert (built_site / section / "index.html").is_file(), section
 
 
+def _text_of(markup: str) -> str:
+    return html.unescape(re.sub(r"<[^>]+>", " ", markup))
+
+
 def _text(page: Path) -> str:
-    return html.unescape(re.sub(r"<[^>]+>", " ", page.read_text()))
+    return _text_of(page.read_text())
+
+
+def command_parsers(parser, path=("goniofrost",)):
+    """(path, parser) of every command and sub-command under ``parser`` (``rig check`` included)."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*path, name), sub
+                yield from command_parsers(sub, (*path, name))
 
 
 def test_the_command_reference_documents_every_command_and_option(built_site):
-    import argparse
-
+    """Each command has its section, and each of its options and positional arguments is named in
+    it (the sections are in the order of the parser, so a section ends where the next begins)."""
     from goniofrost.app.cli import build_parser
 
-    text = _text(built_site / "reference" / "commands.html")
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    missing = []
-    for name, parser in sub.choices.items():
-        if f"goniofrost {name}" not in text:
-            missing.append(name)
+    page = (built_site / "reference" / "commands.html").read_text()
+    commands = list(command_parsers(build_parser()))
+    starts = {path: page.find(f'id="{"-".join(path)}"') for path, _ in commands}
+    missing = [" ".join(path) for path, start in starts.items() if start < 0]
+    assert not missing and len(commands) >= 25, missing
+    ends = sorted(starts.values()) + [len(page)]
+    for path, parser in commands:
+        start = starts[path]
+        section = _text_of(page[start:ends[ends.index(start) + 1]])
         for action in parser._actions:
-            missing += [f"{name} {s}" for s in action.option_strings if not re.search(rf"{re.escape(s)}\b", text)]
-            if not action.option_strings and action.dest not in ("help",) and (action.metavar or action.dest) not in text:
-                missing.append(f"{name} {action.metavar or action.dest}")
-    assert not missing and len(sub.choices) >= 18, missing
+            names = [s for s in action.option_strings if s not in ("-h", "--help")] if action.option_strings \
+                else [] if action.dest == "help" else [action.metavar or action.dest]
+            missing += [f"{' '.join(path)} {n}" for n in names
+                        if not re.search(rf"(?<![\w-]){re.escape(str(n))}(?![\w-])", section)]
+    assert not missing, missing
 
 
 def key_table_modules() -> dict[str, list]:

@@ -1,37 +1,12 @@
 """The scene-aware Bayesian design: the expected error of what a scene sees, in the plain design's form.
 
-With u_c a scene's use of cell c (``goniofrost.brdf.usage``, sum 1), the expected squared error of
-the mapped BRDF that the scene sees is sum_c u_c d_c^T Sigma d_c = trace(M Sigma), with the K x K
-matrix M = D^T diag(u) D (DESIGN.md, "Scene-aware design"). The plain design's trace(S^2 Sigma)
-has a diagonal S^2 and a diagonal prior, which its one-pass kernels rely on. A change of the
-coefficients' basis keeps that form: with W = diag(sqrt(prior_var)) and W M W = Q Lambda Q^T,
-the coefficients z = Q^T W^-1 s have the prior N(0, I), the dictionary becomes D' = D W Q, and
-trace(M Sigma) = trace(Lambda Sigma_z). Every cell's prediction d_c^T s = d'_c^T z is unchanged,
-so the greedy design on (D', Lambda, I) is exactly the scene-weighted design, at the cost of one
-n x K x K product to form D'. A uniform map (u = 1/n on every valid cell) is the plain design.
-
-What the design weighs (``design_usage``): the error the plan predicts and reports is the mapped
-(log) error the scene sees, weighted by u. A render, though, is linear in the BRDF, so the image's
-error at a cell is the mapped error times the cell's sensitivity g_c = d rho / d L; weighting by
-u g^2 (the first-order image error, at the prior mean) spends every sample on the prior mean's few
-brightest cells, and u alone on cells too dark to show. The design weighs u g^p exp(t p^2 v / 2)
-with a power p and a prior spread t that depend on the number of samples (``BANDS``,
-``sensitivity_power``, ``prior_spread``): v_c is the prior variance of cell c's mapped value, so
-t = 1 weighs E[g^p] under the prior (g is log-normal there) and t = 0 g at the prior mean. At
-p = 1 the spread can pile the weights onto a few hundred cells (a sky-lit grazing view), so a band
-may set a floor F on the weights' effective cells 1 / sum w^2 (``spread_floor``,
-``floor_spread``): each scene's t is then the largest up to the band's that keeps F (0 when even
-t = 0 is below F). Every band takes a power per scene (``scene_power``): the largest of 0.5,
-0.75 and 1 whose weights at t = 1 keep the band's count of effective cells: 3,300 up to
-FEW_SAMPLES = 14 samples, 4,000 from 15. Up to 14 samples a scene of p = 1 takes t up to 1 with
-the floor F = 6,000 cells, one of p = 0.5 or 0.75 t = 1 without a floor, its weights mixed half
-and half with the p = 1 floor design's (``mixed_weights``, MIX_FEW); from 15 samples t = 1
-(chosen on validation materials, BENCHMARKS.md@8b3941b "Skip what the scene does not need", issue 29
-rounds 3, 7, 8, 9, 10, 11 and 12; the comments at FEW_SAMPLES, POWERS_MOST, POWERS_FEW and
-MIX_FEW). A uniform map stays the plain design (no scene: the whole BRDF alike).
-``design_usage`` can also mix in the plain design's weight, (1 - a) / n + a u g^p / sum, a hedge
-against a misspecified posterior at few samples; HEDGE = 1 (not mixed) won on validation.
-"""
+With u (n_valid,) a scene's use of every cell (sum 1), the expected error the scene sees is
+trace(M Sigma), M = D^T diag(u) D. ``scene_prior`` and ``rotate`` change the coefficients' basis
+so that the plain greedy design on (D W Q, Lambda, I) is exactly the scene-weighted design. The weights
+are u g^p exp(t p^2 v / 2) (``design_usage``), with the power p, the prior spread t, the floor on
+the effective cells and the mix chosen per scene and number of samples (``BANDS``,
+``scene_power``, ``mixed_weights``). The derivation and the choice of the bands:
+docs/explanations/scene-aware-design.md, docs/decisions/0007-scene-aware-design-bands.md."""
 from __future__ import annotations
 
 import functools

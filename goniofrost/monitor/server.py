@@ -1,40 +1,11 @@
 """The monitor's HTTP server: the standard library's ``ThreadingHTTPServer`` and server-sent events.
 
-Why the standard library: the page is one document, a handful of JSON and PNG answers and one
-event stream to a few browsers. ``http.server`` (maintained with CPython) does that with no
-dependency and no event loop to share with a capture running in the same process, and its
-threads sleep while nothing changes. The page draws its charts itself as inline SVG
-(``static/monitor.js``), so nothing is loaded from anywhere but this server.
-
-Routes (GET and HEAD only: every other method is answered 405, nothing can be written):
-
-* ``/``: the page; ``/static/NAME``: its script and style sheet (package data, by name only);
-* ``/api/state``: the page state (``status.page_state``) as JSON;
-* ``/api/events``: server-sent events, ``state`` with the same JSON each time it changes;
-* ``/api/frame.png?sample=K``: the latest frame of journaled sample K with its region of interest;
-* ``/api/preview.png?done=N``: the reconstruction from the samples journaled so far;
-* ``/files/NAME``: a file of the session folder (``safe_path`` refuses anything outside it).
-
-Under load: the listening socket is accepted by one thread and every connection waits in a
-``WaitingRoom`` (one selector thread, no thread per socket) until its request head has arrived:
-then it is served by a pool of MAX_WORKERS threads; a connection that sends no full request within
-IDLE_TIMEOUT_S is closed, at most MAX_WAITING wait at once (the oldest are closed first), and the
-listen backlog is LISTEN_BACKLOG. Files are streamed in FILE_CHUNK pieces, at most MAX_TRANSFERS
-at once (more are answered 503 with a Retry-After), so memory does not grow with the file size or
-the number of readers; event streams are at most MAX_EVENT_STREAMS, so the pool always has threads
-for the other answers. A socket write blocked WRITE_TIMEOUT_S ends its connection.
-
-On a folder of sessions (``catalogue=True``) ``/`` is the catalogue (``monitor.catalogue``: one
-row per session, a link to each) and every route above is served under ``/s/NAME/`` for the
-session folder NAME listed there (nothing else: the name must be one of the listing's). The
-page uses relative addresses, so it is the same page at ``/`` and at ``/s/NAME/``.
-
-Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
-POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
-one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
-(between PICTURE_MIN_GAP_S and PICTURE_MAX_GAP_S): on a fast simulated capture some samples get
-no picture of their own; the last one does before the server stops.
-"""
+GET and HEAD only, on 127.0.0.1 by default: the page, its static files, ``/api/state`` (the page
+state as JSON), ``/api/events`` (server-sent events), ``/api/frame.png``, ``/api/preview.png``
+and ``/files/NAME`` (inside the session folder only); on a folder of sessions the catalogue at
+``/`` and each session under ``/s/NAME/``. Connections wait for their request head on one
+selector thread (``WaitingRoom``) and are served by a bounded pool; files are streamed in
+chunks. The routes, the limits and why the standard library: docs/explanations/monitor.md."""
 from __future__ import annotations
 
 import errno
