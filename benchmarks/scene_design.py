@@ -44,7 +44,7 @@ defaults for m samples, as ``plan --usage`` picks them: the sensitivity power fo
 design shipped before round 12 (``BEFORE``, ``BEFORE_BANDS``), and with ``--fewer``
 also the shipped design at 0.6 m (the goal's fewer-samples branch). Its renders run on Mitsuba's
 LLVM variant, on the newest LLVM of the machine (``goniofrost.brdf.drjit_llvm``; the runs in
-docs/BENCHMARKS.md named LLVM 19 by hand with DRJIT_LIBLLVM_PATH before that).
+BENCHMARKS.md@8b3941b named LLVM 19 by hand with DRJIT_LIBLLVM_PATH before that).
 
     .venv/bin/python benchmarks/scene_design.py \
         --spp 32 --no-export --validation-only --out DIR          # the choice
@@ -213,13 +213,13 @@ def image_errors(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 # of the tuple whose weights (at t, no floor on t) keep F effective cells, the smallest when none
 # does (``scene_power``; F is then the power's floor, not the spread's).
 # Round 8 (issue 29): the shipped design against the floor at p = 1 (validated at m <= 14 only; F
-# fixed before any result from round 7's effective cells, BENCHMARKS.md "Issue 29, round 8").
+# fixed before any result from round 7's effective cells, BENCHMARKS.md@8b3941b "Issue 29, round 8").
 # "shipped" is the design shipped before round 8 (t = 0 at m <= 14), kept under the name it was
 # validated with; F = 3,000 won and is now usage_design's default up to 14 samples. The
 # candidates of round 7 ("prior p-by-m", "prior p0.5", "prior p0.25": t = 1, no floor) and the hedge
-# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in those rounds' sections of BENCHMARKS.md.
+# candidates of round 3 ("g^0.5 a0.9" ... "g^1 a0.7") are in those rounds' sections of BENCHMARKS.md@8b3941b.
 # Round 9 (issue 29, chosen on ``--validation-set seeded`` at m = 40 for the band from 29 samples,
-# m = 20 reported; BENCHMARKS.md "Issue 29, round 9"; fixed before any result in
+# m = 20 reported; BENCHMARKS.md@8b3941b "Issue 29, round 9"; fixed before any result in
 # /work/scratch29r9/DECISION.txt): the shipped bands (select_bayes's defaults), a power per scene by
 # the effective cells of its weights at t = 1 (F = 4,000 and 8,000: on the model of all 151 shared
 # materials, 4,000 gives the retro sphere 0.75, the grazing plane 0.5 and the top light 1; 8,000 the
@@ -284,7 +284,7 @@ BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
 # last m of the band, select_bayes's keyword arguments); from 15 the same design as shipped
 # (rendered once). (Round 11's "before (round 10)", round 10's "before (round 9)", round 9's "before
 # (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
-# of BENCHMARKS.md.)
+# of BENCHMARKS.md@8b3941b.)
 BEFORE = "before (round 11)"
 BEFORE_BANDS = ((14, {"mix": 0.0}),)
 

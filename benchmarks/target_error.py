@@ -25,7 +25,7 @@ Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``built
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
 RGL) and ``rgl-merl`` (the other way round).
 
-Full size (run once, 3 December 2026, docs/BENCHMARKS.md: split 32 min, the three others 39 min,
+Full size (run once, 3 December 2026, BENCHMARKS.md@8b3941b: split 32 min, the three others 39 min,
 on a loaded 2-core machine; peak RSS 14.6 GB with the other three settings; one process, settings in turn;
 since the test materials are simulated CHUNK at a time, rgl-merl, the largest test set, peaks at 4.8 GB
 instead of 13.7 GB, with the same summary)::
@@ -63,7 +63,7 @@ SETTINGS = ("split", "builtin", "merl-rgl", "rgl-merl")
 TARGETS = (0.01, 0.02, 0.05)
 # Test materials simulated at once: their float64 values, log map and reconstructions are
 # (materials, cells, 3) arrays each, so all 100 MERL materials of rgl-merl at the full grid held
-# 7.5 GB between calls and peaked at 13.7 GB (docs/BENCHMARKS.md, "Issue 28 at the full grid").
+# 7.5 GB between calls and peaked at 13.7 GB (BENCHMARKS.md@8b3941b, "Issue 28 at the full grid").
 CHUNK = 20
 
 

@@ -1,28 +1,10 @@
 """A Basler machine-vision camera through pypylon (the optional ``pylon`` extra): ``camera: kind: pylon``.
 
-The camera is opened by serial number (or the first camera found) and set up once: auto exposure,
-auto gain and auto white balance off, the gain fixed (``gain_db``, read back), the pixel format
-of the rig file (Bayer or Mono, 12 or 16 bits), the image size of the camera model, a software
-trigger on FrameStart; its black level is read. Every rung of the exposure ladder is checked
-against the camera's exposure range before anything moves. Each ``capture`` sets the exposure in
-microseconds and reads it back: the value the camera reports is the one the frame was taken
-with, the one the calibration uses and the one written into the DNG (the emulated camera, for
-one, rounds 15.625 us to 16 us). Then one software trigger, one frame within ``timeout_s`` beyond
-the exposure, archived as a DNG (``drivers.dng``) with the exposure, gain and serial number in
-its tags, which ``drivers.rawfile.read_raw`` turns into the calibration's linear image (black
-level, white level 2^bits - 1).
-
-A Mono sensor's frame is archived in the same Bayer container: its "R", "G" and "B" pixels are
-the same grey response, so the session measures a grey BRDF (the metadata says ``monochrome``).
-
-Every failure (no camera, the wrong serial, a camera unplugged mid-session, a grab timeout, a
-failed frame) is one CameraError line; the session engine turns it into exit 2 with every sample
-so far kept for ``--resume``.
-
-``image_source`` (optional) is the image source of an emulated camera (``PYLON_CAMEMU``;
-``sim.pylon_scene``): ``prepare(device)`` once the device is open, ``serve(device, exposure_s,
-target)`` before each grab starts and ``started(device)`` once it has.
-"""
+The camera is opened by serial number (or the first found) and set up once: autos off, the gain
+fixed (``gain_db``), the rig file's pixel format, a software trigger. Each ``capture`` sets the
+exposure, reads back the one the camera took and archives the frame as a DNG with exposure, gain
+and serial number. Every failure is one CameraError line. ``image_source`` is an emulated
+camera's image source (``PYLON_CAMEMU``; ``sim.pylon_scene``). More: docs/explanations/camera.md."""
 from __future__ import annotations
 
 import logging

@@ -1,30 +1,10 @@
 """Forward and inverse kinematics: joints <-> light and view directions in the sample frame.
 
-Joints are float arrays (..., 3) in degrees, in the order (camera_arm, sample_yaw, sample_tilt)
-= (alpha, psi, tau). World frame: z up, sample at the origin, light L fixed and horizontal.
-
-Notes
------
-* Camera: C(alpha) = R_z(alpha) L (with L = (1, 0, 0): (cos a, sin a, 0)).
-* Stage: world-from-sample rotation M(psi, tau) = R_z(psi) R_y(-tau) R_z(beta) R0, where beta is the
-  light's azimuth and R0 has columns (x_s, y_s, z_s) = ((0,1,0), (0,0,1), (1,0,0)): at home
-  (psi = tau = 0) the sample stands upright facing the light, its own y axis pointing up.
-  The sample normal is then n = M e_z = R_z(beta + psi) (cos tau, 0, sin tau).
-* Sample-frame directions: w_i = M^T L, w_o = M^T C. The sample's own x and y axes turn with the
-  stage, so the azimuth of w_i in the sample frame depends on the pose; only (theta_i, theta_o,
-  phi_o - phi_i) is fixed by a measurement of an isotropic BRDF.
-* Joint zero offsets (``rig.alignment``, from ``goniofrost align``): an axis that reads q stands
-  physically at q + offset. ``forward`` adds the offsets to the joints it is given (the axes'
-  readings) before the geometry; ``inverse`` subtracts them from the geometric solution, so its
-  joints are the targets to command. Limits apply to commanded joints, the arm separation to the
-  physical arm angle.
-* Inverse: alpha = s * angle(w_i, w_o) (s = side of the light the arm's limits lie on). Write n in
-  the light's frame (L, L_perp, z): n.L = cos theta_i and n.C = cos theta_o give n_L and n_perp;
-  the third component is +-sin(tau). Branch 0 (``DIRECT``) takes tau with the sign that maps
-  (w_i, w_o) onto (L, C) by a proper rotation: forward(inverse(w)) equals w rotated about the
-  sample normal. Branch 1 (``MIRROR``) takes -tau: it reproduces the mirror image of (w_i, w_o)
-  (same theta_i, theta_o and |phi_o - phi_i|), the same isotropic BRDF value.
-"""
+Joints are float arrays (..., 3) in degrees, in the order (camera_arm, sample_yaw, sample_tilt);
+directions are unit vectors (..., 3) in the sample frame (z the normal). ``forward`` adds the
+rig's joint zero offsets (``rig.alignment``) to the readings before the geometry; ``inverse``
+returns the targets to command for both branches (0 direct, 1 mirror: the same isotropic BRDF
+value). The frames, the formulas and the notes on the two branches: docs/explanations/kinematics.md."""
 from __future__ import annotations
 
 import enum

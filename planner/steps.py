@@ -1,24 +1,11 @@
 """Joint targets on the axes' command lattices, as close to their cells as the lattices allow.
 
-A device goes to round(target x steps per degree) (``drivers.config.command_step_deg``): a
-Dynamixel servo's counts are 0.088 deg apart, so the direction measured lies up to 0.044 deg from
-the cell's. On the MERL grid theta_h's index is sqrt(theta_h / 90 deg) x 90: near theta_h = 0 that
-is two cells, and a specular peak is read in another cell than the one it is fitted to (40 % off
-the cell's value on gold-metallic-paint2 at the simulated rig's cell (0, 86, 0)). Three joints fix
-three angles, so the IK joints rounded onto the lattices miss; with the coarse axis on a lattice
-position the others can put the miss where the grid is coarse (theta_d, or phi_d, which near
-theta_h = 0 changes nothing: the BRDF is isotropic).
-
-``on_steps`` searches, for every sample at once, the joints on the lattices that bring the
-measured direction closest to the cell in the grid's index space: a weighted sum of the squared
-index differences of theta_h, theta_d and phi_d, phi_d taken with its symmetries (phi_d + 180 by
-reciprocity, -phi_d by isotropy, as the inverse kinematics' branches use them). ``plan`` weighs
-each axis by what the model expects a step there to change (``goniofrost.frost.cell_sensitivity``:
-the unweighted metric put the miss into theta_d at grazing, where diffuse RGL materials change
-fast); without weights they are 1, 1 and sin(theta_h) of the cell. A grid search around the IK
-joints, zoomed LEVELS times (vectorised; no optimiser loop per sample); the plain rounding is a
-candidate too, so no sample ends farther than it did by the metric used.
-"""
+``on_steps`` searches, for every sample at once, the joints on the lattices
+(``drivers.config.command_step_deg``) that bring the measured direction closest to its cell in
+the grid's index space: a weighted sum of the squared index misses of theta_h, theta_d and phi_d
+(phi_d with its symmetries), each axis weighed by what the model expects a step there to change
+(``goniofrost.frost.cell_sensitivity``). A grid search around the IK joints, zoomed LEVELS
+times; the plain rounding is a candidate too. Why: docs/decisions/0008-joint-targets-on-command-lattices.md."""
 from __future__ import annotations
 
 import itertools

@@ -1,6 +1,6 @@
 """Read every module's imports (ast) and check them against the project's layers.
 
-The layers, bottom to top (docs/ARCHITECTURE.md):
+The layers, bottom to top (docs/explanations/architecture.md):
 - ``goniofrost.core``: errors, config checks, atomic files, cache, grid. Imports nothing of the project.
 - the lower packages ``planner``, ``drivers``, ``calib``, ``sim``: of goniofrost, only the core;
   among themselves only as ``LOWER_ALLOWED`` says (the twins in sim share the drivers' protocol

@@ -21,7 +21,7 @@ from goniofrost.rig.hardware import open_camera
 from goniofrost.core.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
-# the README's recipe: capture and download into the watched folder, the shutter set by its label
+# the recipe of docs/explanations/camera.md: capture and download into the watched folder, the shutter set by its label
 RECIPE = "gphoto2 --set-config shutterspeed={shutter} --capture-image-and-download --filename {folder}/%Y%m%d-%H%M%S-%n.%C"
 SPEEDS = ["1/4000", "1/2000", "1/1000", "1/500", "1/250", "1/125", "1/60", "1/30", "1/15", "1/8", "1/4", "0.5",
           "1", "2", "4", "8", "15", "30"]
@@ -101,7 +101,7 @@ def test_a_key_the_camera_kind_never_reads_is_refused_not_ignored(kind, key, val
 
 
 def test_the_gphoto2_recipe_captures_into_the_folder_with_the_camera_s_label(gphoto2, tmp_path):
-    assert RECIPE in (REPO / "README.md").read_text() and RECIPE in (REPO / "config/rigs/template.yaml").read_text()
+    assert RECIPE in (REPO / "docs/explanations/camera.md").read_text() and RECIPE in (REPO / "config/rigs/template.yaml").read_text()
     settings = validate_camera_section(section(gphoto2), "rig.yaml")
     cam = open_camera(section(gphoto2))
     cam.connect()

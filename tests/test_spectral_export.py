@@ -26,7 +26,7 @@ from goniofrost.core.grid import MerlGrid
 from goniofrost.datasets import open_dataset
 from goniofrost.datasets.tabulate import tabulate_cached
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[1] / "docs" / "explanations" / "mitsuba-export.md"  # the claim below
 SMALL = MerlGrid(30, 30, 60)
 SMALL_OPTIONS = me.ExportOptions(theta_i=6, ndf=31, vndf_theta=31, vndf_phi=16, sample=12)
 MATERIALS = ("terracotta", "red-plastic", "gold")

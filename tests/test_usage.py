@@ -849,7 +849,7 @@ def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
     design of 10 samples takes the largest of 0.5, 0.75, 1 whose weights at t = 1 keep 3,300
     effective cells, t = 1 without a floor below p = 1; the counts, of the full grid's cells, leave
     every scene of this small grid 0.5 (the full-grid model of 151 materials gives the grazing plane
-    0.5 and the retro sphere and top light 1, BENCHMARKS.md "Issue 29, round 11"); since round 12 a
+    0.5 and the retro sphere and top light 1, BENCHMARKS.md@8b3941b "Issue 29, round 11"); since round 12 a
     scene of p = 0.5 is mixed half and half with the p = 1 floor design."""
     from goniofrost.brdf.mitsuba_usage import record_usage
     from goniofrost.frost.bayes_selection import select_bayes

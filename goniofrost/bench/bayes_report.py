@@ -99,7 +99,7 @@ def markdown(rows: list[dict], stats: dict, m_values, paper_table: dict) -> list
     targets = target_stats(rows, m_max)
     if targets:
         # the column is the saving of the mean sample count, 1 - mean / m_max: headed "fewer than
-        # m_max" it read as the share of captures that stopped early (docs/BENCHMARKS.md issue 14:
+        # m_max" it read as the share of captures that stopped early (BENCHMARKS.md@8b3941b issue 14:
         # 62.9 % under "fewer than 60", where 178 of the 200 captures, 89 %, had stopped early)
         lines += ["", f"Simulated capture --target-error E --confidence 0.95 (batches of {_batches_text()}, up to "
                       f"m_max = {m_max} samples):", "",

@@ -1,61 +1,12 @@
-"""Export a tabulated isotropic BRDF to the RGL tensor format that Mitsuba 3 renders.
+"""Export a tabulated isotropic BRDF to the RGL tensor format that Mitsuba 3 renders (RGB form).
 
-Mitsuba 3 (and pbrt-v4) read measured BRDFs only in the adaptive parameterisation of Dupuy and
-Jakob 2018 ("An Adaptive Parameterization for Efficient Material Acquisition and Rendering",
-ACM TOG 37(6)), through the ``measured`` plugin. This writes the RGB form, which Mitsuba 3's RGB
-variants load; the spectral form (``spectra``, ``wavelengths``), which Mitsuba's spectral
-variants and pbrt-v4 need, is ``goniofrost.brdf.rgl_spectral`` on the same fields. Sources
-followed, field by field:
-
-* Mitsuba 3 ``src/bsdfs/measured.cpp`` (v3.9.1): the fields, dtypes and the shapes that must
-  agree; ``u = sqrt(2 theta / pi)`` for elevations, ``u = (phi + pi) / (2 pi)`` for azimuths;
-  isotropic when ``phi_i`` has <= 2 entries (then the micro-normal azimuth is relative to
-  phi_i); ``eval = rgb(vndf.invert(u_m)) * ndf(u_m) / (4 sigma(u_wi))`` when ``jacobian`` is
-  1, and the sampling pdf ``vndf_pdf * luminance_pdf / (2 pi^2 u_m sin theta_m * 4 <wi, m>)``.
-* Mitsuba 3 ``include/mitsuba/core/distr_2d.h``: ``Marginal2D`` (replicated in
-  ``goniofrost.brdf.marginal2d``) and ``src/core/tensor.cpp`` / ``tensor_io.py`` for the file
-  layout (``goniofrost.brdf.rgl_tensor``).
-* RGL ``brdf-loader`` (``powitacq_rgb.inl``): the same evaluation and sampling, and the
-  conventions of the RGB files (``rgb`` is the cosine-weighted BRDF f cos theta_o divided by
-  ``ndf / (4 sigma)``).
-* The virtual acquisition of the paper's pipeline in NVIDIA Falcor
-  (``Rendering/Materials/RGLAcquisition.cs.slang``), for the order of the steps.
-
-The steps (paper, sections 4 and 5), all on the BRDF table itself:
-
-1. NDF from the retro-reflection slice. With masking-shadowing fully correlated at
-   retro-reflection, f(w, w) cos theta = F D(w) / (4 sigma(w)), so D is, up to a factor, the
-   eigenvector of D(w) = f(w, w) cos theta * integral <w, m>+ D(m) dm with the largest
-   eigenvalue: found by power iteration on nodes u_k = k / (ndf - 1) (for the MERL grid, the
-   table's own theta_h cell edges), D piecewise linear in u. Luminance of the RGB BRDF.
-2. sigma(w) = integral <w, m>+ D(m) dm, the projected area of the microsurface, normalised
-   with D so that sigma(normal) = 1. ``ndf`` and ``sigma`` hold these.
-3. Incident elevations theta_i spaced so that sigma(theta_i) is uniformly spaced (paper;
-   Falcor's ``computeTheta``).
-4. Per theta_i, the VNDF D_w(m) <w_i, m>+ / sigma_w(w_i) on a (phi_m, theta_m) grid in u-space,
-   times the Jacobian 2 pi^2 u sin theta_m of u -> solid angle. With the options
-   ``warp_exponent=1, uniform_share=0`` D_w = D: the paper's VNDF. The default D_w is
-   D**0.75 mixed with 10 % of the uniform NDF 1/pi. The warp decides which micro-normals the
-   ``rgb`` nodes stand for, and the paper's VNDF leaves a metal's off-specular directions
-   (1e-3 of its VNDF: less than one rgb cell, near float32's CDF resolution) without a node:
-   Mitsuba's eval there is off by tens of percent (benchmarks/mitsuba_export.py). The
-   exponent trades the highlight's nodes against the tail's (README, "Export to Mitsuba 3").
-5. Per theta_i, the ``rgb`` table on the warped unit square: each node is warped exactly as
-   Mitsuba will warp it (the Marginal2D replica) to a micro-normal m and w_o = reflect(w_i, m);
-   the node holds f(w_i, w_o) cos theta_o * 4 sigma(w_i) / D(m), so that Mitsuba's eval
-   returns the table's f cos theta_o exactly at every node (``jacobian`` = 1). ``luminance``,
-   the density Mitsuba samples before the VNDF warp, is Y(f cos theta_o) / p_warp(w_o)
-   = Y(rgb) D / D_w: the product of the two warps then samples w_o in proportion to the
-   luminance of f cos theta_o, whatever D_w is (with D_w = D it is the paper's Y(rgb)).
-
-The BRDF between cells is the table's cell value (the lookup every MERL renderer and
-``goniofrost.brdf.preview`` make). Invalid cells (beyond the horizon at their lower edge) take
-the value of the last valid cell along theta_d, so that directions near the horizon still get
-the lobe's value; missing values (NaN) on valid cells read as 0.
-
-Mitsuba is not needed here: the warp it applies is replicated in numpy and tested against
-Mitsuba's own ``MarginalContinuous2D0``.
-"""
+Builds the fields of Dupuy and Jakob 2018 from the table itself, as Mitsuba 3's ``measured.cpp``
+reads them: the NDF from the retro-reflection slice by power iteration, its projected area
+sigma, incident elevations evenly spaced in sigma, the VNDF (warp D^0.75 mixed with 10 % of a
+uniform NDF by default, ``ExportOptions``) and ``rgb`` = f cos theta_o * 4 sigma / D at the nodes
+of the warped square, so that Mitsuba's eval returns the table's value at every node. Mitsuba is
+not needed: its warp is replicated in numpy (``marginal2d``). The steps and their sources:
+docs/explanations/mitsuba-export.md; the warp's choice: docs/decisions/0009-mitsuba-export-warp.md."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -9,7 +9,7 @@ the share of the renderer's visits per cell, the cells whose error the image can
 sample is kept only when its ray reaches an emitter (it hits an area light, or escapes to the sky):
 a sampled direction that misses every light carries nothing to the image, and with a small area
 light most of them miss (the sphere under the soft box: counting them all put most of the map on
-cells the render never lights, and the scene-aware design on them; BENCHMARKS.md). With delta
+cells the render never lights, and the scene-aware design on them; BENCHMARKS.md@8b3941b). With delta
 lights alone (point, spot, directional) no sampled direction reaches light and only the
 evaluations towards the emitters carry the image. ``render_with_bsdf`` renders the same scene with the object's BSDF replaced (the
 benchmark renders reconstructions this way).

@@ -1,32 +1,10 @@
 """The spectral RGL tensor file: what pbrt-v4's ``measured`` material and Mitsuba 3's spectral variants read.
 
-The same fields as the RGB export (``goniofrost.brdf.mitsuba_export``: ``ndf``, ``sigma``,
-``theta_i``, ``phi_i``, ``vndf``, ``luminance``, ``jacobian``, computed by the same code), with
-``rgb`` replaced by
-
-* ``wavelengths`` (n_lambda,) float32, nm: evenly spaced over WAVELENGTH_RANGE_NM;
-* ``spectra`` (phi_i, theta_i, n_lambda, n, n) float32: each rgb node lifted to a smooth
-  spectrum by Jakob and Hanika's sigmoid-polynomial model with the unbounded-RGB rule of pbrt-v4
-  and Mitsuba 3 (``goniofrost.brdf.srgb_spectra``), sampled at ``wavelengths``.
-
-Layout and checks follow pbrt-v4's reader (``src/pbrt/bxdfs.cpp``, ``MeasuredBxDFData::Create``,
-mmp/pbrt-v4) and Mitsuba 3's ``src/bsdfs/measured.cpp``: ``spectra`` is 5-D float32 with
-shape[0] = len(phi_i), shape[1] = len(theta_i), shape[2] = len(wavelengths), shape[3] =
-shape[4] = the luminance's shape[2:4]; both read it as a ``PiecewiseLinear2D<3>`` /
-``Marginal2D<3>`` whose third parameter is the wavelength, i.e. linear between the wavelength
-nodes and clamped outside them. Mitsuba's RGB variants refuse a file with ``spectra`` and its
-spectral variants one without, so RGB and spectral are two files.
-
-Why 32 nodes over 380-780 nm (13 nm apart): the renderer interpolates linearly between the nodes,
-and that, not the model, sets the round trip RGB -> spectrum -> RGB (under D65, CIE 1931): over
-the surface of the sRGB gamut (the hardest colours) the worst is 0.89 % of the largest channel
-(0.882 % on 41 x 41 chromaticities per face, 0.886 % on 101 x 101 or finer, near (1, 0, 0.37); a node of
-MERL black-obsidian's export reached 0.887 %), 1.2 % with 32 nodes over Mitsuba's 360-830 nm,
-0.94 % with 36 there;
-the built-in materials' nodes stay under 0.5 %. Beyond 380-780 nm the CIE weights are below 1e-3
-of their peak. The file is n_lambda / 3 times the RGB file's rgb field (100 MB at full
-resolution; ``--sample 64`` quarters it).
-"""
+The same fields as the RGB export (``mitsuba_export``), with ``rgb`` replaced by ``wavelengths``
+(n_lambda,) float32 in nm, evenly spaced over WAVELENGTH_RANGE_NM, and ``spectra`` (phi_i,
+theta_i, n_lambda, n, n) float32: each rgb node lifted to a smooth spectrum (``srgb_spectra``).
+The layout follows pbrt-v4's ``MeasuredBxDFData::Create`` and Mitsuba 3's ``measured.cpp``. Why
+32 wavelengths over 380-780 nm: docs/decisions/0009-mitsuba-export-warp.md."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,29 +1,10 @@
 """Linear sRGB values -> smooth spectra: the sigmoid-polynomial model of Jakob and Hanika 2019.
 
-"A Low-Dimensional Function Space for Efficient Spectral Upsampling" (Computer Graphics Forum
-38(2), 2019) represents a reflectance by three coefficients, r(lambda) = S(c0 lambda^2 +
-c1 lambda + c2) with S(x) = 1/2 + x / (2 sqrt(1 + x^2)) (lambda in nm), and tabulates the
-coefficients that reproduce every sRGB colour under D65 (CIE 1931 2 deg) on a 3 x 64^3 grid.
-Mitsuba 3 and pbrt-v4 upsample RGB input with exactly this model; the table used here is
-Mitsuba 3's own published ``srgb.coeff`` (made by its ``rgb2spec_opt``; Mitsuba 3 is
-BSD-3-Clause licensed), so a spectrum written here is the spectrum Mitsuba itself would make of
-the same RGB value.
-
-BRDF values are not reflectances: they exceed 1. Both renderers upsample such unbounded RGB
-(pbrt-v4's ``RGBUnboundedSpectrum``, Mitsuba 3's RGB emitter spectra in its spectral variants)
-the same way, and so does this module, for every value alike:
-
-    scale = 2 max(r, g, b);  spectrum(lambda) = scale * r_coeff(rgb / scale)(lambda)
-
-so the table is only ever read at a largest component of exactly 1/2, and the shape of a
-spectrum depends on the chromaticity alone (a value and twice that value have the same shape).
-The table's z axis has no node at 1/2; rgb2spec's trilinear fetch interpolates between the two
-nodes around it, which is the same as interpolating once in z and then bilinearly in x, y.
-``data/srgb_half.npy`` (3 x 64 x 64 x 3 float32, 147 kB) holds that z-interpolated slice, so
-export needs no Mitsuba at run time; ``slice_of_coeff_file`` makes it from a ``srgb.coeff``
-(the test checks the shipped slice against the installed Mitsuba's file and the spectra against
-Mitsuba's own ``srgb_model_fetch``/``srgb_model_eval``).
-"""
+An RGB value (r, g, b) of any size becomes scale * model(rgb / scale)(lambda), scale =
+2 max(r, g, b), as pbrt-v4 and Mitsuba 3 lift unbounded RGB, so the coefficient table is read at
+a largest component of 1/2 only: ``data/srgb_half.npy`` (3 x 64 x 64 x 3 float32) is that slice
+of Mitsuba 3's ``srgb.coeff`` (``slice_of_coeff_file`` makes it), and export needs no Mitsuba.
+More: docs/explanations/mitsuba-export.md."""
 from __future__ import annotations
 
 from functools import lru_cache

@@ -1,32 +1,11 @@
 """The session journal: every captured sample, committed to SQLite the moment it is measured.
 
-One file ``DIR/session.sqlite`` (WAL mode, ``synchronous=FULL``: a committed transaction
-survives SIGKILL and power loss) holds
-
-* ``meta``: the session's plan (JSON), rig file text and kinematic hash, model path and hash,
-  the simulated material, the format version, and its ``label`` (a ``SessionLabel``: operator,
-  sample id, notes, the rig's lab section);
-* ``calibration``: the calibration record (JSON), at most one row;
-* ``samples``: one row per measured plan sample, keyed by its plan index (so a sample can
-  never be stored twice), with its values, uncertainties, SNR, RAW paths and timestamps,
-  written in ONE transaction after the sample is measured;
-* ``not_measured``: one row per plan sample the rig could not measure (a ``NotMeasuredRecord``:
-  its reason, e.g. below the detection limit, the SNR reached per channel, the longest exposure,
-  the upper limit of its BRDF per channel, its frames), keyed by its plan index too: the sample is
-  done (a resume does not take it again) but has no value (a plan index is in one table at most);
-* ``events``: what happened to the devices and the session (homing, faults, interruptions), each
-  of a kind of ``goniofrost.capture.records.EventKind``;
-* ``runs``: one row per run of the engine: its ``RunStart`` when it begins and its ``RunEnd``
-  (status, reason, counts) when it ends; a killed run has no end (``Journal.runs``);
-* ``steps``: every step of the session plan as the engine executes it (one row per step: its
-  run, kind, plan sample, fields, status ``running`` -> ``done``/``failed``/``interrupted``, a
-  summary of its result, start and end times). Rows are written as steps start and end, without
-  waiting for the disk (``synchronous=NORMAL``: they survive SIGKILL; the next sample commit or
-  event makes them durable against power loss too), so a monitor can follow the session live.
-
-``samples.csv`` beside it is a derived view (``SamplesCsv``): appended, flushed and fsynced
-per sample, and rewritten from the journal on resume so that a torn last line cannot survive.
-"""
+``DIR/session.sqlite`` (WAL, ``synchronous=FULL``: a committed sample survives SIGKILL and power
+loss) holds the session's meta data, its calibration, one row per measured sample and per sample
+not measured (keyed by plan index: never stored twice), the events, the runs (``RunStart`` /
+``RunEnd``) and every step of the plan as it runs. ``samples.csv`` beside it is a derived view
+(``SamplesCsv``), rewritten from the journal on resume. The tables:
+docs/reference/file-formats.md."""
 from __future__ import annotations
 
 import json

@@ -85,7 +85,7 @@ def sticky(bound: ErrorBound, earlier: Sequence[dict]) -> ErrorBound:
     material's standardized sentinel scores over every look (``confidence._sentinel_spread``):
     at most 5 % of materials like the training ones are ever flagged, so a flag speaks of the
     material, not of one look, and a later look that happens to agree does not undo it. Measured
-    (docs/BENCHMARKS.md, issue 28, "On a rig"): trained on MERL among the simulated rig's cells,
+    (BENCHMARKS.md@8b3941b, issue 28, "On a rig"): trained on MERL among the simulated rig's cells,
     9 RGL captures stopped at 0.05 with the flag per look, 4 of them above it, all flagged at an
     earlier batch; with the flag kept 1 stopped (within)."""
     flagged = any({"sentinel", "sentinel_earlier"} & set(a.get("out_of_model") or ()) for a in earlier)

@@ -1,35 +1,13 @@
 """Compiled (numba) kernels of the Bayesian selection: one fused pass over D per greedy step,
 shared by several designs on the same dictionary.
 
-For every candidate cell c (dictionary row d_c, K float32) the selection keeps two quadratic
-forms of the posterior covariance Sigma (K x K) of the coefficients:
-
-* ``q[c] = d_c^T Sigma d_c`` (the posterior variance of the mapped BRDF at c, noise excluded);
-* ``p[c] = d_c^T Sigma S^2 Sigma d_c`` (how much measuring c would reduce trace(S^2 Sigma),
-  up to the factor 1 / (noise[c] + q[c])).
-
-After a pick with u = Sigma d_j and delta = noise[j] + d_j^T u, Sigma loses u u^T / delta, so
-with a = d_c . u and g = d_c . (Sigma S^2 u) both forms change by rank-1 terms:
-``q -= a^2 / delta`` and ``p += -2 a g / delta + a^2 (u^T S^2 u) / delta^2``. A step therefore
-reads each row of D once, updates q and p in place and returns the best score
-``p / (noise + q)`` of its range of cells (lowest index on ties). Every cell's numbers depend
-on that cell only, so the result does not depend on how the cells are split among threads.
-
-Several designs (S of them: the training's inner cross-validation runs one per noise scale on
-each fold's dictionary) share each pass: a row of D is read from memory once and, while it is
-in cache (tiles of TILE_ROWS candidates), every design's forms of those cells are updated. Each
-design's arithmetic is the single design's, in the same order (``_update_one``), so its numbers
-are the same to the bit with or without the designs beside it.
-
-Arrays: dictionary float32 (n_valid, K) (a memory-mapped model is fine); rows int64 (n_c,) the
-candidate rows of D, or empty for every row (candidate i is row i: a pass then reads no index,
-8 of its ~290 bytes a cell); q, p float64 (S, n_c); noise (S, n_c) float64, or float32 when
-every value is a float32 exactly (a model's learned noise times a power-of-two design scale:
-the same bits once widened, 4 bytes a cell less) (+inf closes a cell: its score is 0);
-prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64 (S,). Each kernel
-takes a range [i0, i1) of candidates, writes every design's best score of the range and its
-index (lowest on ties; -1 if none) into best (S,) and best_i (S,), and releases the GIL.
-"""
+For every candidate cell the kernels keep q = d^T Sigma d and p = d^T Sigma S^2 Sigma d, update
+both by rank-1 terms after a pick and return the best score p / (noise + q) of a range of cells
+(lowest index on ties), so the result does not depend on the threads. Arrays: dictionary float32
+(n_valid, K); rows int64 (n_c,) (empty: every row); q, p float64 (S, n_c); noise (S, n_c) float64
+or float32 (+inf closes a cell); prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64
+(S,); best, best_i (S,). Each kernel releases the GIL. The algebra:
+docs/explanations/bayesian-design.md."""
 from __future__ import annotations
 
 import numpy as np

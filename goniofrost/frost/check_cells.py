@@ -1,22 +1,9 @@
-"""Check cells: a few cells chosen on the training materials where the model errs, measured with
-the first batch beside the sentinels and never fitted (issue 28, round 6 of docs/BENCHMARKS.md).
+"""Check cells: a few cells chosen at training where the model errs, measured with the sentinels and never fitted.
 
-Most of a held-out material's error is what no combination of the atoms represents, and nothing
-the design's samples carry shows it. The geometric sentinels (``sentinel.py``) look where the
-design never goes; the check cells are chosen by data: on training's inner cross-validation, the
-posterior of the design's samples of every held-out training material predicts a fixed ``pool``
-of candidate cells (a farthest-point sample of the valid cells' (w_i, w_o), outside every inner
-design and the sentinels, among a rig's cells when training has a rig), and CHECKS of them are
-chosen greedily (``choose``): the ones whose log mean squared error, added to the point
-prediction's features (the 17 and the sentinels' log error), best predicts log(actual error),
-cross-fitted over the inner folds and averaged over the looks m >= FIRST_LOOK.
-
-The checked calibration (``fit_checked``) has those 19 features (``prediction.CHECKED_FEATURES``),
-is used when a capture measured the sentinels and the check cells, and its bound is calibrated on
-NESTED residuals: each inner fold's records predicted with cells chosen without that fold's
-materials (residuals of cells chosen on the same records are optimistic, and a conformal bound on
-them would under-cover). The sentinels' out-of-model flag stays against the unchecked prediction.
-"""
+``pool`` is a farthest-point sample of candidate cells outside every inner design and the
+sentinels; ``choose`` picks CHECKS of them greedily on the inner records, those whose log error
+best predicts the log of the actual error; ``fit_checked`` fits the 19-feature checked
+calibration, its bound on nested residuals. Why: docs/explanations/sentinels.md."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,69 +1,13 @@
 """A calibrated upper bound on a reconstruction's error, and samples unlike every training material.
 
-The point prediction (``prediction.py``) says how large a material's error typically is; an
-operator who stops a capture on it cannot tell how sure that is. This module turns it into a
-statement with a stated confidence: "the error is at most U with probability c".
-
-The bound is split-conformal on the prediction's log residual, calibrated on the held-out
-training materials of training's inner cross-validation (``calibration.py``):
-
-* cross-fitted residuals: for every inner fold f the calibration is fitted again without the
-  fold's records, and r = log(actual) - log(predicted) is taken on the fold's held-out
-  materials (each residual comes from a predictor that never saw that material: the
-  exchangeability split-conformal needs, with the materials as the exchangeable units);
-* per m, the residuals' median c_m and spread s_m (their standard deviation; they shrink as
-  samples accumulate: 0.6 at m = 15, 0.36 at m = 60 on a fold of MERL + RGL);
-* one score per held-out material, the largest of (r_m - c_m) / s_m over every m at which a
-  capture can stop (m >= stopping.FIRST_BATCH): a *simultaneous* band. A capture looks after
-  every batch and stops at the first look whose bound is small enough; with a bound that holds
-  at every look at once, P(error at the stop <= bound at the stop) >= c whatever look the rule
-  stops at (no penalty for looking many times, no optional-stopping bias);
-* the bound at confidence c is predicted * exp(c_m + q s_m), q the ceil((n + 1) c)-th smallest
-  of the n materials' scores (the finite-sample conformal quantile; infinite when
-  ceil((n + 1) c) > n: too few training materials for that confidence).
-
-The median estimate is predicted * exp(c_m). c_m and s_m between the calibrated m are
-interpolated in log m (clamped at the ends).
-
-Out of the model: the features the prediction is made from are z2 (the samples' leave-one-out
-residuals against their model variance) and the coefficient energy. The calibration records the
-largest of each among the held-out training materials at every m; samples whose z2 or energy
-lies more than a factor OUT_OF_MODEL_FACTOR beyond that are unlike every training material, the
-bound (calibrated on training materials) says nothing about them, and the capture must not stop
-on it (``stopping.stop_reason``).
-
-Out of the calibration's designs: the prediction's features also describe the design (its
-design error E at m samples), and the calibration saw only the designs of its inner folds, whose
-log E at each m lies within a narrow range (0.08 to 0.35 wide: 10 folds, full grid, builtin
-library). Samples of a design whose log E at m lies more than log OUT_OF_MODEL_FACTOR beyond the
-range recorded at that m (either side; interpolated in log m, clamped at the ends) are out of the
-model too ("design"): the calibration learnt log m where it could as well have learnt log E (the
-two move together in every design it saw: coefficient -4.05 on log m, 0.19 on log E), so a
-design that gains little from its samples gets the error of a good design of that many samples.
-Measured (full grid, builtin without gold): ``plan --max-angle 0.5`` (cells of one direction
-pair) has log E 0.17 at every m against -7.24 to -6.99 at m = 15, and its median estimate was
-1e-4 to 7e-4 against actual errors of 1.3 to 1.6; a plan within 70 degrees of the normal lies
-0.42 beyond the range at m = 15 and 0.8 to 3.4 beyond it from m = 20 (at m = 40 its bound was
-1.7 to 15 times below the actual error of 4 materials); the model's own plans lie at most 0.06
-beyond it, the simulated rig's at most 0.18.
-
-``feature_distance`` measures how typical the samples' (log z2, log energy, level, log spread)
-are among the held-out training materials' (Mahalanobis, per m). The benchmark measures it and
-the rule does not use it: across databases (trained on MERL, tested on RGL) it fires on the
-materials the bound covers and not on those it misses (docs/BENCHMARKS.md, issue 28), whose
-samples look like training materials while their error sits where the design does not sample.
-``prequential_excess`` does the same for a genuinely held-out statistic: each sample predicted
-from the ones measured before it (``posterior.prequential_errors``). Measured the same way, it
-fails the same way: the missed materials' samples are predicted as well as a typical training
-material's (their error sits at unsampled grazing cells, where no design sample sees it).
-
-``sentinel_excess`` looks there: the error at a few sentinel cells in the region the design
-leaves empty (``sentinel.py``), never fitted, against the predicted error, calibrated on the
-held-out training materials like the bound (simultaneous over the looks). Given a capture's
-sentinel error (``error_bounds(check=)``), beyond the SENTINEL_CONFIDENCE quantile the samples
-are out of the model ("sentinel"). Trained on MERL it flags 15 of the 16 RGL captures that
-stopped at 0.05 (9 of them wrongly) and 3 to 5.5 % of the split's (docs/BENCHMARKS.md, issue 28).
-"""
+``fit_bound`` calibrates, on the held-out training materials of training's inner
+cross-validation, a split-conformal bound on the point prediction (``prediction.py``) that holds
+at every look of a capture at once; ``error_bounds`` gives a capture's bound and median estimate
+at a confidence, and says when the samples or the design are out of the model (``z2``, energy or
+design error beyond the calibration's range by OUT_OF_MODEL_FACTOR) or the sentinels flag them
+(``sentinel_excess``). ``feature_distance`` and ``prequential_excess`` are benchmark diagnostics
+the rule does not use. Why each part: docs/explanations/error-bound.md and
+docs/decisions/0004-calibrated-stopping-rule.md."""
 from __future__ import annotations
 
 import math
@@ -219,7 +163,7 @@ def prequential_excess(calibration: dict, score, m) -> np.ndarray:
     materials' at m (interpolated in log m; > 1: worse predicted than 95 % of them; NaN when
     the model has no such record). A diagnostic the benchmark measures; the rule does not use it
     (across databases it fires on the materials the bound covers, not on those it misses:
-    docs/BENCHMARKS.md, issue 28)."""
+    BENCHMARKS.md@8b3941b, issue 28)."""
     bound = calibration.get("bound") or {}
     if "log_prequential_q95" not in bound:
         return np.full(np.broadcast(score, m).shape, np.nan)

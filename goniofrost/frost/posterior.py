@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 
 # Noise of a model without a learned noise model (format version 1): sigma^2 = SCALAR_ETA / t
 # per cell, i.e. the posterior mean is ridge regression over all K atoms with eta = 10 (the
-# setting the nested validation on training materials chose in every fold; BENCHMARKS.md).
+# setting the nested validation on training materials chose in every fold; BENCHMARKS.md@8b3941b).
 SCALAR_ETA = 10.0
 # Rows of D per chunk of the predictive-variance pass (bounds the temporary (rows, K) arrays).
 CHUNK_ROWS = 1 << 15

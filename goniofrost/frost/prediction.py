@@ -1,50 +1,11 @@
 """The predicted error of one reconstruction: what its own samples say, calibrated at training.
 
-The posterior (``posterior.py``) gives the design error E (the mean predictive variance over
-all cells, the same for every material measured at the same cells). What makes one material
-harder than another shows in its own samples:
-
-* z2: the mean squared closed-form leave-one-out residual at the sampled cells, each divided
-  by its variance under the model (about 1 for a material the model describes well);
-* energy: the mean squared posterior coefficient times t (about 1 for a typical training
-  material; large for materials far from the training set).
-
-* level and spread: the mean and the (log) variance of the samples' own mapped values (log
-  BRDF relative to the training reference, minus the training mean), over the sampled cells and
-  channels: how bright and how contrasted the material is where it was measured. They say what
-  z2 and energy cannot: which kind of material it is (measured on the held-out training
-  materials of one benchmark fold, 45 x 45 x 90 grid: with level alone the median estimate fell
-  within a factor 2 of the truth for 82 instead of 72 % of them at m = 15).
-
-* coordinates: the posterior coefficients on the model's first COORDINATES atoms times
-  sqrt(t) (about unit spread over the training materials), averaged over the channels: where
-  among the training materials this one lies, which a few samples determine well. Most of a
-  held-out material's error is what no combination of atoms represents, the same at every m
-  (its median share of the error at m = 15 is a fifth to a third, but its log, were it known,
-  added to the other features would put 96 to 100 % of the held-out materials within a factor
-  2), and it depends on the kind of material (on the
-  inner folds of 8 training settings, cross-fitted: within a factor 2 at m = 15 for 86.2
-  instead of 83.1 % on average, the log residual's spread 0.479 instead of 0.515).
-
-The predicted log-relative MSE of the whole reconstructed BRDF is
-
-    log(predicted) = b . x,  x = (1, log E, log z2, log energy, log m', level, level^2,
-                                  log spread, (log z2)^2, (log energy)^2, log z2 log energy,
-                                  c_1 .. c_6),
-
-m' = the number of sampled cells clamped into the range the coefficients were fitted on. The
-coefficients come from the model (fitted by least squares on held-out training materials,
-``calibration.py``, the design error's coefficient held >= 0 and log m's <= 0 so that more
-samples never predict more error: ``fit_coefficients``); a calibration with 5 coefficients
-(models trained before level and spread) uses the first 5 features, one with 11 the first 11
-(a model's inner folds choose among 5, 11 and 17); a model without one uses
-b = (0, 1, 1, 0, 0), i.e. E * z2. The quadratic terms let the slope of z2 and energy bend: the held-out materials' log error is not
-linear in them (one fold: 84 / 88 / 92 % within a factor 2 at m = 15 / 20 / 25 with every
-term, 72 / 81 / 87 % with the first five; cross-fitted on the inner folds). The training
-materials' samples are exact, so measured samples with their own variance get the calibrated
-prediction with E computed without that variance, plus the increase of E it causes (what the
-model says the measurement noise costs; ``reconstruction._posterior``).
-"""
+log(predicted log-relative MSE) = b . x, with x the design error E, the samples' leave-one-out
+residual z2, their coefficient energy, log m, their level and spread, quadratic terms and the
+material's coordinates on the first COORDINATES atoms (17 features; models of older formats use
+the first 5 or 11). The coefficients b come from ``calibration.py`` (``fit_coefficients``: E's
+held >= 0 and log m's <= 0). A model without a calibration predicts E * z2. The features and why:
+docs/explanations/bayesian-design.md."""
 from __future__ import annotations
 
 import itertools

@@ -1,24 +1,10 @@
 """Sentinel samples: a few cells the design leaves empty, measured as a held-out check.
 
-The calibrated bound (``confidence.py``) holds for materials exchangeable with the training
-ones. A material from another population can look like a training material at every cell
-the design samples and err elsewhere: trained on MERL, the diffuse RGL materials (felts,
-papers, spectralon) the bound missed had 48 % of their error at theta_d > 80 degrees and 28 %
-at theta_h > 70 degrees (4 % of the cells each), where the first 30 design cells never go, and
-no statistic of the design's samples told them apart (docs/BENCHMARKS.md, issue 28). The A-optimal
-design cannot be asked where to look: its variance is small exactly where the training set
-agrees with itself.
-
-So a few cells are chosen by geometry alone, spread over that region (``cells``: farthest-point
-sampling of the cells' (w_i, w_o) among the candidates with theta_d > 80 or theta_h > 70
-degrees), measured with the first batch and never fitted: at every look the posterior of the
-design's samples predicts them, and their mean squared mapped error (``check_error``) is compared
-with the median estimate of the whole error. The ratio is calibrated like the bound, on the
-held-out training materials of training's inner cross-validation (``confidence.fit_bound``);
-beyond the ratio of all but 5 % of them (SENTINEL_CONFIDENCE, simultaneous over the looks), the
-error where the check looked is not what the model predicts: the capture is out of the model,
-measures on and never stops on the bound.
-"""
+``cells`` chooses them by geometry alone (farthest-point sampling of (w_i, w_o) among candidates
+with theta_d > 80 or theta_h > 70 degrees); they are measured with the first batch and never
+fitted, and ``check_error`` is their mean squared mapped error under the posterior of the
+design's samples, which ``confidence`` calibrates like the bound (SENTINEL_CONFIDENCE). Why:
+docs/explanations/sentinels.md, docs/decisions/0005-sentinels-and-check-cells.md."""
 from __future__ import annotations
 
 import numpy as np
@@ -52,7 +38,7 @@ def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None 
     (at theta_h = 0 every phi_d is one configuration), so the grazing mirror pose is measured
     twice. Measured, that repeat is what the check needs: a distance that makes them one point
     picks a third pose instead, and trained on MERL the sentinels then flag 21 to 23 of the 51 RGL
-    materials instead of 33 (docs/BENCHMARKS.md, "three sentinel poses instead of two")."""
+    materials instead of 33 (BENCHMARKS.md@8b3941b, "three sentinel poses instead of two")."""
     mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
     where = np.flatnonzero(mask)
     if where.size == 0 or count < 1:

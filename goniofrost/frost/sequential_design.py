@@ -2,7 +2,7 @@
 
 The scene-aware design (``usage_design``) weighs each cell by u g^p, g the image's sensitivity to
 the mapped value at the PRIOR mean: a fixed design cannot know that the material in the rig has a
-sharp highlight the prior mean lacks (BENCHMARKS.md, issue 29 round 4). Once some samples are
+sharp highlight the prior mean lacks (BENCHMARKS.md@8b3941b, issue 29 round 4). Once some samples are
 measured, their posterior mean L_hat = mu + D s_hat (``posterior.fit``, the reconstruction's noise)
 says more: ``continue_design`` takes g at L_hat (averaged over the channels in the mapped domain)
 and continues the greedy design from the picks so far under the weights u g_post^p.

@@ -119,7 +119,7 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     # A rig's designs pick among its cells only: designs over the whole grid reach cells the rig
     # cannot, and a rig reaching within 70 deg of the normal lay 0.8 to 2.9 (log) beyond their
     # design range from m = 20, its bound 3.6 to 17 x below the actual error at m = 40
-    # (docs/BENCHMARKS.md, "Designs among a rig's cells").
+    # (BENCHMARKS.md@8b3941b, "Designs among a rig's cells").
     rows = None if sentinel_candidates is None else np.flatnonzero(sentinel_candidates)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,

@@ -1,37 +1,12 @@
 """The scene-aware Bayesian design: the expected error of what a scene sees, in the plain design's form.
 
-With u_c a scene's use of cell c (``goniofrost.brdf.usage``, sum 1), the expected squared error of
-the mapped BRDF that the scene sees is sum_c u_c d_c^T Sigma d_c = trace(M Sigma), with the K x K
-matrix M = D^T diag(u) D (DESIGN.md, "Scene-aware design"). The plain design's trace(S^2 Sigma)
-has a diagonal S^2 and a diagonal prior, which its one-pass kernels rely on. A change of the
-coefficients' basis keeps that form: with W = diag(sqrt(prior_var)) and W M W = Q Lambda Q^T,
-the coefficients z = Q^T W^-1 s have the prior N(0, I), the dictionary becomes D' = D W Q, and
-trace(M Sigma) = trace(Lambda Sigma_z). Every cell's prediction d_c^T s = d'_c^T z is unchanged,
-so the greedy design on (D', Lambda, I) is exactly the scene-weighted design, at the cost of one
-n x K x K product to form D'. A uniform map (u = 1/n on every valid cell) is the plain design.
-
-What the design weighs (``design_usage``): the error the plan predicts and reports is the mapped
-(log) error the scene sees, weighted by u. A render, though, is linear in the BRDF, so the image's
-error at a cell is the mapped error times the cell's sensitivity g_c = d rho / d L; weighting by
-u g^2 (the first-order image error, at the prior mean) spends every sample on the prior mean's few
-brightest cells, and u alone on cells too dark to show. The design weighs u g^p exp(t p^2 v / 2)
-with a power p and a prior spread t that depend on the number of samples (``BANDS``,
-``sensitivity_power``, ``prior_spread``): v_c is the prior variance of cell c's mapped value, so
-t = 1 weighs E[g^p] under the prior (g is log-normal there) and t = 0 g at the prior mean. At
-p = 1 the spread can pile the weights onto a few hundred cells (a sky-lit grazing view), so a band
-may set a floor F on the weights' effective cells 1 / sum w^2 (``spread_floor``,
-``floor_spread``): each scene's t is then the largest up to the band's that keeps F (0 when even
-t = 0 is below F). Every band takes a power per scene (``scene_power``): the largest of 0.5,
-0.75 and 1 whose weights at t = 1 keep the band's count of effective cells: 3,300 up to
-FEW_SAMPLES = 14 samples, 4,000 from 15. Up to 14 samples a scene of p = 1 takes t up to 1 with
-the floor F = 6,000 cells, one of p = 0.5 or 0.75 t = 1 without a floor, its weights mixed half
-and half with the p = 1 floor design's (``mixed_weights``, MIX_FEW); from 15 samples t = 1
-(chosen on validation materials, BENCHMARKS.md "Skip what the scene does not need", issue 29
-rounds 3, 7, 8, 9, 10, 11 and 12; the comments at FEW_SAMPLES, POWERS_MOST, POWERS_FEW and
-MIX_FEW). A uniform map stays the plain design (no scene: the whole BRDF alike).
-``design_usage`` can also mix in the plain design's weight, (1 - a) / n + a u g^p / sum, a hedge
-against a misspecified posterior at few samples; HEDGE = 1 (not mixed) won on validation.
-"""
+With u (n_valid,) a scene's use of every cell (sum 1), the expected error the scene sees is
+trace(M Sigma), M = D^T diag(u) D. ``scene_prior`` and ``rotate`` change the coefficients' basis
+so that the plain greedy design on (D W Q, Lambda, I) is exactly the scene-weighted design. The weights
+are u g^p exp(t p^2 v / 2) (``design_usage``), with the power p, the prior spread t, the floor on
+the effective cells and the mix chosen per scene and number of samples (``BANDS``,
+``scene_power``, ``mixed_weights``). The derivation and the choice of the bands:
+docs/explanations/scene-aware-design.md, docs/decisions/0007-scene-aware-design-bands.md."""
 from __future__ import annotations
 
 import functools
@@ -52,14 +27,14 @@ CHUNK_ROWS = 1 << 16
 # worst-scene ratio of the scene-aware design's median rendered-image error to the scene-blind
 # design's). Round 3 (t = 0): p = 1 at m = 10 (worst scene 0.52 of blind against 0.56 and 0.67 for
 # p = 0.5 and 0.25), p = 0.25 at m = 20 (0.62 against 0.70 and 0.78) and at m = 40 (0.60 against 0.72
-# and 0.88). Round 7 (BENCHMARKS.md "Issue 29, round 7"; the shipped p by m with t = 0, p by m with
+# and 0.88). Round 7 (BENCHMARKS.md@8b3941b "Issue 29, round 7"; the shipped p by m with t = 0, p by m with
 # t = 1, p = 0.5 and p = 0.25 with t = 1): t = 0, p = 1 at m = 10 (0.52 against 2.02, 0.55, 0.74);
 # p = 0.25 with t = 1 at m = 20 (0.557 against the shipped 0.625 and 0.76 for p = 0.5); p = 0.5 with
 # t = 1 at m = 40 (0.597 against 0.599 and the shipped 0.601: a near tie, the rule taken as it is;
 # folds 0-1 and 2-3 alone chose differently at m = 20 and 40). At p = 1 the spread halved the top
 # light's error on its specular materials but wrecked the grazing plane (2.02 of blind), so m = 10
 # keeps t = 0. On the fresh test set after (fresh2) the bands met 6 of 9 cells, as t = 0 would have.
-# Round 8 (BENCHMARKS.md "Issue 29, round 8"): at m <= 14, p = 1 with t up to 1 and a floor F on
+# Round 8 (BENCHMARKS.md@8b3941b "Issue 29, round 8"): at m <= 14, p = 1 with t up to 1 and a floor F on
 # the weights' effective cells (each scene's t the largest keeping F; F fixed before any result
 # from round 7's counts: 1,500, 3,000, 6,000) against t = 0: worst scene at m = 10 0.460 for
 # F = 3,000 against 0.522 (t = 0), 0.488 (1,500) and 0.522 (6,000; the grazing plane kept t = 0
@@ -68,7 +43,7 @@ CHUNK_ROWS = 1 << 16
 # 3,000 worse than t = 0; folds 2-3: 3,000). At m = 6 (reported, not choosing) every candidate's
 # worst scene was the grazing plane at about blind's error (1.00 to 1.04). F counts cells of the model's grid (the full MERL
 # grid's 1.1 million here); a coarser grid has fewer effective cells and keeps less spread.
-# Round 10 (BENCHMARKS.md "Issue 29, round 10"; on the 48 seeded validation materials of round 9,
+# Round 10 (BENCHMARKS.md@8b3941b "Issue 29, round 10"; on the 48 seeded validation materials of round 9,
 # the model of all 151 shared materials; fixed before any result): at m = 10 F = 6,000 against the
 # shipped 3,000 and a power per scene with 3,000 or 4,000 cells (aimed at fresh5's grazing-plane miss):
 # worst scene 0.4375 against 0.4387 (3,000, and the same for the power per scene with 3,000 cells)
@@ -78,7 +53,7 @@ CHUNK_ROWS = 1 << 16
 # its grazing plane was at blind's error (1.03 against 0.65 for 3,000). From 15 samples, m = 20: the
 # power per scene of the last band (POWERS_MOST, 4,000 cells) against p = 0.25: worst scene 0.28
 # against 0.41, so the band 15-28 is the last band's (POWER_MANY = 0.5 and BAND_POWERS).
-# Round 11 (BENCHMARKS.md "Issue 29, round 11"; the same materials and model; fixed before any
+# Round 11 (BENCHMARKS.md@8b3941b "Issue 29, round 11"; the same materials and model; fixed before any
 # result): up to 14 samples a power per scene with 3,300 cells (POWERS_FEW) whose p = 1 scenes keep
 # the floor 6,000, against p = 1 with the floor for every scene; the comment at POWERS_FEW.
 # Between the measured m each m takes the choice of the nearest measured m on a log scale (the m
@@ -105,7 +80,7 @@ FLOOR_MOST = 0.0
 # (the last m of the band or None, p, t, F), in increasing m
 BANDS = ((FEW_SAMPLES, POWER_FEW, SPREAD_FEW, FLOOR_FEW), (MANY_SAMPLES, POWER_MANY, SPREAD_MANY, FLOOR_MANY),
          (None, POWER_MOST, SPREAD_MOST, FLOOR_MOST))
-# A power per scene from MANY_SAMPLES + 1 samples (issue 29 round 9, BENCHMARKS.md "Issue 29, round
+# A power per scene from MANY_SAMPLES + 1 samples (issue 29 round 9, BENCHMARKS.md@8b3941b "Issue 29, round
 # 9"): each scene's p is the largest of POWERS_MOST whose weights (at the band's t and floor) keep
 # POWER_FLOOR_MOST effective cells 1 / sum w^2, POWER_MOST (the smallest) when none larger does
 # (``scene_power``). Chosen at m = 40 on 48 seeded analytic materials of the built-in families
@@ -122,7 +97,7 @@ POWER_FLOOR_MOST = 4000.0
 # Each band's powers (by its last m): a set and the effective cells a power above the set's smallest
 # must keep (``scene_power``).
 # (Round 10: the band 15-28 takes the last band's powers, the same design as from 29 samples.)
-# A power per scene up to FEW_SAMPLES too (issue 29 round 11, BENCHMARKS.md "Issue 29, round 11"):
+# A power per scene up to FEW_SAMPLES too (issue 29 round 11, BENCHMARKS.md@8b3941b "Issue 29, round 11"):
 # each scene's p is the largest of POWERS_FEW whose weights at t = 1 without a floor keep
 # POWER_CELLS_FEW effective cells; a scene of p = 1 (POWER_FEW) then takes the band's floor
 # FLOOR_FEW on t, one of 0.5 or 0.75 t = 1 without a floor. Aimed at the grazing plane, whose fabrics
@@ -141,7 +116,7 @@ POWERS_FEW = (0.5, 0.75, 1.0)
 POWER_CELLS_FEW = 3300.0
 BAND_POWERS = {FEW_SAMPLES: (POWERS_FEW, POWER_CELLS_FEW), MANY_SAMPLES: (POWERS_MOST, POWER_FLOOR_MOST),
                None: (POWERS_MOST, POWER_FLOOR_MOST)}
-# A mix of two designs up to FEW_SAMPLES (issue 29 round 12, BENCHMARKS.md "Issue 29, round 12"): a
+# A mix of two designs up to FEW_SAMPLES (issue 29 round 12, BENCHMARKS.md@8b3941b "Issue 29, round 12"): a
 # scene whose power (``scene_power``) is below the band's own p = 1 may weigh
 # w = a w(MIX_DESIGN) + (1 - a) w(its p, t = 1, no floor), each part summing to 1
 # (``mixed_weights``), so that its samples go both to the specular cells the p = 1 design finds
@@ -157,7 +132,7 @@ MIX_FEW = 0.5
 MIX_DESIGN = (POWER_FEW, SPREAD_FEW, FLOOR_FEW)
 BAND_MIX = {FEW_SAMPLES: MIX_FEW, MANY_SAMPLES: 0.0, None: 0.0}
 # The prior spread t of a mixed design's own part (its p < 1; ``mixed_weights``) up to FEW_SAMPLES:
-# 1 (round 12: the prior's expected g^p). Issue 29 round 13 (BENCHMARKS.md "Issue 29, round 13")
+# 1 (round 12: the prior's expected g^p). Issue 29 round 13 (BENCHMARKS.md@8b3941b "Issue 29, round 13")
 # compared t = 0 (g at the prior mean) at m = 10 on the 48 seeded validation materials by round 12's
 # rule, fixed before the run: t = 0 was left out at the per-family step (the grazing plane's fabrics
 # 1.26 of blind, against 0.84 at t = 1) and its grazing plane was worse too (0.18 of blind against

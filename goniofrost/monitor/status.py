@@ -1,36 +1,10 @@
 """What the monitor page shows, computed from a ``SessionView``: one JSON-ready dict.
 
-The state of the session, from the journal's events of its last run:
-
-* ``waiting``: no journal yet (the capture is still checking its inputs, or has not started);
-* ``unreadable``: the journal is damaged (SQLite cannot read it, or a record does not decode) and
-  no capture holds the session;
-* ``running``: the last run started and neither ended nor stopped;
-* ``stopped``: running by the journal, but no process holds the session's lock: the capture
-  ended without journaling why (killed, or the computer stopped);
-* ``stalled``: running by the journal, the lock cannot be checked, and nothing happened for
-  longer than ``stall_after_s`` (only when the monitor is not inside the capture's own process,
-  which would know better): the capture may have been killed;
-* ``reconstructing``: the run completed (its RunEnd says finished, target_reached or plan_used_up,
-  or every sample is journaled), report.json not written yet;
-* ``nothing measured``: the run completed with every plan sample journaled as not measured (too
-  dark or saturated for the rig's exposures): no reconstruction, no report;
-* ``finished``: the run completed and the report is written; ``run_end`` says why it stopped
-  (a target-error capture stops early: "target reached");
-* ``faulted`` / ``interrupted``: the last run's RunEnd says fault or refused / stopped_by_operator
-  (SIGINT, SIGTERM, a stop request); ``stop`` carries the terminal's words (what went wrong, what
-  to do next);
-* ``failed``: the capture process that serves the page ended with an error the journal does not
-  hold (``ended_message`` from the application layer).
-
-The ETA (wall seconds after the last journaled sample, ``eta_from_utc``) comes from the plan's
-move times and the times measured so far: each sample of this run took ``wall = k x move + c``
-(wall: from the start of its move to its commit; move: its move in rig seconds, simulated seconds
-on a simulated rig, so k folds in a simulated clock's speed-up; c: capturing, calibrating and
-journaling). k and c are fitted by least squares (both >= 0) once MIN_FIT samples with different
-moves are journaled; before that k = wall / (move + capture time) over the samples so far and
-c = k x their median capture time. ETA = k x (the planned moves left) + c x (samples left).
-"""
+``page_state`` gives the session's state (waiting, unreadable, running, stopped, stalled,
+reconstructing, nothing measured, finished, faulted, interrupted, failed), "N of M samples",
+the ETA (wall seconds after the last journaled sample: k x the planned moves left + c x the
+samples left, k and c fitted on this run's samples), the poses, every plan sample's state and the
+latest pictures. What each state means: docs/explanations/monitor.md."""
 from __future__ import annotations
 
 import math
