@@ -627,3 +627,20 @@ def test_plan_refuses_a_non_positive_sample_count_naming_the_option(samples, tmp
                              "--out", tmp_path / "plan.json"])
     assert line == f"goniofrost plan: error: command line: --samples: expected a positive integer, found {samples}"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_output_read_by_a_reader_that_goes_away_ends_quietly_as_sigpipe_would():
+    """``goniofrost materials ... | head -1``: no "error: Broken pipe" and no exit 2 (the reader
+    closed the pipe; the command ends as a tool killed by SIGPIPE, 141)."""
+    import os
+    import subprocess
+    import sys
+
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before the first line: every write meets a closed pipe
+    proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "materials", "--dataset", "builtin"],
+                            stdout=write, stderr=subprocess.PIPE, cwd=REPO)
+    os.close(write)
+    _, err = proc.communicate(timeout=120)
+    assert err.decode().strip() == ""
+    assert proc.returncode == 141

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import difflib
 import importlib
+import os
+import signal
 import sys
 
 from goniofrost.capture.signals import SessionInterrupted  # a small module: --help stays fast
@@ -82,6 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     except GoniofrostError as exc:
         print(f"goniofrost {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (`| head`): quiet, as a tool killed by SIGPIPE; stdout is pointed at
+        # /dev/null so that the interpreter's final flush does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except OSError as exc:
         # the last resort at the boundary: every known path has its own message, but an
         # unforeseen file problem is still one line naming the file, never a traceback
