@@ -86,15 +86,25 @@ def run_status(args) -> int:
 
     interval = _watch_interval(args)
     rig = _load(args)  # the options first: a bad one connects nothing
+    in_place = args.watch and not args.json and sys.stdout.isatty()  # a log or a pipe keeps every reading
     with connected_rig(rig, enable=False, program="rig status") as hardware:
-        n = 0
+        n, shown = 0, 0
         while True:
             readings, lamp = read_status(rig, hardware)
-            print(_status_text(readings, lamp, args.json), flush=True)
-            n += 1
+            text = _status_text(readings, lamp, args.json, stamp=_utc_now() if args.watch else None)
+            # on a terminal the cursor goes back up over the last reading: one table, redrawn
+            print((f"\x1b[{shown}F\x1b[J" if in_place and shown else "") + text, flush=True)
+            n, shown = n + 1, text.count("\n") + 1
             if not args.watch or (args.count is not None and n >= args.count):
                 return 0
             time.sleep(max(interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _utc_now():
+    """The time of a reading (UTC, whole seconds)."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).replace(microsecond=0)
 
 
 def _watch_interval(args) -> float:
@@ -110,10 +120,14 @@ def _watch_interval(args) -> float:
     return 1.0 if args.interval is None else args.interval
 
 
-def _status_text(readings, lamp, as_json: bool) -> str:
+def _status_text(readings, lamp, as_json: bool, stamp=None) -> str:
+    """The readings as a table (or one JSON line), headed by ``stamp`` (a UTC datetime) when given."""
     if as_json:
-        return json.dumps({"axes": [r.as_dict() for r in readings], "lamp": lamp})
-    lines = []
+        doc = {"axes": [r.as_dict() for r in readings], "lamp": lamp}
+        if stamp is not None:
+            doc = {"time_utc": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"), **doc}
+        return json.dumps(doc)
+    lines = [] if stamp is None else [f"reading at {stamp:%Y-%m-%d %H:%M:%S} UTC"]
     limits = [f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]" for r in readings]
     width = max(map(len, limits), default=0)  # the state column lines up under every axis's
     for r, span in zip(readings, limits):
