@@ -133,6 +133,7 @@ def load_rig(path: str | Path, section_validators: Mapping[str, SectionValidator
     """
     source = str(path)
     raw = S.read_yaml(path)
+    S.check_filled_in(raw, source)
     return rig_from_mapping(raw, source, section_validators)
 
 

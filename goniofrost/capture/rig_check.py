@@ -55,6 +55,8 @@ def rig_file_problems(path: str | Path, alignment: str | Path | None = None) -> 
         return problems or [Problem("", f"{source}: (top level): expected a rig file, found nothing")]
     if not isinstance(raw, Mapping):
         return [Problem("", str(ConfigError(source, "", "a mapping (a rig file)", raw)))]
+    if _collect(problems, S.check_filled_in, raw, source) is None and problems:
+        return problems  # a template not yet edited: its examples would only add problems of their own
     top = raw
     _check_parts(top, source, problems)
     if not problems:  # the checks across sections need every part sound
