@@ -251,7 +251,7 @@ def run_snap(args) -> int:
 # ----- capture --dry-run -----------------------------------------------------------------------------
 def run_dry_run(args) -> int:
     """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
-    from goniofrost.capture.console import connected_rig, dry_run
+    from goniofrost.capture.console import connected_rig, dry_run, twins_speedup
     from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
     from goniofrost.capture.plan_file import read_plan
     from goniofrost.capture.runner import check_sim_options
@@ -272,17 +272,19 @@ def run_dry_run(args) -> int:
 
     with connected_rig(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
         timed = dry_run(rig, plan, hardware, on_move=progress)
-    print(dry_run_text(timed[1:]))
+    print(dry_run_text(timed[1:], twins_speedup(rig)))
     return 0
 
 
-def dry_run_text(timed) -> str:
-    """The planned and measured times in total, and every move where they differ."""
+def dry_run_text(timed, speedup: float = 1.0) -> str:
+    """The planned and measured times in total, and every move where they differ; ``speedup``
+    other than 1: the times are on the twins' clock, which runs that much faster (said so)."""
     planned = sum(m.planned_s for m in timed)
     measured = sum(m.measured_s for m in timed)
     differ = [m for m in timed if m.differs]
     lines = [f"{len(timed) - 1} moves and the return home: planned {planned:.1f} s, measured {measured:.1f} s "
-             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"]
+             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"
+             + ("" if speedup == 1.0 else f" on the twins' clock (speed-up {speedup:g})")]
     if differ:
         lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and 0.5 s:")
         lines += [f"  {'return home' if m.index is None else f'sample {m.index}'}: planned {m.planned_s:.2f} s, "

@@ -193,10 +193,13 @@ def dry_run_plan(rig, plan_doc: dict):
 def dry_run(rig, plan_doc: dict, hardware, on_move=None) -> list[TimedMove]:
     """Run ``dry_run_plan`` on ``hardware`` through the engine core, timing each step on its clock;
     ``on_move(TimedMove)`` after each (progress). On failure, Ctrl-C or a stop request every axis
-    is stopped and confirmed (``SessionFault`` / ``SessionInterrupted``)."""
+    is stopped and confirmed (``SessionFault`` / ``SessionInterrupted``). On the twins of a rig
+    file of ``goniofrost sim --write-rig`` the wall clock's seconds are scaled to their clock's
+    (``twins_speedup``), as the plan's times are."""
     from goniofrost.capture.plan_runner import PlanRunner
 
     planned = [float(s["move_s"]) for s in plan_doc["samples"]] + [float(plan_doc.get("return_home_s", 0.0))]
+    scale = twins_speedup(rig)
     timed: list[TimedMove] = []
 
     def timing(plan):
@@ -210,12 +213,20 @@ def dry_run(rig, plan_doc: dict, hardware, on_move=None) -> list[TimedMove]:
             t0 = hardware.clock.now()
             result = yield step
             k = len(timed)  # 0: the first homing (the plan's moves start at home), then the samples, then home
-            move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1], hardware.clock.now() - t0)
+            move = TimedMove(getattr(step, "index", None), None if k == 0 else planned[k - 1],
+                             (hardware.clock.now() - t0) * scale)
             timed.append(move)
             if on_move is not None:
                 on_move(move)
 
     return PlanRunner(hardware, ".", program="capture --dry-run").execute_plan(timing(dry_run_plan(rig, plan_doc)))
+
+
+def twins_speedup(rig) -> float:
+    """How much faster than the wall clock a real rig file's devices run: its twins' clock speed-up
+    (``rig.twins``, a rig file of ``goniofrost sim --write-rig``), else 1. A simulated rig's
+    session clock is already the simulation's."""
+    return 1.0 if rig.simulated else float((rig.twins or {}).get("clock_speedup", 1.0))
 
 
 # ----- status ------------------------------------------------------------------------------

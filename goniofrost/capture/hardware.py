@@ -150,6 +150,8 @@ def _real(rig, *, material, seed, speedup):
     from drivers.rig_devices import RigDevices
 
     devices = RigDevices.from_rig(rig)
+    if rig.twins:  # a rig file of `goniofrost sim --write-rig`: its camera service renders the material
+        _show_material(rig, material)
     with _connected(devices):
         camera = open_camera(rig)
         camera.connect()
@@ -157,6 +159,21 @@ def _real(rig, *, material, seed, speedup):
             yield RigHardware(devices.axes, devices.lamp, camera, WallClock())
         finally:
             camera.close()
+
+
+def _show_material(rig, material: str | None) -> None:
+    """Ask the twins' camera service to render ``material`` (None: the one it started with)."""
+    from goniofrost.core.errors import ConfigError
+    from sim.camera_service import request
+
+    port = rig.twins["camera_service_port"]
+    try:
+        answer = request(port, f"material {material or 'default'}")
+    except OSError as exc:
+        answer = f"error no simulated camera service on 127.0.0.1:{port} ({exc}): is goniofrost sim still running?"
+    if not answer.startswith("ok"):
+        raise ConfigError(rig.source, "twins.camera_service_port", f"the simulated camera to show "
+                          f"{material or 'its own material'}", answer.removeprefix("error "))
 
 
 @contextmanager

@@ -95,6 +95,8 @@ def _check_parts(top: Mapping, source: str, problems: list[Problem]) -> None:
                                           f"intrinsics, mount: see config/rigs/template.yaml), found nothing"))
     if "sim" in top:
         _collect(problems, validators["sim"], top["sim"], source, "sim")
+    if "twins" in top:
+        _collect(problems, validators["twins"], top["twins"], source, "twins")
 
 
 def _check_lamp_device(lamp, axes_map: Mapping, source: str, problems: list[Problem]) -> None:

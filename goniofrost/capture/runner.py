@@ -254,8 +254,13 @@ def session_finished(spec, journal) -> bool:
 
 def check_material(rig, material: str | None, option: str | None = "--material") -> str | None:
     """The simulated camera's material (resolved ``SPEC:NAME``); None on a real rig. ``option``:
-    the command-line option an unknown name is reported under (None: the caller names its own key)."""
+    the command-line option an unknown name is reported under (None: the caller names its own key).
+    A rig file of ``goniofrost sim --write-rig`` (``rig.twins``) may name one: its camera service
+    renders it (none: the one ``goniofrost sim`` was started with)."""
     if not rig.simulated:
+        if material is not None and rig.twins:
+            from goniofrost.datasets.specs import material_option
+            return material_option(material, option)
         if material is not None:
             raise ConfigError("command line", "--material",
                               "no material on a real rig (it measures the sample in front of it)", material)
