@@ -123,3 +123,23 @@ def test_the_template_filled_in_is_sound(tmp_path, capsys):
     filled.write_text(TEMPLATE.read_text().replace("!fill-in ", ""))
     assert main(["rig", "check", "--rig", str(filled), "--offline"]) == 0
     assert "the rig file is sound (3 axes, a lamp, camera rawfile)" in capsys.readouterr().out
+
+
+# ----- item 4: the return home the plan lists -------------------------------------------------------
+def test_a_capture_returns_home_at_the_end_as_its_plan_says(setup, uninterrupted):
+    # PLAN.json's return_home_s and planned_motion_s count the move home; the capture stayed at
+    # the last sample's pose (and its report took the return out of the planned motion)
+    from goniofrost.capture.journal import Journal
+    from goniofrost.capture.records import EventKind
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    _, rig, plan, _ = setup
+    with Journal.open(uninterrupted / "session.sqlite", read_only=True) as journal:
+        events, steps = journal.events(), journal.steps()
+    assert [s["kind"] for s in steps][-2:] == ["LampOff", "Home"]
+    last = [e for e in events if e["kind"] in (EventKind.HOME, EventKind.LAMP)][-2:]
+    assert [e["message"] for e in last] == ["lamp off", "homed camera_arm, sample_yaw, sample_tilt"]
+    home = dict(zip(load_checked_rig(rig).joint_names, load_checked_rig(rig).home))
+    assert last[1]["data"] == pytest.approx(home, abs=0.1)
+    report = json.loads((uninterrupted / "report.json").read_text())
+    assert report["times_s"]["planned_motion"] == json.loads(plan.read_text())["planned_motion_s"]

@@ -124,7 +124,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     # the engine's own events; a driver's log record ("device": a read retried on a busy machine)
     # may fall anywhere between them
     kinds = [e["kind"] for e in events if e["kind"] != "device"]
-    assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-2:] == ["lamp", "session"]
+    assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-3:] == ["lamp", "home", "session"]
     for r, s in zip(records, doc["samples"]):  # the axes reached the plan's joints within tolerance
         assert all(abs(r.joints[a] - s["joints"][a]) <= 0.1 for a in s["joints"])
         assert r.snr >= 10 and all(np.isfinite(r.rgb)) and all(0 < sg < v for sg, v in zip(r.sigma, r.rgb))
