@@ -143,3 +143,90 @@ def test_a_capture_returns_home_at_the_end_as_its_plan_says(setup, uninterrupted
     assert last[1]["data"] == pytest.approx(home, abs=0.1)
     report = json.loads((uninterrupted / "report.json").read_text())
     assert report["times_s"]["planned_motion"] == json.loads(plan.read_text())["planned_motion_s"]
+
+
+# ----- item 3: the poses on the monitor's page ------------------------------------------------------
+def _joints(arm: float) -> dict:
+    return {"camera_arm": arm, "sample_yaw": 0.0, "sample_tilt": 0.0}
+
+
+def _pose_view(**kw):
+    from goniofrost.monitor.session_view import PlanSample
+    from test_monitor import view
+
+    plan = tuple(PlanSample(i, (i, 1, 2), 10.0 * i, 20.0 + i, _joints(30.0 + 4 * i), 2.0) for i in range(4))
+    return view(plan=plan, **kw)
+
+
+def _done(i: int):
+    from goniofrost.monitor.session_view import DoneSample
+
+    return DoneSample(i, 100.0, (0.004,), (0.1, 0.2, 0.3), (0.001,) * 3, "ok", _joints(30.0 + 4 * i), 2.0, 1.0,
+                      1001.0 + i, 1001.5 + i, ())
+
+
+@pytest.fixture(scope="module")
+def sim_rig():
+    from goniofrost.capture.rig_file import load_checked_rig
+
+    return load_checked_rig(SIM_RIG)
+
+
+def _arm(pose) -> float:
+    return dict((name, deg) for name, _role, deg in pose["joints"])["camera_arm"]
+
+
+def test_after_a_fault_the_page_shows_the_pose_the_stop_confirmed_and_no_next(sim_rig):
+    # it showed "now: sample 2 ... camera_arm 38.05 deg" beside "Stopped camera_arm at 9.96 deg"
+    from goniofrost.capture.records import AxisStop, RunEnd, RunStatus
+    from goniofrost.monitor.session_view import Stop
+    from goniofrost.monitor.status import page_state
+
+    stops = (AxisStop("camera_arm", True, 9.96), AxisStop("sample_yaw", True, 0.0), AxisStop("sample_tilt", True, 0.0))
+    end = RunEnd(1, RunStatus.FAULT, "Stopped camera_arm at 9.96 deg", 4, 2, 0, 1000.0, 1004.0, axis="camera_arm",
+                 plan_index=2, stops=stops)
+    v = _pose_view(done=(_done(0), _done(1)), reached={"joints": _joints(38.05), "plan_index": 2}, run_end=end,
+                   stop=Stop(end.status, end.reason, "", "camera_arm", 2, 1004.0))
+    poses = page_state(v, 1005.0, rig=sim_rig)["poses"]
+    assert poses["current"]["label"] == "where the stop left it (every axis confirmed at rest)"
+    assert _arm(poses["current"]) == pytest.approx(9.96) and poses["next"] is None
+    # an axis whose stop was not confirmed: its last commanded pose, and the label says which
+    unsure = RunEnd(1, RunStatus.FAULT, "...", 4, 2, 0, 1000.0, 1004.0, stops=(AxisStop("camera_arm", False),) + stops[1:])
+    poses = page_state(_pose_view(done=(_done(0), _done(1)), reached={"joints": _joints(38.05), "plan_index": 2},
+                                  run_end=unsure, stop=Stop(unsure.status, "...", "", None, 2, 1004.0)),
+                       1005.0, rig=sim_rig)["poses"]
+    assert poses["current"]["label"] == "where the stop left it (camera_arm not confirmed: the last pose it reached shown)"
+    assert _arm(poses["current"]) == pytest.approx(38.05)
+
+
+def test_while_a_sample_is_measured_now_and_next_are_different_samples(sim_rig):
+    # it showed "now: sample 33" and "next: sample 33" while sample 33 was being exposed
+    from goniofrost.monitor.status import page_state
+
+    v = _pose_view(done=(_done(0), _done(1)), reached={"joints": _joints(38.0), "plan_index": 2})
+    poses = page_state(v, 1004.0, rig=sim_rig)["poses"]
+    assert (poses["current"]["label"], poses["next"]["label"]) == ("sample 2 (reached)", "sample 3 (target)")
+
+
+def test_a_finished_session_shows_home_and_no_next(sim_rig):
+    # a target-error capture that stopped after 3 of 4 samples still showed "next: sample 3 (target)"
+    from goniofrost.capture.records import RunEnd, RunStatus
+    from goniofrost.monitor.status import page_state
+
+    end = RunEnd(1, RunStatus.TARGET_REACHED, "target reached", 4, 3, 1, 1000.0, 1010.0)
+    home = {a.name: a.home_deg for a in sim_rig.ordered_axes}
+    v = _pose_view(done=(_done(0), _done(1), _done(2)), run_end=end, report={"samples": 3},
+                   reached={"joints": home, "plan_index": None, "kind": "Home"})
+    st = page_state(v, 1011.0, rig=sim_rig)
+    assert st["state"] == "finished" and st["poses"]["next"] is None
+    assert st["poses"]["current"]["label"] == "home (reached)" and _arm(st["poses"]["current"]) == 90.0
+
+
+def test_the_last_confirmed_pose_is_read_from_a_home_step_too(tmp_path):
+    from goniofrost.monitor.session_view import _reached
+
+    steps = [{"kind": "Move", "status": "done", "plan_index": 4, "result": {"joints": _joints(40.0)}},
+             {"kind": "LampOff", "status": "done", "plan_index": None, "result": {}},
+             {"kind": "Home", "status": "done", "plan_index": None, "result": {"joints": _joints(90.0), "seconds": 2.0}}]
+    assert _reached(steps) == {"joints": _joints(90.0), "plan_index": None, "kind": "Home"}
+    assert _reached(steps[:2]) == {"joints": _joints(40.0), "plan_index": 4, "kind": "Move"}
