@@ -230,3 +230,34 @@ def test_the_last_confirmed_pose_is_read_from_a_home_step_too(tmp_path):
              {"kind": "Home", "status": "done", "plan_index": None, "result": {"joints": _joints(90.0), "seconds": 2.0}}]
     assert _reached(steps) == {"joints": _joints(90.0), "plan_index": None, "kind": "Home"}
     assert _reached(steps[:2]) == {"joints": _joints(40.0), "plan_index": 4, "kind": "Move"}
+
+
+# ----- item 2: long silent steps ------------------------------------------------------------------
+def test_train_shows_its_stages_on_a_terminal_and_nothing_in_a_log(monkeypatch, tmp_path):
+    # train ran 115 s and 197 s with nothing but a brief tabulating bar
+    from goniofrost.core.grid import MerlGrid
+    from goniofrost.frost.training import train
+
+    four = ["white-diffuse", "blue-plastic", "gold", "green-felt"]
+    terminal = _Terminal()
+    monkeypatch.setattr("sys.stderr", terminal)
+    train(["builtin"], only=four, grid=MerlGrid(10, 10, 20), k_max=6, cache=True, progress=True)
+    shown = re.findall(r"train (\d)/6: ([a-z -]+) \(", terminal.getvalue())
+    assert [name for _, name in dict.fromkeys(shown)] == ["tabulating", "mapping", "components",
+                                                          "noise cross-validation", "dictionary", "saving"]
+    log = io.StringIO()  # not a terminal: no bar (a cached model is not trained again either)
+    monkeypatch.setattr("sys.stderr", log)
+    train(["builtin"], only=four, grid=MerlGrid(10, 10, 20), k_max=6, cache=False, progress=True)
+    assert log.getvalue() == ""
+
+
+def test_the_demo_says_it_is_training_and_how_long_that_takes(monkeypatch, tmp_path, capsys):
+    from goniofrost.app import demo
+    from goniofrost.core.grid import MerlGrid
+
+    grid = MerlGrid(10, 10, 20)
+    said = demo.training_note("red-plastic", grid, None)
+    assert said.startswith("demo: training the model on the 73 built-in materials other than red-plastic") and "once: the model is cached" in said
+    assert "about 1 to 2 min on 2 cores" in said
+    demo.train_without("red-plastic", grid, progress=False)
+    assert demo.training_note("red-plastic", grid, None) is None  # cached: nothing to wait for
