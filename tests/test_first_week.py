@@ -261,3 +261,83 @@ def test_the_demo_says_it_is_training_and_how_long_that_takes(monkeypatch, tmp_p
     assert "about 1 to 2 min on 2 cores" in said
     demo.train_without("red-plastic", grid, progress=False)
     assert demo.training_note("red-plastic", grid, None) is None  # cached: nothing to wait for
+
+
+# ----- item 1: rig check probes the camera ----------------------------------------------------------
+def _check_json(path, capsys) -> tuple[int, dict, str]:
+    capsys.readouterr()
+    code = main(["rig", "check", "--rig", str(path), "--json"])
+    captured = capsys.readouterr()
+    return code, json.loads(captured.out), captured.err
+
+
+def _camera(doc) -> dict:
+    return next(d for d in doc["devices"] if d["device"] == "camera")
+
+
+def test_check_grabs_a_frame_of_the_simulated_camera(tmp_path, capsys):
+    from test_session import write_rig
+
+    code, doc, _ = _check_json(write_rig(tmp_path / "rig.yaml"), capsys)
+    camera = _camera(doc)
+    assert code == 0 and camera["answers"] and camera["error"] is None
+    assert camera["link"] == "sim (the simulated camera)" and camera["identity"] == "model Sim Gonio Cam"
+    assert camera["exposure_range_s"] == [0.002, 0.128]   # the simulated camera takes any: its ladder's
+    frame = camera["frame"]
+    assert frame["exposure_s"] == 0.002 and len(frame["median"]) == 3 and frame["saturated_fraction"] == 0.0
+
+
+def _pylon_rig(tmp_path, **camera):
+    import yaml
+
+    from test_pylon_session import write_rig
+
+    path = write_rig(tmp_path / "pylon.yaml")
+    raw = yaml.safe_load(path.read_text())
+    raw["camera"].update(camera)
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def test_check_names_the_pylon_camera_its_exposure_range_and_a_frame(tmp_path, capsys):
+    pytest.importorskip("pypylon")
+    code, doc, _ = _check_json(_pylon_rig(tmp_path), capsys)
+    camera = _camera(doc)
+    assert code == 0 and camera["answers"], camera
+    assert camera["identity"].startswith("vendor Basler, model Emulation, serial 0815-")
+    lo, hi = camera["exposure_range_s"]
+    assert lo <= 0.000015625 and hi >= 0.128 and camera["frame"]["exposure_s"] == pytest.approx(0.000015625, rel=0.1)
+
+
+def test_check_of_a_pylon_camera_with_a_wrong_serial_exits_2(tmp_path, capsys):
+    # it passed with exit 0: only `rig snap` found the camera missing
+    pytest.importorskip("pypylon")
+    code, doc, err = _check_json(_pylon_rig(tmp_path, serial="40012345"), capsys)
+    camera = _camera(doc)
+    assert code == 2 and not camera["answers"] and "camera" in err.splitlines()[-1]
+    assert "no camera with serial '40012345'" in camera["error"]
+    assert camera["causes"][0].startswith("camera.serial is not this camera's")
+
+
+def test_check_of_a_rawfile_camera_whose_service_is_dead_exits_2(twins, tmp_path, capsys):
+    # a rig file of `sim --write-rig` whose camera service has stopped passed with exit 0
+    import socket
+    import sys
+
+    import yaml
+
+    path, _ = twins
+    with socket.socket() as s:  # a loopback port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    raw = yaml.safe_load(path.read_text())
+    client = f"{sys.executable} -m sim.camera_service --port {port}"
+    raw["camera"].update(timeout_s=5.0, trigger_command=f"{client} expose {{exposure_s}}",
+                         target_command=f"{client} target {{target}}")
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    capsys.readouterr()
+    assert main(["rig", "check", "--rig", str(path)]) == 2
+    captured = capsys.readouterr()
+    camera_line = next(line for line in captured.out.splitlines() if line.startswith("camera "))
+    assert " NO " in camera_line and f"no simulated camera on 127.0.0.1:{port}" in captured.out
+    assert captured.err == "goniofrost rig: error: 1 of 5 devices did not answer cleanly: camera\n"

@@ -51,11 +51,15 @@ def run_check(args) -> int:
 def _probe(rig):
     from drivers.rig_devices import RigDevices
     from goniofrost.capture.console import _device_sections
-    from goniofrost.capture.rig_check import probe_rig
+    from goniofrost.capture.hardware import connected_camera
+    from goniofrost.capture.rig_check import probe_camera, probe_rig
 
-    with _device_sections(rig) as (resolved, _simulation):
+    with _device_sections(rig) as (resolved, simulation):
         devices = RigDevices.from_rig(resolved)
-        return probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
+        reports = probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
+        if rig.camera:
+            reports.append(probe_camera(rig, lambda: connected_camera(rig, simulation)))
+        return reports
 
 
 def device_table(reports) -> str:
@@ -65,9 +69,12 @@ def device_table(reports) -> str:
     for r in reports:
         state = ("lamp on" if r.lamp_on else "lamp off") if r.device == "lamp" and r.answers else (
             "-" if not r.answers else (f"ALARM {r.alarm}" if r.alarm else ("enabled" if r.enabled else "disabled")))
+        limits = "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]"
+        if r.device == "camera":  # its limits are the exposure range, its state the frame grabbed
+            limits = "-" if r.exposure_range_s is None else f"[{r.exposure_range_s[0]:g}, {r.exposure_range_s[1]:g}] s"
+            state = _frame_text(r.frame) if r.frame else "-"
         rows.append((r.device, r.link, "yes" if r.answers else "NO", r.identity or "-",
-                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg",
-                     "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]", state))
+                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg", limits, state))
     widths = [max(len(str(row[i])) for row in rows) for i in range(len(head))]
     lines = []
     for k, row in enumerate(rows):
@@ -78,6 +85,14 @@ def device_table(reports) -> str:
                 lines.append(f"    error: {report.error}")
             lines += [f"    likely cause: {c}" for c in report.causes]
     return "\n".join(lines)
+
+
+def _frame_text(frame: dict) -> str:
+    """'frame 0.002 s: median R 0.0102 G 0.0201 B 0.0150, 0 % saturated' (or why none was taken)."""
+    if "skipped" in frame:
+        return f"no frame: {frame['skipped']}"
+    median = " ".join(f"{c} {v:.4f}" for c, v in zip("RGB", frame["median"]))
+    return f"frame {frame['exposure_s']:g} s: median {median}, {100 * frame['saturated_fraction']:.2g} % saturated"
 
 
 # ----- status ----------------------------------------------------------------------------------

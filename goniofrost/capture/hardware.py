@@ -75,24 +75,16 @@ def open_hardware(rig, *, material: str | None = None, seed: int | None = None, 
 @contextmanager
 def _simulated(rig, *, material, seed, speedup):
     from drivers.rig_devices import RigDevices
-    from goniofrost.core.camera_model import CameraModel
     from goniofrost.datasets import material_brdf
-    from planner.kinematics import arm_side
-    from sim.camera import SimCamera
     from sim.rig import SimulatedRig
 
-    sim_section = rig.sim or {}
-    seed = int(sim_section.get("seed", 0) if seed is None else seed)
+    seed = int((rig.sim or {}).get("seed", 0) if seed is None else seed)
     name, brdf = material_brdf(material) if material is not None else (None, None)
-    side = arm_side(rig)
-    pose = simulated_pose(rig)
     with SimulatedRig(rig, speedup=speedup, seed=seed) as simulation:
         simulation.start()
         devices = RigDevices.from_rig(simulation.resolved_rig())
         with _connected(devices):
-            camera = SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()),
-                               simulation.lamp_model, simulation.clock, sim_section.get("camera", {}), seed,
-                               model=CameraModel.from_section(rig.camera), arm_side=side)
+            camera = simulated_camera(rig, simulation, name, brdf, seed)
             camera.connect()
             with _emulated_pylon(rig, camera) as pylon_camera:
                 try:
@@ -100,6 +92,45 @@ def _simulated(rig, *, material, seed, speedup):
                                       simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
                 finally:
                     camera.close()
+
+
+def simulated_camera(rig, simulation, name: str | None, brdf, seed: int):
+    """The simulated camera (not connected) of a simulated rig showing material ``name`` (its
+    BRDF function ``brdf``; None: no material, the white card only) at the running
+    ``simulation``'s true axis positions."""
+    from goniofrost.core.camera_model import CameraModel
+    from planner.kinematics import arm_side
+    from sim.camera import SimCamera
+
+    pose = simulated_pose(rig)
+    return SimCamera(name, brdf, lambda: pose(simulation.true_joints_deg()), simulation.lamp_model, simulation.clock,
+                     (rig.sim or {}).get("camera", {}), seed, model=CameraModel.from_section(rig.camera),
+                     arm_side=arm_side(rig))
+
+
+@contextmanager
+def connected_camera(rig, simulation=None):
+    """The rig's camera, connected, closed on exit (``rig check``): the real one (``open_camera``),
+    or on a simulated rig (``simulation``: its running SimulatedRig) the simulated camera, or
+    pylon's emulated camera serving it, facing the white card (no material needed). A camera
+    that fails to connect raises its own error."""
+    if simulation is None:
+        camera = open_camera(rig)
+        camera.connect()
+        try:
+            yield camera
+        finally:
+            camera.close()
+        return
+    sim_camera = simulated_camera(rig, simulation, None, None, int((rig.sim or {}).get("seed", 0)))
+    sim_camera.connect()
+    try:
+        with _emulated_pylon(rig, sim_camera) as pylon_camera:
+            camera = pylon_camera or sim_camera
+            camera.set_target("white")  # a simulated target: nothing asks the operator
+            yield camera
+    finally:
+        sim_camera.close()
 
 
 @contextmanager
