@@ -341,3 +341,20 @@ def test_check_of_a_rawfile_camera_whose_service_is_dead_exits_2(twins, tmp_path
     camera_line = next(line for line in captured.out.splitlines() if line.startswith("camera "))
     assert " NO " in camera_line and f"no simulated camera on 127.0.0.1:{port}" in captured.out
     assert captured.err == "goniofrost rig: error: 1 of 5 devices did not answer cleanly: camera\n"
+
+
+# ----- item 10: no compilation inside selection_seconds ----------------------------------------------
+def test_every_kernel_a_selection_calls_is_compiled_when_its_module_is_imported():
+    # selection_seconds is timed inside select_bayes / select_cells, after their modules' imports:
+    # a kernel compiled on its first call would put numba's compilation (15 to 19 s after a plain
+    # install, without ./dev setup) inside the timed selection; a kernel with its signatures is
+    # compiled (or loaded from numba's cache) at import, before the clock starts
+    from goniofrost.frost import bayes_kernels, bayes_selection, selection, somp_kernels
+
+    called = {bayes_kernels: ("init_forms", "update_forms"), somp_kernels: ("pack_atoms", "block_scores", "rank1_step")}
+    for module, names in called.items():
+        for name in names:
+            assert getattr(module, name).signatures, f"{module.__name__}.{name} compiles on its first call"
+    for module, kernels in ((bayes_selection, bayes_kernels), (selection, somp_kernels)):
+        used = set(re.findall(r"kernels\.(\w+)\(", open(module.__file__).read()))
+        assert used <= set(called[kernels]), used
