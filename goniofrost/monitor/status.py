@@ -291,7 +291,7 @@ def _current_pose(view, rig, latest) -> tuple[str, dict]:
     else:
         label, joints = "home", {a.name: a.home_deg for a in rig.ordered_axes}
     stops = view.run_end.stops if view.stop is not None and view.run_end is not None else ()
-    if stops:  # the stop's own readings are the last confirmed pose; an unconfirmed axis keeps its target
+    if stops:  # the stop's own readings are the last confirmed pose; an unconfirmed axis keeps its last reached
         joints.update({s.axis: s.position_deg for s in stops if s.confirmed and s.position_deg is not None})
         unsure = [s.axis for s in stops if not s.confirmed or s.position_deg is None]
         label = ("where the stop left it (every axis confirmed at rest)" if not unsure else
