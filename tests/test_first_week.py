@@ -358,3 +358,17 @@ def test_every_kernel_a_selection_calls_is_compiled_when_its_module_is_imported(
     for module, kernels in ((bayes_selection, bayes_kernels), (selection, somp_kernels)):
         used = set(re.findall(r"kernels\.(\w+)\(", open(module.__file__).read()))
         assert used <= set(called[kernels]), used
+
+
+def test_a_move_timed_on_the_twins_clock_allows_the_hosts_latency_times_the_speed_up():
+    # at 20 x a host's 50 ms to send a move and poll its arrival is 1 s of the twins' clock: at load
+    # 20 a dry run on the twins marked 13 to 26 of 37 moves DIFFERS by 0.6 to 1.6 s
+    from goniofrost.app.rig_console import dry_run_text
+    from goniofrost.capture.console import HOST_LATENCY_S, TimedMove, latency_allowance
+
+    assert latency_allowance(1.0) == 0.5 and latency_allowance(20.0) == pytest.approx(0.5 + 19 * HOST_LATENCY_S)
+    late = TimedMove(3, 0.93, 1.61, latency_allowance(20.0))
+    assert not late.differs and TimedMove(3, 0.93, 1.61).differs
+    assert TimedMove(3, 2.0, 2.0 + latency_allowance(20.0) + 0.01, latency_allowance(20.0)).differs
+    text = dry_run_text([late, TimedMove(None, 1.0, 1.1, latency_allowance(20.0))], 20.0)
+    assert text.splitlines()[1] == f"every move within 20 % or {latency_allowance(20.0):g} s of the plan"

@@ -297,13 +297,14 @@ def dry_run_text(timed, speedup: float = 1.0) -> str:
     planned = sum(m.planned_s for m in timed)
     measured = sum(m.measured_s for m in timed)
     differ = [m for m in timed if m.differs]
+    allowance = f"{timed[0].allowance_s:g} s" if timed else "0.5 s"
     lines = [f"{len(timed) - 1} moves and the return home: planned {planned:.1f} s, measured {measured:.1f} s "
              f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"
              + ("" if speedup == 1.0 else f" on the twins' clock (speed-up {speedup:g})")]
     if differ:
-        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and 0.5 s:")
+        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and {allowance}:")
         lines += [f"  {'return home' if m.index is None else f'sample {m.index}'}: planned {m.planned_s:.2f} s, "
                   f"measured {m.measured_s:.2f} s" for m in differ]
     else:
-        lines.append("every move within 20 % or 0.5 s of the plan")
+        lines.append(f"every move within 20 % or {allowance} of the plan")
     return "\n".join(lines)
