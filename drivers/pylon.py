@@ -130,6 +130,10 @@ class PylonCamera(Camera):
             raise CameraError(f"{self._name()}: camera.exposures_s {outside} outside the camera's exposure range "
                               f"[{lo * 1e-6:g}, {hi * 1e-6:g}] s")
 
+    def exposure_range_s(self) -> tuple[float, float]:
+        """The camera's exposure range (s), as it states it (after ``connect``)."""
+        return float(self.device.ExposureTime.Min) * 1e-6, float(self.device.ExposureTime.Max) * 1e-6
+
     # ----- one frame --------------------------------------------------------------------------
     def capture(self, exposure_s: float, path: Path) -> RawFrame:
         """Set ``exposure_s``, read it back, trigger, grab and write the DNG at ``path``."""

@@ -91,6 +91,36 @@ def _metadata(path: Path) -> dict:
     return meta if isinstance(meta, dict) else {"description": text}
 
 
+# a camera's serial number: EXIF BodySerialNumber, else the DNG CameraSerialNumber (TIFF tag 50735)
+_DNG_SERIAL_TAG = 50735
+
+
+def raw_identity(path) -> dict:
+    """The camera a RAW file names: {"vendor", "model", "serial"} from its EXIF Make, Model and
+    BodySerialNumber (a DNG's CameraSerialNumber); a key the file does not give is left out."""
+    import exifread
+
+    try:
+        with open(path, "rb") as fh:
+            tags = exifread.process_file(fh, details=False, extract_thumbnail=False)
+    except OSError as exc:
+        raise RawFileError(f"{path}: cannot read its EXIF tags: {exc}") from exc
+    found = {"vendor": tags.get("Image Make"), "model": tags.get("Image Model"),
+             "serial": tags.get("EXIF BodySerialNumber") or _dng_serial(path)}
+    return {key: str(value).strip() for key, value in found.items() if value is not None and str(value).strip()}
+
+
+def _dng_serial(path) -> str | None:
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(_DNG_SERIAL_TAG)
+            return None if tag is None else str(tag.value)  # read while the file is open
+    except (tifffile.TiffFileError, OSError, IndexError, ValueError):
+        return None
+
+
 def raw_exposure_s(path) -> float | None:
     """The exposure (s) a RAW file says it was taken with: its EXIF ExposureTime (in the EXIF
     directory, or in the first image directory as DNG writers put it); None if it has none."""

@@ -41,6 +41,7 @@ _TOP_KEYS = {
     "sim": Key(is_mapping, "a mapping", ABSENT),
     "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
     "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.rig.lab checks it)
+    "twins": Key(is_mapping, "a mapping", ABSENT),  # running twins behind a real rig file (sim.config checks it)
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -103,6 +104,9 @@ class Rig(RigSpec):
     alignment: Any = None
     # the lab's metadata (lab, lens, lamp: checked by goniofrost.rig.lab), never kinematics
     lab: dict = field(default_factory=dict, compare=False)
+    # the running twins a rig file of `goniofrost sim --write-rig` points at (clock_speedup,
+    # camera_service_port; checked by sim.config); empty for every other rig
+    twins: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -133,6 +137,7 @@ def load_rig(path: str | Path, section_validators: Mapping[str, SectionValidator
     """
     source = str(path)
     raw = S.read_yaml(path)
+    S.check_filled_in(raw, source)
     return rig_from_mapping(raw, source, section_validators)
 
 
@@ -149,8 +154,8 @@ def rig_from_mapping(raw: Any, source: str,
             lamp[key] = float(lamp[key])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    camera, sim, lab = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
-                        for key in ("camera", "sim", "lab"))  # the sections other packages own
+    camera, sim, lab, twins = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                               for key in ("camera", "sim", "lab", "twins"))  # the sections other packages own
     alignment = None
     if "alignment" in top:
         written = Path(top["alignment"])
@@ -159,7 +164,8 @@ def rig_from_mapping(raw: Any, source: str,
                                    top["name"])
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab)
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab,
+               twins=twins)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

@@ -5,8 +5,10 @@ hot folder with a trigger command, as on a real rig): the running simulation ren
 through this service, so a capture on that rig file sees the twins' true positions and lamp.
 
 Protocol (one text line each way, on 127.0.0.1): ``target NAME`` puts a target in front of the
-lens (``sample``, ``white``, ``flat``); ``expose SECONDS`` renders one DNG into the hot folder.
-Each is answered ``ok`` (``ok PATH`` for a frame) or ``error TEXT``.
+lens (``sample``, ``white``, ``flat``); ``expose SECONDS`` renders one DNG into the hot folder;
+``material SPEC:NAME`` puts that material on the sample card (``material default``: the one the
+service started with), so that each capture names its own. Each is answered ``ok`` (``ok PATH``
+for a frame, ``ok NAME`` for a material) or ``error TEXT``.
 
 ``python -m sim.camera_service --port P target white`` / ``... expose 0.004`` is the client the rig
 file's ``target_command`` / ``trigger_command`` run (exit 0 on ``ok``; else the text on stderr, 1).
@@ -28,10 +30,12 @@ STOP_WAIT_S = 5.0  # how long stop() lets a request under way finish
 
 class CameraService:
     """Serve ``camera`` (a connected ``sim.camera.SimCamera``) on a loopback port; frames go to
-    ``folder`` as ``frame_NNNNNN.dng``. ``start()`` returns the port; ``stop()`` ends it."""
+    ``folder`` as ``frame_NNNNNN.dng``. ``start()`` returns the port; ``stop()`` ends it.
+    ``materials(SPEC:NAME) -> (name, brdf)`` resolves a ``material`` request (None: refused)."""
 
-    def __init__(self, camera, folder: Path) -> None:
-        self.camera, self.folder = camera, Path(folder)
+    def __init__(self, camera, folder: Path, materials=None) -> None:
+        self.camera, self.folder, self.materials = camera, Path(folder), materials
+        self._default = None  # the material the camera started with, kept at the first change
         self._server = socket.create_server((LOOPBACK, 0))
         self.port = self._server.getsockname()[1]
         # stop() writes a byte here to wake the serving thread: closing a listening socket does not
@@ -87,9 +91,25 @@ class CameraService:
                     path = self.folder / f"frame_{self._count:06d}.dng"
                     self.camera.capture(float(arg), path)
                     return f"ok {path}"
+                if verb == "material":
+                    return f"ok {self._set_material(arg)}"
         except Exception as exc:  # noqa: BLE001 - the client reports it; the service goes on
             return f"error {exc}"
-        return f"error unknown request {line!r} (expected 'target NAME' or 'expose SECONDS')"
+        return (f"error unknown request {line!r} (expected 'target NAME', 'expose SECONDS' or "
+                f"'material SPEC:NAME')")
+
+    def _set_material(self, spec: str) -> str:
+        """Put material ``spec`` (or ``default``) on the sample card; its name."""
+        if self._default is None:
+            self._default = (self.camera.material, self.camera.brdf)
+        if spec == "default":
+            name, brdf = self._default
+        elif self.materials is None:
+            raise ValueError("this service renders one material only")
+        else:
+            name, brdf = self.materials(spec)
+        self.camera.material, self.camera.brdf = name, brdf
+        return name
 
 
 def request(port: int, line: str, timeout_s: float = CLIENT_TIMEOUT_S) -> str:
@@ -103,8 +123,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.camera_service",
                                      description="ask a running `goniofrost sim` for a target or a frame")
     parser.add_argument("--port", type=int, required=True, help="the service's loopback port")
-    parser.add_argument("verb", choices=("target", "expose"))
-    parser.add_argument("value", help="a target name, or an exposure in seconds")
+    parser.add_argument("verb", choices=("target", "expose", "material"))
+    parser.add_argument("value", help="a target name, an exposure in seconds, or a material SPEC:NAME")
     args = parser.parse_args(argv)
     try:
         answer = request(args.port, f"{args.verb} {args.value}")

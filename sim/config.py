@@ -60,6 +60,22 @@ SIM_KEYS = {
 }
 
 
+# The ``twins:`` section of a rig file written by ``goniofrost sim --write-rig`` (sim.rig_file): a
+# rig that is real to every program but whose devices are running twins. A dry run compares moves
+# on their clock, and a capture names the simulated material to the camera service.
+TWINS_KEYS = {
+    "clock_speedup": Key(lambda v: is_number(v) and v > 0, "a number > 0 (the twins' simulated seconds per "
+                                                           "real second)"),
+    "camera_service_port": Key(lambda v: is_natural(v) and 0 < v < 65536,
+                               "the loopback port of the simulated camera's service (1 to 65535)"),
+}
+
+
+def validate_twins_section(section, source, keypath: str = "twins") -> dict:
+    """Check a rig file's ``twins`` mapping (see TWINS_KEYS); return a copy."""
+    return check_section(section, TWINS_KEYS, source, keypath)
+
+
 def validate_sim_section(section, source, keypath: str = "sim") -> dict:
     """Check a rig file's ``sim`` mapping; return a copy with the defaults filled in.
 

@@ -5,7 +5,9 @@
 (``SimulatedRig.resolved_rig()``: pty paths, loopback ports) and a ``rawfile`` camera
 whose frames come from the simulated camera's service (``sim.camera_service``), keeping the
 camera model, ladder and references of the original: the kinematics, and so a plan's
-``rig.kinematic_hash``, stay those of the simulated rig.
+``rig.kinematic_hash``, stay those of the simulated rig. Its ``twins`` section (``sim.config``)
+names the twins' clock speed-up (a dry run compares moves on their clock) and the service's port
+(a capture names the material the simulated camera renders there).
 """
 from __future__ import annotations
 
@@ -22,9 +24,9 @@ from calib.config import KIND_ONLY_KEYS
 _DROPPED_CAMERA_KEYS = ("kind",) + tuple(key for key, kinds in KIND_ONLY_KEYS.items() if "rawfile" not in kinds)
 
 
-def real_rig_document(source, resolved, service) -> dict:
+def real_rig_document(source, resolved, service, clock_speedup: float = 1.0) -> dict:
     """The rig file at ``source`` rewritten for the running simulation (see the module doc);
-    ``resolved``: the running SimulatedRig's ``resolved_rig()``."""
+    ``resolved``: the running SimulatedRig's ``resolved_rig()``; ``clock_speedup``: its clock's."""
     doc = yaml.safe_load(Path(source).read_text())
     doc["simulated"] = False
     doc.pop("sim", None)
@@ -37,4 +39,5 @@ def real_rig_document(source, resolved, service) -> dict:
     doc["camera"] = {"kind": "rawfile", "folder": str(service.folder),
                      "trigger_command": f"{client} expose {{exposure_s}}",
                      "target_command": f"{client} target {{target}}", **camera}
+    doc["twins"] = {"clock_speedup": float(clock_speedup), "camera_service_port": int(service.port)}
     return doc

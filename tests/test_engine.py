@@ -189,7 +189,7 @@ def test_the_fakes_and_the_real_drivers_satisfy_the_hardware_contract(table, tmp
 def test_every_step_is_journaled_as_it_happens_and_each_sample_commits(table, tmp_path):
     hardware = rig(table, journal=tmp_path / "session.sqlite")
     stats, steps, events, samples = run(hardware, tmp_path)
-    kinds = ["Home", "LampOn", "Move", *CALIBRATION, "Phase", *SAMPLE, *SAMPLE, "LampOff"]
+    kinds = ["Home", "LampOn", "Move", *CALIBRATION, "Phase", *SAMPLE, *SAMPLE, "LampOff", "Home"]
     assert [s["kind"] for s in steps] == kinds
     assert {(s["run"], s["status"]) for s in steps} == {(1, "done")}
     assert [s["plan_index"] for s in steps if s["kind"] in ("Move", "Commit")] == [None, 0, 0, 1, 1]
@@ -204,12 +204,12 @@ def test_every_step_is_journaled_as_it_happens_and_each_sample_commits(table, tm
     assert [r.joints for r in samples] == [s["joints"] for s in SAMPLES]
     assert all(r.committed_utc >= r.started_utc > 0 for r in samples)
     assert [e["kind"] for e in events] == ["session", "home", "lamp", "calibration", "lamp", "lamp", "calibration",
-                                           "samples", "lamp", "session"]
+                                           "samples", "lamp", "home", "session"]
     assert (tmp_path / "calibration" / "calibration.npz").is_file()
     assert (tmp_path / "samples.csv").read_text().count("\n") == 3
     # motion time from the session clock, axes moving together at 10 deg/s: the white pose (phi_o
-    # turns 180 deg), sample 0 (already there), sample 1 (phi_o turns 10 deg)
-    assert stats.motion_s == pytest.approx(18.0 + 0.0 + 1.0)
+    # turns 180 deg), sample 0 (already there), sample 1 (phi_o turns 10 deg), home (phi_o turns 170 deg)
+    assert stats.motion_s == pytest.approx(18.0 + 0.0 + 1.0 + 17.0)
     assert all(a.stops == 0 for a in hardware.axes.values())
 
 
@@ -219,7 +219,7 @@ def test_a_resumed_session_keeps_the_journaled_calibration_and_journals_its_own_
         run(first, tmp_path)
     stats, steps, events, samples = run(rig(table), tmp_path)
     second = [s["kind"] for s in steps if s["run"] == 2]
-    assert second == ["Home", "LampOn", "Phase", *SAMPLE, "LampOff"]
+    assert second == ["Home", "LampOn", "Phase", *SAMPLE, "LampOff", "Home"]
     assert [s["plan_index"] for s in steps if s["run"] == 2 and s["kind"] == "Commit"] == [1]
     assert [r.plan_index for r in samples] == [0, 1] and stats.skipped == 1 and stats.captured == 1
 

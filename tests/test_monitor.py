@@ -283,7 +283,7 @@ def test_a_capture_killed_mid_session_reads_as_stopped_and_its_steps_as_they_hap
         steps = journal.steps()
     moved = [st for st in steps if st["kind"] == "Move" and st["status"] == "done"][-1]
     assert gone.step == {k: steps[-1][k] for k in ("kind", "plan_index", "detail", "status", "started_utc")}
-    assert gone.reached == {"joints": moved["result"]["joints"], "plan_index": moved["plan_index"]}
+    assert gone.reached == {"joints": moved["result"]["joints"], "plan_index": moved["plan_index"], "kind": "Move"}
     assert f"with {len(gone.done)} of {M} samples safe" in state["hint"]
     assert state["poses"]["current"] is None  # no rig passed: no drawings (the browser tests draw them)
 

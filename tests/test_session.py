@@ -126,7 +126,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     # the engine's own events; a driver's log record ("device": a read retried on a busy machine)
     # may fall anywhere between them
     kinds = [e["kind"] for e in events if e["kind"] != "device"]
-    assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-2:] == ["lamp", "session"]
+    assert kinds[:4] == ["session", "home", "lamp", "calibration"] and kinds[-3:] == ["lamp", "home", "session"]
     for r, s in zip(records, doc["samples"]):  # the axes reached the plan's joints within tolerance
         assert all(abs(r.joints[a] - s["joints"][a]) <= 0.1 for a in s["joints"])
         assert r.snr >= 10 and all(np.isfinite(r.rgb)) and all(0 < sg < v for sg, v in zip(r.sigma, r.rgb))
@@ -180,11 +180,13 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert out.splitlines()[-1] == f"wrote {', '.join(written)} in {session}"
     assert all((session / name).is_file() for name in written)
 
-    # resuming a finished session moves nothing and rewrites the same results, samples.csv from the
-    # journal (a kill between the last commit and its CSV line)
+    # resuming a session whose samples are all journaled moves nothing and writes the same results,
+    # samples.csv from the journal (a kill between the last commit and its CSV line, before the
+    # results: with its results written a finished session refuses --resume, test_first_week)
     n_events = len(events)
     full_csv = (session / "samples.csv").read_text()
     (session / "samples.csv").write_text(full_csv[:full_csv.rindex("\n", 0, -1) + 1])
+    (session / "report.json").unlink()
     assert main(capture_args(rig, plan, session, "--resume")) == 0
     assert (session / "samples.csv").read_text() == full_csv
     with Journal.open(session / "session.sqlite") as journal:
@@ -808,9 +810,10 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     assert target["statement"] == batch["message"].split(", ", 1)[1].rsplit(":", 1)[0]
     assert target["batches"][0]["predicted_error"] == pytest.approx(batch["data"]["predicted_error"])
     assert f"target error 10000 at 80 % confidence: target reached after 4 of 5 samples: {target['statement']}" in out
-    # resuming a stopped session moves nothing and keeps the stopping decision; another target or
-    # confidence is refused
-    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 0
+    # resuming a stopped session is refused as finished (it only wrote the same results again),
+    # moves nothing and keeps the stopping decision; another target or confidence is refused
+    assert main(capture_args(rig, batched, session, "--resume", "--target-error", "10000", "--confidence", "0.8")) == 2
+    assert "this session is finished (4 of 5 samples, target_reached)" in capsys.readouterr().err
     with Journal.open(session / "session.sqlite") as journal:
         assert len(journal.events()) == len(events) and len(journal.samples()) == 4
     assert json.loads((session / "report.json").read_text())["target_error"] == target

@@ -111,7 +111,7 @@ def test_fresh_session_homes_calibrates_at_the_white_pose_then_moves_measures_an
                 *calibration_expected(), Phase("samples")]
     for i in range(3):
         expected += [sample_moves(i), Expose(0.032, f"raw/sample_{i:04d}_e2.dng", i), ("Commit", i)]
-    assert _shown(script.steps) == expected + [LampOff()]
+    assert _shown(script.steps) == expected + [LampOff(), Home(AXES)]   # lamp off, then back home
 
     # the calibration record came from those frames, at the white pose the Move reached
     [saved] = [s for s in script.steps if isinstance(s, SaveCalibration)]
@@ -140,14 +140,15 @@ def test_a_bright_sample_steps_down_and_the_next_sample_starts_from_its_value(fr
                                sample_moves(0), Expose(0.032, "raw/sample_0000_e2.dng", 0),
                                Expose(0.008, "raw/sample_0000_e1.dng", 0), ("Commit", 0),
                                sample_moves(1), Expose(0.008, "raw/sample_0001_e1.dng", 1), ("Commit", 1),
-                               LampOff()]
+                               LampOff(), Home(AXES)]
 
 
 def test_resumed_session_skips_journaled_samples_and_a_kept_calibration(frames):
     script = Script(frames)
     drive(session_steps(SPEC, done={0, 2}, calibration=RECORD), script)
     assert _shown(script.steps) == [Home(AXES), LampOn(), Phase("samples"), sample_moves(1),
-                                    Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), LampOff()]
+                                    Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), LampOff(),
+                                    Home(AXES)]
     assert remaining(3, {0, 2}) == [1]
 
 
@@ -250,7 +251,7 @@ def test_target_session_stops_after_the_first_batch_whose_predicted_error_is_at_
         Home(AXES), LampOn(), Phase("samples"),
         sample_moves(0), Expose(0.032, "raw/sample_0000_e2.dng", 0), ("Commit", 0), assess_step(0, 1, 0.2, "continue"),
         sample_moves(1), Expose(0.032, "raw/sample_0001_e2.dng", 1), ("Commit", 1), assess_step(1, 2, 0.04, "target reached"),
-        LampOff()]
+        LampOff(), Home(AXES)]
 
 
 def test_target_session_uses_up_the_plan_when_the_target_is_never_met(frames):
@@ -260,7 +261,7 @@ def test_target_session_uses_up_the_plan_when_the_target_is_never_met(frames):
     drive(session_steps(target_spec({1: 0.2, 2: 0.1, 3: 0.09}, batch_ends=(2, 3)), calibration=RECORD), script)
     assessed = [s for s in script.steps if isinstance(s, Assess)]
     assert assessed == [assess_step(0, 2, 0.1, "continue"), assess_step(1, 3, 0.09, "plan used up")]
-    assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2] and script.steps[-1] == LampOff()
+    assert [s.index for s in script.steps if isinstance(s, Commit)] == [0, 1, 2] and script.steps[-2:] == [LampOff(), Home(AXES)]
 
 
 def test_a_resumed_target_session_replays_the_journaled_batches_first(frames):
@@ -279,7 +280,7 @@ def test_a_resumed_target_session_replays_the_journaled_batches_first(frames):
     script = Script(frames)
     drive(session_steps(target_spec({1: 0.2, 2: 0.01, 3: 0.0}), done={0}, calibration=RECORD, records=records), script)
     assert _shown(script.steps)[:2] == [assess_step(0, 1, 0.2, "continue"), Home(AXES)]
-    assert _shown(script.steps)[-3:] == [("Commit", 1), assess_step(1, 2, 0.01, "target reached"), LampOff()]
+    assert _shown(script.steps)[-4:] == [("Commit", 1), assess_step(1, 2, 0.01, "target reached"), LampOff(), Home(AXES)]
     stopped = target_spec({1: 0.01, 2: 0.0, 3: 0.0})
     assert list(session_steps(stopped, done={0}, records=records)) == [assess_step(0, 1, 0.01, "target reached")]
 

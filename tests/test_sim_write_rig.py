@@ -237,3 +237,61 @@ def test_rig_stop_switches_the_lamp_off_itself_when_the_holder_cannot(served, ca
     assert re.fullmatch(r"stopped camera_arm at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; "
                         r"lamp off", err.splitlines()[1]), err
     assert status(out, capsys)["lamp"]["on"] is False
+
+
+# ----- issue 51: the rehearsal rig's clock and material -------------------------------------------
+def test_the_written_rig_file_names_its_twins_clock_and_camera_service(served):
+    _, out, _ = served
+    twins = yaml.safe_load(out.read_text())["twins"]
+    assert twins["clock_speedup"] == 50.0 and isinstance(twins["camera_service_port"], int)
+
+
+def test_a_dry_run_on_the_written_rig_compares_moves_on_the_twins_clock(served, tmp_path, capsys):
+    # the twins run 20 x (here 50 x) faster than the wall clock: 33 of 36 moves were marked DIFFERS
+    rig, out, _ = served
+    plan, _ = small_plan(rig, M, tmp_path / "plan.json")
+    capsys.readouterr()
+    assert main(["capture", "--rig", str(out), "--plan", str(plan), "--dry-run", "--no-progress"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    doc = json.loads(plan.read_text())
+    planned = sum(s["move_s"] for s in doc["samples"]) + doc["return_home_s"]
+    measured = float(said[0].split("measured ")[1].split(" s")[0])
+    assert said[0].endswith("on the twins' clock (speed-up 50)")
+    # measured 0.3 s of 12.6 s planned on the wall clock; on the twins' clock no move is faster than
+    # its trapezoid, and the host's polling (10 ms real, 0.5 s of the twins' at 50 x) only adds
+    assert planned * 0.95 <= measured <= planned * 3, said
+
+
+def test_a_capture_on_the_written_rig_measures_the_material_it_names(served, tmp_path, capsys):
+    # the material was fixed when `sim --write-rig` started (red plastic here): another one meant
+    # new twins, new ports and a new rig file
+    rig, out, _ = served
+    plan, _ = small_plan(rig, M, tmp_path / "plan.json")
+    reports = {}
+    for material in ("builtin:gold", None):
+        session = tmp_path / f"s-{material}"
+        extra = ["--material", material] if material else []
+        assert main(["capture", "--rig", str(out), "--plan", str(plan), "--session", str(session), "--no-progress",
+                     *extra]) == 0
+        reports[material] = json.loads((session / "report.json").read_text())
+    gold = reports["builtin:gold"]
+    assert gold["material"] == "builtin:gold" and gold["ground_truth"]["sample_relative_error_median"] < 0.05
+    # a capture that names none sees the material `sim --material` gave, whatever the last capture set
+    plain = reports[None]
+    assert plain["material"] is None
+    with open(tmp_path / "s-None" / "samples.csv") as a, open(tmp_path / "s-builtin:gold" / "samples.csv") as b:
+        red, gold_rows = [line.split(",") for line in a.read().splitlines()[1:]], \
+            [line.split(",") for line in b.read().splitlines()[1:]]
+    # gold reflects more red than blue; red plastic's diffuse part is red too but far darker in blue
+    # and green: compare the samples' own colours instead of guessing a threshold per material
+    assert [row[3:6] for row in red] != [row[3:6] for row in gold_rows]
+
+
+def test_a_material_on_the_written_rig_is_checked_before_anything_moves(served, tmp_path, capsys):
+    rig, out, _ = served
+    plan, _ = small_plan(rig, M, tmp_path / "plan.json")
+    capsys.readouterr()
+    assert main(["capture", "--rig", str(out), "--plan", str(plan), "--session", str(tmp_path / "s"), "--no-progress",
+                 "--material", "builtin:no-such"]) == 2
+    assert "command line: --material: unknown material 'no-such'" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

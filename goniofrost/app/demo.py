@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,6 +95,9 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
         if tabulating is not None:
             tabulating.result()
     lap("reach")
+    note = training_note(material, grid, reach.mask) if progress else None
+    if note:
+        print(note, file=sys.stderr, flush=True)
     model, model_path = train_without(material, grid, progress, reach.mask)
     lap("train")
     plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.mask)
@@ -125,6 +129,23 @@ def tabulate_training_set(material: str, grid) -> None:
     from goniofrost.datasets.tabulate import collect_materials, tabulated_material_files
 
     tabulated_material_files(collect_materials(["builtin"], None, [material]), grid, progress=False)
+
+
+# what a first training of the demo's model took: 45 s on a quiet 2-core machine, 74 s at load 6 to 9
+TRAINING_TAKES = "about 1 to 2 min on 2 cores"
+
+
+def training_note(material: str, grid, sentinel_candidates=None) -> str | None:
+    """What the demo says before it trains its model (None when the model is cached: no wait)."""
+    from goniofrost.datasets.tabulate import collect_materials
+    from goniofrost.frost.training import trained_model_folder
+
+    if (trained_model_folder(["builtin"], exclude=[material], grid=grid,
+                             sentinel_candidates=sentinel_candidates) / "model.json").is_file():
+        return None
+    n = len(collect_materials(["builtin"], None, [material]))
+    return (f"demo: training the model on the {n} built-in materials other than {material} "
+            f"({TRAINING_TAKES}; once: the model is cached for the next demo)")
 
 
 def train_without(material: str, grid, progress: bool, sentinel_candidates=None):

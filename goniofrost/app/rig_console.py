@@ -59,12 +59,15 @@ def run_check(args) -> int:
 
 def _probe(rig):
     from drivers.rig_devices import RigDevices
-    from goniofrost.rig.simulated import device_sections
-    from goniofrost.rig.check import probe_rig
+    from goniofrost.rig.check import probe_camera, probe_rig
+    from goniofrost.rig.simulated import connected_camera, device_sections
 
-    with device_sections(rig) as (resolved, _simulation):
+    with device_sections(rig) as (resolved, simulation):
         devices = RigDevices.from_rig(resolved)
-        return probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
+        reports = probe_rig(rig, devices.axes, devices.lamp, {n: a.driver for n, a in resolved.axes.items()})
+        if rig.camera:
+            reports.append(probe_camera(rig, lambda: connected_camera(rig, simulation)))
+        return reports
 
 
 def device_table(reports) -> str:
@@ -74,9 +77,12 @@ def device_table(reports) -> str:
     for r in reports:
         state = ("lamp on" if r.lamp_on else "lamp off") if r.device == "lamp" and r.answers else (
             "-" if not r.answers else (f"ALARM {r.alarm}" if r.alarm else ("enabled" if r.enabled else "disabled")))
+        limits = "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]"
+        if r.device == "camera":  # its limits are the exposure range, its state the frame grabbed
+            limits = "-" if r.exposure_range_s is None else f"[{r.exposure_range_s[0]:g}, {r.exposure_range_s[1]:g}] s"
+            state = _frame_text(r.frame) if r.frame else "-"
         rows.append((r.device, r.link, "yes" if r.answers else "NO", r.identity or "-",
-                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg",
-                     "-" if r.limits_deg is None else f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]", state))
+                     "-" if r.position_deg is None else f"{r.position_deg:.3f} deg", limits, state))
     widths = [max(len(str(row[i])) for row in rows) for i in range(len(head))]
     lines = []
     for k, row in enumerate(rows):
@@ -89,21 +95,39 @@ def device_table(reports) -> str:
     return "\n".join(lines)
 
 
+def _frame_text(frame: dict) -> str:
+    """'frame 0.002 s: median R 0.0102 G 0.0201 B 0.0150, 0 % saturated' (or why none was taken)."""
+    if "skipped" in frame:
+        return f"no frame: {frame['skipped']}"
+    median = " ".join(f"{c} {v:.4f}" for c, v in zip("RGB", frame["median"]))
+    return f"frame {frame['exposure_s']:g} s: median {median}, {100 * frame['saturated_fraction']:.2g} % saturated"
+
+
 # ----- status ----------------------------------------------------------------------------------
 def run_status(args) -> int:
     from goniofrost.capture.console import read_status
 
     interval = _watch_interval(args)
     rig = _load(args)  # the options first: a bad one connects nothing
+    in_place = args.watch and not args.json and sys.stdout.isatty()  # a log or a pipe keeps every reading
     with _connected(rig, enable=False, program="rig status") as hardware:
-        n = 0
+        n, shown = 0, 0
         while True:
             readings, lamp = read_status(rig, hardware)
-            print(_status_text(readings, lamp, args.json), flush=True)
-            n += 1
+            text = _status_text(readings, lamp, args.json, stamp=_utc_now() if args.watch else None)
+            # on a terminal the cursor goes back up over the last reading: one table, redrawn
+            print((f"\x1b[{shown}F\x1b[J" if in_place and shown else "") + text, flush=True)
+            n, shown = n + 1, text.count("\n") + 1
             if not args.watch or (args.count is not None and n >= args.count):
                 return 0
             time.sleep(max(interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _utc_now():
+    """The time of a reading (UTC, whole seconds)."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).replace(microsecond=0)
 
 
 def _watch_interval(args) -> float:
@@ -119,10 +143,14 @@ def _watch_interval(args) -> float:
     return 1.0 if args.interval is None else args.interval
 
 
-def _status_text(readings, lamp, as_json: bool) -> str:
+def _status_text(readings, lamp, as_json: bool, stamp=None) -> str:
+    """The readings as a table (or one JSON line), headed by ``stamp`` (a UTC datetime) when given."""
     if as_json:
-        return json.dumps({"axes": [r.as_dict() for r in readings], "lamp": lamp})
-    lines = []
+        doc = {"axes": [r.as_dict() for r in readings], "lamp": lamp}
+        if stamp is not None:
+            doc = {"time_utc": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"), **doc}
+        return json.dumps(doc)
+    lines = [] if stamp is None else [f"reading at {stamp:%Y-%m-%d %H:%M:%S} UTC"]
     limits = [f"[{r.limits_deg[0]:g}, {r.limits_deg[1]:g}]" for r in readings]
     width = max(map(len, limits), default=0)  # the state column lines up under every axis's
     for r, span in zip(readings, limits):
@@ -273,7 +301,7 @@ def run_snap(args) -> int:
 # ----- capture --dry-run -----------------------------------------------------------------------------
 def run_dry_run(args) -> int:
     """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
-    from goniofrost.capture.console import dry_run
+    from goniofrost.capture.console import dry_run, twins_speedup
     from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
     from goniofrost.capture.plan_file import read_plan
     from goniofrost.capture.runner import check_sim_options
@@ -294,21 +322,24 @@ def run_dry_run(args) -> int:
 
     with _connected(rig, enable=True, program="capture --dry-run", speedup=args.speedup) as hardware:
         timed = dry_run(rig, plan, hardware, on_move=progress)
-    print(dry_run_text(timed[1:]))
+    print(dry_run_text(timed[1:], twins_speedup(rig)))
     return 0
 
 
-def dry_run_text(timed) -> str:
-    """The planned and measured times in total, and every move where they differ."""
+def dry_run_text(timed, speedup: float = 1.0) -> str:
+    """The planned and measured times in total, and every move where they differ; ``speedup``
+    other than 1: the times are on the twins' clock, which runs that much faster (said so)."""
     planned = sum(m.planned_s for m in timed)
     measured = sum(m.measured_s for m in timed)
     differ = [m for m in timed if m.differs]
+    allowance = f"{timed[0].allowance_s:g} s" if timed else "0.5 s"
     lines = [f"{len(timed) - 1} moves and the return home: planned {planned:.1f} s, measured {measured:.1f} s "
-             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"]
+             f"({100 * (measured / planned - 1) if planned > 0 else 0.0:+.1f} %)"
+             + ("" if speedup == 1.0 else f" on the twins' clock (speed-up {speedup:g})")]
     if differ:
-        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and 0.5 s:")
+        lines.append(f"{len(differ)} moves differ from the plan by more than 20 % and {allowance}:")
         lines += [f"  {'return home' if m.index is None else f'sample {m.index}'}: planned {m.planned_s:.2f} s, "
                   f"measured {m.measured_s:.2f} s" for m in differ]
     else:
-        lines.append("every move within 20 % or 0.5 s of the plan")
+        lines.append(f"every move within 20 % or {allowance} of the plan")
     return "\n".join(lines)

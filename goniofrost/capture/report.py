@@ -127,9 +127,9 @@ def _last_run(runs) -> dict | None:
 
 
 def _planned_motion(plan: dict) -> float | None:
-    """The plan's motion time from home through the last sample (the session does not return home)."""
+    """The plan's motion time from home through the last sample and back home."""
     total = plan.get("planned_motion_s")
-    return None if total is None else float(total) - float(plan.get("return_home_s", 0.0))
+    return None if total is None else float(total)
 
 
 def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None) -> dict:

@@ -260,8 +260,12 @@ def session_finished(spec, journal) -> bool:
 def check_material(rig, material):
     """The simulated camera's material as given (resolved by the caller: ``spec``, ``brdf``,
     ``table``; or its ``SPEC:NAME`` before that), or None on a real rig; ConfigError for one on a
-    real rig or none on a simulated rig."""
+    real rig or none on a simulated rig. A rig file of ``goniofrost sim --write-rig``
+    (``rig.twins``) may name one: its camera service renders it (none: the one ``goniofrost sim``
+    was started with)."""
     if not rig.simulated:
+        if material is not None and rig.twins:
+            return material
         if material is not None:
             raise ConfigError("command line", "--material", "no material on a real rig (it measures the sample "
                               "in front of it)", getattr(material, "spec", material))
@@ -351,8 +355,11 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
         return Journal.create(path, meta)
     with Journal.open(path, read_only=True) as journal:
         if not resume:
+            _check_not_finished(journal, session_dir, resume)
             _check_nothing_captured(journal, meta)
         _check_same_session(journal, meta, resume)
+        if resume:  # another plan or setting is the more telling refusal
+            _check_not_finished(journal, session_dir, resume)
         label = _check_same_label(journal, meta)
     journal = Journal.open(path)
     try:
@@ -362,6 +369,22 @@ def open_journal(session_dir: Path, meta: dict, resume: bool) -> Journal:
         journal.close()
         raise
     return journal
+
+
+def _check_not_finished(journal: Journal, session_dir: Path, resume: bool) -> None:
+    """JournalError for a session whose last run completed: nothing is left to capture or resume
+    (``--resume`` only wrote the same results again). Its results missing (a kill while writing
+    them), ``--resume`` writes them."""
+    _, end = journal.last_run()
+    reported = (session_dir / "report.json").is_file()  # a capture writes report.json last
+    if end is None or not end.status.completed or (resume and not reported):
+        return
+    said = (f"{session_dir}: this session is finished ({end.samples_captured} of {end.samples_planned} samples, "
+            f"{end.status}): nothing is left to capture; ")
+    if reported:
+        raise JournalError(said + f"its results are in {session_dir}; to measure again, choose a new --session folder")
+    raise JournalError(said + "its results are not written yet: pass --resume to write them, or choose a new "
+                              "--session folder to measure again")
 
 
 def _check_nothing_captured(journal: Journal, meta: dict) -> None:

@@ -4,7 +4,8 @@
 reference pose and the calibration (``calibration_steps``: dark frames, flat field, white
 reference, each frame a step); then per remaining sample: move, its bracket of exposures
 (``sample_steps``), commit (a measured sample's record, or the record of a sample too dark or bright to
-measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off. Each Move's result
+measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off and home, as the plan's
+``return_home_s`` counts (the rig is parked where the next session starts). Each Move's result
 (the joints reached) gives the pose the next steps use, and the Commit carries the whole sample record, so nothing passes
 through the engine between steps. Samples already in the journal, measured or not, are
 skipped, so a resumed session never repeats one.
@@ -104,7 +105,13 @@ def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,
         return  # nothing left to capture: touch no device
     calibration = yield from _start(spec, calibration, reuse)
     yield from _capture(spec, calibration, todo, _as_arrays(measured))
+    yield from _finish(spec)
+
+
+def _finish(spec: SessionSpec):
+    """Lamp off, then home: the return home the plan's ``return_home_s`` counts."""
     yield LampOff()
+    yield Home(spec.axes)
 
 
 def _start(spec: SessionSpec, calibration, reuse=None):
@@ -172,7 +179,7 @@ def _target_session(spec: SessionSpec, calibration, records, measured, reuse=Non
         if result["decision"] != CONTINUE:
             break
     if started:
-        yield LampOff()
+        yield from _finish(spec)
 
 
 def _as_arrays(measured) -> dict:

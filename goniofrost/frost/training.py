@@ -55,7 +55,7 @@ class TrainingError(GoniofrostError, ValueError):
 
 def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
               k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
-              progress: bool = False, noise: bool = True, sentinel_candidates=None) -> FrostModel:
+              progress: bool = False, noise: bool = True, sentinel_candidates=None, on_stage=None) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
     tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
@@ -69,13 +69,16 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
         only among them (the calibration, its bound and its design range are then those of designs
         the rig can make) and the sentinel check is calibrated there (``plan --rig`` then places the
         sentinels exactly there), None: every cell.
+    on_stage: called with each of TRAIN_STAGES' names this fit enters (a progress bar), or None.
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
+    on_stage = on_stage or (lambda _name: None)
     tables = tables if hasattr(tables, "rows") else np.asarray(tables)
     names = [str(n) for n in names]
     _check_tables(tables, names, grid, k_max)
     weight = cosine_weight(grid).astype(np.float32)
     missing: dict[int, np.ndarray] = {}
+    on_stage("mapping")
     mapped, reference, mean, gram = _map_and_gram(tables, names, weight, eps, progress, missing=missing)
     # Our reference is the last one when the caller passed the tables without keeping them
     # (``train`` does): they are freed before the noise cross-validation needs its memory.
@@ -83,15 +86,18 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     # The products below stay on BLAS's own threads: OpenBLAS's results depend (in the last
     # bits) on its thread count, and the noise scales chosen downstream follow the last bits
     # (a design scale of 4 became 1 at full size when these ran on one BLAS thread each).
+    on_stage("components")
     svals, vt = _eigen_components(gram, k_max)
     variance, noise_meta = None, {}
     if noise and len(names) >= MIN_NOISE_MATERIALS:
         from goniofrost.frost.calibration import model_atoms  # the inner folds' coordinates on this model's atoms
 
+        on_stage("noise cross-validation")
         variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
                                            model_atoms(gram, vt, svals), missing=missing)
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
+    on_stage("dictionary")
     dictionary = _project(mapped, vt)
     return FrostModel(grid=grid, names=names, eps=eps, dictionary=dictionary,
                       singular_values=svals, coefficients=vt, mean=mean,
@@ -291,6 +297,10 @@ def _progress_chunks(parts, n: int, progress: bool, what: str):
 
 
 # ----- training from dataset specs -------------------------------------------------------
+# the stages of a training, as its progress bar names them (only on a terminal: core.progress)
+TRAIN_STAGES = ("tabulating", "mapping", "components", "noise cross-validation", "dictionary", "saving")
+
+
 def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
           exclude: Sequence[str] | None = None, grid: MerlGrid = FULL_GRID,
           k_max: int = K_MAX, cache: bool = True, progress: bool = False,
@@ -306,12 +316,59 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     sentinel_candidates: bool (n_valid,) the cells the inner designs pick among and the sentinel
         check is calibrated at (``fit_model``; ``train --rig``: the rig's measurable cells), None:
         the whole grid.
+    progress: a bar over TRAIN_STAGES (and each stage's own where it has one) on a terminal.
     Returns the model (memory-mapped from the cache when cache=True).
     """
-    from goniofrost.core import cache as disk_cache
+    from goniofrost.core.progress import StageBar
     from goniofrost.datasets.tabulate import TabulatedFiles, collect_materials, tabulated_material_files
 
     materials = collect_materials(list(dataset_specs), only, exclude)
+    key, among = _model_key(materials, grid, k_max, sentinel_candidates)
+    folder = model_cache_folder(key) if cache else None
+    named = _datasets_named(dataset_specs)
+    if folder is not None and (folder / "model.json").is_file():
+        model = FrostModel.load(folder)
+        earlier = {k: v for k, v in (model.info or {}).items() if k not in ("datasets", "datasets_from")}
+        model.info = {**named, **earlier}  # the order of a fresh training's info
+        return model
+    info = {**named, "cache_key": key}
+    if sentinel_candidates is not None:
+        info["sentinel_candidates"] = {"cells": int(np.count_nonzero(sentinel_candidates)), "sha256": among[0]}
+    with StageBar("train", TRAIN_STAGES, asked=progress) as bar:
+        # The tables are read from the tabulation cache in row chunks: at full size 151 materials
+        # are 2 GB, which would double the peak memory beside the mapped X.
+        bar.stage("tabulating")
+        tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
+        model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress,
+                          sentinel_candidates=sentinel_candidates, on_stage=bar.stage)
+        if folder is None:
+            return model
+        bar.stage("saving")
+        model.save(folder)
+    return FrostModel.load(folder)
+
+
+def trained_model_folder(dataset_specs: Sequence[str], only=None, exclude=None, grid: MerlGrid = FULL_GRID,
+                         k_max: int = K_MAX, sentinel_candidates=None):
+    """The cache folder ``train(..., cache=True)`` keeps this model in (it holds model.json once
+    trained: a caller can say whether a training lies ahead)."""
+    from goniofrost.datasets.tabulate import collect_materials
+
+    materials = collect_materials(list(dataset_specs), only, exclude)
+    return model_cache_folder(_model_key(materials, grid, k_max, sentinel_candidates)[0])
+
+
+def model_cache_folder(key: str):
+    """The cache folder of the model with cache key ``key``."""
+    from goniofrost.core import cache as disk_cache
+
+    return disk_cache.cache_path("models", key, "")
+
+
+def _model_key(materials, grid: MerlGrid, k_max: int, sentinel_candidates) -> tuple[str, list]:
+    """(the cache key of a model of ``materials``, [the candidates' digest] or [])."""
+    from goniofrost.core import cache as disk_cache
+
     ids = [m.dataset.content_id(m.name) for m in materials]
     # v3: the calibration holds the error bound (confidence.py); a v2 model cached before has none
     # v4: the bound holds the sentinel check's calibration (sentinel.py)
@@ -327,27 +384,8 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
     # only; a model without a rig is unchanged and keeps v9
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
     version = "frost-model-v9" if sentinel_candidates is None else "frost-model-v10"
-    key = disk_cache.content_key(version, ids, [m.label for m in materials],
-                                 grid.as_dict(), int(k_max), EPS, *among)
-    folder = disk_cache.cache_path("models", key, "") if cache else None
-    named = _datasets_named(dataset_specs)
-    if folder is not None and (folder / "model.json").is_file():
-        model = FrostModel.load(folder)
-        earlier = {k: v for k, v in (model.info or {}).items() if k not in ("datasets", "datasets_from")}
-        model.info = {**named, **earlier}  # the order of a fresh training's info
-        return model
-    info = {**named, "cache_key": key}
-    if sentinel_candidates is not None:
-        info["sentinel_candidates"] = {"cells": int(np.count_nonzero(sentinel_candidates)), "sha256": among[0]}
-    # The tables are read from the tabulation cache in row chunks: at full size 151 materials
-    # are 2 GB, which would double the peak memory beside the mapped X.
-    tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
-    model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress,
-                      sentinel_candidates=sentinel_candidates)
-    if folder is None:
-        return model
-    model.save(folder)
-    return FrostModel.load(folder)
+    return disk_cache.content_key(version, ids, [m.label for m in materials],
+                                  grid.as_dict(), int(k_max), EPS, *among), among
 
 
 def _datasets_named(dataset_specs) -> dict:

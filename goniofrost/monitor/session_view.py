@@ -119,7 +119,7 @@ class SessionView:
     process was killed); ``stop`` the same when it ended early; ``white_rates`` the calibration's
     white signal per channel (None before it); ``step`` the
     journal's latest plan step (kind, plan_index, detail, status, started_utc); ``reached`` the
-    joints {axis: deg} and plan index of the last completed move (None before one);
+    joints {axis: deg}, plan index and kind (Move or Home) of the last completed move (None before one);
     ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
     ``summary`` the text of summary.txt (empty before the end);
     ``predicted_error`` is the latest predicted reconstruction error when the session
@@ -318,11 +318,12 @@ def _last_step(steps: list) -> dict | None:
 
 
 def _reached(steps: list) -> dict | None:
-    """Joints and plan index of the last Move step that completed (its result: the joints reached)."""
+    """Joints, plan index and kind of the last Move or Home step that completed (its result: the
+    joints reached): the rig's last confirmed pose (a capture ends with a Home)."""
     for step in reversed(steps):
         joints = step["result"].get("joints") if isinstance(step["result"], dict) else None
-        if step["kind"] == "Move" and step["status"] == "done" and isinstance(joints, dict):
-            return {"joints": joints, "plan_index": step["plan_index"]}
+        if step["kind"] in ("Move", "Home") and step["status"] == "done" and isinstance(joints, dict):
+            return {"joints": joints, "plan_index": step["plan_index"], "kind": step["kind"]}
     return None
 
 

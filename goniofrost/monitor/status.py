@@ -46,7 +46,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "last_event": _last_event(view),
         "samples": _sample_columns(view, done, next_index, failed, dark),
         "latest": None if latest is None else _latest(latest),
-        "poses": _poses(view, rig, latest, next_index),
+        "poses": _poses(view, rig, latest, next_index if state in ("running", "stalled") else None),
         "stop": None if view.stop is None else {
             "status": view.stop.status.value, "message": view.stop.message, "detail": view.stop.detail,
             "axis": view.stop.axis, "plan_index": view.stop.plan_index},
@@ -232,27 +232,50 @@ def _latest(d) -> dict:
 
 
 def _poses(view, rig, latest, next_index) -> dict:
-    """Drawings of the current pose (the last journaled sample's joints as reached; the rig's home
-    before any) and of the next plan sample's target pose."""
+    """Drawings of the last confirmed pose (where a stop confirmed the axes at rest; else the last
+    completed move or homing; the last journaled sample's joints; the rig's home before any) and
+    of the next plan sample's target pose (``next_index``: None once the run has ended). The
+    sample the rig has reached and is measuring is never also the next."""
     if rig is None:
         return {"current": None, "next": None}
     from goniofrost.monitor.rig_pose import pose_drawing
 
-    if view.reached is not None:
-        index = view.reached["plan_index"]
-        label = f"sample {index} (reached)" if index is not None else "white reference (reached)"
-        current = {"label": label, **pose_drawing(rig, view.reached["joints"])}
-    elif latest is not None:
-        current = {"label": f"sample {latest.plan_index} (reached)", **pose_drawing(rig, latest.joints)}
-    else:
-        home = {a.name: a.home_deg for a in rig.ordered_axes}
-        current = {"label": "home", **pose_drawing(rig, home)}
+    label, joints = _current_pose(view, rig, latest)
+    current = {"label": label, **pose_drawing(rig, joints)}
+    here = (view.reached or {}).get("plan_index")
+    if next_index is not None and next_index == here:  # being measured: the next is the one after it
+        next_index = next((s.index for s in view.plan[here + 1:] if s.index not in _journaled(view)), None)
     nxt = None
     if next_index is not None:
         s = view.plan[next_index]
         nxt = {"label": f"sample {s.index} (target)", "theta_i_deg": s.theta_i_deg, "theta_o_deg": s.theta_o_deg,
                **pose_drawing(rig, s.joints)}
     return {"current": current, "next": nxt}
+
+
+def _current_pose(view, rig, latest) -> tuple[str, dict]:
+    """(label, joints {axis: deg}) of the rig's last confirmed pose (see ``_poses``)."""
+    if view.reached is not None:
+        index, kind = view.reached["plan_index"], view.reached.get("kind", "Move")
+        label = ("home (reached)" if kind == "Home" else f"sample {index} (reached)" if index is not None
+                 else "white reference (reached)")
+        joints = dict(view.reached["joints"])
+    elif latest is not None:
+        label, joints = f"sample {latest.plan_index} (reached)", dict(latest.joints)
+    else:
+        label, joints = "home", {a.name: a.home_deg for a in rig.ordered_axes}
+    stops = view.run_end.stops if view.stop is not None and view.run_end is not None else ()
+    if stops:  # the stop's own readings are the last confirmed pose; an unconfirmed axis keeps its last reached
+        joints.update({s.axis: s.position_deg for s in stops if s.confirmed and s.position_deg is not None})
+        unsure = [s.axis for s in stops if not s.confirmed or s.position_deg is None]
+        label = ("where the stop left it (every axis confirmed at rest)" if not unsure else
+                 f"where the stop left it ({', '.join(unsure)} not confirmed: the last pose it reached shown)")
+    return label, joints
+
+
+def _journaled(view) -> set:
+    """Plan indices journaled, measured or not."""
+    return {d.plan_index for d in (*view.done, *view.not_measured)}
 
 
 def label_text(label: dict) -> str:

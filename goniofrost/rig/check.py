@@ -5,8 +5,10 @@ geometry, each axis with its driver, the lamp, the camera, the sim section, the 
 that one run names every problem instead of the first; only when each part is sound are the
 checks that need several parts run (``load_checked_rig``). ``probe_rig(rig)`` connects to each
 device in turn, with the driver's own bounded reply timeouts, reads what it can (identity,
-position, enabled and alarm state) and gives a device that does not answer its likely causes.
-Nothing here enables a motor, moves an axis or switches the lamp.
+position, enabled and alarm state) and gives a device that does not answer its likely causes;
+``probe_camera`` connects the camera, reads what it is and its exposure range, and grabs one
+frame at the ladder's shortest exposure (its levels). Nothing here enables a motor, moves an
+axis or switches the lamp.
 """
 from __future__ import annotations
 
@@ -56,6 +58,8 @@ def rig_file_problems(path: str | Path, alignment: str | Path | None = None) -> 
         return problems or [Problem("", f"{source}: (top level): expected a rig file, found nothing")]
     if not isinstance(raw, Mapping):
         return [Problem("", str(ConfigError(source, "", "a mapping (a rig file)", raw)))]
+    if _collect(problems, S.check_filled_in, raw, source) is None and problems:
+        return problems  # a template not yet edited: its examples would only add problems of their own
     top = raw
     _check_parts(top, source, problems)
     if not problems:  # the checks across sections need every part sound
@@ -94,6 +98,8 @@ def _check_parts(top: Mapping, source: str, problems: list[Problem]) -> None:
                                           f"intrinsics, mount: see config/rigs/template.yaml), found nothing"))
     if "sim" in top:
         _collect(problems, validators["sim"], top["sim"], source, "sim")
+    if "twins" in top:
+        _collect(problems, validators["twins"], top["twins"], source, "twins")
 
 
 def _check_lamp_device(lamp, axes_map: Mapping, source: str, problems: list[Problem]) -> None:
@@ -109,8 +115,10 @@ def _check_lamp_device(lamp, axes_map: Mapping, source: str, problems: list[Prob
 @dataclass
 class DeviceReport:
     """What one device answered: ``answers``; ``identity`` text where the protocol gives one;
-    ``position_deg``, ``limits_deg``, ``enabled`` and ``alarm`` (None: healthy) for an axis; ``error``
-    and ``causes`` (likely causes, most likely first) when it did not answer."""
+    ``position_deg``, ``limits_deg``, ``enabled`` and ``alarm`` (None: healthy) for an axis;
+    ``exposure_range_s`` and ``frame`` (exposure_s, per-channel median and 99th percentile of the
+    linear values, saturated fraction) for the camera; ``error`` and ``causes`` (likely causes,
+    most likely first) when it did not answer."""
 
     device: str
     link: str
@@ -123,10 +131,13 @@ class DeviceReport:
     lamp_on: bool | None = None
     error: str | None = None
     causes: list[str] = field(default_factory=list)
+    exposure_range_s: tuple[float, float] | None = None
+    frame: dict | None = None
 
     def as_dict(self) -> dict:
         out = dict(self.__dict__)
         out["limits_deg"] = None if self.limits_deg is None else list(self.limits_deg)
+        out["exposure_range_s"] = None if self.exposure_range_s is None else list(self.exposure_range_s)
         return out
 
 
@@ -282,3 +293,87 @@ def probe_lamp(rig, lamp, axes: Mapping, sections: Mapping | None = None) -> Dev
                 except Exception:  # noqa: BLE001 - closing a link that never opened
                     pass
     return report
+
+
+# ----- probing the camera --------------------------------------------------------------------------
+def camera_link(section: Mapping) -> str:
+    """The camera's link in a few words: "pylon serial 40012345", "rawfile /data/raw (trigger command)"."""
+    kind = section.get("kind", "?")
+    if kind == "pylon":
+        return f"pylon serial {section.get('serial')}" if section.get("serial") else "pylon (the first camera found)"
+    if kind == "rawfile":
+        how = "trigger command" if section.get("trigger_command") else "the operator triggers it"
+        return f"rawfile {section.get('folder')} ({how})"
+    return f"{kind} (the simulated camera)"
+
+
+def camera_causes(section: Mapping, exc: BaseException) -> list[str]:
+    """The likely causes of a camera that did not give a frame (most likely first)."""
+    text = str(exc).lower()
+    if section.get("kind") == "pylon":
+        if "serial" in text:
+            return ["camera.serial is not this camera's: the serials found are listed above",
+                    "the camera with that serial is unplugged or not powered"]
+        return ["the camera is unplugged or not powered (pylon Viewer lists what pylon sees)",
+                "another program (pylon Viewer) holds the camera"]
+    if section.get("kind") == "rawfile":
+        return ["the trigger command failed: the camera is off, not connected, or the program or service it "
+                "calls is not running", f"no RAW file arrived in {section.get('folder')} within camera.timeout_s "
+                f"({section.get('timeout_s')} s): the tethering software writes elsewhere"]
+    return []
+
+
+def probe_camera(rig, connected) -> DeviceReport:
+    """Connect the camera (``connected()``: a context manager yielding it connected), read what it
+    is (vendor, model, serial) and its exposure range, grab one frame at the shortest exposure of
+    the ladder and read its levels. A rawfile camera the operator triggers is not exposed."""
+    import tempfile
+
+    section = dict(rig.camera)
+    report = DeviceReport("camera", camera_link(section), False)
+    ladder = sorted(float(t) for t in section.get("exposures_s", ()))
+    try:
+        with connected() as camera, tempfile.TemporaryDirectory(prefix="goniofrost-check-") as folder:
+            report.exposure_range_s = _exposure_range(camera, section, ladder)
+            report.identity = _identity_text(getattr(camera, "info", None) or {})
+            if section.get("kind") == "rawfile" and not section.get("trigger_command"):
+                report.frame = {"skipped": "the operator triggers this camera (no camera.trigger_command)"}
+            else:  # it answers once it gave a frame
+                frame = camera.capture(ladder[0], Path(folder) / "probe.dng")
+                report.frame, identity = _levels(frame)
+                report.identity = report.identity or _identity_text(identity)
+            report.answers = True
+    except Exception as exc:  # noqa: BLE001 - a camera that gives no frame is a finding, not a crash
+        report.error, report.causes = _short(exc), camera_causes(section, exc)
+    return report
+
+
+def _exposure_range(camera, section: Mapping, ladder: list) -> tuple[float, float]:
+    """The camera's stated range (pylon), a folder camera's shutter speeds, else the ladder's."""
+    stated = getattr(camera, "exposure_range_s", None)
+    if callable(stated):
+        return tuple(stated())
+    if section.get("shutter_speeds"):
+        from calib.config import shutter_seconds
+        seconds = [shutter_seconds(label) for label in section["shutter_speeds"]]
+        return min(seconds), max(seconds)
+    return ladder[0], ladder[-1]
+
+
+def _identity_text(identity: Mapping) -> str | None:
+    return ", ".join(f"{k} {identity[k]}" for k in ("vendor", "model", "serial") if identity.get(k)) or None
+
+
+def _levels(frame) -> tuple[dict, dict]:
+    """(the frame's exposure and levels per channel, the camera the RAW file names)."""
+    import numpy as np
+
+    from drivers.rawfile import raw_identity, read_raw
+
+    raw = read_raw(frame.path)
+    by_channel = [raw.linear[raw.channels == c] for c in range(3)]
+    levels = {"exposure_s": float(frame.exposure_s),
+              "median": [round(float(np.median(v)), 6) for v in by_channel],
+              "p99": [round(float(np.percentile(v, 99)), 6) for v in by_channel],
+              "saturated_fraction": float(raw.saturated.mean())}
+    return levels, raw_identity(frame.path)

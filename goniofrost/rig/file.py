@@ -32,6 +32,7 @@ VALIDATORS: dict[str, tuple[str, str]] = {
     "driver": ("drivers.config", "validate_driver_section"),
     "camera": ("calib.config", "validate_camera_section"),
     "sim": ("sim.config", "validate_sim_section"),
+    "twins": ("sim.config", "validate_twins_section"),
     "lab": ("goniofrost.rig.lab", "validate_lab_section"),
 }
 # checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.

@@ -11,7 +11,9 @@ the material it is handed: an object with ``spec`` (its name, ``SPEC:NAME``) and
 * ``simulated_devices``: the opener of ``goniofrost.rig.hardware.open_hardware`` for the twins.
 * ``rig_devices``: the usual choice, the twins for a ``simulated: true`` rig file, else the real devices.
 * ``device_sections``: the rig with its twins' endpoints (and the running simulation) for the console.
-* ``twins`` and ``simulated_camera``: the parts ``goniofrost sim`` serves.
+* ``twins`` and ``simulated_camera``: the parts ``goniofrost sim`` serves; ``show_material``: the
+  material its camera service renders for the next capture on its rig file.
+* ``connected_camera``: the rig's camera for ``rig check`` (the simulated one on a simulated rig).
 """
 from __future__ import annotations
 
@@ -22,8 +24,30 @@ from goniofrost.rig.hardware import RigHardware, connected, open_camera, real_de
 
 def rig_devices(rig, **options):
     """``simulated_devices`` for a rig file marked ``simulated: true``, else ``real_devices``
-    (``options``: material, seed, speedup): the opener the commands hand to ``open_hardware``."""
+    (``options``: material, seed, speedup): the opener the commands hand to ``open_hardware``.
+    A rig file of ``goniofrost sim --write-rig`` (``rig.twins``) is opened as real devices after
+    its camera service is told which material to render (``show_material``)."""
+    if not rig.simulated and rig.twins:
+        show_material(rig, options.get("material"))
     return (simulated_devices if rig.simulated else real_devices)(rig, **options)
+
+
+def show_material(rig, material) -> None:
+    """Ask the twins' camera service of ``rig`` to render ``material`` (``.spec`` or ``SPEC:NAME``;
+    None: the one ``goniofrost sim`` started with); ConfigError naming ``twins.camera_service_port``
+    when the service is gone or refuses it."""
+    from goniofrost.core.errors import ConfigError
+    from sim.camera_service import request
+
+    spec = getattr(material, "spec", material)
+    port = rig.twins["camera_service_port"]
+    try:
+        answer = request(port, f"material {spec or 'default'}")
+    except OSError as exc:
+        answer = f"error no simulated camera service on 127.0.0.1:{port} ({exc}): is goniofrost sim still running?"
+    if not answer.startswith("ok"):
+        raise ConfigError(rig.source, "twins.camera_service_port", f"the simulated camera to show "
+                          f"{spec or 'its own material'}", answer.removeprefix("error "))
 
 
 def twins(rig, *, speedup: float | None = None, seed: int = 0):
@@ -69,6 +93,31 @@ def simulated_devices(rig, *, material=None, seed: int | None = None, speedup: f
                                       simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
                 finally:
                     camera.close()
+
+
+@contextmanager
+def connected_camera(rig, simulation=None):
+    """The rig's camera, connected, closed on exit (``rig check``): the real one (``open_camera``),
+    or on a simulated rig (``simulation``: its running SimulatedRig) the simulated camera, or
+    pylon's emulated camera serving it, facing the white card (no material needed). A camera
+    that fails to connect raises its own error."""
+    if simulation is None:
+        camera = open_camera(rig)
+        camera.connect()
+        try:
+            yield camera
+        finally:
+            camera.close()
+        return
+    sim_camera = simulated_camera(rig, simulation, None, int((rig.sim or {}).get("seed", 0)))
+    sim_camera.connect()
+    try:
+        with _emulated_pylon(rig, sim_camera) as pylon_camera:
+            camera = pylon_camera or sim_camera
+            camera.set_target("white")  # a simulated target: nothing asks the operator
+            yield camera
+    finally:
+        sim_camera.close()
 
 
 @contextmanager

@@ -33,7 +33,8 @@ def add_arguments(parser) -> None:
                              "twins, to rehearse a capture or the console exactly as on a real rig; removed when "
                              "the twins stop (Ctrl-C or SIGTERM), as its endpoints stop with them")
     parser.add_argument("--material", default=None,
-                        help=f"what the simulated camera sees with --write-rig (default {DEFAULT_MATERIAL})")
+                        help=f"what the simulated camera sees with --write-rig when a capture names none "
+                             f"(default {DEFAULT_MATERIAL}; capture --material picks another per run)")
 
 
 def run(args) -> int:
@@ -121,11 +122,13 @@ def _served_rig_file(rig, simulation, material, seed: int, out_path):
     camera = simulated_camera(rig, simulation, material, seed)
     camera.connect()
     out = Path(out_path).resolve()  # the rig file names its frames folder absolutely: usable from anywhere
-    service = CameraService(camera, out.with_name(out.name + ".frames"))
+    from goniofrost.datasets import material_brdf
+
+    service = CameraService(camera, out.with_name(out.name + ".frames"), materials=material_brdf)
     service.start()
     written = None
     try:
-        document = real_rig_document(rig.source, simulation.resolved_rig(), service)
+        document = real_rig_document(rig.source, simulation.resolved_rig(), service, simulation.clock.speedup)
         write_text_atomic(out, f"# written by goniofrost sim --write-rig (process {os.getpid()}) from "
                                f"{rig.source}: the running simulation's twins, as a real rig; removed when they "
                                f"stop\n" + yaml.safe_dump(document, sort_keys=False))
