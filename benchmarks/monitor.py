@@ -74,7 +74,7 @@ def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
     from planner.schedule import schedule_plan
 
     from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
-    from goniofrost.capture.plan_file import sample_entries, write_plan
+    from goniofrost.plan.file import sample_entries, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle
 

@@ -34,7 +34,7 @@ def coloured_plan(folder: Path, model, material: str, n_other: int = 2) -> tuple
     from planner.reach import reachability
     from planner.schedule import schedule_plan
 
-    from goniofrost.capture.plan_file import plan_document, write_plan
+    from goniofrost.plan.file import plan_document, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.datasets import parse_material_spec

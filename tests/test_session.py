@@ -727,7 +727,7 @@ def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path
 # ----- a capture with a target error -------------------------------------------------------------
 def batched_plan(folder: Path, rig, plan, ends) -> Path:
     """The module's plan scheduled again in the batches ``ends``."""
-    from goniofrost.capture.plan_file import write_plan
+    from goniofrost.plan.file import write_plan
     from goniofrost.rig.file import load_checked_rig
     from planner.schedule import schedule_batches
 
@@ -793,7 +793,7 @@ def scene_plan(folder: Path, rig, plan, ends, model) -> Path:
     """The module's plan in batches ``ends`` as a plan made for a scene: its usage section (a map of
     the cells near retro-reflection) with the error in the scene's use calibrated on the model's
     training materials, as ``plan --usage`` writes it."""
-    from goniofrost.capture.plan_file import write_plan
+    from goniofrost.plan.file import write_plan
     from goniofrost.frost.scene_error import scene_error
     from goniofrost.frost.usage_calibration import calibrate_scene
     from goniofrost.frost.usage_design import sensitivity_power

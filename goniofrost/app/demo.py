@@ -147,36 +147,13 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json.
     candidates: the rig's reachability mask (bool (n_valid,)) when already computed. A Bayesian
     plan gets the model's sentinel samples (as ``plan``; ``sentinels=False``: none)."""
-    from planner.reach import reachability
-    from planner.schedule import schedule_batches, schedule_plan
+    from goniofrost.plan.file import write_plan
+    from goniofrost.plan.make import PlanRequest, make_plan
+    from goniofrost.rig.file import load_checked_rig
 
-    from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.rig.file import command_steps, load_checked_rig
-    from goniofrost.frost.cell_sensitivity import axis_weights
-    from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
-
-    rig = load_checked_rig(rig_path, alignment)
-    candidates = reachability(rig, model.grid).mask if candidates is None else candidates
-    if max_angle is not None:
-        candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
-    select = select_bayes if selector == "bayes" else select_cells
-    selection = select(model, m, candidates=candidates)
-    doc = plan_document(model_path, model, selection)
-    if sentinels and selector == "bayes":
-        from goniofrost.capture.plan_file import with_sentinels
-
-        doc, _ = with_sentinels(doc, model, selection.positions, candidates)
-    if selector == "bayes":  # as plan's PLAN.json: is its predicted error an extrapolation? (the capture says why)
-        from goniofrost.capture.plan_file import with_design_check
-
-        doc, _ = with_design_check(doc, model, selection.positions)
-    # the joints on the axes' command lattices, each axis's miss weighed by what the model
-    # expects it to cost at the sample's cell (planner.steps, frost.cell_sensitivity)
-    lattice = {"steps": command_steps(rig),
-               "axis_weights": axis_weights(model, [s["cell"] for s in doc["samples"]])}
-    doc = (schedule_batches(doc, rig, doc["batch_ends"], **lattice) if "batch_ends" in doc
-           else schedule_plan(doc, rig, **lattice))
+    request = PlanRequest(samples=m, selector=selector, max_angle=max_angle, sentinels=None if sentinels else False,
+                          rig=load_checked_rig(rig_path, alignment), candidates=candidates)
+    doc = make_plan(model, model_path, request).doc
     write_plan(out_path, doc)
     return Path(out_path)
 
