@@ -126,15 +126,15 @@ def _candidates(model, request: PlanRequest, say, progress: bool):
 
 
 def _select(model, request: PlanRequest, mask, scenes):
-    """The selection; ``scenes`` (a ``SceneErrors``, with a usage map) gives the calibration each
-    design's predicted errors use."""
-    if request.selector == "bayes":
-        from goniofrost.frost.bayes_selection import select_bayes
-        return select_bayes(model, request.samples, max_error=request.max_error, candidates=mask, usage=request.usage,
-                            calibration=None if scenes is None else (lambda *design: scenes(*design).calibration))
-    from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
-    return select_cells(model, request.samples, max_error=request.max_error, candidates=mask,
-                        y_form=request.y_form or DEFAULT_Y_FORM, k=request.atoms)
+    """The selection by the request's selector (``frost.selectors.SELECTORS``), handed only the
+    options the request sets; ``scenes`` (a ``SceneErrors``, with a usage map) gives the
+    calibration each design's predicted errors use."""
+    from goniofrost.frost.selectors import SELECTORS
+
+    options = {"y_form": request.y_form, "k": request.atoms, "usage": request.usage,
+               "calibration": None if scenes is None else (lambda *design: scenes(*design).calibration)}
+    return SELECTORS[request.selector].select(model, request.samples, max_error=request.max_error, candidates=mask,
+                                              **{key: value for key, value in options.items() if value is not None})
 
 
 def _usage_entry(request: PlanRequest, selection, scenes: SceneErrors, say) -> dict:

@@ -15,7 +15,9 @@ def add_arguments(parser) -> None:
                      help="select until the error target E is met: with --selector bayes, the predicted "
                           "log-relative MSE of a typical material (e.g. 0.05); with frost, the relative "
                           "residual ||R||_F/||Y||_F (paper eq. 8)")
-    parser.add_argument("--selector", choices=("bayes", "frost"), default="bayes",
+    from goniofrost.frost.selectors import SELECTORS
+
+    parser.add_argument("--selector", choices=tuple(SELECTORS), default="bayes",
                         help="bayes (default): greedy Bayesian A-optimal design for the posterior-mean "
                              "reconstruction, nested (the first m samples are the best m); frost: SOMP as in "
                              "the paper")
