@@ -106,8 +106,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     write_reference_and_preview(shown, grid, out)
     lap("reference")
     if bsdf:
-        from goniofrost.brdf.mitsuba_export import export_beside
-        export_beside(out / "session" / "brdf.binary")
+        from goniofrost.brdf.formats import export_beside
+        export_beside(out / "session" / "brdf.binary", "mitsuba")
         lap("export")
     report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m_max": samples,
                                          "target_error": target_error, "confidence": confidence,

@@ -39,7 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--bsdf", action="store_true",
                         help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
                              "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
-    parser.add_argument("--bsdf-format", choices=["mitsuba", "rgl-spectral", "pbrt"], default=None,
+    from goniofrost.brdf.formats import FORMATS
+
+    parser.add_argument("--bsdf-format", choices=tuple(FORMATS), default=None,
                         help="the format of brdf.bsdf (implies --bsdf): mitsuba (RGB, the default) or rgl-spectral / "
                              "pbrt (spectral, for pbrt-v4 and Mitsuba 3's spectral variants; about 100 MB)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -118,9 +120,9 @@ def run(args) -> int:
         return 130
     print(outcome.summary, end="")
     if bsdf:
-        from goniofrost.brdf.rgl_spectral import export_beside
+        from goniofrost.brdf.formats import FORMATS, export_beside
 
         fmt = args.bsdf_format or "mitsuba"
         written = export_beside(outcome.session_dir / outcome.report['outputs']['brdf'], fmt)
-        print(f"wrote {written} ({'for Mitsuba 3' if fmt == 'mitsuba' else 'spectral, for pbrt-v4 and Mitsuba 3'})")
+        print(f"wrote {written} ({FORMATS[fmt].reader})")
     return 0
