@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # before benchmarks/, whose planner.py would shadow the planner package
@@ -116,8 +117,9 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
         if urls is not None:
             urls.put(server.url)
         try:
-            capture(default_rig_path(), plan, session, material=shown_material(f"builtin:{MATERIAL}"), seed=0,
-                    speedup=speedup, progress=False, on_ready=on_ready, devices=rig_devices)
+            capture(default_rig_path(), plan, session, devices=rig_devices, progress=False,
+                    sim=SimOptions(material=shown_material(f"builtin:{MATERIAL}"), seed=0, speedup=speedup,
+                                   on_ready=on_ready))
         except SessionFault as exc:
             print(f"  (expected) {exc}", flush=True)
     if cpu is not None:

@@ -166,14 +166,15 @@ def capture_fresh(rig_path, plan_path, session_dir: Path, material, seed: int, s
     """Capture into a fresh session folder (a previous demo session there is removed first), on the
     simulated devices of the rig in ``rig_path`` showing ``material`` (``goniofrost.datasets.shown_material``)."""
     from goniofrost.capture.runner import capture
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     check_replaceable(session_dir)
     if session_dir.exists():
         shutil.rmtree(session_dir)
-    return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
-                   progress=progress, target_error=target_error, confidence=confidence, rerun=RERUN_DEMO,
-                   devices=rig_devices)
+    return capture(rig_path, plan_path, session_dir, devices=rig_devices,
+                   sim=SimOptions(material=material, seed=seed, speedup=speedup), progress=progress,
+                   target_error=target_error, confidence=confidence, rerun=RERUN_DEMO)
 
 
 def check_replaceable(session_dir: Path) -> None:

@@ -17,6 +17,7 @@ import logging
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Callable
 
 log = logging.getLogger(__name__)
 
@@ -49,25 +50,41 @@ class RigHardware:
         return self.simulation is not None
 
 
+@dataclass(frozen=True)
+class SimOptions:
+    """What the caller hands a simulated rig's opener with it: the ``material`` its camera shows
+    (``spec``, ``brdf``, ``table``: ``goniofrost.datasets.shown_material``), the noise ``seed`` and
+    the clock's ``speedup`` (None: the rig file's ``sim.seed``, ``sim.clock_speedup``), and
+    ``on_ready(hardware)``, called once everything is connected (tests inject faults with it).
+    A real rig takes none but ``on_ready``."""
+
+    material: object = None
+    seed: int | None = None
+    speedup: float | None = None
+    on_ready: Callable | None = None
+
+
+NO_SIM = SimOptions()
+
+
 @contextmanager
-def open_hardware(rig, devices=None, *, material=None, seed: int | None = None, speedup: float | None = None,
-                  on_ready=None, program: str = "capture"):
+def open_hardware(rig, devices=None, sim: SimOptions = NO_SIM, *, program: str = "capture"):
     """Take the rig's lock for ``program``, connect ``rig``'s devices and yield a RigHardware; stop
     and close everything on exit, then release the lock (``RigInUseError`` when another program
     holds it: nothing is connected).
 
     ``devices(rig, material=, seed=, speedup=)``: a context manager yielding the connected
-    RigHardware (None: ``real_devices``). ``material`` (what a simulated camera shows: ``.spec``,
-    ``.brdf``), ``seed`` and ``speedup`` are handed to it. ``on_ready(hardware)`` (optional) is
-    called once everything is connected (tests use it to inject faults into the simulated devices).
+    RigHardware (None: ``real_devices``), handed ``sim``'s material, seed and speedup; ``sim.on_ready``
+    is called once everything is connected.
     """
     from goniofrost.rig.lock import rig_lock
 
     opener = real_devices if devices is None else devices
-    with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+    with rig_lock(rig.name, program) as lock, \
+            opener(rig, material=sim.material, seed=sim.seed, speedup=sim.speedup) as hardware:
         hardware.rig_lock = lock
-        if on_ready is not None:
-            on_ready(hardware)
+        if sim.on_ready is not None:
+            sim.on_ready(hardware)
         yield hardware
 
 

@@ -92,6 +92,7 @@ def run(args) -> int:
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.runner import check_material
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     inputs = load_inputs(args.rig, args.plan, args.alignment)
@@ -105,8 +106,9 @@ def run(args) -> int:
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
-            outcome = capture(args.rig, args.plan, args.session, material=material, devices=rig_devices,
-                              resume=args.resume, seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
+            outcome = capture(args.rig, args.plan, args.session, devices=rig_devices,
+                              sim=SimOptions(material=material, seed=args.seed, speedup=args.speedup),
+                              resume=args.resume, progress=not args.no_progress,
                               target_error=args.target_error, confidence=confidence,
                               alignment=args.alignment, label=label, inputs=inputs,
                               extra_files=(BSDF_FILE,) if bsdf else ())
