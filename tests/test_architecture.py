@@ -131,6 +131,14 @@ def test_a_package_that_re_exports_its_modules_is_no_cycle(tmp_path):
     assert module_graph(root)["goniofrost.frost.helpers"] == {"goniofrost.frost.other"}
 
 
+def test_the_plan_vocabulary_imports_no_journal():
+    # steps.py (the pure plan vocabulary) reads its records from capture.records, not from the
+    # SQLite journal that stores them
+    graph = module_graph(ROOT)
+    assert "goniofrost.capture.records" in graph["goniofrost.capture.steps"]
+    assert "goniofrost.capture.journal" not in graph["goniofrost.capture.steps"]
+
+
 def test_loading_a_rig_file_imports_nothing_of_capture():
     # plan, train and sim load rig files: goniofrost.rig does it without the capture package (nor the
     # datasets), in a fresh interpreter so that no other test's imports count

@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 
 from goniofrost.rig.contract import Hardware
 from goniofrost.rig.device_log import DeviceLog
-from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv, by_reason
+from goniofrost.capture.journal import Journal, SamplesCsv, by_reason
+from goniofrost.capture.records import NotMeasuredRecord, SampleRecord
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
