@@ -36,7 +36,7 @@ def sample_errors(session: Path, rig: Path, plan: Path, material: str) -> dict:
     at the directions each was measured at: median and max, and the sample count."""
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.journal import Journal
-    from goniofrost.capture.report import truth_at_measured_directions
+    from goniofrost.capture.ground_truth import truth_at_measured_directions
     from goniofrost.datasets import shown_material
 
     with Journal.open(session / "session.sqlite") as journal:

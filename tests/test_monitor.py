@@ -419,7 +419,7 @@ def test_a_host_address_this_computer_does_not_have_says_to_pass_another_host(tm
 
 def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_show(finished):
     from goniofrost.brdf.preview import preview_of
-    from goniofrost.capture.report import reconstruct_session
+    from goniofrost.capture.reconstruction import reconstruct_session
     from goniofrost.monitor.images import estimate_for_preview, session_inputs, sphere_positions
     from goniofrost.monitor.rig_pose import rig_from_text
 

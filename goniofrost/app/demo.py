@@ -202,7 +202,7 @@ def write_reference_and_preview(material, grid, out: Path) -> None:
     reference.binary; the session's preview (already rendered against the same truth) becomes
     out/preview.png."""
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.capture.report import ground_truth
+    from goniofrost.capture.ground_truth import ground_truth
 
     truth = ground_truth(material, grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)

@@ -107,7 +107,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     """
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
-    from goniofrost.capture.report import TooFewSamplesError
+    from goniofrost.capture.reconstruction import TooFewSamplesError
     from goniofrost.capture.runner import capture
     from goniofrost.rig.hardware import SimOptions
 

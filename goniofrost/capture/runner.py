@@ -60,7 +60,8 @@ def capture(rig_path, plan_path, session_dir, *, devices=None, sim: SimOptions =
     """
     from goniofrost.capture.engine import RERUN, SessionStats
     from goniofrost.capture.inputs import load_inputs
-    from goniofrost.capture.report import preload_preview, summary_text, write_outputs
+    from goniofrost.capture.reconstruction import write_outputs
+    from goniofrost.capture.report import preload_preview, summary_text
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
