@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -35,7 +36,7 @@ def sample_errors(session: Path, rig: Path, plan: Path, material: str) -> dict:
     at the directions each was measured at: median and max, and the sample count."""
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.journal import Journal
-    from goniofrost.capture.report import truth_at_measured_directions
+    from goniofrost.capture.ground_truth import truth_at_measured_directions
     from goniofrost.datasets import shown_material
 
     with Journal.open(session / "session.sqlite") as journal:
@@ -81,8 +82,8 @@ def main(argv=None) -> int:
     for rig in rigs:
         session = args.out / rig.stem
         t0 = time.perf_counter()
-        outcome = capture(rig, args.plan, session, material=shown_material(args.material), devices=rig_devices,
-                          progress=False)
+        outcome = capture(rig, args.plan, session, devices=rig_devices,
+                          sim=SimOptions(material=shown_material(args.material)), progress=False)
         wall = time.perf_counter() - t0
         results.append({"rig": str(rig), "wall_s": round(wall, 1), "load_average": os.getloadavg(),
                         "log_relative_mse": outcome.report["ground_truth"]["log_relative_mse"],

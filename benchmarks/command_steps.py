@@ -91,7 +91,7 @@ def _shared(args) -> list[str]:
 
 def scheduled_joints(rig, model, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
     """(IK joints, cells (n, 3), positions (n,)) of the plan in capture order, and the steps."""
-    from goniofrost.capture.plan_file import plan_document, with_sentinels
+    from goniofrost.plan.file import plan_document, with_sentinels
     from goniofrost.rig.file import command_steps
     from goniofrost.frost.bayes_selection import select_bayes
     from planner.reach import reachability

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import dataclasses
 import io
 import json
 import sqlite3
@@ -77,7 +78,8 @@ def run_cli(argv: list[str], seen: dict | None = None) -> tuple[int, str]:
     capture = runner.capture
 
     def watched(*args, **kwargs):
-        return capture(*args, on_ready=lambda hw: seen.update(simulation=hw.simulation), **kwargs)
+        ready = dataclasses.replace(kwargs["sim"], on_ready=lambda hw: seen.update(simulation=hw.simulation))
+        return capture(*args, **kwargs | {"sim": ready})
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):

@@ -47,6 +47,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # before benchmarks/, whose planner.py would shadow the planner package
@@ -82,7 +83,7 @@ def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
     from planner.schedule import schedule_plan
 
     from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
-    from goniofrost.capture.plan_file import sample_entries, write_plan
+    from goniofrost.plan.file import sample_entries, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle
 
@@ -124,8 +125,9 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
         if urls is not None:
             urls.put(server.url)
         try:
-            capture(default_rig_path(), plan, session, material=shown_material(f"builtin:{MATERIAL}"), seed=0,
-                    speedup=speedup, progress=False, on_ready=on_ready, devices=rig_devices)
+            capture(default_rig_path(), plan, session, devices=rig_devices, progress=False,
+                    sim=SimOptions(material=shown_material(f"builtin:{MATERIAL}"), seed=0, speedup=speedup,
+                                   on_ready=on_ready))
         except SessionFault as exc:
             print(f"  (expected) {exc}", flush=True)
     if cpu is not None:

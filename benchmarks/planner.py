@@ -30,7 +30,7 @@ sys.path.insert(0, str(REPO))
 from goniofrost.datasets import open_dataset  # noqa: E402
 from goniofrost.core.grid import FULL_GRID, MerlGrid  # noqa: E402
 from goniofrost.frost.metrics import log_relative_mse  # noqa: E402
-from goniofrost.capture.plan_file import plan_document  # noqa: E402
+from goniofrost.plan.file import plan_document  # noqa: E402
 from goniofrost.frost.reconstruction import reconstruct  # noqa: E402
 from goniofrost.rig.file import load_checked_rig  # noqa: E402
 from goniofrost.frost.selection import select_cells  # noqa: E402

@@ -39,7 +39,7 @@ MAX_ANGLE_DEG = 60.0
 
 def prepare(folder: Path, n: int, seed: int) -> tuple[Path, Path]:
     """The soak rig file and a scheduled plan of ``n`` random reachable cells."""
-    from goniofrost.capture.plan_file import plan_document, write_plan
+    from goniofrost.plan.file import plan_document, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.core.grid import MerlGrid

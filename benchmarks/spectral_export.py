@@ -6,7 +6,7 @@ Per built-in material (terracotta, red-plastic, gold), on the full MERL grid wit
 options (``--smallest``: red-plastic alone on a 30 x 30 x 60 grid with small resolutions, one
 repeat and 50 pairs, what the test runs):
 
-* time: ``rgl_spectral.export_file`` (what ``goniofrost export FILE.binary --format pbrt`` runs:
+* time: ``formats.export_file`` (what ``goniofrost export FILE.binary --format pbrt`` runs:
   read and check the .binary, build the fields, upsample, write) and, beside it, the RGB export,
   median of --repeats; the file sizes;
 * round trip: every node's spectrum converted back to linear sRGB as Mitsuba's film does (CIE
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from goniofrost.brdf import mitsuba_export as me
+from goniofrost.brdf import formats
 from goniofrost.brdf import rgl_spectral as rs
 from goniofrost.brdf.merl_file import valid_to_full, write_merl
 from goniofrost.brdf.mitsuba_probe import eval_pairs, eval_pairs_spectral_rgb, load_bsdf, spectral_to_rgb_weights
@@ -98,8 +99,8 @@ def main() -> None:
         for name in names:
             table = tabulate_cached(open_dataset("builtin"), [name], grid, progress=False)[0].astype(np.float64)
             write_merl(binary, valid_to_full(table, grid), grid)
-            spectral_s = timed(lambda: rs.export_file(binary, spectral_out, "pbrt", options), args.repeats)
-            rgb_s = timed(lambda: rs.export_file(binary, rgb_out, "mitsuba", options), args.repeats)
+            spectral_s = timed(lambda: formats.export_file(binary, spectral_out, "pbrt", options), args.repeats)
+            rgb_s = timed(lambda: formats.export_file(binary, rgb_out, "mitsuba", options), args.repeats)
             worst, median = round_trip(rgb_out, spectral_out)
             e_median, e_p95, e_max = eval_error(rgb_out, spectral_out, args.pairs)
             print(f"builtin:{name:14s} {spectral_s:10.2f} {rgb_s:6.2f} {spectral_out.stat().st_size / 1e6:6.1f} "

@@ -9,10 +9,8 @@ from __future__ import annotations
 from goniofrost.core.config_check import Key, check_section, is_number as _num
 from goniofrost.core.errors import ConfigError
 
-CAMERA_KINDS = ("sim", "rawfile", "pylon")
-# kind pylon: the pixel formats a measurement can use (12 or 16 bits; Bayer for colour, Mono for grey)
-PYLON_PIXEL_FORMATS = tuple(f"{cfa}{bits}" for bits in (12, 16)
-                            for cfa in ("BayerRG", "BayerGR", "BayerGB", "BayerBG", "Mono"))
+from drivers.rig_devices import CAMERA_CLASSES, SIM_CAMERA, SIM_CAMERA_KEYS, camera_class
+from drivers.tethered import shutter_label, shutter_seconds  # noqa: F401 - read from here by snap and tests
 
 
 def _ladder_ok(v) -> bool:
@@ -20,9 +18,9 @@ def _ladder_ok(v) -> bool:
             and all(a < b for a, b in zip(v, v[1:])))
 
 
-# key: Key(check, expected, default: REQUIRED when none is given)
+# key: Key(check, expected, default: REQUIRED when none is given); every kind reads these, and
+# each kind its own (camera_keys)
 _CAMERA_KEYS = {
-    "kind": Key(lambda v: v in CAMERA_KINDS, f"one of {list(CAMERA_KINDS)}"),
     "exposures_s": Key(_ladder_ok, "a non-empty list of exposures > 0 s, shortest first, strictly increasing"),
     "target_snr": Key(lambda v: _num(v) and v > 0, "a number > 0"),
     "min_snr": Key(lambda v: _num(v) and v > 0, "a number > 0 (a channel below it is at its detection limit; a sample with every channel below it is not measured)", 10.0),
@@ -39,51 +37,45 @@ _CAMERA_KEYS = {
     "mount": Key(lambda v: isinstance(v, dict), "a mapping (distance_mm, rotation_deg)"),
     "photodiode_rel_sigma": Key(lambda v: _num(v) and 0 <= v < 0.1, "a number in [0, 0.1)", 0.001),
     "white_reference": Key(lambda v: isinstance(v, dict), "a mapping", {}),
-    # kind rawfile only: the folder the camera's tethering software writes RAW files to, and the
-    # command that triggers one exposure ({exposure_s} is replaced); without it the operator is asked
-    "folder": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a folder path", None),
-    "trigger_command": Key(lambda v: v is None or (isinstance(v, str) and ("{exposure_s}" in v or "{shutter}" in v)),
-                           "a command containing {exposure_s} or {shutter} (and optionally {folder})", None),
-    # command that puts a target in front of the lens ({target}: sample, white or flat), for a motorised
-    # target changer (or the simulated camera of `goniofrost sim --write-rig`); without it the operator is asked
-    "target_command": Key(lambda v: v is None or (isinstance(v, str) and "{target}" in v),
-                          "a command containing {target}", None),
-    # kind rawfile: the camera's own shutter speeds (its labels, e.g. ["1/4000", "1/2000", ..., "30"]):
-    # each exposures_s rung becomes the nearest of them and the trigger gets its label as {shutter}
-    "shutter_speeds": Key(lambda v: v is None or (isinstance(v, list) and len(v) >= 1
-                                                  and all(shutter_seconds(x) is not None for x in v)),
-                          'a list of shutter speed labels such as "1/4000", "0.3", "30"', None),
-    # kind rawfile: a RAW file's own exposure (EXIF ExposureTime) may differ from the one asked for
-    # by this fraction at most, else it is refused
-    "exposure_tolerance": Key(lambda v: _num(v) and 0 <= v < 0.5, "a number in [0, 0.5) (relative)", 0.05),
     "timeout_s": Key(lambda v: _num(v) and v > 0, "a number > 0 (seconds to wait for a RAW file or, beyond the "
                      "exposure, for a grabbed frame)", 30.0),
-    # kind pylon: the camera's serial number (none: the first camera found), its pixel format and gain
-    "serial": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a serial number (a string)", None),
-    "pixel_format": Key(lambda v: v in PYLON_PIXEL_FORMATS, f"one of {list(PYLON_PIXEL_FORMATS)}", "BayerRG12"),
-    "gain_db": Key(lambda v: _num(v) and 0 <= v <= 48, "a number in [0, 48] (dB, fixed)", 0.0),
     "operator_timeout_s": Key(lambda v: _num(v) and v > 0,
                               "a number > 0 (seconds the operator has to answer a prompt)", 600.0),
 }
 
 
-# Keys that only some kinds of camera read (the rest are read by every kind). Given to another
-# kind they would be accepted and silently ignored (a pylon serial on a DSLR rig, a trigger command
-# on the emulated camera), so they are refused. A simulated camera keeps the folder camera's
-# shutter_speeds (they move its ladder) and exposure_tolerance (`goniofrost sim --write-rig` turns
-# it into a folder camera); its folder and commands are the ones --write-rig writes.
-KIND_ONLY_KEYS = {
-    "serial": ("pylon",), "pixel_format": ("pylon",), "gain_db": ("pylon",),
-    "folder": ("rawfile",), "trigger_command": ("rawfile",), "target_command": ("rawfile",),
-    "shutter_speeds": ("rawfile", "sim"), "exposure_tolerance": ("rawfile", "sim"),
-}
+
+
+def camera_kinds() -> tuple:
+    """The camera kinds a rig file may name: the simulated camera's and every registered one's."""
+    return (SIM_CAMERA, *CAMERA_CLASSES)
+
+
+def kind_only_keys() -> tuple[dict, dict]:
+    """(every kind's own keys: name -> Key, in CAMERA_CLASSES order; name -> the kinds that read
+    it), from each camera class's KEYS. Given to another kind they would be accepted and silently
+    ignored (a pylon serial on a DSLR rig, a trigger command on the emulated camera), so they are
+    refused; the simulated camera reads SIM_CAMERA_KEYS (drivers.rig_devices)."""
+    keys, kinds = {}, {}
+    for kind in CAMERA_CLASSES:
+        for name, key in camera_class(kind).KEYS.items():
+            keys.setdefault(name, key)
+            kinds[name] = kinds.get(name, ()) + (kind,) + ((SIM_CAMERA,) if name in SIM_CAMERA_KEYS else ())
+    return keys, kinds
+
+
+def camera_keys() -> dict:
+    """The ``camera:`` section's key table: ``kind``, the keys every kind reads, each kind's own."""
+    kinds = camera_kinds()
+    return {"kind": Key(lambda v: v in kinds, f"one of {list(kinds)}"), **_CAMERA_KEYS, **kind_only_keys()[0]}
 
 
 def _check_kind_keys(section, kind: str, source, keypath: str) -> None:
     """ConfigError for the first key of ``section`` that a ``kind`` camera never reads, given a value
     other than its default (a section validated before, defaults filled in, is validated again)."""
-    for key, kinds in KIND_ONLY_KEYS.items():
-        if section.get(key, _CAMERA_KEYS[key].default) != _CAMERA_KEYS[key].default and kind not in kinds:
+    own, readers = kind_only_keys()
+    for key, kinds in readers.items():
+        if section.get(key, own[key].default) != own[key].default and kind not in kinds:
             raise ConfigError(source, f"{keypath}.{key}", f"no {key} for camera kind {kind!r} (only kind "
                               f"{' or '.join(kinds)} reads it)", section[key])
 
@@ -128,7 +120,7 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     pose (theta_i, theta_o in degrees) the session moves to before it takes the white reference;
     ``intrinsics`` and ``mount`` the camera model (module doc).
     """
-    out = check_section(section, _CAMERA_KEYS, source, keypath)
+    out = check_section(section, camera_keys(), source, keypath)
     _check_kind_keys(section, out["kind"], source, keypath)
     out["white_reference"] = check_section(out["white_reference"], _WHITE_KEYS, source, f"{keypath}.white_reference")
     out["intrinsics"] = _intrinsics(out["intrinsics"], source, f"{keypath}.intrinsics")
@@ -143,19 +135,6 @@ def validate_camera_section(section, source, keypath: str = "camera") -> dict:
     if out["shutter_speeds"] is not None:
         out["exposures_s"] = _on_shutter_speeds(out, source, keypath)
     return out
-
-
-def shutter_seconds(label) -> float | None:
-    """Seconds of a camera's shutter speed label ("1/4000", "0.3", "30", "2.5s"); None if it is not one."""
-    if not isinstance(label, str):
-        return None
-    text = label.strip().removesuffix("s").strip()
-    num, _, den = text.partition("/")
-    try:
-        value = float(num) / (float(den) if den else 1.0)
-    except (ValueError, ZeroDivisionError):
-        return None
-    return value if 0 < value < float("inf") else None
 
 
 def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
@@ -182,14 +161,6 @@ def _on_shutter_speeds(out: dict, source, keypath: str) -> list:
                               f"{keypath}.shutter_speeds ({ladder[k]:g} and {ladder[k + 1]:g} s both fall on "
                               f"{labels[a]!r})", ladder)
     return [seconds[k] for k in picked]
-
-
-def shutter_label(labels: list, exposure_s: float) -> str:
-    """The label among ``labels`` (a camera's shutter speeds) whose seconds are ``exposure_s``
-    (a rung of a ladder moved onto them), else the nearest in stops."""
-    import math
-
-    return min(labels, key=lambda x: abs(math.log(shutter_seconds(x) / exposure_s)))
 
 
 def _intrinsics(section, source, keypath: str) -> dict:

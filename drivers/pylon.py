@@ -13,6 +13,8 @@ from typing import Callable
 
 import numpy as np
 
+from goniofrost.core.config_check import Key, is_number
+
 from drivers.camera import TARGET_EXPLAINED, TARGETS, Camera, CameraError, OperatorPrompt, RawFrame
 from drivers.dng import write_dng
 
@@ -22,19 +24,38 @@ AUTO_FEATURES = ("ExposureAuto", "GainAuto", "BalanceWhiteAuto")  # each switche
 # the first two colours of the pixel format name are the first row of the 2 x 2 tile
 BAYER_TILES = {"BayerRG": "RGGB", "BayerGR": "GRBG", "BayerGB": "GBRG", "BayerBG": "BGGR"}
 GAIN_TOLERANCE_DB = 0.05      # the gain read back may differ by this much (the camera's gain steps)
+# the pixel formats a measurement can use (12 or 16 bits; Bayer for colour, Mono for grey)
+PYLON_PIXEL_FORMATS = tuple(f"{cfa}{bits}" for bits in (12, 16)
+                            for cfa in ("BayerRG", "BayerGR", "BayerGB", "BayerBG", "Mono"))
 
 
 class PylonCamera(Camera):
     """A Basler camera through pypylon; implements ``drivers.camera.Camera``.
 
     ``serial``: the camera to open (None: the first found); ``pixel_format``: e.g. "BayerRG12"
-    (calib.config.PYLON_PIXEL_FORMATS); ``gain_db``: fixed gain; ``ladder_s``: the exposures (s)
+    (PYLON_PIXEL_FORMATS); ``gain_db``: fixed gain; ``ladder_s``: the exposures (s)
     the session may ask for, checked against the camera's range in ``connect``; ``image_size``:
     (width, height) px of the camera model; ``timeout_s``: seconds a frame may take beyond its
     exposure; ``device_class``: only cameras of this pylon device class (e.g. "BaslerCamEmu");
     ``ask``: how the operator is asked to change the target (default: an OperatorPrompt);
     ``source``: the rig file the settings came from (named in the messages).
     """
+
+    # the keys of the rig file's camera: section only kind pylon reads (drivers.rig_devices.CAMERA_CLASSES):
+    # the camera's serial number (none: the first camera found), its pixel format and gain
+    KEYS = {
+        "serial": Key(lambda v: v is None or (isinstance(v, str) and v != ""), "a serial number (a string)", None),
+        "pixel_format": Key(lambda v: v in PYLON_PIXEL_FORMATS, f"one of {list(PYLON_PIXEL_FORMATS)}", "BayerRG12"),
+        "gain_db": Key(lambda v: is_number(v) and 0 <= v <= 48, "a number in [0, 48] (dB, fixed)", 0.0),
+    }
+
+    @classmethod
+    def from_section(cls, section: dict, source, ask, *, image_source=None, device_class=None) -> "PylonCamera":
+        """The camera of a checked ``camera:`` section (``image_source``, ``device_class``: an
+        emulated camera's, see the class doc); ``ask``: the operator's prompt."""
+        return cls(section["serial"], section["pixel_format"], section["gain_db"], section["exposures_s"],
+                   section["intrinsics"]["image_size_px"], section["timeout_s"], device_class=device_class,
+                   image_source=image_source, ask=ask, source=source)
 
     def __init__(self, serial: str | None, pixel_format: str, gain_db: float, ladder_s, image_size,
                  timeout_s: float = 30.0, *, device_class: str | None = None, image_source=None,

@@ -35,6 +35,24 @@ AXIS_CLASSES = {
     "smc100": ("drivers.smc100", "SMC100Axis"),
 }
 
+# camera kind -> (module, class): the class declares KEYS, the keys of the rig file's camera:
+# section only its kind reads (a goniofrost.core.config_check Key table), and builds itself with
+# ``from_section(section, source, ask, image_source=None, device_class=None)`` (not connected).
+CAMERA_CLASSES = {
+    "rawfile": ("drivers.tethered", "TetheredCamera"),
+    "pylon": ("drivers.pylon", "PylonCamera"),
+}
+# The simulated camera (goniofrost.rig.simulated builds it) keeps these keys of the folder camera:
+# shutter_speeds move its ladder, and `goniofrost sim --write-rig` turns it into a folder camera.
+SIM_CAMERA = "sim"
+SIM_CAMERA_KEYS = ("shutter_speeds", "exposure_tolerance")
+
+
+def camera_class(kind: str):
+    """The camera class of a registered ``kind`` (CAMERA_CLASSES), imported on first use."""
+    module_name, class_name = CAMERA_CLASSES[kind]
+    return getattr(importlib.import_module(module_name), class_name)
+
 
 def open_transport(name: str, section: Mapping):
     """Open the serial port or TCP connection of one validated driver section (an axis's or the

@@ -17,11 +17,13 @@ from pathlib import Path
 
 import yaml
 
-from calib.config import KIND_ONLY_KEYS
+from calib.config import kind_only_keys
 
-# the source camera's keys a rawfile camera section does not have: its kind, and the keys only
-# another kind reads (sim-pylon.yaml's pixel_format and gain_db), which a rawfile section refuses
-_DROPPED_CAMERA_KEYS = ("kind",) + tuple(key for key, kinds in KIND_ONLY_KEYS.items() if "rawfile" not in kinds)
+
+def _dropped_camera_keys() -> tuple:
+    """The source camera's keys a rawfile camera section does not have: its kind, and the keys only
+    another kind reads (sim-pylon.yaml's pixel_format and gain_db), which a rawfile section refuses."""
+    return ("kind",) + tuple(key for key, kinds in kind_only_keys()[1].items() if "rawfile" not in kinds)
 
 
 def real_rig_document(source, resolved, service, clock_speedup: float = 1.0) -> dict:
@@ -35,7 +37,8 @@ def real_rig_document(source, resolved, service, clock_speedup: float = 1.0) -> 
     if resolved.lamp_driver:
         doc.setdefault("lamp", {})["driver"] = dict(resolved.lamp_driver)
     client = f"{shlex.quote(sys.executable)} -m sim.camera_service --port {service.port}"
-    camera = {k: v for k, v in (doc.get("camera") or {}).items() if k not in _DROPPED_CAMERA_KEYS}
+    dropped = _dropped_camera_keys()
+    camera = {k: v for k, v in (doc.get("camera") or {}).items() if k not in dropped}
     doc["camera"] = {"kind": "rawfile", "folder": str(service.folder),
                      "trigger_command": f"{client} expose {{exposure_s}}",
                      "target_command": f"{client} target {{target}}", **camera}

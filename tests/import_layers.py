@@ -7,6 +7,8 @@ The layers, bottom to top (docs/explanations/architecture.md):
   modules, calib decodes frames with the drivers' RAW reader).
 - ``goniofrost.rig`` (rig file, devices real or simulated, lock, stop path): of goniofrost, only the
   core; the lower packages as it likes. It sits below every other sub-package (``capture`` uses it).
+- ``goniofrost.plan`` (making a plan, PLAN.json): of goniofrost, only ``PLAN_MAY`` (core, rig, frost);
+  it sits below ``capture``, which reads PLAN.json through it.
 - goniofrost's sub-packages (``frost``, ``brdf``, ``datasets``, ``capture``, ``bench``...): anything
   below them, and each other without a cycle; but ``capture`` imports neither ``sim`` nor
   ``goniofrost.datasets`` (``CAPTURE_NEVER``): its caller hands it the devices and the material.
@@ -27,6 +29,8 @@ CORE = "goniofrost.core"
 APP = "goniofrost.app"
 RIG = "goniofrost.rig"
 CAPTURE = "goniofrost.capture"
+PLAN = "goniofrost.plan"
+PLAN_MAY = (CORE, RIG, "goniofrost.frost")
 CAPTURE_NEVER = ("sim", "goniofrost.datasets")
 LOWER = ("planner", "drivers", "calib", "sim")
 LOWER_ALLOWED = {"planner": set(), "drivers": set(), "calib": {"drivers"}, "sim": {"drivers", "calib", "planner"}}
@@ -135,6 +139,8 @@ def _rule_broken(here: str, there: str) -> str | None:
         return None
     if here == RIG and there.startswith(PROJECT) and there != CORE:
         return f"{RIG} may import only {CORE} of goniofrost"
+    if here == PLAN and there.startswith(PROJECT) and there not in PLAN_MAY:
+        return f"{PLAN} may import only {', '.join(PLAN_MAY)} of goniofrost"
     if here == CAPTURE and there in CAPTURE_NEVER:
         return f"{CAPTURE} imports neither {' nor '.join(CAPTURE_NEVER)}: its caller hands it the devices and the material"
     if there == APP and here not in (PROJECT, f"{PROJECT}.__main__"):

@@ -13,6 +13,7 @@ from goniofrost.rig.file import load_checked_rig
 from goniofrost.core.errors import ConfigError
 from planner.alignment import AlignmentError, Observation, alignment_poses, fit_alignment
 from planner.kinematics import arm_side, forward
+from goniofrost.rig.hardware import SimOptions
 
 RIG_FILE = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
 BUILT_WRONG = np.array([0.6, -1.1, 0.4])   # camera_arm, sample_yaw, sample_tilt (the rig)
@@ -174,7 +175,7 @@ def test_align_with_a_camera_unlike_its_model_fails_clearly_and_writes_nothing(t
 
     with pytest.raises(AlignmentError, match=r"^align: the fitted offsets leave the marker corners \d+\.\d\d px RMS "
                                              r"from the model \(limit 1 px\): the camera model"):
-        align(rig, out, progress=False, on_ready=longer_lens, devices=rig_devices)
+        align(rig, out, progress=False, sim=SimOptions(on_ready=longer_lens), devices=rig_devices)
     assert not out.exists()
 
 
@@ -194,7 +195,7 @@ def test_a_failed_align_stops_and_confirms_the_axes_switches_the_lamp_off_and_jo
 
     frames.mkdir()
     with pytest.raises(SessionFault) as caught:
-        align(rig, out, progress=False, frames=frames, on_ready=alarm_on_the_arm, devices=rig_devices)
+        align(rig, out, progress=False, frames=frames, sim=SimOptions(on_ready=alarm_on_the_arm), devices=rig_devices)
     message = str(caught.value)
     assert message.startswith("device fault during Home: camera_arm")
     assert "Stopped camera_arm at " in message and "; the lamp is off. No alignment was written; the run is " \

@@ -25,6 +25,10 @@ def test_the_graph_is_the_documented_one():
     assert "goniofrost.rig" in graph["goniofrost.capture"]
     assert {t for t in graph["goniofrost.rig"] if t.startswith("goniofrost")} == {"goniofrost.core"}
     assert not graph["goniofrost.capture"] & {"sim", "goniofrost.datasets"}
+    # plans are made above frost, planner and the rig, and capture reads them from below
+    assert "goniofrost.plan" in graph["goniofrost.capture"]
+    assert {t for t in graph["goniofrost.plan"] if t.startswith("goniofrost")} == {
+        "goniofrost.core", "goniofrost.rig", "goniofrost.frost"}
 
 
 def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
@@ -34,7 +38,7 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     for package in ("goniofrost", "goniofrost/core", "goniofrost/app", "goniofrost/frost", "goniofrost/capture",
-                    "goniofrost/rig", "goniofrost/datasets", "planner", "drivers", "calib", "sim"):
+                    "goniofrost/rig", "goniofrost/plan", "goniofrost/datasets", "planner", "drivers", "calib", "sim"):
         (tmp_path / package).mkdir(parents=True, exist_ok=True)
         (tmp_path / package / "__init__.py").touch()
     return tmp_path
@@ -47,6 +51,8 @@ CLEAN = {
     "goniofrost/capture/engine.py": "from ..frost.model import M\nimport planner.rig\nfrom goniofrost.rig import hardware\n",
     "goniofrost/rig/hardware.py": "from goniofrost.core.errors import X\nimport drivers.axis\n",
     "goniofrost/rig/simulated.py": "from .hardware import open_camera\nfrom sim.rig import SimulatedRig\n",
+    "goniofrost/plan/make.py": "from goniofrost.frost.model import M\nfrom goniofrost.rig import file\nimport planner.reach\n",
+    "goniofrost/capture/inputs.py": "from goniofrost.plan.file import read_plan\n",
     "goniofrost/app/cli.py": "from goniofrost.capture import engine\n",
     "goniofrost/__main__.py": "from goniofrost.app.cli import main\n",
     "planner/rig.py": "from goniofrost.core.errors import ConfigError\n",
@@ -83,6 +89,10 @@ def test_a_clean_synthetic_tree_passes(tmp_path):
      "sim", "goniofrost.capture imports neither sim nor goniofrost.datasets"),
     ("goniofrost/capture/truth.py", "from ..datasets import material_brdf\n", "goniofrost.capture.truth",
      "goniofrost.datasets", "goniofrost.capture imports neither sim nor goniofrost.datasets"),
+    ("goniofrost/plan/file.py", "def f():\n    from goniofrost.datasets import specs\n", "goniofrost.plan.file",
+     "goniofrost.datasets", "goniofrost.plan may import only goniofrost.core, goniofrost.rig, goniofrost.frost"),
+    ("goniofrost/plan/runs.py", "from ..capture.records import R\n", "goniofrost.plan.runs",
+     "goniofrost.capture", "goniofrost.plan may import only"),
     ("goniofrost/flat.py", "", "goniofrost.flat", "-", "goniofrost/ holds sub-packages"),
 ])
 def test_each_rule_catches_its_violation(tmp_path, rel, text, module, imported, rule):
@@ -119,6 +129,14 @@ def test_a_package_that_re_exports_its_modules_is_no_cycle(tmp_path):
                             "goniofrost/frost/other.py": ""})
     assert violations(root) == []
     assert module_graph(root)["goniofrost.frost.helpers"] == {"goniofrost.frost.other"}
+
+
+def test_the_plan_vocabulary_imports_no_journal():
+    # steps.py (the pure plan vocabulary) reads its records from capture.records, not from the
+    # SQLite journal that stores them
+    graph = module_graph(ROOT)
+    assert "goniofrost.capture.records" in graph["goniofrost.capture.steps"]
+    assert "goniofrost.capture.journal" not in graph["goniofrost.capture.steps"]
 
 
 def test_loading_a_rig_file_imports_nothing_of_capture():

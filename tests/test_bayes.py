@@ -642,7 +642,7 @@ def samples_csv(model, truth, positions, sigma: bool = False) -> str:
 def test_plan_bayes_and_reconstruct_with_uncertainty_commands(model, tables, tmp_path):
     from goniofrost.app.cli import main
     from goniofrost.brdf.merl_file import read_merl
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.plan.file import read_plan
 
     model.save(tmp_path / "model")
     plan = tmp_path / "plan.json"

@@ -201,7 +201,7 @@ def test_the_simulated_capture_counts_the_check_cells_and_uses_the_checked_bound
 
 
 def test_a_plan_measures_the_check_cells_with_the_sentinels_and_without_them_none(trained, tmp_path):
-    from goniofrost.capture.plan_file import sentinel_flags, with_sentinels
+    from goniofrost.plan.file import sentinel_flags, with_sentinels
 
     model, design = trained
     doc = {"m": 15, "batch_ends": [15], "samples": [{}] * 15, "selector": "bayes"}

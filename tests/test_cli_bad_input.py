@@ -174,11 +174,11 @@ def test_export_compares_a_too_large_table_with_the_defaults_table_of_its_own_fo
 # ----- export, convert, plan: an --out whose name says another format ------------------------------
 def _no_work(monkeypatch) -> None:
     """Fail the test if export builds its file, convert opens its dataset or plan reads its model."""
-    import goniofrost.brdf.rgl_spectral as rgl_spectral
+    import goniofrost.brdf.formats as formats
     import goniofrost.datasets as datasets
     from goniofrost.frost.model import FrostModel
 
-    monkeypatch.setattr(rgl_spectral, "export_file", lambda *a, **k: pytest.fail("the file was exported"))
+    monkeypatch.setattr(formats, "export_file", lambda *a, **k: pytest.fail("the file was exported"))
     monkeypatch.setattr(datasets, "open_dataset", lambda *a, **k: pytest.fail("the dataset was opened"))
     monkeypatch.setattr(FrostModel, "load", lambda *a, **k: pytest.fail("the model was read"))
 

@@ -129,7 +129,7 @@ def test_a_design_of_cells_near_the_normal_is_flagged_and_its_capture_never_stop
 
 
 def test_a_plan_of_a_model_without_the_range_says_its_design_is_not_checked(model):
-    from goniofrost.capture.plan_file import with_design_check
+    from goniofrost.plan.file import with_design_check
 
     noise = json.loads(json.dumps(model.noise))
     for key in ("log_design_error_min", "log_design_error_max"):

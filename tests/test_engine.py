@@ -439,3 +439,28 @@ def test_a_queues_white_reference_re_measured_counts_as_calibration_time():
     # the lamp drifted: the re-measured white reference and the full calibration after it
     assert SessionStats(phase_s={"white_reference": 0.25, "calibration": 4.5}).calibration_s == 4.75
     assert SessionStats(phase_s={"calibration": 4.5, "samples": 9.0}).calibration_s == 4.5
+
+
+def test_a_subscriber_s_error_is_a_warning_and_a_required_one_s_stops_the_run_safely(table, tmp_path):
+    from goniofrost.capture.plan_runner import PlanRunner, SubscriberWarning
+
+    hardware = rig(table)
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    seen = []
+    runner.subscribe(lambda done: 1 / 0)  # a display that breaks: the run goes on
+    runner.subscribe(lambda done: seen.append((type(done.step).__name__, done.summary)))
+    with pytest.warns(SubscriberWarning, match=r"^Move: a subscriber failed: division by zero$"):
+        assert runner.execute_plan(hand_plan()) == {"theta_i": 10.0, "theta_o": 40.0}
+    assert seen == [("Move", {}), ("LampOn", {}), ("LampOff", {})]
+    assert runner.run_end.status is RunStatus.FINISHED
+    # a required subscriber (a file the session keeps) fails: every axis stopped, the lamp off
+    hardware = rig(table)
+    runner = PlanRunner(hardware, tmp_path, program="rig move")
+    runner.subscribe(lambda done: (_ for _ in ()).throw(OSError(28, "No space left on device", "samples.csv")),
+                     required=True)
+    with pytest.raises(SessionFault) as caught:
+        runner.execute_plan(hand_plan())
+    assert str(caught.value).startswith("rig move failed during Move: samples.csv: cannot write: no space left on the "
+                                        "device. Stopped theta_i at 10.00 deg, ")
+    assert runner.run_end.status is RunStatus.REFUSED
+    assert [a.stops for a in hardware.axes.values()] == [1, 1, 1] and hardware.lamp.is_on is False

@@ -21,6 +21,7 @@ from goniofrost.core.errors import ConfigError
 from planner.rig import rig_from_mapping
 from sim.faults import FAULT_KINDS
 from sim.rig import SimulatedRig
+from goniofrost.rig.hardware import SimOptions
 
 RIG = Path(__file__).resolve().parents[1] / "config" / "rigs" / "sim.yaml"
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # injected faults make pymodbus log errors
@@ -185,7 +186,7 @@ def _run(rig_spec, folder):
         yield Move(0, (("camera_arm", 60.0), ("sample_yaw", 0.0), ("sample_tilt", 20.0)))  # the servo stays home
         yield LampOff()
 
-    with open_hardware(rig_spec, simulated_devices, speedup=20) as hardware:
+    with open_hardware(rig_spec, simulated_devices, sim=SimOptions(speedup=20)) as hardware:
         twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
         lamp = hardware.simulation.lamp_model
         runner = _Drilled(hardware, folder)

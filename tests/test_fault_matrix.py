@@ -15,6 +15,7 @@ twice, the lamp's drive both heard and unheard); the full 18 cases run under ``-
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import sqlite3
 from contextlib import closing
@@ -105,7 +106,7 @@ def test_a_drill_mid_session_stops_truthfully_and_the_resume_gives_the_uninterru
         def ready(hardware):
             seen.update(devices={name: hardware.simulation.device(name) for name in AXES},
                         lamp=hardware.simulation.lamp_model)
-        return capture(*a, on_ready=ready, **kw)
+        return capture(*a, **kw | {"sim": dataclasses.replace(kw["sim"], on_ready=ready)})
     monkeypatch.setattr(runner, "capture", watched)
 
     # ----- the faulted run: exit 2, one line, a truthful stop report --------------------------------

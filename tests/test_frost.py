@@ -17,7 +17,7 @@ from goniofrost.core.grid import MerlGrid, cosine_weight
 from goniofrost.brdf.merl_file import read_merl
 from goniofrost.frost.metrics import log_relative_mse
 from goniofrost.frost.model import FrostModel, ModelError
-from goniofrost.capture.plan_file import plan_document, read_plan, write_plan
+from goniofrost.plan.file import plan_document, read_plan, write_plan
 from goniofrost.frost.reconstruction import ReconstructionError, reconstruct, reconstruct_log
 from goniofrost.frost.samples_file import read_samples_csv
 from goniofrost.frost.selection import SelectionError, candidate_mask_max_angle, select_cells

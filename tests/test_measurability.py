@@ -103,7 +103,7 @@ def test_the_reach_map_reports_the_camera_and_the_beam_as_reasons(rig, tmp_path)
 
 
 def _plan(cells) -> dict:
-    from goniofrost.capture.plan_file import sample_entries
+    from goniofrost.plan.file import sample_entries
     return {"grid": GRID.as_dict(), "samples": sample_entries(GRID, np.asarray(cells))}
 
 

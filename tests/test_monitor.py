@@ -26,6 +26,7 @@ from goniofrost.monitor.session_view import DoneSample, PlanSample, SessionView,
 from goniofrost.monitor.safe_path import UnsafePath, session_file
 from goniofrost.monitor.status import page_state
 from monitor_helpers import MATERIAL, folder_state, make_plan
+from goniofrost.rig.hardware import SimOptions
 
 M = 5
 
@@ -35,7 +36,7 @@ def finished(tmp_path_factory):
     """A finished 5-sample session on the simulated rig (read-only for the tests)."""
     folder = tmp_path_factory.mktemp("monitor")
     rig, plan = make_plan(folder, M)
-    capture(rig, plan, folder / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50,
+    capture(rig, plan, folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices,
             progress=False)
     return folder / "s"
 
@@ -420,7 +421,7 @@ def test_a_host_address_this_computer_does_not_have_says_to_pass_another_host(tm
 
 def test_the_preview_is_the_sessions_reconstruction_at_the_cells_the_spheres_show(finished):
     from goniofrost.brdf.preview import preview_of
-    from goniofrost.capture.report import reconstruct_session
+    from goniofrost.capture.reconstruction import reconstruct_session
     from goniofrost.monitor.images import estimate_for_preview, session_inputs, sphere_positions
     from goniofrost.monitor.rig_pose import rig_from_text
 

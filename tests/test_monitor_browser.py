@@ -22,6 +22,7 @@ from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
 from goniofrost.monitor.server import MonitorServer
 from monitor_helpers import MATERIAL, drilled_rig, make_plan
+from goniofrost.rig.hardware import SimOptions
 
 CHROMIUM = Path(os.environ.get("GONIOFROST_CHROMIUM", "/usr/bin/chromium"))
 REPO = Path(__file__).resolve().parents[1]
@@ -114,7 +115,7 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         try:
             with monitored(session, "127.0.0.1", 0, "capture") as server:
                 urls.put(server.url)
-                capture(rig, plan_file, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=10,
+                capture(rig, plan_file, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=10), devices=rig_devices,
                         progress=False, **kw)
         except SessionFault as exc:
             outcome["fault"] = str(exc)
@@ -142,8 +143,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         page.goto(server.url)
         expect(page.locator("#state")).to_have_text("faulted")
         resume = threading.Thread(target=capture, args=(rig, plan_file, session),
-                                  kwargs={"material": shown_material(MATERIAL), "devices": rig_devices, "speedup": 10,
-                                          "progress": False, "resume": True})
+                                  kwargs={"sim": SimOptions(material=shown_material(MATERIAL), speedup=10),
+                                          "devices": rig_devices, "progress": False, "resume": True})
         resume.start()
         expect(page.locator("#state")).to_have_text("finished", timeout=60_000)
         resume.join(timeout=60)

@@ -27,6 +27,7 @@ from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
 
 from test_session import MATERIAL, small_plan
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 M = 4
@@ -95,7 +96,7 @@ def test_an_unplugged_camera_mid_session_is_one_line_then_resume_finishes(setup,
         hardware.extra["scene"].arm("unplug", calibration_frames + 4)
 
     with pytest.raises(SessionFault) as fault:
-        capture(rig, plan, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, on_ready=unplug_in_the_samples)
+        capture(rig, plan, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=unplug_in_the_samples), devices=rig_devices, progress=False)
     message = str(fault.value)
     assert "\n" not in message
     assert "pylon camera 0815-0000: the camera was unplugged (device removed) during a" in message
@@ -123,7 +124,7 @@ def test_a_grab_timeout_mid_session_exits_2_with_one_line(setup, uninterrupted, 
 
     with pytest.raises(SessionFault, match=r"pylon camera 0815-0000: no frame within 0.5 s \(camera.timeout_s\) "
                                            r"beyond a [0-9.e-]+ s exposure"):
-        capture(short, plan, tmp_path / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, on_ready=stall)
+        capture(short, plan, tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=stall), devices=rig_devices, progress=False)
     assert main(capture_args(short, plan, tmp_path / "s", "--resume")) == 0
     assert sorted(r.plan_index for r in samples(tmp_path / "s")) == list(range(M))
 

@@ -16,6 +16,7 @@ from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
 
 from test_session import GRID, session_model, write_rig
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 RGL = REPO.parent / "shared" / "data" / "nbrdf_rgl.npz"
@@ -34,7 +35,7 @@ def coloured_plan(folder: Path, model, material: str, n_other: int = 2) -> tuple
     from planner.reach import reachability
     from planner.schedule import schedule_plan
 
-    from goniofrost.capture.plan_file import plan_document, write_plan
+    from goniofrost.plan.file import plan_document, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.datasets import parse_material_spec
@@ -68,7 +69,7 @@ def test_a_strongly_coloured_material_is_captured_with_its_dark_channel_at_its_d
     from goniofrost.datasets import material_brdf
 
     rig, plan, k = coloured_plan(tmp_path, model, BLUE_SILK)
-    capture(rig, plan, tmp_path / "s", material=shown_material(BLUE_SILK), devices=rig_devices, speedup=50,
+    capture(rig, plan, tmp_path / "s", sim=SimOptions(material=shown_material(BLUE_SILK), speedup=50), devices=rig_devices,
             progress=False)
     samples = json.loads(plan.read_text())["samples"]
     _, brdf = material_brdf(BLUE_SILK)
@@ -95,7 +96,7 @@ def finished(tmp_path_factory):
     from monitor_helpers import MATERIAL, make_plan
     folder = tmp_path_factory.mktemp("finished")
     rig, plan = make_plan(folder, 3)
-    capture(rig, plan, folder / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50,
+    capture(rig, plan, folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices,
             progress=False)
     return folder / "s"
 

@@ -127,7 +127,7 @@ def small_model():
 
 def test_plan_command_with_rig_writes_a_scheduled_plan(small_model, tmp_path, capsys):
     from goniofrost.app.cli import main
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.plan.file import read_plan
     out = tmp_path / "plan.json"
     rig_file = Path(RIG.source)
     assert main(["plan", "--model", str(small_model), "--samples", "12", "--rig", str(rig_file), "--out", str(out)]) == 0
@@ -190,7 +190,7 @@ def test_batches_are_ordered_each_on_its_own_and_keep_the_design_order():
 def test_plan_command_with_an_alignment_records_it_and_refuses_a_bad_one(small_model, tmp_path, capsys):
     import json
     from goniofrost.app.cli import main
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.plan.file import read_plan
     rig_file, out = str(Path(RIG.source)), tmp_path / "plan.json"
     aligned = tmp_path / "alignment.json"
     aligned.write_text(json.dumps({"offsets_deg": {"camera_arm": 0.6, "sample_yaw": -1.1, "sample_tilt": 0.4}}))

@@ -139,7 +139,7 @@ def test_a_trained_model_calibrates_its_sentinels(small_trained):
     assert cells == sentinel.cells(GRID, 3, allowed).tolist() and not {180, 199} & set(cells)
     design = np.array([0, 1, 2], dtype=np.int64)
     doc = {"m": 3, "batch_ends": [3], "samples": [{}] * 3, "selector": "bayes"}
-    from goniofrost.capture.plan_file import with_sentinels
+    from goniofrost.plan.file import with_sentinels
     assert with_sentinels(doc, rig_model, design, allowed)[1] == \
         "sentinels: 3 samples with the first batch, the model's calibrated cells; check cells: 3 samples with the " \
         "first batch (never fitted: their error sharpens the bound)"
@@ -173,7 +173,7 @@ def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_
 
 
 def test_a_plan_with_sentinels_measures_them_with_the_first_batch():
-    from goniofrost.capture.plan_file import add_sentinels, sample_entries
+    from goniofrost.plan.file import add_sentinels, sample_entries
 
     design = np.array([5, 6, 7, 8], dtype=np.int64)
     doc = {"m": 4, "batch_ends": [2, 4], "samples": sample_entries(GRID, GRID.valid_cells[design]), "selector": "bayes"}
@@ -297,7 +297,7 @@ def test_a_plan_gets_sentinels_by_default_only_from_a_model_whose_check_can_flag
 
 
 def test_a_model_without_the_sentinel_calibration_plans_none_unless_asked(trained, tmp_path):
-    from goniofrost.capture.plan_file import with_sentinels
+    from goniofrost.plan.file import with_sentinels
     from goniofrost.core.errors import GoniofrostError
 
     model, design = trained

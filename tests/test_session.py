@@ -33,6 +33,7 @@ from goniofrost.capture.records import EventKind, RunStatus
 from goniofrost.brdf.merl_file import read_merl
 
 from conftest import train_once
+from goniofrost.rig.hardware import SimOptions
 
 REPO = Path(__file__).resolve().parents[1]
 GRID = MerlGrid(30, 30, 60)
@@ -760,7 +761,7 @@ def test_simulated_rig_options_are_checked_before_anything_moves(setup, tmp_path
 # ----- a capture with a target error -------------------------------------------------------------
 def batched_plan(folder: Path, rig, plan, ends) -> Path:
     """The module's plan scheduled again in the batches ``ends``."""
-    from goniofrost.capture.plan_file import write_plan
+    from goniofrost.plan.file import write_plan
     from goniofrost.rig.file import load_checked_rig
     from planner.schedule import schedule_batches
 
@@ -827,7 +828,7 @@ def scene_plan(folder: Path, rig, plan, ends, model) -> Path:
     """The module's plan in batches ``ends`` as a plan made for a scene: its usage section (a map of
     the cells near retro-reflection) with the error in the scene's use calibrated on the model's
     training materials, as ``plan --usage`` writes it."""
-    from goniofrost.capture.plan_file import write_plan
+    from goniofrost.plan.file import write_plan
     from goniofrost.frost.scene_error import scene_error
     from goniofrost.frost.usage_calibration import calibrate_scene
     from goniofrost.frost.usage_design import sensitivity_power
@@ -910,7 +911,7 @@ def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(rig, batched, session, material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=False, target_error=1e-12,
+    outcome = capture(rig, batched, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices, progress=False, target_error=1e-12,
                       confidence=0.8)
     target = outcome.report["target_error"]
     assert target["stopped"] == "plan used up" and target["samples_used"] == 5
@@ -1038,7 +1039,7 @@ def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early
     folder, rig, plan, model = setup
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # bars are drawn on a terminal only
     batched = batched_plan(tmp_path, rig, plan, [4, 5])
-    capture(rig, batched, tmp_path / "s", material=shown_material(MATERIAL), devices=rig_devices, speedup=50, progress=True, target_error=10000.0,
+    capture(rig, batched, tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices, progress=True, target_error=10000.0,
             confidence=0.8)  # the bound of this 6-material model after 4 samples: below 10000
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("capture: 100%") and "| 4/4 " in last, last  # not "4/5"
@@ -1235,7 +1236,7 @@ def test_a_target_error_capture_assesses_the_measured_samples_of_each_batch_only
     short, _ = dark
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(short, batched, session, material=shown_material(DARK_MATERIAL), devices=rig_devices, speedup=50, progress=False,
+    outcome = capture(short, batched, session, sim=SimOptions(material=shown_material(DARK_MATERIAL), speedup=50), devices=rig_devices, progress=False,
                       target_error=1e-12, confidence=0.8)
     with Journal.open(session / "session.sqlite") as journal:
         dark_indices = [r.plan_index for r in journal.not_measured()]

@@ -15,6 +15,7 @@ import pytest
 
 from goniofrost.app.cli import main
 from goniofrost.brdf import mitsuba_export as me
+from goniofrost.brdf import formats
 from goniofrost.brdf import rgl_spectral as rs
 from goniofrost.brdf import srgb_spectra
 from goniofrost.brdf.merl_file import valid_to_full, write_merl
@@ -279,7 +280,7 @@ def test_bad_wavelength_count_in_the_api_is_refused_before_anything_is_written(t
     with pytest.raises(me.ExportError, match=r"^wavelengths: expected an integer >= 2, found 1$"):
         rs.export_spectral(tmp_path / "x.bsdf", builtin_table("red-plastic", SMALL), SMALL, SMALL_OPTIONS, 1)
     with pytest.raises(me.ExportError, match=r"^format: expected one of mitsuba, rgl-spectral, pbrt, found 'exr'$"):
-        rs.export_file(tmp_path / "m.binary", tmp_path / "x.bsdf", "exr")
+        formats.export_file(tmp_path / "m.binary", tmp_path / "x.bsdf", "exr")
     assert not any(tmp_path.iterdir())
 
 
@@ -304,6 +305,6 @@ def test_capture_with_bsdf_format_pbrt_writes_the_spectral_export_of_its_binary(
 
     session = capture_small_session(tmp_path, "--bsdf-format", "pbrt")
     assert capsys.readouterr().out.endswith(f"wrote {session / 'brdf.bsdf'} (spectral, for pbrt-v4 and Mitsuba 3)\n")
-    rs.export_file(session / "brdf.binary", tmp_path / "again.bsdf", "rgl-spectral")
+    formats.export_file(session / "brdf.binary", tmp_path / "again.bsdf", "rgl-spectral")
     assert (session / "brdf.bsdf").read_bytes() == (tmp_path / "again.bsdf").read_bytes()
     assert read_tensor_file(session / "brdf.bsdf")["spectra"].shape[1:] == (48, 32, 128, 128)

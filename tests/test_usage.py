@@ -153,17 +153,17 @@ def test_plan_times_the_selection_without_the_scenes_calibration(model_dir, tmp_
     On a fake clock that only the calibration advances (60 s), the selection's own time is 0."""
     import time
 
-    from goniofrost.app.commands import plan
+    from goniofrost.plan import make
 
     now = [1000.0]
-    real = plan._scene_error
+    real = make._scene_error
 
     def calibrating(*args, **kwargs):
         now[0] += 60.0
         return real(*args, **kwargs)
 
     monkeypatch.setattr(time, "perf_counter", lambda: now[0])
-    monkeypatch.setattr(plan, "_scene_error", calibrating)
+    monkeypatch.setattr(make, "_scene_error", calibrating)
     uniform, out = tmp_path / "uniform.npy", tmp_path / "scene.json"
     np.save(uniform, np.full(GRID.n_valid, 1.0 / GRID.n_valid, dtype=np.float32))
     assert main(["plan", "--model", str(model_dir), "--samples", "12", "--usage", str(uniform),

@@ -111,8 +111,8 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
     write_reference_and_preview(shown, grid, out)
     lap("reference")
     if bsdf:
-        from goniofrost.brdf.mitsuba_export import export_beside
-        export_beside(out / "session" / "brdf.binary")
+        from goniofrost.brdf.formats import export_beside
+        export_beside(out / "session" / "brdf.binary", "mitsuba")
         lap("export")
     report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m_max": samples,
                                          "target_error": target_error, "confidence": confidence,
@@ -169,36 +169,13 @@ def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float 
     schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json.
     candidates: the rig's reachability mask (bool (n_valid,)) when already computed. A Bayesian
     plan gets the model's sentinel samples (as ``plan``; ``sentinels=False``: none)."""
-    from planner.reach import reachability
-    from planner.schedule import schedule_batches, schedule_plan
+    from goniofrost.plan.file import write_plan
+    from goniofrost.plan.make import PlanRequest, make_plan
+    from goniofrost.rig.file import load_checked_rig
 
-    from goniofrost.capture.plan_file import plan_document, write_plan
-    from goniofrost.rig.file import command_steps, load_checked_rig
-    from goniofrost.frost.cell_sensitivity import axis_weights
-    from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.selection import candidate_mask_max_angle, select_cells
-
-    rig = load_checked_rig(rig_path, alignment)
-    candidates = reachability(rig, model.grid, steps=command_steps(rig)).mask if candidates is None else candidates
-    if max_angle is not None:
-        candidates = candidates & candidate_mask_max_angle(model.grid, max_angle)
-    select = select_bayes if selector == "bayes" else select_cells
-    selection = select(model, m, candidates=candidates)
-    doc = plan_document(model_path, model, selection)
-    if sentinels and selector == "bayes":
-        from goniofrost.capture.plan_file import with_sentinels
-
-        doc, _ = with_sentinels(doc, model, selection.positions, candidates)
-    if selector == "bayes":  # as plan's PLAN.json: is its predicted error an extrapolation? (the capture says why)
-        from goniofrost.capture.plan_file import with_design_check
-
-        doc, _ = with_design_check(doc, model, selection.positions)
-    # the joints on the axes' command lattices, each axis's miss weighed by what the model
-    # expects it to cost at the sample's cell (planner.steps, frost.cell_sensitivity)
-    lattice = {"steps": command_steps(rig),
-               "axis_weights": axis_weights(model, [s["cell"] for s in doc["samples"]])}
-    doc = (schedule_batches(doc, rig, doc["batch_ends"], **lattice) if "batch_ends" in doc
-           else schedule_plan(doc, rig, **lattice))
+    request = PlanRequest(samples=m, selector=selector, max_angle=max_angle, sentinels=None if sentinels else False,
+                          rig=load_checked_rig(rig_path, alignment), candidates=candidates)
+    doc = make_plan(model, model_path, request).doc
     write_plan(out_path, doc)
     return Path(out_path)
 
@@ -211,14 +188,15 @@ def capture_fresh(rig_path, plan_path, session_dir: Path, material, seed: int, s
     """Capture into a fresh session folder (a previous demo session there is removed first), on the
     simulated devices of the rig in ``rig_path`` showing ``material`` (``goniofrost.datasets.shown_material``)."""
     from goniofrost.capture.runner import capture
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     check_replaceable(session_dir)
     if session_dir.exists():
         shutil.rmtree(session_dir)
-    return capture(rig_path, plan_path, session_dir, material=material, seed=seed, speedup=speedup,
-                   progress=progress, target_error=target_error, confidence=confidence, rerun=RERUN_DEMO,
-                   devices=rig_devices)
+    return capture(rig_path, plan_path, session_dir, devices=rig_devices,
+                   sim=SimOptions(material=material, seed=seed, speedup=speedup), progress=progress,
+                   target_error=target_error, confidence=confidence, rerun=RERUN_DEMO)
 
 
 def check_replaceable(session_dir: Path) -> None:
@@ -246,7 +224,7 @@ def write_reference_and_preview(material, grid, out: Path) -> None:
     reference.binary; the session's preview (already rendered against the same truth) becomes
     out/preview.png."""
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.capture.report import ground_truth
+    from goniofrost.capture.ground_truth import ground_truth
 
     truth = ground_truth(material, grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)

@@ -303,7 +303,7 @@ def run_dry_run(args) -> int:
     """``capture --dry-run``: the plan's moves timed on the rig, against the plan's times."""
     from goniofrost.capture.console import dry_run, twins_speedup
     from goniofrost.capture.inputs import check_alignment, check_joints, check_rig
-    from goniofrost.capture.plan_file import read_plan
+    from goniofrost.plan.file import read_plan
     from goniofrost.capture.runner import check_sim_options
 
     rig = _load(args)

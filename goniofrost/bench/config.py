@@ -11,12 +11,23 @@ import numpy as np
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost.selectors import SELECTORS
 
 # --quick: every second cell of the MERL grid along each index (1/8 of the cells, the same
 # cell edges), so two folds finish in minutes on 2 shared cores.
 QUICK_GRID = MerlGrid(45, 45, 90)
+# Each selector of frost.selectors.SELECTORS is a method of its name; these run a selector with
+# options (the "frost" row uses every training column, the authors' code the first m) or with the
+# posterior-mean reconstruction (the gain of the estimator alone): method -> (selector, options,
+# reconstructed by the posterior mean).
+SELECTOR_METHODS = {"bayes": ("bayes", {}, True), "frost-bayesrec": ("frost", {"y_form": "firstm"}, True),
+                    "frost": ("frost", {"y_form": "all"}, False), "frost-firstm": ("frost", {"y_form": "firstm"}, False)}
+SELECTOR_METHODS |= {name: (name, {}, selector.posterior) for name, selector in SELECTORS.items()
+                     if name not in SELECTOR_METHODS}
+# the baselines of bench.baselines, drawn at random (nielsen, random) or laid out (uniform)
+BASELINES = ("nielsen", "random", "uniform")
 # Method names as they appear in results rows, in report order.
-METHODS = ("bayes", "frost-bayesrec", "frost", "frost-firstm", "nielsen", "random", "uniform")
+METHODS = (*SELECTOR_METHODS, *BASELINES)
 # Result rows of these kinds come with a method (not selectable themselves).
 ROW_KINDS = METHODS + ("bayes-target",)
 # Distinct integers mixed into the seeds so every method/fold/trial draws its own stream (fixed

@@ -19,13 +19,12 @@ from typing import Callable, Iterator
 import numpy as np
 
 from goniofrost.bench.baselines import nielsen_path, random_select, uniform_select
-from goniofrost.bench.config import BenchConfig, BenchError, fold_split, method_rng
+from goniofrost.bench.config import SELECTOR_METHODS, BenchConfig, BenchError, fold_split, method_rng
 from goniofrost.bench.data import open_tables
 from goniofrost.frost.metrics import batch_log_errors
 
-Y_FORMS = {"frost": "all", "frost-firstm": "firstm", "frost-bayesrec": "firstm"}
 # Methods whose cells are reconstructed by the Bayesian posterior mean (the others: ridge).
-BAYES_RECON = ("bayes", "frost-bayesrec")
+BAYES_RECON = tuple(method for method, (_, _, posterior) in SELECTOR_METHODS.items() if posterior)
 
 
 @dataclass
@@ -82,9 +81,8 @@ def sampled_truth(model, truth: np.ndarray) -> np.ndarray:
 
 def designs_per_fold(config: BenchConfig) -> int:
     """How many designs ``iter_designs`` yields for one fold (for progress totals)."""
-    trials = {"frost": 1, "frost-firstm": 1, "uniform": 1, "bayes": 1, "frost-bayesrec": 1,
-              "nielsen": config.nielsen_trials, "random": config.random_trials}
-    return len(config.m_values) * sum(trials[m] for m in config.methods)
+    trials = {"nielsen": config.nielsen_trials, "random": config.random_trials}
+    return len(config.m_values) * sum(trials.get(m, 1) for m in config.methods)
 
 
 def iter_designs(model, config: BenchConfig, fold: int, cache: dict | None = None) -> Iterator[Design]:
@@ -94,17 +92,12 @@ def iter_designs(model, config: BenchConfig, fold: int, cache: dict | None = Non
     first-m cells for frost-firstm and frost-bayesrec; the Bayesian design) runs once.
     """
     cache = {} if cache is None else cache
+    baselines = {"nielsen": _nielsen_designs, "random": _random_designs, "uniform": _uniform_designs}
     for method in config.methods:
-        if method in Y_FORMS:
-            yield from _frost_designs(model, config, method, cache)
-        elif method == "nielsen":
-            yield from _nielsen_designs(model, config, fold)
-        elif method == "bayes":
-            yield from _bayes_designs(model, config, cache)
-        elif method == "random":
-            yield from _random_designs(model, config, fold)
+        if method in baselines:
+            yield from baselines[method](model, config, fold)
         else:
-            yield from _uniform_designs(model, config)
+            yield from _selector_designs(model, config, method, cache)
 
 
 def _timed(fn, *args, **kwargs):
@@ -113,32 +106,42 @@ def _timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
-def _frost_designs(model, config: BenchConfig, method: str, cache: dict) -> Iterator[Design]:
-    from goniofrost.frost.selection import select_cells
+def _selector_designs(model, config: BenchConfig, method: str, cache: dict) -> Iterator[Design]:
+    """A selector's designs (``frost.selectors``): a nested one runs once for every m, the time of
+    m being the wall time from the start of that run to the m-th pick (like Nielsen's incremental
+    runs); another runs once per m. A selection two methods share (FROST's first-m cells for
+    frost-firstm and frost-bayesrec) runs once."""
+    from goniofrost.frost.selectors import SELECTORS
 
+    name, options, _ = SELECTOR_METHODS[method]
+    if SELECTORS[name].nested:
+        selection = nested_design(model, config, cache, name, options)
+        for m in config.m_values:
+            yield Design(method, m, 0, np.asarray(selection.positions[:m]), float(selection.pick_seconds[m - 1]))
+        return
     for m in config.m_values:
-        key = ("frost", Y_FORMS[method], m)
+        key = (name, tuple(sorted(options.items())), m)
         if key not in cache:
-            cache[key] = _timed(select_cells, model, m, y_form=Y_FORMS[method])
+            cache[key] = _timed(SELECTORS[name].select, model, m, **options)
         selection, seconds = cache[key]
         yield Design(method, m, 0, np.asarray(selection.positions, dtype=np.int64), seconds)
 
 
+def nested_design(model, config: BenchConfig, cache: dict, name: str = "bayes", options=None):
+    """The fold's nested design of max(m) cells by selector ``name`` (a Selection with
+    pick_seconds), run once per fold (``cache``)."""
+    from goniofrost.frost.selectors import SELECTORS
+
+    options = options or {}
+    key = name if not options else (name, tuple(sorted(options.items())))
+    if key not in cache:
+        cache[key] = SELECTORS[name].select(model, max(config.m_values), **options)
+    return cache[key]
+
+
 def bayes_design(model, config: BenchConfig, cache: dict):
     """The fold's nested Bayesian design of max(m) cells (a Selection with pick_seconds)."""
-    from goniofrost.frost.bayes_selection import select_bayes
-
-    if "bayes" not in cache:
-        cache["bayes"] = select_bayes(model, max(config.m_values))
-    return cache["bayes"]
-
-
-def _bayes_designs(model, config: BenchConfig, cache: dict) -> Iterator[Design]:
-    # The design is nested: one run gives every m; the time of m is the wall time from the
-    # start of that run to the m-th pick (like Nielsen's incremental runs).
-    selection = bayes_design(model, config, cache)
-    for m in config.m_values:
-        yield Design("bayes", m, 0, np.asarray(selection.positions[:m]), float(selection.pick_seconds[m - 1]))
+    return nested_design(model, config, cache, "bayes")
 
 
 def target_rows(model, config: BenchConfig, truth, truth_log, names: list[str], fold: int,
@@ -179,7 +182,7 @@ def _random_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
             yield Design("random", m, trial, positions, seconds)
 
 
-def _uniform_designs(model, config: BenchConfig) -> Iterator[Design]:
+def _uniform_designs(model, config: BenchConfig, fold: int) -> Iterator[Design]:
     for m in config.m_values:
         positions, seconds = _timed(uniform_select, config.grid, m)
         yield Design("uniform", m, 0, positions, seconds)

@@ -10,7 +10,6 @@ docs/explanations/mitsuba-export.md; the warp's choice: docs/decisions/0009-mits
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -319,9 +318,3 @@ def export_binary_file(binary, out, options: ExportOptions = DEFAULT_OPTIONS) ->
     brdf, grid = read_merl_complete(binary)
     return export_mitsuba(out, brdf, grid, options, source=str(binary))
 
-
-def export_beside(binary, options: ExportOptions = DEFAULT_OPTIONS) -> Path:
-    """Export FILE.binary to FILE.bsdf beside it (the hook of ``capture --bsdf``); return the path."""
-    out = Path(binary).with_suffix(".bsdf")
-    export_binary_file(binary, out, options)
-    return out

@@ -7,20 +7,15 @@ The layout follows pbrt-v4's ``MeasuredBxDFData::Create`` and Mitsuba 3's ``meas
 32 wavelengths over 380-780 nm: docs/decisions/0009-mitsuba-export-warp.md."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from goniofrost.brdf import srgb_spectra
-from goniofrost.brdf.merl_file import read_merl_complete
-from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields, export_mitsuba
+from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS, ExportError, ExportOptions, build_fields
 from goniofrost.brdf.rgl_tensor import write_tensor_file
 from goniofrost.core.grid import MerlGrid
 
 WAVELENGTH_RANGE_NM = (380.0, 780.0)
 DEFAULT_WAVELENGTHS = 32
-# --format names: the RGB file (Mitsuba 3's RGB variants) and the spectral one (pbrt-v4, Mitsuba's spectral variants)
-FORMATS = {"mitsuba": "rgb", "rgl-spectral": "spectral", "pbrt": "spectral"}
 
 
 def wavelength_nodes(n: int = DEFAULT_WAVELENGTHS) -> np.ndarray:
@@ -68,23 +63,3 @@ def export_spectral(path, brdf, grid: MerlGrid, options: ExportOptions = DEFAULT
     fields = spectral_fields(build_fields(brdf, grid, options, description, source), n_wavelengths)
     write_tensor_file(path, fields)
     return fields
-
-
-def export_file(binary, out, format: str = "mitsuba", options: ExportOptions = DEFAULT_OPTIONS,
-                n_wavelengths: int = DEFAULT_WAVELENGTHS) -> dict:
-    """Export a MERL .binary to ``out`` in ``format`` (a key of FORMATS); nothing is written on error."""
-    if format not in FORMATS:
-        raise ExportError(f"format: expected one of {', '.join(FORMATS)}, found {format!r}")
-    if FORMATS[format] == "spectral":
-        wavelength_nodes(n_wavelengths)
-    brdf, grid = read_merl_complete(binary)
-    if FORMATS[format] == "rgb":
-        return export_mitsuba(out, brdf, grid, options, source=str(binary))
-    return export_spectral(out, brdf, grid, options, n_wavelengths, source=str(binary))
-
-
-def export_beside(binary, format: str = "mitsuba", options: ExportOptions = DEFAULT_OPTIONS) -> Path:
-    """Export FILE.binary to FILE.bsdf beside it in ``format`` (``capture --bsdf``); return the path."""
-    out = Path(binary).with_suffix(".bsdf")
-    export_file(binary, out, format, options)
-    return out

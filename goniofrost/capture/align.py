@@ -33,15 +33,16 @@ DARK_FRAMES = 2
 FRAMES_PER_POSE = 2      # averaged: the tile's brightness is what sets the yaw and arm zeros' precision
 
 
-def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None = None, progress: bool = True,
-          frames: str | Path | None = None, on_ready=None, devices=None) -> dict:
+def align(rig_path, out_path, *, devices=None, sim=None, progress: bool = True,
+          frames: str | Path | None = None) -> dict:
     """Measure the alignment of the rig in ``rig_path``; write and return ALIGNMENT.json's content.
 
-    ``frames``: keep the frames in this folder (default: a temporary folder, removed). ``seed`` and
-    ``speedup`` as for ``goniofrost capture``; ``on_ready(hardware)`` once the devices are connected;
-    ``devices``: the opener of the rig's devices, the caller's (see ``goniofrost.capture.runner.capture``).
+    ``frames``: keep the frames in this folder (default: a temporary folder, removed). ``devices``
+    and ``sim``: the opener of the rig's devices and a simulated rig's options (its seed, speed-up,
+    ``on_ready``; no material: the camera sees the card), the caller's (as ``capture.runner.capture``).
     """
     from goniofrost.capture.holder import held_hardware
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.capture.runner import check_sim_options
     from goniofrost.core.atomic_file import check_not_an_input, check_output_dir, check_output_file, write_text_atomic
@@ -52,7 +53,8 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     if rig.view is None:
         raise ConfigError(rig.source, "camera", "a camera section with the camera model (intrinsics, mount)",
                           "nothing" if not rig.camera else "a camera section without intrinsics")
-    check_sim_options(rig, seed, speedup)
+    sim = SimOptions() if sim is None else sim
+    check_sim_options(rig, sim.seed, sim.speedup)
     out_path = Path(out_path)
     check_not_an_input(out_path, {"--rig": rig_path})
     check_output_file(out_path)  # before any axis moves, not after the 30 poses
@@ -61,8 +63,7 @@ def align(rig_path, out_path, *, seed: int | None = None, speedup: float | None 
     poses, disc_px = usable_poses(rig)
     with tempfile.TemporaryDirectory(prefix="goniofrost-align-") as scratch:
         folder = Path(frames) if frames is not None else Path(scratch)
-        with held_hardware(rig, devices, material=None, seed=seed, speedup=speedup, on_ready=on_ready,
-                           program="align") as hardware:
+        with held_hardware(rig, devices, sim, program="align") as hardware:
             observations, exposure = run_steps(rig, poses, disc_px, hardware, folder, progress,
                                                   journaled=frames is not None)
     fit = fit_alignment(rig, rig.view.camera, observations)

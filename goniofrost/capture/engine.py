@@ -32,8 +32,9 @@ from dataclasses import dataclass, field
 
 from goniofrost.rig.contract import Hardware
 from goniofrost.rig.device_log import DeviceLog
-from goniofrost.capture.journal import Journal, NotMeasuredRecord, SampleRecord, SamplesCsv, by_reason
-from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted
+from goniofrost.capture.journal import Journal, SamplesCsv, by_reason
+from goniofrost.capture.records import NotMeasuredRecord, SampleRecord
+from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted, StepDone
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
@@ -90,6 +91,7 @@ class SessionEngine(PlanRunner):
         self._phase: tuple | None = None   # (name, monotonic start) of the part under way
         self._bar = None
         self._initial = 0
+        self._committed: SampleRecord | None = None  # the last sample journaled
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
         self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
         self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
@@ -98,6 +100,8 @@ class SessionEngine(PlanRunner):
                              Move: self._moved, Expose: _exposed, Phase: self._phase_started,
                              SaveCalibration: self._calibration_saved, Assess: self._assessed,
                              WhiteCheck: self._white_checked, Commit: self._commit}
+        self.subscribe(self._csv_line, required=True)   # samples.csv: kept with the journal's row
+        self.subscribe(self._progressed)                 # the progress bar: a display
 
     # ----- the run ------------------------------------------------------------------------
     def run(self) -> SessionStats:
@@ -277,9 +281,6 @@ class SessionEngine(PlanRunner):
 
         self.journal.add_event(EventKind.BATCH, f"batch {step.batch + 1}: {step.samples} samples, {statement(summary)}: "
                                f"{step.decision}", data=summary)
-        if self._bar is not None and step.decision not in (CONTINUE, PLAN_USED_UP):
-            self._bar.total = self._bar.n  # stopped early: the bar ends at the count captured, not "15/40"
-            self._bar.refresh()
         return summary
 
     def _commit(self, step: Commit, _result) -> dict:
@@ -289,7 +290,7 @@ class SessionEngine(PlanRunner):
         summary = self.rehearsal.with_state({"snr": record.snr, "status": record.status})
         # one durable transaction with its step and state (within _execute's critical section)
         self.journal.commit_sample(record, step=(self._row, summary))
-        self.csv.append(record)
+        self._committed = record   # as journaled, with its commit time: samples.csv's line (_csv_line)
         self._counted(record)
         return summary
 
@@ -308,8 +309,22 @@ class SessionEngine(PlanRunner):
         self.stats.capture_s += record.capture_s
         if isinstance(record, SampleRecord):
             self.stats.per_sample.append({"index": record.plan_index, "snr": record.snr})
-        if self._bar is not None:
+
+    # ----- subscribers: what follows the journal ------------------------------------------------
+    def _csv_line(self, done: StepDone) -> None:
+        """samples.csv gets each measured sample, as journaled (a sample not measured has no value)."""
+        if isinstance(done.step, Commit) and isinstance(done.step.record, SampleRecord):
+            self.csv.append(self._committed)
+
+    def _progressed(self, done: StepDone) -> None:
+        """The bar counts each sample done; a capture stopped early ends it at the count captured."""
+        if self._bar is None:
+            return
+        if isinstance(done.step, Commit):
             self._bar.update(1)
+        elif isinstance(done.step, Assess) and done.step.decision not in (CONTINUE, PLAN_USED_UP):
+            self._bar.total = self._bar.n  # not "15/40"
+            self._bar.refresh()
 
     @contextmanager
     def _progress(self, initial: int):

@@ -19,9 +19,9 @@ from goniofrost.rig.hardware import open_hardware
 
 
 @contextmanager
-def held_hardware(rig, devices=None, **options):
-    """``open_hardware(rig, devices, **options)``, stopped safely (``stopped_safely``) while held."""
-    with open_hardware(rig, devices, **options) as hardware, stopped_safely(hardware):
+def held_hardware(rig, devices=None, *args, **options):
+    """``open_hardware(rig, devices, ...)``, stopped safely (``stopped_safely``) while held."""
+    with open_hardware(rig, devices, *args, **options) as hardware, stopped_safely(hardware):
         yield hardware
 
 

@@ -43,7 +43,7 @@ class SessionInputs:
     @property
     def sentinel(self) -> np.ndarray | None:
         """bool (n,): the plan's sentinel samples (``plan --sentinels``), None for a plan without."""
-        from goniofrost.capture.plan_file import sentinel_flags
+        from goniofrost.plan.file import sentinel_flags
 
         flags = np.array(sentinel_flags(self.samples), dtype=bool)
         return flags if flags.any() else None
@@ -54,7 +54,7 @@ def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     plan's model, and check they belong together."""
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.scene_error import from_plan as scene_from_plan
-    from goniofrost.capture.plan_file import check_unique_cells, read_plan
+    from goniofrost.plan.file import check_unique_cells, read_plan
     from goniofrost.rig.file import load_checked_rig
 
     rig = load_checked_rig(rig_path, alignment_path)
@@ -87,7 +87,7 @@ def check_drills(plan: dict, rig) -> None:
 
 def resolve_model_path(plan: dict, plan_path: Path) -> Path:
     """The plan's model folder: ``model.path`` relative to the plan file's folder (as ``plan``
-    writes it: ``plan_file.model_path_for_plan``), else relative to the current folder (plans
+    writes it: ``plan.file.model_path_for_plan``), else relative to the current folder (plans
     written before, which recorded the path as typed)."""
     written = Path(_field(plan, plan_path, "model", dict)["path"])
     beside = plan_path.parent / written  # the written path itself when it is absolute

@@ -9,18 +9,18 @@ docs/reference/file-formats.md."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import sqlite3
 import time
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, fields
 from pathlib import Path
 
-from calib.measurement import NotMeasuredReason, why_not_measured
+from calib.measurement import NotMeasuredReason
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
-from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus, SessionLabel
+from goniofrost.capture.records import (EventKind, NotMeasuredRecord, RunEnd, RunStart, RunStatus,  # noqa: F401
+                                       SampleRecord, SessionLabel, json_limits)
 from goniofrost.rig.stop import AxisStop
 from goniofrost.frost import samples_file
 
@@ -66,92 +66,6 @@ STEP_STATUSES = ("running", "done", "failed", "interrupted")
 
 class JournalError(GoniofrostError):
     """A session journal that cannot be created, opened or continued."""
-
-
-@dataclass(frozen=True)
-class SampleRecord:
-    """One captured sample as journaled. Angles in degrees (cell lower edges), BRDF in 1/sr.
-
-    ``rgb``/``sigma`` are (3,) tuples; ``joints`` maps axis name -> degrees actually reached;
-    ``move_s``/``capture_s`` are the (simulated or real) seconds spent moving and capturing;
-    ``started_utc``/``committed_utc`` are Unix times.
-    """
-
-    plan_index: int
-    cell: int
-    theta_h_deg: float
-    theta_d_deg: float
-    phi_d_deg: float
-    rgb: tuple[float, float, float]
-    sigma: tuple[float, float, float]
-    snr: float
-    joints: dict = field(default_factory=dict)
-    exposures_s: tuple = ()
-    frames_taken: int = 0
-    frames_skipped: int = 0
-    raw_paths: tuple = ()
-    lamp_relative: float = 1.0
-    move_s: float = 0.0
-    capture_s: float = 0.0
-    started_utc: float = 0.0
-    committed_utc: float = 0.0
-    status: str = "ok"
-
-
-@dataclass(frozen=True)
-class NotMeasuredRecord:
-    """One plan sample the rig could not measure, as journaled (``calib.NotMeasured`` at its pose).
-
-    ``reason`` a ``calib.NotMeasuredReason`` (a value this version does not know stays a str);
-    ``snr`` (3,) the SNR reached per channel; ``min_snr`` the rig's minimum; ``longest_exposure_s``
-    the longest exposure taken; ``lower_limit``, ``upper_limit`` (3,) the BRDF in 1/sr each channel
-    lies between (too dark: 0 and an upper limit; saturated: a lower limit and infinity, None in
-    ``to_dict``); the other fields as in SampleRecord.
-    """
-
-    plan_index: int
-    cell: int
-    theta_h_deg: float
-    theta_d_deg: float
-    phi_d_deg: float
-    reason: NotMeasuredReason
-    snr: tuple[float, float, float]
-    min_snr: float
-    longest_exposure_s: float
-    upper_limit: tuple[float, float, float]
-    lower_limit: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    joints: dict = field(default_factory=dict)
-    exposures_s: tuple = ()
-    frames_taken: int = 0
-    frames_skipped: int = 0
-    raw_paths: tuple = ()
-    lamp_relative: float = 1.0
-    move_s: float = 0.0
-    capture_s: float = 0.0
-    started_utc: float = 0.0
-    committed_utc: float = 0.0
-
-    @property
-    def best_snr(self) -> float:
-        """The highest SNR reached over the channels."""
-        return max(self.snr)
-
-    def to_dict(self) -> dict:
-        """JSON-safe form (report.json, events): the reason as its value."""
-        return {**asdict(self), "reason": str(self.reason), "snr": list(self.snr),
-                "upper_limit": json_limits(self.upper_limit),
-                "lower_limit": list(self.lower_limit), "exposures_s": list(self.exposures_s),
-                "raw_paths": list(self.raw_paths)}
-
-    def why(self) -> str:
-        """Why it was not measured and the bounds of its BRDF, in words (readers use the fields)."""
-        return why_not_measured(self.reason, self.snr, self.min_snr, self.exposures_s or (self.longest_exposure_s,),
-                                self.lower_limit, self.upper_limit)
-
-
-def json_limits(values) -> list:
-    """A limit triple for JSON: an infinite limit (none) as None."""
-    return [v if math.isfinite(v) else None for v in values]
 
 
 def by_reason(not_measured) -> dict:

@@ -24,7 +24,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+import warnings
 from contextlib import contextmanager, nullcontext
+from dataclasses import dataclass
+from typing import Any, Callable
 
 from goniofrost.core.atomic_file import reason_of
 from goniofrost.core.errors import GoniofrostError, OutputError
@@ -43,6 +46,20 @@ log = logging.getLogger(__name__)
 class SessionFault(GoniofrostError):
     """A device or a step failed mid-run; the axes were told to stop (the message says which
     confirmed it), the lamp to switch off, and the journal stays resumable."""
+
+
+@dataclass(frozen=True)
+class StepDone:
+    """What the runner emits to its subscribers once a step is done and journaled: the ``step``,
+    its ``result`` and the ``summary`` the journal holds of it."""
+
+    step: Any
+    result: Any
+    summary: dict
+
+
+class SubscriberWarning(RuntimeWarning):
+    """A subscriber failed on a record: the run goes on (a display must never stop a measurement)."""
 
 
 class PlanRunner:
@@ -66,6 +83,13 @@ class PlanRunner:
         self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
         self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
         self.step_journal: dict = {}       # step type -> f(step, result) -> the step's result summary
+        self._subscribers: list = []       # (callback, required): see subscribe
+
+    def subscribe(self, callback: Callable[[StepDone], None], required: bool = False) -> None:
+        """Hand every StepDone to ``callback``. A required one (a file the session keeps, as
+        samples.csv) runs with the step's journaling, where no signal cuts in, and its error stops
+        the run as the journal's does; another one's error is a SubscriberWarning and the run goes on."""
+        self._subscribers.append((callback, required))
 
     # ----- what a subclass says (defaults: a plan without samples) ---------------------------
     def samples_planned(self) -> int:
@@ -215,8 +239,23 @@ class PlanRunner:
                 self.journal.end_step(self._row, "done", summary)
             self._row = None
             self.after_journal()
+            done = StepDone(step, result, summary)
+            for callback in (c for c, required in self._subscribers if required):
+                callback(done)
         self._journal_device_log()
+        self._emit(done)
         return result
+
+    def _emit(self, done: StepDone) -> None:
+        """Hand ``done`` to each subscriber that is not required; an error is a warning."""
+        for callback in (c for c, required in self._subscribers if not required):
+            try:
+                callback(done)
+            except Exception as exc:  # noqa: BLE001 - bluesky's rule: a subscriber never stops the run
+                log.warning("subscriber %s failed on %s: %s", getattr(callback, "__qualname__", callback),
+                            type(done.step).__name__, exc)
+                warnings.warn(f"{type(done.step).__name__}: a subscriber failed: {exc}", SubscriberWarning,
+                              stacklevel=2)
 
     def _abort(self, kind: EventKind, status: RunStatus, detail: str, axis, step, operator_message=None) -> str:
         """Stop every axis first (safety), switch the lamp off, then record why and how each axis

@@ -107,8 +107,9 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     """
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
-    from goniofrost.capture.report import TooFewSamplesError
+    from goniofrost.capture.reconstruction import TooFewSamplesError
     from goniofrost.capture.runner import capture
+    from goniofrost.rig.hardware import SimOptions
 
     inputs = load_inputs(queue.rig, queue.plan, queue.alignment)
     shown = check_queue(queue, inputs, seed=seed, speedup=speedup, materials=materials)
@@ -128,8 +129,9 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         out(f"queue {position}: measuring {sample.sample_id} into {session}"
             + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
         try:
-            outcome = capture(queue.rig, queue.plan, session, material=shown[k - 1], devices=devices,
-                              resume=(session / JOURNAL_FILE).exists(), seed=seed, speedup=speedup, progress=progress,
+            outcome = capture(queue.rig, queue.plan, session, devices=devices,
+                              sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
+                              resume=(session / JOURNAL_FILE).exists(), progress=progress,
                               label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
                               progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
         except TooFewSamplesError as exc:

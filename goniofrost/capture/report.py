@@ -1,9 +1,8 @@
-"""The end of a session: reconstruct the full BRDF, compare with the ground truth, report.
+"""The reports of a session: its sections, the preview, summary.txt and brdf.json's ``measurement``.
 
-Writes ``DIR/brdf.binary`` (the Bayesian posterior mean on the model's grid, the samples'
-uncertainties used), ``DIR/brdf.std.binary`` (its per-cell predictive standard deviation, MERL
-layout, see ``goniofrost reconstruct``), ``DIR/brdf.json`` (its predicted error),
-``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
+The reconstruction and the files it writes (``DIR/brdf.binary``, ``DIR/brdf.std.binary``,
+``DIR/brdf.json``) are ``capture.reconstruction``'s; the comparison with a simulated rig's ground
+truth is ``capture.ground_truth``'s. This module writes ``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
 error on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times
 come from the journal, so a resumed session reports every sample's motion and capture time, not
 only the last run's. With a target error the report holds every batch's predicted error and
@@ -14,66 +13,22 @@ Samples the rig could not measure (too dark even at the ladder's longest exposur
 even at its shortest: the journal's ``NotMeasuredRecord``) have no value: the reconstruction, its
 predicted error and the target-error assessments use the measured samples only, and report.json
 (``not_measured``), summary.txt and brdf.json say how many and which were left out and why, with
-the limits of their BRDF. With
-fewer than MIN_MEASURED_SAMPLES measured samples there is nothing to reconstruct:
-``TooFewSamplesError``.
+the limits of their BRDF.
 """
 from __future__ import annotations
 
 import json
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from calib.measurement import remedy
 from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.capture.ground_truth import ground_truth
 from goniofrost.capture.journal import by_reason, json_limits
-from goniofrost.core.errors import GoniofrostError
 from goniofrost.brdf.merl_file import valid_to_full
-
-GRAZING_DEG = 75.0  # samples whose theta_i or theta_o exceeds this are reported apart as grazing
-# the posterior needs one measured sample (not a sentinel: those only check it) to say anything
-MIN_MEASURED_SAMPLES = 1
-
-
-class TooFewSamplesError(GoniofrostError):
-    """Too few samples of a session were measured to reconstruct its BRDF (the others were not
-    measured: too dark or saturated). ``measured``: the usable measured samples; ``needed``: the minimum;
-    ``not_measured``: the journal's NotMeasuredRecords; ``plan_samples``: the plan's count."""
-
-    def __init__(self, journal_path, measured: int, needed: int, not_measured: list, plan_samples: int) -> None:
-        self.measured, self.needed, self.not_measured, self.plan_samples = measured, needed, not_measured, plan_samples
-        grouped = by_reason(not_measured)
-        why = "; ".join(f"{reason}: samples {' '.join(map(str, indices))}" for reason, indices in grouped.items())
-        fixes = "; ".join(f"{reason}: {remedy(reason)}" for reason in grouped)
-        super().__init__(
-            f"{journal_path}: {measured} of {plan_samples} samples measured, {len(not_measured)} not measured ({why}): "
-            f"a reconstruction needs at least {needed} measured sample(s); to measure them ({fixes}) capture "
-            f"again in a new --session")
-
-
-def check_enough_measured(inputs, records, not_measured, journal_path) -> None:
-    """TooFewSamplesError when fewer than MIN_MEASURED_SAMPLES measured samples (sentinels not
-    counted) are left to reconstruct from."""
-    sentinel = getattr(inputs, "sentinel", None)
-    usable = sum(1 for r in records if sentinel is None or not sentinel[r.plan_index])
-    if usable < MIN_MEASURED_SAMPLES:
-        raise TooFewSamplesError(journal_path, usable, MIN_MEASURED_SAMPLES, list(not_measured), len(inputs.samples))
-
-
-def reconstruct_session(inputs, records):
-    """The Bayesian reconstruction (frost.reconstruction.BayesReconstruction, on the valid cells)
-    of the journaled samples, their measured standard deviations included."""
-    from goniofrost.frost.reconstruction import reconstruct_bayes
-
-    order = np.array([r.plan_index for r in records], dtype=np.int64)
-    values = np.array([r.rgb for r in records], dtype=np.float64)
-    sigmas = np.array([r.sigma for r in records], dtype=np.float64)
-    return reconstruct_bayes(inputs.model, inputs.positions[order], values, sigmas=sigmas)
 
 
 def build_report(inputs, records, stats, session_dir: Path, material: str | None, runs, not_measured=()) -> dict:
@@ -130,54 +85,6 @@ def _planned_motion(plan: dict) -> float | None:
     """The plan's motion time from home through the last sample and back home."""
     total = plan.get("planned_motion_s")
     return None if total is None else float(total)
-
-
-def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None) -> dict:
-    """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
-    summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any);
-    ``material``: what a simulated rig showed (``spec``, ``brdf``, ``table``: see
-    ``goniofrost.datasets.ShownMaterial``), the ground truth the report compares against."""
-    from goniofrost.capture.engine import SessionStats
-    from goniofrost.frost.outputs import write_bayes_outputs
-
-    records, dark = journal.samples(), journal.not_measured()
-    check_enough_measured(inputs, records, dark, journal.path)
-    session_dir = Path(session_dir)
-    stats = stats or SessionStats(skipped=len(records) + len(dark))  # None: nothing was left to capture
-    rec = reconstruct_session(inputs, records)   # the measured samples only
-    grid = inputs.model.grid
-    estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
-    if material:
-        ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
-    # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
-    # beside the files and the report's other sections, which mostly run in numpy (GIL released).
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
-        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std)
-        earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
-        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
-        runs = journal.runs()
-        report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
-        report["label"] = journal.label().to_dict()
-        report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
-                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
-                                "samples_used": len(records), "not_measured_left_out": len(dark),
-                                **whole_brdf_calibration(inputs)}
-        bound = session_bound(inputs, records, getattr(spec, "confidence", None))
-        report["prediction"] |= extrapolation_section(inputs, records, bound) | bound_section(inputs, bound)
-        if inputs.scene is not None:
-            report["prediction"]["scene"] = scene_prediction(inputs, records)
-        report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
-        if spec is not None and spec.target is not None:
-            report["target_error"] = target_section(spec, records, dark)
-        if material:
-            report["ground_truth"] = _truth_section(inputs, records, material, estimate, rec.predicted_error,
-                                                    report["prediction"].get("median_estimate"))
-        report["rendering_snr_db"] = preview.result()
-    report["outputs"]["preview"] = "preview.png"
-    extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, [*records, *dark], runs))
-    write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
-    write_text_atomic(session_dir / "summary.txt", summary_text(report))
-    return report
 
 
 def session_bound(inputs, records, confidence: float | None = None):
@@ -345,52 +252,6 @@ def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=Non
     return preview.snr_db
 
 
-def _truth_section(inputs, records, material, estimate: np.ndarray, predicted: float,
-                   median: float | None) -> dict:
-    from goniofrost.frost.metrics import log_relative_mse
-    from goniofrost.frost.reconstruction import reconstruct_bayes
-
-    model = inputs.model
-    truth = ground_truth(material, model.grid)
-    order = np.array([r.plan_index for r in records], dtype=np.int64)
-    measured = np.array([r.rgb for r in records])
-    true_at = truth[inputs.positions[order]]
-    known = ~np.isnan(true_at).any(axis=1)  # a cell the material has no data for (rgl:PATH) gives no exact sample
-    exact = reconstruct_bayes(model, inputs.positions[order][known], true_at[known], with_std=False).brdf
-    error = float(log_relative_mse(model, truth, estimate[model.grid.valid_cells]))
-    best = float(log_relative_mse(model, truth, exact))
-    at_measured = truth_at_measured_directions(inputs, records, material)
-    rel, rel_measured = relative_errors(measured, true_at), relative_errors(measured, at_measured)
-    samples = inputs.plan["samples"]
-    grazing = np.array([max(samples[r.plan_index]["theta_i_deg"], samples[r.plan_index]["theta_o_deg"]) > GRAZING_DEG
-                        for r in records], dtype=bool)
-    return {"material": material.spec, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
-            "predicted_over_actual": predicted / error if error > 0 else None,
-            "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
-            "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
-            "sample_relative_error_median": _median(rel),
-            "sample_relative_error_max": _max(rel),
-            "sample_relative_error_median_at_measured_directions": _median(rel_measured),
-            "grazing": {"beyond_deg": GRAZING_DEG, "samples": int(grazing.sum()),
-                        "sample_relative_error_median": _median(rel[grazing]),
-                        "sample_relative_error_median_at_measured_directions": _median(rel_measured[grazing])}}
-
-
-def truth_at_measured_directions(inputs, records, material) -> np.ndarray:
-    """The material's BRDF (n, 3) at the directions each sample was measured at, as the session
-    knows them (forward kinematics of the joints reached, with the session's alignment): what the
-    calibration had to reproduce. The cell's own directions differ by the axes' positioning
-    resolution (e.g. 0.088 deg for the simulated yaw servo), which matters on sharp peaks.
-    ``material``: its ``brdf(w_i, w_o)`` (``goniofrost.datasets.ShownMaterial``)."""
-    from planner.kinematics import forward
-
-    out = np.empty((len(records), 3))
-    for k, record in enumerate(records):
-        w_i, w_o = forward(inputs.rig, record.joints)
-        out[k] = material.brdf(w_i, w_o)
-    return out
-
-
 def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
     """The summary's statement of the reconstruction's error: the calibrated bound and median
     estimate when the report has them (``bound_section``), else the point prediction, marked
@@ -419,47 +280,12 @@ def _estimates(truth: dict, prediction: dict) -> str:
                                                                      else ", uncalibrated")
 
 
-def relative_errors(measured: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """|measured - truth| / truth per sample and channel (n, 3); NaN where the truth is 0.
-
-    A measured material's channel can be exactly 0 (MERL black-obsidian's green and blue over a
-    quarter of its cells) where the rig reads a small positive value at its detection limit: a
-    relative error there is undefined, not infinite (report.json held ``Infinity``, which is not
-    JSON), so it is left out of the medians and the maximum.
-    """
-    measured, truth = np.asarray(measured, dtype=np.float64), np.asarray(truth, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(truth > 0, np.abs(measured - truth) / truth, np.nan)
-
-
-def _median(values: np.ndarray) -> float | None:
-    """The median of the defined (non-NaN) values; None when there is none."""
-    values = np.asarray(values, dtype=np.float64)
-    return float(np.nanmedian(values)) if (~np.isnan(values)).any() else None
-
-
-def _max(values: np.ndarray) -> float | None:
-    """The largest defined (non-NaN) value; None when there is none."""
-    values = np.asarray(values, dtype=np.float64)
-    return float(np.nanmax(values)) if (~np.isnan(values)).any() else None
-
-
 def _pct(value) -> str:
     return "n/a" if value is None else f"{100 * value:.2f} %"
 
 
 def _fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
-
-
-@lru_cache(maxsize=2)
-def ground_truth(material, grid) -> np.ndarray:
-    """The material's BRDF on the grid's valid cells, float64 (n_valid, 3) in 1/sr (read-only;
-    kept for the demo's reference file and preview, which need the same table): its
-    ``table(grid)`` (``goniofrost.datasets.ShownMaterial``)."""
-    truth = np.asarray(material.table(grid), dtype=np.float64)
-    truth.setflags(write=False)
-    return truth
 
 
 def snr_text(snr: float) -> str:

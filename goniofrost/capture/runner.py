@@ -19,6 +19,7 @@ from goniofrost.core.errors import ConfigError, GoniofrostError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 from goniofrost.capture.session_steps import SessionSpec
 from goniofrost.capture.target import DEFAULT_CONFIDENCE
+from goniofrost.rig.hardware import NO_SIM, SimOptions
 
 JOURNAL_FILE = "session.sqlite"
 log = logging.getLogger(__name__)
@@ -33,20 +34,16 @@ class CaptureOutcome:
     session_dir: Path
 
 
-def capture(rig_path, plan_path, session_dir, *, material=None, resume: bool = False,
-            seed: int | None = None, speedup: float | None = None, progress: bool = True,
-            on_ready=None, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
+def capture(rig_path, plan_path, session_dir, *, devices=None, sim: SimOptions = NO_SIM, resume: bool = False,
+            progress: bool = True, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
             alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
-            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=(),
-            devices=None) -> CaptureOutcome:
+            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=()) -> CaptureOutcome:
     """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
 
     ``devices``: the opener of the rig's devices (``goniofrost.rig.hardware.open_hardware``'s; None:
     the real ones; ``goniofrost.rig.simulated.rig_devices`` for a simulated rig file), chosen by the
-    caller. ``material``: what a simulated rig shows, resolved by the caller (``spec``, ``brdf``,
-    ``table``: ``goniofrost.datasets.shown_material``); the report compares against it.
-    ``seed`` and ``speedup`` override the simulated rig's ``sim.seed`` and ``sim.clock_speedup``;
-    ``on_ready(hardware)`` is called once the devices are connected (fault-injection tests);
+    caller, with ``sim`` (``goniofrost.rig.hardware.SimOptions``: the material a simulated rig
+    shows, which the report compares against, its seed and speed-up, ``on_ready``).
     ``target_error``: measure the plan batch by batch and stop once this material's log-relative
     MSE is at most this with probability ``confidence`` (the calibrated bound of
     ``frost.confidence``; ``goniofrost.capture.target``; the plan needs batch_ends).
@@ -63,17 +60,19 @@ def capture(rig_path, plan_path, session_dir, *, material=None, resume: bool = F
     """
     from goniofrost.capture.engine import RERUN, SessionStats
     from goniofrost.capture.inputs import load_inputs
-    from goniofrost.capture.report import preload_preview, summary_text, write_outputs
+    from goniofrost.capture.reconstruction import write_outputs
+    from goniofrost.capture.report import preload_preview, summary_text
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
     inputs = inputs or load_inputs(rig_path, plan_path, alignment)
     rerun = rerun or RERUN
-    material = check_material(inputs.rig, material)
-    check_sim_options(inputs.rig, seed, speedup)
+    material = check_material(inputs.rig, sim.material)
+    check_sim_options(inputs.rig, sim.seed, sim.speedup)
     check_target(inputs, target_error, confidence)
     session_dir = Path(session_dir)
-    meta = session_meta(inputs, material and material.spec, target_error, confidence, sim_seed(inputs.rig, seed)) | {
+    meta = session_meta(inputs, material and material.spec, target_error, confidence,
+                        sim_seed(inputs.rig, sim.seed)) | {
         "label": (label or session_label(inputs.rig)).to_dict()}
     spec = SessionSpec.from_inputs(inputs, target_error, confidence)
     if drift_limit is not None:
@@ -99,9 +98,9 @@ def capture(rig_path, plan_path, session_dir, *, material=None, resume: bool = F
             stats = SessionStats(skipped=len(done))  # what this run adds, if anything is left to capture
             if not session_finished(spec, journal):
                 preload_preview()
-                stats = run_engine(spec, journal, session_dir, rig=inputs.rig, material=material, seed=seed,
-                                   speedup=speedup, progress=progress, on_ready=on_ready, devices=devices,
-                                   reuse_calibration=reuse_calibration, progress_desc=progress_desc, rerun=rerun)
+                stats = run_engine(spec, journal, session_dir, rig=inputs.rig, devices=devices, sim=sim,
+                                   progress=progress, reuse_calibration=reuse_calibration,
+                                   progress_desc=progress_desc, rerun=rerun)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
@@ -176,10 +175,10 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
             pass
 
 
-def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup, progress, on_ready,
-               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None, devices=None):
-    """Connect the rig (``devices``: the opener, see ``capture``) and capture what is left of the
-    session ``spec``; return the run's SessionStats. From connecting to releasing, the devices' log
+def run_engine(spec, journal, session_dir: Path, *, rig, devices, sim: SimOptions, progress,
+               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None):
+    """Connect the rig (``devices``, ``sim``: the opener and its options, see ``capture``)
+    and capture what is left of the session ``spec``; return the run's SessionStats. From connecting to releasing, the devices' log
     goes to the journal, not the terminal."""
     from goniofrost.rig.device_log import DeviceLog
     from goniofrost.capture.engine import RERUN, SessionEngine
@@ -187,8 +186,7 @@ def run_engine(spec, journal, session_dir: Path, *, rig, material, seed, speedup
 
     with DeviceLog.capture() as device_log:
         try:
-            with held_hardware(rig, devices, material=material, seed=seed, speedup=speedup,
-                               on_ready=on_ready) as hardware:
+            with held_hardware(rig, devices, sim) as hardware:
                 engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
                 engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
                 engine.rerun = rerun or RERUN

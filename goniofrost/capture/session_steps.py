@@ -26,7 +26,7 @@ import numpy as np
 
 from calib import NotMeasured
 from goniofrost.capture.calibration_steps import calibration_steps, white_check_steps
-from goniofrost.capture.journal import NotMeasuredRecord, SampleRecord
+from goniofrost.capture.records import NotMeasuredRecord, SampleRecord
 from goniofrost.capture.sample_steps import sample_steps
 from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, Reached
 

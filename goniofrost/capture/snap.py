@@ -80,6 +80,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material=None,
     from goniofrost.capture.console import check_referenced, check_targets, move_plan
 
     from goniofrost.capture.holder import held_hardware
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.capture.plan_runner import PlanRunner
     from goniofrost.capture.runner import check_material
     from goniofrost.core.atomic_file import output_errors
@@ -96,7 +97,7 @@ def snap(rig, *, target: str, exposure_s: float | None, out, material=None,
         # for the value given refused the camera's file as exposed other than asked (0.004 s for 0.003)
         exposure_s = shutter_seconds(shutter_label(settings["shutter_speeds"], exposure_s))
     with tempfile.TemporaryDirectory(prefix="goniofrost-snap-") as folder, \
-            held_hardware(rig, devices, material=material, program="rig snap") as hardware:
+            held_hardware(rig, devices, SimOptions(material=material), program="rig snap") as hardware:
         joints = {name: float(axis.position()) for name, axis in hardware.axes.items()}
         judge = _Judge(rig, settings, target, joints)
         move = None

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable, Generator
 
 from calib.record import CalibrationRecord
-from goniofrost.capture.journal import NotMeasuredRecord, SampleRecord
+from goniofrost.capture.records import NotMeasuredRecord, SampleRecord
 
 
 @dataclass(frozen=True)

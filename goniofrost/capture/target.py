@@ -21,9 +21,9 @@ import numpy as np
 
 from goniofrost.frost.confidence import ErrorBound
 from goniofrost.frost.scene_error import NAMES, SCOPE_BRDF, SCOPE_SCENE
-from goniofrost.frost.stopping import stop_reason
+from goniofrost.frost.stopping import Decision, stop_reason
 
-CONTINUE = "continue"
+CONTINUE = Decision.CONTINUE
 DEFAULT_CONFIDENCE = 0.95
 
 

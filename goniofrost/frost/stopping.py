@@ -13,6 +13,7 @@ These functions hold no device and no file: the planner's batches, the capture's
 """
 from __future__ import annotations
 
+import enum
 import math
 
 from goniofrost.frost.confidence import FIRST_LOOK, ErrorBound
@@ -26,8 +27,23 @@ from goniofrost.frost.confidence import FIRST_LOOK, ErrorBound
 FIRST_BATCH = FIRST_LOOK
 BATCH = 5
 
-REASON_TARGET = "target reached"
-REASON_PLAN = "plan used up"
+
+
+class Decision(str, enum.Enum):
+    """What an assessment after a batch decides: measure on, or stop and why. Journals, reports
+    and the monitor's page carry the value; code compares members (the page: the names the
+    server publishes, ``goniofrost.monitor.status.ENUMS``)."""
+
+    CONTINUE = "continue"
+    TARGET_REACHED = "target reached"
+    PLAN_USED_UP = "plan used up"
+
+    __str__ = str.__str__        # the value in messages and files, on every Python version
+    __format__ = str.__format__
+
+
+REASON_TARGET = Decision.TARGET_REACHED
+REASON_PLAN = Decision.PLAN_USED_UP
 
 
 def batch_ends(m_max: int, first: int = FIRST_BATCH, step: int = BATCH) -> list[int]:

@@ -2,7 +2,7 @@
 the reconstruction so far as preview spheres.
 
 Both are computed from the session's files with the capture's own code (``calib.roi.find_patch``
-finds the same region of interest the calibrator measured; ``capture.report.reconstruct_session``
+finds the same region of interest the calibrator measured; ``capture.reconstruction.reconstruct_session``
 is the session's reconstruction), read-only, and encoded with OpenCV.
 """
 from __future__ import annotations
@@ -134,7 +134,7 @@ def preview_png(view, rig) -> tuple[bytes, dict]:
 
 
 def estimate_for_preview(inputs, records) -> np.ndarray:
-    """The session's reconstruction, as ``capture.report.reconstruct_session`` computes it (the
+    """The session's reconstruction, as ``capture.reconstruction.reconstruct_session`` computes it (the
     Bayesian posterior mean, the samples' sigmas used), but only at the cells the preview spheres
     look up: (grid.size, 3) in 1/sr, NaN elsewhere. On the full grid that is a few thousand of 1.1
     million cells, so a preview costs milliseconds instead of a pass over the whole dictionary.

@@ -170,7 +170,7 @@ class SessionView:
         """Whether plan samples were journaled as not measured and none but sentinels (which only
         check a reconstruction) was measured: too dark or saturated for the rig's exposures, nothing
         to reconstruct (the capture's TooFewSamplesError)."""
-        from goniofrost.capture.plan_file import sentinel_flags  # here: plan_file's imports (numba) cost 0.4 s
+        from goniofrost.plan.file import sentinel_flags  # here: plan_file's imports (numba) cost 0.4 s
 
         flags = sentinel_flags(self.plan_doc.get("samples") or [])
         return bool(self.not_measured) and all(d.plan_index < len(flags) and flags[d.plan_index] for d in self.done)

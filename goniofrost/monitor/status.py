@@ -13,6 +13,11 @@ import statistics
 import numpy as np
 
 from goniofrost.capture.records import RunStatus
+from goniofrost.frost.stopping import Decision
+
+# The enums whose values the state carries, by member name: the one place the page's script reads
+# them from (it compares ``a.decision === names.decision.TARGET_REACHED``, never a sentence of its own).
+ENUMS = {"decision": {m.name: m.value for m in Decision}, "run_status": {m.name: m.value for m in RunStatus}}
 
 MIN_FIT = 3              # samples of this run before the ETA's wall model is fitted
 STALL_MIN_S = 300.0      # never call a capture stalled sooner than this
@@ -59,6 +64,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
         "calibrated": view.calibrated,
         "files": list(view.files),
         "summary": view.summary,
+        "names": ENUMS,
     }
 
 

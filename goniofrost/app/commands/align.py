@@ -25,10 +25,11 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from goniofrost.capture.align import align
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
-    doc = align(args.rig, args.out, seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
-                frames=args.frames, devices=rig_devices)
+    doc = align(args.rig, args.out, devices=rig_devices, sim=SimOptions(seed=args.seed, speedup=args.speedup),
+                progress=not args.no_progress, frames=args.frames)
     offsets, stderr, lamp = doc["offsets_deg"], doc["stderr_deg"], doc["lamp"]
     print(f"{args.out}: zero offsets of rig {doc['rig']['name']!r} (an axis reading q stands at q + offset):")
     for name, value in offsets.items():

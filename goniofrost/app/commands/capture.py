@@ -39,7 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--bsdf", action="store_true",
                         help="also write brdf.bsdf beside brdf.binary: the RGL tensor file Mitsuba 3's 'measured' "
                              "BSDF renders (as goniofrost export; about a second and 14 MB at full resolution)")
-    parser.add_argument("--bsdf-format", choices=["mitsuba", "rgl-spectral", "pbrt"], default=None,
+    from goniofrost.brdf.formats import FORMATS
+
+    parser.add_argument("--bsdf-format", choices=tuple(FORMATS), default=None,
                         help="the format of brdf.bsdf (implies --bsdf): mitsuba (RGB, the default) or rgl-spectral / "
                              "pbrt (spectral, for pbrt-v4 and Mitsuba 3's spectral variants; about 100 MB)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -90,6 +92,7 @@ def run(args) -> int:
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.runner import check_material
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     inputs = load_inputs(args.rig, args.plan, args.alignment)
@@ -103,8 +106,9 @@ def run(args) -> int:
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
-            outcome = capture(args.rig, args.plan, args.session, material=material, devices=rig_devices,
-                              resume=args.resume, seed=args.seed, speedup=args.speedup, progress=not args.no_progress,
+            outcome = capture(args.rig, args.plan, args.session, devices=rig_devices,
+                              sim=SimOptions(material=material, seed=args.seed, speedup=args.speedup),
+                              resume=args.resume, progress=not args.no_progress,
                               target_error=args.target_error, confidence=confidence,
                               alignment=args.alignment, label=label, inputs=inputs,
                               extra_files=(BSDF_FILE,) if bsdf else ())
@@ -118,9 +122,9 @@ def run(args) -> int:
         return 130
     print(outcome.summary, end="")
     if bsdf:
-        from goniofrost.brdf.rgl_spectral import export_beside
+        from goniofrost.brdf.formats import FORMATS, export_beside
 
         fmt = args.bsdf_format or "mitsuba"
         written = export_beside(outcome.session_dir / outcome.report['outputs']['brdf'], fmt)
-        print(f"wrote {written} ({'for Mitsuba 3' if fmt == 'mitsuba' else 'spectral, for pbrt-v4 and Mitsuba 3'})")
+        print(f"wrote {written} ({FORMATS[fmt].reader})")
     return 0

@@ -14,16 +14,16 @@ import argparse
 
 HELP = ("export a MERL .binary to the RGL tensor format (.bsdf): RGB for Mitsuba 3, spectral for pbrt-v4 and "
         "Mitsuba 3's spectral variants")
-FORMATS = ["mitsuba", "rgl-spectral", "pbrt"]
 MAX_TABLE_BYTES = 1_000_000_000  # 10 times the default spectral file; exporting takes a few times this in memory
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from goniofrost.brdf.formats import FORMATS
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
     from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, WAVELENGTH_RANGE_NM
 
     parser.add_argument("binary", metavar="FILE.binary", help="the BRDF to export (MERL .binary, any grid)")
-    parser.add_argument("--format", choices=FORMATS, default="mitsuba",
+    parser.add_argument("--format", choices=tuple(FORMATS), default="mitsuba",
                         help="mitsuba: the RGB file for Mitsuba 3's 'measured' BSDF (RGB variants; the default); "
                              "rgl-spectral, or its alias pbrt: the spectral file for pbrt-v4's 'measured' material "
                              "and Mitsuba 3's spectral variants")
@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from goniofrost.brdf.mitsuba_export import DEFAULT_OPTIONS
-    from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS, FORMATS as KINDS, export_file
+    from goniofrost.brdf import formats
+    from goniofrost.brdf.rgl_spectral import DEFAULT_WAVELENGTHS
     from goniofrost.core.atomic_file import check_output_file, check_output_suffix
     from goniofrost.core.errors import GoniofrostError
 
@@ -58,13 +59,14 @@ def run(args: argparse.Namespace) -> int:
     # contents (RGB or spectral), never its name, so the name is checked and not read
     check_output_suffix(out, ".bsdf", "every --format writes an RGL tensor file")
     check_output_file(out)  # a folder named brdf.bsdf was found only when the file was written, after the export
-    if args.wavelengths is not None and KINDS[args.format] == "rgb":  # it would change nothing, silently
+    spectral = formats.FORMATS[args.format].spectral
+    if args.wavelengths is not None and not spectral:  # it would change nothing, silently
         raise GoniofrostError("--wavelengths: applies to the spectral formats only (--format rgl-spectral or pbrt)")
     wavelengths = DEFAULT_WAVELENGTHS if args.wavelengths is None else args.wavelengths
     for flag, value in (("--theta-i", args.theta_i), ("--sample", args.sample), ("--wavelengths", wavelengths)):
         if value < 2:
             raise GoniofrostError(f"{flag}: expected an integer >= 2, found {value}")
-    channels = 3 if KINDS[args.format] == "rgb" else wavelengths
+    channels = wavelengths if spectral else 3
     size = 4 * args.theta_i * channels * args.sample ** 2  # the float32 rgb or spectra table, most of the file
     if size > MAX_TABLE_BYTES:  # --theta-i 100000 ran a minute, then the kernel killed it for memory
         # the same table at the default options, in this format: "the defaults write 9 MB" was the
@@ -78,15 +80,19 @@ def run(args: argparse.Namespace) -> int:
               f"(the defaults hold {default / 1e6:.0f} MB of {'rgb values' if channels == 3 else 'spectra'})")
     options = replace(DEFAULT_OPTIONS, theta_i=args.theta_i, sample=args.sample)
     start = time.perf_counter()
-    fields = export_file(source, out, args.format, options, wavelengths)
+    fields = formats.export_file(source, out, args.format, options, wavelengths)
     seconds, size = time.perf_counter() - start, out.stat().st_size / 1e6
-    if KINDS[args.format] == "rgb":
-        rgb = fields["rgb"].shape
-        print(f"wrote {out}: {size:.1f} MB, {rgb[1]} incident elevations x {rgb[3]}x{rgb[4]} rgb nodes, in "
-              f"{seconds:.1f} s (load it with Mitsuba 3: type 'measured', an RGB variant)")
-    else:
-        spectra, lam = fields["spectra"].shape, fields["wavelengths"]
-        print(f"wrote {out}: {size:.1f} MB, {spectra[1]} incident elevations x {spectra[3]}x{spectra[4]} nodes x "
-              f"{spectra[2]} wavelengths ({lam[0]:g}-{lam[-1]:g} nm), in {seconds:.1f} s (load it with pbrt-v4: "
-              f"Material \"measured\", or Mitsuba 3: type 'measured', a spectral variant)")
+    print(f"wrote {out}: {size:.1f} MB{_layout(fields)}, in {seconds:.1f} s ({formats.FORMATS[args.format].how_to_load})")
     return 0
+
+
+def _layout(fields: dict) -> str:
+    """What an RGL tensor file tabulates (its rgb or spectra nodes), or nothing for another layout."""
+    if "rgb" in fields:
+        rgb = fields["rgb"].shape
+        return f", {rgb[1]} incident elevations x {rgb[3]}x{rgb[4]} rgb nodes"
+    if "spectra" in fields:
+        spectra, lam = fields["spectra"].shape, fields["wavelengths"]
+        return (f", {spectra[1]} incident elevations x {spectra[3]}x{spectra[4]} nodes x {spectra[2]} wavelengths "
+                f"({lam[0]:g}-{lam[-1]:g} nm)")
+    return ""

@@ -67,7 +67,7 @@ function renderFault(st) {
   if (!stopped && !st.ended_message) { box.hidden = true; return; }
   box.hidden = false;
   setText("fault-title", st.ended_message ? "The capture ended with an error" :
-          st.stop.status === "stopped_by_operator" ? "Interrupted" : "Stopped on a fault");
+          st.stop.status === st.names.run_status.STOPPED_BY_OPERATOR ? "Interrupted" : "Stopped on a fault");
   setText("fault-message", st.ended_message || st.stop.message);
   setText("fault-detail", st.stop && !st.ended_message && st.stop.detail && !st.stop.message.includes(st.stop.detail)
           ? `device: ${st.stop.detail}` : "");
@@ -283,8 +283,9 @@ function updatePictures(again) {
   }
 }
 
-// The stopping rule's latest assessment, worded from its numbers (never from a journaled sentence).
-function assessmentText(a) {
+// The stopping rule's latest assessment, worded from its numbers (never from a journaled sentence);
+// its decision is compared with the values the server names (``names.decision``: status.ENUMS).
+function assessmentText(a, decision) {
   const pct = `${+(100 * a.confidence).toPrecision(3)} %`;
   const error = a.scope === "scene" ? "error in the scene's use" : "error";  // a plan made for a scene
   const median = `median estimate ${a.predicted_error.toPrecision(3)}`;
@@ -292,22 +293,22 @@ function assessmentText(a) {
     const unlike = a.out_of_model.includes("design") ? "the design is unlike every design the calibration was fitted on"
       : "unlike every training material";
     return `after ${a.samples} samples: ${unlike} (an extrapolation): ` +
-      (a.decision === "continue" ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
+      (a.decision === decision.CONTINUE ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
   }
-  if (a.decision === "target reached") return `${error} <= ${a.target} with ${pct} confidence (${median})`;
+  if (a.decision === decision.TARGET_REACHED) return `${error} <= ${a.target} with ${pct} confidence (${median})`;
   const bound = a.bound == null ? "no bound" : `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence`;
   return `after ${a.samples} samples: ${bound}, target ${a.target} ` +
-    (a.decision === "continue" ? "not reached yet" : `not reached (${a.decision})`) + ` (${median})`;
+    (a.decision === decision.CONTINUE ? "not reached yet" : `not reached (${a.decision})`) + ` (${median})`;
 }
 
-function renderAssessment(a) {
+function renderAssessment(a, names) {
   const el = $("assessment");
   el.hidden = a == null;
-  if (a != null) setText("assessment", assessmentText(a));
+  if (a != null) setText("assessment", assessmentText(a, names.decision));
 }
 
 function renderPredicted(st) {
-  renderAssessment(st.assessment);
+  renderAssessment(st.assessment, st.names);
   const el = $("predicted-error");
   el.hidden = st.predicted_error == null;
   if (st.predicted_error != null) setText("predicted-error", `predicted error (log-relative MSE): ${st.predicted_error.toPrecision(3)}`);
