@@ -208,9 +208,9 @@ def run_stop(args) -> int:
     from goniofrost.rig.lock import request_stop
 
     rig = _load(args)
-    holder = request_stop(rig.name)
+    holder = request_stop(rig)
     if holder is not None:
-        _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
+        _say(f"asked {holder.who()} to stop {rig.name}: it stops and confirms every axis and "
              f"switches the lamp off; its own report follows in its terminal and journal")
         return 0
     with _connected(rig, enable=False, program="rig stop") as hardware:

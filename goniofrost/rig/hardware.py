@@ -5,7 +5,7 @@ camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). Whoever calls
 devices: ``real_devices`` (the default: the drivers connect to the rig's hardware, its camera from
 ``open_camera``) or ``goniofrost.rig.simulated.simulated_devices`` (the simulated twins, which speak
 the real protocols; ``goniofrost.rig.simulated.rig_devices`` picks by the rig file's
-``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a rig at a time) is
+``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a device at a time) is
 held from before the first device is connected until every connection is closed. On leaving, every
 axis not yet confirmed stopped is told to stop (through the one stop path, ``goniofrost.rig.stop``,
 which confirms each; its findings are logged to the session's device log) and every connection
@@ -66,7 +66,7 @@ def open_hardware(rig, devices=None, *, material=None, seed: int | None = None, 
     from goniofrost.rig.lock import rig_lock
 
     opener = real_devices if devices is None else devices
-    with rig_lock(rig.name, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+    with rig_lock(rig, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
         hardware.rig_lock = lock
         if on_ready is not None:
             on_ready(hardware)
