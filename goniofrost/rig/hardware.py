@@ -45,6 +45,7 @@ class RigHardware:
     simulation: object = None
     extra: dict = field(default_factory=dict)
     rig_lock: object = None   # the held goniofrost.rig.lock.RigLock (its stop requests)
+    pause_gate: object = None  # a server's gate the engine asks at safe points (goniofrost.server.instrument)
 
     @property
     def simulated(self) -> bool:
@@ -59,14 +60,19 @@ def open_hardware(rig, devices=None, *, material=None, seed: int | None = None, 
     holds it: nothing is connected).
 
     ``devices(rig, material=, seed=, speedup=)``: a context manager yielding the connected
-    RigHardware (None: ``real_devices``). ``material`` (what a simulated camera shows: ``.spec``,
+    RigHardware (None: ``real_devices``); one with a ``rig_lock`` attribute opens devices whose lock
+    its caller already holds (``goniofrost.server``): no lock is taken then. ``material`` (what a simulated camera shows: ``.spec``,
     ``.brdf``), ``seed`` and ``speedup`` are handed to it. ``on_ready(hardware)`` (optional) is
     called once everything is connected (tests use it to inject faults into the simulated devices).
     """
+    from contextlib import nullcontext
+
     from goniofrost.rig.lock import rig_lock
 
     opener = real_devices if devices is None else devices
-    with rig_lock(rig, program) as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
+    held = getattr(opener, "rig_lock", None)  # an opener of devices already held (a server's) holds their lock
+    locked = nullcontext(held) if held is not None else rig_lock(rig, program)
+    with locked as lock, opener(rig, material=material, seed=seed, speedup=speedup) as hardware:
         hardware.rig_lock = lock
         if on_ready is not None:
             on_ready(hardware)
