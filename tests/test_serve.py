@@ -168,3 +168,32 @@ def test_kill_9_mid_capture_then_a_restart_loses_and_repeats_no_sample(server, p
         assert again.status()["state"] == "idle"
     finally:
         again.close()
+
+
+def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(server, plan, capsys):
+    """`goniofrost rig home/move/lamp/stop` find the server through the device lock and use its API
+    (the server keeps the devices: nothing else could open them); snap writes under the root."""
+    from goniofrost.app.cli import main
+
+    rig, _ = plan
+    for words in (["home", "--yes"], ["move", "camera_arm=60", "sample_yaw=10"], ["lamp", "on"], ["stop"]):
+        assert main(["rig", words[0], "--rig", str(rig), *words[1:]]) == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "reached camera_arm 60.000 deg, sample_yaw 10.0" in err
+    assert f"asked serve (process {server.proc.pid} of " in err and f"at {server.url} to stop sim-rig: it is idle" in err
+    status = server.status()
+    assert abs(status["pose"]["camera_arm"] - 60) < 0.05 and status["lamp"]["on"] is True
+    snap = server.post("/api/snap", {"name": "here.png"})
+    assert snap.status_code == 200 and (server.root / "snaps" / "here.png").stat().st_size > 0
+    assert [a["action"] for a in server.get("/api/actions").json()] == ["home", "move", "lamp", "stop", "snap"]
+    assert server.get("/api/actions").json()[0]["who"].endswith("(goniofrost rig)")
+    records = []
+    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as events:
+        for line in events.iter_lines(decode_unicode=True):
+            if line.startswith("data: "):
+                records.append(json.loads(line[len("data: "):]))
+                if records[-1]["seq"] + 1 >= status["events"]:  # every record before the status read
+                    break
+    assert [r["seq"] for r in records] == list(range(status["events"]))
+    assert [r["state"] for r in records if r["type"] == "state"] == ["running", "idle"] * 3  # home, move, lamp
+    assert [r["on"] for r in records if r["type"] == "lamp"] == [True]

@@ -152,7 +152,7 @@ class Api:
             check_referenced(self.rig, hw.axes, targets)
             return run_plan(hw, move_plan(self.rig, targets), "serve move")
         reached = await self._command(request, who, "move", {"targets": targets}, job)
-        return JSONResponse({"reached": reached})
+        return JSONResponse({"reached": {k: float(v) for k, v in reached.joints.items()}})
 
     async def home(self, request, body, who):
         from goniofrost.capture.console import home_plan, run_plan
@@ -162,16 +162,18 @@ class Api:
             raise RequestError("axes", f"axes: expected a list of axes among {', '.join(self.rig.axes)}, found {axes!r}")
         reached = await self._command(request, who, "home", {"axes": axes},
                                       lambda hw: run_plan(hw, home_plan(axes), "serve home"))
-        return JSONResponse({"reached": reached})
+        return JSONResponse({"reached": {k: float(v) for k, v in reached.joints.items()}})
 
     async def lamp(self, request, body, who):
         from goniofrost.capture.console import lamp_plan, run_plan
 
         on = check_lamp(body, self.rig)
-        reading = await self._command(request, who, "lamp", {"on": on},
-                                      lambda hw: run_plan(hw, lamp_plan(on), "serve lamp"))
-        self.instrument.lamp["on"] = on
-        return JSONResponse({"on": on, "photodiode": reading})
+        def job(hw):
+            reading = run_plan(hw, lamp_plan(on), "serve lamp")
+            self.instrument.lamp_switched(on)
+            return reading
+        reading = await self._command(request, who, "lamp", {"on": on}, job)
+        return JSONResponse({"on": on, "photodiode": None if reading is None else float(reading)})
 
     async def snap(self, request, body, who):
         from goniofrost.capture.snap import DEFAULT_MATERIAL, snap

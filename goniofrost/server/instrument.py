@@ -158,6 +158,11 @@ class Instrument:
             self._suspended = None
             self._cond.notify_all()
 
+    def lamp_switched(self, on: bool) -> None:
+        with self._cond:
+            self.lamp["on"] = on
+            self._publish("lamp", on=on)
+
     def queue_changed(self) -> None:
         with self._cond:
             self._publish("queue")
@@ -243,8 +248,8 @@ class Instrument:
             self._set(state, ended[1].get("reason") if state is State.FAULT else None)
 
     def _read_pose(self) -> None:
-        """Read the axes and the lamp (on the instrument's thread only)."""
-        pose, lamp = {}, dict(self.lamp)
+        """Read the axes and the photodiode (on the instrument's thread only)."""
+        pose, reading = {}, None
         for name, axis in self.hw.axes.items():
             try:
                 pose[name] = round(float(axis.position()), 4)
@@ -253,12 +258,13 @@ class Instrument:
                 log.warning("reading %s: %s", name, exc)
         if self.hw.lamp is not None:
             try:
-                lamp["photodiode"] = round(float(self.hw.lamp.photodiode()), 4)
+                reading = round(float(self.hw.lamp.photodiode()), 4)
             except Exception:  # noqa: BLE001
-                lamp["photodiode"] = None
+                reading = None
         with self._cond:
-            self.pose, self.lamp = pose, lamp
-            self._publish("pose", pose=pose, lamp=lamp)
+            self.pose = pose
+            self.lamp["photodiode"] = reading
+            self._publish("pose", pose=pose, lamp=dict(self.lamp))
 
     # ----- records -------------------------------------------------------------------------------------
     def _set(self, state: State, reason) -> None:
