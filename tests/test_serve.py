@@ -197,3 +197,33 @@ def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(serv
     assert [r["seq"] for r in records] == list(range(status["events"]))
     assert [r["state"] for r in records if r["type"] == "state"] == ["running", "idle"] * 3  # home, move, lamp
     assert [r["on"] for r in records if r["type"] == "lamp"] == [True]
+
+
+def test_a_refused_start_warns_off_loopback_names_the_holder_and_leaves_the_root_alone(plan, tmp_path, capsys):
+    from goniofrost.app.cli import main
+    from goniofrost.rig.lock import rig_lock
+
+    rig, _ = plan
+    root = tmp_path / "root"
+    root.mkdir()
+    with rig_lock(load_checked_rig(rig), "capture") as lock:
+        assert main(["serve", "--rig", str(rig), "--root", str(root), "--host", "0.0.0.0", "--port", "0"]) == 2
+    assert capsys.readouterr().err == (
+        "goniofrost serve: WARNING: listening on 0.0.0.0: anyone on that network with the token can move the rig; "
+        "use it only on a trusted network\n"
+        f"goniofrost serve: error: rig 'sim-rig' is in use by {lock.holder.who()}: one program drives a device at "
+        f"a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
+    assert list(root.iterdir()) == []
+
+
+def test_one_server_per_root(server, plan, capsys):
+    from goniofrost.app.cli import main
+
+    other = server.root.parent / "other-rig"
+    other.mkdir()
+    (other / "sim.yaml").write_text(plan[0].read_text())  # another simulated instance: its devices are free
+    before = sorted(p.name for p in server.root.iterdir())
+    assert main(["serve", "--rig", str(other / "sim.yaml"), "--root", str(server.root), "--port", "0"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost serve: error: --root: {server.root} is served by another "
+                                       f"goniofrost serve (process {server.proc.pid}); one server per root\n")
+    assert sorted(p.name for p in server.root.iterdir()) == before and server.status()["state"] == "idle"

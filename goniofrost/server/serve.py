@@ -23,15 +23,15 @@ SESSIONS = "sessions"
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
-def write_token(root: Path) -> tuple[str, Path]:
-    """A new random token, written to ROOT/serve.token readable by this user only."""
+def write_token(path: Path) -> str:
+    """A new random token, written to ``path`` readable by this user only (a file left by an
+    earlier start is replaced, never reused)."""
     token = secrets.token_urlsafe(32)
-    path = root / TOKEN_FILE
     path.unlink(missing_ok=True)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w") as out:
         out.write(token + "\n")
-    return token, path
+    return token
 
 
 def session_name(entry: dict) -> str:
@@ -63,7 +63,8 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
 
 def serve(rig_path, root, *, host: str = "127.0.0.1", port: int = 8765, speedup: float | None = None,
           say=print) -> int:
-    """Run the server until SIGINT or SIGTERM (module doc); return the exit status."""
+    """Run the server until SIGINT or SIGTERM (module doc); return the exit status. A refused start
+    (the rig or the root in use, the address taken) leaves the root as it was."""
     from goniofrost.monitor.server import AppServer
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.rig.lock import rig_lock
@@ -76,34 +77,71 @@ def serve(rig_path, root, *, host: str = "127.0.0.1", port: int = 8765, speedup:
     rig = load_checked_rig(rig_path)
     if speedup is not None and not rig.simulated:
         raise GoniofrostError("--speedup: only a simulated rig's clock can be sped up")
-    (root / SESSIONS).mkdir(parents=True, exist_ok=True)
-    token, token_file = write_token(root)
-    store = Store(root)
+    if not root.is_dir():
+        raise GoniofrostError(f"--root: {root} is not a folder (make it, and put the plan files in it)")
+    if host not in LOOPBACK:
+        say(f"goniofrost serve: WARNING: listening on {host}: anyone on that network with the token can move "
+            f"the rig; use it only on a trusted network", file=sys.stderr, flush=True)
     built = {}
 
     async def app(scope, receive, send):  # bound first (the URL goes into the lock), built once the rig is held
         await built["app"](scope, receive, send)
     server = AppServer(app, host, port)
-    origin = server.url.rstrip("/")
-    if host not in LOOPBACK:
-        say(f"goniofrost serve: WARNING: listening on {host}: anyone on that network with the token can move "
-            f"the rig; use it only on a trusted network", file=sys.stderr)
+    token_file = root / TOKEN_FILE
     try:
-        with rig_lock(rig, "serve", url=server.url, token_file=str(token_file)) as lock, \
-                rig_devices(rig, speedup=speedup) as hardware:
-            instrument = Instrument(rig, hardware, lock, store, entry_runner(root, rig_path, store, speedup))
-            api = Api(instrument, store, root, rig_path, token, origin)
-            built["app"] = instrument_app(api, root / SESSIONS, host)
-            instrument.start()
-            with server:
-                say(f"goniofrost serve: {rig.name} held; serving on {server.url}?token={token}", flush=True)
-                say(f"  token in {token_file}; Ctrl-C stops", flush=True)
-                wait_for_signal()
-            instrument.close()
+        with root_lock(root), rig_lock(rig, "serve", url=server.url, token_file=str(token_file)) as lock:
+            token = write_token(token_file)
+            (root / SESSIONS).mkdir(exist_ok=True)
+            store = Store(root)
+            try:
+                with rig_devices(rig, speedup=speedup) as hardware:
+                    instrument = Instrument(rig, hardware, lock, store, entry_runner(root, rig_path, store, speedup))
+                    api = Api(instrument, store, root, rig_path, token, server.url.rstrip("/"))
+                    built["app"] = instrument_app(api, root / SESSIONS, host)
+                    instrument.start()
+                    try:
+                        with server:
+                            say(f"goniofrost serve: {rig.name} held; serving on {server.url}?token={token}", flush=True)
+                            say(f"  token in {token_file}; Ctrl-C stops", flush=True)
+                            wait_for_signal()
+                    finally:
+                        instrument.close()
+            finally:
+                store.close()
+                token_file.unlink(missing_ok=True)
     finally:
-        store.close()
-        token_file.unlink(missing_ok=True)
+        server.socket.close()
     return 0
+
+
+def root_lock(root: Path):
+    """Hold ROOT/serve.lock: one server per root (its queue and token are the root's)."""
+    import fcntl
+    from contextlib import contextmanager
+
+    @contextmanager
+    def held():
+        path = root / "serve.lock"
+        existed = path.exists()
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise GoniofrostError(f"--root: {root} is served by another goniofrost serve "
+                                      f"(process {os.pread(fd, 32, 0).decode(errors='replace').strip() or '?'}); "
+                                      f"one server per root") from None
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, str(os.getpid()).encode(), 0)
+                yield
+            except GoniofrostError:
+                if not existed:  # a refused start leaves the root as it was
+                    path.unlink(missing_ok=True)
+                raise
+        finally:
+            os.close(fd)
+    return held()
 
 
 def wait_for_signal() -> None:
