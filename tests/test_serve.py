@@ -150,13 +150,22 @@ def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_not
     assert (status["state"], status["pose"]) == ("idle", pose)
 
 
-def test_kill_9_mid_capture_then_a_restart_loses_and_repeats_no_sample(server, plan):
+def test_a_paused_capture_survives_a_restart_and_kill_9_loses_and_repeats_no_sample(server, plan):
     rig, plan_file = plan
     assert server.post("/api/queue", entry(plan_file)).status_code == 201
     session = server.root / "sessions" / "0001-red-1"
-    server.wait(lambda: len(journal_rows(session)) >= 1, "a journaled sample")
-    server.proc.kill()
-    server.proc.wait()
+    server.wait(lambda: server.status()["state"] == "running", "a running capture")
+    server.post("/api/pause")
+    server.wait(lambda: server.status()["state"] == "paused", "the pause")
+    server.close()  # Ctrl-C of a paused server: the entry stays to be resumed
+    assert server.proc.returncode == 0 and server.proc.stderr.read() == ""
+    resumed = Server(rig, server.root)
+    try:
+        resumed.wait(lambda: len(journal_rows(session)) >= 1, "a journaled sample after the restart")
+        resumed.proc.kill()
+        resumed.proc.wait()
+    finally:
+        resumed.close()
     killed_at = len(journal_rows(session))
     assert killed_at < M, "the capture ended before the kill: make M larger"
     again = Server(rig, server.root)

@@ -106,7 +106,8 @@ class Instrument:
         return self
 
     def close(self) -> None:
-        """Stop what runs (as an operator's stop) and end the thread."""
+        """Stop what runs (as an operator's stop, at once if paused) and end the thread; a queue
+        entry stopped so is left running in the store: the next start resumes it."""
         with self._cond:
             self._closing = True
             if self.state in (State.RUNNING, State.PAUSED, State.SUSPENDED):
@@ -233,11 +234,15 @@ class Instrument:
             ended, state = ("done", result), State.IDLE
         except SessionInterrupted as exc:
             ended, state = ("stopped", {"reason": str(exc)}), State.IDLE
+            if self._closing:  # the server is shutting down: the entry stays running, resumed on the next start
+                ended = None
         except (SessionFault, GoniofrostError) as exc:
             ended, state = ("failed", {"reason": str(exc)}), State.FAULT
         except Exception as exc:  # noqa: BLE001 - a bug must not end the server: say it, hold the queue
             log.error("queue entry %s: %s", entry["id"], traceback.format_exc())
             ended, state = ("failed", {"reason": f"{type(exc).__name__}: {exc}"}), State.FAULT
+        if ended is None:
+            return
         self.store.ended(entry["id"], *ended)
         with self._cond:
             self.current, self._pause_asked = None, False
