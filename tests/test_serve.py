@@ -117,8 +117,16 @@ def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
     status = server.status()
     assert (status["state"], status["held"]) == ("idle", True)
     assert 1 <= len(journal_rows(session)) < M
+    waiting = server.post("/api/queue", entry(plan_file, sample_id="red-2", operator="dee")).json()
+    assert server.get("/api/queue").json()[1]["state"] == "pending"  # the queue is held after the stop
+    delete = lambda headers=None: requests.delete(f"{server.url}/api/queue/{waiting['id']}",  # noqa: E731
+                                                  headers=server.auth if headers is None else headers, timeout=30)
+    assert delete({}).status_code == 401 and delete().json() == {"removed": waiting["id"]}
+    assert (delete().status_code, delete().json()["field"]) == (404, "id")
+    assert [e["id"] for e in server.get("/api/queue").json()] == [added.json()["id"]]
     actions = [(a["who"], a["action"]) for a in server.get("/api/actions").json()]
-    assert actions == [("ada", "queue_add"), ("ada", "pause"), ("bob", "resume"), ("cy", "stop")]
+    assert actions == [("ada", "queue_add"), ("ada", "pause"), ("bob", "resume"), ("cy", "stop"),
+                       ("dee", "queue_add"), ("?", "queue_remove")]
 
 
 def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_nothing(server, plan):
