@@ -20,6 +20,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, StreamingResponse
 from starlette.routing import Route
 
+from goniofrost.capture.signals import SessionInterrupted
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.monitor.app import Guard, monitor_lifespan, monitor_routes
 from goniofrost.monitor.hub import Sites
@@ -192,9 +193,7 @@ class Api:
         self._journal(request, who, what, detail)
         try:
             return await anyio.to_thread.run_sync(future.result)
-        except (GoniofrostError, BaseException) as exc:
-            if isinstance(exc, (KeyboardInterrupt, SystemExit)):
-                raise
+        except (GoniofrostError, SessionInterrupted) as exc:  # refused (not homed), a device fault, a stop
             raise RequestError(what, f"{what}: {exc}", 409) from None
 
 

@@ -142,7 +142,7 @@ class Instrument:
         """Stop the run under way (between two steps: a move under way finishes) and hold the queue."""
         with self._cond:
             self.held = True
-            if self.state in (State.RUNNING, State.PAUSED, State.SUSPENDED):
+            if self.state in (State.RUNNING, State.PAUSED, State.SUSPENDED):  # a capture or a command
                 self.stop_asked = f"a stop request from {who}"
                 self._set(State.STOPPING, self.stop_asked)
             self._cond.notify_all()
@@ -220,6 +220,7 @@ class Instrument:
         except BaseException as exc:  # noqa: BLE001 - the API says what went wrong
             future.set_exception(exc)
         with self._cond:
+            self.stop_asked = None  # a stop of this command is spent: the next one starts afresh
             self._set(State.IDLE, None)
 
     def _run_queued(self, entry: dict) -> None:
