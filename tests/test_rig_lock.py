@@ -172,8 +172,8 @@ def test_rig_stop_stops_a_running_capture_with_its_own_report_and_resume_complet
         asked, asked_utc = time.monotonic(), time.time()
         capsys.readouterr()
         assert main(["rig", "stop", "--rig", str(rig)]) == 0
-        assert capsys.readouterr().err.startswith(f"asked capture (process {proc.pid} of {pwd.getpwuid(os.getuid()).pw_name}) "
-                                                  f"to stop sim-rig: ")
+        user = pwd.getpwuid(os.getuid()).pw_name
+        assert capsys.readouterr().err.startswith(f"asked capture (process {proc.pid} of {user}) to stop sim-rig: ")
         assert proc.wait(timeout=30) == 130
         stopped_s = time.monotonic() - asked
         err = proc.stderr.read()

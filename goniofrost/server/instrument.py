@@ -20,7 +20,6 @@ import logging
 import threading
 import time
 import traceback
-from pathlib import Path
 
 from goniofrost.core.errors import GoniofrostError
 
