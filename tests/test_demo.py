@@ -92,14 +92,15 @@ def test_a_rig_another_program_drives_is_refused_before_the_training(tmp_path, m
     rehearsal; it refuses at once now, with the capture's own words, and writes nothing."""
     from goniofrost.app import demo
     from goniofrost.app.cli import main
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.rig.lock import rig_lock
 
     monkeypatch.setattr(demo, "train_without", lambda *a, **k: pytest.fail("the demo trained"))
-    with rig_lock("sim-rig", "capture"):
+    with rig_lock(load_checked_rig(demo.default_rig_path()), "capture") as lock:
         assert main(["demo", "--out", str(tmp_path / "demo"), "--no-progress"]) == 2
     assert capsys.readouterr().err == (
-        f"goniofrost demo: error: rig 'sim-rig' is in use by capture (process {os.getpid()}): one program drives a "
-        f"rig at a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
+        f"goniofrost demo: error: rig 'sim-rig' is in use by capture (process {os.getpid()} of {lock.holder.user}): one "
+        f"program drives a device at a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
     assert not (tmp_path / "demo").exists()
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import pwd
 import re
 import select
 import signal
@@ -222,8 +223,9 @@ def test_rig_stop_switches_the_lamp_off_itself_when_the_holder_cannot(served, ca
     _, out, _ = served
     assert main(["rig", "lamp", "on", "--rig", str(out)]) == 0
     name = yaml.safe_load(out.read_text())["name"]
-    code = ("import sys, time; from goniofrost.rig.lock import rig_lock\n"
-            f"with rig_lock({name!r}, 'bare holder'):\n    print('held', flush=True)\n    time.sleep(600)\n")
+    code = ("import sys, time; from goniofrost.rig.lock import rig_lock; from goniofrost.rig.file import load_checked_rig\n"
+            f"with rig_lock(load_checked_rig({str(out)!r}), 'bare holder'):\n    print('held', flush=True)\n"
+            "    time.sleep(600)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline() == "held\n"
@@ -233,7 +235,8 @@ def test_rig_stop_switches_the_lamp_off_itself_when_the_holder_cannot(served, ca
     finally:
         proc.kill()
     err = capsys.readouterr().err
-    assert err.startswith(f"asked bare holder (process {proc.pid}) to stop {name}: ") and err.count("\n") == 2, err
+    assert err.startswith(f"asked bare holder (process {proc.pid} of {pwd.getpwuid(os.getuid()).pw_name}) to stop {name}: ") \
+        and err.count("\n") == 2, err
     assert re.fullmatch(r"stopped camera_arm at -?[\d.]+ deg, sample_yaw at -?[\d.]+ deg, sample_tilt at -?[\d.]+ deg; "
                         r"lamp off", err.splitlines()[1]), err
     assert status(out, capsys)["lamp"]["on"] is False

@@ -17,7 +17,8 @@ from goniofrost.capture.signals import SessionInterrupted  # a small module: --h
 from goniofrost.core.errors import GoniofrostError
 
 COMMANDS = ["materials", "convert", "train", "plan", "reconstruct", "align", "capture", "sim",
-            "bench", "preview", "compare", "demo", "export", "monitor", "usage", "rig", "queue", "sessions"]
+            "bench", "preview", "compare", "demo", "export", "monitor", "usage", "rig", "queue", "sessions",
+            "serve"]
 
 
 class OneLineParser(argparse.ArgumentParser):

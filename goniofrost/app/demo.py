@@ -86,7 +86,7 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
 
     rig = load_checked_rig(rig_path)
     steps = command_steps(rig)  # measurable at the joints the plan commands (planner.candidates)
-    check_free(rig.name)  # a rig another program drives fails here, not after the training
+    check_free(rig)  # a rig another program drives fails here, not after the training
     with ThreadPoolExecutor(1, thread_name_prefix="demo-tabulate") as pool:
         # A first run: the training materials are tabulated (what training reads first, and needs
         # no reach map) on another core while the map is computed (numpy frees the GIL)

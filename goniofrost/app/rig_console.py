@@ -28,6 +28,18 @@ def _connected(rig, **options):
     return connected_rig(rig, sections=device_sections, **options)
 
 
+def _server(rig):
+    """The client of a ``goniofrost serve`` holding ``rig`` (the command then asks it instead of
+    opening the devices), or None."""
+    from goniofrost.server.client import server_for
+
+    return server_for(rig)
+
+
+def _reached(joints) -> str:
+    return ", ".join(f"{n} {float(d):.3f} deg" for n, d in joints.items())
+
+
 def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -171,6 +183,17 @@ def run_move(args) -> int:
     requested = parse_targets(args.targets, rig)
     if not args.by:
         check_targets(rig, requested)  # before anything is connected: a refused move sends no byte
+    server = _server(rig)
+    if server is not None:
+        targets = requested
+        if args.by:
+            pose = server.call("GET", "/api/status")["pose"]
+            targets = {name: pose[name] + by for name, by in requested.items()}
+            check_targets(rig, targets)
+        _say(f"asking the server at {server.url} to move " + _reached(targets))
+        reached = server.call("POST", "/api/move", {"targets": targets, "operator": server.who()})["reached"]
+        _say("reached " + _reached(reached))
+        return 0
     with _connected(rig, enable=True, program="rig move") as hardware:
         check_referenced(rig, hardware.axes, requested)
         targets = requested
@@ -200,6 +223,12 @@ def run_home(args) -> int:
         raise ConsoleError(f"{twice!r}: axis {twice} is given twice")
     if not args.yes and not _confirm(f"home {', '.join(axes)}: is the rig clear (nothing in the arms' or stage's way)? [y/N] "):
         raise ConsoleError("not homed: the rig was not confirmed clear (answer y, or pass --yes)")
+    server = _server(rig)
+    if server is not None:
+        _say(f"asking the server at {server.url} to home {', '.join(axes)}")
+        reached = server.call("POST", "/api/home", {"axes": axes, "operator": server.who()})["reached"]
+        _say("homed " + ", ".join(f"{n} at {float(d):.3f} deg" for n, d in reached.items()))
+        return 0
     with _connected(rig, enable=True, program="rig home") as hardware:
         _say(f"homing {', '.join(axes)}")
         reached = run_plan(hardware, home_plan(axes), "rig home")
@@ -222,8 +251,12 @@ def run_lamp(args) -> int:
     if not rig.lamp.get("driver"):
         raise ConsoleError(f"{rig.source}: this rig has no lamp driver (lamp.driver)")
     on = args.state == "on"
-    with _connected(rig, enable=False, program="rig lamp") as hardware:
-        reading = run_plan(hardware, lamp_plan(on), "rig lamp")
+    server = _server(rig)
+    if server is not None:
+        reading = server.call("POST", "/api/lamp", {"on": on, "operator": server.who()})["photodiode"]
+    else:
+        with _connected(rig, enable=False, program="rig lamp") as hardware:
+            reading = run_plan(hardware, lamp_plan(on), "rig lamp")
     _say(f"lamp on, photodiode {reading:.4f} of nominal" if on else "lamp off")
     return 0
 
@@ -236,13 +269,19 @@ def run_stop(args) -> int:
     from goniofrost.rig.lock import request_stop
 
     rig = _load(args)
-    holder = request_stop(rig.name)
+    server = _server(rig)
+    if server is not None:  # a server is stopped through its API: it goes on serving, its queue held
+        state = server.call("POST", "/api/stop", {"operator": server.who()})["state"]
+        _say(f"asked {server.holder.who()} at {server.url} to stop {rig.name}: it is {state}; its queue waits "
+             f"for POST /api/resume")
+        return 0
+    holder = request_stop(rig)
     if holder is not None:
-        _say(f"asked {holder.program} (process {holder.pid}) to stop {rig.name}: it stops and confirms every axis and "
+        _say(f"asked {holder.who()} to stop {rig.name}: it stops and confirms every axis and "
              f"switches the lamp off; its own report follows in its terminal and journal")
         if rig.simulated:  # the devices of a simulated rig file end with their holder
             return 0
-        _wait_for_release(rig.name, holder)
+        _wait_for_release(rig, holder)
     # no holder, or one that let go: confirm it here (a holder killed by the SIGTERM left the lamp on)
     with _connected(rig, enable=False, program="rig stop") as hardware:
         executor = StepExecutor(hardware, ".")
@@ -256,16 +295,16 @@ def run_stop(args) -> int:
 RELEASE_S = 30.0   # how long rig stop waits for the holder to let go of the rig (s)
 
 
-def _wait_for_release(rig_name: str, holder) -> None:
-    """Return once no program holds ``rig_name``; ConsoleError naming the holder after RELEASE_S."""
+def _wait_for_release(rig, holder) -> None:
+    """Return once no program holds ``rig``'s devices; ConsoleError naming the holder after RELEASE_S."""
     from goniofrost.capture.console import ConsoleError
     from goniofrost.rig.lock import rig_holder
 
     t_end = time.monotonic() + RELEASE_S
-    while rig_holder(rig_name) is not None:
+    while rig_holder(rig) is not None:
         if time.monotonic() > t_end:
-            raise ConsoleError(f"{holder.program} (process {holder.pid}) still holds {rig_name} {RELEASE_S:g} s after "
-                               "the stop request: it may hang; end it (kill PID), then run goniofrost rig stop again")
+            raise ConsoleError(f"{holder.who()} still holds {rig.name} {RELEASE_S:g} s after the stop request: it "
+                               "may hang; end it (kill PID), then run goniofrost rig stop again")
         time.sleep(0.05)  # polls the lock's holder, a state: no synchronisation
 
 

@@ -4,7 +4,7 @@ Each command is a short plan of the session's own steps (``Home``, ``Move``, ``L
 ``LampOff``) run on the connected devices by the engine core (``plan_runner.PlanRunner``, without
 a journal) and its one stop path (``goniofrost.rig.stop.stop_axes``): on any failure, Ctrl-C or a stop
 request every axis is stopped and confirmed, axis by axis, and the lamp switched off. Every
-command holds the rig lock while it is connected (``rig_lock``: one program drives a rig at a
+command holds the rig lock while it is connected (``rig_lock``: one program drives a device at a
 time). Targets are checked against the soft limits and the rig's geometry before anything is
 connected, so a refused move sends no byte.
 """
@@ -145,7 +145,7 @@ def connected_rig(rig, *, enable: bool, program: str, speedup: float | None = No
     from goniofrost.rig.stop import release_stop
 
     opened = nullcontext((rig, None)) if sections is None else sections(rig, speedup)
-    with rig_lock(rig.name, program) as lock, DeviceLog.capture(), opened as (resolved, simulation):
+    with rig_lock(rig, program) as lock, DeviceLog.capture(), opened as (resolved, simulation):
         devices = RigDevices.from_rig(resolved)
         devices.connect_all(enable=enable)
         try:

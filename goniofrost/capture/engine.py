@@ -153,6 +153,10 @@ class SessionEngine(PlanRunner):
     def after_journal(self) -> None:
         self.rehearsal.journal_struck()
 
+    def at_safe_point(self, step) -> bool:
+        """Before a sample's first move: the last sample's bracket is journaled, nothing is under way."""
+        return isinstance(step, Move) and step.index is not None
+
     def run_scope(self):
         return self._progress(self._initial)
 

@@ -187,6 +187,7 @@ class PlanRunner:
                     step = plan.send(result)
                 except StopIteration as end:
                     return end.value
+                self._safe_point(step)
                 result = self._execute(step)
         except DeviceError as exc:
             message = self._abort(EventKind.FAULT, RunStatus.FAULT, f"{exc}", getattr(exc, "axis", None), step,
@@ -213,6 +214,18 @@ class PlanRunner:
             raise
         finally:
             plan.close()
+
+    def at_safe_point(self, step) -> bool:
+        """Whether the run may pause before ``step`` (default: before any step of a short plan)."""
+        return True
+
+    def _safe_point(self, step) -> None:
+        """Ask the hardware's pause gate (a server's ``pause_gate(where)``, if any) whether the run
+        may continue, at a safe point only: it blocks while the run is paused and raises
+        SessionInterrupted when the run is stopped meanwhile."""
+        gate = getattr(self.hw, "pause_gate", None)
+        if gate is not None and self.at_safe_point(step):
+            gate(self.where(step))
 
     def _stop_request(self) -> str | None:
         lock = getattr(self.hw, "rig_lock", None)

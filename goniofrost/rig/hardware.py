@@ -5,7 +5,7 @@ camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). Whoever calls
 devices: ``real_devices`` (the default: the drivers connect to the rig's hardware, its camera from
 ``open_camera``) or ``goniofrost.rig.simulated.simulated_devices`` (the simulated twins, which speak
 the real protocols; ``goniofrost.rig.simulated.rig_devices`` picks by the rig file's
-``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a rig at a time) is
+``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a device at a time) is
 held from before the first device is connected until every connection is closed. On leaving, every
 axis not yet confirmed stopped is told to stop (through the one stop path, ``goniofrost.rig.stop``,
 which confirms each; its findings are logged to the session's device log) and every connection
@@ -44,6 +44,7 @@ class RigHardware:
     simulation: object = None
     extra: dict = field(default_factory=dict)
     rig_lock: object = None   # the held goniofrost.rig.lock.RigLock (its stop requests)
+    pause_gate: object = None  # a server's gate the engine asks at safe points (goniofrost.server.instrument)
 
     @property
     def simulated(self) -> bool:
@@ -75,13 +76,17 @@ def open_hardware(rig, devices=None, sim: SimOptions = NO_SIM, *, program: str =
 
     ``devices(rig, material=, seed=, speedup=)``: a context manager yielding the connected
     RigHardware (None: ``real_devices``), handed ``sim``'s material, seed and speedup; ``sim.on_ready``
-    is called once everything is connected.
+    is called once everything is connected. An opener with a ``rig_lock`` attribute opens devices
+    whose lock its caller already holds (``goniofrost.server``): no lock is taken then.
     """
+    from contextlib import nullcontext
+
     from goniofrost.rig.lock import rig_lock
 
     opener = real_devices if devices is None else devices
-    with rig_lock(rig.name, program) as lock, \
-            opener(rig, material=sim.material, seed=sim.seed, speedup=sim.speedup) as hardware:
+    held = getattr(opener, "rig_lock", None)  # an opener of devices already held (a server's) holds their lock
+    locked = nullcontext(held) if held is not None else rig_lock(rig, program)
+    with locked as lock, opener(rig, material=sim.material, seed=sim.seed, speedup=sim.speedup) as hardware:
         hardware.rig_lock = lock
         if sim.on_ready is not None:
             sim.on_ready(hardware)

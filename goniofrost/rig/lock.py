@@ -1,72 +1,103 @@
-"""One program drives a rig at a time: an exclusive lock per rig, beside the session lock.
+"""One program, of any user, drives a device at a time: locks keyed by the devices a rig file names.
 
-``rig_lock(rig_name, program)`` holds an ``flock`` on ``LOCK_DIR/rig-NAME.lock`` from before the
-rig's devices are connected until after they are released (``goniofrost.rig.hardware``
-takes it for every program that connects a rig: capture, align, the console). The kernel releases
-it when the holder exits in any way (kill -9 included), so a stale lock cannot exist. The file
-holds the holder as JSON (``RigHolder``: PID, program, rig, start time); ``rig_holder(name)``
-reads it without touching the lock.
+``device_keys(rig)`` names the rig's devices: ``serial:/dev/ttyUSB0`` (the resolved path: a serial
+line is one process's, whatever units share it), ``tcp:HOST:PORT/UNIT`` (a Modbus gateway serves
+several clients, one unit each), and for a ``simulated: true`` rig, whose twins live inside the
+program that opens them, ``simulated:/abs/path/of/rig.yaml`` (that simulated instance: rehearsals
+of other rig files never block each other, whatever their names).
 
-Another process asks the holder to stop with ``request_stop(rig_name)``: it writes the request
-file ``LOCK_DIR/rig-NAME.stop`` (who asks) and sends the holder SIGTERM. The holder's engine turns
-the signal into an operator's stop at once (``goniofrost.capture.signals``), and also checks the
-request file between steps (a holder whose engine runs off the main thread gets no signal): the
-run ends ``stopped_by_operator`` with its own per-axis stop report, and ``--resume`` continues it.
+``rig_lock(rig, program)`` holds an ``flock`` on ``LOCK_DIR/dev-HASH.lock`` for every key, taken
+before the rig's devices are connected and released after (``goniofrost.rig.hardware``). The kernel
+releases them when the holder exits in any way (kill -9 included): a stale lock cannot exist.
+Each file holds the holder as JSON (``RigHolder``: PID, user, program, rig, its keys, and a
+server's URL and token file); ``rig_holder(rig)`` reads it without touching the lock.
 
-``LOCK_DIR`` is ``$GONIOFROST_LOCK_DIR``, else ``$XDG_RUNTIME_DIR/goniofrost``, else
-``TMPDIR/goniofrost-UID``: every program of one user on one computer sees the same locks.
+Another process asks the holder to stop with ``request_stop(rig)``: it writes the holder's stop
+file (``dev-HASH.stop`` of the holder's first key, naming the holder, so a request made to an
+earlier holder is never this one's) and sends it SIGTERM when it may (same user, or root).
+
+``LOCK_DIR`` is ``$GONIOFROST_LOCK_DIR``, else ``/tmp/goniofrost-locks``: one folder for every user
+of the computer, created world-writable with the sticky bit (mode 1777: nobody removes another
+user's file); its files are mode 0666 so that the next holder, of any user, can write itself in.
+docs/explanations/rig-lock.md says the same for the operator.
 """
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import os
-import re
+import pwd
 import signal
-import tempfile
+import stat
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError
 
 LOCK_DIR_ENV = "GONIOFROST_LOCK_DIR"
+SHARED_LOCK_DIR = Path("/tmp/goniofrost-locks")
+SERIAL_PROTOCOLS = ("dynamixel", "smc100", "modbus-rtu")
 
 
 class RigInUseError(GoniofrostError):
-    """Another program holds the rig's lock."""
+    """Another program holds a device of the rig."""
 
 
 @dataclass(frozen=True)
 class RigHolder:
-    """The program that holds a rig: its PID, its name (``capture``, ``align``, ``rig move``...),
-    the rig's name and the Unix time it took the lock."""
+    """The program that holds a rig's devices: its PID and user, its name (``capture``, ``serve``,
+    ``rig move``...), the rig's name, the Unix time it took the lock, the device keys it holds,
+    and for a server the URL of its API and the file holding its token (readable by its user only)."""
 
     pid: int
     program: str
     rig: str
     started_utc: float
+    user: str = "?"
+    uid: int = -1
+    keys: tuple = ()
+    url: str | None = None
+    token_file: str | None = None
+
+    def who(self) -> str:
+        """e.g. "capture (process 4242 of alice)"."""
+        return f"{self.program} (process {self.pid} of {self.user})"
 
 
 def lock_dir() -> Path:
-    """Where the rig locks are (module doc)."""
-    if os.environ.get(LOCK_DIR_ENV):
-        return Path(os.environ[LOCK_DIR_ENV])
-    if os.environ.get("XDG_RUNTIME_DIR"):
-        return Path(os.environ["XDG_RUNTIME_DIR"]) / "goniofrost"
-    return Path(tempfile.gettempdir()) / f"goniofrost-{os.getuid()}"
+    """Where the device locks are (module doc)."""
+    return Path(os.environ.get(LOCK_DIR_ENV) or SHARED_LOCK_DIR)
 
 
-def lock_path(rig_name: str) -> Path:
-    """The lock file of the rig named ``rig_name`` (characters other than letters, digits, '.',
-    '_' and '-' become '_')."""
-    return lock_dir() / f"rig-{re.sub(r'[^A-Za-z0-9._-]', '_', rig_name) or '_'}.lock"
+def device_keys(rig) -> list[str]:
+    """The sorted keys of the devices ``rig`` (a loaded ``planner.rig.Rig``) names (module doc)."""
+    if rig.simulated:
+        return [f"simulated:{Path(rig.source).resolve()}"]
+    sections = {name: axis.driver for name, axis in rig.axes.items()}
+    keys = {_endpoint(section) for section in sections.values()}
+    lamp = (rig.lamp or {}).get("driver")
+    if lamp:  # a lamp on an axis's device is that device; its own port is another
+        keys.add(_endpoint(sections[lamp["device"]]) if "device" in lamp else _endpoint(lamp))
+    return sorted(keys)
 
 
-def stop_path(rig_name: str) -> Path:
-    return lock_path(rig_name).with_suffix(".stop")
+def _endpoint(section) -> str:
+    if section["protocol"] in SERIAL_PROTOCOLS or "host" not in section:
+        return f"serial:{os.path.realpath(section['port'])}"
+    unit = section.get("device_id", 1)
+    return f"tcp:{str(section['host']).lower()}:{section['port']}/{unit}"
+
+
+def lock_path(key: str) -> Path:
+    """The lock file of the device key ``key``."""
+    return lock_dir() / f"dev-{hashlib.sha256(key.encode()).hexdigest()[:20]}.lock"
+
+
+def stop_path(key: str) -> Path:
+    return lock_path(key).with_suffix(".stop")
 
 
 class RigLock:
@@ -75,92 +106,141 @@ class RigLock:
 
     def __init__(self, holder: RigHolder) -> None:
         self.holder = holder
-        self._stop = stop_path(holder.rig)
+        self._stop = stop_path(holder.keys[0])
 
     def stop_request(self) -> str | None:
-        """'a stop request from process N' when one was made since the lock was taken, else None."""
+        """'a stop request from process N' when one was made to this holder, else None."""
         try:
             asked = json.loads(self._stop.read_text())
         except (OSError, ValueError):
+            return None
+        if asked.get("holder_pid") != self.holder.pid or asked.get("holder_started") != self.holder.started_utc:
             return None
         return f"a stop request from process {asked.get('pid', '?')}"
 
 
 @contextmanager
-def rig_lock(rig_name: str, program: str):
-    """Hold the lock of rig ``rig_name`` for ``program`` until the block ends; yield the RigLock.
+def rig_lock(rig, program: str, *, url: str | None = None, token_file: str | None = None):
+    """Hold the locks of every device of ``rig`` for ``program`` until the block ends; yield the
+    RigLock. ``url``, ``token_file``: a server's, published to whoever reads the holder.
 
-    Raises ``RigInUseError`` at once (no waiting) naming the holder when another program holds it.
+    Raises ``RigInUseError`` at once (no waiting) naming the holder when another program holds one
+    of the devices; then none is held.
     """
-    path = lock_path(rig_name)
-    with output_errors(path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    keys = device_keys(rig)
+    holder = RigHolder(os.getpid(), program, rig.name, time.time(), _user(os.getuid()), os.getuid(),
+                       tuple(keys), url, token_file)
+    with ExitStack() as held:
+        fds = []
+        for key in keys:
+            fd = _open_lock(lock_path(key))
+            held.callback(os.close, fd)  # closing releases the lock
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise RigInUseError(_in_use(rig.name, _read_holder(lock_path(key)))) from None
+            fds.append(fd)
+        text = json.dumps(asdict(holder)).encode()
+        for fd in fds:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, text, 0)
+        yield RigLock(holder)
+
+
+def _open_lock(path: Path) -> int:
+    """Open (create: mode 0666 whatever the umask) a lock file in the shared folder."""
+    shared_dir(path.parent)
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise RigInUseError(_in_use(rig_name, _read_holder(path))) from None
-        holder = RigHolder(os.getpid(), program, rig_name, time.time())
-        stop_path(rig_name).unlink(missing_ok=True)  # a request made to an earlier holder is not ours
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, json.dumps(asdict(holder)).encode(), 0)
-        try:
-            yield RigLock(holder)
-        finally:
-            stop_path(rig_name).unlink(missing_ok=True)
-    finally:
-        os.close(fd)  # releases the lock
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+    except OSError as exc:
+        raise GoniofrostError(f"{path}: cannot open the device lock: {exc.strerror}") from None
+    if os.fstat(fd).st_uid == os.getuid():
+        os.fchmod(fd, 0o666)
+    return fd
 
 
-def rig_holder(rig_name: str) -> RigHolder | None:
-    """The program that holds rig ``rig_name`` now, or None (read from /proc/locks: the lock itself
-    is never touched, so a program taking it at this moment is not refused)."""
-    path = lock_path(rig_name)
-    if not _flock_held(path):
-        return None
-    return _read_holder(path)
+def shared_dir(path: Path) -> None:
+    """Create ``path`` as a world-writable sticky folder (1777), or check that it is one: a folder
+    others may write but that is not sticky would let any user remove the locks."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        st = path.lstat()
+        if st.st_uid == os.getuid() and stat.S_IMODE(st.st_mode) != 0o1777:
+            os.chmod(path, 0o1777)
+            st = path.lstat()
+    except OSError as exc:
+        raise GoniofrostError(f"{path}: cannot make the shared folder of device locks: {exc.strerror}") from None
+    if not stat.S_ISDIR(st.st_mode) or stat.S_IMODE(st.st_mode) != 0o1777:
+        raise GoniofrostError(f"{path}: the device locks' folder must be a directory of mode 1777 (sticky, "
+                              f"writable by all), found mode {stat.S_IMODE(st.st_mode):o}")
 
 
-def check_free(rig_name: str) -> None:
-    """Raise ``RigInUseError`` naming the holder when another program holds rig ``rig_name`` now: a
-    program with minutes of work before it connects (the demo's training) asks first. Only a
-    courtesy: the lock itself is taken when the rig is connected."""
-    if _flock_held(lock_path(rig_name)):
-        raise RigInUseError(_in_use(rig_name, _read_holder(lock_path(rig_name))))
+def rig_holder(rig) -> RigHolder | None:
+    """The program that holds a device of ``rig`` now, or None (read from /proc/locks: the lock
+    itself is never touched, so a program taking it at this moment is not refused)."""
+    for key in device_keys(rig):
+        if flock_held(lock_path(key)):
+            return _read_holder(lock_path(key))
+    return None
 
 
-def request_stop(rig_name: str) -> RigHolder | None:
-    """Ask the program that holds rig ``rig_name`` to stop (module doc); return it, or None when no
-    program holds the rig (then nothing was sent). Returns at once: the holder's own report (its
-    terminal, its journal's RunEnd) says how each axis took the stop."""
-    holder = rig_holder(rig_name)
+def check_free(rig) -> None:
+    """Raise ``RigInUseError`` naming the holder when another program holds a device of ``rig``
+    now: a program with minutes of work before it connects (the demo's training) asks first. Only
+    a courtesy: the lock itself is taken when the rig is connected."""
+    for key in device_keys(rig):
+        if flock_held(lock_path(key)):
+            raise RigInUseError(_in_use(rig.name, _read_holder(lock_path(key))))
+
+
+def request_stop(rig) -> RigHolder | None:
+    """Ask the program that holds ``rig``'s devices to stop (module doc); return it, or None when
+    no program holds them (then nothing was sent). Raises ``RigInUseError`` naming the holder when
+    it is another user's process, which this one may not signal. Returns at once: the holder's
+    own report (its terminal, its journal's RunEnd) says how each axis took the stop."""
+    holder = rig_holder(rig)
     if holder is None:
         return None
-    write_text_atomic(stop_path(rig_name), json.dumps({"pid": os.getpid(), "t_utc": time.time()}))
+    if holder.keys:
+        request = {"pid": os.getpid(), "holder_pid": holder.pid, "holder_started": holder.started_utc,
+                   "t_utc": time.time()}
+        fd = _open_lock(stop_path(holder.keys[0]))
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, json.dumps(request).encode(), 0)
+        finally:
+            os.close(fd)
     try:
         os.kill(holder.pid, signal.SIGTERM)
     except ProcessLookupError:  # it ended in between: nothing holds the rig any more
         return None
+    except PermissionError:
+        raise RigInUseError(f"rig {rig.name!r} is held by {holder.who()}: another user's process, which only "
+                            f"that user (or root) may stop; it was asked through its stop file") from None
     return holder
+
+
+def _user(uid: int) -> str:
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)
 
 
 def _read_holder(path: Path) -> RigHolder | None:
     try:
-        return RigHolder(**json.loads(path.read_text()))
+        data = json.loads(path.read_text())
+        data["keys"] = tuple(data.get("keys", ()))
+        return RigHolder(**data)
     except (OSError, ValueError, TypeError):
         return None
 
 
 def _in_use(rig_name: str, holder: RigHolder | None) -> str:
-    who = f"{holder.program} (process {holder.pid})" if holder else "another program"
-    return (f"rig {rig_name!r} is in use by {who}: one program drives a rig at a time; wait for it to "
+    who = holder.who() if holder else "another program"
+    same = f" (its rig {holder.rig!r})" if holder and holder.rig != rig_name else ""
+    return (f"rig {rig_name!r} is in use by {who}{same}: one program drives a device at a time; wait for it to "
             f"finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)")
-
-
-def _flock_held(path: Path) -> bool:
-    """Whether some process holds the rig lock file's flock (False without the file)."""
-    return bool(flock_held(path))
 
 
 def flock_held(lock) -> bool | None:
@@ -184,4 +264,3 @@ def flock_holders(lock) -> list[str] | None:
     # "1: FLOCK  ADVISORY  WRITE 10327 fe:00:9978325 0 EOF": kind, mode, access, PID, device:inode
     rows = [line.split() for line in table.splitlines()]
     return [row[4] for row in rows if row[1:2] == ["FLOCK"] and device in row]
-

@@ -1,0 +1,290 @@
+"""The held rig as an instrument: one thread drives the devices, one plan at a time.
+
+Every device access happens on the instrument's own thread (``_work``): queued captures, and the
+direct commands (move, home, lamp, snap) that the API hands it with ``command``, each run to its
+end before the next. ``status()`` is read from what that thread last published, never from the
+devices, so a status request never talks on a line the engine is using.
+
+Pause and stop reach a running capture through ``ServerGate`` (installed on the hardware as
+``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
+a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
+and the lamp as it was; it asks ``rig_lock.stop_request()`` between steps, so a move under way
+finishes before a stop ends the run. A suspender (a condition that pauses by itself) would call
+``Instrument.suspend(reason)`` / ``unsuspend()``: the gate holds a ``SUSPENDED`` run the same way.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import enum
+import logging
+import threading
+import time
+import traceback
+
+from goniofrost.core.errors import GoniofrostError
+
+log = logging.getLogger(__name__)
+MAX_EVENTS = 2000   # typed records kept for the event stream (older ones are dropped)
+
+
+class State(str, enum.Enum):
+    """What the instrument is doing (``GET /api/status``'s ``state``)."""
+
+    IDLE = "idle"
+    RUNNING = "running"
+    PAUSED = "paused"
+    SUSPENDED = "suspended"
+    STOPPING = "stopping"
+    FAULT = "fault"
+
+
+class Busy(GoniofrostError):
+    """A direct command while a plan runs (the API answers 409)."""
+
+
+class ServerGate:
+    """What the engine asks between steps (module doc): the server's pause and stop, and the held
+    device lock's own stop requests (``goniofrost rig stop`` of another process)."""
+
+    def __init__(self, instrument: "Instrument", lock) -> None:
+        self.instrument, self.lock, self.holder = instrument, lock, lock.holder
+
+    def stop_request(self) -> str | None:
+        return self.instrument.stop_asked or self.lock.stop_request()
+
+    def __call__(self, where: str) -> None:
+        """The pause gate: block while paused or suspended; raise SessionInterrupted on a stop."""
+        self.instrument.safe_point(where)
+
+
+class HeldDevices:
+    """The opener (``open_hardware``'s ``devices``) of the hardware a server holds: it shows
+    ``material`` on a simulated rig's camera, opens nothing, and carries the held lock
+    (``rig_lock``: ``open_hardware`` then takes none)."""
+
+    def __init__(self, hardware, gate) -> None:
+        self.hw, self.rig_lock = hardware, gate
+
+    def __call__(self, rig, *, material=None, seed=None, speedup=None):
+        from contextlib import nullcontext
+
+        camera = self.hw.camera
+        if material is not None and hasattr(camera, "brdf"):  # the simulated camera
+            camera.material, camera.brdf = material.spec, material.brdf
+        return nullcontext(self.hw)
+
+
+class Instrument:
+    """The held ``hardware`` of ``rig`` (``goniofrost.rig.hardware.RigHardware``, already open and
+    its lock held as ``lock``), its queue in ``store``; ``run_entry(entry, devices)`` runs one queue
+    entry (``goniofrost.server.serve.run_entry``) with ``devices`` the opener of the held hardware."""
+
+    def __init__(self, rig, hardware, lock, store, run_entry) -> None:
+        self.rig, self.hw, self.store, self.run_entry = rig, hardware, store, run_entry
+        self.gate = ServerGate(self, lock)
+        self.held_devices = HeldDevices(hardware, self.gate)
+        hardware.rig_lock, hardware.pause_gate = self.gate, self.gate
+        self._cond = threading.Condition()
+        self.state, self.reason = State.IDLE, None
+        self.current: dict | None = None
+        self.held = False            # the queue waits for resume (after a stop or a fault)
+        self.stop_asked: str | None = None
+        self._pause_asked = False
+        self._suspended: str | None = None
+        self._commands: list = []
+        self._closing = False
+        self.pose: dict = {}
+        self.lamp: dict = {"on": None, "photodiode": None}
+        self.events: list[dict] = []
+        self.first_event = 0         # the sequence number of events[0]
+        self._thread = threading.Thread(target=self._work, name="instrument", daemon=True)
+
+    # ----- asked by the API ------------------------------------------------------------------------
+    def start(self) -> "Instrument":
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop what runs (as an operator's stop, at once if paused) and end the thread; a queue
+        entry stopped so is left running in the store: the next start resumes it."""
+        with self._cond:
+            self._closing = True
+            if self.state in (State.RUNNING, State.PAUSED, State.SUSPENDED):
+                self.stop_asked = "the server shutting down"
+            self._cond.notify_all()
+        self._thread.join(timeout=60)
+
+    def status(self) -> dict:
+        with self._cond:
+            return {"state": self.state.value, "reason": self.reason, "held": self.held,
+                    "current": self.current, "pose": dict(self.pose), "lamp": dict(self.lamp),
+                    "rig": self.rig.name, "events": self.first_event + len(self.events)}
+
+    def pause(self) -> State:
+        """Ask a running capture to pause at its next safe point (the state turns paused there)."""
+        with self._cond:
+            if self.state is State.RUNNING:
+                self._pause_asked = True
+                self._publish("pause_asked")
+            return self.state
+
+    def resume(self) -> State:
+        """Continue a paused run, or release a queue held after a stop or a fault."""
+        with self._cond:
+            self._pause_asked, self.held = False, False
+            if self.state is State.FAULT:
+                self._set(State.IDLE, None)
+            self._cond.notify_all()
+            return self.state
+
+    def stop(self, who: str) -> State:
+        """Stop the run under way (between two steps: a move under way finishes) and hold the queue."""
+        with self._cond:
+            self.held = True
+            if self.state in (State.RUNNING, State.PAUSED, State.SUSPENDED):  # a capture or a command
+                self.stop_asked = f"a stop request from {who}"
+                self._set(State.STOPPING, self.stop_asked)
+            self._cond.notify_all()
+            return self.state
+
+    def suspend(self, reason: str) -> None:
+        """The seam for suspenders: hold the run at its next safe point, saying why."""
+        with self._cond:
+            self._suspended = reason
+            self._publish("suspend_asked", reason=reason)
+
+    def unsuspend(self) -> None:
+        with self._cond:
+            self._suspended = None
+            self._cond.notify_all()
+
+    def lamp_switched(self, on: bool) -> None:
+        with self._cond:
+            self.lamp["on"] = on
+            self._publish("lamp", on=on)
+
+    def queue_changed(self) -> None:
+        with self._cond:
+            self._publish("queue")
+            self._cond.notify_all()
+
+    def command(self, what: str, job) -> concurrent.futures.Future:
+        """Run ``job(hardware)`` on the instrument's thread when it is idle; Busy at once otherwise."""
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        with self._cond:
+            if self.state is not State.IDLE or self._commands:
+                raise Busy(f"the rig is {self.state.value}: {what} waits until it is idle (stop or wait)")
+            self._commands.append((what, job, future))
+            self._cond.notify_all()
+        return future
+
+    # ----- asked by the engine, on the instrument's thread --------------------------------------------
+    def safe_point(self, where: str) -> None:
+        from goniofrost.capture.signals import SessionInterrupted
+
+        with self._cond:
+            while (self._pause_asked or self._suspended) and not self.stop_asked:
+                state = State.SUSPENDED if self._suspended else State.PAUSED
+                if self.state is not state:
+                    self._set(state, self._suspended or f"paused{where}")
+                self._cond.wait()
+            if self.stop_asked:
+                raise SessionInterrupted(self.stop_asked)
+            if self.state is not State.RUNNING:
+                self._set(State.RUNNING, None)
+        self._read_pose()
+
+    # ----- the thread ---------------------------------------------------------------------------------
+    def _work(self) -> None:
+        self._read_pose()
+        while True:
+            with self._cond:
+                while not self._closing and not self._commands and (self.held or self.store.next_entry() is None):
+                    self._cond.wait()
+                if self._closing:
+                    return
+                command = self._commands.pop(0) if self._commands else None
+                entry = None if command else self.store.next_entry()
+            if command:
+                self._run_command(*command)
+            elif entry:
+                self._run_queued(entry)
+            self._read_pose()
+
+    def _run_command(self, what, job, future) -> None:
+        with self._cond:
+            self._set(State.RUNNING, what)
+        try:
+            future.set_result(job(self.hw))
+        except BaseException as exc:  # noqa: BLE001 - the API says what went wrong
+            future.set_exception(exc)
+        with self._cond:
+            self.stop_asked = None  # a stop of this command is spent: the next one starts afresh
+            self._set(State.IDLE, None)
+
+    def _run_queued(self, entry: dict) -> None:
+        from goniofrost.capture.plan_runner import SessionFault
+        from goniofrost.capture.signals import SessionInterrupted
+
+        with self._cond:
+            self.current, self.stop_asked = entry, None
+            self._set(State.RUNNING, None)
+        try:
+            result = self.run_entry(entry, self.held_devices)
+            ended, state = ("done", result), State.IDLE
+        except SessionInterrupted as exc:
+            ended, state = ("stopped", {"reason": str(exc)}), State.IDLE
+            if self._closing:  # the server is shutting down: the entry stays running, resumed on the next start
+                ended = None
+        except (SessionFault, GoniofrostError) as exc:
+            ended, state = ("failed", {"reason": str(exc)}), State.FAULT
+        except Exception as exc:  # noqa: BLE001 - a bug must not end the server: say it, hold the queue
+            log.error("queue entry %s: %s", entry["id"], traceback.format_exc())
+            ended, state = ("failed", {"reason": f"{type(exc).__name__}: {exc}"}), State.FAULT
+        if ended is None:
+            return
+        self.store.ended(entry["id"], *ended)
+        with self._cond:
+            self.current, self._pause_asked = None, False
+            if state is State.FAULT or ended[0] == "stopped":
+                self.held = True
+            self.stop_asked = None
+            self._publish("entry_ended", id=entry["id"], state=ended[0], result=ended[1])
+            self._set(state, ended[1].get("reason") if state is State.FAULT else None)
+
+    def _read_pose(self) -> None:
+        """Read the axes and the photodiode (on the instrument's thread only)."""
+        pose, reading = {}, None
+        for name, axis in self.hw.axes.items():
+            try:
+                pose[name] = round(float(axis.position()), 4)
+            except Exception as exc:  # noqa: BLE001 - a status shows what it can
+                pose[name] = None
+                log.warning("reading %s: %s", name, exc)
+        if self.hw.lamp is not None:
+            try:
+                reading = round(float(self.hw.lamp.photodiode()), 4)
+            except Exception:  # noqa: BLE001
+                reading = None
+        with self._cond:
+            self.pose = pose
+            self.lamp["photodiode"] = reading
+            self._publish("pose", pose=pose, lamp=dict(self.lamp))
+
+    # ----- records -------------------------------------------------------------------------------------
+    def _set(self, state: State, reason) -> None:
+        self.state, self.reason = state, reason
+        self._publish("state", state=state.value, reason=reason,
+                      current=None if self.current is None else self.current["id"])
+        self._cond.notify_all()
+
+    def _publish(self, kind: str, **data) -> None:
+        self.events.append({"type": kind, "seq": self.first_event + len(self.events), "t_utc": time.time(), **data})
+        if len(self.events) > MAX_EVENTS:
+            drop = len(self.events) - MAX_EVENTS
+            del self.events[:drop]
+            self.first_event += drop
+
+    def events_since(self, seq: int) -> list[dict]:
+        with self._cond:
+            return self.events[max(0, seq - self.first_event):]

@@ -1,0 +1,247 @@
+"""``goniofrost serve`` driven over loopback by a real HTTP client on the small simulated rig: the
+queue, pause, resume and stop of a capture; the token and the origin; malformed requests refused
+naming the field with nothing queued or moved; kill -9 mid-capture and a restart losing and
+repeating no sample."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import requests
+
+from goniofrost.rig.file import load_checked_rig
+from goniofrost.rig.lock import rig_holder
+from monitor_helpers import MATERIAL, journal_rows, make_plan
+
+REPO = Path(__file__).resolve().parents[1]
+M = 4
+TIMEOUT_S = 120.0
+
+
+@pytest.fixture(scope="module")
+def plan(tmp_path_factory):
+    return make_plan(tmp_path_factory.mktemp("serve"), M)
+
+
+class Server:
+    """A ``goniofrost serve`` process on port 0 of loopback, its URL and token read from the lock."""
+
+    def __init__(self, rig: Path, root: Path) -> None:
+        self.rig, self.root = rig, root
+        self.proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "serve", "--rig", str(rig), "--root",
+                                      str(root), "--port", "0", "--speedup", "20"], cwd=REPO,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.proc.stdout.readline()
+        if not line:
+            pytest.fail(f"serve did not start: {self.proc.stderr.read()}")
+        holder = rig_holder(load_checked_rig(rig))
+        assert holder.program == "serve" and holder.pid == self.proc.pid
+        assert line.startswith(f"goniofrost serve: sim-rig held; serving on {holder.url}?token=")
+        self.url = holder.url.rstrip("/")
+        self.token = Path(holder.token_file).read_text().strip()
+        assert line.strip().endswith(self.token) and Path(holder.token_file).stat().st_mode & 0o777 == 0o600
+        self.auth = {"Authorization": f"Bearer {self.token}"}
+
+    def get(self, path: str):
+        return requests.get(self.url + path, timeout=30)
+
+    def post(self, path: str, body=None, headers=None, **kw):
+        return requests.post(self.url + path, json=body, headers=self.auth if headers is None else headers,
+                             timeout=60, **kw)
+
+    def status(self) -> dict:
+        return self.get("/api/status").json()
+
+    def wait(self, condition, what: str):
+        """Poll until ``condition()`` is true; fail after TIMEOUT_S or when the server ended."""
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline:
+            value = condition()
+            if value:
+                return value
+            if self.proc.poll() is not None:
+                pytest.fail(f"serve ended before {what}: {self.proc.stderr.read()}")
+            time.sleep(0.02)
+        pytest.fail(f"no {what} within {TIMEOUT_S} s: {self.status()}")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def entry(plan_file: Path, **extra) -> dict:
+    return {"plan": plan_file.name, "material": MATERIAL, "sample_id": "red-1", "operator": "ada", **extra}
+
+
+@pytest.fixture
+def server(plan, tmp_path):
+    rig, plan_file = plan
+    root = tmp_path / "root"
+    root.mkdir()
+    (root / plan_file.name).write_text(plan_file.read_text())
+    served = Server(rig, root)
+    yield served
+    served.close()
+
+
+def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
+    rig, plan_file = plan
+    assert server.status()["state"] == "idle"
+    assert set(server.get("/openapi.json").json()["components"]["schemas"]["State"]["enum"]) == {
+        "idle", "running", "paused", "suspended", "stopping", "fault"}
+    added = server.post("/api/queue", entry(plan_file, target_error=None))
+    assert added.status_code == 201, added.text
+    session = server.root / "sessions" / "0001-red-1"
+    server.wait(lambda: server.status()["state"] == "running", "a running capture")
+    assert server.post("/api/pause", {"operator": "ada"}).json()["state"] == "running"  # until the safe point
+    paused = server.wait(lambda: (s := server.status())["state"] == "paused" and s, "the pause")
+    assert paused["reason"] == "paused at plan sample 0" and paused["current"]["id"] == added.json()["id"]
+    assert journal_rows(session) == []  # paused before the first sample's move
+    assert server.post("/api/resume", {"operator": "bob"}).json()["state"] == "paused"
+    server.wait(lambda: len(journal_rows(session)) >= 1, "a sample after the resume")
+    assert server.post("/api/stop", {"operator": "cy"}).status_code == 200
+    ended = server.wait(lambda: (q := server.get("/api/queue").json())[0]["state"] != "running" and q, "the stop")[0]
+    assert ended["state"] == "stopped" and json.loads(ended["result"])["reason"].startswith(
+        "interrupted by a stop request from cy at 127.0.0.1")
+    status = server.status()
+    assert (status["state"], status["held"]) == ("idle", True)
+    assert 1 <= len(journal_rows(session)) < M
+    waiting = server.post("/api/queue", entry(plan_file, sample_id="red-2", operator="dee")).json()
+    assert server.get("/api/queue").json()[1]["state"] == "pending"  # the queue is held after the stop
+    delete = lambda headers=None: requests.delete(f"{server.url}/api/queue/{waiting['id']}",  # noqa: E731
+                                                  headers=server.auth if headers is None else headers, timeout=30)
+    assert delete({}).status_code == 401 and delete().json() == {"removed": waiting["id"]}
+    assert (delete().status_code, delete().json()["field"]) == (404, "id")
+    assert [e["id"] for e in server.get("/api/queue").json()] == [added.json()["id"]]
+    actions = [(a["who"], a["action"]) for a in server.get("/api/actions").json()]
+    assert actions == [("ada", "queue_add"), ("ada", "pause"), ("bob", "resume"), ("cy", "stop"),
+                       ("dee", "queue_add"), ("?", "queue_remove")]
+
+
+def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_nothing(server, plan):
+    rig, plan_file = plan
+    pose = server.status()["pose"]
+    good = entry(plan_file)
+    refusals = [
+        (server.post("/api/queue", good, headers={}), 401, "authorization"),
+        (server.post("/api/move", {"targets": {"camera_arm": 60}}, headers={}), 401, "authorization"),
+        (server.post("/api/queue", good, headers={"Authorization": "Bearer nope"}), 403, "authorization"),
+        (server.post("/api/lamp", {"on": True}, headers={"Authorization": "Bearer nope"}), 403, "authorization"),
+        (server.post("/api/move", {"targets": {"camera_arm": 60}},
+                     headers={**server.auth, "Origin": "http://evil.example"}), 403, "origin"),
+        (server.post("/api/queue", entry(plan_file, plan="no-such-plan.json")), 422, "plan"),
+        (server.post("/api/queue", entry(plan_file, plan="../plan4.json")), 422, "plan"),
+        (server.post("/api/queue", entry(plan_file, material="builtin:no-such-material")), 422, "material"),
+        (server.post("/api/queue", entry(plan_file, target_error=-1)), 422, "target_error"),
+        (server.post("/api/queue", entry(plan_file, colour="red")), 422, "colour"),
+        (server.post("/api/move", {"targets": {"camera_arm": 200}}), 422, "targets.camera_arm"),
+        (server.post("/api/queue", None, data=b"{" + b" " * 20000 + b"}",
+                     headers={**server.auth, "Content-Type": "application/json"}), 413, "body"),
+    ]
+    assert [(r.status_code, r.json()["field"]) for r, _, _ in refusals] == [(s, f) for _, s, f in refusals]
+    assert "limits [8, 172]" in refusals[10][0].json()["error"]
+    assert server.get("/").status_code == 200  # the monitor's list of the root's sessions, beside the API
+    foreign = requests.get(server.url + "/api/status", headers={"Host": "evil.example"}, timeout=30)
+    assert foreign.status_code == 403
+    assert server.get("/api/queue").json() == [] and server.get("/api/actions").json() == []
+    status = server.status()
+    assert (status["state"], status["pose"]) == ("idle", pose)
+
+
+def test_a_paused_capture_survives_a_restart_and_kill_9_loses_and_repeats_no_sample(server, plan):
+    rig, plan_file = plan
+    assert server.post("/api/queue", entry(plan_file)).status_code == 201
+    session = server.root / "sessions" / "0001-red-1"
+    server.wait(lambda: server.status()["state"] == "running", "a running capture")
+    server.post("/api/pause")
+    server.wait(lambda: server.status()["state"] == "paused", "the pause")
+    server.close()  # Ctrl-C of a paused server: the entry stays to be resumed
+    assert server.proc.returncode == 0 and server.proc.stderr.read() == ""
+    resumed = Server(rig, server.root)
+    try:
+        resumed.wait(lambda: len(journal_rows(session)) >= 1, "a journaled sample after the restart")
+        resumed.proc.kill()
+        resumed.proc.wait()
+    finally:
+        resumed.close()
+    killed_at = len(journal_rows(session))
+    assert killed_at < M, "the capture ended before the kill: make M larger"
+    again = Server(rig, server.root)
+    try:
+        done = again.wait(lambda: (q := again.get("/api/queue").json())[0]["state"] == "done" and q[0], "the resume")
+        rows = journal_rows(session)
+        assert [index for index, _ in rows] == list(range(M))  # 0 lost, 0 repeated
+        assert json.loads(done["result"])["session"] == "sessions/0001-red-1"
+        assert again.status()["state"] == "idle"
+    finally:
+        again.close()
+
+
+def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(server, plan, capsys):
+    """`goniofrost rig home/move/lamp/stop` find the server through the device lock and use its API
+    (the server keeps the devices: nothing else could open them); snap writes under the root."""
+    from goniofrost.app.cli import main
+
+    rig, _ = plan
+    for words in (["home", "--yes"], ["move", "camera_arm=60", "sample_yaw=10"], ["lamp", "on"], ["stop"]):
+        assert main(["rig", words[0], "--rig", str(rig), *words[1:]]) == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "reached camera_arm 60.000 deg, sample_yaw 10.0" in err
+    assert f"asked serve (process {server.proc.pid} of " in err and f"at {server.url} to stop sim-rig: it is idle" in err
+    status = server.status()
+    assert abs(status["pose"]["camera_arm"] - 60) < 0.05 and status["lamp"]["on"] is True
+    snap = server.post("/api/snap", {"name": "here.png"})
+    assert snap.status_code == 200 and (server.root / "snaps" / "here.png").stat().st_size > 0
+    assert [a["action"] for a in server.get("/api/actions").json()] == ["home", "move", "lamp", "stop", "snap"]
+    assert server.get("/api/actions").json()[0]["who"].endswith("(goniofrost rig)")
+    records = []
+    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as events:
+        for line in events.iter_lines(decode_unicode=True):
+            if line.startswith("data: "):
+                records.append(json.loads(line[len("data: "):]))
+                if records[-1]["seq"] + 1 >= status["events"]:  # every record before the status read
+                    break
+    assert [r["seq"] for r in records] == list(range(status["events"]))
+    assert [r["state"] for r in records if r["type"] == "state"] == ["running", "idle"] * 3  # home, move, lamp
+    assert [r["on"] for r in records if r["type"] == "lamp"] == [True]
+
+
+def test_a_refused_start_warns_off_loopback_names_the_holder_and_leaves_the_root_alone(plan, tmp_path, capsys):
+    from goniofrost.app.cli import main
+    from goniofrost.rig.lock import rig_lock
+
+    rig, _ = plan
+    root = tmp_path / "root"
+    root.mkdir()
+    with rig_lock(load_checked_rig(rig), "capture") as lock:
+        assert main(["serve", "--rig", str(rig), "--root", str(root), "--host", "0.0.0.0", "--port", "0"]) == 2
+    assert capsys.readouterr().err == (
+        "goniofrost serve: WARNING: listening on 0.0.0.0: anyone on that network with the token can move the rig; "
+        "use it only on a trusted network\n"
+        f"goniofrost serve: error: rig 'sim-rig' is in use by {lock.holder.who()}: one program drives a device at "
+        f"a time; wait for it to finish or stop it (goniofrost rig stop, or Ctrl-C in its terminal)\n")
+    assert list(root.iterdir()) == []
+
+
+def test_one_server_per_root(server, plan, capsys):
+    from goniofrost.app.cli import main
+
+    other = server.root.parent / "other-rig"
+    other.mkdir()
+    (other / "sim.yaml").write_text(plan[0].read_text())  # another simulated instance: its devices are free
+    before = sorted(p.name for p in server.root.iterdir())
+    assert main(["serve", "--rig", str(other / "sim.yaml"), "--root", str(server.root), "--port", "0"]) == 2
+    assert capsys.readouterr().err == (f"goniofrost serve: error: --root: {server.root} is served by another "
+                                       f"goniofrost serve (process {server.proc.pid}); one server per root\n")
+    assert sorted(p.name for p in server.root.iterdir()) == before and server.status()["state"] == "idle"
