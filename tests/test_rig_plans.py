@@ -42,7 +42,7 @@ def test_every_cell_the_rig_offers_is_scheduled_onto_joints_the_capture_accepts(
     joints on the command lattices: each is scheduled onto joints the capture's check accepts, or
     refused by the scheduler and left out of the reach map plan selects from (two of the six were
     scheduled with the light past the lamp's 89 deg: LIGHT_GRAZING, the capture's refusal)."""
-    from goniofrost.capture.plan_file import sample_entries
+    from goniofrost.plan.file import sample_entries
     from planner.kinematics import joints_array
     from planner.reach import reachability
     from planner.schedule import UnreachableSampleError, schedule_plan

@@ -15,13 +15,14 @@ from contextlib import contextmanager
 from goniofrost.capture.executor import StepExecutor
 from goniofrost.rig.stop import stop_text
 from goniofrost.capture.signals import RunStopped, SessionInterrupted, signals_raise
-from goniofrost.rig.hardware import open_hardware
+from goniofrost.rig import hardware as rig_hardware
 
 
 @contextmanager
 def held_hardware(rig, devices=None, *args, **options):
     """``open_hardware(rig, devices, ...)``, stopped safely (``stopped_safely``) while held."""
-    with open_hardware(rig, devices, *args, **options) as hardware, stopped_safely(hardware):
+    # looked up when called: a test that replaces the opener's module attribute reaches this too
+    with rig_hardware.open_hardware(rig, devices, *args, **options) as hardware, stopped_safely(hardware):
         yield hardware
 
 
