@@ -83,6 +83,12 @@ FIRST_LOOK = 15
 # the held-out training materials' largest z2 at an m varied by less than a factor 2 from one m
 # to the next (45 x 45 x 90 grid, fold 0 of MERL + RGL: log z2 max 2.3 to 2.9 from m = 5 to 60).
 OUT_OF_MODEL_FACTOR = 2.0
+# The bound's kinds (docs/decisions/0100-a-sharper-bound.md): "split" (the residual standardized
+# by its m's spread), "normalised" (by the material's own predicted spread), "per-look" (a
+# quantile per m: coverage at each fixed look, not at once over them). BOUND_KIND is the one used.
+BOUND_KINDS = ("split", "normalised", "per-look")
+BOUND_KIND = "split"
+CHOICE_SLACK = 0.02  # the coverage below the confidence a kind may show on the nested folds
 FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
                  "sentinel": "the sentinel samples' error",
                  "sentinel_earlier": "the sentinel samples' error at an earlier batch",
@@ -151,14 +157,122 @@ def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=N
     ms = np.unique(records.m)
     looks = ms[ms >= FIRST_LOOK] if np.any(ms >= FIRST_LOOK) else ms
     center, scale, scores = _simultaneous(records, r, ms, looks)
+    spread_x = _spread_features(records.m, records.z2, records.energy, records.actual / np.exp(r))
     return {"method": "split-conformal, simultaneous over the looks m >= %d" % int(looks[0]),
             "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
-            "looks": [int(m) for m in looks], "scores": scores,
+            "looks": [int(m) for m in looks], "scores": scores, "kind": BOUND_KIND,
+            "normalised": _fit_normalised(records, r, ms, looks, spread_x, center),
+            "per_look": {"scores": _per_look_scores(records, r, ms, center, scale)},
+            "choice": _nested_choice(records, r, ms, looks, spread_x),
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
             "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms],
             "log_design_error_min": [float(np.log(records.design_error[records.m == m]).min()) for m in ms],
             "log_design_error_max": [float(np.log(records.design_error[records.m == m]).max()) for m in ms]} \
         | _feature_spread(records, ms) | _prequential_spread(records, ms) | _sentinel_spread(records, r, ms, looks)
+
+
+def _spread_features(m, z2, energy, predicted) -> np.ndarray:
+    """float64 (..., 5): (1, log m, log z2, log energy, log predicted): what the normalised
+    bound's spread is a function of (arguments broadcast)."""
+    parts = np.broadcast_arrays(*(np.log(np.maximum(np.asarray(v, np.float64), 1e-300))
+                                  for v in (m, z2, energy, predicted)))
+    return np.stack([np.ones_like(parts[0]), *parts], -1)
+
+
+def _spread_fit(x: np.ndarray, deviation: np.ndarray) -> np.ndarray:
+    """(5,) least-squares coefficients of log |deviation| on the spread features x (records, 5)."""
+    y = np.log(np.maximum(np.abs(deviation), 1e-3))
+    return np.linalg.lstsq(x, y, rcond=None)[0]
+
+
+def _fit_normalised(records, r, ms, looks, x, center, fold=None) -> dict:
+    """The normalised (locally weighted) bound's calibration: the spread sigma(x) = exp(x gamma)
+    of the residual about its m's median, gamma fitted on every record (``_spread_fit``), the
+    range of log sigma it was fitted on (sigma is clamped there: no extrapolated spread), and
+    every held-out material's simultaneous score max over the looks of (r - c_m) / sigma, sorted;
+    each record's sigma for its score from a fit without its inner fold (cross-fitted, as the
+    residuals). fold: (records,) the folds to cross-fit over (None: records.fold)."""
+    fold = records.fold if fold is None else fold
+    deviation = r - center[np.searchsorted(ms, records.m)]
+    log_sigma = np.empty_like(r)
+    for f in np.unique(fold):
+        held = fold == f
+        log_sigma[held] = x[held] @ _spread_fit(x[~held], deviation[~held])
+    gamma = _spread_fit(x, deviation)
+    fitted = x @ gamma
+    low, high = float(fitted.min()), float(fitted.max())
+    standard = deviation / np.exp(np.clip(log_sigma, low, high))
+    return {"gamma": gamma.tolist(), "log_sigma_range": [low, high],
+            "scores": _material_max(records, standard, looks)}
+
+
+def _per_look_scores(records, r, ms, center, scale) -> list:
+    """Per m (ms,) the held-out materials' standardized residuals (r - c_m) / s_m, sorted: the
+    per-look bound's calibration (coverage at each fixed look, not at once over them)."""
+    return [sorted(float(v) for v in (r[records.m == m] - c) / s) for m, c, s in zip(ms, center, scale)]
+
+
+def _material_max(records, standard, looks) -> list:
+    """Every held-out material's largest ``standard`` (records,) over the looks, sorted."""
+    keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
+    in_look = np.isin(records.m, looks)
+    _, material = np.unique(keys[in_look], return_inverse=True)
+    scores = np.full(int(material.max()) + 1, -np.inf)
+    np.maximum.at(scores, material, standard[in_look])
+    return sorted(float(s) for s in scores)
+
+
+def _log_upper(bound: dict, kind: str, m, x, confidence: float) -> np.ndarray:
+    """log(bound / point prediction) of the ``kind`` bound at m (broadcast with x (..., 5), the
+    ``_spread_features``), at ``confidence``."""
+    c = _at_m(bound, "center", m)
+    if kind == "normalised":
+        part = bound["normalised"]
+        log_sigma = np.clip(x @ np.asarray(part["gamma"]), *part["log_sigma_range"])
+        return c + conformal_quantile(part["scores"], confidence) * np.exp(log_sigma)
+    if kind == "per-look":
+        q = [conformal_quantile(sc, confidence) for sc in bound["per_look"]["scores"]]
+        return c + _at_m(bound | {"q_scale": np.asarray(q) * np.asarray(bound["scale"])}, "q_scale", m)
+    return c + conformal_quantile(bound["scores"], confidence) * _at_m(bound, "scale", m)
+
+
+def _nested_choice(records, r, ms, looks, x, confidence: float = 0.95) -> dict:
+    """Every bound kind measured on the training materials only: for each inner fold, the bound
+    calibrated on the other folds' records, applied to the fold's held-out materials. Per kind:
+    "simultaneous_coverage" (materials whose error is below the bound at every look at once: what
+    a rule that stops at any look needs) and "median_bound_over_actual" at the look nearest
+    m = 20; "chosen": the kind with the smallest such median among those covering at least
+    ``confidence`` - CHOICE_SLACK (``BOUND_KIND`` used; this is the record of the measurement)."""
+    covered = {k: [] for k in BOUND_KINDS}
+    ratio = {k: [] for k in BOUND_KINDS}
+    near = looks[np.argmin(np.abs(looks - 20))]
+    for f in np.unique(records.fold):
+        held, rest = records.fold == f, records.fold != f
+        sub = _subset(records, rest)
+        center, scale, scores = _simultaneous(sub, r[rest], ms, looks)
+        bound = {"m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(), "scores": scores,
+                 "normalised": _fit_normalised(sub, r[rest], ms, looks, x[rest], center),
+                 "per_look": {"scores": _per_look_scores(sub, r[rest], ms, center, scale)}}
+        for kind in BOUND_KINDS:
+            log_upper = _log_upper(bound, kind, records.m[held], x[held], confidence)
+            miss = (r[held] > log_upper) & np.isin(records.m[held], looks)
+            for material in np.unique(records.material[held]):
+                covered[kind].append(not miss[records.material[held] == material].any())
+            at = records.m[held] == near
+            ratio[kind] += list(np.exp(log_upper[at] - r[held][at]))
+    out = {k: {"simultaneous_coverage": float(np.mean(covered[k])),
+               "median_bound_over_actual": float(np.median(ratio[k])), "at_m": int(near)} for k in BOUND_KINDS}
+    fine = [k for k in BOUND_KINDS if out[k]["simultaneous_coverage"] >= confidence - CHOICE_SLACK]
+    out["chosen"] = min(fine, key=lambda k: out[k]["median_bound_over_actual"]) if fine else "split"
+    return out
+
+
+def _subset(records, keep: np.ndarray):
+    """The records (fold, material, m, z2, energy, actual) where ``keep``: what the bound's fit reads."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(fold=records.fold[keep], material=records.material[keep], m=records.m[keep],
+                           z2=records.z2[keep], energy=records.energy[keep], actual=records.actual[keep])
 
 
 def _simultaneous(records, values, ms, looks):
@@ -167,13 +281,7 @@ def _simultaneous(records, values, ms, looks):
     center = np.array([np.median(values[records.m == m]) for m in ms])
     scale = np.array([max(float(np.std(values[records.m == m])), 1e-6) for m in ms])
     at = np.searchsorted(ms, records.m)
-    standard = (values - center[at]) / scale[at]
-    keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
-    in_look = np.isin(records.m, looks)
-    _, material = np.unique(keys[in_look], return_inverse=True)
-    scores = np.full(int(material.max()) + 1, -np.inf)
-    np.maximum.at(scores, material, standard[in_look])
-    return center, scale, sorted(float(s) for s in scores)
+    return center, scale, _material_max(records, (values - center[at]) / scale[at], looks)
 
 
 def _sentinel_spread(records, residuals, ms, looks) -> dict:
@@ -380,9 +488,9 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
         inf = np.full(np.broadcast(predicted, m).shape, np.inf)
         return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0,
                 "out_of_model_sentinel": inf == 0, "out_of_model_design": inf == 0}
-    median, upper = _median_upper(bound, predicted, m, confidence, extra)
+    median, upper = _median_upper(bound, predicted, m, confidence, extra, z2, energy)
     if checked:
-        median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra)
+        median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra, z2, energy)
         upper = np.maximum(upper, checked_upper)
     margin = math.log(OUT_OF_MODEL_FACTOR)
     return {"median": median, "upper": upper,
@@ -394,14 +502,15 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
             design_outside(calibration, design_error, m) & np.ones(np.shape(upper), bool)}
 
 
-def _median_upper(bound: dict, predicted, m, confidence: float, extra) -> tuple[np.ndarray, np.ndarray]:
-    """(median estimate, upper bound) of one calibration's ``bound`` for its point prediction."""
+def _median_upper(bound: dict, predicted, m, confidence: float, extra, z2=1.0, energy=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(median estimate, upper bound) of one calibration's ``bound`` for its point prediction
+    (its "kind", ``BOUND_KINDS``; z2 and energy: the samples', for a normalised bound)."""
     predicted = np.asarray(predicted, dtype=np.float64)
-    c, s = _at_m(bound, "center", m), _at_m(bound, "scale", m)
-    q = conformal_quantile(bound["scores"], confidence)
-    with np.errstate(over="ignore"):
-        upper = predicted * np.exp(c + q * s) + extra
-    return predicted * np.exp(c) + extra, upper
+    kind = bound.get("kind", "split") if "normalised" in bound else "split"
+    log_upper = _log_upper(bound, kind, m, _spread_features(m, z2, energy, predicted), confidence)
+    with np.errstate(over="ignore", invalid="ignore"):
+        upper = predicted * np.exp(log_upper) + extra
+    return predicted * np.exp(_at_m(bound, "center", m)) + extra, np.where(np.isnan(upper), np.inf, upper)
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
