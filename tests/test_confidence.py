@@ -182,9 +182,17 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path, fit_once):
                        "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "target_error.json").read_text())
     stats = doc["summary"]["builtin"]
-    # every target without and with the sentinels (3 more samples, measured with the first batch)
-    assert sorted((r["target"], r["sentinels"]) for r in stats["targets"].values()) == [
-        (0.01, False), (0.01, True), (0.02, False), (0.02, True), (0.05, False), (0.05, True)]
+    # every target without and with the sentinels (3 more samples, measured with the first batch), and
+    # without them with every other kind of bound
+    assert sorted((r["target"], r["sentinels"], r["bound"]) for r in stats["targets"].values()) == [
+        (t, s, k) for t in (0.01, 0.02, 0.05) for s, k in ((False, "normalised"), (False, "per-look"),
+                                                            (False, "split"), (True, "split"))]
+    for row in stats["targets"].values():  # the efficiency beside the coverage
+        assert 0 <= row["clearly_could_stopped"] <= row["clearly_could"] <= row["materials"]
+        assert row["oracle_materials"] <= row["materials"] and set(row["bound_over_actual"]) == {"20", "40"}
+        assert row["over_oracle"] is None or row["over_oracle"] * row["oracle_samples"] == \
+            pytest.approx(row["samples_used"])
+        assert row["oracle_samples"] is None or 15 <= row["oracle_samples"] <= 20
     assert sorted(int(m) for m in stats["by_m"]) == [15, 20]
     for row in stats["targets"].values():
         extra = 3 if row["sentinels"] else 0

@@ -117,8 +117,8 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert (measured["sample_id"], measured["operator"], measured["notes"], measured["lens"]) == (
         "S-002", "A. Operator", ["second coat"], LAB["lens"])
     assert measured["rig"]["name"] == "sim-rig" and measured["model"] == report["model"]
-    assert measured["predicted_log_relative_mse"] == record["predicted_log_relative_mse"] == \
-        report["prediction"]["predicted_log_relative_mse"]
+    assert measured["error_figure"] == record["error_figure"] == report["prediction"]["error_figure"]
+    assert "predicted_log_relative_mse" not in measured and "predicted_log_relative_mse" not in record
     assert measured["started_utc"] == runs[0][0].started_utc and measured["goniofrost_version"] == "0.1.0"
 
     listed = sessions_json(root, capsys)
@@ -128,7 +128,8 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert listed[1]["notes"] == ["second coat"] and listed[1]["material"] == "builtin:green-felt"
     # the catalogue's figure is the median estimate, as a running capture's batches show it
     assert listed[1]["predicted_error"] == report["prediction"]["median_estimate"] != \
-        report["prediction"]["predicted_log_relative_mse"]
+        report["prediction"]["point_prediction_before_centring"]
+    assert listed[1]["error_figure"] == report["prediction"]["error_figure"]
 
 
 def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in_full(setup, tmp_path, capsys,
@@ -290,7 +291,8 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     with Journal.open(session / "session.sqlite") as journal:
         assert journal.label() == SessionLabel(operator="A. Operator", sample_id="G-1", notes=("resumed",), **LAB)
     record = json.loads((session / "brdf.json").read_text())
-    assert record["coating"] == "by hand" and record["predicted_log_relative_mse"] > 0
+    # the earlier record's own fields kept, a superseded error figure not
+    assert record["coating"] == "by hand" and "predicted_log_relative_mse" not in record
     assert record["measurement"]["sample_id"] == "G-1" and record["measurement"]["notes"] == ["resumed"]
     assert [s["state"] for s in sessions_json(root, capsys)] == ["target reached", "finished"]
 

@@ -167,8 +167,9 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         journal._db.execute("UPDATE events SET t_utc = ?", (long_ago + 2,))
     with MonitorServer(tmp_path, port=0) as server:
         page.goto(server.url)
-        expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421",
-                                                              timeout=LOADED_MS)
+        expect(page.locator("#predicted-error")).to_have_text(
+            "reconstruction (log-relative MSE): error <= 0.0873 with 95 % confidence (median estimate 0.0421)",
+            timeout=LOADED_MS)
         expect(page.locator("#assessment")).to_have_text(
             "after 2 samples: error <= 0.0873 with 95 % confidence, target 0.05 not reached yet (median estimate 0.0421)",
             timeout=LOADED_MS)
@@ -213,8 +214,9 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
                     expect(page.locator("#state")).to_have_text("running", timeout=LOADED_MS)
                 assert statuses(page) == ["done", "done", "next", "pending"]
                 script.batch(2, 0.0312, 0.05, "target reached", bound=0.0471)
-                expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0312",
-                                                                      timeout=LOADED_MS)
+                expect(page.locator("#predicted-error")).to_have_text(
+                    "reconstruction (log-relative MSE): error <= 0.0471 with 95 % confidence (median estimate 0.0312)",
+                    timeout=LOADED_MS)
                 expect(page.locator("#assessment")).to_have_text(
                     "error <= 0.05 with 95 % confidence (median estimate 0.0312)", timeout=LOADED_MS)
                 script.end_run(RunStatus.TARGET_REACHED, reason)

@@ -26,6 +26,7 @@ import yaml
 from goniofrost.capture.runner import capture
 from goniofrost.app.cli import main
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import confidence
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus
 from goniofrost.brdf.merl_file import read_merl
@@ -145,7 +146,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     np.testing.assert_allclose(read_merl(session / "brdf.std.binary", GRID)[GRID.valid_cells], expected.std, rtol=1e-12)
 
     report = json.loads((session / "report.json").read_text())
-    assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert report["prediction"]["point_prediction_before_centring"] == pytest.approx(expected.predicted_error, rel=1e-12)
     assert report["prediction"]["calibrated"] is True and "uncalibrated" not in (session / "summary.txt").read_text()
     # every capture states its calibrated bound, as a target-error capture's last batch would
     from goniofrost.frost.reconstruction import error_bound
@@ -153,16 +154,16 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert bound.upper == np.inf  # this small model has no bound calibration at M samples
     assert (report["prediction"]["median_estimate"], report["prediction"]["bound"]) == (bound.median, None)
     assert report["ground_truth"]["median_estimate"] == bound.median
-    assert (f"error of this reconstruction: log-relative MSE, median estimate {bound.median:.4g} (no calibrated "
-            f"bound; point prediction {expected.predicted_error:.4g}; per-cell standard deviation in "
-            f"brdf.std.binary)") in (session / "summary.txt").read_text().splitlines()
+    assert (f"reconstruction (log-relative MSE): error: no bound at 95 % confidence (median estimate "
+            f"{bound.median:.3g})") in (session / "summary.txt").read_text().splitlines()
+    assert report["prediction"]["error_figure"] == confidence.figure_of(bound)
     assert "target_error" not in report
     assert report["samples"] == M and report["captured_this_run"] == M and report["runs"] == 1
     assert report["times_s"]["motion"] > 0 and report["times_s"]["capture"] > 0
     truth = report["ground_truth"]
     # the bar: no more than 20 % above reconstructing the same cells from exact values
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
-    assert truth["predicted_log_relative_mse"] == report["prediction"]["predicted_log_relative_mse"]
+    assert truth["point_prediction_before_centring"] == report["prediction"]["point_prediction_before_centring"]
     assert truth["sample_relative_error_median"] < 0.05
     import matplotlib.image
     from goniofrost.brdf.merl_file import valid_to_full
@@ -1078,7 +1079,7 @@ def test_a_sample_too_dark_for_the_ladder_is_journaled_not_measured_and_the_capt
     report = json.loads((session / "report.json").read_text())
     assert (report["samples"], report["plan_samples"]) == (4, M)
     assert report["prediction"]["samples_used"] == 4 and report["prediction"]["not_measured_left_out"] == 1
-    assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert report["prediction"]["point_prediction_before_centring"] == pytest.approx(expected.predicted_error, rel=1e-12)
     dark_section = report["not_measured"]
     assert (dark_section["count"], dark_section["indices"], dark_section["reasons"]) == (1, [0], {"below-detection-limit": 1})
     [listed] = dark_section["samples"]

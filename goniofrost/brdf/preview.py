@@ -265,8 +265,25 @@ def write_png(path, preview: Preview, title: str = "") -> None:
 
 
 def _errors_text(errors) -> str:
-    """The predicted (and actual) log-relative MSE for the title, or ""."""
-    if not errors:
+    """The actual log-relative MSE against the reference for the title, or "". The predicted one is
+    the caller's error figure (``confidence.figure``, in ``title``): the mean predicted variance
+    this preview knows is not centred on the calibration, and a second number confuses."""
+    if not errors or errors.get("actual") is None:
         return ""
-    text = f"\npredicted log-relative MSE {errors['predicted']:.4g}"
-    return text + (f", actual {errors['actual']:.4g}" if errors.get("actual") is not None else "")
+    return f"\nactual log-relative MSE against the reference {errors['actual']:.4g}"
+
+
+def record_figure(binary) -> str | None:
+    """The error figure (``error_figure``) of the record ``reconstruct`` or a capture wrote beside
+    a MERL file (FILE.json beside FILE.binary, a session's brdf.json), None when there is none."""
+    import json
+    from pathlib import Path
+
+    path = Path(binary)
+    stem = path.with_suffix("") if path.suffix.lower() == ".binary" else path
+    try:
+        record = json.loads(stem.with_name(stem.name + ".json").read_text())
+    except (OSError, ValueError):
+        return None
+    figure = record.get("error_figure") if isinstance(record, dict) else None
+    return figure if isinstance(figure, str) else None

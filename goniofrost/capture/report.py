@@ -149,18 +149,23 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
         ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
     # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
     # beside the files and the report's other sections, which mostly run in numpy (GIL released).
+    bound = session_bound(inputs, records, getattr(spec, "confidence", None))
+    said = error_figure(inputs, bound, rec.predicted_error)
+    label = journal.label().to_dict()
+    title = preview_title(session_dir, label, material, said, bound)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
-        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std)
+        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std, title)
         earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
-        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
+        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv",
+                            None if inputs.scene is not None else bound)
         runs = journal.runs()
         report = build_report(inputs, records, stats, session_dir, material, runs, dark)
-        report["label"] = journal.label().to_dict()
+        report["label"] = label
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
-                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
+                                "error_figure": said,
+                                "point_prediction_before_centring": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
                                 **whole_brdf_calibration(inputs)}
-        bound = session_bound(inputs, records, getattr(spec, "confidence", None))
         report["prediction"] |= extrapolation_section(inputs, records, bound) | bound_section(inputs, bound)
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)
@@ -176,6 +181,26 @@ def write_outputs(inputs, journal, stats, session_dir, material: str | None, spe
     write_text_atomic(session_dir / "report.json", json.dumps(report, indent=1))
     write_text_atomic(session_dir / "summary.txt", summary_text(report))
     return report
+
+
+def error_figure(inputs, bound, point: float) -> str:
+    """The session's one statement of its error (``confidence.figure``): the whole BRDF's bound and
+    median estimate; for a plan for a scene, whose design the whole BRDF's calibration is not of,
+    the words say there is no calibrated bound and give the point prediction."""
+    from goniofrost.frost.confidence import figure, figure_of
+
+    if inputs.scene is not None:
+        return figure(None, bound.confidence, None) + f" (uncalibrated point prediction {point:.3g})"
+    return figure_of(bound)
+
+
+def preview_title(session_dir, label: dict, material: str | None, said: str, bound) -> str:
+    """The preview's title: what was measured (the sample id, else the material), the session,
+    the error figure and, when the bound is an extrapolation, a stamp that says so."""
+    what = label.get("sample_id") or material or "unnamed sample"
+    stamp = "\nEXTRAPOLATION: the samples or design are unlike the training set" if bound.out_of_model else ""
+    return f"{what}, session {Path(session_dir).name}" + (f" vs {material}" if material and material != what else "") \
+        + f"\n{said}{stamp}"
 
 
 def session_bound(inputs, records, confidence: float | None = None):
@@ -210,9 +235,16 @@ def read_earlier_record(path: Path) -> dict:
     return earlier if isinstance(earlier, dict) else {}
 
 
+# Fields an earlier version of the reconstruction wrote into brdf.json and this one does not: not
+# kept from an earlier record (a second error figure beside the one stated would contradict it)
+SUPERSEDED_FIELDS = ("predicted_log_relative_mse",)
+
+
 def extend_record(path: Path, earlier: dict, measurement: dict) -> None:
-    """brdf.json = the earlier fields, the reconstruction's (just written) and ``measurement``."""
-    record = {**earlier, **json.loads(Path(path).read_text()), "measurement": measurement}
+    """brdf.json = the earlier fields (but SUPERSEDED_FIELDS), the reconstruction's (just written)
+    and ``measurement``."""
+    kept = {k: v for k, v in earlier.items() if k not in SUPERSEDED_FIELDS}
+    record = {**kept, **json.loads(Path(path).read_text()), "measurement": measurement}
     write_text_atomic(path, json.dumps(record, indent=1, allow_nan=False) + "\n")
 
 
@@ -232,7 +264,7 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
             "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
             "model": report["model"], "samples": report["samples"],
             "samples_not_measured": report["not_measured"]["count"],
-            "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
+            "error_figure": report["prediction"]["error_figure"],
             "predicted_calibrated": report["prediction"]["calibrated"],
             "extrapolation": report["prediction"]["extrapolation"],
             **{key: report["prediction"][key] for key in ("median_estimate", "bound", "confidence")
@@ -329,9 +361,11 @@ def _import_renderer() -> None:
         pass
 
 
-def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None) -> float | None:
+def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, std=None,
+                  title: str | None = None) -> float | None:
     """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
-    error on a simulated rig); return its rendering SNR in dB (None without a ground truth)."""
+    error on a simulated rig); return its rendering SNR in dB (None without a ground truth).
+    title: the preview's (``preview_title``), None: the material's."""
     from goniofrost.brdf.preview import preview_of, write_png
 
     if _RENDERER_IMPORT is not None:
@@ -339,7 +373,7 @@ def write_preview(path: Path, estimate: np.ndarray, grid, material: str | None, 
 
     reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
     preview = preview_of(estimate, grid, reference, std=std)
-    write_png(path, preview, title="session estimate" + (f" vs {material}" if material else ""))
+    write_png(path, preview, title=title or "session estimate" + (f" vs {material}" if material else ""))
     return preview.snr_db
 
 
@@ -361,8 +395,8 @@ def _truth_section(inputs, records, material: str, estimate: np.ndarray, predict
     samples = inputs.plan["samples"]
     grazing = np.array([max(samples[r.plan_index]["theta_i_deg"], samples[r.plan_index]["theta_o_deg"]) > GRAZING_DEG
                         for r in records], dtype=bool)
-    return {"material": material, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
-            "predicted_over_actual": predicted / error if error > 0 else None,
+    return {"material": material, "log_relative_mse": error, "point_prediction_before_centring": predicted,
+            "point_prediction_over_actual": predicted / error if error > 0 else None,
             "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
             "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
             "sample_relative_error_median": _median(rel),
@@ -390,20 +424,10 @@ def truth_at_measured_directions(inputs, records, material: str) -> np.ndarray:
 
 
 def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
-    """The summary's statement of the reconstruction's error: the calibrated bound and median
-    estimate when the report has them (``bound_section``), else the point prediction, marked
-    when it is not calibrated for the plan's design."""
-    point = f"point prediction {prediction['predicted_log_relative_mse']:.4g}; per-cell standard deviation in {std_file}"
-    if prediction.get("median_estimate") is None:
-        lines = [f"predicted error of this reconstruction: log-relative MSE {prediction['predicted_log_relative_mse']:.4g}"
-                 f" (per-cell standard deviation in {std_file})"]
-    elif prediction["bound"] is None:  # the model holds no bound calibration for this many samples
-        lines = [f"error of this reconstruction: log-relative MSE, median estimate {prediction['median_estimate']:.4g}"
-                 f" (no calibrated bound; {point})"]
-    else:
-        lines = [f"error of this reconstruction: log-relative MSE <= {prediction['bound']:.4g} with "
-                 f"{100 * prediction['confidence']:g} % confidence (median estimate {prediction['median_estimate']:.4g}; "
-                 f"{point})"]
+    """The summary's statement of the reconstruction's error: its ``error_figure``, marked when
+    it is not calibrated for the plan's design."""
+    lines = [f"reconstruction (log-relative MSE): {prediction['error_figure']}",
+             f"  per-cell standard deviation in {std_file}"]
     if not prediction.get("calibrated", True):
         lines.append(f"  uncalibrated: {prediction['uncalibrated_because']}")
     return lines
@@ -411,10 +435,7 @@ def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
 
 def _estimates(truth: dict, prediction: dict) -> str:
     """What the capture said of its error, for the line beside the actual one."""
-    if truth.get("median_estimate") is not None:
-        return f"median estimate {truth['median_estimate']:.4g}, point prediction {truth['predicted_log_relative_mse']:.4g}"
-    return f"predicted {truth['predicted_log_relative_mse']:.4g}" + ("" if prediction.get("calibrated", True)
-                                                                     else ", uncalibrated")
+    return prediction["error_figure"] + ("" if prediction.get("calibrated", True) else ", uncalibrated")
 
 
 def relative_errors(measured: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -88,6 +88,7 @@ OUT_OF_MODEL_FACTOR = 2.0
 # quantile per m: coverage at each fixed look, not at once over them). BOUND_KIND is the one used.
 BOUND_KINDS = ("split", "normalised", "per-look")
 BOUND_KIND = "split"
+SPREAD_QUANTILES = (0.1, 0.5, 0.9)  # of the held-out training materials' bounds ``plan --max-error`` prints
 CHOICE_SLACK = 0.02  # the coverage below the confidence a kind may show on the nested folds
 FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
                  "sentinel": "the sentinel samples' error",
@@ -112,6 +113,21 @@ class ErrorBound:
     out_of_model: tuple[str, ...] = ()
     unavailable: str | None = None
     design: tuple[int, float, float, float, int] | None = None
+
+
+def figure(upper, confidence: float, median, error: str = "error") -> str:
+    """The one sentence every output states of a reconstruction's error: "error <= B with C %
+    confidence (median estimate X)"; "error: no bound at C % confidence (median estimate X)" when
+    ``upper`` is None or infinite; the same words and digits wherever it appears."""
+    tail = "" if median is None else f" (median estimate {float(median):.3g})"
+    if upper is None or not math.isfinite(float(upper)):
+        return f"{error}: no bound at {100 * float(confidence):g} % confidence{tail}"
+    return f"{error} <= {float(upper):.3g} with {100 * float(confidence):g} % confidence{tail}"
+
+
+def figure_of(bound: ErrorBound, error: str = "error") -> str:
+    """``figure`` of an ErrorBound."""
+    return figure(bound.upper, bound.confidence, bound.median, error)
 
 
 def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None) -> np.ndarray:
@@ -164,6 +180,8 @@ def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=N
             "normalised": _fit_normalised(records, r, ms, looks, spread_x, center),
             "per_look": {"scores": _per_look_scores(records, r, ms, center, scale)},
             "choice": _nested_choice(records, r, ms, looks, spread_x),
+            "log_predicted_quantiles": [np.quantile(np.log(records.actual[records.m == m] / np.exp(r[records.m == m])),
+                                                    SPREAD_QUANTILES).tolist() for m in ms],
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
             "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms],
             "log_design_error_min": [float(np.log(records.design_error[records.m == m]).min()) for m in ms],
@@ -242,11 +260,15 @@ def _nested_choice(records, r, ms, looks, x, confidence: float = 0.95) -> dict:
     "simultaneous_coverage" (materials whose error is below the bound at every look at once: what
     a rule that stops at any look needs) and "median_bound_over_actual" at the look nearest
     m = 20; "chosen": the kind with the smallest such median among those covering at least
-    ``confidence`` - CHOICE_SLACK (``BOUND_KIND`` used; this is the record of the measurement)."""
+    ``confidence`` - CHOICE_SLACK (``BOUND_KIND`` used; this is the record of the measurement).
+    None when some fold's complement lacks an m of ``ms``."""
+    folds = np.unique(records.fold)
+    if folds.size < 2 or any(not np.isin(ms, records.m[records.fold != f]).all() for f in folds):
+        return None  # records (synthetic, a few materials) without every m in every fold's complement
     covered = {k: [] for k in BOUND_KINDS}
     ratio = {k: [] for k in BOUND_KINDS}
     near = looks[np.argmin(np.abs(looks - 20))]
-    for f in np.unique(records.fold):
+    for f in folds:
         held, rest = records.fold == f, records.fold != f
         sub = _subset(records, rest)
         center, scale, scores = _simultaneous(sub, r[rest], ms, looks)
@@ -523,6 +545,22 @@ def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m
     design = design_detail(calibration, design_error, m) if "design" in flags else None
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
                       unavailability(calibration, confidence), design)
+
+
+def training_spread(calibration: dict, m: int, confidence: float) -> list[float] | None:
+    """The held-out training materials' bounds at m samples and ``confidence``: their 10th, 50th and
+    90th percentiles (SPREAD_QUANTILES of their cross-fitted point predictions at m, interpolated in
+    log m, each bounded as a material of typical z2 and energy); None for a calibration that does
+    not record them."""
+    bound = calibration.get("bound") or {}
+    if "log_predicted_quantiles" not in bound:
+        return None
+    ms = np.log(np.asarray(bound["m"], np.float64))
+    table = np.asarray(bound["log_predicted_quantiles"], np.float64)
+    at = [float(np.interp(math.log(m), ms, table[:, k])) for k in range(table.shape[1])]
+    out = error_bounds(calibration, np.exp(at), np.exp(calibration["typical_log_z2"]),
+                       np.exp(calibration["typical_log_energy"]), m, confidence)["upper"]
+    return [float(v) for v in out]
 
 
 def unavailability(calibration: dict, confidence: float) -> str | None:

@@ -308,9 +308,9 @@ function renderAssessment(a) {
 
 function renderPredicted(st) {
   renderAssessment(st.assessment);
-  const el = $("predicted-error");
-  el.hidden = st.predicted_error == null;
-  if (st.predicted_error != null) setText("predicted-error", `predicted error (log-relative MSE): ${st.predicted_error.toPrecision(3)}`);
+  const el = $("predicted-error");  // the one error figure every output states (report.json's, or the last batch's)
+  el.hidden = st.error_figure == null;
+  if (st.error_figure != null) setText("predicted-error", `reconstruction (log-relative MSE): ${st.error_figure}`);
 }
 
 // ----- the stream -----------------------------------------------------------------------------
