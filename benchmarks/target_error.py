@@ -349,6 +349,8 @@ def main(argv=None) -> int:
                         help="a rig file: designs among the cells it can measure, and its sentinels placed for it "
                              "against calibrated among its cells (run_rig_fold)")
     parser.add_argument("--out", type=Path, required=True, help="folder: target_error.json, target_error.md")
+    parser.add_argument("--kinds", default=",".join(confidence.BOUND_KINDS),
+                        help="the bound's kinds measured (confidence.BOUND_KINDS; default all)")
     parser.add_argument("--summarise", type=Path, default=None,
                         help="a target_error.json written before: its summary and table again from its rows "
                              "(no simulation; the other options but --out are ignored)")
@@ -363,6 +365,8 @@ def main(argv=None) -> int:
 
         rig_mask = reachability(load_checked_rig(args.rig), grid).mask
     targets = tuple(float(v) for v in args.targets.split(","))
+    global KINDS
+    KINDS = tuple(args.kinds.split(","))
     args.out.mkdir(parents=True, exist_ok=True)
     results, started = {}, time.time()
     for setting in args.settings.split(","):

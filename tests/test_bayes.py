@@ -596,7 +596,8 @@ def test_the_stopping_rule_and_its_replay_from_journaled_samples():
     assert stopping.stop_reason(bound(0.06, median=0.01), 0.05, 15, 40) is None
     assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 15, 40) is None
     assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 40, 40) == stopping.REASON_PLAN
-    assert stopping.statement(bound(0.04, 0.012), 0.05) == "error <= 0.05 with 95 % confidence (median estimate 0.012)"
+    assert stopping.statement(bound(0.04, 0.012), 0.05) == ("error <= 0.04 with 95 % confidence (median estimate 0.012), "
+                                                           "within the target 0.05")
     assert stopping.statement(bound(0.07, 0.012), 0.05) == ("error <= 0.07 with 95 % confidence, above the target 0.05 "
                                                             "(median estimate 0.012)")
     assert stopping.statement(bound(0.01, out=("z2",)), 0.05) == (

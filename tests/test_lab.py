@@ -270,7 +270,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     assert main(["sessions", str(root)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == ["session", "started", "(UTC)", "operator", "sample", "state", "samples",
-                                "predicted", "error", "duration"]
+                                "error", "(log-relative", "MSE)", "duration"]
     assert lines[1].startswith("a-target") and " B. Operator " in lines[1] and " target reached " in lines[1]
 
     # a resume with another sample id: one line, exit 2, nothing changed (no run, no event, same label)
@@ -354,3 +354,45 @@ def test_a_session_whose_report_flags_an_extrapolation_is_listed_so(monkeypatch,
         monkeypatch.setattr(catalogue, "read_session", lambda folder: view(flagged))
         entry = catalogue.read_entry(tmp_path)
         assert entry.extrapolation is flagged and catalogue.table_rows([entry])[0][6] == cell
+
+
+def test_the_error_figure_is_one_and_the_same_in_all_seven_outputs(setup, tmp_path, capsys):
+    """A small simulated capture with a target error: the summary, report.json, the preview's title,
+    the live page's state, `sessions`, brdf.json and `compare` each state the same sentence "error
+    <= B with C % confidence (median estimate X)"; the point prediction before centring is in
+    report.json alone, under that name."""
+    from PIL import Image
+
+    from goniofrost.frost import confidence
+
+    folder, rig, plan, _ = setup
+    root = tmp_path / "day"
+    session = root / "s-seven"
+    batched = batched_plan(tmp_path, rig, plan, [2, 4])
+    assert main(capture_args(rig, batched, session, "builtin:red-plastic", "--sample-id", "T-9",
+                             "--target-error", "10000", "--confidence", "0.8")) == 0
+    report = json.loads((session / "report.json").read_text())
+    prediction = report["prediction"]
+    said = prediction["error_figure"]
+    # the sentence is the bound's and the median estimate's, worded once
+    assert said == confidence.figure(prediction["bound"], 0.8, prediction["median_estimate"])
+    assert said.startswith("error <= ") and " with 80 % confidence (median estimate " in said
+    summary = (session / "summary.txt").read_text()
+    assert f"reconstruction (log-relative MSE): {said}" in summary.splitlines()
+    title = Image.open(session / "preview.png").text["Title"]
+    assert title.splitlines()[:2] == ["T-9, session s-seven vs builtin:red-plastic", said]
+    assert page_state(read_session(session), time.time())["error_figure"] == said
+    capsys.readouterr()
+    [listed] = sessions_json(root, capsys)
+    assert listed["error_figure"] == said
+    assert main(["sessions", str(root)]) == 0 and said in capsys.readouterr().out
+    record = json.loads((session / "brdf.json").read_text())
+    assert record["error_figure"] == record["measurement"]["error_figure"] == said
+    assert main(["compare", str(session), str(session / "brdf.binary"), "--out", str(tmp_path / "c.png"),
+                 "--size", "16", "--json"]) == 0
+    compared = json.loads(capsys.readouterr().out)
+    assert [i["error_figure"] for i in compared["inputs"]] == [said, said]
+    # the point prediction before centring: report.json only, named so
+    point = prediction["point_prediction_before_centring"]
+    assert point != prediction["median_estimate"] and "predicted_log_relative_mse" not in prediction
+    assert f"{point:.3g}" not in said and "predicted_log_relative_mse" not in json.dumps(record)

@@ -759,8 +759,9 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 4
     assert batch["data"]["confidence"] == 0.8 and batch["data"]["bound"] <= 10000 and batch["data"]["out_of_model"] == []
-    assert batch["message"] == (f"batch 1: 4 samples, error <= 10000 with 80 % confidence (median estimate "
-                                f"{batch['data']['predicted_error']:.4g}): target reached")
+    assert batch["message"] == (f"batch 1: 4 samples, error <= {batch['data']['bound']:.3g} with 80 % confidence "
+                                f"(median estimate {batch['data']['predicted_error']:.3g}), within the target 10000: "
+                                f"target reached")
     assert [s["kind"] for s in steps].count("Assess") == 1
     assert events[-1]["kind"] is EventKind.SESSION
     _start, end = journal_last_run(session)
@@ -843,7 +844,8 @@ def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_sce
     report = json.loads((session / "report.json").read_text())
     target, scene_section = report["target_error"], report["prediction"]["scene"]
     assert (target["scope"], target["error"]) == ("scene", "error in the scene's use")
-    assert target["statement"].startswith("error in the scene's use <= 10000 with 80 % confidence (median estimate ")
+    assert target["statement"] == (f"error in the scene's use <= {target['bound']:.3g} with 80 % confidence (median "
+                                   f"estimate {target['median_estimate']:.3g}), within the target 10000")
     assert scene_section["predicted_log_relative_mse"] == pytest.approx(
         predicted_error(model, rows, values, sigmas, scene=scene))
     assert scene_section["calibrated"] and scene_section["usage_hash"] == "retro-20deg"

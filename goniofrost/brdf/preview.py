@@ -259,10 +259,12 @@ def _colour(values: np.ndarray, top: float, colourmap: str = STD_COLOURMAP, lit=
 
 def write_png(path, preview: Preview, title: str = "") -> None:
     """Write the composed preview with column labels, the SNR and a colour bar (with units) under
-    every false-colour panel as a PNG (atomically); its Description names the colour bars."""
+    every false-colour panel as a PNG (atomically); its Title is the title drawn, its Description
+    names the colour bars."""
     fig = preview_figure(preview, title)
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", facecolor="white", metadata={"Description": "; ".join(colour_bars(fig))})
+    fig.savefig(buffer, format="png", facecolor="white",
+                metadata={"Title": fig._suptitle.get_text(), "Description": "; ".join(colour_bars(fig))})
     write_bytes_atomic(path, buffer.getvalue())
 
 

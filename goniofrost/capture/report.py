@@ -516,7 +516,7 @@ def summary_text(report: dict) -> str:
                      f"{target['stopped']} after {target['samples_used']} of {target['plan_samples']} samples: "
                      f"{target['statement']}")
         lines.append("  bound (median estimate) after each batch: " + ", ".join(
-            f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
+            f"{b['samples']}: {_fmt(b['bound'], '.3g')} ({b['predicted_error']:.3g})" for b in target["batches"]))
     lines += _prediction_lines(report["prediction"], report["outputs"]["std"])
     scene = report["prediction"].get("scene")
     if scene:

@@ -294,7 +294,10 @@ function assessmentText(a) {
     return `after ${a.samples} samples: ${unlike} (an extrapolation): ` +
       (a.decision === "continue" ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
   }
-  if (a.decision === "target reached") return `${error} <= ${a.target} with ${pct} confidence (${median})`;
+  // the words of the error figure every output states (frost.confidence.figure)
+  if (a.decision === "target reached") {
+    return `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence (${median}), within the target ${a.target}`;
+  }
   const bound = a.bound == null ? "no bound" : `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence`;
   return `after ${a.samples} samples: ${bound}, target ${a.target} ` +
     (a.decision === "continue" ? "not reached yet" : `not reached (${a.decision})`) + ` (${median})`;
