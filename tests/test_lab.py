@@ -332,7 +332,8 @@ def test_a_killed_runs_duration_ends_at_its_own_last_sample_not_the_resumed_runs
     done = [SimpleNamespace(committed_utc=t) for t in (1004.0, 1006.0, 1035.0)]
     view = SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
                            nothing_measured=False, done=done, not_measured=[], label={}, material=None,
-                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, first_started_utc=1000.0,
+                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, error_figure=None,
+                           first_started_utc=1000.0,
                            run_spans=((1000.0, None), (1030.0, 1040.0)), report=None)
     monkeypatch.setattr(catalogue, "read_session", lambda folder: view)
     assert catalogue.read_entry(tmp_path).duration_s == 6.0 + 10.0
@@ -349,8 +350,9 @@ def test_a_session_whose_report_flags_an_extrapolation_is_listed_so(monkeypatch,
         return SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
                                nothing_measured=False, done=[], not_measured=[], label={}, material=None,
                                rig_name="sim-rig", plan=[{}], predicted_error=0.5167, first_started_utc=None,
-                               run_spans=(), report={"prediction": {"extrapolation": flagged}})
-    for flagged, cell in ((True, "0.5167 (extrapolation)"), (False, "0.5167")):
+                               error_figure=said, run_spans=(), report={"prediction": {"extrapolation": flagged}})
+    said = "error <= 1.2 with 95 % confidence (median estimate 0.517)"
+    for flagged, cell in ((True, f"{said} (extrapolation)"), (False, said)):
         monkeypatch.setattr(catalogue, "read_session", lambda folder: view(flagged))
         entry = catalogue.read_entry(tmp_path)
         assert entry.extrapolation is flagged and catalogue.table_rows([entry])[0][6] == cell
