@@ -832,8 +832,9 @@ def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_sce
         records, events = journal.samples(), journal.events()
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["scope"] == "scene" and batch["data"]["decision"] == "target reached"
-    assert batch["message"] == (f"batch 1: 4 samples, error in the scene's use <= 10000 with 80 % confidence "
-                                f"(median estimate {batch['data']['predicted_error']:.4g}): target reached")
+    assert batch["message"] == (f"batch 1: 4 samples, error in the scene's use <= {batch['data']['bound']:.3g} with "
+                                f"80 % confidence (median estimate {batch['data']['predicted_error']:.3g}), within the "
+                                f"target 10000: target reached")
     # the bound is the scene's: its own calibration, not the model's
     scene = from_plan(json.loads(path.read_text()), model)
     rows = model.grid.valid_position(np.array([GRID.flat_index(*json.loads(path.read_text())["samples"][r.plan_index]
