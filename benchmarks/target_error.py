@@ -211,6 +211,7 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
                             "out_at_end": int(sum(s["out_of_model"] for s in group))}
         for key, row in rows.items():
             row |= efficiency(folds, row["target"], row["sentinels"], row["bound"])
+            row["ideal_over_oracle"] = ideal_over_oracle(folds, row["target"])
         by_m = {}
         for m in sorted({r["m"] for r in per_m}):
             group = [r for r in per_m if r["m"] == m]
@@ -273,6 +274,30 @@ def efficiency(folds: list, target: float, sentinels, kind: str = "split") -> di
             "oracle_materials": len(oracle), "oracle_samples": float(np.mean(oracle)) if oracle else None,
             "samples_used": float(np.mean(used)) if used else None,
             "over_oracle": float(np.sum(used) / np.sum(oracle)) if oracle else None}
+
+
+IDEAL_RHO = (1.5, 2.0, 2.5, 3.5)
+
+
+def ideal_over_oracle(folds: list, target: float) -> dict:
+    """{rho: samples / oracle's} of an ideal rule whose bound is rho x the true error for every
+    material (it stops at the first batch where rho x true error <= target; the whole plan when
+    none), over the materials the oracle stops (the per-m rows' true errors): what a bound that
+    sharp could save at best."""
+    used = {rho: 0 for rho in IDEAL_RHO}
+    oracle = 0
+    for fold in folds:
+        curve = {}
+        for r in fold["per_m"]:
+            curve.setdefault(r["material"], []).append((r["m"], r["mse"]))
+        for path in map(sorted, curve.values()):
+            first = next((m for m, mse in path if mse <= target), None)
+            if first is None:
+                continue
+            oracle += first
+            for rho in IDEAL_RHO:
+                used[rho] += next((m for m, mse in path if rho * mse <= target), path[-1][0])
+    return {f"{rho:g}": used[rho] / oracle if oracle else None for rho in IDEAL_RHO}
 
 
 def _said(sentinels) -> str:
