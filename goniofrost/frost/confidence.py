@@ -25,6 +25,15 @@ training materials of training's inner cross-validation (``calibration.py``):
 The median estimate is predicted * exp(c_m). c_m and s_m between the calibrated m are
 interpolated in log m (clamped at the ends).
 
+Other kinds of bound (BOUND_KINDS) are calibrated beside it and measured by the benchmark, not
+used (BOUND_KIND; docs/decisions/0100-a-sharper-bound.md): "normalised" (the residual over a
+spread fitted to the samples' features), "per-look" (a quantile per m: sharper, and it under-
+covered across databases) and "per-look-tuned"; ``bound["choice"]`` records each one's coverage
+and sharpness on nested inner folds of the training materials.
+
+``figure`` words the one error statement every output makes ("error <= B with C % confidence
+(median estimate X)").
+
 Out of the model: the features the prediction is made from are z2 (the samples' leave-one-out
 residuals against their model variance) and the coefficient energy. The calibration records the
 largest of each among the held-out training materials at every m; samples whose z2 or energy
