@@ -246,8 +246,8 @@ def test_snap_of_the_simulated_white_card_finds_its_four_markers(tmp_path, capsy
     assert doc["capture_exposures_s"] and doc["roi_saturated_fraction"] == 0.0
     import cv2
     image = cv2.imread(str(out))
-    # the half-resolution frame, and the legend's band of 3 lines under it; nothing saturated: no red
-    assert image is not None and image.shape == (300 + 3 * 16 + 6, 400, 3)
+    # the half-resolution frame, and the legend's band of 4 lines under it; nothing saturated: no red
+    assert image is not None and image.shape == (300 + 4 * 16 + 6, 400, 3)
     assert not (image[:300] == (0, 0, 255)).all(axis=-1).any()
 
 

@@ -227,11 +227,12 @@ def _legend(pixels, med, p99, saturated) -> list[str]:
     """The picture's legend: the colours' meaning and the levels the snap prints (R/G/B, fraction of
     full scale)."""
     def triple(values):
-        return " / ".join("-" if v is None else f"{v:.3f}" for v in values)
+        return "/".join("-" if v is None else f"{v:.3f}" for v in values)
 
-    return ["green: region of interest; yellow: markers; red: saturated pixels",
+    return ["green: region of interest; yellow: markers; red: saturated",
             f"saturated {100 * saturated[0]:.2f} % of the frame, {100 * saturated[1]:.2f} % of the region",
-            f"region median R/G/B {triple(med)}, 99th percentile {triple(p99)} (of full scale)"]
+            f"region R/G/B median {triple(med)}, p99 {triple(p99)}",
+            "(levels: fraction of full scale)"]
 
 
 def _write_png(raw, mask, found: dict, out: Path, clipped=None, legend=()) -> None:
@@ -247,18 +248,18 @@ def _write_png(raw, mask, found: dict, out: Path, clipped=None, legend=()) -> No
     rgb = bayer_rgb(raw.linear, raw.channels)
     top = float(np.percentile(rgb, 99.5)) or 1.0
     image = np.ascontiguousarray((np.clip(rgb / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)[..., ::-1])
+    if clipped is not None:  # a 2 x 2 block with any clipped pixel shows red, under the outlines
+        block = clipped[:h, :w].reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3))
+        image[block] = (0, 0, 255)
     if mask is not None:
         contours, _ = cv2.findContours(mask[:h:2, :w:2].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.polylines(image, contours, True, (0, 220, 0), 1, cv2.LINE_AA)
     for corners in found.values():
         cv2.polylines(image, [np.rint((corners + 0.5) / 2).astype(np.int32)], True, (0, 220, 255), 1, cv2.LINE_AA)
-    if clipped is not None:  # a 2 x 2 block with any clipped pixel shows red
-        block = clipped[:h, :w].reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3))
-        image[block] = (0, 0, 255)
     if legend:
         band = np.full((16 * len(legend) + 6, image.shape[1], 3), 255, np.uint8)
         for k, line in enumerate(legend):
-            cv2.putText(band, line, (4, 16 * k + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+            cv2.putText(band, line, (4, 16 * k + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.37, (0, 0, 0), 1, cv2.LINE_AA)
         image = np.concatenate([image, band], axis=0)
     ok, data = cv2.imencode(".png", image)
     write_bytes_atomic(out, data.tobytes())
