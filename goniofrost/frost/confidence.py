@@ -299,11 +299,19 @@ def _nested_choice(records, r, ms, looks, x, factor: float = 1.0, confidence: fl
                 covered[kind].append(not miss[records.material[held] == material].any())
             at = records.m[held] == near
             ratio[kind] += list(np.exp(log_upper[at] - r[held][at]))
+    # None for a ratio without a finite bound (too few materials for the confidence): JSON has no inf
     out = {k: {"simultaneous_coverage": float(np.mean(covered[k])),
-               "median_bound_over_actual": float(np.median(ratio[k])), "at_m": int(near)} for k in BOUND_KINDS}
-    fine = [k for k in BOUND_KINDS if out[k]["simultaneous_coverage"] >= confidence - CHOICE_SLACK]
+               "median_bound_over_actual": _finite_or_none(np.median(ratio[k])), "at_m": int(near)}
+           for k in BOUND_KINDS}
+    fine = [k for k in BOUND_KINDS if out[k]["simultaneous_coverage"] >= confidence - CHOICE_SLACK
+            and out[k]["median_bound_over_actual"] is not None]
     out["chosen"] = min(fine, key=lambda k: out[k]["median_bound_over_actual"]) if fine else "split"
     return out
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def _tuned_factor(records, r, ms, looks, confidence: float = 0.95) -> float:
