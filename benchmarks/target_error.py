@@ -51,13 +51,15 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from goniofrost.bench import bayes_eval  # noqa: E402
-from goniofrost.frost import sentinel  # noqa: E402
+from goniofrost.frost import confidence, sentinel  # noqa: E402
 from goniofrost.bench.config import BenchConfig, fold_split  # noqa: E402
 from goniofrost.bench.data import open_tables, tables_path  # noqa: E402
 from goniofrost.core.grid import MerlGrid  # noqa: E402
 from goniofrost.frost import stopping  # noqa: E402
 
-DATA = REPO.parent / "shared" / "data"
+# The shared data beside the checkout (a worktree one level deeper: /work/wt/NAME beside /work/shared)
+DATA = next((p / "shared" / "data" for p in REPO.parents if (p / "shared" / "data").is_dir()),
+            REPO.parent / "shared" / "data")
 MERL, RGL = f"nbrdf:{DATA / 'nbrdf_merl.npz'}", f"nbrdf:{DATA / 'nbrdf_rgl.npz'}"
 SETTINGS = ("split", "builtin", "merl-rgl", "rgl-merl")
 TARGETS = (0.01, 0.02, 0.05)
@@ -65,6 +67,8 @@ TARGETS = (0.01, 0.02, 0.05)
 # (materials, cells, 3) arrays each, so all 100 MERL materials of rgl-merl at the full grid held
 # 7.5 GB between calls and peaked at 13.7 GB (BENCHMARKS.md@8b3941b, "Issue 28 at the full grid").
 CHUNK = 20
+# The bound's kinds every non-rig fold measures (docs/decisions/0100-a-sharper-bound.md)
+KINDS = confidence.BOUND_KINDS
 
 
 def folds_of(setting: str, grid: MerlGrid, folds: int):
@@ -98,10 +102,18 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     model = fit_model(np.asarray(train), train_names, grid, k_max=60)
     order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
     variants = [(False, model, False, None, order)]
+    variants += [((False, kind), bayes_eval.with_bound_kind(model, kind), False, None, order)
+                 for kind in KINDS if kind != bound_kind(model)]
     if sentinel.calibrated_cells(model).size:
         variants.append((True, model, True, None, order))
     stops, per_m = evaluate(variants, model, order, test, test_names, targets, confidence, m_max)
-    return {"stops": stops, "per_m": per_m, "calibration_materials": len(model.noise["calibration"]["bound"]["scores"])}
+    return {"stops": stops, "per_m": per_m, "calibration_materials": len(model.noise["calibration"]["bound"]["scores"]),
+            "bound_choice": model.noise["calibration"]["bound"].get("choice")}
+
+
+def bound_kind(model) -> str:
+    """The kind of bound (``confidence.BOUND_KINDS``) the model's captures stop on."""
+    return model.noise["calibration"]["bound"].get("kind", "split")
 
 
 def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, mask) -> dict:
@@ -145,8 +157,9 @@ def evaluate(variants, per_m_model, per_m_order, test, test_names, targets, conf
         truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
         stops += stop_rows(variants, truth, per_m_model.to_log(truth), names, targets, confidence)
         per_m += per_m_rows(per_m_model, per_m_order, truth, names, m_max, confidence)
-    labels = [label for label, *_ in variants]  # stable sorts: the chunks are in the materials' order
-    stops.sort(key=lambda r: (targets.index(r["target"]), labels.index(r["sentinels"])))
+    # stable sorts: the chunks are in the materials' order
+    labels = [label if isinstance(label, tuple) else (label, bound_kind(model)) for label, model, *_ in variants]
+    stops.sort(key=lambda r: (targets.index(r["target"]), labels.index((r["sentinels"], r["bound"]))))
     per_m.sort(key=lambda r: r["m"])
     return stops, per_m
 
@@ -159,8 +172,9 @@ def stop_rows(variants, truth, truth_log, test_names, targets, confidence) -> li
         for label, model, checked, cells, order in variants:
             out = bayes_eval.target_outcomes(model, order, truth, truth_log, target, confidence, sentinels=checked,
                                              sentinel_cells=cells)
-            rows += [{"material": name, "target": target, "sentinels": label, **{k: float(out[k][i]) for k in STOP_FIELDS}}
-                     for i, name in enumerate(test_names)]
+            sentinels, kind = label if isinstance(label, tuple) else (label, bound_kind(model))
+            rows += [{"material": name, "target": target, "sentinels": sentinels, "bound": kind,
+                      **{k: float(out[k][i]) for k in STOP_FIELDS}} for i, name in enumerate(test_names)]
     return rows
 
 
@@ -168,7 +182,7 @@ def per_m_rows(model, order, truth, test_names, m_max, confidence) -> list[dict]
     """The bound and median estimate of every test material at every batch end of the design."""
     rows, truth_log = [], model.to_log(truth)
     for m in stopping.batch_ends(m_max):
-        out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence)
+        out = bayes_eval.bound_rows(model, order[:m], truth, truth_log, confidence, KINDS)
         rows += [{"material": name, "m": m, **{k: float(out[k][i]) for k in out}} for i, name in enumerate(test_names)]
     return rows
 
@@ -180,11 +194,14 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
         stops = [s for f in folds for s in f["stops"]]
         per_m = [r for f in folds for r in f["per_m"]]
         rows = {}
-        for checked, target in sorted({(s.get("sentinels", False), s["target"]) for s in stops}):
-            group = [s for s in stops if s["target"] == target and s.get("sentinels", False) == checked]
+        for checked, kind, target in sorted({(s.get("sentinels", False), s.get("bound", "split"), s["target"])
+                                             for s in stops}, key=lambda t: (str(t[0]), t[1] != "split", t[1], t[2])):
+            group = [s for s in stops if s["target"] == target and s.get("sentinels", False) == checked
+                     and s.get("bound", "split") == kind]
             hit = [s for s in group if s["reached"]]
             label = checked if isinstance(checked, str) else "sentinels" if checked else ""
-            rows[f"{target:g} {label}".strip()] = {"target": target, "sentinels": checked,
+            label += "" if kind == "split" else f" {kind}"
+            rows[f"{target:g} {label}".strip()] = {"target": target, "sentinels": checked, "bound": kind,
                             "sentinel_flagged": int(sum(s.get("ever_sentinel", 0) for s in group)),
                             "materials": len(group), "stopped_on_target": len(hit),
                             "within_when_stopped": float(np.mean([s["mse"] <= target for s in hit])) if hit else None,
@@ -192,6 +209,9 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
                             "mean_samples": float(np.mean([s["samples"] for s in group])), "plan": m_max,
                             "ever_out": int(sum(s["ever_out"] for s in group)),
                             "out_at_end": int(sum(s["out_of_model"] for s in group))}
+        for key, row in rows.items():
+            row |= efficiency(folds, row["target"], row["sentinels"], row["bound"])
+            row["ideal_over_oracle"] = ideal_over_oracle(folds, row["target"])
         by_m = {}
         for m in sorted({r["m"] for r in per_m}):
             group = [r for r in per_m if r["m"] == m]
@@ -215,21 +235,101 @@ def summary(results: dict, m_max: int, confidence: float) -> dict:
     return out
 
 
+RATIO_M = (20, 40)  # the looks at which the bound's sharpness (bound / actual) is reported
+
+
+def efficiency(folds: list, target: float, sentinels, kind: str = "split") -> dict:
+    """How much the rule saves at ``target``, from a setting's fold rows (each with its "stops"
+    and "per_m"): "clearly_could" (materials whose true error with the whole plan is <= target / 2),
+    "clearly_could_stopped" (of those, how many stopped on the target), "bound_over_actual"
+    ({m: median of bound / true error} over every material at m in RATIO_M), "oracle_materials"
+    (materials an oracle stops: some batch's true error is <= target), "oracle_samples" and
+    "samples_used" (their mean samples: the oracle's at its first such batch, the rule's) and
+    "over_oracle" (the ratio). The bound of the per-m rows is the unchecked one for a run without
+    sentinels (their "upper_unchecked"), the checked one with them. The per-m rows are of the design the stop rows of ``sentinels``
+    measured (for a rig run: the "rig" variant's)."""
+    could = stopped = 0
+    upper = "upper" if sentinels in (True, "approx", "rig") else "upper_unchecked"
+    kinds = {r.get("bound", "split") for f in folds for r in f["stops"] if r.get("sentinels", False) is False}
+    upper = f"upper_{kind}" if len(kinds) > 1 and upper == "upper_unchecked" else upper
+    used, oracle, ratios = [], [], {m: [] for m in RATIO_M}
+    for fold in folds:
+        curve = {}
+        for r in fold["per_m"]:
+            curve.setdefault(r["material"], []).append((r["m"], r["mse"]))
+            if r["m"] in ratios and r["mse"] > 0:  # the bound the stop rows used: with the check cells or not
+                ratios[r["m"]].append(r[upper] / r["mse"])
+        for s in fold["stops"]:
+            if s["target"] != target or s.get("sentinels", False) != sentinels or s.get("bound", "split") != kind:
+                continue
+            path = sorted(curve[s["material"]])
+            if path[-1][1] <= target / 2:
+                could, stopped = could + 1, stopped + int(s["reached"])
+            first = next((m for m, mse in path if mse <= target), None)
+            if first is not None:
+                oracle.append(first), used.append(s["samples"])
+    return {"clearly_could": could, "clearly_could_stopped": stopped,
+            # 4 digits: the per-m floats differ by ~1e-6 of themselves with the chunking (float32 blocking)
+            "bound_over_actual": {str(m): float(f"{np.median(v):.4g}") if v else None for m, v in ratios.items()},
+            "oracle_materials": len(oracle), "oracle_samples": float(np.mean(oracle)) if oracle else None,
+            "samples_used": float(np.mean(used)) if used else None,
+            "over_oracle": float(np.sum(used) / np.sum(oracle)) if oracle else None}
+
+
+IDEAL_RHO = (1.5, 2.0, 2.5, 3.5)
+
+
+def ideal_over_oracle(folds: list, target: float) -> dict:
+    """{rho: samples / oracle's} of an ideal rule whose bound is rho x the true error for every
+    material (it stops at the first batch where rho x true error <= target; the whole plan when
+    none), over the materials the oracle stops (the per-m rows' true errors): what a bound that
+    sharp could save at best."""
+    used = {rho: 0 for rho in IDEAL_RHO}
+    oracle = 0
+    for fold in folds:
+        curve = {}
+        for r in fold["per_m"]:
+            curve.setdefault(r["material"], []).append((r["m"], r["mse"]))
+        for path in map(sorted, curve.values()):
+            first = next((m for m, mse in path if mse <= target), None)
+            if first is None:
+                continue
+            oracle += first
+            for rho in IDEAL_RHO:
+                used[rho] += next((m for m, mse in path if rho * mse <= target), path[-1][0])
+    return {f"{rho:g}": used[rho] / oracle if oracle else None for rho in IDEAL_RHO}
+
+
 def _said(sentinels) -> str:
     """The sentinels column: yes / no, or a rig run's variant (no, approx, rig)."""
     return sentinels if isinstance(sentinels, str) else "yes" if sentinels else "no"
 
 
+def _efficiency_cells(r: dict) -> str:
+    """The three efficiency columns of a target's row (``efficiency``)."""
+    if "clearly_could" not in r:
+        return "n/a | n/a | n/a"
+    could = f"{r['clearly_could_stopped']} of {r['clearly_could']}"
+    ratio = "; ".join("n/a" if v is None else f"{v:.2f}" for v in r["bound_over_actual"].values())
+    oracle = "n/a" if r["over_oracle"] is None else (f"{r['samples_used']:.1f} / {r['oracle_samples']:.1f} = "
+                                                     f"{r['over_oracle']:.2f} ({r['oracle_materials']})")
+    return f"{could} | {ratio} | {oracle}"
+
+
 def markdown(stats: dict) -> str:
-    lines = ["| setting | E | sentinels | materials | stopped on the target | of those, true error <= E | all: true error <= E "
-             "| mean samples / plan | out of the model (any look / at the end) | flagged by the sentinels |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| setting | E | sentinels; bound | materials | stopped on the target | of those, true error <= E | all: true error <= E "
+             "| mean samples / plan | out of the model (any look / at the end) | flagged by the sentinels "
+             "| clearly could (end <= E/2): stopped | bound / actual, median at m = 20; 40 "
+             "| samples used / oracle's (materials the oracle stops) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for setting, s in stats.items():
         for r in s["targets"].values():
             within = "n/a" if r["within_when_stopped"] is None else f"{100 * r['within_when_stopped']:.1f} %"
-            lines.append(f"| {setting} | {r['target']:g} | {_said(r.get('sentinels'))} | {r['materials']} | {r['stopped_on_target']} | {within} | "
+            kind = "" if r.get("bound", "split") == "split" else f"; {r['bound']}"
+            lines.append(f"| {setting} | {r['target']:g} | {_said(r.get('sentinels'))}{kind} | {r['materials']} | {r['stopped_on_target']} | {within} | "
                          f"{100 * r['within_all']:.1f} % | {r['mean_samples']:.1f} / {r['plan']} | "
-                         f"{r['ever_out']} / {r['out_at_end']} | {r.get('sentinel_flagged', 0)} |")
+                         f"{r['ever_out']} / {r['out_at_end']} | {r.get('sentinel_flagged', 0)} | "
+                         + _efficiency_cells(r) + " |")
     lines += ["", "| setting | m | median estimate within x2 (checked; unchecked) | true error <= bound (checked; "
               "unchecked) | out of the model "
               "| features beyond 95 % of training: of the bound's misses / of the rest "
@@ -249,6 +349,19 @@ def markdown(stats: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def resummarise(source: Path, out: Path) -> int:
+    """Write OUT/target_error.json and .md from the rows of ``source`` (a target_error.json)."""
+    doc = json.loads(source.read_text())
+    plan = next(iter(next(iter(doc["summary"].values()))["targets"].values()))["plan"]
+    confidence = next(iter(doc["summary"].values()))["confidence"]
+    doc["summary"] = summary(doc["results"], plan, confidence)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "target_error.json").write_text(json.dumps(doc, indent=1))
+    (out / "target_error.md").write_text(markdown(doc["summary"]))
+    print(markdown(doc["summary"]))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grid", default="45,45,90", help="NTH,NTD,NPD (default 45,45,90; full: 90,90,180)")
@@ -261,7 +374,14 @@ def main(argv=None) -> int:
                         help="a rig file: designs among the cells it can measure, and its sentinels placed for it "
                              "against calibrated among its cells (run_rig_fold)")
     parser.add_argument("--out", type=Path, required=True, help="folder: target_error.json, target_error.md")
+    parser.add_argument("--kinds", default=",".join(confidence.BOUND_KINDS),
+                        help="the bound's kinds measured (confidence.BOUND_KINDS; default all)")
+    parser.add_argument("--summarise", type=Path, default=None,
+                        help="a target_error.json written before: its summary and table again from its rows "
+                             "(no simulation; the other options but --out are ignored)")
     args = parser.parse_args(argv)
+    if args.summarise is not None:
+        return resummarise(args.summarise, args.out)
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     rig_mask = None
     if args.rig is not None:
@@ -270,6 +390,8 @@ def main(argv=None) -> int:
 
         rig_mask = reachability(load_checked_rig(args.rig), grid).mask
     targets = tuple(float(v) for v in args.targets.split(","))
+    global KINDS
+    KINDS = tuple(args.kinds.split(","))
     args.out.mkdir(parents=True, exist_ok=True)
     results, started = {}, time.time()
     for setting in args.settings.split(","):

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from goniofrost.core.grid import MerlGrid
-from goniofrost.frost import bayes_selection, noise, posterior, prediction, stopping
+from goniofrost.frost import bayes_selection, confidence, noise, posterior, prediction, stopping
 from goniofrost.frost.bayes_selection import greedy_design, greedy_designs, select_bayes
 from goniofrost.frost.model import FrostModel, ModelError
-from goniofrost.frost.reconstruction import reconstruct, reconstruct_bayes
+from goniofrost.frost.reconstruction import error_bound, reconstruct, reconstruct_bayes
 from goniofrost.frost.selection import SelectionError
 from goniofrost.frost.training import _map_and_gram
 from goniofrost.core.grid import cosine_weight
@@ -596,7 +596,8 @@ def test_the_stopping_rule_and_its_replay_from_journaled_samples():
     assert stopping.stop_reason(bound(0.06, median=0.01), 0.05, 15, 40) is None
     assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 15, 40) is None
     assert stopping.stop_reason(bound(0.01, out=("z2",)), 0.05, 40, 40) == stopping.REASON_PLAN
-    assert stopping.statement(bound(0.04, 0.012), 0.05) == "error <= 0.05 with 95 % confidence (median estimate 0.012)"
+    assert stopping.statement(bound(0.04, 0.012), 0.05) == ("error <= 0.04 with 95 % confidence (median estimate 0.012), "
+                                                           "within the target 0.05")
     assert stopping.statement(bound(0.07, 0.012), 0.05) == ("error <= 0.07 with 95 % confidence, above the target 0.05 "
                                                             "(median estimate 0.012)")
     assert stopping.statement(bound(0.01, out=("z2",)), 0.05) == (
@@ -673,7 +674,10 @@ def test_plan_bayes_and_reconstruct_with_uncertainty_commands(model, tables, tmp
     assert np.isnan(std[~GRID.valid_mask]).all()
     np.testing.assert_allclose(read_merl(out, GRID)[GRID.valid_cells], expected.brdf, rtol=1e-12)
     record = json.loads((tmp_path / "rec.json").read_text())
-    assert record["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    # the one error figure (the point prediction before centring is report.json's alone)
+    bound = error_bound(model, positions, truth[positions], 0.05 * truth[positions])
+    assert record["error_figure"] == confidence.figure_of(bound) and "predicted_log_relative_mse" not in record
+    assert record["median_estimate"] == bound.median and record["confidence"] == 0.95
     assert record["std"] == "rec.std.binary" and record["cells"] == 12
     # the paper's ridge stays available, and writes only the BRDF
     ridge = tmp_path / "ridge.binary"

@@ -105,8 +105,9 @@ def test_json_numbers_are_the_comparisons(tmp_path, capsys, inputs):
     assert main(["compare", str(session), str(gold), "--out", str(out), "--size", "24", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     direct = compare.compare_files([session / "brdf.binary", gold], ["S-001", "gold.binary"], size=24)
-    assert doc["inputs"] == [{"key": "A", "label": "S-001", "path": str(session / "brdf.binary")},
-                             {"key": "B", "label": "gold.binary", "path": str(gold)}]
+    assert doc["inputs"] == [{"key": "A", "label": "S-001", "path": str(session / "brdf.binary"),
+                              "error_figure": preview.record_figure(session / "brdf.binary")},
+                             {"key": "B", "label": "gold.binary", "path": str(gold), "error_figure": None}]
     pair = doc["pairs"][0]
     assert pair["rendering_snr_db"]["b_against_a"] == round(direct.snr_db[0, 1], 6)
     assert pair["rendering_snr_db"]["a_against_b"] == round(direct.snr_db[1, 0], 6)

@@ -182,9 +182,18 @@ def test_the_benchmark_runs_at_its_smallest_setting(tmp_path, fit_once):
                        "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "target_error.json").read_text())
     stats = doc["summary"]["builtin"]
-    # every target without and with the sentinels (3 more samples, measured with the first batch)
-    assert sorted((r["target"], r["sentinels"]) for r in stats["targets"].values()) == [
-        (0.01, False), (0.01, True), (0.02, False), (0.02, True), (0.05, False), (0.05, True)]
+    # every target without and with the sentinels (3 more samples, measured with the first batch), and
+    # without them with every other kind of bound
+    assert sorted((r["target"], r["sentinels"], r["bound"]) for r in stats["targets"].values()) == [
+        (t, s, k) for t in (0.01, 0.02, 0.05) for s, k in ((False, "normalised"), (False, "per-look"),
+                                                            (False, "per-look-tuned"), (False, "split"),
+                                                            (True, "split"))]
+    for row in stats["targets"].values():  # the efficiency beside the coverage
+        assert 0 <= row["clearly_could_stopped"] <= row["clearly_could"] <= row["materials"]
+        assert row["oracle_materials"] <= row["materials"] and set(row["bound_over_actual"]) == {"20", "40"}
+        assert row["over_oracle"] is None or row["over_oracle"] * row["oracle_samples"] == \
+            pytest.approx(row["samples_used"])
+        assert row["oracle_samples"] is None or 15 <= row["oracle_samples"] <= 20
     assert sorted(int(m) for m in stats["by_m"]) == [15, 20]
     for row in stats["targets"].values():
         extra = 3 if row["sentinels"] else 0
@@ -279,3 +288,52 @@ def test_a_trained_model_records_its_held_out_materials_prequential_scores(model
     q = math.exp(bound["log_prequential_q95"][2])
     assert confidence.prequential_excess(calibration, [q, 3 * q], bound["m"][2]) == pytest.approx([1.0, 3.0])
     assert np.isnan(confidence.prequential_excess({"bound": {"scores": [1.0]}}, 1.0, 20))
+
+
+def test_plan_max_error_chooses_its_length_on_the_bound_a_capture_stops_on(model, tmp_path, capsys):
+    """plan --max-error E (bayes) ends at the first pick whose typical material's bound at the plan's
+    confidence is <= E: a capture of that material (the assessor's ``error_bound``: the same
+    features, its samples along that plan) stops there with --target-error E, not one batch before;
+    the command prints that bound and the training materials' spread. The model's 40 synthetic
+    materials and a test material of the same kind have known truths."""
+    from goniofrost.app.cli import main
+    from goniofrost.bench.bayes_eval import target_outcomes
+    from goniofrost.frost.bayes_selection import select_bayes, typical_bound
+    from goniofrost.frost.prediction import calibration_of
+
+    calibration = calibration_of(model)
+    full = select_bayes(model, 40, confidence=0.95)  # a design of m picks: its first m are the m-pick design
+    assert full.bounds.shape == (40,)
+    target = float(full.bounds[19])  # the typical material's bound after 20 picks
+    plan = select_bayes(model, max_error=target, confidence=0.95)
+    first = int(np.argmax(full.bounds <= target)) + 1
+    assert plan.m == first and plan.bounds[-1] <= target < plan.bounds[-2]
+    assert list(plan.positions) == list(full.positions[:first])
+    # the bound is the capture's: confidence.error_bounds of a typical material's prediction at m
+    for m in (first - 1, first):
+        said = typical_bound(calibration, plan.residuals[m - 1], m, 0.95)
+        assert said == pytest.approx(plan.bounds[m - 1], rel=1e-12)
+        bound = confidence.ErrorBound(float(plan.residuals[m - 1]), float(said), 0.95)
+        stopped = stopping.stop_reason(bound, target, m, first) == stopping.REASON_TARGET
+        assert stopped == (m == first)  # plan and capture agree on where the target is reached
+    # a point prediction alone would have chosen a shorter plan (the issue's 25 samples for 0.02)
+    assert int(np.argmax(full.residuals <= target)) + 1 < first
+    # materials of the training set's kind, truth known: captured along the plan at --target-error
+    truth = synthetic_tables(GRID, 6, seed=11).astype(np.float64)
+    out = target_outcomes(model, np.asarray(plan.positions), truth, model.to_log(truth), target, 0.95)
+    assert out["samples"].max() <= first and all(out["mse"][out["reached"] == 1] <= target)
+    # the command: the same length, the bound it chose on and the training materials' spread
+    model.save(tmp_path / "model")
+    assert main(["plan", "--model", str(tmp_path / "model"), "--max-error", f"{target!r}", "--no-sentinels",
+                 "--out", str(tmp_path / "plan.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    spread = confidence.training_spread(calibration, first, 0.95)
+    assert lines[-1] == (f"a typical material at {first} samples: "
+                         f"{confidence.figure(plan.bounds[-1], 0.95, plan.residuals[-1])}; the training materials' "
+                         f"bounds at {first} samples: 10 % {spread[0]:.3g}, median {spread[1]:.3g}, 90 % {spread[2]:.3g}")
+    assert spread[0] <= spread[1] <= spread[2]
+    assert main(["plan", "--model", str(tmp_path / "model"), "--samples", "5", "--confidence", "0.9",
+                 "--out", str(tmp_path / "p2.json")]) == 2
+    assert capsys.readouterr().err.strip().endswith("--confidence applies to --max-error with --selector bayes "
+                                                    "without --usage (the confidence of the bound the plan's length "
+                                                    "is chosen on)")

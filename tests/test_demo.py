@@ -35,8 +35,8 @@ def test_demo_writes_a_full_merl_file_a_preview_and_a_report(tmp_path):
     # no more than 20 % above reconstructing the same cells from exact values (1.05 measured; 1.29
     # with the noisier simulated camera before the camera-model calibration)
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
-    predicted = truth["predicted_log_relative_mse"]
-    assert predicted == report["prediction"]["predicted_log_relative_mse"]
+    predicted = truth["point_prediction_before_centring"]
+    assert predicted == report["prediction"]["point_prediction_before_centring"]
     assert 0.5 <= predicted / truth["log_relative_mse"] <= 2  # the "within a factor 2"
     assert (out / "session" / "brdf.std.binary").is_file()
     assert report["demo"]["rendering_snr_db"] > 10

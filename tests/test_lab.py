@@ -117,8 +117,8 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert (measured["sample_id"], measured["operator"], measured["notes"], measured["lens"]) == (
         "S-002", "A. Operator", ["second coat"], LAB["lens"])
     assert measured["rig"]["name"] == "sim-rig" and measured["model"] == report["model"]
-    assert measured["predicted_log_relative_mse"] == record["predicted_log_relative_mse"] == \
-        report["prediction"]["predicted_log_relative_mse"]
+    assert measured["error_figure"] == record["error_figure"] == report["prediction"]["error_figure"]
+    assert "predicted_log_relative_mse" not in measured and "predicted_log_relative_mse" not in record
     assert measured["started_utc"] == runs[0][0].started_utc and measured["goniofrost_version"] == "0.1.0"
 
     listed = sessions_json(root, capsys)
@@ -128,7 +128,8 @@ def test_a_two_sample_queue_calibrates_once_rewhites_between_samples_and_survive
     assert listed[1]["notes"] == ["second coat"] and listed[1]["material"] == "builtin:green-felt"
     # the catalogue's figure is the median estimate, as a running capture's batches show it
     assert listed[1]["predicted_error"] == report["prediction"]["median_estimate"] != \
-        report["prediction"]["predicted_log_relative_mse"]
+        report["prediction"]["point_prediction_before_centring"]
+    assert listed[1]["error_figure"] == report["prediction"]["error_figure"]
 
 
 def test_a_lamp_that_drifted_past_the_queues_limit_calibrates_the_next_sample_in_full(setup, tmp_path, capsys,
@@ -269,7 +270,7 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     assert main(["sessions", str(root)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == ["session", "started", "(UTC)", "operator", "sample", "state", "samples",
-                                "predicted", "error", "duration"]
+                                "error", "(log-relative", "MSE)", "duration"]
     assert lines[1].startswith("a-target") and " B. Operator " in lines[1] and " target reached " in lines[1]
 
     # a resume with another sample id: one line, exit 2, nothing changed (no run, no event, same label)
@@ -290,7 +291,8 @@ def test_sessions_lists_states_from_the_run_end_and_a_resume_with_another_sample
     with Journal.open(session / "session.sqlite") as journal:
         assert journal.label() == SessionLabel(operator="A. Operator", sample_id="G-1", notes=("resumed",), **LAB)
     record = json.loads((session / "brdf.json").read_text())
-    assert record["coating"] == "by hand" and record["predicted_log_relative_mse"] > 0
+    # the earlier record's own fields kept, a superseded error figure not
+    assert record["coating"] == "by hand" and "predicted_log_relative_mse" not in record
     assert record["measurement"]["sample_id"] == "G-1" and record["measurement"]["notes"] == ["resumed"]
     assert [s["state"] for s in sessions_json(root, capsys)] == ["target reached", "finished"]
 
@@ -330,7 +332,8 @@ def test_a_killed_runs_duration_ends_at_its_own_last_sample_not_the_resumed_runs
     done = [SimpleNamespace(committed_utc=t) for t in (1004.0, 1006.0, 1035.0)]
     view = SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
                            nothing_measured=False, done=done, not_measured=[], label={}, material=None,
-                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, first_started_utc=1000.0,
+                           rig_name="sim-rig", plan=[{}] * 3, predicted_error=None, error_figure=None,
+                           first_started_utc=1000.0,
                            run_spans=((1000.0, None), (1030.0, 1040.0)), report=None)
     monkeypatch.setattr(catalogue, "read_session", lambda folder: view)
     assert catalogue.read_entry(tmp_path).duration_s == 6.0 + 10.0
@@ -347,8 +350,51 @@ def test_a_session_whose_report_flags_an_extrapolation_is_listed_so(monkeypatch,
         return SimpleNamespace(unreadable="", run_end=SimpleNamespace(status=RunStatus.FINISHED), capture_alive=False,
                                nothing_measured=False, done=[], not_measured=[], label={}, material=None,
                                rig_name="sim-rig", plan=[{}], predicted_error=0.5167, first_started_utc=None,
-                               run_spans=(), report={"prediction": {"extrapolation": flagged}})
-    for flagged, cell in ((True, "0.5167 (extrapolation)"), (False, "0.5167")):
+                               error_figure=said, run_spans=(), report={"prediction": {"extrapolation": flagged}})
+    said = "error <= 1.2 with 95 % confidence (median estimate 0.517)"
+    for flagged, cell in ((True, f"{said} (extrapolation)"), (False, said)):
         monkeypatch.setattr(catalogue, "read_session", lambda folder: view(flagged))
         entry = catalogue.read_entry(tmp_path)
         assert entry.extrapolation is flagged and catalogue.table_rows([entry])[0][6] == cell
+
+
+def test_the_error_figure_is_one_and_the_same_in_all_seven_outputs(setup, tmp_path, capsys):
+    """A small simulated capture with a target error: the summary, report.json, the preview's title,
+    the live page's state, `sessions`, brdf.json and `compare` each state the same sentence "error
+    <= B with C % confidence (median estimate X)"; the point prediction before centring is in
+    report.json alone, under that name."""
+    from PIL import Image
+
+    from goniofrost.frost import confidence
+
+    folder, rig, plan, _ = setup
+    root = tmp_path / "day"
+    session = root / "s-seven"
+    batched = batched_plan(tmp_path, rig, plan, [2, 4])
+    assert main(capture_args(rig, batched, session, "builtin:red-plastic", "--sample-id", "T-9",
+                             "--target-error", "10000", "--confidence", "0.8")) == 0
+    report = json.loads((session / "report.json").read_text())
+    prediction = report["prediction"]
+    said = prediction["error_figure"]
+    # the sentence is the bound's and the median estimate's, worded once
+    assert said == confidence.figure(prediction["bound"], 0.8, prediction["median_estimate"])
+    assert said.startswith("error <= ") and " with 80 % confidence (median estimate " in said
+    summary = (session / "summary.txt").read_text()
+    assert f"reconstruction (log-relative MSE): {said}" in summary.splitlines()
+    title = Image.open(session / "preview.png").text["Title"]
+    assert title.splitlines()[:2] == ["T-9, session s-seven vs builtin:red-plastic", said]
+    assert page_state(read_session(session), time.time())["error_figure"] == said
+    capsys.readouterr()
+    [listed] = sessions_json(root, capsys)
+    assert listed["error_figure"] == said
+    assert main(["sessions", str(root)]) == 0 and said in capsys.readouterr().out
+    record = json.loads((session / "brdf.json").read_text())
+    assert record["error_figure"] == record["measurement"]["error_figure"] == said
+    assert main(["compare", str(session), str(session / "brdf.binary"), "--out", str(tmp_path / "c.png"),
+                 "--size", "16", "--json"]) == 0
+    compared = json.loads(capsys.readouterr().out)
+    assert [i["error_figure"] for i in compared["inputs"]] == [said, said]
+    # the point prediction before centring: report.json only, named so
+    point = prediction["point_prediction_before_centring"]
+    assert point != prediction["median_estimate"] and "predicted_log_relative_mse" not in prediction
+    assert f"{point:.3g}" not in said and "predicted_log_relative_mse" not in json.dumps(record)

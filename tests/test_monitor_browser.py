@@ -172,8 +172,9 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
         journal._db.execute("UPDATE events SET t_utc = ?", (long_ago + 2,))
     with MonitorServer(tmp_path, port=0) as server:
         page.goto(server.url)
-        expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0421",
-                                                              timeout=LOADED_MS)
+        expect(page.locator("#predicted-error")).to_have_text(
+            "reconstruction (log-relative MSE): error <= 0.0873 with 95 % confidence (median estimate 0.0421)",
+            timeout=LOADED_MS)
         expect(page.locator("#assessment")).to_have_text(
             "after 2 samples: error <= 0.0873 with 95 % confidence, target 0.05 not reached yet (median estimate 0.0421)",
             timeout=LOADED_MS)
@@ -191,7 +192,8 @@ def test_a_recorded_predicted_error_is_shown_and_a_silent_session_is_called_stal
                 "batch": 0, "samples": 2, "predicted_error": 0.0121, "bound": 0.0305, "confidence": 0.95,
                 "target": 0.05, "decision": "target reached", "out_of_model": [], "scope": "scene"})
         expect(page.locator("#assessment")).to_have_text(
-            "error in the scene's use <= 0.05 with 95 % confidence (median estimate 0.0121)", timeout=LOADED_MS)
+            "error in the scene's use <= 0.0305 with 95 % confidence (median estimate 0.0121), within the target 0.05",
+            timeout=LOADED_MS)
 
 
 def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_step(page, tmp_path):
@@ -218,10 +220,12 @@ def test_a_target_reached_session_is_shown_finished_with_why_it_stopped_step_by_
                     expect(page.locator("#state")).to_have_text("running", timeout=LOADED_MS)
                 assert statuses(page) == ["done", "done", "next", "pending"]
                 script.batch(2, 0.0312, 0.05, "target reached", bound=0.0471)
-                expect(page.locator("#predicted-error")).to_have_text("predicted error (log-relative MSE): 0.0312",
-                                                                      timeout=LOADED_MS)
+                expect(page.locator("#predicted-error")).to_have_text(
+                    "reconstruction (log-relative MSE): error <= 0.0471 with 95 % confidence (median estimate 0.0312)",
+                    timeout=LOADED_MS)
                 expect(page.locator("#assessment")).to_have_text(
-                    "error <= 0.05 with 95 % confidence (median estimate 0.0312)", timeout=LOADED_MS)
+                    "error <= 0.0471 with 95 % confidence (median estimate 0.0312), within the target 0.05",
+                    timeout=LOADED_MS)
                 script.end_run(RunStatus.TARGET_REACHED, reason)
                 expect(page.locator("#state")).to_have_text("reconstructing", timeout=LOADED_MS)
                 script.write_report(0.0312)

@@ -98,6 +98,37 @@ def test_uncertainty_panel_shows_predicted_std_beside_the_actual_log_error(tmp_p
     assert f"predicted log-relative MSE 0.01, actual {actual:.4g}" in capsys.readouterr().out
 
 
+def test_every_false_colour_panel_has_a_colour_bar_with_units_read_back_from_the_png(tmp_path):
+    """The |error| x10 panel (a perceptual map, 0 to 1 display units) and the std / |log error| panels
+    (natural-log units, their shared scale) each have a colour bar; the PNG's Description names them,
+    and the title carries the caller's words (the sample, the session, the error figure)."""
+    from PIL import Image
+
+    ref, est, std = lambertian(), 0.9 * lambertian(), valid_to_full(np.full((GRID.n_valid, 3), 0.1), GRID)
+    preview = P.preview_of(est, GRID, ref, size=40, std=std)
+    title = "S-7, session s1\nerror <= 0.0123 with 95 % confidence (median estimate 0.00456)"
+    fig = P.preview_figure(preview, title)
+    bars = [ax for ax in fig.axes if ax.get_label() == "colour bar"]
+    assert [ax.get_xlabel() for ax in bars] == [P.ERROR_BAR, P.STD_BAR]
+    assert "display units" in P.ERROR_BAR and "natural-log units" in P.STD_BAR and P.ERROR_COLOURMAP == "viridis"
+    # the std and log error panels' shared scale: the 99th percentile of both (std 0.1, |log 0.9| ~ 0.105)
+    top = np.percentile(np.concatenate([m[m > 0] for m in (preview.std, preview.log_error)]), 99)
+    assert [ax.get_xlim() for ax in bars] == [(0.0, 1.0), (0.0, top)] and 0.1 < top < 0.11
+    assert fig._suptitle.get_text().startswith(title)
+    # the |error| panel's pixels are the colour map's colours of |ref - est| x10 at the reference's exposure
+    exposure = P.exposure_for(preview.reference)
+    value = P.error_display(preview, 0, exposure)
+    tile = P.compose(preview)[:40, 80:120]
+    lit = preview.reference[0].max(axis=-1) > 0
+    from matplotlib import colormaps
+    np.testing.assert_allclose(tile[lit], colormaps["viridis"](np.clip(value[lit], 0, 1))[:, :3])
+    P.write_png(tmp_path / "p.png", preview, title)
+    assert Image.open(tmp_path / "p.png").text["Description"] == f"{P.ERROR_BAR}; {P.STD_BAR}"
+    # without a reference or a std there is no false colour, and no colour bar
+    plain = P.preview_of(est, GRID, size=40)
+    assert P.colour_bars(P.preview_figure(plain)) == []
+
+
 def test_preview_to_a_name_that_is_not_png_is_refused_and_writes_nothing(tmp_path, capsys):
     est, jpg = tmp_path / "est.binary", tmp_path / "p.jpg"
     write_merl(est, lambertian(), GRID)

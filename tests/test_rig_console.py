@@ -261,7 +261,9 @@ def test_snap_of_the_simulated_white_card_finds_its_four_markers(tmp_path, capsy
     assert doc["capture_exposures_s"] and doc["roi_saturated_fraction"] == 0.0
     import cv2
     image = cv2.imread(str(out))
-    assert image is not None and image.shape == (300, 400, 3)
+    # the half-resolution frame, and the legend's band of 4 lines under it; nothing saturated: no red
+    assert image is not None and image.shape == (300 + 4 * 16 + 6, 400, 3)
+    assert not (image[:300] == (0, 0, 255)).all(axis=-1).any()
 
 
 def test_snap_at_a_pose_that_hides_the_card_reports_why(tmp_path, capsys):
@@ -292,6 +294,9 @@ def test_a_snap_at_an_exposure_that_shows_nothing_readable_says_so_and_exits_2(t
     assert doc["problem"] == why and doc["exposures_s"] == [float(exposure)] and out.is_file()
     if exposure == "4.096":
         assert doc["roi_saturated_fraction"] == 1.0 and doc["levels_median"] == [1.0, 1.0, 1.0]
+        import cv2
+        red = (cv2.imread(str(out))[:300] == (0, 0, 255)).all(axis=-1)  # the saturated pixels overlaid
+        assert red.mean() >= doc["saturated_fraction"] * 0.99
     assert main(argv) == 2
     assert f"problem: {why}" in capsys.readouterr().out.splitlines()
 

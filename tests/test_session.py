@@ -28,6 +28,7 @@ from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
 from goniofrost.app.cli import main
 from goniofrost.core.grid import MerlGrid
+from goniofrost.frost import confidence
 from goniofrost.capture.journal import Journal
 from goniofrost.capture.records import EventKind, RunStatus
 from goniofrost.brdf.merl_file import read_merl
@@ -148,7 +149,7 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     np.testing.assert_allclose(read_merl(session / "brdf.std.binary", GRID)[GRID.valid_cells], expected.std, rtol=1e-12)
 
     report = json.loads((session / "report.json").read_text())
-    assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert report["prediction"]["point_prediction_before_centring"] == pytest.approx(expected.predicted_error, rel=1e-12)
     assert report["prediction"]["calibrated"] is True and "uncalibrated" not in (session / "summary.txt").read_text()
     # every capture states its calibrated bound, as a target-error capture's last batch would
     from goniofrost.frost.reconstruction import error_bound
@@ -156,16 +157,16 @@ def test_session_journals_every_sample_once_reconstructs_and_reports(setup, tmp_
     assert bound.upper == np.inf  # this small model has no bound calibration at M samples
     assert (report["prediction"]["median_estimate"], report["prediction"]["bound"]) == (bound.median, None)
     assert report["ground_truth"]["median_estimate"] == bound.median
-    assert (f"error of this reconstruction: log-relative MSE, median estimate {bound.median:.4g} (no calibrated "
-            f"bound; point prediction {expected.predicted_error:.4g}; per-cell standard deviation in "
-            f"brdf.std.binary)") in (session / "summary.txt").read_text().splitlines()
+    assert (f"reconstruction (log-relative MSE): error: no bound at 95 % confidence (median estimate "
+            f"{bound.median:.3g})") in (session / "summary.txt").read_text().splitlines()
+    assert report["prediction"]["error_figure"] == confidence.figure_of(bound)
     assert "target_error" not in report
     assert report["samples"] == M and report["captured_this_run"] == M and report["runs"] == 1
     assert report["times_s"]["motion"] > 0 and report["times_s"]["capture"] > 0
     truth = report["ground_truth"]
     # the bar: no more than 20 % above reconstructing the same cells from exact values
     assert truth["log_relative_mse"] <= 1.2 * truth["log_relative_mse_exact_samples"]
-    assert truth["predicted_log_relative_mse"] == report["prediction"]["predicted_log_relative_mse"]
+    assert truth["point_prediction_before_centring"] == report["prediction"]["point_prediction_before_centring"]
     assert truth["sample_relative_error_median"] < 0.05
     import matplotlib.image
     from goniofrost.brdf.merl_file import valid_to_full
@@ -794,8 +795,9 @@ def test_target_error_stops_after_the_batch_that_reaches_it_and_records_why(setu
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == 4
     assert batch["data"]["confidence"] == 0.8 and batch["data"]["bound"] <= 10000 and batch["data"]["out_of_model"] == []
-    assert batch["message"] == (f"batch 1: 4 samples, error <= 10000 with 80 % confidence (median estimate "
-                                f"{batch['data']['predicted_error']:.4g}): target reached")
+    assert batch["message"] == (f"batch 1: 4 samples, error <= {batch['data']['bound']:.3g} with 80 % confidence "
+                                f"(median estimate {batch['data']['predicted_error']:.3g}), within the target 10000: "
+                                f"target reached")
     assert [s["kind"] for s in steps].count("Assess") == 1
     assert events[-1]["kind"] is EventKind.SESSION
     _start, end = journal_last_run(session)
@@ -867,8 +869,9 @@ def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_sce
         records, events = journal.samples(), journal.events()
     [batch] = [e for e in events if e["kind"] == "batch"]
     assert batch["data"]["scope"] == "scene" and batch["data"]["decision"] == "target reached"
-    assert batch["message"] == (f"batch 1: 4 samples, error in the scene's use <= 10000 with 80 % confidence "
-                                f"(median estimate {batch['data']['predicted_error']:.4g}): target reached")
+    assert batch["message"] == (f"batch 1: 4 samples, error in the scene's use <= {batch['data']['bound']:.3g} with "
+                                f"80 % confidence (median estimate {batch['data']['predicted_error']:.3g}), within the "
+                                f"target 10000: target reached")
     # the bound is the scene's: its own calibration, not the model's
     scene = from_plan(json.loads(path.read_text()), model)
     rows = model.grid.valid_position(np.array([GRID.flat_index(*json.loads(path.read_text())["samples"][r.plan_index]
@@ -879,7 +882,8 @@ def test_a_capture_of_a_plan_for_a_scene_judges_and_reports_the_error_in_the_sce
     report = json.loads((session / "report.json").read_text())
     target, scene_section = report["target_error"], report["prediction"]["scene"]
     assert (target["scope"], target["error"]) == ("scene", "error in the scene's use")
-    assert target["statement"].startswith("error in the scene's use <= 10000 with 80 % confidence (median estimate ")
+    assert target["statement"] == (f"error in the scene's use <= {target['bound']:.3g} with 80 % confidence (median "
+                                   f"estimate {target['median_estimate']:.3g}), within the target 10000")
     assert scene_section["predicted_log_relative_mse"] == pytest.approx(
         predicted_error(model, rows, values, sigmas, scene=scene))
     assert scene_section["calibrated"] and scene_section["usage_hash"] == "retro-20deg"
@@ -1118,7 +1122,7 @@ def test_a_sample_too_dark_for_the_ladder_is_journaled_not_measured_and_the_capt
     report = json.loads((session / "report.json").read_text())
     assert (report["samples"], report["plan_samples"]) == (4, M)
     assert report["prediction"]["samples_used"] == 4 and report["prediction"]["not_measured_left_out"] == 1
-    assert report["prediction"]["predicted_log_relative_mse"] == pytest.approx(expected.predicted_error, rel=1e-12)
+    assert report["prediction"]["point_prediction_before_centring"] == pytest.approx(expected.predicted_error, rel=1e-12)
     dark_section = report["not_measured"]
     assert (dark_section["count"], dark_section["indices"], dark_section["reasons"]) == (1, [0], {"below-detection-limit": 1})
     [listed] = dark_section["samples"]

@@ -99,8 +99,24 @@ def bayes_errors(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.
             "cover50": cover50, "cover90": cover90, "seconds": seconds}
 
 
+def with_bound_kind(model, kind: str):
+    """A shallow copy of ``model`` whose calibrations' bounds (and the checked one's) are of
+    ``kind`` (``confidence.BOUND_KINDS``): the benchmark's way to measure each kind on one training."""
+    import copy
+    import json
+
+    noise = json.loads(json.dumps(model.noise))
+    calibration = noise.get("calibration") or {}
+    for part in (calibration.get("bound"), (calibration.get("checked") or {}).get("bound")):
+        if part and "normalised" in part:
+            part["kind"] = kind
+    out = copy.copy(model)
+    out.noise = noise
+    return out
+
+
 def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-               level: float = DEFAULT_CONFIDENCE) -> dict:
+               level: float = DEFAULT_CONFIDENCE, kinds=()) -> dict:
     """Every test material measured at ``positions``: float64 (n_mat,) arrays "mse" (true
     error of the posterior mean), "median" and "upper" (the calibrated median estimate and bound
     at ``level``: the checked calibration's when the model has check cells, ``check_cells``;
@@ -110,7 +126,8 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     them, ``confidence.sentinel_excess``),
     "feature_distance" (``confidence.feature_distance``: > 1 beyond 95 % of the held-out training
     materials) and "prequential" (``confidence.prequential_excess`` of the samples taken in the
-    order of ``positions``: > 1 beyond 95 % of them)."""
+    order of ``positions``: > 1 beyond 95 % of them). kinds: bound kinds (``confidence.BOUND_KINDS``)
+    whose unchecked bound is added as "upper_<kind>"."""
     from goniofrost.frost.metrics import batch_log_errors
 
     positions = np.asarray(positions, dtype=np.int64)
@@ -129,7 +146,9 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
     one_step = posterior.prequential_errors(model.dictionary[positions], noise[positions],
                                             posterior.prior_variance(model), samples)
     scores = np.array([prediction.prequential_score(one_step, [3 * i, 3 * i + 1, 3 * i + 2]) for i in range(n_mat)])
-    return {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
+    by_kind = {f"upper_{kind}": _bounds(with_bound_kind(model, kind), feats, np.unique(positions).size, level,
+                                        check)["upper"] for kind in kinds}
+    return by_kind | {"mse": batch_log_errors(model, estimate, truth_log), "median": b["median"], "upper": b["upper"],
             "median_unchecked": plain["median"], "upper_unchecked": plain["upper"],
             "out_of_model": (b["out_of_model_z2"] | b["out_of_model_energy"]
                              | b["out_of_model_design"]).astype(np.float64),

@@ -17,6 +17,7 @@ null in JSON with ``"identical": false``), not a sign of identical renderings.
 """
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 from dataclasses import dataclass
@@ -39,7 +40,9 @@ class Comparison:
     ``images`` (n, n_lights, size, size, 3) HDR; ``snr_db`` (n, n): [i, j] the SNR of input j's
     rendering against input i's as the reference (NaN on the diagonal, +inf when identical, -inf
     when input i renders black and j does not);
-    ``log_mse`` (n, n) symmetric, NaN where the grids differ (0 on the diagonal).
+    ``log_mse`` (n, n) symmetric, NaN where the grids differ (0 on the diagonal);
+    ``figures`` (n,) each input's error figure from the record beside it (``preview.record_figure``:
+    a reconstruction's or a session's), None for an input without one.
     """
 
     keys: tuple[str, ...]
@@ -49,6 +52,7 @@ class Comparison:
     images: np.ndarray
     snr_db: np.ndarray
     log_mse: np.ndarray
+    figures: tuple = ()
 
     def pairs(self):
         """(i, j) for every pair i < j, in input order."""
@@ -72,12 +76,15 @@ class Comparison:
                 "identical": self.identical(i, j),
                 "log_relative_mse": finite(self.log_mse[i, j]),
             })
-        return {"inputs": [{"key": k, "label": label, "path": p} for k, label, p in zip(self.keys, self.labels, self.paths)],
+        said = self.figures or (None,) * len(self.keys)
+        return {"inputs": [{"key": k, "label": label, "path": p, "error_figure": f}
+                           for k, label, p, f in zip(self.keys, self.labels, self.paths, said)],
                 "lights": list(self.light_names), "size_px": int(self.images.shape[2]), "pairs": pairs}
 
     def table(self) -> list[str]:
-        """Text lines: one per pair (the command prints them, the picture shows them)."""
-        lines = []
+        """Text lines: each input's error figure (those that have one), then one per pair (the
+        command prints them, the picture shows them)."""
+        lines = [f"{k}: {label}: {f}" for k, label, f in zip(self.keys, self.labels, self.figures) if f]
         for i, j in self.pairs():
             a, b = self.keys[i], self.keys[j]
             log = "grids differ" if np.isnan(self.log_mse[i, j]) else f"{self.log_mse[i, j]:.4g}"
@@ -117,7 +124,8 @@ def compare_tables(tables, labels, paths=None, lights=preview.DEFAULT_LIGHTS, si
 def compare_files(paths, labels=None, lights=preview.DEFAULT_LIGHTS, size: int = 128) -> Comparison:
     """Compare MERL .binary files (each on its own grid); ``labels`` default to the file names."""
     tables = [read_merl_complete(path) for path in paths]   # every input checked before any rendering
-    return compare_tables(tables, labels or [Path(p).name for p in paths], paths, lights, size)
+    out = compare_tables(tables, labels or [Path(p).name for p in paths], paths, lights, size)
+    return dataclasses.replace(out, figures=tuple(preview.record_figure(p) for p in paths))
 
 
 def compose(comparison: Comparison) -> np.ndarray:

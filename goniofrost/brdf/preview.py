@@ -32,6 +32,10 @@ GAMMA = 2.0
 ERROR_GAIN = 10.0  # the paper multiplies error images by 10
 EPS = 0.001  # the log-relative map's offset (frost training.EPS)
 STD_COLOURMAP = "magma"
+ERROR_COLOURMAP = "viridis"  # perceptually uniform: equal steps of error look like equal steps
+# The colour bars' labels (with units), what the PNG's Description says too
+ERROR_BAR = f"|ref - est| x{ERROR_GAIN:g} (display units, 1 = white)"
+STD_BAR = "std of ln(wx+eps), |log error| (natural-log units)"
 
 # (name, unit direction towards the light in the world frame, irradiance RGB at normal incidence)
 # A key light from the upper front, a side light and a grazing back light that shows the
@@ -218,16 +222,24 @@ def compose(preview: Preview) -> np.ndarray:
     columns share one colour scale (0 to the 99th percentile of both).
     """
     exposure = exposure_for(preview.reference if preview.reference is not None else preview.estimate)
-    columns = [preview.estimate]
-    if preview.reference is not None:
-        columns += [preview.reference, ERROR_GAIN * np.abs(preview.reference - preview.estimate)]
+    columns = [preview.estimate] + ([preview.reference] if preview.reference is not None else [])
     maps = [m for m in (preview.std, preview.log_error) if m is not None]
     top = _map_scale(maps)
     rows = []
     for k in range(preview.estimate.shape[0]):
-        tiles = [tone_map(col[k], exposure) for col in columns] + [_colour(m[k], top) for m in maps]
+        tiles = [tone_map(col[k], exposure) for col in columns]
+        if preview.reference is not None:
+            tiles.append(_colour(error_display(preview, k, exposure), 1.0, ERROR_COLOURMAP, lit=preview.reference[k]))
+        tiles += [_colour(m[k], top) for m in maps]
         rows.append(np.concatenate(tiles, axis=1))
     return np.concatenate(rows, axis=0)
+
+
+def error_display(preview: Preview, k: int, exposure: float) -> np.ndarray:
+    """(size, size) the |error| x ERROR_GAIN panel's value under light k: the channel mean of
+    |reference - estimate| x gain in display units (the reference's exposure: 1 = white), before
+    the colour map (ERROR_COLOURMAP on [0, 1])."""
+    return ERROR_GAIN * exposure * np.abs(preview.reference[k] - preview.estimate[k]).mean(axis=-1)
 
 
 def _map_scale(maps) -> float:
@@ -235,38 +247,93 @@ def _map_scale(maps) -> float:
     return float(np.percentile(values, 99)) if values.size else 1.0
 
 
-def _colour(values: np.ndarray, top: float) -> np.ndarray:
-    """(size, size) values -> RGB in [0, 1] with STD_COLOURMAP on [0, top]; 0 (unlit) is black."""
+def _colour(values: np.ndarray, top: float, colourmap: str = STD_COLOURMAP, lit=None) -> np.ndarray:
+    """(size, size) values -> RGB in [0, 1] with ``colourmap`` on [0, top]; unlit pixels (values 0,
+    or ``lit`` (size, size, 3) all 0 when given) are black."""
     from matplotlib import colormaps
 
-    rgb = colormaps[STD_COLOURMAP](np.clip(values / top, 0, 1))[..., :3]
-    return np.where((values > 0)[..., None], rgb, 0.0)
+    rgb = colormaps[colourmap](np.clip(values / top, 0, 1))[..., :3]
+    shown = (values > 0) if lit is None else (np.asarray(lit).max(axis=-1) > 0)
+    return np.where(shown[..., None], rgb, 0.0)
 
 
 def write_png(path, preview: Preview, title: str = "") -> None:
-    """Write the composed preview with column labels and the SNR as a PNG (atomically)."""
+    """Write the composed preview with column labels, the SNR and a colour bar (with units) under
+    every false-colour panel as a PNG (atomically); its Title is the title drawn, its Description
+    names the colour bars."""
+    fig = preview_figure(preview, title)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", facecolor="white",
+                metadata={"Title": fig._suptitle.get_text(), "Description": "; ".join(colour_bars(fig))})
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+def colour_bars(fig) -> list[str]:
+    """The labels of a figure's colour bars (``preview_figure``), in order."""
+    return [ax.get_xlabel() for ax in fig.axes if ax.get_label() == "colour bar"]
+
+
+def preview_figure(preview: Preview, title: str = ""):
+    """The preview's matplotlib Figure: the composed image, a title (``title``, the SNR, the
+    actual error), the columns' names, and a horizontal colour bar under the |error| column
+    (ERROR_BAR, 0 to 1) and under the std and |log error| columns (STD_BAR, their shared scale)."""
     import matplotlib
     matplotlib.use("Agg")
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
 
     image = compose(preview)
     labels = ["estimate"] + (["reference", f"|error| x{ERROR_GAIN:g}"] if preview.reference is not None else [])
     labels += ["predicted std of ln(wx+eps)"] if preview.std is not None else []
     labels += ["actual |log error|"] if preview.log_error is not None else []
-    fig = Figure(figsize=(2.2 * len(labels), 2.2 * len(preview.light_names) + 0.8), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 0.88))
-    ax.imshow(image, interpolation="nearest")
+    lines = title.count("\n") + 3 + (preview.errors is not None and preview.errors.get("actual") is not None)
+    height = 2.2 * len(preview.light_names) + 0.25 * lines + 0.7
+    fig = Figure(figsize=(2.2 * len(labels), height), dpi=100)
+    bottom, top = 0.7 / height, 1 - (0.25 * lines + 0.05) / height
+    ax = fig.add_axes((0.0, bottom, 1.0, top - bottom))
+    ax.imshow(image, interpolation="nearest", aspect="auto")
     ax.set_axis_off()
-    snr = "" if preview.snr_db is None else f"   rendering SNR {preview.snr_db:.2f} dB"
+    snr = "" if preview.snr_db is None else ("\n" if "\n" in title else "   ") + f"rendering SNR {preview.snr_db:.2f} dB"
     fig.suptitle(f"{title}{snr}{_errors_text(preview.errors)}\n" + "  |  ".join(labels), fontsize=9)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", facecolor="white")
-    write_bytes_atomic(path, buffer.getvalue())
+    width = 1 / len(labels)
+    bars = []
+    if preview.reference is not None:
+        bars.append((2, 1, Normalize(0, 1), ERROR_COLOURMAP, ERROR_BAR))
+    maps = [m for m in (preview.std, preview.log_error) if m is not None]
+    if maps:
+        first = 3 if preview.reference is not None else 1
+        bars.append((first, len(maps), Normalize(0, _map_scale(maps)), STD_COLOURMAP, STD_BAR))
+    for column, span, norm, cmap, label in bars:
+        cax = fig.add_axes((column * width + 0.1 * width, 0.42 / height, span * width * 0.8, 0.1 / height),
+                           label="colour bar")
+        bar = fig.colorbar(ScalarMappable(norm, colormaps[cmap]), cax=cax, orientation="horizontal")
+        bar.set_label(label, fontsize=6)
+        cax.tick_params(labelsize=6)
+    return fig
 
 
 def _errors_text(errors) -> str:
-    """The predicted (and actual) log-relative MSE for the title, or ""."""
-    if not errors:
+    """The actual log-relative MSE against the reference for the title, or "". The predicted one is
+    the caller's error figure (``confidence.figure``, in ``title``): the mean predicted variance
+    this preview knows is not centred on the calibration, and a second number confuses."""
+    if not errors or errors.get("actual") is None:
         return ""
-    text = f"\npredicted log-relative MSE {errors['predicted']:.4g}"
-    return text + (f", actual {errors['actual']:.4g}" if errors.get("actual") is not None else "")
+    return f"\nactual log-relative MSE against the reference {errors['actual']:.4g}"
+
+
+def record_figure(binary) -> str | None:
+    """The error figure (``error_figure``) of the record ``reconstruct`` or a capture wrote beside
+    a MERL file (FILE.json beside FILE.binary, a session's brdf.json), None when there is none."""
+    import json
+    from pathlib import Path
+
+    path = Path(binary)
+    stem = path.with_suffix("") if path.suffix.lower() == ".binary" else path
+    try:
+        record = json.loads(stem.with_name(stem.name + ".json").read_text())
+    except (OSError, ValueError):
+        return None
+    figure = record.get("error_figure") if isinstance(record, dict) else None
+    return figure if isinstance(figure, str) else None

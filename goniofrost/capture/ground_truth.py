@@ -36,8 +36,8 @@ def truth_section(inputs, records, material, estimate: np.ndarray, predicted: fl
     samples = inputs.plan["samples"]
     grazing = np.array([max(samples[r.plan_index]["theta_i_deg"], samples[r.plan_index]["theta_o_deg"]) > GRAZING_DEG
                         for r in records], dtype=bool)
-    return {"material": material.spec, "log_relative_mse": error, "predicted_log_relative_mse": predicted,
-            "predicted_over_actual": predicted / error if error > 0 else None,
+    return {"material": material.spec, "log_relative_mse": error, "point_prediction_before_centring": predicted,
+            "point_prediction_over_actual": predicted / error if error > 0 else None,
             "median_estimate": median, "median_over_actual": median / error if median is not None and error > 0 else None,
             "log_relative_mse_exact_samples": best, "ratio_to_exact": error / best if best > 0 else None,
             "sample_relative_error_median": _median(rel),

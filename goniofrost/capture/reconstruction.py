@@ -19,9 +19,10 @@ from calib.measurement import remedy
 from goniofrost.brdf.merl_file import valid_to_full
 from goniofrost.capture.ground_truth import ground_truth, truth_section
 from goniofrost.capture.journal import by_reason
-from goniofrost.capture.report import (bound_section, build_report, extend_record, extrapolation_section,
-                                       measurement_section, read_earlier_record, scene_prediction, session_bound,
-                                       summary_text, target_section, whole_brdf_calibration, write_preview)
+from goniofrost.capture.report import (bound_section, build_report, error_figure, extend_record,
+                                       extrapolation_section, measurement_section, preview_title,
+                                       read_earlier_record, scene_prediction, session_bound, summary_text,
+                                       target_section, whole_brdf_calibration, write_preview)
 from goniofrost.core.atomic_file import write_text_atomic
 from goniofrost.core.errors import GoniofrostError
 
@@ -84,18 +85,23 @@ def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None)
         ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
     # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
     # beside the files and the report's other sections, which mostly run in numpy (GIL released).
+    bound = session_bound(inputs, records, getattr(spec, "confidence", None))
+    said = error_figure(inputs, bound, rec.predicted_error)
+    label = journal.label().to_dict()
+    title = preview_title(session_dir, label, material and material.spec, said, bound)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
-        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std)
+        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std, title)
         earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
-        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv")
+        write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv",
+                            None if inputs.scene is not None else bound)
         runs = journal.runs()
         report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
-        report["label"] = journal.label().to_dict()
+        report["label"] = label
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
-                                "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
+                                "error_figure": said,
+                                "point_prediction_before_centring": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
                                 **whole_brdf_calibration(inputs)}
-        bound = session_bound(inputs, records, getattr(spec, "confidence", None))
         report["prediction"] |= extrapolation_section(inputs, records, bound) | bound_section(inputs, bound)
         if inputs.scene is not None:
             report["prediction"]["scene"] = scene_prediction(inputs, records)

@@ -87,6 +87,26 @@ def _planned_motion(plan: dict) -> float | None:
     return None if total is None else float(total)
 
 
+def error_figure(inputs, bound, point: float) -> str:
+    """The session's one statement of its error (``confidence.figure``): the whole BRDF's bound and
+    median estimate; for a plan for a scene, whose design the whole BRDF's calibration is not of,
+    the words say there is no calibrated bound and give the point prediction."""
+    from goniofrost.frost.confidence import figure, figure_of
+
+    if inputs.scene is not None:
+        return figure(None, bound.confidence, None) + f" (uncalibrated point prediction {point:.3g})"
+    return figure_of(bound)
+
+
+def preview_title(session_dir, label: dict, material: str | None, said: str, bound) -> str:
+    """The preview's title: what was measured (the sample id, else the material), the session,
+    the error figure and, when the bound is an extrapolation, a stamp that says so."""
+    what = label.get("sample_id") or material or "unnamed sample"
+    stamp = "\nEXTRAPOLATION: the samples or design are unlike the training set" if bound.out_of_model else ""
+    return f"{what}, session {Path(session_dir).name}" + (f" vs {material}" if material and material != what else "") \
+        + f"\n{said}{stamp}"
+
+
 def session_bound(inputs, records, confidence: float | None = None):
     """The whole BRDF's calibrated ErrorBound of the session's measured samples at ``confidence``
     (the session's; None: 95 %), as a target-error capture's last batch makes it
@@ -119,9 +139,16 @@ def read_earlier_record(path: Path) -> dict:
     return earlier if isinstance(earlier, dict) else {}
 
 
+# Fields an earlier version of the reconstruction wrote into brdf.json and this one does not: not
+# kept from an earlier record (a second error figure beside the one stated would contradict it)
+SUPERSEDED_FIELDS = ("predicted_log_relative_mse",)
+
+
 def extend_record(path: Path, earlier: dict, measurement: dict) -> None:
-    """brdf.json = the earlier fields, the reconstruction's (just written) and ``measurement``."""
-    record = {**earlier, **json.loads(Path(path).read_text()), "measurement": measurement}
+    """brdf.json = the earlier fields (but SUPERSEDED_FIELDS), the reconstruction's (just written)
+    and ``measurement``."""
+    kept = {k: v for k, v in earlier.items() if k not in SUPERSEDED_FIELDS}
+    record = {**kept, **json.loads(Path(path).read_text()), "measurement": measurement}
     write_text_atomic(path, json.dumps(record, indent=1, allow_nan=False) + "\n")
 
 
@@ -141,7 +168,7 @@ def measurement_section(inputs, report: dict, records, runs) -> dict:
             "alignment": None if inputs.rig.alignment is None else inputs.rig.alignment.record(),
             "model": report["model"], "samples": report["samples"],
             "samples_not_measured": report["not_measured"]["count"],
-            "predicted_log_relative_mse": report["prediction"]["predicted_log_relative_mse"],
+            "error_figure": report["prediction"]["error_figure"],
             "predicted_calibrated": report["prediction"]["calibrated"],
             "extrapolation": report["prediction"]["extrapolation"],
             **{key: report["prediction"][key] for key in ("median_estimate", "bound", "confidence")
@@ -238,9 +265,11 @@ def _import_renderer() -> None:
         pass
 
 
-def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=None) -> float | None:
+def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=None,
+                  title: str | None = None) -> float | None:
     """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
-    error on a simulated rig); return its rendering SNR in dB (None without a ground truth)."""
+    error on a simulated rig); return its rendering SNR in dB (None without a ground truth).
+    title: the preview's (``preview_title``), None: the material's."""
     from goniofrost.brdf.preview import preview_of, write_png
 
     if _RENDERER_IMPORT is not None:
@@ -248,25 +277,15 @@ def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=Non
 
     reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
     preview = preview_of(estimate, grid, reference, std=std)
-    write_png(path, preview, title="session estimate" + (f" vs {material.spec}" if material else ""))
+    write_png(path, preview, title=title or "session estimate" + (f" vs {material.spec}" if material else ""))
     return preview.snr_db
 
 
 def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
-    """The summary's statement of the reconstruction's error: the calibrated bound and median
-    estimate when the report has them (``bound_section``), else the point prediction, marked
-    when it is not calibrated for the plan's design."""
-    point = f"point prediction {prediction['predicted_log_relative_mse']:.4g}; per-cell standard deviation in {std_file}"
-    if prediction.get("median_estimate") is None:
-        lines = [f"predicted error of this reconstruction: log-relative MSE {prediction['predicted_log_relative_mse']:.4g}"
-                 f" (per-cell standard deviation in {std_file})"]
-    elif prediction["bound"] is None:  # the model holds no bound calibration for this many samples
-        lines = [f"error of this reconstruction: log-relative MSE, median estimate {prediction['median_estimate']:.4g}"
-                 f" (no calibrated bound; {point})"]
-    else:
-        lines = [f"error of this reconstruction: log-relative MSE <= {prediction['bound']:.4g} with "
-                 f"{100 * prediction['confidence']:g} % confidence (median estimate {prediction['median_estimate']:.4g}; "
-                 f"{point})"]
+    """The summary's statement of the reconstruction's error: its ``error_figure``, marked when
+    it is not calibrated for the plan's design."""
+    lines = [f"reconstruction (log-relative MSE): {prediction['error_figure']}",
+             f"  per-cell standard deviation in {std_file}"]
     if not prediction.get("calibrated", True):
         lines.append(f"  uncalibrated: {prediction['uncalibrated_because']}")
     return lines
@@ -274,10 +293,7 @@ def _prediction_lines(prediction: dict, std_file: str) -> list[str]:
 
 def _estimates(truth: dict, prediction: dict) -> str:
     """What the capture said of its error, for the line beside the actual one."""
-    if truth.get("median_estimate") is not None:
-        return f"median estimate {truth['median_estimate']:.4g}, point prediction {truth['predicted_log_relative_mse']:.4g}"
-    return f"predicted {truth['predicted_log_relative_mse']:.4g}" + ("" if prediction.get("calibrated", True)
-                                                                     else ", uncalibrated")
+    return prediction["error_figure"] + ("" if prediction.get("calibrated", True) else ", uncalibrated")
 
 
 def _pct(value) -> str:
@@ -321,7 +337,7 @@ def summary_text(report: dict) -> str:
                      f"{target['stopped']} after {target['samples_used']} of {target['plan_samples']} samples: "
                      f"{target['statement']}")
         lines.append("  bound (median estimate) after each batch: " + ", ".join(
-            f"{b['samples']}: {_fmt(b['bound'], '.4g')} ({b['predicted_error']:.4g})" for b in target["batches"]))
+            f"{b['samples']}: {_fmt(b['bound'], '.3g')} ({b['predicted_error']:.3g})" for b in target["batches"]))
     lines += _prediction_lines(report["prediction"], report["outputs"]["std"])
     scene = report["prediction"].get("scene")
     if scene:

@@ -179,7 +179,7 @@ class _Judge:
         if self.bracket is not None and self.bracket.mask_ is not None:
             mean, se = self.bracket._stats()
             snr = [float(v) for v in mean / se]
-        _write_png(raw, mask, found, out)
+        _write_png(raw, mask, found, out, clipped, _legend(pixels, med, p99, saturated))
         return SnapResult(self.target, self.joints, exposures,
                           self.bracket.exposures_s if self.bracket is not None and self.problem is None else None,
                           sorted(found), list(self.ids), source, pixels, med, p99, *saturated,
@@ -224,8 +224,22 @@ def _roi_levels(raw, mask):
     return pixels, med, p99
 
 
-def _write_png(raw, mask, found: dict, out: Path) -> None:
-    """The frame (half resolution, gamma 2.2) with the region outlined in green and the markers in yellow."""
+def _legend(pixels, med, p99, saturated) -> list[str]:
+    """The picture's legend: the colours' meaning and the levels the snap prints (R/G/B, fraction of
+    full scale)."""
+    def triple(values):
+        return "/".join("-" if v is None else f"{v:.3f}" for v in values)
+
+    return ["green: region of interest; yellow: markers; red: saturated",
+            f"saturated {100 * saturated[0]:.2f} % of the frame, {100 * saturated[1]:.2f} % of the region",
+            f"region R/G/B median {triple(med)}, p99 {triple(p99)}",
+            "(levels: fraction of full scale)"]
+
+
+def _write_png(raw, mask, found: dict, out: Path, clipped=None, legend=()) -> None:
+    """The frame (half resolution, gamma 2.2) with the region outlined in green, the markers in
+    yellow, the saturated pixels (``clipped``, bool like raw.linear) in red, and the ``legend``
+    lines written on a band under it."""
     import cv2
 
     from drivers.rawfile import bayer_rgb
@@ -235,11 +249,19 @@ def _write_png(raw, mask, found: dict, out: Path) -> None:
     rgb = bayer_rgb(raw.linear, raw.channels)
     top = float(np.percentile(rgb, 99.5)) or 1.0
     image = np.ascontiguousarray((np.clip(rgb / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)[..., ::-1])
+    if clipped is not None:  # a 2 x 2 block with any clipped pixel shows red, under the outlines
+        block = clipped[:h, :w].reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3))
+        image[block] = (0, 0, 255)
     if mask is not None:
         contours, _ = cv2.findContours(mask[:h:2, :w:2].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.polylines(image, contours, True, (0, 220, 0), 1, cv2.LINE_AA)
     for corners in found.values():
         cv2.polylines(image, [np.rint((corners + 0.5) / 2).astype(np.int32)], True, (0, 220, 255), 1, cv2.LINE_AA)
+    if legend:
+        band = np.full((16 * len(legend) + 6, image.shape[1], 3), 255, np.uint8)
+        for k, line in enumerate(legend):
+            cv2.putText(band, line, (4, 16 * k + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.37, (0, 0, 0), 1, cv2.LINE_AA)
+        image = np.concatenate([image, band], axis=0)
     ok, data = cv2.imencode(".png", image)
     write_bytes_atomic(out, data.tobytes())
 

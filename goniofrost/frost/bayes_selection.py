@@ -179,11 +179,14 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  calibration=None, sensitivity_power: float | None = None,
                  hedge: float = HEDGE, prior_spread: float | None = None,
                  spread_floor: float | None = None, mix: float | None = None,
-                 mix_spread: float | None = None) -> Selection:
+                 mix_spread: float | None = None, confidence: float | None = None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
-    typical material (``prediction.predict_typical``) is <= max_error.
+    typical material (``prediction.predict_typical``) is <= max_error; with ``confidence`` (a
+    design without ``usage``) after the first whose typical material's calibrated bound at that
+    confidence is (``typical_bound``: the rule a capture stops on), the bounds in the
+    Selection's ``bounds``.
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
     threads: threads sharing each pass (default: the cores this process may use).
     usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
@@ -252,9 +255,10 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             spread_floor=spread_floor, mix=mix, mix_spread=mix_spread, variance=variance, scene=scene)
         calib = calibration_for(power, spread, cells_floor, share)
         limit = _check(m, max_error, rows.size, calib, floor)
-        picked, predicted, used_spread = _design(
+        picked, predicted, used_spread, bounds = _design(
             model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
-            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share)
+            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share,
+            confidence=None if scene else confidence)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
@@ -269,17 +273,22 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
-            picked, predicted, used_spread = _design(
+            picked, predicted, used_spread, bounds = _design(
                 model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
                 min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor,
                 variance=variance, mix=share)
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
+    if max_error is not None and bounds is not None and bounds[-1] > max_error:
+        raise SelectionError(f"max_error (--max-error): {max_error:g} not reached with {picked.rows.size} samples (a "
+                             f"typical material's bound {bounds[-1]:.4g} at {100 * confidence:g} % confidence); "
+                             f"allow more cells or ask for a larger error")
     if max_error is not None and predicted[-1] > max_error:
         raise SelectionError(f"max_error (--max-error): {max_error:g} not reached with {picked.rows.size} samples (predicted "
                              f"{predicted[-1]:.4g}); allow more cells or ask for a larger error")
-    return Selection(positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
+    return Selection(bounds=None if bounds is None else np.asarray(bounds, np.float64),
+                     positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
                      prior_spread=used_spread if scene else (None if usage is None else 0.0),
@@ -347,14 +356,16 @@ def _own_spread(spread: float, prior_spread, mix_spread, share: float, m) -> flo
 
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
             min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
-            floor: float = 0.0, variance=None, mix: float = 0.0) -> tuple[GreedyDesign, np.ndarray, float | None]:
+            floor: float = 0.0, variance=None, mix: float = 0.0,
+            confidence: float | None = None) -> tuple[GreedyDesign, np.ndarray, float | None, np.ndarray | None]:
     """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
     (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
     plain design, else the scene's of power p and hedge (see select_bayes, also for
     ``uniform_is_plain``); with max_error it stops at the first pick, of at
     least ``min_picks``, whose predicted error is <= max_error; ``variance``: the cells' prior
     variance, shared (``usage_design.design_weights``); ``mix``: the share of MIX_DESIGN's weights
-    (``usage_design.mixed_weights``; 0 none)."""
+    (``usage_design.mixed_weights``; 0 none); ``confidence``: stop on the typical material's bound
+    at it instead (``typical_bound``; float64 (picks,), the fourth returned; None without)."""
     if usage is not None:
         weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance, mix)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
@@ -370,18 +381,31 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
     else:
         dictionary, prior_var = model.dictionary, prior_variance(model)
         s2 = np.asarray(model.singular_values, np.float64) ** 2
-        tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise)
+        tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise, confidence=confidence)
         used_spread = None
     stop = None
     if max_error is not None:
         def stop(row):
-            return tracker.add(row) <= max_error and len(tracker.history) >= min_picks
+            tracker.add(row)
+            said = tracker.bounds if tracker.confidence is not None else tracker.history
+            return said[-1] <= max_error and len(tracker.history) >= min_picks
     design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
                            rows=rows, stop=stop, threads=threads)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))
-    return design, np.array(tracker.history), used_spread
+    bounds = None if tracker.confidence is None else np.array(tracker.bounds)
+    return design, np.array(tracker.history), used_spread, bounds
+
+
+def typical_bound(calibration: dict, predicted, m, confidence: float) -> np.ndarray:
+    """The calibrated bound at ``confidence`` of a typical material (z2 and energy at their training
+    geometric means) whose point prediction is ``predicted`` at m samples: what a capture of it
+    would stop on (``confidence.error_bounds``). inf for a calibration without a bound."""
+    from goniofrost.frost.confidence import error_bounds
+
+    return error_bounds(calibration, predicted, np.exp(calibration["typical_log_z2"]),
+                        np.exp(calibration["typical_log_energy"]), m, confidence)["upper"]
 
 
 class _PredictedError:
@@ -393,8 +417,10 @@ class _PredictedError:
     prior_var: (K,); noise: (n,) sigma_c^2; usage: (n,) sum 1, or None for every cell alike (the
     design error is then the mean over the n cells)."""
 
-    def __init__(self, d, s2, prior_var, calibration: dict, noise: np.ndarray, usage=None) -> None:
+    def __init__(self, d, s2, prior_var, calibration: dict, noise: np.ndarray, usage=None,
+                 confidence: float | None = None) -> None:
         self.d, self.calibration, self.s2 = d, calibration, np.asarray(s2, np.float64)
+        self.confidence, self.bounds = confidence, []
         self.noise = noise
         if usage is None:
             self.total, self.n = float(self.noise.sum()), self.noise.size
@@ -409,6 +435,9 @@ class _PredictedError:
         self.sigma -= np.outer(u, u) / (self.noise[row] + d @ u)
         design_error = (error_trace(self.s2, self.sigma) + self.total) / self.n
         self.history.append(float(predict_typical(self.calibration, design_error, len(self.history) + 1)))
+        if self.confidence is not None:
+            self.bounds.append(float(typical_bound(self.calibration, self.history[-1], len(self.history),
+                                                   self.confidence)))
         return self.history[-1]
 
 

@@ -5,9 +5,11 @@ cross-validation, a split-conformal bound on the point prediction (``prediction.
 at every look of a capture at once; ``error_bounds`` gives a capture's bound and median estimate
 at a confidence, and says when the samples or the design are out of the model (``z2``, energy or
 design error beyond the calibration's range by OUT_OF_MODEL_FACTOR) or the sentinels flag them
-(``sentinel_excess``). ``feature_distance`` and ``prequential_excess`` are benchmark diagnostics
-the rule does not use. Why each part: docs/explanations/error-bound.md and
-docs/decisions/0004-calibrated-stopping-rule.md."""
+(``sentinel_excess``). Other kinds of bound (BOUND_KINDS: normalised, per look) are calibrated
+beside it for the benchmark, not used (BOUND_KIND). ``figure`` words the one error statement every
+output makes. ``feature_distance`` and ``prequential_excess`` are benchmark diagnostics the rule
+does not use. Why each part: docs/explanations/error-bound.md, docs/decisions/0004-calibrated-stopping-rule.md
+and docs/decisions/0100-a-sharper-bound.md."""
 from __future__ import annotations
 
 import math
@@ -27,6 +29,17 @@ FIRST_LOOK = 15
 # the held-out training materials' largest z2 at an m varied by less than a factor 2 from one m
 # to the next (45 x 45 x 90 grid, fold 0 of MERL + RGL: log z2 max 2.3 to 2.9 from m = 5 to 60).
 OUT_OF_MODEL_FACTOR = 2.0
+# The bound's kinds (docs/decisions/0100-a-sharper-bound.md): "split" (the residual standardized
+# by its m's spread), "normalised" (by the material's own predicted spread), "per-look" (a
+# quantile per m: coverage at each fixed look, not at once over them), "per-look-tuned" (per look at
+# a smaller miss rate chosen on the training materials). BOUND_KIND is the one used.
+BOUND_KINDS = ("split", "normalised", "per-look", "per-look-tuned")
+# per-look-tuned: the per-look bound at a miss rate (1 - c) f, f the largest of these that keeps the
+# coverage at the stop on nested folds of the training materials (``_tuned_factor``)
+ALPHA_FACTORS = (1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1)
+BOUND_KIND = "split"
+SPREAD_QUANTILES = (0.1, 0.5, 0.9)  # of the held-out training materials' bounds ``plan --max-error`` prints
+CHOICE_SLACK = 0.02  # the coverage below the confidence a kind may show on the nested folds
 FEATURE_NAMES = {"z2": "leave-one-out residuals", "energy": "coefficient energy",
                  "sentinel": "the sentinel samples' error",
                  "sentinel_earlier": "the sentinel samples' error at an earlier batch",
@@ -50,6 +63,21 @@ class ErrorBound:
     out_of_model: tuple[str, ...] = ()
     unavailable: str | None = None
     design: tuple[int, float, float, float, int] | None = None
+
+
+def figure(upper, confidence: float, median, error: str = "error") -> str:
+    """The one sentence every output states of a reconstruction's error: "error <= B with C %
+    confidence (median estimate X)"; "error: no bound at C % confidence (median estimate X)" when
+    ``upper`` is None or infinite; the same words and digits wherever it appears."""
+    tail = "" if median is None else f" (median estimate {float(median):.3g})"
+    if upper is None or not math.isfinite(float(upper)):
+        return f"{error}: no bound at {100 * float(confidence):g} % confidence{tail}"
+    return f"{error} <= {float(upper):.3g} with {100 * float(confidence):g} % confidence{tail}"
+
+
+def figure_of(bound: ErrorBound, error: str = "error") -> str:
+    """``figure`` of an ErrorBound."""
+    return figure(bound.upper, bound.confidence, bound.median, error)
 
 
 def cross_fitted_residuals(records, m_range, n_features=None, feature_range=None) -> np.ndarray:
@@ -95,14 +123,186 @@ def fit_bound(records, m_range, n_features=None, feature_range=None, residuals=N
     ms = np.unique(records.m)
     looks = ms[ms >= FIRST_LOOK] if np.any(ms >= FIRST_LOOK) else ms
     center, scale, scores = _simultaneous(records, r, ms, looks)
+    spread_x = _spread_features(records.m, records.z2, records.energy, records.actual / np.exp(r))
+    factor = _tuned_factor(records, r, ms, looks)
     return {"method": "split-conformal, simultaneous over the looks m >= %d" % int(looks[0]),
             "m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
-            "looks": [int(m) for m in looks], "scores": scores,
+            "looks": [int(m) for m in looks], "scores": scores, "kind": BOUND_KIND,
+            "normalised": _fit_normalised(records, r, ms, looks, spread_x, center),
+            "per_look": {"scores": _per_look_scores(records, r, ms, center, scale),
+                         "alpha_factor": factor},
+            "choice": _nested_choice(records, r, ms, looks, spread_x, factor),
+            "log_predicted_quantiles": [np.quantile(np.log(records.actual[records.m == m] / np.exp(r[records.m == m])),
+                                                    SPREAD_QUANTILES).tolist() for m in ms],
             "log_z2_max": [float(np.log(records.z2[records.m == m]).max()) for m in ms],
             "log_energy_max": [float(np.log(records.energy[records.m == m]).max()) for m in ms],
             "log_design_error_min": [float(np.log(records.design_error[records.m == m]).min()) for m in ms],
             "log_design_error_max": [float(np.log(records.design_error[records.m == m]).max()) for m in ms]} \
         | _feature_spread(records, ms) | _prequential_spread(records, ms) | _sentinel_spread(records, r, ms, looks)
+
+
+def _spread_features(m, z2, energy, predicted) -> np.ndarray:
+    """float64 (..., 5): (1, log m, log z2, log energy, log predicted): what the normalised
+    bound's spread is a function of (arguments broadcast)."""
+    parts = np.broadcast_arrays(*(np.log(np.maximum(np.asarray(v, np.float64), 1e-300))
+                                  for v in (m, z2, energy, predicted)))
+    return np.stack([np.ones_like(parts[0]), *parts], -1)
+
+
+def _spread_fit(x: np.ndarray, deviation: np.ndarray) -> np.ndarray:
+    """(5,) least-squares coefficients of log |deviation| on the spread features x (records, 5)."""
+    y = np.log(np.maximum(np.abs(deviation), 1e-3))
+    return np.linalg.lstsq(x, y, rcond=None)[0]
+
+
+def _fit_normalised(records, r, ms, looks, x, center, fold=None) -> dict:
+    """The normalised (locally weighted) bound's calibration: the spread sigma(x) = exp(x gamma)
+    of the residual about its m's median, gamma fitted on every record (``_spread_fit``), the
+    range of log sigma it was fitted on (sigma is clamped there: no extrapolated spread), and
+    every held-out material's simultaneous score max over the looks of (r - c_m) / sigma, sorted;
+    each record's sigma for its score from a fit without its inner fold (cross-fitted, as the
+    residuals). fold: (records,) the folds to cross-fit over (None: records.fold)."""
+    fold = records.fold if fold is None else fold
+    deviation = r - center[np.searchsorted(ms, records.m)]
+    log_sigma = np.empty_like(r)
+    for f in np.unique(fold):
+        held = fold == f
+        log_sigma[held] = x[held] @ _spread_fit(x[~held], deviation[~held])
+    gamma = _spread_fit(x, deviation)
+    fitted = x @ gamma
+    low, high = float(fitted.min()), float(fitted.max())
+    standard = deviation / np.exp(np.clip(log_sigma, low, high))
+    return {"gamma": gamma.tolist(), "log_sigma_range": [low, high],
+            "scores": _material_max(records, standard, looks)}
+
+
+def _per_look_scores(records, r, ms, center, scale) -> list:
+    """Per m (ms,) the held-out materials' standardized residuals (r - c_m) / s_m, sorted: the
+    per-look bound's calibration (coverage at each fixed look, not at once over them)."""
+    return [sorted(float(v) for v in (r[records.m == m] - c) / s) for m, c, s in zip(ms, center, scale)]
+
+
+def _material_max(records, standard, looks) -> list:
+    """Every held-out material's largest ``standard`` (records,) over the looks, sorted."""
+    keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
+    in_look = np.isin(records.m, looks)
+    _, material = np.unique(keys[in_look], return_inverse=True)
+    scores = np.full(int(material.max()) + 1, -np.inf)
+    np.maximum.at(scores, material, standard[in_look])
+    return sorted(float(s) for s in scores)
+
+
+def _log_upper(bound: dict, kind: str, m, x, confidence: float) -> np.ndarray:
+    """log(bound / point prediction) of the ``kind`` bound at m (broadcast with x (..., 5), the
+    ``_spread_features``), at ``confidence``."""
+    c = _at_m(bound, "center", m)
+    if kind == "normalised":
+        part = bound["normalised"]
+        log_sigma = np.clip(x @ np.asarray(part["gamma"]), *part["log_sigma_range"])
+        return c + conformal_quantile(part["scores"], confidence) * np.exp(log_sigma)
+    if kind in ("per-look", "per-look-tuned"):
+        if kind == "per-look-tuned":  # the miss rate shrunk by the factor chosen on the training materials
+            confidence = 1 - (1 - confidence) * bound["per_look"].get("alpha_factor", 1.0)
+        q = [conformal_quantile(sc, confidence) for sc in bound["per_look"]["scores"]]
+        return c + _at_m(bound | {"q_scale": np.asarray(q) * np.asarray(bound["scale"])}, "q_scale", m)
+    return c + conformal_quantile(bound["scores"], confidence) * _at_m(bound, "scale", m)
+
+
+def _nested_choice(records, r, ms, looks, x, factor: float = 1.0, confidence: float = 0.95) -> dict:
+    """Every bound kind measured on the training materials only: for each inner fold, the bound
+    calibrated on the other folds' records, applied to the fold's held-out materials. Per kind:
+    "simultaneous_coverage" (materials whose error is below the bound at every look at once: what
+    a rule that stops at any look needs) and "median_bound_over_actual" at the look nearest
+    m = 20; "chosen": the kind with the smallest such median among those covering at least
+    ``confidence`` - CHOICE_SLACK (``BOUND_KIND`` used; this is the record of the measurement).
+    None when some fold's complement lacks an m of ``ms``."""
+    folds = np.unique(records.fold)
+    if folds.size < 2 or any(not np.isin(ms, records.m[records.fold != f]).all() for f in folds):
+        return None  # records (synthetic, a few materials) without every m in every fold's complement
+    covered = {k: [] for k in BOUND_KINDS}
+    ratio = {k: [] for k in BOUND_KINDS}
+    near = looks[np.argmin(np.abs(looks - 20))]
+    for f in folds:
+        held, rest = records.fold == f, records.fold != f
+        sub = _subset(records, rest)
+        center, scale, scores = _simultaneous(sub, r[rest], ms, looks)
+        bound = {"m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(), "scores": scores,
+                 "normalised": _fit_normalised(sub, r[rest], ms, looks, x[rest], center),
+                 "per_look": {"scores": _per_look_scores(sub, r[rest], ms, center, scale), "alpha_factor": factor}}
+        for kind in BOUND_KINDS:
+            log_upper = _log_upper(bound, kind, records.m[held], x[held], confidence)
+            miss = (r[held] > log_upper) & np.isin(records.m[held], looks)
+            for material in np.unique(records.material[held]):
+                covered[kind].append(not miss[records.material[held] == material].any())
+            at = records.m[held] == near
+            ratio[kind] += list(np.exp(log_upper[at] - r[held][at]))
+    # None for a ratio without a finite bound (too few materials for the confidence): JSON has no inf
+    out = {k: {"simultaneous_coverage": float(np.mean(covered[k])),
+               "median_bound_over_actual": _finite_or_none(np.median(ratio[k])), "at_m": int(near)}
+           for k in BOUND_KINDS}
+    fine = [k for k in BOUND_KINDS if out[k]["simultaneous_coverage"] >= confidence - CHOICE_SLACK
+            and out[k]["median_bound_over_actual"] is not None]
+    out["chosen"] = min(fine, key=lambda k: out[k]["median_bound_over_actual"]) if fine else "split"
+    return out
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _tuned_factor(records, r, ms, looks, confidence: float = 0.95) -> float:
+    """The largest factor f of ALPHA_FACTORS whose per-look bound at confidence 1 - (1 - c) f keeps
+    the coverage at the stop at least c on nested inner folds of the training materials: each
+    fold's held-out materials captured along their records' looks against the other folds'
+    per-look bound, stopping at the first look whose bound is at most E, for E the 10th, 25th,
+    50th and 75th percentiles of the records' true errors at the looks (pooled); covered when the
+    true error at the stop is at most E. 1.0 when the records lack an m in some fold's complement."""
+    folds = np.unique(records.fold)
+    if folds.size < 2 or any(not np.isin(ms, records.m[records.fold != f]).all() for f in folds):
+        return 1.0
+    in_looks = np.isin(records.m, looks)
+    targets = np.quantile(records.actual[in_looks], (0.1, 0.25, 0.5, 0.75))
+    for factor in ALPHA_FACTORS:
+        stopped = covered = 0
+        for f in folds:
+            held, rest = records.fold == f, records.fold != f
+            sub = _subset(records, rest)
+            center, scale, _ = _simultaneous(sub, r[rest], ms, looks)
+            bound = {"m": [int(m) for m in ms], "center": center.tolist(), "scale": scale.tolist(),
+                     "per_look": {"scores": _per_look_scores(sub, r[rest], ms, center, scale)}}
+            log_upper = _log_upper(bound, "per-look", records.m[held], None, 1 - (1 - confidence) * factor)
+            n, k = _stops(records, held, r[held], log_upper, looks, targets)
+            stopped, covered = stopped + n, covered + k
+        if stopped == 0 or covered / stopped >= confidence:
+            return float(factor)
+    return float(ALPHA_FACTORS[-1])
+
+
+def _stops(records, held, r, log_upper, looks, targets) -> tuple[int, int]:
+    """(captures that stop, of those covered) of the ``held`` records' materials at every target:
+    a material stops at its first look (m in ``looks``, in order) whose bound (its prediction
+    actual / exp(r) times exp(log_upper)) is at most the target; covered when its true error there is."""
+    m, actual, material = records.m[held], records.actual[held], records.material[held]
+    bound = actual / np.exp(r) * np.exp(log_upper)
+    stopped = covered = 0
+    for one in np.unique(material):
+        mine = (material == one) & np.isin(m, looks)
+        order = np.argsort(m[mine])
+        b, a = bound[mine][order], actual[mine][order]
+        for target in targets:
+            first = np.flatnonzero(b <= target)
+            if first.size:
+                stopped, covered = stopped + 1, covered + int(a[first[0]] <= target)
+    return stopped, covered
+
+
+def _subset(records, keep: np.ndarray):
+    """The records (fold, material, m, z2, energy, actual) where ``keep``: what the bound's fit reads."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(fold=records.fold[keep], material=records.material[keep], m=records.m[keep],
+                           z2=records.z2[keep], energy=records.energy[keep], actual=records.actual[keep])
 
 
 def _simultaneous(records, values, ms, looks):
@@ -111,13 +311,7 @@ def _simultaneous(records, values, ms, looks):
     center = np.array([np.median(values[records.m == m]) for m in ms])
     scale = np.array([max(float(np.std(values[records.m == m])), 1e-6) for m in ms])
     at = np.searchsorted(ms, records.m)
-    standard = (values - center[at]) / scale[at]
-    keys = records.fold.astype(np.int64) * (int(records.material.max()) + 1) + records.material
-    in_look = np.isin(records.m, looks)
-    _, material = np.unique(keys[in_look], return_inverse=True)
-    scores = np.full(int(material.max()) + 1, -np.inf)
-    np.maximum.at(scores, material, standard[in_look])
-    return center, scale, sorted(float(s) for s in scores)
+    return center, scale, _material_max(records, (values - center[at]) / scale[at], looks)
 
 
 def _sentinel_spread(records, residuals, ms, looks) -> dict:
@@ -324,9 +518,9 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
         inf = np.full(np.broadcast(predicted, m).shape, np.inf)
         return {"median": predicted + extra, "upper": inf, "out_of_model_z2": inf == 0, "out_of_model_energy": inf == 0,
                 "out_of_model_sentinel": inf == 0, "out_of_model_design": inf == 0}
-    median, upper = _median_upper(bound, predicted, m, confidence, extra)
+    median, upper = _median_upper(bound, predicted, m, confidence, extra, z2, energy)
     if checked:
-        median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra)
+        median, checked_upper = _median_upper(checked["bound"], checked_predicted, m, confidence, extra, z2, energy)
         upper = np.maximum(upper, checked_upper)
     margin = math.log(OUT_OF_MODEL_FACTOR)
     return {"median": median, "upper": upper,
@@ -338,14 +532,15 @@ def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
             design_outside(calibration, design_error, m) & np.ones(np.shape(upper), bool)}
 
 
-def _median_upper(bound: dict, predicted, m, confidence: float, extra) -> tuple[np.ndarray, np.ndarray]:
-    """(median estimate, upper bound) of one calibration's ``bound`` for its point prediction."""
+def _median_upper(bound: dict, predicted, m, confidence: float, extra, z2=1.0, energy=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(median estimate, upper bound) of one calibration's ``bound`` for its point prediction
+    (its "kind", ``BOUND_KINDS``; z2 and energy: the samples', for a normalised bound)."""
     predicted = np.asarray(predicted, dtype=np.float64)
-    c, s = _at_m(bound, "center", m), _at_m(bound, "scale", m)
-    q = conformal_quantile(bound["scores"], confidence)
-    with np.errstate(over="ignore"):
-        upper = predicted * np.exp(c + q * s) + extra
-    return predicted * np.exp(c) + extra, upper
+    kind = bound.get("kind", "split") if "normalised" in bound else "split"
+    log_upper = _log_upper(bound, kind, m, _spread_features(m, z2, energy, predicted), confidence)
+    with np.errstate(over="ignore", invalid="ignore"):
+        upper = predicted * np.exp(log_upper) + extra
+    return predicted * np.exp(_at_m(bound, "center", m)) + extra, np.where(np.isnan(upper), np.inf, upper)
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
@@ -358,6 +553,22 @@ def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m
     design = design_detail(calibration, design_error, m) if "design" in flags else None
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
                       unavailability(calibration, confidence), design)
+
+
+def training_spread(calibration: dict, m: int, confidence: float) -> list[float] | None:
+    """The held-out training materials' bounds at m samples and ``confidence``: their 10th, 50th and
+    90th percentiles (SPREAD_QUANTILES of their cross-fitted point predictions at m, interpolated in
+    log m, each bounded as a material of typical z2 and energy); None for a calibration that does
+    not record them."""
+    bound = calibration.get("bound") or {}
+    if "log_predicted_quantiles" not in bound:
+        return None
+    ms = np.log(np.asarray(bound["m"], np.float64))
+    table = np.asarray(bound["log_predicted_quantiles"], np.float64)
+    at = [float(np.interp(math.log(m), ms, table[:, k])) for k in range(table.shape[1])]
+    out = error_bounds(calibration, np.exp(at), np.exp(calibration["typical_log_z2"]),
+                       np.exp(calibration["typical_log_energy"]), m, confidence)["upper"]
+    return [float(v) for v in out]
 
 
 def unavailability(calibration: dict, confidence: float) -> str | None:

@@ -47,11 +47,16 @@ def write_bayes_outputs(out, model: FrostModel, rec: BayesReconstruction, sample
 
 def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_source, brdf_name: str,
                           std_name: str, bound=None) -> dict:
-    """The OUT.json content: what was reconstructed, how, and its predicted error (with ``bound``,
-    a ``confidence.ErrorBound`` of the samples: whether that is an extrapolation, and why)."""
-    from goniofrost.frost.confidence import extrapolation_fields
+    """The OUT.json content: what was reconstructed, how, and its error: with ``bound`` (a
+    ``confidence.ErrorBound`` of the samples) the error figure, the bound and median estimate and
+    whether that is an extrapolation, and why; without, the point prediction."""
+    from goniofrost.frost.confidence import extrapolation_fields, figure_of
 
     flags = {} if bound is None else extrapolation_fields(bound)
+    # with a bound: the one error figure (the point prediction before centring stays in report.json)
+    error = {"predicted_log_relative_mse": rec.predicted_error} if bound is None else {
+        "error_figure": figure_of(bound), "median_estimate": float(bound.median), "confidence": float(bound.confidence),
+        "bound": float(bound.upper) if np.isfinite(bound.upper) else None}
     return {
         "brdf": brdf_name, "std": std_name,
         "std_meaning": "predictive standard deviation of ln(w x + eps) per cell and channel (MERL layout; "
@@ -59,7 +64,7 @@ def reconstruction_record(model: FrostModel, rec: BayesReconstruction, samples_s
         "estimator": "bayes posterior mean, all atoms",
         "model": {"hash": model.content_hash, "noise": model.noise.get("kind", "scalar")},
         "samples_file": None if samples_source is None else str(samples_source),
-        "cells": rec.samples, "predicted_log_relative_mse": rec.predicted_error,
+        "cells": rec.samples, **error,
         "features": {"design_error": rec.design_error, "z2": rec.z2, "energy": rec.energy,
                      "level": rec.level, "spread": rec.spread},
         **flags,

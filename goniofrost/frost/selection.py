@@ -74,6 +74,8 @@ class Selection:
     design_key: the key (p, largest t, F[, a]; ``usage_design.design_key``) of a scene-aware
         design's weights and of the calibration its predicted errors used (its last phase's with
         max_error), else None.
+    bounds: float64 (m,) the bayes selector's typical material's calibrated bound after each pick
+        at the confidence ``select_bayes`` was given (what a capture stops on), else None.
     """
 
     positions: np.ndarray
@@ -83,6 +85,7 @@ class Selection:
     y_form: str
     k: int
     selector: str = "frost"
+    bounds: np.ndarray | None = None
     pick_seconds: np.ndarray | None = None
     prior_spread: float | None = None
     sensitivity_power: float | None = None

@@ -86,7 +86,11 @@ def why_not_reached(bound: ErrorBound, target: float, error: str = "error") -> s
 
 
 def statement(bound: ErrorBound, target: float, error: str = "error") -> str:
-    """The operator's sentence after an assessment: "error <= E with 95 % confidence (median
-    estimate X)" when the target is reached, else why not (``error``: see ``why_not_reached``)."""
+    """The operator's sentence after an assessment: the error figure ("error <= B with 95 %
+    confidence (median estimate X)", ``confidence.figure``: the same words every output states)
+    and ", within the target E" when the target is reached, else why not (``error``: see
+    ``why_not_reached``)."""
+    from goniofrost.frost.confidence import figure_of
+
     reason = why_not_reached(bound, target, error)
-    return reason or f"{error} <= {target:g} with {100 * bound.confidence:g} % confidence (median estimate {bound.median:.4g})"
+    return reason or f"{figure_of(bound, error)}, within the target {target:g}"

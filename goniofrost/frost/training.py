@@ -382,8 +382,10 @@ def _model_key(materials, grid: MerlGrid, k_max: int, sentinel_candidates) -> tu
     # a model without it is not checked for designs unlike its calibration's)
     # v10: a rig's model (sentinel_candidates) simulates the inner designs among the rig's cells
     # only; a model without a rig is unchanged and keeps v9
+    # v11 (v12 with a rig): the bound records its other kinds (normalised, per look) and their
+    # measurement on nested inner folds (confidence.fit_bound), and the kind the captures use
     among = [] if sentinel_candidates is None else [_mask_digest(sentinel_candidates)]
-    version = "frost-model-v9" if sentinel_candidates is None else "frost-model-v10"
+    version = "frost-model-v11" if sentinel_candidates is None else "frost-model-v12"
     return disk_cache.content_key(version, ids, [m.label for m in materials],
                                   grid.as_dict(), int(k_max), EPS, *among), among
 

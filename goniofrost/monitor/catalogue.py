@@ -31,7 +31,8 @@ class SessionEntry:
     until its last sample); ``state`` one of STATES; ``samples`` the samples measured,
     ``not_measured`` those journaled as not measured (too dark or saturated; done, without a value);
     ``predicted_error`` the median estimate of the reconstruction's log-relative MSE (or of the
-    last batch's; ``session_view``), None before one; ``extrapolation`` when its report flags the
+    last batch's; ``session_view``), None before one; ``error_figure`` the sentence every output
+    states of it (``frost.confidence.figure``), None before one; ``extrapolation`` when its report flags the
     reconstruction as an extrapolation (samples unlike every training material: the estimate is
     not backed by the training set); ``problem`` why a session is "unreadable" (its journal's path
     and the error)."""
@@ -50,6 +51,7 @@ class SessionEntry:
     samples_planned: int
     predicted_error: float | None
     duration_s: float
+    error_figure: str | None = None
     not_measured: int = 0
     problem: str | None = None
     extrapolation: bool = False
@@ -92,7 +94,7 @@ def read_entry(session_dir: Path) -> SessionEntry:
                         operator=label.get("operator"), sample_id=label.get("sample_id"), material=view.material,
                         notes=tuple(label.get("notes") or ()), lab=label.get("lab"), rig=view.rig_name, state=state,
                         samples=len(view.done), samples_planned=len(view.plan),
-                        predicted_error=view.predicted_error, duration_s=duration, not_measured=len(view.not_measured),
+                        predicted_error=view.predicted_error, error_figure=view.error_figure, duration_s=duration, not_measured=len(view.not_measured),
                         problem=view.unreadable or None,
                         extrapolation=bool(((view.report or {}).get("prediction") or {}).get("extrapolation")))
 
@@ -145,7 +147,7 @@ def iso_minutes(t_utc: float) -> str:
     return dt.datetime.fromtimestamp(t_utc, dt.timezone.utc).strftime("%Y-%m-%d %H:%M")
 
 
-COLUMNS = ("session", "started (UTC)", "operator", "sample", "state", "samples", "predicted error", "duration")
+COLUMNS = ("session", "started (UTC)", "operator", "sample", "state", "samples", "error (log-relative MSE)", "duration")
 
 
 def table_rows(entries) -> list[tuple[str, ...]]:
@@ -153,7 +155,7 @@ def table_rows(entries) -> list[tuple[str, ...]]:
     journal's samples and duration are not 0)."""
     return [(e.name, "-" if e.started_utc is None else iso_minutes(e.started_utc), e.operator or "-",
              e.sample_id or "-", e.state, "-" if e.problem else samples_text(e),
-             "-" if e.predicted_error is None else f"{e.predicted_error:.4g}" + (" (extrapolation)" if e.extrapolation else ""),
+             "-" if e.error_figure is None else e.error_figure + (" (extrapolation)" if e.extrapolation else ""),
              "-" if e.problem else duration_text(e.duration_s))
             for e in entries]
 

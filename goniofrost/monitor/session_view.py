@@ -123,7 +123,8 @@ class SessionView:
     ``capture_alive`` whether a capture process holds the session's lock (None: cannot tell);
     ``summary`` the text of summary.txt (empty before the end);
     ``predicted_error`` is the latest predicted reconstruction error when the session
-    records one; ``assessment`` the latest batch assessment of a capture with a target error (the
+    records one; ``error_figure`` the one sentence of it every output states
+    (``frost.confidence.figure``: report.json's, else the latest batch assessment's), None before one; ``assessment`` the latest batch assessment of a capture with a target error (the
     typed fields of its Assess step: batch, samples, predicted_error = the median estimate, bound,
     confidence, target, decision, out_of_model, scope: "brdf" or "scene", the error assessed), None
     before one; ``files`` are the names of the folder's own files (journal side files excluded);
@@ -159,6 +160,7 @@ class SessionView:
     report: dict | None = None
     summary: str = ""
     predicted_error: float | None = None
+    error_figure: str | None = None
     assessment: dict | None = None
     files: tuple = field(default_factory=tuple)
     label: dict = field(default_factory=dict)
@@ -205,7 +207,8 @@ def read_session(session_dir) -> SessionView:
         stop=_stop(end), calibrated=calibration is not None, white_rates=_white_rates(calibration), report=report,
         summary=_read_text(session_dir / SUMMARY_FILE), step=_last_step(steps), reached=_reached(steps),
         capture_alive=flock_held(session_dir / LOCK_FILE),
-        predicted_error=_predicted_error(events, report), assessment=_assessment(events), files=files,
+        predicted_error=_predicted_error(events, report), error_figure=_error_figure(events, report),
+        assessment=_assessment(events), files=files,
         label=label.to_dict(), first_started_utc=runs[0][0].started_utc if runs else None,
         run_spans=tuple((s.started_utc, None if e is None else e.ended_utc) for s, e in runs))
 
@@ -353,6 +356,21 @@ def _predicted_error(events: list, report: dict | None) -> float | None:
         if isinstance(value, (int, float)):
             return float(value)
     return None
+
+
+def _error_figure(events: list, report: dict | None) -> str | None:
+    """report.json's ``prediction.error_figure``, else the figure of the latest batch assessment
+    (its bound, confidence and median estimate), else None."""
+    from goniofrost.frost.confidence import figure
+
+    said = ((report or {}).get("prediction") or {}).get("error_figure")
+    if isinstance(said, str):
+        return said
+    latest = _assessment(events)
+    if latest is None:
+        return None
+    error = "error in the scene's use" if latest.get("scope") == "scene" else "error"
+    return figure(latest["bound"], latest["confidence"], latest["predicted_error"], error)
 
 
 ASSESSMENT_FIELDS = ("batch", "samples", "predicted_error", "bound", "confidence", "target", "decision",

@@ -60,6 +60,7 @@ def page_state(view, now_utc: float, *, attached: bool = False, ended_message: s
             "samples_planned": view.run_end.samples_planned, "samples_captured": view.run_end.samples_captured},
         "ended_message": ended_message,
         "predicted_error": view.predicted_error,
+        "error_figure": view.error_figure,
         "assessment": view.assessment,
         "calibrated": view.calibrated,
         "files": list(view.files),

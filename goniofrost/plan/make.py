@@ -21,7 +21,8 @@ class PlanRequest:
     ``atoms`` (frost only: None for the defaults); ``usage``: a scene's use of every cell (float
     (n_valid,), bayes only) read from ``usage_file``; ``sentinels``: None adds the model's
     sentinels when it has them, True insists, False adds none; ``rig``: a ``planner.rig.Rig`` to
-    select on and schedule for; ``candidates``: its reach mask (bool (n_valid,)) when computed.
+    select on and schedule for; ``candidates``: its reach mask (bool (n_valid,)) when computed;
+    ``confidence``: of the bound a Bayesian ``max_error`` plan chooses its length on (no scene).
     """
 
     samples: int | None = None
@@ -35,6 +36,7 @@ class PlanRequest:
     sentinels: bool | None = None
     rig: Any = None
     candidates: Any = None
+    confidence: float = 0.95
 
     @property
     def whole_brdf(self) -> bool:
@@ -135,7 +137,10 @@ def _select(model, request: PlanRequest, mask, scenes):
     from goniofrost.frost.selectors import SELECTORS
 
     options = {"y_form": request.y_form, "k": request.atoms, "usage": request.usage,
-               "calibration": None if scenes is None else (lambda *design: scenes(*design).calibration)}
+               "calibration": None if scenes is None else (lambda *design: scenes(*design).calibration),
+               # the rule a capture stops on: a typical material's bound at this confidence
+               "confidence": request.confidence if request.max_error is not None and request.selector == "bayes"
+               and request.usage is None else None}
     return SELECTORS[request.selector].select(model, request.samples, max_error=request.max_error, candidates=mask,
                                               **{key: value for key, value in options.items() if value is not None})
 

@@ -12,9 +12,13 @@ def add_arguments(parser) -> None:
     how = parser.add_mutually_exclusive_group(required=True)
     how.add_argument("--samples", type=int, metavar="M", help="number of samples to select")
     how.add_argument("--max-error", type=float, metavar="E",
-                     help="select until the error target E is met: with --selector bayes, the predicted "
-                          "log-relative MSE of a typical material (e.g. 0.05); with frost, the relative "
-                          "residual ||R||_F/||Y||_F (paper eq. 8)")
+                     help="select until the error target E is met: with --selector bayes, a typical material's "
+                          "calibrated bound on its log-relative MSE at --confidence (e.g. 0.05: the rule capture "
+                          "--target-error stops on; with --usage the predicted error in the scene's use); with "
+                          "frost, the relative residual ||R||_F/||Y||_F (paper eq. 8)")
+    parser.add_argument("--confidence", type=float, default=None, metavar="P",
+                        help="with --max-error and --selector bayes: the bound's confidence (default 0.95, "
+                             "capture --confidence's)")
     from goniofrost.frost.selectors import SELECTORS
 
     parser.add_argument("--selector", choices=tuple(SELECTORS), default="bayes",
@@ -57,6 +61,11 @@ def run(args) -> int:
         raise GoniofrostError("--y-form and --atoms apply to --selector frost only")
     if args.sentinels and (args.selector != "bayes" or args.usage is not None):
         raise GoniofrostError("--sentinels applies to --selector bayes without --usage (the whole BRDF's bound)")
+    if args.confidence is not None and (args.max_error is None or args.selector != "bayes" or args.usage is not None):
+        raise GoniofrostError("--confidence applies to --max-error with --selector bayes without --usage (the "
+                              "confidence of the bound the plan's length is chosen on)")
+    if args.confidence is not None and not 0 < args.confidence < 1:
+        raise GoniofrostError(f"--confidence: expected a number between 0 and 1, found {args.confidence:g}")
     if args.usage is not None and args.selector != "bayes":
         raise GoniofrostError("--usage applies to --selector bayes only (the scene-weighted Bayesian design)")
     from goniofrost.core.errors import ConfigError
@@ -75,6 +84,8 @@ def run(args) -> int:
     request = _request(args, model)
     made = make_plan(model, model_path_for_plan(args.model, args.out), request, say=print, progress=True)
     write_plan(args.out, made.doc)
+    if made.selection.bounds is not None:
+        print(bound_line(model, made.selection, request.confidence))
     # the scene's calibration time is printed, not written: a plan made again is the same file
     # but for selection_seconds
     print(summary_line(args.out, made, request))
@@ -100,4 +111,25 @@ def _request(args, model):
         rig = load_checked_rig(args.rig, args.alignment)
     return PlanRequest(samples=args.samples, max_error=args.max_error, selector=args.selector,
                        max_angle=args.max_angle, y_form=args.y_form, atoms=args.atoms, usage=usage,
-                       usage_file=args.usage, sentinels=args.sentinels, rig=rig)
+                       usage_file=args.usage, sentinels=args.sentinels, rig=rig, confidence=plan_confidence(args))
+
+
+def plan_confidence(args) -> float:
+    """The confidence of ``--max-error``'s bound: --confidence, else capture's default."""
+    from goniofrost.capture.target import DEFAULT_CONFIDENCE
+
+    return DEFAULT_CONFIDENCE if args.confidence is None else float(args.confidence)
+
+
+def bound_line(model, selection, confidence: float) -> str:
+    """What ``--max-error`` chose its length on: the typical material's bound at the plan's
+    length, and the held-out training materials' bounds there (10th, 50th, 90th percentiles)."""
+    from goniofrost.frost.confidence import figure, training_spread
+    from goniofrost.frost.prediction import calibration_of
+
+    m = selection.m
+    spread = training_spread(calibration_of(model), m, confidence)
+    said = figure(selection.bounds[-1], confidence, selection.residuals[-1])
+    over = "" if spread is None else (f"; the training materials' bounds at {m} samples: 10 % {spread[0]:.3g}, "
+                                      f"median {spread[1]:.3g}, 90 % {spread[2]:.3g}")
+    return f"a typical material at {m} samples: {said}{over}"

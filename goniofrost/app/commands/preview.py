@@ -22,7 +22,7 @@ def run(args) -> int:
 
     from goniofrost.core.errors import GoniofrostError
     from goniofrost.app.png_out import check_png_name, check_sphere_size
-    from goniofrost.brdf.preview import make_preview, write_png
+    from goniofrost.brdf.preview import make_preview, record_figure, write_png
 
     check_png_name(args.out)
     check_sphere_size(args.size)
@@ -34,7 +34,9 @@ def run(args) -> int:
         preview = make_preview_mitsuba(args.binary, args.reference, size=args.size)
     else:
         preview = make_preview(args.binary, args.reference, size=args.size, std_path=args.std)
-    write_png(args.out, preview, title=Path(args.binary).name + (" (Mitsuba 3)" if args.renderer == "mitsuba" else ""))
+    figure = record_figure(args.binary)
+    write_png(args.out, preview, title=Path(args.binary).name + (" (Mitsuba 3)" if args.renderer == "mitsuba" else "")
+              + ("" if figure is None else f"\n{figure}"))
     print(f"wrote {args.out}")
     if preview.snr_db is not None:
         print(f"rendering SNR: {preview.snr_db:.2f} dB against {args.reference}")

@@ -69,7 +69,7 @@ def run(args) -> int:
         return 0
     if args.eta is not None or args.atoms is not None:
         raise GoniofrostError("--eta and --atoms apply to --estimator ridge only")
-    from goniofrost.frost.confidence import extrapolation_fields, extrapolation_lines
+    from goniofrost.frost.confidence import extrapolation_fields, extrapolation_lines, figure_of
     from goniofrost.frost.outputs import write_bayes_outputs
     from goniofrost.frost.reconstruction import error_bound, reconstruct_bayes
 
@@ -78,7 +78,7 @@ def run(args) -> int:
     bound = error_bound(model, positions, values, sigmas)  # its flags: is the prediction an extrapolation?
     std_path, record_path = write_bayes_outputs(args.out, model, rec, args.samples, bound)
     print(f"{args.out}: reconstructed from {cells.size} samples ({rec.samples} cells; Bayesian posterior mean)")
-    print(f"predicted error (log-relative MSE): {rec.predicted_error:.4g}"
+    print(f"log-relative MSE: {figure_of(bound)}"
           + (" (an extrapolation)" if bound.out_of_model else "")
           + f"; per-cell standard deviation in {std_path}; record in {record_path}")
     for line in extrapolation_lines(extrapolation_fields(bound)):

@@ -295,7 +295,10 @@ function assessmentText(a, decision) {
     return `after ${a.samples} samples: ${unlike} (an extrapolation): ` +
       (a.decision === decision.CONTINUE ? "measuring on" : `${a.decision}, target ${a.target} not reached`);
   }
-  if (a.decision === decision.TARGET_REACHED) return `${error} <= ${a.target} with ${pct} confidence (${median})`;
+  // the words of the error figure every output states (frost.confidence.figure)
+  if (a.decision === decision.TARGET_REACHED) {
+    return `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence (${median}), within the target ${a.target}`;
+  }
   const bound = a.bound == null ? "no bound" : `${error} <= ${a.bound.toPrecision(3)} with ${pct} confidence`;
   return `after ${a.samples} samples: ${bound}, target ${a.target} ` +
     (a.decision === decision.CONTINUE ? "not reached yet" : `not reached (${a.decision})`) + ` (${median})`;
@@ -309,9 +312,9 @@ function renderAssessment(a, names) {
 
 function renderPredicted(st) {
   renderAssessment(st.assessment, st.names);
-  const el = $("predicted-error");
-  el.hidden = st.predicted_error == null;
-  if (st.predicted_error != null) setText("predicted-error", `predicted error (log-relative MSE): ${st.predicted_error.toPrecision(3)}`);
+  const el = $("predicted-error");  // the one error figure every output states (report.json's, or the last batch's)
+  el.hidden = st.error_figure == null;
+  if (st.error_figure != null) setText("predicted-error", `reconstruction (log-relative MSE): ${st.error_figure}`);
 }
 
 // ----- the stream -----------------------------------------------------------------------------
