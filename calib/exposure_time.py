@@ -52,6 +52,11 @@ class Sensor:
                 * np.maximum(np.asarray(cos_i, np.float64), 0.0)[:, None] / self.full_well_e)
 
 
+# A rig whose response is not given (no ``sim.camera`` section): the default simulated rig's sensor
+# (config/rigs/sim.yaml), a stand-in until the response is fitted from the white reference.
+DEFAULT_SENSOR = Sensor(2.0e5, (0.6, 1.0, 0.75), 30000.0, 3.0, 5.0)
+
+
 def first_rungs(ladder, rates, saturation: float) -> np.ndarray:
     """int64 (n,): the rung a bracket starts at for patch levels per second ``rates`` (n, 3)."""
     t = np.asarray(ladder, np.float64)

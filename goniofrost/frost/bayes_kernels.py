@@ -123,3 +123,71 @@ def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, bes
                                        noise[s], t0, t1)
             if score > best[s]:
                 best[s], best_i[s] = score, index
+
+
+# ----- the time-aware design: one design, its score divided by each cell's rig time ----------------
+@njit(**_OPTIONS)
+def _rig_seconds(poses, fixed, i, here, speed, accel, tolerance):
+    """Seconds to measure candidate i from joints ``here`` with its fastest candidate pose: the
+    slowest axis's trapezoid (``planner.motion.trapezoid_time``) + its fixed seconds (inf: none)."""
+    best = np.inf
+    for c in range(poses.shape[1]):
+        fixed_c = np.float64(fixed[i, c])
+        if not fixed_c < np.inf:
+            continue
+        move = 0.0
+        for a in range(3):
+            d = abs(np.float64(poses[i, c, a]) - here[a])
+            if d <= tolerance[a]:
+                t = 0.0
+            elif d >= speed[a] * speed[a] / accel[a]:
+                t = d / speed[a] + speed[a] / accel[a]
+            else:
+                t = 2.0 * np.sqrt(d / accel[a])
+            move = max(move, t)
+        best = min(best, move + fixed_c)
+    return best
+
+
+@njit(**_OPTIONS)
+def timed_best(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, best, best_i, i0, i1):
+    """The best score p / (noise + q) / (overhead + rig seconds from ``here``) of candidates
+    [i0, i1) and its index (lowest on ties), without changing the forms: the first pick's pass.
+
+    q, p, noise: (n_c,) one design's; poses: float32 (n_c, k, 3); fixed: float32 (n_c, k); here,
+    speed, accel, tolerance: float64 (3,); overhead: seconds added to every cell's time; best,
+    best_i: (1,) outputs.
+    """
+    best[0], best_i[0] = -1.0, -1
+    for i in range(i0, i1):
+        score = p[i] / (noise[i] + q[i]) / (overhead + _rig_seconds(poses, fixed, i, here, speed, accel, tolerance))
+        if score > best[0]:
+            best[0], best_i[0] = score, i
+
+
+@njit(**_OPTIONS)
+def timed_update(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, poses, fixed, here, speed, accel,
+                 tolerance, overhead, best, best_i, i0, i1):
+    """One greedy step of one design on candidates [i0, i1) (``_update_one``'s arithmetic) scoring
+    each cell per second of rig time from ``here`` (see ``timed_best``); u, v: (K,); inv_delta,
+    usu_delta2: floats."""
+    k = dictionary.shape[1]
+    every_row = rows.size == 0
+    best[0], best_i[0] = -1.0, -1
+    for i in range(i0, i1):
+        row = dictionary[i if every_row else rows[i]]
+        a = 0.0
+        g = 0.0
+        for j in range(k):
+            x = np.float64(row[j])
+            a += x * u[j]
+            g += x * v[j]
+        qc = max(q[i] - a * a * inv_delta, 0.0)
+        pc = max(p[i] - 2.0 * a * g * inv_delta + a * a * usu_delta2, 0.0)
+        q[i] = qc
+        p[i] = pc
+        gain = pc / (noise[i] + qc)
+        if gain > 0.0:  # a closed or exhausted cell needs no rig time
+            score = gain / (overhead + _rig_seconds(poses, fixed, i, here, speed, accel, tolerance))
+            if score > best[0]:
+                best[0], best_i[0] = score, i

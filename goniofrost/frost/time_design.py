@@ -1,0 +1,73 @@
+"""The time-aware design's state: where the rig stands after each pick, batch by batch.
+
+``bayes_selection`` with a ``TimeObjective`` scores every cell by its expected error reduction
+(the A-optimal score) per second of rig time from the rig's pose (``rig_cost``), plus a fixed
+``overhead_s`` per sample (0 makes the nearest cells nearly free; a large one gives back the
+sample-count design). Inside a batch (``stopping.batch_ends``) the rig stands at the fastest pose
+of the last pick; at a batch's end the batch is ordered for least motion as ``plan --rig`` will
+order it (``planner.order.plan_tour`` from the pose the batch started at) and the next batch
+starts where that tour ends. Deterministic: the same inputs give the same cells in the same order.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from goniofrost.frost import stopping
+from goniofrost.frost.rig_cost import CellCosts, cell_costs, rig_camera, rig_sensor
+
+# Seconds added to every sample's rig time in the score (not in any reported time): chosen on
+# training materials (docs/decisions/0200-time-aware-design.md).
+OVERHEAD_S = 1.0
+
+
+@dataclass(frozen=True)
+class TimeObjective:
+    """Plan for rig time on ``rig`` (a ``planner.rig.Rig``): ``overhead_s`` seconds added to every
+    sample in the score, ``settle_s`` seconds after every move (in the costs)."""
+
+    rig: object
+    overhead_s: float = OVERHEAD_S
+    settle_s: float = 0.0
+
+
+class RigTrack:
+    """The rig's pose along a time-aware design of candidates ``rows`` (int64 (n_c,)).
+
+    costs: the CellCosts of the candidates; here: float64 (3,) the joints the next pick is timed
+    from; ends: the batch ends (cumulative picks) after which the batch is re-ordered.
+    """
+
+    def __init__(self, model, objective: TimeObjective, rows: np.ndarray, m_max: int) -> None:
+        rig = objective.rig
+        self.rig, self.overhead = rig, float(objective.overhead_s)
+        self.costs: CellCosts = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
+        self.here = self.costs.home.copy()
+        self.ends = set(stopping.batch_ends(m_max))
+        self._batch: list[int] = []
+        self._batch_start = self.here.copy()
+        self.picked_count = 0
+
+    def kernel_args(self) -> tuple:
+        """(poses, fixed, here, speed, accel, tolerance, overhead) for the timed kernels."""
+        c = self.costs
+        return c.poses, c.fixed_s, self.here, c.speed, c.accel, c.tolerance, self.overhead
+
+    def picked(self, i: int) -> None:
+        """Candidate ``i`` was picked: the rig moves there (or, at a batch end, to the end of the
+        batch's motion-ordered tour)."""
+        self._batch.append(int(i))
+        self.picked_count += 1
+        self.here = self.costs.fastest_pose(int(i), self.here)
+        if self.picked_count in self.ends:
+            self.here = self._tour_end()
+            self._batch, self._batch_start = [], self.here.copy()
+
+    def _tour_end(self) -> np.ndarray:
+        from planner.order import plan_tour
+
+        idx = np.asarray(self._batch, dtype=np.int64)
+        poses = self.costs.poses[idx].astype(np.float64)
+        tour = plan_tour(self.rig, poses, np.isfinite(self.costs.fixed_s[idx]), self._batch_start)
+        return poses[tour.order[-1], tour.choice[-1]]
