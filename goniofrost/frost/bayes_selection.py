@@ -405,7 +405,7 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
     track = None
     if time_objective is not None:
         from goniofrost.frost.time_design import RigTrack
-        track = RigTrack(model, time_objective, rows, limit)
+        track = RigTrack.of_model(model, time_objective, rows, limit)
     design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
                            rows=rows, stop=stop, threads=threads, track=track)
     if max_error is None:

@@ -39,15 +39,20 @@ class RigTrack:
     from; ends: the batch ends (cumulative picks) after which the batch is re-ordered.
     """
 
-    def __init__(self, model, objective: TimeObjective, rows: np.ndarray, m_max: int) -> None:
-        rig = objective.rig
-        self.rig, self.overhead = rig, float(objective.overhead_s)
-        self.costs: CellCosts = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
-        self.here = self.costs.home.copy()
+    def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int) -> None:
+        self.rig, self.overhead, self.costs = rig, float(overhead_s), costs
+        self.here = costs.home.copy()
         self.ends = set(stopping.batch_ends(m_max))
         self._batch: list[int] = []
         self._batch_start = self.here.copy()
         self.picked_count = 0
+
+    @classmethod
+    def of_model(cls, model, objective: TimeObjective, rows: np.ndarray, m_max: int) -> "RigTrack":
+        """The track of ``model``'s candidate rows on the objective's rig (``rig_cost.cell_costs``)."""
+        rig = objective.rig
+        costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
+        return cls(costs, rig, objective.overhead_s, m_max)
 
     def kernel_args(self) -> tuple:
         """(poses, fixed, here, speed, accel, tolerance, overhead) for the timed kernels."""

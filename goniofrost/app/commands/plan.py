@@ -42,7 +42,27 @@ def add_arguments(parser) -> None:
                              "(theta_d > 80 or theta_h > 70 deg), never fitted: capture --target-error checks the "
                              "design's reconstruction there and does not stop when they disagree (a material unlike "
                              "the training set); --no-sentinels: the design's samples only")
+    parser.add_argument("--objective", choices=("time", "samples"), default=None,
+                        help="bayes with --rig: time (each sample the largest expected error reduction per second of "
+                             "rig time: move, settle and the expected exposure bracket, from where the rig stands) or "
+                             f"samples (per sample, whatever it costs); default {DEFAULT_OBJECTIVE}")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write (a .json name)")
+
+
+# docs/decisions/0200-time-aware-design.md: what the benchmark on the simulated rig's clock measured
+DEFAULT_OBJECTIVE = "samples"
+
+
+def _objective(args) -> str:
+    """The design's objective: --objective, else the default when it applies (a Bayesian plan of the
+    whole BRDF with --rig), else samples. An explicit time that does not apply is one line, exit 2."""
+    from goniofrost.core.errors import ConfigError
+
+    applies = args.selector == "bayes" and args.rig is not None and args.usage is None
+    if args.objective == "time" and not applies:
+        raise ConfigError("command line", "--objective", "time only with --selector bayes, --rig and no --usage",
+                          "time")
+    return (args.objective or DEFAULT_OBJECTIVE) if applies else "samples"
 
 
 def run(args) -> int:
@@ -68,6 +88,7 @@ def run(args) -> int:
     check_output_file(args.out)
     check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
                                   "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
+    objective = _objective(args)
     model = FrostModel.load(args.model)
     usage = None
     if args.usage is not None:
@@ -110,7 +131,11 @@ def run(args) -> int:
             calibrating[0] += time.perf_counter() - start
         return scenes[key]
 
-    selection = _select(model, args, mask, usage, scene_for)
+    time_objective = None
+    if objective == "time":
+        from goniofrost.frost.time_design import TimeObjective
+        time_objective = TimeObjective(rig)
+    selection = _select(model, args, mask, usage, scene_for, time_objective)
     # the selection asks for the scene's calibrations as it goes (its predicted errors use them):
     # their fit on the training materials (a minute) is not the selection's time, which a plan
     # without --usage reports alone (0.4 s); it is printed, not written: a plan made again is the
@@ -167,6 +192,8 @@ def run(args) -> int:
                    "axis_weights": axis_weights(model, [s["cell"] for s in doc["samples"]])}
         doc = (schedule_batches(doc, rig, doc["batch_ends"], **lattice) if "batch_ends" in doc
                else schedule_plan(doc, rig, **lattice))
+        from goniofrost.capture.plan_times import with_expected_times
+        doc = with_expected_times(doc, model, rig, objective)
         print(format_table(doc))
     write_plan(args.out, doc)
     extra = f" + {doc['sentinels']} sentinels" if doc.get("sentinels") else ""
@@ -200,14 +227,15 @@ def _scene_error(model, usage, power, spread, floor, mix=0.0):
     return scene_error(model, usage, calibration, digest, unavailable)
 
 
-def _select(model, args, mask, usage=None, scene_for=None):
+def _select(model, args, mask, usage=None, scene_for=None, time_objective=None):
     """The selection; ``scene_for(power, spread, floor[, mix])``: the scene's SceneError for a design of that
     sensitivity power, largest prior spread and floor (with ``usage``), whose calibration the
     predicted errors use."""
     if args.selector == "bayes":
         from goniofrost.frost.bayes_selection import select_bayes
         return select_bayes(model, args.samples, max_error=args.max_error, candidates=mask, usage=usage,
-                            calibration=None if usage is None else (lambda *design: scene_for(*design).calibration))
+                            calibration=None if usage is None else (lambda *design: scene_for(*design).calibration),
+                            time_objective=time_objective)
     from goniofrost.frost.selection import DEFAULT_Y_FORM, select_cells
     return select_cells(model, args.samples, max_error=args.max_error, candidates=mask,
                         y_form=args.y_form or DEFAULT_Y_FORM, k=args.atoms)
