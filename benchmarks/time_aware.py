@@ -41,26 +41,29 @@ DESIGNS = ("samples", "time")
 CHUNK = 20
 
 
-def designs_of(model, mask, rig, m_max: int, overhead: float) -> dict:
-    """{design name: (positions (m_max,) int64, selection wall seconds)}."""
+def designs_of(model, mask, rig, m_max: int, overheads) -> dict:
+    """{design name: (positions (m_max,) int64, selection wall seconds)}: "samples", and "time" (one
+    overhead) or "time@X" for each overhead X."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.time_design import TimeObjective
 
     out = {}
-    for name in DESIGNS:
-        objective = TimeObjective(rig, overhead) if name == "time" else None
+    named = {"samples": None} | ({"time": overheads[0]} if len(overheads) == 1 else
+                                 {f"time@{x:g}": x for x in overheads})
+    for name, overhead in named.items():
+        objective = None if overhead is None else TimeObjective(rig, overhead)
         t0 = time.perf_counter()
         positions = select_bayes(model, m_max, candidates=mask, time_objective=objective).positions
         out[name] = (np.asarray(positions, np.int64), time.perf_counter() - t0)
     return out
 
 
-def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, overhead) -> dict:
+def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, overheads) -> dict:
     """Train as ``train --rig``, make both designs, and simulate every test material at every target."""
     from goniofrost.frost.training import fit_model
 
     model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
-    designs = designs_of(model, mask, rig, m_max, overhead)
+    designs = designs_of(model, mask, rig, m_max, overheads)
     rows = []
     for lo in range(0, len(test_names), CHUNK):
         truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
@@ -93,7 +96,7 @@ def summary(results: dict) -> dict:
         rows = [r for f in folds for r in f["rows"]]
         table = {}
         for target in sorted({r["target"] for r in rows}):
-            for design in DESIGNS:
+            for design in dict.fromkeys(r["design"] for r in rows):
                 group = [r for r in rows if r["target"] == target and r["design"] == design]
                 if not group:
                     continue
@@ -127,6 +130,14 @@ def markdown(stats: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _inner(folds):
+    """The first fold's training materials split in two: every 7th held out (tuning)."""
+    _, train, names, _, _ = next(iter(folds))
+    held = np.arange(len(names)) % 7 == 3
+    train = np.asarray(train)
+    yield 0, train[~held], [n for n, h in zip(names, held) if not h], train[held], [n for n, h in zip(names, held) if h]
+
+
 def _folds_of():
     """target_error.folds_of (benchmarks/ is not a package, and its planner.py would shadow ours)."""
     import importlib.util
@@ -151,14 +162,18 @@ def main(argv=None) -> int:
     parser.add_argument("--settings", default="split,builtin", help="comma-separated subset of split,builtin")
     parser.add_argument("--m-max", type=int, default=60, help="the plans' samples (default 60)")
     parser.add_argument("--targets", default=",".join(map(str, TARGETS)))
-    parser.add_argument("--overhead", type=float, default=None,
-                        help="seconds per sample in the time-aware score (default time_design.OVERHEAD_S)")
+    parser.add_argument("--overhead", default=None,
+                        help="seconds per sample in the time-aware score (default time_design.OVERHEAD_S); several "
+                             "(comma-separated): one design each")
+    parser.add_argument("--tune", action="store_true",
+                        help="choose the overhead on training materials only: the first fold's training materials of "
+                             "each setting, every 7th held out (the reported materials are never seen)")
     parser.add_argument("--rig", type=Path, default=REPO / "config" / "rigs" / "sim.yaml")
     parser.add_argument("--out", type=Path, required=True, help="folder: time_aware.json, time_aware.md")
     args = parser.parse_args(argv)
     from goniofrost.frost.time_design import OVERHEAD_S
 
-    overhead = OVERHEAD_S if args.overhead is None else args.overhead
+    overheads = [OVERHEAD_S] if args.overhead is None else [float(v) for v in args.overhead.split(",")]
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     rig = load_checked_rig(args.rig)
     mask = reachability(rig, grid).mask
@@ -167,14 +182,15 @@ def main(argv=None) -> int:
     results, started = {}, time.time()
     for setting in args.settings.split(","):
         results[setting] = []
-        for fold, train, train_names, test, test_names in folds_of(setting, grid, args.folds):
+        folds = folds_of(setting, grid, args.folds)
+        for fold, train, train_names, test, test_names in (_inner(folds) if args.tune else folds):
             t0 = time.time()
-            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, overhead)
+            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, overheads)
             results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
             print(f"{setting} fold {fold}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
             stats = summary(results)
             doc = {"command": " ".join(sys.argv), "grid": grid.as_dict(), "folds": args.folds, "m_max": args.m_max,
-                   "overhead_s": overhead, "rig": str(args.rig), "wall_s": time.time() - started,
+                   "overhead_s": overheads, "tune": args.tune, "rig": str(args.rig), "wall_s": time.time() - started,
                    "load_average": list(os.getloadavg()), "summary": stats, "results": results}
             (args.out / "time_aware.json").write_text(json.dumps(doc, indent=1))
             (args.out / "time_aware.md").write_text(markdown(stats))

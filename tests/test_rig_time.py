@@ -142,3 +142,37 @@ def test_plan_objective_time_records_expected_move_and_exposure_per_sample(captu
     assert capsys.readouterr().err.strip().splitlines()[-1].endswith(
         "--objective: expected time only with --selector bayes, --rig and no --usage, found 'time'")
     assert not (tmp_path / "other.json").exists()
+
+
+def test_the_time_aware_picks_are_those_of_a_plain_numpy_greedy_on_error_reduction_per_second(captured):
+    """The compiled passes (rank-1 updates, candidates ruled out without their trapezoids) pick
+    what the definition picks: argmax of u^T S^2 u / (sigma^2 + d^T u) / (overhead + seconds)."""
+    from goniofrost.frost.bayes_selection import _candidate_rows
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+    from goniofrost.frost.rig_cost import cell_costs
+    from goniofrost.frost.time_design import OVERHEAD_S, TimeObjective
+    from planner.reach import reachability
+    from test_session import session_model
+
+    rig = load_checked_rig(captured[0])
+    model = session_model()
+    mask = reachability(rig, model.grid).mask
+    rows = _candidate_rows(mask, model.grid.n_valid)
+    costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig))
+    d = np.asarray(model.dictionary, np.float64)[rows]
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    noise = (cell_noise(model) * design_scale(model))[rows]
+    sigma, here, picks = np.diag(prior_variance(model)), costs.home, []
+    for _ in range(10):
+        u = d @ sigma  # rows u_c = Sigma d_c
+        gain = np.einsum("ck,k,ck->c", u, s2, u) / (noise + np.einsum("ck,ck->c", d, u))
+        score = gain / (OVERHEAD_S + costs.seconds_from(here))
+        score[picks] = -np.inf
+        best = int(np.argmax(score))
+        picks.append(best)
+        here = costs.fastest_pose(best, here)
+        uu = sigma @ d[best]
+        sigma = sigma - np.outer(uu, uu) / (noise[best] + d[best] @ uu)
+    from goniofrost.frost.bayes_selection import select_bayes
+    chosen = select_bayes(model, 10, candidates=mask, time_objective=TimeObjective(rig)).positions
+    assert chosen.tolist() == rows[picks].tolist()

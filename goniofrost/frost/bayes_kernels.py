@@ -127,13 +127,36 @@ def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, bes
 
 # ----- the time-aware design: one design, its score divided by each cell's rig time ----------------
 @njit(**_OPTIONS)
-def _rig_seconds(poses, fixed, i, here, speed, accel, tolerance):
-    """Seconds to measure candidate i from joints ``here`` with its fastest candidate pose: the
-    slowest axis's trapezoid (``planner.motion.trapezoid_time``) + its fixed seconds (inf: none)."""
-    best = np.inf
-    for c in range(poses.shape[1]):
+def _within(poses, i, c, here, speed, accel, tolerance, budget):
+    """Whether candidate pose c of cell i may be reached from ``here`` in less than ``budget`` s:
+    every axis's distance under what its trapezoid covers in that time (v (T - v/a) once at top
+    speed, else a T^2 / 4), or within its tolerance. No square root; a hair of slack so that
+    rounding never rules out a pose that is in time."""
+    for a in range(3):
+        d = abs(np.float64(poses[i, c, a]) - here[a])
+        if d <= tolerance[a]:
+            continue
+        v, acc = speed[a], accel[a]
+        reach = v * (budget - v / acc) if budget >= 2.0 * v / acc else acc * budget * budget / 4.0
+        if d > reach * (1.0 + 1e-9):
+            return False
+    return True
+
+
+@njit(**_OPTIONS)
+def _timed_score(gain, best, poses, fixed, i, here, speed, accel, tolerance, overhead):
+    """gain / (overhead + rig seconds of candidate i), or -1 when it cannot beat ``best``.
+
+    A score beats ``best`` only when a pose's fixed time + move is under gain / best - overhead:
+    the trapezoids (and their square roots) are computed only for poses that ``_within`` that
+    budget, so most cells cost a few multiplications. The result is the unpruned one's."""
+    budget = gain / best - overhead if best > 0.0 else np.inf
+    score = -1.0
+    for c in range(fixed.shape[1]):
         fixed_c = np.float64(fixed[i, c])
-        if not fixed_c < np.inf:
+        if not fixed_c < budget:  # unusable (inf) or too slow whatever the move
+            continue
+        if budget < np.inf and not _within(poses, i, c, here, speed, accel, tolerance, budget - fixed_c):
             continue
         move = 0.0
         for a in range(3):
@@ -145,8 +168,8 @@ def _rig_seconds(poses, fixed, i, here, speed, accel, tolerance):
             else:
                 t = 2.0 * np.sqrt(d / accel[a])
             move = max(move, t)
-        best = min(best, move + fixed_c)
-    return best
+        score = max(score, gain / (overhead + move + fixed_c))
+    return score
 
 
 @njit(**_OPTIONS)
@@ -160,9 +183,11 @@ def timed_best(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhea
     """
     best[0], best_i[0] = -1.0, -1
     for i in range(i0, i1):
-        score = p[i] / (noise[i] + q[i]) / (overhead + _rig_seconds(poses, fixed, i, here, speed, accel, tolerance))
-        if score > best[0]:
-            best[0], best_i[0] = score, i
+        gain = p[i] / (noise[i] + q[i])
+        if gain > 0.0:
+            score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
+            if score > best[0]:
+                best[0], best_i[0] = score, i
 
 
 @njit(**_OPTIONS)
@@ -188,6 +213,6 @@ def timed_update(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, pos
         p[i] = pc
         gain = pc / (noise[i] + qc)
         if gain > 0.0:  # a closed or exhausted cell needs no rig time
-            score = gain / (overhead + _rig_seconds(poses, fixed, i, here, speed, accel, tolerance))
+            score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
             if score > best[0]:
                 best[0], best_i[0] = score, i
