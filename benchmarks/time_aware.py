@@ -85,7 +85,8 @@ def _rows(design: str, target: float, out: dict, clock: dict, names) -> list[dic
         motion, exposure = float(clock["motion"][at]), float(clock["exposure"][i, at])
         rows.append({"material": name, "design": design, "target": target, "samples": int(out["samples"][i]),
                      "reached": int(out["reached"][i]), "mse": float(out["mse"][i]), "motion_s": motion,
-                     "exposure_s": exposure, "time_s": motion + exposure})
+                     "exposure_s": exposure, "time_s": motion + exposure, "ever_out": int(out["ever_out"][i]),
+                     "out_of_model": int(out["out_of_model"][i])})
     return rows
 
 
@@ -111,22 +112,24 @@ def summary(results: dict) -> dict:
                     "samples_median": float(np.median([r["samples"] for r in group])),
                     "coverage": float(np.mean([r["mse"] <= target for r in hit])) if hit else None,
                     "within_all": float(np.mean([r["mse"] <= target for r in group])),
-                    "final_error_median": float(np.median([r["mse"] for r in group]))}
+                    "final_error_median": float(np.median([r["mse"] for r in group])),
+                    "ever_out": int(sum(r.get("ever_out", 0) for r in group))}
         out[setting] = table
     return out
 
 
 def markdown(stats: dict) -> str:
     lines = ["| setting | E | design | materials | stopped on E | coverage | rig time median / p90 (s) | "
-             "limit: exposures alone, median / p90 (s) | motion median (s) | samples median | median final error |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "limit: exposures alone, median / p90 (s) | motion median (s) | samples median | median final error | "
+             "out of the model at some look |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for setting, table in stats.items():
         for r in table.values():
             cov = "n/a" if r["coverage"] is None else f"{100 * r['coverage']:.1f} %"
             lines.append(f"| {setting} | {r['target']:g} | {r['design']} | {r['materials']} | {r['stopped_on_target']} "
                          f"| {cov} | {r['time_median_s']:.1f} / {r['time_p90_s']:.1f} | {r['limit_median_s']:.2f} / "
                          f"{r['limit_p90_s']:.2f} | {r['motion_median_s']:.1f} | {r['samples_median']:g} | "
-                         f"{r['final_error_median']:.4f} |")
+                         f"{r['final_error_median']:.4f} | {r.get('ever_out', 0)} |")
     return "\n".join(lines) + "\n"
 
 

@@ -176,3 +176,26 @@ def test_the_time_aware_picks_are_those_of_a_plain_numpy_greedy_on_error_reducti
     from goniofrost.frost.bayes_selection import select_bayes
     chosen = select_bayes(model, 10, candidates=mask, time_objective=TimeObjective(rig)).positions
     assert chosen.tolist() == rows[picks].tolist()
+
+
+def test_a_target_error_capture_of_a_time_aware_plan_stops_on_the_calibrated_rule(captured, tmp_path, capsys):
+    from goniofrost.capture.journal import Journal
+    from goniofrost.core.cache import cache_path
+    from test_session import session_model
+
+    rig_file = captured[0]
+    model = session_model()
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(cache_path("models", model.info["cache_key"], "")), "--samples", "20",
+                 "--rig", str(rig_file), "--objective", "time", "--out", str(plan)]) == 0
+    doc = json.loads(plan.read_text())
+    first = doc["batch_ends"][0]
+    session = tmp_path / "s"
+    # a target every bound meets: the capture stops after the first batch, as with a sample-count plan
+    assert main(capture_args(rig_file, plan, session, "--speedup", "50", "--target-error", "10000",
+                             "--confidence", "0.8")) == 0
+    with Journal.open(session / "session.sqlite") as journal:
+        records, events = journal.samples(), journal.events()
+    [batch] = [e for e in events if e["kind"] == "batch"]
+    assert batch["data"]["decision"] == "target reached" and batch["data"]["samples"] == first == len(records)
+    assert [r.plan_index for r in records] == list(range(first))
