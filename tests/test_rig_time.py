@@ -96,9 +96,12 @@ def test_the_time_aware_design_is_deterministic_and_does_not_depend_on_the_threa
     one, again, two = (_select(model, rig, mask, TimeObjective(rig), t) for t in (1, 1, 2))
     assert one.positions.tolist() == again.positions.tolist() == two.positions.tolist()
     assert np.array_equal(one.residuals, two.residuals)
-    # a per-sample overhead far above any rig time gives back the sample-count design
-    plain = _select(model, rig, mask, None)
-    assert _select(model, rig, mask, TimeObjective(rig, 1e9)).positions.tolist() == plain.positions.tolist()
+    # a per-sample overhead far above any rig time, or picks held to the step's largest error
+    # reduction, give back the sample-count design
+    plain = _select(model, rig, mask, None).positions.tolist()
+    assert _select(model, rig, mask, TimeObjective(rig, 1e9)).positions.tolist() == plain
+    assert _select(model, rig, mask, TimeObjective(rig, share=1.0)).positions.tolist() == plain
+    assert one.positions.tolist() != plain
 
 
 def test_of_two_equally_informative_cells_the_cheaper_is_picked():

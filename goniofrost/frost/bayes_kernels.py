@@ -173,9 +173,11 @@ def _timed_score(gain, best, poses, fixed, i, here, speed, accel, tolerance, ove
 
 
 @njit(**_OPTIONS)
-def timed_best(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, best, best_i, i0, i1):
-    """The best score p / (noise + q) / (overhead + rig seconds from ``here``) of candidates
-    [i0, i1) and its index (lowest on ties), without changing the forms: the first pick's pass.
+def timed_scan(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, floor, best, best_i, i0, i1):
+    """The best score gain / (overhead + rig seconds from ``here``) of candidates [i0, i1) whose
+    gain p / (noise + q) is above 0 and at least ``floor``, and its index (lowest on ties), from
+    the forms a pass over D has just updated (this reads q, p and noise, 20 bytes a cell, and the
+    poses of the cells that qualify only).
 
     q, p, noise: (n_c,) one design's; poses: float32 (n_c, k, 3); fixed: float32 (n_c, k); here,
     speed, accel, tolerance: float64 (3,); overhead: seconds added to every cell's time; best,
@@ -184,35 +186,7 @@ def timed_best(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhea
     best[0], best_i[0] = -1.0, -1
     for i in range(i0, i1):
         gain = p[i] / (noise[i] + q[i])
-        if gain > 0.0:
-            score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
-            if score > best[0]:
-                best[0], best_i[0] = score, i
-
-
-@njit(**_OPTIONS)
-def timed_update(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, poses, fixed, here, speed, accel,
-                 tolerance, overhead, best, best_i, i0, i1):
-    """One greedy step of one design on candidates [i0, i1) (``_update_one``'s arithmetic) scoring
-    each cell per second of rig time from ``here`` (see ``timed_best``); u, v: (K,); inv_delta,
-    usu_delta2: floats."""
-    k = dictionary.shape[1]
-    every_row = rows.size == 0
-    best[0], best_i[0] = -1.0, -1
-    for i in range(i0, i1):
-        row = dictionary[i if every_row else rows[i]]
-        a = 0.0
-        g = 0.0
-        for j in range(k):
-            x = np.float64(row[j])
-            a += x * u[j]
-            g += x * v[j]
-        qc = max(q[i] - a * a * inv_delta, 0.0)
-        pc = max(p[i] - 2.0 * a * g * inv_delta + a * a * usu_delta2, 0.0)
-        q[i] = qc
-        p[i] = pc
-        gain = pc / (noise[i] + qc)
-        if gain > 0.0:  # a closed or exhausted cell needs no rig time
+        if gain > 0.0 and gain >= floor:
             score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
             if score > best[0]:
                 best[0], best_i[0] = score, i

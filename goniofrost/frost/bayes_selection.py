@@ -94,7 +94,7 @@ def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, thr
     with ThreadPoolExecutor(max_workers=threads) as pool:
         best, index = forms.first_pass(pool, np.tile(prior, (designs, 1)), s2)
         if track is not None:
-            best, index = forms.timed_pass(pool)
+            best, index = forms.timed_pass(pool, best)
         first = best.copy()
         while True:
             for s in range(designs):
@@ -144,18 +144,17 @@ class _Forms:
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
 
-    def timed_pass(self, pool) -> tuple[np.ndarray, np.ndarray]:
-        """The best score per second of rig time from the track's pose (the forms unchanged)."""
-        return self._run(pool, kernels.timed_best, self.q[0], self.p[0], self.open_noise[0],
-                         *self.track.kernel_args())
+    def timed_pass(self, pool, best_gain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The best score per second of rig time from the track's pose among the cells whose gain
+        is at least the track's share of ``best_gain`` (1,), this step's best (the forms unchanged)."""
+        floor = self.track.share * float(best_gain[0])
+        return self._run(pool, kernels.timed_scan, self.q[0], self.p[0], self.open_noise[0],
+                         *self.track.kernel_args(), floor)
 
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
-        if self.track is not None:
-            return self._run(pool, kernels.timed_update, self.d, self.kernel_rows, u[0], v[0], float(inv_delta[0]),
-                             float(usu_delta2[0]), self.q[0], self.p[0], self.open_noise[0],
-                             *self.track.kernel_args())
-        return self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
+        best = self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
+        return best if self.track is None else self.timed_pass(pool, best[0])
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
         """Take candidate i out of design s's competition; return its dictionary row (float64)

@@ -24,6 +24,8 @@ from goniofrost.frost.rig_cost import CellCosts, cell_costs, rig_camera, rig_sen
 # analytic library's captures stopped only after 35-40 samples instead of 15
 # (docs/decisions/0200-time-aware-design.md).
 OVERHEAD_S = 2.0
+# The fraction of each step's largest expected error reduction a pick must reach (0: none).
+SHARE = 0.0
 # Restarts of the batch's tour inside the design (plan --rig's schedule uses planner.order's 8):
 # 0.116 s against 0.013 s a 15-sample batch (load 15), ten times in a 60-sample design, which
 # would take longer than the passes over D; the end pose is then an estimate of the schedule's.
@@ -33,11 +35,14 @@ TOUR_RESTARTS = 1
 @dataclass(frozen=True)
 class TimeObjective:
     """Plan for rig time on ``rig`` (a ``planner.rig.Rig``): ``overhead_s`` seconds added to every
-    sample in the score, ``settle_s`` seconds after every move (in the costs)."""
+    sample in the score, ``settle_s`` seconds after every move (in the costs), ``share``: a pick's
+    error reduction is at least this fraction of the step's largest (0: any cell; 1: the
+    sample-count design's pick, timed or not)."""
 
     rig: object
     overhead_s: float = OVERHEAD_S
     settle_s: float = 0.0
+    share: float = SHARE
 
 
 class RigTrack:
@@ -47,8 +52,8 @@ class RigTrack:
     from; ends: the batch ends (cumulative picks) after which the batch is re-ordered.
     """
 
-    def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int) -> None:
-        self.rig, self.overhead, self.costs = rig, float(overhead_s), costs
+    def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int, share: float = 0.0) -> None:
+        self.rig, self.overhead, self.costs, self.share = rig, float(overhead_s), costs, float(share)
         self.here = costs.home.copy()
         self.ends = set(stopping.batch_ends(m_max))
         self._batch: list[int] = []
@@ -60,7 +65,7 @@ class RigTrack:
         """The track of ``model``'s candidate rows on the objective's rig (``rig_cost.cell_costs``)."""
         rig = objective.rig
         costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
-        return cls(costs, rig, objective.overhead_s, m_max)
+        return cls(costs, rig, objective.overhead_s, m_max, objective.share)
 
     def kernel_args(self) -> tuple:
         """(poses, fixed, here, speed, accel, tolerance, overhead) for the timed kernels."""
