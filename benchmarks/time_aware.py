@@ -41,29 +41,29 @@ DESIGNS = ("samples", "time")
 CHUNK = 20
 
 
-def designs_of(model, mask, rig, m_max: int, overheads) -> dict:
+def designs_of(model, mask, rig, m_max: int, variants) -> dict:
     """{design name: (positions (m_max,) int64, selection wall seconds)}: "samples", and "time" (one
-    overhead) or "time@X" for each overhead X."""
+    variant (overhead, share)) or "time@X/Y" for each overhead X and share Y."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.time_design import TimeObjective
 
     out = {}
-    named = {"samples": None} | ({"time": overheads[0]} if len(overheads) == 1 else
-                                 {f"time@{x:g}": x for x in overheads})
-    for name, overhead in named.items():
-        objective = None if overhead is None else TimeObjective(rig, overhead)
+    named = {"samples": None} | ({"time": variants[0]} if len(variants) == 1 else
+                                 {f"time@{x:g}/{y:g}": (x, y) for x, y in variants})
+    for name, variant in named.items():
+        objective = None if variant is None else TimeObjective(rig, variant[0], share=variant[1])
         t0 = time.perf_counter()
         positions = select_bayes(model, m_max, candidates=mask, time_objective=objective).positions
         out[name] = (np.asarray(positions, np.int64), time.perf_counter() - t0)
     return out
 
 
-def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, overheads) -> dict:
+def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, variants) -> dict:
     """Train as ``train --rig``, make both designs, and simulate every test material at every target."""
     from goniofrost.frost.training import fit_model
 
     model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
-    designs = designs_of(model, mask, rig, m_max, overheads)
+    designs = designs_of(model, mask, rig, m_max, variants)
     rows = []
     for lo in range(0, len(test_names), CHUNK):
         truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
@@ -167,16 +167,21 @@ def main(argv=None) -> int:
     parser.add_argument("--targets", default=",".join(map(str, TARGETS)))
     parser.add_argument("--overhead", default=None,
                         help="seconds per sample in the time-aware score (default time_design.OVERHEAD_S); several "
-                             "(comma-separated): one design each")
+                             "(comma-separated): one design each with each share")
+    parser.add_argument("--share", default=None,
+                        help="the share of each step's largest error reduction a time-aware pick must reach (default "
+                             "time_design.SHARE); several (comma-separated): one design each with each overhead")
     parser.add_argument("--tune", action="store_true",
                         help="choose the overhead on training materials only: the first fold's training materials of "
                              "each setting, every 7th held out (the reported materials are never seen)")
     parser.add_argument("--rig", type=Path, default=REPO / "config" / "rigs" / "sim.yaml")
     parser.add_argument("--out", type=Path, required=True, help="folder: time_aware.json, time_aware.md")
     args = parser.parse_args(argv)
-    from goniofrost.frost.time_design import OVERHEAD_S
+    from goniofrost.frost.time_design import OVERHEAD_S, SHARE
 
     overheads = [OVERHEAD_S] if args.overhead is None else [float(v) for v in args.overhead.split(",")]
+    shares = [SHARE] if args.share is None else [float(v) for v in args.share.split(",")]
+    variants = [(x, y) for x in overheads for y in shares]
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     rig = load_checked_rig(args.rig)
     mask = reachability(rig, grid).mask
@@ -188,12 +193,12 @@ def main(argv=None) -> int:
         folds = folds_of(setting, grid, args.folds)
         for fold, train, train_names, test, test_names in (_inner(folds) if args.tune else folds):
             t0 = time.time()
-            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, overheads)
+            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, variants)
             results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
             print(f"{setting} fold {fold}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
             stats = summary(results)
             doc = {"command": " ".join(sys.argv), "grid": grid.as_dict(), "folds": args.folds, "m_max": args.m_max,
-                   "overhead_s": overheads, "tune": args.tune, "rig": str(args.rig), "wall_s": time.time() - started,
+                   "variants": variants, "tune": args.tune, "rig": str(args.rig), "wall_s": time.time() - started,
                    "load_average": list(os.getloadavg()), "summary": stats, "results": results}
             (args.out / "time_aware.json").write_text(json.dumps(doc, indent=1))
             (args.out / "time_aware.md").write_text(markdown(stats))
