@@ -86,18 +86,30 @@ def expected_frames(ladder, rates, pixels, sensor: Sensor, saturation: float, ta
         taken[np.arange(n), lo] = True
     measured = bright * t[lo] * PEAK_FACTOR < saturation
     counts = np.asarray(pixels, np.float64)[:, None] * BAYER_SHARE[None, :]
+    # each channel's unsaturated exposure and frames so far, (n, 3); kept as rungs are added
+    exposure, frames = np.zeros_like(rates), np.zeros_like(rates)
+    for k in range(t.size):
+        _add(exposure, frames, rates, t[k], taken[:, k], saturation)
     for _ in range(t.size):  # longer while a channel lags and the next rung keeps it unsaturated
-        up = measured & (hi + 1 < t.size) & _lagging(t, taken, rates, counts, sensor, saturation, target_snr, hi)
+        up = measured & (hi + 1 < t.size) & _lagging(t, rates, counts, exposure, frames, sensor, saturation,
+                                                      target_snr, hi)
         hi = np.where(up, hi + 1, hi)
         taken[np.arange(n), hi] = True
+        _add(exposure, frames, rates, t[hi], up, saturation)
     return taken
 
 
-def _lagging(t, taken, rates, counts, sensor: Sensor, saturation, target_snr, hi) -> np.ndarray:
+def _add(exposure, frames, rates, t, rows, saturation: float) -> None:
+    """Count a frame of exposure ``t`` (s, scalar or (n,)) of the cells ``rows`` (bool (n,)) in each
+    channel it leaves unsaturated (its median pixel: the merge drops saturated pixels)."""
+    t = np.broadcast_to(np.asarray(t, np.float64), rows.shape)[:, None]
+    used = rows[:, None] & (rates * t < saturation)
+    exposure += np.where(used, t, 0.0)
+    frames += used
+
+
+def _lagging(t, rates, counts, exposure, frames, sensor: Sensor, saturation, target_snr, hi) -> np.ndarray:
     """bool (n,): some channel below ``target_snr`` whose median pixel the next rung keeps unsaturated."""
-    unsat = taken[:, :, None] & (rates[:, None, :] * t[None, :, None] < saturation)  # (n, L, 3)
-    exposure = (unsat * t[None, :, None]).sum(axis=1)
-    frames = unsat.sum(axis=1)
     electrons = rates * sensor.full_well_e * exposure
     noise = np.sqrt(electrons + frames * sensor.read_noise_e ** 2 + sensor.dark_e_s * exposure)
     with np.errstate(invalid="ignore", divide="ignore"):

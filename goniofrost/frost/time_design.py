@@ -64,9 +64,8 @@ class RigTrack:
     @classmethod
     def of_model(cls, model, objective: TimeObjective, rows: np.ndarray, m_max: int) -> "RigTrack":
         """The track of ``model``'s candidate rows on the objective's rig (``rig_cost.cell_costs``)."""
-        rig = objective.rig
-        costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
-        return cls(costs, rig, objective.overhead_s, m_max, objective.share)
+        costs = cached_costs(model, objective.rig, rows, objective.settle_s)
+        return cls(costs, objective.rig, objective.overhead_s, m_max, objective.share)
 
     def kernel_args(self) -> tuple:
         """(poses, fixed, here, speed, accel, tolerance, overhead) for the timed kernels."""
@@ -91,3 +90,42 @@ class RigTrack:
         tour = plan_tour(self.rig, poses, np.isfinite(self.costs.fixed_s[idx]), self._batch_start,
                          restarts=TOUR_RESTARTS)
         return poses[tour.order[-1], tour.choice[-1]]
+
+
+_CACHE_VERSION = "rig-cost-v1"
+
+
+def cached_costs(model, rig, rows: np.ndarray, settle_s: float = 0.0) -> CellCosts:
+    """``rig_cost.cell_costs`` of the candidates ``rows``, computed once per model, rig (kinematics,
+    alignment, camera model and section, sensor), candidates and settle time, then read from the
+    cache (``goniofrost.core.cache``; a few seconds to compute on the full grid, like reachability)."""
+    import hashlib
+    import os
+
+    from goniofrost.core.cache import atomic_replace, cache_path, content_key
+    from planner.reach import rig_key
+
+    camera, sensor = rig_camera(rig), rig_sensor(rig)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    key = content_key(_CACHE_VERSION, rig_key(rig), camera, sensor, model.content_hash, float(settle_s),
+                      hashlib.sha256(rows.tobytes()).hexdigest())
+    path = cache_path("rig-cost", key, ".npz")
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            poses, fixed = stored["poses"], stored["fixed_s"]
+        if poses.shape[0] == fixed.shape[0] == rows.size:
+            return CellCosts(poses, fixed, *_profiles(rig))
+    except (OSError, ValueError, KeyError):
+        pass  # absent or unreadable: computed again
+    costs = cell_costs(model, rig, rows, camera, sensor, settle_s)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, poses=costs.poses, fixed_s=costs.fixed_s)
+    atomic_replace(tmp, path)
+    return costs
+
+
+def _profiles(rig) -> tuple:
+    """(speed, accel, tolerance, home) of CellCosts: the axes' profiles in joint order."""
+    from planner.motion import axis_params
+
+    return (*axis_params(rig), np.asarray(rig.home, np.float64))
