@@ -14,7 +14,7 @@ rig time (and of the limit: the exposures alone, zero motion), samples, coverage
 that stopped on the target, the fraction whose true error is <= E) and median final error.
 
 Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds) and ``builtin`` (the
-analytic library, 64 / 10). Smallest setting (what tests/test_rig_time.py runs)::
+analytic library, 64 / 10). Smallest setting (what tests/test_benchmarks.py runs, marked slow)::
 
     .venv/bin/python benchmarks/time_aware.py --grid 10,10,20 --folds 1 --settings builtin --m-max 20 \\
         --out /tmp/time-small

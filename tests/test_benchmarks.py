@@ -41,6 +41,7 @@ SLOW = {
     "spectral_export": ["--smallest"],
     "spectral_sphere": ["--size", "16", "--spp", "4", "--out", "sphere.png"],
     "target_error": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
+    "time_aware": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
 }
 
 
