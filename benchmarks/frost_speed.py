@@ -7,6 +7,9 @@
         one pass of every selection kernel: time, the bytes it must move, GB/s against the stream
     .venv/bin/python benchmarks/frost_speed.py selection --model MODEL [--repeat 5]
     .venv/bin/python benchmarks/frost_speed.py bayes-selection --model MODEL [--repeat 7]
+    .venv/bin/python benchmarks/frost_speed.py time-selection --model MODEL [--rig RIG] [--repeat 7]
+        the sample-count and the time-aware designs among the rig's cells: greedy passes, and the
+        one-off table of the cells' fixed costs
     .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
     .venv/bin/python benchmarks/frost_speed.py reconstruction --model MODEL
     .venv/bin/python benchmarks/frost_speed.py bayes-reconstruction --model MODEL [--repeat 7]
@@ -86,6 +89,36 @@ def bench_bayes_selection(args) -> None:
         print(f"Bayesian selection K={model.n_components} m={m}: median {med:.3f} s  (runs "
               f"{', '.join(f'{t:.3f}' for t in times)}; CPU median {float(np.median(cpu)):.3f} s, "
               f"load {os.getloadavg()[0]:.1f})", flush=True)
+
+
+def bench_time_selection(args) -> None:
+    """Both designs among the rig's cells, m = 20 and 60: the greedy (``pick_seconds[-1]``, the
+    passes over D) and the whole ``select_bayes``; the time-aware design's cost table apart."""
+    sys.path[:] = [p for p in sys.path if p != str(REPO / "benchmarks")]  # its planner.py shadows ours
+    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.frost.bayes_selection import _candidate_rows, greedy_design
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+    from goniofrost.frost.rig_cost import cell_costs, rig_camera, rig_sensor
+    from goniofrost.frost.time_design import OVERHEAD_S, RigTrack
+    from planner.reach import reachability
+
+    model = _paged_model(args.model)
+    rig = load_checked_rig(args.rig or REPO / "config" / "rigs" / "sim.yaml")
+    rows = _candidate_rows(reachability(rig, model.grid).mask, model.grid.n_valid)
+    start = time.perf_counter()
+    costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig))
+    print(f"cost table of {rows.size} cells: {time.perf_counter() - start:.2f} s (once per model and rig)")
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    noise = cell_noise(model) * design_scale(model)
+    for m in (20, 60):
+        for name in ("samples", "time"):
+            def run():
+                track = RigTrack(costs, rig, OVERHEAD_S, m) if name == "time" else None
+                return greedy_design(model.dictionary, s2, prior_variance(model), noise, m, rows=rows, track=track)
+            run()  # compiled and warm
+            med, times = median_time(run, args.repeat)
+            print(f"{name:>7} design m={m}: median {med:.3f} s (runs {', '.join(f'{t:.3f}' for t in times)}; "
+                  f"load {os.getloadavg()[0]:.1f})", flush=True)
 
 
 def bench_bayes_reconstruction(args) -> None:
@@ -479,13 +512,15 @@ def _paged_model(path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("targets", "kernels", "selection", "bayes-selection", "training", "reconstruction",
+    parser.add_argument("what", choices=("targets", "kernels", "selection", "bayes-selection", "time-selection",
+                                         "training", "reconstruction",
                                          "bayes-reconstruction", "pca", "floor", "bounds", "flatness"))
     parser.add_argument("--model", help="model directory (selection, reconstruction, bounds; optional for floor)")
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rows", type=int, default=1_111_432)
     parser.add_argument("--results", help="a goniofrost bench results.json (floor: Nielsen's times)")
+    parser.add_argument("--rig", help="time-selection: the rig file (default config/rigs/sim.yaml)")
     parser.add_argument("--m", type=int, default=20, help="samples (bounds), steps (flatness)")
     parser.add_argument("--grid", type=int, nargs=3, metavar=("TH", "TD", "PD"),
                         help="targets, kernels, flatness: train the demo model on this grid instead of the full one (a quick check)")
@@ -493,7 +528,8 @@ def main() -> None:
     parser.add_argument("--demo", action="store_true", help="targets: also time the demo, cold and warm")
     parser.add_argument("--data", help="targets --training: the folder of nbrdf_merl.npz and nbrdf_rgl.npz")
     args = parser.parse_args()
-    {"targets": bench_targets, "kernels": bench_kernels, "selection": bench_selection, "bayes-selection": bench_bayes_selection, "training": bench_training,
+    {"targets": bench_targets, "kernels": bench_kernels, "selection": bench_selection, "bayes-selection": bench_bayes_selection,
+     "time-selection": bench_time_selection, "training": bench_training,
      "reconstruction": bench_reconstruction, "bayes-reconstruction": bench_bayes_reconstruction,
      "pca": bench_pca, "floor": bench_floor, "bounds": bench_bounds, "flatness": bench_flatness}[args.what](args)
 

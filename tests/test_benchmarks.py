@@ -43,6 +43,7 @@ SLOW = {
     "rgl_dataset": ["--smallest"],
     "rgl_fits_vs_files": ["--smallest"],
     "target_error": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
+    "time_aware": ["--grid", "10,10,20", "--folds", "1", "--settings", "builtin", "--m-max", "20", "--out", "out"],
 }
 
 

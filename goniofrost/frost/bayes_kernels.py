@@ -101,3 +101,70 @@ def update_forms(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, bes
                                        noise[s], t0, t1)
             if score > best[s]:
                 best[s], best_i[s] = score, index
+
+
+# ----- the time-aware design: one design, its score divided by each cell's rig time ----------------
+@njit(**_OPTIONS)
+def _within(poses, i, c, here, speed, accel, tolerance, budget):
+    """Whether candidate pose c of cell i may be reached from ``here`` in less than ``budget`` s:
+    every axis's distance under what its trapezoid covers in that time (v (T - v/a) once at top
+    speed, else a T^2 / 4), or within its tolerance. No square root; a hair of slack so that
+    rounding never rules out a pose that is in time."""
+    for a in range(3):
+        d = abs(np.float64(poses[i, c, a]) - here[a])
+        if d <= tolerance[a]:
+            continue
+        v, acc = speed[a], accel[a]
+        reach = v * (budget - v / acc) if budget >= 2.0 * v / acc else acc * budget * budget / 4.0
+        if d > reach * (1.0 + 1e-9):
+            return False
+    return True
+
+
+@njit(**_OPTIONS)
+def _timed_score(gain, best, poses, fixed, i, here, speed, accel, tolerance, overhead):
+    """gain / (overhead + rig seconds of candidate i), or -1 when it cannot beat ``best``.
+
+    A score beats ``best`` only when a pose's fixed time + move is under gain / best - overhead:
+    the trapezoids (and their square roots) are computed only for poses that ``_within`` that
+    budget, so most cells cost a few multiplications. The result is the unpruned one's."""
+    budget = gain / best - overhead if best > 0.0 else np.inf
+    score = -1.0
+    for c in range(fixed.shape[1]):
+        fixed_c = np.float64(fixed[i, c])
+        if not fixed_c < budget:  # unusable (inf) or too slow whatever the move
+            continue
+        if budget < np.inf and not _within(poses, i, c, here, speed, accel, tolerance, budget - fixed_c):
+            continue
+        move = 0.0
+        for a in range(3):
+            d = abs(np.float64(poses[i, c, a]) - here[a])
+            if d <= tolerance[a]:
+                t = 0.0
+            elif d >= speed[a] * speed[a] / accel[a]:
+                t = d / speed[a] + speed[a] / accel[a]
+            else:
+                t = 2.0 * np.sqrt(d / accel[a])
+            move = max(move, t)
+        score = max(score, gain / (overhead + move + fixed_c))
+    return score
+
+
+@njit(**_OPTIONS)
+def timed_scan(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, floor, best, best_i, i0, i1):
+    """The best score gain / (overhead + rig seconds from ``here``) of candidates [i0, i1) whose
+    gain p / (noise + q) is above 0 and at least ``floor``, and its index (lowest on ties), from
+    the forms a pass over D has just updated (this reads q, p and noise, 20 bytes a cell, and the
+    poses of the cells that qualify only).
+
+    q, p, noise: (n_c,) one design's; poses: float32 (n_c, k, 3); fixed: float32 (n_c, k); here,
+    speed, accel, tolerance: float64 (3,); overhead: seconds added to every cell's time; best,
+    best_i: (1,) outputs.
+    """
+    best[0], best_i[0] = -1.0, -1
+    for i in range(i0, i1):
+        gain = p[i] / (noise[i] + q[i])
+        if gain > 0.0 and gain >= floor:
+            score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
+            if score > best[0]:
+                best[0], best_i[0] = score, i

@@ -51,7 +51,7 @@ class GreedyDesign:
 
 
 def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=None,
-                  threads: int | None = None) -> GreedyDesign:
+                  threads: int | None = None, track=None) -> GreedyDesign:
     """Greedy A-optimal picks among ``rows`` of ``dictionary``.
 
     dictionary: float32 (n, K) D (memory-mapped is fine); s2: (K,) S^2 = D^T D;
@@ -59,10 +59,11 @@ def greedy_design(dictionary, s2, prior_var, noise, m_max: int, rows=None, stop=
     design errors are under this noise); rows: int64 candidate rows (default all n); m_max: at
     most this many picks; stop: optional ``stop(row) -> bool`` called with each picked row (e.g.
     to track an error target); threads: threads sharing each pass (default: the cores this
-    process may use; the picks do not depend on it). Raises SelectionError when the candidates
-    stop reducing the error first.
+    process may use; the picks do not depend on it); track: a ``time_design.RigTrack`` of the
+    candidates: each score is then per second of rig time from where the rig stands. Raises
+    SelectionError when the candidates stop reducing the error first.
     """
-    return _greedy(dictionary, s2, prior_var, [noise], m_max, rows, stop, threads)[0]
+    return _greedy(dictionary, s2, prior_var, [noise], m_max, rows, stop, threads, track)[0]
 
 
 def greedy_designs(dictionary, s2, prior_var, noises, m_max: int, rows=None,
@@ -75,12 +76,13 @@ def greedy_designs(dictionary, s2, prior_var, noises, m_max: int, rows=None,
     return _greedy(dictionary, s2, prior_var, list(noises), m_max, rows, None, threads)
 
 
-def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, threads) -> list[GreedyDesign]:
+def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, threads,
+            track=None) -> list[GreedyDesign]:
     """The greedy loop of every design in ``noises`` (see greedy_designs); ``stop`` sees the
-    first design's picks."""
+    first design's picks; ``track`` (one design only): time-aware scores (greedy_design)."""
     start = time.perf_counter()
     threads = resolve_threads(threads)
-    forms = _Forms(dictionary, rows, noises, threads)
+    forms = _Forms(dictionary, rows, noises, threads, track)
     prior = np.asarray(prior_var, np.float64)
     sigmas = [np.diag(prior) for _ in noises]
     s2 = np.asarray(s2, np.float64)
@@ -91,6 +93,8 @@ def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, thr
     inv_delta, usu_delta2 = np.empty(designs), np.empty(designs)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         best, index = forms.first_pass(pool, np.tile(prior, (designs, 1)), s2)
+        if track is not None:
+            best, index = forms.timed_pass(pool, best)
         first = best.copy()
         while True:
             for s in range(designs):
@@ -105,6 +109,8 @@ def _greedy(dictionary, s2, prior_var, noises: list, m_max: int, rows, stop, thr
                 v[s] = sigma @ (s2 * u[s])
                 sigma -= np.outer(u[s], u[s]) / delta
                 picks[s].append(picked)
+                if track is not None:
+                    track.picked(int(index[s]))
                 errors[s].append((error_trace(s2, sigma) + noise_totals[s]) / n)
                 inv_delta[s], usu_delta2[s] = 1.0 / delta, float(u[s] @ (s2 * u[s])) / delta ** 2
             seconds.append(time.perf_counter() - start)
@@ -120,7 +126,7 @@ class _Forms:
     keep them (shared by ``threads`` threads over contiguous pieces of the candidates; see
     bayes_kernels)."""
 
-    def __init__(self, dictionary, rows, noises: list, threads: int) -> None:
+    def __init__(self, dictionary, rows, noises: list, threads: int, track=None) -> None:
         self.d = np.ascontiguousarray(dictionary, dtype=np.float32)
         n = self.d.shape[0]
         # Every row a candidate: the kernels take candidate i as row i and read no index array.
@@ -131,13 +137,24 @@ class _Forms:
         self.open_noise = _compact(np.array([noise if rows is None else noise[self.rows] for noise in self.noise]))
         self.q, self.p = np.empty(self.open_noise.shape), np.empty(self.open_noise.shape)
         self.parts = pass_ranges(self.rows.size, threads)  # several per thread, taken as threads come free
+        self.track = track
+        if track is not None and len(noises) != 1:
+            raise ValueError("a time-aware design runs alone (one noise vector)")
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
 
+    def timed_pass(self, pool, best_gain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The best score per second of rig time from the track's pose among the cells whose gain
+        is at least the track's share of ``best_gain`` (1,), this step's best (the forms unchanged)."""
+        floor = self.track.share * float(best_gain[0])
+        return self._run(pool, kernels.timed_scan, self.q[0], self.p[0], self.open_noise[0],
+                         *self.track.kernel_args(), floor)
+
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
+        best = self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
+        return best if self.track is None else self.timed_pass(pool, best[0])
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
         """Take candidate i out of design s's competition; return its dictionary row (float64)
@@ -179,7 +196,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  calibration=None, sensitivity_power: float | None = None,
                  hedge: float = HEDGE, prior_spread: float | None = None,
                  spread_floor: float | None = None, mix: float | None = None,
-                 mix_spread: float | None = None, confidence: float | None = None) -> Selection:
+                 mix_spread: float | None = None, confidence: float | None = None,
+                 time_objective=None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a
@@ -227,6 +245,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     (``usage_design.design_key``), returning it (a scene's calibration depends on the design
     measured, and p = 1 is a design of t up to 1 with a floor up to FEW_SAMPLES and of t = 1 without
     one above; None from it: the model's).
+    time_objective: a ``time_design.TimeObjective``: each pick is the cell of the largest expected
+    error reduction per second of rig time from where the rig stands (``time_design``); the
+    whole-BRDF design only (no ``usage``). None: per sample.
     Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
     ``prior_spread`` is the spread the scene's weights used (0 for a uniform map: the plain design
     has none; None without a map) and ``sensitivity_power`` their power (None without a map).
@@ -235,6 +256,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     rows = _candidate_rows(candidates, model.grid.n_valid)
     noise = cell_noise(model)
     scene = usage is not None and not (uniform_is_plain and is_uniform(usage))
+    if time_objective is not None and usage is not None:
+        raise SelectionError("selection: the time-aware design (--objective time) is of the whole BRDF; "
+                             "it does not take a scene's use (--usage)")
     # the error no sample removes, as the predicted errors count it (the scene's: weighted by u)
     floor = float(np.dot(usage, noise)) if scene else float(noise.mean())
 
@@ -258,7 +282,7 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         picked, predicted, used_spread, bounds = _design(
             model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
             uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share,
-            confidence=None if scene else confidence)
+            confidence=None if scene else confidence, time_objective=time_objective)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
@@ -357,7 +381,8 @@ def _own_spread(spread: float, prior_spread, mix_spread, share: float, m) -> flo
 def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
             min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
             floor: float = 0.0, variance=None, mix: float = 0.0,
-            confidence: float | None = None) -> tuple[GreedyDesign, np.ndarray, float | None, np.ndarray | None]:
+            confidence: float | None = None,
+            time_objective=None) -> tuple[GreedyDesign, np.ndarray, float | None, np.ndarray | None]:
     """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
     (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
     plain design, else the scene's of power p and hedge (see select_bayes, also for
@@ -365,7 +390,8 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
     least ``min_picks``, whose predicted error is <= max_error; ``variance``: the cells' prior
     variance, shared (``usage_design.design_weights``); ``mix``: the share of MIX_DESIGN's weights
     (``usage_design.mixed_weights``; 0 none); ``confidence``: stop on the typical material's bound
-    at it instead (``typical_bound``; float64 (picks,), the fourth returned; None without)."""
+    at it instead (``typical_bound``; float64 (picks,), the fourth returned; None without);
+    ``time_objective``: per second of rig time (select_bayes)."""
     if usage is not None:
         weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance, mix)
         if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
@@ -389,8 +415,12 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
             tracker.add(row)
             said = tracker.bounds if tracker.confidence is not None else tracker.history
             return said[-1] <= max_error and len(tracker.history) >= min_picks
+    track = None
+    if time_objective is not None:
+        from goniofrost.frost.time_design import RigTrack
+        track = RigTrack.of_model(model, time_objective, rows, limit)
     design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
-                           rows=rows, stop=stop, threads=threads)
+                           rows=rows, stop=stop, threads=threads, track=track)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))

@@ -24,6 +24,8 @@ the sentinels and check cells added to the first batch are not counted: with the
 the list's length by ``sentinels``).
 Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
 frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
+With ``--rig``, ``plan.times`` adds ``objective`` ("time" | "samples"), ``expected_rig_s``
+and per sample ``expected_move_s`` and ``expected_exposure_s``.
 """
 from __future__ import annotations
 

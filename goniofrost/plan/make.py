@@ -22,7 +22,8 @@ class PlanRequest:
     (n_valid,), bayes only) read from ``usage_file``; ``sentinels``: None adds the model's
     sentinels when it has them, True insists, False adds none; ``rig``: a ``planner.rig.Rig`` to
     select on and schedule for; ``candidates``: its reach mask (bool (n_valid,)) when computed;
-    ``confidence``: of the bound a Bayesian ``max_error`` plan chooses its length on (no scene).
+    ``confidence``: of the bound a Bayesian ``max_error`` plan chooses its length on (no scene);
+    ``objective``: "time" (error reduction per second of rig time, with a rig) or "samples".
     """
 
     samples: int | None = None
@@ -37,6 +38,7 @@ class PlanRequest:
     rig: Any = None
     candidates: Any = None
     confidence: float = 0.95
+    objective: str = "samples"
 
     @property
     def whole_brdf(self) -> bool:
@@ -102,7 +104,9 @@ def make_plan(model, model_path, request: PlanRequest, say: Callable[[str], None
     if usage is not None:
         doc["usage"] = usage
     if request.rig is not None:
-        doc = _scheduled(doc, model, request.rig, say)
+        from goniofrost.plan.times import with_expected_times
+
+        doc = with_expected_times(_scheduled(doc, model, request.rig, say), model, request.rig, request.objective)
     return MadePlan(doc, selection, 0.0 if scenes is None else scenes.seconds, design_said)
 
 
@@ -140,9 +144,18 @@ def _select(model, request: PlanRequest, mask, scenes):
                "calibration": None if scenes is None else (lambda *design: scenes(*design).calibration),
                # the rule a capture stops on: a typical material's bound at this confidence
                "confidence": request.confidence if request.max_error is not None and request.selector == "bayes"
-               and request.usage is None else None}
+               and request.usage is None else None,
+               "time_objective": _time_objective(request)}
     return SELECTORS[request.selector].select(model, request.samples, max_error=request.max_error, candidates=mask,
                                               **{key: value for key, value in options.items() if value is not None})
+
+
+def _time_objective(request: PlanRequest):
+    """The ``frost.time_design.TimeObjective`` of a time-aware plan on its rig; None: per sample."""
+    if request.objective != "time":
+        return None
+    from goniofrost.frost.time_design import TimeObjective
+    return TimeObjective(request.rig)
 
 
 def _usage_entry(request: PlanRequest, selection, scenes: SceneErrors, say) -> dict:

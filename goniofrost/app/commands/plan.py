@@ -48,7 +48,27 @@ def add_arguments(parser) -> None:
                              "(theta_d > 80 or theta_h > 70 deg), never fitted: capture --target-error checks the "
                              "design's reconstruction there and does not stop when they disagree (a material unlike "
                              "the training set); --no-sentinels: the design's samples only")
+    parser.add_argument("--objective", choices=("time", "samples"), default=None,
+                        help="bayes with --rig: time (each sample the largest expected error reduction per second of "
+                             "rig time: move, settle and the expected exposure bracket, from where the rig stands) or "
+                             f"samples (per sample, whatever it costs); default {DEFAULT_OBJECTIVE}")
     parser.add_argument("--out", required=True, metavar="PLAN.json", help="plan file to write (a .json name)")
+
+
+# docs/decisions/0200-time-aware-design.md: what the benchmark on the simulated rig's clock measured
+DEFAULT_OBJECTIVE = "samples"
+
+
+def _objective(args) -> str:
+    """The design's objective: --objective, else the default when it applies (a Bayesian plan of the
+    whole BRDF with --rig), else samples. An explicit time that does not apply is one line, exit 2."""
+    from goniofrost.core.errors import ConfigError
+
+    applies = args.selector == "bayes" and args.rig is not None and args.usage is None
+    if args.objective == "time" and not applies:
+        raise ConfigError("command line", "--objective", "time only with --selector bayes, --rig and no --usage",
+                          "time")
+    return (args.objective or DEFAULT_OBJECTIVE) if applies else "samples"
 
 
 def run(args) -> int:
@@ -80,8 +100,9 @@ def run(args) -> int:
     check_output_file(args.out)
     check_not_an_input(args.out, {"--model": args.model, "--usage": args.usage, "--rig": args.rig,
                                   "--alignment": args.alignment})  # --out MODEL/model.json destroyed the model
+    objective = _objective(args)
     model = FrostModel.load(args.model)
-    request = _request(args, model)
+    request = _request(args, model, objective)
     made = make_plan(model, model_path_for_plan(args.model, args.out), request, say=print, progress=True)
     write_plan(args.out, made.doc)
     if made.selection.bounds is not None:
@@ -94,7 +115,7 @@ def run(args) -> int:
     return 0
 
 
-def _request(args, model):
+def _request(args, model, objective: str = "samples"):
     """The plan.make.PlanRequest the arguments ask for (the usage map and the rig file read)."""
     from goniofrost.core.errors import ConfigError
     from goniofrost.plan.make import PlanRequest
@@ -111,7 +132,8 @@ def _request(args, model):
         rig = load_checked_rig(args.rig, args.alignment)
     return PlanRequest(samples=args.samples, max_error=args.max_error, selector=args.selector,
                        max_angle=args.max_angle, y_form=args.y_form, atoms=args.atoms, usage=usage,
-                       usage_file=args.usage, sentinels=args.sentinels, rig=rig, confidence=plan_confidence(args))
+                       usage_file=args.usage, sentinels=args.sentinels, rig=rig, confidence=plan_confidence(args),
+                       objective=objective)
 
 
 def plan_confidence(args) -> float:
