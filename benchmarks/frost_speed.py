@@ -95,7 +95,7 @@ def bench_time_selection(args) -> None:
     """Both designs among the rig's cells, m = 20 and 60: the greedy (``pick_seconds[-1]``, the
     passes over D) and the whole ``select_bayes``; the time-aware design's cost table apart."""
     sys.path[:] = [p for p in sys.path if p != str(REPO / "benchmarks")]  # its planner.py shadows ours
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.bayes_selection import _candidate_rows, greedy_design
     from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
     from goniofrost.frost.rig_cost import cell_costs, rig_camera, rig_sensor

@@ -156,7 +156,7 @@ def _folds_of():
 
 def main(argv=None) -> int:
     folds_of = _folds_of()
-    from goniofrost.capture.rig_file import load_checked_rig
+    from goniofrost.rig.file import load_checked_rig
     from planner.reach import reachability
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -16,7 +16,7 @@ import pytest
 
 from calib.exposure_time import Sensor, bracket_seconds, expected_frames, first_rungs
 from goniofrost.app.cli import main
-from goniofrost.capture.rig_file import load_checked_rig
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.frost.rig_cost import CellCosts, rig_camera, rig_sensor
 from planner.kinematics import arm_side, forward
 from planner.motion import move_time
