@@ -76,20 +76,24 @@ def frost_plan(folder: Path, samples: int) -> Path:
                        selector="frost")
 
 
+SPREAD_MAX_ANGLE_DEG = 70.0  # theta_i, theta_o of a spread plan's cells (deg)
+
+
 def spread_plan(folder: Path, samples: int, seed: int = 0) -> Path:
     """A dense plan: ``samples`` cells drawn (seeded) from those the rig reaches with theta_i,
     theta_o <= 70 deg, scheduled for the rig (a validation sweep rather than a FROST plan)."""
     from planner.reach import reachability
     from planner.schedule import schedule_plan
 
-    from goniofrost.app.demo import MAX_ANGLE_DEG, default_rig_path
+    from goniofrost.app.demo import default_rig_path
     from goniofrost.plan.file import sample_entries, write_plan
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.selection import candidate_mask_max_angle
 
     model, model_path = demo_model()
     rig = load_checked_rig(default_rig_path())
-    allowed = reachability(rig, model.grid).mask & candidate_mask_max_angle(model.grid, MAX_ANGLE_DEG)
+    # the docstring's 70 deg: the demo's own limit was dropped when its plans became measurability-led
+    allowed = reachability(rig, model.grid).mask & candidate_mask_max_angle(model.grid, SPREAD_MAX_ANGLE_DEG)
     candidates = model.grid.valid_cells[allowed]
     # Not the cells whose light-camera angle is the arm's limit up to rounding: the planner accepts
     # them (1e-9 deg slack) but capture's joint check does not (7.999999999999998 < 8).
