@@ -46,6 +46,7 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
         from goniofrost.capture.runner import JOURNAL_FILE, capture
         from goniofrost.datasets import shown_material
         from goniofrost.rig.file import load_checked_rig
+        from goniofrost.rig.hardware import SimOptions
 
         session = root / SESSIONS / session_name(entry)
         store.started(entry["id"], str(session.relative_to(root)))
@@ -53,8 +54,8 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
         label = session_label(rig, entry["operator"] or None, entry["sample_id"],
                               [entry["note"]] if entry["note"] else (), source="queue entry")
         material = shown_material(entry["material"], "material") if entry["material"] else None
-        outcome = capture(rig_path, root / entry["plan"], session, material=material,
-                          resume=(session / JOURNAL_FILE).exists(), speedup=speedup, progress=False,
+        outcome = capture(rig_path, root / entry["plan"], session, sim=SimOptions(material=material, speedup=speedup),
+                          resume=(session / JOURNAL_FILE).exists(), progress=False,
                           target_error=entry["target_error"], confidence=entry["confidence"], label=label,
                           devices=devices, rerun="POST /api/resume")
         return {"session": str(session.relative_to(root)), "summary": outcome.summary}
