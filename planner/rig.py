@@ -41,6 +41,7 @@ _TOP_KEYS = {
     "sim": Key(is_mapping, "a mapping", ABSENT),
     "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
     "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.rig.lab checks it)
+    "suspenders": Key(is_mapping, "a mapping", ABSENT),  # goniofrost.rig.suspenders checks it
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -103,6 +104,8 @@ class Rig(RigSpec):
     alignment: Any = None
     # the lab's metadata (lab, lens, lamp: checked by goniofrost.rig.lab), never kinematics
     lab: dict = field(default_factory=dict, compare=False)
+    # what pauses a capture until it clears (checked by goniofrost.rig.suspenders); {}: nothing
+    suspenders: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -149,8 +152,8 @@ def rig_from_mapping(raw: Any, source: str,
             lamp[key] = float(lamp[key])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    camera, sim, lab = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
-                        for key in ("camera", "sim", "lab"))  # the sections other packages own
+    camera, sim, lab, suspenders = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                                    for key in ("camera", "sim", "lab", "suspenders"))  # other packages' sections
     alignment = None
     if "alignment" in top:
         written = Path(top["alignment"])
@@ -159,7 +162,8 @@ def rig_from_mapping(raw: Any, source: str,
                                    top["name"])
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
-               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab)
+               kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab,
+               suspenders=suspenders)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

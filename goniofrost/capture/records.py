@@ -40,6 +40,7 @@ class EventKind(str, enum.Enum):
     SIMULATION = "simulation"    # a simulated rig's state restored on resume
     DRILL = "drill"              # a simulated rig's fault drill armed or struck
     DEVICE = "device"            # a driver's or protocol library's log record
+    SUSPEND = "suspend"          # a suspender paused the run or it resumed (data: the Suspension)
 
     def __str__(self) -> str:
         return self.value
@@ -160,3 +161,30 @@ class SessionLabel:
         """This label with ``given``'s new notes appended (once each)."""
         notes = self.notes + tuple(n for n in given.notes if n not in self.notes)
         return SessionLabel(**{name: getattr(self, name) for name in LABEL_TEXT_FIELDS}, notes=notes)
+
+
+class SuspensionEnd(str, enum.Enum):
+    """How a suspension ended (``Suspension.end``)."""
+
+    RESUMED = "resumed"    # its conditions held clear for hold_clear_s (resume: auto)
+    OPERATOR = "operator"  # they held clear and the operator resumed (resume: operator)
+    STOPPED = "stopped"    # the run was stopped while suspended (Ctrl-C, SIGTERM, rig stop)
+    GAVE_UP = "gave_up"    # a device stayed silent for give_up_s: the run ended as a fault
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Suspension:
+    """One suspension of a run (the journal's ``suspensions`` table): ``reason`` a
+    ``goniofrost.rig.suspenders.SuspendReason`` value, ``plan_index`` the sample it waited before,
+    Unix times, ``waited_s`` session-clock seconds suspended and ``end`` (both None while it lasts)."""
+
+    run: int
+    reason: str
+    plan_index: int | None
+    started_utc: float
+    ended_utc: float | None = None
+    waited_s: float | None = None
+    end: SuspensionEnd | None = None
