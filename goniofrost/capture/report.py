@@ -132,6 +132,19 @@ def _planned_motion(plan: dict) -> float | None:
     return None if total is None else float(total) - float(plan.get("return_home_s", 0.0))
 
 
+def suspensions_section(suspensions) -> dict:
+    """report.json's ``suspensions``: how many times a suspender paused the session, by reason, the
+    session-clock seconds suspended, and each (``goniofrost.capture.records.Suspension``)."""
+    reasons: dict = {}
+    for s in suspensions:
+        reasons[s.reason] = reasons.get(s.reason, 0) + 1
+    return {"count": len(suspensions), "reasons": reasons,
+            "waited_s": float(sum(s.waited_s or 0.0 for s in suspensions)),
+            "each": [{"run": s.run, "reason": s.reason, "plan_index": s.plan_index, "started_utc": s.started_utc,
+                      "ended_utc": s.ended_utc, "waited_s": s.waited_s, "end": None if s.end is None else str(s.end)}
+                     for s in suspensions]}
+
+
 def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None) -> dict:
     """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
     summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any);
@@ -158,6 +171,7 @@ def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None)
         runs = journal.runs()
         report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
         report["label"] = journal.label().to_dict()
+        report["suspensions"] = suspensions_section(journal.suspensions())
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                                 "predicted_log_relative_mse": rec.predicted_error, "cells": rec.samples,
                                 "samples_used": len(records), "not_measured_left_out": len(dark),
@@ -512,6 +526,10 @@ def summary_text(report: dict) -> str:
         lines.append(f"{len(mixed)} sample(s) had a region of interest that took in the card around the patch "
                      f"(flag roi-mixed: {' '.join(map(str, mixed))}): their values are not to be trusted; the rig may be "
                      f"misaligned")
+    suspended = report.get("suspensions") or {}
+    if suspended.get("count"):
+        lines.append(f"suspended {suspended['count']} time(s) for {suspended['waited_s']:g} s of session clock ("
+                     + ", ".join(f"{reason} {n}" for reason, n in suspended["reasons"].items()) + ")")
     dark = report["not_measured"]
     if dark["count"]:
         lines.append(f"{dark['count']} sample(s) NOT MEASURED, left out of the reconstruction and its predicted error, "

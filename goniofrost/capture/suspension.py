@@ -13,7 +13,7 @@ Subscribers (``subscribe``) are handed each ``Reading`` taken while suspended.
 """
 from __future__ import annotations
 
-import logging
+import sys
 import threading
 from typing import Callable
 
@@ -21,7 +21,6 @@ from drivers.errors import DeviceTimeout
 from goniofrost.capture.records import SuspensionEnd
 from goniofrost.rig.suspenders import Reading, ResumeMode, SuspendReason, Suspenders
 
-log = logging.getLogger(__name__)
 
 
 class SuspendWatch:
@@ -38,6 +37,11 @@ class SuspendWatch:
         self.waited = 0.0  # session seconds of the suspension under way (or the last)
         self._resumed = threading.Event()
         self._subscribers: list[Callable[[Reading], None]] = []
+
+    @staticmethod
+    def say(text: str) -> None:
+        """Tell the operator (the terminal; the journal has the same as ``suspend`` events)."""
+        print(f"goniofrost: {text}", file=sys.stderr, flush=True)
 
     def subscribe(self, callback: Callable[[Reading], None]) -> None:
         """Hand ``callback`` every Reading taken while suspended (a live view, a test's operator)."""
@@ -65,8 +69,8 @@ class SuspendWatch:
     def _wait(self, reason: SuspendReason, reading: Reading, index: int) -> None:
         """Suspended for ``reason`` before plan sample ``index``: poll until it may go on."""
         self.suspended, self._resumed = reason, threading.Event()
-        text = f"run suspended before plan sample {index}: {reason} ({describe(reading, self.suspenders)})"
-        log.warning(text)
+        text = f"run suspended before plan sample {index}: {reason} ({describe(reason, reading, self.suspenders)})"
+        self.say(text)
         row = None if self.journal is None else self.journal.start_suspension(self.run(), reason, index, text)
         self.waited, end = 0.0, SuspensionEnd.STOPPED
         try:
@@ -79,38 +83,42 @@ class SuspendWatch:
             words = {SuspensionEnd.STOPPED: "run stopped while suspended",
                      SuspensionEnd.GAVE_UP: "run ended: a device stayed silent while suspended"}.get(end, "run resumed")
             words = f"{words} after {self.waited:g} s ({end})"
-            log.warning(words)
+            self.say(words)
             if row is not None:
                 self.journal.end_suspension(row, end, self.waited, words)
 
     def _poll(self) -> SuspensionEnd:
-        """How the suspension ended, once clear for hold_clear_s (and resumed); ``waited``: the
-        session seconds so far."""
-        s, clear, silent = self.suspenders, 0.0, 0.0
+        """How the suspension ended, once every condition held clear for hold_clear_s since the first
+        clear reading (and the operator resumed); ``waited``: the session seconds so far."""
+        s, clear_since, silent = self.suspenders, None, 0.0
         while True:
             self.check_stop()
-            if clear >= s.hold_clear_s and (s.resume is ResumeMode.AUTO or self._resumed.is_set()):
-                return SuspensionEnd.RESUMED if s.resume is ResumeMode.AUTO else SuspensionEnd.OPERATOR
+            if clear_since is not None and self.waited - clear_since >= s.hold_clear_s:
+                if s.resume is ResumeMode.AUTO:
+                    return SuspensionEnd.RESUMED
+                if self._resumed.is_set():
+                    return SuspensionEnd.OPERATOR
             self.devices.hw.clock.sleep(s.poll_s)
             self.waited += s.poll_s
             reading = self._read()
             for callback in self._subscribers:
                 callback(reading)
-            clear = clear + s.poll_s if s.check(reading) is None else 0.0
+            clear = s.check(reading) is None
+            clear_since = (clear_since if clear_since is not None else self.waited) if clear else None
             silent = silent + s.poll_s if reading.silent is not None else 0.0
             if silent >= s.give_up_s:
                 raise DeviceTimeout(reading.silent, "answer the suspenders' reading", None,
                                     f"no answer for {silent:g} s while the run was suspended")
 
 
-def describe(reading: Reading, suspenders: Suspenders) -> str:
-    """The reading that suspended a run, in words for the terminal and the journal's event."""
-    if reading.silent is not None:
+def describe(reason: SuspendReason, reading: Reading, suspenders: Suspenders) -> str:
+    """Why ``reading`` suspended a run, in words for the terminal and the journal's event."""
+    if reason is SuspendReason.DEVICE_SILENT:
         return f"{reading.silent} does not answer"
-    parts = []
-    if reading.photodiode is not None:
-        parts.append(f"photodiode {reading.photodiode:.3f} of nominal (floor {suspenders.lamp_floor}, "
-                     f"drift limit {suspenders.lamp_drift} of {reading.reference})")
-    if reading.interlock_closed is not None:
-        parts.append("interlock " + ("closed" if reading.interlock_closed else "open"))
-    return ", ".join(parts)
+    if reason is SuspendReason.INTERLOCK_OPEN:
+        return f"the interlock input {suspenders.interlock['input']} of {suspenders.interlock['device']} is open"
+    if reason is SuspendReason.LAMP_LOW:
+        return f"photodiode {reading.photodiode:.3f} of nominal, below the floor {suspenders.lamp_floor:g}"
+    change = reading.photodiode / reading.reference - 1.0
+    return (f"photodiode {reading.photodiode:.3f} of nominal, {100 * change:+.1f} % from the run's first reading "
+            f"{reading.reference:.3f} (limit {100 * suspenders.lamp_drift:g} %)")
