@@ -215,3 +215,42 @@ def test_a_stop_while_suspended_ends_the_suspension_as_stopped(tmp_path):
             watch.may_continue(0)
         [s] = w.journal.suspensions()
     assert (s.reason, s.waited_s, s.end) == ("lamp_low", 10.0, SuspensionEnd.STOPPED)
+
+
+def suspension_rows(session: Path) -> list[tuple]:
+    """(reason, end_kind) of every journaled suspension, read by a second connection."""
+    path = session / "session.sqlite"
+    try:
+        with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=1)) as db:
+            return db.execute("SELECT reason, end_kind FROM suspensions ORDER BY id").fetchall()
+    except sqlite3.OperationalError:  # not created yet
+        return []
+
+
+def test_sigint_while_suspended_stops_the_axes_switches_the_lamp_off_and_exits_130(setup, tmp_path):  # noqa: F811
+    import signal
+    import time
+
+    from goniofrost.capture.records import RunStatus
+    from test_session import start_capture
+
+    folder, rig, plan, _ = setup
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"kind": "lamp_cut", "at_sample": 1, "duration_s": 1e6}]   # never comes back
+    doc["suspenders"] = {"lamp_floor": 0.8, "poll_s": 5}
+    session = tmp_path / "s"
+    proc = start_capture(write(doc, tmp_path / "rig.yaml"), plan, session, speedup="100")
+    t_end = time.monotonic() + 60
+    while suspension_rows(session) != [("lamp_low", None)]:   # the run is suspended, waiting
+        assert proc.poll() is None and time.monotonic() < t_end, proc.stderr.read().decode()
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=30) == 130
+    err = proc.stderr.read().decode()
+    assert err.startswith("goniofrost: run suspended before plan sample 1: lamp_low (photodiode 0.000 of nominal")
+    assert "goniofrost capture: interrupted by SIGINT at plan sample 1" in err and "the lamp is off" in err
+    assert suspension_rows(session) == [("lamp_low", "stopped")]
+    with closing(Journal.open(session / "session.sqlite", read_only=True)) as journal:
+        _start, end = journal.last_run()
+        assert end.status is RunStatus.STOPPED_BY_OPERATOR and end.lamp_off is True
+        assert all(s.confirmed for s in end.stops) and journal.done_indices() == {0}
