@@ -22,7 +22,6 @@ from goniofrost.capture.records import SuspensionEnd
 from goniofrost.rig.suspenders import Reading, ResumeMode, SuspendReason, Suspenders
 
 
-
 class SuspendWatch:
     """The suspenders of one engine run: ``suspenders`` (None: never suspends), ``executor`` (a
     StepExecutor: its ``read_conditions`` and ``hw.clock``), ``journal`` (a Journal or None),
