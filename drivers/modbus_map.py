@@ -47,6 +47,9 @@ class OperationType(enum.IntEnum):
 
 
 TRIGGER_ALL_DATA = 1
+# An interlock wired to a discrete input of a drive (read with function 02; the address is the
+# rig file's suspenders.interlock.input): this value means closed, safe to run; the other, open.
+INTERLOCK_CLOSED = 1
 FULL_CURRENT = 1000  # 100.0 %
 
 

@@ -42,6 +42,7 @@ _TOP_KEYS = {
     "alignment": Key(is_text, "a non-empty text (the ALIGNMENT.json of goniofrost align)", ABSENT),
     "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.rig.lab checks it)
     "twins": Key(is_mapping, "a mapping", ABSENT),  # running twins behind a real rig file (sim.config checks it)
+    "suspenders": Key(is_mapping, "a mapping", ABSENT),  # goniofrost.rig.suspenders checks it
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -107,6 +108,8 @@ class Rig(RigSpec):
     # the running twins a rig file of `goniofrost sim --write-rig` points at (clock_speedup,
     # camera_service_port; checked by sim.config); empty for every other rig
     twins: dict = field(default_factory=dict, compare=False)
+    # what pauses a capture until it clears (checked by goniofrost.rig.suspenders); {}: nothing
+    suspenders: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -154,8 +157,9 @@ def rig_from_mapping(raw: Any, source: str,
             lamp[key] = float(lamp[key])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    camera, sim, lab, twins = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
-                               for key in ("camera", "sim", "lab", "twins"))  # the sections other packages own
+    owned = ("camera", "sim", "lab", "twins", "suspenders")  # the sections other packages own
+    camera, sim, lab, twins, suspenders = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+                                           for key in owned)
     alignment = None
     if "alignment" in top:
         written = Path(top["alignment"])
@@ -165,7 +169,7 @@ def rig_from_mapping(raw: Any, source: str,
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
                kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab,
-               twins=twins)
+               twins=twins, suspenders=suspenders)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

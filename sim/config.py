@@ -18,6 +18,10 @@ Keys (``SIM_KEYS``; to add one, add a row)::
         - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
                                                           # at or after plan sample 3, once
         - {axis: camera_arm, kind: miss_reply, at_sample: 1}   # one lost reply: the capture goes on
+        - {kind: lamp_dim, at_sample: 2, level: 0.5, duration_s: 30}   # from plan sample 2, 30 nominal s
+        - {kind: lamp_cut, at_sample: 4, duration_s: 60}               # the lamp gives no light
+        - {axis: camera_arm, kind: interlock_open, at_sample: 3, duration_s: 20}   # that drive's input
+        - {axis: camera_arm, kind: silent, at_sample: 3, duration_s: 20}   # that Modbus drive answers nothing
       misalignment_deg:        # a rig built wrong on purpose (sim.misalignment); default none
         {camera_arm: 0.6, sample_yaw: -1.1, sample_tilt: 0.4}   # axis stands at reading + this
 
@@ -30,7 +34,7 @@ from goniofrost.core.config_check import (ABSENT, Key, check_items, check_sectio
                                           is_natural, is_number, is_text, one_of)
 from goniofrost.core.errors import ConfigError
 
-from .faults import DRILL_KINDS
+from .faults import SIM_FAULT_KINDS
 from .misalignment import check_axes, check_values
 
 
@@ -44,18 +48,40 @@ _LAMP_KEYS = {
                           "a number in [-1, 1] (relative intensity change per simulated hour)", 0.02),
 }
 _FAULT_KEYS = {
-    "axis": Key(is_text, "the name of an axis of this rig"),
-    "kind": Key(one_of(*DRILL_KINDS), f"one of {list(DRILL_KINDS)}"),
+    "axis": Key(is_text, "the name of an axis of this rig", ABSENT),  # all kinds but the lamp's
+    "kind": Key(one_of(*SIM_FAULT_KINDS), f"one of {list(SIM_FAULT_KINDS)}"),
     "at_sample": Key(is_natural, "a plan sample index >= 0"),
+    "level": Key(lambda v: is_number(v) and 0.0 < v < 1.0, "a number in (0, 1) (the dimmed lamp's intensity "
+                 "factor)", ABSENT),  # lamp_dim only
+    "duration_s": Key(lambda v: is_number(v) and v > 0, "a number of nominal seconds > 0", ABSENT),  # timed kinds
 }
+# the keys each kind needs, and the keys it must not have (cross-key rules after the table)
+_NEEDS = {"lamp_dim": ("level", "duration_s"), "lamp_cut": ("duration_s",), "interlock_open": ("axis", "duration_s"),
+          "silent": ("axis", "duration_s")}
+_REFUSES = {"lamp_cut": ("axis", "level"), "lamp_dim": ("axis",), "interlock_open": ("level",), "silent": ("level",)}
+
+
+def _faults(value, source, keypath: str) -> list:
+    """Each fault checked by the table, then by its kind: a device fault names an axis; a timed
+    fault its duration (and a dimmed lamp its level)."""
+    faults = check_items(value, _FAULT_KEYS, source, keypath)
+    for i, fault in enumerate(faults):
+        kind = fault["kind"]
+        for key in _NEEDS.get(kind, ("axis",)):
+            if key not in fault:
+                raise ConfigError(source, f"{keypath}[{i}].{key}", f"{_FAULT_KEYS[key].expected} (kind {kind})",
+                                  "nothing")
+        for key in _REFUSES.get(kind, ("level", "duration_s")):
+            if key in fault:
+                raise ConfigError(source, f"{keypath}[{i}].{key}", f"no {key} for kind {kind}", fault[key])
+    return faults
 SIM_KEYS = {
     "clock_speedup": Key(lambda v: is_number(v) and v > 0, "a number > 0 (simulated seconds per real second)", 1.0),
     "seed": Key(is_natural, "an integer >= 0", 0),
     "camera": Key(is_mapping, "a mapping of simulated camera keys", ABSENT, nested=_camera),
     "lamp": Key(is_mapping, "a mapping with drift_per_hour", {},
                 nested=lambda v, source, kp: check_section(v, _LAMP_KEYS, source, kp)),
-    "faults": Key(is_list, "a list of {axis, kind, at_sample} mappings", [],
-                  nested=lambda v, source, kp: check_items(v, _FAULT_KEYS, source, kp)),
+    "faults": Key(is_list, "a list of {axis, kind, at_sample} mappings", [], nested=_faults),
     "misalignment_deg": Key(is_mapping, "a mapping {axis name: degrees}", {}, nested=check_values),
 }
 
@@ -87,12 +113,18 @@ def validate_sim_section(section, source, keypath: str = "sim") -> dict:
 def check_fault_axes(faults, axis_names, source, keypath: str = "sim.faults") -> None:
     """ConfigError when a checked fault names no axis of ``axis_names``."""
     for i, fault in enumerate(faults):
-        if fault["axis"] not in axis_names:
+        if "axis" in fault and fault["axis"] not in axis_names:
             raise ConfigError(source, f"{keypath}[{i}].axis", f"one of the rig's axes {sorted(axis_names)}",
                               fault["axis"])
 
 
 def check_sim_against_rig(rig) -> None:
     """The checks of a loaded rig's ``sim`` section that need its other sections (planner Rig)."""
-    check_fault_axes((rig.sim or {}).get("faults", []), rig.axes, rig.source)
+    faults = (rig.sim or {}).get("faults", [])
+    check_fault_axes(faults, rig.axes, rig.source)
+    for i, fault in enumerate(faults):
+        protocol = str(rig.axes[fault["axis"]].driver.get("protocol", "")) if "axis" in fault else ""
+        if fault["kind"] in ("interlock_open", "silent") and not protocol.startswith("modbus"):
+            raise ConfigError(rig.source, f"sim.faults[{i}].axis", f"a Modbus axis (kind {fault['kind']})",
+                              fault["axis"])
     check_axes((rig.sim or {}).get("misalignment_deg", {}), list(rig.joint_names), rig.source)

@@ -14,6 +14,12 @@ FAULT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "alarm", "stall", "disco
 HICCUP_KINDS = ("miss_reply",)
 DRILL_KINDS = FAULT_KINDS + HICCUP_KINDS  # what a rig file's sim.faults may rehearse
 INJECTABLE_KINDS = DRILL_KINDS + ("clear",)  # "clear" undoes the injected faults
+# Faults that last a while (``duration_s`` nominal seconds from the plan sample they are due at)
+# and end by themselves: what the suspenders of goniofrost.rig.suspenders are drilled with.
+LAMP_KINDS = ("lamp_dim", "lamp_cut")  # the lamp at ``level`` of its intensity, or off
+# the interlock input of the Modbus drive ``axis`` reads 0; that drive answers nothing
+TIMED_KINDS = LAMP_KINDS + ("interlock_open", "silent")
+SIM_FAULT_KINDS = DRILL_KINDS + TIMED_KINDS  # every kind a rig file's sim.faults may name
 
 
 def check_kind(kind: str, kinds: tuple[str, ...] = INJECTABLE_KINDS) -> None:

@@ -28,6 +28,13 @@ class LampModel:
         self.is_on = False
         rng = np.random.default_rng(seed)
         self._phase = float(rng.uniform(0, 2 * np.pi))
+        self._outage: tuple[float, float, float] | None = None  # (start, end) nominal s, intensity factor
+
+    def interrupt(self, level: float, duration_s: float) -> None:
+        """Dim the lamp to ``level`` of its intensity (0: cut) for ``duration_s`` nominal seconds from
+        now (a drill: ``lamp_dim``, ``lamp_cut``); then it comes back as it was."""
+        t0 = self.clock.nominal_time()
+        self._outage = (t0, t0 + float(duration_s), float(level))
 
     def relative_intensity(self, t: float | None = None) -> float:
         """Intensity relative to nominal at nominal time t (default: the clock's nominal time now); 0 when off."""
@@ -35,7 +42,10 @@ class LampModel:
             return 0.0
         t = self.clock.nominal_time() if t is None else t
         wobble = 0.003 * np.sin(2 * np.pi * t / 600.0 + self._phase)
-        return float(1.0 + self.drift_per_hour * t / 3600.0 + wobble)
+        factor = 1.0
+        if self._outage is not None and self._outage[0] <= t < self._outage[1]:
+            factor = self._outage[2]
+        return float((1.0 + self.drift_per_hour * t / 3600.0 + wobble) * factor)
 
     def photodiode_counts(self, t: float | None = None) -> int:
         """Monitor photodiode reading in counts (proportional to intensity, 16-bit)."""

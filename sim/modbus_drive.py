@@ -26,7 +26,7 @@ from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivers.modbus_map import (
-    TRIGGER_ALL_DATA, DirectData, InputBit, OperationType, OutputBit, from_registers, resolve_map, to_registers,
+    INTERLOCK_CLOSED, TRIGGER_ALL_DATA, DirectData, InputBit, OperationType, OutputBit, from_registers, resolve_map, to_registers,
 )
 from drivers.modbus_protocol import corrupt_checksum, drop_last_byte
 from sim.clock import SimClock
@@ -76,14 +76,16 @@ class SimulatedModbusDrive(ArmedFaults):
     Parameters: ``clock``; ``transport`` "tcp" (``host`` 127.0.0.1, ``port`` 0 = a free port) or
     "rtu" (a pty; ``baud``; ``parity`` must stay "N": Linux ptys refuse parity with EINVAL); ``device_id``; ``steps_per_deg``; ``word_order``;
     ``register_map`` (name, mapping or RegisterMap); ``position_deg`` at power-up; ``lamp``
-    (a shared LampModel, else an own one); ``coil``; ``photodiode_register``.
+    (a shared LampModel, else an own one); ``coil``; ``photodiode_register``; ``interlock_input``:
+    the discrete input of an interlock (reads ``INTERLOCK_CLOSED`` but while an ``interlock_open``
+    drill lasts, ``open_interlock``).
     """
 
     def __init__(self, clock: SimClock, transport: str = "tcp", host: str = LOOPBACK, port: int = 0,
                  device_id: int = 1, steps_per_deg: float = 100.0, word_order: str = "big",
                  register_map="oriental-az", position_deg: float = 90.0, baud: int = 115200,
                  parity: str = "N", lamp: LampModel | None = None, coil: int = 0,
-                 photodiode_register: int = 0x0200) -> None:
+                 photodiode_register: int = 0x0200, interlock_input: int = 0) -> None:
         if transport not in ("tcp", "rtu"):
             raise ValueError(f"transport must be 'tcp' or 'rtu', got {transport!r}")
         if host != LOOPBACK:
@@ -106,6 +108,9 @@ class SimulatedModbusDrive(ArmedFaults):
         self._holding = _Block(self.map.highest_holding_register() + 1, self._refresh, self._on_write)
         self._coils = _Block(max(self.coil + 1, 16), self._refresh_coils, self._on_coil_write)
         self._inputs = _Block(self.photodiode_register + 1, self._refresh_inputs)
+        self.interlock_input, self._interlock_open = int(interlock_input), (0.0, 0.0)  # nominal s [start, end)
+        self._silent = (0.0, 0.0)  # nominal s [start, end) of a silent drill
+        self._discrete = _Block(self.interlock_input + 1, self._refresh_discrete)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._server = None
@@ -203,7 +208,7 @@ class SimulatedModbusDrive(ArmedFaults):
                 "ProductName": "AZ series driver (simulated)"}  # Read Device Identification (43/14)
 
     def _context(self) -> ModbusServerContext:
-        device = ModbusDeviceContext(hr=self._holding, co=self._coils, ir=self._inputs)
+        device = ModbusDeviceContext(hr=self._holding, co=self._coils, ir=self._inputs, di=self._discrete)
         return ModbusServerContext(devices={self.device_id: device}, single=False)
 
     async def _serve(self) -> None:
@@ -240,7 +245,7 @@ class SimulatedModbusDrive(ArmedFaults):
             with self._lock:
                 self.missing_replies -= 1
             return b""
-        if "no_reply" in faults or "disconnect" in faults:
+        if "no_reply" in faults or "disconnect" in faults or self._silent_now():
             return b""
         if "bad_checksum" in faults:
             data = corrupt_checksum(data, rtu=self.transport == "rtu")
@@ -334,6 +339,27 @@ class SimulatedModbusDrive(ArmedFaults):
 
     def _refresh_inputs(self, pdu_address: int, count: int) -> None:
         self._inputs.put(self.photodiode_register, [self.lamp.photodiode_counts()])
+
+    def open_interlock(self, duration_s: float) -> None:
+        """Open the interlock for ``duration_s`` nominal seconds from now (the ``interlock_open`` drill)."""
+        t0 = self.clock.nominal_time()
+        with self._lock:
+            self._interlock_open = (t0, t0 + float(duration_s))
+
+    def go_silent(self, duration_s: float) -> None:
+        """Answer nothing for ``duration_s`` nominal seconds from now (the ``silent`` drill)."""
+        t0 = self.clock.nominal_time()
+        with self._lock:
+            self._silent = (t0, t0 + float(duration_s))
+
+    def _silent_now(self) -> bool:
+        start, end = self._silent
+        return start <= self.clock.nominal_time() < end
+
+    def _refresh_discrete(self, pdu_address: int, count: int) -> None:
+        start, end = self._interlock_open
+        closed = not start <= self.clock.nominal_time() < end
+        self._discrete.put(self.interlock_input, [INTERLOCK_CLOSED if closed else 1 - INTERLOCK_CLOSED])
 
 
 class _PtyBridge:

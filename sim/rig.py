@@ -15,6 +15,7 @@ from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
 from .clock import SimClock
 from .config import check_fault_axes, validate_sim_section
+from .faults import LAMP_KINDS, TIMED_KINDS
 from .lamp_model import LampModel
 
 # A twin answers from a thread of this process: on a busy computer (a test suite beside other
@@ -47,7 +48,7 @@ def _smc100(clock, axis: AxisSpec, section, lamp_model, lamp_section):
                            limits=(lo * upd - 1.0, hi * upd + 1.0))  # SL/SR just outside the axis limits
 
 
-def _modbus(clock, axis: AxisSpec, section, lamp_model, lamp_section):
+def _modbus(clock, axis: AxisSpec, section, lamp_model, lamp_section, interlock_input: int = 0):
     from .modbus_drive import SimulatedModbusDrive
     rtu = section["protocol"] == "modbus-rtu"
     lamp = dict(coil=lamp_section["coil"], photodiode_register=lamp_section["photodiode_register"]) \
@@ -58,7 +59,7 @@ def _modbus(clock, axis: AxisSpec, section, lamp_model, lamp_section):
                                 word_order=section.get("word_order", "big"),
                                 register_map=section.get("register_map", "oriental-az"),
                                 position_deg=axis.home_deg, lamp=lamp_model,
-                                **lamp, **extra)
+                                interlock_input=interlock_input, **lamp, **extra)
 
 
 DEVICE_FACTORIES = {"dynamixel": _dynamixel, "smc100": _smc100, "modbus-tcp": _modbus, "modbus-rtu": _modbus}
@@ -100,7 +101,8 @@ class SimulatedRig:
             for name, axis in self.axes.items():
                 section = axis.driver
                 lamp = self.lamp_section if self._lamp_host() == name else None
-                device = DEVICE_FACTORIES[section["protocol"]](self.clock, axis, section, self.lamp_model, lamp)
+                extra = self._interlock_of(name)
+                device = DEVICE_FACTORIES[section["protocol"]](self.clock, axis, section, self.lamp_model, lamp, **extra)
                 self.endpoints[name] = device.start()
                 self._devices[name] = device
         except BaseException:
@@ -110,6 +112,11 @@ class SimulatedRig:
         if host is not None:
             self.endpoints["lamp"] = self._devices[host].lamp_entry()
         return dict(self.endpoints)
+
+    def _interlock_of(self, name: str) -> dict:
+        """{"interlock_input": address} for the drive the rig's suspenders.interlock names, else {}."""
+        interlock = (getattr(self.rig, "suspenders", None) or {}).get("interlock")
+        return {"interlock_input": interlock["input"]} if interlock and interlock["device"] == name else {}
 
     def stop(self) -> None:
         """Stop every device and release its pty or port (idempotent)."""
@@ -129,16 +136,29 @@ class SimulatedRig:
         armed = []
         for i, fault in enumerate(self.faults):
             if i not in self._armed and i not in self._retired and fault["at_sample"] <= sample_index:
-                self._devices[fault["axis"]].arm_fault(fault["kind"])
+                self._arm(fault)
                 self._armed.append(i)
                 armed.append(self._drill(i))
         return armed
 
+    def _arm(self, fault: dict) -> None:
+        """A device fault waits for its axis's next move; a timed one (sim.faults.TIMED_KINDS) starts now."""
+        kind = fault["kind"]
+        if kind in LAMP_KINDS:
+            self.lamp_model.interrupt(fault.get("level", 0.0), fault["duration_s"])
+        elif kind == "interlock_open":
+            self._devices[fault["axis"]].open_interlock(fault["duration_s"])
+        elif kind == "silent":
+            self._devices[fault["axis"]].go_silent(fault["duration_s"])
+        else:
+            self._devices[fault["axis"]].arm_fault(kind)
+
     def struck_faults(self) -> list[dict]:
         """The drills armed by ``arm_faults`` that have struck so far, in rig-file order."""
-        struck = []
-        for axis in {self.faults[i]["axis"] for i in self._armed}:
-            on_axis = [i for i in self._armed if self.faults[i]["axis"] == axis]  # in the order armed
+        struck = [i for i in self._armed if self.faults[i]["kind"] in TIMED_KINDS]  # strike when armed
+        waiting = [i for i in self._armed if self.faults[i]["kind"] not in TIMED_KINDS]
+        for axis in {self.faults[i]["axis"] for i in waiting}:
+            on_axis = [i for i in waiting if self.faults[i]["axis"] == axis]  # in the order armed
             struck += on_axis[:len(self._devices[axis].struck)]
         return [self._drill(i) for i in sorted(struck)]
 
@@ -197,7 +217,7 @@ class SimulatedRig:
         the driver's default): ``SLOW_HOST_ENV``'s when set and the axis has no fault drill, else
         ``TWIN_REPLY_TIMEOUT_MS``'s."""
         slow = os.environ.get(SLOW_HOST_ENV)
-        if slow and not any(fault["axis"] == name for fault in self.faults):
+        if slow and not any(fault.get("axis") == name for fault in self.faults):
             return float(slow)
         return TWIN_REPLY_TIMEOUT_MS.get(protocol)
 

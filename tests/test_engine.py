@@ -48,6 +48,9 @@ class FakeClock:
     def now(self) -> float:
         return self.t
 
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
 
 class FakeStatus:
     """A move started at the clock's present time; waiting on it lets the clock reach its end."""

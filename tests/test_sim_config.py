@@ -59,15 +59,27 @@ def test_defaults_are_filled_in():
     ({"faults": "stall"}, "sim.faults", "a list of {axis, kind, at_sample} mappings", "stall"),
     ({"faults": ["stall"]}, "sim.faults[0]", "a mapping", "stall"),
     ({"faults": [{"axis": "sample_yaw", "kind": "jam", "at_sample": 3}]}, "sim.faults[0].kind",
-     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect', 'miss_reply']", "jam"),
+     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect', 'miss_reply', 'lamp_dim', "
+     "'lamp_cut', 'interlock_open', 'silent']", "jam"),
     ({"faults": [{"axis": "sample_yaw", "kind": "clear", "at_sample": 3}]}, "sim.faults[0].kind",
-     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect', 'miss_reply']", "clear"),
+     "one of ['no_reply', 'bad_checksum', 'drop_byte', 'alarm', 'stall', 'disconnect', 'miss_reply', 'lamp_dim', "
+     "'lamp_cut', 'interlock_open', 'silent']", "clear"),
     ({"faults": [{"axis": "sample_yaw", "kind": "stall", "at_sample": -1}]}, "sim.faults[0].at_sample",
      "a plan sample index >= 0", -1),
     ({"faults": [{"axis": "sample_yaw", "kind": "stall"}]}, "sim.faults[0].at_sample",
      "a plan sample index >= 0", "nothing"),
     ({"faults": [{"axis": "sample_yaw", "kind": "stall", "at_sample": 3, "when": 1}]}, "sim.faults[0].when",
-     "one of the keys axis, kind, at_sample", "unknown key 'when'"),
+     "one of the keys axis, kind, at_sample, level, duration_s", "unknown key 'when'"),
+    ({"faults": [{"kind": "stall", "at_sample": 3}]}, "sim.faults[0].axis",
+     "the name of an axis of this rig (kind stall)", "nothing"),
+    ({"faults": [{"kind": "lamp_dim", "at_sample": 3, "duration_s": 30}]}, "sim.faults[0].level",
+     "a number in (0, 1) (the dimmed lamp's intensity factor) (kind lamp_dim)", "nothing"),
+    ({"faults": [{"kind": "lamp_cut", "at_sample": 3, "duration_s": 30, "level": 0.5}]}, "sim.faults[0].level",
+     "no level for kind lamp_cut", 0.5),
+    ({"faults": [{"kind": "lamp_cut", "at_sample": 3, "duration_s": 0}]}, "sim.faults[0].duration_s",
+     "a number of nominal seconds > 0", 0),
+    ({"faults": [{"axis": "sample_yaw", "kind": "stall", "at_sample": 3, "duration_s": 5}]},
+     "sim.faults[0].duration_s", "no duration_s for kind stall", 5),
 ])
 def test_bad_values_name_file_key_expected_and_found(sim, keypath, expected, found):
     with pytest.raises(ConfigError) as err:

@@ -38,6 +38,7 @@ from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInte
 from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
+from goniofrost.capture.suspension import SuspendWatch
 from goniofrost.capture.steps import (Assess, Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration,
                                       WhiteCheck)
 from goniofrost.capture.target import CONTINUE
@@ -93,6 +94,8 @@ class SessionEngine(PlanRunner):
         self._initial = 0
         self._committed: SampleRecord | None = None  # the last sample journaled
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
+        self.suspension = SuspendWatch(spec.suspenders, self.devices, journal, self._check_stop_request,
+                                       lambda: self.run_start.run)  # the rig file's suspenders
         self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
         self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
         self.rerun = RERUN  # what to type to go on after a stop (a queue: the queue command, which resumes)
@@ -149,6 +152,7 @@ class SessionEngine(PlanRunner):
     def before_step(self, step) -> None:
         if isinstance(step, Move) and step.index is not None:
             self.rehearsal.before_sample(step.index)
+            self.suspension.may_continue(step.index)  # the safe point: waits while suspended
 
     def after_journal(self) -> None:
         self.rehearsal.journal_struck()

@@ -175,3 +175,23 @@ class StepExecutor:
         with output_errors(self.folder / step.folder):
             step.record.save(self.folder / step.folder)
         return step.record
+
+    def read_conditions(self, suspenders, reference: float | None):
+        """What ``suspenders`` (``goniofrost.rig.suspenders.Suspenders``) look at, read from the devices
+        as a ``Reading`` (``reference``: the run's first photodiode reading); the first device that
+        does not answer is named in ``silent``."""
+        from drivers.errors import DeviceError
+        from drivers.interlock import Interlock
+        from goniofrost.rig.suspenders import Reading
+
+        photodiode = closed = None
+        name = "lamp"
+        try:
+            if suspenders.reads_lamp:
+                photodiode = self.hw.lamp.photodiode()
+            if suspenders.interlock:
+                name = suspenders.interlock["device"]
+                closed = Interlock(self.hw.axes[name], suspenders.interlock["input"]).is_closed()
+        except DeviceError as exc:
+            return Reading(photodiode, reference, silent=getattr(exc, "axis", None) or name)
+        return Reading(photodiode, reference, None, closed)

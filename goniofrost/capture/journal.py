@@ -20,7 +20,7 @@ from calib.measurement import NotMeasuredReason
 from goniofrost.core.atomic_file import output_errors, write_text_atomic
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.capture.records import (EventKind, NotMeasuredRecord, RunEnd, RunStart, RunStatus,  # noqa: F401
-                                       SampleRecord, SessionLabel, json_limits)
+                                       SampleRecord, SessionLabel, Suspension, SuspensionEnd, json_limits)
 from goniofrost.rig.stop import AxisStop
 from goniofrost.frost import samples_file
 
@@ -60,6 +60,9 @@ CREATE TABLE IF NOT EXISTS steps (
 CREATE TABLE IF NOT EXISTS runs (
     run INTEGER PRIMARY KEY, program TEXT NOT NULL, started_utc REAL NOT NULL, samples_planned INTEGER NOT NULL,
     samples_done INTEGER NOT NULL, status TEXT, end_record TEXT);
+CREATE TABLE IF NOT EXISTS suspensions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, run INTEGER NOT NULL, reason TEXT NOT NULL, plan_index INTEGER,
+    started_utc REAL NOT NULL, ended_utc REAL, waited_s REAL, end_kind TEXT);
 """
 STEP_STATUSES = ("running", "done", "failed", "interrupted")
 
@@ -215,6 +218,15 @@ class Journal:
             return []
         return [(RunStart(*row[:5]), None if row[5] is None else _run_end_from_json(row[5])) for row in rows]
 
+    def suspensions(self) -> list[Suspension]:
+        """Every suspension in order (a journal from before suspenders: [])."""
+        try:
+            rows = self._db.execute("SELECT run, reason, plan_index, started_utc, ended_utc, waited_s, end_kind "
+                                    "FROM suspensions ORDER BY id").fetchall()
+        except sqlite3.OperationalError:  # a read-only view of an older journal
+            return []
+        return [Suspension(*row[:6], None if row[6] is None else SuspensionEnd(row[6])) for row in rows]
+
     def last_run(self) -> tuple[RunStart | None, RunEnd | None]:
         """The last run's (RunStart, RunEnd), (None, None) before the first run."""
         runs = self.runs()
@@ -301,6 +313,24 @@ class Journal:
                                 (RunStatus(end.status).value, json.dumps(asdict(end), default=str), end.run))
             if cursor.rowcount != 1:
                 raise JournalError(f"{self.path}: run {end.run}: expected a started run without an end, found none")
+
+    def start_suspension(self, run: int, reason, plan_index: int | None, message: str) -> int:
+        """Record that run ``run`` is suspended for ``reason`` (a SuspendReason) and its event, durably;
+        return the row id (for ``end_suspension``)."""
+        with self._transaction() as db:
+            cursor = db.execute("INSERT INTO suspensions (run, reason, plan_index, started_utc) VALUES (?, ?, ?, ?)",
+                                (run, str(reason), plan_index, time.time()))
+            _insert_event(db, EventKind.SUSPEND, message, {"reason": str(reason), "plan_index": plan_index,
+                                                           "state": "suspended"})
+        return cursor.lastrowid
+
+    def end_suspension(self, row: int, end: SuspensionEnd, waited_s: float, message: str) -> None:
+        """Record how suspension ``row`` ended after ``waited_s`` session-clock seconds, and its event."""
+        with self._transaction() as db:
+            db.execute("UPDATE suspensions SET ended_utc = ?, waited_s = ?, end_kind = ? WHERE id = ?",
+                       (time.time(), float(waited_s), SuspensionEnd(end).value, row))
+            _insert_event(db, EventKind.SUSPEND, message, {"end": SuspensionEnd(end).value, "waited_s": waited_s,
+                                                           "state": "ended"})
 
     def start_step(self, run: int, kind: str, plan_index: int | None, detail: dict) -> int:
         """Record a plan step as running; return its row id (for ``end_step``)."""

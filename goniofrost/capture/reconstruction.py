@@ -22,7 +22,8 @@ from goniofrost.capture.journal import by_reason
 from goniofrost.capture.report import (bound_section, build_report, error_figure, extend_record,
                                        extrapolation_section, measurement_section, preview_title,
                                        read_earlier_record, scene_prediction, session_bound, summary_text,
-                                       target_section, whole_brdf_calibration, write_preview)
+                                       suspensions_section, target_section, whole_brdf_calibration,
+                                       write_preview)
 from goniofrost.core.atomic_file import write_text_atomic
 from goniofrost.core.errors import GoniofrostError
 
@@ -97,6 +98,7 @@ def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None)
         runs = journal.runs()
         report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
         report["label"] = label
+        report["suspensions"] = suspensions_section(journal.suspensions())
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
                                 "error_figure": said,
                                 "point_prediction_before_centring": rec.predicted_error, "cells": rec.samples,

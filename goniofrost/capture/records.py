@@ -43,6 +43,7 @@ class EventKind(str, enum.Enum):
     SIMULATION = "simulation"    # a simulated rig's state restored on resume
     DRILL = "drill"              # a simulated rig's fault drill armed or struck
     DEVICE = "device"            # a driver's or protocol library's log record
+    SUSPEND = "suspend"          # a suspender paused the run or it resumed (data: the Suspension)
 
     def __str__(self) -> str:
         return self.value
@@ -249,3 +250,30 @@ class NotMeasuredRecord:
 def json_limits(values) -> list:
     """A limit triple for JSON: an infinite limit (none) as None."""
     return [v if math.isfinite(v) else None for v in values]
+
+
+class SuspensionEnd(str, enum.Enum):
+    """How a suspension ended (``Suspension.end``)."""
+
+    RESUMED = "resumed"    # its conditions held clear for hold_clear_s (resume: auto)
+    OPERATOR = "operator"  # they held clear and the operator resumed (resume: operator)
+    STOPPED = "stopped"    # the run was stopped while suspended (Ctrl-C, SIGTERM, rig stop)
+    GAVE_UP = "gave_up"    # a device stayed silent for give_up_s: the run ended as a fault
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Suspension:
+    """One suspension of a run (the journal's ``suspensions`` table): ``reason`` a
+    ``goniofrost.rig.suspenders.SuspendReason`` value, ``plan_index`` the sample it waited before,
+    Unix times, ``waited_s`` session-clock seconds suspended and ``end`` (both None while it lasts)."""
+
+    run: int
+    reason: str
+    plan_index: int | None
+    started_utc: float
+    ended_utc: float | None = None
+    waited_s: float | None = None
+    end: SuspensionEnd | None = None

@@ -53,17 +53,17 @@ class Rehearsal:
             self.journal.add_event(EventKind.SIMULATION, f"simulated rig restored as journaled before plan sample {index}",
                                    data=state)
         for drill in self.devices.arm_drills(index):
-            self.journal.add_event(EventKind.DRILL, f"drill armed: {drill['kind']} on {drill['axis']} when it next moves "
-                                   f"(sim.faults[{drill['drill']}], at_sample {drill['at_sample']})",
-                                   axis=drill["axis"], data={**drill, "state": "armed"})
+            self.journal.add_event(EventKind.DRILL, f"drill armed: {_armed_text(drill)} (sim.faults[{drill['drill']}], "
+                                   f"at_sample {drill['at_sample']})", axis=drill.get("axis"),
+                                   data={**drill, "state": "armed"})
 
     def journal_struck(self) -> None:
         """Journal each drill the moment it is seen to have struck (a resume never arms it again)."""
         for drill in self.devices.struck_drills():
             if drill["drill"] not in self._struck:
                 self._struck.add(drill["drill"])
-                self.journal.add_event(EventKind.DRILL, f"drill struck: {drill['kind']} on {drill['axis']}",
-                                       axis=drill["axis"], data={**drill, "state": "struck"})
+                self.journal.add_event(EventKind.DRILL, f"drill struck: {drill['kind']} on {drill.get('axis', 'the lamp')}",
+                                       axis=drill.get("axis"), data={**drill, "state": "struck"})
 
     def with_state(self, summary: dict) -> dict:
         """A step's result ``summary`` with the simulation's state, to journal (unchanged on a real rig)."""
@@ -74,3 +74,11 @@ class Rehearsal:
         """The drills earlier runs of the session journaled as struck."""
         return [{k: v for k, v in e["data"].items() if k != "state"} for e in self.journal.events()
                 if e["kind"] is EventKind.DRILL and e["data"].get("state") == "struck"]
+
+
+def _armed_text(drill: dict) -> str:
+    """'stall on theta_o when it next moves'; a timed drill (the lamp's, an interlock's) starts at once."""
+    where = drill.get("axis", "the lamp")
+    if "duration_s" in drill:
+        return f"{drill['kind']} on {where} for {drill['duration_s']:g} s"
+    return f"{drill['kind']} on {where} when it next moves"

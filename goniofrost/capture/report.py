@@ -107,6 +107,19 @@ def preview_title(session_dir, label: dict, material: str | None, said: str, bou
         + f"\n{said}{stamp}"
 
 
+def suspensions_section(suspensions) -> dict:
+    """report.json's ``suspensions``: how many times a suspender paused the session, by reason, the
+    session-clock seconds suspended, and each (``goniofrost.capture.records.Suspension``)."""
+    reasons: dict = {}
+    for s in suspensions:
+        reasons[s.reason] = reasons.get(s.reason, 0) + 1
+    return {"count": len(suspensions), "reasons": reasons,
+            "waited_s": float(sum(s.waited_s or 0.0 for s in suspensions)),
+            "each": [{"run": s.run, "reason": s.reason, "plan_index": s.plan_index, "started_utc": s.started_utc,
+                      "ended_utc": s.ended_utc, "waited_s": s.waited_s, "end": None if s.end is None else str(s.end)}
+                     for s in suspensions]}
+
+
 def session_bound(inputs, records, confidence: float | None = None):
     """The whole BRDF's calibrated ErrorBound of the session's measured samples at ``confidence``
     (the session's; None: 95 %), as a target-error capture's last batch makes it
@@ -354,6 +367,10 @@ def summary_text(report: dict) -> str:
         lines.append(f"{len(mixed)} sample(s) had a region of interest that took in the card around the patch "
                      f"(flag roi-mixed: {' '.join(map(str, mixed))}): their values are not to be trusted; the rig may be "
                      f"misaligned")
+    suspended = report.get("suspensions") or {}
+    if suspended.get("count"):
+        lines.append(f"suspended {suspended['count']} time(s) for {suspended['waited_s']:g} s of session clock ("
+                     + ", ".join(f"{reason} {n}" for reason, n in suspended["reasons"].items()) + ")")
     dark = report["not_measured"]
     if dark["count"]:
         lines.append(f"{dark['count']} sample(s) NOT MEASURED, left out of the reconstruction and its predicted error, "

@@ -45,7 +45,8 @@ class SessionSpec:
     batch, the last = all) and ``assess(records) -> frost.confidence.ErrorBound`` at the
     session's confidence; otherwise None, (), None.
     ``drift_limit``: with a calibration to reuse (a queue), the relative change of the white scale
-    beyond which the session calibrates again in full.
+    beyond which the session calibrates again in full. ``suspenders``: what pauses the run between
+    samples until it clears (``goniofrost.capture.suspension``).
     """
 
     samples: list
@@ -60,6 +61,7 @@ class SessionSpec:
     assess: Callable | None = None
     confidence: float | None = None
     drift_limit: float = 0.05
+    suspenders: object = None  # goniofrost.rig.suspenders.Suspenders of the rig file, or None
 
     @classmethod
     def from_inputs(cls, inputs, target_error: float | None = None, confidence: float = 0.95) -> "SessionSpec":
@@ -75,9 +77,12 @@ class SessionSpec:
             "target": float(target_error), "batch_ends": tuple(int(e) for e in inputs.plan["batch_ends"]),
             "assess": make_assessor(inputs.model, inputs.positions, confidence, inputs.scene, inputs.sentinel),
             "confidence": float(confidence)}
+        from goniofrost.rig.suspenders import Suspenders
+
         return cls(inputs.samples, tuple(int(c) for c in inputs.cells), tuple(rig.joint_names),
                    validate_camera_section(rig.camera, rig.source), inputs.white_joints,
-                   lambda joints: forward(rig, joints), arm_side(rig), **target)
+                   lambda joints: forward(rig, joints), arm_side(rig),
+                   suspenders=Suspenders.from_section(getattr(rig, "suspenders", None)), **target)
 
 
 def session_steps(spec: SessionSpec, done: Iterable[int] = (), calibration=None,

@@ -82,6 +82,9 @@ class Clock(Protocol):
 
     def now(self) -> float: ...
 
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of session time (a suspended run; simulated: real time / speed-up)."""
+
 
 class Simulation(Protocol):
     """What the engine may ask of a simulated rig beyond its devices (``sim.rig.SimulatedRig``).

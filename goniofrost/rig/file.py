@@ -34,11 +34,13 @@ VALIDATORS: dict[str, tuple[str, str]] = {
     "sim": ("sim.config", "validate_sim_section"),
     "twins": ("sim.config", "validate_twins_section"),
     "lab": ("goniofrost.rig.lab", "validate_lab_section"),
+    "suspenders": ("goniofrost.rig.suspenders", "validate_suspenders_section"),
 }
 # checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.
 RIG_CHECKS: tuple[tuple[str, str], ...] = (
     ("sim.config", "check_sim_against_rig"),  # every fault drill and misalignment names an axis of the rig
     ("drivers.config", "check_lamp_against_rig"),  # a lamp on an axis sits on a Modbus axis
+    ("goniofrost.rig.suspenders", "check_suspenders_against_rig"),  # the interlock sits on a Modbus axis
 )
 
 

@@ -28,6 +28,9 @@ class WallClock:
     def now(self) -> float:
         return time.monotonic()
 
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
 
 @dataclass
 class RigHardware:
