@@ -391,12 +391,14 @@ def test_a_frame_has_its_region_of_interest_outlined_around_the_sample_patch(fin
         assert status == 404 and body == b"sample 99 is not in the journal" and headers["X-Shows"] == "99"
 
 
-def test_the_monitor_command_refuses_a_missing_folder_a_bad_port_and_a_taken_port(tmp_path, capsys):
-    assert main(["monitor", str(tmp_path / "nope")]) == 2
+def test_the_monitor_command_refuses_a_file_a_bad_port_and_a_taken_port(tmp_path, capsys):
+    # (a folder that does not exist yet is watched: test_queue_file)
+    (tmp_path / "a-file").write_text("not a folder")
+    assert main(["monitor", str(tmp_path / "a-file")]) == 2
     # the README's `goniofrost monitor SESSION_DIR|ROOT`: the usage line and the error name both
     assert capsys.readouterr().err == (
         "goniofrost monitor: error: command line: SESSION_DIR|ROOT: expected a session folder (goniofrost capture "
-        f"--session DIR) or a folder of session folders (a queue's root), found '{tmp_path / 'nope'}'\n")
+        f"--session DIR) or a folder of session folders (a queue's root), found '{tmp_path / 'a-file'}'\n")
     from goniofrost.app.cli import build_parser
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices["monitor"]
     assert "SESSION_DIR|ROOT" in sub.format_usage()

@@ -264,3 +264,37 @@ def test_an_operators_stop_is_shown_interrupted_with_the_terminals_words(page, t
             assert statuses(page) == ["done", "failed", "pending"]
     finally:
         script.close()
+
+
+def test_a_queues_root_watched_before_it_exists_lists_its_sessions_and_pending_samples(plan, page, tmp_path,
+                                                                                       monkeypatch):
+    """The list of a queue's root opened before the queue starts (the folder is not there yet); the
+    queue measures its first sample and no one answers for the second: the page (it reloads every
+    5 s) lists the first as finished, with a link to its page, and the other two pending, in the
+    queue's order."""
+    import io
+
+    import yaml
+
+    from goniofrost.app.cli import main
+
+    rig, plan_file = plan
+    queue = tmp_path / "queue.yaml"
+    queue.write_text(yaml.safe_dump({
+        "rig": os.path.relpath(rig, tmp_path), "plan": os.path.relpath(plan_file, tmp_path), "root": "day",
+        "samples": [{"sample_id": "Z-1", "material": MATERIAL}, {"sample_id": "A-2", "material": "builtin:gold"},
+                    {"sample_id": "M-3", "material": "builtin:green-felt"}]}, sort_keys=False))
+    root = tmp_path / "day"
+    with MonitorServer(root, port=0, catalogue=True) as server:
+        page.goto(server.url)
+        expect(page.locator("section.card")).to_contain_text(f"{root} does not exist yet")
+        assert page.locator("#sessions tbody tr").count() == 0
+        monkeypatch.setattr(sys, "stdin", io.StringIO("\n"))   # Enter for the first sample, then no one
+        assert main(["queue", str(queue), "--no-progress", "--speedup", "50"]) == 2
+        rows = page.locator("#sessions tbody tr")
+        expect(rows).to_have_count(3, timeout=LOADED_MS)
+        assert [rows.nth(k).locator("td").nth(4).inner_text() for k in range(3)] == ["finished", "pending", "pending"]
+        assert [rows.nth(k).locator("td").first.inner_text() for k in range(3)] == ["Z-1", "A-2", "M-3"]
+        expect(page.locator("section.card")).to_contain_text("1 session(s), 2 pending")
+        page.locator("#sessions a", has_text="Z-1").click()
+        expect(page.locator("#state")).to_have_text("finished", timeout=LOADED_MS)

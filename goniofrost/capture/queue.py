@@ -7,7 +7,8 @@ flat field, white reference); every later one reuses the calibration of the samp
 lamp: when its scale moved by more than the queue's ``drift_limit`` the session calibrates in
 full (``calibration_steps.white_check_steps``). The queue keeps no state of its own: the
 journals are the truth, so running the same command again after Ctrl-C or kill -9 skips the
-sessions that completed, resumes the one under way and measures nothing twice.
+sessions that completed, resumes the one under way and measures nothing twice. A sample with a
+target error (its own or the queue's) is captured as ``capture --target-error E --confidence C``.
 """
 from __future__ import annotations
 
@@ -40,14 +41,16 @@ class QueueItem:
 
 
 def check_queue(queue: Queue, inputs, *, seed=None, speedup=None, materials=None) -> list:
-    """Every sample's material and the simulation options, before anything moves (ConfigError
-    naming the queue file and the sample); return each sample's material resolved by
-    ``materials(SPEC:NAME, None)`` (``goniofrost.datasets.shown_material``; None on a real rig)."""
+    """Every sample's material and target, and the simulation options, before anything moves
+    (ConfigError naming the queue file and the sample's key); return each sample's material
+    resolved by ``materials(SPEC:NAME, None)`` (``goniofrost.datasets.shown_material``; None on a
+    real rig)."""
     from goniofrost.capture.runner import check_material, check_sim_options
 
     check_sim_options(inputs.rig, seed, speedup)
     shown = []
     for i, sample in enumerate(queue.samples):
+        check_sample_target(queue, i, inputs)
         try:
             check_material(inputs.rig, sample.material)
             shown.append(None if sample.material is None else materials(sample.material, None))
@@ -56,6 +59,22 @@ def check_queue(queue: Queue, inputs, *, seed=None, speedup=None, materials=None
         except GoniofrostError as exc:  # an unknown dataset or material name: its own words, under the queue's key
             raise GoniofrostError(f"{queue.path}: samples[{i}].material: {exc}") from None
     return shown
+
+
+def check_sample_target(queue: Queue, index: int, inputs) -> None:
+    """``capture``'s own check of sample ``index``'s target error and confidence (a Bayesian plan
+    in batches, a confidence the model's calibrated bound can give), its ConfigError naming the
+    queue file and the key that set the value instead of the command line's option."""
+    from goniofrost.capture.runner import check_target
+
+    sample = queue.samples[index]
+    try:
+        check_target(inputs, sample.target_error, sample.confidence)
+    except ConfigError as exc:
+        option = {"--target-error": "target_error", "--confidence": "confidence"}.get(exc.keypath)
+        if exc.source != "command line" or option is None:  # the plan's or the model's own problem
+            raise
+        raise ConfigError(queue.path, queue.key_of(index, option), exc.expected, exc.found) from None
 
 
 def completed(session_dir: Path) -> bool:
@@ -133,6 +152,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
                               sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
                               resume=(session / JOURNAL_FILE).exists(), progress=progress,
                               label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
+                              target_error=sample.target_error, confidence=sample.confidence,
                               progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
         except TooFewSamplesError as exc:
             out(f"queue {position}: {sample.sample_id}: NOTHING MEASURED: {exc}; the queue goes on")

@@ -11,7 +11,8 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("session", metavar="SESSION_DIR|ROOT",
                         help="session folder of goniofrost capture --session (it may still be running, "
-                             "or not have started yet), or a folder of session folders (a queue's root)")
+                             "or not have started yet), or a folder of session folders (a queue's root, which "
+                             "may not exist yet: it is watched until it does)")
     add_server_options(parser, with_flag=False)
 
 
@@ -23,16 +24,20 @@ def run(args) -> int:
     from goniofrost.core.errors import ConfigError
     from goniofrost.monitor.server import MonitorServer
 
-    if not Path(args.session).is_dir():
+    folder = Path(args.session)
+    if folder.exists() and not folder.is_dir():
         raise ConfigError("command line", "SESSION_DIR|ROOT", "a session folder (goniofrost capture --session DIR) "
                           "or a folder of session folders (a queue's root)", args.session)
     from goniofrost.monitor.catalogue import is_catalogue
 
     check_port(args.port)
-    many = is_catalogue(args.session)
+    # a folder that does not exist yet (a queue's root before the queue starts) is watched as a
+    # folder of sessions: its list fills in once it exists (a capture's own folder is listed too)
+    many = not folder.exists() or is_catalogue(folder)
     server = MonitorServer(args.session, host=args.host, port=args.port, catalogue=many).start()
     what = "the sessions under " if many else ""
-    print(f"goniofrost monitor: {server.url} shows {what}{args.session} (read-only); Ctrl-C stops", flush=True)
+    later = "" if folder.exists() else " once it exists"
+    print(f"goniofrost monitor: {server.url} shows {what}{args.session}{later} (read-only); Ctrl-C stops", flush=True)
     try:
         # Short sleeps: Ctrl-C's handler runs in the main thread only when it next runs Python
         # code, and a SIGINT the kernel hands to one of the server's threads does not wake a

@@ -25,12 +25,16 @@ def run(args) -> int:
     from goniofrost.capture.queue import NOTHING_MEASURED, ask_to_mount, run_queue
     from goniofrost.capture.queue_file import read_queue
     from goniofrost.datasets import shown_material
+    from goniofrost.datasets.specs import spec_read_from
     from goniofrost.rig.simulated import rig_devices
 
     queue = read_queue(args.queue)
+
+    def materials(text: str, option):   # a material's file, like every path of the queue, beside the queue file
+        return shown_material(spec_read_from(text, str(queue.folder)), option)
     try:
         items = run_queue(queue, confirm=None if args.yes else ask_to_mount, seed=args.seed, speedup=args.speedup,
-                          progress=not args.no_progress, devices=rig_devices, materials=shown_material)
+                          progress=not args.no_progress, devices=rig_devices, materials=materials)
     except SessionInterrupted as exc:
         print(f"goniofrost queue: {exc}", file=sys.stderr)  # it says to run the same queue command
         return 130

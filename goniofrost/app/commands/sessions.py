@@ -3,7 +3,7 @@ from __future__ import annotations
 
 HELP = ("list the sessions under ROOT: name, started, operator, sample, state, samples (measured/planned, and how "
         "many were not measured: too dark or saturated), predicted error, "
-        "duration (read-only)")
+        "duration, then the samples of their queues not started yet, pending, in queue order (read-only)")
 
 
 def add_arguments(parser) -> None:
