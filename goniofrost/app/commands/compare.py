@@ -77,7 +77,10 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from goniofrost.app.png_out import check_png_name, check_sphere_size
+    import dataclasses
+
     from goniofrost.brdf.compare import KEYS, compare_tables, write_png
+    from goniofrost.brdf.preview import record_figure
     from goniofrost.core.errors import GoniofrostError
 
     if len(args.inputs) < 2:
@@ -87,8 +90,11 @@ def run(args: argparse.Namespace) -> int:
     check_png_name(args.out)
     check_sphere_size(args.size)
     resolved = [resolve(text) for text in args.inputs]
-    comparison = compare_tables(load_tables([p for p, _ in resolved]), [label for _, label in resolved],
-                                [p for p, _ in resolved], size=args.size)
+    paths = [p for p, _ in resolved]
+    comparison = compare_tables(load_tables(paths), [label for _, label in resolved], paths, size=args.size)
+    # each input's error figure, from the record beside it (a session's brdf.json; none for a .bsdf)
+    comparison = dataclasses.replace(comparison, figures=tuple(
+        None if p.suffix == ".bsdf" else record_figure(p) for p in paths))
     write_png(args.out, comparison, title="goniofrost compare")
     if args.json:
         print(json.dumps(comparison.to_json() | {"picture": str(args.out)}, indent=2))

@@ -105,13 +105,13 @@ def run(args) -> int:
     request = _request(args, model, objective)
     made = make_plan(model, model_path_for_plan(args.model, args.out), request, say=print, progress=True)
     write_plan(args.out, made.doc)
-    if made.selection.bounds is not None:
-        print(bound_line(model, made.selection, request.confidence))
     # the scene's calibration time is printed, not written: a plan made again is the same file
     # but for selection_seconds
     print(summary_line(args.out, made, request))
     if made.design_said:
         print(made.design_said)
+    if made.selection.bounds is not None:  # what --max-error chose the length on, last
+        print(bound_line(model, made.selection, request.confidence))
     return 0
 
 
