@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import difflib
+import hashlib
 from abc import ABC, abstractmethod
 from typing import Sequence
 
@@ -88,3 +89,17 @@ class Dataset(ABC):
     def _evaluate_many(self, names: Sequence[str], theta_h, theta_d, phi_d) -> np.ndarray:
         """(len(names), N, 3) values at N angle triples; subclasses may batch this."""
         return np.stack([self.evaluate(n, theta_h, theta_d, phi_d) for n in names])
+
+
+def file_digest(path, digests: dict) -> str:
+    """The blake2b-128 hex digest of the file at ``path``, read in 4 MB blocks; ``digests`` keeps it
+    by (path, size, mtime), so an unchanged file is read once (a dataset's content ids)."""
+    stat = path.stat()
+    key = (str(path), stat.st_size, stat.st_mtime_ns)
+    if key not in digests:
+        digest = hashlib.blake2b(digest_size=16)
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 22), b""):
+                digest.update(block)
+        digests[key] = digest.hexdigest()
+    return digests[key]

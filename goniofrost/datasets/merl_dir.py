@@ -11,7 +11,6 @@ ground truth must cover every valid cell (filling the gaps silently would bias t
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from pathlib import Path
 from typing import Sequence
@@ -20,7 +19,7 @@ import numpy as np
 
 from goniofrost.core.grid import FULL_GRID, MerlGrid
 from goniofrost.brdf.merl_file import read_merl
-from goniofrost.datasets.base import Dataset, DatasetError
+from goniofrost.datasets.base import Dataset, DatasetError, file_digest
 
 # Materials kept in memory (35 MB each at full resolution).
 RECENT_FILES = 4
@@ -50,16 +49,7 @@ class MerlDirDataset(Dataset):
         return list(self._paths())
 
     def content_id(self, name: str) -> str:
-        path = self._paths()[self.resolve(name)]
-        stat = path.stat()
-        key = (str(path), stat.st_size, stat.st_mtime_ns)
-        if key not in self._digests:
-            digest = hashlib.blake2b(digest_size=16)
-            with open(path, "rb") as handle:
-                for block in iter(lambda: handle.read(1 << 22), b""):
-                    digest.update(block)
-            self._digests[key] = digest.hexdigest()
-        return f"merl-v1:{self._digests[key]}"
+        return f"merl-v1:{file_digest(self._paths()[self.resolve(name)], self._digests)}"
 
     def load(self, name: str) -> tuple[MerlGrid, np.ndarray]:
         """(grid of the file, float64 (grid.size, 3) BRDF in 1/sr with NaN = missing)."""

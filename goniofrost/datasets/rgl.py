@@ -15,7 +15,6 @@ simulated camera sees, as a renderer of the file would.
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import numpy as np
 
 from goniofrost.brdf.rgl_measured import EVAL_VERSION, MeasuredFile, brdf, load_or_explain
 from goniofrost.core.grid import FULL_GRID, half_diff_to_dirs
-from goniofrost.datasets.base import Dataset, DatasetError
+from goniofrost.datasets.base import Dataset, DatasetError, file_digest
 
 # Files kept loaded (a full-size spectral file's RGB table is ~20 MB in float64).
 RECENT_FILES = 4
@@ -66,16 +65,7 @@ class RglDataset(Dataset):
         return self._paths()[self.resolve(name)]
 
     def content_id(self, name: str) -> str:
-        path = self._paths()[self.resolve(name)]
-        stat = path.stat()
-        key = (str(path), stat.st_size, stat.st_mtime_ns)
-        if key not in self._digests:
-            digest = hashlib.blake2b(digest_size=16)
-            with open(path, "rb") as handle:
-                for block in iter(lambda: handle.read(1 << 22), b""):
-                    digest.update(block)
-            self._digests[key] = digest.hexdigest()
-        return f"{EVAL_VERSION}:{self._digests[key]}"
+        return f"{EVAL_VERSION}:{file_digest(self._paths()[self.resolve(name)], self._digests)}"
 
     def load(self, name: str) -> MeasuredFile:
         """The checked file of a material (kept for the next few calls)."""
