@@ -25,8 +25,9 @@ from goniofrost.brdf.mitsuba_render import SPECTRAL_VARIANT
 from goniofrost.brdf.rgl_tensor import encode, read_tensor_file, write_tensor_file
 from goniofrost.core.grid import MerlGrid
 from goniofrost.datasets import open_dataset
-from goniofrost.datasets.tabulate import tabulate_cached
 from goniofrost.frost.metrics import batch_log_errors, log_relative_mse
+
+from test_spectral_export import builtin_table  # a builtin material on a grid, float64 (grid.size, 3)
 
 SMALL = MerlGrid(30, 30, 60)
 TINY = MerlGrid(12, 12, 24)
@@ -41,11 +42,6 @@ def rgb_variant_after():
     """Leave Mitsuba in the RGB variant the other modules set at import."""
     yield
     mi.set_variant("scalar_rgb")
-
-
-def builtin_table(name: str, grid: MerlGrid) -> np.ndarray:
-    values = tabulate_cached(open_dataset("builtin"), [name], grid, progress=False)[0]
-    return valid_to_full(values.astype(np.float64), grid)
 
 
 @pytest.fixture(scope="module")
