@@ -19,7 +19,7 @@ from goniofrost.brdf import cie1931, marginal2d
 from goniofrost.brdf import mitsuba_export as me
 from goniofrost.brdf import rgl_measured as rm
 from goniofrost.brdf import rgl_spectral as rs
-from goniofrost.brdf.merl_file import read_merl, valid_to_full
+from goniofrost.brdf.merl_file import read_merl
 from goniofrost.brdf.mitsuba_probe import eval_pairs, eval_pairs_spectral_rgb, load_bsdf
 from goniofrost.brdf.mitsuba_render import SPECTRAL_VARIANT
 from goniofrost.brdf.rgl_tensor import encode, read_tensor_file, write_tensor_file
