@@ -144,3 +144,32 @@ def test_train_with_a_bad_rig_exits_2_before_training_and_writes_nothing(tmp_pat
     err = capsys.readouterr().err
     assert err.startswith("goniofrost train: error: ") and message in err and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_train_grid_trains_plans_and_calibrates_on_that_grid(tmp_path, capsys):
+    """train --grid 10,10,20: the model, its rig's measurable cells and a plan are all of that grid."""
+    import json
+
+    from goniofrost.frost.model import FrostModel
+
+    rig, model = str(Path(__file__).parents[1] / "config" / "rigs" / "sim.yaml"), tmp_path / "model"
+    assert main(["train", "--dataset", "builtin", "--only", "gold", "--only", "red-plastic", "--only",
+                 "white-diffuse", "--components", "2", "--grid", "10,10,20", "--rig", rig,
+                 "--out", str(model)]) == 0
+    loaded = FrostModel.load(model)
+    assert loaded.grid.shape == (10, 10, 20) and loaded.grid.n_valid == 1670
+    assert "1670 valid cells" in capsys.readouterr().out
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--model", str(model), "--samples", "4", "--rig", rig,
+                 "--out", str(plan)]) == 0
+    cells = [s["cell"] for s in json.loads(plan.read_text())["samples"]]
+    assert len(cells) >= 4 and all(c[0] < 10 and c[1] < 10 and c[2] < 20 for c in cells)
+
+
+def test_train_refuses_a_grid_that_is_not_three_positive_bins(tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["train", "--dataset", "builtin", "--grid", "10,0,20", "--out", str(tmp_path / "m")])
+    assert done.value.code == 2
+    assert ("argument --grid: expected three positive integers like 30,30,60, found '10,0,20'"
+            in capsys.readouterr().err)
+    assert list(tmp_path.iterdir()) == []

@@ -18,7 +18,7 @@ from docs_runner import REPO, TUTORIALS, blocks, run_page, runnable
 DOCS = REPO / "docs"
 # The model the tutorials train (the same command on every page that needs one): trained once per
 # test run into the tutorials' shared cache, so that every page's `goniofrost train` reads it back.
-TUTORIAL_TRAIN = ["train", "--dataset", "builtin-random:1:20", "--components", "8",
+TUTORIAL_TRAIN = ["train", "--dataset", "builtin-random:1:20", "--components", "8", "--grid", "30,30,60",
                   "--rig", "config/rigs/sim.yaml", "--out", "model"]
 PAGES = sorted(TUTORIALS.glob("[0-9]*.md"))
 

@@ -14,3 +14,14 @@ def seed(text: str) -> int:
     if value is None or value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, found {text!r}")
     return value
+
+
+def grid_bins(text: str) -> tuple[int, int, int]:
+    """``--grid``: the bins of theta_h, theta_d and phi_d, "30,30,60" (or "30x30x60"), each >= 1."""
+    try:
+        values = tuple(int(v) for v in text.replace("x", ",").split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected three positive integers like 30,30,60, found {text!r}")
+    return values

@@ -14,7 +14,7 @@ DEFAULT_DATASETS = [f"nbrdf:{SHARED_DATA / 'nbrdf_merl.npz'}", f"nbrdf:{SHARED_D
 
 def add_arguments(parser) -> None:
     """Options of ``goniofrost bench`` (defaults: the paper's 10 folds of 131 / 20 materials)."""
-    from goniofrost.app.arg_types import seed
+    from goniofrost.app.arg_types import grid_bins, seed
 
     parser.add_argument("--out", required=True, type=Path, help="output folder (results.json, results.csv, PNG plots)")
     parser.add_argument("--dataset", action="append", metavar="SPEC",
@@ -40,7 +40,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--random-trials", type=int, default=1, help="random selections per fold and m (default 1)")
     parser.add_argument("--eta", type=float, default=40.0, help="ridge parameter of the reconstruction (default 40)")
     parser.add_argument("--seed", type=seed, default=0, help="the one seed of the run (default 0)")
-    parser.add_argument("--grid", type=_grid, default=None, metavar="NTH,NTD,NPD",
+    parser.add_argument("--grid", type=grid_bins, default=None, metavar="NTH,NTD,NPD",
                         help="grid resolution (default 90,90,180, the MERL grid; --quick 45,45,90)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="local worker processes, one fold each (default: 2 or the core count if lower)")
@@ -160,14 +160,3 @@ def _float_list(text: str) -> list[float]:
 
 def _str_list(text: str) -> list[str]:
     return [v.strip() for v in text.split(",") if v.strip()]
-
-
-def _grid(text: str) -> tuple[int, int, int]:
-    import argparse
-    try:
-        values = tuple(int(v) for v in text.replace("x", ",").split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected three positive integers like 30,30,60, found {text!r}")
-    return values
