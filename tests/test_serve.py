@@ -151,7 +151,8 @@ def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_not
     ]
     assert [(r.status_code, r.json()["field"]) for r, _, _ in refusals] == [(s, f) for _, s, f in refusals]
     assert "limits [8, 172]" in refusals[10][0].json()["error"]
-    assert server.get("/").status_code == 200  # the monitor's list of the root's sessions, beside the API
+    assert server.get("/").status_code == 200  # the instrument's page, beside the API
+    assert "<table id=\"sessions\">" in server.get("/sessions").text  # the monitor's list of the root's sessions
     foreign = requests.get(server.url + "/api/status", headers={"Host": "evil.example"}, timeout=30)
     assert foreign.status_code == 403
     assert server.get("/api/queue").json() == [] and server.get("/api/actions").json() == []

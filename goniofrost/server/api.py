@@ -141,7 +141,8 @@ class Api:
         """Move a pending entry before another pending one (``{"before": id}``; null: last)."""
         entry_id, before = request.path_params["entry_id"], body.get("before") if isinstance(body, dict) else None
         if before is not None and (not isinstance(before, int) or isinstance(before, bool)):
-            raise RequestError("before", f"before: expected the id of a pending entry (or null: last), found {before!r}")
+            raise RequestError("before", f"before: expected the id of a pending entry (or null: last), "
+                               f"found {before!r}")
         order = await anyio.to_thread.run_sync(self.store.move, entry_id, before)
         if order is None:
             pending = lambda i: (self.store.entry(i) or {}).get("state") == "pending"  # noqa: E731
@@ -266,7 +267,8 @@ def rig_summary(rig) -> dict:
         if spec.role is Role.SAMPLE_TILT:
             note = f"and within +-{geometry.tilt_limit_deg:g} deg (geometry.tilt_limit_deg)"
         elif spec.role is Role.CAMERA_ARM:
-            note = f"and at least {geometry.min_arm_separation_deg:g} deg from the lamp (geometry.min_arm_separation_deg)"
+            note = (f"and at least {geometry.min_arm_separation_deg:g} deg from the lamp "
+                    f"(geometry.min_arm_separation_deg)")
         axes.append({"name": name, "role": spec.role.value, "limits_deg": list(spec.limits_deg),
                      "home_deg": spec.home_deg, "note": note})
     return {"name": rig.name, "simulated": bool(rig.simulated), "axes": axes,
@@ -280,7 +282,8 @@ def instrument_app(api: Api, sessions: Path, host: str) -> Starlette:
     from goniofrost.server.page import page_routes
 
     sites = Sites(sessions, True, False)
-    app = Starlette(routes=page_routes(sites) + api.routes() + monitor_routes(sites), middleware=[Middleware(Guard, host=host)],
+    app = Starlette(routes=page_routes(sites) + api.routes() + monitor_routes(sites),
+                    middleware=[Middleware(Guard, host=host)],
                     lifespan=monitor_lifespan(sites))
     app.state.sites = sites
     return app

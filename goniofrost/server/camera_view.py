@@ -40,7 +40,8 @@ def check_view(body, rig) -> tuple[float, tuple[float, float] | None]:
     for key in ("black", "white"):
         value = body.get(key)
         if not (_number(value) and math.isfinite(value) and 0 <= value <= 1):
-            raise RequestError(key, f"{key}: expected a level between 0 and 1 (fraction of full scale), found {value!r}")
+            raise RequestError(key, f"{key}: expected a level between 0 and 1 (fraction of full scale), "
+                               f"found {value!r}")
         levels.append(float(value))
     if levels[1] <= levels[0]:
         raise RequestError("white", f"white: expected a level above black ({levels[0]:g}), found {levels[1]:g}")

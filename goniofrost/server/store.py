@@ -2,8 +2,9 @@
 
 ``queue``: one row per entry (plan file relative to the root, material, sample_id, operator, note,
 target_error, confidence), its state (``pending``, ``running``, ``done``, ``failed``, ``stopped``,
-``removed``) and its session folder; ``position`` orders it (``move`` reorders the pending ones). An entry ``running`` when the server died is run again with
-``resume`` on the next start: the capture journal resumes it without losing or repeating a sample.
+``removed``) and its session folder; ``position`` orders it (``move`` reorders the pending ones).
+An entry ``running`` when the server died is run again with ``resume`` on the next start: the
+capture journal resumes it without losing or repeating a sample.
 ``actions``: every control request, with who asked (``operator`` of the request, and its peer
 address) and when (Unix seconds). SQLite in WAL mode; every write is its own transaction.
 """
