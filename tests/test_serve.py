@@ -267,6 +267,8 @@ def test_pending_entries_are_reordered_and_the_camera_view_is_a_small_png(server
     assert [(r.status_code, r.json()["field"]) for r in refused] == [
         (404, "id"), (422, "before"), (422, "before"), (422, "before"), (401, "authorization")]
     assert [e["id"] for e in server.get("/api/queue").json()] == [b, a, c]
+    paths = server.get("/openapi.json").json()["paths"]
+    assert {"/api/queue/{id}/move", "/api/camera", "/api/rig"} <= set(paths)
 
     events = server.status()["events"]
     assert server.post("/api/camera", {"exposure_s": 0.002}, headers={}).status_code == 401
@@ -291,3 +293,31 @@ def test_pending_entries_are_reordered_and_the_camera_view_is_a_small_png(server
     actions = [(a["who"], a["action"]) for a in server.get("/api/actions").json()]
     assert actions[4:] == [("?", "queue_move"), ("?", "queue_move"), ("ada", "queue_move"), ("?", "lamp"),
                            ("?", "home"), ("?", "move"), ("?", "camera"), ("?", "camera")]
+
+
+def test_the_store_reorders_pending_entries_and_reads_a_root_served_before_reordering(tmp_path):
+    """A serve.sqlite made before entries had a position keeps its order; a move swaps positions
+    among the pending entries only; a running, ended or unknown entry is not moved."""
+    import sqlite3
+
+    from goniofrost.server.store import DB_FILE, SCHEMA, Store
+
+    with sqlite3.connect(tmp_path / DB_FILE) as old:
+        old.executescript(SCHEMA.replace(", position INTEGER", ""))
+        for sample in ("a", "b", "c"):
+            old.execute("INSERT INTO queue (plan, sample_id, operator, note, confidence, state, added_utc) "
+                        "VALUES ('p.json', ?, '', '', 0.9, 'pending', 0)", (sample,))
+    store = Store(tmp_path)
+    try:
+        d = store.add({"plan": "p.json", "material": None, "sample_id": "d", "operator": "", "note": "",
+                       "target_error": None, "confidence": 0.9})["id"]
+        assert [(e["id"], e["position"]) for e in store.entries()] == [(1, 1), (2, 2), (3, 3), (4, 4)]
+        store.started(1, "sessions/0001-a")
+        assert store.move(d, 2) == [4, 2, 3] and store.move(2, None) == [4, 3, 2]
+        assert store.move(1, None) is None and store.move(9, None) is None and store.move(3, 1) is None
+        assert [e["sample_id"] for e in store.entries()] == ["a", "d", "c", "b"]
+        assert store.next_entry()["id"] == 1  # the running entry first, then the pending ones in order
+        store.ended(1, "done", {})
+        assert store.next_entry()["id"] == d
+    finally:
+        store.close()

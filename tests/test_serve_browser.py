@@ -56,7 +56,8 @@ def test_the_page_pauses_resumes_and_stops_a_capture(server, plan, page):  # noq
 
 
 def test_without_the_token_the_page_reads_only_and_a_refused_move_says_why(server, page, browser):  # noqa: F811
-    viewer = browser.new_context().new_page()
+    viewer, errors = browser.new_context().new_page(), []
+    viewer.on("pageerror", lambda exc: errors.append(str(exc)))
     try:
         viewer.goto(server.url + "/")
         expect(viewer.locator("#state")).to_have_text("idle")
@@ -65,6 +66,7 @@ def test_without_the_token_the_page_reads_only_and_a_refused_move_says_why(serve
         expect(viewer.locator("#axis-table tbody tr").first).to_contain_text("8° to 172°")
         for control in ("#pause", "#resume", "#stop", "#add-form", "#camera", "#move-camera_arm", "#lamp-on"):
             expect(viewer.locator(control)).to_be_hidden()
+        assert viewer.evaluate("() => sessionStorage.length") == 0 and errors == []
     finally:
         viewer.context.close()
     page.goto(f"{server.url}/?token={server.token}")
