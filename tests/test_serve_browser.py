@@ -57,6 +57,7 @@ def test_the_page_controls_a_capture_with_the_token_and_only_reads_without_it(se
     page.click("#take-frame")  # the lamp is off: a dark frame, its levels printed
     expect(page.locator("#camera-caption")).to_contain_text("auto levels: black")
     assert page.eval_on_selector("#camera-img", "img => img.naturalWidth") == 120
+    caught_up(page, server)  # the frame's own running and idle are behind us: the next running is the capture's
 
     page.fill("#add-form [name=plan]", plan_file.name)
     page.fill("#add-form [name=sample_id]", "red-1")
@@ -80,3 +81,10 @@ def test_the_page_controls_a_capture_with_the_token_and_only_reads_without_it(se
                                          "/api/stop"]
     assert {auth for _, auth in posts} == {f"Bearer {server.token}"}
     assert all(server.token not in url for _, url, _ in sent[1:]) and page.context.cookies() == []
+
+
+def caught_up(page, server) -> None:
+    """Wait until the instrument is idle and the page has had every record published until then."""
+    server.wait(lambda: server.status()["state"] == "idle", "an idle instrument")
+    page.wait_for_function("n => window.goniofrostServe.lastSeq + 1 >= n", arg=server.status()["events"])
+    expect(page.locator("#state")).to_have_text("idle")
