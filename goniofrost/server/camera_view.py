@@ -2,12 +2,13 @@
 saturated pixels painted red.
 
 ``check_view`` reads a request (``exposure_s``; ``black`` and ``white``, fractions of full scale,
-or ``auto``); ``take_view`` takes the frame on the held hardware with the session's own steps
-(``SetTarget("sample")``, ``Expose``) on the engine core, the lamp as it is (the page's lamp
-button switches it), and ``view_png`` makes the picture: half resolution (one RGB pixel per 2 x 2
-Bayer cell), then block means down to at most MAX_WIDTH px, gamma 2.2 between the levels. A block
-with any saturated pixel (the sensor's flag, or a level at or above the camera section's
-``saturation``, as a capture counts them) shows red.
+or neither: auto levels); ``take_view`` takes the frame on the held hardware with the session's
+own ``Expose`` step on the engine core, of whatever is in front of the camera (no target change: a
+real rig would ask the operator for one) and the lamp as it is (the page's lamp button switches
+it); ``view_png`` makes the picture: half resolution (one RGB pixel per 2 x 2 Bayer cell), then
+block means down to at most MAX_WIDTH px, gamma 2.2 between the levels. A block with any saturated
+pixel (the sensor's flag, or a level at or above the camera section's ``saturation``, as a capture
+counts them) shows red.
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def check_view(body, rig) -> tuple[float, tuple[float, float] | None]:
     if not (_number(exposure) and 0 < exposure <= 10 * max(ladder)):
         raise RequestError("exposure_s", f"exposure_s: expected seconds > 0 and at most {10 * max(ladder):g} "
                            f"(10 x the longest of camera.exposures_s), found {exposure!r}")
-    if body.get("auto", True) is True and "black" not in body and "white" not in body:
+    if "black" not in body and "white" not in body:
         return float(exposure), None
     levels = []
     for key in ("black", "white"):
@@ -53,13 +54,12 @@ def take_view(hw, rig, exposure_s: float):
     thread only); the nearest of the camera's own shutter speeds when it has a list of them."""
     from calib.config import shutter_label, shutter_seconds
     from goniofrost.capture.plan_runner import PlanRunner
-    from goniofrost.capture.steps import Expose, SetTarget
+    from goniofrost.capture.steps import Expose
 
     if rig.camera.get("shutter_speeds"):
         exposure_s = shutter_seconds(shutter_label(rig.camera["shutter_speeds"], exposure_s))
 
     def plan():
-        yield SetTarget("sample")
         return (yield Expose(float(exposure_s), "view.dng"))
     with tempfile.TemporaryDirectory(prefix="goniofrost-view-") as folder:
         return PlanRunner(hw, folder, program="serve view").execute_plan(plan())
