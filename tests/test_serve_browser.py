@@ -1,12 +1,13 @@
 """``goniofrost serve``'s page in a real headless Chromium (Playwright), on the small simulated rig:
-the controls of a page opened with the token (pause, resume and stop a capture; the token never in
-the address bar nor a cookie), and the read-only page of a viewer without it."""
+the controls of a page opened with the token (pause, resume and stop a capture, reorder and remove
+pending entries; the token never in the address bar nor a cookie), and the read-only page of a
+viewer without it."""
 from __future__ import annotations
 
 import pytest
 
 from test_monitor_browser import CHROMIUM, browser, expect, page  # noqa: F401 - the fixtures
-from test_serve import Server, plan  # noqa: F401 - the fixture
+from test_serve import Server, entry, plan  # noqa: F401 - the fixture
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"needs headless Chromium at {CHROMIUM} "
                                 "(Debian's chromium package; .ci/run installs it)")
@@ -81,6 +82,17 @@ def test_the_page_controls_a_capture_with_the_token_and_only_reads_without_it(se
                                          "/api/stop"]
     assert {auth for _, auth in posts} == {f"Bearer {server.token}"}
     assert all(server.token not in url for _, url, _ in sent[1:]) and page.context.cookies() == []
+
+    for sample in ("b-1", "b-2"):  # the queue is held after the stop: both wait
+        assert server.post("/api/queue", entry(plan_file, sample_id=sample)).status_code == 201
+    pending = page.locator("#queue-table tbody tr[data-state=pending]")
+    expect(pending).to_have_count(2)
+    first = pending.first.get_attribute("data-id")
+    pending.first.locator("[data-action=down]").click()
+    expect(pending.last).to_have_attribute("data-id", first)
+    pending.last.locator("[data-action=remove]").click()
+    expect(pending).to_have_count(1)
+    assert [e["sample_id"] for e in server.get("/api/queue").json()] == ["red-1", "b-2"]
 
 
 def caught_up(page, server) -> None:
