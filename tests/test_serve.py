@@ -32,10 +32,10 @@ def plan(tmp_path_factory):
 class Server:
     """A ``goniofrost serve`` process on port 0 of loopback, its URL and token read from the lock."""
 
-    def __init__(self, rig: Path, root: Path) -> None:
+    def __init__(self, rig: Path, root: Path, speedup: float = 20) -> None:
         self.rig, self.root = rig, root
         self.proc = subprocess.Popen([sys.executable, "-m", "goniofrost", "serve", "--rig", str(rig), "--root",
-                                      str(root), "--port", "0", "--speedup", "20"], cwd=REPO,
+                                      str(root), "--port", "0", "--speedup", str(speedup)], cwd=REPO,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         line = self.proc.stdout.readline()
         if not line:
@@ -151,7 +151,8 @@ def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_not
     ]
     assert [(r.status_code, r.json()["field"]) for r, _, _ in refusals] == [(s, f) for _, s, f in refusals]
     assert "limits [8, 172]" in refusals[10][0].json()["error"]
-    assert server.get("/").status_code == 200  # the monitor's list of the root's sessions, beside the API
+    assert server.get("/").status_code == 200  # the instrument's page, beside the API
+    assert "<table id=\"sessions\">" in server.get("/sessions").text  # the monitor's list of the root's sessions
     foreign = requests.get(server.url + "/api/status", headers={"Host": "evil.example"}, timeout=30)
     assert foreign.status_code == 403
     assert server.get("/api/queue").json() == [] and server.get("/api/actions").json() == []
@@ -245,3 +246,76 @@ def test_one_server_per_root(server, plan, capsys):
     assert capsys.readouterr().err == (f"goniofrost serve: error: --root: {server.root} is served by another "
                                        f"goniofrost serve (process {server.proc.pid}); one server per root\n")
     assert sorted(p.name for p in server.root.iterdir()) == before and server.status()["state"] == "idle"
+
+
+def test_pending_entries_are_reordered_and_the_camera_view_is_a_small_png(server, plan):
+    """POST /api/queue/{id}/move reorders the pending entries (a wrong id or ``before`` names the
+    field and changes nothing); POST /api/camera answers a PNG of the current pose, saturated
+    pixels red, and without the token nothing is taken."""
+    import cv2
+    import numpy as np
+
+    rig, plan_file = plan
+    assert server.post("/api/stop").json()["state"] == "idle"  # holds the queue: the entries stay pending
+    a, b, c = (server.post("/api/queue", entry(plan_file, sample_id=f"s{k}")).json()["id"] for k in range(3))
+    assert server.post(f"/api/queue/{c}/move", {"before": a}).json() == {"pending": [c, a, b]}
+    assert server.post(f"/api/queue/{c}/move", {"before": None}).json() == {"pending": [a, b, c]}
+    assert server.post(f"/api/queue/{a}/move", {"before": c, "operator": "ada"}).json() == {"pending": [b, a, c]}
+    refused = [server.post("/api/queue/999/move", {"before": a}), server.post(f"/api/queue/{a}/move", {"before": 999}),
+               server.post(f"/api/queue/{a}/move", {"before": a}), server.post(f"/api/queue/{a}/move", {"before": "1"}),
+               server.post(f"/api/queue/{a}/move", {"before": b}, headers={})]
+    assert [(r.status_code, r.json()["field"]) for r in refused] == [
+        (404, "id"), (422, "before"), (422, "before"), (422, "before"), (401, "authorization")]
+    assert [e["id"] for e in server.get("/api/queue").json()] == [b, a, c]
+    paths = server.get("/openapi.json").json()["paths"]
+    assert {"/api/queue/{id}/move", "/api/camera", "/api/rig"} <= set(paths)
+
+    assert server.post("/api/camera", {"exposure_s": 0.002}, headers={}).status_code == 401  # not journaled: not taken
+    assert server.post("/api/camera", {"exposure_s": -1}).json()["field"] == "exposure_s"
+    assert server.post("/api/camera", {"black": 0.5, "white": 0.1}).json()["field"] == "white"
+    for path, body in (("/api/lamp", {"on": True}), ("/api/home", {}),
+                       ("/api/move", {"targets": {"camera_arm": 30, "sample_tilt": 30}})):  # the card faces the lamp
+        assert server.post(path, body).status_code == 200
+
+    def view(**body):
+        answer = server.post("/api/camera", body)
+        assert answer.status_code == 200 and answer.headers["content-type"] == "image/png", answer.text
+        return cv2.imdecode(np.frombuffer(answer.content, np.uint8), cv2.IMREAD_COLOR), json.loads(answer.headers["X-Info"])
+    short, short_info = view(exposure_s=0.002, black=0.0, white=0.05)
+    long, long_info = view(exposure_s=1.28)  # 10 x the ladder's longest rung: the white card saturates
+    assert short.shape == long.shape == (90, 120, 3)  # the 240 x 180 sensor at half resolution
+    assert (short_info["auto"], short_info["black"], short_info["white"], short_info["saturated_px"]) == (False, 0, 0.05, 0)
+    assert long_info["auto"] and long_info["exposure_s"] == 1.28 and long_info["saturated_fraction"] > 0
+    red = np.all(long == (0, 0, 255), axis=-1)
+    assert red.sum() >= long_info["saturated_px"] > 0
+    actions = [(a["who"], a["action"]) for a in server.get("/api/actions").json()]  # every frame taken is journaled
+    assert actions[4:] == [("?", "queue_move"), ("?", "queue_move"), ("ada", "queue_move"), ("?", "lamp"),
+                           ("?", "home"), ("?", "move"), ("?", "camera"), ("?", "camera")]
+
+
+def test_the_store_reorders_pending_entries_and_reads_a_root_served_before_reordering(tmp_path):
+    """A serve.sqlite made before entries had a position keeps its order; a move swaps positions
+    among the pending entries only; a running, ended or unknown entry is not moved."""
+    import sqlite3
+
+    from goniofrost.server.store import DB_FILE, SCHEMA, Store
+
+    with sqlite3.connect(tmp_path / DB_FILE) as old:
+        old.executescript(SCHEMA.replace(", position INTEGER", ""))
+        for sample in ("a", "b", "c"):
+            old.execute("INSERT INTO queue (plan, sample_id, operator, note, confidence, state, added_utc) "
+                        "VALUES ('p.json', ?, '', '', 0.9, 'pending', 0)", (sample,))
+    store = Store(tmp_path)
+    try:
+        d = store.add({"plan": "p.json", "material": None, "sample_id": "d", "operator": "", "note": "",
+                       "target_error": None, "confidence": 0.9})["id"]
+        assert [(e["id"], e["position"]) for e in store.entries()] == [(1, 1), (2, 2), (3, 3), (4, 4)]
+        store.started(1, "sessions/0001-a")
+        assert store.move(d, 2) == [4, 2, 3] and store.move(2, None) == [4, 3, 2]
+        assert store.move(1, None) is None and store.move(9, None) is None and store.move(3, 1) is None
+        assert [e["sample_id"] for e in store.entries()] == ["a", "d", "c", "b"]
+        assert store.next_entry()["id"] == 1  # the running entry first, then the pending ones in order
+        store.ended(1, "done", {})
+        assert store.next_entry()["id"] == d
+    finally:
+        store.close()

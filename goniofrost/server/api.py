@@ -17,7 +17,7 @@ import anyio
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.requests import Request
-from starlette.responses import JSONResponse, StreamingResponse
+from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from goniofrost.capture.signals import SessionInterrupted
@@ -46,9 +46,11 @@ class Api:
     def routes(self) -> list:
         control = [("/api/pause", self.pause), ("/api/resume", self.resume), ("/api/stop", self.stop),
                    ("/api/move", self.move), ("/api/home", self.home), ("/api/lamp", self.lamp),
-                   ("/api/snap", self.snap)]
+                   ("/api/snap", self.snap), ("/api/camera", self.camera),
+                   ("/api/queue/{entry_id:int}/move", self.reorder)]
         return [Route("/api/status", self.status), Route("/api/queue", self.queue, methods=["GET", "POST"]),
                 Route("/api/queue/{entry_id:int}", self.remove, methods=["DELETE"]),
+                Route("/api/rig", self.rig_info),
                 Route("/api/events", self.events), Route("/api/actions", self.actions),
                 Route("/openapi.json", self.schema),
                 *[Route(path, self._control(handler), methods=["POST"]) for path, handler in control]]
@@ -85,6 +87,10 @@ class Api:
     # ----- reading ----------------------------------------------------------------------------------
     async def status(self, request: Request):
         return JSONResponse(self.instrument.status())
+
+    async def rig_info(self, request: Request):
+        """What the page's controls need of the rig file: each axis's limits, the lamp, the camera."""
+        return JSONResponse(rig_summary(self.rig))
 
     async def actions(self, request: Request):
         return JSONResponse(await anyio.to_thread.run_sync(self.store.actions))
@@ -130,6 +136,41 @@ class Api:
             self.instrument.queue_changed()
             return JSONResponse({"removed": entry_id})
         return await self._control(removed)(request)
+
+    async def reorder(self, request, body, who):
+        """Move a pending entry before another pending one (``{"before": id}``; null: last)."""
+        entry_id, before = request.path_params["entry_id"], body.get("before") if isinstance(body, dict) else None
+        if before is not None and (not isinstance(before, int) or isinstance(before, bool)):
+            raise RequestError("before", f"before: expected the id of a pending entry (or null: last), "
+                               f"found {before!r}")
+        order = await anyio.to_thread.run_sync(self.store.move, entry_id, before)
+        if order is None:
+            pending = lambda i: (self.store.entry(i) or {}).get("state") == "pending"  # noqa: E731
+            if not await anyio.to_thread.run_sync(pending, entry_id):
+                raise RequestError("id", f"id: no pending entry {entry_id} (a running or ended entry stays)", 404)
+            raise RequestError("before", f"before: expected the id of another pending entry (or null: last), "
+                               f"found {before!r}")
+        self._journal(request, who, "queue_move", {"id": entry_id, "before": before})
+        self.instrument.queue_changed()
+        return JSONResponse({"pending": order})
+
+    async def camera(self, request, body, who):
+        """One frame at the current pose as a PNG (camera_view); what it shows in X-Info (JSON)."""
+        from goniofrost.capture.snap import DEFAULT_MATERIAL
+        from goniofrost.datasets import shown_material
+        from goniofrost.server.camera_view import check_view, take_view, view_png
+
+        exposure, levels = check_view(body, self.rig)
+        material = shown_material(DEFAULT_MATERIAL) if self.rig.simulated else None
+
+        def job(hw):
+            if material is not None and getattr(hw.camera, "material", None) is None:
+                self.instrument.held_devices(self.rig, material=material)  # a simulated stage shows something
+            frame = take_view(hw, self.rig, exposure)
+            return frame, view_png(frame.raw, self.rig.camera["saturation"], levels)
+        frame, (png, info) = await self._command(request, who, "camera", {"exposure_s": exposure}, job)
+        info |= {"exposure_s": frame.exposure_s, "lamp_relative": round(float(frame.lamp_relative), 4)}
+        return Response(png, media_type="image/png", headers={"X-Info": json.dumps(info)})
 
     async def pause(self, request, body, who):
         self._journal(request, who, "pause")
@@ -215,10 +256,34 @@ async def read_body(request: Request):
         raise RequestError("body", f"body: not JSON ({exc})", 400) from None
 
 
+def rig_summary(rig) -> dict:
+    """The rig file's limits as the page shows them: per axis its soft limits (``limits_deg``) and
+    what the geometry adds (the stage's tilt limit, the camera arm's closest approach to the lamp)."""
+    from goniofrost.core.rig_spec import Role
+
+    geometry, axes = rig.geometry, []
+    for name, spec in rig.axes.items():
+        note = None
+        if spec.role is Role.SAMPLE_TILT:
+            note = f"and within +-{geometry.tilt_limit_deg:g} deg (geometry.tilt_limit_deg)"
+        elif spec.role is Role.CAMERA_ARM:
+            note = (f"and at least {geometry.min_arm_separation_deg:g} deg from the lamp "
+                    f"(geometry.min_arm_separation_deg)")
+        axes.append({"name": name, "role": spec.role.value, "limits_deg": list(spec.limits_deg),
+                     "home_deg": spec.home_deg, "note": note})
+    return {"name": rig.name, "simulated": bool(rig.simulated), "axes": axes,
+            "lamp": bool((rig.lamp or {}).get("driver")),
+            "camera": {"exposures_s": list(rig.camera["exposures_s"]), "saturation": rig.camera["saturation"]}}
+
+
 def instrument_app(api: Api, sessions: Path, host: str) -> Starlette:
-    """The API's routes, then the monitor's read-only views of the sessions under ``sessions``."""
+    """The instrument's page and the API's routes, then the monitor's read-only views of the
+    sessions under ``sessions`` (their catalogue at ``/sessions``)."""
+    from goniofrost.server.page import page_routes
+
     sites = Sites(sessions, True, False)
-    app = Starlette(routes=api.routes() + monitor_routes(sites), middleware=[Middleware(Guard, host=host)],
+    app = Starlette(routes=page_routes(sites) + api.routes() + monitor_routes(sites),
+                    middleware=[Middleware(Guard, host=host)],
                     lifespan=monitor_lifespan(sites))
     app.state.sites = sites
     return app
@@ -254,6 +319,13 @@ def openapi() -> dict:
             "/api/queue/{id}": {"delete": {"summary": "remove a pending entry", **control,
                                            "parameters": [{"name": "id", "in": "path", "required": True,
                                                            "schema": {"type": "integer"}}]}},
+            "/api/queue/{id}/move": {"post": {
+                "summary": "move a pending entry before another pending one (before: null puts it last)", **control,
+                "parameters": [{"name": "id", "in": "path", "required": True, "schema": {"type": "integer"}}],
+                **body({"type": "object", "properties": {"before": {"type": ["integer", "null"]},
+                                                         "operator": {"type": "string"}}})}},
+            "/api/rig": {"get": {"summary": "the rig: each axis's limits, the lamp, the camera's exposures",
+                                 "responses": {"200": {"description": "the rig"}}}},
             "/api/events": {"get": {"summary": "server-sent events of typed records (?since=N)",
                                     "responses": {"200": {"description": "text/event-stream"}}}},
             "/api/actions": {"get": {"summary": "the journal of control actions",
@@ -271,4 +343,9 @@ def openapi() -> dict:
             "/api/snap": {"post": {"summary": "one picture at the current pose, into ROOT/snaps", **control, **body(
                 {"type": "object", "properties": {"name": {"type": "string"}, "target": {"type": "string"},
                                                   "exposure_s": {"type": "number"}}})}},
+            "/api/camera": {"post": {
+                "summary": "one frame at the current pose, lamp as it is: a small PNG, saturated pixels red; "
+                           "X-Info: its size, levels, saturated fraction, exposure", **control, **body(
+                    {"type": "object", "properties": {"exposure_s": {"type": "number"},
+                                                      "black": {"type": "number"}, "white": {"type": "number"}}})}},
         }}

@@ -2,8 +2,9 @@
 
 ``queue``: one row per entry (plan file relative to the root, material, sample_id, operator, note,
 target_error, confidence), its state (``pending``, ``running``, ``done``, ``failed``, ``stopped``,
-``removed``) and its session folder. An entry ``running`` when the server died is run again with
-``resume`` on the next start: the capture journal resumes it without losing or repeating a sample.
+``removed``) and its session folder; ``position`` orders it (``move`` reorders the pending ones).
+An entry ``running`` when the server died is run again with ``resume`` on the next start: the
+capture journal resumes it without losing or repeating a sample.
 ``actions``: every control request, with who asked (``operator`` of the request, and its peer
 address) and when (Unix seconds). SQLite in WAL mode; every write is its own transaction.
 """
@@ -22,7 +23,7 @@ CREATE TABLE IF NOT EXISTS queue (
   id INTEGER PRIMARY KEY AUTOINCREMENT, plan TEXT NOT NULL, material TEXT, sample_id TEXT NOT NULL,
   operator TEXT NOT NULL, note TEXT NOT NULL, target_error REAL, confidence REAL NOT NULL,
   state TEXT NOT NULL, session TEXT, added_utc REAL NOT NULL, started_utc REAL, ended_utc REAL,
-  result TEXT);
+  result TEXT, position INTEGER);
 CREATE TABLE IF NOT EXISTS actions (
   id INTEGER PRIMARY KEY AUTOINCREMENT, t_utc REAL NOT NULL, who TEXT NOT NULL, peer TEXT NOT NULL,
   action TEXT NOT NULL, detail TEXT NOT NULL);
@@ -40,6 +41,10 @@ class Store:
         with self._lock:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(SCHEMA)
+            columns = [row["name"] for row in self._db.execute("PRAGMA table_info(queue)")]
+            if "position" not in columns:  # a root served before entries could be reordered
+                self._db.execute("ALTER TABLE queue ADD COLUMN position INTEGER")
+            self._db.execute("UPDATE queue SET position = id WHERE position IS NULL")
 
     def close(self) -> None:
         with self._lock:
@@ -58,6 +63,8 @@ class Store:
                 f"({', '.join('?' * len(ENTRY_FIELDS))}, 'pending', ?)",
                 [entry[k] for k in ENTRY_FIELDS] + [time.time()])
             new = cur.lastrowid
+            self._db.execute("UPDATE queue SET position = (SELECT COALESCE(MAX(position), 0) + 1 FROM queue) "
+                             "WHERE id = ?", (new,))
         return self.entry(new)
 
     def entry(self, entry_id: int) -> dict | None:
@@ -66,12 +73,12 @@ class Store:
 
     def entries(self) -> list[dict]:
         """Every entry not removed, in queue order."""
-        return self._run("SELECT * FROM queue WHERE state != 'removed' ORDER BY id")
+        return self._run("SELECT * FROM queue WHERE state != 'removed' ORDER BY position, id")
 
     def next_entry(self) -> dict | None:
         """The entry to run: one left running by a server that died first, else the oldest pending."""
         rows = self._run("SELECT * FROM queue WHERE state IN ('running', 'pending') "
-                         "ORDER BY state = 'running' DESC, id LIMIT 1")
+                         "ORDER BY state = 'running' DESC, position, id LIMIT 1")
         return rows[0] if rows else None
 
     def remove(self, entry_id: int) -> bool:
@@ -80,6 +87,24 @@ class Store:
             cur = self._db.execute("UPDATE queue SET state = 'removed' WHERE id = ? AND state = 'pending'",
                                    (entry_id,))
             return cur.rowcount == 1
+
+    def move(self, entry_id: int, before: int | None) -> list[int] | None:
+        """Put pending entry ``entry_id`` just before pending entry ``before`` (None: last); the
+        pending entries swap positions among themselves only. Return the pending ids in their new
+        order, or None (nothing changed) when either is not a pending entry."""
+        with self._lock:
+            rows = self._db.execute("SELECT id, position FROM queue WHERE state = 'pending' "
+                                    "ORDER BY position, id").fetchall()
+            order = [row["id"] for row in rows]
+            if entry_id not in order or (before is not None and (before not in order or before == entry_id)):
+                return None
+            order.remove(entry_id)
+            order.insert(order.index(before) if before is not None else len(order), entry_id)
+            self._db.execute("BEGIN")
+            for moved, row in zip(order, rows):
+                self._db.execute("UPDATE queue SET position = ? WHERE id = ?", (row["position"], moved))
+            self._db.execute("COMMIT")
+            return order
 
     def started(self, entry_id: int, session: str) -> None:
         self._run("UPDATE queue SET state = 'running', session = ?, started_utc = COALESCE(started_utc, ?) "
