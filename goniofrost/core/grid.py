@@ -1,10 +1,11 @@
-"""The MERL BRDF grid: cells <-> Rusinkiewicz angles <-> light/view directions (DESIGN.md).
+"""The MERL BRDF grid: cells <-> Rusinkiewicz angles <-> light/view directions.
 
-* A grid has ``n_th x n_td x n_pd`` cells (MERL: 90 x 90 x 180); cell ``(i_th, i_td, i_pd)`` has
-  flat index ``(i_th * n_td + i_td) * n_pd + i_pd``.
+* ``n_th x n_td x n_pd`` cells (MERL: 90 x 90 x 180); cell ``(i_th, i_td, i_pd)`` has flat index
+  ``(i_th * n_td + i_td) * n_pd + i_pd``.
 * A cell's angles are its lower edges: ``theta_h = (i_th / n_th)**2 * pi/2``,
   ``theta_d = i_td / n_td * pi/2``, ``phi_d = i_pd / n_pd * pi``.
-* Directions use ``phi_h = 0``; a cell is valid when ``w_i`` and ``w_o`` lie above the surface.
+* ``h = (sin th, 0, cos th)``, ``d = (sin td cos pd, sin td sin pd, cos td)``,
+  ``w_i = R_y(theta_h) d``, ``w_o = 2 (w_i . h) h - w_i``; valid when both have z > 0.
 
 Angles in radians; every function is vectorised over broadcastable arrays.
 """
