@@ -1,13 +1,6 @@
-"""Summary statistics and Markdown of the Bayesian rows of a benchmark.
-
-* fold wins: in how many folds the ``bayes`` test-set mean is below another method's, per m;
-* uncertainty: per method with a Bayesian reconstruction and m, the mean coverage of the
-  nominal 50 % and 90 % intervals over test cells, and the per-material predicted error
-  against the true one (Spearman over all fold x material rows, the fraction within a factor
-  2, the geometric mean of predicted / true);
-* target error: per target E, the samples a simulated ``capture --target-error E`` took and how
-  often it stopped with a true error above 1.5 E;
-* selection times beside the paper's Table II.
+"""Summary statistics and Markdown of the Bayesian rows of a benchmark: fold wins, interval
+coverage and predicted against true error, the target-error captures, and selection times beside
+the paper's Table II.
 """
 from __future__ import annotations
 
