@@ -1,9 +1,9 @@
-"""Check cells: a few cells chosen at training where the model errs, measured with the sentinels and never fitted.
+"""Check cells: a few cells chosen at training where the model errs, measured with the sentinels and
+never fitted.
 
-``pool`` is a farthest-point sample of candidate cells outside every inner design and the
-sentinels; ``choose`` picks CHECKS of them greedily on the inner records, those whose log error
-best predicts the log of the actual error; ``fit_checked`` fits the 19-feature checked
-calibration, its bound on nested residuals. Why: docs/explanations/sentinels.md."""
+``pool`` offers candidates outside every inner design, ``choose`` picks CHECKS of them, and
+``fit_checked`` fits the checked calibration. Why: docs/explanations/sentinels.md.
+"""
 from __future__ import annotations
 
 import numpy as np

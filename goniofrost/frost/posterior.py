@@ -1,26 +1,9 @@
 """The Bayesian reading of the FROST model: prior, noise, posterior, leave-one-out residuals.
 
-DESIGN.md "The Bayesian view". With D = U S (n x K) the training coefficients (rows of V^T)
-have mean 0 and variance 1/t per atom (t training columns), so a mapped BRDF is modelled as
-
-    L - mu = D s + e,   s ~ N(0, I / t),   e_c ~ N(0, sigma_c^2) independent per cell,
-
-where sigma_c^2 is the representation error of unseen materials at cell c (learned at training,
-``noise.py``) plus, for a measured sample, its own variance through the log map. Given samples
-b (mu subtracted) at cells l with W = diag(1 / sigma_l^2):
-
-    Sigma = (t I + D_l^T W D_l)^-1,   s_hat = Sigma D_l^T W b,
-
-and the predictive variance of the mapped BRDF at any cell c is d_c^T Sigma d_c + sigma_c^2.
-Since D^T D = S^2, the mean of the predictive variance over all n valid cells is
-``(trace(S^2 Sigma) + sum_c sigma_c^2) / n``: the "design error", the expected log-relative
-MSE of a typical material under the model.
-
-Leave-one-out residuals at the sampled cells come in closed form (the prior does not depend on
-the data): with h_i = w_i d_i^T Sigma d_i, ``e_i = (b_i - d_i^T s_hat) / (1 - h_i)``, and under
-the model their variance is ``v_i = sigma_i^2 + d_i^T Sigma d_i / (1 - h_i)``.
-
-Ridge regression with weight eta over all K atoms is this posterior mean with sigma_c^2 = eta / t.
+L - mu = D s + e, s ~ N(0, I / t), e_c ~ N(0, sigma_c^2); given samples b at cells l with
+W = diag(1 / sigma_l^2): Sigma = (t I + D_l^T W D_l)^-1, s_hat = Sigma D_l^T W b. Leave-one-out
+residuals: e_i = (b_i - d_i^T s_hat) / (1 - h_i), h_i = w_i d_i^T Sigma d_i, of variance
+sigma_i^2 + d_i^T Sigma d_i / (1 - h_i). More: docs/explanations/bayesian-design.md.
 """
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
 """Sentinel samples: a few cells the design leaves empty, measured as a held-out check.
 
-``cells`` chooses them by geometry alone (farthest-point sampling of (w_i, w_o) among candidates
-with theta_d > 80 or theta_h > 70 degrees); they are measured with the first batch and never
-fitted, and ``check_error`` is their mean squared mapped error under the posterior of the
-design's samples, which ``confidence`` calibrates like the bound (SENTINEL_CONFIDENCE). Why:
-docs/explanations/sentinels.md, docs/decisions/0005-sentinels-and-check-cells.md."""
+``cells`` chooses them by geometry (farthest points among cells with theta_d > 80 or
+theta_h > 70 degrees); ``check_error`` is their mean squared mapped error under the posterior of
+the design's samples. Why: docs/explanations/sentinels.md.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,19 +1,8 @@
 """The sequential scene-aware design: re-plan the remaining picks at this material's posterior.
 
-The scene-aware design (``usage_design``) weighs each cell by u g^p, g the image's sensitivity to
-the mapped value at the PRIOR mean: a fixed design cannot know that the material in the rig has a
-sharp highlight the prior mean lacks (BENCHMARKS.md@8b3941b, issue 29 round 4). Once some samples are
-measured, their posterior mean L_hat = mu + D s_hat (``posterior.fit``, the reconstruction's noise)
-says more: ``continue_design`` takes g at L_hat (averaged over the channels in the mapped domain)
-and continues the greedy design from the picks so far under the weights u g_post^p.
-
-Continuing the greedy design: after l picks the coefficients' covariance (under the noise the
-design assumes) is Sigma_l; with Sigma_l = C C^T and C^T M C = Q Lambda Q^T (M = D^T diag(w) D, w
-the new weights) the coefficients z = Q^T C^-1 s have the prior N(0, I), the dictionary becomes
-D C Q and the remaining error is trace(Lambda Sigma_z): the plain greedy design's form
-(``usage_design`` does the same from the prior, C = diag(sqrt(prior_var))). The greedy scores are
-invariant under the change of basis, so with the weights of the one-stage design the
-continuation picks what the one-stage design picks next (the tests check it).
+``continue_design`` takes the image sensitivity g at the posterior mean of the samples so far and
+continues the greedy design from those picks under the weights u g^p. The algebra:
+docs/explanations/scene-aware-design.md.
 """
 from __future__ import annotations
 

@@ -1,14 +1,9 @@
 """Compiled (numba) kernels of the FROST selection: one fused pass per SOMP step.
 
-The cells are stored in blocks of W cells, "cell-minor": ``qb[b, :, r]`` (k,) is the atom of
-cell b*W + r and ``cb[b, :, r]`` (t,) its row of the score matrix C = Q^T R. A step reads each
-block once from memory and, while it is in cache, computes v (the block's part of Q^T b or of
-C z), applies C -= v u^T and sums |C| per cell: the loops run along the W cells, which the
-compiler vectorises. Each kernel takes a range of blocks [b0, b1) and releases the GIL, so
-callers split the blocks among threads; the result does not depend on the split.
-
-Arrays are float32 except ``positions`` (int64) and ``inv_s2`` (float64); ``scores`` is
-(n_blocks * W,) float32.
+Cells are stored in blocks of W, cell-minor: ``qb[b, :, r]`` (k,) is the atom of cell b*W + r and
+``cb[b, :, r]`` (t,) its row of C = Q^T R. Each kernel takes a range of blocks [b0, b1) and
+releases the GIL; the result does not depend on the split. Arrays are float32 except
+``positions`` (int64) and ``inv_s2`` (float64); ``scores`` (n_blocks * W,) float32.
 """
 from __future__ import annotations
 

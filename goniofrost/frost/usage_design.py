@@ -1,12 +1,10 @@
 """The scene-aware Bayesian design: the expected error of what a scene sees, in the plain design's form.
 
-With u (n_valid,) a scene's use of every cell (sum 1), the expected error the scene sees is
-trace(M Sigma), M = D^T diag(u) D. ``scene_prior`` and ``rotate`` change the coefficients' basis
-so that the plain greedy design on (D W Q, Lambda, I) is exactly the scene-weighted design. The weights
-are u g^p exp(t p^2 v / 2) (``design_usage``), with the power p, the prior spread t, the floor on
-the effective cells and the mix chosen per scene and number of samples (``BANDS``,
-``scene_power``, ``mixed_weights``). The derivation and the choice of the bands:
-docs/explanations/scene-aware-design.md, docs/decisions/0007-scene-aware-design-bands.md."""
+With u (n_valid,) a scene's use of every cell (sum 1) the error is trace(M Sigma),
+M = D^T diag(u) D; ``scene_prior`` and ``rotate`` change basis so the plain greedy design is the
+scene-weighted one. Weights u g^p exp(t p^2 v / 2) (``design_usage``, ``BANDS``). Why:
+docs/explanations/scene-aware-design.md.
+"""
 from __future__ import annotations
 
 import functools
