@@ -181,7 +181,7 @@ LIBRARY: dict[str, MaterialSpec] = {
 
 # Seeded random materials (dataset spec ``builtin-random:SEED:COUNT``, ``random_library``): a
 # renewable supply of materials no benchmark has seen, for test sets fixed before their first run
-# (each built-in test set of issue 29 was spent once run). Each is drawn from one of the library's
+# (a test set is spent once run). Each is drawn from one of the library's
 # families, its parameters within that family's spread in LIBRARY above: of a kind the library
 # holds, none of its materials.
 FAMILIES = ("diffuse", "plastic", "metal", "coated", "metallic-paint", "fabric", "retro")

@@ -15,7 +15,7 @@ from goniofrost.frost.confidence import FIRST_LOOK
 
 # Cells chosen (measured with the first batch, beside the sentinels).
 CHECKS = 3
-# Candidate cells (round 6: 4 000 of 140 744 at 45 x 45 x 90).
+# Candidate cells in the pool.
 POOL = 4000
 # The pool is drawn from at most this many cells (an even stride over the candidates): at the
 # full grid the farthest-point sampling never runs over 1.1 M cells.

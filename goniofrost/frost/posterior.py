@@ -14,7 +14,7 @@ from threadpoolctl import threadpool_limits
 
 # Noise of a model without a learned noise model (format version 1): sigma^2 = SCALAR_ETA / t
 # per cell, i.e. the posterior mean is ridge regression over all K atoms with eta = 10 (the
-# setting the nested validation on training materials chose in every fold; BENCHMARKS.md@8b3941b).
+# setting the nested validation on training materials chose in every fold).
 SCALAR_ETA = 10.0
 # Rows of D per chunk of the predictive-variance pass (bounds the temporary (rows, K) arrays).
 CHUNK_ROWS = 1 << 15
@@ -130,12 +130,8 @@ def mean_and_variance(dictionary, mean, post: Posterior, columns=None):
     (n, u), used int64 (u,)): the mapped estimates (mu added) and d_c^T Sigma d_c for each
     covariance group ``used[j]`` of those columns.
 
-    One chunked pass over D, one BLAS product per chunk: D @ [s_hat | L_1 | L_2 ...], Sigma = L L^T
-    (Cholesky), d^T Sigma d = ||L^T d||^2: a sum of squares, exact to float32 rounding. (The
-    Woodbury form d^T A d - ||F^T d||^2 with l < K samples cost l products per cell instead of K
-    but subtracted two float32 numbers up to 1e7 times their difference: on the full grid with 26
-    samples it was 46 % off at the 99th percentile cell, 5.4 times at the worst, 0 at 2092 cells,
-    and the std file's mean square 0.3 % below the predicted error it is scaled to; not faster.)
+    One chunked pass over D: d^T Sigma d = ||L^T d||^2 with Sigma = L L^T, a sum of squares exact to
+    float32 rounding (the Woodbury form subtracts nearly equal float32 numbers).
     """
     cols = np.arange(post.coefficients.shape[1]) if columns is None else np.asarray(columns)
     used = np.unique(post.group[cols])

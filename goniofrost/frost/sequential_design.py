@@ -33,14 +33,11 @@ def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: flo
     """The next m - l picks of the scene's design after the l cells ``picked`` (int (l,), rows of
     the model) were measured with mapped values ``mapped`` ((l, c), ``model.to_log``).
 
-    The weights are u g^p with g at this material's posterior mean (module doc; ``usage`` (n_valid,)
-    sum 1; a uniform map is the plain design's continuation, no g); ``power`` p defaults to
-    ``usage_design.sensitivity_power(m)``; g is taken at the posterior mean itself (no prior
-    spread, unlike ``select_bayes``'s default from 15 samples, issue 29 round 7: not measured for
-    the sequential design). The picked cells are not picked again; ``candidates``:
-    bool (n_valid,), the cells allowed (a rig's reachable ones, as ``select_bayes`` takes them;
-    default all). Returns the continuation's GreedyDesign (its ``rows``: the m - l new rows in
-    pick order).
+    The weights are u g^p with g at this material's posterior mean (``usage`` (n_valid,) sum 1; a
+    uniform map is the plain design's continuation); ``power`` p defaults to
+    ``usage_design.sensitivity_power(m)``; no prior spread. Picked cells are not picked again;
+    ``candidates``: bool (n_valid,), the cells allowed (default all). Returns the continuation's
+    GreedyDesign (its ``rows``: the m - l new rows in pick order).
     """
     picked = np.asarray(picked, dtype=np.int64)
     n = model.grid.n_valid
