@@ -117,8 +117,7 @@ def _objective(x, y, fold, z, m, looks) -> np.ndarray:
     over ``looks``, for every column c of z (x holds the intercept).
 
     Frisch-Waugh from per-fold sums: a fold's training sums (x^T z, z^T z, y^T z) are the totals
-    less its own, so z is read a few times in all rather than copied and projected per fold
-    (the training's choice of the check cells took 12 s of the demo's 61 s that way)."""
+    less its own, so z is read a few times in all rather than copied and projected per fold."""
     z = z - z.mean(axis=0)  # the intercept is among x's columns: no fit changes, no sum cancels
     held_of = [fold == f for f in np.unique(fold)]
     # each fold's records: a slice when they are contiguous (``choose`` sorts them), else a mask

@@ -252,8 +252,8 @@ def _read_meta(path: Path) -> dict:
 
 
 def _check_content(path: Path, model: FrostModel, meta: dict) -> None:
-    """Every array finite, and (format 2) the content hash model.json records that of the files:
-    a NaN in mean.npy was read as a model, planned with under the good model's hash."""
+    """Every array finite, and (format 2) the content hash model.json records that of the files
+    (docs/decisions/0500-model-load-checks.md)."""
     def finite(name, start, chunk):
         bad = np.argwhere(~np.isfinite(chunk))
         if bad.size:
