@@ -26,10 +26,8 @@ def pack_atoms(dictionary, positions, k, inv_s2, qb, b0, b1):
     ``positions`` (float32 (n_valid, K) -> cells), times inv_s2 (k,), scaled to unit l2 norm
     (a zero row stays zero); cells past positions.size are zero padding.
 
-    A block is a transpose of W rows of D: the norms first (row by row), then the block written
-    entry by entry along its W cells while those rows are still in cache, so every store goes
-    to the cache line of the one before (writing each cell's k entries, W apart, made this the
-    slowest part of a selection: 0.28 s of 0.84 s CPU at full size, m = 20).
+    Each block is written entry by entry along its W cells while its rows are still in cache, so
+    every store goes to the cache line of the one before.
     """
     w = qb.shape[2]
     n = positions.size
