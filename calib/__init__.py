@@ -1,6 +1,7 @@
-"""Radiometric calibration as pure functions of frames: dark maps, flat field, white reference,
-the adaptive exposure bracket, HDR merge, lamp drift and the ArUco region of interest ->
-absolute BRDF with uncertainty. No device is called here: the capture plan takes the frames."""
+"""Radiometric calibration as pure functions of frames: references, the adaptive exposure bracket,
+HDR merge, lamp drift and the region of interest -> absolute BRDF with uncertainty. No device is
+called here: the capture plan takes the frames.
+"""
 from .bracket import Bracket, start_index
 from .config import validate_camera_section
 from .errors import (CalibrationError, MarkerError, MisalignedError, PatchTooSmallError, SaturationError,

@@ -1,16 +1,7 @@
 """The adaptive exposure bracket as a rule: which ladder exposure to take next, from the frames so far.
 
-Pure: frames in, decisions out. The capture plan (``goniofrost.capture.sample_steps``) yields
-one exposure step per decision, hands the frame back to ``Bracket.add`` and stops when it
-returns None; no device is called here.
-
-The rule: start at the longest exposure whose predicted patch level (the previous sample's
-value, or a white tile for the first sample) stays under ``START_LEVEL`` x saturation; until
-the patch is found (``calib.roi.locate_patch``: the camera model's prediction ``view``, checked
-and refined by the markers; without a prediction the markers alone), try the nearest exposure not
-yet taken (shorter first when the frame is mostly saturated); then a shorter exposure while any patch pixel is saturated in every
-frame taken, a longer one while the patch SNR is below ``target_snr`` and the next exposure is
-predicted not to saturate.
+Pure: ``Bracket.add(frame)`` returns the next exposure, or None when the bracket is done. The
+rule: docs/explanations/camera.md.
 """
 from __future__ import annotations
 

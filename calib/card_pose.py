@@ -1,9 +1,6 @@
-"""What one image of the holder card says about the rig's alignment: where its marker corners are,
-the camera pose they give (OpenCV solvePnP), and how bright the white tile is.
-
-Pure functions of a frame (``drivers.rawfile.RawImage``) and the camera model; ``goniofrost align``
-(``goniofrost.capture.align``) takes the frames and ``planner.alignment.fit_alignment`` fits the
-axes' zero offsets to what these return.
+"""What one image of the holder card says about the rig's alignment: its marker corners, the camera
+pose they give (OpenCV solvePnP) and the white tile's brightness. Input of
+``planner.alignment.fit_alignment``.
 """
 from __future__ import annotations
 

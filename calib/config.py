@@ -1,8 +1,6 @@
 """The rig file's ``camera:`` section: allowed keys, defaults and one error pattern (ConfigError).
 
-``intrinsics`` and ``mount`` are the camera model (``goniofrost.core.camera_model.CameraModel``):
-the planner decides from it which cells the camera can measure, the calibration predicts where
-the patch and the markers fall in every frame, and the simulated camera renders with it.
+``intrinsics`` and ``mount`` form the camera model (``goniofrost.core.camera_model.CameraModel``).
 """
 from __future__ import annotations
 

@@ -1,15 +1,10 @@
-"""The exposure bracket a cell is expected to cost: the adaptive rule of ``calib.bracket`` run on
-expected (noise-free) patch levels instead of frames.
+"""The exposure bracket a cell is expected to cost: the rule of ``calib.bracket`` run on expected,
+noise-free patch levels instead of frames.
 
-Pure and vectorised over cells. A frame of exposure t sees a channel at the level
-``rate * t`` (fraction of full scale); the rule starts at the longest rung whose brightest channel
-stays under START_LEVEL x saturation (``bracket.start_index``, or a given first rung: the previous
-sample's value), steps shorter while the brightest patch pixel saturates in every frame taken, then
-longer while a channel's patch-mean SNR is below ``target_snr`` and the next rung keeps that
-channel's median pixel under saturation (``Bracket.lagging``). The SNR of a channel after frames
-of total unsaturated exposure T: electrons E = rate * full_well * T per pixel, one read noise per
-frame and dark current, over the channel's N pixels: sqrt(N) E / sqrt(E + frames read^2 + dark T).
-Marker search (a frame too dark or too bright to read the card) is not modelled.
+Vectorised over cells. A channel's level in a frame of t seconds is ``rate * t`` (fraction of full
+scale); its SNR after total unsaturated exposure T over N pixels is
+sqrt(N) E / sqrt(E + frames read^2 + dark T), E = rate * full_well * T electrons. Marker search is
+not modelled.
 """
 from __future__ import annotations
 

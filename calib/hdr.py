@@ -1,14 +1,8 @@
 """Merge an exposure bracket into one radiometric rate per pixel, and summarise a region.
 
-Units: a *rate* is the dark-subtracted, flat-fielded linear value per second of exposure at
-nominal lamp intensity (fraction of the sensor's full range per second).
-
-Notes
------
-Per pixel p, with frames k of exposure t_k, dark map d_k, flat gain F and lamp level l_k,
-    r_p = sum_k v_kp (x_kp - d_kp) / (F_p l_k)  /  sum_k v_kp t_k,
-where v_kp = 0 for a saturated pixel and 1 otherwise. This is the mean of the per-frame rates
-weighted by exposure time, the minimum-variance weighting for shot-noise-limited frames.
+A *rate* is the dark-subtracted, flat-fielded linear value per second of exposure at nominal lamp
+intensity (fraction of full range per second): r_p = sum_k v_kp (x_kp - d_kp) / (F_p l_k) /
+sum_k v_kp t_k, with v_kp = 0 for a saturated pixel.
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
-"""The printed sample holder: where the ArUco markers and the sample patch sit on its plane.
+"""The printed sample holder: where the ArUco markers (DICT_4X4_50) and the sample patch sit.
 
-The holder is a square card in the sample plane (z = 0, sample frame, millimetres, centred on
-the rotation centre). An ArUco marker (DICT_4X4_50) fills each corner; the sample patch is the
-square in the middle. The white reference target is the same card with the white tile in place
-of the sample and its own marker ids, so the calibration can tell which target is mounted.
-Both the simulated camera (which draws it) and the calibration (which finds the patch in an
-image from the detected marker corners) read this one description.
+A square card in the sample plane (z = 0, sample frame, millimetres, centred on the rotation
+centre); the white reference card has the white tile and its own marker ids. Read by the simulated
+camera and the calibration.
 """
 from __future__ import annotations
 

@@ -1,21 +1,9 @@
 """One sample's calibrated BRDF from its finished bracket: value, uncertainty, SNR and flags.
 
-Pure: the bracket's frames, the calibration record and the camera settings in, a
-``SampleMeasurement`` out. BRDF[c] = patch rate[c] / (scale[c] cos theta_i); the relative
-uncertainty combines the patch's standard error, the white reference's and the photodiode's.
-
-Error policy: sample pixels saturated even at the shortest exposure -> not an error but a
-``NotMeasured`` record (reason ``saturated``: a lower limit of the BRDF per channel, from the
-clipped pixels; a session records it and goes on); every channel below ``min_snr`` even with the
-ladder's longest exposure -> a ``NotMeasured`` record too (reason ``below-detection-limit``: the SNR
-reached, the longest exposure and an upper limit of the BRDF per channel); some channels below ``min_snr`` but not all -> those channels are measurements
-at their detection limit (value >= 0 with its sigma, flag ``"detection-limit"``); any channel
-between ``min_snr`` and ``target_snr`` -> the flag ``"low-snr"``; read
-markers more than a quarter of ``marker_tolerance_px`` from the camera model's prediction (but
-within it) flag ``"markers-off"``: the rig may be misaligned (``goniofrost align``); a region the
-camera model placed alone whose pixels spread more than MAX_SPREAD_RATIO times their robust spread
-takes in the card around the patch: flag ``"roi-mixed"``, or MisalignedError when its SNR is
-below ``min_snr``.
+``sample_measurement`` returns a ``SampleMeasurement`` (BRDF[c] = patch rate[c] / (scale[c]
+cos theta_i)) or a ``NotMeasured`` record (saturated, or below the detection limit). Flags:
+``detection-limit``, ``low-snr``, ``markers-off``, ``roi-mixed``. The error policy:
+docs/explanations/camera.md.
 """
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """The calibration record: dark maps, flat field and the absolute scale.
 
-The arrays live in ``calibration.npz`` beside the raw frames; ``to_dict`` gives a JSON-safe
-summary (with the file's path and SHA-256) that a session journal stores, and ``from_dict``
-reloads it for a resumed session, refusing a file that changed.
+Arrays in ``calibration.npz``; ``to_dict`` gives a JSON-safe summary with the file's SHA-256 and
+``from_dict`` refuses a file that changed.
 """
 from __future__ import annotations
 

@@ -1,14 +1,8 @@
 """Where the sample patch is in a frame: predicted by the camera model, checked by the ArUco markers.
 
-``predict_view`` projects the holder (``calib.holder``) through the rig's camera model
-(``goniofrost.core.camera_model``, OpenCV ``projectPoints``) at the pose the kinematics report:
-the patch's region of interest, every marker's corners, and which markers are big enough to read.
-``locate_patch`` then reads the markers the prediction calls readable: if they lie within the
-tolerance of the prediction, their plane-to-image homography draws the region (refined by the
-markers); if they lie farther, the rig looks misaligned (``MisalignedError``); where none can
-be read (grazing views), the prediction alone draws it. Without a prediction (``view=None``),
-only the markers can place the patch (``find_patch``), and a frame without them is a
-MarkerError: nothing is ever guessed. These are pure functions of a frame and a pose.
+``predict_view`` projects the patch and markers at a pose; ``locate_patch`` reads the markers and
+draws the region, raises ``MisalignedError`` when they lie too far from the prediction, and uses the
+prediction alone where none is readable. ``find_patch`` works from markers only. Pure functions.
 """
 from __future__ import annotations
 

@@ -1,20 +1,9 @@
 """The one Axis contract: move to an angle and get a status to wait on, with the move logic written once.
 
-A driver subclasses ``Axis`` and supplies only protocol hooks (``_connect``, ``_close``,
-``_command_move``, ``_read_position``, ``_read_moving``, ``_command_home``, ``_command_stop``,
-``_set_enabled``, ``_read_fault``, ``_apply_motion_profile``), all in degrees and deg/s. The base
-class checks limits, computes the move timeout from distance, speed and acceleration, waits,
-checks arrival within the tolerance and, on ANY error during a move, commands the axis to stop
-before re-raising.
-
-Retries where they are safe: a hook that only reads, or whose repetition changes nothing (stop,
-enable, the motion profile), is repeated up to ``config.retries`` times after a reply timeout or
-a damaged reply, each retry logged (INFO, into the session's device log). A move command is never
-blindly repeated: when its reply is lost, ``_move_taken`` reads back whether the device took it
-(its set-point, or motion, or arrival); only a move the device shows it never took is sent again.
-
-Connecting is an explicit step, on a connection the rig layer opened (``connect(transport)``,
-``drivers.transport``): the constructor only stores the configuration.
+A driver subclasses ``Axis`` and supplies protocol hooks (``_command_move``, ``_read_position``,
+...) in degrees and deg/s. The base class checks limits, times out, checks arrival, retries what is
+safe to repeat and, on any error during a move, stops the axis before re-raising. Connecting is
+``connect(transport)`` on a connection the rig layer opened.
 """
 from __future__ import annotations
 
@@ -351,12 +340,10 @@ class Axis(ABC):
             log.warning("%s: stop after error in %s failed: %s", self.name, context, exc)
 
     def _send_stop(self) -> None:
-        """The stop command, retried like any repeatable command; but once only while an earlier
-        stop of this axis went unanswered (every attempt a reply timeout) and nothing has been
-        heard from the device since. Each stop still goes out: the device may hear it without
-        being heard. A pulled cable otherwise cost every layer that stops on the way out (the
-        failed move, the engine's fault stop, the stop on releasing the rig) its retries: 40 reply
-        timeouts, 12 s at 300 ms, before one Dynamixel's stop report; now 24."""
+        """The stop command, retried like any repeatable command; but sent once only while an earlier
+        stop of this axis went unanswered and nothing has been heard from the device since, so that a
+        pulled cable does not cost every stopping layer its retries. Each stop still goes out.
+        """
         try:
             if self._stop_unanswered:
                 self._command_stop()

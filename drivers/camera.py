@@ -1,9 +1,8 @@
 """The camera contract: capture one RAW frame of a given exposure into a file.
 
-A capture session only ever calls ``connect``, ``capture`` and ``close``; the calibration also
-asks for a target with ``set_target`` (``"sample"``, ``"white"``: the white reference card,
-``"flat"``: a uniform diffuser over the lens). A real rig without motorised targets implements
-``set_target`` by asking the operator (see ``FolderCamera`` and ``OperatorPrompt``).
+A session calls ``connect``, ``capture`` and ``close``; the calibration also calls ``set_target``
+(``"sample"``, ``"white"``, ``"flat"``), which ``FolderCamera`` implements by asking the operator
+(``OperatorPrompt``).
 """
 from __future__ import annotations
 
@@ -134,22 +133,13 @@ class Camera(ABC):
 class FolderCamera(Camera):
     """A real camera that drops RAW files into a folder (tethering software, a hot folder).
 
-    ``trigger(exposure_s)`` starts an exposure (e.g. a gphoto2 or serial-remote call, supplied by
-    the caller); the newest new file with a suffix in ``suffixes`` that appears in ``folder``
-    and is complete within ``timeout_s`` is taken. Tethering software writes a file
-    progressively, so a file is complete only once it is not a dot-file or a partial name
-    (``*.part``, ``*.tmp``), its size and modification time are the same at two polls ``poll_s``
-    apart, and, for a TIFF-based RAW (DNG, NEF, CR2, ARW, ...), all the image data its header
-    points to is in the file (``drivers.hot_folder``); the timeout's error names a file that came
-    but never was complete. Its own exposure (EXIF ExposureTime, ``drivers.rawfile.raw_exposure_s``)
-    is read back: a file without one, whose exposure differs from the one asked
-    for by more than ``exposure_tolerance`` (relative), or with the same content as a frame taken
-    before (not new) is refused, naming the file and both values, and left where it is. A good
-    file is moved to the requested path, and its own exposure is the frame's. ``ask(message,
-    why=...)`` is called when the calibration needs a different target in front of the lens,
-    ``why`` saying what that target is (``TARGET_EXPLAINED``) (default: an OperatorPrompt on the
-    terminal that waits ``operator_timeout_s`` for Enter and accepts ``abort``). ``clock()`` and
-    ``sleep(seconds)`` time the polls (default: the wall clock; a test drives the polls with its own).
+    ``trigger(exposure_s)`` starts an exposure; the newest new file with a suffix in ``suffixes`` that
+    appears in ``folder`` and is complete (``drivers.hot_folder``, polls ``poll_s`` apart) within
+    ``timeout_s`` is taken. A file whose EXIF exposure is missing or differs from the one asked for by
+    more than ``exposure_tolerance`` (relative), or that repeats an earlier frame, is refused and left
+    where it is; a good one is moved to the requested path. ``ask(message, why=...)`` asks for another
+    target in front of the lens (default: an ``OperatorPrompt``). ``clock()`` and ``sleep(seconds)``
+    time the polls (default: the wall clock).
     """
 
     def __init__(self, folder, trigger: Callable[[float], None], timeout_s: float = 30.0,

@@ -1,10 +1,7 @@
 """Validation of the ``driver`` sections of a rig file (each axis's, and the lamp's).
 
-Allowed keys per protocol are declared as key tables (``SCHEMAS``, ``LAMP_SCHEMAS``: key ->
-``goniofrost.core.config_check.Key``; ``OPTIONAL`` marks a key that may be left out). Unknown keys,
-missing required keys and bad values raise ``ConfigError(source, keypath, expected, found)`` in the
-one format of ``goniofrost.core.config_check``. ``port: sim`` (serial) and ``port: 0`` (TCP)
-mean "filled in by the simulator at run time".
+Key tables per protocol (``SCHEMAS``, ``LAMP_SCHEMAS``); a bad section raises one ``ConfigError``.
+``port: sim`` (serial) and ``port: 0`` (TCP) are filled in by the simulator.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """Write a Bayer mosaic as a minimal DNG (tifffile) that LibRaw/rawpy reads back exactly.
 
-Tags follow ../shared/PROTOCOLS.md section 4. The frame's metadata (exposure, gain, pose, ...)
-goes into the ImageDescription as JSON; the exposure also into the EXIF ExposureTime tag, and
-the camera's make, model and serial number into their TIFF/DNG tags, so any DNG reader (rawpy,
-exifread) finds them. The simulated camera and the pylon camera both archive frames through here.
+Tags follow PROTOCOLS.md section 4; the frame's metadata goes into the ImageDescription as JSON,
+the exposure also into EXIF ExposureTime, make, model and serial into their tags.
 """
 from __future__ import annotations
 

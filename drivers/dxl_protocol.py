@@ -1,11 +1,7 @@
 """Dynamixel Protocol 2.0 in one place: frames, CRC-16, byte stuffing, control table, error codes.
 
-Used by the driver (build instructions, parse status packets) and by the simulated servo (parse
-instructions, build status packets, damage them for injected faults); the driver's serial
-transport is dynamixel-sdk's PortHandler. Facts from PROTOCOLS.md section 1 (ROBOTIS e-Manual,
-X series).
-
-Frame (multi-byte fields little-endian)::
+Shared by the driver and the simulated servo. Facts from PROTOCOLS.md section 1. Frame
+(multi-byte fields little-endian)::
 
     FF FF FD | 00       | ID | LEN_L LEN_H | INST (0x55 in a status) | [ERR] params | CRC_L CRC_H
     header   | reserved |    | bytes after LEN, stuffed, CRC included | stuffed body | CRC-16/BUYPASS

@@ -1,19 +1,9 @@
-"""Dynamixel X-series servo as an Axis, over Protocol 2.0.
+"""Dynamixel X-series servo as an Axis, over Protocol 2.0 (``drivers.dxl_protocol``).
 
-Frames are built and parsed by ``drivers.dxl_protocol``, the module the simulated servo uses too
-(CRC-16, byte stuffing, the control table); dynamixel-sdk's ``PortHandler`` is the serial
-transport (baud table, reply timeout), on the connection the rig layer opened: ``_Port`` adopts
-it in ``setupPort``, the one place where the SDK would open a serial port itself. The SDK's ``PacketHandler`` is not used: its
-``txPacket`` drops the result of ``addStuffing`` (dynamixel-sdk 4.1.0), so a parameter holding
-FF FF FD would go out unstuffed.
-
-On ``connect(transport)``: check the baud against the SDK's table, PING (the model number must be an X
-series one, and the configured model if given), switch to extended position mode (EEPROM: torque
-off first) and load the profile velocity and acceleration. Every status packet is checked: the
-Alert bit leads to a read of Hardware Error Status (70) and a DeviceFault with readable causes
-(and, with ``reboot_after_fault``, a REBOOT); ERR codes 1-7 raise ExceptionReply. No status within
-the reply timeout is a DeviceTimeout, part of one a ProtocolError, a bad CRC a ChecksumError; an
-attempt waits at most one reply timeout (``reply_timeouts`` counts them).
+dynamixel-sdk's ``PortHandler`` is the serial transport, adopting the rig layer's connection.
+``connect`` checks baud and model, sets extended position mode and the motion profile. The Alert
+bit raises ``DeviceFault``, ERR codes ``ExceptionReply``, silence ``DeviceTimeout``, a bad CRC
+``ChecksumError``.
 """
 from __future__ import annotations
 
@@ -50,6 +40,8 @@ RESYNC_LENGTHS = range(5, 64)  # READ lengths of a resync: no register is longer
 POLL_TIMEOUT_S = 0.001  # the transport's read timeout: the SDK polls; waiting 1 ms frees the CPU
 
 
+# The SDK's PacketHandler is not used: its txPacket drops addStuffing's result (dynamixel-sdk
+# 4.1.0), so a parameter holding FF FF FD would go out unstuffed.
 class _Port(PortHandler):
     """dynamixel-sdk's PortHandler on a transport it did not open, with a reply timeout that can be
     made longer than the SDK's bytes x byte-time + 34 ms (USB adapters with a long latency timer,
@@ -133,22 +125,15 @@ class DynamixelAxis(Axis):
         return status.params
 
     def _exchange(self, what: str, request: bytes, reply_data: int) -> tuple[bytes, Packet]:
-        """Write ``request``, then read until this servo's status frame of ``reply_data``
-        parameter bytes arrives or the reply timeout ends. Other frames (an adapter's echo, another
-        servo's status) are skipped, as the SDK skips them, and so is a clean status of another
-        size: a status carries no instruction, so one that arrives after ``clearPort`` with the
-        wrong size is the late answer to an earlier instruction whose reply timed out (a WRITE's
-        empty status taken as a PING's read as model number 0). A status with an error code is
-        taken whatever its size (a refusal may carry no data).
+        """Write ``request``, then read until this servo's status of ``reply_data`` parameter bytes
+        arrives or the reply timeout ends.
 
-        A late status of the same size cannot be told apart by its size: harmless when this
-        instruction is the one that lost it (a retried read asks the same question), wrong for
-        another one (a late Moving = 1 read as Hardware Error Status: a false fault). So while
-        another instruction of this size owes a status, ``_resync`` goes first. Should that fail,
-        the instruction still goes out (a stop must reach the servo) and the resync's error is
-        raised; after a resync that heard nothing the instruction is only posted (``_post``): waiting
-        for its status too made one attempt on a silent servo cost two reply timeouts (four for a
-        stop: goal := present, then torque off), where the project's rule is one per attempt."""
+        Other frames (an adapter's echo, another servo's status) are skipped, and so is a clean status of
+        another size: it is the late answer to an earlier instruction that timed out. A status with an
+        error code is taken whatever its size. A late status of the same size cannot be told apart, so
+        while another instruction of this size owes one, ``_resync`` goes first; after a resync that heard
+        nothing the instruction is only posted (``_post``), so an attempt costs one reply timeout.
+        """
         if any(owed != request for owed in self._owed.get(reply_data, ())):
             try:
                 self._resync(what)

@@ -1,7 +1,6 @@
 """Typed errors of every device driver: each names the axis, the command and what came back.
 
-All derive from ``DeviceError`` (itself a ``GoniofrostError``), so the command line prints them as one
-line and the capture engine can stop every axis on any of them. ``str(exc)`` reads
+All derive from ``DeviceError`` (a ``GoniofrostError``); ``str(exc)`` reads
 ``AXIS: COMMAND: WHAT (reply: REPLY)``.
 """
 from __future__ import annotations

@@ -1,19 +1,8 @@
 """Watch a folder for new RAW files and hand one over only once it is complete.
 
-Tethering software (gphoto2 ``--capture-image-and-download``, a camera maker's utility) writes a
-RAW file progressively: a DSLR's 25-60 MB take a moment to come over USB, and the file sits in the
-folder, growing, the whole time. A new file is complete, and taken, once
-
-1. its name is a RAW file's: a suffix of ``suffixes`` (any case) and not a dot-file; partial
-   names (``IMG_0001.dng.part``, ``*.tmp``, ``*.crdownload``, ``.IMG_0001.dng``) are never looked at;
-2. its size (not zero) and modification time are the same at two polls in a row: the writer has
-   paused for at least one poll interval; and
-3. when it is TIFF-based (DNG, NEF, CR2, ARW, PEF, ...: it opens with a TIFF header), every image
-   directory parses and every strip or tile of image data they point to ends within the file, so
-   a writer that paused mid-file is not taken for done. Other formats (CR3, RAF, ...) rely on 2.
-
-A file unchanged but incomplete by 3 is looked at again at the next poll (a writer that paused);
-``incomplete`` says why, for the caller's timeout message.
+A file is taken once its name is a RAW file's, its size and modification time held for two polls,
+and, for a TIFF-based RAW, every image strip or tile lies within the file; ``incomplete`` says why
+not. The rules: docs/explanations/camera.md.
 """
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """An interlock input: one discrete input (Modbus function 02) of a motor drive.
 
-It shares the drive's connection, as the lamp does when it sits on an axis. The value
-``modbus_map.INTERLOCK_CLOSED`` means closed (safe to run).
+Shares the drive's connection; ``modbus_map.INTERLOCK_CLOSED`` means closed (safe to run).
 """
 from __future__ import annotations
 

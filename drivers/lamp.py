@@ -1,8 +1,6 @@
 """The lamp: on/off on a Modbus coil and a monitor photodiode on an input register.
 
-The lamp usually sits on a motor drive's Modbus device (rig file: ``device: camera_arm``) and
-then shares that axis's connection; it may also have its own host and port, which the rig layer
-opens and hands to ``connect(transport)``.
+It shares a motor drive's connection (``device: AXIS``) or has its own host and port.
 """
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """A Modbus motor drive axis (pymodbus, TCP or RTU) driven through a register map.
 
-A move is one 16-register direct-data write ending with trigger = 1 (Oriental AZ style); the
-output status word gives MOVE and ALM-A, the alarm code register the cause. Positions are in
-drive steps (``steps_per_deg``); every 32-bit value spans two registers in ``word_order``.
-
-Errors: an exception response -> ``ExceptionReply`` (code = Modbus exception code); no reply ->
-``DeviceTimeout``; a reply whose RTU CRC fails -> ``ChecksumError``; a malformed or truncated
-TCP frame -> ``ProtocolError``; the ALM-A bit -> ``DeviceFault`` naming the alarm code.
+A move is one direct-data write ending with trigger = 1; positions are drive steps
+(``steps_per_deg``), 32-bit values over two registers. Errors: ``ExceptionReply``,
+``DeviceTimeout``, ``ChecksumError`` (RTU CRC), ``ProtocolError``, ``DeviceFault`` (ALM-A).
 """
 from __future__ import annotations
 

@@ -1,16 +1,8 @@
 """Modbus register maps of motor drives, as data: named maps and inline maps from the rig file.
 
-The default map ``oriental-az`` follows the Oriental Motor AZ series "direct data operation"
-registers (PROTOCOLS.md section 3). Every value is 32 bits in two holding registers; the word
-order is configurable ("big": upper word at the lower address, as on the AZ; "little": the
-reverse). Addresses are Modbus PDU addresses (0-based, as on the wire).
-
-A rig file names a map (``register_map: oriental-az``) or gives one inline::
-
-    register_map:
-      base: oriental-az          # optional: start from a named map, override what follows
-      feedback_position: 0x0120
-      output_bits: {move: 13}
+The default ``oriental-az`` follows PROTOCOLS.md section 3. Values are 32 bits in two holding
+registers (``word_order`` "big" or "little"); addresses are 0-based PDU addresses. A rig file
+names a map or gives one inline (``register_map: {base: oriental-az, feedback_position: 0x0120}``).
 """
 from __future__ import annotations
 

@@ -1,17 +1,10 @@
 """Modbus frames in one place: the RTU CRC, the exception codes, frame checks and frame faults.
 
-pymodbus builds and parses the frames on both sides of the wire (the driver's client and the
-simulated drive's server). What both sides must agree on beyond that lives here: the driver
-(``drivers/modbus_drive.py``) checks with it why a reply was not accepted, and the simulated drive
-(``sim/modbus_drive.py``) damages its replies with it when a fault is injected, so that every
-fault the twin can produce is one the driver recognises.
-
-Frames (Modbus Application Protocol V1.1b3; Modbus over Serial Line V1.02; Modbus Messaging on
-TCP/IP Implementation Guide V1.0b)::
+pymodbus builds and parses the frames; the driver checks here why a reply was refused, and the
+simulated drive damages its replies here, so every injected fault is one the driver recognises::
 
     RTU ADU   unit | PDU: function, data                    | CRC_L CRC_H (CRC-16/MODBUS)
     TCP ADU   TID_H TID_L | 00 00 | LEN_H LEN_L | unit      | PDU: function, data
-              transaction | protocol | bytes after LEN (unit + PDU)
     exception PDU: function | 0x80, exception code
 """
 from __future__ import annotations

@@ -1,10 +1,9 @@
-"""A Basler machine-vision camera through pypylon (the optional ``pylon`` extra): ``camera: kind: pylon``.
+"""A Basler camera through pypylon (the optional ``pylon`` extra): ``camera: kind: pylon``.
 
-The camera is opened by serial number (or the first found) and set up once: autos off, the gain
-fixed (``gain_db``), the rig file's pixel format, a software trigger. Each ``capture`` sets the
-exposure, reads back the one the camera took and archives the frame as a DNG with exposure, gain
-and serial number. Every failure is one CameraError line. ``image_source`` is an emulated
-camera's image source (``PYLON_CAMEMU``; ``sim.pylon_scene``). More: docs/explanations/camera.md."""
+Opened by serial number and set up once (autos off, fixed gain, software trigger); each
+``capture`` sets the exposure and archives the frame as a DNG. Failures are one ``CameraError``
+line. More: docs/explanations/camera.md.
+"""
 from __future__ import annotations
 
 import logging

@@ -1,8 +1,7 @@
 """Read a camera RAW file (DNG or any format LibRaw reads) into linear values with rawpy.
 
-No demosaicing, gamma, white balance or brightness adjustment: ``linear`` is the sensor value
-minus the per-channel black level, divided by (white - black), per pixel. rawpy's ``postprocess``
-is never called, so LibRaw's ``adjust_maximum_thr`` rescaling (PROTOCOLS.md section 4) cannot apply.
+``linear`` = (sensor value - black level) / (white - black), per pixel; no demosaicing, gamma or
+white balance (PROTOCOLS.md section 4).
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """Build every Axis (and the Lamp) of a rig from its driver sections, and handle them as one.
 
-``RigDevices.from_rig(rig)`` only constructs (nothing is opened); ``connect_all()`` opens
-each device's serial port or TCP connection (``open_transport``: the drivers never open one),
-hands it to the driver and enables every axis; ``close_all()`` releases every connection.
-Stopping is not done here: the one stop path for all axes (command each to stop, then confirm
-each at rest) is the rig's ``goniofrost.rig.stop.stop_axes``, which the rig wiring
-calls (``release_stop``: for the axes not yet confirmed stopped) before ``close_all``.
+``RigDevices.from_rig(rig)`` constructs; ``connect_all()`` opens each connection
+(``open_transport``) and enables the axes; ``close_all()`` releases them. Stopping is
+``goniofrost.rig.stop.stop_axes``.
 """
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """Newport SMC100 axis over RS-232 ASCII (pyserial): the protocol hooks of ``Axis``.
 
-Every set command is followed by ``TE`` so that a silently rejected command (the controller
-replies nothing) becomes an ``ExceptionReply`` naming its error letter. The connection (57600
-8N1, XON/XOFF) is opened by the rig layer and handed to ``connect(transport)``. ``TS`` is decoded into
-the controller state and readable error bits; a stage error state or any error bit raises
-``DeviceFault``. Positions are controller units divided by ``units_per_deg``.
+Every set command is followed by ``TE``, so a silently rejected command raises ``ExceptionReply``;
+a stage error in ``TS`` raises ``DeviceFault``. Positions are controller units / ``units_per_deg``.
 """
 from __future__ import annotations
 
@@ -98,14 +95,13 @@ class SMC100Axis(Axis):
                         code=letter)
 
     def _tell_error(self) -> str:
-        """Read TE once. TE clears the letter it reports, so a TE whose reply was lost is not asked
-        again (it would answer '@' for a refused command): the timeout goes up, where a move is
-        read back with TH (``_move_taken``) and a repeatable set command (VA, AC, MM) sent again.
+        """Read TE once.
 
-        Every TE reply looks alike (``1TE@``) whichever command it reports on: a late reply of a TE
-        that timed out would answer the next TE (a refused SR taken as accepted because SL's late
-        '@' came first). So after such a TE, the next one is preceded by a TP whose reply is
-        awaited with late lines skipped (``_resync``): the controller answers in order."""
+        TE clears the letter it reports, so a TE whose reply was lost is not asked again: the timeout goes
+        up, where a move is read back with TH and a repeatable set command sent again. Every TE reply looks
+        alike, so after such a TE the next one is preceded by a TP whose reply is awaited with late lines
+        skipped (``_resync``).
+        """
         if self._te_owed:
             self._resync()
         try:

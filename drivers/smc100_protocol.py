@@ -1,10 +1,7 @@
 """Newport SMC100CC/PP RS-232 ASCII protocol: command lines, replies, TS and TE decoding, as data.
 
-Source: SMC100CC & SMC100PP user manual (EDH0206En2054), summarised in PROTOCOLS.md section 2.
-A command is ``nnAAxx`` + CR LF: ``nn`` the controller address (1-31), ``AA`` two letters, ``xx``
-a value, ``?`` or nothing. Queries echo their prefix (``1VA?`` -> ``1VA10``); set commands reply
-nothing; a rejected command replies nothing and stores an error letter read back with ``TE``.
-Shared by the driver (``drivers/smc100.py``) and the simulated controller (``sim/smc100.py``).
+A command is ``nnAAxx`` + CR LF (PROTOCOLS.md section 2). Shared by the driver and the simulated
+controller.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """Camera kind ``rawfile``: a camera whose tethering software drops RAW files into a folder.
 
-``TetheredCamera.KEYS`` are the keys of the rig file's ``camera:`` section only this kind reads
-(``drivers.rig_devices.CAMERA_CLASSES``; calib.config refuses them on other kinds, but for the
-simulated camera's ``SIM_CAMERA_KEYS``); ``from_section`` builds the camera of a checked section.
-``trigger_command`` (e.g. ``gphoto2 --set-config shutterspeed={shutter} --capture-image-and-download
---filename {folder}/%Y%m%d-%H%M%S-%n.%C``) is run for each exposure with ``{shutter}`` the
-camera's own label (from ``shutter_speeds``), ``{exposure_s}`` the seconds and ``{folder}`` the
-watched folder; without it the operator is asked to expose. ``target_command`` (``{target}``:
-sample, white, flat) changes the target in front of the lens; without it the operator is asked.
+``trigger_command`` runs per exposure with ``{shutter}``, ``{exposure_s}`` and ``{folder}``;
+``target_command`` with ``{target}``; without them the operator is asked. ``KEYS`` are the
+``camera:`` keys only this kind reads; ``from_section`` builds it.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """The connections the rig layer opens and hands to the drivers: one byte-stream interface.
 
-A driver never opens a port. The rig layer (``drivers.rig_devices``) opens a serial port
-(``open_serial``: a pyserial ``Serial``) or a TCP connection (``open_tcp``: a ``SocketTransport``)
-and hands the driver a ``ByteTransport``; tests hand an in-memory transport that plays the bytes
-of the manuals instead. The interface is pyserial's own, so a ``serial.Serial`` is one as it is:
-
-``write(data)``, ``read(size)`` (at most ``size`` bytes; fewer once ``timeout`` seconds pass without
-one), ``read_until(expected)``, ``reset_input_buffer()`` (drop bytes that arrived late),
-``in_waiting``, ``timeout`` (seconds, settable), ``close()``.
+A driver never opens a port: it gets a ``ByteTransport`` (``open_serial``, ``open_tcp``, or an
+in-memory one in tests). The interface is pyserial's: ``write``, ``read``, ``read_until``,
+``reset_input_buffer``, ``in_waiting``, ``timeout`` (seconds), ``close``.
 """
 from __future__ import annotations
 

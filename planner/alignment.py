@@ -1,11 +1,7 @@
 """The rig's alignment measured: each axis's zero offset fitted to images of the holder card.
 
-The record it produces (ALIGNMENT.json, ``Alignment``, ``load_alignment``) is
-``planner.alignment_file``, which the rig and the kinematics read without the fit.
-
-Estimation (pure; ``goniofrost.capture.align`` takes the images): ``alignment_poses`` chooses
-where to look at the white card, ``fit_alignment`` fits the offsets to the marker corners read in
-each image and to the white tile's brightness (see its docstring for what is identifiable).
+``alignment_poses`` chooses where to look at the white card; ``fit_alignment`` fits the offsets to
+the marker corners and the white tile's brightness. The record is ``planner.alignment_file``.
 """
 from __future__ import annotations
 
@@ -70,19 +66,11 @@ class AlignmentFit:
 def fit_alignment(rig, camera, observations, *, fit_lamp: bool = True) -> AlignmentFit:
     """Fit the zero offset of every axis (and the lamp's elevation) to images of the holder card.
 
-    ``rig``: the planner Rig (its own alignment is ignored: offsets are measured from the axes'
-    readings); ``camera``: its ``CameraModel``; ``observations``: ``Observation`` s.
-
-    What is identifiable (DESIGN.md's rig: the arm and the stage turn about the same vertical):
-    the marker corners fix the card's pose relative to the camera, i.e. the stage tilt's offset and
-    the *difference* of the arm's and the yaw's offsets; the white tile's brightness, which
-    follows cos(theta_i) = n . L, fixes the normal against the lamp, i.e. the yaw's offset (and
-    the tilt's once more, and the lamp's elevation with tilted poses). Together: all three axes.
-    The lamp's azimuth is not identifiable: the zeros of the arm and the yaw are measured from it.
-
-    Least squares in two stages: the rotations solvePnP found per image (robust start), then the
-    marker corners in pixels; each group of residuals is weighted by its own scatter, re-estimated
-    once, so the standard errors (from the Jacobian) describe the data.
+    ``rig``: the planner Rig (its own alignment is ignored); ``camera``: its ``CameraModel``;
+    ``observations``: ``Observation`` s. Least squares against the solvePnP rotations, then the marker
+    corners in pixels and the white tile's brightness, each group weighted by its own scatter; standard
+    errors from the Jacobian. What is identifiable: docs/explanations/camera.md. Raises
+    ``AlignmentError`` on too few images or residuals beyond the limits.
     """
     obs = [o for o in observations if len(o.image_px) >= 4]
     photometric = [k for k, o in enumerate(obs) if o.rate is not None and o.rate > 0]

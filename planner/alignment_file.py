@@ -1,11 +1,7 @@
-"""ALIGNMENT.json: the record of the rig's alignment, each axis's zero offset as ``goniofrost align``
-measured it (the fit itself is ``planner.alignment``).
+"""ALIGNMENT.json: each axis's zero offset in degrees, as ``goniofrost align`` measured it.
 
-ALIGNMENT.json holds at least ``"offsets_deg": {AXIS_NAME: degrees, ...}`` for every axis of the
-rig, and, when it gives one, ``"version": VERSION`` (a file of another format is refused): an axis whose reading is q stands physically at q + offset (so on a simulated rig built wrong
-on purpose, the offsets equal the injected ``sim.misalignment_deg``). The kinematics
-(``planner.kinematics``) add the offsets to the readings and take them off the targets. A plan
-records the alignment it was scheduled with (``record()``), and a capture refuses another one.
+Holds ``"offsets_deg": {AXIS_NAME: degrees}`` for every axis and an optional ``"version"``. An axis
+reading q stands physically at q + offset. Entry points: ``Alignment``, ``load_alignment``.
 """
 from __future__ import annotations
 
@@ -42,11 +38,9 @@ def alignment_hash(offsets_deg: Mapping[str, float]) -> str:
 
 def load_alignment(path, axis_names, rig_name: str | None = None) -> Alignment:
     """Read ALIGNMENT.json; ConfigError (file, key, expected, found) unless it holds a finite offset
-    within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other (other top-level keys,
-    such as the fit's diagnostics, are kept by the file and not read), and, when it names the rig
-    it was measured on (``rig.name``, as ``goniofrost align`` writes it) and ``rig_name`` is given,
-    that rig is ``rig_name``: the offsets are one rig's assembly errors, and another rig's (its
-    axes named alike) were taken without a word."""
+    within +-MAX_OFFSET_DEG for every axis in ``axis_names`` and no other, and, when both are given,
+    the rig it names (``rig.name``) is ``rig_name``. Other top-level keys are kept and not read.
+    """
     path = Path(path)
     doc = read_json_file(path, "an ALIGNMENT.json file (goniofrost align --out FILE)")
     measured_on = doc.get("rig", {}).get("name") if isinstance(doc, dict) and isinstance(doc.get("rig"), dict) else None

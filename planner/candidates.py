@@ -1,11 +1,8 @@
 """Every pose that could measure a (w_i, w_o) pair, and why each can or cannot.
 
-A pair has up to four candidate poses: the two inverse-kinematics branches (``planner.kinematics``)
-and, by reciprocity, the same two with light and camera swapped (the same BRDF value). A candidate
-is usable when its joints are within limits (the geometric reasons) and the camera can measure it
-(``planner.view``: enough patch pixels, the patch in the lamp's beam). Swapping light and camera
-never changes the geometric reasons, but it changes what the camera sees: a grazing view becomes a
-grazing light, which the camera measures fine.
+A pair has up to four candidates: two inverse-kinematics branches, each also with light and camera
+swapped (reciprocity). A candidate is usable when its joints are within limits and the camera can
+measure it (``planner.view``).
 """
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
 """Forward and inverse kinematics: joints <-> light and view directions in the sample frame.
 
-Joints are float arrays (..., 3) in degrees, in the order (camera_arm, sample_yaw, sample_tilt);
-directions are unit vectors (..., 3) in the sample frame (z the normal). ``forward`` adds the
-rig's joint zero offsets (``rig.alignment``) to the readings before the geometry; ``inverse``
-returns the targets to command for both branches (0 direct, 1 mirror: the same isotropic BRDF
-value). The frames, the formulas and the notes on the two branches: docs/explanations/kinematics.md."""
+Joints are float arrays (..., 3) in degrees (camera_arm, sample_yaw, sample_tilt); directions are
+unit vectors (..., 3) in the sample frame, z the normal. The geometry:
+docs/explanations/kinematics.md.
+"""
 from __future__ import annotations
 
 import enum

@@ -1,8 +1,8 @@
-"""Move times: every axis follows a trapezoidal velocity profile; axes move together.
+"""Move times in seconds: each axis follows a trapezoidal velocity profile; axes move together.
 
-A move of distance d (degrees) on an axis with top speed v (deg/s) and acceleration a (deg/s^2)
-takes ``2 sqrt(d / a)`` when it never reaches v (d < v^2 / a), else ``d / v + v / a``. A move of
-an axis already in place (d <= its tolerance) costs nothing. A step's time is its slowest axis.
+A move of d degrees at top speed v (deg/s) and acceleration a (deg/s^2) takes ``2 sqrt(d / a)``
+when d < v^2 / a, else ``d / v + v / a``. A step takes as long as its slowest axis; an axis already
+within tolerance costs nothing.
 """
 from __future__ import annotations
 

@@ -1,17 +1,8 @@
-"""Order of samples and choice of pose per sample that minimise the total motion time.
+"""Order of samples and pose per sample that minimise the total motion time from home to home.
 
-Each sample has k candidate poses (inverse-kinematics branches, optionally with light and camera
-swapped); some may be unreachable. The tour starts and ends at home. This is a small generalised
-travelling-salesman problem, solved heuristically:
-
-1. nearest neighbour from home (over every reachable candidate pose of the unvisited samples),
-   from several first samples;
-2. local search until nothing improves: the best pose per sample for the current order (exact,
-   dynamic programming over the path), 2-opt (reverse a stretch) and or-opt (move a stretch of
-   1-3 samples elsewhere, either way round) with the poses fixed;
-3. keep the best tour.
-
-Move times are symmetric (a trapezoid takes as long either way), which 2-opt relies on.
+A small generalised travelling-salesman problem, solved by nearest neighbour from several starts,
+then local search (best pose per sample by dynamic programming, 2-opt, or-opt). Relies on move
+times being symmetric.
 """
 from __future__ import annotations
 

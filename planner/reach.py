@@ -1,10 +1,7 @@
-"""Reachability of every valid grid cell on a rig, and why the others cannot be measured.
+"""Reachability of every valid grid cell on a rig, with the reason the others cannot be measured.
 
-A cell is reachable when some candidate pose (``planner.candidates``: two inverse-kinematics
-branches, each also with light and camera swapped) puts every joint inside its limits and lets the
-camera measure the patch (``planner.view``; when the rig has a camera model). Results are cached on
-disk (``goniofrost.core.cache``) keyed by the rig's kinematic hash, its alignment, its camera model
-and the grid.
+A cell is reachable when some candidate pose (``planner.candidates``) is within limits and
+measurable. Cached on disk, keyed by the rig's kinematics, alignment, camera model and the grid.
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """Rig files: the YAML description of a gonioreflectometer's geometry and axes, validated strictly.
 
-A rig file has ``name``, ``simulated``, ``geometry``, ``axes`` and optionally ``lamp``, ``camera``,
-``sim`` and ``alignment`` (the ALIGNMENT.json of ``goniofrost align``, relative to the rig file;
-see ``config/rigs/template.yaml`` for every key, documented). This module owns the
-geometry and the motion keys of each axis; the ``driver`` sections (of each axis and of the lamp),
-``camera`` and ``sim`` belong to other packages and are checked by validators plugged in through
-``section_validators`` (``goniofrost.rig.file.load_checked_rig`` plugs in the real ones).
+Entry point ``load_rig``. This module checks the geometry and each axis's motion keys; the
+``driver``, ``camera`` and ``sim`` sections are checked by validators passed as
+``section_validators``. Every key: ``config/rigs/template.yaml``.
 """
 from __future__ import annotations
 

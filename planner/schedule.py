@@ -1,24 +1,10 @@
-"""Turn a FROST plan into a rig plan: a pose per sample and the capture order of least motion time.
+"""Turn a FROST plan into a rig plan: a pose per sample, in the capture order of least motion time.
 
-``schedule_plan(plan_doc, rig)`` takes the plan document (samples in selection order, each with
-its light/view directions ``w_i``/``w_o``, or its angles in degrees, or its grid cell) and returns
-a new document whose samples are in capture order, each carrying ``selection_index``, ``joints``
-{axis name: deg}, ``move_s`` (planned move from the previous pose, from home for the first),
-``branch`` ("direct" | "mirror", see ``planner.kinematics``) and ``light_camera_swapped``
-(reciprocity: the lamp plays w_o and the camera w_i; the same BRDF value). The top level gains
-``rig``, ``alignment`` (the zero offsets the joints were computed with, or None),
-``planned_motion_s`` (home -> samples -> home), ``return_home_s`` and
-``selection_order_motion_s`` (same rig, samples in selection order, best pose per sample).
-Only poses the camera can measure are used (``planner.candidates``).
-
-``schedule_batches(plan_doc, rig, batch_ends)`` does the same for a nested design measured in
-batches (a capture that may stop after any batch): the samples of each batch (selection indices
-[0, e_1), [e_1, e_2), ...) are ordered for least motion on their own, each batch starting where
-the previous one ended, and the document gains ``batch_ends`` (cumulative sample counts).
-
-With ``steps`` (the degrees between the positions each axis can be commanded to) the joints are
-put on those lattices as close to their cells as they allow (``planner.steps``) and the document's
-``rig`` gains ``command_steps_deg``.
+``schedule_plan(plan_doc, rig)`` returns the plan with samples in capture order, each with
+``selection_index``, ``joints`` {axis: degrees}, ``move_s``, ``branch`` and
+``light_camera_swapped``; the top level gains ``rig``, ``alignment``, ``planned_motion_s``,
+``return_home_s`` and ``selection_order_motion_s``. ``schedule_batches`` orders each batch of a
+nested design on its own and adds ``batch_ends``.
 """
 from __future__ import annotations
 

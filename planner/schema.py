@@ -1,7 +1,6 @@
 """Strict reading of a YAML configuration file: a key given twice in one mapping is an error.
 
-A missing file or bad syntax raises ``ConfigError(source, "", expected, found)``; the keys and
-values are then checked by the sections' key tables (``goniofrost.core.config_check``).
+A missing file or bad syntax raises ``ConfigError``; the sections' key tables check the rest.
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """Joint targets on the axes' command lattices, as close to their cells as the lattices allow.
 
-``on_steps`` searches, for every sample at once, the joints on the lattices
-(``drivers.config.command_step_deg``) that bring the measured direction closest to its cell in
-the grid's index space: a weighted sum of the squared index misses of theta_h, theta_d and phi_d
-(phi_d with its symmetries), each axis weighed by what the model expects a step there to change
-(``goniofrost.frost.cell_sensitivity``). A grid search around the IK joints, zoomed LEVELS
-times; the plain rounding is a candidate too. Why: docs/decisions/0008-joint-targets-on-command-lattices.md."""
+``on_steps`` searches the lattice joints that bring each measured direction closest to its cell in
+the grid's index space. Why and how: docs/explanations/kinematics.md.
+"""
 from __future__ import annotations
 
 import itertools

@@ -1,20 +1,8 @@
-"""What the camera can measure at a pose: enough patch pixels, and the patch inside the lamp's beam.
+"""What the camera can measure at a pose: enough patch pixels, the patch in the lamp's beam.
 
-A pose (w_i, w_o) is measurable when
-* the region of interest (the holder's patch shrunk by the ROI margin), projected through the
-  rig's camera model, lies inside the image and keeps at least ``min_pixels`` pixels of every
-  Bayer colour channel after the one-pixel erosion the calibration applies (``PATCH_PIXELS``);
-* every corner of the patch lies inside the lamp's beam, a cylinder of ``beam_radius_mm`` about
-  the light direction through the rotation centre (``LAMP_BEAM``);
-* the light meets the sample at most ``max_incidence_deg`` from its normal (``LIGHT_GRAZING``):
-  the patch's irradiance is cos theta_i of the normal's, and a light at 89.97 deg (cos 0.0005,
-  the MERL grid's most grazing cells) left a capture's sample below its SNR minimum at the
-  longest exposure, which ends the session (and a resume meets the same sample again).
-The pixel count is a lower bound computed in closed form (no rasterisation), in one compiled
-(numba, ``view_kernels``) pass over any number of poses: the eroded mask holds every pixel whose centre lies ERODE_PX inside the
-polygon, and a convex region of area A and perimeter P holds at least A/4 - P/4 - 1 points of a
-Bayer channel's lattice (spacing 2). So a cell the planner calls measurable is one the capture
-can measure (tests/test_view.py checks the bound against the rasterised masks).
+A pose fails with ``PATCH_PIXELS`` (too few pixels per Bayer channel in the region of interest),
+``LAMP_BEAM`` (a patch corner outside the beam) or ``LIGHT_GRAZING`` (light beyond
+``max_incidence_deg``). The pixel count is a closed-form lower bound: docs/explanations/camera.md.
 """
 from __future__ import annotations
 

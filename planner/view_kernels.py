@@ -1,6 +1,6 @@
-"""The compiled pass of ``planner.view.roi_pixels``: the pixel-count bound of the projected region of
-interest at many poses (numba). Apart from ``view`` so that reading a rig file (``Measurability``)
-does not import numba: the console's commands (``rig stop`` among them) start 0.4 s sooner.
+"""The compiled (numba) pixel-count bound of ``planner.view.roi_pixels`` at many poses.
+
+Apart from ``view`` so that reading a rig file does not import numba.
 """
 from __future__ import annotations
 

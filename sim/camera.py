@@ -1,16 +1,8 @@
 """The simulated camera: renders the sample holder from the current pose and writes DNG files.
 
-Geometry: the rig file's camera model (``goniofrost.core.camera_model.CameraModel``: pinhole
-intrinsics, distortion, the camera's place on its arm), the very model the planner and the
-calibration predict with, so a simulated frame shows the patch and the markers exactly where a
-correctly built rig would. Radiometry stays far-field (DESIGN.md): the lamp is collimated and the
-camera far enough (1 m for a 17 mm patch) that every pixel of the patch sees the same (w_i, w_o).
-The holder card (``calib.holder``) is drawn with its ArUco markers on matte paper; the patch
-shows the material's ground-truth BRDF (or the Lambertian white tile when the ``white`` target is
-mounted); the ``flat`` target is a uniform diffuser over the lens. The sensor is Bayer RGGB with
-photon shot noise, read noise, dark current, a fixed pixel-response pattern (PRNU), vignetting, a
-black level and a 14-bit white level with full-well saturation. Radiance follows the lamp
-intensity at the time of each exposure.
+Geometry from the rig file's camera model (the one the planner and calibration use); radiometry
+far-field. The sensor is Bayer RGGB with shot, read and dark noise, PRNU, vignetting, black and
+14-bit white levels. The model: docs/explanations/simulated-rig.md.
 """
 from __future__ import annotations
 

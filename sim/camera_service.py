@@ -1,18 +1,9 @@
-"""The simulated camera served on loopback, for a rig file that treats the twins as real hardware.
+"""The simulated camera served on loopback, for the rig file of ``goniofrost sim --write-rig``.
 
-``goniofrost sim --write-rig OUT.yaml`` writes a rig file whose camera is a ``rawfile`` camera (a
-hot folder with a trigger command, as on a real rig): the running simulation renders each frame
-through this service, so a capture on that rig file sees the twins' true positions and lamp.
-
-Protocol (one text line each way, on 127.0.0.1): ``target NAME`` puts a target in front of the
-lens (``sample``, ``white``, ``flat``); ``expose SECONDS`` renders one DNG into the hot folder;
-``material SPEC:NAME`` puts that material on the sample card (``material default``: the one the
-service started with), so that each capture names its own. Each is answered ``ok`` (``ok PATH``
-for a frame, ``ok NAME`` for a material) or ``error TEXT``.
-
-``python -m sim.camera_service --port P target white`` / ``... expose 0.004`` is the client the rig
-file's ``target_command`` / ``trigger_command`` run (exit 0 on ``ok``; else the text on stderr, 1).
-It imports nothing heavy: it runs once per frame.
+One text line each way on 127.0.0.1: ``target NAME`` (``sample``, ``white``, ``flat``),
+``expose SECONDS`` (one DNG into the hot folder), ``material SPEC:NAME``; answered ``ok [...]`` or
+``error TEXT``. ``python -m sim.camera_service --port P ...`` is the client the rig file's commands
+run (exit 0 on ``ok``, else 1).
 """
 from __future__ import annotations
 

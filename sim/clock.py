@@ -1,11 +1,8 @@
 """A clock that can run faster than real time, shared by every simulated device of a rig.
 
-It keeps two times. ``now()`` follows the wall clock (times the speed-up): motion runs on it, so
-the real drivers, which poll in real time, see axes move and arrive. ``nominal_time()`` never
-reads the wall clock: it advances only by what the devices are told to do (an exposure, a planned
-move), so the same sequence of device commands always gives the same nominal times. Everything
-that ends up in a measured value (lamp drift, exposure time stamps) runs on nominal time, which
-makes a simulated session with a fixed seed reproducible however the host schedules its threads.
+``now()`` follows the wall clock times the speed-up: motion runs on it. ``nominal_time()``
+advances only by what the devices are told to do, so everything that ends up in a measured value
+runs on it and a seeded session is reproducible however threads are scheduled.
 """
 from __future__ import annotations
 

@@ -1,32 +1,8 @@
 """The rig file's ``sim:`` section: every key the simulated rig reads, declared as data and checked.
 
-``validate_sim_section(section, source, keypath)`` is the validator the rig loader
-(``goniofrost.rig.file``) plugs in for ``sim``. An unknown key, a value of the wrong
-type or out of range is one ``ConfigError`` naming the file, the key path, what was expected and
-what was found. It returns the section with its defaults filled in, so that the simulated rig
-reads its defaults from here only.
-
-Keys (``SIM_KEYS``; to add one, add a row)::
-
-    sim:
-      clock_speedup: 20.0      # simulated seconds per real second (> 0); default 1
-      seed: 0                  # seed of every simulated noise (integer >= 0); default 0
-      camera: {...}            # the simulated camera (sim.camera.validate_sim_camera_section)
-      lamp:
-        drift_per_hour: 0.02   # relative lamp intensity change per simulated hour; default 0.02
-      faults:                  # fault drills; default none
-        - {axis: sample_yaw, kind: stall, at_sample: 3}   # strikes when sample_yaw next moves
-                                                          # at or after plan sample 3, once
-        - {axis: camera_arm, kind: miss_reply, at_sample: 1}   # one lost reply: the capture goes on
-        - {kind: lamp_dim, at_sample: 2, level: 0.5, duration_s: 30}   # from plan sample 2, 30 nominal s
-        - {kind: lamp_cut, at_sample: 4, duration_s: 60}               # the lamp gives no light
-        - {axis: camera_arm, kind: interlock_open, at_sample: 3, duration_s: 20}   # that drive's input
-        - {axis: camera_arm, kind: silent, at_sample: 3, duration_s: 20}   # that Modbus drive answers nothing
-      misalignment_deg:        # a rig built wrong on purpose (sim.misalignment); default none
-        {camera_arm: 0.6, sample_yaw: -1.1, sample_tilt: 0.4}   # axis stands at reading + this
-
-``check_sim_against_rig(rig)`` (a second check the rig loader runs on the loaded rig) checks what
-needs the rest of the rig: every fault and every misalignment names one of the rig's axes.
+``validate_sim_section`` (plugged into the rig loader) returns the section with its defaults
+filled in, or raises one ``ConfigError``; ``check_sim_against_rig`` checks that faults and
+misalignments name the rig's axes. Every key (``SIM_KEYS``): docs/reference/config-keys.md.
 """
 from __future__ import annotations
 

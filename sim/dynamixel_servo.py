@@ -1,12 +1,7 @@
 """A simulated Dynamixel X-series servo on a pseudo-terminal, byte for byte Protocol 2.0.
 
-It parses instruction packets (CRC-16, byte stuffing), answers with status packets (ERR byte,
-Alert bit), and keeps the X-series control table of PROTOCOLS.md: PING, READ, WRITE, REBOOT,
-SYNC_READ, SYNC_WRITE;
-Operating Mode 3 (position, goal within the Min/Max Position Limits) and 4 (extended, +-256
-turns); Torque Enable with EEPROM locked while on; Profile Velocity / Acceleration; Goal, Present
-Position and Velocity (signed); Moving and Moving Status; Hardware Error Status. Motion is a
-trapezoid in encoder counts on the shared SimClock.
+PING, READ, WRITE, REBOOT, SYNC_READ and SYNC_WRITE on the X-series control table of PROTOCOLS.md,
+operating modes 3 and 4; motion is a trapezoid in encoder counts on the shared SimClock.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """Faults of the simulated devices: the kinds every twin supports, and faults armed for the next move.
 
-``inject_fault(kind)`` (each twin's own method) makes a fault happen now. ``arm_fault(kind)`` (this
-mixin) makes it happen when the device next starts a move: the move command is executed, then the
-fault strikes before the reply goes out, once. A rig file schedules armed faults per plan sample
-(``sim: faults:``, checked by ``sim.config``; ``sim.rig.SimulatedRig.arm_faults``).
+``inject_fault(kind)`` (each twin's method) strikes now; ``arm_fault(kind)`` strikes once when the
+device next starts a move, after executing the command and before replying.
 """
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """The simulated lamp: on/off state and an intensity that drifts slowly over nominal time.
 
-Shared by the simulated Modbus drive (which exposes the on/off coil and the monitor
-photodiode register) and the simulated camera (whose radiance scales with the intensity),
-so the calibration can normalise drift exactly as on a real rig. The drift follows the clock's
-nominal time (``SimClock.nominal_time``), never the wall clock: the same device commands give the
-same intensities on every run.
+Shared by the simulated Modbus drive (coil and photodiode register) and the simulated camera, so
+the calibration can normalise drift as on a real rig.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
-"""A simulated rig built wrong on purpose: ``sim.misalignment_deg: {AXIS_NAME: degrees, ...}``.
+"""A simulated rig built wrong on purpose: ``sim.misalignment_deg: {AXIS_NAME: degrees}``.
 
-Each axis of the simulated rig physically stands at its encoder reading plus the given offset
-(the encoders themselves know nothing of it), so the simulated camera sees what a real rig with
-those zero errors would show. ``goniofrost align`` should find the same numbers as its
-``offsets_deg``; a capture without them measures at other directions than it records.
+Each axis physically stands at its encoder reading plus the offset, so ``goniofrost align`` should
+find the same numbers.
 """
 from __future__ import annotations
 

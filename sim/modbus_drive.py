@@ -1,16 +1,8 @@
 """A simulated Modbus motor drive (Oriental AZ-style register map) that also hosts the lamp.
 
-A real pymodbus 3.12.1 server: Modbus TCP on a loopback port, or Modbus RTU on a pseudo-
-terminal. The holding registers follow a ``RegisterMap`` (default ``oriental-az``): a 16-register
-direct-data write ending with trigger = 1 starts a trapezoidal move; the output status,
-feedback position and alarm code are computed from the motion at every read. Coil ``coil``
-switches the lamp; input register ``photodiode_register`` reads its monitor photodiode.
-
-pymodbus <= 3.12 quirk (PROTOCOLS.md section 3): the device context adds 1 to every address, so
-PDU address a reaches block address a + 1; the blocks here start at 1 so that index = PDU address.
-
-RTU: pymodbus's serial server opens one pty; a bridge thread copies bytes between it and a
-second pty whose path the client opens (a pty master has no path a serial server could open).
+A real pymodbus server, TCP on loopback or RTU on a pseudo-terminal. A direct-data write with
+trigger = 1 starts a trapezoidal move; coil ``coil`` switches the lamp, input register
+``photodiode_register`` reads its photodiode. Addresses follow PROTOCOLS.md section 3.
 """
 from __future__ import annotations
 
@@ -363,7 +355,8 @@ class SimulatedModbusDrive(ArmedFaults):
 
 
 class _PtyBridge:
-    """Two ptys joined by a thread: the server opens one, the client the other (the "cable")."""
+    """Two ptys joined by a thread: the server opens one, the client the other (a pty master has no
+    path a serial server could open)."""
 
     def __init__(self, drive: SimulatedModbusDrive) -> None:
         self._server_side, self._client_side = PtyPort(), PtyPort()

@@ -1,8 +1,7 @@
 """Trapezoidal motion of one simulated axis on a (possibly sped-up) SimClock.
 
-Units are whatever the device uses (degrees, counts, steps): position in units, speed in
-units/s, acceleration in units/s^2, times in simulated seconds. Thread-safe: a device thread
-commands the motion while tests and the simulated camera read the ground truth.
+Position in the device's units, speed in units/s, acceleration in units/s^2, times in simulated
+seconds. Thread-safe.
 """
 from __future__ import annotations
 

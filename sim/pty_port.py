@@ -1,9 +1,7 @@
 """The device end of a pseudo-terminal: a simulated serial device's "cable".
 
-A client opens ``path`` (``/dev/pts/N``) with pyserial exactly as it would open ``/dev/ttyUSB0``.
-Two pty quirks (PROTOCOLS.md, "Pseudo-terminals"): a new pty is in cooked mode with echo, so the
-slave is made raw at once; and the device keeps its own slave fd open, otherwise reading the
-master raises EIO whenever the client closes its end.
+A client opens ``path`` with pyserial as it would a ``/dev/ttyUSB0``. The pty is made raw and its
+slave fd kept open (PROTOCOLS.md, "Pseudo-terminals").
 """
 from __future__ import annotations
 

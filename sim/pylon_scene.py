@@ -1,20 +1,8 @@
-"""The image source of pylon's own emulated camera: the simulated holder, rendered for each exposure.
+"""The image source of pylon's emulated camera (``PYLON_CAMEMU``): the simulated holder.
 
-A simulated rig whose camera is ``kind: pylon`` (config/rigs/sim-pylon.yaml) opens the real
-driver (``drivers.pylon.PylonCamera``) on an emulated camera of the pylon SDK (``PYLON_CAMEMU``).
-The emulated camera serves images from a file (``TestImageSelector = Off``, ``ImageFileMode =
-On``, ``ImageFilename``); before each grab ``EmulatedScene.serve`` renders the simulated
-camera's frame (``sim.camera.SimCamera.expose``: the pose, the lamp, the sensor's noise, at the
-exposure the camera read back) into a 16-bit TIFF and points the camera at it (setting the name
-reloads the file). The SDK does the rest as for a real camera: the pixel format (a 16-bit mosaic
-served as BayerRG12 arrives shifted right by 4 bits, as BayerRG16 unchanged), the exposure's
-rounding, the trigger, the grab and its timeout.
-
-The simulated sensor's ``black_level`` and ``white_level`` are in DN of the pixel format (e.g.
-64 and 4095 for 12 bits); the scene writes the camera's ``BlackLevel`` so that the driver reads it.
-
-Drills (``arm``): ``unplug`` fires the emulated camera's plug-and-play removal before the frame;
-``stall`` stops its acquisition, so the frame never comes and the grab times out in the SDK.
+Before each grab ``EmulatedScene.serve`` renders ``SimCamera.expose`` into a 16-bit TIFF and points
+the emulated camera at it; the SDK does the rest. Black and white levels are in DN of the pixel
+format. Drills (``arm``): ``unplug``, ``stall``.
 """
 from __future__ import annotations
 

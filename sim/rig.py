@@ -1,10 +1,7 @@
 """Start every simulated device of a rig on one SimClock and report their endpoints.
 
-``SimulatedRig(rig)`` takes a typed rig spec (``goniofrost.core.rig_spec.RigSpec``: a checked
-``planner.rig.Rig``). ``start()`` opens a pty per serial device and a loopback TCP port per Modbus
-TCP device and returns the endpoints (axis name / "lamp" -> entry); ``resolved_rig()`` gives the
-same spec with those endpoints in its driver sections, ready for
-``drivers.rig_devices.RigDevices.from_rig``.
+``SimulatedRig(rig).start()`` opens a pty per serial device and a loopback port per Modbus TCP
+device; ``resolved_rig()`` is the rig spec with those endpoints, ready for ``RigDevices.from_rig``.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """A rig file that treats the running twins as real hardware (``goniofrost sim --write-rig``).
 
-``real_rig_document(source, resolved, service)`` returns the rig file ``source`` as a mapping with
-``simulated: false``, no ``sim`` section, every driver section pointing at its running twin
-(``SimulatedRig.resolved_rig()``: pty paths, loopback ports) and a ``rawfile`` camera
-whose frames come from the simulated camera's service (``sim.camera_service``), keeping the
-camera model, ladder and references of the original: the kinematics, and so a plan's
-``rig.kinematic_hash``, stay those of the simulated rig. Its ``twins`` section (``sim.config``)
-names the twins' clock speed-up (a dry run compares moves on their clock) and the service's port
-(a capture names the material the simulated camera renders there).
+``real_rig_document`` returns the rig file with ``simulated: false``, drivers pointing at the
+running twins, a ``rawfile`` camera served by ``sim.camera_service``, and a ``twins`` section; the
+kinematics, hence the plan's ``rig.kinematic_hash``, stay those of the simulated rig.
 """
 from __future__ import annotations
 

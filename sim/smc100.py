@@ -1,15 +1,8 @@
 """A simulated Newport SMC100 controller on a pseudo-terminal, byte for byte the ASCII protocol.
 
-State machine (PROTOCOLS.md section 2): NOT REFERENCED (0A) -OR-> HOMING (1E) -> READY (32)
--PA/PR-> MOVING (28) -> READY (33); ST decelerates at AC; MM0/MM1 toggle DISABLE (3C) / READY (34).
-A rejected command replies nothing and stores an error letter that ``TE`` returns once.
-The read-only queries of the manual answer in every state: identity (``VE`` controller and
-firmware, ``ID?`` stage), ``TB`` (error text of a letter, or of the stored one), ``PT`` (the
-motion time of a relative move), ``TH``, ``TP``, ``TS``, ``TE``, and the ``?`` form of ``VA``,
-``AC``, ``SL``, ``SR``, ``OH`` (home velocity), ``OT`` (home timeout), ``FE`` (following error
-limit), ``BA`` (backlash), ``JR`` (jerk time), ``SA`` (address), ``MM`` (1 READY, 0 DISABLE).
-Motion is a trapezoid on the shared SimClock. Positions are in controller units (deg for a
-rotation stage); ``units_per_deg`` only converts ``true_position_deg()``.
+The state machine and commands of PROTOCOLS.md section 2: a rejected command replies nothing and
+stores an error letter for ``TE``. Motion is a trapezoid on the shared SimClock, in controller
+units (degrees for a rotation stage).
 """
 from __future__ import annotations
 

@@ -1,15 +1,8 @@
 """Baseline sample selections that FROST is benchmarked against.
 
-* ``nielsen_select`` / ``nielsen_path``: Nielsen, Jensen and Ramamoorthi 2015 (ACM TOG 34(6)),
-  as DESIGN.md "Baselines for benchmarks" describes it: greedy addition by the condition number
-  of the sampled rows of the scaled principal components Z over a random subset of candidate
-  cells, each addition followed by a discrete descent on the grid. Random, so trials differ.
-* ``random_select``: m distinct valid cells drawn uniformly.
-* ``uniform_select``: a deterministic stratified set of valid cells over the (theta_h, theta_d,
-  phi_d) index space.
-
-Every selection returns ``positions``: int64 (m,) indices into ``grid.valid_cells`` (the rows of
-a model's dictionary), all distinct.
+``nielsen_select`` / ``nielsen_path`` (Nielsen, Jensen and Ramamoorthi 2015; random),
+``random_select`` and ``uniform_select`` (stratified). Each returns ``positions``: int64 (m,)
+distinct indices into ``grid.valid_cells``.
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
-"""The Bayesian pipeline in a benchmark fold: reconstructions with uncertainty, and captures
-that stop at a target error.
+"""The Bayesian pipeline in a benchmark fold: reconstructions with uncertainty, and captures that
+stop at a target error.
 
-All test materials measured at the same cells share one posterior covariance, so one solve
-and one pass over D (mean and predictive variance) serve them all. For every material the
-rows record the true error, the predicted error (``prediction.py``, from its own samples) and
-the fraction of its cells (and channels) whose true mapped value lies within the nominal 50 %
-and 90 % predictive intervals (estimate +- z std, the std scaled to the predicted error).
+Per material: the true error, the predicted error and the coverage of the nominal 50 % and 90 %
+predictive intervals. Materials measured at the same cells share one posterior solve.
 """
 from __future__ import annotations
 

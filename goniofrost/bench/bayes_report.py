@@ -1,13 +1,6 @@
-"""Summary statistics and Markdown of the Bayesian rows of a benchmark.
-
-* fold wins: in how many folds the ``bayes`` test-set mean is below another method's, per m;
-* uncertainty: per method with a Bayesian reconstruction and m, the mean coverage of the
-  nominal 50 % and 90 % intervals over test cells, and the per-material predicted error
-  against the true one (Spearman over all fold x material rows, the fraction within a factor
-  2, the geometric mean of predicted / true);
-* target error: per target E, the samples a simulated ``capture --target-error E`` took and how
-  often it stopped with a true error above 1.5 E;
-* selection times beside the paper's Table II.
+"""Summary statistics and Markdown of the Bayesian rows of a benchmark: fold wins, interval
+coverage and predicted against true error, the target-error captures, and selection times beside
+the paper's Table II.
 """
 from __future__ import annotations
 
@@ -98,9 +91,8 @@ def markdown(rows: list[dict], stats: dict, m_values, paper_table: dict) -> list
     m_max = max(m_values) if m_values else 0
     targets = target_stats(rows, m_max)
     if targets:
-        # the column is the saving of the mean sample count, 1 - mean / m_max: headed "fewer than
-        # m_max" it read as the share of captures that stopped early (BENCHMARKS.md@8b3941b issue 14:
-        # 62.9 % under "fewer than 60", where 178 of the 200 captures, 89 %, had stopped early)
+        # the column is the saving of the mean sample count, 1 - mean / m_max, headed so that it
+        # does not read as the share of captures that stopped early
         lines += ["", f"Simulated capture --target-error E --confidence 0.95 (batches of {_batches_text()}, up to "
                       f"m_max = {m_max} samples):", "",
                   "| E | materials | mean samples | median samples | mean samples below m_max | true error <= E | "

@@ -1,9 +1,7 @@
 """The material tables of a benchmark: every material tabulated once per run and cached.
 
-Tabulating 151 networks on the full grid takes about a minute and 2 GB; it is done once and
-stored as one float32 ``.npy`` (M, n_valid, 3) in the goniofrost cache, keyed by the datasets'
-content ids and the grid. Workers open it memory-mapped, so folds running in several processes
-share the page cache instead of holding copies.
+One float32 ``.npy`` (M, n_valid, 3) in the goniofrost cache, opened memory-mapped by the workers
+so that they share the page cache.
 """
 from __future__ import annotations
 

@@ -1,14 +1,8 @@
 """The work of one fold: train once, select with every method and m, reconstruct the test set.
 
-Methods ``bayes`` (Bayesian A-optimal design, posterior-mean reconstruction) and
-``frost-bayesrec`` (FROST first-m cells, posterior-mean reconstruction: the gain of the
-estimator alone) reconstruct with ``bayes_eval``; their rows also carry the predicted error and
-the interval coverage. With ``bayes`` and target errors configured, a fold also simulates
-``capture --target-error`` on its test materials (rows of kind ``bayes-target``).
-
-``run_fold`` is the unit the executors distribute (a local process or a Dask worker); it reads
-the memory-mapped material tables and returns plain result rows, so whoever runs it, the rows
-are the same (time fields aside).
+``run_fold`` is the unit the executors distribute; it returns plain rows, the same whoever runs it
+(time fields aside). ``bayes`` and ``frost-bayesrec`` rows also carry the predicted error and
+coverage; ``bayes-target`` rows simulate ``capture --target-error``.
 """
 from __future__ import annotations
 

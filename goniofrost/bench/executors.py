@@ -1,11 +1,7 @@
 """Run the folds of a benchmark in local worker processes or on a Dask cluster.
 
-Folds are independent (each trains its own model and draws from its own seeded streams), so
-the rows do not depend on where or in which order folds run; they are returned in fold order.
-Every fold runs with a single BLAS thread: OpenBLAS sums in a different order with more
-threads, which would change the last digits of the errors between executors. Dask's nanny
-starts its workers with OPENBLAS_NUM_THREADS=1 by default; a cluster started otherwise must
-set it too for rows identical to a local run.
+Rows come back in fold order and do not depend on where folds run. Every fold runs with one BLAS
+thread (more threads change the last digits): a Dask cluster must set OPENBLAS_NUM_THREADS=1.
 """
 from __future__ import annotations
 

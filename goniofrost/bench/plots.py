@@ -1,10 +1,6 @@
-"""Benchmark figures (matplotlib, Agg backend): small PNGs written atomically.
-
-* ``inverse_mse.png``: 1 / mean log-relative MSE against m per method (paper Fig. 3).
-* ``selection_time.png``: median selection time against m, log scale (paper Table II).
-* ``frontier.png``: mean error against median selection time, one line per method across m.
-* ``box_m40.png``: per-material errors at m = 40 (or the m closest to it) per method, Nielsen
-  per trial (paper Fig. 5).
+"""Benchmark figures (matplotlib, Agg), written atomically: ``inverse_mse.png`` (paper Fig. 3),
+``selection_time.png`` (Table II), ``frontier.png`` (error against time) and ``box_m40.png``
+(per-material errors, Fig. 5).
 """
 from __future__ import annotations
 

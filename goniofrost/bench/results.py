@@ -1,12 +1,8 @@
 """Benchmark results: validation, the JSON/CSV files, and summary statistics.
 
-``results.json`` is ``{"machine": {...}, "command": "...", "config": {...}, "rows": [row, ...]}``
-with each row holding exactly ROW_FIELDS. The OPTIONAL_FIELDS are numbers for the Bayesian
-reconstructions and null otherwise: ``pred_mse`` (the predicted error), ``cover50`` and
-``cover90`` (the fraction of the material's cells inside the nominal 50 % / 90 % predictive
-intervals), ``target`` (the target error of a ``bayes-target`` row, whose ``m`` is the number of
-samples the simulated capture took). Rows of an older run without them load as well. Every file is written to a temporary name and renamed,
-and nothing is written if any number is NaN or inf.
+``results.json`` is ``{"machine", "command", "config", "rows"}``, each row with exactly ROW_FIELDS
+plus OPTIONAL_FIELDS (``pred_mse``, ``cover50``, ``cover90``, ``target``; null where they do not
+apply). Files are written atomically, and not at all if a number is NaN or inf.
 """
 from __future__ import annotations
 

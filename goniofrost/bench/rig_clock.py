@@ -1,13 +1,8 @@
 """Rig time of a nested design on the simulated rig's clock, batch by batch, for test materials.
 
-What a simulated capture of the design's samples costs on the clock, without rendering frames:
-each batch (``stopping.batch_ends``) ordered for least motion as ``plan --rig`` orders it
-(``planner.schedule``'s tours: from the pose the batch before ended at), its moves timed by the
-trapezoid the simulated axes follow (``planner.motion``; the capture records the same numbers),
-and every sample's bracket by the adaptive rule on the material's true value at that cell
-(``calib.exposure_time``, started from the previous sample's value as ``capture`` starts it;
-checked against the simulated camera in tests/test_rig_time.py). Calibration frames and the
-moves to the white reference and back home are the same for every design and left out.
+Each batch ordered as ``plan --rig`` orders it, its moves timed as the simulated axes move and each
+sample's bracket by ``calib.exposure_time`` on the material's true value; no frames are rendered.
+Calibration and the moves to the white reference and home are left out.
 """
 from __future__ import annotations
 

@@ -1,17 +1,8 @@
 """Numerical stress cases of selection and reconstruction (``goniofrost bench --stress``).
 
-Every case runs on fold 0 of the configuration (its training and test materials) and ends in
-a record: ``status`` "ok" with finite numbers, "error" with a GoniofrostError's message (a clear
-error is an acceptable outcome), or "failure" / "non-finite" (a finding to fix: an unexplained
-exception or a NaN/inf result). Records never hold NaN or inf, so stress.json is strict JSON.
-
-``bayes`` (Bayesian design, posterior-mean reconstruction with its per-cell std, which must be
-finite too) runs in every case but the eta sweep (it has no eta). Cases: measurement noise (multiplicative 0.1 % to 20 %; additive at the level of the darkest
-training material, raw and clamped at 0), eta from 0 to 1000, float32 against float64 (model
-arrays, training tables), m above the rank of the training set, duplicated training
-materials, a single training material, the highest dynamic range (chrome, black materials),
-samples restricted to near-grazing cells, and the condition number of the sampled dictionary
-rows for each method and m.
+Each case runs on fold 0 and ends in a record whose ``status`` is "ok", "error" (a clear
+GoniofrostError), "failure" or "non-finite" (findings to fix); stress.json is strict JSON. The
+cases: docs/benchmarks/stress.md.
 """
 from __future__ import annotations
 

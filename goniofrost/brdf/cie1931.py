@@ -1,9 +1,7 @@
 """Spectra to linear sRGB: the CIE 1931 2 deg observer under illuminant D65.
 
-``data/cie1931_d65.npy`` (471 x 5 float32, 9 kB): wavelength (nm, 360 to 830 at 1 nm), the CIE
-1931 colour-matching functions x, y, z and the D65 illuminant, as Mitsuba 3 tabulates them
-(``mi.cie1931_xyz``, ``mi.cie_d65``; the test checks the shipped table against the installed
-Mitsuba). XYZ -> linear sRGB is the Rec. 709 / D65 matrix Mitsuba's ``xyz_to_srgb`` uses. Why D65:
+``data/cie1931_d65.npy`` (471 x 5 float32): wavelength in nm (360-830 at 1 nm), x, y, z and D65,
+as Mitsuba 3 tabulates them; XYZ -> sRGB is Mitsuba's Rec. 709 matrix. Why D65:
 docs/decisions/0300-rgl-spectral-to-rgb.md.
 """
 from __future__ import annotations

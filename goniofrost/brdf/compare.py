@@ -1,19 +1,9 @@
 """Compare several BRDFs: spheres side by side under the same lights and the pairwise differences.
 
-Each BRDF is rendered by ``goniofrost.brdf.preview`` (its own MERL grid, the preview's lights and
-orthographic sphere). For every pair (a, b) of the inputs:
-
-* the rendering SNR (``preview.rendering_snr_db``, paper Figs. 8 and 11) both ways: b's
-  rendering against a's as the reference, and a's against b's (the SNR is not symmetric: the
-  reference's energy is the signal);
-* the log-relative MSE: the mean over the valid cells of (ln(w a + eps) - ln(w b + eps))^2 with
-  the cosine weight w (``preview.log_error``, the error FROST minimises and predicts), when both
-  are on the same grid (None otherwise: no common cells).
-
-Inputs are keyed A, B, C, ... in the order given. Identical renderings have an infinite SNR,
-which JSON cannot hold: ``to_json`` writes null with ``"identical": true``. A reference that
-renders black (an all-zero BRDF) has no signal: the SNR against it is -inf (printed as such,
-null in JSON with ``"identical": false``), not a sign of identical renderings.
+For every pair of inputs (keyed A, B, C, ...): the rendering SNR both ways
+(``preview.rendering_snr_db``; not symmetric) and, on a common grid, the log-relative MSE
+(``preview.log_error``). ``to_json`` writes an infinite SNR as null with ``"identical": true``; a
+black reference gives -inf, null with ``"identical": false``.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """The LLVM library Mitsuba's ``llvm_*`` variants (Dr.Jit's LLVM backend) run on.
 
-Unless ``DRJIT_LIBLLVM_PATH`` names one, Dr.Jit loads the first match of
-``/usr/lib/<arch>/libLLVM*.so.*`` it finds, whatever its version. A Debian 12 machine often holds
-LLVM 14 or 15 beside a newer one (Mesa's dependency: Chromium brings it), and on LLVM 15 the
-kernels Dr.Jit emits fail to compile and the process aborts (seen here: the tabulated-BSDF tests'
-pytest workers crashed). So before a ``llvm_*`` variant is set, the newest LLVM on the machine is
-named to Dr.Jit, and a machine with none new enough gets a one-line error that says what to
-install instead of an abort. LLVM 19 (Debian's ``libllvm19``, what ``.ci/run`` installs) is the
-version this project runs on; 16 to 18 were not tried.
+Before a ``llvm_*`` variant is set, the newest ``libLLVM`` on the machine is named to Dr.Jit
+(``DRJIT_LIBLLVM_PATH``); a machine with none new enough gets a one-line error. Why:
+docs/explanations/mitsuba-export.md.
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
-"""The export formats by name: the one table ``export --format``, ``capture --bsdf-format`` and
-the demo read, and the export of a MERL .binary file in one of them.
+"""The export formats by name: the one table ``export --format``, ``capture --bsdf-format`` and the
+demo read.
 
-A format is a writer ``write(path, brdf, grid, options, source=..., [n_wavelengths=...])`` that
-writes a (grid.size, 3) BRDF in 1/sr (NaN = missing) and returns the file's fields, in a module of
-its own. To add one, add its module and a line to FORMATS (docs/how-to/extend.md).
+A format is a module with a writer ``write(path, brdf, grid, options, source=..., ...)`` of a
+(grid.size, 3) BRDF in 1/sr (NaN = missing). To add one: docs/how-to/extend.md.
 """
 from __future__ import annotations
 

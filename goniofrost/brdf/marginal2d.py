@@ -1,15 +1,8 @@
 """Mitsuba 3's continuous marginal-conditional warp of a bilinear 2D density, in numpy.
 
-A replica of ``Marginal2D<Float, 0, Continuous=true>`` in Mitsuba 3's
-``include/mitsuba/core/distr_2d.h`` (constructor and ``sample_continuous``), the warp the
-``measured`` BSDF applies to the ``vndf`` and ``luminance`` fields. The exporter runs it to
-learn which micro-normal each node of the ``rgb`` table stands for, exactly as Mitsuba will
-map it. Vectorised over slices: a slice is one 2D table; ``measured`` interpolates between
-slices, and at a slice's own parameter value the warp is that slice's alone.
-
-Conventions (as ``distr_2d.h``): a table ``data[y, x]`` of shape (h, w) holds the density at
-the nodes ``(x / (w - 1), y / (h - 1))`` of the unit square and is bilinear in between; a
-sample first picks y from the marginal, then x from the conditional given y.
+A replica of ``Marginal2D<Float, 0, Continuous=true>`` (``distr_2d.h``), which the exporter runs to
+learn which micro-normal each ``rgb`` node stands for. A table ``data[y, x]`` of shape (h, w) holds
+the density at nodes ``(x / (w - 1), y / (h - 1))``; vectorised over slices.
 """
 from __future__ import annotations
 

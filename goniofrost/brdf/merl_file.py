@@ -1,12 +1,11 @@
-"""Read and write MERL ``.binary`` BRDF files (DESIGN.md, "MERL .binary format").
+"""Read and write MERL ``.binary`` BRDF files.
 
-Layout, little-endian: three int32 resolutions (n_th, n_td, n_pd) = (90, 90, 180), then
-3 x n float64: the whole R block, then G, then B, each in flat-index order. Stored value =
-BRDF / scale with scale = (1/1500, 1.15/1500, 1.66/1500). Invalid cells are stored as -1.
+Layout, little-endian: three int32 resolutions (n_th, n_td, n_pd) = (90, 90, 180), then the R, G
+and B blocks of n float64 each, in flat-index order. Stored value = BRDF / scale, scale =
+(1/1500, 1.15/1500, 1.66/1500); invalid cells are stored as -1.
 
-In memory a BRDF is a float64 array of shape (n_cells, 3) in 1/sr (columns R, G, B).
-**Missing values are NaN**: every negative stored value (the -1 of invalid cells, or any other
-negative number) reads as NaN, and NaN is written back as -1.
+In memory a BRDF is a float64 array (n_cells, 3) in 1/sr (columns R, G, B). **Missing values are
+NaN**: every negative stored value reads as NaN, and NaN is written back as -1.
 """
 from __future__ import annotations
 

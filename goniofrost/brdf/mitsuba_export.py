@@ -1,12 +1,9 @@
 """Export a tabulated isotropic BRDF to the RGL tensor format that Mitsuba 3 renders (RGB form).
 
-Builds the fields of Dupuy and Jakob 2018 from the table itself, as Mitsuba 3's ``measured.cpp``
-reads them: the NDF from the retro-reflection slice by power iteration, its projected area
-sigma, incident elevations evenly spaced in sigma, the VNDF (warp D^0.75 mixed with 10 % of a
-uniform NDF by default, ``ExportOptions``) and ``rgb`` = f cos theta_o * 4 sigma / D at the nodes
-of the warped square, so that Mitsuba's eval returns the table's value at every node. Mitsuba is
-not needed: its warp is replicated in numpy (``marginal2d``). The steps and their sources:
-docs/explanations/mitsuba-export.md; the warp's choice: docs/decisions/0009-mitsuba-export-warp.md."""
+Builds the fields of Dupuy and Jakob 2018 from the table itself (NDF, sigma, VNDF, ``rgb``), so that
+Mitsuba's eval returns the table's value at every node; Mitsuba is not needed. Options:
+``ExportOptions``. The steps: docs/explanations/mitsuba-export.md.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass

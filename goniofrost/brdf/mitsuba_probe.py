@@ -1,16 +1,8 @@
 """Probe an exported ``.bsdf`` with Mitsuba 3's ``measured`` BSDF, against the table it came from.
 
-Used by the export tests and benchmarks/mitsuba_export.py: Mitsuba's eval at direction pairs,
-its sampled weights, the integral of its pdf, and the table's directional albedo by quadrature.
-Mitsuba's convention: ``si.wi`` is the direction towards the viewer, ``wo`` towards the light,
-and eval returns f cos theta_o. Needs the optional dependency ``mitsuba``.
-
-A spectral file (``goniofrost.brdf.rgl_spectral``) is probed in Mitsuba's ``scalar_spectral``
-variant: its eval at the file's wavelength nodes, turned into linear sRGB the way Mitsuba turns a
-spectrum into a pixel (CIE 1931 under its D65, ``xyz_to_srgb``), with Mitsuba's own colour
-functions. The renderer holds the spectrum linear between the nodes and constant beyond them
-(the interpolant's parameter is clamped), so ``spectral_to_rgb_weights`` integrates exactly that
-function at 1 nm over Mitsuba's 360-830 nm.
+Mitsuba's eval at direction pairs, its sampled weights, its pdf's integral and the table's albedo.
+Mitsuba's convention: ``si.wi`` towards the viewer, ``wo`` towards the light, eval = f cos theta_o.
+A spectral file is probed in ``scalar_spectral`` and turned into linear sRGB. Needs ``mitsuba``.
 """
 from __future__ import annotations
 

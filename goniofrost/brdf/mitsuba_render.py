@@ -1,19 +1,9 @@
 """Render the preview spheres with Mitsuba 3 from an exported RGL tensor file.
 
-The same picture as ``goniofrost.brdf.preview.render_set``, made by Mitsuba's ``measured`` BSDF:
-an analytic unit sphere seen by an orthographic camera looking along -z (the image spans
-[-1, 1]^2, row 0 at +y), one ``directional`` emitter per preview light with the same irradiance,
-the ``direct`` integrator (a sphere is convex: no interreflection), and one unjittered sample per
-pixel so that each pixel is shaded at its centre, as goniofrost's preview does. HDR radiance in
-the same units, so the two renderings compare pixel for pixel.
-
-A spectral file renders in SPECTRAL_VARIANT: the light's RGB irradiance becomes Mitsuba's D65
-spectrum (white) and the film turns the spectrum into linear sRGB. One sample per pixel carries
-only 4 wavelengths, and the unjittered sampler draws the same ones everywhere, so with ``spp`` > 1
-the scene uses Mitsuba's independent sampler (positions jittered over the pixel too): compare it
-with the RGB file rendered at the same ``spp``.
-
-Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
+The picture of ``preview.render_set`` (orthographic unit sphere, the same directional lights, one
+unjittered sample per pixel) in the same HDR units, so the two compare pixel for pixel. A spectral
+file renders in SPECTRAL_VARIANT; with ``spp`` > 1 it uses the independent sampler. Needs
+``mitsuba`` (``pip install goniofrost[render]``).
 """
 from __future__ import annotations
 

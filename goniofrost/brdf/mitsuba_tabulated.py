@@ -1,23 +1,9 @@
 """Render a scene with a BRDF table evaluated directly, and sampled the same way whatever the BRDF.
 
-The RGL ``measured`` BSDF (``mitsuba_export``) samples and interpolates through warps built from
-the whole BRDF (its NDF and VNDF), so two exports of different BRDFs trace different paths and
-are tabulated at a resolution that follows each one's own highlight: the difference of their
-renders mixes the BRDFs' difference with the exports' and with two independent Monte Carlo
-noises. To compare BRDFs by their image alone, this module's BSDF (``goniofrost_tabulated``, a
-Python plugin of Mitsuba's ``llvm_ad_rgb`` variant):
-
-* evaluates a MERL-grid table at the cell of (w_i, w_o) (nearest cell, ``MerlGrid.angles_to_flat``,
-  the folding of the grid itself; cells outside the valid ones are 0);
-* samples w_o from the cosine hemisphere, independent of the BRDF.
-
-The path integrator's decisions then depend on no BRDF value (Russian roulette starts after the
-shipped scenes' ``max_depth``), so with the same seed and spp two renders trace the same paths
-and their difference is the BRDFs' difference seen through the scene. The loops run in
-wavefront (evaluated) mode so that the table is looked up with numpy; ``set_table`` swaps the
-BRDF of a loaded scene without loading it again.
-
-Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
+The BSDF ``goniofrost_tabulated`` (a Python plugin, ``llvm_ad_rgb``) looks up a MERL-grid table at
+the nearest cell and samples the cosine hemisphere, so two renders with the same seed trace the
+same paths; ``set_table`` swaps the table. Why: docs/explanations/scene-aware-design.md. Needs
+``mitsuba``.
 """
 from __future__ import annotations
 

@@ -1,20 +1,9 @@
 """Record how a Mitsuba 3 scene uses one object's BSDF: the (w_i, w_o) pairs the renderer visits.
 
-The scene file is read as XML; the BSDF of the shape whose ``id`` is the object is wrapped in a
-recording BSDF (``goniofrost_recorder``, a Python plugin of Mitsuba's ``scalar_rgb`` variant)
-that forwards every call to the scene's own BSDF and keeps the local directions of each
-evaluation (next-event estimation: ``eval``, ``eval_pdf``) and each BSDF sample (``sample``).
-Mitsuba does not hand a BSDF the path throughput, so every kept call weighs the same: the map is
-the share of the renderer's visits per cell, the cells whose error the image can show. A BSDF
-sample is kept only when its ray reaches an emitter (it hits an area light, or escapes to the sky):
-a sampled direction that misses every light carries nothing to the image, and with a small area
-light most of them miss (the sphere under the soft box: counting them all put most of the map on
-cells the render never lights, and the scene-aware design on them; BENCHMARKS.md@8b3941b). With delta
-lights alone (point, spot, directional) no sampled direction reaches light and only the
-evaluations towards the emitters carry the image. ``render_with_bsdf`` renders the same scene with the object's BSDF replaced (the
-benchmark renders reconstructions this way).
-
-Needs the optional dependency ``mitsuba`` (``pip install goniofrost[render]``).
+The object's BSDF is wrapped in ``goniofrost_recorder`` (a Python plugin, ``scalar_rgb``) that
+keeps each evaluation's directions and each BSDF sample whose ray reaches a light.
+``render_with_bsdf`` renders the scene with the object's BSDF replaced. Why:
+docs/explanations/scene-aware-design.md. Needs ``mitsuba``.
 """
 from __future__ import annotations
 

@@ -1,21 +1,9 @@
 """Render spheres of a tabulated BRDF and compare them with a reference (the paper's figures).
 
-Each sphere is rendered orthographically: the camera looks along -z, so every pixel sees the
-view direction w_o = +z in the world frame; the pixel's surface normal is that of a unit
-sphere. A few directional lights give radiance L = sum_k E_k f(w_i, w_o) cos theta_i (E_k the
-light's irradiance at normal incidence, f in 1/sr). The BRDF is looked up in the MERL grid cell
-of each pixel's (theta_h, theta_d, phi_d), exactly as a renderer reading the .binary would.
-
-With a predictive standard deviation (``reconstruct``'s OUT.std.binary: the std of
-ln(w x + eps) per cell) the preview adds an uncertainty panel: that std on the same spheres
-(each pixel shows its cell's value, lit pixels only), and with a reference also the actual
-|ln(w x_ref + eps) - ln(w x_est + eps)| on the same colour scale, so the predicted and the
-actual error sit side by side; ``Preview.errors`` then holds the predicted log-relative MSE
-(mean std^2 over valid cells) and the actual one.
-
-The rendering SNR (paper, Figs. 8 and 11) compares the HDR images before tone mapping:
-``SNR_dB = 10 log10(sum ref^2 / sum (ref - est)^2)`` over every pixel, channel and light.
-Tone mapping follows the paper: a common exposure, then a gamma of 2.0.
+Orthographic unit spheres under a few directional lights, radiance L = sum_k E_k f cos theta_i, f
+looked up in the MERL cell of each pixel. With a predictive std (``OUT.std.binary``) an uncertainty
+panel shows it beside the actual log error. ``rendering_snr_db`` = 10 log10(sum ref^2 / sum
+(ref - est)^2) on the HDR images; tone mapping: a common exposure, gamma 2.0.
 """
 from __future__ import annotations
 

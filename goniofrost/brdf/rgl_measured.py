@@ -1,25 +1,9 @@
 """Evaluate an RGL tensor file (``.bsdf``) as Mitsuba 3's ``measured`` plugin does, in numpy.
 
-The steps of ``Measured::eval`` (Mitsuba 3 ``src/bsdfs/measured.cpp``, v3.9.1), vectorised over
-direction pairs: the half vector m of (w_i, w_o); ``u = sqrt(2 theta / pi)`` for elevations
-(computed as ``2 asin(|d - z| / 2)``, the plugin's stable form) and ``u = (phi + pi) / (2 pi)``
-for azimuths, the micro-normal's azimuth taken relative to phi_i (isotropic files) and wrapped
-into [0, 1); the VNDF warp inverted at u_m (``Marginal2D<2>::invert_continuous`` with its tables
-interpolated linearly between the (phi_i, theta_i) slices, ``include/mitsuba/core/distr_2d.h``);
-the ``rgb`` (or ``spectra``) table interpolated bilinearly at the inverted point and linearly
-between slices (``Marginal2D<3>::eval``, not normalised); times ``ndf(u_m) / (4 sigma(u_wi))``
-when the ``jacobian`` flag is set. That is f cos theta_o, the cosine-weighted BRDF the tables
-hold; ``brdf`` divides it by cos theta_o.
-
-A spectral file is turned into linear sRGB once, on its table: Mitsuba interpolates a spectrum
-linearly between the wavelength nodes and clamps it beyond them, and the interpolation weights of
-a point do not depend on the wavelength, so integrating each node's hat function against
-CIE 1931 x D65 (``cie1931``) and applying XYZ -> sRGB gives a (n_lambda, 3) matrix that turns the
-``spectra`` table into an ``rgb`` table exactly (docs/decisions/0300-rgl-spectral-to-rgb.md).
-
-A file is refused (``MeasuredFileError``, one line naming the file and field) when a field is
-missing or of the wrong dtype or shape (the checks of measured.cpp), when it holds non-finite
-values, or when it is anisotropic (more than two phi_i: the plugin's own test).
+The steps of ``Measured::eval`` (``measured.cpp``, v3.9.1), vectorised over direction pairs; it
+returns f cos theta_o, and ``brdf`` divides by cos theta_o. A spectral table is turned into sRGB
+once, exactly (docs/decisions/0300-rgl-spectral-to-rgb.md). A missing, mistyped, non-finite or
+anisotropic field raises ``MeasuredFileError``.
 """
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
-"""The spectral RGL tensor file: what pbrt-v4's ``measured`` material and Mitsuba 3's spectral variants read.
+"""The spectral RGL tensor file read by pbrt-v4's ``measured`` material and Mitsuba 3's spectral
+variants.
 
-The same fields as the RGB export (``mitsuba_export``), with ``rgb`` replaced by ``wavelengths``
-(n_lambda,) float32 in nm, evenly spaced over WAVELENGTH_RANGE_NM, and ``spectra`` (phi_i,
-theta_i, n_lambda, n, n) float32: each rgb node lifted to a smooth spectrum (``srgb_spectra``).
-The layout follows pbrt-v4's ``MeasuredBxDFData::Create`` and Mitsuba 3's ``measured.cpp``. Why
-32 wavelengths over 380-780 nm: docs/decisions/0009-mitsuba-export-warp.md."""
+The RGB export's fields with ``rgb`` replaced by ``wavelengths`` (n_lambda,) in nm and ``spectra``
+(phi_i, theta_i, n_lambda, n, n) float32 (``srgb_spectra``). Why 32 wavelengths over 380-780 nm:
+docs/decisions/0009-mitsuba-export-warp.md.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,19 +1,8 @@
-"""Read and write the RGL tensor file format (``.bsdf``) of Mitsuba 3 and pbrt-v4.
+r"""Read and write the RGL tensor file format (``.bsdf``) of Mitsuba 3 and pbrt-v4.
 
-The layout is the one Mitsuba 3 defines in ``src/core/tensor.cpp`` (the C++ reader,
-``TensorFile``) and ``src/python/python/tensor_io.py`` (``mi.tensor_io.write``/``read``), also
-read by the RGL ``brdf-loader`` (``powitacq_rgb.inl``, ``Tensor::Tensor``). Little-endian:
-
-* 12 bytes ``b"tensor_file\\0"``, then the version as two uint8 ``(1, 0)``, then a uint32 field
-  count;
-* per field, in order: uint16 name length, the UTF-8 name, uint16 rank, uint8 dtype code
-  (the table ``DTYPE_CODES``: Mitsuba's ``Struct::Type`` numbering), uint64 byte offset of the
-  field's data from the start of the file, then one uint64 per dimension (C order);
-* then the data of each field in the same order, each starting on an 8-byte boundary (the
-  padding bytes are zero), stored C-contiguous.
-
-A string field (``description``) is its UTF-8 bytes as a uint8 vector. Writing is atomic
-(``goniofrost.core.atomic_file``) and deterministic: same fields, same bytes.
+The layout of Mitsuba 3's ``tensor_io.py``, little-endian: ``b"tensor_file\0"``, version (1, 0),
+field count; per field its name, rank, dtype code (``DTYPE_CODES``), data offset and shape; then
+the data, each field 8-byte aligned, C order. Writing is atomic and deterministic.
 """
 from __future__ import annotations
 

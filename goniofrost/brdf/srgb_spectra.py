@@ -1,10 +1,9 @@
 """Linear sRGB values -> smooth spectra: the sigmoid-polynomial model of Jakob and Hanika 2019.
 
-An RGB value (r, g, b) of any size becomes scale * model(rgb / scale)(lambda), scale =
-2 max(r, g, b), as pbrt-v4 and Mitsuba 3 lift unbounded RGB, so the coefficient table is read at
-a largest component of 1/2 only: ``data/srgb_half.npy`` (3 x 64 x 64 x 3 float32) is that slice
-of Mitsuba 3's ``srgb.coeff`` (``slice_of_coeff_file`` makes it), and export needs no Mitsuba.
-More: docs/explanations/mitsuba-export.md."""
+scale * model(rgb / scale)(lambda), scale = 2 max(r, g, b), read from ``data/srgb_half.npy``
+(3 x 64 x 64 x 3 float32, a slice of Mitsuba 3's ``srgb.coeff``). More:
+docs/explanations/mitsuba-export.md.
+"""
 from __future__ import annotations
 
 from functools import lru_cache

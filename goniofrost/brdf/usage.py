@@ -1,10 +1,7 @@
 """A scene's use of a BRDF: one weight per valid MERL cell, from the (w_i, w_o) pairs a renderer visited.
 
-A usage map is float32 (n_valid,) on a grid's valid cells (rows in ``grid.valid_cells`` order),
-non-negative and summing to 1: the share of a scene's BSDF evaluations and samples that fall in
-each cell. Pairs are folded by the isotropy and reciprocity of the MERL parametrisation (the cell
-of (w_i, w_o) is the cell of (w_o, w_i) and of any rotation of both about the normal). The file
-is a plain ``.npy`` (``numpy.save`` of that array), so any tool can read and write it.
+A usage map is float32 (n_valid,) in ``grid.valid_cells`` order, non-negative, summing to 1; pairs
+are folded by isotropy and reciprocity. The file is a plain ``.npy`` of that array.
 """
 from __future__ import annotations
 

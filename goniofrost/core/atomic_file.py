@@ -1,7 +1,6 @@
 """Write a file so that readers see either the old file or the whole new one, never a part.
 
-The payload goes to a temporary sibling, is flushed and fsynced, then renamed over the target;
-a failure removes the temporary file. Used for every result file goniofrost writes.
+A temporary sibling is written, fsynced and renamed over the target. Used for every result file.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """On-disk cache of computed arrays, keyed by a content hash of their inputs.
 
-Location: the environment variable ``GONIOFROST_CACHE`` if set, else
-``$XDG_CACHE_HOME/goniofrost`` (``~/.cache/goniofrost``). Entries are written atomically
-(temporary name, then rename), so a killed process never leaves a half-written entry.
-Deleting the folder is always safe.
+In ``$GONIOFROST_CACHE``, else ``$XDG_CACHE_HOME/goniofrost`` (``~/.cache/goniofrost``). Entries
+are written atomically; deleting the folder is always safe.
 """
 from __future__ import annotations
 

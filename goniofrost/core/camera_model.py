@@ -1,18 +1,9 @@
 """The rig camera as a pinhole model: where a point of the sample plane falls in the image.
 
-One model serves the planner (which cells the camera can measure), the calibration (where the
-patch and the markers should appear) and the simulated camera (which renders with it), so the
-three cannot disagree. Conventions are OpenCV's (``cv2.projectPoints``): camera frame x right,
-y down, z forward; pixel centres at integer coordinates; distortion (k1, k2, p1, p2, k3).
-
-The camera sits on its arm at ``distance_mm`` from the rotation centre (the sample's origin), in
-the horizontal plane of the lamp, aimed at the centre with the image's up along the world's
-vertical; ``rotation_deg`` turns the camera body about its own x, y and z axes away from that
-ideal aim (a real mount is never perfect). A pose is given by the light and view directions in
-the sample frame (w_i, w_o): the world vertical seen from the sample is then
-``arm_side * (w_i x w_o) / |w_i x w_o|`` (DESIGN.md: the arm turns about the vertical, so the
-light, the view and the vertical fix the whole pose; ``arm_side`` = +1 when the arm works
-counter-clockwise of the light).
+One model serves the planner, the calibration and the simulated camera. OpenCV conventions
+(``cv2.projectPoints``): camera x right, y down, z forward; pixel centres at integers; distortion
+(k1, k2, p1, p2, k3); lengths in millimetres. A pose is the light and view directions (w_i, w_o)
+in the sample frame. The mount: docs/explanations/camera.md.
 """
 from __future__ import annotations
 

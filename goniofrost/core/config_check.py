@@ -1,19 +1,14 @@
 """The one configuration mechanism: a key table per section, checked by ``check_section``.
 
-Every section of a configuration file (the rig file's geometry, axes, lamp, driver, camera and
-sim sections, ALIGNMENT.json, PLAN.json) is declared by its owner package as a key table::
+Each owner package declares its sections as key tables::
 
     KEYS = {"seed": Key(is_natural, "an integer >= 0", default=0),       # optional, with a default
             "camera": Key(is_mapping, "a mapping", nested=check_camera),  # required, own keys checked
             "folder": Key(is_text, "a folder path", default=ABSENT)}     # optional, stays out
 
-and every failure is one ``ConfigError(source, keypath, expected, found)``, read
-``SOURCE: KEY.PATH: expected EXPECTED, found FOUND``, in one of these forms:
-
-- a key the table does not know: ``expected one of the keys a, b, c, found "unknown key 'x'"``
-- a required key that is absent: ``expected EXPECTED, found 'nothing'``
-- a section that is not a mapping: ``expected a mapping, found VALUE``
-- a bad value: ``expected EXPECTED, found VALUE``.
+Every failure is one ``ConfigError(source, keypath, expected, found)``, read
+``SOURCE: KEY.PATH: expected EXPECTED, found FOUND`` (an unknown key, a missing key, a section
+that is not a mapping, a bad value).
 """
 from __future__ import annotations
 

@@ -1,17 +1,13 @@
 """The MERL BRDF grid: cells <-> Rusinkiewicz angles <-> light/view directions.
 
-Conventions (DESIGN.md, "Coordinates"):
+* ``n_th x n_td x n_pd`` cells (MERL: 90 x 90 x 180); cell ``(i_th, i_td, i_pd)`` has flat index
+  ``(i_th * n_td + i_td) * n_pd + i_pd``.
+* A cell's angles are its lower edges: ``theta_h = (i_th / n_th)**2 * pi/2``,
+  ``theta_d = i_td / n_td * pi/2``, ``phi_d = i_pd / n_pd * pi``.
+* ``h = (sin th, 0, cos th)``, ``d = (sin td cos pd, sin td sin pd, cos td)``,
+  ``w_i = R_y(theta_h) d``, ``w_o = 2 (w_i . h) h - w_i``; valid when both have z > 0.
 
-* A grid has ``n_th x n_td x n_pd`` cells (MERL: 90 x 90 x 180); the flat index of
-  cell ``(i_th, i_td, i_pd)`` is ``(i_th * n_td + i_td) * n_pd + i_pd``.
-* A cell's angles are its lower edges: ``theta_h = (i_th / n_th)**2 * pi/2`` (square-root
-  spacing), ``theta_d = i_td / n_td * pi/2``, ``phi_d = i_pd / n_pd * pi``.
-* Directions use ``phi_h = 0``: ``h = (sin th, 0, cos th)``,
-  ``d = (sin td cos pd, sin td sin pd, cos td)``, ``w_i = R_y(theta_h) d`` and
-  ``w_o = 2 (w_i . h) h - w_i``.
-* A cell is valid when both ``w_i`` and ``w_o`` lie strictly above the surface (z > 0).
-
-Every function is vectorised over numpy arrays of any (broadcastable) shape.
+Angles in radians; every function is vectorised over broadcastable arrays.
 """
 from __future__ import annotations
 

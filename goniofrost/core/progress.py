@@ -1,7 +1,5 @@
-"""Progress bars on stderr, only when stderr is a terminal.
-
-A bar redrawn with carriage returns is noise in a log file or a CI transcript, so every bar of
-the project is made here and is off unless asked for and stderr is a terminal.
+"""Progress bars on stderr, drawn only when asked for and stderr is a terminal (a bar redrawn with
+carriage returns is noise in a log).
 """
 from __future__ import annotations
 

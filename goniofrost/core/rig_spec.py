@@ -1,9 +1,7 @@
-"""The typed rig spec every layer reads a rig through: frozen dataclasses, no "rig or mapping".
+"""The typed rig spec every layer reads a rig through: frozen dataclasses.
 
-``planner.rig`` builds it from a checked rig file (``planner.rig.Rig`` extends ``RigSpec`` with the
-geometry, the camera and the alignment); ``drivers.rig_devices`` builds the drivers from it and
-``sim.rig`` the simulated devices, and a simulated rig hands back the same spec with the driver
-endpoints it opened filled in (``RigSpec.with_drivers``).
+``planner.rig`` builds it from a checked rig file, ``drivers.rig_devices`` and ``sim.rig`` build
+devices from it; ``RigSpec.with_drivers`` fills in the endpoints a simulated rig opened.
 """
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """Material datasets behind one interface: ``open_dataset(SPEC)``.
 
-SPEC is ``builtin`` (the analytic library shipped with goniofrost), ``nbrdf:PATH.npz``
-(Neural-BRDF networks), ``merl:DIR`` (a folder of MERL .binary files) or
-``builtin-random:SEED:COUNT`` (seeded analytic materials of the built-in families). Several specs can be
-combined with ``open_datasets``. ``SPEC:NAME`` names one material (``parse_material_spec``).
-The SPECs are read by ``specs``, the tables made and cached by ``tabulate``.
+SPEC is ``builtin``, ``builtin-random:SEED:COUNT``, ``nbrdf:PATH.npz``, ``merl:DIR`` or
+``rgl:PATH``; ``SPEC:NAME`` names one material (``parse_material_spec``).
 """
 from __future__ import annotations
 

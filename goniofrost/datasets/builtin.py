@@ -1,19 +1,9 @@
 """The built-in analytic material library (dataset spec ``builtin``).
 
-About 70 named, coloured, isotropic materials from diffuse to near-mirror, so that a user with
-no measured data can train and run the demo. Values are in 1/sr on the MERL absolute scale
-(a white diffuse is about 0.25); colours are linear RGB reflectances.
-
-Each material is built from the lobes of ``goniofrost.datasets.lobes``, layered so that it is
-reciprocal and conserves energy (directional albedo <= 1):
-
-* ``f_base = f_spec + rho / pi * (1 - E_s(mu_i)) (1 - E_s(mu_o)) / (1 - E_s_avg)``: a GGX
-  specular lobe over a Lambertian; the diffuse gets exactly what the specular lobe leaves
-  (albedo E_s + rho (1 - E_s)).
-* an optional top lobe (sheen and/or retro-reflection) and an optional clear coat (a white
-  dielectric GGX lobe), each layered as ``f = f_top + (1 - E_t(mu_i)) (1 - E_t(mu_o)) f_below``.
-
-E(mu) are directional albedos integrated numerically once per material (cached in memory).
+About 70 named, coloured, isotropic materials from diffuse to near-mirror, for users without
+measured data. Values in 1/sr on the MERL absolute scale; colours are linear RGB reflectances.
+Each is a GGX lobe over a Lambertian, optionally under a sheen, retro-reflection or clear-coat lobe,
+layered by directional albedo so it is reciprocal and conserves energy.
 """
 from __future__ import annotations
 
@@ -191,7 +181,7 @@ LIBRARY: dict[str, MaterialSpec] = {
 
 # Seeded random materials (dataset spec ``builtin-random:SEED:COUNT``, ``random_library``): a
 # renewable supply of materials no benchmark has seen, for test sets fixed before their first run
-# (each built-in test set of issue 29 was spent once run). Each is drawn from one of the library's
+# (a test set is spent once run). Each is drawn from one of the library's
 # families, its parameters within that family's spread in LIBRARY above: of a kind the library
 # holds, none of its materials.
 FAMILIES = ("diffuse", "plastic", "metal", "coated", "metallic-paint", "fabric", "retro")
@@ -255,7 +245,12 @@ class CompiledMaterial:
         self.below_coat = lobes.Table(1.0 - _albedo(self.coat_lobe, "mirror")) if self.coat_lobe else none
 
     def evaluate(self, geo: Geometry) -> np.ndarray:
-        """BRDF (N, 3) in 1/sr; 0 where a direction is at or below the surface."""
+        """BRDF (N, 3) in 1/sr; 0 where a direction is at or below the surface.
+
+        ``f_base = f_spec + rho / pi * (1 - E_s(mu_i)) (1 - E_s(mu_o)) / (1 - E_s_avg)``, then each
+        layer above (top lobe, clear coat) ``f = f_top + (1 - E_t(mu_i)) (1 - E_t(mu_o)) f_below``, E
+        the layer's directional albedo: reciprocal, and the albedo stays <= 1.
+        """
         f = np.broadcast_to(self.rho / np.pi, (geo.mu_i.size, 3))
         if self.spec_lobe:
             f = self.spec_lobe(geo) + _through(self.below_spec, geo) * (self.rho * self.diffuse_norm / np.pi)

@@ -1,15 +1,8 @@
 """Small vectorised BRDF lobes for the built-in analytic library.
 
-Every lobe is a function of a ``Geometry`` (the four cosines an isotropic BRDF needs) and
-returns values in 1/sr, shape (N,) or (N, 3). Each lobe is symmetric in (mu_i, mu_o), so it is
-reciprocal by construction. ``directional_albedo`` integrates a lobe numerically; the library
-uses it to scale what lies under a lobe by what the lobe leaves, so that albedo <= 1.
-
-Notes
------
-Microfacet lobe (GGX, separable Smith shadowing): ``f = D(theta_h) F(theta_d) G1(mu_i) G1(mu_o)
-/ (4 mu_i mu_o)``. With ``G1(mu) = 2 mu L(mu)``, ``L(mu) = 1 / (mu + sqrt(a^2 + (1 - a^2) mu^2))``,
-this is ``D F L(mu_i) L(mu_o)``: finite at grazing angles, no division by zero.
+Each lobe takes a ``Geometry`` (the four cosines an isotropic BRDF needs) and returns 1/sr, shape
+(N,) or (N, 3), symmetric in (mu_i, mu_o). GGX is written ``D F L(mu_i) L(mu_o)`` with
+``L(mu) = 1 / (mu + sqrt(a^2 + (1 - a^2) mu^2))``: finite at grazing angles.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """A folder of MERL .binary files as a dataset (spec ``merl:DIR``).
 
-Material names are the file names without ``.binary`` (``DIR/gold-paint.binary`` ->
-``gold-paint``). Values are read with ``goniofrost.brdf.merl_file.read_merl``; evaluation at any angles
-returns the value of the containing cell of the file's grid (MERL tables are piecewise constant).
-
-Missing values (negative in the file, NaN in memory): at a cell that is invalid (below the
-horizon at its lower edge) they read as 0; at a valid cell they are an error naming the file, the
-number of such cells and the first one, because a material used for training or as simulated
-ground truth must cover every valid cell (filling the gaps silently would bias the dictionary).
+A material's name is its file name without ``.binary``; a value is its cell's (piecewise constant).
+Missing values read as 0 below the horizon and are an error at a valid cell (a training material
+must cover every valid cell).
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
 """Neural-BRDF networks (Sztrajman et al. 2021) stored as one .npz per database.
 
-Format (../shared/data/README.md): ``names`` (M,), ``W1`` (M,6,21), ``b1`` (M,21), ``W2``
-(M,21,21), ``b2`` (M,21), ``W3`` (M,21,3), ``b3`` (M,3), float32. Input per direction pair is
-``x = (sin th, 0, cos th, sin td cos pd, sin td sin pd, cos td)``; the BRDF is
-``exp(relu(relu(x W1 + b1) W2 + b2) W3 + b3) - 1``, clamped to >= 0, in 1/sr.
+Arrays (float32): ``names`` (M,), ``W1`` (M,6,21), ``b1`` (M,21), ``W2`` (M,21,21), ``b2`` (M,21),
+``W3`` (M,21,3), ``b3`` (M,3). With ``x = (sin th, 0, cos th, sin td cos pd, sin td sin pd, cos td)``
+the BRDF is ``exp(relu(relu(x W1 + b1) W2 + b2) W3 + b3) - 1``, clamped to >= 0, in 1/sr.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """Tabulate a dataset over blocks of grid cells on one thread per core.
 
-numpy releases the GIL inside its kernels, so threads give real parallelism for evaluation
-written as whole-array numpy operations. BLAS is limited to one thread meanwhile: the products
-here are small, where OpenBLAS's own threads cost more than they gain (measured about 3x the CPU
-time on the Neural-BRDF networks), and two levels of threads would oversubscribe the cores.
+numpy releases the GIL inside its kernels; BLAS is held to one thread meanwhile, since its own
+threads cost more than they gain on these small products and would oversubscribe the cores.
 """
 from __future__ import annotations
 

@@ -1,17 +1,9 @@
-"""RGL tensor files (``.bsdf``, the RGL-EPFL database's format) as a dataset (spec ``rgl:PATH``).
+"""RGL tensor files (``.bsdf``) as a dataset (spec ``rgl:PATH``, a folder or one file).
 
-PATH is a folder of ``.bsdf`` files or one file; a material's name is its file name without
-``.bsdf``. Each file is evaluated at a cell's directions (``core.grid.half_diff_to_dirs``: the
-cell's w_i is the plugin's incident direction) exactly as Mitsuba 3's ``measured`` plugin
-evaluates it, divided by cos theta_o (``goniofrost.brdf.rgl_measured``); RGB files give RGB,
-spectral files are integrated to linear sRGB under D65 (docs/decisions/0300-rgl-spectral-to-rgb.md).
-
-Domain: a file holds data for incident elevations from its first to its last ``theta_i`` node;
-beyond them the plugin clamps to the last slice, which is no measurement. ``evaluate`` and
-``tabulate`` give NaN (not measured) at a cell whose theta_i lies outside that range, and
-training, the benchmarks and the error metric leave those cells out
-(docs/how-to/rgl-measurements.md). ``rendered`` gives the plugin's value everywhere: what the
-simulated camera sees, as a renderer of the file would.
+Each file is evaluated at a cell's directions as Mitsuba 3's ``measured`` plugin does, divided by
+cos theta_o; spectral files become linear sRGB. ``evaluate`` and ``tabulate`` give NaN where
+theta_i lies outside the file's nodes; ``rendered`` gives the plugin's value everywhere. More:
+docs/how-to/rgl-measurements.md.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
-"""Dataset SPECs: ``open_dataset(SPEC)`` (``builtin``, ``nbrdf:PATH.npz``, ``merl:DIR``,
-``rgl:PATH`` (RGL tensor files), ``builtin-random:SEED:COUNT``),
-``parse_material_spec(SPEC:NAME)``, ``material_brdf(SPEC:NAME)`` (a BRDF function for the
-simulated camera) and ``shown_material(SPEC:NAME)`` (what a simulated rig shows and a capture's
-report compares against: handed to ``goniofrost.capture``, which reads no dataset itself). The
-package ``goniofrost.datasets`` re-exports them.
+"""Dataset SPECs: ``open_dataset(SPEC)``, ``parse_material_spec(SPEC:NAME)``,
+``material_brdf(SPEC:NAME)`` (a BRDF for the simulated camera) and ``shown_material(SPEC:NAME)``
+(what a simulated rig shows and a report compares against). Re-exported by
+``goniofrost.datasets``.
 """
 from __future__ import annotations
 

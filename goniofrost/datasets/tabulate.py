@@ -1,16 +1,8 @@
 """Tabulated materials with an on-disk cache, and several datasets combined into one list.
 
-Cache: one float32 ``.npy`` (n_valid, 3) per material and grid under
-``<cache dir>/tabulated/`` (see ``goniofrost.core.cache``: ``$GONIOFROST_CACHE``, else
-``$XDG_CACHE_HOME/goniofrost`` or ``~/.cache/goniofrost``), named by a SHA-256 of
-TABULATE_VERSION, the dataset's ``content_id(name)`` and the grid. A content id changes whenever
-the values could (file hash, library version), so unchanged inputs are never recomputed and
-changed ones never reuse stale values. About 13 MB per material at full resolution; deleting
-the folder is always safe.
-
-Names across datasets (``collect_materials``): a material's label is its own name, unless two
-of the combined datasets hold that name; then each such material is labelled ``SPEC:NAME``
-(e.g. ``builtin:gold`` and ``nbrdf:data/x.npz:gold``).
+One float32 ``.npy`` (n_valid, 3) per material and grid under ``<cache dir>/tabulated/``, named by
+a hash of the dataset's ``content_id(name)`` and the grid. ``collect_materials`` labels a material
+``SPEC:NAME`` when two datasets hold its name.
 """
 from __future__ import annotations
 

@@ -1,13 +1,11 @@
 """Compiled (numba) kernels of the Bayesian selection: one fused pass over D per greedy step,
 shared by several designs on the same dictionary.
 
-For every candidate cell the kernels keep q = d^T Sigma d and p = d^T Sigma S^2 Sigma d, update
-both by rank-1 terms after a pick and return the best score p / (noise + q) of a range of cells
-(lowest index on ties), so the result does not depend on the threads. Arrays: dictionary float32
-(n_valid, K); rows int64 (n_c,) (empty: every row); q, p float64 (S, n_c); noise (S, n_c) float64
-or float32 (+inf closes a cell); prior_var, u, v float64 (S, K); inv_delta, usu_delta2 float64
-(S,); best, best_i (S,). Each kernel releases the GIL. The algebra:
-docs/explanations/bayesian-design.md."""
+Per candidate cell they keep q = d^T Sigma d and p = d^T Sigma S^2 Sigma d and return the best
+score p / (noise + q) of a range of cells (lowest index on ties; thread-independent). Arrays:
+dictionary float32 (n_valid, K); rows int64 (n_c,); q, p float64 (S, n_c); noise (S, n_c) (+inf
+closes a cell); prior_var, u, v float64 (S, K). The algebra: docs/explanations/bayesian-design.md.
+"""
 from __future__ import annotations
 
 import numpy as np

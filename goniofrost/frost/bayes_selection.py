@@ -1,16 +1,8 @@
 """Bayesian sample selection: greedy A-optimal design for the posterior-mean reconstruction.
 
-DESIGN.md "The Bayesian view". The expected squared error of the whole reconstructed (mapped)
-BRDF is trace(S^2 Sigma) (plus the noise, which no design changes), Sigma the posterior
-covariance of the coefficients. Starting from the prior Sigma = I / t, each step adds the cell
-
-    c* = argmax_c  u_c^T S^2 u_c / (sigma_c^2 + d_c^T u_c),   u_c = Sigma d_c,
-
-the largest reduction of that trace, then downdates Sigma <- Sigma - u u^T / (sigma^2 + d^T u).
-D Sigma is never formed: every cell's two quadratic forms change by rank-1 terms, so one step
-is one fused compiled pass over the rows of D (``bayes_kernels``), split among threads, plus
-O(K^2) work. The design is deterministic (lowest index on ties) and nested: the first m picks
-of a longer design are the m-pick design.
+Each step adds the cell c* = argmax_c u_c^T S^2 u_c / (sigma_c^2 + d_c^T u_c), u_c = Sigma d_c,
+the largest reduction of trace(S^2 Sigma), in one compiled pass over D (``bayes_kernels``). The
+design is deterministic and nested. Why and how: docs/explanations/bayesian-design.md.
 """
 from __future__ import annotations
 
@@ -200,57 +192,30 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  time_objective=None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
-    m: number of samples; or max_error: stop after the first pick whose predicted error of a
-    typical material (``prediction.predict_typical``) is <= max_error; with ``confidence`` (a
-    design without ``usage``) after the first whose typical material's calibrated bound at that
-    confidence is (``typical_bound``: the rule a capture stops on), the bounds in the
-    Selection's ``bounds``.
+    m: number of samples; or max_error: stop after the first pick whose predicted error of a typical
+    material (``prediction.predict_typical``) is <= max_error, or, with ``confidence`` (no
+    ``usage``), whose calibrated bound (``typical_bound``) is; the bounds go to ``bounds``.
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
     threads: threads sharing each pass (default: the cores this process may use).
-    usage: float (n_valid,) a scene's use of every cell, sum 1 (``goniofrost.brdf.usage``): the
-    design then minimises the expected error of what the scene sees, each cell's use weighted by
-    the image's sensitivity to it (``usage_design.design_usage``, g^p; 0: u alone) and mixed with
-    the plain design's weight (``hedge``: the scene's share, 1 the scene alone, 0 the plain
-    design), and the predicted errors are of the mapped error the scene sees (weighted by u
-    alone). A uniform map is the plain design (``uniform_is_plain``: taken as such without the
-    change of basis; False computes it the long way, for tests).
-    sensitivity_power: p; None (the default, what ``plan --usage`` does): the power for the number
-    of samples and the scene, ``usage_design.scene_power(model, usage, m)`` (the largest of the
-    band's powers whose weights keep its count of effective cells). With max_error and p None the
-    design of the scene's power of the first band runs up to FEW_SAMPLES picks; when it does not
-    reach the target there, the design of
-    the next band (``usage_design.BANDS``: the scene's power of the band up to MANY_SAMPLES, then
-    of the last band, the same since issue 29 round 10) runs from
-    the start until it does with more picks than the band before allows. Either way the
-    result of n picks is the n-sample design (the power for n), and the (n - 1)-sample design
-    does not reach the target (max_error's floor is checked on the longer design's calibration).
-    prior_spread: t of the design's weights u g^p exp(t p^2 v / 2) (``usage_design.linear_usage``:
-    0 g at the prior mean, 1 the prior's expected g^p); None (the default): the spread for the
-    number of samples, ``usage_design.prior_spread(m)`` (with max_error and p None, the spread of
-    each phase's band; with max_error and p given, 0).
-    spread_floor: F, a floor on the effective cells 1 / sum w^2 of the design's weights (cells;
-    ``usage_design.floor_spread``): the spread is then the largest t in [0, prior_spread] that
-    keeps F, per scene; 0 no floor. None (the default): the floor of the spread's band for the
-    design's power when prior_spread is None too (``usage_design.spread_floor(m, p)``: up to
-    FEW_SAMPLES the floor of p = 1 only; each phase's with max_error), else 0.
-    mix: the share a of ``usage_design.MIX_DESIGN``'s weights mixed into a scene design whose power
-    is not its band's own (``usage_design.mixed_weights``, ``design_mix``; 0 for the band's own
-    power); None (the default): the band's share (``usage_design.BAND_MIX``) when the power, spread
-    and floor are the defaults too, else 0.
-    mix_spread: the prior spread t of a mixed design's own part (a > 0) when prior_spread is None;
-    None (the default): the band's (``usage_design.mix_spread``). Ignored when a = 0.
-    calibration: the predicted-error calibration to use (default the model's; a scene's own,
-    ``usage_calibration``, for the usage-weighted error), or a function of the design's power p,
-    largest spread t and floor F (cells), and its mix share a when a > 0
-    (``usage_design.design_key``), returning it (a scene's calibration depends on the design
-    measured, and p = 1 is a design of t up to 1 with a floor up to FEW_SAMPLES and of t = 1 without
-    one above; None from it: the model's).
-    time_objective: a ``time_design.TimeObjective``: each pick is the cell of the largest expected
-    error reduction per second of rig time from where the rig stands (``time_design``); the
-    whole-BRDF design only (no ``usage``). None: per sample.
-    Returns a Selection whose ``residuals`` are the predicted errors after each pick and whose
-    ``prior_spread`` is the spread the scene's weights used (0 for a uniform map: the plain design
-    has none; None without a map) and ``sensitivity_power`` their power (None without a map).
+    usage: float (n_valid,) a scene's use of every cell, sum 1: the design then minimises the error
+    the scene sees, weights u g^p (``usage_design.design_usage``) mixed with the plain design's by
+    ``hedge`` (1 the scene alone, 0 the plain design). ``uniform_is_plain``: a uniform map is taken
+    as the plain design without the change of basis (False: the long way, for tests).
+    sensitivity_power: p; None: ``usage_design.scene_power(model, usage, m)``. With max_error and p
+    None the bands of ``usage_design.BANDS`` run in turn, so the result of n picks is the n-sample
+    design and the (n - 1)-sample design does not reach the target.
+    prior_spread: t of the weights u g^p exp(t p^2 v / 2); None: ``usage_design.prior_spread(m)``.
+    spread_floor: F, a floor on the effective cells 1 / sum w^2 (``usage_design.floor_spread``);
+    0 none; None: the band's (``usage_design.spread_floor(m, p)``) when prior_spread is None too.
+    mix: the share a of ``usage_design.MIX_DESIGN``'s weights (``mixed_weights``); None: the band's
+    share (``BAND_MIX``) when power, spread and floor are the defaults, else 0.
+    mix_spread: the spread of a mixed design's own part; None: ``usage_design.mix_spread``.
+    calibration: the predicted-error calibration (default the model's), or a function of
+    (p, t, F[, a]) (``usage_design.design_key``) returning one (None: the model's).
+    time_objective: a ``time_design.TimeObjective``: each pick maximises the expected error
+    reduction per second of rig time (whole-BRDF design only). None: per sample.
+    Returns a Selection: ``residuals`` the predicted errors after each pick, ``prior_spread`` and
+    ``sensitivity_power`` those of the scene's weights (0 / None without a map).
     """
     start = time.perf_counter()
     rows = _candidate_rows(candidates, model.grid.n_valid)

@@ -1,13 +1,8 @@
 """How much a model expects a cell's mapped value to change when the direction measured is off.
 
-A rig measures a sample a little off its cell (``planner.steps``: the axes' command lattices).
-What that costs depends on the material near the cell, which the model describes by its prior:
-with L_c = mu_c + d_c^T s and s ~ N(0, diag(prior_var)), the expected squared difference between
-the mapped values of cells c and n is (mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2 prior_var_k. Per
-axis of the grid (theta_h, theta_d, phi_d) its mean over the cell's valid neighbours one index
-away (phi_d wraps round) weighs that axis's squared index miss: near theta_h = 0 the peaks of
-the training materials make theta_h dear, at grazing theta_d their sheens make theta_d dear,
-and phi_d is cheap where the materials do not vary with it (theta_h = 0).
+Per grid axis (theta_h, theta_d, phi_d), the mean over a cell's neighbours one index away of
+(mu_c - mu_n)^2 + sum_k (D_ck - D_nk)^2 prior_var_k: the weights of ``planner.steps``
+(docs/explanations/kinematics.md).
 """
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""Check cells: a few cells chosen at training where the model errs, measured with the sentinels and never fitted.
+"""Check cells: a few cells chosen at training where the model errs, measured with the sentinels and
+never fitted.
 
-``pool`` is a farthest-point sample of candidate cells outside every inner design and the
-sentinels; ``choose`` picks CHECKS of them greedily on the inner records, those whose log error
-best predicts the log of the actual error; ``fit_checked`` fits the 19-feature checked
-calibration, its bound on nested residuals. Why: docs/explanations/sentinels.md."""
+``pool`` offers candidates outside every inner design, ``choose`` picks CHECKS of them, and
+``fit_checked`` fits the checked calibration. Why: docs/explanations/sentinels.md.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -15,7 +15,7 @@ from goniofrost.frost.confidence import FIRST_LOOK
 
 # Cells chosen (measured with the first batch, beside the sentinels).
 CHECKS = 3
-# Candidate cells (round 6: 4 000 of 140 744 at 45 x 45 x 90).
+# Candidate cells in the pool.
 POOL = 4000
 # The pool is drawn from at most this many cells (an even stride over the candidates): at the
 # full grid the farthest-point sampling never runs over 1.1 M cells.
@@ -117,8 +117,7 @@ def _objective(x, y, fold, z, m, looks) -> np.ndarray:
     over ``looks``, for every column c of z (x holds the intercept).
 
     Frisch-Waugh from per-fold sums: a fold's training sums (x^T z, z^T z, y^T z) are the totals
-    less its own, so z is read a few times in all rather than copied and projected per fold
-    (the training's choice of the check cells took 12 s of the demo's 61 s that way)."""
+    less its own, so z is read a few times in all rather than copied and projected per fold."""
     z = z - z.mean(axis=0)  # the intercept is among x's columns: no fit changes, no sum cancels
     held_of = [fold == f for f in np.unique(fold)]
     # each fold's records: a slice when they are contiguous (``choose`` sorts them), else a mask

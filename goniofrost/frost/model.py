@@ -1,31 +1,17 @@
 """The FROST model: the log-relative mapping and the PCA dictionary, stored on disk.
 
-A model "file" is a **directory** holding one ``.npy`` per array plus ``model.json``::
+A model is a **directory**: ``model.json`` (format, grid, names, eps, content hash, noise,
+calibration) and one ``.npy`` per array, rows in ``grid.valid_cells`` order::
 
-    MODEL/
-      model.json            format tag, grid, training names, eps, weight convention,
-                            shapes, content hash
-      dictionary.npy        float32 (n_valid, K)   D = U S (mapped-domain atoms)
-      singular_values.npy   float64 (K,)           S
-      coefficients.npy      float64 (K, t)         V^T (one column per training material/channel)
-      mean.npy              float32 (n_valid,)     mu, per-row mean of the mapped training data
-      reference.npy         float32 (n_valid,)     r, per-row median of the weighted training data
-      weight.npy            float32 (n_valid,)     w = clip(cos theta_i cos theta_o, 0.01, 1)
-      noise_variance.npy    float32 (n_valid,)     sigma_c^2 (format version 2, optional)
+    dictionary.npy        float32 (n_valid, K)   D = U S, the atoms
+    singular_values.npy   float64 (K,)           S
+    coefficients.npy      float64 (K, t)         V^T, a column per training column
+    mean.npy              float32 (n_valid,)     mu, per-row mean of the mapped training data
+    reference.npy         float32 (n_valid,)     r, per-row median of the weighted training data
+    weight.npy            float32 (n_valid,)     w = clip(cos theta_i cos theta_o, 0.01, 1)
+    noise_variance.npy    float32 (n_valid,)     sigma_c^2 (format 2, optional)
 
-``noise_variance`` is the learned noise model of the Bayesian pipeline (``noise.py``): the
-representation error of unseen materials per cell, in the mapped domain; ``model.json`` then
-holds under ``noise`` how it was learned and the predicted-error calibration
-(``calibration.py``). Format version 1 models (no such file) still load: they get the scalar
-noise ``posterior.SCALAR_ETA / t`` per cell and an uncalibrated predicted error
-(``prediction.UNCALIBRATED``). A version-2 model without the file is read the same way.
-
-Rows follow ``grid.valid_cells`` (ascending flat index). ``FrostModel.load`` memory-maps
-the arrays and reads each once, in chunks, to check that every value is finite and that the
-files hash to the content hash model.json records (format 2).
-
-The mapping (DESIGN.md, "Training"): ``L = log((w x + eps) / (r + eps))`` for a BRDF value
-``x`` in 1/sr; the model approximates ``L - mu`` with the atoms in ``dictionary``.
+The mapping: ``L = log((w x + eps) / (r + eps))`` for x in 1/sr.
 """
 from __future__ import annotations
 
@@ -266,8 +252,8 @@ def _read_meta(path: Path) -> dict:
 
 
 def _check_content(path: Path, model: FrostModel, meta: dict) -> None:
-    """Every array finite, and (format 2) the content hash model.json records that of the files:
-    a NaN in mean.npy was read as a model, planned with under the good model's hash."""
+    """Every array finite, and (format 2) the content hash model.json records that of the files
+    (docs/decisions/0500-model-load-checks.md)."""
     def finite(name, start, chunk):
         bad = np.argwhere(~np.isfinite(chunk))
         if bad.size:

@@ -1,23 +1,8 @@
 """The noise model: the representation error of unseen materials, learned by cross-validation.
 
-The training materials are split into F inner folds (material i in fold i mod F). For each
-fold, a PCA is fitted without the fold's materials and the fold's materials are projected on
-its K atoms; what is left (the mapped residual, per cell) is what a material the model has
-never seen looks like beyond the dictionary. Its mean square over every held-out training
-column, per cell, smoothed over the grid, is sigma_c^2 (DESIGN.md "The Bayesian view").
-
-Everything per fold comes from the t x t Gram matrix G = X^T X of the centred mapped training
-data X (n x t), which training has computed anyway. With A the fold's training columns, B its
-held-out columns and H the centring over A:
-
-* the fold's PCA is the eigendecomposition of H G_AA H (V_f, S_f^2); D_f = X_A V_f;
-* a held-out column centred by the fold's mean is X e_b, and its coefficients on the fold's
-  orthonormal atoms U_f = X_A V_f S_f^-1 are C = S_f^-1 V_f^T G[A, :] E_B;
-* its residual is X M_B with M_B = E_B - J_A V_f S_f^-1 C, linear in the rows of X.
-
-So the residuals of all held-out columns are X M (M is t x t): one chunked pass over X gives
-every cell's mean squared residual, and the residual norms ||X m_b||^2 = m_b^T G m_b need no
-pass at all.
+sigma_c^2 (n_valid,) is the mean square, per cell, of the held-out training materials' residual
+beyond each inner fold's dictionary, smoothed over the grid; every fold comes from the t x t Gram
+matrix of the mapped training data. The algebra: docs/explanations/bayesian-design.md.
 """
 from __future__ import annotations
 

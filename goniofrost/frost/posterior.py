@@ -1,26 +1,9 @@
 """The Bayesian reading of the FROST model: prior, noise, posterior, leave-one-out residuals.
 
-DESIGN.md "The Bayesian view". With D = U S (n x K) the training coefficients (rows of V^T)
-have mean 0 and variance 1/t per atom (t training columns), so a mapped BRDF is modelled as
-
-    L - mu = D s + e,   s ~ N(0, I / t),   e_c ~ N(0, sigma_c^2) independent per cell,
-
-where sigma_c^2 is the representation error of unseen materials at cell c (learned at training,
-``noise.py``) plus, for a measured sample, its own variance through the log map. Given samples
-b (mu subtracted) at cells l with W = diag(1 / sigma_l^2):
-
-    Sigma = (t I + D_l^T W D_l)^-1,   s_hat = Sigma D_l^T W b,
-
-and the predictive variance of the mapped BRDF at any cell c is d_c^T Sigma d_c + sigma_c^2.
-Since D^T D = S^2, the mean of the predictive variance over all n valid cells is
-``(trace(S^2 Sigma) + sum_c sigma_c^2) / n``: the "design error", the expected log-relative
-MSE of a typical material under the model.
-
-Leave-one-out residuals at the sampled cells come in closed form (the prior does not depend on
-the data): with h_i = w_i d_i^T Sigma d_i, ``e_i = (b_i - d_i^T s_hat) / (1 - h_i)``, and under
-the model their variance is ``v_i = sigma_i^2 + d_i^T Sigma d_i / (1 - h_i)``.
-
-Ridge regression with weight eta over all K atoms is this posterior mean with sigma_c^2 = eta / t.
+L - mu = D s + e, s ~ N(0, I / t), e_c ~ N(0, sigma_c^2); given samples b at cells l with
+W = diag(1 / sigma_l^2): Sigma = (t I + D_l^T W D_l)^-1, s_hat = Sigma D_l^T W b. Leave-one-out
+residuals: e_i = (b_i - d_i^T s_hat) / (1 - h_i), h_i = w_i d_i^T Sigma d_i, of variance
+sigma_i^2 + d_i^T Sigma d_i / (1 - h_i). More: docs/explanations/bayesian-design.md.
 """
 from __future__ import annotations
 
@@ -31,7 +14,7 @@ from threadpoolctl import threadpool_limits
 
 # Noise of a model without a learned noise model (format version 1): sigma^2 = SCALAR_ETA / t
 # per cell, i.e. the posterior mean is ridge regression over all K atoms with eta = 10 (the
-# setting the nested validation on training materials chose in every fold; BENCHMARKS.md@8b3941b).
+# setting the nested validation on training materials chose in every fold).
 SCALAR_ETA = 10.0
 # Rows of D per chunk of the predictive-variance pass (bounds the temporary (rows, K) arrays).
 CHUNK_ROWS = 1 << 15
@@ -147,12 +130,8 @@ def mean_and_variance(dictionary, mean, post: Posterior, columns=None):
     (n, u), used int64 (u,)): the mapped estimates (mu added) and d_c^T Sigma d_c for each
     covariance group ``used[j]`` of those columns.
 
-    One chunked pass over D, one BLAS product per chunk: D @ [s_hat | L_1 | L_2 ...], Sigma = L L^T
-    (Cholesky), d^T Sigma d = ||L^T d||^2: a sum of squares, exact to float32 rounding. (The
-    Woodbury form d^T A d - ||F^T d||^2 with l < K samples cost l products per cell instead of K
-    but subtracted two float32 numbers up to 1e7 times their difference: on the full grid with 26
-    samples it was 46 % off at the 99th percentile cell, 5.4 times at the worst, 0 at 2092 cells,
-    and the std file's mean square 0.3 % below the predicted error it is scaled to; not faster.)
+    One chunked pass over D: d^T Sigma d = ||L^T d||^2 with Sigma = L L^T, a sum of squares exact to
+    float32 rounding (the Woodbury form subtracts nearly equal float32 numbers).
     """
     cols = np.arange(post.coefficients.shape[1]) if columns is None else np.asarray(columns)
     used = np.unique(post.group[cols])

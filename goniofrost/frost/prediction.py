@@ -1,11 +1,9 @@
 """The predicted error of one reconstruction: what its own samples say, calibrated at training.
 
-log(predicted log-relative MSE) = b . x, with x the design error E, the samples' leave-one-out
-residual z2, their coefficient energy, log m, their level and spread, quadratic terms and the
-material's coordinates on the first COORDINATES atoms (17 features; models of older formats use
-the first 5 or 11). The coefficients b come from ``calibration.py`` (``fit_coefficients``: E's
-held >= 0 and log m's <= 0). A model without a calibration predicts E * z2. The features and why:
-docs/explanations/bayesian-design.md."""
+log(predicted log-relative MSE) = b . x over 17 features of the design and the samples (5 or 11 for
+older models), b from ``calibration.py``; without a calibration, E * z2. The features and why:
+docs/explanations/bayesian-design.md.
+"""
 from __future__ import annotations
 
 import itertools
@@ -37,29 +35,11 @@ def fit_coefficients(x: np.ndarray, y: np.ndarray, signed=None) -> np.ndarray:
     least squares with the coefficients of ``signed`` ((feature, sign) pairs; None: SIGNED) held
     to their sign: float64 (f,).
 
-    Notes: when least squares gives every sign, its coefficients are returned as they are
-    (``np.linalg.lstsq``: to the bit what the calibration was before; the models trained on many
-    materials). Otherwise the exact sign-constrained least squares: its solution is the least
-    squares of the other features with some of the signed coefficients fixed at 0, so it is the
-    admissible fit of smallest residual among those with each nonempty subset of them fixed at 0
-    (fixing all is always admissible; the first on ties).
-
-    Why: on few training materials the design error hardly varies (6 built-in materials, full
-    grid: log E within 0.03 from m = 5 to 60 in every inner fold, the representation error
-    dominates), so its coefficient fits chance differences between the folds: -442 (intercept
-    +1585) made the typical prediction of a plan rise from 1.6 at m = 15 to 10.4 at m = 60, and
-    ``plan --max-error`` or a target-error capture wait for samples that can only make it worse.
-    Log m's does the same when positive (5 built-in materials, 30 x 30 x 60: +1.09 beside +34 on
-    log E, the prediction rose from 0.014 at m = 10 to 0.035 at m = 60). At a fixed design error
-    a positive log m can be real (the design error is over-optimistic where samples pile up), but
-    along a design log E and log m move together and least squares splits the trend between them
-    poorly; with log m's held at 0 the trend goes to log E's, and a design whose design error
-    flattens cannot make the prediction rise. A coefficient held at 0 is least squares' answer
-    under the sign: no trend in m rather than a rising one.
-
-    The bound stays conformal: it is calibrated on cross-fitted residuals (``confidence.cross_fit``)
-    whose every fold's fit is made by this same procedure without the fold's materials, so each
-    residual is that of the fit that is used, from a predictor that never saw its material."""
+    When plain least squares gives every sign, its coefficients are returned as they are. Otherwise
+    the exact sign-constrained solution: the admissible fit of smallest residual among those with
+    each nonempty subset of the signed coefficients fixed at 0 (the first on ties). Why the signs:
+    docs/explanations/bayesian-design.md.
+    """
     signed = SIGNED if signed is None else signed
     beta, *_ = np.linalg.lstsq(x, y, rcond=None)
     if all(sign * beta[j] >= 0 for j, sign in signed):

@@ -1,21 +1,9 @@
 """Reconstruction: a few BRDF samples -> the full BRDF, on the FROST dictionary.
 
-Two estimators. ``reconstruct_bayes`` (the default of ``goniofrost reconstruct``) is the
-posterior mean over all K atoms with the model's noise (``posterior.py``; DESIGN.md "The
-Bayesian view"), with a predictive standard deviation for every cell and a predicted error of
-this reconstruction (``prediction.py``). ``reconstruct`` is the paper's ridge regression. The
-samples come from ``samples_file`` (SAMPLES.csv); the output files are written by ``outputs``.
-Ridge:
-
-Paper section IV-B (DESIGN.md "Reconstruction"). Samples b (RGB, 1/sr) at l distinct valid
-cells are mapped with the model's w, r, eps and mu is subtracted; with D_a the first a atoms
-restricted to the sampled rows, s = (D_a^T D_a + eta I)^-1 D_a^T b (eta = 40 by default), then
-b_hat = D_a s + mu over every valid cell and x = (exp(b_hat)(r + eps) - eps) / w, clamped >= 0.
-
-Number of atoms a: ``n_atoms`` when given, else a = min(l, K) where l is the number of
-**distinct** sampled cells and K the model's components. For the cells of a FROST plan of m
-samples this is the paper's choice (a = m); with more samples than atoms all K atoms are used,
-with fewer the ridge term keeps the problem well posed even if a > l is forced.
+``reconstruct_bayes`` (the default) is the posterior mean (``posterior.py``) with a predictive std
+per cell and a predicted error. ``reconstruct`` is the paper's ridge regression on the first a
+atoms, a = ``n_atoms`` or min(distinct sampled cells, K): s = (D_a^T D_a + eta I)^-1 D_a^T b
+(eta = 40), x = (exp(D_a s + mu)(r + eps) - eps) / w, clamped >= 0. BRDF values in 1/sr.
 """
 from __future__ import annotations
 

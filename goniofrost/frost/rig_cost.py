@@ -1,11 +1,7 @@
 """Rig time of every candidate cell given where the rig stands: move + settle + exposure bracket.
 
-A cell has up to four candidate poses (``planner.candidates``: two inverse-kinematics branches,
-each also with light and camera swapped). Measuring it from pose ``here`` costs, with its fastest
-candidate, the move (``planner.motion``: the slowest axis's trapezoid, the model ``capture
---dry-run`` checks and the simulated axes follow), the settle time, and the exposure bracket the
-cell is expected to take (``calib.exposure_time``: the adaptive rule on the model's prior median
-value at that cell, the candidate's light angle and patch pixels). Pure: no device, no file.
+Each cell costs its fastest candidate pose's move (``planner.motion``), the settle time and its
+expected bracket (``calib.exposure_time`` at the model's prior median). Pure: no device, no file.
 """
 from __future__ import annotations
 

@@ -1,12 +1,10 @@
-"""SAMPLES.csv, the samples format of DESIGN.md: one module for its writer (a capture session's
-``samples.csv``, ``goniofrost.capture.journal.SamplesCsv``) and its readers (``goniofrost
-reconstruct``, the report).
+"""SAMPLES.csv: one module for its writer (a session's ``samples.csv``) and its readers
+(``goniofrost reconstruct``, the report).
 
-Columns: ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b`` (the cell's lower-edge angles in degrees and
-the BRDF in 1/sr) are required; ``sigma_r,sigma_g,sigma_b`` (each sample's standard deviation,
-1/sr) are optional, all three or none; other columns are allowed and handed back as text. A
-session writes ``SESSION_COLUMNS`` (plus ``batch`` for a capture with a target error), its floats
-in repr form so that every value reads back exactly.
+Required columns ``theta_h_deg,theta_d_deg,phi_d_deg,r,g,b`` (cell lower-edge angles in degrees,
+BRDF in 1/sr); optional ``sigma_r,sigma_g,sigma_b`` (all or none); other columns are handed back as
+text. A session writes ``SESSION_COLUMNS`` (plus ``batch``), floats in repr form to read back
+exactly.
 """
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
 """The error of a scene's use of a BRDF: what a usage-weighted plan predicts, bounds and reports.
 
-A plan made with a scene's usage map u (``plan --usage``) is judged by the error the scene
-sees: the log-relative squared error weighted by u, sum_c u_c (L_c - L_hat_c)^2 (mean over the
-three channels), not the mean over every cell. For the posterior its expected value is
-trace(M Sigma) + sum_c u_c sigma_c^2 with M = D^T diag(u) D (``usage_design``), the design
-error the prediction starts from; its calibration (the predicted-error fit and the
-split-conformal bound of ``confidence.py``) is fitted on the same usage-weighted error of the
-held-out training materials, measured at the scene-aware design (``usage_calibration``).
-
-A ``SceneError`` travels in PLAN.json (``usage.error``): M, the weighted noise and the
-calibration, so a capture (and its resume) judges the samples as the plan did without the
-usage file or the training data.
+The error is sum_c u_c (L_c - L_hat_c)^2 (mean over channels); its expected value is
+trace(M Sigma) + sum_c u_c sigma_c^2, M = D^T diag(u) D. A ``SceneError`` (M, the weighted noise,
+the calibration) travels in PLAN.json (``usage.error``). More:
+docs/explanations/scene-aware-design.md.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """The selection methods by name: the one table ``plan --selector`` and ``bench --methods`` read.
 
-A selector is a function ``select(model, m=None, *, max_error=None, candidates=None, **options)
--> frost.selection.Selection`` in a module of its own (``candidates``: bool (n_valid,), the cells
-it may pick; ``options``: only those the operator set, e.g. ``y_form``, ``k``, ``usage``). To add
-one, add its module and a line to SELECTORS (docs/how-to/extend.md).
+A selector is ``select(model, m=None, *, max_error=None, candidates=None, **options) ->
+Selection`` (``candidates``: bool (n_valid,)). To add one: docs/how-to/extend.md.
 """
 from __future__ import annotations
 

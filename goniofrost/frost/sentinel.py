@@ -1,10 +1,9 @@
 """Sentinel samples: a few cells the design leaves empty, measured as a held-out check.
 
-``cells`` chooses them by geometry alone (farthest-point sampling of (w_i, w_o) among candidates
-with theta_d > 80 or theta_h > 70 degrees); they are measured with the first batch and never
-fitted, and ``check_error`` is their mean squared mapped error under the posterior of the
-design's samples, which ``confidence`` calibrates like the bound (SENTINEL_CONFIDENCE). Why:
-docs/explanations/sentinels.md, docs/decisions/0005-sentinels-and-check-cells.md."""
+``cells`` chooses them by geometry (farthest points among cells with theta_d > 80 or
+theta_h > 70 degrees); ``check_error`` is their mean squared mapped error under the posterior of
+the design's samples. Why: docs/explanations/sentinels.md.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -32,13 +31,9 @@ def cells(grid: MerlGrid, count: int = SENTINELS, candidates: np.ndarray | None 
     """int64 (count,) valid-cell positions: farthest-point sampling over the 6-vectors (w_i, w_o)
     of the candidate cells (bool (n_valid,), default all) in ``region``, starting at the one
     farthest from their mean; fewer when the region holds fewer, none when it is empty.
-    Deterministic (ties: the lowest position).
-
-    Two of the default three are one pose of a rig: (0, 89, 0) and (0, 89, 179) on the full grid
-    (at theta_h = 0 every phi_d is one configuration), so the grazing mirror pose is measured
-    twice. Measured, that repeat is what the check needs: a distance that makes them one point
-    picks a third pose instead, and trained on MERL the sentinels then flag 21 to 23 of the 51 RGL
-    materials instead of 33 (BENCHMARKS.md@8b3941b, "three sentinel poses instead of two")."""
+    Deterministic (ties: the lowest position). Two of the default three are one rig pose, on
+    purpose: docs/explanations/sentinels.md.
+    """
     mask = region(grid) if candidates is None else region(grid) & np.asarray(candidates, bool)
     where = np.flatnonzero(mask)
     if where.size == 0 or count < 1:

@@ -1,19 +1,8 @@
 """The sequential scene-aware design: re-plan the remaining picks at this material's posterior.
 
-The scene-aware design (``usage_design``) weighs each cell by u g^p, g the image's sensitivity to
-the mapped value at the PRIOR mean: a fixed design cannot know that the material in the rig has a
-sharp highlight the prior mean lacks (BENCHMARKS.md@8b3941b, issue 29 round 4). Once some samples are
-measured, their posterior mean L_hat = mu + D s_hat (``posterior.fit``, the reconstruction's noise)
-says more: ``continue_design`` takes g at L_hat (averaged over the channels in the mapped domain)
-and continues the greedy design from the picks so far under the weights u g_post^p.
-
-Continuing the greedy design: after l picks the coefficients' covariance (under the noise the
-design assumes) is Sigma_l; with Sigma_l = C C^T and C^T M C = Q Lambda Q^T (M = D^T diag(w) D, w
-the new weights) the coefficients z = Q^T C^-1 s have the prior N(0, I), the dictionary becomes
-D C Q and the remaining error is trace(Lambda Sigma_z): the plain greedy design's form
-(``usage_design`` does the same from the prior, C = diag(sqrt(prior_var))). The greedy scores are
-invariant under the change of basis, so with the weights of the one-stage design the
-continuation picks what the one-stage design picks next (the tests check it).
+``continue_design`` takes the image sensitivity g at the posterior mean of the samples so far and
+continues the greedy design from those picks under the weights u g^p. The algebra:
+docs/explanations/scene-aware-design.md.
 """
 from __future__ import annotations
 
@@ -44,14 +33,11 @@ def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: flo
     """The next m - l picks of the scene's design after the l cells ``picked`` (int (l,), rows of
     the model) were measured with mapped values ``mapped`` ((l, c), ``model.to_log``).
 
-    The weights are u g^p with g at this material's posterior mean (module doc; ``usage`` (n_valid,)
-    sum 1; a uniform map is the plain design's continuation, no g); ``power`` p defaults to
-    ``usage_design.sensitivity_power(m)``; g is taken at the posterior mean itself (no prior
-    spread, unlike ``select_bayes``'s default from 15 samples, issue 29 round 7: not measured for
-    the sequential design). The picked cells are not picked again; ``candidates``:
-    bool (n_valid,), the cells allowed (a rig's reachable ones, as ``select_bayes`` takes them;
-    default all). Returns the continuation's GreedyDesign (its ``rows``: the m - l new rows in
-    pick order).
+    The weights are u g^p with g at this material's posterior mean (``usage`` (n_valid,) sum 1; a
+    uniform map is the plain design's continuation); ``power`` p defaults to
+    ``usage_design.sensitivity_power(m)``; no prior spread. Picked cells are not picked again;
+    ``candidates``: bool (n_valid,), the cells allowed (default all). Returns the continuation's
+    GreedyDesign (its ``rows``: the m - l new rows in pick order).
     """
     picked = np.asarray(picked, dtype=np.int64)
     n = model.grid.n_valid

@@ -1,14 +1,9 @@
 """Compiled (numba) kernels of the FROST selection: one fused pass per SOMP step.
 
-The cells are stored in blocks of W cells, "cell-minor": ``qb[b, :, r]`` (k,) is the atom of
-cell b*W + r and ``cb[b, :, r]`` (t,) its row of the score matrix C = Q^T R. A step reads each
-block once from memory and, while it is in cache, computes v (the block's part of Q^T b or of
-C z), applies C -= v u^T and sums |C| per cell: the loops run along the W cells, which the
-compiler vectorises. Each kernel takes a range of blocks [b0, b1) and releases the GIL, so
-callers split the blocks among threads; the result does not depend on the split.
-
-Arrays are float32 except ``positions`` (int64) and ``inv_s2`` (float64); ``scores`` is
-(n_blocks * W,) float32.
+Cells are stored in blocks of W, cell-minor: ``qb[b, :, r]`` (k,) is the atom of cell b*W + r and
+``cb[b, :, r]`` (t,) its row of C = Q^T R. Each kernel takes a range of blocks [b0, b1) and
+releases the GIL; the result does not depend on the split. Arrays are float32 except
+``positions`` (int64) and ``inv_s2`` (float64); ``scores`` (n_blocks * W,) float32.
 """
 from __future__ import annotations
 
@@ -31,10 +26,8 @@ def pack_atoms(dictionary, positions, k, inv_s2, qb, b0, b1):
     ``positions`` (float32 (n_valid, K) -> cells), times inv_s2 (k,), scaled to unit l2 norm
     (a zero row stays zero); cells past positions.size are zero padding.
 
-    A block is a transpose of W rows of D: the norms first (row by row), then the block written
-    entry by entry along its W cells while those rows are still in cache, so every store goes
-    to the cache line of the one before (writing each cell's k entries, W apart, made this the
-    slowest part of a selection: 0.28 s of 0.84 s CPU at full size, m = 20).
+    Each block is written entry by entry along its W cells while its rows are still in cache, so
+    every store goes to the cache line of the one before.
     """
     w = qb.shape[2]
     n = positions.size

@@ -1,15 +1,8 @@
 """Capture until the material is known: batches in design order and the stopping rule.
 
-A nested design (``bayes_selection``: its first m picks are the m-pick design) is measured in
-batches: the first FIRST_BATCH picks, then BATCH more at a time, up to the whole plan. After
-each batch the samples so far are reconstructed and the capture stops as soon as this
-material's error is at most the target with the stated confidence: the calibrated upper bound
-(``confidence.py``, from its own samples) at most the target, and the samples not unlike every
-training material nor the design unlike every design the calibration saw (the bound was
-calibrated on training materials measured at those designs: out of the model it means nothing,
-so the capture measures on while the plan allows); or when the plan is used up.
-These functions hold no device and no file: the planner's batches, the capture's assessments
-(``capture.target``) and the benchmark's simulation use them.
+A nested design is measured in batches (FIRST_BATCH, then BATCH at a time); after each the capture
+stops once the calibrated bound is at most the target and the samples are in the model, or when
+the plan is used up. No device and no file. The rule: docs/explanations/error-bound.md.
 """
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """Threads for the compiled passes and the chunked products: how many, and running them.
 
-The selection kernels and the row-chunked products of training read memory-bound data; each
-part runs on one of our own threads with BLAS limited to one thread meanwhile. OpenBLAS's own
-threads split the small dimension of a tall-skinny product poorly and spin while waiting: on a
-loaded 2-core host an (n x 219)^T (n x 219) Gram product took 12 x the wall time on two BLAS
-threads that it takes on one (benchmarks/frost_speed.py ``blas``).
-
-The thread count is a parameter of every function that uses threads (``threads=None``: the
-default below), never a module global, so a caller or a test sets it per call.
+Each part runs on one of our own threads with BLAS held to one thread (OpenBLAS's threads split
+tall-skinny products poorly). The thread count is a parameter of every function (``threads=None``:
+the default), never a module global.
 """
 from __future__ import annotations
 

@@ -1,20 +1,8 @@
 """The predicted-error calibration of a scene's error, on the held-out training materials.
 
-The model's calibration (``calibration.py``) was fitted on the whole-BRDF error of held-out
-training materials measured at the plain design. A plan made for a scene is measured at the
-scene-aware design and judged by the usage-weighted error (``scene_error``), so its prediction
-and its split-conformal bound are fitted again the same way on that error: the model's training
-data mapped again (``training.remap``), the same inner folds and noise, and for every fold the
-scene-aware design on the fold's dictionary (``usage_design.scene_prior``, the design the
-capture will measure) and the usage-weighted error of each held-out material at its first m
-cells. The residuals stay cross-fitted per fold, so the conformal exchangeability argument of
-``confidence.py`` holds for this error as it does for the whole one.
-
-The true weighted error needs the held-out column's residual off D_f cell by cell; with the
-weighted Gram G_u = X^T diag(u) X (one pass over the rows the scene uses) it is, for the
-column x_b = D_f a_b + X m_b (``noise.InnerFold``) and the estimate D_f s,
-
-    (a - s)^T P^T G_u P (a - s) + 2 (a - s)^T P^T G_u m_b + m_b^T G_u m_b,   D_f = X P.
+For every inner fold: the scene-aware design on the fold's dictionary and the usage-weighted error
+of each held-out material at its first m cells, fitted as ``calibration.py`` fits the whole-BRDF
+error. The algebra: docs/explanations/scene-aware-design.md.
 """
 from __future__ import annotations
 

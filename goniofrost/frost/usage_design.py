@@ -1,12 +1,10 @@
 """The scene-aware Bayesian design: the expected error of what a scene sees, in the plain design's form.
 
-With u (n_valid,) a scene's use of every cell (sum 1), the expected error the scene sees is
-trace(M Sigma), M = D^T diag(u) D. ``scene_prior`` and ``rotate`` change the coefficients' basis
-so that the plain greedy design on (D W Q, Lambda, I) is exactly the scene-weighted design. The weights
-are u g^p exp(t p^2 v / 2) (``design_usage``), with the power p, the prior spread t, the floor on
-the effective cells and the mix chosen per scene and number of samples (``BANDS``,
-``scene_power``, ``mixed_weights``). The derivation and the choice of the bands:
-docs/explanations/scene-aware-design.md, docs/decisions/0007-scene-aware-design-bands.md."""
+With u (n_valid,) a scene's use of every cell (sum 1) the error is trace(M Sigma),
+M = D^T diag(u) D; ``scene_prior`` and ``rotate`` change basis so the plain greedy design is the
+scene-weighted one. Weights u g^p exp(t p^2 v / 2) (``design_usage``, ``BANDS``). Why:
+docs/explanations/scene-aware-design.md.
+"""
 from __future__ import annotations
 
 import functools
@@ -21,45 +19,9 @@ CHUNK_ROWS = 1 << 16
 # The exponent p of the sensitivity g in the design's weights u g^p exp(t p^2 v / 2) (module doc) and
 # the prior spread t, per number of samples m (BANDS). p: 0 weighs the mapped error the scene sees,
 # 2 its first-order image error; t: 0 weighs g at the prior mean, 1 the prior's expected g^p
-# (``linear_usage``). Where the numbers come from: on the 129 training materials of
-# benchmarks/scene_design.py, each held out once in 4 inner folds (the test materials never
-# entered), candidates were compared at m = 10, 20 and 40 by the benchmark's rule (per m, the lowest
-# worst-scene ratio of the scene-aware design's median rendered-image error to the scene-blind
-# design's). Round 3 (t = 0): p = 1 at m = 10 (worst scene 0.52 of blind against 0.56 and 0.67 for
-# p = 0.5 and 0.25), p = 0.25 at m = 20 (0.62 against 0.70 and 0.78) and at m = 40 (0.60 against 0.72
-# and 0.88). Round 7 (BENCHMARKS.md@8b3941b "Issue 29, round 7"; the shipped p by m with t = 0, p by m with
-# t = 1, p = 0.5 and p = 0.25 with t = 1): t = 0, p = 1 at m = 10 (0.52 against 2.02, 0.55, 0.74);
-# p = 0.25 with t = 1 at m = 20 (0.557 against the shipped 0.625 and 0.76 for p = 0.5); p = 0.5 with
-# t = 1 at m = 40 (0.597 against 0.599 and the shipped 0.601: a near tie, the rule taken as it is;
-# folds 0-1 and 2-3 alone chose differently at m = 20 and 40). At p = 1 the spread halved the top
-# light's error on its specular materials but wrecked the grazing plane (2.02 of blind), so m = 10
-# keeps t = 0. On the fresh test set after (fresh2) the bands met 6 of 9 cells, as t = 0 would have.
-# Round 8 (BENCHMARKS.md@8b3941b "Issue 29, round 8"): at m <= 14, p = 1 with t up to 1 and a floor F on
-# the weights' effective cells (each scene's t the largest keeping F; F fixed before any result
-# from round 7's counts: 1,500, 3,000, 6,000) against t = 0: worst scene at m = 10 0.460 for
-# F = 3,000 against 0.522 (t = 0), 0.488 (1,500) and 0.522 (6,000; the grazing plane kept t = 0
-# there), so FLOOR_FEW = 3,000 (the fold models' grazing plane gets t = 0.26 to 0.35, the retro
-# sphere 0.94 to 1, the top light 0.97 to 1). The halves disagreed (folds 0-1 alone: 6,000, with
-# 3,000 worse than t = 0; folds 2-3: 3,000). At m = 6 (reported, not choosing) every candidate's
-# worst scene was the grazing plane at about blind's error (1.00 to 1.04). F counts cells of the model's grid (the full MERL
-# grid's 1.1 million here); a coarser grid has fewer effective cells and keeps less spread.
-# Round 10 (BENCHMARKS.md@8b3941b "Issue 29, round 10"; on the 48 seeded validation materials of round 9,
-# the model of all 151 shared materials; fixed before any result): at m = 10 F = 6,000 against the
-# shipped 3,000 and a power per scene with 3,000 or 4,000 cells (aimed at fresh5's grazing-plane miss):
-# worst scene 0.4375 against 0.4387 (3,000, and the same for the power per scene with 3,000 cells)
-# and 1.07 (4,000; the retro sphere at p = 0.75): a near tie on the top light (t 0.91 against 1), the
-# rule taken as it is, so FLOOR_FEW = 6,000 (that model: the retro sphere t = 0.76, the grazing plane
-# t = 0 (4,374 cells at t = 0, below the floor), the top light t = 0.91). At m = 6 (reported only)
-# its grazing plane was at blind's error (1.03 against 0.65 for 3,000). From 15 samples, m = 20: the
-# power per scene of the last band (POWERS_MOST, 4,000 cells) against p = 0.25: worst scene 0.28
-# against 0.41, so the band 15-28 is the last band's (POWER_MANY = 0.5 and BAND_POWERS).
-# Round 11 (BENCHMARKS.md@8b3941b "Issue 29, round 11"; the same materials and model; fixed before any
-# result): up to 14 samples a power per scene with 3,300 cells (POWERS_FEW) whose p = 1 scenes keep
-# the floor 6,000, against p = 1 with the floor for every scene; the comment at POWERS_FEW.
-# Between the measured m each m takes the choice of the nearest measured m on a log scale (the m
-# were doubled: 10, 20, 40), so the boundaries are sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3:
-# m <= 14, 15 to 28, >= 29 (beyond 40 the choice of 40). Issue 29 adopted p by m in place of one
-# p = 0.5 at every m (which had won among 0 to 2 on 11 validation materials).
+# (``linear_usage``). Chosen at m = 10, 20 and 40 on validation materials by benchmarks/scene_design.py
+# (docs/decisions/0007-scene-aware-design-bands.md); each m takes the choice of the nearest measured m
+# on a log scale, so the band edges are sqrt(10 * 20) = 14.1 and sqrt(20 * 40) = 28.3.
 FEW_SAMPLES = 14
 MANY_SAMPLES = 28
 POWER_FEW = 1.0
@@ -70,74 +32,41 @@ SPREAD_MANY = 1.0
 SPREAD_MOST = 1.0
 # The floor F on the design weights' effective cells 1 / sum w^2 (``floor_spread``): with F > 0 the
 # band's t is the most the spread may be, and each scene's t is the largest in [0, t] whose weights
-# keep F effective cells (0: no floor, t itself; issue 29 round 8, the comment at FEW_SAMPLES).
-# A band's floor belongs to its own power p (BANDS): up to FEW_SAMPLES the floor binds the p = 1
-# designs only, a scene that takes a smaller power (POWERS_FEW) has t = 1 without a floor
-# (``spread_floor``).
+# keep F effective cells (0: no floor, t itself). A band's floor belongs to its own power p (BANDS):
+# up to FEW_SAMPLES the floor binds the p = 1 designs only (``spread_floor``). F counts cells of the
+# model's grid, so a coarser grid keeps less spread.
 FLOOR_FEW = 6000.0
 FLOOR_MANY = 0.0
 FLOOR_MOST = 0.0
 # (the last m of the band or None, p, t, F), in increasing m
 BANDS = ((FEW_SAMPLES, POWER_FEW, SPREAD_FEW, FLOOR_FEW), (MANY_SAMPLES, POWER_MANY, SPREAD_MANY, FLOOR_MANY),
          (None, POWER_MOST, SPREAD_MOST, FLOOR_MOST))
-# A power per scene from MANY_SAMPLES + 1 samples (issue 29 round 9, BENCHMARKS.md@8b3941b "Issue 29, round
-# 9"): each scene's p is the largest of POWERS_MOST whose weights (at the band's t and floor) keep
-# POWER_FLOOR_MOST effective cells 1 / sum w^2, POWER_MOST (the smallest) when none larger does
-# (``scene_power``). Chosen at m = 40 on 48 seeded analytic materials of the built-in families
-# (builtin-random seeds 101 and 102, no test set's; the model of all 151 shared materials), fixed
-# before any result against the band's p = 0.5 for every scene, the same with 8,000 cells, p = 1 with
-# a floor of 3,000 on the spread and a hedge a = 0.7: worst scene 0.38 of blind against 0.86 (shipped),
-# 0.55, 0.50 and 0.93. On that model the retro sphere takes 0.75 (p = 1 keeps 3,553 cells), the
-# grazing plane 0.5 (p = 0.75 keeps 3,063) and the top light 1 (4,625). The p = 1 top light is what
-# the specular families (clear-coated, metallic paints) needed at m = 40; the grazing plane, which
-# lost with p = 1 at 20 and 40 on MERL and RGL (round 8), keeps 0.5. The count is of the model's
-# grid's cells (the full MERL grid here), as FLOOR_FEW's.
+# A power per scene from MANY_SAMPLES + 1 samples: each scene's p is the largest of POWERS_MOST whose
+# weights (at the band's t and floor) keep POWER_FLOOR_MOST effective cells, POWER_MOST when none
+# larger does (``scene_power``). The count is of the model's grid's cells, as FLOOR_FEW's.
 POWERS_MOST = (0.5, 0.75, 1.0)
 POWER_FLOOR_MOST = 4000.0
 # Each band's powers (by its last m): a set and the effective cells a power above the set's smallest
-# must keep (``scene_power``).
-# (Round 10: the band 15-28 takes the last band's powers, the same design as from 29 samples.)
-# A power per scene up to FEW_SAMPLES too (issue 29 round 11, BENCHMARKS.md@8b3941b "Issue 29, round 11"):
-# each scene's p is the largest of POWERS_FEW whose weights at t = 1 without a floor keep
-# POWER_CELLS_FEW effective cells; a scene of p = 1 (POWER_FEW) then takes the band's floor
-# FLOOR_FEW on t, one of 0.5 or 0.75 t = 1 without a floor. Aimed at the grazing plane, whose fabrics
-# and diffuse materials at m = 10 were 8.9x and 1.0x blind's error with p = 1 and the floor (its
-# weights keep 4,374 cells even at t = 0): on the model of all 151 shared materials 3,300 lies
-# between the grazing plane's 3,063 cells at p = 0.75 and the retro sphere's 3,553 at p = 1, so the
-# grazing plane takes 0.5 and the retro sphere and top light (4,625) keep p = 1 with the floor.
-# Chosen at m = 10 on the 48 seeded validation materials against p = 1 with the floor for every
-# scene, by a rule fixed before any result (a candidate with a (scene, family of >= 4 materials)
-# median ratio to blind above 1 left out when the other has none; then the worst scene): p = 1 for
-# every scene had the grazing plane's fabrics at 8.87 and diffuse at 1.04 of blind, the power per
-# scene 0.83 and 0.47 and no family above 0.83; the worst scene was the same (the top light, 0.44,
-# the same design in both). The grazing plane's median 0.21 against 0.22; at m = 6 (reported) 0.19
-# against 1.03.
+# must keep (``scene_power``); the band 15-28 takes the last band's. Up to FEW_SAMPLES a scene of
+# p = 1 (POWER_FEW) then takes the band's floor FLOOR_FEW on t, one of 0.5 or 0.75 t = 1 without a
+# floor: this keeps the grazing plane's fabrics and diffuse materials off p = 1, which put them at
+# up to 8.9 times the scene-blind design's error at m = 10.
 POWERS_FEW = (0.5, 0.75, 1.0)
 POWER_CELLS_FEW = 3300.0
 BAND_POWERS = {FEW_SAMPLES: (POWERS_FEW, POWER_CELLS_FEW), MANY_SAMPLES: (POWERS_MOST, POWER_FLOOR_MOST),
                None: (POWERS_MOST, POWER_FLOOR_MOST)}
-# A mix of two designs up to FEW_SAMPLES (issue 29 round 12, BENCHMARKS.md@8b3941b "Issue 29, round 12"): a
-# scene whose power (``scene_power``) is below the band's own p = 1 may weigh
-# w = a w(MIX_DESIGN) + (1 - a) w(its p, t = 1, no floor), each part summing to 1
-# (``mixed_weights``), so that its samples go both to the specular cells the p = 1 design finds
-# and to the broad region of the smaller power. MIX_FEW is the share a of the p = 1 design
-# (0: no mix, round 11's design); a scene of p = 1 is never mixed (``design_mix``). Chosen at
-# m = 10 on the 48 seeded validation materials against round 11's unmixed design, a = 0.5 fixed
-# before any result (not tuned), by round 11's per-family step (no (scene, family) above 1 for
-# either) and then the scenes' ratios sorted worst down (the retro sphere and top light the same
-# design in both): the grazing plane 0.16 of blind against 0.21 (clear-coated 0.35 -> 0.16,
-# metals 0.70 -> 0.36, metallic paints 0.45 -> 0.32, fabrics 0.83 -> 0.84, diffuse 0.47 -> 0.48).
+# A mix of two designs up to FEW_SAMPLES: a scene whose power (``scene_power``) is below the band's
+# own p = 1 weighs w = a w(MIX_DESIGN) + (1 - a) w(its p, t = 1, no floor), each part summing to 1
+# (``mixed_weights``), so that its samples go both to the specular cells the p = 1 design finds and
+# to the broad region of the smaller power. MIX_FEW is the share a (0: no mix), fixed at 0.5 before
+# any result, not tuned; a scene of p = 1 is never mixed (``design_mix``).
 MIX_FEW = 0.5
 # The design mixed in: (p, largest t, F) of the band up to FEW_SAMPLES for its own power.
 MIX_DESIGN = (POWER_FEW, SPREAD_FEW, FLOOR_FEW)
 BAND_MIX = {FEW_SAMPLES: MIX_FEW, MANY_SAMPLES: 0.0, None: 0.0}
 # The prior spread t of a mixed design's own part (its p < 1; ``mixed_weights``) up to FEW_SAMPLES:
-# 1 (round 12: the prior's expected g^p). Issue 29 round 13 (BENCHMARKS.md@8b3941b "Issue 29, round 13")
-# compared t = 0 (g at the prior mean) at m = 10 on the 48 seeded validation materials by round 12's
-# rule, fixed before the run: t = 0 was left out at the per-family step (the grazing plane's fabrics
-# 1.26 of blind, against 0.84 at t = 1) and its grazing plane was worse too (0.18 of blind against
-# 0.16), so t = 1 stays. The key of a mixed design's calibration (``design_key``) holds this t, so
-# designs of different own t never share a calibration.
+# 1, the prior's expected g^p (t = 0 was measured worse). The key of a mixed design's calibration
+# (``design_key``) holds this t, so designs of different own t never share a calibration.
 MIX_SPREAD_FEW = 1.0
 BAND_MIX_SPREAD = {FEW_SAMPLES: MIX_SPREAD_FEW, MANY_SAMPLES: SPREAD_MANY, None: SPREAD_MOST}
 # The bisection's tolerance on t in ``floor_spread`` (t is within this of the largest t keeping the floor).
@@ -387,18 +316,13 @@ def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: 
                  variance=None, spread: float = 0.0, floor: float = 0.0) -> np.ndarray:
     """The usage map for the error of the BRDF itself rather than of its mapped (log) values.
 
-    The design's objective is the error of the mapped values L = log((w x + eps) / (r + eps));
-    an image is linear in the BRDF x, and to first order at the prior mean (L = mu) an error dL_c
-    is an error dx_c = g_c dL_c with g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Weighting each
-    cell by u_c g_c^2 makes trace(M Sigma) the expected squared error of x the scene sees.
-    Arguments: usage (n,) sum 1; the model's mean, reference, weight (n,) and eps; ``power``: the
-    exponent of g (2: the linear error; ``sensitivity_power(m)``: what the design weighs).
-    ``variance`` (n,) v_c, the prior variance of L_c (``prior_cell_variance``), and ``spread`` t:
-    the weights u g^p exp(t p^2 v / 2); t = 1 is u E[g^p] under the prior (L_c ~ N(mu_c, v_c), g
-    log-normal), t = 0 (the default) g at the prior mean, computed as before. ``floor`` F (cells;
-    0, the default: none): ``spread`` is then the largest t allowed, and the t used the largest
-    in [0, spread] whose weights keep F effective cells (``floor_spread``). Returns float64 (n,),
-    sum 1 (``scene_weights`` also returns the t used).
+    To first order at the prior mean an error dL_c is an error dx_c = g_c dL_c,
+    g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Arguments: usage (n,) sum 1; the model's mean,
+    reference, weight (n,) and eps; ``power``: the exponent of g (2: the linear error);
+    ``variance`` (n,) v_c, the prior variance of L_c, and ``spread`` t: the weights
+    u g^p exp(t p^2 v / 2) (t = 1: u E[g^p] under the prior; t = 0, the default: g at the prior mean);
+    ``floor`` F (cells; 0: none): the t used is the largest in [0, spread] whose weights keep F
+    effective cells (``floor_spread``). Returns float64 (n,), sum 1.
     """
     return scene_weights(usage, mean, reference, weight, eps, power, variance, spread, floor)[0]
 
@@ -485,7 +409,7 @@ def design_weights(model, usage, power, hedge, spread, floor, variance=None,
 def mixed_weights(model, usage, power, hedge, spread, floor, mix, variance=None) -> tuple[np.ndarray, float]:
     """(weights float64 (n,) sum 1, the t of the scene's own part): a w(MIX_DESIGN) + (1 - a) w(power,
     spread, floor), each part ``design_weights``'s (at ``hedge``) normalised to sum 1, a = ``mix`` in
-    [0, 1] (issue 29 round 12, the comment at MIX_FEW)."""
+    [0, 1] (the comment at MIX_FEW)."""
     mix = check_share(mix)
     variance = variance or cell_variance_of(model)  # one pass over D for both parts
     p1, t1, f1 = MIX_DESIGN
