@@ -23,28 +23,25 @@ one run would have.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
-import sys
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from goniofrost.rig.contract import Hardware
 from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.journal import Journal, SamplesCsv, by_reason
-from goniofrost.capture.records import NotMeasuredRecord, SampleRecord
-from goniofrost.capture.plan_runner import PlanRunner, SessionFault, SessionInterrupted, StepDone
-from goniofrost.capture.records import PHASE_KINDS, EventKind, RunStatus
+from goniofrost.capture.plan_runner import PlanRunner, RunCount, RunTexts, SessionFault, SessionInterrupted
+from goniofrost.capture.progress_bar import ProgressBar
+from goniofrost.capture.records import (PHASE_KINDS, EventKind, NotMeasuredRecord, PlanEnded, RunStatus, SafePoint,
+                                        SampleRecord, StepDone, StepFailed)
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
+from goniofrost.capture.step_journal import not_measured_text
 from goniofrost.capture.suspension import SuspendWatch
-from goniofrost.capture.steps import (Assess, Commit, Expose, Home, LampOff, LampOn, Move, Phase, SaveCalibration,
-                                      WhiteCheck)
-from goniofrost.capture.target import CONTINUE
+from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, SaveCalibration, WhiteCheck
 from goniofrost.frost.stopping import REASON_PLAN as PLAN_USED_UP
 
-__all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware"]
+__all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware", "not_measured_text"]
 
 log = logging.getLogger(__name__)
 
@@ -75,36 +72,34 @@ class SessionStats:
         return self.phase_s.get("calibration", 0.0) + self.phase_s.get("white_reference", 0.0)
 
 
-class SessionEngine(PlanRunner):
+class SessionEngine:
     """Execute the session plan of ``spec`` (a SessionSpec, e.g. ``SessionSpec.from_inputs``) on
-    ``hardware``, journaling into ``journal`` under ``session_dir``."""
-
-    program = "capture"
+    ``hardware`` through a PlanRunner, journaling into ``journal`` under ``session_dir``.
+    ``reuse_calibration``: another session's calibration record (a queue); ``progress_desc``: the
+    bar's label (a queue: its position and the sample); ``rerun``: what to type to go on after a
+    stop (a queue: the queue command, which resumes)."""
 
     def __init__(self, spec: SessionSpec, hardware: Hardware, journal: Journal, session_dir,
-                 progress: bool = True, device_log: DeviceLog | None = None) -> None:
-        super().__init__(hardware, session_dir, journal=journal, device_log=device_log)
-        self.spec = spec
-        self.session_dir = self.folder
+                 progress: bool = True, device_log: DeviceLog | None = None, *, reuse_calibration: dict | None = None,
+                 progress_desc: str = "capture", rerun: str | None = None) -> None:
+        rerun = rerun or RERUN
+        texts = RunTexts(saved=self._saved_text, resume=f"Fix the cause, then run {rerun}",
+                         carry_on=f"Run {rerun} to continue", samples=spec.samples)
+        self.runner = PlanRunner(hardware, session_dir, journal=journal, device_log=device_log, program="capture",
+                                 texts=texts, count=self._count, samples_only_safe=True)
+        self.spec, self.journal, self.hw = spec, journal, hardware
+        self.session_dir = self.runner.folder
         self.csv = SamplesCsv(self.session_dir / "samples.csv", spec.batch_ends if spec.target is not None else ())
-        self.progress = progress
+        self.progress, self.progress_desc = progress, progress_desc
         self.stats = SessionStats()
         self._phase: tuple | None = None   # (name, monotonic start) of the part under way
-        self._bar = None
-        self._initial = 0
-        self._committed: SampleRecord | None = None  # the last sample journaled
-        self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
-        self.suspension = SuspendWatch(spec.suspenders, self.devices, journal, self._check_stop_request,
-                                       lambda: self.run_start.run)  # the rig file's suspenders
-        self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
-        self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
-        self.rerun = RERUN  # what to type to go on after a stop (a queue: the queue command, which resumes)
-        self.step_journal = {Home: self._homed, LampOn: self._lamp_on, LampOff: self._lamp_off,
-                             Move: self._moved, Expose: _exposed, Phase: self._phase_started,
-                             SaveCalibration: self._calibration_saved, Assess: self._assessed,
-                             WhiteCheck: self._white_checked, Commit: self._commit}
-        self.subscribe(self._csv_line, required=True)   # samples.csv: kept with the journal's row
-        self.subscribe(self._progressed)                 # the progress bar: a display
+        devices = self.runner.devices
+        self.rehearsal = Rehearsal(devices, journal)  # a simulated rig's drills and state
+        self.suspension = SuspendWatch(spec.suspenders, devices, journal, self.runner.check_stop_request,
+                                       lambda: self.runner.run_start.run)  # the rig file's suspenders
+        self.reuse_calibration = reuse_calibration
+        self.runner.subscribe(self._journaled, required=True)  # events and stats, after the step's own row
+        self.runner.subscribe(self._csv_line, required=True)   # samples.csv: kept with the journal's row
 
     # ----- the run ------------------------------------------------------------------------
     def run(self) -> SessionStats:
@@ -112,7 +107,9 @@ class SessionEngine(PlanRunner):
         done = self.journal.done_indices()
         records = self.journal.samples()
         self.csv.rewrite(records)  # the journal is the truth; no torn line survives
-        self.stats.skipped = self._initial = len(done)
+        self.stats.skipped = len(done)
+        self.runner.subscribe(ProgressBar(len(self.spec.samples), Commit, unit="sample", desc=self.progress_desc,
+                                          show=self.progress, initial=len(done)))  # a display
         calibration = self._restore_calibration()
         reuse = self._reused_calibration() if calibration is None else None
         self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
@@ -120,21 +117,15 @@ class SessionEngine(PlanRunner):
                              measured={r.plan_index: r.rgb for r in records}, records=records, reuse=reuse,
                              not_measured=[r.plan_index for r in self.journal.not_measured()])
         wall0, self.stats.started_clock = time.monotonic(), self.hw.clock.now()
-        self.execute_plan(plan)
+        self.runner.execute_plan(plan, ending=self._completed)
         self.stats.ended_clock, self.stats.wall_s = self.hw.clock.now(), time.monotonic() - wall0
         return self.stats
 
-    # ----- the engine core's questions --------------------------------------------------------
-    def samples_planned(self) -> int:
-        return len(self.spec.samples)
+    # ----- what the engine core is handed --------------------------------------------------------
+    def _count(self) -> RunCount:
+        return RunCount(len(self.spec.samples), len(self.journal.done_indices()), len(self.stats.batches))
 
-    def samples_captured(self) -> int:
-        return len(self.journal.done_indices())
-
-    def batches(self) -> int:
-        return len(self.stats.batches)
-
-    def completed(self, _value) -> tuple[RunStatus, str]:
+    def _completed(self, _value) -> tuple[RunStatus, str]:
         """finished, target_reached or plan_used_up, from the last batch's decision."""
         last, n = (self.stats.batches[-1] if self.stats.batches else None), len(self.spec.samples)
         if last is None:
@@ -149,50 +140,13 @@ class SessionEngine(PlanRunner):
         return RunStatus.TARGET_REACHED, (f"capture stopped after {last['samples']} of {n} samples: target "
                                           f"reached: {statement(last)}")
 
-    def before_step(self, step) -> None:
-        if isinstance(step, Move) and step.index is not None:
-            self.rehearsal.before_sample(step.index)
-            self.suspension.may_continue(step.index)  # the safe point: waits while suspended
-
-    def after_journal(self) -> None:
-        self.rehearsal.journal_struck()
-
-    def at_safe_point(self, step) -> bool:
-        """Before a sample's first move: the last sample's bracket is journaled, nothing is under way."""
-        return isinstance(step, Move) and step.index is not None
-
-    def run_scope(self):
-        return self._progress(self._initial)
-
-    def leaving(self) -> None:
-        self._end_phase()
-
-    def where(self, step) -> str:
-        if getattr(step, "index", None) is not None or step is None:
-            return super().where(step)
-        part = f" in the {self._phase[0]}" if self._phase else ""
-        return f"{super().where(step)}{part}"
-
-    def failure_hint(self, step) -> str:
-        index = getattr(step, "index", None)
-        if index is None:
-            return ""
-        s = self.spec.samples[index]
-        return f" (theta_i {s['theta_i_deg']:.1f} deg, theta_o {s['theta_o_deg']:.1f} deg)"
-
-    def saved_text(self) -> str:
+    def _saved_text(self) -> str:
         n = len(self.spec.samples)
         try:
             done = f"{len(self.journal.done_indices())} of {n}"
         except Exception:  # noqa: BLE001 - an unreadable journal must not hide the stop report
             done = "the committed"
         return f"{done} samples are safe in {self.journal.path}"
-
-    def resume_text(self) -> str:
-        return f"Fix the cause, then run {self.rerun}"
-
-    def continue_text(self) -> str:
-        return f"Run {self.rerun} to continue"
 
     def _reused_calibration(self):
         """The calibration of another session this one may reuse (``reuse_calibration``: a queue's
@@ -235,29 +189,47 @@ class SessionEngine(PlanRunner):
             return None
         return record
 
-    # ----- what each step adds to the journal and the stats (returns the step's result summary) -----
-    def _homed(self, step: Home, reached) -> dict:
-        self.stats.motion_s += reached.seconds
-        self.journal.add_event(EventKind.HOME, f"homed {', '.join(step.axes)}", data=reached.joints)
-        return {"joints": reached.joints, "seconds": reached.seconds}
+    # ----- subscribers: what follows the journal's row of each step -----------------------------
+    def _journaled(self, record) -> None:
+        """A sample's safe point, the events each step adds to the journal, the stats, and drills struck."""
+        if isinstance(record, SafePoint):  # before a sample's first move: nothing is under way
+            self.rehearsal.before_sample(record.step.index)
+            self.suspension.may_continue(record.step.index)  # waits while suspended
+        elif isinstance(record, StepDone):
+            self._step_done(record.step, record.result, record.summary)
+            self.rehearsal.journal_struck()
+        elif isinstance(record, StepFailed):
+            self.rehearsal.journal_struck()
+        elif isinstance(record, PlanEnded):
+            self._end_phase()  # the time of the part under way
 
-    def _lamp_on(self, _step: LampOn, photodiode: float) -> dict:
-        self.journal.add_event(EventKind.LAMP, "lamp on", data={"photodiode": photodiode})
-        return {"photodiode": photodiode}
-
-    def _lamp_off(self, _step: LampOff, _result) -> dict:
-        self.journal.add_event(EventKind.LAMP, "lamp off")
-        return {}
-
-    def _moved(self, _step: Move, reached) -> dict:
-        self.stats.motion_s += reached.seconds
-        return {"joints": reached.joints, "seconds": reached.seconds}
-
-    def _phase_started(self, step: Phase, _result) -> dict:
-        self._end_phase()
-        self._phase = (step.name, time.monotonic())
-        self.journal.add_event(PHASE_KINDS[step.name], PHASE_MESSAGES.get(step.name, f"{step.name} started"))
-        return {}
+    def _step_done(self, step, result, summary: dict) -> None:
+        if isinstance(step, (Home, Move)):
+            self.stats.motion_s += result.seconds
+        if isinstance(step, Home):
+            self.journal.add_event(EventKind.HOME, f"homed {', '.join(step.axes)}", data=result.joints)
+        elif isinstance(step, LampOn):
+            self.journal.add_event(EventKind.LAMP, "lamp on", data={"photodiode": result})
+        elif isinstance(step, LampOff):
+            self.journal.add_event(EventKind.LAMP, "lamp off")
+        elif isinstance(step, Phase):
+            self._end_phase()
+            self._phase = (step.name, time.monotonic())
+            self.journal.add_event(PHASE_KINDS[step.name], PHASE_MESSAGES.get(step.name, f"{step.name} started"))
+        elif isinstance(step, SaveCalibration):
+            whole = self._phase is None or self._phase[0] != "white_reference"
+            self.journal.add_event(EventKind.CALIBRATION, "dark, flat and white reference taken" if whole else
+                                   "white reference taken; dark frames and flat field reused",
+                                   data={"scale": result.scale.tolist(), "white": result.white, "reused": not whole})
+        elif isinstance(step, WhiteCheck):
+            then = ("dark frames and flat field reused" if step.decision == "reuse"
+                    else "the lamp drifted: calibrating in full")
+            self.journal.add_event(EventKind.CALIBRATION, f"white reference re-measured: drift {100 * step.drift:.2f} % "
+                                   f"(limit {100 * step.limit:.2f} %): {then}", data=summary)
+        elif isinstance(step, Assess):
+            self._assessed(step, summary)
+        elif isinstance(step, Commit):
+            self._counted(step.record)
 
     def _end_phase(self) -> None:
         if self._phase is not None:
@@ -265,89 +237,26 @@ class SessionEngine(PlanRunner):
             self.stats.phase_s[name] = self.stats.phase_s.get(name, 0.0) + time.monotonic() - t0
             self._phase = None
 
-    def _calibration_saved(self, _step: SaveCalibration, record) -> dict:
-        summary = self.rehearsal.with_state({"arrays": str(record.path), "sha256": record.sha256})
-        self.journal.set_calibration(record.to_dict(), step=(self._row, summary))  # kept together with its state
-        whole = self._phase is None or self._phase[0] != "white_reference"
-        self.journal.add_event(EventKind.CALIBRATION, "dark, flat and white reference taken" if whole else
-                               "white reference taken; dark frames and flat field reused",
-                               data={"scale": record.scale.tolist(), "white": record.white, "reused": not whole})
-        return summary
-
-    def _white_checked(self, step: WhiteCheck, _result) -> dict:
-        summary = dataclasses.asdict(step)
-        then = ("dark frames and flat field reused" if step.decision == "reuse"
-                else "the lamp drifted: calibrating in full")
-        self.journal.add_event(EventKind.CALIBRATION, f"white reference re-measured: drift {100 * step.drift:.2f} % "
-                               f"(limit {100 * step.limit:.2f} %): {then}", data=summary)
-        return summary
-
-    def _assessed(self, step: Assess, _result) -> dict:
-        summary = dataclasses.asdict(step)
-        self.stats.batches.append(summary)
+    def _assessed(self, step: Assess, summary: dict) -> None:
         from goniofrost.capture.target import statement
 
+        self.stats.batches.append(summary)
         self.journal.add_event(EventKind.BATCH, f"batch {step.batch + 1}: {step.samples} samples, {statement(summary)}: "
                                f"{step.decision}", data=summary)
-        return summary
-
-    def _commit(self, step: Commit, _result) -> dict:
-        record = dataclasses.replace(step.record, committed_utc=time.time())
-        if isinstance(record, NotMeasuredRecord):
-            return self._commit_not_measured(record)
-        summary = self.rehearsal.with_state({"snr": record.snr, "status": record.status})
-        # one durable transaction with its step and state (within _execute's critical section)
-        self.journal.commit_sample(record, step=(self._row, summary))
-        self._committed = record   # as journaled, with its commit time: samples.csv's line (_csv_line)
-        self._counted(record)
-        return summary
-
-    def _commit_not_measured(self, record: NotMeasuredRecord) -> dict:
-        """Journal a sample too dark or too bright to measure and its ``not_measured`` event (no samples.csv line: it
-        has no value)."""
-        summary = self.rehearsal.with_state({"snr": record.best_snr, "status": str(record.reason)})
-        # the record, its step and its event in one durable transaction
-        self.journal.commit_not_measured(record, step=(self._row, summary), message=not_measured_text(record))
-        self.stats.not_measured += 1
-        self._counted(record)
-        return summary
 
     def _counted(self, record) -> None:
         self.stats.captured += 1
         self.stats.capture_s += record.capture_s
-        if isinstance(record, SampleRecord):
+        if isinstance(record, NotMeasuredRecord):
+            self.stats.not_measured += 1
+        else:
             self.stats.per_sample.append({"index": record.plan_index, "snr": record.snr})
 
-    # ----- subscribers: what follows the journal ------------------------------------------------
-    def _csv_line(self, done: StepDone) -> None:
+    def _csv_line(self, record) -> None:
         """samples.csv gets each measured sample, as journaled (a sample not measured has no value)."""
-        if isinstance(done.step, Commit) and isinstance(done.step.record, SampleRecord):
-            self.csv.append(self._committed)
-
-    def _progressed(self, done: StepDone) -> None:
-        """The bar counts each sample done; a capture stopped early ends it at the count captured."""
-        if self._bar is None:
-            return
-        if isinstance(done.step, Commit):
-            self._bar.update(1)
-        elif isinstance(done.step, Assess) and done.step.decision not in (CONTINUE, PLAN_USED_UP):
-            self._bar.total = self._bar.n  # not "15/40"
-            self._bar.refresh()
-
-    @contextmanager
-    def _progress(self, initial: int):
-        from tqdm import tqdm
-
-        from goniofrost.core.progress import show_progress
-
-        total = len(self.spec.samples)
-        with tqdm(total=total, initial=initial, unit="sample", desc=self.progress_desc, file=sys.stderr,
-                  disable=not show_progress(self.progress), dynamic_ncols=True) as bar:
-            self._bar = bar
-            try:
-                yield bar
-            finally:
-                self._bar = None
+        if isinstance(record, StepDone) and isinstance(record.step, Commit) and \
+                isinstance(record.step.record, SampleRecord):
+            self.csv.append(record.step.record)
 
 
 RERUN = "the same command with --resume"  # what a stopped capture tells the user to type next
@@ -355,12 +264,3 @@ RERUN = "the same command with --resume"  # what a stopped capture tells the use
 PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, white reference",
                   "white_reference": "white reference re-measured with the kept dark frames and flat field",
                   "samples": "sample capture started"}
-
-
-def not_measured_text(record: NotMeasuredRecord) -> str:
-    """The journal event's words for a sample not measured (readers use its data: the record)."""
-    return f"sample {record.plan_index} not measured ({record.reason}): {record.why()}"
-
-
-def _exposed(_step: Expose, frame) -> dict:
-    return {"path": str(frame.path), "lamp_relative": frame.lamp_relative, "seconds": frame.seconds}

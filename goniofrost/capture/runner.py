@@ -181,16 +181,15 @@ def run_engine(spec, journal, session_dir: Path, *, rig, devices, sim: SimOption
     and capture what is left of the session ``spec``; return the run's SessionStats. From connecting to releasing, the devices' log
     goes to the journal, not the terminal."""
     from goniofrost.rig.device_log import DeviceLog
-    from goniofrost.capture.engine import RERUN, SessionEngine
+    from goniofrost.capture.engine import SessionEngine
     from goniofrost.capture.holder import held_hardware
 
     with DeviceLog.capture() as device_log:
         try:
             with held_hardware(rig, devices, sim) as hardware:
-                engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
-                engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
-                engine.rerun = rerun or RERUN
-                return engine.run()
+                return SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log,
+                                     reuse_calibration=reuse_calibration, progress_desc=progress_desc,
+                                     rerun=rerun).run()
         finally:
             journal_device_log(journal, device_log)  # what connecting and releasing logged
 
