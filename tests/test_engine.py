@@ -15,6 +15,7 @@ from drivers.camera import CameraError
 from drivers.errors import DeviceFault, DeviceTimeout
 from goniofrost.rig.contract import Axis, Camera, Clock, Hardware, Lamp
 from goniofrost.capture.engine import SessionEngine, SessionFault
+from goniofrost.capture.options import SessionOptions
 from goniofrost.capture.executor import BenchHardware
 from goniofrost.rig.stop import stop_axes
 from goniofrost.capture.journal import Journal
@@ -166,7 +167,7 @@ def run(hardware, session: Path):
     journal = Journal.open(path) if path.exists() else Journal.create(path, {"plan": "test"})
     with journal:
         try:
-            stats = SessionEngine(SPEC, hardware, journal, session, progress=False).run()
+            stats = SessionEngine(SPEC, hardware, journal, session, SessionOptions(progress=False)).run()
         finally:
             steps, events, samples = journal.steps(), journal.events(), journal.samples()
     return stats, steps, events, samples

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from goniofrost.rig.contract import Hardware
 from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.journal import Journal, SamplesCsv, by_reason
+from goniofrost.capture.options import SessionOptions
 from goniofrost.capture.plan_runner import PlanRunner, RunCount, RunTexts, SessionFault, SessionInterrupted
 from goniofrost.capture.progress_bar import ProgressBar
 from goniofrost.capture.records import (PHASE_KINDS, EventKind, NotMeasuredRecord, PlanEnded, RunStatus, SafePoint,
@@ -74,30 +75,25 @@ class SessionStats:
 
 class SessionEngine:
     """Execute the session plan of ``spec`` (a SessionSpec, e.g. ``SessionSpec.from_inputs``) on
-    ``hardware`` through a PlanRunner, journaling into ``journal`` under ``session_dir``.
-    ``reuse_calibration``: another session's calibration record (a queue); ``progress_desc``: the
-    bar's label (a queue: its position and the sample); ``rerun``: what to type to go on after a
-    stop (a queue: the queue command, which resumes)."""
+    ``hardware`` through a PlanRunner, journaling into ``journal`` under ``session_dir``;
+    ``options``: its progress bar, what to type after a stop, a calibration to reuse
+    (``goniofrost.capture.options.SessionOptions``)."""
 
     def __init__(self, spec: SessionSpec, hardware: Hardware, journal: Journal, session_dir,
-                 progress: bool = True, device_log: DeviceLog | None = None, *, reuse_calibration: dict | None = None,
-                 progress_desc: str = "capture", rerun: str | None = None) -> None:
-        rerun = rerun or RERUN
-        texts = RunTexts(saved=self._saved_text, resume=f"Fix the cause, then run {rerun}",
-                         carry_on=f"Run {rerun} to continue", samples=spec.samples)
+                 options: SessionOptions = SessionOptions(), device_log: DeviceLog | None = None) -> None:
+        texts = RunTexts(saved=self._saved_text, resume=f"Fix the cause, then run {options.rerun}",
+                         carry_on=f"Run {options.rerun} to continue", samples=spec.samples)
         self.runner = PlanRunner(hardware, session_dir, journal=journal, device_log=device_log, program="capture",
                                  texts=texts, count=self._count, samples_only_safe=True)
-        self.spec, self.journal, self.hw = spec, journal, hardware
+        self.spec, self.journal, self.hw, self.options = spec, journal, hardware, options
         self.session_dir = self.runner.folder
         self.csv = SamplesCsv(self.session_dir / "samples.csv", spec.batch_ends if spec.target is not None else ())
-        self.progress, self.progress_desc = progress, progress_desc
         self.stats = SessionStats()
         self._phase: tuple | None = None   # (name, monotonic start) of the part under way
         devices = self.runner.devices
         self.rehearsal = Rehearsal(devices, journal)  # a simulated rig's drills and state
         self.suspension = SuspendWatch(spec.suspenders, devices, journal, self.runner.check_stop_request,
                                        lambda: self.runner.run_start.run)  # the rig file's suspenders
-        self.reuse_calibration = reuse_calibration
         self.runner.subscribe(self._journaled, required=True)  # events and stats, after the step's own row
         self.runner.subscribe(self._csv_line, required=True)   # samples.csv: kept with the journal's row
 
@@ -108,8 +104,9 @@ class SessionEngine:
         records = self.journal.samples()
         self.csv.rewrite(records)  # the journal is the truth; no torn line survives
         self.stats.skipped = len(done)
-        self.runner.subscribe(ProgressBar(len(self.spec.samples), Commit, unit="sample", desc=self.progress_desc,
-                                          show=self.progress, initial=len(done)))  # a display
+        self.runner.subscribe(ProgressBar(len(self.spec.samples), Commit, unit="sample",
+                                          desc=self.options.progress_desc, show=self.options.progress,
+                                          initial=len(done)))  # a display
         calibration = self._restore_calibration()
         reuse = self._reused_calibration() if calibration is None else None
         self.rehearsal.prepare(len(self.spec.samples), done, calibration is not None)
@@ -149,15 +146,15 @@ class SessionEngine:
         return f"{done} samples are safe in {self.journal.path}"
 
     def _reused_calibration(self):
-        """The calibration of another session this one may reuse (``reuse_calibration``: a queue's
+        """The calibration of another session this one may reuse (``options.reuse``: a queue's
         sample before), as a CalibrationRecord; None if there is none, or its arrays changed or its
         exposure ladder is not this rig's (then the session calibrates in full)."""
         from calib import CalibrationError, CalibrationRecord
 
-        if self.reuse_calibration is None:
+        if self.options.reuse is None:
             return None
         try:
-            record = CalibrationRecord.from_dict(self.reuse_calibration)
+            record = CalibrationRecord.from_dict(self.options.reuse.record)
         except CalibrationError as exc:
             self.journal.add_event(EventKind.CALIBRATION, f"cannot reuse the queue's calibration ({exc}); "
                                    f"calibrating in full")
@@ -258,8 +255,6 @@ class SessionEngine:
                 isinstance(record.step.record, SampleRecord):
             self.csv.append(record.step.record)
 
-
-RERUN = "the same command with --resume"  # what a stopped capture tells the user to type next
 
 PHASE_MESSAGES = {"calibration": "calibration started: dark frames, flat field, white reference",
                   "white_reference": "white reference re-measured with the kept dark frames and flat field",

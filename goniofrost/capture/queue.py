@@ -127,6 +127,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.reconstruction import TooFewSamplesError
+    from goniofrost.capture.options import ReusedCalibration, SessionOptions, StopRule
     from goniofrost.capture.runner import capture
     from goniofrost.rig.hardware import SimOptions
 
@@ -148,12 +149,13 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         out(f"queue {position}: measuring {sample.sample_id} into {session}"
             + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
         try:
-            outcome = capture(queue.rig, queue.plan, session, devices=devices,
+            options = SessionOptions(resume=(session / JOURNAL_FILE).exists(), progress=progress,
+                                     progress_desc=f"queue {position} {sample.sample_id}", label=label,
+                                     reuse=None if reuse is None else ReusedCalibration(reuse, queue.drift_limit),
+                                     rerun=RERUN_QUEUE)
+            outcome = capture(inputs, session, devices=devices,
                               sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
-                              resume=(session / JOURNAL_FILE).exists(), progress=progress,
-                              label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
-                              target_error=sample.target_error, confidence=sample.confidence,
-                              progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
+                              stop=StopRule(sample.target_error, sample.confidence), options=options)
         except TooFewSamplesError as exc:
             out(f"queue {position}: {sample.sample_id}: NOTHING MEASURED: {exc}; the queue goes on")
             items.append(QueueItem(sample.sample_id, session, NOTHING_MEASURED, str(exc)))
