@@ -200,6 +200,7 @@ def capture_fresh(inputs, session_dir: Path, sim, stop, progress: bool):
     demo session there is removed first), on the simulated devices of its rig with ``sim``
     (``goniofrost.rig.hardware.SimOptions``: the material shown, the seed, the speed-up),
     stopping by ``stop`` (``goniofrost.capture.target.StopRule``)."""
+    from goniofrost.app.ground_truth import GroundTruth
     from goniofrost.capture.options import SessionOptions
     from goniofrost.capture.runner import capture
     from goniofrost.rig.simulated import rig_devices
@@ -208,7 +209,7 @@ def capture_fresh(inputs, session_dir: Path, sim, stop, progress: bool):
     if session_dir.exists():
         shutil.rmtree(session_dir)
     return capture(inputs, session_dir, devices=rig_devices, sim=sim, stop=stop,
-                   options=SessionOptions(progress=progress, rerun=RERUN_DEMO))
+                   options=SessionOptions(progress=progress, rerun=RERUN_DEMO, compare=GroundTruth(sim.material)))
 
 
 def check_replaceable(session_dir: Path) -> None:
@@ -236,7 +237,7 @@ def write_reference_and_preview(material, grid, out: Path) -> None:
     reference.binary; the session's preview (already rendered against the same truth) becomes
     out/preview.png."""
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.capture.ground_truth import ground_truth
+    from goniofrost.app.ground_truth import ground_truth
 
     truth = ground_truth(material, grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)

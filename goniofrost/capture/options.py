@@ -38,7 +38,9 @@ class SessionOptions:
     ReusedCalibration; ``rerun``: what the messages after a stop tell the user to type (a queue:
     the queue command itself, which has no --resume); ``extra_files``: the names of files the
     caller writes into the session folder after the capture (``capture --bsdf``: brdf.bsdf),
-    checked with the capture's own before anything moves."""
+    checked with the capture's own before anything moves; ``compare``: what the report compares
+    the session with (the demo's ``goniofrost.app.ground_truth.GroundTruth``: report.json's
+    ``ground_truth`` and the preview's reference), None: nothing."""
 
     resume: bool = False
     progress: bool = True
@@ -47,3 +49,4 @@ class SessionOptions:
     reuse: ReusedCalibration | None = None
     rerun: str = RERUN
     extra_files: tuple[str | Path, ...] = ()
+    compare: object | None = None

@@ -111,11 +111,12 @@ def ask_to_mount(sample: QueueSample, position: str) -> None:
 
 def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,
               seed=None, speedup=None, progress: bool = True, out=print, devices=None,
-              materials=None) -> list[QueueItem]:
+              materials=None, compare=None) -> list[QueueItem]:
     """Measure every sample of ``queue`` not yet measured, in order; return what was done.
 
     ``devices``: the opener of the rig's devices and ``materials(SPEC:NAME, option)`` the resolver
-    of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's.
+    of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's;
+    ``compare(material)``: what a sample's report compares it with (``SessionOptions.compare``).
 
     ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
     ``--yes``). A fault or an interruption propagates (the capture's own exception and message);
@@ -152,7 +153,8 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
             options = SessionOptions(resume=(session / JOURNAL_FILE).exists(), progress=progress,
                                      progress_desc=f"queue {position} {sample.sample_id}", label=label,
                                      reuse=None if reuse is None else ReusedCalibration(reuse, queue.drift_limit),
-                                     rerun=RERUN_QUEUE)
+                                     rerun=RERUN_QUEUE,
+                                     compare=compare(shown[k - 1]) if compare and shown[k - 1] else None)
             outcome = capture(inputs, session, devices=devices,
                               sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
                               stop=StopRule(sample.target_error, sample.confidence), options=options)

@@ -91,7 +91,8 @@ def capture(inputs, session_dir, *, devices=None, sim: SimOptions = NO_SIM, stop
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
-                report = write_outputs(inputs, journal, stats, session_dir, material, spec)
+                report = write_outputs(inputs, journal, stats, session_dir, material and material.spec, spec,
+                                       options.compare)
             except OutputError as exc:
                 raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
                                   f"then run {rerun} to write the results") from exc

@@ -86,6 +86,7 @@ def run(args) -> int:
 
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.runner import capture
+    from goniofrost.app.ground_truth import GroundTruth
     from goniofrost.capture.options import DEFAULT_CONFIDENCE, SessionOptions, StopRule
     from goniofrost.capture.engine import SessionInterrupted
 
@@ -110,7 +111,8 @@ def run(args) -> int:
                               sim=SimOptions(material=material, seed=args.seed, speedup=args.speedup),
                               stop=StopRule(args.target_error, confidence),
                               options=SessionOptions(resume=args.resume, progress=not args.no_progress, label=label,
-                                                     extra_files=(BSDF_FILE,) if bsdf else ()))
+                                                     extra_files=(BSDF_FILE,) if bsdf else (),
+                                                     compare=None if material is None else GroundTruth(material)))
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)
