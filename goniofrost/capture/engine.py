@@ -1,12 +1,13 @@
 """The capture engine: the session plan on the engine core (``goniofrost.capture.plan_runner``).
 
-``SessionEngine.run`` drives the steps of ``goniofrost.capture.session_steps`` through the
-``PlanRunner`` (which journals each step, owns the stop of the axes, the lamp, the device log and
-the run's ``RunStart``/``RunEnd``). On top of it the engine commits each sample in one transaction
-the moment it is measured, appends it to samples.csv (a sample too dark or too bright to measure is committed
-as not measured instead, with a ``not_measured`` event, and the capture goes on), journals the
-calibration, lamp and homing events, times the parts of the session and shows a progress bar
-with the ETA, and
+``SessionEngine.run`` drives the steps of ``goniofrost.capture.session_steps`` through a
+``PlanRunner`` (which owns the stop of the axes, the lamp, the device log and the run's
+``RunStart``/``RunEnd``, and whose journal subscriber, ``step_journal.StepJournal``, commits each
+sample in one transaction the moment it is measured: a sample too dark or too bright to measure is
+committed as not measured instead, with a ``not_measured`` event, and the capture goes on). The
+engine subscribes to its records: it appends each sample to samples.csv, journals the
+calibration, lamp and homing events, arms a simulated rig's drills and waits on the suspenders at
+each sample's safe point, times the parts of the session and shows a progress bar with the ETA, and
 
 * on SIGINT, SIGTERM or a stop request: stops every axis, switches the lamp off, records the
   event and the RunEnd (``stopped_by_operator``) and raises ``SessionInterrupted`` (the command
@@ -37,12 +38,11 @@ from goniofrost.capture.records import (PHASE_KINDS, EventKind, NotMeasuredRecor
                                         SampleRecord, StepDone, StepFailed)
 from goniofrost.capture.rehearsal import Rehearsal
 from goniofrost.capture.session_steps import SessionSpec, session_steps
-from goniofrost.capture.step_journal import not_measured_text
 from goniofrost.capture.suspension import SuspendWatch
 from goniofrost.capture.steps import Assess, Commit, Home, LampOff, LampOn, Move, Phase, SaveCalibration, WhiteCheck
 from goniofrost.frost.stopping import REASON_PLAN as PLAN_USED_UP
 
-__all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware", "not_measured_text"]
+__all__ = ["SessionEngine", "SessionFault", "SessionInterrupted", "SessionStats", "Hardware"]
 
 log = logging.getLogger(__name__)
 
