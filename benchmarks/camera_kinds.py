@@ -36,7 +36,7 @@ def sample_errors(session: Path, rig: Path, plan: Path, material: str) -> dict:
     at the directions each was measured at: median and max, and the sample count."""
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.journal import Journal
-    from goniofrost.capture.ground_truth import truth_at_measured_directions
+    from goniofrost.app.ground_truth import truth_at_measured_directions
     from goniofrost.datasets import shown_material
 
     with Journal.open(session / "session.sqlite") as journal:
@@ -51,16 +51,22 @@ def smallest_plan(folder: Path, rig: Path) -> Path:
     """A 3-sample plan of a 4-material built-in model on a 30 x 30 x 60 grid (what a test runs)."""
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.core.cache import cache_path
+    from goniofrost.plan.make import PlanRequest
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.grid import MerlGrid
     from goniofrost.frost.training import train
 
     model = train(["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"], grid=MerlGrid(30, 30, 60),
                   k_max=12, cache=True)
     folder.mkdir(parents=True, exist_ok=True)
-    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 3, rig, folder / "plan.json")
+    request = PlanRequest(samples=3, rig=load_checked_rig(rig))
+    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), request, folder / "plan.json")
 
 
 def main(argv=None) -> int:
+    from goniofrost.app.ground_truth import GroundTruth
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.options import SessionOptions
     from goniofrost.capture.runner import capture
     from goniofrost.datasets import shown_material
     from goniofrost.rig.simulated import rig_devices
@@ -82,8 +88,9 @@ def main(argv=None) -> int:
     for rig in rigs:
         session = args.out / rig.stem
         t0 = time.perf_counter()
-        outcome = capture(rig, args.plan, session, devices=rig_devices,
-                          sim=SimOptions(material=shown_material(args.material)), progress=False)
+        shown = shown_material(args.material)
+        outcome = capture(load_inputs(rig, args.plan), session, devices=rig_devices, sim=SimOptions(material=shown),
+                          options=SessionOptions(progress=False, compare=GroundTruth(shown)))
         wall = time.perf_counter() - t0
         results.append({"rig": str(rig), "wall_s": round(wall, 1), "load_average": os.getloadavg(),
                         "log_relative_mse": outcome.report["ground_truth"]["log_relative_mse"],

@@ -47,6 +47,8 @@ def prepare(folder: Path, samples: int) -> tuple[Path, Path]:
     """The test rig file and a plan of ``samples`` samples on it (model trained and cached)."""
     from goniofrost.app.demo import plan_on_rig
     from goniofrost.core.cache import cache_path
+    from goniofrost.plan.make import PlanRequest
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.grid import MerlGrid
     from goniofrost.frost.training import train
 
@@ -57,8 +59,8 @@ def prepare(folder: Path, samples: int) -> tuple[Path, Path]:
     rig["camera"]["intrinsics"].update(image_size_px=[240, 180], focal_px=[2400.0, 2400.0],
                                     principal_point_px=[119.5, 89.5])
     (folder / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), samples, folder / "rig.yaml",
-                       folder / "plan.json", selector="frost")
+    request = PlanRequest(samples=samples, selector="frost", rig=load_checked_rig(folder / "rig.yaml"))
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), request, folder / "plan.json")
     return folder / "rig.yaml", plan
 
 

@@ -70,10 +70,12 @@ def demo_model():
 def frost_plan(folder: Path, samples: int) -> Path:
     """The demo's plan: FROST cells the simulated rig reaches, scheduled for it."""
     from goniofrost.app.demo import default_rig_path, plan_on_rig
+    from goniofrost.plan.make import PlanRequest
+    from goniofrost.rig.file import load_checked_rig
 
     model, model_path = demo_model()
-    return plan_on_rig(model, model_path, samples, default_rig_path(), folder / f"plan{samples}.json",
-                       selector="frost")
+    request = PlanRequest(samples=samples, selector="frost", rig=load_checked_rig(default_rig_path()))
+    return plan_on_rig(model, model_path, request, folder / f"plan{samples}.json")
 
 
 SPREAD_MAX_ANGLE_DEG = 70.0  # theta_i, theta_o of a spread plan's cells (deg)
@@ -120,6 +122,9 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
     from goniofrost.app.demo import default_rig_path
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.engine import SessionFault
+    from goniofrost.app.ground_truth import GroundTruth
+    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.options import SessionOptions
     from goniofrost.capture.runner import capture
     from goniofrost.datasets import shown_material
     from goniofrost.rig.simulated import rig_devices
@@ -129,9 +134,10 @@ def run_capture(plan: Path, session: Path, *, speedup: float, monitor: bool, on_
         if urls is not None:
             urls.put(server.url)
         try:
-            capture(default_rig_path(), plan, session, devices=rig_devices, progress=False,
-                    sim=SimOptions(material=shown_material(f"builtin:{MATERIAL}"), seed=0, speedup=speedup,
-                                   on_ready=on_ready))
+            shown = shown_material(f"builtin:{MATERIAL}")
+            capture(load_inputs(default_rig_path(), plan), session, devices=rig_devices,
+                    sim=SimOptions(material=shown, seed=0, speedup=speedup, on_ready=on_ready),
+                    options=SessionOptions(progress=False, compare=GroundTruth(shown)))
         except SessionFault as exc:
             print(f"  (expected) {exc}", flush=True)
     if cpu is not None:

@@ -66,13 +66,14 @@ def test_ctrl_c_in_the_demo_is_one_line_exit_130_and_names_no_resume_option(tmp_
     from goniofrost.app.cli import main
     from goniofrost.capture import runner
     from goniofrost.capture.signals import SessionInterrupted
+    from goniofrost.rig.hardware import NO_SIM
 
-    def interrupted(*args, rerun=None, **kwargs):  # the engine's words after a Ctrl-C, with the given next step
-        raise SessionInterrupted(f"interrupted by SIGINT at plan sample 3. Run {rerun} to continue")
+    def interrupted(*args, options=None, **kwargs):  # the engine's words after a Ctrl-C, with the given next step
+        raise SessionInterrupted(f"interrupted by SIGINT at plan sample 3. Run {options.rerun} to continue")
 
     monkeypatch.setattr(runner, "capture", interrupted)
-    monkeypatch.setattr(demo, "run_demo", lambda out, **options: demo.capture_fresh(
-        None, None, tmp_path / "session", "builtin:red-plastic", 0, 50.0, False))
+    monkeypatch.setattr(demo, "run_demo", lambda out, *request, **options: demo.capture_fresh(
+        None, tmp_path / "session", NO_SIM, None, False))
     assert main(["demo", "--out", str(tmp_path), "--no-progress"]) == 130  # not a traceback
     assert capsys.readouterr().err == ("goniofrost demo: interrupted by SIGINT at plan sample 3. Run the demo again "
                                        "to continue\n")

@@ -15,6 +15,7 @@ from drivers.camera import CameraError
 from drivers.errors import DeviceFault, DeviceTimeout
 from goniofrost.rig.contract import Axis, Camera, Clock, Hardware, Lamp
 from goniofrost.capture.engine import SessionEngine, SessionFault
+from goniofrost.capture.options import SessionOptions
 from goniofrost.capture.executor import BenchHardware
 from goniofrost.rig.stop import stop_axes
 from goniofrost.capture.journal import Journal
@@ -166,7 +167,7 @@ def run(hardware, session: Path):
     journal = Journal.open(path) if path.exists() else Journal.create(path, {"plan": "test"})
     with journal:
         try:
-            stats = SessionEngine(SPEC, hardware, journal, session, progress=False).run()
+            stats = SessionEngine(SPEC, hardware, journal, session, SessionOptions(progress=False)).run()
         finally:
             steps, events, samples = journal.steps(), journal.events(), journal.samples()
     return stats, steps, events, samples
@@ -445,22 +446,24 @@ def test_a_queues_white_reference_re_measured_counts_as_calibration_time():
 
 
 def test_a_subscriber_s_error_is_a_warning_and_a_required_one_s_stops_the_run_safely(table, tmp_path):
-    from goniofrost.capture.plan_runner import PlanRunner, SubscriberWarning
+    from goniofrost.capture.plan_runner import PlanRunner, StepDone, SubscriberWarning
 
     hardware = rig(table)
     runner = PlanRunner(hardware, tmp_path, program="rig move")
     seen = []
-    runner.subscribe(lambda done: 1 / 0)  # a display that breaks: the run goes on
-    runner.subscribe(lambda done: seen.append((type(done.step).__name__, done.summary)))
+    runner.subscribe(lambda record: isinstance(record, StepDone) and 1 / 0)  # a display that breaks: the run goes on
+    runner.subscribe(lambda record: seen.append((type(record.step).__name__, record.summary))
+                     if isinstance(record, StepDone) else None)
     with pytest.warns(SubscriberWarning, match=r"^Move: a subscriber failed: division by zero$"):
         assert runner.execute_plan(hand_plan()) == {"theta_i": 10.0, "theta_o": 40.0}
-    assert seen == [("Move", {}), ("LampOn", {}), ("LampOff", {})]
+    assert [kind for kind, _ in seen] == ["Move", "LampOn", "LampOff"]
+    assert seen[0][1]["joints"] == {"theta_i": 10.0, "theta_o": 40.0} and seen[2][1] == {}
     assert runner.run_end.status is RunStatus.FINISHED
     # a required subscriber (a file the session keeps) fails: every axis stopped, the lamp off
     hardware = rig(table)
     runner = PlanRunner(hardware, tmp_path, program="rig move")
-    runner.subscribe(lambda done: (_ for _ in ()).throw(OSError(28, "No space left on device", "samples.csv")),
-                     required=True)
+    full = OSError(28, "No space left on device", "samples.csv")
+    runner.subscribe(lambda record: isinstance(record, StepDone) and (_ for _ in ()).throw(full), required=True)
     with pytest.raises(SessionFault) as caught:
         runner.execute_plan(hand_plan())
     assert str(caught.value).startswith("rig move failed during Move: samples.csv: cannot write: no space left on the "

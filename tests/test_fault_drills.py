@@ -14,6 +14,7 @@ from drivers.rig_devices import axis_from_spec, connect_axis
 from goniofrost.rig.hardware import open_hardware
 from goniofrost.rig.simulated import simulated_devices
 from goniofrost.capture.plan_runner import PlanRunner, SessionFault
+from goniofrost.capture.records import SafePoint
 from goniofrost.capture.records import RunStatus
 from goniofrost.rig.file import section_validators
 from goniofrost.capture.steps import Home, LampOff, LampOn, Move
@@ -169,12 +170,12 @@ def _stop_commands(twins: dict) -> dict[str, int]:
             "sample_tilt": sum(line.strip().upper().endswith(b"ST") for line in twins["sample_tilt"].received)}
 
 
-class _Drilled(PlanRunner):
-    """Arms the rig's drills before each plan sample, as a capture does."""
-
-    def before_step(self, step) -> None:
-        if isinstance(step, Move) and step.index is not None:
-            self.hw.simulation.arm_faults(step.index)
+def _drilled(hardware, folder) -> PlanRunner:
+    """A runner that arms the rig's drills before each plan sample, as a capture does."""
+    runner = PlanRunner(hardware, folder, samples_only_safe=True)
+    runner.subscribe(lambda record: isinstance(record, SafePoint) and hardware.simulation.arm_faults(record.step.index),
+                     required=True)
+    return runner
 
 
 def _run(rig_spec, folder):
@@ -189,7 +190,7 @@ def _run(rig_spec, folder):
     with open_hardware(rig_spec, simulated_devices, sim=SimOptions(speedup=20)) as hardware:
         twins = {name: hardware.simulation.device(name) for name in TARGETS}  # kept past the release
         lamp = hardware.simulation.lamp_model
-        runner = _Drilled(hardware, folder)
+        runner = _drilled(hardware, folder)
         try:
             runner.execute_plan(plan())
         except SessionFault:

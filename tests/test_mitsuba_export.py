@@ -387,6 +387,8 @@ def capture_small_session(tmp_path, *flags) -> Path:
     import yaml
 
     from goniofrost.app.demo import plan_on_rig
+    from goniofrost.plan.make import PlanRequest
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
 
     repo = Path(__file__).resolve().parents[1]
@@ -397,8 +399,8 @@ def capture_small_session(tmp_path, *flags) -> Path:
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
     model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
                        grid=SMALL, k_max=12)
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 4, tmp_path / "rig.yaml",
-                       tmp_path / "plan.json")
+    request = PlanRequest(samples=4, rig=load_checked_rig(tmp_path / "rig.yaml"))
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), request, tmp_path / "plan.json")
     session = tmp_path / "s"
     assert main(["capture", "--rig", str(tmp_path / "rig.yaml"), "--plan", str(plan), "--session", str(session),
                  "--material", "builtin:red-plastic", "--speedup", "50", "--no-progress", *flags]) == 0

@@ -18,6 +18,8 @@ import pytest
 from goniofrost.app.cli import main
 from goniofrost.capture.journal import Journal, SampleRecord
 from goniofrost.capture.records import RunEnd, RunStatus
+from goniofrost.capture.inputs import load_inputs
+from goniofrost.capture.options import SessionOptions, StopRule
 from goniofrost.capture.runner import capture
 from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
@@ -36,8 +38,8 @@ def finished(tmp_path_factory):
     """A finished 5-sample session on the simulated rig (read-only for the tests)."""
     folder = tmp_path_factory.mktemp("monitor")
     rig, plan = make_plan(folder, M)
-    capture(rig, plan, folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices,
-            progress=False)
+    capture(load_inputs(rig, plan), folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50),
+            devices=rig_devices, options=SessionOptions(progress=False))
     return folder / "s"
 
 

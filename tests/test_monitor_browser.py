@@ -17,6 +17,8 @@ import pytest
 
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal, SampleRecord
+from goniofrost.capture.inputs import load_inputs
+from goniofrost.capture.options import SessionOptions
 from goniofrost.capture.runner import capture
 from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
@@ -115,8 +117,8 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
         try:
             with monitored(session, "127.0.0.1", 0, "capture") as server:
                 urls.put(server.url)
-                capture(rig, plan_file, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=10), devices=rig_devices,
-                        progress=False, **kw)
+                capture(load_inputs(rig, plan_file), session, sim=SimOptions(material=shown_material(MATERIAL), speedup=10),
+                        devices=rig_devices, options=SessionOptions(progress=False), **kw)
         except SessionFault as exc:
             outcome["fault"] = str(exc)
 
@@ -142,9 +144,9 @@ def test_a_fault_shows_the_terminals_words_and_the_page_follows_the_resume(plan,
     with MonitorServer(session, port=0) as server:
         page.goto(server.url)
         expect(page.locator("#state")).to_have_text("faulted")
-        resume = threading.Thread(target=capture, args=(rig, plan_file, session),
+        resume = threading.Thread(target=capture, args=(load_inputs(rig, plan_file), session),
                                   kwargs={"sim": SimOptions(material=shown_material(MATERIAL), speedup=10),
-                                          "devices": rig_devices, "progress": False, "resume": True})
+                                          "devices": rig_devices, "options": SessionOptions(resume=True, progress=False)})
         resume.start()
         expect(page.locator("#state")).to_have_text("finished", timeout=60_000)
         resume.join(timeout=60)

@@ -22,6 +22,8 @@ import yaml
 from goniofrost.app.cli import main
 from goniofrost.capture.engine import SessionFault
 from goniofrost.capture.journal import Journal
+from goniofrost.capture.inputs import load_inputs
+from goniofrost.capture.options import SessionOptions, StopRule
 from goniofrost.capture.runner import capture
 from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
@@ -96,7 +98,8 @@ def test_an_unplugged_camera_mid_session_is_one_line_then_resume_finishes(setup,
         hardware.extra["scene"].arm("unplug", calibration_frames + 4)
 
     with pytest.raises(SessionFault) as fault:
-        capture(rig, plan, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=unplug_in_the_samples), devices=rig_devices, progress=False)
+        capture(load_inputs(rig, plan), session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=unplug_in_the_samples), devices=rig_devices,
+                options=SessionOptions(progress=False))
     message = str(fault.value)
     assert "\n" not in message
     assert "pylon camera 0815-0000: the camera was unplugged (device removed) during a" in message
@@ -124,7 +127,8 @@ def test_a_grab_timeout_mid_session_exits_2_with_one_line(setup, uninterrupted, 
 
     with pytest.raises(SessionFault, match=r"pylon camera 0815-0000: no frame within 0.5 s \(camera.timeout_s\) "
                                            r"beyond a [0-9.e-]+ s exposure"):
-        capture(short, plan, tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=stall), devices=rig_devices, progress=False)
+        capture(load_inputs(short, plan), tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50, on_ready=stall),
+                devices=rig_devices, options=SessionOptions(progress=False))
     assert main(capture_args(short, plan, tmp_path / "s", "--resume")) == 0
     assert sorted(r.plan_index for r in samples(tmp_path / "s")) == list(range(M))
 

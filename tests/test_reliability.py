@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from goniofrost.capture.journal import Journal
+from goniofrost.capture.inputs import load_inputs
+from goniofrost.capture.options import SessionOptions, StopRule
 from goniofrost.capture.runner import capture
 from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
@@ -69,8 +71,8 @@ def test_a_strongly_coloured_material_is_captured_with_its_dark_channel_at_its_d
     from goniofrost.datasets import material_brdf
 
     rig, plan, k = coloured_plan(tmp_path, model, BLUE_SILK)
-    capture(rig, plan, tmp_path / "s", sim=SimOptions(material=shown_material(BLUE_SILK), speedup=50), devices=rig_devices,
-            progress=False)
+    capture(load_inputs(rig, plan), tmp_path / "s", sim=SimOptions(material=shown_material(BLUE_SILK), speedup=50),
+            devices=rig_devices, options=SessionOptions(progress=False))
     samples = json.loads(plan.read_text())["samples"]
     _, brdf = material_brdf(BLUE_SILK)
     with Journal.open(tmp_path / "s" / "session.sqlite") as journal:
@@ -96,8 +98,8 @@ def finished(tmp_path_factory):
     from monitor_helpers import MATERIAL, make_plan
     folder = tmp_path_factory.mktemp("finished")
     rig, plan = make_plan(folder, 3)
-    capture(rig, plan, folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices,
-            progress=False)
+    capture(load_inputs(rig, plan), folder / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50),
+            devices=rig_devices, options=SessionOptions(progress=False))
     return folder / "s"
 
 

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from goniofrost.capture import ground_truth, report
+from goniofrost.app import ground_truth
+from goniofrost.capture import report
 
 
 def test_relative_error_is_undefined_not_infinite_where_the_truth_is_zero():

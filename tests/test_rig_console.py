@@ -320,13 +320,16 @@ def test_a_snap_at_an_exposure_that_reads_well_has_no_problem(tmp_path, capsys):
 def small_plan(tmp_path_factory):
     """(rig file, plan file) of a 5-sample plan on the simulated rig (a small model, 30 x 30 x 60 grid)."""
     from goniofrost.app.demo import plan_on_rig
+    from goniofrost.plan.make import PlanRequest
+    from goniofrost.rig.file import load_checked_rig
     from goniofrost.core.cache import cache_path
     from goniofrost.core.grid import MerlGrid
 
     folder = tmp_path_factory.mktemp("dry")
     model = train_once("four-materials", ["builtin"], only=["white-diffuse", "blue-plastic", "gold", "green-felt"],
                        grid=MerlGrid(30, 30, 60), k_max=12)
-    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), 5, SIM_RIG, folder / "plan.json")
+    request = PlanRequest(samples=5, rig=load_checked_rig(SIM_RIG))
+    plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), request, folder / "plan.json")
     return SIM_RIG, plan
 
 

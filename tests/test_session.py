@@ -23,7 +23,11 @@ import numpy as np
 import pytest
 import yaml
 
+from goniofrost.capture.inputs import load_inputs
+from goniofrost.capture.options import SessionOptions, StopRule
 from goniofrost.capture.runner import capture
+from goniofrost.plan.make import PlanRequest
+from goniofrost.rig.file import load_checked_rig
 from goniofrost.datasets import shown_material
 from goniofrost.rig.simulated import rig_devices
 from goniofrost.app.cli import main
@@ -63,13 +67,14 @@ def session_model():
 
 def small_plan(rig: Path, m: int, out: Path, **plan_options):
     """(plan file ``out``, model): the small model (``session_model``) and its m-sample plan on
-    ``rig`` (Bayesian unless ``plan_options`` of ``plan_on_rig`` say otherwise), the setting the
+    ``rig`` (Bayesian unless ``plan_options``, fields of ``PlanRequest``, say otherwise), the setting the
     session tests share."""
     from goniofrost.core.cache import cache_path
     from goniofrost.app.demo import plan_on_rig
 
     model = session_model()
-    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), m, rig, out, **plan_options), model
+    request = PlanRequest(samples=m, rig=load_checked_rig(rig), **plan_options)
+    return plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), request, out), model
 
 
 @pytest.fixture(scope="module")
@@ -216,8 +221,8 @@ def test_on_a_rig_built_wrong_the_capture_without_alignment_completes_flagged_an
     from goniofrost.core.cache import cache_path
     exact = tmp_path / "alignment.json"
     exact.write_text(json.dumps({"offsets_deg": raw["sim"]["misalignment_deg"]}))
-    aligned_plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, wrong,
-                               tmp_path / "plan.json", alignment=exact)
+    aligned_plan = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""),
+                               PlanRequest(samples=M, rig=load_checked_rig(wrong, exact)), tmp_path / "plan.json")
     assert main(capture_args(wrong, aligned_plan, tmp_path / "a", "--speedup", "50", "--alignment", str(exact))) == 0
     report = json.loads((tmp_path / "a" / "report.json").read_text())
     aligned = report["ground_truth"]["sample_relative_error_median_at_measured_directions"]
@@ -915,8 +920,8 @@ def test_target_error_never_met_uses_up_the_plan(setup, tmp_path):
     folder, rig, plan, model = setup
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(rig, batched, session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices, progress=False, target_error=1e-12,
-                      confidence=0.8)
+    outcome = capture(load_inputs(rig, batched), session, sim=SimOptions(material=shown_material(MATERIAL), speedup=50),
+                      devices=rig_devices, stop=StopRule(1e-12, 0.8), options=SessionOptions(progress=False))
     target = outcome.report["target_error"]
     assert target["stopped"] == "plan used up" and target["samples_used"] == 5
     assert [b["samples"] for b in target["batches"]] == [2, 4, 5]
@@ -968,8 +973,8 @@ def test_a_plan_scheduled_with_another_alignment_is_refused_before_anything_move
     err = run_refused(capture_args(rig, plan, tmp_path / "s", "--alignment", str(aligned)), capsys)
     assert f"{plan}: alignment.hash: expected " in err and f"(the alignment {aligned} given to this capture)" in err
     assert "found 'None: this plan was scheduled with another alignment" in err
-    plan_aligned = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""), M, rig,
-                               tmp_path / "plan-aligned.json", alignment=aligned)
+    plan_aligned = plan_on_rig(model, cache_path("models", model.info["cache_key"], ""),
+                               PlanRequest(samples=M, rig=load_checked_rig(rig, aligned)), tmp_path / "plan-aligned.json")
     doc = json.loads(plan_aligned.read_text())
     assert doc["alignment"]["offsets_deg"] == {"camera_arm": 0.2, "sample_yaw": -0.3, "sample_tilt": 0.1}
     err = run_refused(capture_args(rig, plan_aligned, tmp_path / "s"), capsys)
@@ -1043,8 +1048,8 @@ def test_the_progress_bar_ends_at_the_count_captured_when_the_target_stops_early
     folder, rig, plan, model = setup
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # bars are drawn on a terminal only
     batched = batched_plan(tmp_path, rig, plan, [4, 5])
-    capture(rig, batched, tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50), devices=rig_devices, progress=True, target_error=10000.0,
-            confidence=0.8)  # the bound of this 6-material model after 4 samples: below 10000
+    capture(load_inputs(rig, batched), tmp_path / "s", sim=SimOptions(material=shown_material(MATERIAL), speedup=50),
+            devices=rig_devices, stop=StopRule(10000.0, 0.8))  # the bound of this 6-material model after 4 samples: below 10000
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("capture: 100%") and "| 4/4 " in last, last  # not "4/5"
 
@@ -1240,8 +1245,8 @@ def test_a_target_error_capture_assesses_the_measured_samples_of_each_batch_only
     short, _ = dark
     batched = batched_plan(tmp_path, rig, plan, [2, 4, 5])
     session = tmp_path / "s"
-    outcome = capture(short, batched, session, sim=SimOptions(material=shown_material(DARK_MATERIAL), speedup=50), devices=rig_devices, progress=False,
-                      target_error=1e-12, confidence=0.8)
+    outcome = capture(load_inputs(short, batched), session, sim=SimOptions(material=shown_material(DARK_MATERIAL), speedup=50),
+                      devices=rig_devices, stop=StopRule(1e-12, 0.8), options=SessionOptions(progress=False))
     with Journal.open(session / "session.sqlite") as journal:
         dark_indices = [r.plan_index for r in journal.not_measured()]
         assessed = [e["data"] for e in journal.events() if e["kind"] is EventKind.BATCH]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from goniofrost.core.errors import GoniofrostError
 from goniofrost.core.atomic_file import write_text_atomic
+from goniofrost.capture.options import StopRule
 
 DEFAULT_MATERIAL = "red-plastic"
 DEFAULT_SAMPLES = 40  # the plan's m_max; the capture stops earlier once the target is met
@@ -50,19 +51,31 @@ class DemoResult:
     stages_s: dict
 
 
-def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SAMPLES, rig_path=None,
-             grid=None, seed: int = 0, speedup: float = DEFAULT_SPEEDUP, progress: bool = True,
-             bsdf: bool = False, target_error: float | None = DEFAULT_TARGET_ERROR,
-             confidence: float = DEFAULT_CONFIDENCE) -> DemoResult:
-    """Run the demo into folder ``out`` (a previous demo's results there are replaced).
+@dataclass(frozen=True)
+class DemoRequest:
+    """What the demo measures: built-in ``material`` (left out of training), a plan of up to
+    ``samples`` on the rig of ``rig_path`` (None: ``default_rig_path``) over ``grid`` (None: the
+    full grid), the simulated noise ``seed`` and clock ``speedup``; ``bsdf``: also export the
+    session's brdf.binary to brdf.bsdf for Mitsuba 3 (stage "export"); ``stop``: stop the capture
+    once the error is at most its target with its confidence (a target None: all samples)."""
 
-    ``bsdf``: also export the session's brdf.binary to brdf.bsdf for Mitsuba 3 (stage "export");
-    ``target_error``: stop the capture once the error is at most this with ``confidence`` (None: all samples).
-    """
+    material: str = DEFAULT_MATERIAL
+    samples: int = DEFAULT_SAMPLES
+    rig_path: str | Path | None = None
+    grid: object = None
+    seed: int = 0
+    speedup: float = DEFAULT_SPEEDUP
+    bsdf: bool = False
+    stop: StopRule = StopRule(DEFAULT_TARGET_ERROR, DEFAULT_CONFIDENCE)
+
+
+def run_demo(out, request: DemoRequest = DemoRequest(), progress: bool = True) -> DemoResult:
+    """Run the demo of ``request`` into folder ``out`` (a previous demo's results there are replaced)."""
     from goniofrost.core.grid import FULL_GRID
 
-    out, grid = Path(out), grid or FULL_GRID
-    rig_path = Path(rig_path) if rig_path else default_rig_path()
+    material, samples = request.material, request.samples
+    out, grid = Path(out), request.grid or FULL_GRID
+    rig_path = Path(request.rig_path) if request.rig_path else default_rig_path()
     check_replaceable(out / "session")  # before minutes of training, not after
     check_demo_outputs(out)
     from goniofrost.datasets import open_dataset
@@ -100,22 +113,28 @@ def run_demo(out, *, material: str = DEFAULT_MATERIAL, samples: int = DEFAULT_SA
         print(note, file=sys.stderr, flush=True)
     model, model_path = train_without(material, grid, progress, reach.mask)
     lap("train")
-    plan_path = plan_on_rig(model, model_path, samples, rig_path, out / "plan.json", candidates=reach.mask)
+    from goniofrost.plan.make import PlanRequest
+
+    plan_path = plan_on_rig(model, model_path, PlanRequest(samples=samples, rig=rig, candidates=reach.mask),
+                            out / "plan.json")
     lap("plan")
+    from goniofrost.capture.inputs import inputs_on
     from goniofrost.datasets import shown_material
+    from goniofrost.rig.hardware import SimOptions
 
     shown = shown_material(f"builtin:{material}")  # the camera's, and the report's ground truth
-    outcome = capture_fresh(rig_path, plan_path, out / "session", shown, seed, speedup, progress,
-                            target_error, confidence)
+    sim = SimOptions(material=shown, seed=request.seed, speedup=request.speedup)
+    outcome = capture_fresh(inputs_on(rig, plan_path), out / "session", sim, request.stop, progress)
     lap("capture")
     write_reference_and_preview(shown, grid, out)
     lap("reference")
-    if bsdf:
+    if request.bsdf:
         from goniofrost.brdf.formats import export_beside
         export_beside(out / "session" / "brdf.binary", "mitsuba")
         lap("export")
     report = {**outcome.report, "demo": {"material": f"builtin:{material}", "m_max": samples,
-                                         "target_error": target_error, "confidence": confidence,
+                                         "target_error": request.stop.target_error,
+                                         "confidence": request.stop.confidence,
                                          "rig": str(rig_path),
                                          "rendering_snr_db": outcome.report["rendering_snr_db"], "stages_s": stages,
                                          "total_s": sum(stages.values())}}
@@ -162,41 +181,35 @@ def train_without(material: str, grid, progress: bool, sentinel_candidates=None)
     return model, cache_path("models", model.info["cache_key"], "")
 
 
-def plan_on_rig(model, model_path, m: int, rig_path, out_path, max_angle: float | None = None,
-                selector: str = "bayes", alignment=None, candidates=None, sentinels: bool = True) -> Path:
-    """Select m cells the rig can reach and its camera measure (the rig decides; optionally also
-    theta_i, theta_o <= max_angle) with the Bayesian design (or FROST: ``selector="frost"``),
-    schedule them (a Bayesian plan batch by batch) with the rig's alignment, write PLAN.json.
-    candidates: the rig's reachability mask (bool (n_valid,)) when already computed. A Bayesian
-    plan gets the model's sentinel samples (as ``plan``; ``sentinels=False``: none)."""
+def plan_on_rig(model, model_path, request, out_path) -> Path:
+    """Select and schedule the cells of ``request`` (``goniofrost.plan.make.PlanRequest``: its
+    ``rig`` decides what can be reached and measured) with the model at ``model_path``, write
+    PLAN.json to ``out_path`` and return its path."""
     from goniofrost.plan.file import write_plan
-    from goniofrost.plan.make import PlanRequest, make_plan
-    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.plan.make import make_plan
 
-    request = PlanRequest(samples=m, selector=selector, max_angle=max_angle, sentinels=None if sentinels else False,
-                          rig=load_checked_rig(rig_path, alignment), candidates=candidates)
-    doc = make_plan(model, model_path, request).doc
-    write_plan(out_path, doc)
+    write_plan(out_path, make_plan(model, model_path, request).doc)
     return Path(out_path)
 
 
 RERUN_DEMO = "the demo again"  # what a stopped demo says to type: it has no --resume and starts a new session
 
 
-def capture_fresh(rig_path, plan_path, session_dir: Path, material, seed: int, speedup: float, progress: bool,
-                  target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE):
-    """Capture into a fresh session folder (a previous demo session there is removed first), on the
-    simulated devices of the rig in ``rig_path`` showing ``material`` (``goniofrost.datasets.shown_material``)."""
+def capture_fresh(inputs, session_dir: Path, sim, stop, progress: bool):
+    """Capture ``inputs`` (``goniofrost.capture.inputs``) into a fresh session folder (a previous
+    demo session there is removed first), on the simulated devices of its rig with ``sim``
+    (``goniofrost.rig.hardware.SimOptions``: the material shown, the seed, the speed-up),
+    stopping by ``stop`` (``goniofrost.capture.target.StopRule``)."""
+    from goniofrost.app.ground_truth import GroundTruth
+    from goniofrost.capture.options import SessionOptions
     from goniofrost.capture.runner import capture
-    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     check_replaceable(session_dir)
     if session_dir.exists():
         shutil.rmtree(session_dir)
-    return capture(rig_path, plan_path, session_dir, devices=rig_devices,
-                   sim=SimOptions(material=material, seed=seed, speedup=speedup), progress=progress,
-                   target_error=target_error, confidence=confidence, rerun=RERUN_DEMO)
+    return capture(inputs, session_dir, devices=rig_devices, sim=sim, stop=stop,
+                   options=SessionOptions(progress=progress, rerun=RERUN_DEMO, compare=GroundTruth(sim.material)))
 
 
 def check_replaceable(session_dir: Path) -> None:
@@ -224,7 +237,7 @@ def write_reference_and_preview(material, grid, out: Path) -> None:
     reference.binary; the session's preview (already rendered against the same truth) becomes
     out/preview.png."""
     from goniofrost.brdf.merl_file import valid_to_full, write_merl
-    from goniofrost.capture.ground_truth import ground_truth
+    from goniofrost.app.ground_truth import ground_truth
 
     truth = ground_truth(material, grid)  # the table the session report used
     write_merl(out / "reference.binary", valid_to_full(truth, grid), grid)

@@ -8,7 +8,7 @@ tile's brightness (``tile_rate``); ``planner.alignment.fit_alignment`` fits the 
 ``alignment_document`` is ALIGNMENT.json. Everything that can be checked is checked before a
 device moves; the file is written only when the fit is good.
 
-The plan runs on the engine core (``AlignRunner``, a ``goniofrost.capture.plan_runner.PlanRunner``):
+The plan runs on the engine core (``goniofrost.capture.plan_runner.PlanRunner``, a progress bar over the poses):
 a failed or interrupted align stops and confirms every axis, switches the lamp off and says so
 axis by axis; with ``--frames DIR`` its runs are journaled in ``DIR/align.sqlite`` (steps, events,
 RunStart/RunEnd), without it nothing is kept.
@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from goniofrost.core.errors import ConfigError
-from goniofrost.capture.plan_runner import PlanRunner
+from goniofrost.capture.plan_runner import PlanRunner, RunTexts
+from goniofrost.capture.progress_bar import ProgressBar
 from goniofrost.capture.steps import Move
 from planner.alignment_file import VERSION as ALIGNMENT_VERSION
 
@@ -110,44 +110,16 @@ def run_steps(rig, poses: np.ndarray, disc_px: float, hardware, folder: Path, pr
         journal = (Journal.open(path) if path.is_file() else
                    Journal.create(path, {"program": "align", "rig_name": rig.name, "rig_file": str(rig.source),
                                          "kinematic_hash": rig.kinematic_hash, "poses": len(poses)}))
+    journaled_in = f"; the run is journaled in {journal.path}" if journal is not None else ""
+    texts = RunTexts(saved=lambda: f"No alignment was written{journaled_in}",
+                     resume="Fix the cause, then run goniofrost align again")
     try:
-        runner = AlignRunner(hardware, folder, len(poses), progress, journal=journal)
+        runner = PlanRunner(hardware, folder, journal=journal, program="align", texts=texts)
+        runner.subscribe(ProgressBar(len(poses), Move, unit="pose", desc="align", show=progress))
         return runner.execute_plan(alignment_steps(rig, poses, disc_px))
     finally:
         if journal is not None:
             journal.close()
-
-
-class AlignRunner(PlanRunner):
-    """The alignment plan on the engine core: a progress bar over the ``n_poses`` poses."""
-
-    program = "align"
-
-    def __init__(self, hardware, folder, n_poses: int, progress: bool, journal=None) -> None:
-        super().__init__(hardware, folder, journal=journal)
-        self.n_poses, self.progress, self._bar = n_poses, progress, None
-        self.step_journal = {Move: self._moved}
-
-    def run_scope(self):
-        from tqdm import tqdm
-
-        from goniofrost.core.progress import show_progress
-
-        self._bar = tqdm(total=self.n_poses, unit="pose", desc="align", file=sys.stderr,
-                         disable=not show_progress(self.progress))
-        return self._bar
-
-    def _moved(self, step, reached) -> dict:
-        if step.index is not None:
-            self._bar.update(1)
-        return {"joints": reached.joints, "seconds": reached.seconds}
-
-    def saved_text(self) -> str:
-        journaled = f"; the run is journaled in {self.journal.path}" if self.journal is not None else ""
-        return f"No alignment was written{journaled}"
-
-    def resume_text(self) -> str:
-        return "Fix the cause, then run goniofrost align again"
 
 
 def alignment_steps(rig, poses: np.ndarray, disc_px: float, folder: str = ""):

@@ -52,12 +52,18 @@ class SessionInputs:
 def load_inputs(rig_path, plan_path, alignment_path=None) -> SessionInputs:
     """Load the rig file (with ``alignment_path`` overriding its alignment), the plan and the
     plan's model, and check they belong together."""
+    from goniofrost.rig.file import load_checked_rig
+
+    return inputs_on(load_checked_rig(rig_path, alignment_path), plan_path)
+
+
+def inputs_on(rig, plan_path) -> SessionInputs:
+    """Load the plan and the plan's model for the loaded ``rig`` (``load_checked_rig``), and check
+    they belong together."""
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.scene_error import from_plan as scene_from_plan
     from goniofrost.plan.file import check_unique_cells, read_plan
-    from goniofrost.rig.file import load_checked_rig
 
-    rig = load_checked_rig(rig_path, alignment_path)
     plan_path = Path(plan_path)
     plan = read_plan(plan_path)
     model_path = resolve_model_path(plan, plan_path)

@@ -4,9 +4,12 @@ Every program that moves the rig (``capture``, ``align``, the console's hand com
 plan (a generator of the steps of ``goniofrost.capture.steps``, sent each step's result) through
 a ``PlanRunner``:
 
-* each step is executed by the one ``StepExecutor`` and, when a journal is given, journaled as a
-  ``steps`` row when it starts and when it ends (a short hand command may run without a journal);
-* the run is a ``RunStart`` and a ``RunEnd`` (``goniofrost.capture.records``) in the journal;
+* each step is executed by the one ``StepExecutor``; the run emits typed records
+  (``goniofrost.capture.records``: ``RunStart``, ``SafePoint``, ``StepStarting``, ``StepDone``,
+  ``StepFailed``, ``PlanEnded``, ``RunEnd``) to its subscribers: the journal's ``steps`` rows
+  (``goniofrost.capture.step_journal``, when a journal is given), samples.csv, a progress bar,
+  a session's events and drills, a live page;
+* the run is a ``RunStart`` and a ``RunEnd`` in the journal;
 * SIGINT, SIGTERM and a stop request of the rig lock (``goniofrost.rig.lock``, checked
   between steps too) end the run ``STOPPED_BY_OPERATOR`` and raise ``SessionInterrupted``; a
   device error ends it ``FAULT``, a measurement or output error ``REFUSED``, each raising
@@ -15,9 +18,10 @@ a ``PlanRunner``:
   message and the journal say axis by axis what was confirmed;
 * the drivers' log goes to the journal (``DeviceLog``), off the terminal.
 
-A journal write is never torn by a signal: the signal waits until the write is done. Subclasses
-(``goniofrost.capture.engine.SessionEngine``, ``goniofrost.capture.align.AlignRunner``) add what
-their steps journal, their words and how a completed run ends.
+A journal write is never torn by a signal: the signal waits until the records of a step are
+handed to the required subscribers. What differs between programs is handed in, not overridden:
+the words of its messages (``RunTexts``), its sample counts (``RunCount``), where it may pause,
+and how a completed run ends (``execute_plan``'s ``ending``).
 """
 from __future__ import annotations
 
@@ -25,20 +29,22 @@ import dataclasses
 import logging
 import time
 import warnings
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext as _no_scope
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple, Sequence
 
 from goniofrost.core.atomic_file import reason_of
 from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.executor import StepExecutor
 from goniofrost.rig.stop import stop_text
-from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus
+from goniofrost.capture.records import (EventKind, PlanEnded, RunEnd, RunStart, RunStatus, SafePoint, StepDone,
+                                        StepFailed, StepStarting)
 from goniofrost.capture.signals import Deferral, RunStopped, SessionInterrupted, signals_raise
-from goniofrost.capture.steps import step_detail
+from goniofrost.capture.step_journal import StepJournal
+from goniofrost.capture.steps import CHECKPOINTS, Move, Phase, step_summary
 
-__all__ = ["PlanRunner", "SessionFault", "SessionInterrupted"]
+__all__ = ["PlanRunner", "RunCount", "RunTexts", "SessionFault", "SessionInterrupted", "StepDone"]
 
 log = logging.getLogger(__name__)
 
@@ -48,117 +54,83 @@ class SessionFault(GoniofrostError):
     confirmed it), the lamp to switch off, and the journal stays resumable."""
 
 
-@dataclass(frozen=True)
-class StepDone:
-    """What the runner emits to its subscribers once a step is done and journaled: the ``step``,
-    its ``result`` and the ``summary`` the journal holds of it."""
-
-    step: Any
-    result: Any
-    summary: dict
-
-
 class SubscriberWarning(RuntimeWarning):
     """A subscriber failed on a record: the run goes on (a display must never stop a measurement)."""
+
+
+@dataclass(frozen=True)
+class RunTexts:
+    """The words of a run's messages after a stop. ``saved()``: what is safe (None: where the
+    run is journaled); ``resume``: what to do after a fault or a refusal; ``carry_on``: after an
+    operator's stop (an option, not an instruction: a stopped move was stopped on purpose);
+    ``samples``: the plan's samples, so that a failure at one names its angles."""
+
+    saved: Callable[[], str] | None = None
+    resume: str = "Fix the cause, then run the same command again"
+    carry_on: str = "To carry on from here, run the same command again"
+    samples: Sequence[dict] = ()
+
+
+class RunCount(NamedTuple):
+    """A run's counts for its RunStart and RunEnd: the plan's samples, those journaled, batches assessed."""
+
+    planned: int = 0
+    captured: int = 0
+    batches: int = 0
 
 
 class PlanRunner:
     """Run plans on ``hardware`` (a ``goniofrost.rig.contract.Hardware``); files go under
     ``folder``. ``journal``: a ``Journal`` or None (no journal: the run's records stay in
     ``run_start``/``run_end`` only); ``device_log``: the caller's (covering connect and release
-    too), else the runner captures its own; ``program``: the name its runs are journaled under."""
-
-    program = "run"
+    too), else the runner captures its own; ``program``: the name its runs are journaled under;
+    ``texts``: its messages' words; ``count()``: its RunCount (default: a plan without samples);
+    ``samples_only_safe``: the run may pause (a SafePoint) only before a sample's first move
+    (default: before any step of a short plan)."""
 
     def __init__(self, hardware, folder, *, journal=None, device_log: DeviceLog | None = None,
-                 program: str | None = None) -> None:
+                 program: str = "run", texts: RunTexts = RunTexts(), count: Callable[[], RunCount] = RunCount,
+                 samples_only_safe: bool = False) -> None:
         self.hw, self.journal = hardware, journal
         self.devices = StepExecutor(hardware, folder)
         self.folder = self.devices.folder
-        self.program = program or type(self).program
+        self.program, self.texts, self.count, self.samples_only_safe = program, texts, count, samples_only_safe
         self.run_start: RunStart | None = None
         self.run_end: RunEnd | None = None
-        self._row: int | None = None       # journal row of the step being executed
+        self._part: str | None = None      # the part of the plan under way (its last Phase step)
         self._given_log = device_log
         self._deferral, self._device_log = Deferral(), DeviceLog()  # replaced while running
         self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
-        self.step_journal: dict = {}       # step type -> f(step, result) -> the step's result summary
         self._subscribers: list = []       # (callback, required): see subscribe
+        if journal is not None:
+            self.subscribe(StepJournal(journal), required=True)
 
-    def subscribe(self, callback: Callable[[StepDone], None], required: bool = False) -> None:
-        """Hand every StepDone to ``callback``. A required one (a file the session keeps, as
-        samples.csv) runs with the step's journaling, where no signal cuts in, and its error stops
-        the run as the journal's does; another one's error is a SubscriberWarning and the run goes on."""
+    def subscribe(self, callback: Callable[[Any], None], required: bool = False) -> None:
+        """Hand every record of a run to ``callback``, in the order subscribed. A required one (the
+        journal, a file the session keeps, as samples.csv) runs where no signal cuts in, and its
+        error stops the run as the journal's does; another one's error is a SubscriberWarning and
+        the run goes on."""
         self._subscribers.append((callback, required))
 
-    # ----- what a subclass says (defaults: a plan without samples) ---------------------------
-    def samples_planned(self) -> int:
-        return 0
-
-    def samples_captured(self) -> int:
-        return 0
-
-    def batches(self) -> int:
-        return 0
-
-    def completed(self, value) -> tuple[RunStatus, str]:
-        """(status, reason) of a run whose plan returned ``value``."""
-        return RunStatus.FINISHED, f"{self.program} finished"
-
-    def before_step(self, step) -> None:
-        """Called before each step is journaled (a simulated rig's drills)."""
-
-    def after_journal(self) -> None:
-        """Called inside each step's journaling (a simulated rig's struck drills)."""
-
-    def run_scope(self):
-        """A context around the whole run (a progress bar)."""
-        return nullcontext()
-
-    def leaving(self) -> None:
-        """Called once the plan ended, however (the time of the part under way)."""
-
-    def where(self, step) -> str:
-        """' at plan sample N' / ' during Move' for the messages."""
-        index = getattr(step, "index", None)
-        if index is not None:
-            return f" at plan sample {index}"
-        return f" during {type(step).__name__}" if step is not None else " before the first step"
-
-    def failure_hint(self, step) -> str:
-        return ""
-
-    def saved_text(self) -> str:
-        """What is safe, for the messages after a stop."""
-        return f"The run is journaled in {self.journal.path}" if self.journal is not None else "Nothing was journaled"
-
-    def resume_text(self) -> str:
-        """What to do after a fault or a refusal."""
-        return "Fix the cause, then run the same command again"
-
-    def continue_text(self) -> str:
-        """What to do after an operator's stop: an option, not an instruction (a stopped move was
-        stopped on purpose; running it again would start it again)."""
-        return "To carry on from here, run the same command again"
-
     # ----- the run ------------------------------------------------------------------------
-    def execute_plan(self, plan):
-        """Run ``plan`` to its end; return what it returns (see module doc for how it may end)."""
-        done = self.samples_captured()
+    def execute_plan(self, plan, ending: Callable[[Any], tuple[RunStatus, str]] | None = None):
+        """Run ``plan`` to its end; return what it returns (see module doc for how it may end).
+        ``ending(value)``: (status, reason) of a run whose plan returned ``value`` (default: finished)."""
+        count = self.count()
         if self.journal is not None:
-            self.run_start = self.journal.start_run(self.program, self.samples_planned(), done)
+            self.run_start = self.journal.start_run(self.program, count.planned, count.captured)
         else:
-            self.run_start = RunStart(0, self.program, time.time(), self.samples_planned(), done)
-        self.journal_event(EventKind.SESSION, f"{self.program} run {self.run_start.run} started with {done} of "
-                           f"{self.samples_planned()} samples done", data={"run": self.run_start.run})
-        with signals_raise() as deferral, self.run_scope(), self._device_log_scope():
+            self.run_start = RunStart(0, self.program, time.time(), count.planned, count.captured)
+        self.journal_event(EventKind.SESSION, f"{self.program} run {self.run_start.run} started with "
+                           f"{count.captured} of {count.planned} samples done", data={"run": self.run_start.run})
+        with signals_raise() as deferral, self._device_log_scope():
             self._deferral = deferral
             try:
                 value = self._drive(plan)
             finally:
-                self.leaving()
+                self._emit(PlanEnded(), critical=False)
                 self._journal_device_log(quiet=True)
-        status, reason = self.completed(value)
+        status, reason = ending(value) if ending else (RunStatus.FINISHED, f"{self.program} finished")
         self._end_run(status, reason)
         self.journal_event(EventKind.SESSION, reason, data={"status": status.value})
         return value
@@ -168,10 +140,12 @@ class PlanRunner:
             self.journal.add_event(kind, message, axis=axis, data=data)
 
     def _end_run(self, status: RunStatus, reason: str, **stopped) -> None:
-        self.run_end = RunEnd(self.run_start.run, status, reason, self.samples_planned(), self.samples_captured(),
-                              self.batches(), self.run_start.started_utc, time.time(), **stopped)
+        count = self.count()
+        self.run_end = RunEnd(self.run_start.run, status, reason, count.planned, count.captured, count.batches,
+                              self.run_start.started_utc, time.time(), **stopped)
         if self.journal is not None:
             self.journal.end_run(self.run_end)
+        self._emit(self.run_end, critical=False)
 
     def _drive(self, plan):
         """Execute each step and send its result back into the plan; on any failure stop every
@@ -181,8 +155,9 @@ class PlanRunner:
 
         step = result = None
         try:
+            self._emit(self.run_start, critical=False)
             while True:
-                self._check_stop_request()
+                self.check_stop_request()
                 try:
                     step = plan.send(result)
                 except StopIteration as end:
@@ -201,7 +176,7 @@ class PlanRunner:
             who = self._stop_request() or str(exc) or "a signal"  # SIGTERM of a stop request names who asked
             message = self._abort(EventKind.INTERRUPTED, RunStatus.STOPPED_BY_OPERATOR, f"{who}: run stopped", None,
                                   step, lambda: f"interrupted by {who}{self.where(step)}. "
-                                                f"{self.safe_text(self.continue_text())}")
+                                                f"{self.safe_text(self.texts.carry_on)}")
             raise RunStopped(message) from exc
         except OSError as exc:  # a file the run writes (frames, samples.csv): one line, not a traceback
             where = exc.filename or self.folder
@@ -215,60 +190,71 @@ class PlanRunner:
         finally:
             plan.close()
 
-    def at_safe_point(self, step) -> bool:
-        """Whether the run may pause before ``step`` (default: before any step of a short plan)."""
-        return True
+    def where(self, step) -> str:
+        """' at plan sample N' / ' during Move' (' in the calibration') for the messages."""
+        index = getattr(step, "index", None)
+        if index is not None:
+            return f" at plan sample {index}"
+        if step is None:
+            return " before the first step"
+        part = f" in the {self._part}" if self._part else ""
+        return f" during {type(step).__name__}{part}"
 
     def _safe_point(self, step) -> None:
-        """Ask the hardware's pause gate (a server's ``pause_gate(where)``, if any) whether the run
-        may continue, at a safe point only: it blocks while the run is paused and raises
-        SessionInterrupted when the run is stopped meanwhile."""
+        """At a safe point only (nothing under way): ask the hardware's pause gate (a server's
+        ``pause_gate(where)``, if any) whether the run may continue (it blocks while the run is
+        paused and raises SessionInterrupted when the run is stopped meanwhile), then hand the
+        subscribers a SafePoint (a session's suspenders may wait there too)."""
+        if self.samples_only_safe and not (isinstance(step, Move) and step.index is not None):
+            return
         gate = getattr(self.hw, "pause_gate", None)
-        if gate is not None and self.at_safe_point(step):
+        if gate is not None:
             gate(self.where(step))
+        self._emit(SafePoint(step), critical=False)
 
     def _stop_request(self) -> str | None:
         lock = getattr(self.hw, "rig_lock", None)
         return lock.stop_request() if lock is not None else None
 
-    def _check_stop_request(self) -> None:
+    def check_stop_request(self) -> None:
         """A stop request of the rig lock, between steps (its SIGTERM interrupts a step itself)."""
         request = self._stop_request()
         if request is not None:
             raise SessionInterrupted(request)
 
     def _execute(self, step):
-        """Journal the step as running, execute it, journal how it ended; return its result."""
-        self.before_step(step)
-        if self.journal is not None:
-            with self._deferral.critical():
-                self._row = self.journal.start_step(self.run_start.run, type(step).__name__,
-                                                    getattr(step, "index", None), step_detail(step))
+        """Emit the step as starting, execute it, emit it done with its summary; return its result."""
+        self._emit(StepStarting(step))
         result = self.devices(step)
-        journal_result = self.step_journal.get(type(step))
-        with self._deferral.critical():  # a signal waits until the step's journaling is done
-            summary = journal_result(step, result) if journal_result else {}
-            if self.journal is not None:
-                self.journal.end_step(self._row, "done", summary)
-            self._row = None
-            self.after_journal()
-            done = StepDone(step, result, summary)
-            for callback in (c for c, required in self._subscribers if required):
-                callback(done)
+        summary = step_summary(step, result)
+        if isinstance(step, CHECKPOINTS):  # what a resumed simulated run restores
+            state = self.devices.checkpoint()
+            summary = summary if state is None else {**summary, "sim_state": state}
+        if isinstance(step, Phase):
+            self._part = step.name
+        done = StepDone(step, result, summary)
+        self._emit(done, optional=False)
         self._journal_device_log()
-        self._emit(done)
+        self._emit(done, required=False)
         return result
 
-    def _emit(self, done: StepDone) -> None:
-        """Hand ``done`` to each subscriber that is not required; an error is a warning."""
-        for callback in (c for c, required in self._subscribers if not required):
+    def _emit(self, record, critical: bool = True, required: bool = True, optional: bool = True) -> None:
+        """Hand ``record`` to the required subscribers (within the journal's critical section,
+        unless not ``critical``: a signal waits until they are done; their error stops the run),
+        then to the others (an error is a warning)."""
+        if required:
+            with self._deferral.critical() if critical else _no_scope():
+                for callback in (c for c, needed in self._subscribers if needed):
+                    callback(record)
+        if not optional:
+            return
+        for callback in (c for c, needed in self._subscribers if not needed):
             try:
-                callback(done)
+                callback(record)
             except Exception as exc:  # noqa: BLE001 - bluesky's rule: a subscriber never stops the run
-                log.warning("subscriber %s failed on %s: %s", getattr(callback, "__qualname__", callback),
-                            type(done.step).__name__, exc)
-                warnings.warn(f"{type(done.step).__name__}: a subscriber failed: {exc}", SubscriberWarning,
-                              stacklevel=2)
+                name = type(getattr(record, "step", record)).__name__
+                log.warning("subscriber %s failed on %s: %s", getattr(callback, "__qualname__", callback), name, exc)
+                warnings.warn(f"{name}: a subscriber failed: {exc}", SubscriberWarning, stacklevel=2)
 
     def _abort(self, kind: EventKind, status: RunStatus, detail: str, axis, step, operator_message=None) -> str:
         """Stop every axis first (safety), switch the lamp off, then record why and how each axis
@@ -292,10 +278,8 @@ class PlanRunner:
             data = {"step": repr(step), "plan_index": index, "stops": [dataclasses.asdict(s) for s in stops],
                     "lamp_off": lamp_error is None}
             try:
-                if self.journal is not None and self._row is not None:
-                    self.journal.end_step(self._row, "interrupted" if kind is EventKind.INTERRUPTED else "failed",
-                                          {"error": detail})
-                self.after_journal()
+                self._emit(StepFailed(step, "interrupted" if kind is EventKind.INTERRUPTED else "failed", detail),
+                           critical=False, optional=False)
                 self.journal_event(kind, detail, axis=axis, data=data)
                 self.journal_event(EventKind.STOP, stop_text(stops), data={"stops": data["stops"]})
                 self.journal_event(EventKind.LAMP, "lamp off" if lamp_error is None else
@@ -310,8 +294,15 @@ class PlanRunner:
         return text
 
     def _failure_message(self, exc, step) -> str:
-        where = f"{self.where(step)}{self.failure_hint(step)}"
-        return f"{self.program} failed{where}: {exc}. {_remedy(exc)}{self.safe_text()}"
+        return f"{self.program} failed{self.where(step)}{self._angles(step)}: {exc}. {_remedy(exc)}{self.safe_text()}"
+
+    def _angles(self, step) -> str:
+        """' (theta_i 30.0 deg, theta_o 45.0 deg)' of the plan sample a step belongs to, if known."""
+        index = getattr(step, "index", None)
+        if index is None or not self.texts.samples:
+            return ""
+        s = self.texts.samples[index]
+        return f" (theta_i {s['theta_i_deg']:.1f} deg, theta_o {s['theta_o_deg']:.1f} deg)"
 
     def safe_text(self, next_step: str | None = None) -> str:
         """What the abort did to the axes and the lamp, what is safe, and what to type next."""
@@ -319,7 +310,12 @@ class PlanRunner:
         text = stop_text(stops)
         lamp = "the lamp is off" if lamp_error is None else "the lamp did not confirm it is off: it may still be on"
         check = " Check the axes named above before anything else moves." if any(not s.confirmed for s in stops) else ""
-        return f"{text[0].upper()}{text[1:]}; {lamp}.{check} {self.saved_text()}. {next_step or self.resume_text()}"
+        return f"{text[0].upper()}{text[1:]}; {lamp}.{check} {self._saved_text()}. {next_step or self.texts.resume}"
+
+    def _saved_text(self) -> str:
+        if self.texts.saved is not None:
+            return self.texts.saved()
+        return f"The run is journaled in {self.journal.path}" if self.journal is not None else "Nothing was journaled"
 
     def _journal_device_log(self, quiet: bool = False) -> None:
         """Journal what the drivers logged (retries, failed stops, ...) since the last step.

@@ -111,11 +111,12 @@ def ask_to_mount(sample: QueueSample, position: str) -> None:
 
 def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,
               seed=None, speedup=None, progress: bool = True, out=print, devices=None,
-              materials=None) -> list[QueueItem]:
+              materials=None, compare=None) -> list[QueueItem]:
     """Measure every sample of ``queue`` not yet measured, in order; return what was done.
 
     ``devices``: the opener of the rig's devices and ``materials(SPEC:NAME, option)`` the resolver
-    of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's.
+    of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's;
+    ``compare(material)``: what a sample's report compares it with (``SessionOptions.compare``).
 
     ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
     ``--yes``). A fault or an interruption propagates (the capture's own exception and message);
@@ -127,6 +128,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.reconstruction import TooFewSamplesError
+    from goniofrost.capture.options import ReusedCalibration, SessionOptions, StopRule
     from goniofrost.capture.runner import capture
     from goniofrost.rig.hardware import SimOptions
 
@@ -148,12 +150,14 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
         out(f"queue {position}: measuring {sample.sample_id} into {session}"
             + ("; white reference re-measured, dark frames and flat field reused" if reuse else "; full calibration"))
         try:
-            outcome = capture(queue.rig, queue.plan, session, devices=devices,
+            options = SessionOptions(resume=(session / JOURNAL_FILE).exists(), progress=progress,
+                                     progress_desc=f"queue {position} {sample.sample_id}", label=label,
+                                     reuse=None if reuse is None else ReusedCalibration(reuse, queue.drift_limit),
+                                     rerun=RERUN_QUEUE,
+                                     compare=compare(shown[k - 1]) if compare and shown[k - 1] else None)
+            outcome = capture(inputs, session, devices=devices,
                               sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
-                              resume=(session / JOURNAL_FILE).exists(), progress=progress,
-                              label=label, reuse_calibration=reuse, drift_limit=queue.drift_limit, inputs=inputs,
-                              target_error=sample.target_error, confidence=sample.confidence,
-                              progress_desc=f"queue {position} {sample.sample_id}", rerun=RERUN_QUEUE)
+                              stop=StopRule(sample.target_error, sample.confidence), options=options)
         except TooFewSamplesError as exc:
             out(f"queue {position}: {sample.sample_id}: NOTHING MEASURED: {exc}; the queue goes on")
             items.append(QueueItem(sample.sample_id, session, NOTHING_MEASURED, str(exc)))

@@ -3,8 +3,8 @@
 ``write_outputs`` writes ``DIR/brdf.binary`` (the Bayesian posterior mean on the model's grid, the
 samples' uncertainties used), ``DIR/brdf.std.binary`` (its per-cell predictive standard deviation,
 MERL layout, see ``goniofrost reconstruct``) and ``DIR/brdf.json`` (its predicted error), then the
-reports (``capture.report``) and, on a simulated rig, the comparison with its ground truth
-(``capture.ground_truth``). With fewer than MIN_MEASURED_SAMPLES measured samples there is nothing
+reports (``capture.report``) and, when the caller hands one in, the comparison with a ground
+truth (the demo's: ``goniofrost.app.ground_truth``). With fewer than MIN_MEASURED_SAMPLES measured samples there is nothing
 to reconstruct: ``TooFewSamplesError``.
 """
 from __future__ import annotations
@@ -17,7 +17,6 @@ import numpy as np
 
 from calib.measurement import remedy
 from goniofrost.brdf.merl_file import valid_to_full
-from goniofrost.capture.ground_truth import ground_truth, truth_section
 from goniofrost.capture.journal import by_reason
 from goniofrost.capture.report import (bound_section, build_report, error_figure, extend_record,
                                        extrapolation_section, measurement_section, preview_title,
@@ -67,11 +66,13 @@ def reconstruct_session(inputs, records):
     return reconstruct_bayes(inputs.model, inputs.positions[order], values, sigmas=sigmas)
 
 
-def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None) -> dict:
+def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None, compare=None) -> dict:
     """Reconstruct into brdf.binary (+ brdf.std.binary, brdf.json), write report.json and
     summary.txt; return the report. ``spec``: the SessionSpec (its target error, if any);
-    ``material``: what a simulated rig showed (``spec``, ``brdf``, ``table``: see
-    ``goniofrost.datasets.ShownMaterial``), the ground truth the report compares against."""
+    ``material``: the ``SPEC:NAME`` a simulated rig showed; ``compare``: what the session is
+    compared with (``reference(grid)``, the valid cells' table (n_valid, 3), and
+    ``section(inputs, records, estimate, predicted, median)``, report.json's ``ground_truth``;
+    ``goniofrost.app.ground_truth.GroundTruth``), None: nothing."""
     from goniofrost.capture.engine import SessionStats
     from goniofrost.frost.outputs import write_bayes_outputs
 
@@ -82,21 +83,21 @@ def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None)
     rec = reconstruct_session(inputs, records)   # the measured samples only
     grid = inputs.model.grid
     estimate, std = valid_to_full(rec.brdf, grid), valid_to_full(rec.std, grid)
-    if material:
-        ground_truth(material, grid)   # tabulated once, here: the preview and the truth section both read it
+    # tabulated once, here: the preview and the truth section both read it
+    reference = valid_to_full(compare.reference(grid), grid) if compare is not None else None
     # The preview (rendering and PNG: about a second) needs only the estimate: drawn on a thread
     # beside the files and the report's other sections, which mostly run in numpy (GIL released).
     bound = session_bound(inputs, records, getattr(spec, "confidence", None))
     said = error_figure(inputs, bound, rec.predicted_error)
     label = journal.label().to_dict()
-    title = preview_title(session_dir, label, material and material.spec, said, bound)
+    title = preview_title(session_dir, label, material, said, bound)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preview") as pool:
-        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, material, std, title)
+        preview = pool.submit(write_preview, session_dir / "preview.png", estimate, grid, reference, std, title)
         earlier = read_earlier_record(session_dir / "brdf.json")  # its fields are kept, ours updated
         write_bayes_outputs(session_dir / "brdf.binary", inputs.model, rec, "samples.csv",
                             None if inputs.scene is not None else bound)
         runs = journal.runs()
-        report = build_report(inputs, records, stats, session_dir, material and material.spec, runs, dark)
+        report = build_report(inputs, records, stats, session_dir, material, runs, dark)
         report["label"] = label
         report["suspensions"] = suspensions_section(journal.suspensions())
         report["prediction"] = {"estimator": "Bayesian posterior mean (all atoms, the samples' sigmas used)",
@@ -110,9 +111,9 @@ def write_outputs(inputs, journal, stats, session_dir, material=None, spec=None)
         report["outputs"] |= {"std": "brdf.std.binary", "record": "brdf.json"}
         if spec is not None and spec.target is not None:
             report["target_error"] = target_section(spec, records, dark)
-        if material:
-            report["ground_truth"] = truth_section(inputs, records, material, estimate, rec.predicted_error,
-                                                   report["prediction"].get("median_estimate"))
+        if compare is not None:
+            report["ground_truth"] = compare.section(inputs, records, estimate, rec.predicted_error,
+                                                     report["prediction"].get("median_estimate"))
         report["rendering_snr_db"] = preview.result()
     report["outputs"]["preview"] = "preview.png"
     extend_record(session_dir / "brdf.json", earlier, measurement_section(inputs, report, [*records, *dark], runs))

@@ -14,6 +14,9 @@ reader (a session catalogue, the console) read their fields. No reader matches a
 * ``AxisStop`` (``goniofrost.rig.stop``): how one axis took a stop, in a ``RunEnd``.
 * ``RunStart`` / ``RunEnd``: one row each per run in the journal's ``runs`` table.
 * ``SampleRecord`` / ``NotMeasuredRecord``: a plan sample measured, or done without a value.
+* ``SafePoint`` / ``StepStarting`` / ``StepDone`` / ``StepFailed`` / ``PlanEnded``: what the engine core
+  (``goniofrost.capture.plan_runner``) hands its subscribers as a run goes, besides its
+  ``RunStart`` and ``RunEnd`` (bluesky's documents to callbacks).
 """
 from __future__ import annotations
 
@@ -277,3 +280,44 @@ class Suspension:
     ended_utc: float | None = None
     waited_s: float | None = None
     end: SuspensionEnd | None = None
+
+
+@dataclass(frozen=True)
+class SafePoint:
+    """The run may pause before ``step``: nothing is under way (a session's suspenders wait here,
+    a simulated rig arms its drills). Handed to subscribers outside the journal's critical section."""
+
+    step: object
+
+
+@dataclass(frozen=True)
+class StepStarting:
+    """A plan step is about to be journaled and executed (a subscriber may wait here: a safe point)."""
+
+    step: object
+
+
+@dataclass(frozen=True)
+class StepDone:
+    """A step was executed: the ``step``, its ``result`` and the ``summary`` the journal keeps of it
+    (``goniofrost.capture.steps.step_summary``, with the simulated state after a Commit or a
+    SaveCalibration)."""
+
+    step: object
+    result: object
+    summary: dict
+
+
+@dataclass(frozen=True)
+class StepFailed:
+    """A run is being aborted during ``step`` (None: between steps): ``ended`` "failed" or
+    "interrupted", ``detail`` the error's words. Every axis was already told to stop."""
+
+    step: object
+    ended: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class PlanEnded:
+    """The plan ended, however (before the run's RunEnd): what was timed or shown may close."""

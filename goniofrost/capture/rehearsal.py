@@ -5,8 +5,8 @@ run would have.
 real rig it does nothing). Before each plan sample it arms the drills of the rig file's
 ``sim: faults:`` that are due, and journals each drill as ``armed`` and, once seen, ``struck``;
 a later run of the session retires the struck ones, so a drill rehearses exactly once. With each
-committed sample (and the saved calibration) the engine journals the simulation's ``checkpoint``
-(nominal time, axis positions); a resumed run restores the one journaled just before its first
+committed sample (and the saved calibration) the engine core journals the simulation's
+``checkpoint`` (nominal time, axis positions); a resumed run restores the one journaled just before its first
 sample, so its frames, samples.csv and brdf.binary are those of an uninterrupted run.
 """
 from __future__ import annotations
@@ -64,11 +64,6 @@ class Rehearsal:
                 self._struck.add(drill["drill"])
                 self.journal.add_event(EventKind.DRILL, f"drill struck: {drill['kind']} on {drill.get('axis', 'the lamp')}",
                                        axis=drill.get("axis"), data={**drill, "state": "struck"})
-
-    def with_state(self, summary: dict) -> dict:
-        """A step's result ``summary`` with the simulation's state, to journal (unchanged on a real rig)."""
-        state = self.devices.checkpoint()
-        return summary if state is None else {**summary, "sim_state": state}
 
     def _struck_before(self) -> list[dict]:
         """The drills earlier runs of the session journaled as struck."""

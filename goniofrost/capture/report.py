@@ -2,7 +2,7 @@
 
 The reconstruction and the files it writes (``DIR/brdf.binary``, ``DIR/brdf.std.binary``,
 ``DIR/brdf.json``) are ``capture.reconstruction``'s; the comparison with a simulated rig's ground
-truth is ``capture.ground_truth``'s. This module writes ``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
+truth is the caller's (the demo's ``goniofrost.app.ground_truth``), handed in. This module only writes: ``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
 error on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times
 come from the journal, so a resumed session reports every sample's motion and capture time, not
 only the last run's. With a target error the report holds every batch's predicted error and
@@ -26,9 +26,7 @@ import numpy as np
 
 from calib.measurement import remedy
 from goniofrost.core.atomic_file import write_text_atomic
-from goniofrost.capture.ground_truth import ground_truth
 from goniofrost.capture.journal import by_reason, json_limits
-from goniofrost.brdf.merl_file import valid_to_full
 
 
 def build_report(inputs, records, stats, session_dir: Path, material: str | None, runs, not_measured=()) -> dict:
@@ -278,19 +276,18 @@ def _import_renderer() -> None:
         pass
 
 
-def write_preview(path: Path, estimate: np.ndarray, grid, material=None, std=None,
+def write_preview(path: Path, estimate: np.ndarray, grid, reference=None, std=None,
                   title: str | None = None) -> float | None:
-    """Write the sphere preview with the uncertainty panel (beside the ground truth and the actual
-    error on a simulated rig); return its rendering SNR in dB (None without a ground truth).
-    title: the preview's (``preview_title``), None: the material's."""
+    """Write the sphere preview with the uncertainty panel (beside ``reference``, the ground truth
+    on the full grid (n_cells, 3), and the actual error on a simulated rig); return its rendering
+    SNR in dB (None without a reference). title: the preview's (``preview_title``)."""
     from goniofrost.brdf.preview import preview_of, write_png
 
     if _RENDERER_IMPORT is not None:
         _RENDERER_IMPORT.join()
 
-    reference = None if material is None else valid_to_full(ground_truth(material, grid), grid)
     preview = preview_of(estimate, grid, reference, std=std)
-    write_png(path, preview, title=title or "session estimate" + (f" vs {material.spec}" if material else ""))
+    write_png(path, preview, title=title or "session estimate")
     return preview.snr_db
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from goniofrost.core.errors import ConfigError, GoniofrostError, OutputError
 from goniofrost.capture.journal import Journal, JournalError, SamplesCsv
 from goniofrost.capture.session_steps import SessionSpec
-from goniofrost.capture.target import DEFAULT_CONFIDENCE
+from goniofrost.capture.options import DEFAULT_CONFIDENCE, SessionOptions, StopRule
 from goniofrost.rig.hardware import NO_SIM, SimOptions
 
 JOURNAL_FILE = "session.sqlite"
@@ -34,54 +34,42 @@ class CaptureOutcome:
     session_dir: Path
 
 
-def capture(rig_path, plan_path, session_dir, *, devices=None, sim: SimOptions = NO_SIM, resume: bool = False,
-            progress: bool = True, target_error: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
-            alignment=None, label=None, reuse_calibration: dict | None = None, drift_limit: float | None = None,
-            inputs=None, progress_desc: str = "capture", rerun: str | None = None, extra_files=()) -> CaptureOutcome:
-    """Run (or resume) a session; raise GoniofrostError subclasses on bad input or a device fault.
+def capture(inputs, session_dir, *, devices=None, sim: SimOptions = NO_SIM, stop: StopRule = StopRule(),
+            options: SessionOptions = SessionOptions()) -> CaptureOutcome:
+    """Run (or resume) a session of ``inputs`` (``goniofrost.capture.inputs.load_inputs``: the
+    rig, the plan and its model, checked together) into ``session_dir``; raise GoniofrostError
+    subclasses on bad input or a device fault.
 
     ``devices``: the opener of the rig's devices (``goniofrost.rig.hardware.open_hardware``'s; None:
     the real ones; ``goniofrost.rig.simulated.rig_devices`` for a simulated rig file), chosen by the
     caller, with ``sim`` (``goniofrost.rig.hardware.SimOptions``: the material a simulated rig
     shows, which the report compares against, its seed and speed-up, ``on_ready``).
-    ``target_error``: measure the plan batch by batch and stop once this material's log-relative
-    MSE is at most this with probability ``confidence`` (the calibrated bound of
-    ``frost.confidence``; ``goniofrost.capture.target``; the plan needs batch_ends).
-    ``alignment``: an ALIGNMENT.json that overrides the rig file's ``alignment``.
-    ``label``: who measures what (``goniofrost.capture.lab.session_label``; default: the rig
-    file's lab section alone); a resume keeps the journaled one, adds new notes and refuses
-    another value. ``reuse_calibration``: another session's journaled calibration record (a
-    queue's sample before): only the white reference is measured again, and everything when its
-    scale moved by more than ``drift_limit`` (relative). ``inputs``: already loaded inputs (a
-    queue loads them once). ``rerun``: what the messages after a stop tell the user to type (a
-    queue: the queue command itself, which has no --resume; default ``engine.RERUN``). ``extra_files``:
-    the names of files the caller writes into the session folder after the capture (``capture
-    --bsdf``: brdf.bsdf), checked with the capture's own before anything moves (``check_session_outputs``).
+    ``stop``: measure the plan batch by batch and stop once the material's error is at most its
+    target (``goniofrost.capture.target.StopRule``; default: the whole plan). ``options``: resume,
+    progress, label, a reused calibration, what to type after a stop, the caller's extra files
+    (``goniofrost.capture.options.SessionOptions``).
     """
-    from goniofrost.capture.engine import RERUN, SessionStats
-    from goniofrost.capture.inputs import load_inputs
+    from goniofrost.capture.engine import SessionStats
     from goniofrost.capture.reconstruction import write_outputs
     from goniofrost.capture.report import preload_preview, summary_text
     from goniofrost.capture.lab import session_label
     from goniofrost.capture.session_lock import session_lock
 
-    inputs = inputs or load_inputs(rig_path, plan_path, alignment)
-    rerun = rerun or RERUN
     material = check_material(inputs.rig, sim.material)
     check_sim_options(inputs.rig, sim.seed, sim.speedup)
-    check_target(inputs, target_error, confidence)
-    session_dir = Path(session_dir)
-    meta = session_meta(inputs, material and material.spec, target_error, confidence,
+    check_target(inputs, stop.target_error, stop.confidence)
+    session_dir, rerun = Path(session_dir), options.rerun
+    meta = session_meta(inputs, material and material.spec, stop.target_error, stop.confidence,
                         sim_seed(inputs.rig, sim.seed)) | {
-        "label": (label or session_label(inputs.rig)).to_dict()}
-    spec = SessionSpec.from_inputs(inputs, target_error, confidence)
-    if drift_limit is not None:
-        spec = dataclasses.replace(spec, drift_limit=float(drift_limit))
+        "label": (options.label or session_label(inputs.rig)).to_dict()}
+    spec = SessionSpec.from_inputs(inputs, stop.target_error, stop.confidence)
+    if options.reuse is not None and options.reuse.drift_limit is not None:
+        spec = dataclasses.replace(spec, drift_limit=float(options.reuse.drift_limit))
     existed = check_session_folder(session_dir)
-    check_session_outputs(session_dir, extra_files)
+    check_session_outputs(session_dir, options.extra_files)
     with session_lock(session_dir) as lock:
         try:
-            journal = open_journal(session_dir, meta, resume)
+            journal = open_journal(session_dir, meta, options.resume)
         except GoniofrostError:   # refused: the folder is left as it was
             if not existed:  # made for this run (--resume of nothing): only its lock is in it
                 remove_refused_session(session_dir, existed)
@@ -99,12 +87,12 @@ def capture(rig_path, plan_path, session_dir, *, devices=None, sim: SimOptions =
             if not session_finished(spec, journal):
                 preload_preview()
                 stats = run_engine(spec, journal, session_dir, rig=inputs.rig, devices=devices, sim=sim,
-                                   progress=progress, reuse_calibration=reuse_calibration,
-                                   progress_desc=progress_desc, rerun=rerun)
+                                   options=options)
             else:  # nothing left to capture (a kill after the last sample): the journal is the truth
                 SamplesCsv(session_dir / "samples.csv", csv_batches(spec)).rewrite(journal.samples())
             try:
-                report = write_outputs(inputs, journal, stats, session_dir, material, spec)
+                report = write_outputs(inputs, journal, stats, session_dir, material and material.spec, spec,
+                                       options.compare)
             except OutputError as exc:
                 raise OutputError(exc.path, f"{exc.reason}; every sample is safe in {journal.path}: fix this, "
                                   f"then run {rerun} to write the results") from exc
@@ -175,22 +163,19 @@ def remove_refused_session(session_dir: Path, existed: bool) -> None:
             pass
 
 
-def run_engine(spec, journal, session_dir: Path, *, rig, devices, sim: SimOptions, progress,
-               reuse_calibration=None, progress_desc: str = "capture", rerun: str | None = None):
+def run_engine(spec, journal, session_dir: Path, *, rig, devices, sim: SimOptions,
+               options: SessionOptions = SessionOptions()):
     """Connect the rig (``devices``, ``sim``: the opener and its options, see ``capture``)
     and capture what is left of the session ``spec``; return the run's SessionStats. From connecting to releasing, the devices' log
     goes to the journal, not the terminal."""
     from goniofrost.rig.device_log import DeviceLog
-    from goniofrost.capture.engine import RERUN, SessionEngine
+    from goniofrost.capture.engine import SessionEngine
     from goniofrost.capture.holder import held_hardware
 
     with DeviceLog.capture() as device_log:
         try:
             with held_hardware(rig, devices, sim) as hardware:
-                engine = SessionEngine(spec, hardware, journal, session_dir, progress, device_log=device_log)
-                engine.reuse_calibration, engine.progress_desc = reuse_calibration, progress_desc
-                engine.rerun = rerun or RERUN
-                return engine.run()
+                return SessionEngine(spec, hardware, journal, session_dir, options, device_log=device_log).run()
         finally:
             journal_device_log(journal, device_log)  # what connecting and releasing logged
 

@@ -13,7 +13,7 @@ photodiode reading; ``SaveCalibration`` -> the saved CalibrationRecord; every ot
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable, Generator
 
@@ -186,3 +186,26 @@ def step_detail(step: Step) -> dict:
     if isinstance(step, Commit):
         return {"index": step.index}
     return {f.name: getattr(step, f.name) for f in fields(step) if f.compare}
+
+
+def step_summary(step: Step, result) -> dict:
+    """What the journal keeps of a step's ``result`` (JSON-safe; {} for a step without one)."""
+    if isinstance(step, (Home, Move)):
+        return {"joints": result.joints, "seconds": result.seconds}
+    if isinstance(step, LampOn):
+        return {"photodiode": result}
+    if isinstance(step, Expose):
+        return {"path": str(result.path), "lamp_relative": result.lamp_relative, "seconds": result.seconds}
+    if isinstance(step, (Assess, WhiteCheck)):
+        return asdict(step)
+    if isinstance(step, SaveCalibration):
+        return {"arrays": str(result.path), "sha256": result.sha256}
+    if isinstance(step, Commit) and isinstance(step.record, NotMeasuredRecord):
+        return {"snr": step.record.best_snr, "status": str(step.record.reason)}
+    if isinstance(step, Commit):
+        return {"snr": step.record.snr, "status": step.record.status}
+    return {}
+
+
+# the steps a resumed simulated run starts again from: the simulation's state is journaled with them
+CHECKPOINTS = (SaveCalibration, Commit)

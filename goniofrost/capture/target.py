@@ -22,9 +22,9 @@ import numpy as np
 from goniofrost.frost.confidence import ErrorBound
 from goniofrost.frost.scene_error import NAMES, SCOPE_BRDF, SCOPE_SCENE
 from goniofrost.frost.stopping import Decision, stop_reason
+from goniofrost.capture.options import DEFAULT_CONFIDENCE
 
 CONTINUE = Decision.CONTINUE
-DEFAULT_CONFIDENCE = 0.95
 
 
 @dataclass(frozen=True)

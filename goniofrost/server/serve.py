@@ -43,6 +43,8 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
     """``run(entry, devices)``: capture (or resume) the queue entry's session on the held devices."""
     def run(entry: dict, devices) -> dict:
         from goniofrost.capture.lab import session_label
+        from goniofrost.capture.inputs import inputs_on
+        from goniofrost.capture.options import SessionOptions, StopRule
         from goniofrost.capture.runner import JOURNAL_FILE, capture
         from goniofrost.datasets import shown_material
         from goniofrost.rig.file import load_checked_rig
@@ -54,10 +56,11 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
         label = session_label(rig, entry["operator"] or None, entry["sample_id"],
                               [entry["note"]] if entry["note"] else (), source="queue entry")
         material = shown_material(entry["material"], "material") if entry["material"] else None
-        outcome = capture(rig_path, root / entry["plan"], session, sim=SimOptions(material=material, speedup=speedup),
-                          resume=(session / JOURNAL_FILE).exists(), progress=False,
-                          target_error=entry["target_error"], confidence=entry["confidence"], label=label,
-                          devices=devices, rerun="POST /api/resume")
+        options = SessionOptions(resume=(session / JOURNAL_FILE).exists(), progress=False, label=label,
+                                 rerun="POST /api/resume")
+        outcome = capture(inputs_on(rig, root / entry["plan"]), session, devices=devices,
+                          sim=SimOptions(material=material, speedup=speedup),
+                          stop=StopRule(entry["target_error"], entry["confidence"]), options=options)
         return {"session": str(session.relative_to(root)), "summary": outcome.summary}
     return run
 

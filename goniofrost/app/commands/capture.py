@@ -86,7 +86,8 @@ def run(args) -> int:
 
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.runner import capture
-    from goniofrost.capture.target import DEFAULT_CONFIDENCE
+    from goniofrost.app.ground_truth import GroundTruth
+    from goniofrost.capture.options import DEFAULT_CONFIDENCE, SessionOptions, StopRule
     from goniofrost.capture.engine import SessionInterrupted
 
     from goniofrost.capture.inputs import load_inputs
@@ -106,12 +107,12 @@ def run(args) -> int:
     watch = monitored(args.session, args.host, args.port, "capture") if args.monitor else nullcontext()
     try:
         with watch:
-            outcome = capture(args.rig, args.plan, args.session, devices=rig_devices,
+            outcome = capture(inputs, args.session, devices=rig_devices,
                               sim=SimOptions(material=material, seed=args.seed, speedup=args.speedup),
-                              resume=args.resume, progress=not args.no_progress,
-                              target_error=args.target_error, confidence=confidence,
-                              alignment=args.alignment, label=label, inputs=inputs,
-                              extra_files=(BSDF_FILE,) if bsdf else ())
+                              stop=StopRule(args.target_error, confidence),
+                              options=SessionOptions(resume=args.resume, progress=not args.no_progress, label=label,
+                                                     extra_files=(BSDF_FILE,) if bsdf else (),
+                                                     compare=None if material is None else GroundTruth(material)))
     except SessionInterrupted as exc:  # the engine's message says how the axes and the lamp took it
         text = str(exc) if str(exc).startswith("interrupted") else f"interrupted ({exc})"
         print(f"goniofrost capture: {text}", file=sys.stderr)

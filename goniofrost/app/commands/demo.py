@@ -41,7 +41,8 @@ def run(args) -> int:
     from contextlib import nullcontext
     from pathlib import Path
 
-    from goniofrost.app.demo import run_demo
+    from goniofrost.app.demo import DemoRequest, run_demo
+    from goniofrost.capture.options import StopRule
     from goniofrost.app.monitoring import monitored
     from goniofrost.capture.signals import SessionInterrupted
     from goniofrost.core.errors import ConfigError
@@ -63,10 +64,10 @@ def run(args) -> int:
     session = Path(args.out) / "session"
     try:
         with monitored(session, args.host, args.port, "demo") if args.monitor else nullcontext():
-            result = run_demo(args.out, material=args.material, samples=args.samples, seed=args.seed,
-                              speedup=args.speedup, progress=not args.no_progress, bsdf=args.bsdf,
-                              target_error=args.target_error if args.target_error > 0 else None,
-                              confidence=args.confidence)
+            stop = StopRule(args.target_error if args.target_error > 0 else None, args.confidence)
+            request = DemoRequest(material=args.material, samples=args.samples, seed=args.seed,
+                                  speedup=args.speedup, bsdf=args.bsdf, stop=stop)
+            result = run_demo(args.out, request, progress=not args.no_progress)
     except SessionInterrupted as exc:  # Ctrl-C in the capture: the engine's message says how the axes took it
         print(f"goniofrost demo: {exc}", file=sys.stderr)
         return 130

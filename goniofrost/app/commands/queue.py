@@ -21,6 +21,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import sys
 
+    from goniofrost.app.ground_truth import GroundTruth
     from goniofrost.capture.engine import SessionInterrupted
     from goniofrost.capture.queue import NOTHING_MEASURED, ask_to_mount, run_queue
     from goniofrost.capture.queue_file import read_queue
@@ -34,7 +35,8 @@ def run(args) -> int:
         return shown_material(spec_read_from(text, str(queue.folder)), option)
     try:
         items = run_queue(queue, confirm=None if args.yes else ask_to_mount, seed=args.seed, speedup=args.speedup,
-                          progress=not args.no_progress, devices=rig_devices, materials=materials)
+                          progress=not args.no_progress, devices=rig_devices, materials=materials,
+                          compare=GroundTruth)
     except SessionInterrupted as exc:
         print(f"goniofrost queue: {exc}", file=sys.stderr)  # it says to run the same queue command
         return 130

@@ -1,17 +1,35 @@
 """A simulated rig's ground truth: the material it showed, against what the session measured.
 
-``ground_truth``: the material's table on the model's grid (the preview's and the demo's
-reference); ``truth_section``: report.json's ``ground_truth`` (the reconstruction's actual error
-beside its predicted one, the samples' relative errors, grazing samples apart). The material is
-the caller's (``goniofrost.datasets.ShownMaterial``: ``spec``, ``brdf``, ``table``).
+The demo and ``capture --material`` hand a ``GroundTruth`` to the capture
+(``SessionOptions.compare``); the session's report then adds its section and its preview the
+reference spheres. ``ground_truth``: the material's table on the model's grid (the preview's and
+the demo's reference); ``truth_section``: report.json's ``ground_truth`` (the reconstruction's
+actual error beside its predicted one, the samples' relative errors, grazing samples apart). The
+material is the caller's (``goniofrost.datasets.ShownMaterial``: ``spec``, ``brdf``, ``table``).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 GRAZING_DEG = 75.0  # samples whose theta_i or theta_o exceeds this are reported apart as grazing
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """What a session on a simulated rig is compared with: the ``material`` it showed."""
+
+    material: object
+
+    def reference(self, grid) -> np.ndarray:
+        """The material's BRDF on the grid's valid cells (n_valid, 3), in 1/sr."""
+        return ground_truth(self.material, grid)
+
+    def section(self, inputs, records, estimate: np.ndarray, predicted: float, median: float | None) -> dict:
+        """report.json's ``ground_truth`` (see ``truth_section``)."""
+        return truth_section(inputs, records, self.material, estimate, predicted, median)
 
 
 def truth_section(inputs, records, material, estimate: np.ndarray, predicted: float,
