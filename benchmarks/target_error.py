@@ -71,14 +71,16 @@ CHUNK = 20
 KINDS = confidence.BOUND_KINDS
 
 
-def folds_of(setting: str, grid: MerlGrid, folds: int):
-    """Yield (fold, training tables, training names, test tables, test names) of a setting."""
+def folds_of(setting: str, grid: MerlGrid, folds: int, first: int = 0):
+    """Yield (fold, training tables, training names, test tables, test names) of a setting: folds
+    first ... first + folds - 1 of split and builtin (each drawn from its number alone,
+    ``fold_split``, so runs of disjoint ranges join), the one fold of the others."""
     if setting in ("split", "builtin"):
         specs, (n_train, n_test) = ((MERL, RGL), (131, 20)) if setting == "split" else (("builtin",), (64, 10))
         names, path = tables_path(list(specs), grid, progress=False)
         tables = open_tables(path)
         config = BenchConfig(tuple(specs), grid=grid, n_train=n_train, n_test=n_test)
-        for fold in range(folds):
+        for fold in range(first, first + folds):
             train, test = fold_split(len(names), config, fold)
             yield fold, tables[train], [names[i] for i in train], tables[test], [names[i] for i in test]
         return
@@ -366,6 +368,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grid", default="45,45,90", help="NTH,NTD,NPD (default 45,45,90; full: 90,90,180)")
     parser.add_argument("--folds", type=int, default=10, help="folds of the split and builtin settings (default 10)")
+    parser.add_argument("--first-fold", type=int, default=0,
+                        help="the first fold's number (split, builtin; default 0): --folds 5 --first-fold 5 runs 5 ... 9")
     parser.add_argument("--settings", default=",".join(SETTINGS), help=f"comma-separated subset of {','.join(SETTINGS)}")
     parser.add_argument("--m-max", type=int, default=60, help="the plan's samples (default 60)")
     parser.add_argument("--confidence", type=float, default=0.95)
@@ -396,7 +400,7 @@ def main(argv=None) -> int:
     results, started = {}, time.time()
     for setting in args.settings.split(","):
         results[setting] = []
-        for fold, train, train_names, test, test_names in folds_of(setting, grid, args.folds):
+        for fold, train, train_names, test, test_names in folds_of(setting, grid, args.folds, args.first_fold):
             t0 = time.time()
             row = run_fold(train, train_names, test, test_names, grid, args.m_max, args.confidence, targets, rig_mask)
             results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
