@@ -364,7 +364,8 @@ def learning_curve(results: dict, stats: dict) -> list[dict]:
                      "folds": len(folds), "test_materials": len(at),
                      "spread": float(np.std(log_ratio)) if at else None,
                      "training_spread": float(np.mean(expected)) if expected else None,
-                     "bound_over_actual": next(iter(own.values()))["bound_over_actual"].get(str(CURVE_M)) if own else None,
+                     "bound_over_actual": next(iter(own.values()))["bound_over_actual"].get(str(CURVE_M))
+                     if own else None,
                      "over_oracle": {f"{r['target']:g}": r["over_oracle"] for r in own.values()}})
     return sorted(rows, key=lambda r: (r["setting"], r["training_materials"]))
 
@@ -380,8 +381,9 @@ def curve_markdown(rows: list[dict]) -> str:
              "|---|---|---|---|---|---|" + "---|" * len(targets)]
     num = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
     for r in rows:
-        lines.append(f"| {r['setting']} | {r['training_materials']} | {r['folds']} x {r['test_materials'] // r['folds']} "
-                     f"| {num(r['spread'])} | {num(r['training_spread'])} | {num(r['bound_over_actual'])} | "
+        lines.append(f"| {r['setting']} | {r['training_materials']} | "
+                     f"{r['folds']} x {r['test_materials'] // r['folds']} | {num(r['spread'])} | "
+                     f"{num(r['training_spread'])} | {num(r['bound_over_actual'])} | "
                      + " | ".join(num(r["over_oracle"].get(t)) for t in targets) + " |")
     return "\n".join(lines) + "\n"
 
@@ -438,7 +440,8 @@ def markdown(stats: dict) -> str:
 def joined(docs: list[dict], kinds) -> dict:
     """One document of the rows of ``docs`` (target_error.json contents, runs of disjoint folds):
     every setting's folds in fold order, the stop rows of the bound's ``kinds`` only; the first
-    document's other fields, "joined" the commands. BadOption on a fold that two of them ran."""
+    document's other fields, "joined" the commands, "folds" the most of a setting, "wall_s" their
+    sum, "load_average" each one's. BadOption on a fold that two of them ran."""
     results = {}
     for doc in docs:
         for setting, folds in doc["results"].items():
@@ -451,7 +454,8 @@ def joined(docs: list[dict], kinds) -> dict:
     for folds in results.values():
         folds.sort(key=lambda f: f["fold"])
     return docs[0] | {"results": results, "joined": [d["command"] for d in docs],
-                      "wall_s": sum(d["wall_s"] for d in docs)}
+                      "folds": max(len(folds) for folds in results.values()),
+                      "wall_s": sum(d["wall_s"] for d in docs), "load_average": [d["load_average"] for d in docs]}
 
 
 def resummarise(sources: list[Path], out: Path, kinds=None) -> int:
@@ -485,7 +489,8 @@ def run(argv=None) -> int:
     parser.add_argument("--grid", default="45,45,90", help="NTH,NTD,NPD (default 45,45,90; full: 90,90,180)")
     parser.add_argument("--folds", type=int, default=10, help="folds of the split and builtin settings (default 10)")
     parser.add_argument("--first-fold", type=int, default=0,
-                        help="the first fold's number (split, builtin; default 0): --folds 5 --first-fold 5 runs 5 ... 9")
+                        help="the first fold's number (split, builtin; default 0): "
+                             "--folds 5 --first-fold 5 runs 5 ... 9")
     parser.add_argument("--settings", default=",".join(SETTINGS), help=f"comma-separated subset of {','.join(SETTINGS)}")
     parser.add_argument("--m-max", type=int, default=60, help="the plan's samples (default 60)")
     parser.add_argument("--confidence", type=float, default=0.95)

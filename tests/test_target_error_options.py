@@ -78,7 +78,7 @@ def test_the_learning_curve_row_is_the_held_out_spread_at_m_20(bench):
 
 def test_runs_of_disjoint_folds_join_and_a_fold_twice_is_refused(bench, tmp_path, capsys):
     def doc(folds):
-        return {"command": "c", "wall_s": 1.0, "summary": {}, "results": {"split": [
+        return {"command": "c", "wall_s": 1.0, "load_average": [1.0], "summary": {}, "results": {"split": [
             {"fold": f, "per_m": [], "stops": [{"bound": "split"}, {"bound": "per-look"}]} for f in folds]}}
 
     both = bench.joined([doc([5, 6]), doc([0])], ("split",))
