@@ -350,8 +350,10 @@ def learning_curve(results: dict, stats: dict) -> list[dict]:
     "training_materials", "folds", "test_materials", the held-out "spread" at m = CURVE_M (the
     standard deviation over the test materials of log(true error / median estimate), without
     check cells), the "training_spread" the model's bound expects there (``bound_scale``, mean
-    over the folds), "bound_over_actual" (median at CURVE_M) and "over_oracle" {E: samples used
-    / the oracle's} of the captures without sentinels on the model's own bound."""
+    over the folds), "bound_over_actual" (median at CURVE_M), and of the captures without
+    sentinels on the model's own bound, per E: "over_oracle" (samples used / the oracle's),
+    "clearly_could" ([stopped, of the materials whose error at the plan's end is <= E / 2]) and
+    "coverage" (of those stopped on the target, the fraction whose true error is <= E)."""
     rows = []
     for label, folds in results.items():
         if " n=" not in label:
@@ -366,7 +368,10 @@ def learning_curve(results: dict, stats: dict) -> list[dict]:
                      "training_spread": float(np.mean(expected)) if expected else None,
                      "bound_over_actual": next(iter(own.values()))["bound_over_actual"].get(str(CURVE_M))
                      if own else None,
-                     "over_oracle": {f"{r['target']:g}": r["over_oracle"] for r in own.values()}})
+                     "over_oracle": {f"{r['target']:g}": r["over_oracle"] for r in own.values()},
+                     "clearly_could": {f"{r['target']:g}": [r.get("clearly_could_stopped"), r.get("clearly_could")]
+                                       for r in own.values()},
+                     "coverage": {f"{r['target']:g}": r.get("within_when_stopped") for r in own.values()}})
     return sorted(rows, key=lambda r: (r["setting"], r["training_materials"]))
 
 
@@ -377,14 +382,20 @@ def curve_markdown(rows: list[dict]) -> str:
     targets = sorted({t for r in rows for t in r["over_oracle"]}, key=float)
     lines = ["", f"| setting | training materials | folds x test materials | held-out spread of log(actual / median) "
              f"at m = {CURVE_M} | training's spread at m = {CURVE_M} | bound / actual, median, m = {CURVE_M} | "
-             + " | ".join(f"samples used / oracle's, E = {t}" for t in targets) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(targets)]
+             + " | ".join(f"samples used / oracle's, E = {t}" for t in targets) + " | "
+             + " | ".join(f"clearly could: stopped, E = {t}" for t in targets) + " | "
+             + " | ".join(f"coverage at the stop, E = {t}" for t in targets) + " |",
+             "|---|---|---|---|---|---|" + "---|" * 3 * len(targets)]
     num = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
+    could = lambda v: "n/a" if not v or v[1] is None else f"{v[0]} of {v[1]}"  # noqa: E731
+    share = lambda v: "n/a" if v is None else f"{100 * v:.1f} %"  # noqa: E731
     for r in rows:
         lines.append(f"| {r['setting']} | {r['training_materials']} | "
                      f"{r['folds']} x {r['test_materials'] // r['folds']} | {num(r['spread'])} | "
                      f"{num(r['training_spread'])} | {num(r['bound_over_actual'])} | "
-                     + " | ".join(num(r["over_oracle"].get(t)) for t in targets) + " |")
+                     + " | ".join(num(r["over_oracle"].get(t)) for t in targets) + " | "
+                     + " | ".join(could(r.get("clearly_could", {}).get(t)) for t in targets) + " | "
+                     + " | ".join(share(r.get("coverage", {}).get(t)) for t in targets) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -68,12 +68,15 @@ def test_the_learning_curve_row_is_the_held_out_spread_at_m_20(bench):
               "upper_unchecked": 0.03} for i, r in enumerate(ratios)]
     results = {"split n=30": [{"fold": 0, "per_m": per_m, "stops": [], "bound_scale": {"20": 0.5}}]}
     stats = {"split n=30": {"targets": {"0.02": {"target": 0.02, "sentinels": False, "bound": "split",
-                                                 "bound_over_actual": {"20": 2.0, "40": 1.5}, "over_oracle": 1.7}}}}
+                                                 "bound_over_actual": {"20": 2.0, "40": 1.5}, "over_oracle": 1.7,
+                                                 "clearly_could_stopped": 3, "clearly_could": 4,
+                                                 "within_when_stopped": 0.96}}}}
     [row] = bench.learning_curve(results, stats)
     assert row == {"setting": "split", "training_materials": 30, "folds": 1, "test_materials": 4,
                    "spread": pytest.approx(np.std(np.log(ratios))), "training_spread": 0.5,
-                   "bound_over_actual": 2.0, "over_oracle": {"0.02": 1.7}}
-    assert "| split | 30 | 1 x 4 | 0.77 | 0.50 | 2.00 | 1.70 |" in bench.curve_markdown([row])
+                   "bound_over_actual": 2.0, "over_oracle": {"0.02": 1.7}, "clearly_could": {"0.02": [3, 4]},
+                   "coverage": {"0.02": 0.96}}
+    assert "| split | 30 | 1 x 4 | 0.77 | 0.50 | 2.00 | 1.70 | 3 of 4 | 96.0 % |" in bench.curve_markdown([row])
 
 
 def test_runs_of_disjoint_folds_join_and_a_fold_twice_is_refused(bench, tmp_path, capsys):
@@ -87,7 +90,8 @@ def test_runs_of_disjoint_folds_join_and_a_fold_twice_is_refused(bench, tmp_path
     for name, folds in (("a", [0, 1]), ("b", [1])):
         (tmp_path / f"{name}.json").write_text(json.dumps(doc(folds)))
     assert bench.main(["--summarise", f"{tmp_path / 'a.json'},{tmp_path / 'b.json'}", "--out", str(tmp_path)]) == 2
-    assert capsys.readouterr().err == "target_error.py: --summarise: expected each fold once, found split fold 1 twice\n"
+    assert capsys.readouterr().err == ("target_error.py: --summarise: expected each fold once, "
+                                       "found split fold 1 twice\n")
     assert not (tmp_path / "target_error.json").exists()
 
 
