@@ -23,7 +23,10 @@ the confidence is at most E and the samples are not out of the model, or the pla
 
 Settings: ``split`` (MERL + RGL, the benchmark's random 131 / 20 folds), ``builtin`` (the 74
 analytic materials, random 64 / 10 folds), ``merl-rgl`` (train on the 100 MERL, test on the 51
-RGL) and ``rgl-merl`` (the other way round).
+RGL) and ``rgl-merl`` (the other way round). ``--rig`` designs among a rig's cells,
+``--camera-noise`` reads its samples with the camera's noise (``camera_noise``), ``--train-sizes``
+trains on subsets of each fold's training materials (the learning curve), and ``--summarise``
+joins runs of disjoint folds (``--first-fold``).
 
 Full size (run once, 3 December 2026, BENCHMARKS.md@8b3941b: split 32 min, the three others 39 min,
 on a loaded 2-core machine; peak RSS 14.6 GB with the other three settings; one process, settings in turn;
