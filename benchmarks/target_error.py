@@ -85,7 +85,8 @@ def folds_of(setting: str, grid: MerlGrid, folds: int, first: int = 0, sizes=Non
     numbers of training materials (split, builtin): every fold once per size, trained on that
     many of its training materials (``training_subset``) and labelled "SETTING n=SIZE"."""
     if setting in ("split", "builtin"):
-        specs, (n_train, n_test) = ((MERL, RGL), (131, 20)) if setting == "split" else (("builtin",), (64, 10))
+        specs, n_test = ((MERL, RGL), 20) if setting == "split" else (("builtin",), 10)
+        n_train = TRAINING_MATERIALS[setting]
         names, path = tables_path(list(specs), grid, progress=False)
         tables = open_tables(path)
         config = BenchConfig(tuple(specs), grid=grid, n_train=n_train, n_test=n_test)
@@ -96,12 +97,24 @@ def folds_of(setting: str, grid: MerlGrid, folds: int, first: int = 0, sizes=Non
                 label = setting if size is None else f"{setting} n={size}"
                 yield label, fold, tables[kept], [names[i] for i in kept], tables[test], [names[i] for i in test]
         return
-    if sizes:
-        raise BadOption(f"--train-sizes: expected the settings split or builtin, found {setting}")
     train_spec, test_spec = (MERL, RGL) if setting == "merl-rgl" else (RGL, MERL)
     train_names, train_path = tables_path([train_spec], grid, progress=False)
     test_names, test_path = tables_path([test_spec], grid, progress=False)
     yield setting, 0, open_tables(train_path), train_names, open_tables(test_path), test_names
+
+
+TRAINING_MATERIALS = {"split": 131, "builtin": 64}  # a fold's training materials (folds_of)
+
+
+def check_sizes(settings: list[str], sizes) -> None:
+    """BadOption unless every setting has a fold's training materials to draw ``sizes`` from
+    (None: no learning curve), before anything runs."""
+    for setting in settings if sizes else ():
+        if setting not in TRAINING_MATERIALS:
+            raise BadOption(f"--train-sizes: expected the settings split or builtin, found {setting}")
+        if not all(0 < size <= TRAINING_MATERIALS[setting] for size in sizes):
+            raise BadOption(f"--train-sizes: expected 1 to {TRAINING_MATERIALS[setting]} materials for {setting}, "
+                            f"found {','.join(map(str, sizes))}")
 
 
 SUBSET_SEED = 4901  # the learning curve's stream, apart from the folds' (bench.config)
@@ -542,6 +555,7 @@ def run(argv=None) -> int:
         if args.camera_noise:
             noise = (camera_noise.relative_sd(rig.camera), int(rig.sim.get("seed", 0)))
     sizes = None if args.train_sizes is None else [int(v) for v in args.train_sizes.split(",")]
+    check_sizes(args.settings.split(","), sizes)
     targets = tuple(float(v) for v in args.targets.split(","))
     global KINDS
     KINDS = tuple(args.kinds.split(","))

@@ -95,6 +95,16 @@ def test_runs_of_disjoint_folds_join_and_a_fold_twice_is_refused(bench, tmp_path
     assert not (tmp_path / "target_error.json").exists()
 
 
+def test_a_learning_curve_beyond_the_training_materials_is_refused_before_it_runs(bench, tmp_path, capsys):
+    assert bench.main(["--settings", "builtin", "--train-sizes", "30,65", "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == ("target_error.py: --train-sizes: expected 1 to 64 materials for builtin, "
+                                       "found 30,65\n")
+    assert bench.main(["--settings", "split,rgl-merl", "--train-sizes", "30", "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == ("target_error.py: --train-sizes: expected the settings split or builtin, "
+                                       "found rgl-merl\n")
+    assert not (tmp_path / "out").exists()
+
+
 def test_camera_noise_without_a_rig_is_refused(bench, tmp_path, capsys):
     assert bench.main(["--camera-noise", "--out", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err == ("target_error.py: --camera-noise: expected --rig (the camera whose noise is "
