@@ -176,18 +176,18 @@ def timed_scan(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhea
 
 
 @njit([types.void(_DICTIONARY, types.int64[::1], _F64, _F64, types.float64, types.float64, _F64, _F64, noise,
-                  types.float64, types.int64[::1], _F64, _F64, types.int64[::1], _I64, _I64)
+                  types.float64, types.int32[::1], _F64, types.int64[::1], _I64, _I64)
        for noise in (_F64, _F32)], **_OPTIONS)
-def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, share, found, gains, best, best_i,
-                   i0, i1):
+def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, share, found, best, best_i, i0, i1):
     """One design's greedy step on candidates [i0, i1) (``_update_one``'s arithmetic) that also
     collects every candidate whose score (gain) is above 0 and at least ``share`` of the running
-    best: their indices in found[i0:], their gains in gains[i0:], in index order, then -1 if
-    there is room. Every cell whose gain reaches ``share`` of the step's best is among them (the
-    running best is never above the step's), so ``timed_found`` on them is ``timed_scan``.
+    best: their indices in found[i0:], in index order, then -1 if there is room. Every cell
+    whose gain reaches ``share`` of the step's best is among them (the running best is never
+    above the step's), so ``timed_found`` on them is ``timed_scan``. 4 bytes written a
+    collected cell (most of them may be: the gains are flat).
 
-    u, v, q, p: float64 (K,), (K,), (n_c,), (n_c,); found int64 (n_c,), gains float64 (n_c,);
-    best, best_i: (1,) outputs (the step's best gain and its index on [i0, i1)).
+    u, v, q, p: float64 (K,), (K,), (n_c,), (n_c,); found int32 (n_c,); best, best_i: (1,)
+    outputs (the step's best gain and its index on [i0, i1)).
     """
     every_row = rows.size == 0
     top, top_i, n = -1.0, -1, i0
@@ -196,7 +196,7 @@ def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, s
         if score > top:
             top, top_i = score, i
         if score > 0.0 and score >= share * top:
-            found[n], gains[n] = i, score
+            found[n] = i
             n += 1
     if n < i1:
         found[n] = -1
@@ -204,17 +204,17 @@ def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, s
 
 
 @njit(**_OPTIONS)
-def timed_found(found, gains, poses, fixed, here, speed, accel, tolerance, overhead, floor, best, best_i, i0, i1):
+def timed_found(found, q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, floor, best, best_i, i0, i1):
     """``timed_scan`` of the candidates ``update_collect`` collected on [i0, i1): the best score
-    gain / (overhead + rig seconds from ``here``) of those whose gain is at least ``floor``,
-    and its index (lowest on ties). The same result as ``timed_scan`` on [i0, i1), reading the
-    collected cells only."""
+    gain / (overhead + rig seconds from ``here``) of those whose gain p / (noise + q) is at
+    least ``floor``, and its index (lowest on ties). The same result as ``timed_scan`` on
+    [i0, i1), reading the collected cells only."""
     best[0], best_i[0] = -1.0, -1
     for n in range(i0, i1):
         i = found[n]
         if i < 0:
             break
-        gain = gains[n]
+        gain = p[i] / (noise[i] + q[i])
         if gain >= floor:
             score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
             if score > best[0]:

@@ -141,7 +141,7 @@ class _Forms:
         if track is not None and len(noises) != 1:
             raise ValueError("a time-aware design runs alone (one noise vector)")
         if track is not None:  # the cells each pass over D collects for timing (update_collect)
-            self.found, self.gains = np.empty(self.rows.size, np.int64), np.empty(self.rows.size)
+            self.found = np.empty(self.rows.size, np.int32)
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
@@ -166,8 +166,9 @@ class _Forms:
         only those are timed: ``timed_pass``'s result, without a second sweep over the forms."""
         share = self.track.share
         best, _ = self._run(pool, kernels.update_collect, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
-                            self.q[0], self.p[0], self.open_noise[0], share, self.found, self.gains)
-        return self._run(pool, kernels.timed_found, self.found, self.gains, *self.track.kernel_args(),
+                            self.q[0], self.p[0], self.open_noise[0], share, self.found)
+        return self._run(pool, kernels.timed_found, self.found, self.q[0], self.p[0], self.open_noise[0],
+                         *self.track.kernel_args(),
                          share * float(best[0]))
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
