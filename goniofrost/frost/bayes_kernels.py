@@ -164,21 +164,18 @@ def timed_scan(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhea
 
     q, p, noise: (n_c,) one design's; poses: float32 (n_c, k, 3); fixed: float32 (n_c, k); here,
     speed, accel, tolerance: float64 (3,); overhead: seconds added to every cell's time; best,
-    best_i: (1,) outputs. Returns the cells that qualified.
+    best_i: (1,) outputs.
     """
     best[0], best_i[0] = -1.0, -1
-    qualifying = 0
     for i in range(i0, i1):
         gain = p[i] / (noise[i] + q[i])
         if gain > 0.0 and gain >= floor:
-            qualifying += 1
             score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
             if score > best[0]:
                 best[0], best_i[0] = score, i
-    return qualifying
 
 
-@njit([types.int64(_DICTIONARY, types.int64[::1], _F64, _F64, types.float64, types.float64, _F64, _F64, noise,
+@njit([types.void(_DICTIONARY, types.int64[::1], _F64, _F64, types.float64, types.float64, _F64, _F64, noise,
                   types.float64, types.int32[::1], _F64, types.int64[::1], _I64, _I64)
        for noise in (_F64, _F32)], **_OPTIONS)
 def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, share, found, best, best_i, i0, i1):
@@ -190,7 +187,7 @@ def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, s
     collected cell (most of them may be: the gains are flat).
 
     u, v, q, p: float64 (K,), (K,), (n_c,), (n_c,); found int32 (n_c,); best, best_i: (1,)
-    outputs (the step's best gain and its index on [i0, i1)). Returns the cells collected.
+    outputs (the step's best gain and its index on [i0, i1)).
     """
     every_row = rows.size == 0
     top, top_i, n = -1.0, -1, i0
@@ -204,7 +201,6 @@ def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, s
     if n < i1:
         found[n] = -1
     best[0], best_i[0] = top, top_i
-    return n - i0
 
 
 @njit(**_OPTIONS)

@@ -30,13 +30,6 @@ from goniofrost.frost.usage_design import HEDGE, design_weights, is_uniform, sce
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
-# A time-aware step collects the cells to time in its pass over D (update_collect) when the step
-# before found at most this share of the candidates qualifying, else it finds them by a second
-# sweep over the forms (timed_scan): writing the indices of most cells cost more than the sweep
-# (full grid, load 11-16: 1.79 x the sample-count greedy at m = 20, where 0.2-0.9 M of 1.02 M
-# cells qualified, against 1.49 x with the sweep; 1.47 x against 1.65 x at m = 60, where later
-# steps had 0.05-0.4 M). Either way the same picks.
-COLLECT_SHARE = 0.35
 # A best score at or below this fraction of the first one means no allowed cell still
 # reduces the expected error (float rounding of the updated forms is ~1e-7 of them).
 EXHAUSTED = 1e-9
@@ -149,7 +142,6 @@ class _Forms:
             raise ValueError("a time-aware design runs alone (one noise vector)")
         if track is not None:  # the cells each pass over D collects for timing (update_collect)
             self.found = np.empty(self.rows.size, np.int32)
-        self.counted = self.rows.size  # cells the last time-aware kernel found qualifying or collected
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
@@ -162,8 +154,7 @@ class _Forms:
                          *self.track.kernel_args(), floor)
 
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
-        scan = None if self.track is None else self.track.scan
-        if scan == "collect" or (scan == "auto" and self.counted <= COLLECT_SHARE * self.rows.size):
+        if self.track is not None and not self.track.full_scan:
             return self.collected_pass(pool, u[0], v[0], float(inv_delta[0]), float(usu_delta2[0]))
         best = self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
@@ -193,9 +184,8 @@ class _Forms:
         best = np.empty((len(self.parts), designs))
         best_i = np.empty((len(self.parts), designs), dtype=np.int64)
         futures = [pool.submit(kernel, *args, best[k], best_i[k], lo, hi) for k, (lo, hi) in enumerate(self.parts)]
-        counts = [future.result() for future in futures]
-        if counts[0] is not None:  # the time-aware kernels' cells qualifying or collected
-            self.counted = sum(counts)
+        for future in futures:
+            future.result()
         return _best(best, best_i)
 
 

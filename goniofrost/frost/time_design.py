@@ -54,14 +54,11 @@ class RigTrack:
     """
 
     def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int, share: float = 0.0,
-                 scan: str = "auto") -> None:
+                 full_scan: bool = False) -> None:
         self.rig, self.overhead, self.costs, self.share = rig, float(overhead_s), costs, float(share)
-        # how each step finds the cells to time (the same picks either way): "collect" in the pass
-        # over D, "sweep" a second pass over the forms, "auto" the one the step before suggests
-        # (bayes_selection.COLLECT_SHARE)
-        if scan not in ("auto", "collect", "sweep"):
-            raise ValueError(f"scan: expected auto, collect or sweep, found {scan!r}")
-        self.scan = scan
+        # True: each step's qualifying cells are found by a second sweep over the forms (the
+        # reference the collecting pass over D is tested against: the same picks, slower)
+        self.full_scan = bool(full_scan)
         self.here = costs.home.copy()
         self.ends = set(stopping.batch_ends(m_max))
         self._batch: list[int] = []
