@@ -8,8 +8,8 @@
     .venv/bin/python benchmarks/frost_speed.py selection --model MODEL [--repeat 5]
     .venv/bin/python benchmarks/frost_speed.py bayes-selection --model MODEL [--repeat 7]
     .venv/bin/python benchmarks/frost_speed.py time-selection --model MODEL [--rig RIG] [--repeat 7]
-        the sample-count and the time-aware designs among the rig's cells: greedy passes, and the
-        one-off table of the cells' fixed costs
+        the sample-count and the time-aware designs among the rig's cells (the latter also with
+        the reference full scan): greedy passes, and the one-off table of the cells' fixed costs
     .venv/bin/python benchmarks/frost_speed.py training [--seed 0]      # /usr/bin/time -v, fresh cache
     .venv/bin/python benchmarks/frost_speed.py reconstruction --model MODEL
     .venv/bin/python benchmarks/frost_speed.py bayes-reconstruction --model MODEL [--repeat 7]
@@ -98,27 +98,34 @@ def bench_time_selection(args) -> None:
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.frost.bayes_selection import _candidate_rows, greedy_design
     from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
-    from goniofrost.frost.rig_cost import cell_costs, rig_camera, rig_sensor
-    from goniofrost.frost.time_design import OVERHEAD_S, RigTrack
+    from goniofrost.frost.time_design import OVERHEAD_S, SHARE, RigTrack, cached_costs
     from planner.reach import reachability
 
     model = _paged_model(args.model)
     rig = load_checked_rig(args.rig or REPO / "config" / "rigs" / "sim.yaml")
     rows = _candidate_rows(reachability(rig, model.grid).mask, model.grid.n_valid)
     start = time.perf_counter()
-    costs = cell_costs(model, rig, rows, rig_camera(rig), rig_sensor(rig))
-    print(f"cost table of {rows.size} cells: {time.perf_counter() - start:.2f} s (once per model and rig)")
+    costs = cached_costs(model, rig, rows)
+    print(f"cost table of {rows.size} cells: {time.perf_counter() - start:.2f} s (computed once per model and "
+          "rig, then read from the cache)")
     s2 = np.asarray(model.singular_values, np.float64) ** 2
     noise = cell_noise(model) * design_scale(model)
+    # "time, full scan": the qualifying cells found by a second sweep over the forms (the
+    # reference; the same picks), against the cells collected in the pass over D
+    variants = {"samples": None, "time": False, "time, full scan": True}
     for m in (20, 60):
-        for name in ("samples", "time"):
+        picks = {}
+        for name, full in variants.items():
             def run():
-                track = RigTrack(costs, rig, OVERHEAD_S, m) if name == "time" else None
-                return greedy_design(model.dictionary, s2, prior_variance(model), noise, m, rows=rows, track=track)
+                track = None if full is None else RigTrack(costs, rig, OVERHEAD_S, m, SHARE, full_scan=full)
+                design = greedy_design(model.dictionary, s2, prior_variance(model), noise, m, rows=rows, track=track)
+                picks[name] = design.rows.tolist()
             run()  # compiled and warm
             med, times = median_time(run, args.repeat)
-            print(f"{name:>7} design m={m}: median {med:.3f} s (runs {', '.join(f'{t:.3f}' for t in times)}; "
+            print(f"{name:>15} design m={m}: median {med:.3f} s (runs {', '.join(f'{t:.3f}' for t in times)}; "
                   f"load {os.getloadavg()[0]:.1f})", flush=True)
+        print(f"m={m}: the time-aware picks with and without the full scan are "
+              f"{'the same' if picks['time'] == picks['time, full scan'] else 'DIFFERENT'}", flush=True)
 
 
 def bench_bayes_reconstruction(args) -> None:

@@ -41,9 +41,11 @@ DESIGNS = ("samples", "time")
 CHUNK = 20
 
 
-def designs_of(model, mask, rig, m_max: int, variants) -> dict:
-    """{design name: (positions (m_max,) int64, selection wall seconds)}: "samples", and "time" (one
-    variant (overhead, share)) or "time@X/Y" for each overhead X and share Y."""
+def designs_of(model, mask, rig, m_max: int, variants, retrain=None) -> dict:
+    """{design name: (positions (m_max,) int64, selection wall seconds, the model)}: "samples", and
+    "time" (one variant (overhead, share)) or "time@X/Y" for each overhead X and share Y; each
+    time-aware design on ``retrain(objective)``'s model (trained with time-aware inner designs),
+    or on ``model`` when ``retrain`` is None."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.time_design import TimeObjective
 
@@ -52,29 +54,35 @@ def designs_of(model, mask, rig, m_max: int, variants) -> dict:
                                  {f"time@{x:g}/{y:g}": (x, y) for x, y in variants})
     for name, variant in named.items():
         objective = None if variant is None else TimeObjective(rig, variant[0], share=variant[1])
+        own = model if objective is None or retrain is None else retrain(objective)
         t0 = time.perf_counter()
-        positions = select_bayes(model, m_max, candidates=mask, time_objective=objective).positions
-        out[name] = (np.asarray(positions, np.int64), time.perf_counter() - t0)
+        positions = select_bayes(own, m_max, candidates=mask, time_objective=objective).positions
+        out[name] = (np.asarray(positions, np.int64), time.perf_counter() - t0, own)
     return out
 
 
-def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, variants) -> dict:
-    """Train as ``train --rig``, make both designs, and simulate every test material at every target."""
+def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targets, variants,
+             calibrate: str = "samples") -> dict:
+    """Train as ``train --rig``, make both designs, and simulate every test material at every target;
+    calibrate "time": each time-aware design's model trained with its objective's inner designs."""
     from goniofrost.frost.training import fit_model
 
-    model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
-    designs = designs_of(model, mask, rig, m_max, variants)
+    train = np.asarray(train)
+    model = fit_model(train, train_names, grid, k_max=60, sentinel_candidates=mask)
+    retrain = None if calibrate == "samples" else (
+        lambda objective: fit_model(train, train_names, grid, k_max=60, sentinel_candidates=mask, rig_time=objective))
+    designs = designs_of(model, mask, rig, m_max, variants, retrain)
     rows = []
     for lo in range(0, len(test_names), CHUNK):
         truth = np.asarray(test[lo:lo + CHUNK], dtype=np.float64)
-        truth_log = model.to_log(truth)
-        for name, (positions, _) in designs.items():
+        for name, (positions, _, model) in designs.items():
+            truth_log = model.to_log(truth)
             clock = rig_clock.design_times(rig, grid, grid.valid_cells[positions], truth[:, positions])
             for target in targets:
                 out = bayes_eval.target_outcomes(model, positions, truth, truth_log, target)
                 rows += _rows(name, target, out, clock, test_names[lo:lo + CHUNK])
-    return {"rows": rows, "selection_s": {name: s for name, (_, s) in designs.items()},
-            "cells": {name: grid.valid_cells[p].tolist() for name, (p, _) in designs.items()}}
+    return {"rows": rows, "selection_s": {name: s for name, (_, s, _) in designs.items()},
+            "cells": {name: grid.valid_cells[p].tolist() for name, (p, _, _) in designs.items()}}
 
 
 def _rows(design: str, target: float, out: dict, clock: dict, names) -> list[dict]:
@@ -171,9 +179,15 @@ def main(argv=None) -> int:
     parser.add_argument("--share", default=None,
                         help="the share of each step's largest error reduction a time-aware pick must reach (default "
                              "time_design.SHARE); several (comma-separated): one design each with each overhead")
+    parser.add_argument("--variants", default=None,
+                        help="instead of every overhead with every share: these pairs OVERHEAD/SHARE (comma-separated)")
     parser.add_argument("--tune", action="store_true",
                         help="choose the overhead on training materials only: the first fold's training materials of "
                              "each setting, every 7th held out (the reported materials are never seen)")
+    parser.add_argument("--calibrate", choices=("samples", "time"), default="samples",
+                        help="the inner designs the time-aware design's model is calibrated on: samples (the "
+                             "sample-count design's model, as train --rig) or time (a model trained with the "
+                             "time-aware inner designs of the same overhead and share)")
     parser.add_argument("--rig", type=Path, default=REPO / "config" / "rigs" / "sim.yaml")
     parser.add_argument("--out", type=Path, required=True, help="folder: time_aware.json, time_aware.md")
     args = parser.parse_args(argv)
@@ -181,7 +195,8 @@ def main(argv=None) -> int:
 
     overheads = [OVERHEAD_S] if args.overhead is None else [float(v) for v in args.overhead.split(",")]
     shares = [SHARE] if args.share is None else [float(v) for v in args.share.split(",")]
-    variants = [(x, y) for x in overheads for y in shares]
+    variants = [(x, y) for x in overheads for y in shares] if args.variants is None else [
+        tuple(float(v) for v in pair.split("/")) for pair in args.variants.split(",")]
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     rig = load_checked_rig(args.rig)
     mask = reachability(rig, grid).mask
@@ -193,12 +208,14 @@ def main(argv=None) -> int:
         folds = folds_of(setting, grid, args.folds)
         for fold, train, train_names, test, test_names in (_inner(folds) if args.tune else folds):
             t0 = time.time()
-            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, variants)
+            row = run_fold(train, train_names, test, test_names, grid, rig, mask, args.m_max, targets, variants,
+                           args.calibrate)
             results[setting].append(row | {"fold": fold, "seconds": time.time() - t0})
             print(f"{setting} fold {fold}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
             stats = summary(results)
             doc = {"command": " ".join(sys.argv), "grid": grid.as_dict(), "folds": args.folds, "m_max": args.m_max,
-                   "variants": variants, "tune": args.tune, "rig": str(args.rig), "wall_s": time.time() - started,
+                   "variants": variants, "tune": args.tune,
+                   "calibrate": args.calibrate, "rig": str(args.rig), "wall_s": time.time() - started,
                    "load_average": list(os.getloadavg()), "summary": stats, "results": results}
             (args.out / "time_aware.json").write_text(json.dumps(doc, indent=1))
             (args.out / "time_aware.md").write_text(markdown(stats))

@@ -108,6 +108,50 @@ def test_the_time_aware_design_is_deterministic_and_does_not_depend_on_the_threa
     assert one.positions.tolist() != plain
 
 
+def test_collecting_the_cells_to_time_in_the_pass_over_d_picks_what_a_full_second_sweep_picks(captured):
+    """The pass over D collects the cells whose gain reaches the share of its running best and
+    only those are timed: the same cells in the same order as timing every cell whose gain
+    reaches the share of the step's best in a second sweep over the forms."""
+    from goniofrost.frost.bayes_selection import _candidate_rows, greedy_design
+    from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
+    from goniofrost.frost.time_design import OVERHEAD_S, SHARE, RigTrack, cached_costs
+    from planner.reach import reachability
+    from test_session import session_model
+
+    rig = load_checked_rig(captured[0])
+    model = session_model()
+    rows = _candidate_rows(reachability(rig, model.grid).mask, model.grid.n_valid)
+    costs = cached_costs(model, rig, rows)
+    s2 = np.asarray(model.singular_values, np.float64) ** 2
+    args = (model.dictionary, s2, prior_variance(model), cell_noise(model) * design_scale(model), 30)
+    for share, threads in ((SHARE, 1), (SHARE, 2), (0.2, 2), (0.0, 1)):
+        designs = [greedy_design(*args, rows=rows, threads=threads,
+                                 track=RigTrack(costs, rig, OVERHEAD_S, 30, share, full_scan=full))
+                   for full in (True, False)]
+        assert designs[1].rows.tolist() == designs[0].rows.tolist(), (share, threads)
+        assert np.array_equal(designs[1].design_errors, designs[0].design_errors)
+
+
+def test_the_inner_designs_of_a_time_aware_training_are_timed_as_plan_times_the_models(captured):
+    """Training's time-aware inner designs cost every cell as ``plan --objective time`` costs it
+    on the trained model (the prior median from the training's mapping)."""
+    from goniofrost.frost.rig_cost import cell_costs
+    from goniofrost.frost.time_design import TimeObjective
+    from goniofrost.frost.training import _inner_tracks
+    from planner.reach import reachability
+    from test_session import session_model
+
+    rig = load_checked_rig(captured[0])
+    model = session_model()
+    mask = reachability(rig, model.grid).mask
+    track = _inner_tracks(TimeObjective(rig), model.grid, mask, model.reference, model.mean, model.weight,
+                          model.eps)(20)
+    expected = cell_costs(model, rig, np.flatnonzero(mask), rig_camera(rig), rig_sensor(rig))
+    assert np.array_equal(track.costs.fixed_s, expected.fixed_s)
+    assert np.array_equal(track.costs.poses, expected.poses, equal_nan=True)
+    assert track.overhead == TimeObjective(rig).overhead_s and track.share == TimeObjective(rig).share
+
+
 def test_of_two_equally_informative_cells_the_cheaper_is_picked():
     from goniofrost.frost.bayes_selection import greedy_design
     from goniofrost.frost.time_design import RigTrack

@@ -51,31 +51,36 @@ def init_forms(dictionary, rows, prior_var, q, p, noise, s2, best, best_i, i0, i
                 best[s], best_i[s] = score, i
 
 
+@njit(inline="always", **_OPTIONS)
+def _step_score(row, u, v, inv_delta, usu_delta2, q, p, noise, i):
+    """Candidate i's step: q[i], p[i] updated from its row of D; its score p / (noise + q).
+    Inlined (numba IR) into both loops below, so their arithmetic is the same to the bit."""
+    # float64 sums: a and g are small differences of large terms once Sigma has shrunk
+    # (float32 sums moved scores by 0.2 %); the pass stays memory-bound.
+    a = 0.0
+    g = 0.0
+    for j in range(row.size):
+        x = np.float64(row[j])
+        a += x * u[j]
+        g += x * v[j]
+    qc = q[i] - a * a * inv_delta
+    pc = p[i] - 2.0 * a * g * inv_delta + a * a * usu_delta2
+    # Rounding can leave a fully determined cell a tiny negative form; neither can be < 0.
+    qc = max(qc, 0.0)
+    pc = max(pc, 0.0)
+    q[i] = qc
+    p[i] = pc
+    return pc / (noise[i] + qc)
+
+
 @njit(**_OPTIONS)
 def _update_one(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, i0, i1):
     """One design's step on candidates [i0, i1) (the single-design kernel's loop, unchanged, so
     a design's numbers are the same to the bit with or without others); (best, its index)."""
-    k = dictionary.shape[1]
     every_row = rows.size == 0
     best, best_i = -1.0, -1
     for i in range(i0, i1):
-        row = dictionary[i if every_row else rows[i]]
-        # float64 sums: a and g are small differences of large terms once Sigma has shrunk
-        # (float32 sums moved scores by 0.2 %); the pass stays memory-bound.
-        a = 0.0
-        g = 0.0
-        for j in range(k):
-            x = np.float64(row[j])
-            a += x * u[j]
-            g += x * v[j]
-        qc = q[i] - a * a * inv_delta
-        pc = p[i] - 2.0 * a * g * inv_delta + a * a * usu_delta2
-        # Rounding can leave a fully determined cell a tiny negative form; neither can be < 0.
-        qc = max(qc, 0.0)
-        pc = max(pc, 0.0)
-        q[i] = qc
-        p[i] = pc
-        score = pc / (noise[i] + qc)
+        score = _step_score(dictionary[i if every_row else rows[i]], u, v, inv_delta, usu_delta2, q, p, noise, i)
         if score > best:
             best, best_i = score, i
     return best, best_i
@@ -163,6 +168,52 @@ def timed_scan(q, p, noise, poses, fixed, here, speed, accel, tolerance, overhea
     for i in range(i0, i1):
         gain = p[i] / (noise[i] + q[i])
         if gain > 0.0 and gain >= floor:
+            score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
+            if score > best[0]:
+                best[0], best_i[0] = score, i
+
+
+@njit([types.void(_DICTIONARY, types.int64[::1], _F64, _F64, types.float64, types.float64, _F64, _F64, noise,
+                  types.float64, types.int32[::1], _F64, types.int64[::1], _I64, _I64)
+       for noise in (_F64, _F32)], **_OPTIONS)
+def update_collect(dictionary, rows, u, v, inv_delta, usu_delta2, q, p, noise, share, found, best, best_i, i0, i1):
+    """One design's greedy step on candidates [i0, i1) (``_update_one``'s arithmetic) that also
+    collects every candidate whose score (gain) is above 0 and at least ``share`` of the running
+    best: their indices in found[i0:], in index order, then -1 if there is room. Every cell
+    whose gain reaches ``share`` of the step's best is among them (the running best is never
+    above the step's), so ``timed_found`` on them is ``timed_scan``. 4 bytes written a
+    collected cell (most of them may be: the gains are flat).
+
+    u, v, q, p: float64 (K,), (K,), (n_c,), (n_c,); found int32 (n_c,); best, best_i: (1,)
+    outputs (the step's best gain and its index on [i0, i1)).
+    """
+    every_row = rows.size == 0
+    top, top_i, n = -1.0, -1, i0
+    for i in range(i0, i1):
+        score = _step_score(dictionary[i if every_row else rows[i]], u, v, inv_delta, usu_delta2, q, p, noise, i)
+        if score > top:
+            top, top_i = score, i
+        if score > 0.0 and score >= share * top:
+            found[n] = i
+            n += 1
+    if n < i1:
+        found[n] = -1
+    best[0], best_i[0] = top, top_i
+
+
+@njit(**_OPTIONS)
+def timed_found(found, q, p, noise, poses, fixed, here, speed, accel, tolerance, overhead, floor, best, best_i, i0, i1):
+    """``timed_scan`` of the candidates ``update_collect`` collected on [i0, i1): the best score
+    gain / (overhead + rig seconds from ``here``) of those whose gain p / (noise + q) is at
+    least ``floor``, and its index (lowest on ties). The same result as ``timed_scan`` on
+    [i0, i1), reading the collected cells only."""
+    best[0], best_i[0] = -1.0, -1
+    for n in range(i0, i1):
+        i = found[n]
+        if i < 0:
+            break
+        gain = p[i] / (noise[i] + q[i])
+        if gain >= floor:
             score = _timed_score(gain, best[0], poses, fixed, i, here, speed, accel, tolerance, overhead)
             if score > best[0]:
                 best[0], best_i[0] = score, i

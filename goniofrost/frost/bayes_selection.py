@@ -132,6 +132,8 @@ class _Forms:
         self.track = track
         if track is not None and len(noises) != 1:
             raise ValueError("a time-aware design runs alone (one noise vector)")
+        if track is not None:  # the cells each pass over D collects for timing (update_collect)
+            self.found = np.empty(self.rows.size, np.int32)
 
     def first_pass(self, pool, prior_var, s2) -> tuple[np.ndarray, np.ndarray]:
         return self._run(pool, kernels.init_forms, self.d, self.kernel_rows, prior_var, self.q, self.p, self.open_noise, s2)
@@ -144,9 +146,22 @@ class _Forms:
                          *self.track.kernel_args(), floor)
 
     def update_pass(self, pool, u, v, inv_delta, usu_delta2) -> tuple[np.ndarray, np.ndarray]:
+        if self.track is not None and not self.track.full_scan:
+            return self.collected_pass(pool, u[0], v[0], float(inv_delta[0]), float(usu_delta2[0]))
         best = self._run(pool, kernels.update_forms, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
                          self.q, self.p, self.open_noise)
         return best if self.track is None else self.timed_pass(pool, best[0])
+
+    def collected_pass(self, pool, u, v, inv_delta: float, usu_delta2: float) -> tuple[np.ndarray, np.ndarray]:
+        """The time-aware design's step: the pass over D collects the cells whose gain reaches the
+        share of its running best (a superset of those reaching the step's best's share), then
+        only those are timed: ``timed_pass``'s result, without a second sweep over the forms."""
+        share = self.track.share
+        best, _ = self._run(pool, kernels.update_collect, self.d, self.kernel_rows, u, v, inv_delta, usu_delta2,
+                            self.q[0], self.p[0], self.open_noise[0], share, self.found)
+        return self._run(pool, kernels.timed_found, self.found, self.q[0], self.p[0], self.open_noise[0],
+                         *self.track.kernel_args(),
+                         share * float(best[0]))
 
     def close(self, s: int, i: int) -> tuple[np.ndarray, int]:
         """Take candidate i out of design s's competition; return its dictionary row (float64)

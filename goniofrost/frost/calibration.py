@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniofrost.frost import posterior
-from goniofrost.frost.bayes_selection import greedy_designs
+from goniofrost.frost.bayes_selection import greedy_design, greedy_designs
 from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
@@ -93,7 +93,7 @@ class CvRecords:
 
 def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
              design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None,
-             atoms=None, pool=None, rows=None) -> dict:
+             atoms=None, pool=None, rows=None, track_of=None) -> dict:
     """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
 
     mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
@@ -101,7 +101,9 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
     records without ``sentinel``; atoms: float64 (COORDINATES, t) ``model_atoms`` of the trained
     model (records with the coordinates), None: records without them; pool: int64 (P,) the
     check cells' candidates (``check_cells.pool``): records with ``pool_error``, None: without;
-    rows: int64 the cells the designs pick among (a rig's measurable cells), None: every cell.
+    rows: int64 the cells the designs pick among (a rig's measurable cells), None: every cell;
+    track_of: ``track_of(m)``, a fresh ``time_design.RigTrack`` of ``rows`` for a design of m
+    picks: the designs are then time-aware (one pass over D_f per design scale), None: per sample.
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
     n = mapped.shape[0] if rows is None else len(rows)
@@ -110,8 +112,12 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
     for f, fold in enumerate(_progress(folds, progress)):
         d_f = _fold_dictionary(mapped, fold.projector)
         # The designs of every design scale share each pass over D_f (one read per step for all).
-        designs = greedy_designs(d_f, fold.singular_values ** 2, _prior(fold), [a * noise for a in design_scales],
-                                 max(m_values), rows=rows)
+        if track_of is None:
+            designs = greedy_designs(d_f, fold.singular_values ** 2, _prior(fold), [a * noise for a in design_scales],
+                                     max(m_values), rows=rows)
+        else:  # a time-aware design runs alone
+            designs = [greedy_design(d_f, fold.singular_values ** 2, _prior(fold), a * noise, max(m_values), rows=rows,
+                                     track=track_of(max(m_values))) for a in design_scales]
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
                 _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels,
@@ -136,16 +142,17 @@ def model_atoms(gram: np.ndarray, vt: np.ndarray, singular_values: np.ndarray, c
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
                         design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
-                        sentinels=None, atoms=None, pool=None, rows=None):
+                        sentinels=None, atoms=None, pool=None, rows=None, track_of=None):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale (``sentinels``, ``atoms``, ``rows``: see ``simulate``). Returns ((design scale, recon scale),
+    design scale (``sentinels``, ``atoms``, ``rows``, ``track_of``: see ``simulate``). Returns ((design scale, recon scale),
     {pair: CvRecords of the choice folds; ``pool``: see ``simulate``}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
     choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows)
+                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows, track_of=track_of)
     chosen = choose_scales(choice)
     rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows)[chosen] if tail else None
+                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows,
+                    track_of=track_of)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 

@@ -76,9 +76,17 @@ def cell_costs(model, rig, rows, camera: dict, sensor: Sensor = DEFAULT_SENSOR, 
     sensor: its response (``calib.exposure_time.Sensor``); settle_s: seconds after every move.
     """
     rows = np.asarray(rows, dtype=np.int64)
-    w_i, w_o = model.grid.cell_directions(model.grid.valid_cells[rows])
-    poses, usable, _ = candidate_poses(rig, w_i, w_o)
     value = model.from_log(np.asarray(model.mean, np.float64)[rows][:, None], rows)[:, 0]  # prior median, 1/sr
+    return value_costs(model.grid, value, rig, rows, camera, sensor, settle_s)
+
+
+def value_costs(grid, value, rig, rows, camera: dict, sensor: Sensor = DEFAULT_SENSOR,
+                settle_s: float = 0.0) -> CellCosts:
+    """``cell_costs`` of the valid cells ``rows`` (int (n_c,)) of ``grid`` whose expected values
+    are ``value`` (float64 (n_c,), 1/sr): training's inner designs use it before the model exists."""
+    rows = np.asarray(rows, dtype=np.int64)
+    w_i, w_o = grid.cell_directions(grid.valid_cells[rows])
+    poses, usable, _ = candidate_poses(rig, w_i, w_o)
     fixed = np.full(usable.shape, np.inf)
     for c in range(usable.shape[1]):
         light, view = (w_o, w_i) if c >= 2 else (w_i, w_o)  # candidates 2, 3: light and camera swapped

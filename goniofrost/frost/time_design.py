@@ -53,8 +53,12 @@ class RigTrack:
     from; ends: the batch ends (cumulative picks) after which the batch is re-ordered.
     """
 
-    def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int, share: float = 0.0) -> None:
+    def __init__(self, costs: CellCosts, rig, overhead_s: float, m_max: int, share: float = 0.0,
+                 full_scan: bool = False) -> None:
         self.rig, self.overhead, self.costs, self.share = rig, float(overhead_s), costs, float(share)
+        # True: each step's qualifying cells are found by a second sweep over the forms (the
+        # reference the collecting pass over D is tested against: the same picks, slower)
+        self.full_scan = bool(full_scan)
         self.here = costs.home.copy()
         self.ends = set(stopping.batch_ends(m_max))
         self._batch: list[int] = []

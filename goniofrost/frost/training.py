@@ -55,7 +55,8 @@ class TrainingError(GoniofrostError, ValueError):
 
 def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
               k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
-              progress: bool = False, noise: bool = True, sentinel_candidates=None, on_stage=None) -> FrostModel:
+              progress: bool = False, noise: bool = True, sentinel_candidates=None, on_stage=None,
+              rig_time=None) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
     tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
@@ -70,6 +71,9 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
         the rig can make) and the sentinel check is calibrated there (``plan --rig`` then places the
         sentinels exactly there), None: every cell.
     on_stage: called with each of TRAIN_STAGES' names this fit enters (a progress bar), or None.
+    rig_time: a ``time_design.TimeObjective`` on the rig of ``sentinel_candidates``: the inner
+        designs are time-aware (the calibration, its bound and design range are then those of
+        ``plan --objective time``'s designs), None: per sample.
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
     on_stage = on_stage or (lambda _name: None)
@@ -93,8 +97,10 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
         from goniofrost.frost.calibration import model_atoms  # the inner folds' coordinates on this model's atoms
 
         on_stage("noise cross-validation")
+        track_of = None if rig_time is None else _inner_tracks(rig_time, grid, sentinel_candidates, reference, mean,
+                                                               weight, eps)
         variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
-                                           model_atoms(gram, vt, svals), missing=missing)
+                                           model_atoms(gram, vt, svals), missing=missing, track_of=track_of)
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     on_stage("dictionary")
@@ -105,15 +111,32 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
                       noise=noise_meta, info=info or {})
 
 
+def _inner_tracks(objective, grid: MerlGrid, candidates, reference, mean, weight, eps: float):
+    """``track_of(m)``: a fresh ``time_design.RigTrack`` of the candidates on the objective's rig,
+    the expected brackets from the training's prior median (``rig_cost.value_costs``)."""
+    from goniofrost.frost.rig_cost import rig_camera, rig_sensor, value_costs
+    from goniofrost.frost.time_design import RigTrack
+
+    if candidates is None:
+        raise TrainingError("training: time-aware inner designs need the rig's cells (--rig)")
+    rows = np.flatnonzero(candidates)
+    r, w = np.asarray(reference, np.float64)[rows], np.asarray(weight, np.float64)[rows]
+    value = np.maximum((np.exp(np.asarray(mean, np.float64)[rows]) * (r + eps) - eps) / w, 0.0)  # FrostModel.from_log
+    rig = objective.rig
+    costs = value_costs(grid, value, rig, rows, rig_camera(rig), rig_sensor(rig), objective.settle_s)
+    return lambda m: RigTrack(costs, rig, objective.overhead_s, m, objective.share)
+
+
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
                 progress: bool = False, sentinel_candidates=None, atoms=None,
-                missing: dict | None = None) -> tuple[np.ndarray, dict]:
+                missing: dict | None = None, track_of=None) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
     calibration.py): inner folds, smoothed representation error, simulated captures, calibration
     (the designs among ``sentinel_candidates``, bool (n,) or None: every cell, and the sentinel
     check's at ``sentinel.cells`` among them; the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them).
     ``missing``: {material: bool (n,)} its cells not measured, left out of sigma_c^2 (the simulated
-    captures of the calibration still score them, at the row's mean)."""
+    captures of the calibration still score them, at the row's mean). ``track_of``: time-aware
+    inner designs (``calibration.simulate``), None: per sample."""
     from goniofrost.frost import calibration, check_cells, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
@@ -130,7 +153,8 @@ def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: Me
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
                                                                                      progress=progress,
                                                                                      sentinels=sentinels, atoms=atoms,
-                                                                                     pool=pool, rows=rows)
+                                                                                     pool=pool, rows=rows,
+                                                                                     track_of=track_of)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
