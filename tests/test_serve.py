@@ -1,7 +1,7 @@
 """``goniofrost serve`` driven over loopback by a real HTTP client on the small simulated rig: the
-queue, pause, resume and stop of a capture; the token and the origin; malformed requests refused
-naming the field with nothing queued or moved; kill -9 mid-capture and a restart losing and
-repeating no sample."""
+queue, pause, resume and stop of a capture; a drilled lamp failure suspending it; the token and the
+origin; malformed requests refused naming the field with nothing queued or moved; kill -9
+mid-capture and a restart losing and repeating no sample."""
 from __future__ import annotations
 
 import json
@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import requests
+import yaml
 
 from goniofrost.rig.file import load_checked_rig
 from goniofrost.rig.lock import rig_holder
@@ -129,6 +130,49 @@ def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
                        ("dee", "queue_add"), ("?", "queue_remove")]
 
 
+def events(server, until: int) -> list[dict]:
+    """The event stream's records 0 .. ``until`` - 1."""
+    records = []
+    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as stream:
+        for line in stream.iter_lines(decode_unicode=True):
+            if line.startswith("data: "):
+                records.append(json.loads(line[len("data: "):]))
+                if records[-1]["seq"] + 1 >= until:
+                    break
+    return records
+
+
+def test_a_dimmed_lamp_suspends_a_queued_capture_which_resumes_by_itself(plan, tmp_path):
+    from goniofrost.capture.journal import Journal
+
+    rig, plan_file = plan
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"kind": "lamp_dim", "at_sample": 1, "level": 0.5, "duration_s": 28}]
+    doc["suspenders"] = {"lamp_floor": 0.8, "hold_clear_s": 10, "poll_s": 5}  # 40 s of simulated clock
+    dimmed = rig.parent / "dimmed.yaml"
+    dimmed.write_text(yaml.safe_dump(doc, sort_keys=False))
+    root = tmp_path / "root"
+    root.mkdir()
+    (root / plan_file.name).write_text(plan_file.read_text())
+    server = Server(dimmed, root)
+    try:
+        assert server.post("/api/queue", entry(plan_file)).status_code == 201
+        status = server.wait(lambda: (s := server.status())["state"] == "suspended" and s, "the suspension")
+        assert status["reason"] == ("run suspended before plan sample 1: lamp_low (photodiode 0.499 of nominal, "
+                                    "below the floor 0.8)") and status["suspension"] == "lamp_low"
+        done = server.wait(lambda: (q := server.get("/api/queue").json())[0]["state"] == "done" and q[0], "the end")
+        states = [(r["state"], r["reason"]) for r in events(server, server.status()["events"]) if r["type"] == "state"]
+        assert states == [("running", None), ("suspended", status["reason"]), ("running", None), ("idle", None)]
+    finally:
+        server.close()
+    session = root / json.loads(done["result"])["session"]
+    assert [index for index, _ in journal_rows(session)] == list(range(M))
+    with Journal.open(session / "session.sqlite", read_only=True) as journal:
+        [s] = journal.suspensions()
+    assert (s.reason, s.plan_index, s.waited_s, str(s.end)) == ("lamp_low", 1, 40.0, "resumed")
+    assert json.loads((session / "report.json").read_text())["suspensions"]["count"] == 1
+
+
 def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_nothing(server, plan):
     rig, plan_file = plan
     pose = server.status()["pose"]
@@ -205,13 +249,7 @@ def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(serv
     assert snap.status_code == 200 and (server.root / "snaps" / "here.png").stat().st_size > 0
     assert [a["action"] for a in server.get("/api/actions").json()] == ["home", "move", "lamp", "stop", "snap"]
     assert server.get("/api/actions").json()[0]["who"].endswith("(goniofrost rig)")
-    records = []
-    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as events:
-        for line in events.iter_lines(decode_unicode=True):
-            if line.startswith("data: "):
-                records.append(json.loads(line[len("data: "):]))
-                if records[-1]["seq"] + 1 >= status["events"]:  # every record before the status read
-                    break
+    records = events(server, status["events"])  # every record before the status read
     assert [r["seq"] for r in records] == list(range(status["events"]))
     assert [r["state"] for r in records if r["type"] == "state"] == ["running", "idle"] * 3  # home, move, lamp
     assert [r["on"] for r in records if r["type"] == "lamp"] == [True]

@@ -96,6 +96,8 @@ class SessionEngine(PlanRunner):
         self.rehearsal = Rehearsal(self.devices, journal)  # a simulated rig's drills and state
         self.suspension = SuspendWatch(spec.suspenders, self.devices, journal, self._check_stop_request,
                                        lambda: self.run_start.run)  # the rig file's suspenders
+        if getattr(hardware, "pause_gate", None) is not None:  # a server: its state follows the suspensions
+            self.suspension.listen(hardware.pause_gate)
         self.reuse_calibration: dict | None = None  # another session's calibration record (a queue)
         self.progress_desc = "capture"  # the bar's label (a queue: its position and the sample)
         self.rerun = RERUN  # what to type to go on after a stop (a queue: the queue command, which resumes)

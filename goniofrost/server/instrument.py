@@ -9,8 +9,10 @@ Pause and stop reach a running capture through ``ServerGate`` (installed on the 
 ``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
 a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
 and the lamp as it was; it asks ``rig_lock.stop_request()`` between steps, so a move under way
-finishes before a stop ends the run. A suspender (a condition that pauses by itself) would call
-``Instrument.suspend(reason)`` / ``unsuspend()``: the gate holds a ``SUSPENDED`` run the same way.
+finishes before a stop ends the run. A suspender (the engine's ``SuspendWatch``: a condition that
+pauses a run by itself) holds the run inside its own safe point and tells the gate, its listener:
+the state is ``SUSPENDED`` with the reason until it ends; ``resume()`` is the operator's resume of
+a rig file's ``resume: operator``.
 """
 from __future__ import annotations
 
@@ -53,8 +55,15 @@ class ServerGate:
         return self.instrument.stop_asked or self.lock.stop_request()
 
     def __call__(self, where: str) -> None:
-        """The pause gate: block while paused or suspended; raise SessionInterrupted on a stop."""
+        """The pause gate: block while paused; raise SessionInterrupted on a stop."""
         self.instrument.safe_point(where)
+
+    def suspended(self, watch, reason, text: str) -> None:
+        """The engine's SuspendWatch suspended the run (``reason``: a SuspendReason)."""
+        self.instrument.suspend(str(reason), text, watch)
+
+    def resumed(self, watch, end, text: str) -> None:
+        self.instrument.unsuspend(text)
 
 
 class HeldDevices:
@@ -90,7 +99,8 @@ class Instrument:
         self.held = False            # the queue waits for resume (after a stop or a fault)
         self.stop_asked: str | None = None
         self._pause_asked = False
-        self._suspended: str | None = None
+        self._watch = None           # the SuspendWatch of a suspended run (its operator's resume)
+        self.suspension: str | None = None   # the SuspendReason of a suspended run
         self._commands: list = []
         self._closing = False
         self.pose: dict = {}
@@ -116,8 +126,8 @@ class Instrument:
 
     def status(self) -> dict:
         with self._cond:
-            return {"state": self.state.value, "reason": self.reason, "held": self.held,
-                    "current": self.current, "pose": dict(self.pose), "lamp": dict(self.lamp),
+            return {"state": self.state.value, "reason": self.reason, "suspension": self.suspension,
+                    "held": self.held, "current": self.current, "pose": dict(self.pose), "lamp": dict(self.lamp),
                     "rig": self.rig.name, "events": self.first_event + len(self.events)}
 
     def pause(self) -> State:
@@ -129,9 +139,12 @@ class Instrument:
             return self.state
 
     def resume(self) -> State:
-        """Continue a paused run, or release a queue held after a stop or a fault."""
+        """Continue a paused run, resume a suspended one (once its conditions held clear), or release
+        a queue held after a stop or a fault."""
         with self._cond:
             self._pause_asked, self.held = False, False
+            if self._watch is not None:
+                self._watch.resume()
             if self.state is State.FAULT:
                 self._set(State.IDLE, None)
             self._cond.notify_all()
@@ -147,16 +160,20 @@ class Instrument:
             self._cond.notify_all()
             return self.state
 
-    def suspend(self, reason: str) -> None:
-        """The seam for suspenders: hold the run at its next safe point, saying why."""
+    def suspend(self, reason: str, text: str, watch) -> None:
+        """A suspender holds the run (``watch``: its SuspendWatch, ``reason`` a SuspendReason's value)."""
         with self._cond:
-            self._suspended = reason
-            self._publish("suspend_asked", reason=reason)
+            self._watch, self.suspension = watch, reason
+            if not self.stop_asked:
+                self._set(State.SUSPENDED, text)
 
-    def unsuspend(self) -> None:
+    def unsuspend(self, text: str) -> None:
+        """The suspension ended (``text``: how); a run not being stopped is running again."""
         with self._cond:
-            self._suspended = None
-            self._cond.notify_all()
+            self._watch, self.suspension = None, None
+            self._publish("suspension_ended", text=text)
+            if self.state is State.SUSPENDED:
+                self._set(State.RUNNING, None)
 
     def lamp_switched(self, on: bool) -> None:
         with self._cond:
@@ -183,10 +200,9 @@ class Instrument:
         from goniofrost.capture.signals import SessionInterrupted
 
         with self._cond:
-            while (self._pause_asked or self._suspended) and not self.stop_asked:
-                state = State.SUSPENDED if self._suspended else State.PAUSED
-                if self.state is not state:
-                    self._set(state, self._suspended or f"paused{where}")
+            while self._pause_asked and not self.stop_asked:
+                if self.state is not State.PAUSED:
+                    self._set(State.PAUSED, f"paused{where}")
                 self._cond.wait()
             if self.stop_asked:
                 raise SessionInterrupted(self.stop_asked)
