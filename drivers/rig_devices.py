@@ -2,7 +2,8 @@
 
 ``RigDevices.from_rig(rig)`` only constructs (nothing is opened); ``connect_all()`` opens
 each device's serial port or TCP connection (``open_transport``: the drivers never open one),
-hands it to the driver and enables every axis; ``close_all()`` releases every connection.
+hands it to the driver and enables every axis; ``reconnect(name)`` opens one of them again;
+``close_all()`` releases every connection.
 Stopping is not done here: the one stop path for all axes (command each to stop, then confirm
 each at rest) is the rig's ``goniofrost.rig.stop.stop_axes``, which the rig wiring
 calls (``release_stop``: for the axes not yet confirmed stopped) before ``close_all``.
@@ -118,6 +119,22 @@ class RigDevices:
         except BaseException:
             self.close_all()
             raise
+
+    def reconnect(self, name: str) -> None:
+        """Close and open again the connection of axis ``name`` (or ``"lamp"``), then check it answers
+        (an axis is enabled again, as ``connect_all`` does; nothing moves). A lamp on an axis's
+        link only checks that link, which its axis reopens. DeviceError when it does not answer."""
+        if name == "lamp":
+            section = self.sections.get("lamp", {})
+            own = "device" not in section
+            if own:
+                self.lamp.close()
+            self.lamp.connect(open_transport("lamp", section) if own else None)
+            return
+        axis = self.axes[name]
+        axis.close()
+        connect_axis(axis, self.sections[name])
+        axis.enable()
 
     def close_all(self) -> None:
         """Close every connection that was opened (lamp first); logs failures, never raises."""

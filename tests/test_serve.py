@@ -5,6 +5,7 @@ mid-capture and a restart losing and repeating no sample."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -21,6 +22,7 @@ from goniofrost.rig.lock import rig_holder
 from monitor_helpers import MATERIAL, journal_rows, make_plan
 
 REPO = Path(__file__).resolve().parents[1]
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # a silenced drive makes pymodbus log errors
 M = 4
 TIMEOUT_S = 120.0
 
@@ -171,6 +173,53 @@ def test_a_dimmed_lamp_suspends_a_queued_capture_which_resumes_by_itself(plan, t
         [s] = journal.suspensions()
     assert (s.reason, s.plan_index, s.waited_s, str(s.end)) == ("lamp_low", 1, 40.0, "resumed")
     assert json.loads((session / "report.json").read_text())["suspensions"]["count"] == 1
+
+
+def test_a_drive_silent_between_runs_is_reopened_with_back_off_on_the_simulated_clock(plan, tmp_path):
+    """The instrument in-process on the simulated devices: its idle reads find the drive silent, it
+    says fault with the reason and reopens it after 0.5, 1 and 2 s of simulated clock (the drill lasts
+    3 s of it), then is idle again; nothing was moved."""
+    from goniofrost.rig.lock import rig_lock
+    from goniofrost.rig.simulated import simulated_devices
+    from goniofrost.server.instrument import Instrument
+    from goniofrost.server.store import Store
+
+    doc = yaml.safe_load(plan[0].read_text())
+    doc["sim"]["faults"] = [{"axis": "camera_arm", "kind": "silent", "at_sample": 0, "duration_s": 3}]
+    doc["axes"]["camera_arm"]["driver"]["reply_timeout_ms"] = 30  # a silent read gives up in 3 x 30 ms
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    rig = load_checked_rig(tmp_path / "rig.yaml")
+    store = Store(tmp_path)
+    with rig_lock(rig, "serve") as lock, simulated_devices(rig, speedup=1000) as hw:
+        instrument = Instrument(rig, hw, lock, store, run_entry=None, idle_read_s=0.01).start()
+        try:
+            until = lambda what, test: wait_for(lambda: test(instrument.status()), what)  # noqa: E731
+            pose = until("a first reading", lambda s: s["pose"].get("camera_arm") is not None and s["pose"])
+            t0 = hw.clock.nominal_time()
+            hw.simulation.arm_faults(0)  # camera_arm answers nothing for 3 s of simulated clock
+            fault = until("the fault", lambda s: s["state"] == "fault" and s)
+            assert fault["reason"].startswith("camera_arm does not answer (camera_arm: ")
+            until("idle again", lambda s: s["state"] == "idle" and s["events"] > fault["events"] + 3)
+            reasons = [r["reason"] for r in instrument.events_since(0) if r["type"] == "state"]
+            assert [r and r.rsplit(": ", 1)[-1] for r in reasons] == [
+                "reopening in 0.5 s (attempt 1)", "reopening in 1 s (attempt 2)", "reopening in 2 s (attempt 3)", None]
+            assert [r["attempts"] for r in instrument.events_since(0) if r["type"] == "reconnected"] == [3]
+            assert hw.clock.nominal_time() - t0 == pytest.approx(3.5)
+            assert instrument.status()["pose"] == pose
+        finally:
+            instrument.close()
+            store.close()
+
+
+def wait_for(condition, what: str):
+    """Poll ``condition()`` until it is true; fail after TIMEOUT_S."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.01)
+    pytest.fail(f"no {what} within {TIMEOUT_S} s")
 
 
 def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_nothing(server, plan):

@@ -13,6 +13,11 @@ finishes before a stop ends the run. A suspender (the engine's ``SuspendWatch``:
 pauses a run by itself) holds the run inside its own safe point and tells the gate, its listener:
 the state is ``SUSPENDED`` with the reason until it ends; ``resume()`` is the operator's resume of
 a rig file's ``resume: operator``.
+
+Between runs the thread reads the devices (after each plan, and every ``idle_read_s`` while idle);
+a device that does not answer puts the instrument in ``FAULT`` with the reason while it reopens it
+(``hardware.reconnect``) after waits of ``backoff()`` on the session clock, until it answers again.
+Only reads are repeated so: a move is never sent again.
 """
 from __future__ import annotations
 
@@ -27,6 +32,16 @@ from goniofrost.core.errors import GoniofrostError
 
 log = logging.getLogger(__name__)
 MAX_EVENTS = 2000   # typed records kept for the event stream (older ones are dropped)
+IDLE_READ_S = 2.0   # real seconds between two status reads of an idle instrument
+BACKOFF_S = (0.5, 30.0)   # session-clock seconds before the first reopening of a silent device, and the cap
+
+
+def backoff(first: float = BACKOFF_S[0], cap: float = BACKOFF_S[1]):
+    """The waits before each reopening of a device: first, 2 first, 4 first ... up to cap (seconds)."""
+    delay = first
+    while True:
+        yield delay
+        delay = min(2.0 * delay, cap)
 
 
 class State(str, enum.Enum):
@@ -88,8 +103,9 @@ class Instrument:
     its lock held as ``lock``), its queue in ``store``; ``run_entry(entry, devices)`` runs one queue
     entry (``goniofrost.server.serve.run_entry``) with ``devices`` the opener of the held hardware."""
 
-    def __init__(self, rig, hardware, lock, store, run_entry) -> None:
+    def __init__(self, rig, hardware, lock, store, run_entry, idle_read_s: float = IDLE_READ_S) -> None:
         self.rig, self.hw, self.store, self.run_entry = rig, hardware, store, run_entry
+        self.idle_read_s = idle_read_s
         self.gate = ServerGate(self, lock)
         self.held_devices = HeldDevices(hardware, self.gate)
         hardware.rig_lock, hardware.pause_gate = self.gate, self.gate
@@ -212,20 +228,63 @@ class Instrument:
 
     # ----- the thread ---------------------------------------------------------------------------------
     def _work(self) -> None:
-        self._read_pose()
+        self._check_devices()
         while True:
             with self._cond:
-                while not self._closing and not self._commands and (self.held or self.store.next_entry() is None):
-                    self._cond.wait()
+                if not self._has_work():
+                    self._cond.wait(self.idle_read_s)
                 if self._closing:
                     return
                 command = self._commands.pop(0) if self._commands else None
-                entry = None if command else self.store.next_entry()
+                entry = None if command or self.held else self.store.next_entry()
             if command:
                 self._run_command(*command)
             elif entry:
                 self._run_queued(entry)
-            self._read_pose()
+            self._check_devices()
+
+    def _has_work(self) -> bool:
+        return self._closing or bool(self._commands) or (not self.held and self.store.next_entry() is not None)
+
+    def _check_devices(self) -> None:
+        """Read the devices between runs; reopen the ones that do not answer (module doc)."""
+        failed = self._read_pose()
+        if failed:
+            self._reconnect(failed)
+
+    def _reconnect(self, failed: dict) -> None:
+        """``failed``: device name -> its error. FAULT while reopening them with back-off; the state
+        before comes back once every device answers (or the server closes)."""
+        with self._cond:
+            before = (self.state, self.reason)
+        for attempt, delay in enumerate(backoff(), 1):
+            with self._cond:
+                if self._closing:
+                    return
+                why = "; ".join(f"{name} does not answer ({error})" for name, error in failed.items())
+                self._set(State.FAULT, f"{why}: reopening in {delay:g} s (attempt {attempt})")
+            self._sleep(delay)
+            refused = {}
+            for name in failed:
+                try:
+                    if self.hw.reconnect is not None:
+                        self.hw.reconnect(name)
+                except Exception as exc:  # noqa: BLE001 - say it, read again below, try again later
+                    refused[name] = str(exc)
+                    log.warning("reopening %s: %s", name, exc)
+            failed = self._read_pose()
+            failed.update((name, error) for name, error in refused.items() if name in failed)
+            if not failed:
+                with self._cond:
+                    self._publish("reconnected", attempts=attempt)
+                    self._set(*before)
+                return
+
+    def _sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of the session clock in short steps, ending early when the server closes."""
+        while seconds > 0 and not self._closing:
+            self.hw.clock.sleep(min(0.5, seconds))
+            seconds -= 0.5
 
     def _run_command(self, what, job, future) -> None:
         with self._cond:
@@ -268,24 +327,27 @@ class Instrument:
             self._publish("entry_ended", id=entry["id"], state=ended[0], result=ended[1])
             self._set(state, ended[1].get("reason") if state is State.FAULT else None)
 
-    def _read_pose(self) -> None:
-        """Read the axes and the photodiode (on the instrument's thread only)."""
-        pose, reading = {}, None
+    def _read_pose(self) -> dict:
+        """Read the axes and the photodiode (on the instrument's thread only); return the devices that
+        did not answer (name -> the error)."""
+        pose, reading, failed = {}, None, {}
         for name, axis in self.hw.axes.items():
             try:
                 pose[name] = round(float(axis.position()), 4)
             except Exception as exc:  # noqa: BLE001 - a status shows what it can
-                pose[name] = None
+                pose[name], failed[name] = None, str(exc)
                 log.warning("reading %s: %s", name, exc)
         if self.hw.lamp is not None:
             try:
                 reading = round(float(self.hw.lamp.photodiode()), 4)
-            except Exception:  # noqa: BLE001
-                reading = None
+            except Exception as exc:  # noqa: BLE001
+                failed["lamp"] = str(exc)
         with self._cond:
-            self.pose = pose
-            self.lamp["photodiode"] = reading
-            self._publish("pose", pose=pose, lamp=dict(self.lamp))
+            if (pose, reading) != (self.pose, self.lamp["photodiode"]):
+                self.pose = pose
+                self.lamp["photodiode"] = reading
+                self._publish("pose", pose=pose, lamp=dict(self.lamp))
+        return failed
 
     # ----- records -------------------------------------------------------------------------------------
     def _set(self, state: State, reason) -> None:
