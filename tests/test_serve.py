@@ -29,7 +29,10 @@ TIMEOUT_S = 120.0
 
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
-    return make_plan(tmp_path_factory.mktemp("serve"), M)
+    """(rig file, plan file): the small simulated rig, its lamp off while a capture is paused."""
+    rig, plan_file = make_plan(tmp_path_factory.mktemp("serve"), M)
+    rig.write_text(rig.read_text() + "pause: {lamp: 'off', lamp_tolerance: 0.01}\n")
+    return rig, plan_file
 
 
 class Server:
@@ -110,9 +113,16 @@ def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
     assert server.post("/api/pause", {"operator": "ada"}).json()["state"] == "running"  # until the safe point
     paused = server.wait(lambda: (s := server.status())["state"] == "paused" and s, "the pause")
     assert paused["reason"] == "paused at plan sample 0" and paused["current"]["id"] == added.json()["id"]
+    assert paused["lamp"] == {"on": False, "photodiode": 0.0}  # the rig file's pause: {lamp: off}
     assert journal_rows(session) == []  # paused before the first sample's move
     assert server.post("/api/resume", {"operator": "bob"}).json()["state"] == "paused"
     server.wait(lambda: len(journal_rows(session)) >= 1, "a sample after the resume")
+    records = events(server, server.status()["events"])
+    lamp = [(r["type"], r.get("on")) for r in records if r["type"] in ("lamp", "relit")]
+    assert lamp == [("lamp", False), ("lamp", True), ("relit", None)]  # on again before the sample
+    relit = next(r for r in records if r["type"] == "relit")
+    assert abs(relit["photodiode"] / relit["before"] - 1) <= 0.01 and relit["before"] > 0.9
+    assert relit["t_utc"] < journal_rows(session)[0][1]  # relit before sample 0 was committed
     assert server.post("/api/stop", {"operator": "cy"}).status_code == 200
     ended = server.wait(lambda: (q := server.get("/api/queue").json())[0]["state"] != "running" and q, "the stop")[0]
     assert ended["state"] == "stopped" and json.loads(ended["result"])["reason"].startswith(

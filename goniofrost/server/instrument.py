@@ -8,7 +8,7 @@ devices, so a status request never talks on a line the engine is using.
 Pause and stop reach a running capture through ``ServerGate`` (installed on the hardware as
 ``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
 a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
-and the lamp as it was; it asks ``rig_lock.stop_request()`` between steps, so a move under way
+and the lamp as the rig file's ``pause:`` says (``goniofrost.rig.pause``); it asks ``rig_lock.stop_request()`` between steps, so a move under way
 finishes before a stop ends the run. A suspender (the engine's ``SuspendWatch``: a condition that
 pauses a run by itself) holds the run inside its own safe point and tells the gate, its listener:
 the state is ``SUSPENDED`` with the reason until it ends; ``resume()`` is the operator's resume of
@@ -29,6 +29,7 @@ import time
 import traceback
 
 from goniofrost.core.errors import GoniofrostError
+from goniofrost.rig.pause import PauseHold, PauseLamp
 
 log = logging.getLogger(__name__)
 MAX_EVENTS = 2000   # typed records kept for the event stream (older ones are dropped)
@@ -106,6 +107,7 @@ class Instrument:
     def __init__(self, rig, hardware, lock, store, run_entry, idle_read_s: float = IDLE_READ_S) -> None:
         self.rig, self.hw, self.store, self.run_entry = rig, hardware, store, run_entry
         self.idle_read_s = idle_read_s
+        self.pause_hold = PauseHold.of_rig(rig)  # the lamp while paused
         self.gate = ServerGate(self, lock)
         self.held_devices = HeldDevices(hardware, self.gate)
         hardware.rig_lock, hardware.pause_gate = self.gate, self.gate
@@ -216,15 +218,49 @@ class Instrument:
         from goniofrost.capture.signals import SessionInterrupted
 
         with self._cond:
-            while self._pause_asked and not self.stop_asked:
-                if self.state is not State.PAUSED:
-                    self._set(State.PAUSED, f"paused{where}")
-                self._cond.wait()
+            paused = self._pause_asked and not self.stop_asked
+        if paused:
+            self._hold(where)
+        with self._cond:
             if self.stop_asked:
                 raise SessionInterrupted(self.stop_asked)
             if self.state is not State.RUNNING:
                 self._set(State.RUNNING, None)
         self._read_pose()
+
+    def _hold(self, where: str) -> None:
+        """Paused: the axes at rest where they are, the lamp as the rig file's ``pause:`` says
+        (``goniofrost.rig.pause``); wait for a resume or a stop, then light the lamp again."""
+        before = None
+        if self.pause_hold.lamp is PauseLamp.OFF and self.hw.lamp is not None and self.hw.lamp.is_on():
+            before = self.hw.lamp.photodiode()
+            self.hw.lamp.off()
+            self.lamp_switched(False)
+            self._read_pose()
+        with self._cond:
+            while self._pause_asked and not self.stop_asked:
+                if self.state is not State.PAUSED:
+                    self._set(State.PAUSED, f"paused{where}")
+                self._cond.wait()
+            stopped = self.stop_asked
+        if before is not None and not stopped:
+            self._relight(before)
+
+    def _relight(self, before: float) -> None:
+        """Switch the lamp on after a pause and wait, on the session clock, until its photodiode reads
+        within ``lamp_tolerance`` of ``before`` (GoniofrostError after ``warmup_s``: the run faults)."""
+        hold, waited = self.pause_hold, 0.0
+        self.hw.lamp.on()
+        self.lamp_switched(True)
+        while abs((reading := self.hw.lamp.photodiode()) / before - 1.0) > hold.lamp_tolerance:
+            if waited >= hold.warmup_s:
+                raise GoniofrostError(f"lamp: after the pause it reads {reading:.3f} of nominal, not within "
+                                      f"{100 * hold.lamp_tolerance:g} % of {before:.3f} before it, after "
+                                      f"{waited:g} s (pause.warmup_s)")
+            self.hw.clock.sleep(hold.poll_s)
+            waited += hold.poll_s
+        with self._cond:
+            self._publish("relit", photodiode=round(reading, 4), before=round(before, 4), waited_s=waited)
 
     # ----- the thread ---------------------------------------------------------------------------------
     def _work(self) -> None:
