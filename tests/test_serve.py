@@ -314,6 +314,39 @@ def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(serv
     assert [r["on"] for r in records if r["type"] == "lamp"] == [True]
 
 
+def test_rig_status_snap_and_the_queue_command_ask_the_running_server(server, plan, tmp_path, capsys):
+    """`goniofrost rig status/snap` read through the server; `goniofrost queue QUEUE.yaml` adds its
+    samples to the server's queue (held here by a stop, so nothing runs)."""
+    from goniofrost.app.cli import main
+
+    rig, plan_file = plan
+    assert main(["rig", "status", "--rig", str(rig), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["server"] == {"url": server.url, "state": "idle", "reason": None, "current": None}
+    assert {a["axis"]: a["position_deg"] for a in said["axes"]} == server.status()["pose"]
+    assert main(["rig", "status", "--rig", str(rig)]) == 0
+    assert capsys.readouterr().out.startswith(f"sim-rig is held by serve (process {server.proc.pid} of ")
+    assert main(["rig", "snap", "--rig", str(rig), "--move", "camera_arm=30", "--out", str(tmp_path / "frame.png"),
+                 "--json"]) == 0
+    snapped = json.loads(capsys.readouterr().out)
+    assert snapped["png"] == str(tmp_path / "frame.png") and snapped["problem"] is None
+    assert (tmp_path / "frame.png").read_bytes() == (server.root / "snaps" / "frame.png").read_bytes()
+    server.post("/api/stop")  # the queue is held: what is added waits
+    queue = server.root / "queue.yaml"
+    queue.write_text(f"rig: {rig}\nplan: {plan_file.name}\nroot: elsewhere\noperator: ada\n"
+                     f"samples:\n  - {{sample_id: S-1, material: {MATERIAL}}}\n"
+                     f"  - {{sample_id: S-2, material: {MATERIAL}, target_error: 0.5, confidence: 0.8, note: second}}\n")
+    assert main(["queue", str(queue)]) == 0
+    assert capsys.readouterr().out == (f"queue queue.yaml: added S-1 (id 1), S-2 (id 2) to the queue of the server at "
+                                       f"{server.url}; sessions in {server.root / 'sessions'} (goniofrost sessions "
+                                       f"{server.root / 'sessions'})\n")
+    rows = [(e["sample_id"], e["state"], e["operator"], e["note"], e["target_error"], e["confidence"])
+            for e in server.get("/api/queue").json()]
+    assert rows == [("S-1", "pending", "ada", "", None, 0.95), ("S-2", "pending", "ada", "second", 0.5, 0.8)]
+    assert not (server.root / "elsewhere").exists()
+    assert [a["action"] for a in server.get("/api/actions").json()] == ["move", "snap", "stop", "queue_add", "queue_add"]
+
+
 def test_a_refused_start_warns_off_loopback_names_the_holder_and_leaves_the_root_alone(plan, tmp_path, capsys):
     from goniofrost.app.cli import main
     from goniofrost.rig.lock import rig_lock
