@@ -221,6 +221,56 @@ def test_a_drive_silent_between_runs_is_reopened_with_back_off_on_the_simulated_
             store.close()
 
 
+def test_a_run_suspended_for_the_operator_resumes_on_the_instruments_resume(plan, tmp_path):
+    """resume: operator: the instrument (in-process, on the simulated devices) says suspended until
+    its resume() (what POST /api/resume calls) reaches the engine's SuspendWatch, then running."""
+    import threading
+
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.capture.signals import SessionInterrupted
+    from goniofrost.capture.suspension import SuspendWatch
+    from goniofrost.rig.lock import rig_lock
+    from goniofrost.rig.simulated import simulated_devices
+    from goniofrost.rig.suspenders import Suspenders
+    from goniofrost.server.instrument import Instrument
+    from goniofrost.server.store import Store
+
+    doc = yaml.safe_load(plan[0].read_text())
+    doc["sim"]["faults"] = [{"kind": "lamp_cut", "at_sample": 0, "duration_s": 10}]
+    doc["suspenders"] = {"lamp_floor": 0.8, "hold_clear_s": 5, "poll_s": 5, "resume": "operator"}
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    rig = load_checked_rig(tmp_path / "rig.yaml")
+    store = Store(tmp_path)
+    with rig_lock(rig, "serve") as lock, simulated_devices(rig, speedup=1000) as hw:
+        instrument = Instrument(rig, hw, lock, store, run_entry=None)
+        hw.lamp.on()
+        def check_stop() -> None:  # the engine's: a stop request ends the wait
+            if instrument.stop_asked:
+                raise SessionInterrupted(instrument.stop_asked)
+
+        watch = SuspendWatch(Suspenders.from_section(rig.suspenders), StepExecutor(hw, tmp_path), None,
+                             check_stop, lambda: 1)
+        watch.listen(instrument.gate)
+        hw.simulation.arm_faults(0)
+        run = threading.Thread(target=watch.may_continue, args=(0,))
+        run.start()
+        try:
+            status = wait_for(lambda: (s := instrument.status())["state"] == "suspended" and s, "the suspension")
+            assert status["suspension"] == "lamp_low" and status["reason"].startswith(
+                "run suspended before plan sample 0: lamp_low (photodiode 0.000 of nominal")
+            wait_for(lambda: watch.waited >= 30, "a clear lamp held for hold_clear_s")  # still waiting for us
+            assert instrument.status()["state"] == "suspended"
+            instrument.resume()
+            run.join(timeout=TIMEOUT_S)
+            after = instrument.status()
+        finally:
+            if run.is_alive():
+                instrument.stop("the test")  # a wait that did not end ends at its next poll
+                run.join(timeout=TIMEOUT_S)
+        assert (after["state"], after["suspension"], after["reason"]) == ("running", None, None)
+    store.close()
+
+
 def wait_for(condition, what: str):
     """Poll ``condition()`` until it is true; fail after TIMEOUT_S."""
     deadline = time.monotonic() + TIMEOUT_S
