@@ -8,11 +8,12 @@ devices, so a status request never talks on a line the engine is using.
 Pause and stop reach a running capture through ``ServerGate`` (installed on the hardware as
 ``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
 a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
-and the lamp as the rig file's ``pause:`` says (``goniofrost.rig.pause``); it asks ``rig_lock.stop_request()`` between steps, so a move under way
-finishes before a stop ends the run. A suspender (the engine's ``SuspendWatch``: a condition that
-pauses a run by itself) holds the run inside its own safe point and tells the gate, its listener:
-the state is ``SUSPENDED`` with the reason until it ends; ``resume()`` is the operator's resume of
-a rig file's ``resume: operator``.
+and the lamp as the rig file's ``pause:`` says (``goniofrost.rig.pause``); it asks
+``rig_lock.stop_request()`` between steps, so a move under way finishes before a stop ends the
+run. A suspender (the engine's ``SuspendWatch``: a condition that pauses a run by itself) holds
+the run inside its own safe point and tells the gate, its listener: the state is ``SUSPENDED``
+with the reason until it ends; ``resume()`` is the operator's resume of a rig file's
+``resume: operator``.
 
 Between runs the thread reads the devices (after each plan, and every ``idle_read_s`` while idle);
 a device that does not answer puts the instrument in ``FAULT`` with the reason while it reopens it
@@ -248,19 +249,23 @@ class Instrument:
 
     def _relight(self, before: float) -> None:
         """Switch the lamp on after a pause and wait, on the session clock, until its photodiode reads
-        within ``lamp_tolerance`` of ``before`` (GoniofrostError after ``warmup_s``: the run faults)."""
+        within ``lamp_tolerance`` of ``before`` (GoniofrostError after ``warmup_s``: the run faults;
+        a lamp that read nothing before the pause is only switched on)."""
         hold, waited = self.pause_hold, 0.0
         self.hw.lamp.on()
         self.lamp_switched(True)
-        while abs((reading := self.hw.lamp.photodiode()) / before - 1.0) > hold.lamp_tolerance:
+        reading = self.hw.lamp.photodiode() if before > 0 else None
+        while reading is not None and abs(reading / before - 1.0) > hold.lamp_tolerance:
             if waited >= hold.warmup_s:
                 raise GoniofrostError(f"lamp: after the pause it reads {reading:.3f} of nominal, not within "
                                       f"{100 * hold.lamp_tolerance:g} % of {before:.3f} before it, after "
                                       f"{waited:g} s (pause.warmup_s)")
             self.hw.clock.sleep(hold.poll_s)
             waited += hold.poll_s
+            reading = self.hw.lamp.photodiode()
         with self._cond:
-            self._publish("relit", photodiode=round(reading, 4), before=round(before, 4), waited_s=waited)
+            self._publish("relit", photodiode=None if reading is None else round(reading, 4),
+                          before=round(before, 4), waited_s=waited)
 
     # ----- the thread ---------------------------------------------------------------------------------
     def _work(self) -> None:
