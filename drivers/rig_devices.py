@@ -1,7 +1,8 @@
 """Build every Axis (and the Lamp) of a rig from its driver sections, and handle them as one.
 
 ``RigDevices.from_rig(rig)`` constructs; ``connect_all()`` opens each connection
-(``open_transport``) and enables the axes; ``close_all()`` releases them. Stopping is
+(``open_transport``) and enables the axes; ``reconnect(name)`` opens one again;
+``close_all()`` releases them. Stopping is
 ``goniofrost.rig.stop.stop_axes``.
 """
 from __future__ import annotations
@@ -115,6 +116,22 @@ class RigDevices:
         except BaseException:
             self.close_all()
             raise
+
+    def reconnect(self, name: str) -> None:
+        """Close and open again the connection of axis ``name`` (or ``"lamp"``), then check it answers
+        (an axis is enabled again, as ``connect_all`` does; nothing moves). A lamp on an axis's
+        link only checks that link, which its axis reopens. DeviceError when it does not answer."""
+        if name == "lamp":
+            section = self.sections.get("lamp", {})
+            own = "device" not in section
+            if own:
+                self.lamp.close()
+            self.lamp.connect(open_transport("lamp", section) if own else None)
+            return
+        axis = self.axes[name]
+        axis.close()
+        connect_axis(axis, self.sections[name])
+        axis.enable()
 
     def close_all(self) -> None:
         """Close every connection that was opened (lamp first); logs failures, never raises."""

@@ -40,6 +40,7 @@ _TOP_KEYS = {
     "lab": Key(is_mapping, "a mapping", ABSENT),  # the lab's metadata (goniofrost.rig.lab checks it)
     "twins": Key(is_mapping, "a mapping", ABSENT),  # running twins behind a real rig file (sim.config checks it)
     "suspenders": Key(is_mapping, "a mapping", ABSENT),  # goniofrost.rig.suspenders checks it
+    "pause": Key(is_mapping, "a mapping", ABSENT),  # what a paused capture holds (goniofrost.rig.pause checks it)
 }
 _GEOMETRY_KEYS = {
     "light_direction": Key(numbers(3), "a list of 3 numbers"),
@@ -107,6 +108,8 @@ class Rig(RigSpec):
     twins: dict = field(default_factory=dict, compare=False)
     # what pauses a capture until it clears (checked by goniofrost.rig.suspenders); {}: nothing
     suspenders: dict = field(default_factory=dict, compare=False)
+    # what a paused capture holds (checked by goniofrost.rig.pause); {}: the defaults
+    pause: dict = field(default_factory=dict, compare=False)
 
     def axis(self, role: Role | str) -> AxisSpec:
         """The axis that plays ``role``."""
@@ -154,8 +157,8 @@ def rig_from_mapping(raw: Any, source: str,
             lamp[key] = float(lamp[key])
     if "driver" in lamp:
         lamp["driver"] = _checked(lamp["driver"], source, "lamp.driver", validators.get("driver"))
-    owned = ("camera", "sim", "lab", "twins", "suspenders")  # the sections other packages own
-    camera, sim, lab, twins, suspenders = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
+    owned = ("camera", "sim", "lab", "twins", "suspenders", "pause")  # the sections other packages own
+    camera, sim, lab, twins, suspenders, pause = (_checked(top[key], source, key, validators.get(key)) if key in top else {}
                                            for key in owned)
     alignment = None
     if "alignment" in top:
@@ -166,7 +169,7 @@ def rig_from_mapping(raw: Any, source: str,
     return Rig(name=top["name"], simulated=top["simulated"], geometry=geometry, axes=axes, lamp=lamp,
                camera=camera, sim=sim, source=source,
                kinematic_hash=kinematic_hash(geometry, axes), raw=dict(raw), alignment=alignment, lab=lab,
-               twins=twins, suspenders=suspenders)
+               twins=twins, suspenders=suspenders, pause=pause)
 
 
 def kinematic_hash(geometry: Geometry, axes: Mapping[str, AxisSpec]) -> str:

@@ -1,10 +1,11 @@
 """``goniofrost serve`` driven over loopback by a real HTTP client on the small simulated rig: the
-queue, pause, resume and stop of a capture; the token and the origin; malformed requests refused
-naming the field with nothing queued or moved; kill -9 mid-capture and a restart losing and
-repeating no sample."""
+queue, pause, resume and stop of a capture; a drilled lamp failure suspending it; the token and the
+origin; malformed requests refused naming the field with nothing queued or moved; kill -9
+mid-capture and a restart losing and repeating no sample."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -14,19 +15,24 @@ from pathlib import Path
 
 import pytest
 import requests
+import yaml
 
 from goniofrost.rig.file import load_checked_rig
 from goniofrost.rig.lock import rig_holder
 from monitor_helpers import MATERIAL, journal_rows, make_plan
 
 REPO = Path(__file__).resolve().parents[1]
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # a silenced drive makes pymodbus log errors
 M = 4
 TIMEOUT_S = 120.0
 
 
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
-    return make_plan(tmp_path_factory.mktemp("serve"), M)
+    """(rig file, plan file): the small simulated rig, its lamp off while a capture is paused."""
+    rig, plan_file = make_plan(tmp_path_factory.mktemp("serve"), M)
+    rig.write_text(rig.read_text() + "pause: {lamp: 'off', lamp_tolerance: 0.01}\n")
+    return rig, plan_file
 
 
 class Server:
@@ -107,9 +113,16 @@ def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
     assert server.post("/api/pause", {"operator": "ada"}).json()["state"] == "running"  # until the safe point
     paused = server.wait(lambda: (s := server.status())["state"] == "paused" and s, "the pause")
     assert paused["reason"] == "paused at plan sample 0" and paused["current"]["id"] == added.json()["id"]
+    assert paused["lamp"] == {"on": False, "photodiode": 0.0}  # the rig file's pause: {lamp: off}
     assert journal_rows(session) == []  # paused before the first sample's move
     assert server.post("/api/resume", {"operator": "bob"}).json()["state"] == "paused"
     server.wait(lambda: len(journal_rows(session)) >= 1, "a sample after the resume")
+    records = events(server, server.status()["events"])
+    lamp = [(r["type"], r.get("on")) for r in records if r["type"] in ("lamp", "relit")]
+    assert lamp == [("lamp", False), ("lamp", True), ("relit", None)]  # on again before the sample
+    relit = next(r for r in records if r["type"] == "relit")
+    assert abs(relit["photodiode"] / relit["before"] - 1) <= 0.01 and relit["before"] > 0.9
+    assert relit["t_utc"] < journal_rows(session)[0][1]  # relit before sample 0 was committed
     assert server.post("/api/stop", {"operator": "cy"}).status_code == 200
     ended = server.wait(lambda: (q := server.get("/api/queue").json())[0]["state"] != "running" and q, "the stop")[0]
     assert ended["state"] == "stopped" and json.loads(ended["result"])["reason"].startswith(
@@ -127,6 +140,146 @@ def test_a_capture_is_queued_paused_resumed_and_stopped(server, plan):
     actions = [(a["who"], a["action"]) for a in server.get("/api/actions").json()]
     assert actions == [("ada", "queue_add"), ("ada", "pause"), ("bob", "resume"), ("cy", "stop"),
                        ("dee", "queue_add"), ("?", "queue_remove")]
+
+
+def events(server, until: int) -> list[dict]:
+    """The event stream's records 0 .. ``until`` - 1."""
+    records = []
+    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as stream:
+        for line in stream.iter_lines(decode_unicode=True):
+            if line.startswith("data: "):
+                records.append(json.loads(line[len("data: "):]))
+                if records[-1]["seq"] + 1 >= until:
+                    break
+    return records
+
+
+def test_a_dimmed_lamp_suspends_a_queued_capture_which_resumes_by_itself(plan, tmp_path):
+    from goniofrost.capture.journal import Journal
+
+    rig, plan_file = plan
+    doc = yaml.safe_load(rig.read_text())
+    doc["sim"]["faults"] = [{"kind": "lamp_dim", "at_sample": 1, "level": 0.5, "duration_s": 28}]
+    doc["suspenders"] = {"lamp_floor": 0.8, "hold_clear_s": 10, "poll_s": 5}  # 40 s of simulated clock
+    dimmed = rig.parent / "dimmed.yaml"
+    dimmed.write_text(yaml.safe_dump(doc, sort_keys=False))
+    root = tmp_path / "root"
+    root.mkdir()
+    (root / plan_file.name).write_text(plan_file.read_text())
+    server = Server(dimmed, root)
+    try:
+        assert server.post("/api/queue", entry(plan_file)).status_code == 201
+        status = server.wait(lambda: (s := server.status())["state"] == "suspended" and s, "the suspension")
+        assert status["reason"] == ("run suspended before plan sample 1: lamp_low (photodiode 0.499 of nominal, "
+                                    "below the floor 0.8)") and status["suspension"] == "lamp_low"
+        done = server.wait(lambda: (q := server.get("/api/queue").json())[0]["state"] == "done" and q[0], "the end")
+        states = [(r["state"], r["reason"]) for r in events(server, server.status()["events"]) if r["type"] == "state"]
+        assert states == [("running", None), ("suspended", status["reason"]), ("running", None), ("idle", None)]
+    finally:
+        server.close()
+    session = root / json.loads(done["result"])["session"]
+    assert [index for index, _ in journal_rows(session)] == list(range(M))
+    with Journal.open(session / "session.sqlite", read_only=True) as journal:
+        [s] = journal.suspensions()
+    assert (s.reason, s.plan_index, s.waited_s, str(s.end)) == ("lamp_low", 1, 40.0, "resumed")
+    assert json.loads((session / "report.json").read_text())["suspensions"]["count"] == 1
+
+
+def test_a_drive_silent_between_runs_is_reopened_with_back_off_on_the_simulated_clock(plan, tmp_path):
+    """The instrument in-process on the simulated devices: its idle reads find the drive silent, it
+    says fault with the reason and reopens it after 0.5, 1 and 2 s of simulated clock (the drill lasts
+    3 s of it), then is idle again; nothing was moved."""
+    from goniofrost.rig.lock import rig_lock
+    from goniofrost.rig.simulated import simulated_devices
+    from goniofrost.server.instrument import Instrument
+    from goniofrost.server.store import Store
+
+    doc = yaml.safe_load(plan[0].read_text())
+    doc["sim"]["faults"] = [{"axis": "camera_arm", "kind": "silent", "at_sample": 0, "duration_s": 3}]
+    doc["axes"]["camera_arm"]["driver"]["reply_timeout_ms"] = 30  # a silent read gives up in 3 x 30 ms
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    rig = load_checked_rig(tmp_path / "rig.yaml")
+    store = Store(tmp_path)
+    with rig_lock(rig, "serve") as lock, simulated_devices(rig, speedup=1000) as hw:
+        instrument = Instrument(rig, hw, lock, store, run_entry=None, idle_read_s=0.01).start()
+        try:
+            until = lambda what, test: wait_for(lambda: test(instrument.status()), what)  # noqa: E731
+            pose = until("a first reading", lambda s: s["pose"].get("camera_arm") is not None and s["pose"])
+            t0 = hw.clock.nominal_time()
+            hw.simulation.arm_faults(0)  # camera_arm answers nothing for 3 s of simulated clock
+            fault = until("the fault", lambda s: s["state"] == "fault" and s)
+            assert fault["reason"].startswith("camera_arm does not answer (camera_arm: ")
+            until("idle again", lambda s: s["state"] == "idle" and s["events"] > fault["events"] + 3)
+            reasons = [r["reason"] for r in instrument.events_since(0) if r["type"] == "state"]
+            assert [r and r.rsplit(": ", 1)[-1] for r in reasons] == [
+                "reopening in 0.5 s (attempt 1)", "reopening in 1 s (attempt 2)", "reopening in 2 s (attempt 3)", None]
+            assert [r["attempts"] for r in instrument.events_since(0) if r["type"] == "reconnected"] == [3]
+            assert hw.clock.nominal_time() - t0 == pytest.approx(3.5)
+            assert instrument.status()["pose"] == pose
+        finally:
+            instrument.close()
+            store.close()
+
+
+def test_a_run_suspended_for_the_operator_resumes_on_the_instruments_resume(plan, tmp_path):
+    """resume: operator: the instrument (in-process, on the simulated devices) says suspended until
+    its resume() (what POST /api/resume calls) reaches the engine's SuspendWatch, then running."""
+    import threading
+
+    from goniofrost.capture.executor import StepExecutor
+    from goniofrost.capture.signals import SessionInterrupted
+    from goniofrost.capture.suspension import SuspendWatch
+    from goniofrost.rig.lock import rig_lock
+    from goniofrost.rig.simulated import simulated_devices
+    from goniofrost.rig.suspenders import Suspenders
+    from goniofrost.server.instrument import Instrument
+    from goniofrost.server.store import Store
+
+    doc = yaml.safe_load(plan[0].read_text())
+    doc["sim"]["faults"] = [{"kind": "lamp_cut", "at_sample": 0, "duration_s": 10}]
+    doc["suspenders"] = {"lamp_floor": 0.8, "hold_clear_s": 5, "poll_s": 5, "resume": "operator"}
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    rig = load_checked_rig(tmp_path / "rig.yaml")
+    store = Store(tmp_path)
+    with rig_lock(rig, "serve") as lock, simulated_devices(rig, speedup=1000) as hw:
+        instrument = Instrument(rig, hw, lock, store, run_entry=None)
+        hw.lamp.on()
+        def check_stop() -> None:  # the engine's: a stop request ends the wait
+            if instrument.stop_asked:
+                raise SessionInterrupted(instrument.stop_asked)
+
+        watch = SuspendWatch(Suspenders.from_section(rig.suspenders), StepExecutor(hw, tmp_path), None,
+                             check_stop, lambda: 1)
+        watch.listen(instrument.gate)
+        hw.simulation.arm_faults(0)
+        run = threading.Thread(target=watch.may_continue, args=(0,))
+        run.start()
+        try:
+            status = wait_for(lambda: (s := instrument.status())["state"] == "suspended" and s, "the suspension")
+            assert status["suspension"] == "lamp_low" and status["reason"].startswith(
+                "run suspended before plan sample 0: lamp_low (photodiode 0.000 of nominal")
+            wait_for(lambda: watch.waited >= 30, "a clear lamp held for hold_clear_s")  # still waiting for us
+            assert instrument.status()["state"] == "suspended"
+            instrument.resume()
+            run.join(timeout=TIMEOUT_S)
+            after = instrument.status()
+        finally:
+            if run.is_alive():
+                instrument.stop("the test")  # a wait that did not end ends at its next poll
+                run.join(timeout=TIMEOUT_S)
+        assert (after["state"], after["suspension"], after["reason"]) == ("running", None, None)
+    store.close()
+
+
+def wait_for(condition, what: str):
+    """Poll ``condition()`` until it is true; fail after TIMEOUT_S."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.01)
+    pytest.fail(f"no {what} within {TIMEOUT_S} s")
 
 
 def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_nothing(server, plan):
@@ -206,16 +359,43 @@ def test_the_rig_command_asks_the_running_server_and_the_event_stream_tells(serv
     assert snap.status_code == 200 and (server.root / "snaps" / "here.png").stat().st_size > 0
     assert [a["action"] for a in server.get("/api/actions").json()] == ["home", "move", "lamp", "stop", "snap"]
     assert server.get("/api/actions").json()[0]["who"].endswith("(goniofrost rig)")
-    records = []
-    with requests.get(server.url + "/api/events?since=0", stream=True, timeout=30) as events:
-        for line in events.iter_lines(decode_unicode=True):
-            if line.startswith("data: "):
-                records.append(json.loads(line[len("data: "):]))
-                if records[-1]["seq"] + 1 >= status["events"]:  # every record before the status read
-                    break
+    records = events(server, status["events"])  # every record before the status read
     assert [r["seq"] for r in records] == list(range(status["events"]))
     assert [r["state"] for r in records if r["type"] == "state"] == ["running", "idle"] * 3  # home, move, lamp
     assert [r["on"] for r in records if r["type"] == "lamp"] == [True]
+
+
+def test_rig_status_snap_and_the_queue_command_ask_the_running_server(server, plan, tmp_path, capsys):
+    """`goniofrost rig status/snap` read through the server; `goniofrost queue QUEUE.yaml` adds its
+    samples to the server's queue (held here by a stop, so nothing runs)."""
+    from goniofrost.app.cli import main
+
+    rig, plan_file = plan
+    assert main(["rig", "status", "--rig", str(rig), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["server"] == {"url": server.url, "state": "idle", "reason": None, "current": None}
+    assert {a["axis"]: a["position_deg"] for a in said["axes"]} == server.status()["pose"]
+    assert main(["rig", "status", "--rig", str(rig)]) == 0
+    assert capsys.readouterr().out.startswith(f"sim-rig is held by serve (process {server.proc.pid} of ")
+    assert main(["rig", "snap", "--rig", str(rig), "--move", "camera_arm=30", "--out", str(tmp_path / "frame.png"),
+                 "--json"]) == 0
+    snapped = json.loads(capsys.readouterr().out)
+    assert snapped["png"] == str(tmp_path / "frame.png") and snapped["problem"] is None
+    assert (tmp_path / "frame.png").read_bytes() == (server.root / "snaps" / "frame.png").read_bytes()
+    server.post("/api/stop")  # the queue is held: what is added waits
+    queue = server.root / "queue.yaml"
+    queue.write_text(f"rig: {rig}\nplan: {plan_file.name}\nroot: elsewhere\noperator: ada\n"
+                     f"samples:\n  - {{sample_id: S-1, material: {MATERIAL}}}\n"
+                     f"  - {{sample_id: S-2, material: {MATERIAL}, target_error: 0.5, confidence: 0.8, note: second}}\n")
+    assert main(["queue", str(queue)]) == 0
+    assert capsys.readouterr().out == (f"queue queue.yaml: added S-1 (id 1), S-2 (id 2) to the queue of the server at "
+                                       f"{server.url}; sessions in {server.root / 'sessions'} (goniofrost sessions "
+                                       f"{server.root / 'sessions'})\n")
+    rows = [(e["sample_id"], e["state"], e["operator"], e["note"], e["target_error"], e["confidence"])
+            for e in server.get("/api/queue").json()]
+    assert rows == [("S-1", "pending", "ada", "", None, 0.95), ("S-2", "pending", "ada", "second", 0.5, 0.8)]
+    assert not (server.root / "elsewhere").exists()
+    assert [a["action"] for a in server.get("/api/actions").json()] == ["move", "snap", "stop", "queue_add", "queue_add"]
 
 
 def test_a_refused_start_warns_off_loopback_names_the_holder_and_leaves_the_root_alone(plan, tmp_path, capsys):

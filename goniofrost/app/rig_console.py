@@ -121,6 +121,9 @@ def run_status(args) -> int:
 
     interval = _watch_interval(args)
     rig = _load(args)  # the options first: a bad one connects nothing
+    server = _server(rig)
+    if server is not None:
+        return _served_status(args, rig, server, interval)
     in_place = args.watch and not args.json and sys.stdout.isatty()  # a log or a pipe keeps every reading
     with _connected(rig, enable=False, program="rig status") as hardware:
         n, shown = 0, 0
@@ -133,6 +136,39 @@ def run_status(args) -> int:
             if not args.watch or (args.count is not None and n >= args.count):
                 return 0
             time.sleep(max(interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _served_status(args, rig, server, interval: float) -> int:
+    """``rig status`` of a rig a server holds: what the server last read (its ``/api/status``)."""
+    offsets = rig.alignment.offsets_deg if rig.alignment is not None else {}
+    n = 0
+    while True:
+        status = server.call("GET", "/api/status")
+        axes = [{"axis": name, "position_deg": deg, "aligned_deg": None if deg is None else deg + offsets.get(name, 0.0),
+                 "limits_deg": list(rig.axes[name].limits_deg)} for name, deg in status["pose"].items()]
+        said = {k: status[k] for k in ("state", "reason", "current")}
+        if args.json:
+            print(json.dumps({"server": {"url": server.url, **said}, "axes": axes, "lamp": status["lamp"]}), flush=True)
+        else:
+            print(_served_text(server, status, axes), flush=True)
+        n += 1
+        if not args.watch or (args.count is not None and n >= args.count):
+            return 0
+        time.sleep(max(interval, 0.05))  # the operator's refresh rate, not a synchronisation
+
+
+def _served_text(server, status: dict, axes: list) -> str:
+    state = status["state"] + (f" ({status['reason']})" if status["reason"] else "")
+    lines = [f"{status['rig']} is held by {server.holder.who()} at {server.url}: {state}; as it last read them:"]
+    for a in axes:
+        where = "not answering" if a["position_deg"] is None else \
+            f"{a['position_deg']:10.3f} deg (aligned {a['aligned_deg']:10.3f})"
+        lines.append(f"{a['axis']:<14} {where}  limits [{a['limits_deg'][0]:g}, {a['limits_deg'][1]:g}]")
+    lamp = status["lamp"]
+    if lamp.get("photodiode") is not None:
+        on = {True: "on", False: "off", None: "on or off"}[lamp.get("on")]
+        lines.append(f"{'lamp':<14} {on}, photodiode {lamp['photodiode']:.4f} of nominal")
+    return "\n".join(lines)
 
 
 def _utc_now():
@@ -323,6 +359,9 @@ def run_snap(args) -> int:
     move_to = parse_targets(args.move, rig) if args.move else None
     if move_to:
         check_targets(rig, move_to)
+    server = _server(rig)
+    if server is not None:
+        return _served_snap(args, server, move_to)
     # as capture: none on a real rig (it shows what is on the stage), a known one on a simulated
     # rig, checked before anything is made or moved
     material = check_material(rig, args.material if args.material is not None or not rig.simulated else DEFAULT_MATERIAL)
@@ -334,6 +373,32 @@ def run_snap(args) -> int:
     print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     # as rig check: a check that found a problem (a capture could not measure here) exits 2, so
     # `rig snap ... && goniofrost capture ...` does not go on past it
+    return 2 if result.problem else 0
+
+
+def _served_snap(args, server, move_to) -> int:
+    """``rig snap`` of a rig a server holds: it moves (``--move``) and snaps; the PNG it writes under
+    its root is copied to ``--out``."""
+    import dataclasses
+    import re
+    import shutil
+    from pathlib import Path
+
+    from goniofrost.capture.snap import SnapResult, snap_text
+
+    if args.material is not None:
+        raise GoniofrostError(f"--material: the server at {server.url} shows its own material; leave --material out "
+                              f"(or stop the server)")
+    if move_to:
+        server.call("POST", "/api/move", {"targets": move_to, "operator": server.who()})
+    out = Path(args.out)
+    name = out.name if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", out.name) else "snap.png"
+    body = {"name": name, "target": args.target, "exposure_s": args.exposure, "operator": server.who()}
+    found = server.call("POST", "/api/snap", body)
+    shutil.copyfile(server.root / found.pop("file"), out)
+    result = SnapResult(**{f.name: found[f.name] for f in dataclasses.fields(SnapResult)})
+    result.png = str(out)
+    print(json.dumps(result.as_dict(), indent=1) if args.json else snap_text(result))
     return 2 if result.problem else 0
 
 

@@ -94,6 +94,8 @@ class SessionEngine:
         self.rehearsal = Rehearsal(devices, journal)  # a simulated rig's drills and state
         self.suspension = SuspendWatch(spec.suspenders, devices, journal, self.runner.check_stop_request,
                                        lambda: self.runner.run_start.run)  # the rig file's suspenders
+        if getattr(hardware, "pause_gate", None) is not None:  # a server: its state follows the suspensions
+            self.suspension.listen(hardware.pause_gate)
         self.runner.subscribe(self._journaled, required=True)  # events and stats, after the step's own row
         self.runner.subscribe(self._csv_line, required=True)   # samples.csv: kept with the journal's row
 

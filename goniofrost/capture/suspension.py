@@ -9,7 +9,8 @@ time beyond its speed-up) until every condition held clear for ``hold_clear_s`` 
 ``resume: operator``, the operator resumed (``resume()``, from another thread: the instrument
 server). A stop request or a signal ends the wait as it ends any step (the caller's abort stops
 the axes and switches the lamp off); a device silent for ``give_up_s`` ends the run as a fault.
-Subscribers (``subscribe``) are handed each ``Reading`` taken while suspended.
+Subscribers (``subscribe``) are handed each ``Reading`` taken while suspended; listeners
+(``listen``: the instrument server's gate) are told when a suspension starts and ends.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ class SuspendWatch:
         self.waited = 0.0  # session seconds of the suspension under way (or the last)
         self._resumed = threading.Event()
         self._subscribers: list[Callable[[Reading], None]] = []
+        self._listeners: list = []
 
     @staticmethod
     def say(text: str) -> None:
@@ -45,6 +47,11 @@ class SuspendWatch:
     def subscribe(self, callback: Callable[[Reading], None]) -> None:
         """Hand ``callback`` every Reading taken while suspended (a live view, a test's operator)."""
         self._subscribers.append(callback)
+
+    def listen(self, listener) -> None:
+        """Tell ``listener`` of each suspension: ``listener.suspended(watch, reason, text)`` once it
+        is journaled, ``listener.resumed(watch, end, text)`` when it ends however (same thread)."""
+        self._listeners.append(listener)
 
     def resume(self) -> None:
         """The operator's resume: a run waiting for it goes on once its conditions held clear."""
@@ -71,6 +78,8 @@ class SuspendWatch:
         text = f"run suspended before plan sample {index}: {reason} ({describe(reason, reading, self.suspenders)})"
         self.say(text)
         row = None if self.journal is None else self.journal.start_suspension(self.run(), reason, index, text)
+        for listener in self._listeners:
+            listener.suspended(self, reason, text)
         self.waited, end = 0.0, SuspensionEnd.STOPPED
         try:
             end = self._poll()
@@ -85,6 +94,8 @@ class SuspendWatch:
             self.say(words)
             if row is not None:
                 self.journal.end_suspension(row, end, self.waited, words)
+            for listener in self._listeners:
+                listener.resumed(self, end, words)
 
     def _poll(self) -> SuspensionEnd:
         """How the suspension ended, once every condition held clear for hold_clear_s since the first

@@ -35,6 +35,7 @@ VALIDATORS: dict[str, tuple[str, str]] = {
     "twins": ("sim.config", "validate_twins_section"),
     "lab": ("goniofrost.rig.lab", "validate_lab_section"),
     "suspenders": ("goniofrost.rig.suspenders", "validate_suspenders_section"),
+    "pause": ("goniofrost.rig.pause", "validate_pause_section"),
 }
 # checks of the loaded rig that need several sections: check(rig) -> None, raises ConfigError.
 RIG_CHECKS: tuple[tuple[str, str], ...] = (

@@ -37,7 +37,8 @@ class RigHardware:
     """What the session engine drives (``goniofrost.rig.contract.Hardware``).
 
     ``simulation`` is the running simulation on a simulated rig (``goniofrost.rig.contract.Simulation``:
-    fault drills, checkpoints), else None.
+    fault drills, checkpoints), else None. ``reconnect(name)`` closes and opens one device's connection
+    again (``drivers.rig_devices.RigDevices.reconnect``).
     """
 
     axes: dict
@@ -48,6 +49,7 @@ class RigHardware:
     extra: dict = field(default_factory=dict)
     rig_lock: object = None   # the held goniofrost.rig.lock.RigLock (its stop requests)
     pause_gate: object = None  # a server's gate the engine asks at safe points (goniofrost.server.instrument)
+    reconnect: Callable | None = None  # reconnect(name): open axis ``name`` (or "lamp") again (a server's)
 
     @property
     def simulated(self) -> bool:
@@ -112,7 +114,7 @@ def real_devices(rig, *, material=None, seed=None, speedup=None):
         camera = open_camera(rig)
         camera.connect()
         try:
-            yield RigHardware(devices.axes, devices.lamp, camera, WallClock())
+            yield RigHardware(devices.axes, devices.lamp, camera, WallClock(), reconnect=devices.reconnect)
         finally:
             camera.close()
 

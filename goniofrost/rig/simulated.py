@@ -90,7 +90,8 @@ def simulated_devices(rig, *, material=None, seed: int | None = None, speedup: f
             with _emulated_pylon(rig, camera) as pylon_camera:
                 try:
                     yield RigHardware(devices.axes, devices.lamp, pylon_camera or camera, simulation.clock,
-                                      simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source})
+                                      simulation, extra={} if pylon_camera is None else {"scene": pylon_camera.image_source},
+                                      reconnect=devices.reconnect)
                 finally:
                     camera.close()
 

@@ -36,8 +36,13 @@ class ServerClient:
         except OSError as exc:
             raise GoniofrostError(f"the server at {self.url} holds the rig but does not answer: {exc}") from None
 
-    def who(self) -> str:
-        return f"{getpass.getuser()} (goniofrost rig)"
+    def who(self, program: str = "goniofrost rig") -> str:
+        return f"{getpass.getuser()} ({program})"
+
+    @property
+    def root(self) -> Path:
+        """The server's root folder (its token file lies in it)."""
+        return Path(self.holder.token_file).parent
 
 
 def server_for(rig) -> ServerClient | None:

@@ -8,9 +8,17 @@ devices, so a status request never talks on a line the engine is using.
 Pause and stop reach a running capture through ``ServerGate`` (installed on the hardware as
 ``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
 a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
-and the lamp as it was; it asks ``rig_lock.stop_request()`` between steps, so a move under way
-finishes before a stop ends the run. A suspender (a condition that pauses by itself) would call
-``Instrument.suspend(reason)`` / ``unsuspend()``: the gate holds a ``SUSPENDED`` run the same way.
+and the lamp as the rig file's ``pause:`` says (``goniofrost.rig.pause``); it asks
+``rig_lock.stop_request()`` between steps, so a move under way finishes before a stop ends the
+run. A suspender (the engine's ``SuspendWatch``: a condition that pauses a run by itself) holds
+the run inside its own safe point and tells the gate, its listener: the state is ``SUSPENDED``
+with the reason until it ends; ``resume()`` is the operator's resume of a rig file's
+``resume: operator``.
+
+Between runs the thread reads the devices (after each plan, and every ``idle_read_s`` while idle);
+a device that does not answer puts the instrument in ``FAULT`` with the reason while it reopens it
+(``hardware.reconnect``) after waits of ``backoff()`` on the session clock, until it answers again.
+Only reads are repeated so: a move is never sent again.
 """
 from __future__ import annotations
 
@@ -22,9 +30,20 @@ import time
 import traceback
 
 from goniofrost.core.errors import GoniofrostError
+from goniofrost.rig.pause import PauseHold, PauseLamp
 
 log = logging.getLogger(__name__)
 MAX_EVENTS = 2000   # typed records kept for the event stream (older ones are dropped)
+IDLE_READ_S = 2.0   # real seconds between two status reads of an idle instrument
+BACKOFF_S = (0.5, 30.0)   # session-clock seconds before the first reopening of a silent device, and the cap
+
+
+def backoff(first: float = BACKOFF_S[0], cap: float = BACKOFF_S[1]):
+    """The waits before each reopening of a device: first, 2 first, 4 first ... up to cap (seconds)."""
+    delay = first
+    while True:
+        yield delay
+        delay = min(2.0 * delay, cap)
 
 
 class State(str, enum.Enum):
@@ -53,8 +72,15 @@ class ServerGate:
         return self.instrument.stop_asked or self.lock.stop_request()
 
     def __call__(self, where: str) -> None:
-        """The pause gate: block while paused or suspended; raise SessionInterrupted on a stop."""
+        """The pause gate: block while paused; raise SessionInterrupted on a stop."""
         self.instrument.safe_point(where)
+
+    def suspended(self, watch, reason, text: str) -> None:
+        """The engine's SuspendWatch suspended the run (``reason``: a SuspendReason)."""
+        self.instrument.suspend(str(reason), text, watch)
+
+    def resumed(self, watch, end, text: str) -> None:
+        self.instrument.unsuspend(text)
 
 
 class HeldDevices:
@@ -79,8 +105,10 @@ class Instrument:
     its lock held as ``lock``), its queue in ``store``; ``run_entry(entry, devices)`` runs one queue
     entry (``goniofrost.server.serve.run_entry``) with ``devices`` the opener of the held hardware."""
 
-    def __init__(self, rig, hardware, lock, store, run_entry) -> None:
+    def __init__(self, rig, hardware, lock, store, run_entry, idle_read_s: float = IDLE_READ_S) -> None:
         self.rig, self.hw, self.store, self.run_entry = rig, hardware, store, run_entry
+        self.idle_read_s = idle_read_s
+        self.pause_hold = PauseHold.of_rig(rig)  # the lamp while paused
         self.gate = ServerGate(self, lock)
         self.held_devices = HeldDevices(hardware, self.gate)
         hardware.rig_lock, hardware.pause_gate = self.gate, self.gate
@@ -90,7 +118,8 @@ class Instrument:
         self.held = False            # the queue waits for resume (after a stop or a fault)
         self.stop_asked: str | None = None
         self._pause_asked = False
-        self._suspended: str | None = None
+        self._watch = None           # the SuspendWatch of a suspended run (its operator's resume)
+        self.suspension: str | None = None   # the SuspendReason of a suspended run
         self._commands: list = []
         self._closing = False
         self.pose: dict = {}
@@ -116,8 +145,8 @@ class Instrument:
 
     def status(self) -> dict:
         with self._cond:
-            return {"state": self.state.value, "reason": self.reason, "held": self.held,
-                    "current": self.current, "pose": dict(self.pose), "lamp": dict(self.lamp),
+            return {"state": self.state.value, "reason": self.reason, "suspension": self.suspension,
+                    "held": self.held, "current": self.current, "pose": dict(self.pose), "lamp": dict(self.lamp),
                     "rig": self.rig.name, "events": self.first_event + len(self.events)}
 
     def pause(self) -> State:
@@ -129,9 +158,12 @@ class Instrument:
             return self.state
 
     def resume(self) -> State:
-        """Continue a paused run, or release a queue held after a stop or a fault."""
+        """Continue a paused run, resume a suspended one (once its conditions held clear), or release
+        a queue held after a stop or a fault."""
         with self._cond:
             self._pause_asked, self.held = False, False
+            if self._watch is not None:
+                self._watch.resume()
             if self.state is State.FAULT:
                 self._set(State.IDLE, None)
             self._cond.notify_all()
@@ -147,16 +179,20 @@ class Instrument:
             self._cond.notify_all()
             return self.state
 
-    def suspend(self, reason: str) -> None:
-        """The seam for suspenders: hold the run at its next safe point, saying why."""
+    def suspend(self, reason: str, text: str, watch) -> None:
+        """A suspender holds the run (``watch``: its SuspendWatch, ``reason`` a SuspendReason's value)."""
         with self._cond:
-            self._suspended = reason
-            self._publish("suspend_asked", reason=reason)
+            self._watch, self.suspension = watch, reason
+            if not self.stop_asked:
+                self._set(State.SUSPENDED, text)
 
-    def unsuspend(self) -> None:
+    def unsuspend(self, text: str) -> None:
+        """The suspension ended (``text``: how); a run not being stopped is running again."""
         with self._cond:
-            self._suspended = None
-            self._cond.notify_all()
+            self._watch, self.suspension = None, None
+            self._publish("suspension_ended", text=text)
+            if self.state is State.SUSPENDED:
+                self._set(State.RUNNING, None)
 
     def lamp_switched(self, on: bool) -> None:
         with self._cond:
@@ -183,33 +219,113 @@ class Instrument:
         from goniofrost.capture.signals import SessionInterrupted
 
         with self._cond:
-            while (self._pause_asked or self._suspended) and not self.stop_asked:
-                state = State.SUSPENDED if self._suspended else State.PAUSED
-                if self.state is not state:
-                    self._set(state, self._suspended or f"paused{where}")
-                self._cond.wait()
+            paused = self._pause_asked and not self.stop_asked
+        if paused:
+            self._hold(where)
+        with self._cond:
             if self.stop_asked:
                 raise SessionInterrupted(self.stop_asked)
             if self.state is not State.RUNNING:
                 self._set(State.RUNNING, None)
         self._read_pose()
 
+    def _hold(self, where: str) -> None:
+        """Paused: the axes at rest where they are, the lamp as the rig file's ``pause:`` says
+        (``goniofrost.rig.pause``); wait for a resume or a stop, then light the lamp again."""
+        before = None
+        if self.pause_hold.lamp is PauseLamp.OFF and self.hw.lamp is not None and self.hw.lamp.is_on():
+            before = self.hw.lamp.photodiode()
+            self.hw.lamp.off()
+            self.lamp_switched(False)
+            self._read_pose()
+        with self._cond:
+            while self._pause_asked and not self.stop_asked:
+                if self.state is not State.PAUSED:
+                    self._set(State.PAUSED, f"paused{where}")
+                self._cond.wait()
+            stopped = self.stop_asked
+        if before is not None and not stopped:
+            self._relight(before)
+
+    def _relight(self, before: float) -> None:
+        """Switch the lamp on after a pause and wait, on the session clock, until its photodiode reads
+        within ``lamp_tolerance`` of ``before`` (GoniofrostError after ``warmup_s``: the run faults;
+        a lamp that read nothing before the pause is only switched on)."""
+        hold, waited = self.pause_hold, 0.0
+        self.hw.lamp.on()
+        self.lamp_switched(True)
+        reading = self.hw.lamp.photodiode() if before > 0 else None
+        while reading is not None and abs(reading / before - 1.0) > hold.lamp_tolerance:
+            if waited >= hold.warmup_s:
+                raise GoniofrostError(f"lamp: after the pause it reads {reading:.3f} of nominal, not within "
+                                      f"{100 * hold.lamp_tolerance:g} % of {before:.3f} before it, after "
+                                      f"{waited:g} s (pause.warmup_s)")
+            self.hw.clock.sleep(hold.poll_s)
+            waited += hold.poll_s
+            reading = self.hw.lamp.photodiode()
+        with self._cond:
+            self._publish("relit", photodiode=None if reading is None else round(reading, 4),
+                          before=round(before, 4), waited_s=waited)
+
     # ----- the thread ---------------------------------------------------------------------------------
     def _work(self) -> None:
-        self._read_pose()
+        self._check_devices()
         while True:
             with self._cond:
-                while not self._closing and not self._commands and (self.held or self.store.next_entry() is None):
-                    self._cond.wait()
+                if not self._has_work():
+                    self._cond.wait(self.idle_read_s)
                 if self._closing:
                     return
                 command = self._commands.pop(0) if self._commands else None
-                entry = None if command else self.store.next_entry()
+                entry = None if command or self.held else self.store.next_entry()
             if command:
                 self._run_command(*command)
             elif entry:
                 self._run_queued(entry)
-            self._read_pose()
+            self._check_devices()
+
+    def _has_work(self) -> bool:
+        return self._closing or bool(self._commands) or (not self.held and self.store.next_entry() is not None)
+
+    def _check_devices(self) -> None:
+        """Read the devices between runs; reopen the ones that do not answer (module doc)."""
+        failed = self._read_pose()
+        if failed:
+            self._reconnect(failed)
+
+    def _reconnect(self, failed: dict) -> None:
+        """``failed``: device name -> its error. FAULT while reopening them with back-off; the state
+        before comes back once every device answers (or the server closes)."""
+        with self._cond:
+            before = (self.state, self.reason)
+        for attempt, delay in enumerate(backoff(), 1):
+            with self._cond:
+                if self._closing:
+                    return
+                why = "; ".join(f"{name} does not answer ({error})" for name, error in failed.items())
+                self._set(State.FAULT, f"{why}: reopening in {delay:g} s (attempt {attempt})")
+            self._sleep(delay)
+            refused = {}
+            for name in failed:
+                try:
+                    if self.hw.reconnect is not None:
+                        self.hw.reconnect(name)
+                except Exception as exc:  # noqa: BLE001 - say it, read again below, try again later
+                    refused[name] = str(exc)
+                    log.warning("reopening %s: %s", name, exc)
+            failed = self._read_pose()
+            failed.update((name, error) for name, error in refused.items() if name in failed)
+            if not failed:
+                with self._cond:
+                    self._publish("reconnected", attempts=attempt)
+                    self._set(*before)
+                return
+
+    def _sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of the session clock in short steps, ending early when the server closes."""
+        while seconds > 0 and not self._closing:
+            self.hw.clock.sleep(min(0.5, seconds))
+            seconds -= 0.5
 
     def _run_command(self, what, job, future) -> None:
         with self._cond:
@@ -252,24 +368,27 @@ class Instrument:
             self._publish("entry_ended", id=entry["id"], state=ended[0], result=ended[1])
             self._set(state, ended[1].get("reason") if state is State.FAULT else None)
 
-    def _read_pose(self) -> None:
-        """Read the axes and the photodiode (on the instrument's thread only)."""
-        pose, reading = {}, None
+    def _read_pose(self) -> dict:
+        """Read the axes and the photodiode (on the instrument's thread only); return the devices that
+        did not answer (name -> the error)."""
+        pose, reading, failed = {}, None, {}
         for name, axis in self.hw.axes.items():
             try:
                 pose[name] = round(float(axis.position()), 4)
             except Exception as exc:  # noqa: BLE001 - a status shows what it can
-                pose[name] = None
+                pose[name], failed[name] = None, str(exc)
                 log.warning("reading %s: %s", name, exc)
         if self.hw.lamp is not None:
             try:
                 reading = round(float(self.hw.lamp.photodiode()), 4)
-            except Exception:  # noqa: BLE001
-                reading = None
+            except Exception as exc:  # noqa: BLE001
+                failed["lamp"] = str(exc)
         with self._cond:
-            self.pose = pose
-            self.lamp["photodiode"] = reading
-            self._publish("pose", pose=pose, lamp=dict(self.lamp))
+            if (pose, reading) != (self.pose, self.lamp["photodiode"]):
+                self.pose = pose
+                self.lamp["photodiode"] = reading
+                self._publish("pose", pose=pose, lamp=dict(self.lamp))
+        return failed
 
     # ----- records -------------------------------------------------------------------------------------
     def _set(self, state: State, reason) -> None:

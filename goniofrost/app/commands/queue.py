@@ -1,4 +1,8 @@
-"""``goniofrost queue``: measure several samples in one run, one session folder each."""
+"""``goniofrost queue``: measure several samples in one run, one session folder each.
+
+When a ``goniofrost serve`` holds the queue's rig, its samples are added to that server's queue
+instead (the server measures them, its sessions under its root); else the command opens the rig.
+"""
 from __future__ import annotations
 
 HELP = ("measure the samples of QUEUE.yaml one after another (one session each, the calibration shot once "
@@ -30,6 +34,9 @@ def run(args) -> int:
     from goniofrost.rig.simulated import rig_devices
 
     queue = read_queue(args.queue)
+    server = _server_of(queue)
+    if server is not None:
+        return _add_to_server(queue, server, args)
 
     def materials(text: str, option):   # a material's file, like every path of the queue, beside the queue file
         return shown_material(spec_read_from(text, str(queue.folder)), option)
@@ -54,4 +61,38 @@ def run(args) -> int:
         print(f"goniofrost queue: nothing measured for {' '.join(empty)}: the rig's exposures cannot measure "
               f"these samples (see their lines above); the others are done", file=sys.stderr)
         return 2
+    return 0
+
+
+def _server_of(queue):
+    """The client of the ``goniofrost serve`` holding the queue's rig, or None."""
+    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.server.client import server_for
+
+    return server_for(load_checked_rig(queue.rig))
+
+
+def _add_to_server(queue, server, args) -> int:
+    """Add every sample of ``queue`` to the server's queue (its plan must lie under the server's root)."""
+    from goniofrost.core.errors import GoniofrostError
+    from goniofrost.datasets.specs import spec_read_from
+
+    root = server.root.resolve()
+    for option, value in (("--seed", args.seed), ("--speedup", args.speedup), ("alignment", queue.alignment)):
+        if value is not None:
+            raise GoniofrostError(f"{option}: the server at {server.url} holds the rig with its own; leave it out")
+    if not queue.plan.resolve().is_relative_to(root):
+        raise GoniofrostError(f"{queue.path}: plan: the server at {server.url} reads plans under its root {root}; "
+                              f"put {queue.plan.name} there")
+    added = []
+    for s in queue.samples:
+        body = {"plan": str(queue.plan.resolve().relative_to(root)), "sample_id": s.sample_id,
+                "material": None if s.material is None else spec_read_from(s.material, str(queue.folder)),
+                "operator": s.operator or server.who("goniofrost queue"), "note": "; ".join(s.notes) or None,
+                "target_error": s.target_error}
+        if s.target_error is not None:  # the bound's confidence means nothing without a target
+            body["confidence"] = s.confidence
+        added.append(f"{s.sample_id} (id {server.call('POST', '/api/queue', body)['id']})")
+    print(f"queue {queue.path.name}: added {', '.join(added)} to the queue of the server at {server.url}; "
+          f"sessions in {root / 'sessions'} (goniofrost sessions {root / 'sessions'})")
     return 0

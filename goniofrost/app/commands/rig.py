@@ -8,8 +8,8 @@ lamp    on | off
 stop    stop the program that drives the rig, or connect and stop every axis and switch the lamp off
 snap    one frame (or the capture's bracket) at the current pose: levels, markers, ROI, SNR, a PNG
 
-When a `goniofrost serve` holds the rig, move, home, lamp and stop ask it (its URL and token file
-are in the device lock) instead of opening the devices.
+When a `goniofrost serve` holds the rig, status, move, home, lamp, stop and snap ask it (its URL
+and token file are in the device lock) instead of opening the devices.
 """
 from __future__ import annotations
 
