@@ -182,7 +182,10 @@ def test_a_dimmed_lamp_suspends_a_queued_capture_which_resumes_by_itself(plan, t
     with Journal.open(session / "session.sqlite", read_only=True) as journal:
         [s] = journal.suspensions()
     assert (s.reason, s.plan_index, s.waited_s, str(s.end)) == ("lamp_low", 1, 40.0, "resumed")
-    assert json.loads((session / "report.json").read_text())["suspensions"]["count"] == 1
+    report = json.loads((session / "report.json").read_text())
+    assert report["suspensions"]["count"] == 1
+    # the simulated material is compared with what was measured, as a capture --material's report is
+    assert report["ground_truth"]["material"] == MATERIAL
 
 
 def test_a_drive_silent_between_runs_is_reopened_with_back_off_on_the_simulated_clock(plan, tmp_path):

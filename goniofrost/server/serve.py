@@ -39,8 +39,10 @@ def session_name(entry: dict) -> str:
     return f"{entry['id']:04d}-{re.sub(r'[^A-Za-z0-9._-]', '_', entry['sample_id'])[:60]}"
 
 
-def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
-    """``run(entry, devices)``: capture (or resume) the queue entry's session on the held devices."""
+def entry_runner(root: Path, rig_path: Path, store, speedup: float | None, compare=None):
+    """``run(entry, devices)``: capture (or resume) the queue entry's session on the held devices;
+    ``compare(material)``: what an entry's simulated material is compared with in its report (the
+    command line's ``GroundTruth``; None: no comparison)."""
     def run(entry: dict, devices) -> dict:
         from goniofrost.capture.lab import session_label
         from goniofrost.capture.inputs import inputs_on
@@ -57,7 +59,8 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
                               [entry["note"]] if entry["note"] else (), source="queue entry")
         material = shown_material(entry["material"], "material") if entry["material"] else None
         options = SessionOptions(resume=(session / JOURNAL_FILE).exists(), progress=False, label=label,
-                                 rerun="POST /api/resume")
+                                 rerun="POST /api/resume",
+                                 compare=None if material is None or compare is None else compare(material))
         outcome = capture(inputs_on(rig, root / entry["plan"]), session, devices=devices,
                           sim=SimOptions(material=material, speedup=speedup),
                           stop=StopRule(entry["target_error"], entry["confidence"]), options=options)
@@ -66,9 +69,10 @@ def entry_runner(root: Path, rig_path: Path, store, speedup: float | None):
 
 
 def serve(rig_path, root, *, host: str = "127.0.0.1", port: int = 8765, speedup: float | None = None,
-          say=print) -> int:
+          say=print, compare=None) -> int:
     """Run the server until SIGINT or SIGTERM (module doc); return the exit status. A refused start
-    (the rig or the root in use, the address taken) leaves the root as it was."""
+    (the rig or the root in use, the address taken) leaves the root as it was. ``compare``: as for
+    ``entry_runner``."""
     from goniofrost.monitor.server import AppServer
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.rig.lock import rig_lock
@@ -99,7 +103,7 @@ def serve(rig_path, root, *, host: str = "127.0.0.1", port: int = 8765, speedup:
             store = Store(root)
             try:
                 with rig_devices(rig, speedup=speedup) as hardware:
-                    instrument = Instrument(rig, hardware, lock, store, entry_runner(root, rig_path, store, speedup))
+                    instrument = Instrument(rig, hardware, lock, store, entry_runner(root, rig_path, store, speedup, compare))
                     api = Api(instrument, store, root, rig_path, token, server.url.rstrip("/"))
                     built["app"] = instrument_app(api, root / SESSIONS, host)
                     instrument.start()

@@ -18,8 +18,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from goniofrost.app.ground_truth import GroundTruth
     from goniofrost.app.monitoring import check_port
     from goniofrost.server.serve import serve
 
     check_port(args.port)
-    return serve(args.rig, args.root, host=args.host, port=args.port, speedup=args.speedup)
+    return serve(args.rig, args.root, host=args.host, port=args.port, speedup=args.speedup, compare=GroundTruth)
