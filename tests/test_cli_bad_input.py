@@ -649,3 +649,20 @@ def test_output_read_by_a_reader_that_goes_away_ends_quietly_as_sigpipe_would():
     _, err = proc.communicate(timeout=120)
     assert err.decode().strip() == ""
     assert proc.returncode == 141
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["queue", "add", "--plan", "plan.json", "--sample-id", "s1"],
+     "goniofrost queue: error: command line: --rig: expected a value with goniofrost queue add, found None"),
+    (["queue", "add", "--rig", SIM_RIG, "--plan", "plan.json", "--sample-id", "s1"],
+     f"goniofrost queue: error: --rig: no goniofrost serve holds the devices of {SIM_RIG}: start one (goniofrost "
+     f"serve --rig {SIM_RIG} --root DIR), or list the sample in a queue file (goniofrost queue QUEUE.yaml)"),
+    (["queue", "q.yaml", "--sample-id", "s1"],
+     "goniofrost queue: error: command line: --sample-id: expected only with goniofrost queue add (a queue file "
+     "names its own), found 's1'"),
+])
+def test_queue_add_without_its_options_or_a_server_is_one_line_and_queues_nothing(argv, line, tmp_path, capsys,
+                                                                                    monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, argv) == line
+    assert _tree(tmp_path) == []

@@ -394,11 +394,20 @@ def test_rig_status_snap_and_the_queue_command_ask_the_running_server(server, pl
     assert capsys.readouterr().out == (f"queue queue.yaml: added S-1 (id 1), S-2 (id 2) to the queue of the server at "
                                        f"{server.url}; sessions in {server.root / 'sessions'} (goniofrost sessions "
                                        f"{server.root / 'sessions'})\n")
+    add = ["queue", "add", "--rig", str(rig), "--plan", str(server.root / plan_file.name), "--material", MATERIAL]
+    assert main([*add, "--sample-id", "S-3", "--operator", "bo", "--target-error", "0.5", "--confidence", "0.8"]) == 0
+    assert capsys.readouterr().out == (f"queue: added S-3 (id 3) to the queue of the server at {server.url}; "
+                                       f"its session in {server.root / 'sessions'}\n")
+    assert main([*add, "--sample-id", "S-4", "--target-error", "-1"]) == 2  # the server's check, its field named
+    err = capsys.readouterr().err
+    assert err.startswith(f"goniofrost queue: error: the server at {server.url} refused POST /api/queue (422): ")
+    assert "target_error" in err and err.count("\n") == 1
     rows = [(e["sample_id"], e["state"], e["operator"], e["note"], e["target_error"], e["confidence"])
             for e in server.get("/api/queue").json()]
-    assert rows == [("S-1", "pending", "ada", "", None, 0.95), ("S-2", "pending", "ada", "second", 0.5, 0.8)]
+    assert rows[:2] == [("S-1", "pending", "ada", "", None, 0.95), ("S-2", "pending", "ada", "second", 0.5, 0.8)]
+    assert rows[2:] == [("S-3", "pending", "bo", "", 0.5, 0.8)]
     assert not (server.root / "elsewhere").exists()
-    assert [a["action"] for a in server.get("/api/actions").json()] == ["move", "snap", "stop", "queue_add", "queue_add"]
+    assert [a["action"] for a in server.get("/api/actions").json()] == ["move", "snap", "stop"] + ["queue_add"] * 3
 
 
 def test_a_refused_start_warns_off_loopback_names_the_holder_and_leaves_the_root_alone(plan, tmp_path, capsys):

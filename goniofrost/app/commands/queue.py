@@ -2,6 +2,8 @@
 
 When a ``goniofrost serve`` holds the queue's rig, its samples are added to that server's queue
 instead (the server measures them, its sessions under its root); else the command opens the rig.
+``goniofrost queue add --rig RIG --plan PLAN --sample-id ID ...`` adds one sample to the queue of
+the server holding RIG.
 """
 from __future__ import annotations
 
@@ -13,13 +15,30 @@ def add_arguments(parser) -> None:
     from goniofrost.app.arg_types import seed
 
     parser.add_argument("queue", metavar="QUEUE.yaml", help="rig, plan, root, operator and the samples "
-                                                            "(paths relative to the queue file)")
+                                                            "(paths relative to the queue file); or the word add: "
+                                                            "one sample to a running goniofrost serve (below)")
     parser.add_argument("--yes", action="store_true",
                         help="do not ask to mount each sample (a rig with a sample changer, or the simulated rig)")
     parser.add_argument("--seed", type=seed, default=None, help="simulated rig: noise seed (default: the rig's sim.seed)")
     parser.add_argument("--speedup", type=float, default=None,
                         help="simulated rig: clock speed-up (default: the rig's sim.clock_speedup)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add = parser.add_argument_group("goniofrost queue add: one sample, to the queue of the goniofrost serve "
+                                    "holding --rig (its fields checked by the server)")
+    for option, kind, text in ADD_OPTIONS:
+        add.add_argument(option, type=kind, default=None, help=text)
+
+
+ADD_OPTIONS = [  # (option, type, help) of ``queue add``; the entry's field is the option's name
+    ("--rig", str, "the rig file whose devices the server holds"),
+    ("--plan", str, "the plan file, under the server's root"),
+    ("--sample-id", str, "the sample's name (its session folder is named after it)"),
+    ("--material", str, "a simulated rig's material, e.g. builtin:gold"),
+    ("--operator", str, "who measures (default: this user)"),
+    ("--note", str, "a note kept with the session"),
+    ("--target-error", float, "stop once the error is at most this (log-relative MSE)"),
+    ("--confidence", float, "the bound's confidence, with --target-error"),
+]
 
 
 def run(args) -> int:
@@ -33,6 +52,13 @@ def run(args) -> int:
     from goniofrost.datasets.specs import spec_read_from
     from goniofrost.rig.simulated import rig_devices
 
+    if args.queue == "add":
+        return _add_one(args)
+    given = [option for option, _, _ in ADD_OPTIONS if getattr(args, _field(option)) is not None]
+    if given:
+        from goniofrost.core.errors import ConfigError
+        raise ConfigError("command line", given[0], "only with goniofrost queue add (a queue file names its own)",
+                          getattr(args, _field(given[0])))
     queue = read_queue(args.queue)
     server = _server_of(queue)
     if server is not None:
@@ -95,4 +121,42 @@ def _add_to_server(queue, server, args) -> int:
         added.append(f"{s.sample_id} (id {server.call('POST', '/api/queue', body)['id']})")
     print(f"queue {queue.path.name}: added {', '.join(added)} to the queue of the server at {server.url}; "
           f"sessions in {root / 'sessions'} (goniofrost sessions {root / 'sessions'})")
+    return 0
+
+
+def _field(option: str) -> str:
+    return option[2:].replace("-", "_")
+
+
+def _add_one(args) -> int:
+    """``queue add``: one entry to the queue of the server holding ``--rig`` (the server checks it)."""
+    from pathlib import Path
+
+    from goniofrost.core.errors import ConfigError, GoniofrostError
+    from goniofrost.rig.file import load_checked_rig
+    from goniofrost.server.client import server_for
+
+    for option in ("--rig", "--plan", "--sample-id"):
+        if getattr(args, _field(option)) is None:
+            raise ConfigError("command line", option, "a value with goniofrost queue add", None)
+    for option in ("--yes", "--seed", "--speedup", "--no-progress"):
+        if getattr(args, _field(option)) not in (None, False):
+            raise ConfigError("command line", option, "left out with queue add (the server runs the capture)",
+                              getattr(args, _field(option)))
+    server = server_for(load_checked_rig(args.rig))
+    if server is None:
+        raise GoniofrostError(f"--rig: no goniofrost serve holds the devices of {args.rig}: start one "
+                              f"(goniofrost serve --rig {args.rig} --root DIR), or list the sample in a queue file "
+                              f"(goniofrost queue QUEUE.yaml)")
+    root, plan = server.root.resolve(), Path(args.plan).resolve()
+    if not plan.is_relative_to(root):
+        raise ConfigError("command line", "--plan", f"a plan file under the server's root {root}", args.plan)
+    body = {"plan": str(plan.relative_to(root)), "sample_id": args.sample_id, "material": args.material,
+            "operator": args.operator or server.who("goniofrost queue"), "note": args.note,
+            "target_error": args.target_error}
+    if args.confidence is not None:
+        body["confidence"] = args.confidence
+    entry = server.call("POST", "/api/queue", body)
+    print(f"queue: added {args.sample_id} (id {entry['id']}) to the queue of the server at {server.url}; "
+          f"its session in {root / 'sessions'}")
     return 0
