@@ -1,17 +1,11 @@
 """``goniofrost align``: image the white card at poses spread over every axis and fit the zero offsets.
 
-``alignment_steps`` is the plan (the step vocabulary of ``goniofrost.capture.steps``): home, the
-white card, the lamp on; at the brightest pose the longest ladder exposure that keeps the tile's
-disc of pixels under 60 % of saturation; dark frames at it; then one move and one frame per pose.
-Each frame gives the marker corners and the solvePnP pose (``calib.card_pose.read_card``) and the
-tile's brightness (``tile_rate``); ``planner.alignment.fit_alignment`` fits the offsets, and
-``alignment_document`` is ALIGNMENT.json. Everything that can be checked is checked before a
-device moves; the file is written only when the fit is good.
-
-The plan runs on the engine core (``goniofrost.capture.plan_runner.PlanRunner``, a progress bar over the poses):
-a failed or interrupted align stops and confirms every axis, switches the lamp off and says so
-axis by axis; with ``--frames DIR`` its runs are journaled in ``DIR/align.sqlite`` (steps, events,
-RunStart/RunEnd), without it nothing is kept.
+``alignment_steps`` is the plan (steps of ``goniofrost.capture.steps``): home, white card, lamp on,
+an exposure that keeps the tile under 60 % of saturation, dark frames, then one move and one frame
+per pose. Each frame gives the card's pose (``calib.card_pose.read_card``) and the tile's
+brightness (``tile_rate``); ``planner.alignment.fit_alignment`` fits the offsets and
+``alignment_document`` is ALIGNMENT.json, written only when the fit is good. The plan runs on the
+engine core (``PlanRunner``); with ``--frames DIR`` its runs are journaled in ``DIR/align.sqlite``.
 """
 from __future__ import annotations
 

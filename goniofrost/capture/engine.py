@@ -1,26 +1,12 @@
 """The capture engine: the session plan on the engine core (``goniofrost.capture.plan_runner``).
 
 ``SessionEngine.run`` drives the steps of ``goniofrost.capture.session_steps`` through a
-``PlanRunner`` (which owns the stop of the axes, the lamp, the device log and the run's
-``RunStart``/``RunEnd``, and whose journal subscriber, ``step_journal.StepJournal``, commits each
-sample in one transaction the moment it is measured: a sample too dark or too bright to measure is
-committed as not measured instead, with a ``not_measured`` event, and the capture goes on). The
-engine subscribes to its records: it appends each sample to samples.csv, journals the
-calibration, lamp and homing events, arms a simulated rig's drills and waits on the suspenders at
-each sample's safe point, times the parts of the session and shows a progress bar with the ETA, and
-
-* on SIGINT, SIGTERM or a stop request: stops every axis, switches the lamp off, records the
-  event and the RunEnd (``stopped_by_operator``) and raises ``SessionInterrupted`` (the command
-  exits 130); the journal stays resumable;
-* on a device error (or a camera, calibration or output error): the same (``fault``/``refused``),
-  and raises ``SessionFault`` with a one-line message (the command exits 2);
-* at the end: the RunEnd says ``finished``, ``target_reached`` or ``plan_used_up``.
-
-Every message says axis by axis what was confirmed at rest and what was not (an axis that did not
-confirm its stop may still be moving towards its target), and whether the lamp confirmed it is
-off; the journal has the same as ``stop`` and ``lamp`` events and in the RunEnd. On a simulated
-rig, ``goniofrost.capture.rehearsal`` arms the fault drills and makes a resumed run measure what
-one run would have.
+``PlanRunner`` and subscribes to its records: it appends each sample to samples.csv, journals the
+calibration, lamp and homing events, arms a simulated rig's drills, waits on the suspenders at each
+sample's safe point, and shows a progress bar. A stop (signal, stop request) raises
+``SessionInterrupted`` (exit 130); a device, camera, calibration or output error raises
+``SessionFault`` (exit 2); either way the axes are stopped, the lamp is off, and the message and
+journal say what each confirmed. The journal stays resumable.
 """
 from __future__ import annotations
 

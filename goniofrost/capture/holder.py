@@ -1,12 +1,10 @@
 """A program that holds the rig stops it when it is stopped, also outside a run of the engine core.
 
-A run (``plan_runner.PlanRunner``) stops and confirms every axis and switches the lamp off itself,
-then raises ``RunStopped``. A holder can also be stopped with no run under way: ``rig status
---watch`` between readings, a program between its runs. ``stopped_safely`` turns SIGINT and
-SIGTERM (``rig stop`` sends SIGTERM) into ``SessionInterrupted`` for as long as the rig is held,
-and on one that no run took care of does what a run does: stops and confirms every axis,
-switches the lamp off, and raises ``RunStopped`` saying what each confirmed. (``rig status
---watch`` died of ``rig stop``'s SIGTERM, exit 143, with the lamp left on.)
+A run (``plan_runner.PlanRunner``) stops the rig itself and raises ``RunStopped``. A holder can be
+stopped with no run under way (``rig status --watch``, a program between runs): ``stopped_safely``
+turns SIGINT and SIGTERM (``rig stop`` sends SIGTERM) into ``SessionInterrupted`` while the rig is
+held, and when no run took care of it stops and confirms every axis, switches the lamp off and
+raises ``RunStopped`` saying what each confirmed.
 """
 from __future__ import annotations
 

@@ -1,27 +1,13 @@
 """The engine core: run a plan of steps on a Hardware and own every side effect of it.
 
-Every program that moves the rig (``capture``, ``align``, the console's hand commands) runs its
-plan (a generator of the steps of ``goniofrost.capture.steps``, sent each step's result) through
-a ``PlanRunner``:
-
-* each step is executed by the one ``StepExecutor``; the run emits typed records
-  (``goniofrost.capture.records``: ``RunStart``, ``SafePoint``, ``StepStarting``, ``StepDone``,
-  ``StepFailed``, ``PlanEnded``, ``RunEnd``) to its subscribers: the journal's ``steps`` rows
-  (``goniofrost.capture.step_journal``, when a journal is given), samples.csv, a progress bar,
-  a session's events and drills, a live page;
-* the run is a ``RunStart`` and a ``RunEnd`` in the journal;
-* SIGINT, SIGTERM and a stop request of the rig lock (``goniofrost.rig.lock``, checked
-  between steps too) end the run ``STOPPED_BY_OPERATOR`` and raise ``SessionInterrupted``; a
-  device error ends it ``FAULT``, a measurement or output error ``REFUSED``, each raising
-  ``SessionFault`` with a one-line message. On every one of them every axis is stopped and
-  confirmed through the one stop path (``goniofrost.rig.stop.stop_axes``), the lamp is switched off, and the
-  message and the journal say axis by axis what was confirmed;
-* the drivers' log goes to the journal (``DeviceLog``), off the terminal.
-
-A journal write is never torn by a signal: the signal waits until the records of a step are
-handed to the required subscribers. What differs between programs is handed in, not overridden:
-the words of its messages (``RunTexts``), its sample counts (``RunCount``), where it may pause,
-and how a completed run ends (``execute_plan``'s ``ending``).
+Every program that moves the rig (``capture``, ``align``, ``rig snap``, the console) runs its plan
+(a generator of ``goniofrost.capture.steps``, sent each step's result) through a ``PlanRunner``.
+The one ``StepExecutor`` executes each step; the run emits the typed records of
+``goniofrost.capture.records`` to its subscribers (journal, samples.csv, progress bar, live page).
+A signal or stop request ends the run ``STOPPED_BY_OPERATOR`` (``SessionInterrupted``), a device
+error ``FAULT``, a measurement or output error ``REFUSED`` (``SessionFault``); each time the axes
+are stopped and confirmed (``goniofrost.rig.stop.stop_axes``) and the lamp switched off.
+Per-program texts, counts and endings are handed in (``RunTexts``, ``RunCount``, ``ending``).
 """
 from __future__ import annotations
 

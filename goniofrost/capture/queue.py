@@ -1,14 +1,11 @@
 """A queue of samples measured in one run (``goniofrost queue QUEUE.yaml``), one session each.
 
-Each sample is a capture session (``goniofrost.capture.runner.capture``: the one engine, its
-journal, its report) in ``ROOT/SAMPLE_ID``. The first sample calibrates in full (dark frames,
-flat field, white reference); every later one reuses the calibration of the sample before it
-(read from that session's journal) and only measures the white reference again, to follow the
-lamp: when its scale moved by more than the queue's ``drift_limit`` the session calibrates in
-full (``calibration_steps.white_check_steps``). The queue keeps no state of its own: the
-journals are the truth, so running the same command again after Ctrl-C or kill -9 skips the
-sessions that completed, resumes the one under way and measures nothing twice. A sample with a
-target error (its own or the queue's) is captured as ``capture --target-error E --confidence C``.
+Each sample is a capture session (``goniofrost.capture.runner.capture``) in ``ROOT/SAMPLE_ID``.
+The first calibrates in full; each later one reuses the calibration of the one before and measures
+only the white reference, calibrating in full when its scale moved by more than ``drift_limit``
+(``calibration_steps.white_check_steps``). The journals are the queue's only state: running the
+command again skips the completed sessions and resumes the one under way. A sample with a target
+error is captured as ``capture --target-error E --confidence C``.
 """
 from __future__ import annotations
 

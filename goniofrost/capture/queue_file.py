@@ -3,23 +3,18 @@
 ```
 rig: config/rigs/sim.yaml
 plan: plan.json
-root: sessions            # one session folder per sample, named after its sample_id
+root: sessions            # one folder per sample, named after its sample_id
 operator: A. Operator
-drift_limit: 0.05         # optional: the white scale's relative change that calls for a full recalibration
-target_error: 0.05        # optional: every capture stops once its error is at most this (capture --target-error)
-confidence: 0.9           # optional, with a target: the bound's confidence (capture --confidence; default 0.95)
+drift_limit: 0.05         # optional: white scale change that calls for a full recalibration
+target_error: 0.05        # optional: stop each capture at this error
+confidence: 0.9           # optional, with a target (default 0.95)
 samples:
   - {sample_id: S-001, material: builtin:red-plastic}   # material: simulated rig only
-  - {sample_id: S-002, material: builtin:gold, note: second coat, target_error: 0.02}
-  - {sample_id: S-003, material: "nbrdf:data/x.npz:gold", target_error: null}   # the whole plan
+  - {sample_id: S-002, material: builtin:gold, target_error: null}   # the whole plan
 ```
 
-Every path is relative to the queue file: ``rig``, ``plan``, ``root``, ``alignment`` here, and
-the file of a ``material`` (``nbrdf:PATH:NAME``, ``rgl:PATH:NAME``) where the caller resolves it
-(``goniofrost.datasets.spec_read_from`` with ``Queue.folder``). A sample's ``target_error`` and
-``confidence`` replace the queue's (``target_error: null``: the whole plan). Every key is checked
-with the project's key tables (``goniofrost.core.config_check``); a problem is one ConfigError
-naming the file and the key.
+Paths are relative to the queue file (``Queue.folder``). A sample's ``target_error`` and
+``confidence`` replace the queue's. A bad key is one ConfigError naming the file and key.
 """
 from __future__ import annotations
 

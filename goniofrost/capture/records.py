@@ -1,22 +1,15 @@
 """The typed records of a run: what the engine journals and every reader reads, field by field.
 
-This module is the bottom of ``goniofrost.capture`` (of the project it imports only the rig's
-``AxisStop``): the
-journal stores these records, the engine writes them, and the monitor, the report and any later
-reader (a session catalogue, the console) read their fields. No reader matches a sentence: the
-``message`` of an event and the ``reason`` of a run end are words for people only.
+The bottom of ``goniofrost.capture`` (it imports only the rig's ``AxisStop``). Readers match
+fields, never sentences: messages and reasons are for people.
 
-* ``EventKind``: the kind of every journal event (a ``str`` enum: the journal stores its value).
-* ``RunStatus``: how a run of the engine ended, as a run-stop document's ``exit_status`` does
-  (bluesky's run-stop document carries ``exit_status`` and ``reason``). A killed process records
-  nothing: a run without a ``RunEnd`` whose process is gone (no lock held) was stopped from
-  outside; readers infer that from the lock.
-* ``AxisStop`` (``goniofrost.rig.stop``): how one axis took a stop, in a ``RunEnd``.
+* ``EventKind``: the kind of every journal event (a ``str`` enum, stored by value).
+* ``RunStatus``: how a run ended (``RunEnd.exit_status``); a run with no ``RunEnd`` and no lock
+  held was killed from outside.
 * ``RunStart`` / ``RunEnd``: one row each per run in the journal's ``runs`` table.
-* ``SampleRecord`` / ``NotMeasuredRecord``: a plan sample measured, or done without a value.
-* ``SafePoint`` / ``StepStarting`` / ``StepDone`` / ``StepFailed`` / ``PlanEnded``: what the engine core
-  (``goniofrost.capture.plan_runner``) hands its subscribers as a run goes, besides its
-  ``RunStart`` and ``RunEnd`` (bluesky's documents to callbacks).
+* ``SampleRecord`` / ``NotMeasuredRecord``: a sample measured, or done without a value.
+* ``SafePoint``, ``StepStarting``, ``StepDone``, ``StepFailed``, ``PlanEnded``: what the engine
+  core hands its subscribers as a run goes.
 """
 from __future__ import annotations
 

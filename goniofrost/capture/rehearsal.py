@@ -1,13 +1,11 @@
 """A simulated rig in a session: fault drills rehearsed once, and a resume that measures what one
 run would have.
 
-``Rehearsal`` is the engine's helper for ``Hardware.simulation`` (``sim.rig.SimulatedRig``; on a
-real rig it does nothing). Before each plan sample it arms the drills of the rig file's
-``sim: faults:`` that are due, and journals each drill as ``armed`` and, once seen, ``struck``;
-a later run of the session retires the struck ones, so a drill rehearses exactly once. With each
-committed sample (and the saved calibration) the engine core journals the simulation's
-``checkpoint`` (nominal time, axis positions); a resumed run restores the one journaled just before its first
-sample, so its frames, samples.csv and brdf.binary are those of an uninterrupted run.
+``Rehearsal`` (a no-op on a real rig) arms the due drills of the rig file's ``sim: faults:``
+before each plan sample and journals each as ``armed`` and ``struck``; a later run retires the
+struck ones. The engine core journals the simulation's ``checkpoint`` with each committed sample; a
+resumed run restores the last one, so its frames, samples.csv and brdf.binary are those of an
+uninterrupted run.
 """
 from __future__ import annotations
 

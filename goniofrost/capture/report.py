@@ -1,19 +1,11 @@
 """The reports of a session: its sections, the preview, summary.txt and brdf.json's ``measurement``.
 
-The reconstruction and the files it writes (``DIR/brdf.binary``, ``DIR/brdf.std.binary``,
-``DIR/brdf.json``) are ``capture.reconstruction``'s; the comparison with a simulated rig's ground
-truth is the caller's (the demo's ``goniofrost.app.ground_truth``), handed in. This module only writes: ``DIR/preview.png`` (spheres with the uncertainty panel; beside the ground truth and the actual
-error on a simulated rig), ``DIR/report.json`` and ``DIR/summary.txt`` (each atomically). Times
-come from the journal, so a resumed session reports every sample's motion and capture time, not
-only the last run's. With a target error the report holds every batch's predicted error and
-decision and why the capture stopped (replayed from the journaled samples: the same decisions
-the session made).
-
-Samples the rig could not measure (too dark even at the ladder's longest exposure, or saturated
-even at its shortest: the journal's ``NotMeasuredRecord``) have no value: the reconstruction, its
-predicted error and the target-error assessments use the measured samples only, and report.json
-(``not_measured``), summary.txt and brdf.json say how many and which were left out and why, with
-the limits of their BRDF.
+This module only writes, each atomically: ``DIR/preview.png`` (spheres with the uncertainty panel,
+beside the ground truth and the actual error on a simulated rig), ``DIR/report.json`` and
+``DIR/summary.txt``. The reconstruction is ``capture.reconstruction``'s; a comparison with ground
+truth is handed in by the caller. Times come from the journal, so a resumed session reports every
+run. With a target error the report holds every batch's predicted error and decision. Samples not
+measured (``NotMeasuredRecord``) are left out of the reconstruction and listed, with why.
 """
 from __future__ import annotations
 

@@ -1,21 +1,12 @@
 """The capture session as a plan: every device step in order, with no side effects.
 
-``session_steps`` yields: home, lamp on; unless a calibration is kept, the move to the white
-reference pose and the calibration (``calibration_steps``: dark frames, flat field, white
-reference, each frame a step); then per remaining sample: move, its bracket of exposures
-(``sample_steps``), commit (a measured sample's record, or the record of a sample too dark or bright to
-measure: ``NotMeasuredRecord``, and the capture goes on); finally lamp off and home, as the plan's
-``return_home_s`` counts (the rig is parked where the next session starts). Each Move's result
-(the joints reached) gives the pose the next steps use, and the Commit carries the whole sample record, so nothing passes
-through the engine between steps. Samples already in the journal, measured or not, are
-skipped, so a resumed session never repeats one.
-
-With a target error (``SessionSpec.target``) the samples are taken batch by batch (the plan's
-``batch_ends``) and after each batch an ``Assess`` step carries the error bound of the
-samples so far and the decision (``goniofrost.capture.target``): the plan stops as soon as the
-target is reached; an assessment uses the batch's measured samples only (a batch without any
-is not assessed). Batches already journaled are assessed again first (no device is touched for
-that), so a resumed session makes the same decisions; one that had stopped yields no device step.
+``session_steps`` yields: home, lamp on; the calibration (``calibration_steps``) unless one is
+kept; per remaining sample a move, its exposure bracket (``sample_steps``) and a commit (a
+``SampleRecord`` or ``NotMeasuredRecord``); then lamp off and home. Journaled samples are skipped,
+so a resume never repeats one. With a target error (``SessionSpec.target``) the samples go batch
+by batch (``batch_ends``) and an ``Assess`` step after each carries the bound and the decision
+(``goniofrost.capture.target``); journaled batches are assessed again first, so a resumed session
+makes the same decisions.
 """
 from __future__ import annotations
 

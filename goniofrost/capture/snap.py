@@ -1,11 +1,10 @@
 """``rig snap``: one frame (or the bracket a capture would take) of the target at the current pose.
 
-The operator's exposure check before a session: the per-channel levels and the saturated fraction
-of the frame, the holder markers read, the region of interest the calibration would use (its
-pixels per channel and, over the bracket, its SNR), the exposures the capture would take, and a
-PNG with the region and the markers drawn. The frames go through the same steps as a capture
-(``SetTarget``, ``LampOn``, ``Expose``, ``LampOff``) on the engine core (``PlanRunner``), so every
-axis is stopped and confirmed and the lamp is off on every exit. No dark frames or flat field are taken: levels and SNR are of the raw linear values.
+The operator's exposure check before a session: per-channel levels and saturated fraction, the
+holder markers read, the calibration's region of interest (its pixels and, over the bracket, its
+SNR), the exposures a capture would take, and a PNG with region and markers drawn. The frames run
+on the engine core (``PlanRunner``), so the axes are stopped and the lamp off on every exit. No
+dark frames or flat field: levels and SNR are of the raw linear values.
 """
 from __future__ import annotations
 

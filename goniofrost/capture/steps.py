@@ -1,12 +1,9 @@
 """The vocabulary of a capture plan: every step a session takes, and what each step gives back.
 
-A plan is a generator of these frozen steps (``session_steps``, built from ``calibration_steps``
-and ``sample_steps``). It never touches a device, a file or a clock: whoever executes a step
-sends its result back into the generator (``frame = yield Expose(...)``). That is how an
-adaptive plan chooses its next step from the last frame (the exposure bracket), and how a step
-carries what it needs (the pose reached, the record to commit) instead of the engine keeping
-it between steps. ``drive`` runs a plan against any executor: the engine, a camera bench, or a
-test's scripted results.
+A plan is a generator of these frozen steps that never touches a device, a file or a clock: the
+executor sends each step's result back in (``frame = yield Expose(...)``), which is how a plan
+adapts (the exposure bracket) and carries its own state. ``drive`` runs a plan against any
+executor: the engine, a camera bench, or a test's scripted results.
 
 Step -> result: ``Home``/``Move`` -> ``Reached``; ``Expose`` -> ``Frame``; ``LampOn`` -> the
 photodiode reading; ``SaveCalibration`` -> the saved CalibrationRecord; every other step -> None.

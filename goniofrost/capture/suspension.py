@@ -1,16 +1,12 @@
 """Suspended runs: the engine's "may I continue?" at the safe point between samples.
 
-``SuspendWatch.may_continue(index)`` is called once before each plan sample's move (after the
-sample before it was committed: never in a move or a bracket). It reads what the rig file's
-suspenders (``goniofrost.rig.suspenders``) look at; when one is violated the run is suspended:
-journaled (``Journal.start_suspension``, the reason a ``SuspendReason``), said on the terminal,
-and the devices are read again every ``poll_s`` of the session clock (a simulated rig's: no wall
-time beyond its speed-up) until every condition held clear for ``hold_clear_s`` and, with
-``resume: operator``, the operator resumed (``resume()``, from another thread: the instrument
-server). A stop request or a signal ends the wait as it ends any step (the caller's abort stops
-the axes and switches the lamp off); a device silent for ``give_up_s`` ends the run as a fault.
-Subscribers (``subscribe``) are handed each ``Reading`` taken while suspended; listeners
-(``listen``: the instrument server's gate) are told when a suspension starts and ends.
+``SuspendWatch.may_continue(index)`` is called before each plan sample's move. When one of the rig
+file's suspenders (``goniofrost.rig.suspenders``) is violated the run is suspended: journaled
+(``Journal.start_suspension``), said on the terminal, and the devices read again every ``poll_s``
+of the session clock until every condition held clear for ``hold_clear_s`` (and, with ``resume:
+operator``, ``resume()`` was called). A stop ends the wait; a device silent for ``give_up_s`` ends
+the run as a fault. ``subscribe`` hands out each ``Reading``; ``listen`` tells when a suspension
+starts and ends.
 """
 from __future__ import annotations
 

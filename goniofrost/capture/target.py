@@ -1,14 +1,11 @@
 """A capture that stops when the material is known: the assessments after each batch.
 
-With ``capture --target-error E`` the plan (a nested Bayesian design, scheduled batch by batch;
-PLAN.json ``batch_ends``) is measured one batch at a time. After a batch the samples measured
-so far are reconstructed and the calibrated bound on this material's error at the session's
-confidence (``frost.confidence``, from its own samples) decides (``frost.stopping.stop_reason``):
-stop when the error is at most E with that confidence and the samples are not unlike every
-training material, or when the plan is used up. A plan made for a scene (``plan --usage``) is
-judged by the error in the scene's use (``frost.scene_error``): its prediction, its bound and
-its calibration are of that error, and every assessment says so (``scope``). Everything here is a pure function of the journaled samples, so a resumed
-session replays the same decisions and the report can show them.
+With ``capture --target-error E`` the plan is measured batch by batch (PLAN.json ``batch_ends``).
+After each batch the samples so far are reconstructed and the calibrated bound at the session's
+confidence (``frost.confidence``) decides (``frost.stopping.stop_reason``): stop when the error is
+at most E and the samples are not unlike every training material, or when the plan is used up. A
+scene plan (``plan --usage``) is judged by the scene's error (``frost.scene_error``; ``scope``).
+Everything is a pure function of the journaled samples, so a resume replays the same decisions.
 """
 from __future__ import annotations
 
