@@ -1,14 +1,11 @@
 """Every problem of a rig file in one run, then every device probed without enabling or moving it.
 
-``rig_file_problems(path)`` checks each part of a rig file on its own (the top level, the
-geometry, each axis with its driver, the lamp, the camera, the sim section, the alignment) so
-that one run names every problem instead of the first; only when each part is sound are the
-checks that need several parts run (``load_checked_rig``). ``probe_rig(rig)`` connects to each
-device in turn, with the driver's own bounded reply timeouts, reads what it can (identity,
-position, enabled and alarm state) and gives a device that does not answer its likely causes;
-``probe_camera`` connects the camera, reads what it is and its exposure range, and grabs one
-frame at the ladder's shortest exposure (its levels). Nothing here enables a motor, moves an
-axis or switches the lamp.
+``rig_file_problems(path)`` checks each part of a rig file on its own (top level, geometry, each
+axis, lamp, camera, sim, alignment), so one run names every problem; the checks across parts
+(``load_checked_rig``) run once each part is sound. ``probe_rig(rig)`` connects to each device with
+the driver's bounded timeouts, reads identity, position, enabled and alarm state, and names a
+silent device's likely causes; ``probe_camera`` reads the camera, its exposure range and one
+frame's levels. Nothing here enables a motor, moves an axis or switches the lamp.
 """
 from __future__ import annotations
 

@@ -1,15 +1,12 @@
 """Connect the devices of a rig for a session: ``open_hardware(rig, devices)``.
 
 ``open_hardware(rig, devices, ...)`` is a context manager yielding a ``RigHardware`` (axes, lamp,
-camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). Whoever calls it chooses the
-devices: ``real_devices`` (the default: the drivers connect to the rig's hardware, its camera from
-``open_camera``) or ``goniofrost.rig.simulated.simulated_devices`` (the simulated twins, which speak
-the real protocols; ``goniofrost.rig.simulated.rig_devices`` picks by the rig file's
-``simulated:``). The rig's lock (``goniofrost.rig.lock``: one program drives a device at a time) is
-held from before the first device is connected until every connection is closed. On leaving, every
-axis not yet confirmed stopped is told to stop (through the one stop path, ``goniofrost.rig.stop``,
-which confirms each; its findings are logged to the session's device log) and every connection
-closed, whatever happened: after a fault, whose stop the engine confirmed, each axis is stopped once.
+camera, clock: the ``goniofrost.rig.contract.Hardware`` contract). The caller chooses the devices:
+``real_devices`` (the default; the camera from ``open_camera``) or
+``goniofrost.rig.simulated.simulated_devices`` (``rig_devices`` picks by ``simulated:``). The rig
+lock (``goniofrost.rig.lock``) is held from before the first connection until the last is closed.
+On leaving, whatever happened, every axis not yet confirmed stopped is stopped through the one
+stop path (``goniofrost.rig.stop``) and every connection closed.
 """
 from __future__ import annotations
 

@@ -1,25 +1,13 @@
 """One program, of any user, drives a device at a time: locks keyed by the devices a rig file names.
 
-``device_keys(rig)`` names the rig's devices: ``serial:/dev/ttyUSB0`` (the resolved path: a serial
-line is one process's, whatever units share it), ``tcp:HOST:PORT/UNIT`` (a Modbus gateway serves
-several clients, one unit each), and for a ``simulated: true`` rig, whose twins live inside the
-program that opens them, ``simulated:/abs/path/of/rig.yaml`` (that simulated instance: rehearsals
-of other rig files never block each other, whatever their names).
-
-``rig_lock(rig, program)`` holds an ``flock`` on ``LOCK_DIR/dev-HASH.lock`` for every key, taken
-before the rig's devices are connected and released after (``goniofrost.rig.hardware``). The kernel
-releases them when the holder exits in any way (kill -9 included): a stale lock cannot exist.
-Each file holds the holder as JSON (``RigHolder``: PID, user, program, rig, its keys, and a
-server's URL and token file); ``rig_holder(rig)`` reads it without touching the lock.
-
-Another process asks the holder to stop with ``request_stop(rig)``: it writes the holder's stop
-file (``dev-HASH.stop`` of the holder's first key, naming the holder, so a request made to an
-earlier holder is never this one's) and sends it SIGTERM when it may (same user, or root).
-
-``LOCK_DIR`` is ``$GONIOFROST_LOCK_DIR``, else ``/tmp/goniofrost-locks``: one folder for every user
-of the computer, created world-writable with the sticky bit (mode 1777: nobody removes another
-user's file); its files are mode 0666 so that the next holder, of any user, can write itself in.
-docs/explanations/rig-lock.md says the same for the operator.
+``device_keys(rig)`` names the devices: ``serial:PATH`` (resolved), ``tcp:HOST:PORT/UNIT``, and
+``simulated:/abs/rig.yaml`` for a simulated rig. ``rig_lock(rig, program)`` holds an ``flock`` on
+``LOCK_DIR/dev-HASH.lock`` per key while the devices are connected (``goniofrost.rig.hardware``);
+the kernel releases it however the holder exits. Each file names the holder as JSON
+(``RigHolder``: PID, user, program, rig, keys, a server's URL and token file), read by
+``rig_holder(rig)``. ``request_stop(rig)`` writes the holder's stop file and sends it SIGTERM when
+it may. ``LOCK_DIR`` is ``$GONIOFROST_LOCK_DIR``, else ``/tmp/goniofrost-locks`` (mode 1777).
+docs/explanations/rig-lock.md says why.
 """
 from __future__ import annotations
 

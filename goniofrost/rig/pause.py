@@ -1,11 +1,9 @@
 """What a paused capture holds: the rig file's ``pause:`` section (``PAUSE_KEYS``).
 
-A capture paused by the operator (``goniofrost serve``: ``POST /api/pause``) waits at its next
-safe point, between two samples, with every axis at rest holding its position. The lamp stays on
-(``lamp: keep``, the default: its photodiode stays steady), or is switched off for the pause
-(``lamp: off``: a long pause spares the lamp) and on again at the resume, when the run waits,
-reading the photodiode every ``poll_s``, until it reads within ``lamp_tolerance`` of its reading
-before the pause, at most ``warmup_s``; a lamp that does not come back ends the run as a fault::
+A capture paused by the operator (``POST /api/pause``) waits at its next safe point with every
+axis at rest. The lamp stays on (``lamp: keep``, the default) or is switched off and on again at
+the resume, when the run waits until the photodiode reads within ``lamp_tolerance`` of its reading
+before the pause, at most ``warmup_s``, else the run ends as a fault::
 
     pause:
       lamp: off              # keep (default) or off

@@ -1,19 +1,15 @@
 """The simulated devices of a rig: the one module that opens them.
 
-A rig file marked ``simulated: true`` is served by ``sim.rig.SimulatedRig`` in this process: its
-devices speak the real protocols over pseudo-terminals and loopback TCP, and the real drivers
-connect to them exactly as to hardware. The simulated camera (``sim.camera.SimCamera``) sees the
-pose through forward kinematics of the simulated axes' true positions (``simulated_pose``), and
-the material it is handed: an object with ``spec`` (its name, ``SPEC:NAME``) and ``brdf(w_i, w_o)``
-(RGB (3,) in 1/sr of unit directions (3,) in the sample frame), e.g.
-``goniofrost.datasets.shown_material``'s; the caller resolves it, this module reads no dataset.
+A ``simulated: true`` rig file is served by ``sim.rig.SimulatedRig`` in this process; the real
+drivers connect to its twins over ptys and loopback TCP. The simulated camera sees the true pose
+(``simulated_pose``) and a material the caller hands in: ``spec`` (``SPEC:NAME``) and
+``brdf(w_i, w_o)`` (RGB (3,) in 1/sr of unit directions (3,) in the sample frame).
 
-* ``simulated_devices``: the opener of ``goniofrost.rig.hardware.open_hardware`` for the twins.
-* ``rig_devices``: the usual choice, the twins for a ``simulated: true`` rig file, else the real devices.
-* ``device_sections``: the rig with its twins' endpoints (and the running simulation) for the console.
-* ``twins`` and ``simulated_camera``: the parts ``goniofrost sim`` serves; ``show_material``: the
-  material its camera service renders for the next capture on its rig file.
-* ``connected_camera``: the rig's camera for ``rig check`` (the simulated one on a simulated rig).
+* ``simulated_devices``: the twins' opener for ``goniofrost.rig.hardware.open_hardware``.
+* ``rig_devices``: the twins for a simulated rig file, else the real devices.
+* ``device_sections``: the rig with its twins' endpoints, for the console.
+* ``twins``, ``simulated_camera``, ``show_material``: what ``goniofrost sim`` serves.
+* ``connected_camera``: the rig's camera for ``rig check``.
 """
 from __future__ import annotations
 

@@ -1,22 +1,12 @@
 """Suspenders: conditions that pause a capture at its next safe point until they clear.
 
-Bluesky's SuspendFloor / SuspendCeil for this rig: the lamp's photodiode below a floor
-(``lamp_floor``, relative to nominal), its drift beyond a limit (``lamp_drift``, relative to the
-first reading of the run), a device that stopped answering (``device_silent``), and an open
-interlock (``interlock``: a Modbus discrete input of a drive, 1 = closed). Pure: a ``Reading`` in,
-a ``SuspendReason`` or None out; reading the devices and waiting is ``goniofrost.capture.suspension``'s.
-
-The rig file's ``suspenders:`` section (``SUSPENDER_KEYS``; absent: no suspender)::
-
-    suspenders:
-      lamp_floor: 0.8        # suspend while the photodiode reads below 0.8 of nominal
-      lamp_drift: 0.05       # suspend while it differs from the run's first reading by more than 5 %
-      device_silent: true    # suspend while the lamp, an axis or the interlock does not answer
-      interlock: {device: camera_arm, input: 0}   # a discrete input of that Modbus drive; 0 = open
-      hold_clear_s: 10       # session-clock seconds every condition must hold clear before resuming
-      poll_s: 1              # session-clock seconds between readings while suspended
-      resume: auto           # auto, or operator: once clear, wait for the operator's resume
-      give_up_s: 600         # a device silent this long ends the run as a fault
+The lamp's photodiode below a floor (``lamp_floor``, relative to nominal), its drift beyond a limit
+(``lamp_drift``, relative to the run's first reading), a device that stopped answering
+(``device_silent``), an open interlock (``interlock``: a Modbus discrete input of a drive, 1 =
+closed). Pure: a ``Reading`` in, a ``SuspendReason`` or None out; reading the devices and waiting
+is ``goniofrost.capture.suspension``'s. ``SUSPENDER_KEYS`` is the key table of the rig file's
+``suspenders:`` section (absent: no suspender), with ``hold_clear_s``, ``poll_s``, ``resume``
+(``auto`` or ``operator``) and ``give_up_s``; docs/explanations/suspenders.md has an example.
 """
 from __future__ import annotations
 

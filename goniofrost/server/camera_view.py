@@ -3,12 +3,9 @@ saturated pixels painted red.
 
 ``check_view`` reads a request (``exposure_s``; ``black`` and ``white``, fractions of full scale,
 or neither: auto levels); ``take_view`` takes the frame on the held hardware with the session's
-own ``Expose`` step on the engine core, of whatever is in front of the camera (no target change: a
-real rig would ask the operator for one) and the lamp as it is (the page's lamp button switches
-it); ``view_png`` makes the picture: half resolution (one RGB pixel per 2 x 2 Bayer cell), then
-block means down to at most MAX_WIDTH px, gamma 2.2 between the levels. A block with any saturated
-pixel (the sensor's flag, or a level at or above the camera section's ``saturation``, as a capture
-counts them) shows red.
+``Expose`` step on the engine core, with no target change and the lamp as it is; ``view_png``
+makes the picture: one RGB pixel per 2 x 2 Bayer cell, block means down to at most MAX_WIDTH px,
+gamma 2.2 between the levels, a block with any saturated pixel red.
 """
 from __future__ import annotations
 

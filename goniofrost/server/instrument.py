@@ -1,24 +1,12 @@
 """The held rig as an instrument: one thread drives the devices, one plan at a time.
 
-Every device access happens on the instrument's own thread (``_work``): queued captures, and the
-direct commands (move, home, lamp, snap) that the API hands it with ``command``, each run to its
-end before the next. ``status()`` is read from what that thread last published, never from the
-devices, so a status request never talks on a line the engine is using.
-
-Pause and stop reach a running capture through ``ServerGate`` (installed on the hardware as
-``pause_gate`` and ``rig_lock``): the engine asks ``pause_gate(where)`` at each safe point (before
-a sample's first move: after the last sample's bracket) and blocks there while paused, axes at rest
-and the lamp as the rig file's ``pause:`` says (``goniofrost.rig.pause``); it asks
-``rig_lock.stop_request()`` between steps, so a move under way finishes before a stop ends the
-run. A suspender (the engine's ``SuspendWatch``: a condition that pauses a run by itself) holds
-the run inside its own safe point and tells the gate, its listener: the state is ``SUSPENDED``
-with the reason until it ends; ``resume()`` is the operator's resume of a rig file's
-``resume: operator``.
-
-Between runs the thread reads the devices (after each plan, and every ``idle_read_s`` while idle);
-a device that does not answer puts the instrument in ``FAULT`` with the reason while it reopens it
-(``hardware.reconnect``) after waits of ``backoff()`` on the session clock, until it answers again.
-Only reads are repeated so: a move is never sent again.
+The instrument's thread (``_work``) runs queued captures and the API's direct commands (``command``)
+one at a time; ``status()`` is what it last published. Pause and stop reach a running capture
+through ``ServerGate`` (the hardware's ``pause_gate`` and ``rig_lock``): the engine blocks at a
+safe point while paused (``goniofrost.rig.pause``) and asks for a stop between steps; a suspender
+tells the gate, which shows ``SUSPENDED`` until it ends (``resume()`` for ``resume: operator``).
+Between runs the thread reads the devices; a silent one puts it in ``FAULT`` while
+``hardware.reconnect`` retries after ``backoff()``. docs/explanations/serve.md says why.
 """
 from __future__ import annotations
 
