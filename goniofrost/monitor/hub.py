@@ -2,14 +2,10 @@
 its latest pictures, shared by every open page.
 
 ``Site`` is one session (a ``StateHub`` and two ``PictureCache``); ``Sites`` the sessions one app
-serves: a session folder, or those a folder of sessions lists (made on first use). The hub is
-read by worker threads and waited on by the event loop's streams (``wait_newer``).
-
-Cost to a capture in the same process: the journal is polled (one ``stat`` of four files every
-POLL_S) only while a page is connected, and read again only when it changed; pictures are made by
-one thread at a time and, after one took t seconds, the next of its kind waits t / PICTURE_DUTY
-(between PICTURE_MIN_GAP_S and PICTURE_MAX_GAP_S): on a fast simulated capture some samples get
-no picture of their own; the last one does before the server stops.
+serves. Worker threads read the hub; the event loop's streams wait on it (``wait_newer``). The
+journal is polled (a ``stat`` of four files every POLL_S) only while a page is connected; pictures
+are made one at a time, and after one took t seconds the next of its kind waits t / PICTURE_DUTY
+(within PICTURE_MIN_GAP_S and PICTURE_MAX_GAP_S).
 """
 from __future__ import annotations
 

@@ -1,14 +1,11 @@
 """A rig pose as drawings: the rig seen from above and from the side, in 2-D coordinates.
 
-The geometry is ``planner.kinematics``'s (world frame z up, sample at the origin, fixed horizontal
-lamp L, camera arm C(alpha) in the horizontal plane, sample stage yawed by psi about z and tilted
-by tau about its horizontal x_s axis). Lengths are in units of the sample-to-lamp distance.
-
-* from above: world (x, y);
-* from the side: looking along the stage's tilt axis x_s, so that the tilt shows at its true
-  angle: horizontal = the horizontal direction h of the sample normal, vertical = world z.
-  The lamp and the camera lie in the horizontal plane, so they appear on the horizon line at
-  their distance along h.
+The geometry is ``planner.kinematics``'s (world z up, sample at the origin, fixed horizontal lamp,
+camera arm alpha in the horizontal plane, stage yawed by psi about z and tilted by tau about its
+x_s axis). Lengths are in units of the sample-to-lamp distance. From above: world (x, y). From the
+side, looking along x_s so the tilt shows at its true angle: horizontal = the horizontal direction
+h of the sample normal, vertical = world z; lamp and camera lie on the horizon at their distance
+along h.
 """
 from __future__ import annotations
 

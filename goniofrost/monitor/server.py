@@ -1,16 +1,12 @@
 """Serve the monitor app (``monitor.app``) with uvicorn on a thread of its own.
 
 ``AppServer`` binds the address itself (a taken port or a foreign address is a one-line
-MonitorError, port 0 picks a free one, ``url`` is what to print), runs uvicorn's event loop on a
-daemon thread (it installs no signal handlers there: Ctrl-C stays the command's) and stops within
-about SHUTDOWN_S; ``MonitorServer`` serves ``monitor_app`` with it and on ``close`` first pushes
-the final state to the open pages.
-
-Under load: one event loop holds every connection (no thread per socket); uvicorn's h11 protocol
-is extended (``_Protocol``) with the limits of the hand-written server it replaced: a connection
-that sends no full request head within IDLE_TIMEOUT_S is closed, at most MAX_WAITING wait for
-theirs at once (the oldest are closed first), and a client that reads nothing for
-WRITE_TIMEOUT_S loses its connection. Blocking work runs on at most ``app.MAX_WORKERS`` threads.
+MonitorError, port 0 picks a free one, ``url`` is what to print), runs uvicorn on a daemon thread
+without signal handlers, and stops within about SHUTDOWN_S; ``MonitorServer`` serves
+``monitor_app`` with it and on ``close`` first pushes the final state to the open pages. Its
+protocol (``_Protocol``) closes a connection with no full request head within IDLE_TIMEOUT_S, lets
+at most MAX_WAITING wait at once (oldest closed first), and drops a client that reads nothing for
+WRITE_TIMEOUT_S.
 """
 from __future__ import annotations
 

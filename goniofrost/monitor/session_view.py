@@ -1,18 +1,11 @@
 """A read-only view of a session folder: the one module that knows how a session is stored.
 
 ``read_session(DIR)`` reads the journal (``DIR/session.sqlite``), ``report.json`` and the list of
-the folder's files into a ``SessionView`` of plain values. Nothing else in goniofrost.monitor
-touches the journal, so when its schema changes (calibration frames and exposures journaled as
-steps; Bayesian batches with a predicted error) only this module changes.
-
-Read-only, always, and only through the journal's own API: ``Journal.open_read_only`` (it
-cannot write and creates no file beside the journal, see ``goniofrost.capture.journal``), one
-``Journal.snapshot`` read transaction per read on a fresh connection (so a session folder that is
-replaced, the demo starts afresh, or resumed is followed). How the last run ended is its typed
-``RunEnd`` (``goniofrost.capture.records``): read by its fields, never by its words. A ``-wal``
-file without a live writer (a capture killed with kill -9 leaves it, with transactions not yet in
-the main file) is read from a copy of the journal and its WAL in a temporary folder: SQLite would
-otherwise rebuild the ``-shm`` index in the session folder.
+the folder's files into a ``SessionView`` of plain values. It reads only through the journal's
+read-only API (``Journal.open_read_only``, one ``Journal.snapshot`` per read on a fresh
+connection), and how the last run ended by its typed ``RunEnd``'s fields, never its words. A
+``-wal`` file without a live writer is read from a copy in a temporary folder.
+docs/explanations/monitor.md says why.
 """
 from __future__ import annotations
 

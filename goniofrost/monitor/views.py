@@ -1,20 +1,16 @@
-"""The monitor's read-only views: the page, its state and server-sent events, pictures and the
-session's files; on a folder of sessions, the catalogue and each session under ``/s/NAME/``.
+"""The monitor's read-only views: the page, its state and events, pictures and the session's files.
 
 Routes of one session (ROUTES; ``session_views``), GET and HEAD only (``app.read_only``):
 
-* ``/``: the page; ``/static/NAME``: its script and style sheet (package data, by name only);
+* ``/``: the page (``/static/NAME``: its script and style);
 * ``/api/state``: the page state (``status.page_state``) as JSON;
-* ``/api/events``: server-sent events, ``state`` with the same JSON each time it changes;
-* ``/api/frame.png?sample=K``: the latest frame of journaled sample K with its region of interest;
+* ``/api/events``: server-sent events, ``state`` each time it changes;
+* ``/api/frame.png?sample=K``: the latest frame of sample K with its region of interest;
 * ``/api/preview.png?done=N``: the reconstruction from the samples journaled so far;
-* ``/files/NAME``: a file of the session folder (``safe_path`` refuses anything outside it),
-  streamed in FILE_CHUNK pieces; at most MAX_TRANSFERS at once, the others wait their turn.
+* ``/files/NAME``: a file of the session folder (``safe_path``), in FILE_CHUNK pieces.
 
-On a folder of sessions (``catalogue_views``) ``/`` is the catalogue and every route above is
-served under ``/s/NAME/`` for the session folder NAME listed there, NAME percent-decoded once
-(a folder ``a%41`` is ``/s/a%2541/``). The page uses relative addresses, so it is the same page
-at ``/`` and at ``/s/NAME/``. The session's own routes see the path after ``/s/NAME``.
+On a folder of sessions (``catalogue_views``) ``/`` is the catalogue and each session is served
+under ``/s/NAME/`` (NAME percent-decoded once).
 """
 from __future__ import annotations
 

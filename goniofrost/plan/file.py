@@ -1,31 +1,12 @@
 """PLAN.json: the selected samples in measurement order, with their angles and directions.
 
-Layout (DESIGN.md "Command line")::
-
-    {"model": {"path": str, "hash": str}, "m": int, "selection_seconds": float,
-     "selector": "bayes"|"frost", "k": int,
-     "predicted_errors": [float, ...]                   (bayes: after each pick)
-     "batch_ends": [int, ...]                           (bayes: cumulative samples per batch)
-     "sentinels": int                                   (bayes: how many samples are sentinels; with_sentinels)
-     "checks": int                                      (bayes: how many of the "sentinel" samples are check cells)
-     "extrapolation": bool                              (bayes, whole BRDF: the predicted error at some batch end is
-                                                         an extrapolation; with_design_check)
-     "y_form": "all"|"firstm", "residuals": [float, ...] (frost),
-     "samples": [{"cell": [i_th, i_td, i_pd], "theta_h_deg": .., "theta_d_deg": ..,
-                  "phi_d_deg": .., "theta_i_deg": .., "theta_o_deg": ..,
-                  "w_i": [x, y, z], "w_o": [x, y, z], "sentinel": true (only on sentinels)}, ...]}
-
-Samples are in selection order (the planner reorders them for motion; a Bayesian design is
-nested, so its first m samples are the best m, and it is measured in batches: ``batch_ends``
-(``frost.stopping.batch_ends``) are the cumulative sample counts after each batch, and the
-planner orders each batch on its own, so that ``capture --target-error`` can stop after any). ``predicted_errors[i]`` is the log-relative MSE
-a typical material is predicted to have after the first i + 1 design samples (``prediction.py``;
-the sentinels and check cells added to the first batch are not counted: with them ``m`` exceeds
-the list's length by ``sentinels``).
-Angles are the cells' lower edges in degrees; w_i and w_o are unit vectors in the sample
-frame (z = normal, phi_h = 0). The planner adds joint targets and motion time to this document.
-With ``--rig``, ``plan.times`` adds ``objective`` ("time" | "samples"), ``expected_rig_s``
-and per sample ``expected_move_s`` and ``expected_exposure_s``.
+The document holds the model (path, hash), ``m``, the selector (``bayes`` or ``frost``) and its
+outputs (a Bayesian design's ``predicted_errors``, ``batch_ends``, ``sentinels``, ``checks``,
+``extrapolation``), and ``samples``: per sample its cell ``[i_th, i_td, i_pd]``, the cell's lower
+edges in degrees (``theta_h_deg``, ``theta_d_deg``, ``phi_d_deg``, ``theta_i_deg``,
+``theta_o_deg``) and unit vectors ``w_i``, ``w_o`` (3,) in the sample frame (z = normal, phi_h =
+0), in selection order. The planner adds joint targets and motion times; ``plan.times`` the
+expected rig times. docs/reference/file-formats.md has the full layout.
 """
 from __future__ import annotations
 
