@@ -1,25 +1,12 @@
 """Training's inner cross-validation of the Bayesian pipeline: simulated captures of held-out
 training materials, the choice of the noise scales, and the predicted-error calibration.
 
-For every inner fold (``noise.inner_folds``) the fold's dictionary D_f = X J_A V_f is formed
-(one pass over X), a greedy Bayesian design of up to max(m) cells is picked on it for every
-design scale (``bayes_selection.greedy_designs``: the designs share each pass over D_f; the
-fold's prior 1 / |A|, the learned noise times a design scale), and every held-out material is reconstructed from its own mapped values at the first m
-cells of that design (the learned noise times a reconstruction scale). Its true error needs no
-pass over the cells: the held-out column is D_f s + r with r orthogonal to D_f's columns, so
-over all n cells
-
-    ||estimate - truth||^2 = ||r||^2 + ||S_f (s - s_hat)||^2,
-
-both known from the Gram matrix. The records (fold, material, m, true error, the features of
-``prediction``) measure the pipeline on training materials only: ``choose_scales`` picks the
-scales with the lowest errors, and the calibration is fitted on that setting's records.
-
-Why a design scale: sigma_c^2 treats the representation error of neighbouring cells as
-independent, but it is strongly correlated, so the design over-values cells where it is small
-and piles samples up there (measured, 45 x 45 x 90 grid: the last 25 of 60 picks fell on cells
-around the lowest 10 % of noise, 20 of the 60 at theta_h = 0). Treating each measurement as
-noisier spreads the design; how much is chosen on the held-out training materials.
+For every inner fold (``noise.inner_folds``) a greedy design of up to max(m) cells is picked on
+the fold's dictionary for every design scale (``bayes_selection.greedy_designs``), and every
+held-out material is reconstructed from its own values at the first m cells; its true error
+comes from the Gram matrix, with no pass over the cells. ``choose_scales`` picks the scales with
+the lowest errors on these records (training materials only), and the calibration is fitted on
+that setting's records. Why a design scale: docs/explanations/bayesian-design.md.
 """
 from __future__ import annotations
 

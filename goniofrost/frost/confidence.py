@@ -1,15 +1,13 @@
 """A calibrated upper bound on a reconstruction's error, and samples unlike every training material.
 
 ``fit_bound`` calibrates, on the held-out training materials of training's inner
-cross-validation, a split-conformal bound on the point prediction (``prediction.py``) that holds
-at every look of a capture at once; ``error_bounds`` gives a capture's bound and median estimate
-at a confidence, and says when the samples or the design are out of the model (``z2``, energy or
-design error beyond the calibration's range by OUT_OF_MODEL_FACTOR) or the sentinels flag them
-(``sentinel_excess``). Other kinds of bound (BOUND_KINDS: normalised, per look) are calibrated
-beside it for the benchmark, not used (BOUND_KIND). ``figure`` words the one error statement every
-output makes. ``feature_distance`` and ``prequential_excess`` are benchmark diagnostics the rule
-does not use. Why each part: docs/explanations/error-bound.md, docs/decisions/0004-calibrated-stopping-rule.md
-and docs/decisions/0100-a-sharper-bound.md."""
+cross-validation, a split-conformal bound on the point prediction (``prediction``) that holds at
+every look of a capture at once; ``error_bounds`` gives a capture's bound and median estimate at a
+confidence, and says when the samples or the design are out of the model (beyond the
+calibration's range by OUT_OF_MODEL_FACTOR) or the sentinels flag them. ``figure`` words the one
+error statement every output makes. BOUND_KINDS other than BOUND_KIND, ``feature_distance`` and
+``prequential_excess`` serve the benchmarks only. Why: docs/explanations/error-bound.md.
+"""
 from __future__ import annotations
 
 import math

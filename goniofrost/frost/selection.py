@@ -1,23 +1,11 @@
 """FROST sample selection: simultaneous OMP over the dictionary's pseudo-inverse columns.
 
-Paper Algorithm 1 (DESIGN.md "FROST selection"). With k atoms, U_k and S_k from the model:
-
-* Q = S_k^-1 U_k^T (k x n_valid) = S_k^-2 D_k^T, columns normalised to unit l2 norm;
-* Y = V_k^T (k x t): all t training columns (``y_form="all"``, the MMV form) or the first
-  t = m columns as in the authors' MATLAB code (``y_form="firstm"``);
-* SOMP: R = Y; each step picks j maximising ||R^T q_j||_1 (lowest index on ties) and sets
-  R = Y minus its projection on the span of the chosen columns.
-
-Fast exact form used here ("fast form" of DESIGN.md). With B (k x i) an orthonormal basis of
-the chosen columns (classical Gram-Schmidt applied twice), R = (I - B B^T) Y changes by one
-rank-1 product per step, and so does the score matrix C = Q^T R (n x t): C -= (Q^T b)(R^T b)^T.
-C is kept in float32 and updated in place by a compiled kernel (somp_kernels) that fuses
-v = Q^T b, the rank-1 update and the scores into one pass over Q and C per step (over C alone
-once R is well conditioned, Q^T b = C z with R z = b); near-ties are re-scored exactly in
-float64. The picks equal the textbook algorithm's (tests/test_frost.py compares them with an
-lstsq-based SOMP).
-Memory: C is n x t float32: 89 MB for m = 20 with y_form "firstm" at full size, 1.75 GB
-with y_form "all" (t = 393).
+Paper Algorithm 1 (DESIGN.md "FROST selection"): Q = S_k^-1 U_k^T (k x n_valid), columns
+normalised; Y = V_k^T: all t training columns (``y_form="all"``) or the first m
+(``y_form="firstm"``); SOMP picks j maximising ||R^T q_j||_1 (lowest index on ties) and projects
+the chosen columns out of R. DESIGN.md's fast form: the scores C = Q^T R (n x t, float32) take a
+rank-1 update per step in ``somp_kernels``, near-ties re-scored in float64, the picks the
+textbook's. C is 89 MB for m = 20 with "firstm" at full size, 1.75 GB with "all" (t = 393).
 """
 from __future__ import annotations
 

@@ -1,12 +1,11 @@
 """The time-aware design's state: where the rig stands after each pick, batch by batch.
 
-``bayes_selection`` with a ``TimeObjective`` scores every cell by its expected error reduction
-(the A-optimal score) per second of rig time from the rig's pose (``rig_cost``), plus a fixed
-``overhead_s`` per sample (0 makes the nearest cells nearly free; a large one gives back the
-sample-count design). Inside a batch (``stopping.batch_ends``) the rig stands at the fastest pose
-of the last pick; at a batch's end the batch is ordered for least motion as ``plan --rig`` will
-order it (``planner.order.plan_tour`` from the pose the batch started at) and the next batch
-starts where that tour ends. Deterministic: the same inputs give the same cells in the same order.
+``bayes_selection`` with a ``TimeObjective`` scores every cell by its expected error reduction per
+second of rig time from the rig's pose (``rig_cost``) plus ``overhead_s`` per sample (0: the
+nearest cells nearly free; large: the sample-count design). Inside a batch
+(``stopping.batch_ends``) the rig stands at the last pick's fastest pose; at a batch's end the
+batch is ordered as ``plan --rig`` will (``planner.order.plan_tour``) and the next batch starts
+where that tour ends. The same inputs give the same cells in the same order.
 """
 from __future__ import annotations
 

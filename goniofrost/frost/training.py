@@ -1,22 +1,11 @@
 """Training: tabulated materials -> log-relative map -> PCA dictionary (a FrostModel).
 
-Pipeline (DESIGN.md "Training", paper section IV). With T the (n_valid, t) matrix of training
-columns (t = 3 per material, column ``3 * material + channel``):
-
-1. weight every row by w = clip(cos theta_i cos theta_o, 0.01, 1);
-2. reference r = per-row median of w T; map L = log((w T + eps) / (r + eps)), eps = 0.001;
-3. subtract the per-row mean mu: X = L - mu;
-4. PCA X = U S V^T from the t x t Gram matrix G = X^T X, accumulated in float64 over chunks
-   of rows (never an n x n matrix); its eigenvectors are V and eigenvalues S^2; D = U S = X V.
-
-Everything row-wise (steps 1-3 and G) is done in one chunked pass; X is kept in float32
-(n x t, 1.75 GB for 131 materials at full size) for the second pass D = X V.
-
-5. the noise model of the Bayesian pipeline (``noise.py``, ``calibration.py``): inner
-   cross-validation over the training materials from G and X, giving sigma_c^2 per cell and the
-   predicted-error calibration (format version 2; ``noise=False`` skips it).
-Why the Gram route and not a randomized SVD: see benchmarks/frost_speed.py (measured there;
-the Gram matrix is exact up to float64 rounding and costs one pass of n t^2 / 2 multiply-adds).
+Pipeline (DESIGN.md "Training", paper section IV), on T, the (n_valid, t) training columns (3 per
+material, column ``3 * material + channel``): weight rows by w = clip(cos theta_i cos theta_o,
+0.01, 1); map L = log((w T + eps) / (r + eps)), eps = 0.001, r the row median of w T; centre
+X = L - mu; PCA from the Gram matrix G = X^T X (t x t, float64, one chunked pass), D = X V; then
+the Bayesian noise model and calibration (``noise``, ``calibration``; ``noise=False`` skips them).
+Why the Gram route: benchmarks/frost_speed.py.
 """
 from __future__ import annotations
 

@@ -1,20 +1,11 @@
 """goniofrost reconstruct: samples (SAMPLES.csv) -> full BRDF as a MERL .binary, with its uncertainty.
 
 Default (``--estimator bayes``): the posterior mean over all model atoms. Beside OUT it writes
-
-* ``OUT.std.binary`` (OUT without ``.binary`` + ``.std.binary``): the per-cell predictive
-  standard deviation in the **MERL layout** (same 12-byte header, R, G, B blocks of float64 in
-  flat cell order, -1 on invalid cells, values divided by the MERL channel scales), so any MERL
-  reader that returns BRDF values (scales applied) returns the standard deviation of
-  ln(w x + eps) (natural log, dimensionless; w = clip(cos theta_i cos theta_o, 0.01, 1),
-  eps = 0.001). Why this and not 1/sr: the posterior is Gaussian in that log domain, so one number
-  per cell gives the whole predictive distribution (the 90 % interval of x is
-  ((w x_hat + eps) exp(+-1.645 std) - eps) / w, not symmetric in 1/sr); and the file lines up cell
-  by cell with OUT, opens with the same tools (``goniofrost preview OUT --std OUT.std.binary``).
-* ``OUT.json``: the predicted log-relative MSE of this reconstruction and how it was made, and
-  whether that prediction is an extrapolation (``extrapolation``, ``out_of_model``: samples unlike
-  every training material, or a design unlike every design the calibration was fitted on; then
-  also ``design``: its log design error and the training designs' range at that many samples).
+``OUT.std.binary`` (the MERL layout: per cell and channel the predictive standard deviation of
+ln(w x + eps), dimensionless, w = clip(cos theta_i cos theta_o, 0.01, 1), eps = 0.001) and
+``OUT.json`` (the predicted log-relative MSE, how the reconstruction was made, and whether the
+prediction is an extrapolation: ``extrapolation``, ``out_of_model``, ``design``).
+docs/reference/file-formats.md describes both files.
 """
 from __future__ import annotations
 

@@ -1,15 +1,15 @@
 """``goniofrost rig SUBCOMMAND --rig RIG.yaml``: the operator's console for a real (or simulated) rig.
 
-check   every problem of the rig file in one run, then every device probed (nothing enabled or moved)
-status  positions (as read and aligned), limits, motion, alarms, lamp; --json, --watch
-move    AXIS=DEG ... (absolute, or relative with --by); limits and geometry checked before a byte is sent
+check   every problem of the rig file, then every device probed (nothing enabled or moved)
+status  positions (read and aligned), limits, motion, alarms, lamp; --json, --watch
+move    AXIS=DEG ... (absolute, or relative with --by), checked before a byte is sent
 home    home the axes (asks whether the rig is clear unless --yes)
 lamp    on | off
-stop    stop the program that drives the rig, or connect and stop every axis and switch the lamp off
-snap    one frame (or the capture's bracket) at the current pose: levels, markers, ROI, SNR, a PNG
+stop    stop the program that drives the rig, or stop every axis and the lamp
+snap    one frame (or the capture's bracket) at the current pose: levels, markers, ROI, SNR
 
-When a `goniofrost serve` holds the rig, status, move, home, lamp, stop and snap ask it (its URL
-and token file are in the device lock) instead of opening the devices.
+When a `goniofrost serve` holds the rig (see the device lock), the subcommands ask it instead of
+opening the devices.
 """
 from __future__ import annotations
 

@@ -1,17 +1,11 @@
 """``goniofrost sim --rig RIG.yaml``: start the rig's simulated devices and serve until SIGINT/SIGTERM.
 
 Prints one JSON line on stdout mapping each axis (and "lamp") to its endpoint entry
-``{"protocol", "endpoint", "id" or "address", "baud"}``, so that any client (dynamixel-sdk, a
-pymodbus client, a serial terminal) can talk to the devices.
-
-With ``--write-rig OUT.yaml`` it also writes a rig file (``simulated: false``) whose drivers point
-at the running twins (pty paths, loopback ports) and whose camera is a ``rawfile`` camera served
-by the simulation (``sim.camera_service``: hot folder ``OUT.frames/``, trigger and target commands),
-so that a capture, align or the console runs on it exactly as on a real rig. It is written before
-the JSON line, which therefore also says the rig file is ready, and removed when the twins stop
-(with its frames folder when empty), saying so on stderr: left behind, it pointed at endpoints that
-no longer exist, and a later ``rig status`` on it failed with a refused connection that did not say
-why. A file replaced since it was written (another ``sim --write-rig`` of the same name) is left.
+``{"protocol", "endpoint", "id" or "address", "baud"}``, so that any client can talk to the
+devices. With ``--write-rig OUT.yaml`` it first writes a rig file (``simulated: false``) whose
+drivers point at the running twins and whose camera is a ``rawfile`` camera served by the
+simulation (``sim.camera_service``, hot folder ``OUT.frames/``), so every command runs on it as on a
+real rig; the file is removed when the twins stop, unless another ``sim --write-rig`` replaced it.
 """
 from __future__ import annotations
 
