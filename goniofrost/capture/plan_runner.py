@@ -6,8 +6,7 @@ The one ``StepExecutor`` executes each step; the run emits the typed records of
 ``goniofrost.capture.records`` to its subscribers (journal, samples.csv, progress bar, live page).
 A signal or stop request ends the run ``STOPPED_BY_OPERATOR`` (``SessionInterrupted``), a device
 error ``FAULT``, a measurement or output error ``REFUSED`` (``SessionFault``); each time the axes
-are stopped and confirmed (``goniofrost.rig.stop.stop_axes``) and the lamp switched off.
-Per-program texts, counts and endings are handed in (``RunTexts``, ``RunCount``, ``ending``).
+are stopped and confirmed (``rig.stop.stop_axes``) and the lamp switched off.
 """
 from __future__ import annotations
 

@@ -13,8 +13,8 @@ samples:
   - {sample_id: S-002, material: builtin:gold, target_error: null}   # the whole plan
 ```
 
-Paths are relative to the queue file (``Queue.folder``). A sample's ``target_error`` and
-``confidence`` replace the queue's. A bad key is one ConfigError naming the file and key.
+Paths are relative to the queue file (``Queue.folder``); a sample's keys replace the queue's. A
+bad key is one ConfigError naming the file and key.
 """
 from __future__ import annotations
 

@@ -1,15 +1,12 @@
 """The typed records of a run: what the engine journals and every reader reads, field by field.
 
 The bottom of ``goniofrost.capture`` (it imports only the rig's ``AxisStop``). Readers match
-fields, never sentences: messages and reasons are for people.
-
-* ``EventKind``: the kind of every journal event (a ``str`` enum, stored by value).
-* ``RunStatus``: how a run ended (``RunEnd.exit_status``); a run with no ``RunEnd`` and no lock
-  held was killed from outside.
-* ``RunStart`` / ``RunEnd``: one row each per run in the journal's ``runs`` table.
-* ``SampleRecord`` / ``NotMeasuredRecord``: a sample measured, or done without a value.
-* ``SafePoint``, ``StepStarting``, ``StepDone``, ``StepFailed``, ``PlanEnded``: what the engine
-  core hands its subscribers as a run goes.
+fields, never sentences: messages and reasons are for people. ``EventKind`` is the kind of every
+journal event (a ``str`` enum, stored by value); ``RunStatus`` how a run ended
+(``RunEnd.exit_status``; a run with no ``RunEnd`` and no lock held was killed). ``RunStart`` and
+``RunEnd`` are one row each per run in the ``runs`` table; ``SampleRecord`` and
+``NotMeasuredRecord`` a sample measured or done without a value; ``SafePoint``, ``StepStarting``,
+``StepDone``, ``StepFailed`` and ``PlanEnded`` what the engine core hands its subscribers.
 """
 from __future__ import annotations
 

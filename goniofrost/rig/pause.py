@@ -1,15 +1,15 @@
 """What a paused capture holds: the rig file's ``pause:`` section (``PAUSE_KEYS``).
 
-A capture paused by the operator (``POST /api/pause``) waits at its next safe point with every
-axis at rest. The lamp stays on (``lamp: keep``, the default) or is switched off and on again at
-the resume, when the run waits until the photodiode reads within ``lamp_tolerance`` of its reading
-before the pause, at most ``warmup_s``, else the run ends as a fault::
+A capture paused by the operator (``POST /api/pause``) waits at its next safe point, every axis
+at rest. The lamp stays on (``lamp: keep``, the default) or is switched off and, at the resume,
+on again; the run then waits until the photodiode reads within ``lamp_tolerance`` of its reading
+before the pause, at most ``warmup_s``, else it ends as a fault::
 
     pause:
       lamp: off              # keep (default) or off
-      lamp_tolerance: 0.02   # relative to the photodiode's reading before the pause
-      warmup_s: 120          # session-clock seconds the lamp may take to come back
-      poll_s: 1              # session-clock seconds between readings while it comes back
+      lamp_tolerance: 0.02   # relative to the reading before the pause
+      warmup_s: 120          # session-clock seconds
+      poll_s: 1              # session-clock seconds between readings
 """
 from __future__ import annotations
 

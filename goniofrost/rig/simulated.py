@@ -4,12 +4,10 @@ A ``simulated: true`` rig file is served by ``sim.rig.SimulatedRig`` in this pro
 drivers connect to its twins over ptys and loopback TCP. The simulated camera sees the true pose
 (``simulated_pose``) and a material the caller hands in: ``spec`` (``SPEC:NAME``) and
 ``brdf(w_i, w_o)`` (RGB (3,) in 1/sr of unit directions (3,) in the sample frame).
-
-* ``simulated_devices``: the twins' opener for ``goniofrost.rig.hardware.open_hardware``.
-* ``rig_devices``: the twins for a simulated rig file, else the real devices.
-* ``device_sections``: the rig with its twins' endpoints, for the console.
-* ``twins``, ``simulated_camera``, ``show_material``: what ``goniofrost sim`` serves.
-* ``connected_camera``: the rig's camera for ``rig check``.
+``simulated_devices`` is the twins' opener for ``open_hardware``; ``rig_devices`` picks twins or
+real devices by the rig file; ``device_sections`` gives the console the twins' endpoints;
+``twins``, ``simulated_camera`` and ``show_material`` serve ``goniofrost sim``;
+``connected_camera`` is the camera for ``rig check``.
 """
 from __future__ import annotations
 

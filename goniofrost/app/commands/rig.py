@@ -8,8 +8,7 @@ lamp    on | off
 stop    stop the program that drives the rig, or stop every axis and the lamp
 snap    one frame (or the capture's bracket) at the current pose: levels, markers, ROI, SNR
 
-When a `goniofrost serve` holds the rig (see the device lock), the subcommands ask it instead of
-opening the devices.
+When `goniofrost serve` holds the rig, these ask the server instead of opening the devices.
 """
 from __future__ import annotations
 
