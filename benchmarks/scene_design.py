@@ -281,7 +281,7 @@ BESIDE = {"g^0.5": (0.5, 1.0, 0.0, 0.0)}
 # The key of the shipped design before round 12 (round 11's), which the test run renders beside the
 # shipped one (at m and at 0.6 m): up to 14 samples select_bayes's default without the mix (a power
 # per scene, p = 1 with the floor of 6,000 effective cells, p < 1 t = 1 unmixed; BEFORE_BANDS: the
-# last m of the band, select_bayes's keyword arguments); from 15 the same design as shipped
+# last m of the band, the SceneDesign fields); from 15 the same design as shipped
 # (rendered once). (Round 11's "before (round 10)", round 10's "before (round 9)", round 9's "before
 # (round 8)", round 8's "before (round 7)" and round 7's "t0 (before)" are in those rounds' sections
 # of BENCHMARKS.md@8b3941b.)
@@ -314,6 +314,7 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
     of a fixed p (or a p per scene) are nested (one of max(ms) picks, read at every m), p None is
     designed per m."""
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import SceneDesign
 
     m_max = max(ms)
     blind = select_bayes(model, m_max).positions
@@ -325,16 +326,16 @@ def scene_designs(model, usage: dict, ms, candidates=CANDIDATES) -> dict:
             options = candidate_options(name, p, a, t, f)
             if p is None:
                 for m in ms:
-                    designs[m][(s, name)] = select_bayes(model, m, usage=u, **options).positions
+                    designs[m][(s, name)] = select_bayes(model, m, scene=SceneDesign(u, **options)).positions
             else:
-                rows = select_bayes(model, m_max, usage=u, **options).positions
+                rows = select_bayes(model, m_max, scene=SceneDesign(u, **options)).positions
                 for m in ms:
                     designs[m][(s, name)] = rows
     return designs
 
 
 def candidate_options(name: str, p, a: float, t, f) -> dict:
-    """select_bayes's keyword arguments for the candidate ``name`` (CANDIDATES: hedge a, spread t and
+    """The SceneDesign fields (besides usage) of the candidate ``name`` (CANDIDATES: hedge a, spread t and
     floor F, None the defaults) with its power p resolved (a number, or None for the shipped rule's,
     which alone takes the candidate's mix, CANDIDATE_MIX and CANDIDATE_MIX_SPREAD)."""
     if p is None:
@@ -381,11 +382,12 @@ def sequential_picks(model, usage: np.ndarray, truth: np.ndarray, stages, power=
     (n_valid, 3); ``shipped``: an optional {m: rows} cache of the shipped designs (the same for
     every material)."""
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import SceneDesign
     from goniofrost.frost.sequential_design import continue_design
 
     shipped = {} if shipped is None else shipped
     if stages[1] not in shipped:
-        shipped[stages[1]] = select_bayes(model, stages[1], usage=usage).positions
+        shipped[stages[1]] = select_bayes(model, stages[1], scene=SceneDesign(usage)).positions
     picked = shipped[stages[1]][:stages[0]]
     for end in stages[1:]:
         more = continue_design(model, usage, picked, model.to_log(truth[picked], picked), end, power).rows
@@ -598,6 +600,7 @@ def main(argv=None) -> int:
     from goniofrost.datasets.tabulate import tabulate_materials
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.training import train
+    from goniofrost.frost.usage_design import SceneDesign
 
     args = parse(argv)
     specs, test_specs, grid, training, test, ms, spp, uspp = setting(args)
@@ -631,16 +634,17 @@ def main(argv=None) -> int:
           f"{len(test)} test materials ({args.test_set}): {', '.join(test)}", flush=True)
     designs = scene_designs(model, usage, ms, BESIDE)
     for m in ms:
-        designs[m].update({(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()})
+        designs[m].update({(s, "aware"): select_bayes(model, m, scene=SceneDesign(u)).positions
+                           for s, u in usage.items()})
     fewer = sorted({round(0.6 * m) for m in ms} - set(ms)) if args.fewer else []
-    designs.update({m: {(s, "aware"): select_bayes(model, m, usage=u).positions for s, u in usage.items()}
+    designs.update({m: {(s, "aware"): select_bayes(model, m, scene=SceneDesign(u)).positions for s, u in usage.items()}
                     for m in fewer})
     # the shipped design before round 12 beside it, at m and 0.6 m (BEFORE_BANDS; the same design
     # from 29 samples: rendered once)
     for m in ms + fewer:
         before = next((d for last, d in BEFORE_BANDS if m <= last), None)
         designs[m].update({(s, BEFORE): designs[m][(s, "aware")] if before is None else
-                           select_bayes(model, m, usage=u, **before).positions
+                           select_bayes(model, m, scene=SceneDesign(u, **before)).positions
                            for s, u in usage.items()})
     truths = tabulate_materials(collected(test_specs, test), grid)
     own, shipped = None, {s: {m: designs[m][(s, "aware")] for m in designs} for s in usage}

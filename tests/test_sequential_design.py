@@ -61,9 +61,10 @@ def test_at_the_prior_mean_it_is_the_one_stage_scene_design(model, m):
     posterior mean itself, so the one-stage design of prior spread 0)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.sequential_design import continue_design
+    from goniofrost.frost.usage_design import SceneDesign
 
     usage = retro_map()
-    aware = select_bayes(model, m, usage=usage, prior_spread=0.0).positions
+    aware = select_bayes(model, m, scene=SceneDesign(usage, prior_spread=0.0)).positions
     first = aware[:m // 2]
     mapped = np.repeat(np.asarray(model.mean, np.float64)[first, None], 3, axis=1)
     assert continue_design(model, usage, first, mapped, m).rows.tolist() == aware[m // 2:].tolist()
@@ -74,9 +75,10 @@ def test_a_material_unlike_the_prior_mean_moves_the_continuation(model):
     design's, and it never repeats a picked cell."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.sequential_design import continue_design
+    from goniofrost.frost.usage_design import SceneDesign
 
     usage, m = retro_map(), 12
-    aware = select_bayes(model, m, usage=usage).positions
+    aware = select_bayes(model, m, scene=SceneDesign(usage)).positions
     first, truth = aware[:6], material("chrome")
     rest = continue_design(model, usage, first, model.to_log(truth[first], first), m).rows
     assert rest.size == 6 and not set(rest.tolist()) & set(first.tolist())
@@ -93,16 +95,18 @@ def test_the_benchmarks_sequential_designs_start_from_the_shipped_design(model):
 
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.sequential_design import continue_design
+    from goniofrost.frost.usage_design import SceneDesign
 
     module = runpy.run_path(str(Path(__file__).resolve().parents[1] / "benchmarks" / "scene_design.py"),
                             run_name="scene_design")
     usage, truth = retro_map(), material("chrome")
-    shipped = select_bayes(model, 12, usage=usage).positions
+    shipped = select_bayes(model, 12, scene=SceneDesign(usage)).positions
     half = module["sequential_picks"](model, usage, truth, (6, 12))
     rest = continue_design(model, usage, shipped[:6], model.to_log(truth[shipped[:6]], shipped[:6]), 12).rows
     assert half.tolist() == shipped[:6].tolist() + rest.tolist()
     chain = module["sequential_picks"](model, usage, truth, (4, 8, 12))
-    assert chain[:4].tolist() == select_bayes(model, 8, usage=usage).positions[:4].tolist() and len(set(chain)) == 12
+    assert chain[:4].tolist() == select_bayes(model, 8, scene=SceneDesign(usage)).positions[:4].tolist()
+    assert len(set(chain)) == 12
     designs = module["sequential_designs"](model, {"retro": usage}, truth, [8, 12], ["seq half"], {})
     assert designs[12][("retro", "seq half")].tolist() == half.tolist() and len(designs[8][("retro", "seq half")]) == 8
 
@@ -112,9 +116,10 @@ def test_a_continuation_keeps_to_the_candidates_it_is_given(model):
     mask here shuts exactly the cells the unmasked continuation would take."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.sequential_design import continue_design
+    from goniofrost.frost.usage_design import SceneDesign
 
     usage, m, truth = retro_map(), 12, material("chrome")
-    first = select_bayes(model, m, usage=usage).positions[:6]
+    first = select_bayes(model, m, scene=SceneDesign(usage)).positions[:6]
     mapped = model.to_log(truth[first], first)
     free = continue_design(model, usage, first, mapped, m).rows
     reach = np.ones(GRID.n_valid, dtype=bool)

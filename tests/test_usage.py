@@ -177,10 +177,11 @@ def test_plan_times_the_selection_without_the_scenes_calibration(model_dir, tmp_
 def test_the_rotated_basis_with_a_uniform_map_picks_as_the_plain_design(model):
     """The change of basis itself (not the shortcut) is exact: same picks, same predicted errors."""
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import SceneDesign
 
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
     plain = select_bayes(model, 10)
-    rotated = select_bayes(model, 10, usage=uniform, uniform_is_plain=False)
+    rotated = select_bayes(model, 10, scene=SceneDesign(uniform, uniform_is_plain=False))
     assert plain.positions.tolist() == rotated.positions.tolist()
     np.testing.assert_allclose(rotated.residuals, plain.residuals, rtol=1e-4)
 
@@ -191,7 +192,7 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
     sum u sigma^2, is the model's own floor)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import cell_noise, design_scale, prior_variance
-    from goniofrost.frost.usage_design import scene_matrix
+    from goniofrost.frost.usage_design import SceneDesign, scene_matrix
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
@@ -207,7 +208,7 @@ def test_a_scene_design_lowers_the_error_of_what_the_scene_sees(model):
     # so the scene's gain shows at few samples and the scene design is never worse after
     # (sensitivity_power=0: the design of this mapped error itself; the default weighs the image's
     # sensitivity too, tested below)
-    ratios = {m: weighted_error(select_bayes(model, m, usage=usage, sensitivity_power=0).positions)
+    ratios = {m: weighted_error(select_bayes(model, m, scene=SceneDesign(usage, sensitivity_power=0)).positions)
               / weighted_error(select_bayes(model, m).positions) for m in (4, 8, 15, 30)}
     assert ratios[4] < 0.8 and max(ratios.values()) <= 1.0, ratios
 
@@ -219,7 +220,7 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import cell_noise, prior_variance
     from goniofrost.frost.prediction import calibration_of, predict_typical
-    from goniofrost.frost.usage_design import design_usage, scene_matrix, sensitivity_power
+    from goniofrost.frost.usage_design import SceneDesign, design_usage, scene_matrix, sensitivity_power
 
     _, theta_d, _ = GRID.flat_angles(GRID.valid_cells)
     usage = np.where(np.degrees(theta_d) < 10, 1.0, 0.0)
@@ -235,9 +236,10 @@ def test_the_scene_design_weighs_the_sensitivity_and_predicts_the_error_of_the_u
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
     assert np.array_equal(design_usage(model, uniform, 1.0), uniform)  # no scene: the plain design's weights
 
-    aware = select_bayes(model, 12, usage=usage)
-    assert aware.positions.tolist() == select_bayes(model, 12, usage=weights, sensitivity_power=0).positions.tolist()
-    assert aware.positions.tolist() != select_bayes(model, 12, usage=usage, sensitivity_power=0).positions.tolist()
+    aware = select_bayes(model, 12, scene=SceneDesign(usage))
+    weighted, unweighted = SceneDesign(weights, sensitivity_power=0), SceneDesign(usage, sensitivity_power=0)
+    assert aware.positions.tolist() == select_bayes(model, 12, scene=weighted).positions.tolist()
+    assert aware.positions.tolist() != select_bayes(model, 12, scene=unweighted).positions.tolist()
     noise, m_u = cell_noise(model), scene_matrix(model.dictionary, usage)
     expected = []
     for m in range(1, 13):
@@ -277,13 +279,14 @@ def test_the_default_scene_design_of_m_samples_uses_the_power_for_m(model, p1_up
     p = 1 at 14 samples, the scene's power at 15 (which differ, so the boundary is where the rule
     puts it)."""
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import scene_power
+    from goniofrost.frost.usage_design import SceneDesign, scene_power
 
     usage = retro_map()
-    few, many = select_bayes(model, 14, usage=usage), select_bayes(model, 15, usage=usage)
-    assert few.positions.tolist() == select_bayes(model, 14, usage=usage, sensitivity_power=1.0).positions.tolist()
-    assert many.positions.tolist() == select_bayes(model, 15, usage=usage,
-                                                   sensitivity_power=scene_power(model, usage, 15)).positions.tolist()
+    few, many = select_bayes(model, 14, scene=SceneDesign(usage)), select_bayes(model, 15, scene=SceneDesign(usage))
+    assert few.positions.tolist() == select_bayes(model, 14, scene=SceneDesign(usage, sensitivity_power=1.0)
+                                                  ).positions.tolist()
+    assert many.positions.tolist() == select_bayes(
+        model, 15, scene=SceneDesign(usage, sensitivity_power=scene_power(model, usage, 15))).positions.tolist()
     assert few.positions.tolist() != many.positions[:14].tolist()
 
 
@@ -295,7 +298,7 @@ def test_an_error_target_ends_on_the_design_of_its_own_length(model, p1_up_to_14
     calibration of each design (p, t, F), as plan does."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_calibration import calibrate_scene
-    from goniofrost.frost.usage_design import FLOOR_FEW, scene_power
+    from goniofrost.frost.usage_design import FLOOR_FEW, SceneDesign, scene_power
 
     usage = retro_map()
     later = (scene_power(model, usage, 15), 1.0, 0.0)
@@ -308,9 +311,9 @@ def test_an_error_target_ends_on_the_design_of_its_own_length(model, p1_up_to_14
         return calibrations[design]
 
     def select(m=None, max_error=None):
-        return select_bayes(model, m, max_error=max_error, usage=usage, calibration=calibration)
+        return select_bayes(model, m, max_error=max_error, scene=SceneDesign(usage), calibration=calibration)
 
-    few, many = select(14).residuals, select_bayes(model, 40, usage=usage, sensitivity_power=later[0],
+    few, many = select(14).residuals, select_bayes(model, 40, scene=SceneDesign(usage, sensitivity_power=later[0]),
                                                    calibration=calibrations[later]).residuals
     reached, beyond = min(few[:8]) * 1.0001, min(few) * 0.99  # in 8 picks of p = 1; not in 14
     assert beyond > many.min()  # the design of the later band does reach it
@@ -332,11 +335,11 @@ def test_plan_with_an_error_target_and_a_usage_map_records_the_power_of_its_leng
     usage.sensitivity_power), each meeting the target by the scene's calibration of its own design."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.usage_calibration import calibrate_scene
-    from goniofrost.frost.usage_design import scene_power
+    from goniofrost.frost.usage_design import SceneDesign, scene_power
 
     usage, path = retro_map(), tmp_path / "retro.npy"
     np.save(path, usage.astype(np.float32))
-    few = select_bayes(model, 14, usage=usage, calibration=calibrate_scene(model, usage, 1.0)).residuals
+    few = select_bayes(model, 14, scene=SceneDesign(usage), calibration=calibrate_scene(model, usage, 1.0)).residuals
     for target, power, longer in ((min(few[:8]) * 1.0001, 1.0, False),
                                   (min(few) * 0.99, scene_power(model, usage, 15), True)):
         out = tmp_path / f"plan-{power}.json"
@@ -608,8 +611,8 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     is the band's spread with the band's floor on the effective cells (round 8)."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import (design_mix, design_usage, prior_cell_variance, prior_spread, scene_power,
-                                               spread_floor)
+    from goniofrost.frost.usage_design import (SceneDesign, design_mix, design_usage, prior_cell_variance, prior_spread,
+                                               scene_power, spread_floor)
 
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
         / np.asarray(model.weight, np.float64)
@@ -636,19 +639,20 @@ def test_the_prior_spread_weighs_the_expected_sensitivity_under_the_prior(model)
     # a uniform map is the plain design whatever the spread
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
     assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0), uniform)
-    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0).positions.tolist() == \
+    assert select_bayes(model, 8, scene=SceneDesign(uniform, prior_spread=1.0)).positions.tolist() == \
         select_bayes(model, 8).positions.tolist()
     # the design of spread t is the mapped-error design of its weights; the default is the spread for m
     assert prior_spread(12) == 1.0 and spread_floor(12) == 6000.0 and prior_spread(20) == 1.0
     power = scene_power(model, usage, 12)  # (60 cells: 0.5, whose design has no floor; mixed, round 12)
-    assert select_bayes(model, 12, usage=usage).positions.tolist() == select_bayes(
-        model, 12, usage=usage, sensitivity_power=power, prior_spread=1.0,
-        spread_floor=spread_floor(12, power), mix=design_mix(12, power)).positions.tolist()
-    assert select_bayes(model, 20, usage=usage).positions.tolist() == select_bayes(
-        model, 20, usage=usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0).positions.tolist()
-    spread = select_bayes(model, 12, usage=usage, sensitivity_power=1.0, prior_spread=1.0).positions
-    assert spread.tolist() == select_bayes(model, 12, usage=design_usage(model, usage, 1.0, spread=1.0),
-                                           sensitivity_power=0).positions.tolist()
+    assert select_bayes(model, 12, scene=SceneDesign(usage)).positions.tolist() == select_bayes(
+        model, 12, scene=SceneDesign(usage, sensitivity_power=power, prior_spread=1.0,
+                                    spread_floor=spread_floor(12, power), mix=design_mix(12, power))).positions.tolist()
+    assert select_bayes(model, 20, scene=SceneDesign(usage)).positions.tolist() == select_bayes(
+        model, 20, scene=SceneDesign(usage, sensitivity_power=scene_power(model, usage, 20), prior_spread=1.0)
+    ).positions.tolist()
+    spread = select_bayes(model, 12, scene=SceneDesign(usage, sensitivity_power=1.0, prior_spread=1.0)).positions
+    assert spread.tolist() == select_bayes(model, 12, scene=SceneDesign(design_usage(model, usage, 1.0, spread=1.0),
+                                                                        sensitivity_power=0)).positions.tolist()
 
 
 def test_a_floor_on_the_effective_cells_picks_each_scenes_spread():
@@ -691,7 +695,8 @@ def test_the_floor_sets_the_spread_of_a_scene_design(model):
     bad floor in one line."""
     from goniofrost.frost.bayes_selection import select_bayes
     from goniofrost.frost.posterior import prior_variance
-    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, prior_cell_variance
+    from goniofrost.frost.usage_design import (SceneDesign, design_spread, design_usage, effective_cells,
+                                               prior_cell_variance)
 
     usage = retro_map()
     g = np.exp(np.asarray(model.mean, np.float64)) * (np.asarray(model.reference, np.float64) + model.eps) \
@@ -713,17 +718,19 @@ def test_the_floor_sets_the_spread_of_a_scene_design(model):
     assert np.array_equal(design_usage(model, usage, 1.0, spread=1.0, floor=at_zero * 2), design_usage(model, usage, 1.0))
     uniform = np.full(GRID.n_valid, 1.0 / GRID.n_valid)
     assert np.array_equal(design_usage(model, uniform, 1.0, spread=1.0, floor=floor), uniform)
-    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0, spread_floor=floor).positions.tolist() == \
-        select_bayes(model, 8).positions.tolist()
-    floored = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
-    assert floored.positions.tolist() == select_bayes(model, 10, usage=weights, sensitivity_power=0).positions.tolist()
+    uniform_floored = SceneDesign(uniform, prior_spread=1.0, spread_floor=floor)
+    assert select_bayes(model, 8, scene=uniform_floored).positions.tolist() == select_bayes(model, 8).positions.tolist()
+    floored = select_bayes(model, 10, scene=SceneDesign(usage, sensitivity_power=1.0, prior_spread=1.0,
+                                                        spread_floor=floor))
+    assert floored.positions.tolist() == select_bayes(model, 10, scene=SceneDesign(weights, sensitivity_power=0)
+                                                      ).positions.tolist()
     # the selection reports the spread its weights used (what plan records), as design_spread computes it
     assert floored.prior_spread == t
-    assert select_bayes(model, 8, usage=uniform, prior_spread=1.0, spread_floor=floor).prior_spread == 0.0
+    assert select_bayes(model, 8, scene=uniform_floored).prior_spread == 0.0
     assert select_bayes(model, 8).prior_spread is None
     with pytest.raises(ValueError, match=r"^usage_design: the floor on the design's effective cells must be a finite "
                                          r"number >= 0, found -5\.0$"):
-        select_bayes(model, 10, usage=usage, prior_spread=1.0, spread_floor=-5.0)
+        select_bayes(model, 10, scene=SceneDesign(usage, prior_spread=1.0, spread_floor=-5.0))
 
 
 def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir, tmp_path, monkeypatch, p1_up_to_14):
@@ -735,6 +742,7 @@ def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir,
     from goniofrost.brdf.usage import load_usage
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import select_bayes
+    from goniofrost.frost.usage_design import SceneDesign
 
     path = tmp_path / "retro.npy"
     np.save(path, retro_map().astype(np.float32))
@@ -747,9 +755,11 @@ def test_plan_records_the_spread_its_floor_chose_for_the_scene(model, model_dir,
     doc = json.loads(out.read_text())
     t = usage_design.design_spread(model, usage, 1.0, spread=1.0, floor=floor)
     assert 0 < t < 1 and doc["usage"]["prior_spread"] == t and doc["usage"]["spread_floor"] == floor
-    chosen = select_bayes(model, 10, usage=usage, sensitivity_power=1.0, prior_spread=1.0, spread_floor=floor)
+    chosen = select_bayes(model, 10, scene=SceneDesign(usage, sensitivity_power=1.0, prior_spread=1.0,
+                                                       spread_floor=floor))
     assert [s["cell"] for s in doc["samples"]] == np.stack(model.grid.unravel(chosen.cells), axis=1).tolist()
-    assert chosen.positions.tolist() != select_bayes(model, 10, usage=usage, prior_spread=0.0).positions.tolist()
+    assert chosen.positions.tolist() != select_bayes(model, 10, scene=SceneDesign(usage, prior_spread=0.0)
+                                                     ).positions.tolist()
 
 
 @needs_llvm
@@ -781,7 +791,7 @@ def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effecti
     alone. select_bayes's default design is the design of that power and reports it."""
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import design_usage, effective_cells, scene_power
+    from goniofrost.frost.usage_design import SceneDesign, design_usage, effective_cells, scene_power
 
     assert usage_design.POWERS_MOST == (0.5, 0.75, 1.0) and usage_design.POWER_FLOOR_MOST == 4000.0
     usage = retro_map()
@@ -797,9 +807,10 @@ def test_from_29_samples_each_scene_takes_the_largest_power_keeping_4000_effecti
     for floor, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
         monkeypatch.setitem(usage_design.BAND_POWERS, None, (usage_design.POWERS_MOST, floor))
         assert scene_power(model, usage, 29) == power
-        chosen = select_bayes(model, 30, usage=usage)
+        chosen = select_bayes(model, 30, scene=SceneDesign(usage))
         assert chosen.sensitivity_power == power
-        assert chosen.positions.tolist() == select_bayes(model, 30, usage=usage, sensitivity_power=power).positions.tolist()
+        assert chosen.positions.tolist() == select_bayes(model, 30, scene=SceneDesign(usage, sensitivity_power=power)
+                                                         ).positions.tolist()
     assert select_bayes(model, 30).sensitivity_power is None
 
 
@@ -825,7 +836,7 @@ def test_up_to_14_samples_each_scene_takes_the_largest_power_keeping_3300_cells_
     shipped ones are of the full grid.)"""
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import design_spread, design_usage, effective_cells, scene_power
+    from goniofrost.frost.usage_design import SceneDesign, design_spread, design_usage, effective_cells, scene_power
 
     usage = retro_map()
     cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
@@ -835,13 +846,13 @@ def test_up_to_14_samples_each_scene_takes_the_largest_power_keeping_3300_cells_
     for count, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
         monkeypatch.setitem(usage_design.BAND_POWERS, 14, (usage_design.POWERS_FEW, count))
         assert scene_power(model, usage, 10) == power
-        chosen = select_bayes(model, 10, usage=usage)
+        chosen = select_bayes(model, 10, scene=SceneDesign(usage))
         t = design_spread(model, usage, 1.0, spread=1.0, floor=floor) if power == 1.0 else 1.0
         assert chosen.sensitivity_power == power and chosen.prior_spread == t
         assert (0 < t < 1) is (power == 1.0)  # the floor binds p = 1 only
-        assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=power, prior_spread=1.0,
-                                                         spread_floor=floor if power == 1.0 else 0.0,
-                                                         mix=0.5 if power < 1 else 0.0).positions.tolist()
+        assert chosen.positions.tolist() == select_bayes(model, 10, scene=SceneDesign(
+            usage, sensitivity_power=power, prior_spread=1.0, spread_floor=floor if power == 1.0 else 0.0,
+            mix=0.5 if power < 1 else 0.0)).positions.tolist()
 
 
 def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
@@ -853,16 +864,16 @@ def test_the_default_design_of_10_samples_for_each_shipped_scene(model):
     scene of p = 0.5 is mixed half and half with the p = 1 floor design."""
     from goniofrost.brdf.mitsuba_usage import record_usage
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import POWER_CELLS_FEW, design_usage, effective_cells
+    from goniofrost.frost.usage_design import POWER_CELLS_FEW, SceneDesign, design_usage, effective_cells
 
     for scene in ("retro-sphere", "grazing-plane", "top-light"):
         usage, _ = record_usage(SCENES / f"{scene}.xml", "sample", spp=2, grid=GRID)
         cells = {p: effective_cells(design_usage(model, usage, p, 1.0, 1.0)) for p in (0.5, 0.75, 1.0)}
         power = max([p for p in (0.75, 1.0) if cells[p] >= POWER_CELLS_FEW], default=0.5)
-        chosen = select_bayes(model, 10, usage=usage)
+        chosen = select_bayes(model, 10, scene=SceneDesign(usage))
         assert power == 0.5 and chosen.sensitivity_power == power and chosen.prior_spread == 1.0, scene
-        assert chosen.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
-                                                         spread_floor=0.0, mix=0.5).positions.tolist()
+        assert chosen.positions.tolist() == select_bayes(model, 10, scene=SceneDesign(
+            usage, sensitivity_power=0.5, prior_spread=1.0, spread_floor=0.0, mix=0.5)).positions.tolist()
 
 
 def test_the_mixed_weights_are_the_average_of_the_two_designs_weights(model):
@@ -889,7 +900,7 @@ def test_the_default_design_of_10_samples_is_mixed_exactly_when_the_scenes_power
     grid's scale, as in the test of round 11.)"""
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.usage_design import design_mix, design_usage, effective_cells, scene_power
+    from goniofrost.frost.usage_design import SceneDesign, design_mix, design_usage, effective_cells, scene_power
 
     assert usage_design.MIX_FEW == 0.5 and design_mix(10, 0.5) == 0.5 and design_mix(10, 1.0) == 0.0
     assert design_mix(20, 0.75) == design_mix(40, 1.0) == 0.0
@@ -898,12 +909,13 @@ def test_the_default_design_of_10_samples_is_mixed_exactly_when_the_scenes_power
     for count, power in ((cells[1.0], 1.0), (cells[1.0] * 1.001, 0.75), (cells[0.75] * 1.001, 0.5)):
         monkeypatch.setitem(usage_design.BAND_POWERS, 14, (usage_design.POWERS_FEW, count))
         assert scene_power(model, usage, 10) == power
-        chosen = select_bayes(model, 10, usage=usage).positions.tolist()
+        chosen = select_bayes(model, 10, scene=SceneDesign(usage)).positions.tolist()
         floor = usage_design.FLOOR_FEW if power == 1.0 else 0.0
         explicit = dict(sensitivity_power=power, prior_spread=1.0, spread_floor=floor)
-        assert chosen == select_bayes(model, 10, usage=usage, mix=0.5 if power < 1 else 0.0, **explicit).positions.tolist()
+        assert chosen == select_bayes(model, 10, scene=SceneDesign(usage, mix=0.5 if power < 1 else 0.0, **explicit)
+                                      ).positions.tolist()
         if power < 1:  # the mix is a different design here
-            assert chosen != select_bayes(model, 10, usage=usage, **explicit).positions.tolist()
+            assert chosen != select_bayes(model, 10, scene=SceneDesign(usage, **explicit)).positions.tolist()
 
 
 def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model):
@@ -912,7 +924,7 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
     with that t in its key, so the designs of own t = 0 and t = 1 never share one."""
     from goniofrost.frost import usage_design
     from goniofrost.frost.bayes_selection import design_options, select_bayes
-    from goniofrost.frost.usage_design import design_key, mix_spread, mixed_weights
+    from goniofrost.frost.usage_design import SceneDesign, design_key, mix_spread, mixed_weights
 
     assert usage_design.MIX_SPREAD_FEW == 1.0 and mix_spread(10) == 1.0
     assert design_key(0.5, 0.0, 0.0, 0.5) != design_key(0.5, 1.0, 0.0, 0.5)
@@ -923,16 +935,15 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
         asked.append(key)
         return None  # the model's
 
-    explicit = dict(sensitivity_power=0.5, spread_floor=0.0, mix=0.5, calibration=calibration)
-    at_one = select_bayes(model, 10, usage=usage, **explicit)
-    at_zero = select_bayes(model, 10, usage=usage, mix_spread=0.0, **explicit)
+    explicit = dict(sensitivity_power=0.5, spread_floor=0.0, mix=0.5)
+    at_one = select_bayes(model, 10, scene=SceneDesign(usage, **explicit), calibration=calibration)
+    at_zero = select_bayes(model, 10, scene=SceneDesign(usage, mix_spread=0.0, **explicit), calibration=calibration)
     assert asked == [(0.5, 1.0, 0.0, 0.5), (0.5, 0.0, 0.0, 0.5)]
     assert [at_one.design_key, at_zero.design_key] == asked  # what plan records and calibrates
-    assert design_options(model, usage, 10, mix_spread=0.0, **{k: v for k, v in explicit.items()
-                                                               if k != "calibration"}) == asked[1]
+    assert design_options(model, usage, 10, mix_spread=0.0, **explicit) == asked[1]
     assert at_one.prior_spread == 1.0 and at_zero.prior_spread == 0.0
-    assert at_one.positions.tolist() == select_bayes(model, 10, usage=usage, sensitivity_power=0.5, prior_spread=1.0,
-                                                     spread_floor=0.0, mix=0.5).positions.tolist()
+    assert at_one.positions.tolist() == select_bayes(model, 10, scene=SceneDesign(
+        usage, sensitivity_power=0.5, prior_spread=1.0, spread_floor=0.0, mix=0.5)).positions.tolist()
     assert not np.array_equal(mixed_weights(model, usage, 0.5, 1.0, 0.0, 0.0, 0.5)[0],
                               mixed_weights(model, usage, 0.5, 1.0, 1.0, 0.0, 0.5)[0])
 

@@ -18,7 +18,7 @@ from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
 from goniofrost.frost import usage_design
-from goniofrost.frost.usage_design import HEDGE, design_weights, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import SceneDesign, design_weights, is_uniform, scene_matrix, scene_prior
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
@@ -199,23 +199,20 @@ def _best(best: np.ndarray, best_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                  candidates: np.ndarray | None = None, threads: int | None = None,
-                 usage: np.ndarray | None = None, uniform_is_plain: bool = True,
-                 calibration=None, sensitivity_power: float | None = None,
-                 hedge: float = HEDGE, prior_spread: float | None = None,
-                 spread_floor: float | None = None, mix: float | None = None,
-                 mix_spread: float | None = None, confidence: float | None = None,
+                 scene: SceneDesign | None = None, calibration=None, confidence: float | None = None,
                  time_objective=None) -> Selection:
     """Pick measurement cells by greedy Bayesian A-optimal design; deterministic and nested.
 
     m: number of samples; or max_error: stop after the first pick whose predicted error of a typical
     material (``prediction.predict_typical``) is <= max_error, or, with ``confidence`` (no
-    ``usage``), whose calibrated bound (``typical_bound``) is; the bounds go to ``bounds``.
+    ``scene``), whose calibrated bound (``typical_bound``) is; the bounds go to ``bounds``.
     candidates: bool (n_valid,) mask of allowed cells (default all valid cells).
     threads: threads sharing each pass (default: the cores this process may use).
-    usage: float (n_valid,) a scene's use of every cell, sum 1: the design then minimises the error
-    the scene sees, weights u g^p (``usage_design.design_usage``) mixed with the plain design's by
-    ``hedge`` (1 the scene alone, 0 the plain design). ``uniform_is_plain``: a uniform map is taken
-    as the plain design without the change of basis (False: the long way, for tests).
+    scene: a ``usage_design.SceneDesign`` (its usage u: float (n_valid,) a scene's use of every cell,
+    sum 1): the design then minimises the error the scene sees, weights u g^p
+    (``usage_design.design_usage``) mixed with the plain design's by its ``hedge`` (1 the scene
+    alone, 0 the plain design). ``uniform_is_plain``: a uniform map is taken as the plain design
+    without the change of basis (False: the long way, for tests). Its other fields:
     sensitivity_power: p; None: ``usage_design.scene_power(model, usage, m)``. With max_error and p
     None the bands of ``usage_design.BANDS`` run in turn, so the result of n picks is the n-sample
     design and the (n - 1)-sample design does not reach the target.
@@ -235,12 +232,16 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     start = time.perf_counter()
     rows = _candidate_rows(candidates, model.grid.n_valid)
     noise = cell_noise(model)
-    scene = usage is not None and not (uniform_is_plain and is_uniform(usage))
+    design = scene if scene is not None else SceneDesign(usage=None)
+    usage, uniform_is_plain, hedge = design.usage, design.uniform_is_plain, design.hedge
+    sensitivity_power, prior_spread, spread_floor = design.sensitivity_power, design.prior_spread, design.spread_floor
+    mix, mix_spread = design.mix, design.mix_spread
+    aware = usage is not None and not (uniform_is_plain and is_uniform(usage))
     if time_objective is not None and usage is not None:
         raise SelectionError("selection: the time-aware design (--objective time) is of the whole BRDF; "
                              "it does not take a scene's use (--usage)")
     # the error no sample removes, as the predicted errors count it (the scene's: weighted by u)
-    floor = float(np.dot(usage, noise)) if scene else float(noise.mean())
+    floor = float(np.dot(usage, noise)) if aware else float(noise.mean())
 
     # the cells' prior variance, computed once if a scene's weights (or its power choice) need it
     variance = usage_design.cell_variance_of(model)
@@ -251,18 +252,18 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
         return chosen or calibration_of(model)
 
     defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
-    if not scene or sensitivity_power is not None or max_error is None:
-        if scene and sensitivity_power is None:
+    if not aware or sensitivity_power is not None or max_error is None:
+        if aware and sensitivity_power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
         power, spread, cells_floor, share = design_options(
             model, usage, m, sensitivity_power=sensitivity_power, prior_spread=prior_spread,
-            spread_floor=spread_floor, mix=mix, mix_spread=mix_spread, variance=variance, scene=scene)
+            spread_floor=spread_floor, mix=mix, mix_spread=mix_spread, variance=variance, scene=aware)
         calib = calibration_for(power, spread, cells_floor, share)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread, bounds = _design(
-            model, rows, noise, limit, max_error, usage if scene else None, power, hedge, calib, threads,
+            model, rows, noise, limit, max_error, usage if aware else None, power, hedge, calib, threads,
             uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share,
-            confidence=None if scene else confidence, time_objective=time_objective)
+            confidence=None if aware else confidence, time_objective=time_objective)
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
@@ -295,9 +296,9 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                      positions=picked.rows, cells=model.grid.valid_cells[picked.rows],
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
-                     prior_spread=used_spread if scene else (None if usage is None else 0.0),
-                     sensitivity_power=power if scene else None,
-                     design_key=usage_design.design_key(power, spread, cells_floor, share) if scene else None)
+                     prior_spread=used_spread if aware else (None if usage is None else 0.0),
+                     sensitivity_power=power if aware else None,
+                     design_key=usage_design.design_key(power, spread, cells_floor, share) if aware else None)
 
 
 def design_options(model, usage, m, *, sensitivity_power=None, prior_spread=None, spread_floor=None, mix=None,

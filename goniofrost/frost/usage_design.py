@@ -80,6 +80,26 @@ SENSITIVITY_POWER = 0.5
 HEDGE = 1.0
 
 
+@dataclass(frozen=True, eq=False)  # compared by identity: ``usage`` is an array
+class SceneDesign:
+    """What ``bayes_selection.select_bayes`` designs for a scene: ``usage`` float (n_valid,), the
+    scene's use of every cell, sum 1. The rest are the weights u g^p exp(t p^2 v / 2) mixed in
+    by ``hedge`` (1 the scene alone, 0 the plain design): ``sensitivity_power`` p, ``prior_spread``
+    t, ``spread_floor`` F (effective cells, 0 none), ``mix`` the share a of MIX_DESIGN and
+    ``mix_spread`` its own part's t; each None takes the band's default for m (``BANDS``, as
+    select_bayes's docstring says). ``uniform_is_plain`` False: a uniform map takes the long way
+    through the change of basis (for tests)."""
+
+    usage: np.ndarray
+    uniform_is_plain: bool = True
+    sensitivity_power: float | None = None
+    hedge: float = HEDGE
+    prior_spread: float | None = None
+    spread_floor: float | None = None
+    mix: float | None = None
+    mix_spread: float | None = None
+
+
 def band(m: int) -> tuple:
     """(last m of the band or None, p, t, F) of BANDS for a design of m samples."""
     if not isinstance(m, (int, np.integer)) or m < 1:

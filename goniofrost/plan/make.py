@@ -139,8 +139,10 @@ def _select(model, request: PlanRequest, mask, scenes):
     options the request sets; ``scenes`` (a ``SceneErrors``, with a usage map) gives the
     calibration each design's predicted errors use."""
     from goniofrost.frost.selectors import SELECTORS
+    from goniofrost.frost.usage_design import SceneDesign
 
-    options = {"y_form": request.y_form, "k": request.atoms, "usage": request.usage,
+    options = {"y_form": request.y_form, "k": request.atoms,
+               "scene": None if request.usage is None else SceneDesign(request.usage),
                "calibration": None if scenes is None else (lambda *design: scenes(*design).calibration),
                # the rule a capture stops on: a typical material's bound at this confidence
                "confidence": request.confidence if request.max_error is not None and request.selector == "bayes"
