@@ -12,7 +12,7 @@ from goniofrost.core.rig_spec import AxisSpec, RigSpec
 
 from .clock import SimClock
 from .config import check_fault_axes, validate_sim_section
-from .faults import LAMP_KINDS, TIMED_KINDS
+from .faults import LAMP_KINDS, SILENT_KINDS, TIMED_KINDS
 from .lamp_model import LampModel
 
 # A twin answers from a thread of this process: on a busy computer (a test suite beside other
@@ -22,8 +22,8 @@ from .lamp_model import LampModel
 # reply_timeout_ms wins.
 TWIN_REPLY_TIMEOUT_MS = {"dynamixel": 300.0}
 # A host slower still (a test suite at load 8-11 on 2 cores) sets this to give every twin's driver
-# that reply timeout (ms), whatever its protocol. An axis with a fault drill keeps the timeout it
-# would have without it: a drilled silence must time out as promptly as a real device's would.
+# that reply timeout (ms), whatever its protocol. An axis drilled to fall silent keeps the timeout
+# it would have without it: a drilled silence must time out as promptly as a real device's would.
 SLOW_HOST_ENV = "GONIOFROST_TWIN_REPLY_TIMEOUT_MS"
 
 
@@ -211,10 +211,10 @@ class SimulatedRig:
 
     def _twin_reply_timeout_ms(self, name: str, protocol: str) -> float | None:
         """The reply timeout (ms) a driver of this twin gets unless the rig file gives one (None:
-        the driver's default): ``SLOW_HOST_ENV``'s when set and the axis has no fault drill, else
+        the driver's default): ``SLOW_HOST_ENV``'s when set and no drill silences the axis, else
         ``TWIN_REPLY_TIMEOUT_MS``'s."""
         slow = os.environ.get(SLOW_HOST_ENV)
-        if slow and not any(fault.get("axis") == name for fault in self.faults):
+        if slow and not any(fault.get("axis") == name and fault.get("kind") in SILENT_KINDS for fault in self.faults):
             return float(slow)
         return TWIN_REPLY_TIMEOUT_MS.get(protocol)
 

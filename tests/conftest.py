@@ -57,9 +57,9 @@ def _private_rig_locks(tmp_path_factory, monkeypatch):
 # a twin answers from a thread of the test's own process, which at load 8-11 on 2 cores can miss a
 # real bus's 100-300 ms (reply timeouts seen in the dynamixel, rig console, monitor, session, sentinel
 # and pylon tests). It cannot hide a defect: a twin answers in well under a millisecond when the
-# host is quiet, so a longer wait only ever passes a reply that did come, and an axis with a fault
-# drill keeps its product timeout, so the tests of drilled silence get their timeouts as promptly as
-# before. Real hardware keeps the drivers' defaults (nothing reads this outside sim.rig).
+# host is quiet, so a longer wait only ever passes a reply that did come, and an axis drilled to fall
+# silent (sim.faults.SILENT_KINDS) keeps its product timeout, so the tests of drilled silence get
+# their timeouts as promptly as before. Real hardware keeps the drivers' defaults (nothing reads this outside sim.rig).
 TWIN_REPLY_TIMEOUT_MS = 3000
 
 
