@@ -60,7 +60,7 @@ def run(args) -> int:
         raise ConfigError("command line", given[0], "only with goniofrost queue add (a queue file names its own)",
                           getattr(args, _field(given[0])))
     queue = read_queue(args.queue)
-    server = _server_of(queue)
+    server = _server_of(queue.rig)
     if server is not None:
         return _add_to_server(queue, server, args)
 
@@ -90,12 +90,22 @@ def run(args) -> int:
     return 0
 
 
-def _server_of(queue):
-    """The client of the ``goniofrost serve`` holding the queue's rig, or None."""
+def _server_of(rig_path):
+    """The client of the ``goniofrost serve`` holding the rig of ``rig_path``, or None."""
     from goniofrost.rig.file import load_checked_rig
     from goniofrost.server.client import server_for
 
-    return server_for(load_checked_rig(queue.rig))
+    return server_for(load_checked_rig(rig_path))
+
+
+def _post_entry(server, plan: str, sample_id: str, material, operator, note, target_error, confidence) -> int:
+    """Add one entry to the server's queue (``plan`` relative to its root; a confidence only when
+    given); its id. The server checks every field."""
+    body = {"plan": plan, "sample_id": sample_id, "material": material,
+            "operator": operator or server.who("goniofrost queue"), "note": note, "target_error": target_error}
+    if confidence is not None:
+        body["confidence"] = confidence
+    return server.call("POST", "/api/queue", body)["id"]
 
 
 def _add_to_server(queue, server, args) -> int:
@@ -112,13 +122,11 @@ def _add_to_server(queue, server, args) -> int:
                               f"put {queue.plan.name} there")
     added = []
     for s in queue.samples:
-        body = {"plan": str(queue.plan.resolve().relative_to(root)), "sample_id": s.sample_id,
-                "material": None if s.material is None else spec_read_from(s.material, str(queue.folder)),
-                "operator": s.operator or server.who("goniofrost queue"), "note": "; ".join(s.notes) or None,
-                "target_error": s.target_error}
-        if s.target_error is not None:  # the bound's confidence means nothing without a target
-            body["confidence"] = s.confidence
-        added.append(f"{s.sample_id} (id {server.call('POST', '/api/queue', body)['id']})")
+        material = None if s.material is None else spec_read_from(s.material, str(queue.folder))
+        confidence = None if s.target_error is None else s.confidence  # meaningless without a target
+        entry_id = _post_entry(server, str(queue.plan.resolve().relative_to(root)), s.sample_id, material,
+                               s.operator, "; ".join(s.notes) or None, s.target_error, confidence)
+        added.append(f"{s.sample_id} (id {entry_id})")
     print(f"queue {queue.path.name}: added {', '.join(added)} to the queue of the server at {server.url}; "
           f"sessions in {root / 'sessions'} (goniofrost sessions {root / 'sessions'})")
     return 0
@@ -133,8 +141,6 @@ def _add_one(args) -> int:
     from pathlib import Path
 
     from goniofrost.core.errors import ConfigError, GoniofrostError
-    from goniofrost.rig.file import load_checked_rig
-    from goniofrost.server.client import server_for
 
     for option in ("--rig", "--plan", "--sample-id"):
         if getattr(args, _field(option)) is None:
@@ -143,7 +149,7 @@ def _add_one(args) -> int:
         if getattr(args, _field(option)) not in (None, False):
             raise ConfigError("command line", option, "left out with queue add (the server runs the capture)",
                               getattr(args, _field(option)))
-    server = server_for(load_checked_rig(args.rig))
+    server = _server_of(args.rig)
     if server is None:
         raise GoniofrostError(f"--rig: no goniofrost serve holds the devices of {args.rig}: start one "
                               f"(goniofrost serve --rig {args.rig} --root DIR), or list the sample in a queue file "
@@ -151,12 +157,8 @@ def _add_one(args) -> int:
     root, plan = server.root.resolve(), Path(args.plan).resolve()
     if not plan.is_relative_to(root):
         raise ConfigError("command line", "--plan", f"a plan file under the server's root {root}", args.plan)
-    body = {"plan": str(plan.relative_to(root)), "sample_id": args.sample_id, "material": args.material,
-            "operator": args.operator or server.who("goniofrost queue"), "note": args.note,
-            "target_error": args.target_error}
-    if args.confidence is not None:
-        body["confidence"] = args.confidence
-    entry = server.call("POST", "/api/queue", body)
-    print(f"queue: added {args.sample_id} (id {entry['id']}) to the queue of the server at {server.url}; "
+    entry_id = _post_entry(server, str(plan.relative_to(root)), args.sample_id, args.material, args.operator,
+                           args.note, args.target_error, args.confidence)
+    print(f"queue: added {args.sample_id} (id {entry_id}) to the queue of the server at {server.url}; "
           f"its session in {root / 'sessions'}")
     return 0
