@@ -18,8 +18,9 @@ LAMP_KINDS = ("lamp_dim", "lamp_cut")  # the lamp at ``level`` of its intensity,
 # the interlock input of the Modbus drive ``axis`` reads 0; that drive answers nothing
 TIMED_KINDS = LAMP_KINDS + ("interlock_open", "silent")
 SIM_FAULT_KINDS = DRILL_KINDS + TIMED_KINDS  # every kind a rig file's sim.faults may name
-# the kinds after which a driver waits for a reply that does not (wholly) come
-SILENT_KINDS = ("no_reply", "drop_byte", "disconnect", "miss_reply", "interlock_open", "silent")
+# the kinds after which a driver waits out its reply timeout: a reply that does not (wholly) come,
+# or a damaged one (pymodbus drops a Modbus TCP reply with a wrong header and waits on)
+SILENT_KINDS = ("no_reply", "bad_checksum", "drop_byte", "disconnect", "miss_reply", "interlock_open", "silent")
 
 
 def check_kind(kind: str, kinds: tuple[str, ...] = INJECTABLE_KINDS) -> None:

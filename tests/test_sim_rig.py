@@ -67,8 +67,8 @@ def test_endpoints_and_resolved_sections(raw_rig):
 def test_twins_reply_timeouts_without_the_slow_host_setting_and_with_a_drill(raw_rig, monkeypatch):
     """Without the slow-host setting a Dynamixel twin's driver waits 300 ms (it answers from a thread
     of this process, not a real bus's 100 ms), the others their drivers' defaults; with it, an axis
-    drilled to fall silent keeps that timeout, so its drilled silence times out as promptly, while an
-    axis drilled to stall (it still answers) gets the slow host's."""
+    drilled to fall silent or to damage its replies keeps that timeout, so its drill times out as
+    promptly, while an axis drilled to stall (it still answers) gets the slow host's."""
     import copy
 
     from sim.rig import SLOW_HOST_ENV
@@ -80,10 +80,11 @@ def test_twins_reply_timeouts_without_the_slow_host_setting_and_with_a_drill(raw
     monkeypatch.setenv(SLOW_HOST_ENV, "2500")
     raw = copy.deepcopy(raw_rig)
     raw.setdefault("sim", {})["faults"] = [{"axis": "sample_yaw", "kind": "no_reply", "at_sample": 3},
-                                           {"axis": "camera_arm", "kind": "stall", "at_sample": 1}]
+                                           {"axis": "camera_arm", "kind": "stall", "at_sample": 1},
+                                           {"axis": "sample_tilt", "kind": "bad_checksum", "at_sample": 2}]
     with SimulatedRig(checked(raw), speedup=50) as rig:
         assert {name: a.driver.get("reply_timeout_ms") for name, a in rig.resolved_rig().axes.items()} == \
-            {"camera_arm": 2500.0, "sample_yaw": 300.0, "sample_tilt": 2500.0}
+            {"camera_arm": 2500.0, "sample_yaw": 300.0, "sample_tilt": None}
 
 
 def test_a_rig_file_s_own_reply_timeout_wins_over_the_twin_s_default(raw_rig):
