@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from goniofrost.capture.journal import Journal, SampleRecord
-from goniofrost.capture.records import EventKind, RunEnd, RunStatus
+from goniofrost.capture.records import EventKind, RunEnd, RunStart, RunStatus
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -35,7 +35,8 @@ class ScriptedSession:
 
     def start_run(self) -> None:
         done = len(self.journal.done_indices())
-        self.start = self.journal.start_run("capture", len(self.samples), done)
+        self.start = RunStart(self.journal.next_run(), "capture", time.time(), len(self.samples), done)
+        self.journal.start_run(self.start)
         self.journal.add_event(EventKind.SESSION, f"capture run {self.start.run} started")
 
     def calibrate(self) -> None:

@@ -445,6 +445,31 @@ def test_a_queues_white_reference_re_measured_counts_as_calibration_time():
     assert SessionStats(phase_s={"calibration": 4.5, "samples": 9.0}).calibration_s == 4.5
 
 
+def test_the_journal_holds_exactly_the_records_the_run_emits(table, tmp_path):
+    """The engine core writes nothing itself: its journal is a subscriber (RunJournal) whose runs,
+    steps and events are the records another subscriber is handed, field for field."""
+    from goniofrost.capture.plan_runner import PlanRunner
+    from goniofrost.capture.records import Event, RunEnd, RunStart, StepDone, StepStarting
+
+    journal = Journal.create(tmp_path / "session.sqlite", {"plan": "test"})
+    seen = []
+    runner = PlanRunner(rig(table), tmp_path, journal=journal, program="rig move")
+    runner.subscribe(seen.append)
+    runner.execute_plan(hand_plan())
+    kinds = [type(r).__name__ for r in seen if not isinstance(r, (StepStarting, StepDone))]
+    assert kinds == ["RunStart", "Event", "SafePoint", "SafePoint", "SafePoint", "PlanEnded", "RunEnd", "Event"]
+    start, end = next(r for r in seen if isinstance(r, RunStart)), next(r for r in seen if isinstance(r, RunEnd))
+    assert journal.runs() == [(start, end)] and (start.run, start.program, end.status) == (1, "rig move",
+                                                                                            RunStatus.FINISHED)
+    events = [(e["kind"], e["message"], e["data"]) for e in journal.events()]
+    assert events == [(r.kind, r.message, r.data) for r in seen if isinstance(r, Event)] == [
+        (EventKind.SESSION, "rig move run 1 started with 0 of 0 samples done", {"run": 1}),
+        (EventKind.SESSION, "rig move finished", {"status": "finished"})]
+    assert [(s["kind"], s["status"]) for s in journal.steps()] == [("Move", "done"), ("LampOn", "done"),
+                                                                   ("LampOff", "done")]
+    journal.close()
+
+
 def test_a_subscriber_s_error_is_a_warning_and_a_required_one_s_stops_the_run_safely(table, tmp_path):
     from goniofrost.capture.plan_runner import PlanRunner, StepDone, SubscriberWarning
 

@@ -294,17 +294,19 @@ class Journal:
     def add_device_log(self, device_log) -> None:
         """Store the records ``device_log`` (``goniofrost.rig.device_log.DeviceLog``) collected since
         the last call as ``device`` events."""
-        for record in device_log.drain():
+        self.add_device_records(device_log.drain())
+
+    def add_device_records(self, records) -> None:
+        """Store ``logging.LogRecord``s of the drivers as ``device`` events."""
+        for record in records:
             self.add_event(EventKind.DEVICE, record.getMessage(), data={"logger": record.name, "level": record.levelname})
 
-    def start_run(self, program: str, samples_planned: int, samples_done: int) -> RunStart:
-        """Record that a run of ``program`` begins (durably); return its RunStart."""
-        start = RunStart(self.next_run(), program, time.time(), int(samples_planned), int(samples_done))
+    def start_run(self, start: RunStart) -> None:
+        """Record that run ``start.run`` (``next_run()``) begins, durably."""
         with self._transaction() as db:
             db.execute("INSERT INTO runs (run, program, started_utc, samples_planned, samples_done) "
                        "VALUES (?, ?, ?, ?, ?)", (start.run, start.program, start.started_utc,
                                                   start.samples_planned, start.samples_done))
-        return start
 
     def end_run(self, end: RunEnd) -> None:
         """Record how run ``end.run`` ended (durably); a run ends once."""

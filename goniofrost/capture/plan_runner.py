@@ -23,10 +23,10 @@ from goniofrost.core.errors import GoniofrostError, OutputError
 from goniofrost.rig.device_log import DeviceLog
 from goniofrost.capture.executor import StepExecutor
 from goniofrost.rig.stop import stop_text
-from goniofrost.capture.records import (EventKind, PlanEnded, RunEnd, RunStart, RunStatus, SafePoint, StepDone,
-                                        StepFailed, StepStarting)
+from goniofrost.capture.records import (DeviceMessages, Event, EventKind, PlanEnded, RunEnd, RunStart, RunStatus,
+                                        SafePoint, StepDone, StepFailed, StepStarting)
 from goniofrost.capture.signals import Deferral, RunStopped, SessionInterrupted, signals_raise
-from goniofrost.capture.step_journal import StepJournal
+from goniofrost.capture.run_journal import RunJournal
 from goniofrost.capture.steps import CHECKPOINTS, Move, Phase, step_summary
 
 __all__ = ["PlanRunner", "RunCount", "RunTexts", "SessionFault", "SessionInterrupted", "StepDone"]
@@ -66,8 +66,8 @@ class RunCount(NamedTuple):
 
 class PlanRunner:
     """Run plans on ``hardware`` (a ``goniofrost.rig.contract.Hardware``); files go under
-    ``folder``. ``journal``: a ``Journal`` or None (no journal: the run's records stay in
-    ``run_start``/``run_end`` only); ``device_log``: the caller's (covering connect and release
+    ``folder``. ``journal``: a ``Journal`` (a ``RunJournal`` subscriber writes the run into it) or
+    None (the run's records go to the subscribers and stay in ``run_start``/``run_end``); ``device_log``: the caller's (covering connect and release
     too), else the runner captures its own; ``program``: the name its runs are journaled under;
     ``texts``: its messages' words; ``count()``: its RunCount (default: a plan without samples);
     ``samples_only_safe``: the run may pause (a SafePoint) only before a sample's first move
@@ -88,7 +88,7 @@ class PlanRunner:
         self._stopped: tuple = ([], None)  # (AxisStop list, lamp error) of the abort, if any
         self._subscribers: list = []       # (callback, required): see subscribe
         if journal is not None:
-            self.subscribe(StepJournal(journal), required=True)
+            self.subscribe(RunJournal(journal), required=True)
 
     def subscribe(self, callback: Callable[[Any], None], required: bool = False) -> None:
         """Hand every record of a run to ``callback``, in the order subscribed. A required one (the
@@ -102,12 +102,11 @@ class PlanRunner:
         """Run ``plan`` to its end; return what it returns (see module doc for how it may end).
         ``ending(value)``: (status, reason) of a run whose plan returned ``value`` (default: finished)."""
         count = self.count()
-        if self.journal is not None:
-            self.run_start = self.journal.start_run(self.program, count.planned, count.captured)
-        else:
-            self.run_start = RunStart(0, self.program, time.time(), count.planned, count.captured)
-        self.journal_event(EventKind.SESSION, f"{self.program} run {self.run_start.run} started with "
-                           f"{count.captured} of {count.planned} samples done", data={"run": self.run_start.run})
+        run = self.journal.next_run() if self.journal is not None else 0
+        self.run_start = RunStart(run, self.program, time.time(), count.planned, count.captured)
+        self._emit(self.run_start, critical=False)
+        self._event(EventKind.SESSION, f"{self.program} run {run} started with {count.captured} of {count.planned} "
+                    f"samples done", data={"run": run})
         with signals_raise() as deferral, self._device_log_scope():
             self._deferral = deferral
             try:
@@ -117,19 +116,16 @@ class PlanRunner:
                 self._journal_device_log(quiet=True)
         status, reason = ending(value) if ending else (RunStatus.FINISHED, f"{self.program} finished")
         self._end_run(status, reason)
-        self.journal_event(EventKind.SESSION, reason, data={"status": status.value})
+        self._event(EventKind.SESSION, reason, data={"status": status.value})
         return value
 
-    def journal_event(self, kind: EventKind, message: str, axis=None, data=None) -> None:
-        if self.journal is not None:
-            self.journal.add_event(kind, message, axis=axis, data=data)
+    def _event(self, kind: EventKind, message: str, axis=None, data=None) -> None:
+        self._emit(Event(kind, message, axis, data), critical=False)
 
     def _end_run(self, status: RunStatus, reason: str, **stopped) -> None:
         count = self.count()
         self.run_end = RunEnd(self.run_start.run, status, reason, count.planned, count.captured, count.batches,
                               self.run_start.started_utc, time.time(), **stopped)
-        if self.journal is not None:
-            self.journal.end_run(self.run_end)
         self._emit(self.run_end, critical=False)
 
     def _drive(self, plan):
@@ -140,7 +136,6 @@ class PlanRunner:
 
         step = result = None
         try:
-            self._emit(self.run_start, critical=False)
             while True:
                 self.check_stop_request()
                 try:
@@ -265,11 +260,11 @@ class PlanRunner:
             try:
                 self._emit(StepFailed(step, "interrupted" if kind is EventKind.INTERRUPTED else "failed", detail),
                            critical=False, optional=False)
-                self.journal_event(kind, detail, axis=axis, data=data)
-                self.journal_event(EventKind.STOP, stop_text(stops), data={"stops": data["stops"]})
-                self.journal_event(EventKind.LAMP, "lamp off" if lamp_error is None else
-                                   f"the lamp did not confirm it is off ({lamp_error})",
-                                   data={"off": lamp_error is None, "error": lamp_error})
+                self._event(kind, detail, axis=axis, data=data)
+                self._event(EventKind.STOP, stop_text(stops), data={"stops": data["stops"]})
+                self._event(EventKind.LAMP, "lamp off" if lamp_error is None else
+                            f"the lamp did not confirm it is off ({lamp_error})",
+                            data={"off": lamp_error is None, "error": lamp_error})
                 self._end_run(status, text, detail=detail, axis=axis, plan_index=index, stops=tuple(stops),
                               lamp_off=lamp_error is None)
             except Exception as exc:  # noqa: BLE001 - the original error matters more
@@ -307,10 +302,13 @@ class PlanRunner:
 
         ``quiet``: on the way out of a failed run, never mask the original error.
         """
-        if self.journal is None:
+        if self.journal is None:  # nobody keeps them: the caller's device log keeps them
+            return
+        records = tuple(self._device_log.drain())
+        if not records:
             return
         try:
-            self.journal.add_device_log(self._device_log)
+            self._emit(DeviceMessages(records), critical=False)
         except Exception as exc:  # noqa: BLE001 - only reached with quiet=True re-raising below
             if not quiet:
                 raise

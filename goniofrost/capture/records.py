@@ -273,6 +273,24 @@ class Suspension:
 
 
 @dataclass(frozen=True)
+class Event:
+    """What a run met or did, for the journal's events: ``kind`` an EventKind, ``message`` words
+    for people, ``axis`` the axis concerned, ``data`` the fields readers read."""
+
+    kind: EventKind
+    message: str
+    axis: str | None = None
+    data: dict | None = None
+
+
+@dataclass(frozen=True)
+class DeviceMessages:
+    """What the drivers logged since the last step (retries, failed stops): ``logging.LogRecord``s."""
+
+    records: tuple
+
+
+@dataclass(frozen=True)
 class SafePoint:
     """The run may pause before ``step``: nothing is under way (a session's suspenders wait here,
     a simulated rig arms its drills). Handed to subscribers outside the journal's critical section."""

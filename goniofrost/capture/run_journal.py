@@ -1,22 +1,25 @@
-"""The journal as a subscriber of a run's records: its ``steps`` rows, samples and calibration.
+"""The journal as a subscriber of a run's records: its runs, steps, events, samples and calibration.
 
-``StepJournal`` is handed every record the engine core (``goniofrost.capture.plan_runner``)
-emits and keeps one ``steps`` row per step: ``running`` at ``StepStarting``, ``done`` with the
-step's summary at ``StepDone``, ``failed`` or ``interrupted`` at ``StepFailed``. A ``Commit``'s
-sample (stamped with its commit time) and a ``SaveCalibration``'s record are stored in the same
-transaction as their step's row, so a kill never leaves one without the other.
+``RunJournal`` is handed every record the engine core (``goniofrost.capture.plan_runner``) emits
+and writes it into the journal (the core itself writes nothing): a ``runs`` row at ``RunStart``,
+its end at ``RunEnd``; one ``steps`` row per step (``running`` at ``StepStarting``, ``done`` with the step's
+summary at ``StepDone``, ``failed`` or ``interrupted`` at ``StepFailed``); an event per ``Event``
+and per driver message (``DeviceMessages``). A ``Commit``'s sample (stamped with its commit time)
+and a ``SaveCalibration``'s record are stored in the same transaction as their step's row, so a
+kill never leaves one without the other.
 """
 from __future__ import annotations
 
 import dataclasses
 import time
 
-from goniofrost.capture.records import NotMeasuredRecord, RunStart, StepDone, StepFailed, StepStarting
+from goniofrost.capture.records import (DeviceMessages, Event, NotMeasuredRecord, RunEnd, RunStart, StepDone,
+                                        StepFailed, StepStarting)
 from goniofrost.capture.steps import Commit, SaveCalibration, step_detail
 
 
-class StepJournal:
-    """Journal the steps of the runs of ``journal`` (a ``Journal``)."""
+class RunJournal:
+    """Journal the runs of ``journal`` (a ``Journal``)."""
 
     def __init__(self, journal) -> None:
         self.journal = journal
@@ -25,7 +28,14 @@ class StepJournal:
 
     def __call__(self, record) -> None:
         if isinstance(record, RunStart):
+            self.journal.start_run(record)
             self.run = record.run
+        elif isinstance(record, RunEnd):
+            self.journal.end_run(record)
+        elif isinstance(record, Event):
+            self.journal.add_event(record.kind, record.message, axis=record.axis, data=record.data)
+        elif isinstance(record, DeviceMessages):
+            self.journal.add_device_records(record.records)
         elif isinstance(record, StepStarting):
             step = record.step
             self.row = self.journal.start_step(self.run, type(step).__name__, getattr(step, "index", None),
