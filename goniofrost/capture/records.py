@@ -197,7 +197,8 @@ class NotMeasuredRecord:
     ``snr`` (3,) the SNR reached per channel; ``min_snr`` the rig's minimum; ``longest_exposure_s``
     the longest exposure taken; ``lower_limit``, ``upper_limit`` (3,) the BRDF in 1/sr each channel
     lies between (too dark: 0 and an upper limit; saturated: a lower limit and infinity, None in
-    ``to_dict``); the other fields as in SampleRecord.
+    ``to_dict``); the other fields as in SampleRecord (repeated, not inherited: a base class's
+    fields would come first, and so would change the order of the journal's and reports' fields).
     """
 
     plan_index: int
