@@ -51,6 +51,22 @@ def test_lookup_reads_the_cell_of_each_direction_pair():
     np.testing.assert_array_equal(P.lookup(values, GRID, w_i, w_o), values[cells])
 
 
+def test_a_sphere_s_cells_are_those_of_its_directions_and_shared_read_only():
+    """Every render of a grid, light and size reads one cached view: each pixel's cell is the
+    lookup of its own light and view directions, and no render can change it."""
+    light = (0.0, 0.6, 0.8)
+    cells, lit, cos_i = P.sphere_view(GRID, light, 32)
+    assert P.sphere_view(GRID, light, 32)[0] is cells and not cells.flags.writeable
+    normals, mask = P.sphere_normals(32)
+    frame = np.stack([*P.tangent_frame(normals), normals], -2)
+    w_i, w_o = frame @ np.array(light), frame @ np.array([0.0, 0.0, 1.0])
+    index = np.arange(GRID.size, dtype=np.float64)[:, None].repeat(3, axis=1)  # each cell's own number
+    np.testing.assert_array_equal(cells[lit], P.lookup(index, GRID, w_i, w_o)[lit][:, 0])
+    np.testing.assert_array_equal(cos_i, np.clip(w_i[..., 2], 0, None))
+    with pytest.raises(ValueError, match="read-only"):
+        cells[0, 0] = 1
+
+
 def test_rendering_snr_is_20_db_for_a_10_percent_scale_and_inf_for_identical():
     ref = P.render_set(lambertian(), GRID, size=48)
     assert P.rendering_snr_db(ref, 0.9 * ref) == pytest.approx(20.0, abs=1e-9)

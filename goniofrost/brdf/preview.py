@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -90,13 +91,11 @@ def lookup(brdf: np.ndarray, grid: MerlGrid, w_i: np.ndarray, w_o: np.ndarray) -
     return np.where(np.isfinite(values), values, 0.0)
 
 
-def render_sphere(brdf: np.ndarray, grid: MerlGrid, light, size: int = 192) -> np.ndarray:
-    """HDR radiance image (size, size, 3) of a sphere lit by one directional light.
-
-    ``brdf`` is (grid.size, 3) in 1/sr (NaN = missing); ``light`` is (direction, irradiance).
-    Pixels off the sphere or facing away from the light are 0.
-    """
-    direction, irradiance = light
+@lru_cache(maxsize=16)
+def sphere_view(grid: MerlGrid, direction: tuple, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a sphere under the light from ``direction`` (3,) shows, whatever its BRDF: each
+    pixel's grid cell (int64 (size, size)), whether it is lit and seen (bool), and cos theta_i
+    (clipped at 0). Read-only and cached: every capture's preview on a grid asks the same."""
     to_light = np.asarray(direction, dtype=np.float64)
     to_light = to_light / np.linalg.norm(to_light)
     normals, mask = sphere_normals(size)
@@ -105,22 +104,35 @@ def render_sphere(brdf: np.ndarray, grid: MerlGrid, light, size: int = 192) -> n
     w_i = frame @ to_light                                       # light in each pixel's local frame
     w_o = frame @ np.array([0.0, 0.0, 1.0])                      # the camera looks along -z
     lit = mask & (w_i[..., 2] > 0) & (w_o[..., 2] > 0)
-    radiance = lookup(brdf, grid, w_i, w_o) * (irradiance * np.clip(w_i[..., 2], 0, None))[..., None]
+    view = (grid.angles_to_flat(*dirs_to_half_diff(w_i, w_o)), lit, np.clip(w_i[..., 2], 0, None))
+    for array in view:
+        array.flags.writeable = False
+    return view
+
+
+def _cell_values(values: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """``values`` (grid.size, 3) at ``cells``; missing (NaN) -> 0."""
+    found = values[cells]
+    return np.where(np.isfinite(found), found, 0.0)
+
+
+def render_sphere(brdf: np.ndarray, grid: MerlGrid, light, size: int = 192) -> np.ndarray:
+    """HDR radiance image (size, size, 3) of a sphere lit by one directional light.
+
+    ``brdf`` is (grid.size, 3) in 1/sr (NaN = missing); ``light`` is (direction, irradiance).
+    Pixels off the sphere or facing away from the light are 0.
+    """
+    direction, irradiance = light
+    cells, lit, cos_i = sphere_view(grid, tuple(np.asarray(direction, dtype=np.float64).tolist()), size)
+    radiance = _cell_values(brdf, cells) * (irradiance * cos_i)[..., None]
     return np.where(lit[..., None], radiance, 0.0)
 
 
 def render_values(values: np.ndarray, grid: MerlGrid, light, size: int = 192) -> np.ndarray:
     """Per-pixel cell values (size, size) of a sphere under one light: the channel mean of
     ``values`` (grid.size, 3) at each lit pixel's cell (NaN -> 0), 0 elsewhere. No shading."""
-    direction, _ = light
-    to_light = np.asarray(direction, dtype=np.float64)
-    to_light = to_light / np.linalg.norm(to_light)
-    normals, mask = sphere_normals(size)
-    tangent, bitangent = tangent_frame(normals)
-    frame = np.stack([tangent, bitangent, normals], -2)
-    w_i, w_o = frame @ to_light, frame @ np.array([0.0, 0.0, 1.0])
-    lit = mask & (w_i[..., 2] > 0) & (w_o[..., 2] > 0)
-    return np.where(lit, lookup(values, grid, w_i, w_o).mean(axis=-1), 0.0)
+    cells, lit, _ = sphere_view(grid, tuple(np.asarray(light[0], dtype=np.float64).tolist()), size)
+    return np.where(lit, _cell_values(values, cells).mean(axis=-1), 0.0)
 
 
 def log_error(estimate: np.ndarray, reference: np.ndarray, grid: MerlGrid) -> np.ndarray:
@@ -128,10 +140,13 @@ def log_error(estimate: np.ndarray, reference: np.ndarray, grid: MerlGrid) -> np
     either is missing (w = clip(cos theta_i cos theta_o, 0.01, 1), eps = 0.001, as training)."""
     from goniofrost.core.grid import cosine_weight
 
-    w = np.full(grid.size, np.nan)
-    w[grid.valid_cells] = cosine_weight(grid)
+    cells = grid.valid_cells   # the others stay NaN: only valid cells are weighed
+    w = cosine_weight(grid)[:, None]
+    error = np.full((grid.size, 3), np.nan)
     with np.errstate(invalid="ignore"):
-        return np.abs(np.log(w[:, None] * np.maximum(reference, 0) + EPS) - np.log(w[:, None] * np.maximum(estimate, 0) + EPS))
+        error[cells] = np.abs(np.log(w * np.maximum(reference[cells], 0) + EPS)
+                              - np.log(w * np.maximum(estimate[cells], 0) + EPS))
+    return error
 
 
 def render_set(brdf: np.ndarray, grid: MerlGrid, lights=DEFAULT_LIGHTS, size: int = 192) -> np.ndarray:
