@@ -337,3 +337,13 @@ def test_plan_max_error_chooses_its_length_on_the_bound_a_capture_stops_on(model
     assert capsys.readouterr().err.strip().endswith("--confidence applies to --max-error with --selector bayes "
                                                     "without --usage (the confidence of the bound the plan's length "
                                                     "is chosen on)")
+
+
+@pytest.mark.parametrize("confidence", [0.5, 0.8, 0.9, 0.95, 0.99, 0.9999])
+def test_the_scores_a_confidence_needs_are_the_fewest_whose_quantile_is_finite(confidence):
+    from goniofrost.frost.confidence import conformal_quantile, scores_needed
+
+    n = scores_needed(confidence)
+    assert n == round(confidence / (1 - confidence))   # 0.9999 needs 9999, not the float's 10000
+    assert conformal_quantile(list(range(n)), confidence) == n - 1
+    assert n == 1 or conformal_quantile(list(range(n - 1)), confidence) == math.inf

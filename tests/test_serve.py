@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import re
 import time
 from pathlib import Path
 
@@ -304,9 +305,13 @@ def test_no_token_a_wrong_token_another_origin_and_malformed_requests_change_not
         (server.post("/api/move", {"targets": {"camera_arm": 200}}), 422, "targets.camera_arm"),
         (server.post("/api/queue", None, data=b"{" + b" " * 20000 + b"}",
                      headers={**server.auth, "Content-Type": "application/json"}), 413, "body"),
+        (server.post("/api/queue", entry(plan_file, target_error=0.5, confidence=0.9999)), 422, "confidence"),
     ]
     assert [(r.status_code, r.json()["field"]) for r, _, _ in refusals] == [(s, f) for _, s, f in refusals]
     assert "limits [8, 172]" in refusals[10][0].json()["error"]
+    assert re.fullmatch(r"confidence: expected at most 0\.\d{3} with this model \(its bound is calibrated on \d+ "
+                        r"held-out training materials; 0\.9999 needs 9999\), found 0\.9999",
+                        refusals[-1][0].json()["error"]), refusals[-1][0].json()["error"]
     assert server.get("/").status_code == 200  # the instrument's page, beside the API
     assert "<table id=\"sessions\">" in server.get("/sessions").text  # the monitor's list of the root's sessions
     foreign = requests.get(server.url + "/api/status", headers={"Host": "evil.example"}, timeout=30)

@@ -192,7 +192,7 @@ def journal_device_log(journal, device_log) -> None:
 def check_target(inputs, target_error, confidence: float = DEFAULT_CONFIDENCE) -> None:
     """A target error must be a number > 0, the confidence in (0, 1) and one the model's calibrated
     bound can give, and the plan a Bayesian plan measured in batches."""
-    from goniofrost.frost.confidence import max_confidence, unavailability
+    from goniofrost.frost.confidence import max_confidence, scores_needed, unavailability
     from goniofrost.frost.prediction import calibration_of
 
     if target_error is None:
@@ -222,7 +222,7 @@ def check_target(inputs, target_error, confidence: float = DEFAULT_CONFIDENCE) -
         what = "this plan's scene" if inputs.scene is not None else "this model"
         raise ConfigError("command line", "--confidence", f"at most {max_confidence(calibration['bound']):.3f} with "
                           f"{what} (its bound is calibrated on {n} held-out training materials; "
-                          f"{confidence:g} needs {math.ceil(confidence / (1 - confidence) - 1e-9)})", confidence)
+                          f"{confidence:g} needs {scores_needed(confidence)})", confidence)
 
 
 def csv_batches(spec) -> tuple:

@@ -487,6 +487,15 @@ def max_confidence(bound_calibration: dict) -> float:
     return n / (n + 1)
 
 
+def scores_needed(confidence: float) -> int:
+    """The fewest held-out scores whose ``conformal_quantile`` at ``confidence`` (in (0, 1)) is
+    finite: about c / (1 - c), found with the quantile's own arithmetic (0.9999 needs 9999)."""
+    n = max(1, math.floor(confidence / (1 - confidence)) - 1)
+    while math.ceil((n + 1) * confidence - 1e-9) > n:
+        n += 1
+    return n
+
+
 def _at_m(bound_calibration: dict, key: str, m) -> np.ndarray:
     ms = np.log(np.asarray(bound_calibration["m"], dtype=np.float64))
     return np.interp(np.log(np.asarray(m, dtype=np.float64)), ms, np.asarray(bound_calibration[key], dtype=np.float64))
@@ -577,5 +586,5 @@ def unavailability(calibration: dict, confidence: float) -> str | None:
     if conformal_quantile(bound["scores"], confidence) == math.inf:
         n = len(bound["scores"])
         return (f"the model's {n} held-out training materials support a confidence of at most "
-                f"{max_confidence(bound):.3f}; {confidence:g} needs {math.ceil(confidence / (1 - confidence) - 1e-9)}")
+                f"{max_confidence(bound):.3f}; {confidence:g} needs {scores_needed(confidence)}")
     return None

@@ -10,7 +10,8 @@ import math
 import re
 from pathlib import Path
 
-from goniofrost.core.errors import GoniofrostError
+from goniofrost.capture.options import DEFAULT_CONFIDENCE
+from goniofrost.core.errors import ConfigError, GoniofrostError
 
 # field -> (JSON types, required, description): the queue entry (the API schema is built from it)
 ENTRY_SCHEMA = {
@@ -21,8 +22,9 @@ ENTRY_SCHEMA = {
     "operator": ("string", False, "who measures (one line)"),
     "note": ("string", False, "a note kept with the session (one line)"),
     "target_error": ("number", False, "stop once the log-relative MSE is at most this (> 0; null: the whole plan)"),
-    "confidence": ("number", False, "the probability the target is met (0 < c < 1; default 0.9)"),
+    "confidence": ("number", False, f"the probability the target is met (0 < c < 1; default {DEFAULT_CONFIDENCE:g})"),
 }
+OPTION_FIELDS = {"--target-error": "target_error", "--confidence": "confidence"}  # capture's option -> field
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 
 
@@ -57,7 +59,6 @@ def check_entry(body, root: Path, rig_path: Path, rig) -> dict:
     """The queue row of the request ``body``; RequestError naming the first field that is wrong."""
     from goniofrost.capture.inputs import load_inputs
     from goniofrost.capture.runner import check_target
-    from goniofrost.capture.target import DEFAULT_CONFIDENCE
 
     if not isinstance(body, dict):
         raise RequestError("body", "body: expected a JSON object")
@@ -80,8 +81,11 @@ def check_entry(body, root: Path, rig_path: Path, rig) -> dict:
         raise RequestError("confidence", f"confidence: expected a number between 0 and 1, found {confidence!r}")
     try:
         check_target(inputs, target, confidence)
-    except GoniofrostError as exc:
-        raise RequestError("target_error" if "batch_ends" in str(exc) else "confidence", str(exc)) from None
+    except ConfigError as exc:  # the capture's words name its options; a client's request names fields
+        field = OPTION_FIELDS.get(exc.keypath) if exc.source == "command line" else None
+        if field is not None:
+            raise RequestError(field, f"{field}: expected {exc.expected}, found {exc.found!r}") from None
+        raise RequestError("target_error", f"target_error: {exc}") from None
     return entry | {"plan": str(plan.relative_to(root.resolve())), "target_error": target,
                     "confidence": float(confidence)}
 
