@@ -120,7 +120,7 @@ def test_align_recovers_the_injected_misalignment_and_writes_the_file(tmp_path, 
 
     rig = small_misaligned_rig(tmp_path / "rig.yaml")
     out = tmp_path / "ALIGNMENT.json"
-    assert main(["align", "--rig", str(rig), "--out", str(out), "--no-progress"]) == 0
+    assert main(["align", "--rig", str(rig), "--out", str(out), "--no-progress", "--speedup", "100"]) == 0
     doc = json.loads(out.read_text())
     found = np.array([doc["offsets_deg"][n] for n in ("camera_arm", "sample_yaw", "sample_tilt")])
     assert np.all(np.abs(found - BUILT_WRONG) < 0.05), found
@@ -175,7 +175,7 @@ def test_align_with_a_camera_unlike_its_model_fails_clearly_and_writes_nothing(t
 
     with pytest.raises(AlignmentError, match=r"^align: the fitted offsets leave the marker corners \d+\.\d\d px RMS "
                                              r"from the model \(limit 1 px\): the camera model"):
-        align(rig, out, progress=False, sim=SimOptions(on_ready=longer_lens), devices=rig_devices)
+        align(rig, out, progress=False, sim=SimOptions(speedup=100, on_ready=longer_lens), devices=rig_devices)
     assert not out.exists()
 
 
@@ -214,7 +214,7 @@ def _start_align(rig, out, frames):
     import sys
 
     return subprocess.Popen([sys.executable, "-m", "goniofrost", "align", "--rig", str(rig), "--out", str(out),
-                             "--frames", str(frames), "--no-progress", "--speedup", "2"],
+                             "--frames", str(frames), "--no-progress", "--speedup", "10"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=Path(__file__).resolve().parents[1])
 

@@ -173,7 +173,7 @@ def test_align_recovers_the_misalignment_through_the_emulated_camera(tmp_path):
 
     rig = small_misaligned_rig(tmp_path / "rig.yaml")
     rig.write_text(yaml.safe_dump(pylon_version_of(yaml.safe_load(rig.read_text())), sort_keys=False))
-    doc = align(rig, tmp_path / "ALIGNMENT.json", progress=False, devices=rig_devices)
+    doc = align(rig, tmp_path / "ALIGNMENT.json", progress=False, devices=rig_devices, sim=SimOptions(speedup=100))
     found = np.array([doc["offsets_deg"][n] for n in ("camera_arm", "sample_yaw", "sample_tilt")])
     assert np.all(np.abs(found - BUILT_WRONG) < 0.05), found
     assert doc["images"]["used"] == doc["images"]["poses"]

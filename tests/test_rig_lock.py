@@ -191,7 +191,8 @@ def test_rig_stop_stops_a_running_capture_with_its_own_report_and_resume_complet
           f"gone after {stopped_s:.2f} s (load {os.getloadavg()[0]:.1f})")
     assert rig_holder(load_checked_rig(rig)) is None  # the lock went with the process
 
-    assert main([*args, "--resume"]) == 0
+    assert args[-2:] == ["--speedup", "5"]   # slow enough to be stopped mid-run; the rest at 50
+    assert main([*args[:-1], "50", "--resume"]) == 0
     with Journal.open(session / "session.sqlite") as journal:
         runs = journal.runs()
     assert [end.status for _, end in runs] == [RunStatus.STOPPED_BY_OPERATOR, RunStatus.FINISHED]

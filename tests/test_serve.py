@@ -339,7 +339,7 @@ def test_a_paused_capture_survives_a_restart_and_kill_9_loses_and_repeats_no_sam
         resumed.close()
     killed_at = len(journal_rows(session))
     assert killed_at < M, "the capture ended before the kill: make M larger"
-    again = Server(rig, server.root)
+    again = Server(rig, server.root, speedup=100)   # the rest, without a kill to catch: at full speed
     try:
         done = again.wait(lambda: (q := again.get("/api/queue").json())[0]["state"] == "done" and q[0], "the resume")
         rows = journal_rows(session)
