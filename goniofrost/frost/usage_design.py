@@ -100,6 +100,23 @@ class SceneDesign:
     mix_spread: float | None = None
 
 
+@dataclass(frozen=True)
+class DesignChoice:
+    """The weights of one scene design with every default resolved
+    (``bayes_selection.design_options``): ``power`` p (None: no scene), ``spread`` t (of the
+    design's own part when mixed), ``floor`` F on the effective cells (0 none) and ``mix`` the
+    share a of MIX_DESIGN (0 none). ``key``: its calibration's key, which the plan records."""
+
+    power: float | None
+    spread: float = 0.0
+    floor: float = 0.0
+    mix: float = 0.0
+
+    @property
+    def key(self) -> tuple:
+        return design_key(self.power, self.spread, self.floor, self.mix)
+
+
 def band(m: int) -> tuple:
     """(last m of the band or None, p, t, F) of BANDS for a design of m samples."""
     if not isinstance(m, (int, np.integer)) or m < 1:
