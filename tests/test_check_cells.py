@@ -95,7 +95,7 @@ def trained(small_trained):
 def test_a_trained_model_chooses_valid_check_cells_outside_the_sentinels_and_the_inner_designs(trained):
     from test_frost import synthetic_tables
     from goniofrost.frost import calibration, noise
-    from goniofrost.frost.training import NOISE_FLOOR, _eigen_components, _map_and_gram, fit_model
+    from goniofrost.frost.training import NOISE_FLOOR, TrainingOptions, _eigen_components, _map_and_gram, fit_model
 
     model, _ = trained
     checked = prediction.checked_of(model)
@@ -121,7 +121,7 @@ def test_a_trained_model_chooses_valid_check_cells_outside_the_sentinels_and_the
                                   max(calibration.M_VALUES))
         assert not set(cells.tolist()) & set(np.asarray(design.rows).tolist())
     # deterministic: the same training, the same cells and calibration
-    again = fit_model(tables, names, GRID, k_max=30)
+    again = fit_model(tables, names, GRID, TrainingOptions(k_max=30))
     assert prediction.checked_of(again) == checked
 
 

@@ -189,7 +189,7 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     every cell (rows=None: the arithmetic of models trained before, bit for bit)."""
     from goniofrost.frost import calibration
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     calls, pick = [], calibration.greedy_designs
 
@@ -201,7 +201,7 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     monkeypatch.setattr(calibration, "greedy_designs", recorded)
     allowed = candidate_mask_max_angle(model.grid, 40)
     tables, names = synthetic_tables(model.grid, 40, seed=3), [f"mat{i}" for i in range(40)]
-    rig_model = fit_model(tables, names, model.grid, k_max=30, sentinel_candidates=allowed)
+    rig_model = fit_model(tables, names, model.grid, TrainingOptions(k_max=30, sentinel_candidates=allowed))
     assert calls and all(np.array_equal(rows, np.flatnonzero(allowed)) for rows, _ in calls)
     assert all(allowed[picked].all() for _, designs in calls for picked in designs)
     # plan --rig's design of each model: the whole grid's lies beyond its calibration, the rig's within
@@ -210,5 +210,5 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     order = np.asarray(select_bayes(rig_model, 20, candidates=allowed).positions, dtype=np.int64)
     assert not confidence.design_outside(rig_model.noise["calibration"], design_error(rig_model, order), 20)
     calls.clear()
-    fit_model(synthetic_tables(model.grid, 20, seed=3), names[:20], model.grid, k_max=30)
+    fit_model(synthetic_tables(model.grid, 20, seed=3), names[:20], model.grid, TrainingOptions(k_max=30))
     assert calls and all(rows is None for rows, _ in calls)

@@ -123,7 +123,7 @@ def test_a_capture_flagged_by_its_sentinels_never_stops_on_the_bound():
 
 def test_a_trained_model_calibrates_its_sentinels(small_trained):
     from test_frost import synthetic_tables
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     model = small_trained[0]  # 40 synthetic materials (seed 3) on GRID
     spread = model.noise["calibration"]["bound"]["sentinel"]
@@ -133,8 +133,8 @@ def test_a_trained_model_calibrates_its_sentinels(small_trained):
     allowed = np.ones(GRID.n_valid, bool)
     allowed[[180, 199]] = False
     # 20 materials: the fewest whose held-out scores support the check at 0.95 (19), half the training of 40
-    rig_model = fit_model(synthetic_tables(GRID, 20, seed=3), [f"mat{i}" for i in range(20)], GRID, k_max=30,
-                          sentinel_candidates=allowed)
+    rig_model = fit_model(synthetic_tables(GRID, 20, seed=3), [f"mat{i}" for i in range(20)], GRID,
+                          TrainingOptions(k_max=30, sentinel_candidates=allowed))
     cells = rig_model.noise["calibration"]["bound"]["sentinel"]["cells"]
     assert cells == sentinel.cells(GRID, 3, allowed).tolist() and not {180, 199} & set(cells)
     design = np.array([0, 1, 2], dtype=np.int64)
