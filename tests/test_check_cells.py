@@ -146,7 +146,8 @@ def test_the_checked_calibration_is_used_when_the_check_cells_were_measured_and_
     errors = [sentinel.measured_check_errors(model, cells, table[cells], post.coefficients)[0]
               for cells in (sentinels, checks)]
     checked = prediction.checked_of(model)
-    predicted = prediction.predict(checked, clean, z2, energy, design.size, level, spread, coordinates, errors)
+    predicted = prediction.predict(checked, prediction.Features(clean, z2, energy, design.size, level, spread,
+                                                                coordinates, errors))
     centre = confidence._at_m(checked["bound"], "center", design.size)
     assert bound.median == pytest.approx(float(predicted * np.exp(centre)) + extra, rel=1e-12)
     assert bound.median != plain.median and bound.out_of_model == only_sentinels.out_of_model

@@ -12,7 +12,7 @@ import pytest
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import confidence, sentinel, stopping
 from goniofrost.frost.calibration import CvRecords, fit_calibration
-from goniofrost.frost.prediction import predict
+from goniofrost.frost.prediction import Features, predict
 
 from test_confidence import MS, synthetic_records
 
@@ -60,15 +60,15 @@ def test_the_sentinel_check_flags_five_percent_of_typical_materials_and_one_whos
     spread = calibration["bound"]["sentinel"]
     assert len(spread["scores"]) == 300 and len(spread["center"]) == len(MS)
     fresh = sentinel_records(4000, seed=2)
-    predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m)
+    predicted = predict(calibration, Features(fresh.design_error, fresh.z2, fresh.energy, fresh.m))
     looks = fresh.m >= confidence.FIRST_LOOK
     flagged = confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m, 0.95)
     any_look = flagged.reshape(4000, len(MS))[:, looks[:len(MS)]].any(axis=1).mean()
     assert 0.035 <= any_look <= 0.075, any_look  # simultaneous over the looks: about 1 - 0.95
     # the sentinels' error 20 x what the training materials show where they looked: flagged
     odd = sentinel_records(200, seed=3, odd=np.log(20.0))
-    assert confidence.sentinel_excess(calibration, odd.sentinel, predict(calibration, odd.design_error, odd.z2,
-                                      odd.energy, odd.m), odd.m, 0.95)[odd.m == 30].mean() > 0.9
+    odd_predicted = predict(calibration, Features(odd.design_error, odd.z2, odd.energy, odd.m))
+    assert confidence.sentinel_excess(calibration, odd.sentinel, odd_predicted, odd.m, 0.95)[odd.m == 30].mean() > 0.9
     # in error_bounds: a flag of its own, unchecked samples never flagged, a model without sentinels never
     b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95, check=fresh.sentinel)
     np.testing.assert_array_equal(b["out_of_model_sentinel"],

@@ -39,8 +39,8 @@ def _features(model, post, b, n_mat: int) -> np.ndarray:
 
 
 def _predict(calibration, feats: np.ndarray, m: int) -> np.ndarray:
-    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4],
-                              feats[:, 5:])
+    return prediction.predict(calibration, prediction.Features(feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
+                                                               feats[:, 4], feats[:, 5:]))
 
 
 def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +59,9 @@ def _bounds(model, feats: np.ndarray, m: int, level: float, check=None, check_ce
     checked = prediction.checked_of(model)
     checked_predicted = None
     if checked and check is not None and check_cells_error is not None:
-        checked_predicted = prediction.predict(checked, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
-                                               feats[:, 4], feats[:, 5:], np.column_stack([check, check_cells_error]))
+        checked_predicted = prediction.predict(checked, prediction.Features(
+            feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4], feats[:, 5:],
+            np.column_stack([check, check_cells_error])))
     return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check,
                                    checked_predicted=checked_predicted, design_error=feats[:, 0])
 

@@ -19,7 +19,7 @@ from goniofrost.frost.bayes_selection import greedy_design, greedy_designs
 from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
-from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
+from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES, Features,
                                          feature_matrix, feature_range_of, fit_coefficients, material_coordinates,
                                          material_features, predict,
                                          prequential_score, sample_level)
@@ -72,9 +72,9 @@ class CvRecords:
         first SAMPLE_FEATURES no coordinates)."""
         full = self.level is not None and (n_features is None or n_features > BASIC_FEATURES)
         coordinates = self.coordinates if n_features is None or n_features > SAMPLE_FEATURES else None
-        x = feature_matrix(self.design_error, self.z2, self.energy, self.m, m_range,
-                           self.level if full else None, self.spread if full else None, feature_range,
-                           coordinates if full else None)
+        x = feature_matrix(Features(self.design_error, self.z2, self.energy, self.m, self.level if full else None,
+                                    self.spread if full else None, coordinates if full else None),
+                           m_range, feature_range)
         return x if n_features is None else x[:, :n_features]
 
 
@@ -322,8 +322,8 @@ def prediction_quality(records: CvRecords, calibration: dict) -> dict:
     """Per m: mean actual error, Spearman(predicted, actual), fraction within a factor 2."""
     from scipy.stats import spearmanr
 
-    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m,
-                        records.level, records.spread, records.coordinates)
+    predicted = predict(calibration, Features(records.design_error, records.z2, records.energy, records.m,
+                                              records.level, records.spread, records.coordinates))
     out = {}
     for m in np.unique(records.m):
         sel = records.m == m

@@ -137,8 +137,8 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     checked_predicted = None
     if checked and complete:
         errors = [check, float(measured_check_errors(model, *checking, post.coefficients)[0])]
-        checked_predicted = float(prediction.predict(prediction.checked_of(model), clean, z2, energy, unique.size,
-                                                     level, spread, coordinates, errors))
+        checked_predicted = float(prediction.predict(prediction.checked_of(model), prediction.Features(
+            clean, z2, energy, unique.size, level, spread, coordinates, errors)))
     return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check,
                     checked_predicted, clean)
 
@@ -200,7 +200,8 @@ def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
     fitted = _calibration(model, scene) or prediction.UNCALIBRATED
     coordinates = prediction.material_coordinates(post.coefficients, [0, 1, 2], model.n_signals)
-    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread, coordinates))
+    predicted = float(prediction.predict(fitted, prediction.Features(clean, z2, energy, unique.size, level, spread,
+                                                                     coordinates)))
     extra = max(design - clean, 0.0)
     return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread, clean,
                                              coordinates)
