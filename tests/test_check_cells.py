@@ -171,11 +171,11 @@ def test_with_the_check_cells_the_bound_is_the_larger_of_the_two_calibrations_an
              "log_z2_max": [9.0, 9.0], "log_energy_max": [9.0, 9.0]}
     checked = {**plain, "center": [np.log(2.0)] * 2, "scale": [0.5, 0.5]}
     calibration = {"bound": plain, "checked": {"bound": checked}}
-    out = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=1.0)
+    out = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, confidence.Evidence(checked_predicted=1.0))
     assert float(out["median"]) == pytest.approx(2.0)  # the checked median
     # unchecked upper exp(q), checked 2 exp(q / 2): the larger
     assert float(out["upper"]) == pytest.approx(max(np.exp(q), 2 * np.exp(q / 2)))
-    low = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=0.01)
+    low = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, confidence.Evidence(checked_predicted=0.01))
     assert float(low["upper"]) == pytest.approx(np.exp(q))  # the checked bound lower: the unchecked one
     assert float(low["median"]) == pytest.approx(0.02)
     alone = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95)  # no checks measured

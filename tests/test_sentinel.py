@@ -70,7 +70,8 @@ def test_the_sentinel_check_flags_five_percent_of_typical_materials_and_one_whos
     odd_predicted = predict(calibration, Features(odd.design_error, odd.z2, odd.energy, odd.m))
     assert confidence.sentinel_excess(calibration, odd.sentinel, odd_predicted, odd.m, 0.95)[odd.m == 30].mean() > 0.9
     # in error_bounds: a flag of its own, unchecked samples never flagged, a model without sentinels never
-    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95, check=fresh.sentinel)
+    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95,
+                                confidence.Evidence(check=fresh.sentinel))
     np.testing.assert_array_equal(b["out_of_model_sentinel"],
                                   confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m,
                                                              sentinel.SENTINEL_CONFIDENCE))

@@ -62,8 +62,8 @@ def _bounds(model, feats: np.ndarray, m: int, level: float, check=None, check_ce
         checked_predicted = prediction.predict(checked, prediction.Features(
             feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4], feats[:, 5:],
             np.column_stack([check, check_cells_error])))
-    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check,
-                                   checked_predicted=checked_predicted, design_error=feats[:, 0])
+    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, confidence.Evidence(
+        check=check, checked_predicted=checked_predicted, design_error=feats[:, 0]))
 
 
 def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:

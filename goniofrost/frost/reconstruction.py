@@ -118,7 +118,7 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     design unlike every design the calibration was fitted on is out of the model too ("design":
     ``confidence.design_outside``, on the design error of exact samples)."""
     from goniofrost.frost import check_cells, prediction
-    from goniofrost.frost.confidence import error_bound as bound_of
+    from goniofrost.frost.confidence import Evidence, error_bound as bound_of
     from goniofrost.frost.sentinel import measured_check_errors
 
     checked = sentinel is not None and bool(np.any(sentinel))
@@ -139,8 +139,8 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
         errors = [check, float(measured_check_errors(model, *checking, post.coefficients)[0])]
         checked_predicted = float(prediction.predict(prediction.checked_of(model), prediction.Features(
             clean, z2, energy, unique.size, level, spread, coordinates, errors)))
-    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check,
-                    checked_predicted, clean)
+    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence,
+                    Evidence(extra, check, checked_predicted, clean))
 
 
 def design_error(model: FrostModel, positions) -> float:
