@@ -227,8 +227,8 @@ def stop_rows(variants, measured, truth_log, test_names, targets, confidence) ->
     rows = []
     for target in targets:
         for label, model, checked, cells, order in variants:
-            out = bayes_eval.target_outcomes(model, order, measured, truth_log, target, confidence, sentinels=checked,
-                                             sentinel_cells=cells)
+            out = bayes_eval.target_outcomes(model, order, measured, truth_log, target, confidence,
+                                             bayes_eval.MeasuredChecks(cells) if checked else None)
             sentinels, kind = label if isinstance(label, tuple) else (label, bound_kind(model))
             rows += [{"material": name, "target": target, "sentinels": sentinels, "bound": kind,
                       **{k: float(out[k][i]) for k in STOP_FIELDS}} for i, name in enumerate(test_names)]

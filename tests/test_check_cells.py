@@ -190,13 +190,14 @@ def test_the_simulated_capture_counts_the_check_cells_and_uses_the_checked_bound
     from goniofrost.frost.bayes_selection import select_bayes
     order = np.asarray(select_bayes(model, 20).positions, dtype=np.int64)
     truth = synthetic_tables(GRID, 2, seed=11).astype(np.float64)
-    checked = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    checked = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9,
+                                         checks=bayes_eval.MeasuredChecks())
     np.testing.assert_array_equal(checked["samples"], [21, 21])  # 15 + 3 sentinels + 3 check cells
     rows = bayes_eval.bound_rows(model, order[:15], truth, model.to_log(truth))
     np.testing.assert_array_equal(checked["pred_mse"], rows["median"])
     assert not np.array_equal(rows["median"], rows["median_unchecked"])
-    bare = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True,
-                                      check_cells_measured=np.zeros(0, np.int64))
+    bare = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9,
+                                      checks=bayes_eval.MeasuredChecks(check_cells=np.zeros(0, np.int64)))
     np.testing.assert_array_equal(bare["samples"], [18, 18])
     np.testing.assert_array_equal(bare["pred_mse"], rows["median_unchecked"])
 

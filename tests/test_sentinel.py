@@ -163,7 +163,7 @@ def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_
     odd = like.copy()
     odd[:, hidden] *= 20.0
     truth = np.concatenate([like, odd])
-    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, checks=bayes_eval.MeasuredChecks())
     plain = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9)
     np.testing.assert_allclose(plain["upper"][:2], plain["upper"][2:], rtol=1e-12)  # the same samples, the same bound
     np.testing.assert_array_equal(out["ever_sentinel"], [0, 0, 1, 1])
