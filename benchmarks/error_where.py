@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     from goniofrost.bench import bayes_eval
     from goniofrost.frost import posterior
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grid", default="45,45,90")
@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     grid = MerlGrid(*(int(v) for v in args.grid.split(",")))
     started = time.time()
     _, train, train_names, test, test_names = next(te.folds_of(args.setting, grid, 1))
-    model = fit_model(np.asarray(train), train_names, grid, k_max=60)
+    model = fit_model(np.asarray(train), train_names, grid, TrainingOptions(k_max=60))
     order = np.asarray(select_bayes(model, 60).positions, dtype=np.int64)
     truth = np.asarray(test, dtype=np.float64)
     truth_log = model.to_log(truth)

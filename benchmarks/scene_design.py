@@ -351,7 +351,7 @@ def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict
     the rest as ``scene_designs`` asks select_bayes for it (``bayes_selection.design_options``: p None
     the shipped rule's power for the scene, t or F None the defaults for m)."""
     from goniofrost.frost.bayes_selection import design_options
-    from goniofrost.frost.usage_design import design_weights, effective_cells
+    from goniofrost.frost.usage_design import SceneDesign, design_weights, effective_cells
 
     out = {}
     for s, u in usage.items():
@@ -360,10 +360,10 @@ def candidate_spreads(model, usage: dict, m: int, candidates=CANDIDATES) -> dict
             if isinstance(p, tuple):
                 p, f = candidate_power(model, u, p, a, t, f)
             options = candidate_options(name, p, a, t, f)
-            hedge = options.pop("hedge")
-            p, t, f, mix = design_options(model, u, m, **options)
-            weights, used = design_weights(model, u, p, hedge, t, f, mix=mix)
-            out[s][name] = [p, used, effective_cells(weights)]
+            choice = design_options(model, SceneDesign(u, **options), m)
+            weights, used = design_weights(model, u, choice.power, options["hedge"], choice.spread, choice.floor,
+                                           mix=choice.mix)
+            out[s][name] = [choice.power, used, effective_cells(weights)]
     return out
 
 

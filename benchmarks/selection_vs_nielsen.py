@@ -29,7 +29,7 @@ def main() -> None:
     from goniofrost.app.commands.bench import DEFAULT_DATASETS
     from goniofrost.core.grid import MerlGrid
     from goniofrost.frost.selection import select_cells
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--grid", default="90,90,180")
@@ -43,7 +43,8 @@ def main() -> None:
     names, path = tables_path(config.datasets, config.grid)
     train, _ = fold_split(len(names), config, 0)
     start = time.perf_counter()
-    model = fit_model(np.asarray(open_tables(path)[train]), [names[i] for i in train], config.grid, k_max=max(ms))
+    model = fit_model(np.asarray(open_tables(path)[train]), [names[i] for i in train], config.grid,
+                      TrainingOptions(k_max=max(ms)))
     out = {"grid": config.grid.as_dict(), "train_s": time.perf_counter() - start, "load": os.getloadavg(),
            "frost": {}, "frost-firstm": {}}
     for form, key in (("all", "frost"), ("firstm", "frost-firstm")):

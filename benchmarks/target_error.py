@@ -139,11 +139,11 @@ def run_fold(train, train_names, test, test_names, grid, m_max, confidence, targ
     rig_mask: bool (n_valid,) a rig's measurable cells: ``run_rig_fold``; noise: (relative sd,
     seed) of the camera's noise on every sample (``camera_noise.noisy``), None: exact samples."""
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     if rig_mask is not None:
         return run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, targets, rig_mask, noise)
-    model = fit_model(np.asarray(train), train_names, grid, k_max=60)
+    model = fit_model(np.asarray(train), train_names, grid, TrainingOptions(k_max=60))
     order = np.asarray(select_bayes(model, m_max).positions, dtype=np.int64)
     variants = [(False, model, False, None, order)]
     variants += [((False, kind), bayes_eval.with_bound_kind(model, kind), False, None, order)
@@ -175,10 +175,10 @@ def run_rig_fold(train, train_names, test, test_names, grid, m_max, confidence, 
     ``train --rig``: its inner designs among the rig's cells too, so its own design, as ``plan
     --rig`` makes it, and measured where they were calibrated). Per-m rows from the second."""
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
-    model = fit_model(np.asarray(train), train_names, grid, k_max=60)
-    rig_model = fit_model(np.asarray(train), train_names, grid, k_max=60, sentinel_candidates=mask)
+    model = fit_model(np.asarray(train), train_names, grid, TrainingOptions(k_max=60))
+    rig_model = fit_model(np.asarray(train), train_names, grid, TrainingOptions(k_max=60, sentinel_candidates=mask))
     order = np.asarray(select_bayes(model, m_max, candidates=mask).positions, dtype=np.int64)
     # the rig model's noise scales are chosen on designs among the rig's cells: its design may differ
     rig_order = np.asarray(select_bayes(rig_model, m_max, candidates=mask).positions, dtype=np.int64)
@@ -227,8 +227,8 @@ def stop_rows(variants, measured, truth_log, test_names, targets, confidence) ->
     rows = []
     for target in targets:
         for label, model, checked, cells, order in variants:
-            out = bayes_eval.target_outcomes(model, order, measured, truth_log, target, confidence, sentinels=checked,
-                                             sentinel_cells=cells)
+            out = bayes_eval.target_outcomes(model, order, measured, truth_log, target, confidence,
+                                             bayes_eval.MeasuredChecks(cells) if checked else None)
             sentinels, kind = label if isinstance(label, tuple) else (label, bound_kind(model))
             rows += [{"material": name, "target": target, "sentinels": sentinels, "bound": kind,
                       **{k: float(out[k][i]) for k in STOP_FIELDS}} for i, name in enumerate(test_names)]

@@ -65,12 +65,13 @@ def run_fold(train, train_names, test, test_names, grid, rig, mask, m_max, targe
              calibrate: str = "samples") -> dict:
     """Train as ``train --rig``, make both designs, and simulate every test material at every target;
     calibrate "time": each time-aware design's model trained with its objective's inner designs."""
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     train = np.asarray(train)
-    model = fit_model(train, train_names, grid, k_max=60, sentinel_candidates=mask)
+    model = fit_model(train, train_names, grid, TrainingOptions(k_max=60, sentinel_candidates=mask))
     retrain = None if calibrate == "samples" else (
-        lambda objective: fit_model(train, train_names, grid, k_max=60, sentinel_candidates=mask, rig_time=objective))
+        lambda objective: fit_model(train, train_names, grid,
+                                    TrainingOptions(k_max=60, sentinel_candidates=mask, rig_time=objective)))
     designs = designs_of(model, mask, rig, m_max, variants, retrain)
     rows = []
     for lo in range(0, len(test_names), CHUNK):

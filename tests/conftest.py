@@ -159,11 +159,11 @@ def synthetic24():
     from test_frost import synthetic_tables
 
     from goniofrost.core.grid import MerlGrid
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     grid = MerlGrid(10, 10, 20)
     return trained_once("synthetic24", lambda: fit_model(
-        synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, k_max=30))
+        synthetic_tables(grid, 24, seed=1), [f"mat{i}" for i in range(24)], grid, TrainingOptions(k_max=30)))
 
 
 @pytest.fixture(scope="session")
@@ -176,11 +176,11 @@ def small_trained():
 
     from goniofrost.core.grid import MerlGrid
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     grid = MerlGrid(10, 10, 20)
     model = trained_once("small_trained", lambda: fit_model(
-        synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, k_max=30))
+        synthetic_tables(grid, 40, seed=3), [f"mat{i}" for i in range(40)], grid, TrainingOptions(k_max=30)))
     return model, np.asarray(select_bayes(model, 15).positions, dtype=np.int64)
 
 

@@ -221,8 +221,8 @@ def test_sample_sigmas_widen_the_uncertainty_at_their_cells(model, tables):
     assert noisy.design_error > plain.design_error and noisy.z2 < plain.z2
     assert np.all(noisy.std[pos] > plain.std[pos])
     # the prediction: calibrated on the noise-free design error, plus what the noise adds to it
-    expected = float(prediction.predict(prediction.calibration_of(model), plain.design_error, noisy.z2,
-                                        noisy.energy, 15, noisy.level, noisy.spread)) + noisy.design_error - plain.design_error
+    expected = float(prediction.predict(prediction.calibration_of(model), prediction.Features(
+        plain.design_error, noisy.z2, noisy.energy, 15, noisy.level, noisy.spread))) + noisy.design_error - plain.design_error
     # level and spread are the samples' own: the sigmas change neither
     assert (noisy.level, noisy.spread) == (plain.level, plain.spread)
     assert noisy.predicted_error == pytest.approx(expected, rel=1e-9)
@@ -264,25 +264,28 @@ def test_calibration_fit_recovers_a_known_law_in_the_samples_level_and_spread():
     n = 600
     m, design, z2, energy, level, spread = synthetic_records(rng, n)
     beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1])
-    x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread)
+    x = prediction.feature_matrix(prediction.Features(design, z2, energy, m, level, spread), [5, 60])
     assert x.shape == (n, prediction.SAMPLE_FEATURES)
     records = CvRecords(np.arange(n) % 10, np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread)
     cal = fit_calibration(records)
     np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
     assert cal["typical_level"] == pytest.approx(level.mean())
     assert cal["typical_log_spread"] == pytest.approx(np.log(spread).mean())
-    np.testing.assert_allclose(prediction.predict(cal, design, z2, energy, m, level, spread), np.exp(x @ beta), rtol=1e-9)
+    np.testing.assert_allclose(prediction.predict(cal, prediction.Features(design, z2, energy, m, level, spread)),
+                               np.exp(x @ beta), rtol=1e-9)
     # beyond the features' range of the records the quadratic terms do not extrapolate: clamped
     lo, hi = cal["feature_range"]
     assert lo[2] == pytest.approx(level.min()) and hi[2] == pytest.approx(level.max())
-    at_edge = prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2], 1.0)
-    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2] + 50.0, 1.0) == pytest.approx(at_edge, rel=1e-12)
-    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, hi[2] - 0.5, 1.0) != pytest.approx(at_edge, rel=1e-3)
+    at_edge = prediction.predict(cal, prediction.Features(0.05, 1.0, 1.0, 20, hi[2], 1.0))
+    assert prediction.predict(cal, prediction.Features(0.05, 1.0, 1.0, 20, hi[2] + 50.0, 1.0)) == pytest.approx(
+        at_edge, rel=1e-12)
+    assert prediction.predict(cal, prediction.Features(0.05, 1.0, 1.0, 20, hi[2] - 0.5, 1.0)) != pytest.approx(
+        at_edge, rel=1e-3)
     with pytest.raises(ValueError, match=r"^predict: this calibration needs the samples' level and spread$"):
-        prediction.predict(cal, design, z2, energy, m)
+        prediction.predict(cal, prediction.Features(design, z2, energy, m))
     # a calibration of the five basic features (a model trained before level and spread) ignores them
     basic = {"coefficients": beta[:5].tolist(), "m_range": [5, 60]}
-    np.testing.assert_allclose(prediction.predict(basic, design, z2, energy, m, level, spread),
+    np.testing.assert_allclose(prediction.predict(basic, prediction.Features(design, z2, energy, m, level, spread)),
                                np.exp(x[:, :5] @ beta[:5]), rtol=1e-12)
     # level and spread of one material: over its sampled cells and its channels only
     b = np.array([[1.0, 2.0, 3.0, 100.0], [3.0, 4.0, 5.0, -100.0]])
@@ -297,26 +300,29 @@ def test_calibration_fit_recovers_a_known_law_in_the_coordinates():
     m, design, z2, energy, level, spread = synthetic_records(rng, n)
     coords = rng.normal(0, 1, (n, prediction.COORDINATES))
     beta = np.array([0.3, 0.9, 0.5, 0.2, -0.1, 0.4, -0.15, 0.25, 0.05, -0.08, 0.1, 0.3, -0.2, 0.1, 0.0, 0.15, -0.05])
-    x = prediction.feature_matrix(design, z2, energy, m, [5, 60], level, spread, coordinates=coords)
+    x = prediction.feature_matrix(prediction.Features(design, z2, energy, m, level, spread, coordinates=coords),
+                                  [5, 60])
     assert x.shape == (n, len(prediction.FEATURES)) == (n, 17)
     records = CvRecords(np.arange(n) % 10, np.arange(n), m, np.exp(x @ beta), design, z2, energy, level, spread,
                         coordinates=coords)
     cal = fit_calibration(records)  # the law holds exactly: the 17 are chosen and recovered
     np.testing.assert_allclose(cal["coefficients"], beta, atol=1e-9)
     np.testing.assert_allclose(cal["typical_coordinates"], coords.mean(axis=0))
-    np.testing.assert_allclose(prediction.predict(cal, design, z2, energy, m, level, spread, coords), np.exp(x @ beta),
+    np.testing.assert_allclose(prediction.predict(cal, prediction.Features(design, z2, energy, m, level, spread, coords)),
+                               np.exp(x @ beta),
                                rtol=1e-9)
     lo, hi = cal["feature_range"]  # clamped to the records' range like the others
     assert lo[4] == pytest.approx(coords[:, 0].min()) and hi[4] == pytest.approx(coords[:, 0].max())
     far = np.array([hi[4] + 10.0, 0, 0, 0, 0, 0])
     edge = np.array([hi[4], 0, 0, 0, 0, 0])
-    assert prediction.predict(cal, 0.05, 1.0, 1.0, 20, 0.0, 1.0, far) == pytest.approx(
-        prediction.predict(cal, 0.05, 1.0, 1.0, 20, 0.0, 1.0, edge), rel=1e-12)
+    assert prediction.predict(cal, prediction.Features(0.05, 1.0, 1.0, 20, 0.0, 1.0, far)) == pytest.approx(
+        prediction.predict(cal, prediction.Features(0.05, 1.0, 1.0, 20, 0.0, 1.0, edge)), rel=1e-12)
     with pytest.raises(ValueError, match=r"^predict: this calibration needs the material's coordinates$"):
-        prediction.predict(cal, design, z2, energy, m, level, spread)
+        prediction.predict(cal, prediction.Features(design, z2, energy, m, level, spread))
     # an 11-feature calibration ignores them
     eleven = {"coefficients": beta[:11].tolist(), "m_range": [5, 60]}
-    np.testing.assert_allclose(prediction.predict(eleven, design, z2, energy, m, level, spread, coords),
+    np.testing.assert_allclose(prediction.predict(eleven, prediction.Features(design, z2, energy, m, level, spread,
+                                                                              coords)),
                                np.exp(x[:, :11] @ beta[:11]), rtol=1e-12)
     # the coordinates: the first 6 coefficients times sqrt(t), averaged over the channels, zeros beyond K
     coefficients = np.arange(12.0).reshape(4, 3)
@@ -437,7 +443,7 @@ def test_a_calibration_whose_least_squares_has_the_right_signs_keeps_it_to_the_b
     m, material = np.tile(ms, 100), np.repeat(np.arange(100), ms.size)
     design = np.exp(rng.normal(-4, 0.3, m.size)) * 20 / m
     z2, energy = np.exp(rng.normal(0, 0.5, m.size)), np.exp(rng.normal(0, 0.5, m.size))
-    x = prediction.feature_matrix(design, z2, energy, m, [5, 60])
+    x = prediction.feature_matrix(prediction.Features(design, z2, energy, m), [5, 60])
     y = x @ [0.3, 1.0, 0.5, 0.2, -0.3] + 0.3 * rng.normal(size=100)[material] + 0.2 * rng.normal(size=m.size)
     records = CvRecords(material % 10, material, m, np.exp(y), design, z2, energy)
     free, *_ = np.linalg.lstsq(x, y, rcond=None)

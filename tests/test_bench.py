@@ -84,11 +84,12 @@ def test_dask_gives_the_rows_of_local_processes(config, tables, local_rows):
 def test_batched_errors_equal_reconstruct_then_log_relative_mse(config, tables):
     from goniofrost.frost.metrics import log_relative_mse
     from goniofrost.frost.reconstruction import reconstruct, reconstruct_log
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     names, path = tables
     t = open_tables(path)
-    model = fit_model(np.asarray(t[:10]), names[:10], GRID, k_max=8, noise=False)  # reconstruction reads no noise
+    model = fit_model(np.asarray(t[:10]), names[:10], GRID,
+                      TrainingOptions(k_max=8, noise=False))  # reconstruction reads no noise
     truth = np.asarray(t[[20, 40, 140]])  # includes a dark and a glossy material
     pos = np.array([5, 90, 400, 777, 1200, 1500, 1800, 2100])
     values = truth[:, pos, :].transpose(1, 0, 2).reshape(pos.size, -1)

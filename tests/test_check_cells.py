@@ -95,7 +95,7 @@ def trained(small_trained):
 def test_a_trained_model_chooses_valid_check_cells_outside_the_sentinels_and_the_inner_designs(trained):
     from test_frost import synthetic_tables
     from goniofrost.frost import calibration, noise
-    from goniofrost.frost.training import NOISE_FLOOR, _eigen_components, _map_and_gram, fit_model
+    from goniofrost.frost.training import NOISE_FLOOR, TrainingOptions, _eigen_components, _map_and_gram, fit_model
 
     model, _ = trained
     checked = prediction.checked_of(model)
@@ -121,7 +121,7 @@ def test_a_trained_model_chooses_valid_check_cells_outside_the_sentinels_and_the
                                   max(calibration.M_VALUES))
         assert not set(cells.tolist()) & set(np.asarray(design.rows).tolist())
     # deterministic: the same training, the same cells and calibration
-    again = fit_model(tables, names, GRID, k_max=30)
+    again = fit_model(tables, names, GRID, TrainingOptions(k_max=30))
     assert prediction.checked_of(again) == checked
 
 
@@ -146,7 +146,8 @@ def test_the_checked_calibration_is_used_when_the_check_cells_were_measured_and_
     errors = [sentinel.measured_check_errors(model, cells, table[cells], post.coefficients)[0]
               for cells in (sentinels, checks)]
     checked = prediction.checked_of(model)
-    predicted = prediction.predict(checked, clean, z2, energy, design.size, level, spread, coordinates, errors)
+    predicted = prediction.predict(checked, prediction.Features(clean, z2, energy, design.size, level, spread,
+                                                                coordinates, errors))
     centre = confidence._at_m(checked["bound"], "center", design.size)
     assert bound.median == pytest.approx(float(predicted * np.exp(centre)) + extra, rel=1e-12)
     assert bound.median != plain.median and bound.out_of_model == only_sentinels.out_of_model
@@ -170,11 +171,11 @@ def test_with_the_check_cells_the_bound_is_the_larger_of_the_two_calibrations_an
              "log_z2_max": [9.0, 9.0], "log_energy_max": [9.0, 9.0]}
     checked = {**plain, "center": [np.log(2.0)] * 2, "scale": [0.5, 0.5]}
     calibration = {"bound": plain, "checked": {"bound": checked}}
-    out = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=1.0)
+    out = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, confidence.Evidence(checked_predicted=1.0))
     assert float(out["median"]) == pytest.approx(2.0)  # the checked median
     # unchecked upper exp(q), checked 2 exp(q / 2): the larger
     assert float(out["upper"]) == pytest.approx(max(np.exp(q), 2 * np.exp(q / 2)))
-    low = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, checked_predicted=0.01)
+    low = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95, confidence.Evidence(checked_predicted=0.01))
     assert float(low["upper"]) == pytest.approx(np.exp(q))  # the checked bound lower: the unchecked one
     assert float(low["median"]) == pytest.approx(0.02)
     alone = confidence.error_bounds(calibration, 1.0, 1.0, 1.0, 20, 0.95)  # no checks measured
@@ -189,13 +190,14 @@ def test_the_simulated_capture_counts_the_check_cells_and_uses_the_checked_bound
     from goniofrost.frost.bayes_selection import select_bayes
     order = np.asarray(select_bayes(model, 20).positions, dtype=np.int64)
     truth = synthetic_tables(GRID, 2, seed=11).astype(np.float64)
-    checked = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    checked = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9,
+                                         checks=bayes_eval.MeasuredChecks())
     np.testing.assert_array_equal(checked["samples"], [21, 21])  # 15 + 3 sentinels + 3 check cells
     rows = bayes_eval.bound_rows(model, order[:15], truth, model.to_log(truth))
     np.testing.assert_array_equal(checked["pred_mse"], rows["median"])
     assert not np.array_equal(rows["median"], rows["median_unchecked"])
-    bare = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True,
-                                      check_cells_measured=np.zeros(0, np.int64))
+    bare = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9,
+                                      checks=bayes_eval.MeasuredChecks(check_cells=np.zeros(0, np.int64)))
     np.testing.assert_array_equal(bare["samples"], [18, 18])
     np.testing.assert_array_equal(bare["pred_mse"], rows["median_unchecked"])
 

@@ -11,7 +11,7 @@ import pytest
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import confidence, stopping
 from goniofrost.frost.calibration import CvRecords, fit_calibration
-from goniofrost.frost.prediction import predict
+from goniofrost.frost.prediction import Features, predict
 from goniofrost.frost.reconstruction import error_bound
 
 from conftest import trained_once
@@ -46,7 +46,7 @@ def synthetic_records(n_materials: int, seed: int, folds: int = 10, level_effect
 def test_the_bound_covers_the_stated_fraction_of_new_materials_at_every_look_at_once():
     calibration = fit_calibration(synthetic_records(300, seed=1))
     fresh = synthetic_records(4000, seed=2)
-    predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m)
+    predicted = predict(calibration, Features(fresh.design_error, fresh.z2, fresh.energy, fresh.m))
     looks = fresh.m >= confidence.FIRST_LOOK
     for level in (0.8, 0.9, 0.95):
         b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, level)
@@ -71,7 +71,7 @@ def test_a_material_feature_the_calibration_learns_narrows_the_bound_at_the_same
     widths = []
     for calibration, kwargs in ((fit_calibration(train), {"level": fresh.level, "spread": fresh.spread}),
                                 (fit_calibration(blind), {})):
-        predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m, **kwargs)
+        predicted = predict(calibration, Features(fresh.design_error, fresh.z2, fresh.energy, fresh.m, **kwargs))
         b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.9)
         covered = (fresh.actual <= b["upper"])[looks].reshape(4000, -1).all(axis=1).mean()
         # conformal coverage given 300 calibration materials is Beta-distributed, sd 0.017: 2 sd

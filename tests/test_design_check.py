@@ -29,7 +29,7 @@ def test_a_design_beyond_the_calibrations_designs_at_its_m_is_out_of_the_model()
     calibration = {"bound": BOUND}
     # at 20 samples: beyond -6 + log 2 = -5.31 or below -7 - log 2 = -7.69
     logs = np.array([-6.0, -5.4, -5.0, -7.6, -8.0])
-    out = confidence.error_bounds(calibration, 1e-4, 1.0, 1.0, 20, 0.95, design_error=np.exp(logs))
+    out = confidence.error_bounds(calibration, 1e-4, 1.0, 1.0, 20, 0.95, confidence.Evidence(design_error=np.exp(logs)))
     assert out["out_of_model_design"].tolist() == [False, False, True, False, True]
     assert not out["out_of_model_z2"].any() and not out["out_of_model_energy"].any()
     # between the calibrated m the range is interpolated in log m (sqrt(200): [-6, -5]); below the
@@ -45,13 +45,15 @@ def test_a_design_beyond_the_calibrations_designs_at_its_m_is_out_of_the_model()
 
 def test_a_capture_never_stops_on_a_design_out_of_the_model_and_says_which_feature_value_and_range():
     calibration = {"bound": BOUND}
-    bound = confidence.error_bound(calibration, 1e-4, 1.0, 1.0, 20, 0.95, design_error=math.exp(0.5))
+    bound = confidence.error_bound(calibration, 1e-4, 1.0, 1.0, 20, 0.95,
+                                   confidence.Evidence(design_error=math.exp(0.5)))
     assert bound.out_of_model == ("design",) and bound.design == (20, 0.5, -7.0, -6.0, 20)
     assert bound.upper < 1.0  # a bound far below the target...
     assert stopping.stop_reason(bound, target=1.0, done=20, total=40) is None  # ...and yet it measures on
     assert stopping.stop_reason(bound, target=1.0, done=40, total=40) == stopping.REASON_PLAN
     assert stopping.why_not_reached(bound, 1.0) == LINE + "0.5 at 20 samples; -7 to -6 in training): an extrapolation"
-    fewer = confidence.error_bound(calibration, 1e-4, 1.0, 1.0, 5, 0.95, design_error=math.exp(0.5))
+    fewer = confidence.error_bound(calibration, 1e-4, 1.0, 1.0, 5, 0.95,
+                                   confidence.Evidence(design_error=math.exp(0.5)))
     assert stopping.why_not_reached(fewer, 1.0) == (LINE + "0.5 at 5 samples; -5 to -4 in training at 10 samples, "
                                                     "the fewest it saw): an extrapolation")
     # the journal's Assess step holds the detail: a replayed statement says the same
@@ -189,7 +191,7 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     every cell (rows=None: the arithmetic of models trained before, bit for bit)."""
     from goniofrost.frost import calibration
     from goniofrost.frost.bayes_selection import select_bayes
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     calls, pick = [], calibration.greedy_designs
 
@@ -201,7 +203,7 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     monkeypatch.setattr(calibration, "greedy_designs", recorded)
     allowed = candidate_mask_max_angle(model.grid, 40)
     tables, names = synthetic_tables(model.grid, 40, seed=3), [f"mat{i}" for i in range(40)]
-    rig_model = fit_model(tables, names, model.grid, k_max=30, sentinel_candidates=allowed)
+    rig_model = fit_model(tables, names, model.grid, TrainingOptions(k_max=30, sentinel_candidates=allowed))
     assert calls and all(np.array_equal(rows, np.flatnonzero(allowed)) for rows, _ in calls)
     assert all(allowed[picked].all() for _, designs in calls for picked in designs)
     # plan --rig's design of each model: the whole grid's lies beyond its calibration, the rig's within
@@ -210,5 +212,5 @@ def test_a_model_trained_on_a_rigs_cells_calibrates_designs_among_them(model, mo
     order = np.asarray(select_bayes(rig_model, 20, candidates=allowed).positions, dtype=np.int64)
     assert not confidence.design_outside(rig_model.noise["calibration"], design_error(rig_model, order), 20)
     calls.clear()
-    fit_model(synthetic_tables(model.grid, 20, seed=3), names[:20], model.grid, k_max=30)
+    fit_model(synthetic_tables(model.grid, 20, seed=3), names[:20], model.grid, TrainingOptions(k_max=30))
     assert calls and all(rows is None for rows, _ in calls)

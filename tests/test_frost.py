@@ -21,7 +21,7 @@ from goniofrost.plan.file import plan_document, read_plan, write_plan
 from goniofrost.frost.reconstruction import ReconstructionError, reconstruct, reconstruct_log
 from goniofrost.frost.samples_file import read_samples_csv
 from goniofrost.frost.selection import SelectionError, candidate_mask_max_angle, select_cells
-from goniofrost.frost.training import TrainingError, fit_model, train
+from goniofrost.frost.training import TrainingError, TrainingOptions, fit_model, train
 
 GRID = MerlGrid(10, 10, 20)
 
@@ -48,9 +48,9 @@ def test_duplicated_training_materials_add_no_directions():
     # Each material three times: the same K and atoms, singular values x sqrt(3), the same mean.
     # (noise=False: the noise model's inner folds are not what this checks, and cost 3 s a fit)
     tables = synthetic_tables(GRID, 5, seed=4)
-    once = fit_model(tables, [f"m{i}" for i in range(5)], GRID, k_max=30, noise=False)
-    thrice = fit_model(np.repeat(tables, 3, axis=0), [f"m{i}" for i in np.repeat(range(5), 3)], GRID, k_max=30,
-                       noise=False)
+    once = fit_model(tables, [f"m{i}" for i in range(5)], GRID, TrainingOptions(k_max=30, noise=False))
+    thrice = fit_model(np.repeat(tables, 3, axis=0), [f"m{i}" for i in np.repeat(range(5), 3)], GRID,
+                       TrainingOptions(k_max=30, noise=False))
     assert thrice.n_components == once.n_components == 14  # 15 columns, rank 14 after centring
     np.testing.assert_allclose(thrice.singular_values, np.sqrt(3) * once.singular_values, rtol=1e-5)
     np.testing.assert_allclose(thrice.mean, once.mean, rtol=1e-6, atol=1e-7)
@@ -88,7 +88,8 @@ def test_training_shapes_and_pca_identity(model):
     assert np.all(np.diff(model.singular_values) <= 0)
     # D = X V reproduces the centred mapped data X (all t components kept -> exact).
     tables = synthetic_tables(GRID, 24, seed=1)
-    full = fit_model(tables, [f"mat{i}" for i in range(24)], GRID, k_max=100, noise=False)  # the PCA alone
+    full = fit_model(tables, [f"mat{i}" for i in range(24)], GRID,
+                     TrainingOptions(k_max=100, noise=False))  # the PCA alone
     assert full.n_components <= 72
     x = full.to_log(tables).transpose(1, 0, 2).reshape(n, t) - np.asarray(full.mean, np.float64)[:, None]
     np.testing.assert_allclose(np.asarray(full.dictionary, np.float64) @ full.coefficients, x, atol=2e-4)
@@ -106,14 +107,15 @@ def test_nan_in_training_is_a_cell_not_measured():
     # NaN is a cell the material has no data for (rgl:PATH): left out of that row's reference and mean
     tables = synthetic_tables(GRID, 4, seed=2)
     tables[2, 17, :] = np.nan
-    model = fit_model(tables, [f"mat{i}" for i in range(4)], GRID, noise=False)
+    model = fit_model(tables, [f"mat{i}" for i in range(4)], GRID, TrainingOptions(noise=False))
     assert np.isfinite(np.asarray(model.dictionary)).all()
     w = cosine_weight(GRID)[17]
     np.testing.assert_allclose(model.reference[17], np.median(w * tables[[0, 1, 3], 17].ravel()), rtol=1e-5)
 
 
 def test_training_is_deterministic(model):
-    again = fit_model(synthetic_tables(GRID, 24, seed=1), [f"mat{i}" for i in range(24)], GRID, k_max=30)
+    again = fit_model(synthetic_tables(GRID, 24, seed=1), [f"mat{i}" for i in range(24)], GRID,
+                      TrainingOptions(k_max=30))
     assert again.content_hash == model.content_hash
     np.testing.assert_array_equal(again.dictionary, model.dictionary)
 
@@ -250,7 +252,7 @@ def test_fast_somp_equals_textbook(seed, y_form):
     tables *= rng.uniform(0.5, 2.0, tables.shape).astype(np.float32)  # a random problem
     # SOMP reads the dictionary, singular values and coefficients, none of which the noise model
     # changes: noise=False spares its inner folds (3 s a fit on this grid)
-    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25, noise=False)
+    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, TrainingOptions(k_max=25, noise=False))
     m = int(rng.integers(5, 20))
     mask = rng.random(GRID.n_valid) < 0.7
     assert select_cells(mdl, m, y_form=y_form).positions.tolist() == textbook_somp(mdl, m, y_form)
@@ -270,7 +272,7 @@ def test_fast_somp_with_many_score_blocks(monkeypatch, y_form, growth):
         monkeypatch.setattr(selection, "CZ_MAX_GROWTH", growth)
 
     tables = synthetic_tables(GRID, 20, seed=21)
-    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, k_max=25, noise=False)  # SOMP alone
+    mdl = fit_model(tables, [f"m{i}" for i in range(20)], GRID, TrainingOptions(k_max=25, noise=False))  # SOMP alone
     mask = np.random.default_rng(5).random(GRID.n_valid) < 0.8
     monkeypatch.setattr(selection, "BLOCK_CELLS", 64)
     assert select_cells(mdl, 15, y_form=y_form, threads=3).positions.tolist() == textbook_somp(mdl, 15, y_form)

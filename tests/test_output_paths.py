@@ -18,7 +18,7 @@ from goniofrost.core.errors import OutputError
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost.outputs import bayes_output_paths
 from goniofrost.frost.selection import select_cells
-from goniofrost.frost.training import fit_model
+from goniofrost.frost.training import TrainingOptions, fit_model
 
 GRID = MerlGrid(10, 10, 20)
 
@@ -31,7 +31,7 @@ def inputs(tmp_path_factory):
     th = GRID.flat_angles(GRID.valid_cells)[0]
     tables = np.stack([rng.uniform(0.05, 0.3, 3) + rng.uniform(1, 20) * np.cos(th)[:, None] ** rng.uniform(5, 80)
                        for _ in range(10)]).astype(np.float32)
-    model = fit_model(tables, [f"m{i}" for i in range(10)], GRID, k_max=8)
+    model = fit_model(tables, [f"m{i}" for i in range(10)], GRID, TrainingOptions(k_max=8))
     model.save(folder / "model")
     cells = GRID.valid_cells[select_cells(model, 6).positions]
     angles = np.degrees(np.stack(GRID.flat_angles(cells), axis=1))

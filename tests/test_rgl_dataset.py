@@ -189,12 +189,12 @@ def test_cells_beyond_the_measured_elevations_are_not_measured(folder, tmp_path)
 
 
 def test_the_metric_scores_only_measured_cells(folder, tmp_path):
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     write_tensor_file(tmp_path / "gold-50.bsdf", limited_fields(read_tensor_file(folder / "gold.bsdf")))
     limited = open_dataset(f"rgl:{tmp_path}").tabulate(None, TINY)[0].astype(np.float64)
     tables = open_dataset(f"rgl:{folder}").tabulate(list(MATERIALS[1:6]), TINY)
-    model = fit_model(tables, list(MATERIALS[1:6]), TINY, k_max=5, noise=False)
+    model = fit_model(tables, list(MATERIALS[1:6]), TINY, TrainingOptions(k_max=5, noise=False))
     estimate = np.full(limited.shape, 0.05)
     measured = ~np.isnan(limited[:, 0])
     w = np.asarray(model.weight, np.float64)[measured, None]
@@ -207,13 +207,14 @@ def test_the_metric_scores_only_measured_cells(folder, tmp_path):
 
 
 def test_training_leaves_unmeasured_cells_out_of_reference_mean_and_atoms(folder, tmp_path):
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     write_tensor_file(tmp_path / "gold-50.bsdf", limited_fields(read_tensor_file(folder / "gold.bsdf")))
     limited = open_dataset(f"rgl:{tmp_path}").tabulate(None, TINY)
     others = open_dataset(f"rgl:{folder}").tabulate(list(MATERIALS[1:6]), TINY)
-    model = fit_model(np.concatenate([limited, others]), ["gold-50", *MATERIALS[1:6]], TINY, k_max=18, noise=False)
-    alone = fit_model(others, list(MATERIALS[1:6]), TINY, k_max=4, noise=False)
+    model = fit_model(np.concatenate([limited, others]), ["gold-50", *MATERIALS[1:6]], TINY,
+                      TrainingOptions(k_max=18, noise=False))
+    alone = fit_model(others, list(MATERIALS[1:6]), TINY, TrainingOptions(k_max=4, noise=False))
     missing = np.isnan(limited[0, :, 0])
     assert missing.any() and np.isfinite(np.asarray(model.dictionary)).all()
     # where gold-50 has no data, the reference and mean are the other materials' alone
@@ -263,7 +264,7 @@ def test_a_benchmark_fold_scores_only_measured_cells(folder, tmp_path):
     from goniofrost.bench.evaluate import Design, evaluate_design, run_fold, sampled_truth
     from goniofrost.bench.baselines import uniform_select
     from goniofrost.frost.reconstruction import reconstruct_log
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     write_tensor_file(tmp_path / "gold-50.bsdf", limited_fields(read_tensor_file(folder / "gold.bsdf")))
     others = list(MATERIALS[1:8])
@@ -278,7 +279,8 @@ def test_a_benchmark_fold_scores_only_measured_cells(folder, tmp_path):
     assert {r["material"] for r in rows if r["method"] == "bayes"} == {names[i] for i in test}
     assert all(np.isfinite(r["mse"]) for r in rows)
     # the error of a design is its reconstruction's error over the measured cells alone
-    model = fit_model(tables[[i for i in range(8) if i not in test]], ["a"] * 6, TINY, k_max=8, noise=False)
+    model = fit_model(tables[[i for i in range(8) if i not in test]], ["a"] * 6, TINY,
+                      TrainingOptions(k_max=8, noise=False))
     truth = tables[test].astype(np.float64)
     positions = uniform_select(TINY, 8)
     row = evaluate_design(model, Design("uniform", 8, 0, positions, 0.0), sampled_truth(model, truth),

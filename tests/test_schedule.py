@@ -111,7 +111,7 @@ def test_without_reciprocity_the_light_always_plays_w_i():
 def small_model():
     """A FROST model of 12 smooth random materials on the small grid, with its noise model (5-6 s of
     CPU): trained once per test run, its folder shared by the workers (read-only)."""
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     def train(folder):
         rng = np.random.default_rng(0)
@@ -120,7 +120,7 @@ def small_model():
         cos_h = h[:, 2] / np.linalg.norm(h, axis=1)
         tables = np.stack([(rng.uniform(0.05, 0.3, 3) + rng.uniform(0, 50) * cos_h[:, None] ** rng.uniform(5, 200))
                            for _ in range(12)]).astype(np.float32)
-        fit_model(tables, [f"m{i}" for i in range(12)], GRID, k_max=30).save(folder)
+        fit_model(tables, [f"m{i}" for i in range(12)], GRID, TrainingOptions(k_max=30)).save(folder)
 
     return made_once("schedule-model", train)
 

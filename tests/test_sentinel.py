@@ -12,7 +12,7 @@ import pytest
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import confidence, sentinel, stopping
 from goniofrost.frost.calibration import CvRecords, fit_calibration
-from goniofrost.frost.prediction import predict
+from goniofrost.frost.prediction import Features, predict
 
 from test_confidence import MS, synthetic_records
 
@@ -60,17 +60,18 @@ def test_the_sentinel_check_flags_five_percent_of_typical_materials_and_one_whos
     spread = calibration["bound"]["sentinel"]
     assert len(spread["scores"]) == 300 and len(spread["center"]) == len(MS)
     fresh = sentinel_records(4000, seed=2)
-    predicted = predict(calibration, fresh.design_error, fresh.z2, fresh.energy, fresh.m)
+    predicted = predict(calibration, Features(fresh.design_error, fresh.z2, fresh.energy, fresh.m))
     looks = fresh.m >= confidence.FIRST_LOOK
     flagged = confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m, 0.95)
     any_look = flagged.reshape(4000, len(MS))[:, looks[:len(MS)]].any(axis=1).mean()
     assert 0.035 <= any_look <= 0.075, any_look  # simultaneous over the looks: about 1 - 0.95
     # the sentinels' error 20 x what the training materials show where they looked: flagged
     odd = sentinel_records(200, seed=3, odd=np.log(20.0))
-    assert confidence.sentinel_excess(calibration, odd.sentinel, predict(calibration, odd.design_error, odd.z2,
-                                      odd.energy, odd.m), odd.m, 0.95)[odd.m == 30].mean() > 0.9
+    odd_predicted = predict(calibration, Features(odd.design_error, odd.z2, odd.energy, odd.m))
+    assert confidence.sentinel_excess(calibration, odd.sentinel, odd_predicted, odd.m, 0.95)[odd.m == 30].mean() > 0.9
     # in error_bounds: a flag of its own, unchecked samples never flagged, a model without sentinels never
-    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95, check=fresh.sentinel)
+    b = confidence.error_bounds(calibration, predicted, fresh.z2, fresh.energy, fresh.m, 0.95,
+                                confidence.Evidence(check=fresh.sentinel))
     np.testing.assert_array_equal(b["out_of_model_sentinel"],
                                   confidence.sentinel_excess(calibration, fresh.sentinel, predicted, fresh.m,
                                                              sentinel.SENTINEL_CONFIDENCE))
@@ -123,7 +124,7 @@ def test_a_capture_flagged_by_its_sentinels_never_stops_on_the_bound():
 
 def test_a_trained_model_calibrates_its_sentinels(small_trained):
     from test_frost import synthetic_tables
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     model = small_trained[0]  # 40 synthetic materials (seed 3) on GRID
     spread = model.noise["calibration"]["bound"]["sentinel"]
@@ -133,8 +134,8 @@ def test_a_trained_model_calibrates_its_sentinels(small_trained):
     allowed = np.ones(GRID.n_valid, bool)
     allowed[[180, 199]] = False
     # 20 materials: the fewest whose held-out scores support the check at 0.95 (19), half the training of 40
-    rig_model = fit_model(synthetic_tables(GRID, 20, seed=3), [f"mat{i}" for i in range(20)], GRID, k_max=30,
-                          sentinel_candidates=allowed)
+    rig_model = fit_model(synthetic_tables(GRID, 20, seed=3), [f"mat{i}" for i in range(20)], GRID,
+                          TrainingOptions(k_max=30, sentinel_candidates=allowed))
     cells = rig_model.noise["calibration"]["bound"]["sentinel"]["cells"]
     assert cells == sentinel.cells(GRID, 3, allowed).tolist() and not {180, 199} & set(cells)
     design = np.array([0, 1, 2], dtype=np.int64)
@@ -162,7 +163,7 @@ def test_a_material_that_differs_only_where_the_design_does_not_look_is_flagged_
     odd = like.copy()
     odd[:, hidden] *= 20.0
     truth = np.concatenate([like, odd])
-    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, sentinels=True)
+    out = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9, checks=bayes_eval.MeasuredChecks())
     plain = bayes_eval.target_outcomes(model, order, truth, model.to_log(truth), 1e9)
     np.testing.assert_allclose(plain["upper"][:2], plain["upper"][2:], rtol=1e-12)  # the same samples, the same bound
     np.testing.assert_array_equal(out["ever_sentinel"], [0, 0, 1, 1])

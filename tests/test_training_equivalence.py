@@ -19,7 +19,7 @@ import pytest
 from goniofrost.core.grid import MerlGrid
 from goniofrost.frost import training
 from goniofrost.frost.threads import PIECES_PER_THREAD, imap_chunks, map_chunks, pass_ranges, ranges, resolve_threads, run_ranges
-from goniofrost.frost.training import fit_model
+from goniofrost.frost.training import TrainingOptions, fit_model
 from recorded_blas import rounds_as_recorded
 from test_frost import synthetic_tables
 
@@ -67,7 +67,7 @@ def test_model_equals_the_sequential_training_to_the_bit(tables, monkeypatch):
         return fit_calibration(records, *args)
 
     monkeypatch.setattr(calibration, "fit_calibration", keeping_the_records)
-    model = fit_model(tables, [f"g{i}" for i in range(12)], GRID, k_max=20)
+    model = fit_model(tables, [f"g{i}" for i in range(12)], GRID, TrainingOptions(k_max=20))
     before = np.load(BEFORE)
     assert model.singular_values.size == 20
     exact = rounds_as_recorded()
@@ -147,7 +147,8 @@ def test_training_reads_the_cache_files_in_chunks_and_gets_the_same_model(tmp_pa
     names = open_dataset("builtin").names()[:6]
     streamed = train(["builtin"], only=names, grid=grid, k_max=10, cache=False)
     materials = collect_materials(["builtin"], names, None)
-    stacked = fit_model(tabulate_materials(materials, grid), [m.label for m in materials], grid, k_max=10)
+    stacked = fit_model(tabulate_materials(materials, grid), [m.label for m in materials], grid,
+                        TrainingOptions(k_max=10))
     for name in ("dictionary", "singular_values", "coefficients", "mean", "reference", "noise_variance"):
         np.testing.assert_array_equal(np.asarray(getattr(streamed, name)), np.asarray(getattr(stacked, name)), name)
     assert streamed.noise == stacked.noise

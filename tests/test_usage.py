@@ -940,7 +940,7 @@ def test_a_mixed_designs_own_part_takes_its_own_spread_and_calibration_key(model
     at_zero = select_bayes(model, 10, scene=SceneDesign(usage, mix_spread=0.0, **explicit), calibration=calibration)
     assert asked == [(0.5, 1.0, 0.0, 0.5), (0.5, 0.0, 0.0, 0.5)]
     assert [at_one.design_key, at_zero.design_key] == asked  # what plan records and calibrates
-    assert design_options(model, usage, 10, mix_spread=0.0, **explicit) == asked[1]
+    assert design_options(model, SceneDesign(usage, mix_spread=0.0, **explicit), 10).key == asked[1]
     assert at_one.prior_spread == 1.0 and at_zero.prior_spread == 0.0
     assert at_one.positions.tolist() == select_bayes(model, 10, scene=SceneDesign(
         usage, sensitivity_power=0.5, prior_spread=1.0, spread_floor=0.0, mix=0.5)).positions.tolist()

@@ -7,6 +7,7 @@ predictive intervals. Materials measured at the same cells share one posterior s
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,8 +40,8 @@ def _features(model, post, b, n_mat: int) -> np.ndarray:
 
 
 def _predict(calibration, feats: np.ndarray, m: int) -> np.ndarray:
-    return prediction.predict(calibration, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4],
-                              feats[:, 5:])
+    return prediction.predict(calibration, prediction.Features(feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
+                                                               feats[:, 4], feats[:, 5:]))
 
 
 def _predicted(model, post, b, n_mat: int, m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,10 +60,11 @@ def _bounds(model, feats: np.ndarray, m: int, level: float, check=None, check_ce
     checked = prediction.checked_of(model)
     checked_predicted = None
     if checked and check is not None and check_cells_error is not None:
-        checked_predicted = prediction.predict(checked, feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3],
-                                               feats[:, 4], feats[:, 5:], np.column_stack([check, check_cells_error]))
-    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, check=check,
-                                   checked_predicted=checked_predicted, design_error=feats[:, 0])
+        checked_predicted = prediction.predict(checked, prediction.Features(
+            feats[:, 0], feats[:, 1], feats[:, 2], m, feats[:, 3], feats[:, 4], feats[:, 5:],
+            np.column_stack([check, check_cells_error])))
+    return confidence.error_bounds(calibration, predicted, feats[:, 1], feats[:, 2], m, level, confidence.Evidence(
+        check=check, checked_predicted=checked_predicted, design_error=feats[:, 0]))
 
 
 def _checks(model, post, truth: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -155,19 +157,28 @@ def bound_rows(model, positions: np.ndarray, truth: np.ndarray, truth_log: np.nd
                                                          np.unique(positions).size)}
 
 
+@dataclass(frozen=True)
+class MeasuredChecks:
+    """The checks a simulated capture measures with its first batch (``target_outcomes``):
+    ``sentinel_cells`` int64 (s,), None: the model's calibrated ones (``sentinel.calibrated_cells``;
+    other positions as ``plan --rig`` places them when the rig cannot reach those: the check is
+    then approximate); ``check_cells`` int64 (k,), None: the model's (``check_cells.cells_of``),
+    empty: none (the unchecked calibration)."""
+
+    sentinel_cells: np.ndarray | None = None
+    check_cells: np.ndarray | None = None
+
+
 def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.ndarray,
-                    target: float, confidence_level: float = DEFAULT_CONFIDENCE, sentinels: bool = False,
-                    sentinel_cells: np.ndarray | None = None, check_cells_measured: np.ndarray | None = None) -> dict:
+                    target: float, confidence_level: float = DEFAULT_CONFIDENCE,
+                    checks: MeasuredChecks | None = None) -> dict:
     """Simulated ``capture --target-error target --confidence confidence_level``: every test
     material measured in batches along the nested design ``order`` (positions, length m_max)
     until ``stopping.stop_reason`` says so (its bound at most the target and not out of the model).
-    sentinels: measure the model's sentinel cells (``sentinel.py``) with the first batch and
-    check them at every look (out of the model beyond their calibrated range), and the model's
-    check cells (``check_cells``; the checked calibration's median and bound); they count in
-    "samples". sentinel_cells: int64 (s,) positions measured instead of the calibrated ones (as
-    ``plan --rig`` places them when the rig cannot reach those: the check is then approximate);
-    check_cells_measured: int64 (k,) the check cells measured, None: the model's when
-    ``sentinels`` (empty: none, the unchecked calibration).
+    checks: measure the sentinel cells (``sentinel.py``) with the first batch and check them at
+    every look (out of the model beyond their calibrated range), and the check cells
+    (``check_cells``; the checked calibration's median and bound); they count in "samples".
+    None: no checks.
 
     Returns float64/int64 (n_mat,) arrays "samples" (with the sentinels), "mse" (true error at the stop),
     "pred_mse" (median estimate at the stop), "upper" (the bound at the stop), "reached" (1 if
@@ -185,12 +196,13 @@ def target_outcomes(model, order: np.ndarray, truth: np.ndarray, truth_log: np.n
     ever_sentinel = np.zeros(n_mat, dtype=np.int64)
     posts = {}
     cells = np.zeros(0, dtype=np.int64)
-    if sentinels:
-        cells = sentinel.calibrated_cells(model) if sentinel_cells is None else np.asarray(sentinel_cells, np.int64)
+    if checks is not None:
+        cells = sentinel.calibrated_cells(model) if checks.sentinel_cells is None else \
+            np.asarray(checks.sentinel_cells, np.int64)
     checking = np.zeros(0, dtype=np.int64)
-    if sentinels and cells.size:
-        checking = check_cells.cells_of(model) if check_cells_measured is None else \
-            np.asarray(check_cells_measured, np.int64)
+    if checks is not None and cells.size:
+        checking = check_cells.cells_of(model) if checks.check_cells is None else \
+            np.asarray(checks.check_cells, np.int64)
     for end in stopping.batch_ends(m_max):
         post, _, samples = _fit(model, order[:end], truth)
         posts[end] = post

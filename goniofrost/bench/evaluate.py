@@ -41,12 +41,12 @@ def run_fold(config: BenchConfig, path: str, names: list[str], fold: int,
     path: the cached tables (``data.tables_path``); names: their material names.
     progress: called with 1 after each evaluated design (for a progress bar).
     """
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     tables = open_tables(path)
     train, test = fold_split(len(names), config, fold)
     model = fit_model(np.asarray(tables[train]), [names[i] for i in train], config.grid,
-                      k_max=max(config.m_values))
+                      TrainingOptions(k_max=max(config.m_values)))
     truth_log = model.to_log(np.asarray(tables[test]))  # NaN where not measured: left out of every error
     truth = sampled_truth(model, np.asarray(tables[test]))
     test_names = [names[i] for i in test]

@@ -55,7 +55,7 @@ class StressSetup:
     """Fold 0: the training model (dynamic-range materials left out) and the test materials."""
 
     def __init__(self, config: BenchConfig, path, names: list[str]) -> None:
-        from goniofrost.frost.training import fit_model
+        from goniofrost.frost.training import TrainingOptions, fit_model
 
         self.config, self.names = config, names
         self.tables = open_tables(path)
@@ -64,7 +64,8 @@ class StressSetup:
         self.train = np.array([i for i in train if i not in self.dr])
         self.test = np.array([i for i in test if i not in self.dr])
         self.k_max = max(config.m_values)
-        self.model = fit_model(np.asarray(self.tables[self.train]), self.train_names, config.grid, k_max=self.k_max)
+        self.model = fit_model(np.asarray(self.tables[self.train]), self.train_names, config.grid,
+                               TrainingOptions(k_max=self.k_max))
 
     @property
     def train_names(self) -> list[str]:
@@ -174,7 +175,7 @@ def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     """float32 against float64: the model's dictionary, and the training tables."""
     from goniofrost.frost.model import FrostModel
     from goniofrost.frost.reconstruction import reconstruct_log
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     model, truth = setup.model, setup.truth(setup.test)
     truth_log = model.to_log(truth)
@@ -201,7 +202,7 @@ def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
     # The PCA alone (noise=False): the record compares singular values and the uniform design's
     # eta reconstructions, neither of which reads the noise model its inner folds would learn.
     m64 = attempt(fit_model, np.asarray(setup.tables[setup.train], dtype=np.float64), setup.train_names,
-                  setup.config.grid, k_max=setup.k_max, noise=False)
+                  setup.config.grid, TrainingOptions(k_max=setup.k_max, noise=False))
     if isinstance(m64, Exception):
         return out + [record("precision", "training tables float64", "-", None, m64)]
     k = min(model.n_components, m64.n_components)
@@ -217,11 +218,11 @@ def case_precision(setup: StressSetup, designs: dict, m: int) -> list[dict]:
 
 def _small_training(setup: StressSetup, indices, label: str, m: int) -> list[dict]:
     """Train on the given material indices, then select and reconstruct at m and at K."""
-    from goniofrost.frost.training import fit_model
+    from goniofrost.frost.training import TrainingOptions, fit_model
 
     names = [setup.names[i] for i in indices]
     model = attempt(fit_model, np.asarray(setup.tables[np.asarray(indices)]), names, setup.config.grid,
-                    k_max=setup.k_max)
+                    TrainingOptions(k_max=setup.k_max))
     if isinstance(model, Exception):
         return [record(label, "training", "-", None, model)]
     out = [record(label, "training", "-", None, {"components": model.n_components,

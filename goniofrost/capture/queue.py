@@ -10,13 +10,14 @@ error is captured as ``capture --target-error E --confidence C``.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
 from goniofrost.core.errors import ConfigError, GoniofrostError
 from goniofrost.capture.queue_file import Queue, QueueSample
 from goniofrost.capture.runner import JOURNAL_FILE
+from goniofrost.rig.hardware import NO_SIM, SimOptions
 
 REPORT_FILE = "report.json"
 
@@ -107,12 +108,14 @@ def ask_to_mount(sample: QueueSample, position: str) -> None:
 
 
 def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | None = ask_to_mount,
-              seed=None, speedup=None, progress: bool = True, out=print, devices=None,
-              materials=None, compare=None) -> list[QueueItem]:
+              sim: SimOptions = NO_SIM, progress: bool = True, out=print, devices=None, materials=None,
+              compare=None) -> list[QueueItem]:
     """Measure every sample of ``queue`` not yet measured, in order; return what was done.
 
     ``devices``: the opener of the rig's devices and ``materials(SPEC:NAME, option)`` the resolver
     of a simulated rig's materials (see ``goniofrost.capture.runner.capture``), both the caller's;
+    ``sim``: a ``rig.hardware.SimOptions`` for every sample's simulated rig (its seed, speedup and
+    on_ready; its material is each sample's own; NO_SIM: the rig file's);
     ``compare(material)``: what a sample's report compares it with (``SessionOptions.compare``).
 
     ``confirm(sample, "k/n")`` is called before a sample is measured (None: a sample changer,
@@ -127,10 +130,9 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
     from goniofrost.capture.reconstruction import TooFewSamplesError
     from goniofrost.capture.options import ReusedCalibration, SessionOptions, StopRule
     from goniofrost.capture.runner import capture
-    from goniofrost.rig.hardware import SimOptions
 
     inputs = load_inputs(queue.rig, queue.plan, queue.alignment)
-    shown = check_queue(queue, inputs, seed=seed, speedup=speedup, materials=materials)
+    shown = check_queue(queue, inputs, seed=sim.seed, speedup=sim.speedup, materials=materials)
     items, previous, n = [], None, len(queue.samples)
     for k, sample in enumerate(queue.samples, start=1):
         session, position = queue.session_dir(sample), f"{k}/{n}"
@@ -153,7 +155,7 @@ def run_queue(queue: Queue, *, confirm: Callable[[QueueSample, str], None] | Non
                                      rerun=RERUN_QUEUE,
                                      compare=compare(shown[k - 1]) if compare and shown[k - 1] else None)
             outcome = capture(inputs, session, devices=devices,
-                              sim=SimOptions(material=shown[k - 1], seed=seed, speedup=speedup),
+                              sim=replace(sim, material=shown[k - 1]),
                               stop=StopRule(sample.target_error, sample.confidence), options=options)
         except TooFewSamplesError as exc:
             out(f"queue {position}: {sample.sample_id}: NOTHING MEASURED: {exc}; the queue goes on")

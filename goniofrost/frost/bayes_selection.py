@@ -18,7 +18,8 @@ from goniofrost.frost.prediction import calibration_of, predict_typical
 from goniofrost.frost.selection import Selection, SelectionError
 from goniofrost.frost.threads import pass_ranges, resolve_threads
 from goniofrost.frost import usage_design
-from goniofrost.frost.usage_design import SceneDesign, design_weights, is_uniform, scene_matrix, scene_prior
+from goniofrost.frost.usage_design import (DesignChoice, SceneDesign, design_weights, is_uniform, scene_matrix,
+                                           scene_prior)
 
 # No plan has more samples than this (--samples, and --max-error picks at most this many).
 MAX_PICKS = 1000
@@ -233,10 +234,8 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
     rows = _candidate_rows(candidates, model.grid.n_valid)
     noise = cell_noise(model)
     design = scene if scene is not None else SceneDesign(usage=None)
-    usage, uniform_is_plain, hedge = design.usage, design.uniform_is_plain, design.hedge
-    sensitivity_power, prior_spread, spread_floor = design.sensitivity_power, design.prior_spread, design.spread_floor
-    mix, mix_spread = design.mix, design.mix_spread
-    aware = usage is not None and not (uniform_is_plain and is_uniform(usage))
+    usage, sensitivity_power, prior_spread = design.usage, design.sensitivity_power, design.prior_spread
+    aware = usage is not None and not (design.uniform_is_plain and is_uniform(usage))
     if time_objective is not None and usage is not None:
         raise SelectionError("selection: the time-aware design (--objective time) is of the whole BRDF; "
                              "it does not take a scene's use (--usage)")
@@ -245,43 +244,39 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
 
     # the cells' prior variance, computed once if a scene's weights (or its power choice) need it
     variance = usage_design.cell_variance_of(model)
+    setting = _Setting(model, rows, noise, variance, threads, time_objective)
 
-    def calibration_for(power, spread, cells_floor, share=0.0):
-        key = usage_design.design_key(power, spread, cells_floor, share)
-        chosen = calibration(*key) if callable(calibration) else calibration
+    def calibration_for(choice: DesignChoice):
+        chosen = calibration(*choice.key) if callable(calibration) else calibration
         return chosen or calibration_of(model)
 
-    defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
+    defaults = sensitivity_power is None and prior_spread is None and design.spread_floor is None
     if not aware or sensitivity_power is not None or max_error is None:
         if aware and sensitivity_power is None:
             _check(m, max_error, rows.size, None, floor)  # m itself is checked before its power
-        power, spread, cells_floor, share = design_options(
-            model, usage, m, sensitivity_power=sensitivity_power, prior_spread=prior_spread,
-            spread_floor=spread_floor, mix=mix, mix_spread=mix_spread, variance=variance, scene=aware)
-        calib = calibration_for(power, spread, cells_floor, share)
+        choice = design_options(model, design, m, variance=variance, scene=aware)
+        calib = calibration_for(choice)
         limit = _check(m, max_error, rows.size, calib, floor)
         picked, predicted, used_spread, bounds = _design(
-            model, rows, noise, limit, max_error, usage if aware else None, power, hedge, calib, threads,
-            uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor, variance=variance, mix=share,
-            confidence=None if aware else confidence, time_objective=time_objective)
+            setting, design if aware else None, choice, calib,
+            _Stop(limit, max_error, confidence=None if aware else confidence))
     else:  # an error target and the power of the design's own length: a phase per band (docstring)
         # the floor ("however many samples") is the longer design's, checked before it runs
         limit, start_m = _check(None, max_error, rows.size, None, floor), 0
         for i, (last, _, band_spread, _) in enumerate(usage_design.BANDS):
             power = usage_design.scene_power(model, usage, start_m + 1, variance)  # the scene's of the band's
             spread = band_spread if prior_spread is None else prior_spread
-            cells_floor = _floor(spread_floor, prior_spread, None, True, power,
+            cells_floor = _floor(design.spread_floor, prior_spread, None, True, power,
                                  usage_design.spread_floor(start_m + 1, power))
-            share = _mix(mix, defaults, start_m + 1, True, power)
-            spread = _own_spread(spread, prior_spread, mix_spread, share, start_m + 1)
-            calib = calibration_for(power, spread, cells_floor, share)
+            share = _mix(design.mix, defaults, start_m + 1, True, power)
+            spread = _own_spread(spread, prior_spread, design.mix_spread, share, start_m + 1)
+            choice = DesignChoice(power, spread, cells_floor, share)
+            calib = calibration_for(choice)
             if i:
                 limit = _check(None, max_error, rows.size, calib, floor)
             end = limit if last is None else min(limit, last)
             picked, predicted, used_spread, bounds = _design(
-                model, rows, noise, end, max_error, usage, power, hedge, calib, threads,
-                min_picks=start_m + 1, uniform_is_plain=uniform_is_plain, spread=spread, floor=cells_floor,
-                variance=variance, mix=share)
+                setting, design, choice, calib, _Stop(end, max_error, min_picks=start_m + 1))
             if predicted[-1] <= max_error or last is None or limit <= last:
                 break
             start_m = last
@@ -297,24 +292,25 @@ def select_bayes(model, m: int | None = None, *, max_error: float | None = None,
                      residuals=np.asarray(predicted, dtype=np.float64), seconds=time.perf_counter() - start,
                      y_form="", k=model.n_components, selector="bayes", pick_seconds=picked.pick_seconds,
                      prior_spread=used_spread if aware else (None if usage is None else 0.0),
-                     sensitivity_power=power if aware else None,
-                     design_key=usage_design.design_key(power, spread, cells_floor, share) if aware else None)
+                     sensitivity_power=choice.power if aware else None,
+                     design_key=choice.key if aware else None)
 
 
-def design_options(model, usage, m, *, sensitivity_power=None, prior_spread=None, spread_floor=None, mix=None,
-                   mix_spread=None, variance=None, scene: bool = True) -> tuple[float | None, float, float, float]:
-    """(p, largest t, F, a) of the design of m samples ``select_bayes`` makes for ``usage`` with these
-    options (each None its default, as select_bayes's docstring says), without making it: the
-    power (``usage_design.scene_power`` unless given), the prior spread, the floor on the effective
-    cells and the share of MIX_DESIGN mixed in. ``scene`` False: no scene (p as given, t = 0, F
-    only checked, a = 0). ``variance``: see ``usage_design.design_weights``."""
-    power = sensitivity_power
+def design_options(model, design: SceneDesign, m, *, variance=None, scene: bool = True) -> DesignChoice:
+    """The weights (p, largest t, F, a) of the design of m samples ``select_bayes`` makes for
+    ``design``, a SceneDesign (each None field its default, as select_bayes's docstring says),
+    without making it: the power (``usage_design.scene_power`` unless given), the prior spread,
+    the floor on the effective cells and the share of MIX_DESIGN mixed in. ``scene`` False: no
+    scene (p as given, t = 0, F only checked, a = 0). ``variance``: see
+    ``usage_design.design_weights``."""
+    power, prior_spread = design.sensitivity_power, design.prior_spread
     if scene and power is None:
-        power = usage_design.scene_power(model, usage, m, variance)
-    defaults = sensitivity_power is None and prior_spread is None and spread_floor is None
-    spread, cells_floor = _spread(prior_spread, m, scene), _floor(spread_floor, prior_spread, m, scene, power)
-    share = _mix(mix, defaults, m, scene, power)
-    return power, _own_spread(spread, prior_spread, mix_spread, share, m), cells_floor, share
+        power = usage_design.scene_power(model, design.usage, m, variance)
+    defaults = design.sensitivity_power is None and prior_spread is None and design.spread_floor is None
+    spread = _spread(prior_spread, m, scene)
+    cells_floor = _floor(design.spread_floor, prior_spread, m, scene, power)
+    share = _mix(design.mix, defaults, m, scene, power)
+    return DesignChoice(power, _own_spread(spread, prior_spread, design.mix_spread, share, m), cells_floor, share)
 
 
 def _spread(spread, m, scene: bool) -> float:
@@ -359,28 +355,50 @@ def _own_spread(spread: float, prior_spread, mix_spread, share: float, m) -> flo
     return usage_design.mix_spread(m) if mix_spread is None else float(mix_spread)
 
 
-def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, calibration, threads,
-            min_picks: int = 1, uniform_is_plain: bool = True, spread: float = 0.0,
-            floor: float = 0.0, variance=None, mix: float = 0.0,
-            confidence: float | None = None,
-            time_objective=None) -> tuple[GreedyDesign, np.ndarray, float | None, np.ndarray | None]:
-    """One greedy design of at most ``limit`` picks among ``rows``, its predicted errors (float64
-    (picks,)) and the prior spread its scene weights used (None without a scene); usage None: the
-    plain design, else the scene's of power p and hedge (see select_bayes, also for
-    ``uniform_is_plain``); with max_error it stops at the first pick, of at
-    least ``min_picks``, whose predicted error is <= max_error; ``variance``: the cells' prior
-    variance, shared (``usage_design.design_weights``); ``mix``: the share of MIX_DESIGN's weights
-    (``usage_design.mixed_weights``; 0 none); ``confidence``: stop on the typical material's bound
-    at it instead (``typical_bound``; float64 (picks,), the fourth returned; None without);
-    ``time_objective``: per second of rig time (select_bayes)."""
-    if usage is not None:
-        weights, used_spread = design_weights(model, usage, power, hedge, spread, floor, variance, mix)
-        if uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
+@dataclass(frozen=True)
+class _Setting:
+    """What every design of one ``select_bayes`` call shares: the model, its candidate ``rows``
+    (int64), the cells' ``noise`` sigma_c^2 (n,), their prior ``variance`` (shared by the scene
+    weights, ``usage_design.design_weights``), the ``threads`` and the ``time_objective``."""
+
+    model: object
+    rows: np.ndarray
+    noise: np.ndarray
+    variance: object
+    threads: int | None
+    time_objective: object
+
+
+@dataclass(frozen=True)
+class _Stop:
+    """When a design stops: after ``limit`` picks, or with ``max_error`` at the first pick, of at
+    least ``min_picks``, whose predicted error (with ``confidence``: the typical material's bound
+    at it, ``typical_bound``) is <= max_error."""
+
+    limit: int
+    max_error: float | None
+    min_picks: int = 1
+    confidence: float | None = None
+
+
+def _design(setting: _Setting, scene: SceneDesign | None, choice: DesignChoice, calibration,
+            stop_rule: _Stop) -> tuple[GreedyDesign, np.ndarray, float | None, np.ndarray | None]:
+    """One greedy design among ``setting.rows`` stopping by ``stop_rule``, its predicted errors
+    (float64 (picks,)) and the prior spread its scene weights used (None without a scene); scene
+    None: the plain design, else the scene's usage, hedge and ``uniform_is_plain`` (see
+    select_bayes) with ``choice``'s weights; the typical material's bounds at
+    ``stop_rule.confidence`` (float64 (picks,), the fourth returned; None without)."""
+    model, noise, max_error = setting.model, setting.noise, stop_rule.max_error
+    if scene is not None:
+        usage = scene.usage
+        weights, used_spread = design_weights(model, usage, choice.power, scene.hedge, choice.spread, choice.floor,
+                                              setting.variance, choice.mix)
+        if scene.uniform_is_plain and is_uniform(weights):  # hedge 0: the plain design, judged by the scene's error
             dictionary, prior_var = model.dictionary, prior_variance(model)
             s2 = np.asarray(model.singular_values, np.float64) ** 2
         else:
-            scene = scene_prior(model.dictionary, weights, prior_variance(model))
-            dictionary, prior_var, s2 = scene.dictionary, scene.prior_var, scene.weights
+            prior = scene_prior(model.dictionary, weights, prior_variance(model))
+            dictionary, prior_var, s2 = prior.dictionary, prior.prior_var, prior.weights
         # the predicted error is of u alone: M_u in the design's basis (a second pass over the used
         # rows) unless the design weighs u itself (then Lambda, diagonal)
         error_matrix = s2 if weights is usage or np.array_equal(weights, usage) else scene_matrix(dictionary, usage)
@@ -388,20 +406,20 @@ def _design(model, rows, noise, limit: int, max_error, usage, power, hedge, cali
     else:
         dictionary, prior_var = model.dictionary, prior_variance(model)
         s2 = np.asarray(model.singular_values, np.float64) ** 2
-        tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise, confidence=confidence)
+        tracker = _PredictedError(dictionary, s2, prior_var, calibration, noise, confidence=stop_rule.confidence)
         used_spread = None
     stop = None
     if max_error is not None:
         def stop(row):
             tracker.add(row)
             said = tracker.bounds if tracker.confidence is not None else tracker.history
-            return said[-1] <= max_error and len(tracker.history) >= min_picks
+            return said[-1] <= max_error and len(tracker.history) >= stop_rule.min_picks
     track = None
-    if time_objective is not None:
+    if setting.time_objective is not None:
         from goniofrost.frost.time_design import RigTrack
-        track = RigTrack.of_model(model, time_objective, rows, limit)
-    design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), limit,
-                           rows=rows, stop=stop, threads=threads, track=track)
+        track = RigTrack.of_model(model, setting.time_objective, setting.rows, stop_rule.limit)
+    design = greedy_design(dictionary, s2, prior_var, noise * design_scale(model), stop_rule.limit,
+                           rows=setting.rows, stop=stop, threads=setting.threads, track=track)
     if max_error is None:
         for row in design.rows:
             tracker.add(int(row))

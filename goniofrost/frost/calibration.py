@@ -19,7 +19,7 @@ from goniofrost.frost.bayes_selection import greedy_design, greedy_designs
 from goniofrost.frost.check_cells import pool_errors
 from goniofrost.frost.confidence import fit_bound
 from goniofrost.frost.noise import InnerFold
-from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES,
+from goniofrost.frost.prediction import (BASIC_FEATURES, COORDINATES, FEATURES, SAMPLE_FEATURES, Features,
                                          feature_matrix, feature_range_of, fit_coefficients, material_coordinates,
                                          material_features, predict,
                                          prequential_score, sample_level)
@@ -72,27 +72,43 @@ class CvRecords:
         first SAMPLE_FEATURES no coordinates)."""
         full = self.level is not None and (n_features is None or n_features > BASIC_FEATURES)
         coordinates = self.coordinates if n_features is None or n_features > SAMPLE_FEATURES else None
-        x = feature_matrix(self.design_error, self.z2, self.energy, self.m, m_range,
-                           self.level if full else None, self.spread if full else None, feature_range,
-                           coordinates if full else None)
+        x = feature_matrix(Features(self.design_error, self.z2, self.energy, self.m, self.level if full else None,
+                                    self.spread if full else None, coordinates if full else None),
+                           m_range, feature_range)
         return x if n_features is None else x[:, :n_features]
 
 
-def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
-             design_scales=(1.0,), recon_scales=(1.0,), progress: bool = False, sentinels=None,
-             atoms=None, pool=None, rows=None, track_of=None) -> dict:
-    """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
+@dataclass(frozen=True)
+class CvSetting:
+    """Where the inner folds' simulated designs pick and what their records hold besides the error.
 
-    mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
-    sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
+    candidates: bool (n,) the cells the designs pick among (a rig's measurable cells), None: every
+    cell; sentinels: int64 (s,) cell positions (``sentinel.cells``) checked at every m; None or empty:
     records without ``sentinel``; atoms: float64 (COORDINATES, t) ``model_atoms`` of the trained
     model (records with the coordinates), None: records without them; pool: int64 (P,) the
     check cells' candidates (``check_cells.pool``): records with ``pool_error``, None: without;
-    rows: int64 the cells the designs pick among (a rig's measurable cells), None: every cell;
-    track_of: ``track_of(m)``, a fresh ``time_design.RigTrack`` of ``rows`` for a design of m
+    track_of: ``track_of(m)``, a fresh ``time_design.RigTrack`` of the candidates for a design of m
     picks: the designs are then time-aware (one pass over D_f per design scale), None: per sample.
+    """
+
+    candidates: np.ndarray | None = None
+    sentinels: np.ndarray | None = None
+    atoms: np.ndarray | None = None
+    pool: np.ndarray | None = None
+    track_of: object | None = None
+
+
+def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_values=M_VALUES,
+             design_scales=(1.0,), recon_scales=(1.0,), setting: CvSetting = CvSetting(),
+             progress: bool = False) -> dict:
+    """Simulate Bayesian designs and reconstructions of every inner fold's held-out materials.
+
+    mapped: centred mapped training data X, float32 (n, t); noise: float64 (n,) sigma_c^2;
+    setting: the designs' cells and the records' extras (CvSetting).
     Returns {(design scale, reconstruction scale): CvRecords} for every pair of scales.
     """
+    rows = None if setting.candidates is None else np.flatnonzero(setting.candidates)
+    track_of = setting.track_of
     n = mapped.shape[0] if rows is None else len(rows)
     m_values = [m for m in m_values if m <= n]
     out = {(a, b): {key: [] for key in CvRecords.__dataclass_fields__} for a in design_scales for b in recon_scales}
@@ -107,13 +123,15 @@ def simulate(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray, m_va
                                      track=track_of(max(m_values))) for a in design_scales]
         for a, design in zip(design_scales, designs):
             for b in recon_scales:
-                _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, out[(a, b)], sentinels,
-                                      atoms, pool)
+                acc = out[(a, b)]
+                for values in _reconstruct_held_out(mapped, fold, f, d_f, design.rows, b * noise, m_values, setting):
+                    for key, value in zip(acc, values, strict=True):
+                        acc[key].append(value)
         del d_f
-    unchecked = sentinels is None or not len(sentinels)
+    unchecked = setting.sentinels is None or not len(setting.sentinels)
     absent = {"sentinel"} if unchecked else set()
-    absent |= {"coordinates"} if atoms is None else set()
-    absent |= {"pool_error"} if pool is None else set()
+    absent |= {"coordinates"} if setting.atoms is None else set()
+    absent |= {"pool_error"} if setting.pool is None else set()
     return {key: CvRecords(**{k: None if k in absent else np.asarray(v) for k, v in acc.items()})
             for key, acc in out.items()}
 
@@ -128,18 +146,17 @@ def model_atoms(gram: np.ndarray, vt: np.ndarray, singular_values: np.ndarray, c
 
 
 def simulate_and_choose(mapped: np.ndarray, folds: list[InnerFold], noise: np.ndarray,
-                        design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, progress: bool = False,
-                        sentinels=None, atoms=None, pool=None, rows=None, track_of=None):
+                        design_scales=DESIGN_SCALES, recon_scales=RECON_SCALES, setting: CvSetting = CvSetting(),
+                        progress: bool = False):
     """Choose the scales on the first CHOICE_FOLDS folds, then simulate the rest with the chosen
-    design scale (``sentinels``, ``atoms``, ``rows``, ``track_of``: see ``simulate``). Returns ((design scale, recon scale),
-    {pair: CvRecords of the choice folds; ``pool``: see ``simulate``}, CvRecords of every fold with the chosen pair)."""
+    design scale (``setting``: see ``simulate``). Returns ((design scale, recon scale),
+    {pair: CvRecords of the choice folds}, CvRecords of every fold with the chosen pair)."""
     head, tail = folds[:CHOICE_FOLDS], folds[CHOICE_FOLDS:]
-    choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales,
-                      progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows, track_of=track_of)
+    choice = simulate(mapped, head, noise, design_scales=design_scales, recon_scales=recon_scales, setting=setting,
+                      progress=progress)
     chosen = choose_scales(choice)
-    rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],),
-                    progress=progress, sentinels=sentinels, atoms=atoms, pool=pool, rows=rows,
-                    track_of=track_of)[chosen] if tail else None
+    rest = simulate(mapped, tail, noise, design_scales=(chosen[0],), recon_scales=(chosen[1],), setting=setting,
+                    progress=progress)[chosen] if tail else None
     return chosen, choice, concatenate([choice[chosen], rest], offset=len(head))
 
 
@@ -157,11 +174,13 @@ def _prior(fold: InnerFold) -> np.ndarray:
     return np.full(fold.singular_values.size, 1.0 / fold.n_train_columns)
 
 
-def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values, acc: dict,
-                          sentinels=None, atoms=None, pool=None) -> None:
-    """Append the records of the fold's held-out materials measured at the first m ``rows``
-    (with their error at the ``sentinels``, NaN without; their coordinates on ``atoms``
-    (``model_atoms``), NaN without; their errors at the ``pool`` cells, NaN without)."""
+def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_values,
+                          setting: CvSetting) -> list[tuple]:
+    """The records of fold f's held-out materials measured at the first m ``rows``, each a tuple
+    of CvRecords' fields in order (with their error at the setting's ``sentinels``, NaN without;
+    their coordinates on its ``atoms`` (``model_atoms``), NaN without; their errors at its
+    ``pool`` cells, NaN without)."""
+    sentinels, atoms, pool = setting.sentinels, setting.atoms, setting.pool
     checked = sentinels is not None and len(sentinels) > 0
     sentinel_b = np.asarray(mapped[sentinels], dtype=np.float64) @ fold.centring if checked else None
     sentinel_rows = np.asarray(d_f[sentinels], dtype=np.float64) if checked else None
@@ -179,6 +198,7 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
         pool_b = np.asarray(mapped[pool], dtype=np.float64) @ fold.centring
         pool_rows = np.asarray(d_f[pool], dtype=np.float64)
         in_design = np.isin(pool, ordered)
+    records = []
     one_step = posterior.prequential_errors(d_f[ordered], noise[ordered], _prior(fold),
                                             np.asarray(mapped[ordered], dtype=np.float64) @ fold.centring)
     for m in m_values:
@@ -197,12 +217,11 @@ def _reconstruct_held_out(mapped, fold: InnerFold, f: int, d_f, rows, noise, m_v
             columns = np.arange(j, j + 3)
             features = material_features(post, columns, fold.n_train_columns) + sample_level(b, columns)
             check = check_error(sentinel_rows, post.coefficients, sentinel_b, columns) if checked else np.nan
-            values = ((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
-                      + (prequential_score(one_step[:m], columns), check,
-                         material_coordinates(on_atoms, columns, atoms.shape[1]) if atoms is not None else np.nan,
-                         pool_error[:, j // 3] if pool is not None else np.nan))
-            for key, value in zip(acc, values, strict=True):
-                acc[key].append(value)
+            records.append((f, int(fold.held[j]) // 3, m, float(column_error[j:j + 3].mean())) + features
+                           + (prequential_score(one_step[:m], columns), check,
+                              material_coordinates(on_atoms, columns, atoms.shape[1]) if atoms is not None else np.nan,
+                              pool_error[:, j // 3] if pool is not None else np.nan))
+    return records
 
 
 def mean_errors(records: CvRecords) -> dict:
@@ -303,8 +322,8 @@ def prediction_quality(records: CvRecords, calibration: dict) -> dict:
     """Per m: mean actual error, Spearman(predicted, actual), fraction within a factor 2."""
     from scipy.stats import spearmanr
 
-    predicted = predict(calibration, records.design_error, records.z2, records.energy, records.m,
-                        records.level, records.spread, records.coordinates)
+    predicted = predict(calibration, Features(records.design_error, records.z2, records.energy, records.m,
+                                              records.level, records.spread, records.coordinates))
     out = {}
     for m in np.unique(records.m):
         sel = records.m == m

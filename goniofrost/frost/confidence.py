@@ -501,23 +501,37 @@ def _at_m(bound_calibration: dict, key: str, m) -> np.ndarray:
     return np.interp(np.log(np.asarray(m, dtype=np.float64)), ms, np.asarray(bound_calibration[key], dtype=np.float64))
 
 
-def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float, extra=0.0, check=None,
-                 checked_predicted=None, design_error=None) -> dict:
+@dataclass(frozen=True)
+class Evidence:
+    """What a reconstruction's bound takes beyond its point prediction (each a float or an
+    array broadcast with the prediction). extra: the increase the samples' own variance causes,
+    added to the median and the bound (what the model says it costs, ``reconstruction._posterior``);
+    check: the error at the sentinel cells (``sentinel.check_error``), None: not checked (never out
+    of the model by it; ``sentinel_excess`` at ``sentinel.SENTINEL_CONFIDENCE`` otherwise);
+    checked_predicted: the checked calibration's point prediction (``check_cells``: the sentinels'
+    and the check cells' errors among its features), None: not measured; design_error: the
+    design error of exact samples (``prediction.material_features``), out of the model
+    ("design", ``design_outside``) beyond the calibration's designs at m, None: not checked."""
+
+    extra: object = 0.0
+    check: object = None
+    checked_predicted: object = None
+    design_error: object = None
+
+
+def error_bounds(calibration: dict, predicted, z2, energy, m, confidence: float,
+                 evidence: Evidence = Evidence()) -> dict:
     """Vectorised bounds: {"median", "upper", "out_of_model_z2", "out_of_model_energy",
-    "out_of_model_sentinel", "out_of_model_design"} arrays (broadcast shape of the arguments);
-    design_error: the design error of exact samples (``prediction.material_features``), beyond
-    the calibration's designs at m: "design" (``design_outside``); None: not checked. predicted:
-    the calibrated point prediction (exact samples); extra: the increase the samples' own variance causes, added
-    to both (what the model says it costs, ``reconstruction._posterior``); check: the error at
-    the sentinel cells (``sentinel.check_error``), None: not checked (never out of the model by it;
-    ``sentinel_excess`` at ``sentinel.SENTINEL_CONFIDENCE`` otherwise); checked_predicted: the
-    checked calibration's point prediction (``check_cells``: the sentinels' and the check cells'
-    errors among its features), None: not measured. With it the median is the checked
-    calibration's and the bound the larger of the two calibrations' (each calibrated on its own
-    held-out residuals, the checked one's nested: the larger covers whenever either does; the
-    checked bound alone under-covered MERL materials on a model trained on RGL, 78 to 89 % at
-    m = 15 to 25); the out-of-model flags stay the unchecked ones (the sentinels' against
-    ``predicted``)."""
+    "out_of_model_sentinel", "out_of_model_design"} arrays (broadcast shape of the arguments).
+    predicted: the calibrated point prediction (exact samples); z2, energy: the samples'; m: their
+    number; evidence: what else the reconstruction measured (Evidence). With its
+    checked_predicted the median is the checked calibration's and the bound the larger of the two
+    calibrations' (each calibrated on its own held-out residuals, the checked one's nested: the
+    larger covers whenever either does; the checked bound alone under-covered MERL materials on a
+    model trained on RGL, 78 to 89 % at m = 15 to 25); the out-of-model flags stay the unchecked
+    ones (the sentinels' against ``predicted``)."""
+    extra, check, checked_predicted = evidence.extra, evidence.check, evidence.checked_predicted
+    design_error = evidence.design_error
     bound = calibration.get("bound")
     predicted = np.asarray(predicted, dtype=np.float64)
     checked = calibration.get("checked") if checked_predicted is not None else None
@@ -551,13 +565,11 @@ def _median_upper(bound: dict, predicted, m, confidence: float, extra, z2=1.0, e
 
 
 def error_bound(calibration: dict, predicted: float, z2: float, energy: float, m: int,
-                confidence: float, extra: float = 0.0, check: float | None = None,
-                checked_predicted: float | None = None, design_error: float | None = None) -> ErrorBound:
-    """The ErrorBound of one reconstruction (see ``error_bounds``)."""
-    out = error_bounds(calibration, predicted, z2, energy, m, confidence, extra, check, checked_predicted,
-                       design_error)
+                confidence: float, evidence: Evidence = Evidence()) -> ErrorBound:
+    """The ErrorBound of one reconstruction (see ``error_bounds``; ``evidence``'s fields floats)."""
+    out = error_bounds(calibration, predicted, z2, energy, m, confidence, evidence)
     flags = tuple(k for k in FEATURE_NAMES if bool(out.get(f"out_of_model_{k}", False)))  # one look's
-    design = design_detail(calibration, design_error, m) if "design" in flags else None
+    design = design_detail(calibration, evidence.design_error, m) if "design" in flags else None
     return ErrorBound(float(out["median"]), float(out["upper"]), float(confidence), flags,
                       unavailability(calibration, confidence), design)
 

@@ -7,6 +7,7 @@ docs/explanations/bayesian-design.md.
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,6 +29,24 @@ UNCALIBRATED = {"coefficients": [0.0, 1.0, 1.0, 0.0, 0.0], "m_range": [1, 10**9]
 # design error falls and m' rises with every sample, so with these signs a typical material's
 # predicted error never rises with m (``predict_typical`` varies in nothing else).
 SIGNED = ((FEATURES.index("log design error"), 1.0), (FEATURES.index("log m"), -1.0))
+
+
+@dataclass(frozen=True)
+class Features:
+    """What a reconstruction's error is predicted from, each a float or an array (broadcast
+    together): ``design_error`` (of exact samples), ``z2`` and ``energy`` (``material_features``),
+    ``m`` the samples; ``level`` and ``spread`` (``sample_level``; None: the first BASIC_FEATURES
+    only), ``coordinates`` (..., COORDINATES) (``material_coordinates``; None: without) and
+    ``checks`` (..., 2) the sentinels' and the check cells' errors (CHECK_FEATURES; None: without)."""
+
+    design_error: object
+    z2: object
+    energy: object
+    m: object
+    level: object = None
+    spread: object = None
+    coordinates: object = None
+    checks: object = None
 
 
 def fit_coefficients(x: np.ndarray, y: np.ndarray, signed=None) -> np.ndarray:
@@ -62,18 +81,18 @@ def calibration_of(model) -> dict:
     return stored if stored else UNCALIBRATED
 
 
-def feature_matrix(design_error, z2, energy, m, m_range, level=None, spread=None, feature_range=None,
-                   coordinates=None, checks=None) -> np.ndarray:
-    """float64 (..., 11) features of FEATURES (arguments broadcast), or (..., 5) of the first
-    five when level and spread are None, or (..., 17) with ``coordinates`` (..., COORDINATES)
-    (``material_coordinates``). feature_range: [lows, highs] of (log z2, log energy, level, log
-    spread[, the coordinates]) that the features are computed within (clamped: the quadratic
-    terms must not extrapolate beyond the materials they were fitted on; samples that far are
-    out of the model anyway), None: no clamping. checks: (..., 2) the sentinels' and the check
-    cells' errors (``CHECK_FEATURES``; with the coordinates): (..., CHECKED_FEATURES), their logs
-    clamped like the others when feature_range has them."""
+def feature_matrix(features: Features, m_range, feature_range=None) -> np.ndarray:
+    """float64 (..., 11) features of FEATURES (``features`` broadcast), or (..., 5) of the first
+    five when its level and spread are None, or (..., 17) with its coordinates. m is clamped to
+    ``m_range``. feature_range: [lows, highs] of (log z2, log energy, level, log spread[, the
+    coordinates]) that the features are computed within (clamped: the quadratic terms must not
+    extrapolate beyond the materials they were fitted on; samples that far are out of the model
+    anyway), None: no clamping. With its checks (and the coordinates): (..., CHECKED_FEATURES),
+    their logs clamped like the others when feature_range has them."""
+    design_error, z2, energy, m = features.design_error, features.z2, features.energy, features.m
+    level, spread, coordinates, checks = features.level, features.spread, features.coordinates, features.checks
     if checks is not None:
-        base = feature_matrix(design_error, z2, energy, m, m_range, level, spread, feature_range, coordinates)
+        base = feature_matrix(replace(features, checks=None), m_range, feature_range)
         logs = np.log(np.maximum(np.asarray(checks, dtype=np.float64), 1e-12))
         at = 4 + COORDINATES
         if feature_range is not None and len(feature_range[0]) > at:
@@ -108,25 +127,23 @@ def feature_range_of(z2, energy, level, spread, coordinates=None) -> list[list[f
     return [raw.min(axis=1).tolist(), raw.max(axis=1).tolist()]
 
 
-def predict(calibration: dict, design_error, z2, energy, m, level=None, spread=None, coordinates=None,
-            checks=None) -> np.ndarray:
-    """Predicted log-relative MSE (float64, broadcast shape of the arguments). level and spread
-    (``sample_level``) are needed by a calibration of more than BASIC_FEATURES coefficients, the
-    coordinates (..., COORDINATES) (``material_coordinates``) by one of more than SAMPLE_FEATURES,
-    the checks (..., 2) (the sentinels' and the check cells' error) by the checked calibration
-    (CHECKED_FEATURES, ``checked_of``)."""
+def predict(calibration: dict, features: Features) -> np.ndarray:
+    """Predicted log-relative MSE (float64, broadcast shape of the ``features``). Their level and
+    spread are needed by a calibration of more than BASIC_FEATURES coefficients, the coordinates
+    by one of more than SAMPLE_FEATURES, the checks by the checked calibration (CHECKED_FEATURES,
+    ``checked_of``); a calibration of fewer ignores them."""
     beta = np.asarray(calibration["coefficients"], dtype=np.float64)
-    if beta.size > BASIC_FEATURES and level is None:
+    if beta.size > BASIC_FEATURES and features.level is None:
         raise ValueError("predict: this calibration needs the samples' level and spread")
-    if beta.size > SAMPLE_FEATURES and coordinates is None:
+    if beta.size > SAMPLE_FEATURES and features.coordinates is None:
         raise ValueError("predict: this calibration needs the material's coordinates")
-    if beta.size > len(FEATURES) and checks is None:
+    if beta.size > len(FEATURES) and features.checks is None:
         raise ValueError("predict: this calibration needs the sentinels' and the check cells' error")
     full = beta.size > BASIC_FEATURES
-    x = feature_matrix(design_error, z2, energy, m, calibration["m_range"],
-                       level if full else None, spread if full else None, calibration.get("feature_range"),
-                       coordinates if beta.size > SAMPLE_FEATURES else None,
-                       checks if beta.size > len(FEATURES) else None)
+    used = replace(features, level=features.level if full else None, spread=features.spread if full else None,
+                   coordinates=features.coordinates if beta.size > SAMPLE_FEATURES else None,
+                   checks=features.checks if beta.size > len(FEATURES) else None)
+    x = feature_matrix(used, calibration["m_range"], calibration.get("feature_range"))
     return np.exp(x @ beta)
 
 
@@ -139,10 +156,11 @@ def checked_of(model) -> dict | None:
 def predict_typical(calibration: dict, design_error, m) -> np.ndarray:
     """Predicted error of a typical material (z2, energy, spread at their training geometric
     means, level at its mean); what a design can promise before any sample is measured."""
-    return predict(calibration, design_error, np.exp(calibration["typical_log_z2"]),
-                   np.exp(calibration["typical_log_energy"]), m, calibration.get("typical_level", 0.0),
-                   np.exp(calibration.get("typical_log_spread", 0.0)),
-                   np.asarray(calibration.get("typical_coordinates", np.zeros(COORDINATES))))
+    return predict(calibration, Features(design_error, np.exp(calibration["typical_log_z2"]),
+                                         np.exp(calibration["typical_log_energy"]), m,
+                                         calibration.get("typical_level", 0.0),
+                                         np.exp(calibration.get("typical_log_spread", 0.0)),
+                                         np.asarray(calibration.get("typical_coordinates", np.zeros(COORDINATES)))))
 
 
 def material_features(post, columns, t: int) -> tuple[float, float, float]:

@@ -118,7 +118,7 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     design unlike every design the calibration was fitted on is out of the model too ("design":
     ``confidence.design_outside``, on the design error of exact samples)."""
     from goniofrost.frost import check_cells, prediction
-    from goniofrost.frost.confidence import error_bound as bound_of
+    from goniofrost.frost.confidence import Evidence, error_bound as bound_of
     from goniofrost.frost.sentinel import measured_check_errors
 
     checked = sentinel is not None and bool(np.any(sentinel))
@@ -137,10 +137,10 @@ def error_bound(model: FrostModel, positions, values, sigmas=None, confidence: f
     checked_predicted = None
     if checked and complete:
         errors = [check, float(measured_check_errors(model, *checking, post.coefficients)[0])]
-        checked_predicted = float(prediction.predict(prediction.checked_of(model), clean, z2, energy, unique.size,
-                                                     level, spread, coordinates, errors))
-    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence, extra, check,
-                    checked_predicted, clean)
+        checked_predicted = float(prediction.predict(prediction.checked_of(model), prediction.Features(
+            clean, z2, energy, unique.size, level, spread, coordinates, errors)))
+    return bound_of(_calibration(model, scene), predicted - extra, z2, energy, unique.size, confidence,
+                    Evidence(extra, check, checked_predicted, clean))
 
 
 def design_error(model: FrostModel, positions) -> float:
@@ -200,7 +200,8 @@ def _posterior(model: FrostModel, positions, values, sigmas, scene=None):
         clean = float(np.mean(posterior.fit(rows, cell_noise[unique], prior, b[:, :1], s2, total, n).design_error))
     fitted = _calibration(model, scene) or prediction.UNCALIBRATED
     coordinates = prediction.material_coordinates(post.coefficients, [0, 1, 2], model.n_signals)
-    predicted = float(prediction.predict(fitted, clean, z2, energy, unique.size, level, spread, coordinates))
+    predicted = float(prediction.predict(fitted, prediction.Features(clean, z2, energy, unique.size, level, spread,
+                                                                     coordinates)))
     extra = max(design - clean, 0.0)
     return unique, noise, cell_noise, post, (predicted + extra, design, z2, energy, extra, level, spread, clean,
                                              coordinates)

@@ -12,7 +12,8 @@ from threadpoolctl import threadpool_limits
 from goniofrost.frost.bayes_selection import GreedyDesign, greedy_design
 from goniofrost.frost.posterior import cell_noise, design_scale, fit, prior_variance
 from goniofrost.frost.reconstruction import reconstruct_mapped
-from goniofrost.frost.usage_design import is_uniform, linear_usage, rotate, scene_matrix, sensitivity_power
+from goniofrost.frost.usage_design import (is_uniform, linear_usage, rotate, scene_matrix, sensitivity,
+                                           sensitivity_power)
 
 
 def posterior_mean(model, picked, mapped) -> np.ndarray:
@@ -49,7 +50,7 @@ def continue_design(model, usage: np.ndarray, picked, mapped, m: int, power: flo
         weights = usage
     else:
         level = posterior_mean(model, picked, mapped).mean(axis=1)
-        weights = linear_usage(usage, level, model.reference, model.weight, model.eps, power)
+        weights = linear_usage(usage, sensitivity(level, model.reference, model.weight, model.eps), power)
     noise = cell_noise(model) * design_scale(model)  # what the design assumes (bayes_selection)
     d = np.asarray(model.dictionary[picked], dtype=np.float64)
     precision = d.T @ (d / noise[picked, None])

@@ -4,7 +4,8 @@ Pipeline (DESIGN.md "Training", paper section IV), on T, the (n_valid, t) traini
 material, column ``3 * material + channel``): weight rows by w = clip(cos theta_i cos theta_o,
 0.01, 1); map L = log((w T + eps) / (r + eps)), eps = 0.001, r the row median of w T; centre
 X = L - mu; PCA from the Gram matrix G = X^T X (t x t, float64, one chunked pass), D = X V; then
-the Bayesian noise model and calibration (``noise``, ``calibration``; ``noise=False`` skips them).
+the Bayesian noise model and calibration (``noise``, ``calibration``; ``TrainingOptions(noise=False)``
+skips them).
 Why the Gram route: benchmarks/frost_speed.py.
 """
 from __future__ import annotations
@@ -13,6 +14,7 @@ import json
 import os
 import threading
 import warnings
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -42,29 +44,40 @@ class TrainingError(GoniofrostError, ValueError):
     """Training data or options that cannot be used (names the material and channel)."""
 
 
+@dataclass(frozen=True)
+class TrainingOptions:
+    """What ``fit_model`` fits. k_max: keep up to this many components (fewer if t = 3 M is
+    smaller or the rank is lower); eps: the map's offset (1/sr); noise: learn the noise model and
+    predicted-error calibration by inner cross-validation (needs at least MIN_NOISE_MATERIALS
+    materials; otherwise the model has scalar noise); sentinel_candidates: bool (n_valid,) a rig's
+    measurable cells: the inner folds' designs pick only among them (the calibration, its bound
+    and its design range are then those of designs the rig can make) and the sentinel check is
+    calibrated there (``plan --rig`` then places the sentinels exactly there), None: every cell;
+    rig_time: a ``time_design.TimeObjective`` on the rig of ``sentinel_candidates``: the inner
+    designs are time-aware (the calibration, its bound and design range are then those of
+    ``plan --objective time``'s designs), None: per sample."""
+
+    k_max: int = K_MAX
+    eps: float = EPS
+    noise: bool = True
+    sentinel_candidates: np.ndarray | None = None
+    rig_time: object | None = None
+
+
 def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GRID,
-              k_max: int = K_MAX, eps: float = EPS, info: dict | None = None,
-              progress: bool = False, noise: bool = True, sentinel_candidates=None, on_stage=None,
-              rig_time=None) -> FrostModel:
+              options: TrainingOptions = TrainingOptions(), info: dict | None = None,
+              progress: bool = False, on_stage=None) -> FrostModel:
     """Fit the mapping and PCA dictionary to tabulated materials.
 
     tables: float32 (M, n_valid, 3) BRDF in 1/sr at ``grid.valid_cells`` (any float dtype), or
         an object with that ``shape`` whose ``rows(start, stop)`` gives (stop - start, M, 3)
         (``datasets.tabulate.TabulatedFiles``: the tables are never all in memory).
     names: M material names (stored in the model; used in error messages).
-    k_max: keep up to this many components (fewer if t = 3 M is smaller or the rank is lower).
-    noise: learn the noise model and predicted-error calibration by inner cross-validation
-        (needs at least MIN_NOISE_MATERIALS materials; otherwise the model has scalar noise).
-    sentinel_candidates: bool (n_valid,) a rig's measurable cells: the inner folds' designs pick
-        only among them (the calibration, its bound and its design range are then those of designs
-        the rig can make) and the sentinel check is calibrated there (``plan --rig`` then places the
-        sentinels exactly there), None: every cell.
+    options: TrainingOptions (components, eps, noise model, a rig's cells and time).
     on_stage: called with each of TRAIN_STAGES' names this fit enters (a progress bar), or None.
-    rig_time: a ``time_design.TimeObjective`` on the rig of ``sentinel_candidates``: the inner
-        designs are time-aware (the calibration, its bound and design range are then those of
-        ``plan --objective time``'s designs), None: per sample.
     Returns a FrostModel with K = min(k_max, t, rank) atoms. Raises TrainingError on NaN/inf.
     """
+    k_max, eps, candidates = options.k_max, options.eps, options.sentinel_candidates
     on_stage = on_stage or (lambda _name: None)
     tables = tables if hasattr(tables, "rows") else np.asarray(tables)
     names = [str(n) for n in names]
@@ -82,14 +95,15 @@ def fit_model(tables: np.ndarray, names: Sequence[str], grid: MerlGrid = FULL_GR
     on_stage("components")
     svals, vt = _eigen_components(gram, k_max)
     variance, noise_meta = None, {}
-    if noise and len(names) >= MIN_NOISE_MATERIALS:
-        from goniofrost.frost.calibration import model_atoms  # the inner folds' coordinates on this model's atoms
+    if options.noise and len(names) >= MIN_NOISE_MATERIALS:
+        from goniofrost.frost.calibration import CvSetting, model_atoms  # atoms: the inner folds' coordinates
 
         on_stage("noise cross-validation")
-        track_of = None if rig_time is None else _inner_tracks(rig_time, grid, sentinel_candidates, reference, mean,
-                                                               weight, eps)
-        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, progress, sentinel_candidates,
-                                           model_atoms(gram, vt, svals), missing=missing, track_of=track_of)
+        track_of = None if options.rig_time is None else _inner_tracks(options.rig_time, grid, candidates, reference,
+                                                                       mean, weight, eps)
+        setting = CvSetting(candidates=candidates, atoms=model_atoms(gram, vt, svals), track_of=track_of)
+        variance, noise_meta = learn_noise(mapped, gram, len(names), grid, svals.size, setting, missing=missing,
+                                           progress=progress)
     # D after the cross-validation, which never reads it: D and a fold's D_f (n x K float32
     # each, 267 MB at full size) are then never in memory together (the peak is X + one of them).
     on_stage("dictionary")
@@ -117,33 +131,33 @@ def _inner_tracks(objective, grid: MerlGrid, candidates, reference, mean, weight
 
 
 def learn_noise(mapped: np.ndarray, gram: np.ndarray, n_materials: int, grid: MerlGrid, k: int,
-                progress: bool = False, sentinel_candidates=None, atoms=None,
-                missing: dict | None = None, track_of=None) -> tuple[np.ndarray, dict]:
+                setting, missing: dict | None = None, progress: bool = False) -> tuple[np.ndarray, dict]:
     """sigma_c^2 (float32 (n,)) and the ``noise`` metadata of the model (see noise.py and
-    calibration.py): inner folds, smoothed representation error, simulated captures, calibration
-    (the designs among ``sentinel_candidates``, bool (n,) or None: every cell, and the sentinel
-    check's at ``sentinel.cells`` among them; the coordinates on ``atoms`` (``calibration.model_atoms``), None: a calibration without them).
+    calibration.py): inner folds, smoothed representation error, simulated captures, calibration.
+    setting: a ``calibration.CvSetting`` of the inner designs' candidates (bool (n,) or None: every
+    cell), the ``atoms`` (``calibration.model_atoms``; None: a calibration without coordinates) and
+    ``track_of`` (time-aware inner designs; None: per sample); its sentinels (``sentinel.cells``
+    among the candidates) and check cells' pool are this function's own.
     ``missing``: {material: bool (n,)} its cells not measured, left out of sigma_c^2 (the simulated
-    captures of the calibration still score them, at the row's mean). ``track_of``: time-aware
-    inner designs (``calibration.simulate``), None: per sample."""
+    captures of the calibration still score them, at the row's mean)."""
+    from dataclasses import replace
+
     from goniofrost.frost import calibration, check_cells, noise, sentinel
 
     folds = noise.inner_folds(gram, n_materials, k)
     learned = noise.smooth_on_grid(noise.representation_variance(mapped, folds, missing), grid)
     learned = np.maximum(learned, NOISE_FLOOR)
-    sentinels = sentinel.cells(grid, candidates=sentinel_candidates)
+    sentinels = sentinel.cells(grid, candidates=setting.candidates)
     # the check cells' candidates: among the sentinels' (a rig's cells), outside the sentinels
-    pool = check_cells.pool(grid, sentinel_candidates) if sentinels.size and atoms is not None else None
-    # A rig's designs pick among its cells only: designs over the whole grid reach cells the rig
-    # cannot, and a rig reaching within 70 deg of the normal lay 0.8 to 2.9 (log) beyond their
-    # design range from m = 20, its bound 3.6 to 17 x below the actual error at m = 40
-    # (BENCHMARKS.md@8b3941b, "Designs among a rig's cells").
-    rows = None if sentinel_candidates is None else np.flatnonzero(sentinel_candidates)
+    pool = check_cells.pool(grid, setting.candidates) if sentinels.size and setting.atoms is not None else None
+    # A rig's designs pick among its cells only (the setting's candidates): designs over the whole
+    # grid reach cells the rig cannot, and a rig reaching within 70 deg of the normal lay 0.8 to 2.9
+    # (log) beyond their design range from m = 20, its bound 3.6 to 17 x below the actual error at
+    # m = 40 (BENCHMARKS.md@8b3941b, "Designs among a rig's cells").
+    setting = replace(setting, sentinels=sentinels, pool=pool)
     (design_scale, recon_scale), choice, records = calibration.simulate_and_choose(mapped, folds, learned,
-                                                                                     progress=progress,
-                                                                                     sentinels=sentinels, atoms=atoms,
-                                                                                     pool=pool, rows=rows,
-                                                                                     track_of=track_of)
+                                                                                     setting=setting,
+                                                                                     progress=progress)
     variance = (recon_scale * learned).astype(np.float32)
     meta = {"kind": "cells", "learned_by": f"{len(folds)}-fold cross-validation over the training materials",
             "folds": len(folds), "smoothing_fraction": noise.SMOOTH_FRACTION,
@@ -352,8 +366,9 @@ def train(dataset_specs: Sequence[str], only: Sequence[str] | None = None,
         # are 2 GB, which would double the peak memory beside the mapped X.
         bar.stage("tabulating")
         tables = TabulatedFiles(tabulated_material_files(materials, grid, progress=progress))
-        model = fit_model(tables, [m.label for m in materials], grid, k_max, info=info, progress=progress,
-                          sentinel_candidates=sentinel_candidates, on_stage=bar.stage)
+        model = fit_model(tables, [m.label for m in materials], grid,
+                          TrainingOptions(k_max, sentinel_candidates=sentinel_candidates), info=info,
+                          progress=progress, on_stage=bar.stage)
         if folder is None:
             return model
         bar.stage("saving")

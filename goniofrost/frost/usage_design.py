@@ -100,6 +100,23 @@ class SceneDesign:
     mix_spread: float | None = None
 
 
+@dataclass(frozen=True)
+class DesignChoice:
+    """The weights of one scene design with every default resolved
+    (``bayes_selection.design_options``): ``power`` p (None: no scene), ``spread`` t (of the
+    design's own part when mixed), ``floor`` F on the effective cells (0 none) and ``mix`` the
+    share a of MIX_DESIGN (0 none). ``key``: its calibration's key, which the plan records."""
+
+    power: float | None
+    spread: float = 0.0
+    floor: float = 0.0
+    mix: float = 0.0
+
+    @property
+    def key(self) -> tuple:
+        return design_key(self.power, self.spread, self.floor, self.mix)
+
+
 def band(m: int) -> tuple:
     """(last m of the band or None, p, t, F) of BANDS for a design of m samples."""
     if not isinstance(m, (int, np.integer)) or m < 1:
@@ -332,28 +349,32 @@ def rotate(dictionary, rotation: np.ndarray) -> np.ndarray:
     return rotated
 
 
-def linear_usage(usage: np.ndarray, mean, reference, weight, eps: float, power: float = 2.0,
-                 variance=None, spread: float = 0.0, floor: float = 0.0) -> np.ndarray:
+def sensitivity(mean, reference, weight, eps: float) -> np.ndarray:
+    """float64 (n,) g_c = exp(mu_c) (r_c + eps) / w_c (1/sr): to first order at the mapped values
+    ``mean`` (the model's prior mean, or a posterior's level) an error dL_c of the mapped value is
+    an error dx_c = g_c dL_c of the BRDF. reference, weight (n,) and eps: the model's map's."""
+    mu = np.asarray(mean, dtype=np.float64)
+    return np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
+
+
+def linear_usage(usage: np.ndarray, g: np.ndarray, power: float = 2.0, variance=None, spread: float = 0.0,
+                 floor: float = 0.0) -> np.ndarray:
     """The usage map for the error of the BRDF itself rather than of its mapped (log) values.
 
-    To first order at the prior mean an error dL_c is an error dx_c = g_c dL_c,
-    g_c = exp(mu_c) (r_c + eps) / w_c (1/sr). Arguments: usage (n,) sum 1; the model's mean,
-    reference, weight (n,) and eps; ``power``: the exponent of g (2: the linear error);
-    ``variance`` (n,) v_c, the prior variance of L_c, and ``spread`` t: the weights
-    u g^p exp(t p^2 v / 2) (t = 1: u E[g^p] under the prior; t = 0, the default: g at the prior mean);
-    ``floor`` F (cells; 0: none): the t used is the largest in [0, spread] whose weights keep F
-    effective cells (``floor_spread``). Returns float64 (n,), sum 1.
+    Arguments: usage (n,) sum 1; g (n,) the cells' ``sensitivity``; ``power``: the exponent of g
+    (2: the linear error); ``variance`` (n,) v_c, the prior variance of L_c, and ``spread`` t: the
+    weights u g^p exp(t p^2 v / 2) (t = 1: u E[g^p] under the prior; t = 0, the default: g at the
+    prior mean); ``floor`` F (cells; 0: none): the t used is the largest in [0, spread] whose
+    weights keep F effective cells (``floor_spread``). Returns float64 (n,), sum 1.
     """
-    return scene_weights(usage, mean, reference, weight, eps, power, variance, spread, floor)[0]
+    return scene_weights(usage, g, power, variance, spread, floor)[0]
 
 
-def scene_weights(usage: np.ndarray, mean, reference, weight, eps: float, power: float,
-                  variance=None, spread: float = 0.0, floor: float = 0.0) -> tuple[np.ndarray, float]:
+def scene_weights(usage: np.ndarray, g: np.ndarray, power: float, variance=None, spread: float = 0.0,
+                  floor: float = 0.0) -> tuple[np.ndarray, float]:
     """(weights float64 (n,) sum 1, the spread t used): ``linear_usage``'s weights u g^p exp(t p^2 v / 2)
     and the t they were made with (``spread`` itself without a floor, else ``floor_spread``'s)."""
     floor = check_floor(floor)
-    mu = np.asarray(mean, dtype=np.float64)
-    g = np.exp(mu) * (np.asarray(reference, np.float64) + eps) / np.asarray(weight, np.float64)
     usage = np.asarray(usage, dtype=np.float64)
     if spread != 0:
         if variance is None:
@@ -421,8 +442,8 @@ def design_weights(model, usage, power, hedge, spread, floor, variance=None,
         scene, spread = usage, 0.0
     else:
         v = (variance or cell_variance_of(model))() if spread != 0 else None
-        scene, spread = scene_weights(usage, model.mean, model.reference, model.weight, model.eps, power, v,
-                                      spread, floor)
+        g = sensitivity(model.mean, model.reference, model.weight, model.eps)
+        scene, spread = scene_weights(usage, g, power, v, spread, floor)
     return (scene if hedge == 1 else (1.0 - hedge) / usage.size + hedge * scene), spread
 
 

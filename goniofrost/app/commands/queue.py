@@ -50,6 +50,7 @@ def run(args) -> int:
     from goniofrost.capture.queue_file import read_queue
     from goniofrost.datasets import shown_material
     from goniofrost.datasets.specs import spec_read_from
+    from goniofrost.rig.hardware import SimOptions
     from goniofrost.rig.simulated import rig_devices
 
     if args.queue == "add":
@@ -67,9 +68,9 @@ def run(args) -> int:
     def materials(text: str, option):   # a material's file, like every path of the queue, beside the queue file
         return shown_material(spec_read_from(text, str(queue.folder)), option)
     try:
-        items = run_queue(queue, confirm=None if args.yes else ask_to_mount, seed=args.seed, speedup=args.speedup,
-                          progress=not args.no_progress, devices=rig_devices, materials=materials,
-                          compare=GroundTruth)
+        items = run_queue(queue, confirm=None if args.yes else ask_to_mount,
+                          sim=SimOptions(seed=args.seed, speedup=args.speedup), progress=not args.no_progress,
+                          devices=rig_devices, materials=materials, compare=GroundTruth)
     except SessionInterrupted as exc:
         print(f"goniofrost queue: {exc}", file=sys.stderr)  # it says to run the same queue command
         return 130
