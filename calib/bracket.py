@@ -88,7 +88,7 @@ class Bracket:
         if not lamp_relative > 0:
             raise CalibrationError(f"{path}: the monitor photodiode reads {lamp_relative}: is the lamp on?")
         t = self.ladder[i] if exposure_s is None else float(exposure_s)
-        saturated = raw.saturated | (raw.linear >= self.settings["saturation"])
+        saturated = raw.clipped(self.settings["saturation"])
         self.frames[i] = BracketFrame(raw.linear, saturated, t, self.record.dark_for(self.ladder[i]), lamp_relative)
         self.paths.append(path)
         self.channels_ = raw.channels

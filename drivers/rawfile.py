@@ -38,6 +38,11 @@ class RawImage:
     white_level: int
     metadata: dict = field(default_factory=dict)
 
+    def clipped(self, saturation: float) -> np.ndarray:
+        """bool (H, W): the pixels a measurement cannot use, at the white level or at
+        ``saturation`` (a fraction of full scale: the camera section's) and above."""
+        return self.saturated | (self.linear >= saturation)
+
 
 def read_raw(path) -> RawImage:
     """Decode ``path`` into a RawImage; raise RawFileError naming the file on any failure."""

@@ -169,7 +169,7 @@ class _Judge:
                                            self.settings["marker_tolerance_px"], raw.channels, 1)
         except Exception as exc:  # noqa: BLE001 - reported, with the picture
             self.problem = self.problem or " ".join(str(exc).split())
-        clipped = raw.saturated | (raw.linear >= self.settings["saturation"])  # as the capture counts them
+        clipped = raw.clipped(self.settings["saturation"])  # as the capture counts them
         pixels, med, p99 = _roi_levels(raw, mask)
         saturated = [float(np.mean(clipped)), float(np.mean(clipped[mask])) if mask is not None else 0.0]
         if self.bracket is None:  # one exposure the operator chose: its being unreadable is the first finding
@@ -188,7 +188,7 @@ class _Judge:
 def _best_frame(frames: dict, saturation: float):
     """The longest exposure whose frame is at most a quarter saturated (else the shortest)."""
     ordered = [frames[t].raw for t in sorted(frames)]
-    usable = [r for r in ordered if np.mean(r.saturated | (r.linear >= saturation)) <= 0.25]
+    usable = [r for r in ordered if np.mean(r.clipped(saturation)) <= 0.25]
     return usable[-1] if usable else ordered[0]
 
 

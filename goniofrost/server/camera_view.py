@@ -69,7 +69,7 @@ def view_png(raw, saturation: float, levels: tuple[float, float] | None) -> tupl
     from goniofrost.monitor.images import encode_png
 
     rgb = bayer_rgb(raw.linear, raw.channels)
-    clipped = raw.saturated | (raw.linear >= saturation)
+    clipped = raw.clipped(saturation)
     h2, w2 = rgb.shape[:2]
     step = max(1, math.ceil(w2 / MAX_WIDTH))
     h, w = h2 // step, w2 // step
