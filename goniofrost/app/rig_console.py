@@ -380,11 +380,11 @@ def _served_snap(args, server, move_to) -> int:
     """``rig snap`` of a rig a server holds: it moves (``--move``) and snaps; the PNG it writes under
     its root is copied to ``--out``."""
     import dataclasses
-    import re
     import shutil
     from pathlib import Path
 
     from goniofrost.capture.snap import SnapResult, snap_text
+    from goniofrost.server.entries import NAME
 
     if args.material is not None:
         raise GoniofrostError(f"--material: the server at {server.url} shows its own material; leave --material out "
@@ -392,7 +392,7 @@ def _served_snap(args, server, move_to) -> int:
     if move_to:
         server.call("POST", "/api/move", {"targets": move_to, "operator": server.who()})
     out = Path(args.out)
-    name = out.name if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", out.name) else "snap.png"
+    name = out.name if NAME.match(out.name) else "snap.png"   # a name the server takes, else its own
     body = {"name": name, "target": args.target, "exposure_s": args.exposure, "operator": server.who()}
     found = server.call("POST", "/api/snap", body)
     shutil.copyfile(server.root / found.pop("file"), out)
