@@ -63,7 +63,12 @@ def static(site, limits, request) -> Response:
 def static_file(name: str) -> Response:
     if name not in STATIC:
         return text(404, f"no such page: {shown(name)}")
-    data = resources.files("goniofrost.monitor").joinpath("static", name).read_bytes()
+    return packaged_file("goniofrost.monitor", name)
+
+
+def packaged_file(package: str, name: str) -> Response:
+    """The file ``name`` of ``package``'s ``static`` folder, with its text type."""
+    data = resources.files(package).joinpath("static", name).read_bytes()
     kind = mimetypes.guess_type(name)[0] or "application/octet-stream"
     return Response(data, media_type=f"{kind}; charset=utf-8")
 

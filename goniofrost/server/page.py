@@ -8,20 +8,18 @@ tab's sessionStorage, takes it out of the address bar, and sends it only as
 """
 from __future__ import annotations
 
-import mimetypes
 from functools import partial
-from importlib import resources
 
 from starlette.responses import Response
 from starlette.routing import Route
+
+from goniofrost.monitor.views import packaged_file
 
 STATIC = ("instrument.html", "instrument.js", "instrument.css")
 
 
 def static_file(name: str, request=None) -> Response:
-    data = resources.files("goniofrost.server").joinpath("static", name).read_bytes()
-    kind = mimetypes.guess_type(name)[0] or "application/octet-stream"
-    return Response(data, media_type=f"{kind}; charset=utf-8")
+    return packaged_file("goniofrost.server", name)
 
 
 def sessions_page(sites, request) -> Response:
